@@ -1,0 +1,119 @@
+"""Command-line interface: ``sonarmap <command>``.
+
+Each sub-command lives in its own module ``sonarmap.cli.<name>`` exposing ``register(app)``; the
+modules listed in :data:`COMMAND_MODULES` that exist are registered in that order.  Heavy imports
+happen inside the command functions so ``sonarmap --help`` stays fast.
+
+Exit codes: 0 success, 1 processing error (one line on stderr naming the file/argument and what is
+wrong), 2 usage error.  ``--debug`` shows tracebacks.
+"""
+
+from __future__ import annotations
+
+import importlib
+import sys
+
+import typer
+
+from sonarmap import __version__
+from sonarmap.errors import SonarmapError
+
+__all__ = ["app", "main", "COMMAND_MODULES", "state"]
+
+COMMAND_MODULES = (
+    "info",
+    "show",
+    "simulate",
+    "calibrate",
+    "preprocess",
+    "fit",
+    "paper",
+    "segment",
+    "ranges",
+    "map",
+    "convert",
+    "process",
+    "report",
+    "demo",
+)
+
+app = typer.Typer(
+    name="sonarmap",
+    help="Multibeam imaging-sonar processing: clean images, labels, ranges and maps.",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+    rich_markup_mode="rich",
+)
+
+state: dict[str, bool] = {"debug": False}
+
+
+def _version(value: bool) -> None:
+    if value:
+        typer.echo(f"sonarmap {__version__}")
+        raise typer.Exit()
+
+
+@app.callback()
+def _root(
+    debug: bool = typer.Option(False, "--debug", help="Show full tracebacks on errors."),
+    version: bool = typer.Option(
+        False, "--version", callback=_version, is_eager=True, help="Print the version and exit."
+    ),
+) -> None:
+    """sonarmap: multibeam imaging-sonar processing."""
+    state["debug"] = debug
+
+
+def _register_all() -> None:
+    for name in COMMAND_MODULES:
+        modname = f"sonarmap.cli.{name}"
+        try:
+            mod = importlib.import_module(modname)
+        except ModuleNotFoundError as exc:
+            if exc.name == modname:
+                continue
+            raise
+        mod.register(app)
+
+
+_register_all()
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Console-script entry point; returns the exit code."""
+    args = sys.argv[1:] if argv is None else argv
+    debug = "--debug" in args
+    try:
+        app(args=args, prog_name="sonarmap", standalone_mode=False)
+    except SystemExit as exc:  # pragma: no cover - typer.Exit inside standalone_mode=False
+        code = exc.code
+        return int(code) if isinstance(code, int) else (0 if code is None else 1)
+    except KeyboardInterrupt:
+        print("sonarmap: interrupted", file=sys.stderr)
+        return 130
+    except Exception as exc:  # noqa: BLE001 - the CLI boundary
+        import click
+
+        if isinstance(exc, click.exceptions.Exit):
+            return exc.exit_code
+        if isinstance(exc, click.exceptions.Abort):
+            print("sonarmap: aborted", file=sys.stderr)
+            return 1
+        if isinstance(exc, click.ClickException):
+            exc.show()
+            return exc.exit_code
+        if debug:
+            raise
+        if isinstance(exc, SonarmapError | OSError | ValueError):
+            msg = " ".join(str(exc).split()) or type(exc).__name__
+            print(f"sonarmap: error: {msg}", file=sys.stderr)
+            return 1
+        print(f"sonarmap: internal error: {type(exc).__name__}: {exc} (rerun with --debug)", file=sys.stderr)
+        return 1
+    return 0
+
+
+def run() -> None:  # pragma: no cover - console script
+    sys.exit(main())

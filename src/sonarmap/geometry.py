@@ -1,0 +1,586 @@
+"""Sonar geometry: beams, range bins, beam pattern, taper and acoustic constants.
+
+Conventions
+-----------
+* Images are ``(n_bins, n_beams)``: row ``i`` is range bin ``i`` (row 0 nearest), column ``j`` is
+  beam ``j`` with azimuth increasing with ``j``.
+* ``azimuth_rad`` is measured in the sonar's horizontal (imaging) plane from its forward axis,
+  **positive to starboard** (clockwise seen from above), i.e. the forward-right-down (FRD) body
+  convention of marine robotics.  A point at range ``r`` and azimuth ``a`` (zero elevation) is at
+  ``x = r cos a`` (forward), ``y = r sin a`` (right).  Readers of formats with other conventions
+  (ARIS: beam 0 right-most; ROS: y to port) convert at the boundary.
+* Range bin ``i`` of a window ``[min_range, max_range)`` with ``n`` bins lies at
+  ``min_range + i * (max_range - min_range) / n`` - the convention of the DIDSON PNG+JSON data
+  (row 0 = ``min_range``) and of ARIS (``start + i * period``).  An explicit, possibly non-uniform
+  table can be given instead.
+* Per-beam azimuths are always a table; they are only assumed uniform over ``fov`` when no table
+  exists, with a :class:`GeometryWarning`.
+
+The JSON format is that of the paper authors' data (``min_range``, ``max_range``, ``fov``,
+``num_beams``, ``num_bins``, ``noise``, ``rx_gain``, ``psf``, ``taper``, optional ``azimuths``),
+extended with optional ``ranges``, ``frequency``, ``sound_speed``, ``name``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import hashlib
+import json
+import math
+import os
+import warnings
+from collections.abc import Mapping
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from sonarmap._atomic import atomic_write_text
+from sonarmap.errors import DataFormatError, GeometryError, SonarmapWarning
+
+__all__ = [
+    "SonarGeometry",
+    "GeometryWarning",
+    "load_geometry",
+    "save_geometry",
+    "geometry_from_dict",
+    "preset",
+    "preset_names",
+    "uniform_azimuths",
+]
+
+
+class GeometryWarning(SonarmapWarning):
+    """A geometry had to be completed by assumption (e.g. uniform azimuths)."""
+
+
+def _frozen_array(values: ArrayLike, name: str, *, ndim: int = 1) -> NDArray[np.float64]:
+    try:
+        arr = np.array(values, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise GeometryError(f"{name}: not a numeric array ({exc})") from None
+    if arr.ndim != ndim:
+        raise GeometryError(f"{name}: expected {ndim}-D array, got shape {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise GeometryError(f"{name}: contains NaN or infinite values")
+    arr.setflags(write=False)
+    return arr
+
+
+def uniform_azimuths(n_beams: int, fov_rad: float) -> NDArray[np.float64]:
+    """Beam centres uniformly spread over ``fov_rad``, centred on zero.
+
+    Each beam covers ``fov/n``; centres are at ``-fov/2 + (j + 1/2) fov/n``.
+    """
+    step = fov_rad / n_beams
+    return -fov_rad / 2 + (np.arange(n_beams) + 0.5) * step
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class SonarGeometry:
+    """Geometry and acoustic constants of a multibeam imaging sonar.
+
+    Parameters
+    ----------
+    azimuth_rad : array_like, shape (n_beams,)
+        Beam centre azimuths in radians, strictly increasing (positive to starboard).
+    range_m : array_like, shape (n_bins,)
+        Range of each bin in metres, strictly increasing, positive.
+    psf : array_like, shape (n_beams,), optional
+        Beam pattern across beams (the ``h`` of eq. 2), centred at index ``n_beams // 2``.  Defaults
+        to a unit impulse (no cross-beam spreading).  Normalised to unit sum on construction.
+    taper : array_like, shape (n_beams,), optional
+        Per-beam gain ``k(theta)`` (eq. 5); defaults to ones.
+    noise : float
+        Inverse signal-to-noise ratio ``1/SNR`` used by Wiener deconvolution (eq. 4).
+    fov_rad : float, optional
+        Horizontal field of view; defaults to the azimuth span plus one mean beam spacing.
+    frequency_hz, sound_speed_m_s, rx_gain_db : float
+        Operating frequency, sound speed and receiver gain.
+    name : str
+        Human-readable identifier (preset name or file stem).
+    azimuth_source : str
+        Where the azimuth table came from: ``"table"``, ``"preset:<name>"`` or ``"uniform"``.
+    window : tuple of float, optional
+        ``(min_range, max_range)`` window the bins were derived from, kept for lossless JSON output.
+    """
+
+    azimuth_rad: NDArray[np.float64]
+    range_m: NDArray[np.float64]
+    psf: NDArray[np.float64] | None = None
+    taper: NDArray[np.float64] | None = None
+    noise: float = 1e-2
+    fov_rad: float | None = None
+    frequency_hz: float = 1.8e6
+    sound_speed_m_s: float = 1500.0
+    rx_gain_db: float = 0.0
+    name: str = "sonar"
+    azimuth_source: str = "table"
+    window: tuple[float, float] | None = None
+    psf_raw: NDArray[np.float64] | None = dataclasses.field(default=None, repr=False)
+
+    def __post_init__(self) -> None:
+        az = _frozen_array(self.azimuth_rad, "azimuth_rad")
+        rng = _frozen_array(self.range_m, "range_m")
+        if az.size < 1:
+            raise GeometryError("azimuth_rad: at least one beam is required")
+        if rng.size < 1:
+            raise GeometryError("range_m: at least one range bin is required")
+        if az.size > 1 and np.any(np.diff(az) <= 0):
+            raise GeometryError("azimuth_rad: beam azimuths must be strictly increasing")
+        if np.any(np.abs(az) >= math.pi):
+            raise GeometryError("azimuth_rad: azimuths must lie in (-pi, pi)")
+        if rng.size > 1 and np.any(np.diff(rng) <= 0):
+            raise GeometryError("range_m: range bins must be strictly increasing")
+        if rng[0] < 0:
+            raise GeometryError(f"range_m: ranges must be non-negative (first is {rng[0]})")
+        object.__setattr__(self, "azimuth_rad", az)
+        object.__setattr__(self, "range_m", rng)
+        n = az.size
+        for field in ("psf", "taper"):
+            val = getattr(self, field)
+            if val is None:
+                continue
+            arr = _frozen_array(val, field)
+            if arr.size != n:
+                raise GeometryError(f"{field}: length {arr.size} does not match {n} beams")
+            object.__setattr__(self, field, arr)
+        if self.psf is not None:
+            if np.any(self.psf < 0):
+                raise GeometryError("psf: beam pattern must be non-negative")
+            total = float(self.psf.sum())
+            if total <= 0:
+                raise GeometryError("psf: beam pattern sums to zero")
+            if self.psf_raw is None:
+                object.__setattr__(self, "psf_raw", self.psf)
+            else:
+                object.__setattr__(self, "psf_raw", _frozen_array(self.psf_raw, "psf_raw"))
+            if not math.isclose(total, 1.0, rel_tol=1e-12):
+                object.__setattr__(self, "psf", _frozen_array(self.psf / total, "psf"))
+        if self.taper is not None and np.any(self.taper <= 0):
+            raise GeometryError("taper: per-beam gains must be positive")
+        for field in ("noise", "frequency_hz", "sound_speed_m_s", "rx_gain_db"):
+            val = getattr(self, field)
+            try:
+                fval = float(val)
+            except (TypeError, ValueError):
+                raise GeometryError(f"{field}: not a number ({val!r})") from None
+            if not math.isfinite(fval):
+                raise GeometryError(f"{field}: must be finite")
+            object.__setattr__(self, field, fval)
+        if self.noise < 0:
+            raise GeometryError(f"noise: 1/SNR must be >= 0 (got {self.noise})")
+        if self.frequency_hz <= 0:
+            raise GeometryError(f"frequency_hz: must be positive (got {self.frequency_hz})")
+        if not 1300.0 <= self.sound_speed_m_s <= 1700.0:
+            raise GeometryError(
+                f"sound_speed_m_s: {self.sound_speed_m_s} is outside 1300-1700 m/s (water)"
+            )
+        if self.fov_rad is None:
+            spacing = float(np.mean(np.diff(az))) if n > 1 else 0.0
+            object.__setattr__(self, "fov_rad", float(az[-1] - az[0] + spacing))
+        else:
+            fov = float(self.fov_rad)
+            if not 0 < fov < 2 * math.pi:
+                raise GeometryError(f"fov_rad: must be in (0, 2 pi) (got {fov})")
+            object.__setattr__(self, "fov_rad", fov)
+        if self.window is not None:
+            lo, hi = (float(v) for v in self.window)
+            object.__setattr__(self, "window", (lo, hi))
+
+    # ------------------------------------------------------------------ construction helpers
+    @classmethod
+    def from_window(
+        cls,
+        *,
+        min_range_m: float,
+        max_range_m: float,
+        n_bins: int,
+        azimuth_rad: ArrayLike | None = None,
+        n_beams: int | None = None,
+        fov_rad: float | None = None,
+        **kwargs: Any,
+    ) -> SonarGeometry:
+        """Build a geometry from a range window and either an azimuth table or ``n_beams``+``fov``.
+
+        Bins are placed at ``min + i (max - min) / n_bins`` (row 0 = ``min_range_m``).
+        """
+        if not (math.isfinite(min_range_m) and math.isfinite(max_range_m)):
+            raise GeometryError("min_range/max_range: must be finite")
+        if max_range_m <= min_range_m:
+            raise GeometryError(
+                f"max_range ({max_range_m}) must exceed min_range ({min_range_m})"
+            )
+        if int(n_bins) != n_bins or n_bins < 1:
+            raise GeometryError(f"num_bins: must be a positive integer (got {n_bins})")
+        n_bins = int(n_bins)
+        step = (max_range_m - min_range_m) / n_bins
+        ranges = min_range_m + np.arange(n_bins) * step
+        if azimuth_rad is None:
+            if n_beams is None or fov_rad is None:
+                raise GeometryError("need azimuth_rad, or both n_beams and fov_rad")
+            azimuth_rad = uniform_azimuths(int(n_beams), float(fov_rad))
+            kwargs.setdefault("azimuth_source", "uniform")
+        return cls(
+            azimuth_rad=np.asarray(azimuth_rad, dtype=np.float64),
+            range_m=ranges,
+            fov_rad=fov_rad,
+            window=(float(min_range_m), float(max_range_m)),
+            **kwargs,
+        )
+
+    def replace(self, **changes: Any) -> SonarGeometry:
+        """Return a copy with fields replaced (``dataclasses.replace``)."""
+        if "psf" in changes and "psf_raw" not in changes:
+            changes["psf_raw"] = None
+        if "range_m" in changes and "window" not in changes:
+            changes["window"] = None
+        return dataclasses.replace(self, **changes)
+
+    # ------------------------------------------------------------------ derived quantities
+    @property
+    def n_beams(self) -> int:
+        """Number of beams (image columns)."""
+        return int(self.azimuth_rad.size)
+
+    @property
+    def n_bins(self) -> int:
+        """Number of range bins (image rows)."""
+        return int(self.range_m.size)
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """Image shape ``(n_bins, n_beams)``."""
+        return (self.n_bins, self.n_beams)
+
+    @property
+    def min_range_m(self) -> float:
+        """Window start: range of row 0 (or the recorded window start)."""
+        return self.window[0] if self.window is not None else float(self.range_m[0])
+
+    @property
+    def max_range_m(self) -> float:
+        """Window end (``range of last row + one bin`` for uniform bins)."""
+        if self.window is not None:
+            return self.window[1]
+        return float(self.range_m[-1] + self.range_resolution_m)
+
+    @property
+    def range_resolution_m(self) -> float:
+        """Mean range-bin spacing in metres."""
+        if self.n_bins > 1:
+            return float((self.range_m[-1] - self.range_m[0]) / (self.n_bins - 1))
+        if self.window is not None:
+            return self.window[1] - self.window[0]
+        return 0.0
+
+    @property
+    def uniform_range(self) -> bool:
+        """Whether the range bins are evenly spaced (to 1e-9 relative)."""
+        if self.n_bins < 3:
+            return True
+        d = np.diff(self.range_m)
+        return bool(np.allclose(d, d.mean(), rtol=1e-9, atol=1e-12))
+
+    @property
+    def wavelength_m(self) -> float:
+        """Acoustic wavelength ``c / f``."""
+        return self.sound_speed_m_s / self.frequency_hz
+
+    @functools.cached_property
+    def key(self) -> str:
+        """Stable content hash, used to cache per-geometry work (e.g. Wiener filters)."""
+        h = hashlib.blake2b(digest_size=16)
+        for arr in (self.azimuth_rad, self.range_m, self.psf, self.taper):
+            h.update(b"-" if arr is None else arr.tobytes())
+        h.update(
+            repr(
+                (self.noise, self.fov_rad, self.frequency_hz, self.sound_speed_m_s, self.rx_gain_db)
+            ).encode()
+        )
+        return h.hexdigest()
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, SonarGeometry):
+            return NotImplemented
+        return self.key == other.key and self.name == other.name
+
+    def __hash__(self) -> int:
+        return hash(self.key)
+
+    def bin_of_range(self, range_m: ArrayLike) -> NDArray[np.intp]:
+        """Index of the bin whose range is nearest to ``range_m`` (clipped to the window)."""
+        r = np.asarray(range_m, dtype=np.float64)
+        idx = np.searchsorted(self.range_m, r)
+        idx = np.clip(idx, 1, self.n_bins - 1) if self.n_bins > 1 else np.zeros_like(idx)
+        if self.n_bins > 1:
+            left = self.range_m[idx - 1]
+            right = self.range_m[idx]
+            idx = np.where(np.abs(r - left) <= np.abs(right - r), idx - 1, idx)
+        return idx.astype(np.intp)
+
+    def beam_of_azimuth(self, azimuth_rad: ArrayLike) -> NDArray[np.intp]:
+        """Index of the beam whose centre azimuth is nearest to ``azimuth_rad``."""
+        a = np.asarray(azimuth_rad, dtype=np.float64)
+        return np.abs(a[..., None] - self.azimuth_rad).argmin(axis=-1).astype(np.intp)
+
+    def check_image(self, image: NDArray[Any], name: str = "image") -> None:
+        """Raise :class:`GeometryError` if ``image`` does not have shape ``(n_bins, n_beams)``."""
+        if image.shape != self.shape:
+            raise GeometryError(
+                f"{name}: shape {image.shape} does not match geometry '{self.name}' "
+                f"(n_bins, n_beams) = {self.shape}"
+            )
+
+    # ------------------------------------------------------------------ serialisation
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-compatible dict in the DIDSON PNG+JSON format (extended)."""
+        d: dict[str, Any] = {
+            "name": self.name,
+            "fov": self.fov_rad,
+            "num_beams": self.n_beams,
+            "num_bins": self.n_bins,
+            "min_range": self.min_range_m,
+            "max_range": self.max_range_m,
+            "noise": self.noise,
+            "rx_gain": self.rx_gain_db,
+            "frequency": self.frequency_hz,
+            "sound_speed": self.sound_speed_m_s,
+            "azimuths": self.azimuth_rad.tolist(),
+        }
+        if self.window is None:
+            d["ranges"] = self.range_m.tolist()
+        if self.psf_raw is not None:
+            d["psf"] = self.psf_raw.tolist()
+        if self.taper is not None:
+            d["taper"] = self.taper.tolist()
+        return d
+
+
+# ---------------------------------------------------------------------- JSON I/O
+
+_KNOWN_KEYS = {
+    "name", "fov", "num_beams", "num_bins", "min_range", "max_range", "noise", "rx_gain",
+    "frequency", "sound_speed", "azimuths", "ranges", "psf", "taper",
+}  # fmt: skip
+
+
+def geometry_from_dict(
+    d: Mapping[str, Any], *, source: str = "<dict>", default_name: str = "sonar"
+) -> SonarGeometry:
+    """Build a :class:`SonarGeometry` from a dict in the (extended) DIDSON JSON format.
+
+    When ``azimuths`` is absent the beams are taken from a preset whose beam count and field of
+    view match (e.g. the DIDSON's measured table), else spread uniformly over ``fov`` with a
+    :class:`GeometryWarning`.
+
+    Raises
+    ------
+    GeometryError
+        With ``source`` in the message, when fields are missing or inconsistent.
+    """
+    if not isinstance(d, Mapping):
+        raise GeometryError(f"{source}: geometry JSON must be an object, got {type(d).__name__}")
+
+    def need(key: str) -> Any:
+        if key not in d:
+            raise GeometryError(f"{source}: missing field '{key}'")
+        return d[key]
+
+    def num(key: str, default: float | None = None) -> float:
+        val = d.get(key, default) if default is not None else need(key)
+        if isinstance(val, bool) or not isinstance(val, int | float):
+            raise GeometryError(f"{source}: field '{key}' must be a number, got {val!r}")
+        return float(val)
+
+    try:
+        n_beams_field = d.get("num_beams")
+        azimuths = d.get("azimuths")
+        fov = num("fov") if "fov" in d else None
+        name = str(d.get("name", default_name))
+        kwargs: dict[str, Any] = {
+            "noise": num("noise", 1e-2),
+            "rx_gain_db": num("rx_gain", 0.0),
+            "frequency_hz": num("frequency", 1.8e6),
+            "sound_speed_m_s": num("sound_speed", 1500.0),
+            "psf": d.get("psf"),
+            "taper": d.get("taper"),
+            "name": name,
+        }
+        if azimuths is None:
+            if n_beams_field is None or fov is None:
+                raise GeometryError(f"{source}: need 'azimuths', or 'num_beams' and 'fov'")
+            match = _matching_preset(int(n_beams_field), fov)
+            if match is not None:
+                azimuths = match.azimuth_rad
+                kwargs["azimuth_source"] = f"preset:{match.name}"
+            else:
+                warnings.warn(
+                    f"{source}: no azimuth table; assuming {int(n_beams_field)} beams uniform "
+                    f"over fov={fov:.4f} rad",
+                    GeometryWarning,
+                    stacklevel=3,
+                )
+                azimuths = uniform_azimuths(int(n_beams_field), fov)
+                kwargs["azimuth_source"] = "uniform"
+        elif n_beams_field is not None and len(azimuths) != int(n_beams_field):
+            raise GeometryError(
+                f"{source}: 'azimuths' has {len(azimuths)} entries but num_beams is {n_beams_field}"
+            )
+        if "ranges" in d:
+            geom = SonarGeometry(azimuth_rad=azimuths, range_m=d["ranges"], fov_rad=fov, **kwargs)
+            if "num_bins" in d and geom.n_bins != int(d["num_bins"]):
+                raise GeometryError(
+                    f"{source}: 'ranges' has {geom.n_bins} entries but num_bins is {d['num_bins']}"
+                )
+            return geom
+        return SonarGeometry.from_window(
+            min_range_m=num("min_range"),
+            max_range_m=num("max_range"),
+            n_bins=int(num("num_bins")),
+            azimuth_rad=azimuths,
+            fov_rad=fov,
+            **kwargs,
+        )
+    except GeometryError as exc:
+        msg = str(exc)
+        if not msg.startswith(source):
+            raise GeometryError(f"{source}: {msg}") from None
+        raise
+
+
+@functools.lru_cache(maxsize=64)
+def _geometry_from_json_bytes(data: bytes, source: str, default_name: str) -> SonarGeometry:
+    try:
+        d = json.loads(data)
+    except json.JSONDecodeError as exc:
+        raise DataFormatError(
+            f"invalid JSON at line {exc.lineno} column {exc.colno}: {exc.msg}", source
+        ) from None
+    except UnicodeDecodeError as exc:
+        raise DataFormatError(f"not UTF-8 text ({exc.reason})", source) from None
+    return geometry_from_dict(d, source=source, default_name=default_name)
+
+
+def load_geometry(path: str | os.PathLike[str]) -> SonarGeometry:
+    """Load a geometry JSON file (DIDSON format, extended); results are cached by content.
+
+    Raises
+    ------
+    DataFormatError
+        If the file cannot be read or is not valid JSON (message gives line and column).
+    GeometryError
+        If fields are missing or inconsistent.
+    """
+    p = Path(path)
+    try:
+        data = p.read_bytes()
+    except OSError as exc:
+        raise DataFormatError(f"cannot read geometry: {exc.strerror or exc}", p) from None
+    return _geometry_from_json_bytes(data, str(p), p.stem)
+
+
+def save_geometry(geometry: SonarGeometry, path: str | os.PathLike[str]) -> None:
+    """Write ``geometry`` as JSON atomically; :func:`load_geometry` reads it back losslessly."""
+    atomic_write_text(path, json.dumps(geometry.to_dict(), indent=1) + "\n")
+
+
+# ---------------------------------------------------------------------- presets
+
+_ARIS_LENS = {
+    "ARIS1800_1200_48": ("aris1800-48", 1.8e6),
+    "ARIS1800_96": ("aris1800-96", 1.8e6),
+    "ARIS3000_128": ("aris3000-128", 3.0e6),
+    "ARIS3000_64": ("aris3000-64", 3.0e6),
+    "ARIS_Telephoto_48": ("aris-telephoto-48", 1.8e6),
+    "ARIS_Telephoto_96": ("aris-telephoto-96", 1.8e6),
+}
+
+
+def _data_text(name: str) -> str:
+    return resources.files("sonarmap.data").joinpath(name).read_text(encoding="utf-8")
+
+
+@functools.cache
+def _presets() -> dict[str, SonarGeometry]:
+    out: dict[str, SonarGeometry] = {}
+    did = json.loads(_data_text("didson_hf.json"))
+    out["didson-hf"] = geometry_from_dict(did, source="preset didson-hf")
+    tables = json.loads(_data_text("aris_beamwidths.json"))["tables"]
+    for table, (name, freq) in _ARIS_LENS.items():
+        t = tables[table]
+        # Vendor order: beam 0 right-most with a negative angle (vendor angles positive to port).
+        # Our azimuths are positive to starboard and increase with column, so
+        # column j = vendor beam (n-1-j) and azimuth = -vendor angle.
+        centre = -np.asarray(t["center_deg"], dtype=np.float64)[::-1]
+        left = -np.asarray(t["left_deg"], dtype=np.float64)[::-1]
+        right = -np.asarray(t["right_deg"], dtype=np.float64)[::-1]
+        fov = float(np.deg2rad(max(left.max(), right.max()) - min(left.min(), right.min())))
+        out[name] = SonarGeometry.from_window(
+            min_range_m=1.0,
+            max_range_m=11.0,
+            n_bins=1000,
+            azimuth_rad=np.deg2rad(centre),
+            fov_rad=fov,
+            frequency_hz=freq,
+            name=name,
+            azimuth_source=f"preset:{name}",
+        )
+    return out
+
+
+def preset_names() -> list[str]:
+    """Names of the built-in sonar presets."""
+    return sorted(_presets())
+
+
+def preset(name: str, **changes: Any) -> SonarGeometry:
+    """A built-in sonar geometry, optionally with fields replaced.
+
+    ``"didson-hf"``: DIDSON 300 high-frequency mode (1.8 MHz, 96 beams, 2.25-11.25 m, 512 bins)
+    with the measured beam azimuths, beam pattern and taper of Teixeira et al.  ``"aris*"``: every
+    ARIS model/lens/beam count with the vendor's beam-angle tables (SoundMetrics, MIT licence); the
+    range window is a placeholder (1-11 m, 1000 bins) that readers replace from the file.
+
+    Raises
+    ------
+    GeometryError
+        If ``name`` is unknown (the message lists the valid names).
+    """
+    table = _presets()
+    if name not in table:
+        raise GeometryError(f"unknown preset '{name}'; choose from {', '.join(sorted(table))}")
+    geom = table[name]
+    return geom.replace(**changes) if changes else geom
+
+
+def _matching_preset(n_beams: int, fov_rad: float) -> SonarGeometry | None:
+    """The preset with this beam count and field of view (to 1e-6 rad), if exactly one matches."""
+    hits = [
+        g
+        for g in _presets().values()
+        if g.n_beams == n_beams and abs(float(g.fov_rad or 0.0) - fov_rad) < 1e-6
+    ]
+    return hits[0] if len(hits) == 1 else None
+
+
+def as_geometry(spec: SonarGeometry | str | os.PathLike[str]) -> SonarGeometry:
+    """Resolve a geometry given as an object, a preset name, or a JSON path."""
+    if isinstance(spec, SonarGeometry):
+        return spec
+    s = str(spec)
+    if s in _presets():
+        return _presets()[s]
+    return load_geometry(s)
+
+
+def azimuth_span_deg(geometry: SonarGeometry) -> tuple[float, float]:
+    """First and last beam azimuths in degrees."""
+    return (
+        float(np.rad2deg(geometry.azimuth_rad[0])),
+        float(np.rad2deg(geometry.azimuth_rad[-1])),
+    )
+

@@ -1,0 +1,147 @@
+"""Ping readers and writers; :func:`read_pings` is the single entry point.
+
+Formats are detected by content (magic bytes), not only by extension.  Each format module in
+:data:`FORMAT_MODULES` that exists provides::
+
+    FORMAT: str                                     # short name, e.g. "aris"
+    def sniff(path: Path, head: bytes) -> bool      # does this file look like our format?
+    def iter_pings(path, *, geometry=None) -> Iterator[Ping]   # lazy, bounded memory
+    def count_pings(path) -> int                    # cheap (headers only)
+
+Directories and globs of PNG/BMP+JSON pings are handled by :mod:`sonarmap.io.pngjson`.
+"""
+
+from __future__ import annotations
+
+import glob
+import importlib
+import os
+from collections.abc import Iterable, Iterator
+from pathlib import Path
+from types import ModuleType
+from typing import Any
+
+from sonarmap.errors import DataFormatError
+from sonarmap.geometry import SonarGeometry
+from sonarmap.ping import Ping
+
+__all__ = ["read_pings", "read_ping", "detect_format", "expand_inputs", "FORMAT_MODULES", "format_module"]
+
+#: Modules tried in order by :func:`detect_format` (those that exist).
+FORMAT_MODULES = ("zarrstore", "aris", "oculus", "ddf", "rosbag", "pngjson")
+
+GeometrySpec = SonarGeometry | str | os.PathLike[str] | None
+
+
+def _modules() -> list[ModuleType]:
+    mods = []
+    for name in FORMAT_MODULES:
+        modname = f"sonarmap.io.{name}"
+        try:
+            mods.append(importlib.import_module(modname))
+        except ModuleNotFoundError as exc:
+            if exc.name != modname:
+                raise
+    return mods
+
+
+def format_module(name: str) -> ModuleType:
+    """The reader module for format ``name``."""
+    for mod in _modules():
+        if getattr(mod, "FORMAT", mod.__name__.rsplit(".", 1)[-1]) == name:
+            return mod
+    raise DataFormatError(f"unknown format '{name}'")
+
+
+def detect_format(path: str | os.PathLike[str]) -> str:
+    """Name of the format of ``path``, detected from its content.
+
+    Raises
+    ------
+    DataFormatError
+        If the path does not exist or no reader recognises it.
+    """
+    p = Path(path)
+    if not p.exists():
+        raise DataFormatError("no such file or directory", p)
+    head = b""
+    if p.is_file():
+        try:
+            with open(p, "rb") as fh:
+                head = fh.read(4096)
+        except OSError as exc:
+            raise DataFormatError(f"cannot read: {exc.strerror or exc}", p) from None
+    for mod in _modules():
+        if mod.sniff(p, head):
+            return str(getattr(mod, "FORMAT", mod.__name__.rsplit(".", 1)[-1]))
+    raise DataFormatError("unrecognised file format (no reader matched its content)", p)
+
+
+def expand_inputs(inputs: str | os.PathLike[str] | Iterable[str | os.PathLike[str]]) -> list[Path]:
+    """Expand globs; keep files and directories; raise if an input matches nothing."""
+    items = [inputs] if isinstance(inputs, str | os.PathLike) else list(inputs)
+    out: list[Path] = []
+    for item in items:
+        s = str(item)
+        if any(ch in s for ch in "*?[") and not Path(s).exists():
+            hits = sorted(glob.glob(s))
+            if not hits:
+                raise DataFormatError("glob matched no files", s)
+            out.extend(Path(h) for h in hits)
+        else:
+            p = Path(s)
+            if not p.exists():
+                raise DataFormatError("no such file or directory", p)
+            out.append(p)
+    return out
+
+
+def read_pings(
+    inputs: str | os.PathLike[str] | Iterable[str | os.PathLike[str]],
+    *,
+    geometry: GeometrySpec = None,
+    **kwargs: Any,
+) -> Iterator[Ping]:
+    """Lazily yield the pings of one or more files, directories or globs, in order.
+
+    PNG/BMP pings given together (a directory, a glob, or several image files) are sorted by time
+    stamp; other formats yield their pings in file order.
+
+    Parameters
+    ----------
+    inputs : path-like or iterable of path-likes
+        Files (any supported format), directories of PNG+JSON pings, or globs.
+    geometry : SonarGeometry, preset name or JSON path, optional
+        Overrides the geometry read from the files.
+    """
+    paths = expand_inputs(inputs)
+    pngs: list[Path] = []
+
+    def flush() -> Iterator[Ping]:
+        if pngs:
+            from sonarmap.io import pngjson
+
+            yield from pngjson.iter_png_pings(list(pngs), geometry=geometry)
+            pngs.clear()
+
+    for p in paths:
+        fmt = "pngjson" if p.is_dir() and not _is_store_dir(p) else detect_format(p)
+        if fmt == "pngjson":
+            pngs.append(p)
+            continue
+        yield from flush()
+        yield from format_module(fmt).iter_pings(p, geometry=geometry, **kwargs)
+    yield from flush()
+
+
+def _is_store_dir(p: Path) -> bool:
+    """A directory that is a dataset store (zarr) rather than a folder of PNG pings."""
+    return (p / ".zgroup").exists() or (p / "zarr.json").exists()
+
+
+def read_ping(path: str | os.PathLike[str], *, geometry: GeometrySpec = None, index: int = 0) -> Ping:
+    """Read the ``index``-th ping of a file (the only ping of a PNG+JSON file)."""
+    for i, ping in enumerate(read_pings(path, geometry=geometry)):
+        if i == index:
+            return ping
+    raise DataFormatError(f"has no ping with index {index}", path)

@@ -1,0 +1,275 @@
+"""PNG/BMP image + sidecar JSON pings (the format of the paper authors' DIDSON data).
+
+A ping is ``<ts>_raw.png`` or ``<ts>.png`` (or ``.bmp``) next to ``<ts>.json`` holding the geometry
+(see :mod:`sonarmap.geometry`).  ``<ts>`` is an integer time stamp since the Unix epoch whose unit is
+inferred from its digit count (10: s, 13: ms, 16: µs, 19: ns).  Images are 8-bit (0-255 -> [0, 1])
+or 16-bit (0-65535 -> [0, 1]) greyscale; palettised images are converted through their palette.
+"""
+
+from __future__ import annotations
+
+import glob
+import io
+import json
+import os
+import re
+from collections.abc import Iterable, Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from sonarmap._atomic import atomic_path, atomic_write_text
+from sonarmap.errors import DataFormatError, GeometryError
+from sonarmap.geometry import SonarGeometry, _geometry_from_json_bytes, as_geometry
+from sonarmap.ping import Ping
+
+__all__ = [
+    "IMAGE_SUFFIXES",
+    "read_png_ping",
+    "write_png_ping",
+    "find_png_pings",
+    "iter_png_pings",
+    "sidecar_json",
+    "time_ns_from_stem",
+    "read_image_file",
+]
+
+IMAGE_SUFFIXES = (".png", ".bmp")
+_STAMP = re.compile(r"^(\d{9,19})(?:_raw)?$")
+_UNIT_BY_DIGITS = {10: 10**9, 13: 10**6, 16: 10**3, 19: 1}
+
+
+def time_ns_from_stem(stem: str) -> int | None:
+    """Integer nanoseconds from a ``<ts>`` or ``<ts>_raw`` file stem, or ``None``."""
+    m = _STAMP.match(stem)
+    if not m:
+        return None
+    digits = m.group(1)
+    scale = _UNIT_BY_DIGITS.get(len(digits))
+    if scale is None:
+        return None
+    return int(digits) * scale
+
+
+def _base_stem(path: Path) -> str:
+    stem = path.stem
+    return stem[:-4] if stem.endswith("_raw") else stem
+
+
+def sidecar_json(image_path: str | os.PathLike[str]) -> Path:
+    """Path of the JSON sidecar of an image (``<ts>_raw.png`` -> ``<ts>.json``)."""
+    p = Path(image_path)
+    return p.with_name(_base_stem(p) + ".json")
+
+
+def read_image_file(path: str | os.PathLike[str], data: bytes | None = None) -> NDArray[np.float32]:
+    """Decode a greyscale PNG/BMP into float32 in [0, 1].
+
+    Raises
+    ------
+    DataFormatError
+        If the file is missing, truncated, not an image, or a colour image.
+    """
+    from PIL import Image, UnidentifiedImageError
+
+    p = Path(path)
+    try:
+        if data is None:
+            data = p.read_bytes()
+        with Image.open(io.BytesIO(data)) as im:
+            mode = im.mode
+            if mode == "P":
+                pal = np.asarray(im.getpalette() or [], dtype=np.uint8).reshape(-1, 3)
+                if pal.size and not np.array_equal(pal[:, 0], pal[:, 1]):
+                    raise DataFormatError("palette is not greyscale", p)
+                im = im.convert("L")
+                mode = "L"
+            arr = np.asarray(im)
+    except DataFormatError:
+        raise
+    except FileNotFoundError:
+        raise DataFormatError("file not found", p) from None
+    except UnidentifiedImageError:
+        raise DataFormatError("not a PNG/BMP image (unrecognised content)", p) from None
+    except (OSError, SyntaxError, ValueError) as exc:
+        raise DataFormatError(f"corrupt or truncated image ({exc})", p) from None
+    if arr.ndim != 2:
+        raise DataFormatError(f"expected a greyscale image, got mode {mode} shape {arr.shape}", p)
+    if arr.dtype == np.uint8:
+        return arr.astype(np.float32) * np.float32(1.0 / 255.0)
+    if arr.dtype in (np.uint16, np.int32) or mode.startswith("I"):
+        return (arr.astype(np.float32) / np.float32(65535.0)).clip(0, 1)
+    if arr.dtype == np.bool_:
+        return arr.astype(np.float32)
+    raise DataFormatError(f"unsupported image mode {mode}", p)
+
+
+def read_png_ping(
+    path: str | os.PathLike[str],
+    *,
+    geometry: SonarGeometry | str | os.PathLike[str] | None = None,
+) -> Ping:
+    """Read one ping from an image and its sidecar JSON.
+
+    Parameters
+    ----------
+    path : path-like
+        The image (``.png``/``.bmp``) or the sidecar ``.json`` (the image is then found beside it).
+    geometry : SonarGeometry, preset name or JSON path, optional
+        Overrides the sidecar; required when the image has no sidecar.
+
+    Raises
+    ------
+    DataFormatError
+        Missing/corrupt image or JSON (JSON errors give line and column).
+    GeometryError
+        When the image shape disagrees with the geometry.
+    """
+    p = Path(path)
+    if p.suffix.lower() == ".json":
+        stem = p.stem
+        for cand in (f"{stem}_raw.png", f"{stem}.png", f"{stem}_raw.bmp", f"{stem}.bmp"):
+            if (p.parent / cand).exists():
+                p = p.parent / cand
+                break
+        else:
+            raise DataFormatError("no image (<ts>_raw.png, <ts>.png or .bmp) beside this JSON", p)
+    image = read_image_file(p)
+    if geometry is None:
+        side = sidecar_json(p)
+        try:
+            data = side.read_bytes()
+        except FileNotFoundError:
+            raise DataFormatError(
+                f"no sidecar JSON ({side.name}); pass a geometry (preset or JSON file)", p
+            ) from None
+        except OSError as exc:
+            raise DataFormatError(f"cannot read sidecar: {exc.strerror or exc}", side) from None
+        geom = _geometry_from_json_bytes(data, str(side), _base_stem(p))
+    else:
+        geom = as_geometry(geometry)
+    if image.shape != geom.shape:
+        raise GeometryError(
+            f"{p}: image shape {image.shape} does not match geometry '{geom.name}' "
+            f"(n_bins, n_beams) = {geom.shape}"
+        )
+    time_ns = time_ns_from_stem(p.stem)
+    if time_ns is None:
+        time_ns = 0
+    return Ping(image=image, geometry=geom, time_ns=time_ns, source=str(p))
+
+
+def _encode_png(image: NDArray[Any], bit_depth: int) -> bytes:
+    from PIL import Image
+
+    if bit_depth == 8:
+        q = np.rint(np.clip(image, 0.0, 1.0) * 255.0).astype(np.uint8)
+        im = Image.fromarray(q, mode="L")
+    elif bit_depth == 16:
+        q = np.rint(np.clip(image, 0.0, 1.0) * 65535.0).astype(np.uint16)
+        im = Image.fromarray(q)
+    else:
+        raise ValueError(f"bit_depth: must be 8 or 16, got {bit_depth}")
+    buf = io.BytesIO()
+    im.save(buf, format="PNG")
+    return buf.getvalue()
+
+
+def write_png_ping(
+    ping: Ping,
+    directory: str | os.PathLike[str],
+    *,
+    stem: str | None = None,
+    raw_suffix: bool = True,
+    bit_depth: int = 8,
+    extra: dict[str, Any] | None = None,
+) -> Path:
+    """Write ``ping`` as ``<stem>_raw.png`` + ``<stem>.json``, atomically; returns the image path.
+
+    ``stem`` defaults to the ping time in microseconds (the DIDSON data's naming).  8-bit output is
+    lossless for 8-bit input; intensities outside [0, 1] are clipped (use ``bit_depth=16`` for finer
+    quantisation).  ``extra`` entries are added to the JSON.
+    """
+    d = Path(directory)
+    if stem is None:
+        stem = str(ping.time_ns // 1000)
+    img_path = d / (f"{stem}_raw.png" if raw_suffix else f"{stem}.png")
+    data = _encode_png(ping.image, bit_depth)
+    meta = ping.geometry.to_dict()
+    if extra:
+        meta.update(extra)
+    with atomic_path(img_path) as tmp:
+        tmp.write_bytes(data)
+    atomic_write_text(d / f"{stem}.json", json.dumps(meta, indent=1) + "\n")
+    return img_path
+
+
+def _sort_key(path: Path) -> tuple[int, int, str]:
+    t = time_ns_from_stem(path.stem)
+    return (0 if t is not None else 1, t or 0, str(path))
+
+
+def find_png_pings(source: str | os.PathLike[str] | Iterable[str | os.PathLike[str]]) -> list[Path]:
+    """Image files of pings in a directory, glob, file or list thereof, sorted by time stamp.
+
+    Images without a parsable time stamp sort after stamped ones, by name.  JSON paths are mapped
+    to their images.  Raises :class:`DataFormatError` when nothing matches.
+    """
+    items = [source] if isinstance(source, str | os.PathLike) else list(source)
+    found: dict[str, Path] = {}
+    for item in items:
+        s = str(item)
+        p = Path(s)
+        if p.is_dir():
+            cands = [c for c in p.iterdir() if c.suffix.lower() in IMAGE_SUFFIXES]
+        elif any(ch in s for ch in "*?["):
+            cands = [Path(c) for c in glob.glob(s) if Path(c).suffix.lower() in IMAGE_SUFFIXES]
+        else:
+            if not p.exists():
+                raise DataFormatError("no such file or directory", p)
+            cands = [p]
+        for c in cands:
+            found[str(c)] = c
+    if not found:
+        raise DataFormatError("no PNG/BMP pings found", ", ".join(str(i) for i in items))
+    return sorted(found.values(), key=_sort_key)
+
+
+def iter_png_pings(
+    source: str | os.PathLike[str] | Iterable[str | os.PathLike[str]],
+    *,
+    geometry: SonarGeometry | str | os.PathLike[str] | None = None,
+) -> Iterator[Ping]:
+    """Lazily yield pings in time-stamp order (one image in memory at a time)."""
+    for p in find_png_pings(source):
+        yield read_png_ping(p, geometry=geometry)
+
+
+# ---------------------------------------------------------------------- format-registry hooks
+FORMAT = "pngjson"
+
+
+def sniff(path: Path, head: bytes) -> bool:
+    """PNG/BMP images, their JSON sidecars, or directories holding them."""
+    if path.is_dir():
+        return any(c.suffix.lower() in IMAGE_SUFFIXES for c in path.iterdir())
+    if head.startswith(b"\x89PNG\r\n\x1a\n") or head.startswith(b"BM"):
+        return True
+    if path.suffix.lower() == ".json":
+        return any(
+            (path.parent / f"{path.stem}{s}").exists()
+            for s in ("_raw.png", ".png", "_raw.bmp", ".bmp")
+        )
+    return False
+
+
+def iter_pings(path: Path, *, geometry: Any = None, **_: Any) -> Iterator[Ping]:
+    """Registry hook: pings of a PNG/BMP file or directory."""
+    yield from iter_png_pings(path, geometry=geometry)
+
+
+def count_pings(path: Path) -> int:
+    """Registry hook: number of image files (no decoding)."""
+    return len(find_png_pings(path))
