@@ -94,16 +94,15 @@ def main(argv: list[str] | None = None) -> int:
         print("sonarmap: interrupted", file=sys.stderr)
         return 130
     except Exception as exc:  # noqa: BLE001 - the CLI boundary
-        import click
-
-        if isinstance(exc, click.exceptions.Exit):
-            return exc.exit_code
-        if isinstance(exc, click.exceptions.Abort):
+        # typer vendors click, so match its exceptions by the public typer names / duck typing.
+        if isinstance(exc, typer.Exit):
+            return int(exc.exit_code)
+        if isinstance(exc, typer.Abort):
             print("sonarmap: aborted", file=sys.stderr)
             return 1
-        if isinstance(exc, click.ClickException):
+        if hasattr(exc, "show") and hasattr(exc, "exit_code"):  # click ClickException/UsageError
             exc.show()
-            return exc.exit_code
+            return int(exc.exit_code)
         if debug:
             raise
         if isinstance(exc, SonarmapError | OSError | ValueError):

@@ -1,0 +1,5 @@
+"""``python -m sonarmap`` runs the CLI."""
+
+from sonarmap.cli import run
+
+run()

@@ -1,0 +1,131 @@
+"""``sonarmap info``: describe a geometry JSON, a ping file, a directory of pings or a recording."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import typer
+
+from sonarmap.cli._common import GEOMETRY_OPTION, console, load_geometry_option
+
+__all__ = ["register", "geometry_summary", "describe_path"]
+
+
+def geometry_summary(geometry: Any) -> dict[str, Any]:
+    """Plain-dict summary of a SonarGeometry (shared by ``info`` and the formats' summaries)."""
+    import numpy as np
+
+    az = np.rad2deg(geometry.azimuth_rad)
+    d = np.diff(az) if az.size > 1 else np.array([0.0])
+    uniform = bool(np.allclose(d, d.mean(), rtol=1e-3, atol=1e-6))
+    return {
+        "name": geometry.name,
+        "beams": geometry.n_beams,
+        "bins": geometry.n_bins,
+        "range_min_m": round(geometry.min_range_m, 6),
+        "range_max_m": round(geometry.max_range_m, 6),
+        "range_resolution_m": geometry.range_resolution_m,
+        "azimuth_min_deg": float(az[0]),
+        "azimuth_max_deg": float(az[-1]),
+        "fov_deg": float(np.rad2deg(geometry.fov_rad)),
+        "beam_spacing_deg": [float(d.min()), float(d.max())],
+        "azimuth_table": "uniform" if uniform else "non-uniform",
+        "azimuth_source": geometry.azimuth_source,
+        "frequency_hz": geometry.frequency_hz,
+        "sound_speed_m_s": geometry.sound_speed_m_s,
+        "rx_gain_db": geometry.rx_gain_db,
+        "noise_inv_snr": geometry.noise,
+        "psf": geometry.psf is not None,
+        "taper": geometry.taper is not None,
+    }
+
+
+def _is_geometry_json(p: Path) -> bool:
+    if p.suffix.lower() != ".json" or not p.is_file():
+        return False
+    return not any(
+        (p.parent / f"{p.stem}{s}").exists() for s in ("_raw.png", ".png", "_raw.bmp", ".bmp")
+    )
+
+
+def describe_path(path: Path, geometry: Any = None) -> dict[str, Any]:
+    """Summary of a geometry JSON or any readable ping source."""
+    from sonarmap.geometry import load_geometry
+    from sonarmap.io import detect_format, format_module
+
+    if geometry is None and _is_geometry_json(path):
+        g = load_geometry(path)
+        return {"path": str(path), "kind": "geometry", **geometry_summary(g)}
+    fmt = "pngjson" if path.is_dir() else detect_format(path)
+    mod = format_module(fmt)
+    if hasattr(mod, "summary") and geometry is None:
+        out = dict(mod.summary(path))
+        out.setdefault("path", str(path))
+        out.setdefault("format", fmt)
+        return out
+    from sonarmap.io import read_pings
+
+    first = last = None
+    n = 0
+    for ping in read_pings(path, geometry=geometry):
+        if first is None:
+            first = ping
+        last = ping
+        n += 1
+    assert first is not None and last is not None
+    img = first.image
+    out = {"path": str(path), "format": fmt, "pings": n}
+    out.update(geometry_summary(first.geometry))
+    out["time_first_utc"] = str(first.datetime64)
+    out["time_last_utc"] = str(last.datetime64)
+    out["first_ping_zero_fraction"] = float((img == 0).mean())
+    out["first_ping_mean_intensity"] = float(img.mean())
+    return out
+
+
+def _print(info: dict[str, Any]) -> None:
+    from rich.table import Table
+
+    t = Table(show_header=False, box=None, pad_edge=False)
+    t.add_column(style="bold")
+    t.add_column()
+    for k, v in info.items():
+        if isinstance(v, float):
+            v = f"{v:.6g}"
+        elif isinstance(v, list):
+            v = ", ".join(f"{x:.4g}" if isinstance(x, float) else str(x) for x in v)
+        t.add_row(k, str(v))
+    console().print(t)
+
+
+def register(app: typer.Typer) -> None:
+    @app.command("info")
+    def info(
+        paths: list[Path] = typer.Argument(None, help="Geometry JSON, ping files, directories or recordings."),
+        sonar: str | None = GEOMETRY_OPTION,
+        presets: bool = typer.Option(False, "--presets", help="List the built-in sonar presets."),
+        as_json: bool = typer.Option(False, "--json", help="Print machine-readable JSON."),
+    ) -> None:
+        """Describe sonar geometry, ping count and time span of each input.
+
+        Example: sonarmap info ../shared/data/didson/test/1468966347175925_raw.png
+        """
+        from sonarmap.geometry import preset, preset_names
+
+        items: list[dict[str, Any]] = []
+        if presets:
+            items.extend({"preset": n, **geometry_summary(preset(n))} for n in preset_names())
+        geom = load_geometry_option(sonar)
+        for p in paths or []:
+            items.append(describe_path(p, geom))
+        if not items:
+            raise typer.BadParameter("give at least one path, or --presets", param_hint="PATHS")
+        if as_json:
+            typer.echo(json.dumps(items if len(items) > 1 else items[0], indent=1, default=str))
+            return
+        for i, item in enumerate(items):
+            if i:
+                console().print()
+            _print(item)

@@ -1,0 +1,90 @@
+"""Matplotlib figures (Agg backend, no screen needed).
+
+All functions return a :class:`matplotlib.figure.Figure`; :func:`save_figure` writes it atomically.
+"""
+
+from __future__ import annotations
+
+import os
+from typing import Any
+
+import numpy as np
+
+from sonarmap._atomic import atomic_path
+from sonarmap.fan import fan_image
+from sonarmap.ping import Ping
+
+__all__ = ["new_figure", "save_figure", "draw_fan", "show_ping_figure"]
+
+
+def new_figure(*args: Any, **kwargs: Any) -> tuple[Any, Any]:
+    """``plt.subplots`` on a figure not registered with pyplot (thread/process safe, Agg)."""
+    from matplotlib.figure import Figure
+
+    fig = Figure(layout="constrained", **{k: kwargs.pop(k) for k in ("figsize", "dpi") if k in kwargs})
+    axes = fig.subplots(*args, **kwargs)
+    return fig, axes
+
+
+def save_figure(fig: Any, path: str | os.PathLike[str], *, dpi: int = 120) -> None:
+    """Write ``fig`` atomically; the format follows the file extension."""
+    fmt = os.path.splitext(str(path))[1].lstrip(".").lower() or "png"
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=dpi, format=fmt)
+
+
+def draw_fan(
+    ax: Any,
+    image: np.ndarray,
+    geometry: Any,
+    *,
+    resolution_m: float | None = None,
+    cmap: str = "inferno",
+    vmin: float | None = 0.0,
+    vmax: float | None = None,
+    title: str | None = None,
+    colorbar: bool = True,
+) -> Any:
+    """Draw a polar image as a fan on ``ax`` with metric axes (starboard right, forward up)."""
+    fan = fan_image(image, geometry, resolution_m=resolution_m)
+    if vmax is None:
+        finite = fan.image[np.isfinite(fan.image)]
+        vmax = float(np.percentile(finite, 99.9)) if finite.size else 1.0
+        vmax = vmax if vmax > 0 else 1.0
+    masked = np.ma.masked_invalid(fan.image)
+    im = ax.imshow(masked, origin="lower", extent=fan.extent_m, cmap=cmap, vmin=vmin, vmax=vmax,
+                   interpolation="nearest")
+    ax.set_facecolor("0.85")
+    ax.set_aspect("equal")
+    ax.set_xlabel("starboard y (m)")
+    ax.set_ylabel("forward x (m)")
+    if title:
+        ax.set_title(title, fontsize=9)
+    if colorbar:
+        ax.figure.colorbar(im, ax=ax, shrink=0.8, label="intensity")
+    return im
+
+
+def show_ping_figure(
+    ping: Ping,
+    *,
+    resolution_m: float | None = None,
+    polar: bool = False,
+    vmax: float | None = None,
+) -> Any:
+    """Figure of one ping as a fan, optionally beside its raw polar image."""
+    ncols = 2 if polar else 1
+    fig, axes = new_figure(1, ncols, figsize=(5.0 * ncols, 6.0), squeeze=False)
+    title = f"{os.path.basename(ping.source) or 'ping'}  {np.datetime_as_string(ping.datetime64, unit='ms')} UTC"
+    draw_fan(axes[0, 0], ping.image, ping.geometry, resolution_m=resolution_m, vmax=vmax, title=title)
+    if polar:
+        g = ping.geometry
+        az = np.rad2deg(g.azimuth_rad)
+        ax = axes[0, 1]
+        im = ax.imshow(ping.image, origin="lower", aspect="auto", cmap="inferno", vmin=0, vmax=vmax,
+                       extent=(0, g.n_beams, g.range_m[0], g.range_m[-1]))
+        ax.set_xlabel(f"beam (azimuth {az[0]:.1f} to {az[-1]:.1f} deg)")
+        ax.set_ylabel("range (m)")
+        ax.set_title("polar (rows = range bins)", fontsize=9)
+        fig.colorbar(im, ax=ax, shrink=0.8)
+    return fig

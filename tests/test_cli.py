@@ -1,0 +1,67 @@
+"""CLI behaviour: exit codes, one-line errors, info/show on real data."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from sonarmap.cli import main
+
+
+def test_info_on_real_ping(capsys: pytest.CaptureFixture[str], test_ping_paths: list[Path]) -> None:
+    assert main(["info", str(test_ping_paths[0])]) == 0
+    out = capsys.readouterr().out
+    assert "96" in out and "512" in out
+    assert "2.25" in out and "11.25" in out
+    assert "-14.7177" in out and "14.0942" in out
+
+
+def test_info_json_and_presets(capsys: pytest.CaptureFixture[str], didson_dir: Path) -> None:
+    import json
+
+    assert main(["info", "--json", str(didson_dir / "didson.json")]) == 0
+    d = json.loads(capsys.readouterr().out)
+    assert d["kind"] == "geometry" and d["beams"] == 96 and d["azimuth_table"] == "non-uniform"
+    assert main(["info", "--presets", "--json"]) == 0
+    assert len(json.loads(capsys.readouterr().out)) == 7
+
+
+def test_malformed_json_exits_1_one_line(capsys: pytest.CaptureFixture[str], data_dir: Path) -> None:
+    path = data_dir / "mb2250" / "mb2250.json"
+    assert main(["info", str(path)]) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and str(path) in err and "line 3 column 3" in err
+    assert "Traceback" not in err
+
+
+def test_usage_error_exits_2(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["info", "--no-such-option"]) == 2
+    assert main(["no-such-command"]) == 2
+
+
+def test_debug_shows_traceback(data_dir: Path) -> None:
+    from sonarmap.errors import DataFormatError
+
+    with pytest.raises(DataFormatError):
+        main(["--debug", "info", str(data_dir / "mb2250" / "mb2250.json")])
+
+
+def test_show_writes_figure(tmp_path: Path, test_ping_paths: list[Path]) -> None:
+    out = tmp_path / "fan.png"
+    assert main(["show", str(test_ping_paths[7]), "-o", str(out), "--polar"]) == 0
+    from PIL import Image
+
+    with Image.open(out) as im:
+        assert im.size[0] > 400 and im.size[1] > 300
+
+
+def test_console_script_subprocess(test_ping_paths: list[Path]) -> None:
+    r = subprocess.run([sys.executable, "-m", "sonarmap", "info", str(test_ping_paths[0])],
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    r = subprocess.run([sys.executable, "-m", "sonarmap", "info", "missing.png"],
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 1 and r.stderr.strip() == "sonarmap: error: missing.png: no such file or directory"

@@ -1,0 +1,70 @@
+"""Fan rendering honours the per-beam azimuth table and range bins."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from sonarmap.errors import GeometryError, InputError
+from sonarmap.fan import fan_extent_m, fan_image, polar_to_xy, xy_to_polar
+from sonarmap.geometry import SonarGeometry, preset
+
+
+@pytest.mark.parametrize("name", ["didson-hf", "aris3000-128", "aris-telephoto-48"])
+@pytest.mark.parametrize("bin_beam", [(100, 5), (400, 90), (10, 47)])
+def test_point_lands_on_right_pixel(name: str, bin_beam: tuple[int, int]) -> None:
+    g = preset(name)
+    i, j = bin_beam
+    i = min(i, g.n_bins - 1)
+    j = min(j, g.n_beams - 1)
+    img = np.zeros(g.shape, np.float32)
+    img[i, j] = 1.0
+    res = 0.01
+    fan = fan_image(img, g, resolution_m=res)
+    x, y = polar_to_xy(g.range_m[i], g.azimuth_rad[j])
+    row, col = fan.pixel_of(float(x), float(y))
+    peak = np.unravel_index(np.nanargmax(fan.image), fan.image.shape)
+    # the brightest fan pixel is the one holding the true point, or its immediate neighbour
+    assert max(abs(peak[0] - row), abs(peak[1] - col)) <= 1
+    assert fan.image[row, col] >= 0.5 * fan.image[peak]
+    # and its metric position is the target's range/azimuth to within one pixel
+    r, a = xy_to_polar(fan.x_m[peak[0]], fan.y_m[peak[1]])
+    assert abs(r - g.range_m[i]) <= res
+    assert abs(a - g.azimuth_rad[j]) <= res * np.sqrt(2) / g.range_m[i]
+
+
+def test_nonuniform_table_is_honoured() -> None:
+    """Same beam index, two azimuth tables -> the target moves to the table's azimuth."""
+    g = preset("didson-hf")
+    uni = g.replace(azimuth_rad=np.linspace(g.azimuth_rad[0], g.azimuth_rad[-1], g.n_beams))
+    img = np.zeros(g.shape, np.float32)
+    img[300, 20] = 1.0
+    for geom in (g, uni):
+        fan = fan_image(img, geom, resolution_m=0.01)
+        peak = np.unravel_index(np.nanargmax(fan.image), fan.image.shape)
+        _, a = xy_to_polar(fan.x_m[peak[0]], fan.y_m[peak[1]])
+        assert a == pytest.approx(geom.azimuth_rad[20], abs=2e-3)
+    assert abs(g.azimuth_rad[20] - uni.azimuth_rad[20]) > 5e-3
+
+
+def test_outside_fan_is_nan_and_extent() -> None:
+    g = preset("didson-hf")
+    fan = fan_image(np.ones(g.shape, np.float32), g)
+    assert np.isnan(fan.image[0, 0])  # near corner is outside the fan
+    inside = np.isfinite(fan.image)
+    assert np.allclose(fan.image[inside], 1.0)
+    x0, x1, y0, y1 = fan_extent_m(g)
+    assert x1 == pytest.approx(g.range_m[-1] + g.range_resolution_m / 2)
+    assert y0 < 0 < y1 and abs(y0) > abs(y1)  # DIDSON table reaches further to port (-14.7 vs 14.1)
+    left, right, bottom, top = fan.extent_m
+    assert left <= y0 + fan.resolution_m and top >= x1 - fan.resolution_m
+
+
+def test_bad_input() -> None:
+    g = preset("didson-hf")
+    with pytest.raises(GeometryError):
+        fan_image(np.zeros((5, 5)), g)
+    with pytest.raises(InputError, match="resolution_m"):
+        fan_image(np.zeros(g.shape), g, resolution_m=-1)
+    one = SonarGeometry(azimuth_rad=[0.0], range_m=[1.0, 2.0])
+    assert fan_image(np.ones((2, 1)), one, resolution_m=0.05).image.size > 0
