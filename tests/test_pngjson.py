@@ -128,3 +128,20 @@ def test_ping_validation() -> None:
         Ping(np.zeros(g.shape, dtype=object), g)
     p = Ping(np.zeros(g.shape, np.uint8), g)
     assert p.image.dtype == np.float32
+
+
+def test_intensity_scale_in_sidecar_is_applied(tmp_path: Path) -> None:
+    g = preset("didson-hf")
+    img = np.zeros(g.shape, np.float32)
+    img[10, 10] = 2.5  # above 1: stored as image / scale
+    p = Ping(img / np.float32(2.5), g, time_ns=5_000_000_000)
+    out = write_png_ping(p, tmp_path, extra={"intensity_scale": 2.5})
+    back = read_png_ping(out)
+    assert back.image[10, 10] == pytest.approx(2.5)
+    side = tmp_path / "5000000_raw.png"
+    assert side.exists()
+    d = json.loads((tmp_path / "5000000.json").read_text())
+    d["intensity_scale"] = -1
+    (tmp_path / "5000000.json").write_text(json.dumps(d))
+    with pytest.raises(DataFormatError, match="intensity_scale must be a positive number"):
+        read_png_ping(out)

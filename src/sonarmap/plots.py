@@ -14,7 +14,7 @@ from sonarmap._atomic import atomic_path
 from sonarmap.fan import fan_image
 from sonarmap.ping import Ping
 
-__all__ = ["new_figure", "save_figure", "draw_fan", "show_ping_figure"]
+__all__ = ["new_figure", "save_figure", "draw_fan", "show_ping_figure", "fan_comparison"]
 
 
 def new_figure(*args: Any, **kwargs: Any) -> tuple[Any, Any]:
@@ -87,4 +87,30 @@ def show_ping_figure(
         ax.set_ylabel("range (m)")
         ax.set_title("polar (rows = range bins)", fontsize=9)
         fig.colorbar(im, ax=ax, shrink=0.8)
+    return fig
+
+
+def fan_comparison(
+    before: Ping,
+    after: Ping,
+    *,
+    titles: tuple[str, str] = ("raw", "pre-processed"),
+    resolution_m: float | None = None,
+    vmax: tuple[float | None, float | None] = (None, None),
+) -> Any:
+    """Fig.-1-style before/after figure: the raw fan beside the corrected fan.
+
+    Each panel has its own colour scale (99.9th percentile unless ``vmax`` is given), since
+    pre-processing changes the intensity scale.  The right panel's title lists the steps recorded
+    in ``after.meta["preprocess"]`` when present.
+    """
+    fig, axes = new_figure(1, 2, figsize=(10.0, 6.0), squeeze=False)
+    steps = after.meta.get("preprocess", {}).get("steps")
+    t_after = titles[1] + (f"\n({', '.join(steps)})" if steps else "")
+    draw_fan(axes[0, 0], before.image, before.geometry, resolution_m=resolution_m, vmax=vmax[0],
+             title=titles[0])
+    draw_fan(axes[0, 1], after.image, after.geometry, resolution_m=resolution_m, vmax=vmax[1],
+             title=t_after)
+    name = os.path.basename(before.source) or "ping"
+    fig.suptitle(name, fontsize=10)
     return fig

@@ -137,6 +137,7 @@ def read_png_ping(
         else:
             raise DataFormatError("no image (<ts>_raw.png, <ts>.png or .bmp) beside this JSON", p)
     image = read_image_file(p)
+    scale = 1.0
     if geometry is None:
         side = sidecar_json(p)
         try:
@@ -148,6 +149,8 @@ def read_png_ping(
         except OSError as exc:
             raise DataFormatError(f"cannot read sidecar: {exc.strerror or exc}", side) from None
         geom = _geometry_from_json_bytes(data, str(side), _base_stem(p))
+        if b'"intensity_scale"' in data:
+            scale = _intensity_scale(data, side)
     else:
         geom = as_geometry(geometry)
     if image.shape != geom.shape:
@@ -155,10 +158,20 @@ def read_png_ping(
             f"{p}: image shape {image.shape} does not match geometry '{geom.name}' "
             f"(n_bins, n_beams) = {geom.shape}"
         )
+    if scale != 1.0:
+        image = image * np.float32(scale)
     time_ns = time_ns_from_stem(p.stem)
     if time_ns is None:
         time_ns = 0
     return Ping(image=image, geometry=geom, time_ns=time_ns, source=str(p))
+
+
+def _intensity_scale(data: bytes, side: Path) -> float:
+    """The sidecar's ``intensity_scale``: stored pixels are ``image / intensity_scale``."""
+    value = json.loads(data).get("intensity_scale", 1.0)
+    if isinstance(value, bool) or not isinstance(value, int | float) or not 0 < value < 1e12:
+        raise DataFormatError(f"intensity_scale must be a positive number, got {value!r}", side)
+    return float(value)
 
 
 def _encode_png(image: NDArray[Any], bit_depth: int) -> bytes:

@@ -319,9 +319,9 @@ class SensorPoses:
             q[self.valid] = _rotation_cls().from_matrix(R[self.valid]).as_quat()
         return SensorPoses(self.time_ns, R, t, q, self.valid, frame="sensor")
 
-    def select(self, mask_or_index: ArrayLike) -> SensorPoses:
-        """A subset of the poses (boolean mask or integer indices)."""
-        k = np.asarray(mask_or_index)
+    def select(self, mask_or_index: ArrayLike | slice) -> SensorPoses:
+        """A subset of the poses (slice, boolean mask or integer indices)."""
+        k = mask_or_index if isinstance(mask_or_index, slice) else np.asarray(mask_or_index)
         return SensorPoses(
             self.time_ns[k], self.rotation[k], self.translation_m[k], self.orientation_xyzw[k], self.valid[k], self.frame
         )

@@ -13,7 +13,12 @@ Edge handling
 ``edge="pad"`` (default) uses the *linear* convolution model: beams outside the field of view are
 zero, each row is zero-padded to ``L >= 2 n_beams - 1`` (rounded up to a fast FFT length) before the
 real FFT, so the outer beams never wrap into each other and the result is not shifted along range
-or azimuth.  ``edge="circular"`` reproduces plain length-``n_beams`` FFT (circular) convolution -
+or azimuth.  ``edge="truncated"`` solves the same linear model as regularised least squares,
+``x = argmin |y - A x|^2 + (1/SNR)|x|^2`` with ``A`` the convolution matrix *restricted to the
+fan*, so echoes whose side lobes fall outside the fan are still deconvolved correctly (the
+zero-padded FFT implicitly assumes the unobserved beams outside the fan read zero, which leaves
+residual ghosts near the edges).  ``edge="circular"`` reproduces plain length-``n_beams`` FFT
+(circular) convolution -
 the model implicit in the paper authors' OpenCV code (without their one-bin shift along range,
 which is a bug) - and is provided so that the paper's exact numbers can be matched.
 
@@ -53,7 +58,7 @@ __all__ = [
 #: Beam counts up to this use the equivalent-matrix path when ``method="auto"``.
 MATMUL_MAX_BEAMS = 512
 
-Edge = Literal["pad", "circular"]
+Edge = Literal["pad", "circular", "truncated"]
 Method = Literal["auto", "fft", "matmul"]
 #: ``1/SNR``: a scalar, an array sampled uniformly over normalised frequency ``[0, 0.5]`` cycles per
 #: beam (linearly interpolated), or a callable of the normalised frequency returning ``1/SNR``.
@@ -64,11 +69,11 @@ def fft_length(n_beams: int, *, edge: Edge = "pad") -> int:
     """FFT length used along the beams: ``n_beams`` (circular) or a fast length ``>= 2 n_beams``."""
     if edge == "circular":
         return int(n_beams)
-    if edge == "pad":
+    if edge in ("pad", "truncated"):
         from scipy import fft as sfft
 
         return int(sfft.next_fast_len(2 * int(n_beams), real=True))
-    raise InputError(f"edge: must be 'pad' or 'circular', got {edge!r}")
+    raise InputError(f"edge: must be 'pad', 'circular' or 'truncated', got {edge!r}")
 
 
 def _check_psf(psf: ArrayLike | SonarGeometry | None, n_beams: int | None) -> NDArray[np.float64] | None:
@@ -198,6 +203,41 @@ def _matrix_cached(psf_bytes: bytes, noise_bytes: bytes, n_fft: int, n: int) -> 
     return out
 
 
+@functools.lru_cache(maxsize=128)
+def _lsq_matrix_cached(psf_bytes: bytes, noise: float) -> NDArray[np.float32]:
+    psf = np.frombuffer(psf_bytes, dtype=np.float64)
+    n = psf.size
+    c = n // 2
+    j = np.arange(n)[:, None]
+    k = np.arange(n)[None, :]
+    m = j - k + c
+    A = np.where((m >= 0) & (m < n), psf[np.clip(m, 0, n - 1)], 0.0)  # y = A x (truncated)
+    W = np.linalg.solve(A.T @ A + noise * np.eye(n), A.T)  # x_hat = W y
+    out = np.ascontiguousarray(W.T, dtype=np.float32)  # row form: x_hat = y @ W.T
+    out.setflags(write=False)
+    return out
+
+
+def _scalar_noise(noise: NoiseSpec) -> float:
+    if callable(noise) or np.ndim(noise) != 0:
+        raise InputError("noise: edge='truncated' supports only a scalar 1/SNR")
+    val = float(noise)  # type: ignore[arg-type]
+    if not np.isfinite(val) or val < 0:
+        raise InputError(f"noise: 1/SNR must be finite and >= 0 (got {val})")
+    if val == 0:
+        raise InputError("noise: edge='truncated' needs 1/SNR > 0 (the system may be singular)")
+    return val
+
+
+def _operator(p: NDArray[np.float64], noise: NoiseSpec, edge: Edge) -> NDArray[np.float32]:
+    """Row operator ``M`` with ``x_hat = y @ M`` for any edge model (cached)."""
+    if edge == "truncated":
+        return _lsq_matrix_cached(p.tobytes(), _scalar_noise(noise))
+    L = fft_length(p.size, edge=edge)
+    nz = _noise_grid(noise, L // 2 + 1)
+    return _matrix_cached(p.tobytes(), nz.tobytes(), L, p.size)
+
+
 def wiener_matrix(
     psf: ArrayLike | SonarGeometry,
     *,
@@ -206,14 +246,14 @@ def wiener_matrix(
 ) -> NDArray[np.float32]:
     """The deconvolution as a matrix ``M`` (n_beams, n_beams): ``deconvolve(y) == y @ M``.
 
-    Built once from the cached transfer function of :func:`wiener_filter`; read-only.
+    For ``edge="pad"``/``"circular"`` it is built once from the cached transfer function of
+    :func:`wiener_filter`; for ``edge="truncated"`` it is the regularised least-squares inverse
+    ``M = ((A^T A + noise I)^-1 A^T)^T`` of the truncated convolution matrix ``A``.  Read-only.
     """
     p = _check_psf(psf, None)
     if p is None:
         raise InputError("psf: geometry has no beam pattern")
-    L = fft_length(p.size, edge=edge)
-    nz = _noise_grid(noise, L // 2 + 1)
-    return _matrix_cached(p.tobytes(), nz.tobytes(), L, p.size)
+    return _operator(p, noise, edge)
 
 
 def _apply_fft(img: NDArray[np.float32], G: NDArray[np.complex128], n_fft: int) -> NDArray[np.float32]:
@@ -232,7 +272,7 @@ def deconvolve(
     *,
     noise: NoiseSpec = 1e-2,
     clip_negative: bool = False,
-    edge: Edge = "pad",
+    edge: Edge = "truncated",
     method: Method = "auto",
 ) -> NDArray[np.float32]:
     """Remove the beam pattern from an image by Wiener deconvolution along the beams.
@@ -250,9 +290,13 @@ def deconvolve(
     clip_negative : bool
         Set negative outputs (ringing of the inverse filter) to zero.  Off by default so the
         operator stays linear.
-    edge : {"pad", "circular"}
-        ``"pad"``: linear convolution model, zero-padded FFT (correct at the fan edges).
+    edge : {"pad", "circular", "truncated"}
+        ``"pad"``: linear convolution model, zero-padded FFT (no wrap at the fan edges).
         ``"circular"``: plain FFT circular convolution over ``n_beams``, as in the authors' code.
+        ``"truncated"``: regularised least squares for the linear model observed only inside the
+        fan (no assumption about the unobserved beams outside it); scalar ``noise`` only, always
+        a matrix product.  Best ghost suppression near the fan edges (see ``docs/preprocessing.md``);
+        the default.  Use ``"pad"`` for a frequency-dependent ``noise``.
     method : {"auto", "fft", "matmul"}
         ``"fft"``: real FFT along the beams with the cached transfer function.  ``"matmul"``:
         the same linear operator as a cached ``n_beams x n_beams`` matrix.  ``"auto"`` picks
@@ -282,12 +326,15 @@ def deconvolve(
     if p is None:
         out = img.copy()
     else:
-        nz = _noise_grid(noise, L // 2 + 1)
-        use_mm = method == "matmul" or (method == "auto" and img.shape[1] <= MATMUL_MAX_BEAMS)
+        use_mm = (
+            edge == "truncated"
+            or method == "matmul"
+            or (method == "auto" and img.shape[1] <= MATMUL_MAX_BEAMS)
+        )
         if use_mm:
-            M = _matrix_cached(p.tobytes(), nz.tobytes(), L, p.size)
-            out = img @ M
+            out = img @ _operator(p, noise, edge)
         else:
+            nz = _noise_grid(noise, L // 2 + 1)
             out = _apply_fft(img, _wiener_cached(p.tobytes(), nz.tobytes(), L), L)
     if clip_negative:
         np.maximum(out, 0.0, out=out)

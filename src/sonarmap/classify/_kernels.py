@@ -1,0 +1,324 @@
+"""Numba kernels for the MRF solvers (private; see :mod:`sonarmap.classify.mrf`).
+
+Lattice conventions shared by every kernel
+-----------------------------------------
+* ``unary``: float64 ``(n_labels, n_bins, n_beams)``, the cost of each label at each pixel.
+* ``weights``: float64 ``(n_dirs, n_bins, n_beams)`` with ``n_dirs`` 2 (4-neighbourhood) or 4
+  (8-neighbourhood).  ``weights[d, i, j]`` is the Potts weight of the edge from ``(i, j)`` to
+  ``(i + DI[d], j + DJ[d])``; entries whose partner lies outside the lattice are zero.
+* ``labels``: int32 ``(n_bins, n_beams)``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+# direction offsets: down (range), right (beam), down-right, down-left
+DI = np.array([1, 0, 1, 1], dtype=np.int64)
+DJ = np.array([0, 1, 1, -1], dtype=np.int64)
+
+
+@njit(cache=True, nogil=True)
+def _label_costs(unary, weights, labels, i, j, out):  # pragma: no cover - numba
+    n_labels, h, w = unary.shape
+    n_dirs = weights.shape[0]
+    for lab in range(n_labels):
+        out[lab] = unary[lab, i, j]
+    for d in range(n_dirs):
+        di = DI[d]
+        dj = DJ[d]
+        # forward neighbour
+        ii = i + di
+        jj = j + dj
+        if 0 <= ii < h and 0 <= jj < w:
+            wt = weights[d, i, j]
+            if wt != 0.0:
+                lq = labels[ii, jj]
+                for lab in range(n_labels):
+                    if lab != lq:
+                        out[lab] += wt
+        # backward neighbour
+        ii = i - di
+        jj = j - dj
+        if 0 <= ii < h and 0 <= jj < w:
+            wt = weights[d, ii, jj]
+            if wt != 0.0:
+                lq = labels[ii, jj]
+                for lab in range(n_labels):
+                    if lab != lq:
+                        out[lab] += wt
+
+
+@njit(cache=True, nogil=True)
+def icm(unary, weights, labels, max_sweeps):  # pragma: no cover - numba
+    """Iterated conditional modes in raster order, in place; returns the number of sweeps."""
+    n_labels, h, w = unary.shape
+    costs = np.empty(n_labels)
+    sweeps = 0
+    for _ in range(max_sweeps):
+        sweeps += 1
+        changed = 0
+        for i in range(h):
+            for j in range(w):
+                _label_costs(unary, weights, labels, i, j, costs)
+                best = labels[i, j]
+                bc = costs[best]
+                for lab in range(n_labels):
+                    if costs[lab] < bc:
+                        bc = costs[lab]
+                        best = lab
+                if best != labels[i, j]:
+                    labels[i, j] = best
+                    changed += 1
+        if changed == 0:
+            break
+    return sweeps
+
+
+@njit(cache=True, nogil=True)
+def anneal(unary, weights, labels, temperatures, seed):  # pragma: no cover - numba
+    """Gibbs-sampler simulated annealing (Geman & Geman 1984), in place.
+
+    One raster sweep per temperature; each pixel's label is drawn from
+    ``p(l) ~ exp(-cost(l) / T)`` given its neighbours.
+    """
+    np.random.seed(seed)
+    n_labels, h, w = unary.shape
+    costs = np.empty(n_labels)
+    probs = np.empty(n_labels)
+    for t in range(temperatures.size):
+        temp = temperatures[t]
+        for i in range(h):
+            for j in range(w):
+                _label_costs(unary, weights, labels, i, j, costs)
+                cmin = costs.min()
+                tot = 0.0
+                for lab in range(n_labels):
+                    probs[lab] = np.exp(-(costs[lab] - cmin) / temp)
+                    tot += probs[lab]
+                u = np.random.random() * tot
+                acc = 0.0
+                choice = n_labels - 1
+                for lab in range(n_labels):
+                    acc += probs[lab]
+                    if u < acc:
+                        choice = lab
+                        break
+                labels[i, j] = choice
+
+
+@njit(cache=True, nogil=True)
+def reduce_binary(levels, margin_lut, weights, wtot, fixed, node, m, wfree, stack):  # pragma: no cover
+    """Exact persistency reduction of a binary Potts problem, then graph arrays for the rest.
+
+    The margin of pixel ``(i, j)`` is ``margin_lut[levels[i, j]]`` (``unary[0] - unary[1]``,
+    positive favours label 1); a general unary is passed as ``levels = arange(h*w)`` and
+    ``margin_lut = margin.ravel()``.  ``wtot`` is the total incident edge weight per pixel;
+    ``fixed``, ``node``, ``m``, ``wfree`` and ``stack`` are caller-owned work arrays (reused
+    across pings of equal shape, so no large allocation happens per call).
+
+    A pixel whose effective margin exceeds the total weight of its still-free edges,
+    ``|m_eff| > W_free``, takes the label the margin favours in *every* minimiser (changing it
+    alone would lower the energy strictly).  Fixing it turns its edges into unary terms of its
+    neighbours (``m_eff += w`` if fixed to 1, ``-= w`` if fixed to 0) and lowers their ``W_free``,
+    so the test is propagated with a work stack until nothing more can be fixed.  Cost: one cheap
+    pass over all pixels plus time proportional to the pixels that survive it.
+
+    Returns
+    -------
+    n_free : int
+    m_eff : float64 (n_free,)
+        Effective margin of each free node (``node[i, j]`` is its index, -1 if fixed).
+    ei, ej : int64 (n_edges,), ew : float64 (n_edges,)
+        Free-free edges and their weights.  ``fixed`` holds 0/1, or -1 for free pixels.
+    """
+    h, w = levels.shape
+    n_dirs = weights.shape[0]
+    top = 0
+    for i in range(h):
+        for j in range(w):
+            mm = margin_lut[levels[i, j]]
+            wt = wtot[i, j]
+            if mm > wt:
+                fixed[i, j] = 1
+            elif mm < -wt:
+                fixed[i, j] = 0
+            else:
+                fixed[i, j] = -1
+                stack[top] = i * w + j
+                top += 1
+    # effective margins of the survivors given their fixed neighbours
+    for k in range(top):
+        p = stack[k]
+        i = p // w
+        j = p - i * w
+        mm = margin_lut[levels[i, j]]
+        wf = 0.0
+        for d in range(n_dirs):
+            for s in range(2):
+                if s == 0:
+                    ii = i + DI[d]
+                    jj = j + DJ[d]
+                    if not (0 <= ii < h and 0 <= jj < w):
+                        continue
+                    wt = weights[d, i, j]
+                else:
+                    ii = i - DI[d]
+                    jj = j - DJ[d]
+                    if not (0 <= ii < h and 0 <= jj < w):
+                        continue
+                    wt = weights[d, ii, jj]
+                f = fixed[ii, jj]
+                if f < 0:
+                    wf += wt
+                elif f == 1:
+                    mm += wt
+                else:
+                    mm -= wt
+        m[i, j] = mm
+        wfree[i, j] = wf
+    while top > 0:
+        top -= 1
+        p = stack[top]
+        i = p // w
+        j = p - i * w
+        if fixed[i, j] >= 0:
+            continue
+        lab = -1
+        if m[i, j] > wfree[i, j]:
+            lab = 1
+        elif m[i, j] < -wfree[i, j]:
+            lab = 0
+        if lab < 0:
+            continue
+        fixed[i, j] = lab
+        sgn = 1.0 if lab == 1 else -1.0
+        for d in range(n_dirs):
+            for s in range(2):
+                if s == 0:
+                    ii = i + DI[d]
+                    jj = j + DJ[d]
+                    if not (0 <= ii < h and 0 <= jj < w):
+                        continue
+                    wt = weights[d, i, j]
+                else:
+                    ii = i - DI[d]
+                    jj = j - DJ[d]
+                    if not (0 <= ii < h and 0 <= jj < w):
+                        continue
+                    wt = weights[d, ii, jj]
+                if wt == 0.0 or fixed[ii, jj] >= 0:
+                    continue
+                m[ii, jj] += sgn * wt
+                wfree[ii, jj] -= wt
+                if top < stack.size:
+                    stack[top] = ii * w + jj
+                    top += 1
+    n_free = 0
+    for i in range(h):
+        for j in range(w):
+            if fixed[i, j] < 0:
+                node[i, j] = n_free
+                n_free += 1
+    m_eff = np.empty(n_free)
+    ei = np.empty(n_free * n_dirs, dtype=np.int64)
+    ej = np.empty(n_free * n_dirs, dtype=np.int64)
+    ew = np.empty(n_free * n_dirs)
+    n_edges = 0
+    for i in range(h):
+        for j in range(w):
+            if fixed[i, j] < 0:
+                a = node[i, j]
+                m_eff[a] = m[i, j]
+                for d in range(n_dirs):
+                    ii = i + DI[d]
+                    jj = j + DJ[d]
+                    if 0 <= ii < h and 0 <= jj < w and fixed[ii, jj] < 0 and weights[d, i, j] != 0.0:
+                        ei[n_edges] = a
+                        ej[n_edges] = node[ii, jj]
+                        ew[n_edges] = weights[d, i, j]
+                        n_edges += 1
+    return n_free, m_eff, ei[:n_edges], ej[:n_edges], ew[:n_edges]
+
+
+@njit(cache=True, nogil=True)
+def write_free_labels(fixed, node, x, labels):  # pragma: no cover - numba
+    """``labels = fixed`` with free pixels set from the cut ``x[node]``."""
+    h, w = fixed.shape
+    for i in range(h):
+        for j in range(w):
+            f = fixed[i, j]
+            labels[i, j] = x[node[i, j]] if f < 0 else f
+
+
+@njit(cache=True, nogil=True)
+def energy_lut(levels, cost_lut, weights, labels):  # pragma: no cover - numba
+    """Energy with unary ``cost_lut[label, levels[i, j]]`` plus Potts pairwise terms."""
+    h, w = levels.shape
+    e = 0.0
+    for i in range(h):
+        for j in range(w):
+            lab = labels[i, j]
+            e += cost_lut[lab, levels[i, j]]
+            for d in range(weights.shape[0]):
+                ii = i + DI[d]
+                jj = j + DJ[d]
+                if 0 <= ii < h and 0 <= jj < w and labels[ii, jj] != lab:
+                    e += weights[d, i, j]
+    return e
+
+
+@njit(cache=True, nogil=True)
+def expansion_arrays(unary, weights, labels, alpha):  # pragma: no cover - numba
+    """Graph arrays of one alpha-expansion move (Boykov, Veksler & Zabih 2001) for Potts terms.
+
+    Binary variable ``x_p = 1`` means "switch to ``alpha``".  Per edge with current labels
+    ``(a, b)`` the move energies are ``E00 = w[a != b]``, ``E01 = w[a != alpha]``,
+    ``E10 = w[alpha != b]``, ``E11 = 0``; they are regular for the Potts metric and decomposed as
+    ``E00 + (E10 - E00) x_p + (E11 - E10) x_q + (E01 + E10 - E00 - E11)(1 - x_p) x_q``.
+
+    Returns per-pixel costs ``c0`` (keep) and ``c1`` (switch), flattened, and edges
+    ``(ei, ej, cap)`` for the ``(1 - x_p) x_q`` terms.
+    """
+    n_labels, h, w = unary.shape
+    n_dirs = weights.shape[0]
+    c0 = np.empty(h * w)
+    c1 = np.empty(h * w)
+    for i in range(h):
+        for j in range(w):
+            c0[i * w + j] = unary[labels[i, j], i, j]
+            c1[i * w + j] = unary[alpha, i, j]
+    n_max = h * w * n_dirs
+    ei = np.empty(n_max, dtype=np.int64)
+    ej = np.empty(n_max, dtype=np.int64)
+    cap = np.empty(n_max)
+    k = 0
+    for d in range(n_dirs):
+        for i in range(h):
+            for j in range(w):
+                ii = i + DI[d]
+                jj = j + DJ[d]
+                if not (0 <= ii < h and 0 <= jj < w):
+                    continue
+                wt = weights[d, i, j]
+                if wt == 0.0:
+                    continue
+                a = labels[i, j]
+                b = labels[ii, jj]
+                e00 = wt if a != b else 0.0
+                e01 = wt if a != alpha else 0.0
+                e10 = wt if alpha != b else 0.0
+                p = i * w + j
+                q = ii * w + jj
+                # constant E00 on both of p's costs, + (E10 - E00) x_p, + (E11 - E10) x_q
+                c0[p] += e00
+                c1[p] += e10
+                c1[q] -= e10
+                c = e01 + e10 - e00
+                if c > 0.0:
+                    ei[k] = p
+                    ej[k] = q
+                    cap[k] = c
+                    k += 1
+    return c0, c1, ei[:k], ej[:k], cap[:k]

@@ -1,0 +1,134 @@
+"""``sonarmap process``: a whole survey into a resumable zarr store of per-ping products."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import typer
+
+from sonarmap.cli._common import GEOMETRY_OPTION, console, err_console
+
+__all__ = ["register", "process_command", "survey_progress"]
+
+
+class survey_progress:  # noqa: N801 - used as a context manager, reads like a function
+    """Rich progress bar (rate, ETA) on stderr, fed by ``process_survey(progress=...)``.
+
+    Disabled (a no-op callback) when ``quiet`` is true.
+    """
+
+    def __init__(self, description: str = "processing", *, quiet: bool = False) -> None:
+        self.quiet = quiet
+        self.description = description
+        self._progress: Any = None
+        self._task: Any = None
+
+    def __enter__(self) -> survey_progress:
+        if not self.quiet:
+            from rich.progress import (
+                BarColumn,
+                MofNCompleteColumn,
+                Progress,
+                TextColumn,
+                TimeElapsedColumn,
+                TimeRemainingColumn,
+            )
+
+            class _Rate(TextColumn):
+                def __init__(self) -> None:
+                    super().__init__("")
+
+                def render(self, task: Any) -> Any:  # noqa: D102
+                    from rich.text import Text
+
+                    speed = task.finished_speed or task.speed
+                    return Text("" if speed is None else f"{speed:,.0f} pings/s", style="cyan")
+
+            self._progress = Progress(
+                TextColumn("[bold]{task.description}"),
+                BarColumn(),
+                MofNCompleteColumn(),
+                _Rate(),
+                TimeElapsedColumn(),
+                TextColumn("ETA"),
+                TimeRemainingColumn(),
+                console=err_console(),
+                transient=False,
+            )
+            self._progress.__enter__()
+        return self
+
+    def __call__(self, done: int, total: int) -> None:
+        if self._progress is None:
+            return
+        if self._task is None:
+            # Pings done by an earlier run count as completed but not toward the rate.
+            self._task = self._progress.add_task(self.description, total=total, completed=done)
+            return
+        self._progress.update(self._task, completed=done)
+
+    def __exit__(self, *exc: object) -> None:
+        if self._progress is not None:
+            self._progress.__exit__(*exc)
+
+
+def process_command(
+    inputs: list[Path] = typer.Argument(..., help="Ping files, directories of PNG+JSON pings, or globs."),
+    output: Path = typer.Option(..., "--output", "-o", help="Output survey store (e.g. survey.zarr)."),
+    config: Path | None = typer.Option(
+        None, "--config", "-c", help="Pipeline configuration (TOML); validated, recorded in the output."
+    ),
+    workers: int | None = typer.Option(
+        None, "--workers", "-j", min=0, help="Local worker processes (default: CPU count; 0: in-process)."
+    ),
+    scheduler: str | None = typer.Option(
+        None, "--scheduler", help="dask.distributed scheduler address (tcp://HOST:PORT); chunks run there."
+    ),
+    chunk_size: int = typer.Option(256, "--chunk-size", "-k", min=1, help="Pings per task and zarr chunk."),
+    keep_labels: bool = typer.Option(False, "--keep-labels", help="Also store per-pixel labels (large)."),
+    poses: Path | None = typer.Option(
+        None, "--poses", help="Vehicle poses CSV: register the ranges into a point cloud."
+    ),
+    points: Path | None = typer.Option(
+        None, "--points", help="Point-cloud file written with --poses (.ply/.las; default <output>.ply)."
+    ),
+    extrinsics: Path | None = typer.Option(
+        None, "--extrinsics", help="Sensor mounting JSON used with --poses (default: sensor = body)."
+    ),
+    sonar: str | None = GEOMETRY_OPTION,
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing, different output."),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar and no summary."),
+) -> None:
+    """Process a survey: read -> pre-process -> fit -> segment -> ranges (-> points), per chunk.
+
+    Re-running the same command after an interruption resumes where it stopped; the result is
+    identical to an uninterrupted run.
+    """
+    from sonarmap.survey import process_survey
+
+    if scheduler is not None and workers is not None:
+        raise typer.BadParameter("give either --workers or --scheduler, not both", param_hint="--workers")
+    with survey_progress(f"{output.name}", quiet=quiet) as bar:
+        result = process_survey(
+            [str(p) for p in inputs],
+            output,
+            config=config,
+            workers=workers,
+            scheduler=scheduler,
+            chunk_size=chunk_size,
+            keep_labels=keep_labels,
+            poses=poses,
+            points=points,
+            extrinsics=extrinsics,
+            geometry=sonar,
+            overwrite=overwrite,
+            progress=bar,
+        )
+    if not quiet:
+        console().print(result.summary(), soft_wrap=True)
+
+
+def register(app: typer.Typer) -> None:
+    """Add ``process`` to the CLI."""
+    app.command("process")(process_command)

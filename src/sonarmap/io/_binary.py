@@ -1,0 +1,159 @@
+"""Shared helpers of the binary sonar-file readers (ARIS, DIDSON, Oculus).
+
+One place for: the partial-frame warning, memory-mapping a file read-only, and turning any
+inconsistency found while decoding headers into a :class:`~sonarmap.errors.DataFormatError` that
+names the file and the byte offset.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import mmap
+import os
+import warnings
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any, TypeVar
+
+import numpy as np
+
+from sonarmap.errors import DataFormatError, GeometryError, InputError, SonarmapWarning
+
+__all__ = [
+    "PartialFrameWarning",
+    "map_file",
+    "header_errors",
+    "warn_partial",
+    "finite_or",
+    "time_ns_from_us",
+]
+
+T = TypeVar("T")
+
+
+class PartialFrameWarning(SonarmapWarning):
+    """The last frame/record of a file is incomplete (e.g. the recording was cut) and was skipped."""
+
+
+def map_file(path: str | os.PathLike[str], *, min_size: int = 0, what: str = "file") -> np.memmap | np.ndarray:
+    """Memory-map ``path`` read-only as a flat ``uint8`` array (empty files give an empty array).
+
+    Raises
+    ------
+    DataFormatError
+        If the file cannot be opened or is shorter than ``min_size`` bytes.
+    """
+    p = Path(path)
+    try:
+        size = p.stat().st_size
+    except FileNotFoundError:
+        raise DataFormatError("no such file", p) from None
+    except OSError as exc:
+        raise DataFormatError(f"cannot read: {exc.strerror or exc}", p) from None
+    if size < min_size:
+        raise DataFormatError(
+            f"truncated {what}: {size} bytes, the header alone needs {min_size}", p, size
+        )
+    if size == 0:
+        return np.zeros(0, dtype=np.uint8)
+    try:
+        return np.memmap(p, dtype=np.uint8, mode="r")
+    except (OSError, ValueError) as exc:
+        raise DataFormatError(f"cannot memory-map: {exc}", p) from None
+
+
+@contextlib.contextmanager
+def header_errors(path: str | os.PathLike[str], offset: int | None, what: str) -> Iterator[None]:
+    """Re-raise geometry/validation errors raised while decoding a header as DataFormatError."""
+    try:
+        yield
+    except DataFormatError:
+        raise
+    except (GeometryError, InputError, ValueError, OverflowError, ZeroDivisionError) as exc:
+        raise DataFormatError(f"inconsistent {what}: {exc}", path, offset) from None
+
+
+def warn_partial(path: str | os.PathLike[str], offset: int, have: int, need: int, what: str) -> None:
+    """Warn (PartialFrameWarning) that the trailing ``what`` at ``offset`` is incomplete."""
+    warnings.warn(
+        f"{path}: at byte {offset}: last {what} is incomplete ({have} of {need} bytes); skipped",
+        PartialFrameWarning,
+        stacklevel=3,
+    )
+
+
+def finite_or(value: Any, default: float | None = None) -> float | None:
+    """``float(value)`` if finite, else ``default``."""
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        return default
+    return v if math.isfinite(v) else default
+
+
+def time_ns_from_us(us: int) -> int:
+    """Microseconds since the epoch to integer nanoseconds (exact)."""
+    return int(us) * 1000
+
+
+def checked(fn: Callable[[], T], path: str | os.PathLike[str], offset: int, what: str) -> T:
+    """Call ``fn`` translating validation errors to DataFormatError (see :func:`header_errors`)."""
+    with header_errors(path, offset, what):
+        return fn()
+
+
+def map_bytes(buf: bytes | bytearray | memoryview | np.ndarray) -> memoryview:
+    """A read-only memoryview over ``buf`` (ndarray, bytes or mmap)."""
+    if isinstance(buf, np.ndarray):
+        return memoryview(buf).cast("B")
+    if isinstance(buf, mmap.mmap):
+        return memoryview(buf)
+    return memoryview(buf)
+
+
+#: 8-bit sensor data -> [0, 1] (the same factor as the PNG reader, so values agree bit for bit).
+U8_SCALE = np.float32(1.0 / 255.0)
+
+#: Largest ping time representable as datetime64[ns] (int64 nanoseconds).
+MAX_TIME_NS = 2**63 - 1
+
+
+def make_summary(
+    fmt: str,
+    path: str | os.PathLike[str],
+    *,
+    n_pings: int,
+    geometry: Any,
+    time_start_ns: int | None,
+    time_end_ns: int | None,
+    **details: Any,
+) -> dict[str, Any]:
+    """The dict returned by every format module's ``summary(path)`` hook.
+
+    Keys: ``format``, ``path``, ``n_pings``, ``geometry`` (a SonarGeometry of the first ping, or
+    ``None``), ``time_start_ns``/``time_end_ns`` (int or ``None`` when the format has no clock),
+    ``time_start``/``time_end`` (ISO-8601 UTC strings or ``None``), ``duration_s`` and ``details``
+    (format-specific fields).
+    """
+
+    def iso(t: int | None) -> str | None:
+        if t is None:
+            return None
+        return str(np.datetime64(int(t), "ns")) + "Z"
+
+    duration = None
+    if time_start_ns is not None and time_end_ns is not None:
+        duration = (time_end_ns - time_start_ns) * 1e-9
+    return {
+        "format": fmt,
+        "path": str(path),
+        "n_pings": int(n_pings),
+        "geometry": geometry,
+        "time_start_ns": time_start_ns,
+        "time_end_ns": time_end_ns,
+        "time_start": iso(time_start_ns),
+        "time_end": iso(time_end_ns),
+        "duration_s": duration,
+        "details": details,
+    }

@@ -1,0 +1,554 @@
+"""Blueprint Subsea Oculus multibeam sonars: network ``SimplePingResult`` streams and ViewPoint logs.
+
+Three containers are read, all yielding the same decoded ``SimplePingResult`` messages:
+
+``raw`` (network stream, e.g. liboculus test data)
+    Concatenated messages, each a 16-byte ``OculusMessageHeader`` (``oculusId`` 0x4F53, i.e. the
+    bytes ``b"SO"``; ``msgId``; ``msgVersion``; ``payloadSize``) followed by ``payloadSize`` bytes.
+    Only ``msgId`` 0x23 (``SimplePingResult``) carries pings; other messages are skipped.  The
+    stream has no wall clock, so ``Ping.time_ns`` is 0 and the sonar's own ``pingStartTime`` is
+    kept in ``Ping.meta``.
+``log-v1`` (ViewPoint ``.oculus`` binary log, Blueprint's ``RmLogHeader``/``RmLogItem``)
+    A file header (magic 0x11223344, its own size in ``sizeHeader``) then items (magic 0xAABBCCDD,
+    ``sizeHeader``, ``type``, ``version``, ``time`` (double, seconds since the epoch),
+    ``compression`` (0 none, 1 Qt ``qCompress``: 4-byte big-endian length + zlib), ``originalSize``,
+    ``payloadSize``) with natural C alignment.  Items of type 10 (``rt_oculusSonar``) hold one
+    network message.
+``log-v2`` (ViewPoint ``.oculus`` SQLite database)
+    Only partly described in public: a ``data`` table whose last BLOB column holds a network
+    message and a ``timestamp``-like column.  Rows whose blob is an Oculus ``SimplePingResult``
+    are read; the time unit is inferred from the magnitude (s, ms, µs or ns since the epoch).
+
+Message versions: ``msgVersion`` 2 is ``SimplePingResult2`` (adds heading/pitch/roll, double
+``pingStartTime``); anything else is version 1.  Fire-message flag bit 2 (0x04) means each range
+row is prefixed by a 4-byte gain (float32, kept in ``Ping.meta["row_gain"]``); the image is
+range-major (``nRanges`` rows of ``nBeams`` samples of 8/16/24/32 bits).
+
+Geometry: the per-beam bearing table (int16, 1/100 degree) gives ``azimuth_rad`` directly -
+Oculus bearings are negative on the left (port) side of the image, positive to starboard, which
+is our convention.  Range of row ``i`` is ``i * rangeResolution``.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+import os
+import sqlite3
+import struct
+import zlib
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any, NamedTuple
+
+import numpy as np
+
+from sonarmap.errors import DataFormatError
+from sonarmap.geometry import SonarGeometry, as_geometry
+from sonarmap.io._binary import MAX_TIME_NS, U8_SCALE, header_errors, make_summary, map_file, warn_partial
+from sonarmap.ping import Ping
+
+__all__ = [
+    "FORMAT",
+    "OCULUS_ID",
+    "MSG_SIMPLE_PING_RESULT",
+    "OculusFile",
+    "decode_simple_ping",
+    "sniff",
+    "iter_pings",
+    "count_pings",
+    "summary",
+]
+
+FORMAT = "oculus"
+OCULUS_ID = 0x4F53
+MSG_SIMPLE_PING_RESULT = 0x23
+LOG_FILE_MAGIC = 0x11223344
+LOG_ITEM_MAGIC = 0xAABBCCDD
+RT_OCULUS_SONAR = 10
+SQLITE_MAGIC = b"SQLite format 3\x00"
+
+FLAG_RANGE_METERS = 0x01
+FLAG_16BIT = 0x02
+FLAG_SEND_GAIN = 0x04
+FLAG_SIMPLE = 0x08
+
+HEADER = struct.Struct("<HHHHHIH")  # oculusId src dst msgId msgVersion payloadSize partNumber
+FIRE_V1 = struct.Struct("<BBBBBdddd")  # masterMode pingRate networkSpeed gamma flags range gain c salinity
+FIRE_V2_EXTRA = struct.Struct("<I2II5I")  # extFlags reserved0[2] beaconLocatorFrequency reserved1[5]
+PING_V1 = struct.Struct("<IIddddIBdHHIII")
+PING_V2 = struct.Struct("<IIddddddddBdHH4IIII")
+SIZE_V1 = HEADER.size + FIRE_V1.size + PING_V1.size  # 122
+SIZE_V2 = HEADER.size + FIRE_V1.size + FIRE_V2_EXTRA.size + PING_V2.size  # 202
+
+LOG_HEADER = struct.Struct("<II16sHH4xqd")  # natural alignment, 48 bytes
+LOG_ITEM = struct.Struct("<IIHH4xdH2xII4x")  # natural alignment, 40 bytes
+_LOG_ITEM_MIN = 36
+
+_BYTES_PER_SAMPLE = {0: 1, 1: 2, 2: 3, 3: 4}
+_PART_NUMBERS = {
+    1041: "M370s", 2418: "MT370s", 1433: "MD370s", 4713: "C550d", 1032: "M750d", 2419: "MT750d",
+    1434: "MD750d", 1042: "M1200d", 2420: "MT1200d", 1435: "MD1200d", 2203: "M3000d",
+    2599: "MT3000d",
+}  # fmt: skip
+
+
+class _Record(NamedTuple):
+    offset: int  # byte offset of the message (raw, log-v1) or SQLite rowid (log-v2)
+    length: int
+    time_ns: int
+    compressed: bool
+
+
+def _epoch_ns(value: float) -> int:
+    """A time stamp since the epoch in s, ms, µs or ns (by magnitude) -> integer ns."""
+    v = float(value)
+    if not math.isfinite(v) or v < 0:
+        raise ValueError(f"time stamp {value!r} is not a finite non-negative number")
+    scale = 1e9 if v < 1e11 else 1e6 if v < 1e14 else 1e3 if v < 1e17 else 1.0
+    t = int(round(v * scale))
+    if t > MAX_TIME_NS:
+        raise ValueError(f"time stamp {value!r} is out of range")
+    return t
+
+
+def _q_uncompress(data: bytes | memoryview) -> bytes:
+    """Qt ``qUncompress``: 4-byte big-endian expected length, then a zlib stream."""
+    if len(data) < 4:
+        raise ValueError("compressed payload shorter than its 4-byte length prefix")
+    (n,) = struct.unpack_from(">I", data, 0)
+    out = zlib.decompress(bytes(data[4:]))
+    if len(out) != n:
+        raise ValueError(f"decompressed {len(out)} bytes, header says {n}")
+    return out
+
+
+@functools.lru_cache(maxsize=64)
+def _geometry(
+    bearings: bytes, n_ranges: int, resolution_m: float, sound_speed: float, frequency: float,
+    part: int,
+) -> SonarGeometry:
+    az = np.deg2rad(np.frombuffer(bearings, dtype="<i2").astype(np.float64) / 100.0)
+    model = _PART_NUMBERS.get(part)
+    return SonarGeometry.from_window(
+        min_range_m=0.0,
+        max_range_m=n_ranges * resolution_m,
+        n_bins=n_ranges,
+        azimuth_rad=az,
+        frequency_hz=frequency,
+        sound_speed_m_s=sound_speed,
+        name=f"oculus-{model.lower()}" if model else "oculus",
+        azimuth_source="table",
+    )
+
+
+def decode_simple_ping(
+    msg: bytes | memoryview,
+    *,
+    path: str | os.PathLike[str] = "<bytes>",
+    offset: int = 0,
+    time_ns: int = 0,
+    geometry: SonarGeometry | None = None,
+    source: str = "",
+) -> Ping:
+    """Decode one ``SimplePingResult`` (v1 or v2) network message into a :class:`Ping`.
+
+    Parameters
+    ----------
+    msg : bytes-like
+        The whole message, starting with the 16-byte message header.
+    path, offset : optional
+        Used in error messages (file and byte offset of the message).
+    time_ns : int
+        Ping time (the message itself has no wall clock).
+
+    Raises
+    ------
+    DataFormatError
+        When the message is short, has a bad id, or its sizes disagree with each other.
+    """
+    mv = memoryview(msg).cast("B") if not isinstance(msg, bytes) else memoryview(msg)
+    n = len(mv)
+    if n < HEADER.size:
+        raise DataFormatError(f"message of {n} bytes is shorter than its 16-byte header", path, offset)
+    oid, _src, _dst, msg_id, version, payload, part = HEADER.unpack_from(mv, 0)
+    if oid != OCULUS_ID:
+        raise DataFormatError(f"bad Oculus message id 0x{oid:04X} (expected 0x4F53)", path, offset)
+    if msg_id != MSG_SIMPLE_PING_RESULT:
+        raise DataFormatError(f"message 0x{msg_id:02X} is not a SimplePingResult", path, offset)
+    v2 = version == 2
+    need = SIZE_V2 if v2 else SIZE_V1
+    if n < need:
+        raise DataFormatError(
+            f"SimplePingResult v{2 if v2 else 1} needs {need} bytes, message has {n}", path, offset
+        )
+    fire = FIRE_V1.unpack_from(mv, HEADER.size)
+    flags = fire[4]
+    meta: dict[str, Any] = {
+        "format": FORMAT,
+        "message_version": 2 if v2 else 1,
+        "part_number": part,
+        "flags": flags,
+        "range_setting": fire[5],
+        "gain_percent": fire[6],
+    }
+    if v2:
+        p = PING_V2.unpack_from(mv, HEADER.size + FIRE_V1.size + FIRE_V2_EXTRA.size)
+        (ping_id, status, freq, temp, pressure, heading, pitch, roll, c_used, start, dsize, res,
+         n_ranges, n_beams, _s0, _s1, _s2, _s3, img_off, img_size, msg_size) = p
+        meta.update(heading_deg=heading, pitch_deg=pitch, roll_deg=roll)
+    else:
+        p = PING_V1.unpack_from(mv, HEADER.size + FIRE_V1.size)
+        (ping_id, status, freq, temp, pressure, c_used, start, dsize, res, n_ranges, n_beams,
+         img_off, img_size, msg_size) = p
+    meta.update(
+        ping_id=ping_id, status=status, temperature_c=temp, pressure_bar=pressure,
+        ping_start_time=start,
+    )
+    with header_errors(path, offset, "SimplePingResult"):
+        if HEADER.size + payload != n:
+            raise ValueError(f"payloadSize {payload} + 16 != message length {n}")
+        if dsize not in _BYTES_PER_SAMPLE:
+            raise ValueError(f"dataSize {dsize} is not 0-3 (8/16/24/32 bit)")
+        if n_beams < 1 or n_ranges < 1:
+            raise ValueError(f"empty image ({n_ranges} ranges x {n_beams} beams)")
+        bps = _BYTES_PER_SAMPLE[dsize]
+        gain = bool(flags & FLAG_SEND_GAIN)
+        stride = n_beams * bps + (4 if gain else 0)
+        if img_size != n_ranges * stride:
+            raise ValueError(
+                f"imageSize {img_size} != nRanges {n_ranges} x ({n_beams} beams x {bps} bytes"
+                f"{' + 4 gain bytes' if gain else ''})"
+            )
+        if img_off < need + 2 * n_beams or img_off + img_size > n:
+            raise ValueError(
+                f"image [{img_off}, {img_off + img_size}) does not fit after the bearings in a "
+                f"{n}-byte message"
+            )
+        if not (math.isfinite(res) and 0 < res < 10):
+            raise ValueError(f"rangeResolution {res} m is not a positive number below 10 m")
+        c = c_used if math.isfinite(c_used) and 1300 <= c_used <= 1700 else 1500.0
+        if c != c_used:
+            meta["sound_speed_reported"] = c_used
+        f_hz = freq if math.isfinite(freq) and 1e3 < freq < 1e8 else 1.2e6
+        bearings = bytes(mv[need : need + 2 * n_beams])
+        geom = geometry if geometry is not None else _geometry(
+            bearings, n_ranges, float(res), float(c), float(f_hz), int(part)
+        )
+        if msg_size not in (0, n):
+            meta["message_size_reported"] = msg_size
+    raw = np.frombuffer(mv, dtype=np.uint8, count=img_size, offset=img_off).reshape(n_ranges, stride)
+    if gain:
+        meta["row_gain"] = raw[:, :4].copy().view("<f4").reshape(-1)
+        raw = raw[:, 4:]
+    if bps == 1:
+        image = np.multiply(raw, U8_SCALE, dtype=np.float32)
+    elif bps == 2:
+        image = np.ascontiguousarray(raw).view("<u2").astype(np.float32) / np.float32(65535.0)
+    elif bps == 3:
+        r = raw.reshape(n_ranges, n_beams, 3).astype(np.uint32)
+        v = r[..., 0] | (r[..., 1] << 8) | (r[..., 2] << 16)
+        image = (v.astype(np.float64) / float(2**24 - 1)).astype(np.float32)
+    else:
+        v = np.ascontiguousarray(raw).view("<u4")
+        image = (v.astype(np.float64) / float(2**32 - 1)).astype(np.float32)
+    with header_errors(path, offset, "SimplePingResult"):
+        return Ping(image=image, geometry=geom, time_ns=time_ns, source=source, meta=meta)
+
+
+class OculusFile:
+    """Lazy access to the pings of an Oculus network stream or ViewPoint log.
+
+    ``len(f)`` pings; ``f[i]`` decodes ping ``i``; ``f.kind`` is ``"raw"``, ``"log-v1"`` or
+    ``"log-v2"``.  Only the message headers are scanned on opening (bounded memory).
+
+    Raises
+    ------
+    DataFormatError
+        Unknown container, bad magic or ids, or sizes that disagree with the file.
+    """
+
+    def __init__(
+        self,
+        path: str | os.PathLike[str],
+        *,
+        geometry: SonarGeometry | str | os.PathLike[str] | None = None,
+    ) -> None:
+        self.path = Path(path)
+        self._override = None if geometry is None else as_geometry(geometry)
+        self._db: sqlite3.Connection | None = None
+        self._mm: Any = None
+        with open_head(self.path) as head:
+            pass
+        if head[:16] == SQLITE_MAGIC:
+            self.kind = "log-v2"
+            self._records = self._index_sqlite()
+            return
+        self._mm = map_file(self.path, min_size=1, what="Oculus file")
+        if head[:4] == struct.pack("<I", LOG_FILE_MAGIC):
+            self.kind = "log-v1"
+            self._records = self._index_log_v1()
+        elif head[:2] == b"SO":
+            self.kind = "raw"
+            self._records = self._index_raw()
+        else:
+            raise DataFormatError(
+                f"not an Oculus stream or ViewPoint log (starts with {bytes(head[:4])!r})",
+                self.path, 0,
+            )
+
+    # ------------------------------------------------------------------ indexing
+    def _index_raw(self) -> list[_Record]:
+        mm, size, out, o = self._mm, int(self._mm.size), [], 0
+        while o < size:
+            if size - o < HEADER.size:
+                warn_partial(self.path, o, size - o, HEADER.size, "message header")
+                break
+            oid, _s, _d, msg_id, _v, payload, _p = HEADER.unpack_from(mm, o)
+            if oid != OCULUS_ID:
+                raise DataFormatError(
+                    f"bad Oculus message id 0x{oid:04X} (expected 0x4F53); stream out of sync",
+                    self.path, o,
+                )
+            total = HEADER.size + payload
+            if o + total > size:
+                warn_partial(self.path, o, size - o, total, "message")
+                break
+            if msg_id == MSG_SIMPLE_PING_RESULT:
+                out.append(_Record(o, total, 0, False))
+            o += total
+        return out
+
+    def _index_log_v1(self) -> list[_Record]:
+        mm, size = self._mm, int(self._mm.size)
+        if size < LOG_HEADER.size:
+            raise DataFormatError(
+                f"truncated ViewPoint log: {size} bytes, the file header needs {LOG_HEADER.size}",
+                self.path, size,
+            )
+        _magic, hsize, _src, _ver, encryption, _key, _t = LOG_HEADER.unpack_from(mm, 0)
+        if encryption != 0:
+            raise DataFormatError(f"encrypted ViewPoint log (encryption {encryption})", self.path, 26)
+        if not LOG_HEADER.size - 16 <= hsize <= size:
+            raise DataFormatError(f"file header size {hsize} is inconsistent", self.path, 4)
+        out: list[_Record] = []
+        o = hsize
+        while o < size:
+            if size - o < LOG_ITEM.size:
+                warn_partial(self.path, o, size - o, LOG_ITEM.size, "log item header")
+                break
+            magic, isize, typ, _ver, t, comp, _orig, payload = LOG_ITEM.unpack_from(mm, o)
+            if magic != LOG_ITEM_MAGIC:
+                raise DataFormatError(
+                    f"bad log item magic 0x{magic:08X} (expected 0xAABBCCDD)", self.path, o
+                )
+            if not _LOG_ITEM_MIN <= isize <= 4096:
+                raise DataFormatError(f"log item header size {isize} is inconsistent", self.path, o + 4)
+            start = o + isize
+            if start + payload > size:
+                warn_partial(self.path, o, size - o, isize + payload, "log item")
+                break
+            if typ == RT_OCULUS_SONAR:
+                if comp not in (0, 1):
+                    raise DataFormatError(f"unknown compression {comp}", self.path, o + 24)
+                head = bytes(mm[start : start + min(payload, HEADER.size + 4)])
+                if comp == 1:
+                    try:
+                        d = zlib.decompressobj()
+                        head = d.decompress(head[4:] + bytes(mm[start + len(head) : start + 64]), HEADER.size)
+                    except zlib.error as exc:
+                        raise DataFormatError(f"corrupt compressed payload ({exc})", self.path, start) from None
+                if len(head) >= HEADER.size:
+                    oid, _s, _d, msg_id, _v, _p, _pn = HEADER.unpack_from(head, 0)
+                    if oid == OCULUS_ID and msg_id == MSG_SIMPLE_PING_RESULT:
+                        with header_errors(self.path, o + 16, "log item time"):
+                            tns = _epoch_ns(t)
+                        out.append(_Record(start, payload, tns, comp == 1))
+            o = start + payload
+        return out
+
+    def _connect(self) -> sqlite3.Connection:
+        if self._db is None:
+            try:
+                self._db = sqlite3.connect(f"file:{self.path}?mode=ro", uri=True)
+            except sqlite3.Error as exc:
+                raise DataFormatError(f"cannot open ViewPoint v2 log: {exc}", self.path) from None
+        return self._db
+
+    def _index_sqlite(self) -> list[_Record]:
+        db = self._connect()
+        try:
+            cols = db.execute("PRAGMA table_info(data)").fetchall()
+            if not cols:
+                raise DataFormatError("SQLite file has no 'data' table (not a ViewPoint v2 log)", self.path)
+            blobs = [c[1] for c in cols if str(c[2]).upper() == "BLOB"]
+            self._payload_col = blobs[-1] if blobs else cols[-1][1]
+            times = [c[1] for c in cols if "time" in str(c[1]).lower()]
+            self._time_col = times[0] if times else None
+            tsel = f'"{self._time_col}"' if self._time_col else "0"
+            q = f'SELECT rowid, {tsel}, substr("{self._payload_col}", 1, 16), length("{self._payload_col}") FROM data ORDER BY rowid'
+            out: list[_Record] = []
+            for rowid, t, head, length in db.execute(q):
+                if not isinstance(head, bytes | bytearray) or len(head) < HEADER.size:
+                    continue
+                oid, _s, _d, msg_id, _v, _p, _pn = HEADER.unpack_from(head, 0)
+                if oid != OCULUS_ID or msg_id != MSG_SIMPLE_PING_RESULT:
+                    continue
+                tns = 0
+                if self._time_col is not None and t is not None:
+                    with header_errors(self.path, None, f"row {rowid} time stamp"):  # type: ignore[arg-type]
+                        tns = _epoch_ns(t)
+                out.append(_Record(int(rowid), int(length), tns, False))
+            return out
+        except sqlite3.Error as exc:
+            raise DataFormatError(f"corrupt ViewPoint v2 log: {exc}", self.path) from None
+
+    # ------------------------------------------------------------------ access
+    def __len__(self) -> int:
+        return len(self._records)
+
+    def __getitem__(self, index: int) -> Ping:
+        i = int(index)
+        if i < 0:
+            i += len(self._records)
+        if not 0 <= i < len(self._records):
+            raise IndexError(f"ping index {index} out of range for {len(self._records)} pings")
+        rec = self._records[i]
+        return decode_simple_ping(
+            self._message(rec),
+            path=self.path,
+            offset=rec.offset if self.kind != "log-v2" else None,  # type: ignore[arg-type]
+            time_ns=rec.time_ns,
+            geometry=self._override,
+            source=f"{self.path}#{i}",
+        )
+
+    def __iter__(self) -> Iterator[Ping]:
+        for i in range(len(self)):
+            yield self[i]
+
+    def __enter__(self) -> OculusFile:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def close(self) -> None:
+        """Close the memory map / database connection."""
+        if self._db is not None:
+            self._db.close()
+            self._db = None
+        self._mm = None
+
+    def _message(self, rec: _Record) -> bytes | memoryview:
+        if self.kind == "log-v2":
+            try:
+                row = self._connect().execute(
+                    f'SELECT "{self._payload_col}" FROM data WHERE rowid = ?', (rec.offset,)
+                ).fetchone()
+            except sqlite3.Error as exc:
+                raise DataFormatError(f"corrupt ViewPoint v2 log: {exc}", self.path) from None
+            if row is None:
+                raise DataFormatError(f"row {rec.offset} disappeared", self.path)
+            return bytes(row[0])
+        data = memoryview(self._mm)[rec.offset : rec.offset + rec.length]
+        if rec.compressed:
+            try:
+                return _q_uncompress(data)
+            except (ValueError, zlib.error) as exc:
+                raise DataFormatError(f"corrupt compressed payload ({exc})", self.path, rec.offset) from None
+        return data
+
+
+class open_head:  # noqa: N801 - tiny context manager
+    """Read the first 64 bytes of a file (DataFormatError if it cannot be read)."""
+
+    def __init__(self, path: Path) -> None:
+        try:
+            with open(path, "rb") as fh:
+                self.head = fh.read(64)
+        except FileNotFoundError:
+            raise DataFormatError("no such file", path) from None
+        except OSError as exc:
+            raise DataFormatError(f"cannot read: {exc.strerror or exc}", path) from None
+
+    def __enter__(self) -> bytes:
+        return self.head
+
+    def __exit__(self, *exc: object) -> None:
+        return None
+
+
+def _is_viewpoint_sqlite(path: Path) -> bool:
+    try:
+        con = sqlite3.connect(f"file:{path}?mode=ro", uri=True)
+        try:
+            names = {r[0] for r in con.execute("SELECT name FROM sqlite_master WHERE type='table'")}
+        finally:
+            con.close()
+    except sqlite3.Error:
+        return False
+    return "data" in names and "messages" not in names
+
+
+# ---------------------------------------------------------------------- registry hooks
+def sniff(path: Path, head: bytes) -> bool:
+    """Network streams (``b"SO"``), ViewPoint v1 logs (0x11223344) and v2 SQLite logs."""
+    if not path.is_file():
+        return False
+    if head[:2] == b"SO" and len(head) >= HEADER.size:
+        return True
+    if head[:4] == struct.pack("<I", LOG_FILE_MAGIC):
+        return True
+    return head[:16] == SQLITE_MAGIC and _is_viewpoint_sqlite(path)
+
+
+def iter_pings(
+    path: str | os.PathLike[str],
+    *,
+    geometry: SonarGeometry | str | os.PathLike[str] | None = None,
+    **_: Any,
+) -> Iterator[Ping]:
+    """Lazily yield the pings of an Oculus stream or ViewPoint log."""
+    f = OculusFile(path, geometry=geometry)
+    try:
+        yield from f
+    finally:
+        f.close()
+
+
+def count_pings(path: str | os.PathLike[str]) -> int:
+    """Number of ``SimplePingResult`` messages (headers only)."""
+    with OculusFile(path) as f:
+        return len(f)
+
+
+def summary(path: str | os.PathLike[str]) -> dict[str, Any]:
+    """Geometry of the first ping, ping count, time span (logs only) and Oculus fields."""
+    with OculusFile(path) as f:
+        n = len(f)
+        if n == 0:
+            return make_summary(FORMAT, path, n_pings=0, geometry=None, time_start_ns=None,
+                                time_end_ns=None, container=f.kind)
+        first = f[0]
+        g = first.geometry
+        has_clock = f.kind != "raw" and f._records[0].time_ns > 0
+        return make_summary(
+            FORMAT,
+            path,
+            n_pings=n,
+            geometry=g,
+            time_start_ns=f._records[0].time_ns if has_clock else None,
+            time_end_ns=f._records[-1].time_ns if has_clock else None,
+            container=f.kind,
+            message_version=first.meta["message_version"],
+            model=_PART_NUMBERS.get(first.meta["part_number"], "unknown"),
+            n_beams=g.n_beams,
+            n_ranges=g.n_bins,
+            range_resolution_m=round(g.range_resolution_m, 7),
+            bearing_span_deg=(round(float(np.rad2deg(g.azimuth_rad[0])), 3),
+                              round(float(np.rad2deg(g.azimuth_rad[-1])), 3)),
+            frequency_hz=g.frequency_hz,
+            sound_speed_m_s=g.sound_speed_m_s,
+            gain_rows="row_gain" in first.meta,
+        )

@@ -1,0 +1,80 @@
+"""Registry hooks for zarr survey stores written by :mod:`sonarmap.io.dataset`.
+
+The data model itself (names, attributes, writing and reading) lives in :mod:`sonarmap.io.dataset`;
+this module only lets :func:`sonarmap.io.read_pings` and ``sonarmap info`` recognise a store.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from sonarmap.geometry import SonarGeometry, as_geometry
+from sonarmap.io._binary import make_summary
+from sonarmap.io.dataset import (
+    ATTR_MODEL,
+    DIM_PING,
+    VAR_INTENSITY,
+    _is_store,
+    _n_pings,
+    _open_group,
+    dataset_to_pings,
+    open_survey,
+    survey_geometries,
+)
+from sonarmap.ping import Ping
+
+__all__ = ["FORMAT", "sniff", "iter_pings", "count_pings", "summary"]
+
+FORMAT = "zarr"
+
+
+def sniff(path: Path, head: bytes) -> bool:
+    """A zarr store directory (v2 ``.zgroup`` or v3 ``zarr.json``) holding an intensity array."""
+    if not _is_store(path):
+        return False
+    return (path / VAR_INTENSITY).is_dir()
+
+
+def iter_pings(
+    path: str | os.PathLike[str],
+    *,
+    geometry: SonarGeometry | str | os.PathLike[str] | None = None,
+    **_: Any,
+) -> Iterator[Ping]:
+    """Lazily yield the pings of a survey store (one ``ping_time`` chunk in memory)."""
+    ds = open_survey(path)
+    g = None if geometry is None else as_geometry(geometry)
+    yield from dataset_to_pings(ds, geometry=g)
+
+
+def count_pings(path: str | os.PathLike[str]) -> int:
+    """Number of pings (array metadata only)."""
+    return _n_pings(Path(path))
+
+
+def summary(path: str | os.PathLike[str]) -> dict[str, Any]:
+    """Geometry, ping count, time span and store fields (metadata and the time coordinate only)."""
+    ds = open_survey(path)
+    n = int(ds.sizes.get(DIM_PING, 0))
+    geoms = survey_geometries(ds)
+    t = ds[DIM_PING].values.astype("datetime64[ns]").astype(np.int64) if n else np.zeros(0, np.int64)
+    g = _open_group(Path(path))
+    return make_summary(
+        FORMAT,
+        path,
+        n_pings=n,
+        geometry=geoms[int(ds["geometry_index"].values[0])] if n and geoms else None,
+        time_start_ns=int(t.min()) if n else None,
+        time_end_ns=int(t.max()) if n else None,
+        data_model=ds.attrs.get(ATTR_MODEL),
+        image_shape=tuple(int(s) for s in ds[VAR_INTENSITY].shape[1:]),
+        n_geometries=len(geoms),
+        variables=sorted(str(v) for v in ds.data_vars),
+        chunk_pings=int(g[VAR_INTENSITY].chunks[0]),
+        zarr_format=int(g.metadata.zarr_format),
+    )

@@ -1,0 +1,248 @@
+"""Numba kernels of the occupancy map: hashed voxel chunks and Amanatides-Woo ray traversal.
+
+Storage (owned by :class:`sonarmap.mapping.occupancy.OccupancyMap`)
+-------------------------------------------------------------------
+* Space is cut into chunks of ``2**sx x 2**sy x 2**sz`` voxels (``sz = 0`` for a 2-D grid).
+* ``keys`` / ``slots``: an open-addressing hash table (linear probing, capacity a power of two)
+  from the packed chunk key ``((cx + 2**20) << 42) | ((cy + 2**20) << 21) | (cz + 2**20)`` to the
+  chunk's row in the pool; ``EMPTY`` marks free table entries.
+* ``logodds`` (float32) and ``stamp`` (int32) are flat pools of ``max_chunks * chunk_volume``
+  voxels; ``stamp`` holds the id of the last ping that updated the voxel (0 = never observed), so
+  each ping updates each voxel at most once and a hit in any beam overrides misses of other beams.
+* ``counts[0]`` is the number of chunks in use.
+
+Kernels return ``-1`` on success, or the index of the first ping they could not finish because
+the pool or the table is full (the caller grows the storage and resumes from that ping - re-running
+a ping is harmless because voxels it already updated carry its stamp), or ``-2`` if a coordinate
+is outside the packable range (+-2**20 chunks).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+EMPTY = np.int64(-1)
+_OFF = 1 << 20
+_MASK21 = (1 << 21) - 1
+
+
+@njit(cache=True, inline="always")
+def _pack(cx: int, cy: int, cz: int) -> int:
+    return ((cx + _OFF) << 42) | ((cy + _OFF) << 21) | (cz + _OFF)
+
+
+@njit(cache=True)
+def unpack_keys(keys: np.ndarray) -> np.ndarray:
+    """Chunk coordinates (n, 3) of packed keys."""
+    out = np.empty((keys.size, 3), dtype=np.int64)
+    for i in range(keys.size):
+        k = keys[i]
+        out[i, 0] = ((k >> 42) & _MASK21) - _OFF
+        out[i, 1] = ((k >> 21) & _MASK21) - _OFF
+        out[i, 2] = (k & _MASK21) - _OFF
+    return out
+
+
+@njit(cache=True, inline="always")
+def _hash(key: int, mask: int) -> int:
+    h = np.uint64(key) * np.uint64(0x9E3779B97F4A7C15)
+    return int(h >> np.uint64(33)) & mask
+
+
+@njit(cache=True)
+def _find(keys: np.ndarray, slots: np.ndarray, key: int) -> int:
+    mask = keys.size - 1
+    i = _hash(key, mask)
+    while True:
+        k = keys[i]
+        if k == key:
+            return slots[i]
+        if k == EMPTY:
+            return -1
+        i = (i + 1) & mask
+
+
+@njit(cache=True)
+def _find_or_insert(keys: np.ndarray, slots: np.ndarray, chunk_keys: np.ndarray, counts: np.ndarray, key: int) -> int:
+    mask = keys.size - 1
+    i = _hash(key, mask)
+    while True:
+        k = keys[i]
+        if k == key:
+            return slots[i]
+        if k == EMPTY:
+            n = counts[0]
+            if n >= chunk_keys.size or 2 * (n + 1) > keys.size:
+                return -1
+            keys[i] = key
+            slots[i] = n
+            chunk_keys[n] = key
+            counts[0] = n + 1
+            return n
+        i = (i + 1) & mask
+
+
+@njit(cache=True)
+def rebuild_table(chunk_keys: np.ndarray, n: int, capacity: int) -> tuple[np.ndarray, np.ndarray]:
+    """A fresh hash table of ``capacity`` entries holding the first ``n`` chunk keys."""
+    keys = np.full(capacity, EMPTY, dtype=np.int64)
+    slots = np.zeros(capacity, dtype=np.int32)
+    mask = capacity - 1
+    for s in range(n):
+        key = chunk_keys[s]
+        i = _hash(key, mask)
+        while keys[i] != EMPTY:
+            i = (i + 1) & mask
+        keys[i] = key
+        slots[i] = s
+    return keys, slots
+
+
+@njit(cache=True)
+def integrate_rays(
+    starts: np.ndarray,  # (n_rays, 3) float64, voxel units (world / resolution)
+    ends: np.ndarray,  # (n_rays, 3) float64, voxel units
+    hit: np.ndarray,  # (n_rays,) bool: the ray ends on a return
+    ray_offsets: np.ndarray,  # (n_pings + 1,) int64: rays of ping p are [off[p], off[p+1])
+    l_hit: np.ndarray,  # (n_pings,) float32
+    l_miss: np.ndarray,  # (n_pings,) float32
+    ping_ids: np.ndarray,  # (n_pings,) int32, > 0 and increasing
+    first_ping: int,
+    shifts: np.ndarray,  # (3,) int64 chunk shifts
+    l_min: float,
+    l_max: float,
+    keys: np.ndarray,
+    slots: np.ndarray,
+    chunk_keys: np.ndarray,
+    counts: np.ndarray,
+    logodds: np.ndarray,
+    stamp: np.ndarray,
+) -> int:
+    """Integrate pings ``first_ping ...``: hits first, then free space along every ray."""
+    sx, sy, sz = shifts[0], shifts[1], shifts[2]
+    mx, my, mz = (1 << sx) - 1, (1 << sy) - 1, (1 << sz) - 1
+    vol_shift = sx + sy + sz
+    lim = _OFF - 1
+    n_pings = ray_offsets.size - 1
+    for p in range(first_ping, n_pings):
+        pid = ping_ids[p]
+        lh = l_hit[p]
+        lm = l_miss[p]
+        r0 = ray_offsets[p]
+        r1 = ray_offsets[p + 1]
+        last_key = EMPTY
+        last_c = -1
+        # ---- pass 1: occupied updates at the returns
+        for r in range(r0, r1):
+            if not hit[r]:
+                continue
+            ix = int(np.floor(ends[r, 0]))
+            iy = int(np.floor(ends[r, 1]))
+            iz = int(np.floor(ends[r, 2]))
+            cx, cy, cz = ix >> sx, iy >> sy, iz >> sz
+            if abs(cx) >= lim or abs(cy) >= lim or abs(cz) >= lim:
+                return -2
+            key = _pack(cx, cy, cz)
+            if key != last_key:
+                c = _find_or_insert(keys, slots, chunk_keys, counts, key)
+                if c < 0:
+                    return p
+                last_key = key
+                last_c = c
+            idx = (last_c << vol_shift) | ((ix & mx) << (sy + sz)) | ((iy & my) << sz) | (iz & mz)
+            if stamp[idx] != pid:
+                stamp[idx] = pid
+                v = logodds[idx] + lh
+                logodds[idx] = min(max(v, l_min), l_max)
+        # ---- pass 2: free space along each ray (Amanatides & Woo 1987)
+        for r in range(r0, r1):
+            px, py, pz = starts[r, 0], starts[r, 1], starts[r, 2]
+            dx, dy, dz = ends[r, 0] - px, ends[r, 1] - py, ends[r, 2] - pz
+            ix = int(np.floor(px))
+            iy = int(np.floor(py))
+            iz = int(np.floor(pz))
+            ex = int(np.floor(ends[r, 0]))
+            ey = int(np.floor(ends[r, 1]))
+            ez = int(np.floor(ends[r, 2]))
+            n_steps = abs(ex - ix) + abs(ey - iy) + abs(ez - iz)
+            inf = np.inf
+            if dx > 0:
+                stx, tdx, tmx = 1, 1.0 / dx, (ix + 1 - px) / dx
+            elif dx < 0:
+                stx, tdx, tmx = -1, -1.0 / dx, (px - ix) / -dx
+            else:
+                stx, tdx, tmx = 0, inf, inf
+            if dy > 0:
+                sty, tdy, tmy = 1, 1.0 / dy, (iy + 1 - py) / dy
+            elif dy < 0:
+                sty, tdy, tmy = -1, -1.0 / dy, (py - iy) / -dy
+            else:
+                sty, tdy, tmy = 0, inf, inf
+            if dz > 0:
+                stz, tdz, tmz = 1, 1.0 / dz, (iz + 1 - pz) / dz
+            elif dz < 0:
+                stz, tdz, tmz = -1, -1.0 / dz, (pz - iz) / -dz
+            else:
+                stz, tdz, tmz = 0, inf, inf
+            for _ in range(n_steps + 1):
+                cx, cy, cz = ix >> sx, iy >> sy, iz >> sz
+                key = _pack(cx, cy, cz)
+                if key != last_key:
+                    if abs(cx) >= lim or abs(cy) >= lim or abs(cz) >= lim:
+                        return -2
+                    c = _find_or_insert(keys, slots, chunk_keys, counts, key)
+                    if c < 0:
+                        return p
+                    last_key = key
+                    last_c = c
+                idx = (last_c << vol_shift) | ((ix & mx) << (sy + sz)) | ((iy & my) << sz) | (iz & mz)
+                if stamp[idx] != pid:
+                    stamp[idx] = pid
+                    v = logodds[idx] + lm
+                    logodds[idx] = min(max(v, l_min), l_max)
+                if tmx < tmy:
+                    if tmx < tmz:
+                        ix += stx
+                        tmx += tdx
+                    else:
+                        iz += stz
+                        tmz += tdz
+                elif tmy < tmz:
+                    iy += sty
+                    tmy += tdy
+                else:
+                    iz += stz
+                    tmz += tdz
+    return -1
+
+
+@njit(cache=True)
+def lookup(
+    ijk: np.ndarray,  # (n, 3) int64 voxel indices
+    shifts: np.ndarray,
+    keys: np.ndarray,
+    slots: np.ndarray,
+    logodds: np.ndarray,
+    stamp: np.ndarray,
+    out_l: np.ndarray,  # (n,) float32
+    out_seen: np.ndarray,  # (n,) bool
+) -> None:
+    """Log-odds and observed flag of voxels (0 / False where never observed)."""
+    sx, sy, sz = shifts[0], shifts[1], shifts[2]
+    mx, my, mz = (1 << sx) - 1, (1 << sy) - 1, (1 << sz) - 1
+    vol_shift = sx + sy + sz
+    lim = _OFF - 1
+    for i in range(ijk.shape[0]):
+        ix, iy, iz = ijk[i, 0], ijk[i, 1], ijk[i, 2]
+        cx, cy, cz = ix >> sx, iy >> sy, iz >> sz
+        out_l[i] = 0.0
+        out_seen[i] = False
+        if abs(cx) >= lim or abs(cy) >= lim or abs(cz) >= lim:
+            continue
+        c = _find(keys, slots, _pack(cx, cy, cz))
+        if c < 0:
+            continue
+        idx = (c << vol_shift) | ((ix & mx) << (sy + sz)) | ((iy & my) << sz) | (iz & mz)
+        out_l[i] = logodds[idx]
+        out_seen[i] = stamp[idx] != 0

@@ -1,0 +1,309 @@
+"""Point-cloud files: binary PLY (plyfile), LAS 1.4 (laspy) and CSV, each readable back losslessly.
+
+* **PLY** (binary little-endian): vertex element with ``x, y, z`` (float32), ``time`` (float64,
+  seconds since the epoch), ``beam`` (int32), ``range`` / ``intensity`` / ``confidence`` /
+  ``elevation`` (float32).  Coordinates are stored relative to an ``offset_m`` (default zero)
+  recorded in a ``comment offset_m X Y Z`` line so large world coordinates keep float32 precision;
+  a ``comment frame ned|enu`` line records the frame.  Opens in CloudCompare, MeshLab, Open3D.
+* **LAS 1.4** (point format 6): coordinates as scaled integers (``scale_m``, default 0.1 mm;
+  offset = the cloud's minimum rounded down to a metre), ``gps_time`` = seconds since the epoch,
+  ``intensity`` = intensity x 65535 (uint16, clipped to [0, 1] first), ``point_source_id`` = beam,
+  and extra bytes ``range_m``, ``confidence``, ``elevation_rad``, ``intensity_f`` (float32),
+  ``beam_index`` (int32) and ``time_ns`` (int64).  Reading back gives the written coordinates to
+  within ``scale_m / 2`` (exactly the quantised values).
+* **CSV**: ``x,y,z,time_ns,beam,range_m,intensity,confidence,elevation_rad`` with a ``# frame:``
+  comment; float64 coordinates are written with ``repr`` (exact round trip).
+
+LAS/PLY viewers expect z up: pass ``frame="enu"`` to write ROS/ENU coordinates (the default is the
+library's NED frame, in which depth is positive ``z``).
+"""
+
+from __future__ import annotations
+
+import io
+import os
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+
+from sonarmap._atomic import atomic_path, atomic_write_text
+from sonarmap.errors import DataFormatError, InputError
+from sonarmap.mapping.register import PointCloud
+
+__all__ = [
+    "CLOUD_FORMATS",
+    "write_point_cloud",
+    "read_point_cloud",
+    "write_ply",
+    "read_ply",
+    "write_las",
+    "read_las",
+    "write_csv",
+    "read_csv",
+    "format_from_suffix",
+]
+
+CloudFormat = Literal["ply", "las", "csv"]
+CLOUD_FORMATS: tuple[str, ...] = ("ply", "las", "csv")
+_SUFFIX = {".ply": "ply", ".las": "las", ".laz": "las", ".csv": "csv", ".txt": "csv"}
+
+
+def format_from_suffix(path: str | os.PathLike[str]) -> str:
+    """``"ply"``, ``"las"`` or ``"csv"`` from a file name; raises :class:`InputError` otherwise."""
+    sfx = Path(path).suffix.lower()
+    if sfx not in _SUFFIX:
+        raise InputError(f"output: cannot infer the point-cloud format from suffix {sfx!r}; use .ply, .las or .csv")
+    return _SUFFIX[sfx]
+
+
+def _in_frame(cloud: PointCloud, frame: str | None) -> PointCloud:
+    return cloud if frame is None else cloud.to_frame(frame)
+
+
+# ---------------------------------------------------------------------- PLY
+def write_ply(
+    cloud: PointCloud,
+    path: str | os.PathLike[str],
+    *,
+    frame: str | None = None,
+    offset_m: tuple[float, float, float] | None = None,
+) -> None:
+    """Write a binary little-endian PLY (float32 xyz + attributes), atomically.
+
+    Parameters
+    ----------
+    frame : {"ned", "enu"}, optional
+        Convert coordinates first (default: the cloud's frame).
+    offset_m : 3 floats, optional
+        Subtracted from the coordinates before the float32 cast (recorded in a comment).
+    """
+    from plyfile import PlyData, PlyElement
+
+    c = _in_frame(cloud, frame)
+    off = np.zeros(3) if offset_m is None else np.asarray(offset_m, dtype=np.float64)
+    xyz = (c.xyz_m - off).astype(np.float32)
+    dt = [
+        ("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("time", "<f8"), ("beam", "<i4"),
+        ("range", "<f4"), ("intensity", "<f4"), ("confidence", "<f4"), ("elevation", "<f4"),
+    ]
+    v = np.empty(len(c), dtype=dt)
+    v["x"], v["y"], v["z"] = xyz[:, 0], xyz[:, 1], xyz[:, 2]
+    v["time"] = c.time_ns.astype(np.float64) * 1e-9
+    v["beam"] = c.beam
+    v["range"] = c.range_m
+    v["intensity"] = c.intensity
+    v["confidence"] = c.confidence
+    v["elevation"] = c.elevation_rad
+    comments = [
+        "sonarmap point cloud",
+        f"frame {c.frame}",
+        "offset_m " + " ".join(repr(float(o)) for o in off),
+    ]
+    ply = PlyData([PlyElement.describe(v, "vertex")], text=False, byte_order="<", comments=comments)
+    with atomic_path(path) as tmp:
+        ply.write(str(tmp))
+
+
+def read_ply(path: str | os.PathLike[str]) -> PointCloud:
+    """Read a PLY written by :func:`write_ply` (or any PLY with x, y, z vertices)."""
+    from plyfile import PlyData
+
+    p = Path(path)
+    try:
+        ply = PlyData.read(str(p))
+        v = ply["vertex"].data
+    except (OSError, KeyError, ValueError, Exception) as exc:  # plyfile raises its own errors
+        raise DataFormatError(f"cannot read PLY: {exc}", p) from None
+    frame, off = "ned", np.zeros(3)
+    for com in ply.comments:
+        parts = com.split()
+        if parts[:1] == ["frame"] and len(parts) > 1:
+            frame = parts[1]
+        elif parts[:1] == ["offset_m"] and len(parts) == 4:
+            off = np.array([float(s) for s in parts[1:]])
+    names = v.dtype.names or ()
+    n = v.shape[0]
+    xyz = np.stack([v["x"], v["y"], v["z"]], axis=1).astype(np.float64) + off
+
+    def get(name: str, default: float) -> np.ndarray:
+        return np.asarray(v[name]) if name in names else np.full(n, default)
+
+    time_ns = np.rint(get("time", 0.0).astype(np.float64) * 1e9).astype(np.int64)
+    return PointCloud(
+        xyz, time_ns, get("beam", -1), get("range", np.nan), get("intensity", 1.0),
+        get("confidence", 1.0), get("elevation", 0.0), frame=frame,
+    )
+
+
+# ---------------------------------------------------------------------- LAS
+def write_las(
+    cloud: PointCloud,
+    path: str | os.PathLike[str],
+    *,
+    frame: str | None = None,
+    scale_m: float = 1e-4,
+) -> None:
+    """Write a LAS 1.4 file (point format 6 + extra bytes), atomically."""
+    import laspy
+
+    c = _in_frame(cloud, frame)
+    if not scale_m > 0:
+        raise InputError(f"scale_m: must be positive, got {scale_m}")
+    header = laspy.LasHeader(point_format=6, version="1.4")
+    header.scales = np.array([scale_m] * 3)
+    header.offsets = np.floor(c.xyz_m.min(axis=0)) if len(c) else np.zeros(3)
+    header.system_identifier = f"sonarmap frame={c.frame}"[:32]
+    header.generating_software = "sonarmap"
+    header.add_extra_dims(
+        [
+            laspy.ExtraBytesParams(name="range_m", type=np.float32, description="measured range (m)"),
+            laspy.ExtraBytesParams(name="confidence", type=np.float32, description="return confidence"),
+            laspy.ExtraBytesParams(name="elevation_rad", type=np.float32, description="assumed elevation"),
+            laspy.ExtraBytesParams(name="intensity_f", type=np.float32, description="intensity (float)"),
+            laspy.ExtraBytesParams(name="beam_index", type=np.int32, description="beam index"),
+            laspy.ExtraBytesParams(name="time_ns", type=np.int64, description="ping time (ns)"),
+        ]
+    )
+    las = laspy.LasData(header)
+    las.x = c.xyz_m[:, 0]
+    las.y = c.xyz_m[:, 1]
+    las.z = c.xyz_m[:, 2]
+    las.gps_time = c.time_ns.astype(np.float64) * 1e-9
+    las.intensity = np.rint(np.clip(np.nan_to_num(c.intensity), 0, 1) * 65535).astype(np.uint16)
+    las.point_source_id = np.clip(c.beam, 0, 65535).astype(np.uint16)
+    las.range_m = c.range_m
+    las.confidence = c.confidence
+    las.elevation_rad = c.elevation_rad
+    las.intensity_f = c.intensity
+    las.beam_index = c.beam
+    las.time_ns = c.time_ns
+    with atomic_path(path) as tmp:
+        las.write(str(tmp))
+
+
+def read_las(path: str | os.PathLike[str]) -> PointCloud:
+    """Read a LAS/LAZ file (extra dimensions written by :func:`write_las` are used when present)."""
+    import laspy
+
+    p = Path(path)
+    try:
+        las = laspy.read(str(p))
+    except Exception as exc:  # noqa: BLE001 - laspy raises several unrelated types
+        raise DataFormatError(f"cannot read LAS: {exc}", p) from None
+    dims = set(las.point_format.dimension_names)
+    n = len(las.points)
+    xyz = np.stack([np.asarray(las.x), np.asarray(las.y), np.asarray(las.z)], axis=1).astype(np.float64)
+    ident = str(las.header.system_identifier)
+    frame = "enu" if "frame=enu" in ident else "ned"
+
+    def get(name: str, default: float) -> np.ndarray:
+        return np.asarray(las[name]) if name in dims else np.full(n, default)
+
+    if "time_ns" in dims:
+        t = np.asarray(las["time_ns"], dtype=np.int64)
+    else:
+        t = np.rint(np.asarray(las.gps_time, dtype=np.float64) * 1e9).astype(np.int64)
+    inten = get("intensity_f", np.nan)
+    if "intensity_f" not in dims:
+        inten = np.asarray(las.intensity, dtype=np.float32) / 65535.0
+    beam = get("beam_index", -1) if "beam_index" in dims else np.asarray(las.point_source_id, dtype=np.int32)
+    return PointCloud(
+        xyz, t, beam, get("range_m", np.nan), inten, get("confidence", 1.0), get("elevation_rad", 0.0), frame=frame
+    )
+
+
+# ---------------------------------------------------------------------- CSV
+_CSV_COLS = ("x", "y", "z", "time_ns", "beam", "range_m", "intensity", "confidence", "elevation_rad")
+
+
+def write_csv(cloud: PointCloud, path: str | os.PathLike[str], *, frame: str | None = None) -> None:
+    """Write a CSV with a header row and a ``# frame:`` comment, atomically (exact round trip)."""
+    c = _in_frame(cloud, frame)
+    buf = io.StringIO()
+    buf.write(f"# sonarmap point cloud\n# frame: {c.frame}\n")
+    buf.write(",".join(_CSV_COLS) + "\n")
+    n = len(c)
+    if n:
+        cols = [
+            *(np.array([repr(v) for v in c.xyz_m[:, k].tolist()]) for k in range(3)),
+            c.time_ns.astype(str),
+            c.beam.astype(str),
+            np.char.mod("%.9g", c.range_m),
+            np.char.mod("%.9g", c.intensity),
+            np.char.mod("%.9g", c.confidence),
+            np.char.mod("%.9g", c.elevation_rad),
+        ]
+        rows = cols[0]
+        for col in cols[1:]:
+            rows = np.char.add(np.char.add(rows, ","), col)
+        buf.write("\n".join(rows.tolist()))
+        buf.write("\n")
+    atomic_write_text(path, buf.getvalue())
+
+
+def read_csv(path: str | os.PathLike[str]) -> PointCloud:
+    """Read a CSV written by :func:`write_csv` (needs at least ``x, y, z`` columns)."""
+    p = Path(path)
+    try:
+        lines = p.read_text(encoding="utf-8").splitlines()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise DataFormatError(f"cannot read CSV: {exc}", p) from None
+    frame = "ned"
+    body = []
+    for ln in lines:
+        if ln.startswith("#"):
+            s = ln.lstrip("#").strip()
+            if s.startswith("frame:"):
+                frame = s.split(":", 1)[1].strip()
+            continue
+        if ln.strip():
+            body.append(ln)
+    if not body:
+        raise DataFormatError("empty CSV (no header)", p)
+    header = [h.strip() for h in body[0].split(",")]
+    if not {"x", "y", "z"} <= set(header):
+        raise DataFormatError(f"missing x, y, z columns (header: {body[0]})", p)
+    rows = [ln.split(",") for ln in body[1:]]
+    n = len(rows)
+    col = {h: i for i, h in enumerate(header)}
+    try:
+        table = np.array(rows, dtype=object).reshape(n, len(header)) if n else np.zeros((0, len(header)), object)
+
+        def get(name: str, dtype: type, default: float) -> np.ndarray:
+            if name not in col:
+                return np.full(n, default, dtype=dtype)
+            return np.array(table[:, col[name]].tolist() if n else [], dtype=dtype)
+
+        xyz = np.stack([get(k, np.float64, np.nan) for k in "xyz"], axis=1) if n else np.zeros((0, 3))
+        return PointCloud(
+            xyz, np.array([int(v) for v in table[:, col["time_ns"]]] if n and "time_ns" in col else np.zeros(n), np.int64),
+            get("beam", np.int32, -1), get("range_m", np.float32, np.nan), get("intensity", np.float32, 1.0),
+            get("confidence", np.float32, 1.0), get("elevation_rad", np.float32, 0.0), frame=frame,
+        )
+    except (ValueError, TypeError) as exc:
+        raise DataFormatError(f"non-numeric or ragged CSV rows ({exc})", p) from None
+
+
+# ---------------------------------------------------------------------- dispatch
+def write_point_cloud(
+    cloud: PointCloud,
+    path: str | os.PathLike[str],
+    *,
+    format: str | None = None,  # noqa: A002 - the CLI's --format
+    frame: str | None = None,
+) -> str:
+    """Write ``cloud`` as PLY, LAS or CSV (from ``format`` or the suffix); returns the format."""
+    fmt = (format or format_from_suffix(path)).lower()
+    if fmt not in CLOUD_FORMATS:
+        raise InputError(f"format: must be one of {CLOUD_FORMATS}, got {format!r}")
+    {"ply": write_ply, "las": write_las, "csv": write_csv}[fmt](cloud, path, frame=frame)
+    return fmt
+
+
+def read_point_cloud(path: str | os.PathLike[str], *, format: str | None = None) -> PointCloud:  # noqa: A002
+    """Read a PLY, LAS or CSV point cloud (format from ``format`` or the suffix)."""
+    fmt = (format or format_from_suffix(path)).lower()
+    if fmt not in CLOUD_FORMATS:
+        raise InputError(f"format: must be one of {CLOUD_FORMATS}, got {format!r}")
+    return {"ply": read_ply, "las": read_las, "csv": read_csv}[fmt](path)

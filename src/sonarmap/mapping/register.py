@@ -1,0 +1,300 @@
+"""Registration: per-beam ranges + sensor poses -> 3-D points in the world (NED) frame.
+
+A 2-D imaging sonar measures range and azimuth but integrates over its vertical (elevation)
+aperture.  Under the *zero-elevation* (profiling) assumption every return is placed in the
+sensor's imaging plane, ``p_s = r (cos a, sin a, 0)``; optionally each return is *spread* over the
+vertical aperture as ``n_elevation`` points at elevations ``linspace(-aperture/2, aperture/2)``
+(useful for occupancy carving and for visualising the elevation ambiguity).  World points are
+``p_w = R_ws p_s + t_ws`` with the sensor -> world transforms of
+:func:`sonarmap.mapping.poses.sensor_poses`.
+
+Everything is vectorised over ``(ping, beam, elevation)``; 1 M returns register in a few tens of
+milliseconds.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from sonarmap.errors import InputError
+from sonarmap.mapping.poses import SensorPoses
+
+__all__ = ["RegistrationConfig", "PointCloud", "register_returns", "register_ranges", "elevation_samples"]
+
+#: DIDSON / ARIS vertical beam width (the lens's elevation aperture), radians.
+DEFAULT_APERTURE_RAD = math.radians(14.0)
+
+
+@dataclasses.dataclass(frozen=True)
+class RegistrationConfig:
+    """Options of :func:`register_returns`.
+
+    Parameters
+    ----------
+    n_elevation : int
+        Points per return across the vertical aperture; 1 = zero-elevation assumption.
+    vertical_aperture_rad : float
+        Full vertical aperture spread over when ``n_elevation > 1`` (DIDSON/ARIS: 14 degrees).
+    min_confidence : float
+        Returns with a lower confidence are dropped.
+    """
+
+    n_elevation: int = 1
+    vertical_aperture_rad: float = DEFAULT_APERTURE_RAD
+    min_confidence: float = 0.0
+
+    def __post_init__(self) -> None:
+        if int(self.n_elevation) != self.n_elevation or self.n_elevation < 1:
+            raise InputError(f"n_elevation: must be a positive integer, got {self.n_elevation}")
+        if not 0.0 <= self.vertical_aperture_rad < math.pi:
+            raise InputError(f"vertical_aperture_rad: must be in [0, pi), got {self.vertical_aperture_rad}")
+        if not 0.0 <= self.min_confidence <= 1.0:
+            raise InputError(f"min_confidence: must be in [0, 1], got {self.min_confidence}")
+
+
+def elevation_samples(n_elevation: int, aperture_rad: float) -> NDArray[np.float64]:
+    """Elevations of the spread points: ``[0]`` for one, else ``linspace(-a/2, a/2, n)``."""
+    if n_elevation == 1:
+        return np.zeros(1)
+    return np.linspace(-aperture_rad / 2, aperture_rad / 2, n_elevation)
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class PointCloud:
+    """Registered returns.  All arrays have length ``n`` (one row per point).
+
+    Parameters
+    ----------
+    xyz_m : ndarray, shape (n, 3), float64
+        World coordinates (NED unless ``frame`` says otherwise), metres.
+    time_ns : ndarray, shape (n,), int64
+        Ping time of each point.
+    beam : ndarray, shape (n,), int32
+        Beam (image column) index.
+    range_m : ndarray, shape (n,), float32
+        Measured range.
+    intensity : ndarray, shape (n,), float32
+        Return intensity.
+    confidence : ndarray, shape (n,), float32
+        Return confidence in [0, 1].
+    elevation_rad : ndarray, shape (n,), float32
+        Assumed elevation (0 under the profiling assumption).
+    frame : str
+        ``"ned"`` (default) or ``"enu"``.
+    """
+
+    xyz_m: NDArray[np.float64]
+    time_ns: NDArray[np.int64]
+    beam: NDArray[np.int32]
+    range_m: NDArray[np.float32]
+    intensity: NDArray[np.float32]
+    confidence: NDArray[np.float32]
+    elevation_rad: NDArray[np.float32]
+    frame: str = "ned"
+
+    def __post_init__(self) -> None:
+        xyz = np.asarray(self.xyz_m, dtype=np.float64).reshape(-1, 3)
+        n = xyz.shape[0]
+        object.__setattr__(self, "xyz_m", xyz)
+        for name, dt in _ATTRS.items():
+            arr = np.asarray(getattr(self, name), dtype=dt).reshape(-1)
+            if arr.size != n:
+                raise InputError(f"{name}: length {arr.size} does not match {n} points")
+            object.__setattr__(self, name, arr)
+
+    def __len__(self) -> int:
+        return int(self.xyz_m.shape[0])
+
+    @classmethod
+    def empty(cls, frame: str = "ned") -> PointCloud:
+        """A cloud with no points."""
+        return cls(np.zeros((0, 3)), *(np.zeros(0, dt) for dt in _ATTRS.values()), frame=frame)
+
+    @classmethod
+    def concat(cls, clouds: Sequence[PointCloud]) -> PointCloud:
+        """Concatenate clouds in the same frame."""
+        clouds = list(clouds)
+        if not clouds:
+            return cls.empty()
+        frames = {c.frame for c in clouds}
+        if len(frames) > 1:
+            raise InputError(f"clouds: cannot concatenate frames {sorted(frames)}")
+        return cls(
+            np.concatenate([c.xyz_m for c in clouds]),
+            *(np.concatenate([getattr(c, k) for c in clouds]) for k in _ATTRS),
+            frame=clouds[0].frame,
+        )
+
+    def select(self, index: ArrayLike) -> PointCloud:
+        """Subset by boolean mask or indices."""
+        k = np.asarray(index)
+        return PointCloud(self.xyz_m[k], *(getattr(self, a)[k] for a in _ATTRS), frame=self.frame)
+
+    def to_frame(self, frame: str) -> PointCloud:
+        """The same points with coordinates in ``"ned"`` or ``"enu"``."""
+        from sonarmap.mapping.frames import WORLD_FRAMES, enu_to_ned
+
+        fr = frame.lower()
+        if fr not in WORLD_FRAMES:
+            raise InputError(f"frame: must be one of {WORLD_FRAMES}, got {frame!r}")
+        if fr == self.frame:
+            return self
+        return dataclasses.replace(self, xyz_m=enu_to_ned(self.xyz_m), frame=fr)
+
+    def attributes(self) -> dict[str, NDArray[Any]]:
+        """The per-point attributes by name."""
+        return {k: getattr(self, k) for k in _ATTRS}
+
+
+_ATTRS: dict[str, Any] = {
+    "time_ns": np.int64,
+    "beam": np.int32,
+    "range_m": np.float32,
+    "intensity": np.float32,
+    "confidence": np.float32,
+    "elevation_rad": np.float32,
+}
+
+
+def _as_2d(values: ArrayLike | None, shape: tuple[int, int], name: str, dtype: Any, fill: float) -> NDArray[Any]:
+    if values is None:
+        return np.full(shape, fill, dtype=dtype)
+    arr = np.asarray(values, dtype=dtype)
+    try:
+        return np.broadcast_to(arr, shape)
+    except ValueError:
+        raise InputError(f"{name}: shape {arr.shape} does not broadcast to (n_pings, n_beams) {shape}") from None
+
+
+def register_returns(
+    range_m: ArrayLike,
+    azimuth_rad: ArrayLike,
+    poses: SensorPoses,
+    *,
+    intensity: ArrayLike | None = None,
+    confidence: ArrayLike | None = None,
+    config: RegistrationConfig | None = None,
+) -> PointCloud:
+    """Register a batch of per-beam ranges into world points.
+
+    Parameters
+    ----------
+    range_m : array_like, shape (n_pings, n_beams)
+        Ranges; NaN (or non-positive) = no return.
+    azimuth_rad : array_like, shape (n_beams,) or (n_pings, n_beams)
+        Beam azimuths (positive to starboard).
+    poses : SensorPoses
+        Sensor -> world transforms, one per ping (invalid poses drop their pings' returns).
+    intensity, confidence : array_like, shape (n_pings, n_beams), optional
+        Per-return attributes (default 1).
+    config : RegistrationConfig, optional
+
+    Returns
+    -------
+    PointCloud
+        Points ordered by ping, then beam, then elevation sample.
+    """
+    cfg = config or RegistrationConfig()
+    r = np.asarray(range_m, dtype=np.float64)
+    if r.ndim == 1:
+        r = r[None, :]
+    if r.ndim != 2:
+        raise InputError(f"range_m: expected (n_pings, n_beams), got shape {r.shape}")
+    P, B = r.shape
+    if len(poses) != P:
+        raise InputError(f"poses: {len(poses)} poses for {P} pings")
+    az = _as_2d(azimuth_rad, (P, B), "azimuth_rad", np.float64, 0.0)
+    inten = _as_2d(intensity, (P, B), "intensity", np.float32, 1.0)
+    conf = _as_2d(confidence, (P, B), "confidence", np.float32, 1.0)
+    keep = np.isfinite(r) & (r > 0) & poses.valid[:, None]
+    if cfg.min_confidence > 0:
+        keep &= conf >= cfg.min_confidence
+    R = poses.rotation
+    t = poses.translation_m
+    elev = elevation_samples(cfg.n_elevation, cfg.vertical_aperture_rad)
+    E = elev.size
+    # Work in the dense (ping, beam) layout with per-ping rotation columns broadcast (no gathers),
+    # then keep the valid returns.
+    a_in = np.asarray(azimuth_rad, dtype=np.float64)
+    a_small = a_in if a_in.ndim == 1 else az  # cos/sin per beam when the table is shared
+    with np.errstate(invalid="ignore"):
+        xs = r * np.cos(a_small)
+        ys = r * np.sin(a_small)
+    flat = keep.ravel()
+    n_keep = int(flat.sum())
+    if E == 1:
+        xyz = np.empty((n_keep, 3))
+        for k in range(3):
+            xyz[:, k] = (R[:, k, 0, None] * xs + R[:, k, 1, None] * ys + t[:, k, None]).ravel()[flat]
+    else:
+        ce, se = np.cos(elev), np.sin(elev)
+        xyz = np.empty((n_keep, E, 3))
+        for k in range(3):
+            base = (R[:, k, 0, None] * xs + R[:, k, 1, None] * ys).ravel()[flat]
+            zterm = (R[:, k, 2, None] * r).ravel()[flat]
+            xyz[:, :, k] = base[:, None] * ce + zterm[:, None] * se + np.repeat(t[:, k], keep.sum(axis=1))[:, None]
+        xyz = xyz.reshape(-1, 3)
+    bi = np.broadcast_to(np.arange(B, dtype=np.int32), (P, B))[keep]
+    rr = r[keep]
+
+    def rep(v: NDArray[Any]) -> NDArray[Any]:
+        return np.repeat(v, E) if E > 1 else v
+
+    return PointCloud(
+        xyz,
+        rep(np.broadcast_to(poses.time_ns[:, None], (P, B))[keep]),
+        rep(bi),
+        rep(rr.astype(np.float32)),
+        rep(inten[keep]),
+        rep(conf[keep]),
+        np.tile(elev.astype(np.float32), n_keep) if E > 1 else np.zeros(n_keep, np.float32),
+    )
+
+
+def register_ranges(
+    ranges: Sequence[Any],
+    poses: SensorPoses,
+    *,
+    config: RegistrationConfig | None = None,
+) -> PointCloud:
+    """Register a sequence of :class:`sonarmap.ranges.BeamRanges` (one per ping).
+
+    Pings with equal beam counts are stacked and registered in one vectorised call.
+
+    Parameters
+    ----------
+    ranges : sequence of BeamRanges
+        Each with ``range_m``, ``azimuth_rad``, ``intensity``, ``confidence`` of shape (n_beams,).
+    poses : SensorPoses
+        One sensor pose per element of ``ranges``.
+    """
+    ranges = list(ranges)
+    if len(ranges) != len(poses):
+        raise InputError(f"poses: {len(poses)} poses for {len(ranges)} pings")
+    if not ranges:
+        return PointCloud.empty()
+    sizes = {np.asarray(br.range_m).size for br in ranges}
+    if len(sizes) == 1:
+        return register_returns(
+            np.stack([br.range_m for br in ranges]),
+            np.stack([br.azimuth_rad for br in ranges]),
+            poses,
+            intensity=np.stack([br.intensity for br in ranges]),
+            confidence=np.stack([br.confidence for br in ranges]),
+            config=config,
+        )
+    return PointCloud.concat(
+        [
+            register_returns(
+                br.range_m, br.azimuth_rad, poses.select([i]),
+                intensity=br.intensity, confidence=br.confidence, config=config,
+            )
+            for i, br in enumerate(ranges)
+        ]
+    )

@@ -1,0 +1,235 @@
+"""Per-beam range measurements from a segmentation: first or strongest return, with confidence.
+
+Mapping needs one trustworthy range per beam or an explicit "nothing here": every false range
+becomes a false surface.  :func:`extract_ranges` turns a label image (or boolean mask) into a
+:class:`BeamRanges`, where "no return" is ``bin == -1`` and ``range_m = NaN``, never a number that
+looks like a range.
+
+Rules (applied in this order)
+-----------------------------
+1. **Return per beam.**  ``mode="first"``: the nearest range bin that starts a run of at least
+   ``min_run`` consecutive structure bins (a lone speckle pixel in front of the surface is skipped
+   when ``min_run > 1``).  ``mode="strongest"``: the structure bin of highest intensity.
+2. **Isolated-return rejection** (``reject_isolated``).  A return on beam ``j`` is *supported* by
+   beam ``k`` (``0 < |k - j| <= neighbour_beams``) when ``k`` has a return within
+   ``max_jump_bins`` range bins.  Returns with no support are removed (single pass, so a pair of
+   mutually supporting returns survives).  Surfaces are continuous across beams; isolated
+   detections are speckle, fish or side-lobe leaks.
+3. **Short-segment rejection** (``min_segment_beams``).  Consecutive beams whose returns differ
+   by at most ``max_jump_bins`` form a segment; segments spanning fewer than
+   ``min_segment_beams`` beams are removed (off by default).
+4. **Confidence** of a kept return = the fraction of its existing neighbour beams
+   (``|k - j| <= neighbour_beams``) that support it, in [0, 1]; NaN-free, 0 where no return.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Literal
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from sonarmap.errors import InputError
+from sonarmap.geometry import SonarGeometry
+
+__all__ = ["BeamRanges", "extract_ranges", "no_returns", "first_return_bins"]
+
+Mode = Literal["first", "strongest"]
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class BeamRanges:
+    """One ping's per-beam returns.
+
+    Attributes
+    ----------
+    range_m : ndarray of float64, shape (n_beams,)
+        Range of the return in metres (``geometry.range_m`` of its bin); NaN = no return.
+    bin : ndarray of int64, shape (n_beams,)
+        0-based range bin of the return; -1 = no return.
+    intensity : ndarray of float32, shape (n_beams,)
+        Image intensity at the return; NaN = no return.
+    confidence : ndarray of float32, shape (n_beams,)
+        Neighbour-beam support in [0, 1] (0 where no return).
+    azimuth_rad : ndarray of float64, shape (n_beams,)
+        Beam azimuths.
+    time_ns : int
+        Ping time.
+    source : str
+        Ping source (file path).
+    mode : str
+        ``"first"`` or ``"strongest"``.
+    """
+
+    range_m: NDArray[np.float64]
+    bin: NDArray[np.int64]
+    intensity: NDArray[np.float32]
+    confidence: NDArray[np.float32]
+    azimuth_rad: NDArray[np.float64]
+    time_ns: int = 0
+    source: str = ""
+    mode: str = "first"
+
+    def __post_init__(self) -> None:
+        n = np.asarray(self.azimuth_rad).shape[0]
+        for name in ("range_m", "bin", "intensity", "confidence"):
+            if np.asarray(getattr(self, name)).shape != (n,):
+                raise InputError(f"{name}: expected shape ({n},)")
+        b = np.asarray(self.bin)
+        if not np.array_equal(b < 0, ~np.isfinite(np.asarray(self.range_m))):
+            raise InputError("bin/range_m: no-return beams must have bin -1 and range NaN together")
+
+    @property
+    def valid(self) -> NDArray[np.bool_]:
+        """Beams with a return."""
+        return self.bin >= 0
+
+    @property
+    def n_returns(self) -> int:
+        """Number of beams with a return."""
+        return int(self.valid.sum())
+
+    @property
+    def n_beams(self) -> int:
+        """Number of beams."""
+        return int(self.bin.size)
+
+
+def no_returns(geometry: SonarGeometry, *, time_ns: int = 0, source: str = "", mode: str = "first") -> BeamRanges:
+    """A :class:`BeamRanges` with no return on any beam."""
+    n = geometry.n_beams
+    return BeamRanges(
+        range_m=np.full(n, np.nan), bin=np.full(n, -1, dtype=np.int64),
+        intensity=np.full(n, np.nan, dtype=np.float32), confidence=np.zeros(n, dtype=np.float32),
+        azimuth_rad=np.asarray(geometry.azimuth_rad, dtype=np.float64), time_ns=int(time_ns),
+        source=source, mode=mode,
+    )
+
+
+def first_return_bins(mask: ArrayLike, *, min_run: int = 1) -> NDArray[np.int64]:
+    """Per beam, the first bin starting a run of ``min_run`` true bins; -1 if none."""
+    m = np.asarray(mask, dtype=bool)
+    if m.ndim != 2:
+        raise InputError(f"mask: expected (n_bins, n_beams), got shape {m.shape}")
+    if min_run > 1:
+        c = np.zeros((m.shape[0] + 1, m.shape[1]), dtype=np.int32)
+        np.cumsum(m, axis=0, out=c[1:])
+        h = m.shape[0]
+        if h < min_run:
+            return np.full(m.shape[1], -1, dtype=np.int64)
+        ok = np.zeros_like(m)
+        ok[: h - min_run + 1] = (c[min_run:] - c[: h - min_run + 1]) == min_run
+        m = ok
+    first = m.argmax(axis=0).astype(np.int64)
+    first[~m.any(axis=0)] = -1
+    return first
+
+
+def _support(bins: NDArray[np.int64], neighbour_beams: int, max_jump: int) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """(number of supporting neighbours, number of existing neighbours) per beam."""
+    n = bins.size
+    sup = np.zeros(n, dtype=np.int64)
+    cnt = np.zeros(n, dtype=np.int64)
+    valid = bins >= 0
+    for off in range(1, neighbour_beams + 1):
+        for s in (off, -off):
+            lo, hi = max(0, -s), n - max(0, s)
+            if hi <= lo:
+                continue
+            a = bins[lo:hi]
+            b = bins[lo + s:hi + s]
+            cnt[lo:hi] += 1
+            sup[lo:hi] += (valid[lo:hi] & valid[lo + s:hi + s] & (np.abs(a - b) <= max_jump)).astype(np.int64)
+    return sup, cnt
+
+
+def _segments_short(bins: NDArray[np.int64], max_jump: int, min_beams: int) -> NDArray[np.bool_]:
+    """Beams whose return lies in a segment shorter than ``min_beams`` beams."""
+    n = bins.size
+    drop = np.zeros(n, dtype=bool)
+    start = 0
+    while start < n:
+        if bins[start] < 0:
+            start += 1
+            continue
+        end = start + 1
+        while end < n and bins[end] >= 0 and abs(int(bins[end]) - int(bins[end - 1])) <= max_jump:
+            end += 1
+        if end - start < min_beams:
+            drop[start:end] = True
+        start = end
+    return drop
+
+
+def extract_ranges(
+    labels_or_mask: ArrayLike,
+    image: ArrayLike,
+    geometry: SonarGeometry,
+    *,
+    mode: Mode = "first",
+    structure_label: int = 1,
+    min_run: int = 1,
+    reject_isolated: bool = True,
+    neighbour_beams: int = 2,
+    max_jump_bins: int = 8,
+    min_segment_beams: int = 1,
+    time_ns: int = 0,
+    source: str = "",
+) -> BeamRanges:
+    """Per-beam first or strongest return of structure (see the module notes for the rules).
+
+    Parameters
+    ----------
+    labels_or_mask : ndarray, shape (n_bins, n_beams)
+        Boolean structure mask, or integer labels where ``structure_label`` marks structure.
+    image : ndarray, shape (n_bins, n_beams)
+        Intensities (for ``"strongest"`` and the reported intensity).
+    geometry : SonarGeometry
+        Gives metres per bin and beam azimuths.
+    mode : {"first", "strongest"}
+    structure_label : int
+        Label value of structure (ignored for a boolean mask).
+    min_run : int
+        First return: minimum run of consecutive structure bins.
+    reject_isolated, neighbour_beams, max_jump_bins, min_segment_beams
+        Consistency rules 2-3.
+    time_ns, source
+        Copied into the result.
+
+    Returns
+    -------
+    BeamRanges
+    """
+    lab = np.asarray(labels_or_mask)
+    img = np.asarray(image, dtype=np.float32)
+    geometry.check_image(lab, "labels_or_mask")
+    geometry.check_image(img, "image")
+    if mode not in ("first", "strongest"):
+        raise InputError(f"mode: must be 'first' or 'strongest' (got {mode!r})")
+    if min_run < 1 or neighbour_beams < 1 or max_jump_bins < 0 or min_segment_beams < 1:
+        raise InputError("min_run, neighbour_beams, min_segment_beams must be >= 1; max_jump_bins >= 0")
+    mask = lab if lab.dtype == np.bool_ else (lab == structure_label)
+    if mode == "first":
+        bins = first_return_bins(mask, min_run=min_run)
+    else:
+        masked = np.where(mask, img, -np.inf)
+        bins = masked.argmax(axis=0).astype(np.int64)
+        bins[~mask.any(axis=0)] = -1
+    if reject_isolated:
+        sup, _ = _support(bins, neighbour_beams, max_jump_bins)
+        bins = np.where((bins >= 0) & (sup == 0), -1, bins)
+    if min_segment_beams > 1:
+        bins = np.where(_segments_short(bins, max_jump_bins, min_segment_beams), -1, bins)
+    valid = bins >= 0
+    sup, cnt = _support(bins, neighbour_beams, max_jump_bins)
+    conf = np.where(valid, sup / np.maximum(cnt, 1), 0.0).astype(np.float32)
+    cols = np.arange(bins.size)
+    safe = np.where(valid, bins, 0)
+    rng = np.where(valid, geometry.range_m[safe], np.nan)
+    inten = np.where(valid, img[safe, cols], np.nan).astype(np.float32)
+    return BeamRanges(
+        range_m=rng.astype(np.float64), bin=bins, intensity=inten, confidence=conf,
+        azimuth_rad=np.asarray(geometry.azimuth_rad, dtype=np.float64), time_ns=int(time_ns),
+        source=source, mode=mode,
+    )

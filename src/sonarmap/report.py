@@ -1,0 +1,420 @@
+"""Self-contained HTML report of a processed survey (``sonarmap report``).
+
+One HTML file with inline CSS and the figures embedded as base64 PNG - no scripts, no external
+assets - so it can be mailed, archived or opened offline.  Sections: survey summary and
+provenance, mixture-parameter and KLD time series, per-beam ranges over time, ROC curves,
+flagged pings, example pings as fans (raw | pre-processed | segmented with ranges) and, when the
+survey holds registered points, a map preview.
+"""
+
+from __future__ import annotations
+
+import base64
+import dataclasses
+import html
+import io
+import json
+import math
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from sonarmap._atomic import atomic_write_text
+from sonarmap.errors import DataFormatError
+
+__all__ = ["ReportConfig", "build_report", "render_report"]
+
+
+@dataclasses.dataclass(frozen=True)
+class ReportConfig:
+    """What goes into the report.
+
+    Parameters
+    ----------
+    n_examples : int
+        Example pings drawn as fans (the first flagged ping, then evenly spaced ones); their
+        source files must still exist (missing ones are skipped with a note).
+    max_flagged_rows : int
+        Rows of the flagged-ping table.
+    max_map_points : int
+        Points drawn in the map preview (evenly subsampled).
+    dpi : int
+        Figure resolution.
+    title : str, optional
+        Page title (default: the store name).
+    """
+
+    n_examples: int = 3
+    max_flagged_rows: int = 50
+    max_map_points: int = 200_000
+    dpi: int = 80
+    title: str | None = None
+
+    def __post_init__(self) -> None:
+        for name in ("n_examples", "max_flagged_rows", "max_map_points", "dpi"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, int) or v < (1 if name == "dpi" else 0):
+                raise ValueError(f"{name}: must be a non-negative integer (got {v!r})")
+
+
+# ---------------------------------------------------------------------------- figure helpers
+def _png(fig: Any, dpi: int) -> str:
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=dpi)
+    return base64.b64encode(buf.getvalue()).decode("ascii")
+
+
+def _img(b64: str, alt: str) -> str:
+    return f'<img alt="{html.escape(alt)}" src="data:image/png;base64,{b64}">'
+
+
+def _times(ds: Any) -> np.ndarray:
+    return ds["ping_time"].values.astype("datetime64[ns]")
+
+
+def _time_axis(ax: Any) -> None:
+    import matplotlib.dates as mdates
+
+    loc = mdates.AutoDateLocator()
+    ax.xaxis.set_major_locator(loc)
+    ax.xaxis.set_major_formatter(mdates.ConciseDateFormatter(loc))
+
+
+def _fig_timeseries(ds: Any, dpi: int) -> str:
+    from sonarmap.plots import new_figure
+
+    t = _times(ds)
+    w = np.atleast_2d(ds["mixture_weight"].values)
+    p = ds["mixture_param"].values
+    names = str(ds["mixture_weight"].attrs.get("components", "")).split()
+    names = names if len(names) == w.shape[1] else [f"component {i}" for i in range(w.shape[1])]
+    kld = ds["kld"].values
+    flagged = np.array([bool(f) for f in ds["flags"].values])
+    fig, axes = new_figure(3, 1, figsize=(10, 7.5), sharex=True)
+    for c in range(w.shape[1]):
+        axes[0].plot(t, w[:, c], lw=0.8, label=names[c])
+    axes[0].set_ylabel("weight")
+    axes[0].set_ylim(-0.02, 1.02)
+    axes[0].legend(fontsize=7, ncol=max(1, w.shape[1]), loc="upper right")
+    axes[0].set_title("Mixture weights", fontsize=9)
+    if p.ndim == 3 and p.shape[2]:
+        # Scale parameter = last finite parameter of each component.
+        for c in range(p.shape[1]):
+            row = p[:, c, :]
+            if np.isnan(row).all():
+                continue
+            last = np.array([r[np.isfinite(r)][-1] if np.isfinite(r).any() else np.nan for r in row])
+            axes[1].plot(t, last, lw=0.8, label=names[c] if c < len(names) else str(c))
+        axes[1].legend(fontsize=7, loc="upper right")
+    axes[1].set_ylabel("scale")
+    axes[1].set_title("Mixture component scale parameters", fontsize=9)
+    axes[2].plot(t, kld, lw=0.8, color="0.2", label="KLD")
+    if flagged.any():
+        axes[2].plot(t[flagged], kld[flagged], "o", ms=3, color="tab:red", label="flagged fit")
+    axes[2].set_ylabel("KLD (nat)")
+    axes[2].set_title("Fit quality: Kullback-Leibler divergence data || model", fontsize=9)
+    axes[2].legend(fontsize=7, loc="upper right")
+    _time_axis(axes[2])
+    return _png(fig, dpi)
+
+
+def _fig_ranges(ds: Any, dpi: int) -> str:
+    from sonarmap.plots import new_figure
+
+    r = ds["range"].values
+    step = max(1, r.shape[0] // 2000)
+    r = r[::step]
+    az = np.rad2deg(ds["beam_azimuth"].values) if "beam_azimuth" in ds else np.arange(r.shape[1])
+    fig, axes = new_figure(1, 2, figsize=(10, 3.6), width_ratios=[3, 1])
+    finite = r[np.isfinite(r)]
+    vmin, vmax = (float(finite.min()), float(finite.max())) if finite.size else (0.0, 1.0)
+    im = axes[0].imshow(np.ma.masked_invalid(r.T), aspect="auto", origin="lower", cmap="viridis",
+                        vmin=vmin, vmax=vmax, interpolation="nearest",
+                        extent=(0, r.shape[0] * step, float(az[0]), float(az[-1])))
+    axes[0].set_xlabel("ping")
+    axes[0].set_ylabel("beam azimuth (deg)")
+    axes[0].set_title("Per-beam range over the survey (blank: no return)", fontsize=9)
+    fig.colorbar(im, ax=axes[0], label="range (m)")
+    hit = np.isfinite(ds["range"].values).mean(axis=0)
+    axes[1].plot(az, hit, color="tab:blue")
+    axes[1].set_xlabel("beam azimuth (deg)")
+    axes[1].set_ylabel("fraction of pings")
+    axes[1].set_ylim(0, 1)
+    axes[1].set_title("Beams with a return", fontsize=9)
+    return _png(fig, dpi)
+
+
+def _roc_of_fit(fit: Any) -> tuple[np.ndarray, np.ndarray] | None:
+    """ROC of the intensity threshold under a fitted mixture: (pfa, pd) for thresholds high->low."""
+    if not hasattr(fit, "class_pmf"):
+        return None
+    cp = np.asarray(fit.class_pmf())
+    if cp.shape[0] < 2:
+        return None
+    prior = np.asarray(fit.class_prior())
+    obj_w = prior[1:] / prior[1:].sum() if prior[1:].sum() > 0 else np.full(cp.shape[0] - 1, 1 / (cp.shape[0] - 1))
+    bg = cp[0]
+    obj = obj_w @ cp[1:]
+    pfa = np.concatenate([[0.0], np.cumsum(bg[::-1])])
+    pd = np.concatenate([[0.0], np.cumsum(obj[::-1])])
+    return np.clip(pfa, 0, 1), np.clip(pd, 0, 1)
+
+
+def _fig_roc(ds: Any, examples: list[dict[str, Any]], dpi: int) -> str | None:
+    from sonarmap.plots import new_figure
+
+    pd = ds["pd"].values if "pd" in ds else np.array([])
+    pfa = ds["pfa"].values if "pfa" in ds else np.array([])
+    ok = np.isfinite(pd) & np.isfinite(pfa)
+    curves = [(e["label"], e["roc"]) for e in examples if e.get("roc") is not None]
+    if not ok.any() and not curves:
+        return None
+    fig, ax = new_figure(1, 1, figsize=(5.2, 4.6))
+    for label, (x, y) in curves:
+        ax.plot(x, y, lw=1.2, label=f"{label} (mixture model)")
+    if ok.any():
+        ax.scatter(pfa[ok], pd[ok], s=6, c="0.3", alpha=0.5, label="operating point of each ping")
+    ax.plot([0, 1], [0, 1], ls=":", color="0.6", lw=0.8)
+    ax.set_xscale("symlog", linthresh=1e-3)
+    ax.set_xlim(0, 1)
+    ax.set_ylim(0, 1.01)
+    ax.set_xlabel("probability of false alarm")
+    ax.set_ylabel("probability of detection")
+    ax.set_title("ROC of intensity segmentation under the fitted mixtures", fontsize=9)
+    ax.legend(fontsize=7, loc="lower right")
+    return _png(fig, dpi)
+
+
+def _fig_map(ds: Any, max_points: int, dpi: int) -> str | None:
+    if "point_xyz" not in ds:
+        return None
+    from sonarmap.plots import new_figure
+
+    xyz = ds["point_xyz"].values
+    xyz = xyz[np.isfinite(xyz).all(axis=1)]
+    if not len(xyz):
+        return None
+    step = max(1, math.ceil(len(xyz) / max_points))
+    xyz = xyz[::step]
+    fig, axes = new_figure(1, 2, figsize=(10, 4.4))
+    sc = axes[0].scatter(xyz[:, 1], xyz[:, 0], c=xyz[:, 2], s=0.5, cmap="viridis_r", linewidths=0)
+    axes[0].set_aspect("equal")
+    axes[0].set_xlabel("east / y (m)")
+    axes[0].set_ylabel("north / x (m)")
+    axes[0].set_title(f"Map, top view ({len(xyz)} of the points, colour = depth)", fontsize=9)
+    fig.colorbar(sc, ax=axes[0], label="z (m)")
+    axes[1].scatter(xyz[:, 0], xyz[:, 2], s=0.5, c="tab:blue", linewidths=0)
+    axes[1].invert_yaxis()
+    axes[1].set_xlabel("north / x (m)")
+    axes[1].set_ylabel("z, down (m)")
+    axes[1].set_title("Side view", fontsize=9)
+    return _png(fig, dpi)
+
+
+# ---------------------------------------------------------------------------- examples
+def _pick_examples(ds: Any, n: int) -> list[int]:
+    if n <= 0:
+        return []
+    n_p = int(ds.sizes["ping_time"])
+    flagged = [i for i, f in enumerate(ds["flags"].values) if f]
+    picks: list[int] = flagged[:1]
+    for i in np.linspace(0, n_p - 1, n + 2)[1:-1].round().astype(int):
+        if len(picks) >= n:
+            break
+        if int(i) not in picks:
+            picks.append(int(i))
+    return sorted(picks[:n])
+
+
+def _pipeline_config(attrs: dict[str, Any]) -> Any:
+    from sonarmap.pipeline import PipelineConfig
+
+    return PipelineConfig.from_dict(json.loads(attrs.get("pipeline_config", "{}")))
+
+
+def _example(ds: Any, index: int, config: Any, dpi: int) -> dict[str, Any]:
+    """Fans of one ping: raw | pre-processed | segmented with the stored ranges."""
+    from sonarmap.io import read_ping
+    from sonarmap.pipeline import process_ping
+    from sonarmap.plots import draw_fan, new_figure
+
+    source = str(ds["source"].values[index])
+    label = f"ping {index}"
+    path, _, frame = source.partition("#")
+    if not Path(path).exists():
+        return {"label": label, "index": index, "source": source, "missing": True}
+    ping = read_ping(path, index=int(frame) if frame.isdigit() else 0)
+    prod = process_ping(ping, config, keep_labels=True)
+    pre = None
+    pre_cfg = getattr(config, "preprocess", None)
+    try:
+        from sonarmap.preprocess import preprocess
+
+        pre = preprocess(ping, pre_cfg).image if pre_cfg is not None else preprocess(ping).image
+    except Exception:  # noqa: BLE001 - a report shows what it can
+        pre = None
+    g = ping.geometry
+    fig, axes = new_figure(1, 3, figsize=(11, 4.6))
+    draw_fan(axes[0], ping.image, g, title="raw", colorbar=False)
+    if pre is not None:
+        draw_fan(axes[1], np.clip(pre, 0, None), g, title="pre-processed", colorbar=False)
+    else:
+        axes[1].set_axis_off()
+    labels = prod.labels if prod.labels is not None else np.zeros(g.shape)
+    draw_fan(axes[2], np.asarray(labels, dtype=np.float32), g, vmin=0, vmax=1, cmap="gray",
+             title="segmented + ranges", colorbar=False, resolution_m=None)
+    r = ds["range"].values[index]
+    az = g.azimuth_rad
+    ok = np.isfinite(r)
+    axes[2].plot(r[ok] * np.sin(az[ok]), r[ok] * np.cos(az[ok]), ".", ms=3, color="tab:cyan")
+    flags = str(ds["flags"].values[index])
+    t = np.datetime_as_string(_times(ds)[index], unit="ms")
+    fig.suptitle(f"{label}  {t} UTC  KLD {float(ds['kld'].values[index]):.4f}"
+                 + (f"  flags: {flags}" if flags else ""), fontsize=9)
+    return {"label": label, "index": index, "source": source, "png": _png(fig, dpi),
+            "roc": _roc_of_fit(prod.fit)}
+
+
+# ---------------------------------------------------------------------------- page
+_CSS = """
+body{font-family:system-ui,-apple-system,Segoe UI,Roboto,sans-serif;margin:0 auto;max-width:1100px;
+padding:1.5em;color:#1d2330;background:#fff}
+h1{font-size:1.6em;margin-bottom:.2em}h2{font-size:1.2em;border-bottom:1px solid #dde;padding-bottom:.2em;
+margin-top:1.8em}table{border-collapse:collapse;font-size:.85em}td,th{border:1px solid #dde;padding:.25em .6em;
+text-align:left;vertical-align:top}th{background:#f3f5fa}img{max-width:100%;height:auto;display:block;
+margin:.5em 0}.muted{color:#667}.grid{display:grid;grid-template-columns:1fr 1fr;gap:1em}
+pre{background:#f6f8fa;padding:.6em;overflow:auto;font-size:.8em}code{font-size:.9em}
+"""
+
+
+def _row(k: str, v: Any) -> str:
+    return f"<tr><th>{html.escape(k)}</th><td>{html.escape(str(v))}</td></tr>"
+
+
+def render_report(store: str | os.PathLike[str], *, config: ReportConfig | None = None) -> str:
+    """The report of survey ``store`` as an HTML string (self-contained).
+
+    Raises
+    ------
+    DataFormatError
+        If ``store`` is not a survey store.
+    """
+    from sonarmap.survey import open_products, survey_status
+
+    cfg = config or ReportConfig()
+    ds = open_products(store).load()
+    status = survey_status(store)
+    attrs = dict(ds.attrs)
+    n = int(ds.sizes["ping_time"])
+    t = _times(ds)
+    written = t.astype(np.int64) != 0
+    flags = [str(f) for f in ds["flags"].values]
+    flagged = [i for i, f in enumerate(flags) if f]
+    kld = ds["kld"].values
+    hit = np.isfinite(ds["range"].values)
+    title = cfg.title or f"Survey report: {Path(store).name}"
+    try:
+        geom = json.loads(attrs.get("source_geometry", "{}"))
+    except ValueError:
+        geom = {}
+    span = (t[written][-1] - t[written][0]).astype("timedelta64[ms]").astype(float) / 1e3 if written.any() else 0.0
+    summary = [
+        ("pings", f"{n}" + ("" if status["complete"] else f" (incomplete: {status['done']}/{status['n_chunks']} chunks)")),
+        ("time span", f"{np.datetime_as_string(t[written][0], unit='s')} to "
+         f"{np.datetime_as_string(t[written][-1], unit='s')} UTC ({span:.1f} s)" if written.any() else "-"),
+        ("flagged fits", f"{len(flagged)} ({100 * len(flagged) / max(n, 1):.1f} %)"),
+        ("KLD median / 95th percentile", f"{np.nanmedian(kld):.4g} / {np.nanpercentile(kld, 95):.4g}"
+         if np.isfinite(kld).any() else "-"),
+        ("beams with a return", f"{100 * hit.mean():.1f} %"),
+        ("sonar", f"{geom.get('name', '?')}: {geom.get('num_beams', '?')} beams x {geom.get('num_bins', '?')} bins, "
+         f"{geom.get('min_range', '?')}-{geom.get('max_range', '?')} m"),
+        ("input files", attrs.get("n_input_files", "?")),
+        ("registered points", int(ds.sizes["point"]) if "point" in ds.sizes else "none (no poses given)"),
+        ("sonarmap version", attrs.get("sonarmap_version", "?")),
+        ("fingerprint", attrs.get("fingerprint", "?")),
+    ]
+    parts = [
+        "<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'>",
+        f"<title>{html.escape(title)}</title><style>{_CSS}</style></head><body>",
+        f"<h1>{html.escape(title)}</h1>",
+        f"<p class='muted'>{html.escape(str(Path(store).resolve()))}</p>",
+        "<h2>Summary</h2><table>", *(_row(k, v) for k, v in summary), "</table>",
+        "<details><summary>Pipeline configuration</summary><pre>",
+        html.escape(json.dumps(json.loads(attrs.get("pipeline_config", "{}")), indent=1)),
+        "</pre></details>",
+        "<h2>Mixture parameters and fit quality</h2>", _img(_fig_timeseries(ds, cfg.dpi), "time series"),
+        "<h2>Ranges</h2>", _img(_fig_ranges(ds, cfg.dpi), "ranges over time"),
+    ]
+    examples: list[dict[str, Any]] = []
+    notes: list[str] = []
+    picks = _pick_examples(ds, cfg.n_examples)
+    if picks:
+        try:
+            pcfg = _pipeline_config(attrs)
+        except Exception as exc:  # noqa: BLE001
+            pcfg = None
+            notes.append(f"example pings not drawn: pipeline unavailable ({exc})")
+        if pcfg is not None:
+            for i in picks:
+                try:
+                    examples.append(_example(ds, i, pcfg, cfg.dpi))
+                except Exception as exc:  # noqa: BLE001 - keep the rest of the report
+                    notes.append(f"ping {i}: not drawn ({type(exc).__name__}: {exc})")
+    roc = _fig_roc(ds, examples, cfg.dpi)
+    parts.append("<h2>ROC curves</h2>")
+    parts.append(_img(roc, "ROC curves") if roc else "<p class='muted'>No detection statistics stored.</p>")
+    parts.append(f"<h2>Flagged pings ({len(flagged)})</h2>")
+    if flagged:
+        parts.append("<table><tr><th>#</th><th>time (UTC)</th><th>flags</th><th>KLD</th><th>source</th></tr>")
+        for i in flagged[: cfg.max_flagged_rows]:
+            parts.append(
+                f"<tr><td>{i}</td><td>{np.datetime_as_string(t[i], unit='ms')}</td>"
+                f"<td>{html.escape(flags[i])}</td><td>{kld[i]:.4g}</td>"
+                f"<td>{html.escape(Path(str(ds['source'].values[i])).name)}</td></tr>"
+            )
+        parts.append("</table>")
+        if len(flagged) > cfg.max_flagged_rows:
+            parts.append(f"<p class='muted'>... and {len(flagged) - cfg.max_flagged_rows} more.</p>")
+    else:
+        parts.append("<p>No fit was flagged.</p>")
+    parts.append("<h2>Example pings</h2>")
+    for e in examples:
+        if e.get("missing"):
+            parts.append(f"<p class='muted'>{html.escape(e['label'])}: source {html.escape(e['source'])} "
+                         "no longer exists.</p>")
+        else:
+            parts.append(f"<h3>{html.escape(e['label'])}: <code>{html.escape(Path(e['source']).name)}</code></h3>")
+            parts.append(_img(e["png"], e["label"]))
+    for note in notes:
+        parts.append(f"<p class='muted'>{html.escape(note)}</p>")
+    mp = _fig_map(ds, cfg.max_map_points, cfg.dpi)
+    if mp is not None:
+        parts.append("<h2>Map preview</h2>")
+        parts.append(_img(mp, "map preview"))
+    parts.append(f"<p class='muted'>Generated by sonarmap {html.escape(str(attrs.get('sonarmap_version', '')))}."
+                 "</p></body></html>")
+    return "\n".join(parts)
+
+
+def build_report(
+    store: str | os.PathLike[str],
+    output: str | os.PathLike[str],
+    *,
+    config: ReportConfig | None = None,
+    overwrite: bool = False,
+) -> Path:
+    """Write the HTML report of ``store`` to ``output`` atomically.
+
+    Raises
+    ------
+    DataFormatError
+        If ``output`` exists and ``overwrite`` is false, or ``store`` is not a survey store.
+    """
+    out = Path(output)
+    if out.exists() and not overwrite:
+        raise DataFormatError("output exists; use --overwrite to replace it", out)
+    text = render_report(store, config=config)
+    atomic_write_text(out, text)
+    return out

@@ -1,0 +1,1 @@
+"""Intensity statistics: discrete mixture components, fits (LSQ and EM), model selection, ROC."""

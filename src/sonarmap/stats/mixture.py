@@ -1,0 +1,918 @@
+"""Per-ping intensity mixture models on the quantisation levels (paper eq. 8-11, 19-21).
+
+The intensity ``y`` of a ping is modelled as a mixture of discrete pmfs on the ``L`` quantisation
+levels (:mod:`sonarmap.stats.components`)::
+
+    p(y) = pi_0 delta(y) + sum_c pi_c p_c(y)                                   (eq. 8, 19-21)
+
+The zero spike ``delta`` (index 0, when ``zero_spike=True``) and the first family form the
+*background* class (eq. 19: ``p(y|B) = (1 - pi_B) delta(y) + pi_B lambda e^{-lambda y}``); every
+further component is an *object* class (eq. 20-21, the paper's Rayleigh).  With the paper's default
+``families=("exponential", "rayleigh")`` the fitted weights are ``(1 - pi1 - pi2, pi1, pi2)``,
+``lambda = 1 / scale_exponential`` and ``sigma = scale_rayleigh`` (Table I).
+
+Histogram
+---------
+:func:`quantize` maps intensities to level indices: values are clipped to ``[0, 1]`` (negative
+values after deconvolution count as level 0), then ``binning="round"``: ``k = round(y (L - 1))``
+(exact for ``L``-level sensor data: 8-bit ``k/255`` maps to ``k``), or ``binning="floor"``:
+``k = min(floor(y L), L - 1)`` (the bins ``[k/L, (k+1)/L)`` of ``numpy.histogram(y, linspace(0, 1,
+L + 1))`` used by the paper's authors; there, values outside ``[0, 1]`` are *dropped* whereas we
+clip them - the same thing for the paper's pre-processing, which clips negatives and rescales to
+the input maximum).  The zero bin is therefore ``y < 0.5 / (L - 1)`` (round) or ``y < 1 / L``
+(floor), including all ``y <= 0``.
+
+Fitters
+-------
+``method="lsq"``: the paper's fit - least squares between the normalised histogram and the model
+pmf (``scipy.optimize.least_squares``, trust-region reflective) - made robust: weights are
+parametrised by stick-breaking fractions in ``[0, 1]`` (never negative, summing to 1), scales are
+bounded below by one quantisation step and above by ``scale_max`` (default 1, the paper's bound),
+and the better of two starts (the EM estimate and the paper's ``p0``) is kept.
+
+``method="em"``: exact EM on the histogram counts - the E-step and M-step run over the ``L``
+levels weighted by their counts, not over pixels.  For exponential and Rayleigh components the
+M-step is exact (moment matching, a numba kernel); for gamma, Weibull and Rice it is a numerical
+maximisation that is accepted only if it improves the expected log-likelihood (generalised EM).
+Either way the log-likelihood never decreases; its trace is kept in :attr:`MixtureFit.loglik_trace`.
+
+KL divergence (eq. 11)
+----------------------
+``kld = D(p_hat || p_model) = sum_k p_hat_k ln(p_hat_k / p_model_k)`` in nats, with ``p_hat`` the
+normalised histogram and ``p_model`` the fitted pmf, both summing to 1 over the same levels; bins
+with ``p_hat_k = 0`` contribute 0.  The paper's Table I values are smaller by about ``1.1e-3``
+because the authors' pmf is evaluated at ``k/256`` but normalised over ``k/255`` (it sums to
+about 1.0011); see ``docs/statistics.md`` and :func:`sonarmap.paper.paper_kld`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Sequence
+from typing import Any, Literal
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from sonarmap.errors import FitError, InputError
+from sonarmap.stats.components import Binning, family, log_pmf, quantization_levels
+
+__all__ = [
+    "MixtureFit",
+    "fit_mixture",
+    "histogram",
+    "quantize",
+    "as_counts",
+    "kl_divergence",
+    "FLAG_DESCRIPTIONS",
+    "component_pmf_matrix",
+]
+
+Method = Literal["lsq", "em"]
+
+#: Meaning of every flag a fit can carry.
+FLAG_DESCRIPTIONS: dict[str, str] = {
+    "no_object": "total object-class weight below min_weight: no object in this ping",
+    "collapsed_scale": "a component scale ended within 1.5 quantisation steps of zero",
+    "scale_at_bound": "a component scale ended at its upper bound (parameter not identified)",
+    "not_converged": "the optimiser stopped before converging",
+    "degenerate": "fewer than 3 occupied levels: the fit is not identified",
+    "all_zero": "every pixel is in the zero bin",
+    "few_samples": "fewer than 100 pixels",
+    "clipped": "more than 1% of the pixels were above 1 and clipped to the top level",
+    "zero_mass": "the model gives zero probability to an occupied level (kld is infinite)",
+}
+
+# ---------------------------------------------------------------------------- histogram
+
+
+def _as_intensity_image(image: ArrayLike, name: str = "image") -> NDArray[np.floating[Any]]:
+    try:
+        arr = np.asarray(image)
+    except Exception as exc:  # pragma: no cover - exotic array-likes
+        raise InputError(f"{name}: cannot convert to an array ({exc})") from None
+    if arr.dtype.kind in "biu":
+        raise InputError(
+            f"{name}: integer/bool dtype {arr.dtype}; intensities must be float in [0, 1] "
+            "(convert 8-bit sensor data with image / 255)"
+        )
+    if arr.dtype.kind != "f":
+        raise InputError(f"{name}: expected a float intensity image, got dtype {arr.dtype}")
+    if arr.size == 0:
+        raise InputError(f"{name}: image is empty (shape {arr.shape})")
+    if not np.isfinite(arr).all():
+        raise InputError(f"{name}: contains NaN or infinite values")
+    return arr
+
+
+def quantize(
+    image: ArrayLike, n_levels: int = 256, *, binning: Binning = "round"
+) -> NDArray[np.unsignedinteger[Any]]:
+    """Level index of every pixel.
+
+    Parameters
+    ----------
+    image : ndarray of float, any shape
+        Intensities in ``[0, 1]``; values outside are clipped (negatives -> level 0).
+    n_levels : int
+        Number of levels ``L``.
+    binning : {"round", "floor"}
+        ``"round"``: ``k = round(y (L - 1))`` (round half to even); ``"floor"``:
+        ``k = min(floor(y L), L - 1)``.  See :func:`sonarmap.stats.components.quantization_levels`.
+
+    Returns
+    -------
+    ndarray of uint8 (``L <= 256``) or uint16, same shape as ``image``
+
+    Raises
+    ------
+    InputError
+        Integer, bool or non-numeric dtype, empty image, NaN or inf.
+    """
+    arr = _as_intensity_image(image)
+    n = int(quantization_levels(n_levels, binning=binning).size)
+    dtype = np.uint8 if n <= 256 else np.uint16
+    if binning == "round":
+        q = np.clip(arr, 0.0, 1.0) * (n - 1)
+        return np.rint(q).astype(dtype)
+    q = np.floor(np.clip(arr, 0.0, 1.0) * n)
+    return np.minimum(q, n - 1).astype(dtype)
+
+
+def histogram(image: ArrayLike, n_levels: int = 256, *, binning: Binning = "round") -> NDArray[np.int64]:
+    """Counts of pixels per quantisation level (:func:`quantize`), shape ``(n_levels,)``."""
+    q = quantize(image, n_levels, binning=binning)
+    return np.bincount(q.ravel(), minlength=int(n_levels)).astype(np.int64)
+
+
+def as_counts(
+    data: ArrayLike, n_levels: int = 256, *, binning: Binning = "round"
+) -> tuple[NDArray[np.float64], int]:
+    """Histogram counts from an image (ndim >= 2) or validated counts (1-D); also the clipped count."""
+    arr = np.asarray(data)
+    if arr.ndim == 1:
+        if arr.dtype.kind not in "iuf":
+            raise InputError(f"counts: expected numeric counts, got dtype {arr.dtype}")
+        c = arr.astype(np.float64)
+        if c.size < 2:
+            raise InputError(f"counts: need at least 2 levels, got {c.size}")
+        if not np.isfinite(c).all() or (c < 0).any():
+            raise InputError("counts: must be finite and non-negative")
+        return c, 0
+    img = _as_intensity_image(arr)
+    clipped = int(np.count_nonzero(img > 1.0 + 1e-6))
+    return histogram(img, n_levels, binning=binning).astype(np.float64), clipped
+
+
+def kl_divergence(counts: ArrayLike, model_pmf: ArrayLike) -> float:
+    """``D(p_hat || q) = sum p_hat ln(p_hat / q)`` in nats (eq. 11); ``p_hat = counts / sum``."""
+    from scipy.special import rel_entr
+
+    c = np.asarray(counts, dtype=np.float64)
+    q = np.asarray(model_pmf, dtype=np.float64)
+    total = c.sum()
+    if total <= 0:
+        raise FitError("counts: histogram is empty")
+    return float(np.sum(rel_entr(c / total, q)))
+
+
+# ---------------------------------------------------------------------------- result
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class MixtureFit:
+    """A fitted intensity mixture (eq. 8, 19-21) with its diagnostics.
+
+    Attributes
+    ----------
+    weights : ndarray, shape (n_components,)
+        Mixture weights, summing to 1; index 0 is the zero spike when present.
+    params : tuple of tuple of float
+        Parameters of each component (``()`` for the spike; scale last).
+    component_names : tuple of str
+        Family of each component (``"zero"`` for the spike).
+    component_classes : tuple of int
+        Class index of each component (0 = background).
+    class_names : tuple of str
+        Class names, e.g. ``("background", "object")``.
+    kld : float
+        ``D(p_hat || p_model)`` in nats (eq. 11, see module notes).
+    loglik : float
+        Histogram log-likelihood ``sum_k n_k ln p_model(k)``.
+    n_iter : int
+        EM iterations or least-squares function evaluations.
+    converged : bool
+        Whether the optimiser reported convergence.
+    flags : frozenset of str
+        Diagnostics (:data:`FLAG_DESCRIPTIONS`); a fit with flags must not be used blindly.
+    levels : ndarray, shape (L,)
+        Intensity of each level.
+    counts : ndarray, shape (L,)
+        The histogram that was fitted.
+    method : str
+        ``"lsq"`` or ``"em"``.
+    binning : str
+        Histogram binning (``"round"`` or ``"floor"``).
+    loglik_trace : ndarray
+        EM log-likelihood per iteration (non-decreasing); empty for least squares.
+    """
+
+    weights: NDArray[np.float64]
+    params: tuple[tuple[float, ...], ...]
+    component_names: tuple[str, ...]
+    component_classes: tuple[int, ...]
+    class_names: tuple[str, ...]
+    kld: float
+    loglik: float
+    n_iter: int
+    converged: bool
+    flags: frozenset[str]
+    levels: NDArray[np.float64]
+    counts: NDArray[np.float64]
+    method: str
+    binning: str = "round"
+    loglik_trace: NDArray[np.float64] = dataclasses.field(
+        default_factory=lambda: np.zeros(0), repr=False
+    )
+    discretization: str = "exact"
+
+    # ------------------------------------------------------------------ derived
+    @property
+    def n_components(self) -> int:
+        """Number of components including the spike."""
+        return len(self.component_names)
+
+    @property
+    def n_levels(self) -> int:
+        """Number of quantisation levels ``L``."""
+        return int(self.levels.size)
+
+    @property
+    def n_samples(self) -> float:
+        """Total histogram count ``N``."""
+        return float(self.counts.sum())
+
+    @property
+    def scales(self) -> tuple[float, ...]:
+        """Scale of each component (NaN for the spike)."""
+        return tuple(p[-1] if p else math.nan for p in self.params)
+
+    @property
+    def n_params(self) -> int:
+        """Free parameters: ``n_components - 1`` weights plus all family parameters."""
+        return self.n_components - 1 + sum(len(p) for p in self.params)
+
+    @property
+    def bic(self) -> float:
+        """Bayesian information criterion ``k ln N - 2 loglik``."""
+        return self.n_params * math.log(max(self.n_samples, 1.0)) - 2.0 * self.loglik
+
+    @property
+    def aic(self) -> float:
+        """Akaike information criterion ``2 k - 2 loglik``."""
+        return 2.0 * self.n_params - 2.0 * self.loglik
+
+    @property
+    def object_weight(self) -> float:
+        """Total weight of the non-background classes."""
+        cls = np.asarray(self.component_classes)
+        return float(self.weights[cls != 0].sum())
+
+    @property
+    def ok(self) -> bool:
+        """True when no flag other than ``no_object`` was raised."""
+        return not (self.flags - {"no_object"})
+
+    def component_pmfs(self) -> NDArray[np.float64]:
+        """``p_c(k)`` per component, shape ``(n_components, L)``, each summing to 1."""
+        return component_pmf_matrix(self.component_names, self.params, self.levels, self.discretization)
+
+    def component_log_pmfs(self) -> NDArray[np.float64]:
+        """``log p_c(k)`` per component, shape ``(n_components, L)`` (``-inf`` where zero)."""
+        with np.errstate(divide="ignore"):
+            return np.log(self.component_pmfs())
+
+    def pmf(self) -> NDArray[np.float64]:
+        """Mixture pmf on the levels, shape ``(L,)``, summing to 1 (eq. 8)."""
+        return self.weights @ self.component_pmfs()
+
+    def empirical_pmf(self) -> NDArray[np.float64]:
+        """Normalised histogram ``p_hat``, shape ``(L,)``."""
+        return self.counts / self.counts.sum()
+
+    def class_prior(self) -> NDArray[np.float64]:
+        """Prior probability of each class (sum of its component weights), shape ``(n_classes,)``."""
+        out = np.zeros(len(self.class_names))
+        np.add.at(out, np.asarray(self.component_classes), self.weights)
+        return out
+
+    def class_log_pmf(self) -> NDArray[np.float64]:
+        """``log p(level | class)``, shape ``(n_classes, L)``, each class normalised over levels.
+
+        A class with zero weight uses the equal-weight average of its components' pmfs, so the
+        result is always a proper pmf (classification with a zero prior is then well defined).
+        """
+        comp = self.component_pmfs()
+        cls = np.asarray(self.component_classes)
+        out = np.empty((len(self.class_names), self.n_levels))
+        for j in range(len(self.class_names)):
+            members = cls == j
+            w = self.weights[members]
+            w = w / w.sum() if w.sum() > 0 else np.full(w.size, 1.0 / w.size)
+            with np.errstate(divide="ignore"):
+                out[j] = np.log(w @ comp[members])
+        return out
+
+    def class_pmf(self) -> NDArray[np.float64]:
+        """``p(level | class)``, shape ``(n_classes, L)``."""
+        return np.exp(self.class_log_pmf())
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-compatible summary (parameters, diagnostics, flags)."""
+        return {
+            "method": self.method,
+            "binning": self.binning,
+            "n_levels": self.n_levels,
+            "component_names": list(self.component_names),
+            "component_classes": list(self.component_classes),
+            "class_names": list(self.class_names),
+            "weights": [float(w) for w in self.weights],
+            "params": [[float(v) for v in p] for p in self.params],
+            "scales": [None if math.isnan(s) else float(s) for s in self.scales],
+            "kld": float(self.kld),
+            "loglik": float(self.loglik),
+            "bic": float(self.bic),
+            "aic": float(self.aic),
+            "n_iter": int(self.n_iter),
+            "converged": bool(self.converged),
+            "flags": sorted(self.flags),
+            "n_samples": float(self.n_samples),
+        }
+
+
+# ---------------------------------------------------------------------------- fitting
+
+
+@dataclasses.dataclass(frozen=True)
+class _Spec:
+    names: tuple[str, ...]
+    spike: bool
+    levels: NDArray[np.float64]
+    smin: float
+    smax: float
+    min_ratio: float = 2.0
+    discretization: str = "exact"
+
+    @property
+    def free(self) -> list[int]:
+        return [i for i, n in enumerate(self.names) if n != "zero"]
+
+
+def component_pmf_matrix(
+    names: Sequence[str],
+    params: Sequence[tuple[float, ...]],
+    levels: NDArray[np.float64],
+    discretization: str = "exact",
+) -> NDArray[np.float64]:
+    """Component pmfs ``(C, L)`` on ``levels``.
+
+    ``discretization="exact"``: each row sums to 1 on ``levels`` (closed-form fast path for the
+    spike, exponential and Rayleigh).  ``"paper"``: the paper authors' discretisation - the density
+    evaluated at ``levels`` (``k/L``, floor binning) but divided by its sum over ``k/(L-1)``, so rows
+    sum to about 1.004; only for reproducing Table I.
+    """
+    x = np.asarray(levels, dtype=np.float64)
+    L = x.size
+    xn = np.arange(L) / (L - 1) if discretization == "paper" else x
+    out = np.empty((len(names), L))
+    for c, (name, p) in enumerate(zip(names, params)):
+        if name == "zero":
+            out[c] = 0.0
+            out[c, 0] = 1.0
+        elif name == "exponential":
+            e = np.exp(x * (-1.0 / p[0]))
+            out[c] = e / (e.sum() if xn is x else np.exp(xn * (-1.0 / p[0])).sum())
+        elif name == "rayleigh":
+            k = -0.5 / (p[0] * p[0])
+            e = x * np.exp((x * x) * k)
+            out[c] = e / (e.sum() if xn is x else (xn * np.exp((xn * xn) * k)).sum())
+        elif discretization == "paper":
+            raise InputError("discretization: 'paper' supports only exponential and rayleigh")
+        else:
+            out[c] = np.exp(log_pmf(name, p, x))
+    return out
+
+
+def _pmfs(spec: _Spec, params: Sequence[tuple[float, ...]]) -> NDArray[np.float64]:
+    return component_pmf_matrix(spec.names, params, spec.levels, spec.discretization)
+
+
+def _loglik(counts: NDArray[np.float64], q: NDArray[np.float64]) -> float:
+    occ = counts > 0
+    with np.errstate(divide="ignore"):
+        return float(np.sum(counts[occ] * np.log(q[occ])))
+
+
+def _initial_guesses(
+    spec: _Spec, counts: NDArray[np.float64]
+) -> list[tuple[NDArray[np.float64], list[tuple[float, ...]]]]:
+    """Data-driven starting points (several object scales)."""
+    x = spec.levels
+    N = counts.sum()
+    nz = counts.copy()
+    nz[0] = 0
+    frac0 = counts[0] / N
+    if nz.sum() > 0:
+        cdf = np.cumsum(nz) / nz.sum()
+        q50 = float(x[min(np.searchsorted(cdf, 0.5), x.size - 1)])
+        q99 = float(x[min(np.searchsorted(cdf, 0.99), x.size - 1)])
+    else:
+        q50, q99 = 2 * spec.smin, 10 * spec.smin
+    bg_scale = float(np.clip(q50 / math.log(2.0), spec.smin * 1.5, spec.smax / 2))
+    obj_scales = sorted({float(np.clip(s, 2 * spec.smin, spec.smax / 2)) for s in (q99 / 2.0, q99, 4 * bg_scale)})
+    starts = []
+    free = spec.free
+    n_obj = len(free) - 1
+    for so in obj_scales:
+        params: list[tuple[float, ...]] = []
+        w = np.zeros(len(spec.names))
+        for j, i in enumerate(free):
+            name = spec.names[i]
+            scale = bg_scale if j == 0 else so * (1.0 + 0.5 * (j - 1))
+            if name == "rayleigh":
+                p: tuple[float, ...] = (scale / math.sqrt(math.pi / 2) if j == 0 else scale,)
+            elif name == "exponential":
+                p = (scale,)
+            elif name == "gamma":
+                p = (2.0, scale / 2.0)
+            elif name == "weibull":
+                p = (1.5, scale)
+            else:  # rice
+                p = (0.8 * scale, 0.3 * scale)
+            params.append(p)
+            w[i] = (1.0 - frac0) * (0.95 if j == 0 else 0.05 / max(n_obj, 1)) if spec.spike else (
+                0.95 if j == 0 else 0.05 / max(n_obj, 1)
+            )
+        if spec.spike:
+            w[0] = 1.0 - w.sum()
+        w = w / w.sum()
+        full = [() if n == "zero" else params[free.index(i)] for i, n in enumerate(spec.names)]
+        starts.append((w, full))
+    return starts
+
+
+def _bounds(spec: _Spec, name: str) -> list[tuple[float, float]]:
+    fam = family(name)
+    scale_b = (spec.smin, spec.smax)
+    if fam.n_params == 1:
+        return [scale_b]
+    lo, hi = fam.shape_bounds
+    return [(lo, hi), scale_b]
+
+
+def _em(
+    spec: _Spec,
+    counts: NDArray[np.float64],
+    w0: NDArray[np.float64],
+    params0: list[tuple[float, ...]],
+    max_iter: int,
+    tol: float,
+) -> tuple[NDArray[np.float64], list[tuple[float, ...]], int, bool, NDArray[np.float64]]:
+    if all(n in ("zero", "exponential", "rayleigh") for n in spec.names):
+        return _em_fast(spec, counts, w0, params0, max_iter, tol)
+    return _em_general(spec, counts, w0, params0, max_iter, tol)
+
+
+def _expfam_arrays(spec: _Spec, name: str) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    x = spec.levels
+    with np.errstate(divide="ignore"):
+        if name == "exponential":
+            return x.copy(), np.zeros_like(x)
+        if name == "rayleigh":
+            return x * x, np.log(x)
+    t = np.zeros_like(x)
+    lb = np.full_like(x, -np.inf)
+    lb[0] = 0.0
+    return t, lb
+
+
+def _eta_of(name: str, scale: float) -> float:
+    return -1.0 / scale if name == "exponential" else -1.0 / (2.0 * scale * scale)
+
+
+def _scale_of(name: str, eta: float) -> float:
+    return -1.0 / eta if name == "exponential" else math.sqrt(-1.0 / (2.0 * eta))
+
+
+def _em_fast(
+    spec: _Spec,
+    counts: NDArray[np.float64],
+    w0: NDArray[np.float64],
+    params0: list[tuple[float, ...]],
+    max_iter: int,
+    tol: float,
+) -> tuple[NDArray[np.float64], list[tuple[float, ...]], int, bool, NDArray[np.float64]]:
+    from sonarmap.stats._em_kernels import em_expfam
+
+    C = len(spec.names)
+    L = spec.levels.size
+    T = np.empty((C, L))
+    logB = np.empty((C, L))
+    eta = np.zeros(C)
+    lo = np.zeros(C)
+    hi = np.zeros(C)
+    free = np.zeros(C, dtype=np.bool_)
+    for c, name in enumerate(spec.names):
+        T[c], logB[c] = _expfam_arrays(spec, name)
+        if name != "zero":
+            free[c] = True
+            eta[c] = _eta_of(name, params0[c][0])
+            lo[c] = _eta_of(name, spec.smin)
+            hi[c] = _eta_of(name, spec.smax)
+    w = np.array(w0, dtype=np.float64)
+    trace = np.zeros(max_iter + 1)
+    n_iter, conv = em_expfam(counts, T, logB, eta, w, free, lo, hi, int(max_iter), float(tol), trace)
+    params = [() if n == "zero" else (_scale_of(n, float(eta[c])),) for c, n in enumerate(spec.names)]
+    return w, params, int(n_iter), bool(conv), trace[: n_iter + 1].copy()
+
+
+def _em_general(
+    spec: _Spec,
+    counts: NDArray[np.float64],
+    w0: NDArray[np.float64],
+    params0: list[tuple[float, ...]],
+    max_iter: int,
+    tol: float,
+) -> tuple[NDArray[np.float64], list[tuple[float, ...]], int, bool, NDArray[np.float64]]:
+    """Generalised EM: exact E-step, M-step improving each component's expected log-likelihood."""
+    from scipy.optimize import minimize
+
+    from sonarmap.stats._em_kernels import solve_eta
+
+    w = np.array(w0, dtype=np.float64)
+    params = [tuple(p) for p in params0]
+    N = counts.sum()
+    occ = counts > 0
+    trace: list[float] = []
+    conv = False
+    it = 0
+    while True:
+        logp = np.stack([log_pmf(n, p, spec.levels) for n, p in zip(spec.names, params)])
+        with np.errstate(divide="ignore"):
+            lw = np.log(w)[:, None] + logp
+        m = lw.max(axis=0)
+        m_safe = np.where(np.isfinite(m), m, 0.0)
+        s = np.exp(lw - m_safe).sum(axis=0)
+        with np.errstate(divide="ignore"):
+            ll = float(np.sum(counts[occ] * (m_safe[occ] + np.log(s[occ]))))
+        trace.append(ll)
+        if it > 0 and ll - trace[-2] <= tol * (abs(ll) + 1.0):
+            conv = True
+            break
+        if it >= max_iter:
+            break
+        resp = np.where(occ, np.exp(lw - m_safe) / np.where(s > 0, s, 1.0), 0.0) * counts
+        Nc = resp.sum(axis=1)
+        w = Nc / N
+        for c, name in enumerate(spec.names):
+            if name == "zero" or Nc[c] <= 0:
+                continue
+            r = resp[c]
+            if name in ("exponential", "rayleigh"):
+                T, lb = _expfam_arrays(spec, name)
+                eta = solve_eta(
+                    lb, T, float(r @ T / Nc[c]), _eta_of(name, params[c][0]),
+                    _eta_of(name, spec.smin), _eta_of(name, spec.smax),
+                )
+                params[c] = (_scale_of(name, eta),)
+                continue
+            bnds = _bounds(spec, name)
+
+            def negq(theta: NDArray[np.float64], name: str = name, r: NDArray[np.float64] = r) -> float:
+                lp = log_pmf(name, tuple(theta), spec.levels)
+                mask = r > 0
+                v = -float(r[mask] @ lp[mask])
+                return v if math.isfinite(v) else 1e300
+
+            old = np.array(params[c])
+            res = minimize(negq, old, method="L-BFGS-B", bounds=bnds, options={"maxiter": 50})
+            if res.fun < negq(old):
+                params[c] = tuple(float(v) for v in res.x)
+        it += 1
+    return w, params, it, conv, np.asarray(trace)
+
+
+def _stick_to_weights(v: NDArray[np.float64], spike: bool, n: int) -> NDArray[np.float64]:
+    """Stick-breaking fractions -> weights (spike, or the last component, takes the remainder)."""
+    w = np.zeros(n)
+    rest = 1.0
+    start = 1 if spike else 0
+    k = 0
+    for i in range(start, n):
+        if not spike and i == n - 1:
+            w[i] = rest
+            break
+        w[i] = rest * v[k]
+        rest -= w[i]
+        k += 1
+    if spike:
+        w[0] = rest
+    return w
+
+
+def _weights_to_stick(w: NDArray[np.float64], spike: bool) -> NDArray[np.float64]:
+    n = w.size
+    v = []
+    rest = 1.0
+    start = 1 if spike else 0
+    stop = n if spike else n - 1
+    for i in range(start, stop):
+        v.append(0.0 if rest <= 1e-15 else min(max(w[i] / rest, 0.0), 1.0))
+        rest -= w[i]
+    return np.array(v, dtype=np.float64)
+
+
+def _lsq(
+    spec: _Spec,
+    counts: NDArray[np.float64],
+    starts: list[tuple[NDArray[np.float64], list[tuple[float, ...]]]],
+    loss: str,
+) -> tuple[NDArray[np.float64], list[tuple[float, ...]], int, bool]:
+    from scipy.optimize import least_squares
+
+    p_hat = counts / counts.sum()
+    n = len(spec.names)
+    free = spec.free
+    lo: list[float] = []
+    hi: list[float] = []
+    nv = len(_weights_to_stick(starts[0][0], spec.spike))
+    lo += [0.0] * nv
+    hi += [1.0] * nv
+    bg = free[0]
+    ratio_max = spec.smax / spec.smin
+    for i in free:
+        for b in _bounds(spec, spec.names[i])[:-1]:
+            lo.append(b[0])
+            hi.append(b[1])
+        # object scales are parametrised as a ratio >= 1 to the background scale (ordering)
+        lo.append(spec.smin if i == bg else spec.min_ratio)
+        hi.append(spec.smax if i == bg else ratio_max)
+    lo_a = np.array(lo)
+    hi_a = np.array(hi)
+
+    def unpack(theta: NDArray[np.float64]) -> tuple[NDArray[np.float64], list[tuple[float, ...]]]:
+        w = _stick_to_weights(theta[:nv], spec.spike, n)
+        params: list[tuple[float, ...]] = []
+        k = nv
+        s_bg = float(theta[nv + family(spec.names[bg]).n_params - 1])
+        for i, name in enumerate(spec.names):
+            m = family(name).n_params
+            vals = [float(t) for t in theta[k : k + m]]
+            if m and i != bg:
+                vals[-1] = min(vals[-1] * s_bg, spec.smax)
+            params.append(tuple(vals))
+            k += m
+        return w, params
+
+    def resid(theta: NDArray[np.float64]) -> NDArray[np.float64]:
+        w, params = unpack(theta)
+        return w @ _pmfs(spec, params) - p_hat
+
+    best = None
+    nfev = 0
+    for w0, p0 in starts:
+        s_bg0 = p0[bg][-1]
+        p0r = [p if (not p or i == bg) else tuple(p[:-1]) + (max(p[-1] / s_bg0, spec.min_ratio),)
+               for i, p in enumerate(p0)]
+        theta0 = np.concatenate([_weights_to_stick(w0, spec.spike)] + [np.array(p, float) for p in p0r])
+        theta0 = np.clip(theta0, lo_a, hi_a)
+        # keep starts strictly inside the box (trust-region reflective requirement)
+        span = hi_a - lo_a
+        theta0 = np.clip(theta0, lo_a + 1e-9 * span, hi_a - 1e-9 * span)
+        res = least_squares(resid, theta0, bounds=(lo_a, hi_a), method="trf", loss=loss,
+                            x_scale="jac", xtol=1e-12, ftol=1e-12, gtol=1e-12, max_nfev=2000)
+        nfev += int(res.nfev)
+        if best is None or res.cost < best.cost:
+            best = res
+    assert best is not None
+    w, params = unpack(best.x)
+    return w, params, nfev, bool(best.status > 0)
+
+
+def _paper_start(spec: _Spec) -> tuple[NDArray[np.float64], list[tuple[float, ...]]] | None:
+    """The paper authors' ``p0 = (pi1, pi2, s1, s2) = (0.32, 0.01, 0.03, 0.2)``."""
+    if spec.names != ("zero", "exponential", "rayleigh"):
+        return None
+    return np.array([0.67, 0.32, 0.01]), [(), (0.03,), (0.2,)]
+
+
+def fit_mixture(
+    data: ArrayLike,
+    *,
+    families: Sequence[str] = ("exponential", "rayleigh"),
+    method: Method = "lsq",
+    zero_spike: bool = True,
+    n_levels: int = 256,
+    binning: Binning = "round",
+    class_names: Sequence[str] | None = None,
+    min_weight: float = 2e-3,
+    scale_max: float = 1.0,
+    loss: str = "linear",
+    max_iter: int = 1000,
+    tol: float = 1e-11,
+    init: tuple[ArrayLike, Sequence[tuple[float, ...]]] | None = None,
+    min_scale_ratio: float = 2.0,
+    discretization: Literal["exact", "paper"] = "exact",
+) -> MixtureFit:
+    """Fit a zero-spike mixture of discrete pmfs to one ping's intensity histogram.
+
+    Parameters
+    ----------
+    data : ndarray
+        A float intensity image in ``[0, 1]`` (any shape with ndim >= 2), or a 1-D array of
+        ``n_levels`` histogram counts.
+    families : sequence of str
+        Component families after the spike; the first is the background's continuous part
+        (eq. 19), the rest are object classes (eq. 20-21).  Default: the paper's exponential +
+        Rayleigh.
+    method : {"lsq", "em"}
+        Bounded least squares on the normalised histogram (the paper's fit) or exact EM on the
+        histogram counts (maximum likelihood).
+    zero_spike : bool
+        Include the explicit zero spike ``delta(y)`` (real DIDSON pings are ~60 % zeros).
+    n_levels : int
+        Number of quantisation levels ``L`` (ignored for counts input, where it is ``len(data)``).
+    binning : {"round", "floor"}
+        Histogram convention, see :func:`quantize`.
+    class_names : sequence of str, optional
+        One name per class (background first); default ``("background", "object")`` or
+        ``("background", "object1", "object2", ...)``.
+    min_weight : float
+        Object-class weight below which the fit is flagged ``"no_object"``.
+    scale_max : float
+        Upper bound of every scale (intensity units); the lower bound is one level step.
+    loss : str
+        ``least_squares`` loss for ``method="lsq"`` (``"linear"`` is the paper's; ``"soft_l1"``
+        down-weights outlying bins).
+    max_iter, tol : int, float
+        EM iteration limit and relative log-likelihood tolerance.
+    init : (weights, params), optional
+        Starting point (same layout as :attr:`MixtureFit.weights` / ``params``).
+    min_scale_ratio : float
+        Least squares only: every object scale is at least this multiple of the background scale
+        (an object pmf that merely reshapes the background is not an object; without it the
+        object component of an empty ping such as Table I image 6 mimics the background).
+    discretization : {"exact", "paper"}
+        ``"exact"`` (default): pmfs normalised on the levels.  ``"paper"``: the authors'
+        discretisation (see :func:`component_pmf_matrix`), least squares with floor binning and
+        exponential/Rayleigh only - for reproducing Table I; ``kld`` is then computed with the
+        unnormalised model as the authors did.
+
+    Returns
+    -------
+    MixtureFit
+
+    Raises
+    ------
+    InputError
+        Bad image (NaN, integer dtype, empty) or bad options.
+    FitError
+        Empty histogram.
+
+    Notes
+    -----
+    Implements eq. 8-11 and 19-21 of Teixeira et al. (IROS 2018).  Degenerate inputs (all-zero,
+    constant, tiny images; a vanishing object component as in Table I image 6) give a result
+    carrying :attr:`MixtureFit.flags`, never a silently wrong one.
+    """
+    if method not in ("lsq", "em"):
+        raise InputError(f"method: must be 'lsq' or 'em', got {method!r}")
+    fams = tuple(family(f).name for f in families)
+    if not fams or "zero" in fams:
+        raise InputError("families: need at least one continuous family (the spike is zero_spike)")
+    counts, n_clipped = as_counts(data, n_levels, binning=binning)
+    L = counts.size
+    levels = quantization_levels(L, binning=binning)
+    N = float(counts.sum())
+    if N <= 0:
+        raise FitError("data: histogram is empty (no pixels)")
+    if not 0 <= min_weight < 1:
+        raise InputError(f"min_weight: must be in [0, 1), got {min_weight}")
+    step = float(levels[1])
+    if not step < scale_max:
+        raise InputError(f"scale_max: must exceed one level step ({step:.3g}), got {scale_max}")
+    names = (("zero",) if zero_spike else ()) + fams
+    if discretization not in ("exact", "paper"):
+        raise InputError(f"discretization: must be 'exact' or 'paper', got {discretization!r}")
+    if discretization == "paper" and (method != "lsq" or binning != "floor"):
+        raise InputError("discretization: 'paper' needs method='lsq' and binning='floor'")
+    if not min_scale_ratio >= 1.0:
+        raise InputError(f"min_scale_ratio: must be >= 1, got {min_scale_ratio}")
+    spec = _Spec(names, zero_spike, levels, step, float(scale_max), float(min_scale_ratio), discretization)
+    n_classes = 1 + len(fams) - 1
+    classes = tuple(0 if (n == "zero" or i == (1 if zero_spike else 0)) else i - (1 if zero_spike else 0)
+                    for i, n in enumerate(names))
+    if class_names is None:
+        cnames: tuple[str, ...] = ("background",) + (
+            ("object",) if n_classes == 2 else tuple(f"object{j}" for j in range(1, n_classes))
+        )
+    else:
+        cnames = tuple(str(c) for c in class_names)
+        if len(cnames) != n_classes:
+            raise InputError(f"class_names: need {n_classes} names, got {len(cnames)}")
+
+    flags: set[str] = set()
+    occupied = int(np.count_nonzero(counts))
+    if N < 100:
+        flags.add("few_samples")
+    if n_clipped > 0.01 * N:
+        flags.add("clipped")
+    if occupied < 3:
+        flags.add("degenerate")
+    if zero_spike and counts[0] == N:
+        flags.add("all_zero")
+
+    if init is not None:
+        w_init = np.asarray(init[0], dtype=np.float64)
+        p_init = [tuple(float(v) for v in p) for p in init[1]]
+        if w_init.shape != (len(names),) or len(p_init) != len(names):
+            raise InputError(f"init: need {len(names)} weights and parameter tuples")
+        starts = [(w_init / w_init.sum(), p_init)]
+    else:
+        starts = _initial_guesses(spec, counts)
+
+    trace = np.zeros(0)
+    if "all_zero" in flags:
+        w = np.zeros(len(names))
+        w[0] = 1.0
+        params = starts[0][1]
+        n_iter, conv = 0, True
+    elif method == "em":
+        best = None
+        for w0, p0 in starts:
+            out = _em(spec, counts, w0, p0, max_iter, tol)
+            if best is None or out[4][-1] > best[4][-1]:
+                best = out
+        assert best is not None
+        w, params, n_iter, conv, trace = best
+    else:
+        lsq_starts = list(starts)
+        if init is None:
+            em_out = _em(spec, counts, starts[0][0], starts[0][1], 200, 1e-9)
+            lsq_starts = [(em_out[0], em_out[1])]
+            ps = _paper_start(spec)
+            if ps is not None:
+                lsq_starts.append(ps)
+        w, params, n_iter, conv = _lsq(spec, counts, lsq_starts, loss)
+
+    w = np.clip(np.asarray(w, dtype=np.float64), 0.0, None)
+    w = w / w.sum()
+    q = w @ _pmfs(spec, params)
+    if discretization == "paper":
+        from scipy.special import rel_entr
+
+        kld = float(np.sum(rel_entr(counts / N, q)))
+    else:
+        kld = kl_divergence(counts, q)
+    ll = _loglik(counts, q)
+    if not math.isfinite(kld):
+        flags.add("zero_mass")
+    if not conv:
+        flags.add("not_converged")
+    obj_w = float(w[np.asarray(classes) != 0].sum())
+    if len(fams) > 1 and obj_w < min_weight:
+        flags.add("no_object")
+    if "no_object" in flags:
+        # an object scale with (almost) no weight is not identified: report it at its bound,
+        # the convention of the paper's Table I (image 6: sigma = 1.000)
+        params = [p if (cls == 0 or not p) else tuple(p[:-1]) + (float(scale_max),)
+                  for p, cls in zip(params, classes)]
+    for c, (name, p) in enumerate(zip(names, params)):
+        if name == "zero" or w[c] < min_weight:
+            continue
+        if p[-1] <= 1.5 * step:
+            flags.add("collapsed_scale")
+        if p[-1] >= scale_max * (1 - 1e-6):
+            flags.add("scale_at_bound")
+    w.setflags(write=False)
+    levels.setflags(write=False)
+    counts.setflags(write=False)
+    return MixtureFit(
+        weights=w,
+        params=tuple(tuple(float(v) for v in p) for p in params),
+        component_names=names,
+        component_classes=classes,
+        class_names=cnames,
+        kld=kld,
+        loglik=ll,
+        n_iter=int(n_iter),
+        converged=bool(conv),
+        flags=frozenset(flags),
+        levels=levels,
+        counts=counts,
+        method=method,
+        binning=binning,
+        loglik_trace=trace,
+        discretization=discretization,
+    )

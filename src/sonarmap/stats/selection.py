@@ -1,0 +1,112 @@
+"""Model selection among component families and numbers of components (KLD + BIC/AIC)."""
+
+from __future__ import annotations
+
+import dataclasses
+import itertools
+import math
+from collections.abc import Sequence
+from typing import Literal
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from sonarmap.errors import InputError
+from sonarmap.stats.mixture import Binning, MixtureFit, as_counts, fit_mixture
+
+__all__ = ["ModelSelection", "select_model", "default_candidates"]
+
+Criterion = Literal["bic", "aic", "kld"]
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class ModelSelection:
+    """Fits of every candidate model and the chosen one.
+
+    Attributes
+    ----------
+    candidates : tuple of tuple of str
+        Families of each candidate (after the zero spike).
+    fits : tuple of MixtureFit
+        One fit per candidate.
+    scores : tuple of float
+        The criterion of each candidate (lower is better; ``inf`` if the fit was flagged).
+    criterion : str
+        ``"bic"``, ``"aic"`` or ``"kld"``.
+    best_index : int
+        Index of the chosen candidate.
+    """
+
+    candidates: tuple[tuple[str, ...], ...]
+    fits: tuple[MixtureFit, ...]
+    scores: tuple[float, ...]
+    criterion: str
+    best_index: int
+
+    @property
+    def best(self) -> MixtureFit:
+        """The chosen fit."""
+        return self.fits[self.best_index]
+
+    def table(self) -> list[dict[str, object]]:
+        """One row per candidate: families, kld, bic, aic, flags, chosen."""
+        return [
+            {"families": "+".join(c), "kld": f.kld, "bic": f.bic, "aic": f.aic,
+             "flags": ";".join(sorted(f.flags)), "chosen": i == self.best_index}
+            for i, (c, f) in enumerate(zip(self.candidates, self.fits))
+        ]
+
+
+def default_candidates(max_objects: int = 2) -> list[tuple[str, ...]]:
+    """Exponential background plus 0..``max_objects`` object components from the object families."""
+    objs = ("rayleigh", "rice", "weibull", "gamma")
+    out: list[tuple[str, ...]] = [("exponential",)]
+    for n in range(1, max_objects + 1):
+        for combo in itertools.combinations_with_replacement(objs, n):
+            out.append(("exponential",) + combo)
+    return out
+
+
+def select_model(
+    data: ArrayLike,
+    *,
+    candidates: Sequence[Sequence[str]] | None = None,
+    criterion: Criterion = "bic",
+    method: Literal["lsq", "em"] = "em",
+    n_levels: int = 256,
+    binning: Binning = "round",
+) -> ModelSelection:
+    """Fit every candidate model and choose by BIC, AIC or KLD (eq. 11).
+
+    Fits flagged ``not_converged``, ``collapsed_scale``, ``zero_mass`` or ``degenerate`` are never
+    chosen (score ``inf``); a model whose extra object component has no weight (``no_object``) is
+    only chosen if its criterion is still the best.  N > 2 classes arise from candidates with
+    several object components.
+
+    Parameters
+    ----------
+    data : ndarray
+        Image or counts, as for :func:`fit_mixture`.
+    candidates : sequence of family tuples, optional
+        Default :func:`default_candidates` (up to two object components).
+    criterion : {"bic", "aic", "kld"}
+        Selection score (lower is better).
+    method : {"lsq", "em"}
+        Fitter (EM is the maximum-likelihood fit the information criteria assume).
+    """
+    if criterion not in ("bic", "aic", "kld"):
+        raise InputError(f"criterion: must be 'bic', 'aic' or 'kld', got {criterion!r}")
+    counts, _ = as_counts(data, n_levels, binning=binning)
+    cands = [tuple(c) for c in (candidates if candidates is not None else default_candidates())]
+    if not cands:
+        raise InputError("candidates: empty")
+    fits = []
+    scores = []
+    bad = {"not_converged", "collapsed_scale", "zero_mass", "degenerate"}
+    for c in cands:
+        f = fit_mixture(counts, families=c, method=method, binning=binning, max_iter=300)
+        fits.append(f)
+        s = {"bic": f.bic, "aic": f.aic, "kld": f.kld}[criterion]
+        scores.append(math.inf if (f.flags & bad) or not math.isfinite(s) else float(s))
+    best = int(np.argmin(scores))
+    return ModelSelection(tuple(cands), tuple(fits), tuple(scores), criterion, best)

@@ -1,0 +1,1054 @@
+"""Survey-scale processing: chunked, resumable batch runs on local processes or dask.distributed.
+
+A survey is a list of pings (one PNG+JSON file each, or frames of multi-ping files) cut into
+chunks of ``chunk_size`` consecutive pings.  Each chunk is one task: a worker reads its own pings
+from disk (tasks carry file names, never images), runs the fused per-ping pipeline
+(:func:`sonarmap.pipeline.process_ping`: pre-process -> mixture fit -> segment -> ranges) and sends
+back only the per-ping products (a few kB per ping).  The calling process is the single writer: it
+stores chunk ``k`` into zarr chunk ``k`` of every product variable and *then* writes the chunk's
+completion marker atomically.  Because the per-ping path is a pure function of (ping, configuration)
+and every chunk has a fixed place in the store, the output is identical whether chunks ran
+serially, in local worker processes or on a dask cluster, in any order, with retries, or across an
+interruption and a resumed run.
+
+Layout of the output store (zarr v3, readable with :func:`open_products` / ``xarray.open_zarr``)::
+
+    survey.zarr/
+      zarr.json                 root attributes: provenance (sonarmap version, configuration,
+                                inputs, fingerprint), written once when the store is created
+      ping_time, source, kld, flags, mixture_weight, mixture_param, range, range_bin, ... arrays
+      point_xyz, point_ping ... when poses were given (written after the last chunk)
+      .sonarmap/chunks/<k>.done completion markers (data first, marker second)
+      .sonarmap/complete        the run finished (summary in JSON)
+
+The store is created in a temporary directory and renamed into place, so it either exists with
+complete metadata or not at all.  Re-running the same command (same inputs, configuration and
+options: compared through a fingerprint) resumes; anything else needs ``overwrite=True``.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import hashlib
+import json
+import math
+import os
+import shutil
+import tempfile
+import time
+import warnings
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from sonarmap._atomic import atomic_write_text
+from sonarmap.errors import DataFormatError, InputError, SonarmapError
+from sonarmap.io.dataset import ATTRS as DATA_MODEL_ATTRS
+from sonarmap.io.dataset import COORD_AZIMUTH, COORD_RANGE, DIM_BEAM, DIM_PING, DIM_RANGE
+from sonarmap.ping import Ping
+
+__all__ = [
+    "ChunkSpec",
+    "SurveyPlan",
+    "SurveyResult",
+    "SurveyExistsError",
+    "plan_survey",
+    "process_survey",
+    "run_chunk",
+    "open_products",
+    "survey_status",
+    "replicate_pings",
+    "PRODUCT_VARIABLES",
+]
+
+#: Marker directory inside the store (not part of the dataset).
+STATE_DIR = ".sonarmap"
+SURVEY_FORMAT = "sonarmap-survey/1"
+DEFAULT_CHUNK_SIZE = 256
+TIME_UNITS = "nanoseconds since 1970-01-01T00:00:00"
+
+#: Product variables: name -> (dims, attrs).  Dimension names follow the survey data model
+#: (echopype style: ``ping_time``, ``range_sample``, ``beam``); ``component`` and ``parameter``
+#: index the mixture model.
+PRODUCT_VARIABLES: dict[str, tuple[tuple[str, ...], dict[str, str]]] = {
+    DIM_PING: ((DIM_PING,), dict(DATA_MODEL_ATTRS[DIM_PING])),
+    "source": ((DIM_PING,), {"long_name": "Source file (and frame) of the ping"}),
+    "kld": ((DIM_PING,), {"long_name": "Kullback-Leibler divergence, data || mixture fit",
+                          "units": "nat"}),
+    "flags": ((DIM_PING,), {"long_name": "Fit quality flags, space separated (empty: none)"}),
+    "mixture_weight": ((DIM_PING, "component"), {"long_name": "Mixture component weight",
+                                                 "units": "1"}),
+    "mixture_param": ((DIM_PING, "component", "parameter"),
+                      {"long_name": "Mixture component parameters, scale last (NaN: unused)"}),
+    "pd": ((DIM_PING,), {"long_name": "Probability of detection at the chosen threshold",
+                         "units": "1"}),
+    "pfa": ((DIM_PING,), {"long_name": "Probability of false alarm at the chosen threshold",
+                          "units": "1"}),
+    "range": ((DIM_PING, DIM_BEAM), {"long_name": "Range to the first return per beam (NaN: none)",
+                                     "units": "m"}),
+    "range_bin": ((DIM_PING, DIM_BEAM), {"long_name": "Range-bin index of the return (-1: none)",
+                                         "units": "1"}),
+    "range_intensity": ((DIM_PING, DIM_BEAM), {"long_name": "Intensity at the return", "units": "1"}),
+    "range_confidence": ((DIM_PING, DIM_BEAM), {"long_name": "Confidence of the return",
+                                                "units": "1"}),
+    "labels": ((DIM_PING, DIM_RANGE, DIM_BEAM),
+               {"long_name": "Segmentation labels (1: object, 0: free space)", "units": "1"}),
+}
+
+PingFunction = Callable[..., Any]
+
+
+class SurveyExistsError(SonarmapError, FileExistsError):
+    """The output exists and is not a resumable run of the same command."""
+
+
+# ============================================================================ planning
+@dataclasses.dataclass(frozen=True)
+class ChunkSpec:
+    """One task: pings ``start:stop`` of the survey, read from ``items``.
+
+    Parameters
+    ----------
+    index : int
+        Chunk number; the chunk is stored in zarr chunk ``index`` of every product variable.
+    start, stop : int
+        Survey-wide ping positions.
+    items : tuple of (path, format, first, count)
+        Where the pings are: ``count`` consecutive pings of ``path`` starting at frame ``first``.
+    geometry : SonarGeometry, preset name or JSON path, optional
+        Geometry override handed to the readers.
+    """
+
+    index: int
+    start: int
+    stop: int
+    items: tuple[tuple[str, str, int, int], ...]
+    geometry: Any = None
+
+    @property
+    def n_pings(self) -> int:
+        """Number of pings in the chunk."""
+        return self.stop - self.start
+
+
+@dataclasses.dataclass(frozen=True)
+class SurveyPlan:
+    """The pings of a survey, in order, and how they are chunked.
+
+    ``files`` lists ``(path, format, n_pings)``; ``stamps`` the size and modification time of each
+    file (part of the fingerprint, so changed inputs are not silently resumed).
+    """
+
+    files: tuple[tuple[str, str, int], ...]
+    stamps: tuple[tuple[int, int], ...]
+    chunk_size: int
+    geometry: Any = None
+
+    @property
+    def n_pings(self) -> int:
+        """Total number of pings."""
+        return sum(n for _, _, n in self.files)
+
+    @property
+    def n_chunks(self) -> int:
+        """Number of chunks (tasks)."""
+        return max(1, math.ceil(self.n_pings / self.chunk_size)) if self.n_pings else 0
+
+    def chunk(self, index: int) -> ChunkSpec:
+        """The :class:`ChunkSpec` of chunk ``index``."""
+        start = index * self.chunk_size
+        stop = min(self.n_pings, start + self.chunk_size)
+        if not 0 <= start < stop:
+            raise InputError(f"chunk index {index} out of range 0-{self.n_chunks - 1}")
+        offs = self._offsets
+        i = int(np.searchsorted(offs, start, side="right")) - 1
+        items: list[tuple[str, str, int, int]] = []
+        while i < len(self.files) and offs[i] < stop:
+            path, fmt, n = self.files[i]
+            lo = max(start, int(offs[i])) - int(offs[i])
+            hi = min(stop, int(offs[i]) + n) - int(offs[i])
+            if hi > lo:
+                items.append((path, fmt, lo, hi - lo))
+            i += 1
+        return ChunkSpec(index, start, stop, tuple(items), self.geometry)
+
+    @property
+    def _offsets(self) -> NDArray[np.int64]:
+        """Survey position of each file's first ping (cached)."""
+        cached = self.__dict__.get("_offsets_cache")
+        if cached is None:
+            counts = np.fromiter((n for _, _, n in self.files), dtype=np.int64, count=len(self.files))
+            cached = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
+            object.__setattr__(self, "_offsets_cache", cached)
+        return cached
+
+    def chunks(self) -> list[ChunkSpec]:
+        """All chunks, in order."""
+        return [self.chunk(i) for i in range(self.n_chunks)]
+
+
+def plan_survey(
+    inputs: str | os.PathLike[str] | Iterable[str | os.PathLike[str]],
+    *,
+    chunk_size: int = DEFAULT_CHUNK_SIZE,
+    geometry: Any = None,
+) -> SurveyPlan:
+    """List the pings of ``inputs`` (files, directories, globs) without decoding images.
+
+    PNG/BMP pings given together are ordered by time stamp, as :func:`sonarmap.io.read_pings`
+    does; multi-ping files contribute their frames in file order.
+
+    Raises
+    ------
+    InputError
+        If ``chunk_size`` is not a positive integer or the inputs hold no ping.
+    DataFormatError
+        If an input does not exist or is of an unknown format.
+    """
+    from sonarmap.io import _is_store_dir, detect_format, expand_inputs, format_module
+    from sonarmap.io.pngjson import find_png_pings
+
+    if isinstance(chunk_size, bool) or int(chunk_size) != chunk_size or chunk_size < 1:
+        raise InputError(f"chunk_size: must be a positive integer (got {chunk_size!r})")
+    files: list[tuple[str, str, int]] = []
+    pngs: list[Path] = []
+
+    def flush() -> None:
+        if pngs:
+            files.extend((os.path.abspath(p), "pngjson", 1) for p in find_png_pings(list(pngs)))
+            pngs.clear()
+
+    for p in expand_inputs(inputs):
+        fmt = "pngjson" if p.is_dir() and not _is_store_dir(p) else detect_format(p)
+        if fmt == "pngjson":
+            pngs.append(p)
+            continue
+        flush()
+        n = int(format_module(fmt).count_pings(p))
+        if n:
+            files.append((os.path.abspath(p), fmt, n))
+    flush()
+    if not files:
+        raise InputError("inputs: no pings found")
+    stamps = []
+    for path, _, _ in files:
+        st = os.stat(path)
+        stamps.append((int(st.st_size), int(st.st_mtime_ns)))
+    return SurveyPlan(tuple(files), tuple(stamps), int(chunk_size), geometry)
+
+
+# ============================================================================ per-chunk work
+def _iter_chunk_pings(chunk: ChunkSpec) -> Iterator[Ping]:
+    import itertools
+
+    from sonarmap.io import format_module
+    from sonarmap.io.pngjson import read_png_ping
+
+    for path, fmt, first, count in chunk.items:
+        if fmt == "pngjson":
+            yield read_png_ping(path, geometry=chunk.geometry)
+            continue
+        if fmt == "zarrstore":  # a converted survey: read only this chunk's pings
+            from sonarmap.geometry import as_geometry
+            from sonarmap.io.dataset import dataset_to_pings
+            from sonarmap.io.dataset import open_survey as open_dataset
+
+            ds = open_dataset(path).isel({DIM_PING: slice(first, first + count)})
+            g = None if chunk.geometry is None else as_geometry(chunk.geometry)
+            it: Iterator[Ping] = dataset_to_pings(ds, geometry=g)
+            first = 0
+        else:
+            it = format_module(fmt).iter_pings(Path(path), geometry=chunk.geometry)
+        got = 0
+        for ping in itertools.islice(it, first, first + count):
+            got += 1
+            yield ping
+        if got != count:
+            raise DataFormatError(f"expected {count} pings from frame {first}, found {got}", path)
+
+
+def _fit_arrays(fit: Any) -> tuple[NDArray[np.float64], NDArray[np.float64], tuple[str, ...]]:
+    """``(weights (K,), params (K, P), component names)`` of a mixture fit.
+
+    Accepts :class:`sonarmap.stats.mixture.MixtureFit` or a mapping with ``weights`` and
+    ``params``; ragged parameter lists (the zero spike has none) are padded with NaN.
+    """
+    if fit is None:
+        return np.zeros(0), np.zeros((0, 0)), ()
+    get = fit.get if isinstance(fit, Mapping) else (lambda k, d=None: getattr(fit, k, d))
+    weights = np.asarray(get("weights"), dtype=np.float64).reshape(-1)
+    params = get("params", None)
+    rows = [np.asarray(r, dtype=np.float64).reshape(-1) for r in (params if params is not None else ())]
+    width = max((r.size for r in rows), default=0)
+    arr = np.full((len(rows), width), np.nan)
+    for i, r in enumerate(rows):
+        arr[i, : r.size] = r
+    names = tuple(str(n) for n in (get("component_names", None) or ()))
+    return weights, arr, names
+
+
+def _record(products: Any, *, keep_labels: bool) -> dict[str, Any]:
+    """One ping's products as plain arrays (the row of every product variable)."""
+    weights, params, _ = _fit_arrays(products.fit)
+    r = products.ranges
+    rec: dict[str, Any] = {
+        "ping_time": np.int64(products.time_ns),
+        "source": str(products.source),
+        "kld": np.float64(np.nan if products.kld is None else products.kld),
+        "flags": " ".join(str(f) for f in (products.flags or ())),
+        "mixture_weight": weights,
+        "mixture_param": params,
+        "pd": np.float64(np.nan if getattr(products, "pd", None) is None else products.pd),
+        "pfa": np.float64(np.nan if getattr(products, "pfa", None) is None else products.pfa),
+        "range": np.asarray(r.range_m, dtype=np.float32),
+        "range_bin": np.asarray(r.bin, dtype=np.int32),
+        "range_intensity": np.asarray(r.intensity, dtype=np.float32),
+        "range_confidence": np.asarray(r.confidence, dtype=np.float32),
+    }
+    if keep_labels:
+        labels = getattr(products, "labels", None)
+        if labels is None:
+            raise SonarmapError(f"{products.source}: pipeline returned no labels with keep_labels")
+        rec["labels"] = np.asarray(labels).astype(np.uint8)
+    return rec
+
+
+_FILL: dict[str, Any] = {
+    "kld": np.nan, "pd": np.nan, "pfa": np.nan, "mixture_weight": np.nan, "mixture_param": np.nan,
+    "range": np.nan, "range_bin": -1, "range_intensity": np.nan, "range_confidence": np.nan,
+    "labels": 0, "ping_time": 0, "source": "", "flags": "",
+}
+
+
+def _stack(records: Sequence[dict[str, Any]], schema: Mapping[str, tuple[tuple[int, ...], str]],
+           sources: Sequence[str]) -> dict[str, np.ndarray]:
+    out: dict[str, np.ndarray] = {}
+    n = len(records)
+    for name, (shape, dtype) in schema.items():
+        if dtype == "str":
+            out[name] = np.array([rec[name] for rec in records], dtype=object)
+            continue
+        arr = np.full((n, *shape), _FILL[name], dtype=dtype)
+        for i, rec in enumerate(records):
+            val = np.asarray(rec[name])
+            if val.shape != shape:
+                # Mixture fits with fewer components than the survey's keep their fill value.
+                if name.startswith("mixture") and val.ndim == len(shape) and all(
+                    a <= b for a, b in zip(val.shape, shape, strict=True)
+                ):
+                    arr[(i, *(slice(0, s) for s in val.shape))] = val
+                    continue
+                raise InputError(
+                    f"{sources[i]}: product {name} has shape {val.shape}, the survey's is {shape} "
+                    "(are all pings from the same sonar geometry?)"
+                )
+            arr[i] = val
+        out[name] = arr
+    return out
+
+
+def _schema_of(record: Mapping[str, Any]) -> dict[str, tuple[tuple[int, ...], str]]:
+    schema: dict[str, tuple[tuple[int, ...], str]] = {}
+    for name, val in record.items():
+        if isinstance(val, str):
+            schema[name] = ((), "str")
+        else:
+            a = np.asarray(val)
+            schema[name] = (tuple(a.shape), a.dtype.str)
+    return schema
+
+
+def _default_ping_function() -> PingFunction:
+    from sonarmap.pipeline import process_ping
+
+    return process_ping
+
+
+def run_chunk(
+    chunk: ChunkSpec,
+    config: Any,
+    *,
+    keep_labels: bool = False,
+    schema: Mapping[str, tuple[tuple[int, ...], str]] | None = None,
+    ping_function: PingFunction | None = None,
+) -> dict[str, np.ndarray]:
+    """Process one chunk: read its pings, run the per-ping pipeline, stack the products.
+
+    This is the task body on every executor; it only returns products (no images).
+
+    Parameters
+    ----------
+    chunk : ChunkSpec
+        Which pings.
+    config : PipelineConfig
+        The pipeline configuration.
+    keep_labels : bool
+        Also return the per-pixel labels, shape ``(n, n_bins, n_beams)`` uint8.
+    schema : mapping, optional
+        Shapes/dtypes of the product rows (from the store); inferred from the first ping if absent.
+    ping_function : callable, optional
+        ``f(ping, config, *, keep_labels) -> PingProducts``; default
+        :func:`sonarmap.pipeline.process_ping`.
+
+    Returns
+    -------
+    dict of str to ndarray
+        One array per product variable with leading dimension ``chunk.n_pings``.
+    """
+    fn = ping_function or _default_ping_function()
+    records: list[dict[str, Any]] = []
+    sources: list[str] = []
+    for ping in _iter_chunk_pings(chunk):
+        prod = fn(ping, config, keep_labels=keep_labels)
+        records.append(_record(prod, keep_labels=keep_labels))
+        sources.append(ping.source)
+    if len(records) != chunk.n_pings:
+        raise DataFormatError(f"chunk {chunk.index}: read {len(records)} pings, planned {chunk.n_pings}")
+    return _stack(records, schema or _schema_of(records[0]), sources)
+
+
+# ============================================================================ configuration
+def _resolve_config(config: Any) -> Any:
+    from sonarmap.pipeline import PipelineConfig
+
+    if config is None:
+        return PipelineConfig()
+    if isinstance(config, PipelineConfig):
+        return config
+    if isinstance(config, Mapping):
+        return PipelineConfig.from_dict(dict(config))
+    if isinstance(config, str | os.PathLike):
+        return PipelineConfig.from_toml(config)
+    raise InputError(f"config: expected PipelineConfig, mapping or TOML path, got {type(config).__name__}")
+
+
+def _config_dict(config: Any) -> dict[str, Any]:
+    if hasattr(config, "to_dict"):
+        return dict(config.to_dict())
+    if dataclasses.is_dataclass(config):
+        return dataclasses.asdict(config)  # type: ignore[arg-type]
+    if isinstance(config, Mapping):
+        return dict(config)
+    return {"repr": repr(config)}
+
+
+def _jsonable(obj: Any) -> Any:
+    if isinstance(obj, Mapping):
+        return {str(k): _jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, list | tuple):
+        return [_jsonable(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return repr(obj)
+    if isinstance(obj, str | int | float | bool) or obj is None:
+        return obj
+    return repr(obj)
+
+
+def _geometry_token(geometry: Any) -> Any:
+    if geometry is None:
+        return None
+    from sonarmap.geometry import SonarGeometry
+
+    if isinstance(geometry, SonarGeometry):
+        return {"name": geometry.name, "key": geometry.key}
+    p = Path(str(geometry))
+    if p.exists():
+        return {"file": os.path.abspath(p), "sha": hashlib.blake2b(p.read_bytes(), digest_size=16).hexdigest()}
+    return {"preset": str(geometry)}
+
+
+def _fingerprint(plan: SurveyPlan, config: dict[str, Any], *, keep_labels: bool, poses: Any,
+                 extrinsics: Any, version: str, ping_function: str) -> str:
+    h = hashlib.blake2b(digest_size=20)
+    head = {
+        "format": SURVEY_FORMAT,
+        "version": version,
+        "config": _jsonable(config),
+        "keep_labels": bool(keep_labels),
+        "chunk_size": plan.chunk_size,
+        "geometry": _geometry_token(plan.geometry),
+        "poses": None if poses is None else _file_token(poses),
+        "extrinsics": None if extrinsics is None else _file_token(extrinsics),
+        "ping_function": ping_function,
+    }
+    h.update(json.dumps(head, sort_keys=True).encode())
+    for (path, fmt, n), (size, mtime) in zip(plan.files, plan.stamps, strict=True):
+        h.update(f"{path}\0{fmt}\0{n}\0{size}\0{mtime}\n".encode())
+    return h.hexdigest()
+
+
+def _file_token(path: Any) -> Any:
+    p = Path(str(path))
+    if not p.is_file():
+        return repr(path)
+    return {"file": os.path.abspath(p), "sha": hashlib.blake2b(p.read_bytes(), digest_size=16).hexdigest()}
+
+
+def _function_name(fn: PingFunction | None) -> str:
+    if fn is None:
+        return "sonarmap.pipeline.process_ping"
+    return f"{getattr(fn, '__module__', '?')}.{getattr(fn, '__qualname__', repr(fn))}"
+
+
+# ============================================================================ store
+def _marker_dir(store: Path) -> Path:
+    return store / STATE_DIR / "chunks"
+
+
+def _done_chunks(store: Path) -> set[int]:
+    d = _marker_dir(store)
+    if not d.is_dir():
+        return set()
+    out = set()
+    for name in os.listdir(d):
+        if name.endswith(".done"):
+            with contextlib.suppress(ValueError):
+                out.add(int(name[:-5]))
+    return out
+
+
+def _read_root_attrs(store: Path) -> dict[str, Any] | None:
+    meta = store / "zarr.json"
+    try:
+        d = json.loads(meta.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    return d.get("attributes", {})
+
+
+def survey_status(store: str | os.PathLike[str]) -> dict[str, Any]:
+    """Progress of a survey store: ``n_chunks``, ``done`` (count), ``complete``, ``fingerprint``.
+
+    Raises
+    ------
+    DataFormatError
+        If ``store`` is not a sonarmap survey store.
+    """
+    p = Path(store)
+    attrs = _read_root_attrs(p)
+    if attrs is None or attrs.get("sonarmap_format") != SURVEY_FORMAT:
+        raise DataFormatError("not a sonarmap survey store", p)
+    return {
+        "n_chunks": int(attrs["n_chunks"]),
+        "n_pings": int(attrs["n_pings"]),
+        "done": len(_done_chunks(p)),
+        "complete": (p / STATE_DIR / "complete").exists(),
+        "fingerprint": attrs.get("fingerprint"),
+    }
+
+
+def _create_store(path: Path, plan: SurveyPlan, schema: Mapping[str, tuple[tuple[int, ...], str]],
+                  attrs: dict[str, Any], coords: dict[str, Any]) -> None:
+    """Create the empty store in a temporary directory, then rename it onto ``path``."""
+    import zarr
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent))
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            root = zarr.open_group(str(tmp), mode="w", zarr_format=3, attributes=attrs)
+            n, k = plan.n_pings, plan.chunk_size
+            for name, (shape, dtype) in schema.items():
+                dims, vattrs = PRODUCT_VARIABLES[name]
+                vattrs = dict(vattrs)
+                if name == "ping_time":
+                    vattrs.update(units=TIME_UNITS, calendar="proleptic_gregorian")
+                if DIM_BEAM in dims:
+                    vattrs["coordinates"] = COORD_AZIMUTH
+                if name.startswith("mixture_") and coords.get("component_names"):
+                    vattrs["components"] = " ".join(coords["component_names"])
+                if dtype == "str":
+                    dt: Any = str
+                    fill: Any = ""
+                else:
+                    dt = np.dtype(dtype)
+                    fill = _FILL[name]
+                root.create_array(
+                    name, shape=(n, *shape), chunks=(k, *shape), dtype=dt, fill_value=fill,
+                    dimension_names=dims, attributes=vattrs,
+                )
+            # Static coordinates along beam / range_sample.
+            for name, values, dims, vattrs in coords.get("arrays", ()):
+                arr = root.create_array(name, shape=values.shape, dtype=values.dtype,
+                                        dimension_names=dims, attributes=vattrs)
+                arr[...] = values
+        (tmp / STATE_DIR / "chunks").mkdir(parents=True)
+        os.replace(tmp, path)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+
+
+def _remove_store(path: Path) -> None:
+    """Delete an existing output by renaming it aside first (never half-deleted in place)."""
+    if not path.exists() and not path.is_symlink():
+        return
+    if path.is_dir() and not path.is_symlink():
+        trash = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".old", dir=path.parent))
+        os.replace(path, trash / "old")
+        shutil.rmtree(trash, ignore_errors=True)
+    else:
+        path.unlink()
+
+
+def _write_chunk(root: Any, store: Path, chunk_index: int, start: int, data: Mapping[str, np.ndarray]) -> None:
+    stop = start + len(data["ping_time"])
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        for name, values in data.items():
+            root[name][start:stop] = values
+    marker = _marker_dir(store) / f"{chunk_index:08d}.done"
+    atomic_write_text(marker, json.dumps({"start": start, "stop": stop}) + "\n")
+
+
+# ============================================================================ executors
+def _pool_initializer() -> None:  # pragma: no cover - runs in workers
+    import signal
+
+    # Ctrl-C is handled by the parent, which stops the pool; workers must not die half-way.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ.setdefault(var, "1")
+
+
+def _run_serial(chunks, task):  # type: ignore[no-untyped-def]
+    for c in chunks:
+        yield c, task(c)
+
+
+def _run_processes(chunks, task, workers):  # type: ignore[no-untyped-def]
+    import concurrent.futures as cf
+    import multiprocessing
+
+    ctx = multiprocessing.get_context("forkserver")
+    with contextlib.suppress(Exception):
+        ctx.set_forkserver_preload(["sonarmap.survey", "sonarmap.pipeline"])
+    ex = cf.ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_pool_initializer)
+    pending = list(chunks)[::-1]
+    inflight: dict[Any, ChunkSpec] = {}
+    ok = False
+    try:
+        while pending or inflight:
+            while pending and len(inflight) < 2 * workers:
+                c = pending.pop()
+                inflight[ex.submit(task, c)] = c
+            done, _ = cf.wait(inflight, return_when=cf.FIRST_COMPLETED)
+            for fut in sorted(done, key=lambda f: inflight[f].index):
+                c = inflight.pop(fut)
+                yield c, fut.result()
+        ok = True
+    finally:
+        if ok:
+            ex.shutdown(wait=True)
+        else:
+            procs = list(getattr(ex, "_processes", {}).values())
+            ex.shutdown(wait=False, cancel_futures=True)
+            for p in procs:
+                with contextlib.suppress(Exception):
+                    p.terminate()
+            for p in procs:
+                with contextlib.suppress(Exception):
+                    p.join(timeout=5)
+
+
+def _run_dask(chunks, task, client):  # type: ignore[no-untyped-def]
+    from distributed import as_completed
+
+    nthreads = max(1, sum(client.nthreads().values()))
+    pending = list(chunks)[::-1]
+    futures = {}
+    ac = as_completed()
+    try:
+        while pending and len(futures) < 2 * nthreads + 1:
+            c = pending.pop()
+            f = client.submit(task, c, key=f"sonarmap-chunk-{c.index}-{os.getpid()}-{id(task)}",
+                              pure=False, retries=3)
+            futures[f] = c
+            ac.add(f)
+        for f in ac:
+            c = futures.pop(f)
+            result = f.result()
+            f.release()
+            if pending:
+                nc = pending.pop()
+                nf = client.submit(task, nc, key=f"sonarmap-chunk-{nc.index}-{os.getpid()}-{id(task)}",
+                                   pure=False, retries=3)
+                futures[nf] = nc
+                ac.add(nf)
+            yield c, result
+    finally:
+        if futures:
+            client.cancel(list(futures))
+
+
+@dataclasses.dataclass(frozen=True)
+class _Task:
+    """Picklable task body: ``run_chunk`` with the run's fixed arguments."""
+
+    config: Any
+    keep_labels: bool
+    schema: Mapping[str, tuple[tuple[int, ...], str]]
+    ping_function: PingFunction | None
+
+    def __call__(self, chunk: ChunkSpec) -> dict[str, np.ndarray]:
+        return run_chunk(chunk, self.config, keep_labels=self.keep_labels, schema=self.schema,
+                         ping_function=self.ping_function)
+
+
+# ============================================================================ driver
+@dataclasses.dataclass(frozen=True)
+class SurveyResult:
+    """Summary of a :func:`process_survey` run.
+
+    Attributes
+    ----------
+    output : Path
+        The survey store.
+    n_pings, n_flagged : int
+        Pings in the survey; pings whose fit carries at least one flag.
+    n_chunks, chunks_run, chunks_skipped : int
+        Total chunks; processed by this run; already done by an earlier run (resume).
+    elapsed_s : float
+        Wall time of this run.
+    executor : str
+        ``"serial"``, ``"processes:<n>"`` or ``"dask:<address>"``.
+    points_path : Path or None
+        Point cloud written when poses were given.
+    n_points : int
+        Number of registered points.
+    """
+
+    output: Path
+    n_pings: int
+    n_flagged: int
+    n_chunks: int
+    chunks_run: int
+    chunks_skipped: int
+    elapsed_s: float
+    executor: str
+    points_path: Path | None = None
+    n_points: int = 0
+
+    @property
+    def pings_per_s(self) -> float:
+        """Throughput of this run (pings processed by it / wall time)."""
+        n = self.n_pings if self.n_chunks == 0 else self.n_pings * self.chunks_run / self.n_chunks
+        return n / self.elapsed_s if self.elapsed_s > 0 else float("inf")
+
+    def summary(self) -> str:
+        """One line: pings, flagged fits, time, rate."""
+        resumed = f", resumed ({self.chunks_skipped}/{self.n_chunks} chunks already done)" if self.chunks_skipped else ""
+        pts = f", {self.n_points} points" if self.points_path is not None else ""
+        return (
+            f"{self.n_pings} pings, {self.n_flagged} flagged fits, {self.elapsed_s:.1f} s, "
+            f"{self.pings_per_s:.0f} pings/s [{self.executor}]{resumed}{pts} -> {self.output}"
+        )
+
+
+def process_survey(
+    inputs: str | os.PathLike[str] | Iterable[str | os.PathLike[str]],
+    output: str | os.PathLike[str],
+    *,
+    config: Any = None,
+    workers: int | None = None,
+    scheduler: str | None = None,
+    client: Any = None,
+    chunk_size: int = DEFAULT_CHUNK_SIZE,
+    keep_labels: bool = False,
+    poses: str | os.PathLike[str] | None = None,
+    points: str | os.PathLike[str] | None = None,
+    extrinsics: str | os.PathLike[str] | None = None,
+    geometry: Any = None,
+    overwrite: bool = False,
+    progress: Callable[[int, int], None] | None = None,
+    ping_function: PingFunction | None = None,
+) -> SurveyResult:
+    """Process a whole survey into a zarr store of per-ping products; resumable.
+
+    Parameters
+    ----------
+    inputs : path-like or iterable of path-likes
+        Ping files, directories of PNG+JSON pings, or globs.
+    output : path-like
+        The survey store (a directory, conventionally ``*.zarr``).
+    config : PipelineConfig, mapping or TOML path, optional
+        Pipeline configuration (validated); defaults to ``PipelineConfig()``.
+    workers : int, optional
+        Local worker processes (default: CPU count); ``0`` runs in the calling process.
+    scheduler : str, optional
+        Address of a dask.distributed scheduler (``tcp://host:port``); chunks run there.
+    client : distributed.Client, optional
+        An existing dask client (takes precedence over ``scheduler``).
+    chunk_size : int
+        Pings per task and per zarr chunk (hundreds keep overheads negligible).
+    keep_labels : bool
+        Also store per-pixel labels ``(ping_time, range_sample, beam)``.
+    poses : path-like, optional
+        Vehicle poses (CSV); the ranges are then registered into a world point cloud stored in
+        the survey (``point_*`` variables) and, if ``points`` is given, written to that file.
+    points : path-like, optional
+        Point-cloud file (``.ply``/``.las``) written when ``poses`` is given; default
+        ``<output stem>.ply`` beside the store.
+    extrinsics : path-like, optional
+        Sensor mounting (extrinsics JSON, see :mod:`sonarmap.mapping.poses`) used with ``poses``.
+    geometry : SonarGeometry, preset name or JSON path, optional
+        Geometry override for the readers.
+    overwrite : bool
+        Replace an existing output that is not a resumable run of the same command.
+    progress : callable, optional
+        ``progress(done_pings, total_pings)``, called after each stored chunk (and once at start).
+    ping_function : callable, optional
+        Replacement for :func:`sonarmap.pipeline.process_ping` (must be picklable by reference).
+
+    Returns
+    -------
+    SurveyResult
+
+    Raises
+    ------
+    SurveyExistsError
+        ``output`` exists and was made by a different command (inputs, configuration, options)
+        or is not a survey store, and ``overwrite`` is false.
+    """
+    from sonarmap import __version__
+
+    t0 = time.perf_counter()
+    out = Path(output)
+    if workers is not None and (isinstance(workers, bool) or int(workers) != workers or workers < 0):
+        raise InputError(f"workers: must be a non-negative integer (got {workers!r})")
+    cfg = _resolve_config(config) if ping_function is None else _maybe_config(config)
+    plan = plan_survey(inputs, chunk_size=chunk_size, geometry=geometry)
+    if poses is not None and not Path(poses).is_file():
+        raise DataFormatError("poses file not found", poses)
+    cfg_dict = _config_dict(cfg)
+    fp = _fingerprint(plan, cfg_dict, keep_labels=keep_labels, poses=poses, extrinsics=extrinsics,
+                      version=__version__,
+                      ping_function=_function_name(ping_function))
+
+    # ---------------------------------------------------------------- existing output?
+    if out.exists() or out.is_symlink():
+        attrs = _read_root_attrs(out) if out.is_dir() else None
+        same = attrs is not None and attrs.get("sonarmap_format") == SURVEY_FORMAT and attrs.get("fingerprint") == fp
+        if overwrite:
+            _remove_store(out)
+        elif not same:
+            why = ("is not a sonarmap survey store" if not attrs or attrs.get("sonarmap_format") != SURVEY_FORMAT
+                   else "was made from different inputs, configuration or options")
+            raise SurveyExistsError(f"{out}: output exists and {why}; use --overwrite to replace it")
+
+    task = _Task(cfg, bool(keep_labels), {}, ping_function)
+    if not out.exists():
+        # Probe the first ping in this process: product shapes and static coordinates.
+        first = next(_iter_chunk_pings(plan.chunk(0)))
+        prod = (ping_function or _default_ping_function())(first, cfg, keep_labels=keep_labels)
+        rec = _record(prod, keep_labels=keep_labels)
+        schema = _schema_of(rec)
+        _, _, cnames = _fit_arrays(prod.fit)
+        geom = first.geometry
+        coord_arrays = [
+            (COORD_AZIMUTH, np.asarray(geom.azimuth_rad, np.float64), (DIM_BEAM,),
+             dict(DATA_MODEL_ATTRS[COORD_AZIMUTH])),
+        ]
+        if keep_labels:
+            coord_arrays.append((COORD_RANGE, np.asarray(geom.range_m, np.float64), (DIM_RANGE,),
+                                 dict(DATA_MODEL_ATTRS[COORD_RANGE])))
+        attrs = {
+            "sonarmap_format": SURVEY_FORMAT,
+            "sonarmap_version": __version__,
+            "title": "sonarmap survey products",
+            "Conventions": "CF-1.8",
+            "source_geometry": json.dumps(_jsonable(geom.to_dict())),
+            "pipeline_config": json.dumps(_jsonable(cfg_dict), sort_keys=True),
+            "keep_labels": bool(keep_labels),
+            "chunk_size": plan.chunk_size,
+            "n_pings": plan.n_pings,
+            "n_chunks": plan.n_chunks,
+            "n_input_files": len(plan.files),
+            "inputs": [p for p, _, _ in plan.files[:20]] + (["..."] if len(plan.files) > 20 else []),
+            "poses": None if poses is None else os.path.abspath(poses),
+            "fingerprint": fp,
+            "schema": {k: [list(s), d] for k, (s, d) in schema.items()},
+        }
+        _create_store(out, plan, schema, attrs, {"arrays": coord_arrays, "component_names": cnames})
+    attrs = _read_root_attrs(out) or {}
+    schema = {k: (tuple(s), d) for k, (s, d) in attrs["schema"].items()}
+    task = dataclasses.replace(task, schema=schema)
+
+    import zarr
+
+    root = zarr.open_group(str(out), mode="r+", zarr_format=3)
+    done = _done_chunks(out)
+    todo = [plan.chunk(i) for i in range(plan.n_chunks) if i not in done]
+    n_done = sum(plan.chunk_size if i < plan.n_chunks - 1 else plan.n_pings - i * plan.chunk_size
+                 for i in done if i < plan.n_chunks)
+    if progress:
+        progress(n_done, plan.n_pings)
+
+    own_client = None
+    if client is None and scheduler is not None:
+        from distributed import Client
+
+        client = own_client = Client(scheduler, timeout="30s")
+    try:
+        if not todo:
+            stream: Iterator[Any] = iter(())
+            executor = "none"
+        elif client is not None:
+            stream = _run_dask(todo, task, client)
+            executor = f"dask:{client.scheduler.address}"
+        elif workers == 0 or (workers is None and (os.cpu_count() or 1) == 1):
+            stream = _run_serial(todo, task)
+            executor = "serial"
+        else:
+            n = int(workers or os.cpu_count() or 1)
+            n = max(1, min(n, len(todo)))
+            stream = _run_processes(todo, task, n)
+            executor = f"processes:{n}"
+        for chunk, data in stream:
+            _write_chunk(root, out, chunk.index, chunk.start, data)
+            n_done += chunk.n_pings
+            if progress:
+                progress(n_done, plan.n_pings)
+    finally:
+        if own_client is not None:
+            own_client.close()
+
+    # ---------------------------------------------------------------- finalise
+    flags = np.asarray(root["flags"][:], dtype=object)
+    n_flagged = int(sum(1 for f in flags if f))
+    points_path: Path | None = None
+    n_points = 0
+    complete = out / STATE_DIR / "complete"
+    if poses is not None:
+        target = Path(points) if points is not None else out.with_suffix(".ply")
+        if complete.exists() and "point_xyz" in root and target.exists():
+            points_path, n_points = target, int(root["point_xyz"].shape[0])
+        else:
+            points_path, n_points = _register_points(root, out, poses, target, extrinsics)
+    if not complete.exists():
+        atomic_write_text(complete, json.dumps({"n_pings": plan.n_pings, "n_flagged": n_flagged}) + "\n")
+    return SurveyResult(
+        output=out, n_pings=plan.n_pings, n_flagged=n_flagged, n_chunks=plan.n_chunks,
+        chunks_run=len(todo), chunks_skipped=plan.n_chunks - len(todo),
+        elapsed_s=time.perf_counter() - t0, executor=executor, points_path=points_path,
+        n_points=n_points,
+    )
+
+
+def _maybe_config(config: Any) -> Any:
+    """Configuration for an injected ping function: resolved if the pipeline module exists."""
+    try:
+        return _resolve_config(config)
+    except ModuleNotFoundError:
+        return config
+
+
+def _register_points(root: Any, out: Path, poses: Any, points: Any, extrinsics: Any) -> tuple[Path, int]:
+    """Register the stored ranges with the trajectory into world points (stored + written to a file).
+
+    Pings outside the trajectory's time span are skipped.  The cloud is stored in the survey as
+    ``point_xyz (point, xyz)``, ``point_time``, ``point_beam``, ``point_intensity`` and written to
+    ``points`` (default ``<output>.ply``) in the format given by its suffix.
+    """
+    from sonarmap.mapping import (
+        load_extrinsics,
+        read_trajectory_csv,
+        register_returns,
+        sensor_poses,
+        write_point_cloud,
+    )
+
+    traj = read_trajectory_csv(poses)
+    t = np.asarray(root["ping_time"][:], dtype=np.int64)
+    ext = load_extrinsics(extrinsics) if extrinsics is not None else None
+    sp = sensor_poses(traj, t, extrinsics=ext, outside="skip")
+    cloud = register_returns(
+        root["range"][:], root[COORD_AZIMUTH][:], sp,
+        intensity=np.nan_to_num(root["range_intensity"][:], nan=0.0),
+        confidence=np.nan_to_num(root["range_confidence"][:], nan=0.0),
+    )
+    n = len(cloud)
+    block = max(1, min(n, 1 << 18))
+    arrays = {
+        "point_xyz": (cloud.xyz_m, ("point", "xyz"), {"long_name": f"Registered return ({cloud.frame.upper()} world frame)", "units": "m"}),
+        "point_time": (cloud.time_ns, ("point",), {"long_name": "Ping time of the point", "units": TIME_UNITS,
+                                                   "calendar": "proleptic_gregorian"}),
+        "point_beam": (cloud.beam, ("point",), {"long_name": "Beam index of the point"}),
+        "point_intensity": (cloud.intensity, ("point",), {"long_name": "Intensity of the return"}),
+    }
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        for name, (values, dims, attrs) in arrays.items():
+            if name in root:
+                del root[name]
+            arr = root.create_array(name, shape=values.shape, chunks=(block, *values.shape[1:]),
+                                    dtype=values.dtype, dimension_names=dims, attributes=attrs)
+            arr[...] = values
+    target = Path(points) if points is not None else out.with_suffix(".ply")
+    write_point_cloud(cloud, target)
+    return target, n
+
+
+def open_products(path: str | os.PathLike[str]) -> Any:
+    """Open a survey store as an ``xarray.Dataset`` (lazy, decoded times).
+
+    Raises
+    ------
+    DataFormatError
+        If ``path`` is not a sonarmap survey store.
+    """
+    import xarray as xr
+
+    p = Path(path)
+    attrs = _read_root_attrs(p)
+    if attrs is None or attrs.get("sonarmap_format") != SURVEY_FORMAT:
+        raise DataFormatError("not a sonarmap survey store", p)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        ds = xr.open_zarr(str(p), consolidated=False, zarr_format=3)
+    return ds
+
+
+def replicate_pings(
+    sources: Sequence[str | os.PathLike[str]],
+    n_pings: int,
+    directory: str | os.PathLike[str],
+    *,
+    start_time_ns: int = 1_500_000_000_000_000_000,
+    period_ns: int = 100_000_000,
+) -> Path:
+    """A synthetic survey of ``n_pings`` PNG+JSON pings made of symbolic links to real ones.
+
+    Ping ``i`` links to ``sources[i % len(sources)]`` (and its JSON sidecar) under a new time stamp
+    ``start_time_ns + i * period_ns`` (microsecond file names), so a few real pings make a
+    survey of any length at no disk cost - for benchmarks and tests of the batch machinery.
+
+    Returns
+    -------
+    Path
+        ``directory``.
+    """
+    from sonarmap.io.pngjson import sidecar_json
+
+    if not sources:
+        raise InputError("sources: need at least one ping image")
+    if period_ns < 1000:
+        raise InputError("period_ns: must be at least 1 µs (file names are in µs)")
+    d = Path(directory)
+    d.mkdir(parents=True, exist_ok=True)
+    srcs = [(os.path.abspath(s), os.path.abspath(sidecar_json(s))) for s in sources]
+    for i in range(int(n_pings)):
+        img, side = srcs[i % len(srcs)]
+        stem = str((start_time_ns + i * period_ns) // 1000)
+        os.symlink(img, d / f"{stem}_raw.png")
+        os.symlink(side, d / f"{stem}.json")
+    return d

@@ -1,0 +1,155 @@
+"""Log-odds occupancy maps with the pD/pFA inverse sensor model (sonarmap.mapping.occupancy)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from sonarmap.errors import InputError
+from sonarmap.mapping.occupancy import OccupancyConfig, OccupancyMap, SensorModel, voxel_iou, voxelize
+from sonarmap.mapping.poses import SensorPoses
+
+
+def _poses(R, t) -> SensorPoses:
+    R = np.asarray(R, dtype=np.float64).reshape(-1, 3, 3)
+    n = R.shape[0]
+    return SensorPoses(np.arange(n, dtype=np.int64), R, np.asarray(t, np.float64).reshape(n, 3),
+                       Rotation.from_matrix(R).as_quat(), np.ones(n, bool))
+
+
+ID = _poses(np.eye(3), [[0.01, 0.01, 0.01]])
+
+
+def test_sensor_model_from_pd_pfa_and_fixed() -> None:
+    m = SensorModel.from_pd_pfa(0.9, 0.05)
+    assert m.l_hit == pytest.approx(math.log(0.9 / 0.05))
+    assert m.l_miss == pytest.approx(math.log(0.1 / 0.95))
+    f = SensorModel.fixed()
+    assert f.l_hit == pytest.approx(math.log(4.0)) and f.l_miss == pytest.approx(math.log(0.3 / 0.7))
+    with pytest.raises(InputError, match="pd/pfa"):
+        SensorModel.from_pd_pfa(0.1, 0.2)
+
+
+def test_single_ray_hit_free_and_unknown() -> None:
+    m = OccupancyMap(OccupancyConfig(resolution_m=0.1, l_min=-10, l_max=10))
+    m.integrate([5.03], [0.0], ID, min_range_m=1.0, max_range_m=8.0, pd=0.9, pfa=0.05)
+    lh, lm = math.log(0.9 / 0.05), math.log(0.1 / 0.95)
+    x = np.arange(0.05, 8.0, 0.1)
+    lo, seen = m.logodds_at(np.stack([x, np.full_like(x, 0.01), np.full_like(x, 0.01)], axis=1))
+    before = (x > 1.0) & (x < 5.0)
+    assert np.allclose(lo[before], lm, atol=1e-6) and seen[before].all()
+    assert lo[50] == pytest.approx(lh, abs=1e-5)  # cell [5.0, 5.1) holds the return
+    assert not seen[x < 1.0].any()  # inside the minimum range: unobserved
+    assert not seen[x > 5.1].any()  # behind the return: occluded, unobserved
+    occ = m.occupied_cells()
+    assert occ.tolist() == [[50, 0, 0]]
+
+
+def test_no_return_carves_to_max_range_and_option_off() -> None:
+    m = OccupancyMap(OccupancyConfig(resolution_m=0.1))
+    m.integrate([np.nan], [0.0], ID, min_range_m=1.0, max_range_m=3.0, pd=0.9, pfa=0.05)
+    assert len(m.observed_cells()) == 21 and len(m.occupied_cells()) == 0
+    m2 = OccupancyMap(OccupancyConfig(resolution_m=0.1, free_without_return=False))
+    m2.integrate([np.nan], [0.0], ID, min_range_m=1.0, max_range_m=3.0, pd=0.9, pfa=0.05)
+    assert len(m2.observed_cells()) == 0
+
+
+def test_clamping_and_per_ping_pd_pfa() -> None:
+    cfg = OccupancyConfig(resolution_m=0.1, l_min=-2.0, l_max=3.5)
+    m = OccupancyMap(cfg)
+    poses = _poses(np.stack([np.eye(3)] * 20), np.full((20, 3), 0.01))
+    m.integrate(np.full((20, 1), 5.03), [0.0], poses, min_range_m=1.0, max_range_m=8.0, pd=0.9, pfa=0.05)
+    lo, _ = m.logodds_at([[5.05, 0.01, 0.01], [3.0, 0.01, 0.01]])
+    assert lo[0] == pytest.approx(3.5) and lo[1] == pytest.approx(-2.0)
+    # a weak detector (pD close to pFA) moves the map less than a strong one
+    weak, strong = OccupancyMap(cfg), OccupancyMap(cfg)
+    weak.integrate([5.03], [0.0], ID, min_range_m=1.0, max_range_m=8.0, pd=0.6, pfa=0.4)
+    strong.integrate([5.03], [0.0], ID, min_range_m=1.0, max_range_m=8.0, pd=0.95, pfa=0.01)
+    lw, _ = weak.logodds_at([[5.05, 0.01, 0.01], [3.0, 0.01, 0.01]])
+    ls, _ = strong.logodds_at([[5.05, 0.01, 0.01], [3.0, 0.01, 0.01]])
+    assert 0 < lw[0] < ls[0] and ls[1] < lw[1] < 0
+    # per-ping arrays
+    m3 = OccupancyMap(OccupancyConfig(resolution_m=0.1, l_min=-10, l_max=10))
+    m3.integrate(np.full((2, 1), 5.03), [0.0], _poses(np.stack([np.eye(3)] * 2), np.full((2, 3), 0.01)),
+                 min_range_m=1.0, max_range_m=8.0, pd=[0.9, 0.8], pfa=[0.05, 0.1])
+    assert m3.logodds_at([[5.05, 0.01, 0.01]])[0][0] == pytest.approx(math.log(18) + math.log(8), rel=1e-6)
+
+
+def test_hit_takes_precedence_over_other_beams_miss_in_one_ping() -> None:
+    # beam 0 ends at x=3 (hit), beam 1 at the same azimuth continues to 6: the hit cell is not carved
+    m = OccupancyMap(OccupancyConfig(resolution_m=0.1, l_min=-10, l_max=10))
+    m.integrate([[3.03, 6.03]], [0.0, 0.0], ID, min_range_m=1.0, max_range_m=8.0, pd=0.9, pfa=0.05)
+    lo, _ = m.logodds_at([[3.05, 0.01, 0.01], [2.05, 0.01, 0.01]])
+    assert lo[0] == pytest.approx(math.log(18), rel=1e-6)  # one hit update, no miss
+    assert lo[1] == pytest.approx(math.log(0.1 / 0.95), rel=1e-6)  # crossed by two beams: one update
+
+
+def test_fixed_model_and_argument_errors() -> None:
+    m = OccupancyMap(OccupancyConfig(resolution_m=0.1))
+    m.integrate([2.03], [0.0], ID, min_range_m=1.0, max_range_m=3.0, model=SensorModel.fixed(0.8, 0.3))
+    assert m.logodds_at([[2.05, 0.01, 0.01]])[0][0] == pytest.approx(math.log(4), rel=1e-6)
+    with pytest.raises(InputError, match="pd/pfa"):
+        m.integrate([2.0], [0.0], ID, min_range_m=1.0, max_range_m=3.0)
+    with pytest.raises(InputError, match="pD > pFA"):
+        m.integrate([2.0], [0.0], ID, min_range_m=1.0, max_range_m=3.0, pd=0.1, pfa=0.3)
+    with pytest.raises(InputError, match="chunk_size"):
+        OccupancyConfig(chunk_size=12)
+
+
+def test_diagonal_ray_is_6_connected_and_2d_grid() -> None:
+    m = OccupancyMap(OccupancyConfig(resolution_m=0.1))
+    R = Rotation.from_euler("ZY", [30, -20], degrees=True).as_matrix()
+    m.integrate([4.0], [0.0], _poses(R, [0.0, 0.0, 0.0]), min_range_m=0.0, max_range_m=5.0, pd=0.9, pfa=0.05)
+    cells = m.observed_cells()
+    # Amanatides-Woo visits a face-connected chain from the start cell to the end cell
+    end = np.floor(R @ [4.0, 0, 0] / 0.1).astype(int)
+    assert (np.abs(end) + 0).sum() + 1 == len(cells)
+    assert [0, 0, 0] in cells.tolist() and end.tolist() in cells.tolist()
+    g = OccupancyMap(OccupancyConfig(resolution_m=0.1, dims=2))
+    g.integrate([[4.0, 4.0]], [0.0, 0.2], _poses(R, [0.0, 0.0, -3.0]), min_range_m=0.0, max_range_m=5.0, pd=0.9, pfa=0.05)
+    arr = g.to_array()
+    assert arr.logodds.ndim == 2 and (g.observed_cells()[:, 2] == 0).all()
+    assert arr.observed.sum() == len(g.observed_cells())
+    assert (arr.logodds > 0).sum() == 2  # two hit cells in the plane
+
+
+def test_sparse_storage_grows_and_export_matches_lookup() -> None:
+    rng = np.random.default_rng(0)
+    P, B = 60, 32
+    t = rng.uniform(-200, 200, (P, 3))  # pings spread over a large area: far apart chunks
+    m = OccupancyMap(OccupancyConfig(resolution_m=0.05, chunk_size=8))
+    R = Rotation.random(P, random_state=3).as_matrix()
+    r = rng.uniform(3, 9, (P, B))
+    m.integrate(r, np.linspace(-0.25, 0.25, B), _poses(R, t), min_range_m=2.0, max_range_m=10.0, pd=0.9, pfa=0.05)
+    assert m.n_chunks > 64  # grew past the initial pool
+    # bounded memory: proportional to observed chunks, far below a dense grid of the bounding box
+    dense_bytes = (400 / 0.05) ** 3 * 8
+    assert m.memory_bytes < 1e-4 * dense_bytes
+    assert m.memory_bytes < 2 * m.n_chunks * 8**3 * 8 + 64 * m.n_chunks * 8  # pool at most doubled
+    occ = m.occupied_cells()
+    assert len(occ) >= 0.9 * P * B / 4  # nearby beams may share a cell
+    lo, seen = m.logodds_at(m.cell_centers(occ))
+    assert seen.all() and (lo > 0).all()
+    cloud = m.to_point_cloud()
+    assert len(cloud) == len(occ) and (cloud.confidence > 0.5).all()
+    with pytest.raises(InputError, match="max_cells"):
+        m.to_array(max_cells=10_000)
+    small = OccupancyMap(OccupancyConfig(resolution_m=0.05, chunk_size=8, max_chunks=70))
+    with pytest.raises(InputError, match="max_chunks"):
+        small.integrate(r, np.linspace(-0.25, 0.25, B), _poses(R, t), min_range_m=2.0, max_range_m=10.0, pd=0.9, pfa=0.05)
+
+
+def test_dense_array_values_and_iou() -> None:
+    m = OccupancyMap(OccupancyConfig(resolution_m=0.1))
+    m.integrate([2.03], [0.0], ID, min_range_m=1.0, max_range_m=3.0, pd=0.9, pfa=0.05)
+    a = m.to_array()
+    assert a.logodds.shape == (11, 1, 1) and np.allclose(a.origin_m, [1.0, 0.0, 0.0])
+    assert a.probability[-1, 0, 0] == pytest.approx(18 / 19, rel=1e-5)
+    assert np.isfinite(a.probability).all()
+    pts = np.array([[0.01, 0.01, 0.01], [0.02, 0.02, 0.02], [0.5, 0.0, 0.0]])
+    v = voxelize(pts, 0.1)
+    assert len(v) == 2
+    assert voxel_iou(v, v[:1]) == pytest.approx(0.5) and voxel_iou(v, [[9, 9, 9]]) == 0.0

@@ -1,0 +1,84 @@
+"""Point-cloud files read back with identical coordinates (sonarmap.mapping.pointcloud)."""
+
+from __future__ import annotations
+
+import laspy
+import numpy as np
+import pytest
+from plyfile import PlyData
+
+from sonarmap.errors import InputError
+from sonarmap.mapping.pointcloud import read_point_cloud, write_point_cloud
+from sonarmap.mapping.register import PointCloud
+
+
+@pytest.fixture()
+def cloud() -> PointCloud:
+    rng = np.random.default_rng(7)
+    n = 1000
+    xyz = rng.normal(size=(n, 3)) * [20, 20, 3] + [100, -50, 10]
+    return PointCloud(
+        xyz, 1_700_000_000_000_000_000 + rng.integers(0, 10**9, n), rng.integers(0, 96, n),
+        rng.uniform(2, 11, n), rng.uniform(0, 1, n), rng.uniform(0, 1, n), rng.uniform(-0.1, 0.1, n),
+    )
+
+
+def test_ply_binary_float32_round_trip(cloud: PointCloud, tmp_path) -> None:
+    path = tmp_path / "c.ply"
+    assert write_point_cloud(cloud, path) == "ply"
+    ply = PlyData.read(str(path))
+    assert not ply.text and ply["vertex"]["x"].dtype == np.float32
+    v = ply["vertex"]
+    xyz32 = cloud.xyz_m.astype(np.float32)
+    assert np.array_equal(v["x"], xyz32[:, 0]) and np.array_equal(v["y"], xyz32[:, 1])
+    assert np.array_equal(v["z"], xyz32[:, 2])
+    assert np.array_equal(v["beam"], cloud.beam) and np.array_equal(v["range"], cloud.range_m)
+    back = read_point_cloud(path)
+    assert np.array_equal(back.xyz_m, xyz32.astype(np.float64))
+    assert np.array_equal(back.confidence, cloud.confidence)
+    assert np.max(np.abs(back.time_ns - cloud.time_ns)) < 1000  # float64 seconds: sub-microsecond
+
+
+def test_ply_enu_frame(cloud: PointCloud, tmp_path) -> None:
+    path = tmp_path / "enu.ply"
+    write_point_cloud(cloud, path, frame="enu")
+    back = read_point_cloud(path)
+    assert back.frame == "enu"
+    assert np.allclose(back.to_frame("ned").xyz_m, cloud.xyz_m, atol=1e-4)
+
+
+def test_las14_round_trip(cloud: PointCloud, tmp_path) -> None:
+    path = tmp_path / "c.las"
+    assert write_point_cloud(cloud, path) == "las"
+    las = laspy.read(str(path))
+    assert str(las.header.version) == "1.4" and las.header.point_format.id == 6
+    scale = las.header.scales
+    q = np.rint((cloud.xyz_m - las.header.offsets) / scale) * scale + las.header.offsets
+    got = np.stack([las.x, las.y, las.z], axis=1)
+    assert np.array_equal(np.asarray(las.X), np.rint((cloud.xyz_m[:, 0] - las.header.offsets[0]) / scale[0]).astype(np.int32))
+    assert np.allclose(got, q, rtol=0, atol=1e-9)
+    assert np.max(np.abs(got - cloud.xyz_m)) <= scale[0] / 2 + 1e-12
+    back = read_point_cloud(path)
+    assert np.array_equal(back.xyz_m, got)
+    assert np.array_equal(back.time_ns, cloud.time_ns) and np.array_equal(back.beam, cloud.beam)
+    assert np.array_equal(back.range_m, cloud.range_m)
+
+
+def test_csv_exact_round_trip(cloud: PointCloud, tmp_path) -> None:
+    path = tmp_path / "c.csv"
+    write_point_cloud(cloud, path)
+    back = read_point_cloud(path)
+    assert np.array_equal(back.xyz_m, cloud.xyz_m)
+    assert np.array_equal(back.time_ns, cloud.time_ns)
+    assert np.array_equal(back.intensity, cloud.intensity) and np.array_equal(back.beam, cloud.beam)
+
+
+def test_empty_cloud_and_bad_format(tmp_path) -> None:
+    empty = PointCloud.empty()
+    for sfx in ("ply", "las", "csv"):
+        write_point_cloud(empty, tmp_path / f"e.{sfx}")
+        assert len(read_point_cloud(tmp_path / f"e.{sfx}")) == 0
+    with pytest.raises(InputError, match="suffix"):
+        write_point_cloud(empty, tmp_path / "e.xyz")
+    with pytest.raises(InputError, match="format"):
+        write_point_cloud(empty, tmp_path / "e.ply", format="obj")
