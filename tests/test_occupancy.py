@@ -93,8 +93,14 @@ def test_fixed_model_and_argument_errors() -> None:
     assert m.logodds_at([[2.05, 0.01, 0.01]])[0][0] == pytest.approx(math.log(4), rel=1e-6)
     with pytest.raises(InputError, match="pd/pfa"):
         m.integrate([2.0], [0.0], ID, min_range_m=1.0, max_range_m=3.0)
-    with pytest.raises(InputError, match="pD > pFA"):
-        m.integrate([2.0], [0.0], ID, min_range_m=1.0, max_range_m=3.0, pd=0.1, pfa=0.3)
+    # uninformative pD/pFA (NaN, or pD <= pFA): skipped and counted, or the fallback model is used
+    n_obs = len(m.observed_cells())
+    assert m.integrate([[2.53], [2.53]], [0.0], _poses(np.stack([np.eye(3)] * 2), np.full((2, 3), 0.01)),
+                       min_range_m=1.0, max_range_m=3.0, pd=[0.1, np.nan], pfa=[0.3, 0.1]) == 0
+    assert m.n_uninformative == 2 and len(m.observed_cells()) == n_obs
+    m.integrate([2.53], [0.0], ID, min_range_m=1.0, max_range_m=3.0, pd=np.nan, pfa=np.nan,
+                model=SensorModel.fixed(0.8, 0.3))
+    assert m.logodds_at([[2.55, 0.01, 0.01]])[0][0] == pytest.approx(math.log(4), rel=1e-6)
     with pytest.raises(InputError, match="chunk_size"):
         OccupancyConfig(chunk_size=12)
 

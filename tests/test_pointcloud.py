@@ -36,7 +36,7 @@ def test_ply_binary_float32_round_trip(cloud: PointCloud, tmp_path) -> None:
     back = read_point_cloud(path)
     assert np.array_equal(back.xyz_m, xyz32.astype(np.float64))
     assert np.array_equal(back.confidence, cloud.confidence)
-    assert np.max(np.abs(back.time_ns - cloud.time_ns)) < 1000  # float64 seconds: sub-microsecond
+    assert np.array_equal(back.time_ns, cloud.time_ns)  # seconds after an offset stamp: exact
 
 
 def test_ply_enu_frame(cloud: PointCloud, tmp_path) -> None:
@@ -82,3 +82,60 @@ def test_empty_cloud_and_bad_format(tmp_path) -> None:
         write_point_cloud(empty, tmp_path / "e.xyz")
     with pytest.raises(InputError, match="format"):
         write_point_cloud(empty, tmp_path / "e.ply", format="obj")
+
+
+# ---------------------------------------------------------------------- `sonarmap map`
+def _cli_inputs(tmp_path, test_ping_paths, *, span_pad_ns: int = 10**9):
+    from sonarmap.io.pngjson import time_ns_from_stem
+
+    paths = [test_ping_paths[i] for i in (4, 5, 9)]  # three pings with returns
+    ts = [time_ns_from_stem(p.stem) for p in paths]
+    poses = tmp_path / "poses.csv"
+    poses.write_text(
+        "# frame: ned\ntime_ns,x,y,z,qx,qy,qz,qw\n"
+        f"{ts[0] - span_pad_ns},0,0,2,0,0,0,1\n{ts[-1] + span_pad_ns},0,0,2,0,0,0,1\n"
+    )
+    return paths, ts, poses
+
+
+def test_cli_map_registers_pipeline_returns(tmp_path, test_ping_paths, capsys) -> None:
+    from sonarmap.cli import main
+    from sonarmap.io.pngjson import read_png_ping
+    from sonarmap.pipeline import process_ping
+
+    paths, ts, poses = _cli_inputs(tmp_path, test_ping_paths)
+    mount = tmp_path / "mount.json"
+    mount.write_text('{"translation_m": [0.5, 0.0, 0.0], "rotation_xyzw": [0, 0, 0, 1]}')
+    out = tmp_path / "map.ply"
+    args = ["map", *map(str, paths), "--poses", str(poses), "--extrinsics", str(mount), "-o", str(out), "-q"]
+    assert main(args) == 0
+    cloud = read_point_cloud(out)
+    prods = [process_ping(read_png_ping(p)) for p in paths]
+    assert len(cloud) == sum(p.ranges.n_returns for p in prods) > 0
+    # sensor at (0.5, 0, 2) looking north: distance to it equals the measured range
+    d = np.linalg.norm(cloud.xyz_m - [0.5, 0.0, 2.0], axis=1)
+    assert np.allclose(d, cloud.range_m, atol=1e-5)
+    assert set(cloud.time_ns.tolist()) <= set(ts)
+    # occupancy grid: occupied cells + dense array
+    grid = tmp_path / "grid.las"
+    arr = tmp_path / "grid.npz"
+    assert main(["map", *map(str, paths), "--poses", str(poses), "-o", str(grid), "--grid", "0.1",
+                 "--grid-array", str(arr), "-q"]) == 0
+    occ = read_point_cloud(grid)
+    z = np.load(arr)
+    assert len(occ) > 0 and (z["logodds"][z["observed"]] > 0).sum() == len(occ)
+
+
+def test_cli_map_outside_trajectory_error_or_skip(tmp_path, test_ping_paths, capsys) -> None:
+    from sonarmap.cli import main
+
+    paths, ts, _ = _cli_inputs(tmp_path, test_ping_paths)
+    short = tmp_path / "short.csv"
+    short.write_text(f"time_ns,x,y,z,qx,qy,qz,qw\n{ts[0] - 10},0,0,0,0,0,0,1\n{ts[1] + 10},1,0,0,0,0,0,1\n")
+    out = tmp_path / "m.csv"
+    assert main(["map", *map(str, paths), "--poses", str(short), "-o", str(out), "-q"]) == 1
+    err = capsys.readouterr().err
+    assert "outside the trajectory span" in err and err.count("\n") == 1
+    assert main(["map", *map(str, paths), "--poses", str(short), "-o", str(out), "--outside", "skip"]) == 0
+    assert "1 skipped outside the trajectory" in capsys.readouterr().err
+    assert set(read_point_cloud(out).time_ns.tolist()) <= set(ts[:2])

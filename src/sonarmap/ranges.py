@@ -7,13 +7,19 @@ looks like a range.
 
 Rules (applied in this order)
 -----------------------------
+0. **Narrow components** (``min_component_beams``).  Structure pixels are grouped into
+   8-connected components; components spanning fewer than ``min_component_beams`` beams and
+   fewer than ``min_component_bins`` range bins are discarded (a steep surface spans few beams
+   but many bins).  Surfaces (hull, seafloor, rudder) extend over many beams even when steep in range;
+   speckle and fish appear as blobs a few beams wide (the beam pattern smears them over ~5-8 beams).
 1. **Return per beam.**  ``mode="first"``: the nearest range bin that starts a run of at least
    ``min_run`` consecutive structure bins (a lone speckle pixel in front of the surface is skipped
    when ``min_run > 1``).  ``mode="strongest"``: the structure bin of highest intensity.
 2. **Isolated-return rejection** (``reject_isolated``).  A return on beam ``j`` is *supported* by
    beam ``k`` (``0 < |k - j| <= neighbour_beams``) when ``k`` has a return within
-   ``max_jump_bins`` range bins.  Returns with no support are removed (single pass, so a pair of
-   mutually supporting returns survives).  Surfaces are continuous across beams; isolated
+   ``max_jump_bins`` range bins.  An unsupported first return is replaced by the beam's next
+   return (the next structure run behind it), up to three times, then removed; a pair of
+   mutually supporting returns survives.  Surfaces are continuous across beams; isolated
    detections are speckle, fish or side-lobe leaks.
 3. **Short-segment rejection** (``min_segment_beams``).  Consecutive beams whose returns differ
    by at most ``max_jump_bins`` form a segment; segments spanning fewer than
@@ -33,7 +39,7 @@ from numpy.typing import ArrayLike, NDArray
 from sonarmap.errors import InputError
 from sonarmap.geometry import SonarGeometry
 
-__all__ = ["BeamRanges", "extract_ranges", "no_returns", "first_return_bins"]
+__all__ = ["BeamRanges", "extract_ranges", "no_returns", "first_return_bins", "wide_components"]
 
 Mode = Literal["first", "strongest"]
 
@@ -126,6 +132,25 @@ def first_return_bins(mask: ArrayLike, *, min_run: int = 1) -> NDArray[np.int64]
     return first
 
 
+def wide_components(mask: ArrayLike, min_beams: int, *, min_bins: int | None = None) -> NDArray[np.bool_]:
+    """Keep the 8-connected components of ``mask`` spanning >= ``min_beams`` beams or >= ``min_bins`` bins."""
+    from scipy import ndimage
+
+    m = np.asarray(mask, dtype=bool)
+    lab, n = ndimage.label(m, structure=np.ones((3, 3), dtype=bool))
+    if n == 0:
+        return m
+    keep = np.zeros(n + 1, dtype=bool)
+    for k, sl in enumerate(ndimage.find_objects(lab), start=1):
+        if sl is None:
+            continue
+        if sl[1].stop - sl[1].start >= min_beams or (
+            min_bins is not None and sl[0].stop - sl[0].start >= min_bins
+        ):
+            keep[k] = True
+    return keep[lab]
+
+
 def _support(bins: NDArray[np.int64], neighbour_beams: int, max_jump: int) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
     """(number of supporting neighbours, number of existing neighbours) per beam."""
     n = bins.size
@@ -174,6 +199,8 @@ def extract_ranges(
     neighbour_beams: int = 2,
     max_jump_bins: int = 8,
     min_segment_beams: int = 1,
+    min_component_beams: int = 1,
+    min_component_bins: int | None = None,
     time_ns: int = 0,
     source: str = "",
 ) -> BeamRanges:
@@ -194,6 +221,9 @@ def extract_ranges(
         First return: minimum run of consecutive structure bins.
     reject_isolated, neighbour_beams, max_jump_bins, min_segment_beams
         Consistency rules 2-3.
+    min_component_beams, min_component_bins : int
+        Rule 0: a component is kept if it spans at least ``min_component_beams`` beams or at
+        least ``min_component_bins`` bins (default: beams only).
     time_ns, source
         Copied into the result.
 
@@ -210,6 +240,8 @@ def extract_ranges(
     if min_run < 1 or neighbour_beams < 1 or max_jump_bins < 0 or min_segment_beams < 1:
         raise InputError("min_run, neighbour_beams, min_segment_beams must be >= 1; max_jump_bins >= 0")
     mask = lab if lab.dtype == np.bool_ else (lab == structure_label)
+    if min_component_beams > 1:
+        mask = wide_components(mask, min_component_beams, min_bins=min_component_bins)
     if mode == "first":
         bins = first_return_bins(mask, min_run=min_run)
     else:
@@ -217,8 +249,23 @@ def extract_ranges(
         bins = masked.argmax(axis=0).astype(np.int64)
         bins[~mask.any(axis=0)] = -1
     if reject_isolated:
-        sup, _ = _support(bins, neighbour_beams, max_jump_bins)
-        bins = np.where((bins >= 0) & (sup == 0), -1, bins)
+        # a rejected first return falls back to the beam's next return (up to 3 times)
+        for attempt in range(4 if mode == "first" else 1):
+            sup, _ = _support(bins, neighbour_beams, max_jump_bins)
+            bad = (bins >= 0) & (sup == 0)
+            if not bad.any():
+                break
+            if mode != "first" or attempt == 3:
+                bins = np.where(bad, -1, bins)
+                break
+            mask = mask.copy() if attempt == 0 else mask
+            for j in np.flatnonzero(bad):
+                b = int(bins[j])
+                end = b
+                while end < mask.shape[0] and mask[end, j]:
+                    end += 1
+                mask[:end, j] = False
+            bins = np.where(bad, first_return_bins(mask[:, bad], min_run=min_run)[np.cumsum(bad) - 1], bins)
     if min_segment_beams > 1:
         bins = np.where(_segments_short(bins, max_jump_bins, min_segment_beams), -1, bins)
     valid = bins >= 0

@@ -23,6 +23,7 @@ import numpy as np
 
 from sonarmap._atomic import atomic_write_text
 from sonarmap.errors import DataFormatError
+from sonarmap.survey import flagged_mask
 
 __all__ = ["ReportConfig", "build_report", "render_report"]
 
@@ -91,7 +92,7 @@ def _fig_timeseries(ds: Any, dpi: int) -> str:
     names = str(ds["mixture_weight"].attrs.get("components", "")).split()
     names = names if len(names) == w.shape[1] else [f"component {i}" for i in range(w.shape[1])]
     kld = ds["kld"].values
-    flagged = np.array([bool(f) for f in ds["flags"].values])
+    flagged = flagged_mask(ds["flags"].values)
     fig, axes = new_figure(3, 1, figsize=(10, 7.5), sharex=True)
     for c in range(w.shape[1]):
         axes[0].plot(t, w[:, c], lw=0.8, label=names[c])
@@ -218,7 +219,7 @@ def _pick_examples(ds: Any, n: int) -> list[int]:
     if n <= 0:
         return []
     n_p = int(ds.sizes["ping_time"])
-    flagged = [i for i, f in enumerate(ds["flags"].values) if f]
+    flagged = np.flatnonzero(flagged_mask(ds["flags"].values)).tolist()
     picks: list[int] = flagged[:1]
     for i in np.linspace(0, n_p - 1, n + 2)[1:-1].round().astype(int):
         if len(picks) >= n:
@@ -248,22 +249,20 @@ def _example(ds: Any, index: int, config: Any, dpi: int) -> dict[str, Any]:
     ping = read_ping(path, index=int(frame) if frame.isdigit() else 0)
     prod = process_ping(ping, config, keep_labels=True)
     pre = None
-    pre_cfg = getattr(config, "preprocess", None)
-    try:
-        from sonarmap.preprocess import preprocess
+    pre_cfg = config.preprocess_config() if hasattr(config, "preprocess_config") else None
+    if pre_cfg is not None:
+        from sonarmap.preprocess.pipeline import preprocess_image
 
-        pre = preprocess(ping, pre_cfg).image if pre_cfg is not None else preprocess(ping).image
-    except Exception:  # noqa: BLE001 - a report shows what it can
-        pre = None
+        pre = preprocess_image(ping.image, ping.geometry, pre_cfg)
     g = ping.geometry
     fig, axes = new_figure(1, 3, figsize=(11, 4.6))
     draw_fan(axes[0], ping.image, g, title="raw", colorbar=False)
     if pre is not None:
         draw_fan(axes[1], np.clip(pre, 0, None), g, title="pre-processed", colorbar=False)
     else:
-        axes[1].set_axis_off()
-    labels = prod.labels if prod.labels is not None else np.zeros(g.shape)
-    draw_fan(axes[2], np.asarray(labels, dtype=np.float32), g, vmin=0, vmax=1, cmap="gray",
+        draw_fan(axes[1], ping.image, g, title="pre-processed (none configured)", colorbar=False)
+    labels = np.asarray(prod.labels) >= 1 if prod.labels is not None else np.zeros(g.shape, bool)
+    draw_fan(axes[2], labels.astype(np.float32), g, vmin=0, vmax=1, cmap="gray",
              title="segmented + ranges", colorbar=False, resolution_m=None)
     r = ds["range"].values[index]
     az = g.azimuth_rad
@@ -311,7 +310,7 @@ def render_report(store: str | os.PathLike[str], *, config: ReportConfig | None 
     t = _times(ds)
     written = t.astype(np.int64) != 0
     flags = [str(f) for f in ds["flags"].values]
-    flagged = [i for i, f in enumerate(flags) if f]
+    flagged = np.flatnonzero(flagged_mask(flags)).tolist()
     kld = ds["kld"].values
     hit = np.isfinite(ds["range"].values)
     title = cfg.title or f"Survey report: {Path(store).name}"

@@ -63,6 +63,8 @@ __all__ = [
     "survey_status",
     "replicate_pings",
     "PRODUCT_VARIABLES",
+    "INFORMATIONAL_FLAGS",
+    "flagged_mask",
 ]
 
 #: Marker directory inside the store (not part of the dataset).
@@ -100,6 +102,17 @@ PRODUCT_VARIABLES: dict[str, tuple[tuple[str, ...], dict[str, str]]] = {
 }
 
 PingFunction = Callable[..., Any]
+
+#: Flags that describe the scene rather than a doubtful fit (not counted as "flagged fits").
+INFORMATIONAL_FLAGS = frozenset({"no_returns", "no_object"})
+
+
+def flagged_mask(flags: Iterable[Any]) -> NDArray[np.bool_]:
+    """Which pings have a flagged fit: any flag other than :data:`INFORMATIONAL_FLAGS`.
+
+    ``flags`` holds one space-separated flag string per ping (the ``flags`` variable).
+    """
+    return np.array([bool(set(str(f).split()) - INFORMATIONAL_FLAGS) for f in flags], dtype=bool)
 
 
 class SurveyExistsError(SonarmapError, FileExistsError):
@@ -293,7 +306,10 @@ def _fit_arrays(fit: Any) -> tuple[NDArray[np.float64], NDArray[np.float64], tup
 
 def _record(products: Any, *, keep_labels: bool) -> dict[str, Any]:
     """One ping's products as plain arrays (the row of every product variable)."""
-    weights, params, _ = _fit_arrays(products.fit)
+    if products.fit is None:  # no fit (e.g. a constant image): the mixture rows stay NaN
+        weights, params = np.zeros(0), np.zeros((0, 0))
+    else:
+        weights, params, _ = _fit_arrays(products.fit)
     r = products.ranges
     rec: dict[str, Any] = {
         "ping_time": np.int64(products.time_ns),
@@ -375,6 +391,7 @@ def run_chunk(
     keep_labels: bool = False,
     schema: Mapping[str, tuple[tuple[int, ...], str]] | None = None,
     ping_function: PingFunction | None = None,
+    reference: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> dict[str, np.ndarray]:
     """Process one chunk: read its pings, run the per-ping pipeline, stack the products.
 
@@ -393,6 +410,9 @@ def run_chunk(
     ping_function : callable, optional
         ``f(ping, config, *, keep_labels) -> PingProducts``; default
         :func:`sonarmap.pipeline.process_ping`.
+    reference : (azimuth_rad, range_m), optional
+        The survey's beam azimuths and bin ranges; a ping with another geometry is an error
+        (one product store holds one sonar configuration).
 
     Returns
     -------
@@ -403,6 +423,14 @@ def run_chunk(
     records: list[dict[str, Any]] = []
     sources: list[str] = []
     for ping in _iter_chunk_pings(chunk):
+        if reference is not None and not (
+            np.array_equal(ping.geometry.azimuth_rad, reference[0])
+            and np.array_equal(ping.geometry.range_m, reference[1])
+        ):
+            raise InputError(
+                f"{ping.source}: sonar geometry '{ping.geometry.name}' (beams/range bins) differs from "
+                "the survey's first ping; process each sonar configuration into its own store"
+            )
         prod = fn(ping, config, keep_labels=keep_labels)
         records.append(_record(prod, keep_labels=keep_labels))
         sources.append(ping.source)
@@ -625,39 +653,65 @@ def _run_serial(chunks, task):  # type: ignore[no-untyped-def]
         yield c, task(c)
 
 
-def _run_processes(chunks, task, workers):  # type: ignore[no-untyped-def]
-    import concurrent.futures as cf
-    import multiprocessing
-
-    ctx = multiprocessing.get_context("forkserver")
-    with contextlib.suppress(Exception):
-        ctx.set_forkserver_preload(["sonarmap.survey", "sonarmap.pipeline"])
-    ex = cf.ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_pool_initializer)
-    pending = list(chunks)[::-1]
-    inflight: dict[Any, ChunkSpec] = {}
-    ok = False
+def _warm_worker(ping_function: PingFunction | None) -> int:  # pragma: no cover - in workers
+    """Import the pipeline and run it once on a synthetic ping (numba kernels, scipy imports), so
+    the first real chunk does not pay for it; runs while the parent probes the survey."""
     try:
+        from sonarmap.geometry import preset
+
+        g = preset("didson-hf")
+        img = np.random.default_rng(0).random(g.shape, dtype=np.float32) * 0.3
+        img[g.n_bins // 2 : g.n_bins // 2 + 8] = 0.9
+        fn = ping_function or _default_ping_function()
+        fn(Ping(img, g), _resolve_config(None) if ping_function is None else None)
+    except Exception:  # noqa: BLE001 - warming must never fail a run
+        pass
+    return os.getpid()
+
+
+class _ProcessPool:
+    """Local worker processes (forkserver: safe with the parent's threads), warmed at creation."""
+
+    def __init__(self, workers: int, ping_function: PingFunction | None) -> None:
+        import concurrent.futures as cf
+        import multiprocessing
+
+        ctx = multiprocessing.get_context("forkserver")
+        with contextlib.suppress(Exception):
+            ctx.set_forkserver_preload(["sonarmap.survey", "sonarmap.pipeline"])
+        self.workers = workers
+        self.ex = cf.ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_pool_initializer)
+        for _ in range(workers):
+            self.ex.submit(_warm_worker, ping_function)
+
+    def run(self, chunks: Sequence[ChunkSpec], task: Callable[[ChunkSpec], Any]) -> Iterator[tuple[ChunkSpec, Any]]:
+        """Yield ``(chunk, products)`` as chunks finish (at most 2 per worker in flight)."""
+        import concurrent.futures as cf
+
+        pending = list(chunks)[::-1]
+        inflight: dict[Any, ChunkSpec] = {}
         while pending or inflight:
-            while pending and len(inflight) < 2 * workers:
+            while pending and len(inflight) < 2 * self.workers:
                 c = pending.pop()
-                inflight[ex.submit(task, c)] = c
+                inflight[self.ex.submit(task, c)] = c
             done, _ = cf.wait(inflight, return_when=cf.FIRST_COMPLETED)
             for fut in sorted(done, key=lambda f: inflight[f].index):
                 c = inflight.pop(fut)
                 yield c, fut.result()
-        ok = True
-    finally:
+
+    def close(self, ok: bool) -> None:
+        """Shut down; on failure or interrupt, terminate the workers at once."""
         if ok:
-            ex.shutdown(wait=True)
-        else:
-            procs = list(getattr(ex, "_processes", {}).values())
-            ex.shutdown(wait=False, cancel_futures=True)
-            for p in procs:
-                with contextlib.suppress(Exception):
-                    p.terminate()
-            for p in procs:
-                with contextlib.suppress(Exception):
-                    p.join(timeout=5)
+            self.ex.shutdown(wait=True)
+            return
+        procs = list((getattr(self.ex, "_processes", None) or {}).values())
+        self.ex.shutdown(wait=False, cancel_futures=True)
+        for p in procs:
+            with contextlib.suppress(Exception):
+                p.terminate()
+        for p in procs:
+            with contextlib.suppress(Exception):
+                p.join(timeout=5)
 
 
 def _run_dask(chunks, task, client):  # type: ignore[no-untyped-def]
@@ -698,10 +752,11 @@ class _Task:
     keep_labels: bool
     schema: Mapping[str, tuple[tuple[int, ...], str]]
     ping_function: PingFunction | None
+    reference: tuple[np.ndarray, np.ndarray] | None = None
 
     def __call__(self, chunk: ChunkSpec) -> dict[str, np.ndarray]:
         return run_chunk(chunk, self.config, keep_labels=self.keep_labels, schema=self.schema,
-                         ping_function=self.ping_function)
+                         ping_function=self.ping_function, reference=self.reference)
 
 
 # ============================================================================ driver
@@ -714,7 +769,7 @@ class SurveyResult:
     output : Path
         The survey store.
     n_pings, n_flagged : int
-        Pings in the survey; pings whose fit carries at least one flag.
+        Pings in the survey; pings whose fit carries a flag (:func:`flagged_mask`).
     n_chunks, chunks_run, chunks_skipped : int
         Total chunks; processed by this run; already done by an earlier run (resume).
     elapsed_s : float
@@ -846,85 +901,96 @@ def process_survey(
             raise SurveyExistsError(f"{out}: output exists and {why}; use --overwrite to replace it")
 
     task = _Task(cfg, bool(keep_labels), {}, ping_function)
-    if not out.exists():
-        # Probe the first ping in this process: product shapes and static coordinates.
-        first = next(_iter_chunk_pings(plan.chunk(0)))
-        prod = (ping_function or _default_ping_function())(first, cfg, keep_labels=keep_labels)
-        rec = _record(prod, keep_labels=keep_labels)
-        schema = _schema_of(rec)
-        _, _, cnames = _fit_arrays(prod.fit)
-        geom = first.geometry
-        coord_arrays = [
-            (COORD_AZIMUTH, np.asarray(geom.azimuth_rad, np.float64), (DIM_BEAM,),
-             dict(DATA_MODEL_ATTRS[COORD_AZIMUTH])),
-        ]
-        if keep_labels:
-            coord_arrays.append((COORD_RANGE, np.asarray(geom.range_m, np.float64), (DIM_RANGE,),
-                                 dict(DATA_MODEL_ATTRS[COORD_RANGE])))
-        attrs = {
-            "sonarmap_format": SURVEY_FORMAT,
-            "sonarmap_version": __version__,
-            "title": "sonarmap survey products",
-            "Conventions": "CF-1.8",
-            "source_geometry": json.dumps(_jsonable(geom.to_dict())),
-            "pipeline_config": json.dumps(_jsonable(cfg_dict), sort_keys=True),
-            "keep_labels": bool(keep_labels),
-            "chunk_size": plan.chunk_size,
-            "n_pings": plan.n_pings,
-            "n_chunks": plan.n_chunks,
-            "n_input_files": len(plan.files),
-            "inputs": [p for p, _, _ in plan.files[:20]] + (["..."] if len(plan.files) > 20 else []),
-            "poses": None if poses is None else os.path.abspath(poses),
-            "fingerprint": fp,
-            "schema": {k: [list(s), d] for k, (s, d) in schema.items()},
-        }
-        _create_store(out, plan, schema, attrs, {"arrays": coord_arrays, "component_names": cnames})
-    attrs = _read_root_attrs(out) or {}
-    schema = {k: (tuple(s), d) for k, (s, d) in attrs["schema"].items()}
-    task = dataclasses.replace(task, schema=schema)
-
-    import zarr
-
-    root = zarr.open_group(str(out), mode="r+", zarr_format=3)
-    done = _done_chunks(out)
-    todo = [plan.chunk(i) for i in range(plan.n_chunks) if i not in done]
-    n_done = sum(plan.chunk_size if i < plan.n_chunks - 1 else plan.n_pings - i * plan.chunk_size
-                 for i in done if i < plan.n_chunks)
-    if progress:
-        progress(n_done, plan.n_pings)
-
     own_client = None
+    pool: _ProcessPool | None = None
     if client is None and scheduler is not None:
         from distributed import Client
 
         client = own_client = Client(scheduler, timeout="30s")
+    n_workers = int(workers if workers is not None else (os.cpu_count() or 1))
+    serial = client is None and (workers == 0 or (workers is None and n_workers == 1))
+    finished_before = (out / STATE_DIR / "complete").exists()
+    ok = False
     try:
+        if client is None and not serial and not finished_before:
+            # Start (and warm) the workers now: they load the pipeline while this process probes.
+            n_workers = max(1, min(n_workers, plan.n_chunks))
+            pool = _ProcessPool(n_workers, ping_function)
+        if not out.exists():
+            # Probe the first ping(s) in this process: product shapes and static coordinates.
+            fn = ping_function or _default_ping_function()
+            first: Ping | None = None
+            for ping in _iter_chunk_pings(plan.chunk(0)):
+                prod = fn(ping, cfg, keep_labels=keep_labels)
+                first = first or ping
+                if prod.fit is not None:  # a ping with a mixture fit gives the mixture's shape
+                    break
+            assert first is not None
+            rec = _record(prod, keep_labels=keep_labels)
+            schema = _schema_of(rec)
+            _, _, cnames = _fit_arrays(prod.fit)
+            geom = first.geometry
+            coord_arrays = [
+                (COORD_AZIMUTH, np.asarray(geom.azimuth_rad, np.float64), (DIM_BEAM,),
+                 dict(DATA_MODEL_ATTRS[COORD_AZIMUTH])),
+            ]
+            coord_arrays.append((COORD_RANGE, np.asarray(geom.range_m, np.float64), (DIM_RANGE,),
+                                 dict(DATA_MODEL_ATTRS[COORD_RANGE])))
+            attrs = {
+                "sonarmap_format": SURVEY_FORMAT,
+                "sonarmap_version": __version__,
+                "title": "sonarmap survey products",
+                "Conventions": "CF-1.8",
+                "source_geometry": json.dumps(_jsonable(geom.to_dict())),
+                "pipeline_config": json.dumps(_jsonable(cfg_dict), sort_keys=True),
+                "keep_labels": bool(keep_labels),
+                "chunk_size": plan.chunk_size,
+                "n_pings": plan.n_pings,
+                "n_chunks": plan.n_chunks,
+                "n_input_files": len(plan.files),
+                "inputs": [p for p, _, _ in plan.files[:20]] + (["..."] if len(plan.files) > 20 else []),
+                "poses": None if poses is None else os.path.abspath(poses),
+                "fingerprint": fp,
+                "schema": {k: [list(s), d] for k, (s, d) in schema.items()},
+            }
+            _create_store(out, plan, schema, attrs, {"arrays": coord_arrays, "component_names": cnames})
+        attrs = _read_root_attrs(out) or {}
+        schema = {k: (tuple(s), d) for k, (s, d) in attrs["schema"].items()}
+        root = _zarr_open(out)
+        reference = (np.asarray(root[COORD_AZIMUTH][:]), np.asarray(root[COORD_RANGE][:]))
+        task = dataclasses.replace(task, schema=schema, reference=reference)
+
+        done = _done_chunks(out)
+        todo = [plan.chunk(i) for i in range(plan.n_chunks) if i not in done]
+        n_done = sum(plan.chunk(i).n_pings for i in done if i < plan.n_chunks)
+        if progress:
+            progress(n_done, plan.n_pings)
         if not todo:
             stream: Iterator[Any] = iter(())
             executor = "none"
         elif client is not None:
             stream = _run_dask(todo, task, client)
             executor = f"dask:{client.scheduler.address}"
-        elif workers == 0 or (workers is None and (os.cpu_count() or 1) == 1):
+        elif pool is None:
             stream = _run_serial(todo, task)
             executor = "serial"
         else:
-            n = int(workers or os.cpu_count() or 1)
-            n = max(1, min(n, len(todo)))
-            stream = _run_processes(todo, task, n)
-            executor = f"processes:{n}"
+            stream = pool.run(todo, task)
+            executor = f"processes:{pool.workers}"
         for chunk, data in stream:
             _write_chunk(root, out, chunk.index, chunk.start, data)
             n_done += chunk.n_pings
             if progress:
                 progress(n_done, plan.n_pings)
+        ok = True
     finally:
+        if pool is not None:
+            pool.close(ok)
         if own_client is not None:
             own_client.close()
 
     # ---------------------------------------------------------------- finalise
-    flags = np.asarray(root["flags"][:], dtype=object)
-    n_flagged = int(sum(1 for f in flags if f))
+    n_flagged = int(flagged_mask(root["flags"][:]).sum())
     points_path: Path | None = None
     n_points = 0
     complete = out / STATE_DIR / "complete"
@@ -942,6 +1008,13 @@ def process_survey(
         elapsed_s=time.perf_counter() - t0, executor=executor, points_path=points_path,
         n_points=n_points,
     )
+
+
+def _zarr_open(path: Path) -> Any:
+    """The store's root zarr group, writable."""
+    import zarr
+
+    return zarr.open_group(str(path), mode="r+", zarr_format=3)
 
 
 def _maybe_config(config: Any) -> Any:

@@ -37,6 +37,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
+import threading
 from typing import Any, Literal
 
 import numpy as np
@@ -53,6 +54,7 @@ __all__ = [
     "unary_from_fit",
     "solve",
     "solve_graphcut",
+    "solve_graphcut_levels",
     "solve_expansion",
     "solve_icm",
     "solve_anneal",
@@ -70,7 +72,7 @@ class MRFResult:
 
     Attributes
     ----------
-    labels : ndarray of int32, shape (n_bins, n_beams)
+    labels : ndarray of uint8, shape (n_bins, n_beams)
         The labelling.
     energy : float
         Its energy ``E(x)`` (unary + pairwise), the quantity every solver minimises.
@@ -88,7 +90,7 @@ class MRFResult:
         Whether ``labels`` is a proven global minimiser (binary graph cut).
     """
 
-    labels: NDArray[np.int32]
+    labels: NDArray[np.uint8]
     energy: float
     solver: str
     beta: float
@@ -279,7 +281,7 @@ def energy(
     wt = _weights_for(u, 0.0 if beta is None else _check_beta(beta), neighbourhood, weights)
     if lab.size and (lab.min() < 0 or lab.max() >= u.shape[0]):
         raise InputError(f"labels: values must lie in [0, {u.shape[0] - 1}]")
-    return _energy(u, wt, np.ascontiguousarray(lab, dtype=np.int32))
+    return _energy(u, wt, lab)
 
 
 def _flat_levels(h: int, w: int) -> NDArray[np.int64]:
@@ -297,7 +299,8 @@ def _energy(u: NDArray[np.float64], wt: NDArray[np.float64], labels: NDArray[Any
     from sonarmap.classify._kernels import energy_lut
 
     h, w = u.shape[1:]
-    return float(energy_lut(_flat_levels(h, w), u.reshape(u.shape[0], -1), wt, labels))
+    lab = np.ascontiguousarray(labels, dtype=np.uint8)  # one compiled specialisation
+    return float(energy_lut(_flat_levels(h, w), u.reshape(u.shape[0], -1), wt, lab))
 
 
 def unary_from_log_likelihood(
@@ -404,6 +407,92 @@ def _lattice_edges(h: int, w: int, n_dirs: int) -> tuple[NDArray[np.int64], NDAr
     return out
 
 
+class _Workspace(threading.local):
+    """Per-thread work arrays of the graph-cut reduction, reused across pings of equal shape."""
+
+    def __init__(self) -> None:
+        self.arrays: dict[tuple[int, int, int], tuple[NDArray[Any], ...]] = {}
+
+    def get(self, h: int, w: int, n_dirs: int) -> tuple[NDArray[Any], ...]:
+        key = (h, w, n_dirs)
+        arr = self.arrays.get(key)
+        if arr is None:
+            if len(self.arrays) > 4:
+                self.arrays.clear()
+            arr = (
+                np.empty((h, w), dtype=np.int8),
+                np.empty((h, w), dtype=np.int64),
+                np.empty((h, w)),
+                np.empty((h, w)),
+                np.empty(h * w * (2 * n_dirs + 1) + 1, dtype=np.int64),
+            )
+            self.arrays[key] = arr
+        return arr
+
+
+_WORK = _Workspace()
+
+
+def _graphcut_lut(
+    levels: NDArray[Any],
+    cost_lut: NDArray[np.float64],
+    wt: NDArray[np.float64],
+    wtot: NDArray[np.float64] | None,
+) -> tuple[NDArray[np.uint8], float, int]:
+    """Exact binary cut with unary ``cost_lut[label, levels]``; returns (labels, energy, n_free)."""
+    from sonarmap.classify._kernels import energy_lut, reduce_binary, write_free_labels
+
+    h, w = levels.shape
+    if wtot is None:
+        wtot = _total_weight(wt)
+    fixed, node, m, wfree, stack = _WORK.get(h, w, wt.shape[0])
+    margin_lut = np.ascontiguousarray(cost_lut[0] - cost_lut[1])
+    n_free, m_eff, ei, ej, ew = reduce_binary(levels, margin_lut, wt, wtot, fixed, node, m, wfree, stack)
+    labels = np.empty((h, w), dtype=np.uint8)
+    x = _cut(m_eff, ei, ej, ew)[0].astype(np.uint8) if n_free else np.zeros(1, dtype=np.uint8)
+    write_free_labels(fixed, node, x, labels)
+    return labels, float(energy_lut(levels, cost_lut, wt, labels)), int(n_free)
+
+
+def solve_graphcut_levels(
+    levels: ArrayLike,
+    cost_lut: ArrayLike,
+    *,
+    beta: float = 1.0,
+    neighbourhood: int = 4,
+    weights: ArrayLike | None = None,
+) -> MRFResult:
+    """Exact binary graph cut when the unary depends on a pixel only through its level.
+
+    ``unary[k, i, j] = cost_lut[k, levels[i, j]]`` (e.g. the negative log posterior of a fitted
+    mixture on 256 quantisation levels); never materialises the ``(2, n_bins, n_beams)`` unary,
+    which is what makes the per-ping pipeline fast.  Same result as :func:`solve_graphcut`.
+    """
+    lev = np.asarray(levels)
+    if lev.ndim != 2 or lev.dtype.kind not in "iu":
+        raise InputError(f"levels: expected a 2-D integer array, got {lev.dtype} {lev.shape}")
+    lut = np.ascontiguousarray(cost_lut, dtype=np.float64)
+    if lut.ndim != 2 or lut.shape[0] != 2:
+        raise InputError(f"cost_lut: expected shape (2, n_levels), got {lut.shape}")
+    if not np.isfinite(lut).all():
+        raise InputError("cost_lut: contains NaN or infinite costs")
+    if lev.size and (lev.min() < 0 or lev.max() >= lut.shape[1]):
+        raise InputError(f"levels: values must lie in [0, {lut.shape[1] - 1}]")
+    beta = _check_beta(beta)
+    h, w = lev.shape
+    if weights is None:
+        if neighbourhood not in (4, 8):
+            raise InputError(f"neighbourhood: must be 4 or 8 (got {neighbourhood})")
+        wt, wtot = _uniform(h, w, neighbourhood, beta)
+    else:
+        wt = _weights_for(np.empty((2, h, w)), beta, neighbourhood, weights)
+        wtot = None
+    labels, e, n_free = _graphcut_lut(np.ascontiguousarray(lev), lut, wt, wtot)
+    return MRFResult(labels=labels, energy=e, solver="graphcut", beta=beta,
+                     neighbourhood=4 if wt.shape[0] == 2 else 8, n_iterations=1, n_free=n_free,
+                     exact=True)
+
+
 def solve_graphcut(
     unary: ArrayLike,
     *,
@@ -422,6 +511,7 @@ def solve_graphcut(
         Potts weights (see :func:`pairwise_weights`); ``weights`` overrides ``beta``.
     reduce : bool
         Apply the exact persistency reduction before the cut (same result, much faster).
+        Without it the full lattice graph is built from cached edge-index arrays.
 
     Returns
     -------
@@ -432,28 +522,25 @@ def solve_graphcut(
     if u.shape[0] != 2:
         raise InputError(f"unary: graph cut is binary; got {u.shape[0]} labels (use 'expansion')")
     beta = _check_beta(beta)
-    wt = _weights_for(u, beta, neighbourhood, weights)
     h, w = u.shape[1:]
-    margin = u[0] - u[1]
+    if weights is None and neighbourhood in (4, 8):
+        wt, wtot = _uniform(h, w, neighbourhood, beta)
+    else:
+        wt = _weights_for(u, beta, neighbourhood, weights)
+        wtot = None
     if reduce:
-        from sonarmap.classify._kernels import reduce_binary
-
-        fixed, node, m_eff, ei, ej, ew = reduce_binary(margin, wt)
-        labels = fixed.astype(np.int32)
-        n_free = int(m_eff.size)
-        if n_free:
-            x, _ = _cut(m_eff, ei, ej, ew)
-            labels[node >= 0] = x.astype(np.int32)
+        labels, e, n_free = _graphcut_lut(_flat_levels(h, w), u.reshape(2, -1), wt, wtot)
     else:
         ei, ej, sel = _lattice_edges(h, w, wt.shape[0])
         cap = wt.ravel()[sel]
         keep = cap > 0
-        x, _ = _cut(margin.ravel(), ei[keep], ej[keep], cap[keep])
-        labels = x.reshape(h, w).astype(np.int32)
+        x, _ = _cut((u[0] - u[1]).ravel(), ei[keep], ej[keep], cap[keep])
+        labels = x.reshape(h, w).astype(np.uint8)
         n_free = h * w
+        e = _energy(u, wt, labels)
     return MRFResult(
         labels=labels,
-        energy=energy(labels, u, weights=wt),
+        energy=e,
         solver="graphcut",
         beta=beta,
         neighbourhood=4 if wt.shape[0] == 2 else 8,
@@ -498,7 +585,7 @@ def solve_expansion(
         res = solve_graphcut(u, weights=wt)
         return dataclasses.replace(res, solver="expansion", beta=beta)
     labels = _init_labels(u, init)
-    e = energy(labels, u, weights=wt)
+    e = _energy(u, wt, labels)
     h, w = u.shape[1:]
     cycles = 0
     for _ in range(max(1, int(max_cycles))):
@@ -508,12 +595,12 @@ def solve_expansion(
             c0, c1, ei, ej, cap = expansion_arrays(u, wt, labels, alpha)
             x, _ = _cut(c0 - c1, ei, ej, cap, np.zeros_like(cap))
             cand = np.where(x.reshape(h, w), np.int32(alpha), labels).astype(np.int32)
-            e_new = energy(cand, u, weights=wt)
+            e_new = _energy(u, wt, cand)
             if e_new < e - 1e-9 * max(1.0, abs(e)):
                 labels, e, improved = cand, e_new, True
         if not improved:
             break
-    return MRFResult(labels=labels, energy=e, solver="expansion", beta=beta,
+    return MRFResult(labels=labels.astype(np.uint8), energy=e, solver="expansion", beta=beta,
                      neighbourhood=4 if wt.shape[0] == 2 else 8, n_iterations=cycles,
                      n_free=h * w, exact=u.shape[0] == 2)
 
@@ -535,7 +622,7 @@ def solve_icm(
     wt = _weights_for(u, beta, neighbourhood, weights)
     labels = _init_labels(u, init)
     sweeps = int(icm(u, wt, labels, int(max_sweeps)))
-    return MRFResult(labels=labels, energy=energy(labels, u, weights=wt), solver="icm", beta=beta,
+    return MRFResult(labels=labels.astype(np.uint8), energy=_energy(u, wt, labels), solver="icm", beta=beta,
                      neighbourhood=4 if wt.shape[0] == 2 else 8, n_iterations=sweeps,
                      n_free=labels.size)
 
@@ -564,7 +651,7 @@ def solve_anneal(
     sweeps = schedule.n_sweeps
     if schedule.icm_sweeps:
         sweeps += int(icm(u, wt, labels, schedule.icm_sweeps))
-    return MRFResult(labels=labels, energy=energy(labels, u, weights=wt), solver="anneal", beta=beta,
+    return MRFResult(labels=labels.astype(np.uint8), energy=_energy(u, wt, labels), solver="anneal", beta=beta,
                      neighbourhood=4 if wt.shape[0] == 2 else 8, n_iterations=sweeps,
                      n_free=labels.size)
 

@@ -58,10 +58,12 @@ def describe_path(path: Path, geometry: Any = None) -> dict[str, Any]:
     if geometry is None and _is_geometry_json(path):
         g = load_geometry(path)
         return {"path": str(path), "kind": "geometry", **geometry_summary(g)}
-    fmt = "pngjson" if path.is_dir() else detect_format(path)
+    from sonarmap.io import _is_store_dir
+
+    fmt = "pngjson" if path.is_dir() and not _is_store_dir(path) else detect_format(path)
     mod = format_module(fmt)
     if hasattr(mod, "summary") and geometry is None:
-        out = dict(mod.summary(path))
+        out = {k: v for k, v in mod.summary(path).items() if not k.startswith("_")}
         out.setdefault("path", str(path))
         out.setdefault("format", fmt)
         return out

@@ -135,8 +135,8 @@ def read_pings(
 
 
 def _is_store_dir(p: Path) -> bool:
-    """A directory that is a dataset store (zarr) rather than a folder of PNG pings."""
-    return (p / ".zgroup").exists() or (p / "zarr.json").exists()
+    """A directory that is a dataset store (zarr) or a ROS 2 bag rather than a folder of PNG pings."""
+    return (p / ".zgroup").exists() or (p / "zarr.json").exists() or (p / "metadata.yaml").exists()
 
 
 def read_ping(path: str | os.PathLike[str], *, geometry: GeometrySpec = None, index: int = 0) -> Ping:

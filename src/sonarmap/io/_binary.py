@@ -129,31 +129,30 @@ def make_summary(
     time_end_ns: int | None,
     **details: Any,
 ) -> dict[str, Any]:
-    """The dict returned by every format module's ``summary(path)`` hook.
+    """The flat dict returned by every format module's ``summary(path)`` hook (for ``sonarmap info``).
 
-    Keys: ``format``, ``path``, ``n_pings``, ``geometry`` (a SonarGeometry of the first ping, or
-    ``None``), ``time_start_ns``/``time_end_ns`` (int or ``None`` when the format has no clock),
-    ``time_start``/``time_end`` (ISO-8601 UTC strings or ``None``), ``duration_s`` and ``details``
-    (format-specific fields).
+    Keys: ``path``, ``format``, ``pings``, the geometry fields of
+    :func:`sonarmap.cli.info.geometry_summary` for the first ping (absent without pings),
+    ``time_first_utc``/``time_last_utc`` (``"unknown"`` when the format has no clock),
+    ``duration_s``, then the format-specific ``details``.  The first ping's
+    :class:`~sonarmap.geometry.SonarGeometry` itself is under the private key ``_geometry``.
     """
 
-    def iso(t: int | None) -> str | None:
-        if t is None:
-            return None
-        return str(np.datetime64(int(t), "ns")) + "Z"
+    def iso(t: int | None) -> str:
+        return "unknown" if t is None else str(np.datetime64(int(t), "ns"))
 
-    duration = None
+    out: dict[str, Any] = {"path": str(path), "format": fmt, "pings": int(n_pings)}
+    if geometry is not None:
+        try:
+            from sonarmap.cli.info import geometry_summary
+        except ImportError:  # pragma: no cover - CLI not installed
+            out["geometry"] = geometry.name
+        else:
+            out.update(geometry_summary(geometry))
+    out["time_first_utc"] = iso(time_start_ns)
+    out["time_last_utc"] = iso(time_end_ns)
     if time_start_ns is not None and time_end_ns is not None:
-        duration = (time_end_ns - time_start_ns) * 1e-9
-    return {
-        "format": fmt,
-        "path": str(path),
-        "n_pings": int(n_pings),
-        "geometry": geometry,
-        "time_start_ns": time_start_ns,
-        "time_end_ns": time_end_ns,
-        "time_start": iso(time_start_ns),
-        "time_end": iso(time_end_ns),
-        "duration_s": duration,
-        "details": details,
-    }
+        out["duration_s"] = (time_end_ns - time_start_ns) * 1e-9
+    out.update(details)
+    out["_geometry"] = geometry
+    return out

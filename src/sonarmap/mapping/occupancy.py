@@ -238,7 +238,11 @@ class OccupancyMap:
         self._k = k
         self._alloc(64, 256)
         self._next_id = 1
+        #: Pings integrated.
         self.n_pings = 0
+        #: Pings skipped because their pD/pFA were missing (NaN) or pD <= pFA and no fallback model
+        #: was given.
+        self.n_uninformative = 0
 
     # ------------------------------------------------------------------ storage
     def _alloc(self, n_chunks: int, capacity: int) -> None:
@@ -313,9 +317,12 @@ class OccupancyMap:
             ``max_range_m``.
         pd, pfa : float or array_like (n_pings,), optional
             Each ping's detection / false-alarm probability at the operating threshold; give
-            these or ``model``.
+            these or ``model``.  Pings whose pD/pFA are NaN or have ``pD <= pFA`` (no
+            information) use ``model`` when given, else are skipped and counted in
+            :attr:`n_uninformative`.
         model : SensorModel, optional
-            A fixed inverse sensor model (used when ``pd``/``pfa`` are not given).
+            A fixed inverse sensor model (used when ``pd``/``pfa`` are not given, and as the
+            fallback for uninformative pings).
 
         Returns
         -------
@@ -337,18 +344,25 @@ class OccupancyMap:
         if pd is not None or pfa is not None:
             if pd is None or pfa is None:
                 raise InputError("pd/pfa: give both, or a fixed model")
-            pdv = np.clip(np.broadcast_to(np.asarray(pd, dtype=np.float64), (P,)), _P_EPS, 1 - _P_EPS)
-            pfv = np.clip(np.broadcast_to(np.asarray(pfa, dtype=np.float64), (P,)), _P_EPS, 1 - _P_EPS)
-            if np.any(~(pdv > pfv)):
-                raise InputError("pd/pfa: every ping needs pD > pFA for an informative update")
-            l_hit = np.log(pdv / pfv)
-            l_miss = np.log1p(-pdv) - np.log1p(-pfv)
+            pdv = np.broadcast_to(np.asarray(pd, dtype=np.float64), (P,))
+            pfv = np.broadcast_to(np.asarray(pfa, dtype=np.float64), (P,))
+            informative = np.isfinite(pdv) & np.isfinite(pfv) & (pdv > pfv)
+            pdc = np.clip(np.where(informative, pdv, 0.9), _P_EPS, 1 - _P_EPS)
+            pfc = np.clip(np.where(informative, pfv, 0.1), _P_EPS, 1 - _P_EPS)
+            l_hit = np.log(pdc / pfc)
+            l_miss = np.log1p(-pdc) - np.log1p(-pfc)
+            if model is not None:  # fallback for pings whose pD/pFA are missing or uninformative
+                l_hit = np.where(informative, l_hit, model.l_hit)
+                l_miss = np.where(informative, l_miss, model.l_miss)
+                informative = np.ones(P, dtype=bool)
         elif model is not None:
             l_hit = np.full(P, model.l_hit)
             l_miss = np.full(P, model.l_miss)
+            informative = np.ones(P, dtype=bool)
         else:
             raise InputError("pd/pfa: give each ping's pD and pFA, or a fixed SensorModel")
-        ok = poses.valid & np.isfinite(rmin) & np.isfinite(rmax)
+        self.n_uninformative += int((~informative & poses.valid).sum())
+        ok = poses.valid & np.isfinite(rmin) & np.isfinite(rmax) & informative
         if not ok.any():
             return 0
         sel = np.flatnonzero(ok)

@@ -1,7 +1,8 @@
 """Point-cloud files: binary PLY (plyfile), LAS 1.4 (laspy) and CSV, each readable back losslessly.
 
 * **PLY** (binary little-endian): vertex element with ``x, y, z`` (float32), ``time`` (float64,
-  seconds since the epoch), ``beam`` (int32), ``range`` / ``intensity`` / ``confidence`` /
+  seconds after the ``comment time_offset_ns N`` stamp: exact to the nanosecond for surveys up to
+  ~100 days), ``beam`` (int32), ``range`` / ``intensity`` / ``confidence`` /
   ``elevation`` (float32).  Coordinates are stored relative to an ``offset_m`` (default zero)
   recorded in a ``comment offset_m X Y Z`` line so large world coordinates keep float32 precision;
   a ``comment frame ned|enu`` line records the frame.  Opens in CloudCompare, MeshLab, Open3D.
@@ -89,7 +90,8 @@ def write_ply(
     ]
     v = np.empty(len(c), dtype=dt)
     v["x"], v["y"], v["z"] = xyz[:, 0], xyz[:, 1], xyz[:, 2]
-    v["time"] = c.time_ns.astype(np.float64) * 1e-9
+    t_off = int(c.time_ns.min()) if len(c) else 0
+    v["time"] = (c.time_ns - t_off).astype(np.float64) * 1e-9
     v["beam"] = c.beam
     v["range"] = c.range_m
     v["intensity"] = c.intensity
@@ -99,6 +101,7 @@ def write_ply(
         "sonarmap point cloud",
         f"frame {c.frame}",
         "offset_m " + " ".join(repr(float(o)) for o in off),
+        f"time_offset_ns {t_off}",
     ]
     ply = PlyData([PlyElement.describe(v, "vertex")], text=False, byte_order="<", comments=comments)
     with atomic_path(path) as tmp:
@@ -115,13 +118,15 @@ def read_ply(path: str | os.PathLike[str]) -> PointCloud:
         v = ply["vertex"].data
     except (OSError, KeyError, ValueError, Exception) as exc:  # plyfile raises its own errors
         raise DataFormatError(f"cannot read PLY: {exc}", p) from None
-    frame, off = "ned", np.zeros(3)
+    frame, off, t_off = "ned", np.zeros(3), 0
     for com in ply.comments:
         parts = com.split()
         if parts[:1] == ["frame"] and len(parts) > 1:
             frame = parts[1]
         elif parts[:1] == ["offset_m"] and len(parts) == 4:
             off = np.array([float(s) for s in parts[1:]])
+        elif parts[:1] == ["time_offset_ns"] and len(parts) == 2:
+            t_off = int(parts[1])
     names = v.dtype.names or ()
     n = v.shape[0]
     xyz = np.stack([v["x"], v["y"], v["z"]], axis=1).astype(np.float64) + off
@@ -129,7 +134,7 @@ def read_ply(path: str | os.PathLike[str]) -> PointCloud:
     def get(name: str, default: float) -> np.ndarray:
         return np.asarray(v[name]) if name in names else np.full(n, default)
 
-    time_ns = np.rint(get("time", 0.0).astype(np.float64) * 1e9).astype(np.int64)
+    time_ns = np.rint(get("time", 0.0).astype(np.float64) * 1e9).astype(np.int64) + t_off
     return PointCloud(
         xyz, time_ns, get("beam", -1), get("range", np.nan), get("intensity", 1.0),
         get("confidence", 1.0), get("elevation", 0.0), frame=frame,

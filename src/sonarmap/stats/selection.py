@@ -57,7 +57,7 @@ class ModelSelection:
         ]
 
 
-def default_candidates(max_objects: int = 2) -> list[tuple[str, ...]]:
+def default_candidates(max_objects: int = 1) -> list[tuple[str, ...]]:
     """Exponential background plus 0..``max_objects`` object components from the object families."""
     objs = ("rayleigh", "rice", "weibull", "gamma")
     out: list[tuple[str, ...]] = [("exponential",)]
@@ -104,7 +104,7 @@ def select_model(
     scores = []
     bad = {"not_converged", "collapsed_scale", "zero_mass", "degenerate"}
     for c in cands:
-        f = fit_mixture(counts, families=c, method=method, binning=binning, max_iter=300)
+        f = fit_mixture(counts, families=c, method=method, binning=binning, max_iter=100)
         fits.append(f)
         s = {"bic": f.bic, "aic": f.aic, "kld": f.kld}[criterion]
         scores.append(math.inf if (f.flags & bad) or not math.isfinite(s) else float(s))

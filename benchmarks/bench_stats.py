@@ -1,0 +1,45 @@
+"""Mixture fits and MAP classification on a 512x96 DIDSON ping vs the authors' curve_fit fit."""
+
+from __future__ import annotations
+
+import numpy as np
+from run import DATA, timeit
+
+
+def run(quick: bool) -> list[dict]:
+    from scipy.optimize import curve_fit
+    from scipy.stats import expon, rayleigh
+
+    from sonarmap.classify.local_map import local_map_labels
+    from sonarmap.io import read_ping
+    from sonarmap.stats.mixture import fit_mixture
+
+    ping = read_ping(sorted((DATA / "didson" / "test").glob("*_raw.png"))[0])
+    img = ping.image
+
+    def authors() -> None:
+        x0 = np.linspace(0, 1, 256)
+
+        def mix(x, p1, p2, s1, s2):
+            b = expon.pdf(x, 0, s1) / expon.pdf(x0, 0, s1).sum()
+            o = rayleigh.pdf(x, 0, s2) / rayleigh.pdf(x0, 0, s2).sum()
+            p = p1 * b + p2 * o
+            p[x < 1 / 256] += 1 - p1 - p2
+            return p
+
+        h, e = np.histogram(img.ravel(), np.linspace(0, 1, 257))
+        curve_fit(mix, e[:-1], h / h.sum(), p0=[0.32, 0.01, 0.03, 0.2],
+                  bounds=([0.2, 0, 0.01, 1e-2], [0.5, 0.1, 0.05, 1.0]))
+
+    rep = 5 if quick else 30
+    base = timeit(authors, repeat=rep)
+    fit = fit_mixture(img, method="em")
+    rows = [
+        {"benchmark": "stats", "case": "EM fit 512x96", "median_ms": timeit(lambda: fit_mixture(img, method="em"), repeat=rep),
+         "target_ms": 1.0, "baseline": "authors curve_fit", "baseline_ms": base},
+        {"benchmark": "stats", "case": "LSQ fit 512x96", "median_ms": timeit(lambda: fit_mixture(img, method="lsq"), repeat=rep),
+         "target_ms": 10.0, "baseline": "authors curve_fit", "baseline_ms": base},
+        {"benchmark": "stats", "case": "MAP labels 512x96", "median_ms": timeit(lambda: local_map_labels(img, fit), repeat=rep),
+         "target_ms": 0.2},
+    ]
+    return rows

@@ -1,0 +1,172 @@
+"""``sonarmap map``: pings + trajectory -> registered point cloud or occupancy map."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import typer
+
+from sonarmap.cli._common import GEOMETRY_OPTION, err_console, load_geometry_option
+
+__all__ = ["register", "map_command"]
+
+_BATCH = 128
+
+
+def _count(inputs: list[Path]) -> int | None:
+    """Total pings (cheap, headers only), or None when a reader cannot count."""
+    from sonarmap.io import detect_format, format_module
+
+    total = 0
+    try:
+        for p in inputs:
+            fmt = "pngjson" if p.is_dir() else detect_format(p)
+            total += int(format_module(fmt).count_pings(p))
+    except Exception:  # noqa: BLE001 - only used for the progress bar
+        return None
+    return total
+
+
+def map_command(
+    pings: list[Path] = typer.Argument(..., help="Ping files, directories or globs (any supported format)."),
+    poses: Path | None = typer.Option(
+        None, "--poses", "-p",
+        help="Trajectory CSV: time_ns|time_s,x,y,z,qx,qy,qz,qw (see docs/mapping.md); default: the pings' own poses.",
+    ),
+    extrinsics: Path | None = typer.Option(
+        None, "--extrinsics", "-e", help="Sonar mounting JSON (translation_m + rotation_xyzw|rotation_rpy_deg)."
+    ),
+    output: Path = typer.Option(..., "--output", "-o", help="Output point cloud (.ply, .las or .csv)."),
+    grid: float | None = typer.Option(
+        None, "--grid", min=1e-4, help="Build an occupancy map at this resolution (m) and write its occupied cells."
+    ),
+    fmt: str | None = typer.Option(None, "--format", "-f", help="ply | las | csv (default: from the output suffix)."),
+    sonar: str | None = GEOMETRY_OPTION,
+    config: Path | None = typer.Option(None, "--config", "-c", help="Pipeline configuration (TOML)."),
+    dims: int = typer.Option(3, "--dims", min=2, max=3, help="Occupancy map: 3 = voxels, 2 = horizontal grid."),
+    grid_array: Path | None = typer.Option(
+        None, "--grid-array", help="Also save the occupancy grid as a dense array (.npz: logodds, observed, origin_m)."
+    ),
+    spread: int = typer.Option(1, "--spread", min=1, help="Points per return across the vertical aperture."),
+    min_confidence: float = typer.Option(0.0, "--min-confidence", min=0.0, max=1.0, help="Drop weaker returns."),
+    poses_frame: str | None = typer.Option(None, "--poses-frame", help="Override the CSV's frame: ned | enu."),
+    out_frame: str = typer.Option("ned", "--frame", help="Output coordinates: ned (default) | enu (z up, for viewers)."),
+    outside: str = typer.Option(
+        "error", "--outside", help="Pings outside the trajectory's time span: error | skip (counted)."
+    ),
+    fixed_model: bool = typer.Option(
+        False, "--fixed-model", help="Use fixed 0.8/0.3 hit/miss probabilities instead of each ping's pD/pFA."
+    ),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar and no summary."),
+) -> None:
+    """Register per-beam ranges into a world point cloud, or build an occupancy map (--grid)."""
+    import numpy as np
+
+    from sonarmap.errors import InputError
+    from sonarmap.io import expand_inputs, read_pings
+    from sonarmap.mapping.occupancy import OccupancyConfig, OccupancyMap, SensorModel
+    from sonarmap.mapping.pointcloud import CLOUD_FORMATS, format_from_suffix, write_point_cloud
+    from sonarmap.mapping.poses import SensorPoses, Trajectory, load_extrinsics, read_trajectory_csv
+    from sonarmap.mapping.register import PointCloud, RegistrationConfig, register_ranges
+    from sonarmap.pipeline import PipelineConfig, process_ping
+
+    if outside not in ("error", "skip"):
+        raise typer.BadParameter("must be 'error' or 'skip'", param_hint="--outside")
+    if out_frame not in ("ned", "enu"):
+        raise typer.BadParameter("must be 'ned' or 'enu'", param_hint="--frame")
+    if poses_frame is not None and poses_frame not in ("ned", "enu"):
+        raise typer.BadParameter("must be 'ned' or 'enu'", param_hint="--poses-frame")
+    out_fmt = (fmt or format_from_suffix(output)).lower()
+    if out_fmt not in CLOUD_FORMATS:
+        raise typer.BadParameter(f"must be one of {', '.join(CLOUD_FORMATS)}", param_hint="--format")
+
+    geometry = load_geometry_option(sonar)
+    pcfg = PipelineConfig.from_toml(config) if config is not None else PipelineConfig()
+    traj = read_trajectory_csv(poses, frame=poses_frame) if poses is not None else None
+    ext = load_extrinsics(extrinsics) if extrinsics is not None else None
+    rcfg = RegistrationConfig(n_elevation=spread, min_confidence=min_confidence)
+    occ = OccupancyMap(OccupancyConfig(resolution_m=grid, dims=dims)) if grid is not None else None
+    fixed = SensorModel.fixed(0.8, 0.3) if fixed_model else None
+
+    inputs = expand_inputs([str(p) for p in pings])
+    total = None if quiet else _count(inputs)
+    clouds: list[PointCloud] = []
+    stats = {"pings": 0, "skipped": 0, "returns": 0}
+    batch: list[tuple[Any, Any]] = []  # (ping, products)
+
+    def flush() -> None:
+        if not batch:
+            return
+        times = np.array([p.time_ns for p, _ in batch], dtype=np.int64)
+        if traj is not None:
+            sp = traj.interpolate(times, outside=outside)  # type: ignore[arg-type]
+        else:
+            missing = [p.source for p, _ in batch if p.pose is None]
+            if missing:
+                raise InputError(f"--poses: no trajectory given and ping {missing[0]} carries no pose")
+            tr = Trajectory.from_poses(np.arange(len(batch)), [p.pose for p, _ in batch])
+            body = tr.interpolate(np.arange(len(batch)))
+            sp = SensorPoses(times, body.rotation, body.translation_m, body.orientation_xyzw, body.valid, "body")
+        sp = sp.with_extrinsics(ext)
+        stats["skipped"] += sp.n_skipped
+        ranges = [prod.ranges for _, prod in batch]
+        if occ is None:
+            cloud = register_ranges(ranges, sp, config=rcfg)
+            clouds.append(cloud)
+            stats["returns"] += len(cloud) // rcfg.n_elevation
+        else:
+            g = batch[0][0].geometry
+            pd = None if fixed else np.array([float(prod.pd) for _, prod in batch])
+            pfa = None if fixed else np.array([float(prod.pfa) for _, prod in batch])
+            occ.integrate_ranges(
+                ranges, sp, min_range_m=g.min_range_m, max_range_m=g.max_range_m, pd=pd, pfa=pfa, model=fixed
+            )
+            stats["returns"] += int(sum(r.n_returns for r in ranges))
+        batch.clear()
+
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+
+    progress = Progress(
+        TextColumn("map"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn(),
+        console=err_console(), disable=quiet, transient=False,
+    )
+    with progress:
+        task = progress.add_task("map", total=total)
+        last_geom = None
+        for ping in read_pings(inputs, geometry=geometry):
+            if last_geom is not None and ping.geometry.shape != last_geom.shape:
+                flush()
+            last_geom = ping.geometry
+            batch.append((ping, process_ping(ping, pcfg)))
+            stats["pings"] += 1
+            if len(batch) >= _BATCH:
+                flush()
+            progress.advance(task)
+        flush()
+    if stats["pings"] == 0:
+        raise InputError("PINGS: no pings read")
+
+    if occ is None:
+        out_cloud = PointCloud.concat(clouds)
+    else:
+        out_cloud = occ.to_point_cloud()
+        if grid_array is not None:
+            from sonarmap._atomic import atomic_path
+
+            arr = occ.to_array()
+            with atomic_path(grid_array, suffix=".npz") as tmp, open(tmp, "wb") as fh:
+                np.savez_compressed(
+                    fh, logodds=arr.logodds, observed=arr.observed, origin_m=arr.origin_m,
+                    resolution_m=np.float64(arr.resolution_m), frame=np.str_("ned"),
+                )
+    write_point_cloud(out_cloud, output, format=out_fmt, frame=out_frame)
+    if not quiet:
+        what = f"{len(out_cloud)} occupied cells" if occ is not None else f"{len(out_cloud)} points"
+        skipped = f", {stats['skipped']} skipped outside the trajectory" if stats["skipped"] else ""
+        err_console().print(f"{stats['pings']} pings, {stats['returns']} returns{skipped} -> {what} in {output}")
+
+
+def register(app: typer.Typer) -> None:
+    """Add ``map`` to the CLI."""
+    app.command("map", help="Register ranges into a point cloud or an occupancy map (PLY/LAS/CSV).")(map_command)

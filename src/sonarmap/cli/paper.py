@@ -1,0 +1,38 @@
+"""``sonarmap paper --data DIDSON -o OUT/``: reproduce Table I, the background model, Figs. 5/6/8."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+from sonarmap.cli._common import OUTPUT_OPTION
+
+
+def register(app: typer.Typer) -> None:
+    """Add the ``paper`` command to ``app``."""
+
+    @app.command("paper")
+    def paper_cmd(
+        data: Path = typer.Option(..., "--data", help="The DIDSON folder (with test/ and background/)."),
+        output: Path = OUTPUT_OPTION,
+    ) -> None:
+        """Write table1.csv, background.csv, fig5.png, fig6.png, fig8.png and print Table I."""
+        from sonarmap.paper import PAPER_BACKGROUND, PAPER_TABLE1, Table1Row, write_paper_outputs
+
+        res = write_paper_outputs(data, output)
+        typer.echo("image   pi1    lambda    pi2    sigma   KLDe-3 | paper: pi1 lambda pi2 sigma KLDe-3 | EM: pi1 lambda pi2 sigma KLDe-3  flags")
+        for r in res["rows"]:
+            o = Table1Row.cells(r.paper)
+            e = Table1Row.cells(r.em)
+            p = PAPER_TABLE1[r.image]
+            typer.echo(
+                f"{r.image:5d} {o[0]:.3f} {o[1]:8.3f} {o[2]:.3f} {o[3]:.3f} {o[4] * 1e3:7.3f} | "
+                f"{p[0]:.3f} {p[1]:7.3f} {p[2]:.3f} {p[3]:.3f} {p[4] * 1e3:6.3f} | "
+                f"{e[0]:.3f} {e[1]:7.3f} {e[2]:.3f} {e[3]:.3f} {e[4] * 1e3:6.3f}  "
+                f"{','.join(sorted(r.paper.flags)) or '-'} {'ok' if all(r.within_tolerance()) else 'OUT'}"
+            )
+        b = res["background"]
+        typer.echo(f"background: pi_B={b.weights[1]:.4f} lambda={1 / b.params[1][0]:.2f} KLD={b.kld:.3g} "
+                   f"(paper {PAPER_BACKGROUND[0]}, {PAPER_BACKGROUND[1]}, {PAPER_BACKGROUND[2]:.3g})")
+        typer.echo(f"wrote {output}/table1.csv, background.csv, fig5.png, fig6.png, fig8.png", err=True)

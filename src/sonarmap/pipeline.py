@@ -1,0 +1,414 @@
+"""The fused per-ping pipeline and its validated configuration.
+
+``process_ping(ping, config)`` runs, as a pure function of its arguments::
+
+    pre-process (sec. III-IV)  ->  mixture fit (eq. 8-11, 19-21)  ->  classification
+    (fixed threshold eq. 14 | local MAP eq. 12-13 | MRF eq. 17-18, 22 | CFAR baselines)
+    ->  per-beam ranges (:mod:`sonarmap.ranges`)
+
+and returns a :class:`PingProducts` value.  The default :class:`PipelineConfig` is the most
+accurate pipeline measured on simulator truth and the shared DIDSON pings (``docs/segmentation.md``):
+the paper's Table-I pre-processing, an EM fit of the paper's exponential + Rayleigh mixture,
+an exact graph-cut MRF (4-neighbourhood, ``beta = 1.5``), first returns with a 2-bin run, the
+isolated-return rule and a minimum surface width of 6 beams.
+
+Degenerate pings (all zero, constant, nothing but background) give no returns, never an error:
+their fit flags are carried in :attr:`PingProducts.flags`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+import tomllib
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+from numpy.typing import NDArray
+
+from sonarmap.errors import FitError, InputError
+from sonarmap.ping import Ping
+from sonarmap.ranges import BeamRanges, extract_ranges, no_returns
+
+__all__ = ["PipelineConfig", "PingProducts", "process_ping", "classify_image", "METHODS", "SOLVER_NAMES"]
+
+METHODS = ("mrf", "map", "threshold", "cfar-ca", "cfar-so", "cfar-go", "cfar-os")
+SOLVER_NAMES = ("graphcut", "icm", "anneal", "expansion")
+_PREPROCESS_RECIPES = ("paper-table1", "default", "paper-background", "none")
+
+
+@dataclasses.dataclass(frozen=True)
+class PipelineConfig:
+    """Validated configuration of :func:`process_ping` (defaults = the most accurate pipeline).
+
+    Parameters
+    ----------
+    preprocess : str or PreprocessConfig
+        A recipe name (``"paper-table1"``, ``"default"``, ``"paper-background"``, ``"none"``) or an
+        explicit :class:`sonarmap.preprocess.pipeline.PreprocessConfig`.
+    method : str
+        ``"mrf"``, ``"map"`` (local MAP), ``"threshold"`` (fixed), or ``"cfar-ca|so|go|os"``.
+    solver : str
+        MRF solver: ``"graphcut"`` (exact; alpha-expansion for > 2 classes), ``"icm"``,
+        ``"anneal"`` (the paper's), ``"expansion"``.
+    beta : float
+        Potts weight of eq. 22.
+    neighbourhood : int
+        4 or 8.
+    contrast : bool
+        Contrast-sensitive pairwise weights.
+    object_prior_min : float
+        Lower bound on each object class's prior in the MRF unary.  The fitted object weight of
+        a ping with a thin, faint surface can be ~0.001 (Table I image 6), which makes the
+        posterior reject the surface however clearly it stands out; the Potts prior (not the
+        class prior) is then what should suppress speckle.
+    families : tuple of str
+        Mixture families after the zero spike (background first).
+    fit_method : str
+        ``"em"`` or ``"lsq"``.
+    fit_tol : float
+        EM relative log-likelihood tolerance.
+    n_levels : int
+        Quantisation levels of the histogram.
+    threshold : float
+        Intensity threshold of ``method="threshold"`` (eq. 14), on the pre-processed image.
+    cfar_train, cfar_guard : int
+        CFAR training / guard cells along range (total, even); sonar-SLAM: 40 / 10.
+    cfar_pfa : float
+        CFAR design false-alarm probability (sonar-SLAM: 0.1).
+    cfar_two_d : bool
+        2-D CFAR window (range x beams).
+    range_mode : str
+        ``"first"`` or ``"strongest"``.
+    min_run : int
+        First return: minimum run of consecutive structure bins.
+    reject_isolated : bool
+        Drop returns without support in neighbouring beams.
+    neighbour_beams, max_jump_bins : int
+        Support window and range tolerance of the consistency rules.
+    min_segment_beams : int
+        Drop runs of consistent returns narrower than this many consecutive beams.
+    min_component_beams, min_component_bins : int
+        Drop 8-connected structure components spanning fewer than ``min_component_beams`` beams
+        *and* fewer than ``min_component_bins`` range bins (fish, speckle).
+    """
+
+    preprocess: Any = "paper-table1"
+    method: str = "mrf"
+    solver: str = "graphcut"
+    beta: float = 1.5
+    neighbourhood: int = 4
+    contrast: bool = False
+    object_prior_min: float = 0.0
+    families: tuple[str, ...] = ("exponential", "rayleigh")
+    fit_method: str = "em"
+    fit_tol: float = 1e-6
+    n_levels: int = 256
+    threshold: float = 0.3
+    cfar_train: int = 40
+    cfar_guard: int = 10
+    cfar_pfa: float = 0.1
+    cfar_two_d: bool = False
+    range_mode: str = "first"
+    min_run: int = 2
+    reject_isolated: bool = True
+    neighbour_beams: int = 2
+    max_jump_bins: int = 6
+    min_segment_beams: int = 1
+    min_component_beams: int = 12
+    min_component_bins: int = 40
+
+    def __post_init__(self) -> None:
+        from sonarmap.preprocess.pipeline import PreprocessConfig
+
+        def bad(key: str, what: str) -> InputError:
+            return InputError(f"pipeline config: {key}: {what} (got {getattr(self, key)!r})")
+
+        pre = self.preprocess
+        if isinstance(pre, dict):
+            object.__setattr__(self, "preprocess", PreprocessConfig.from_dict(pre))
+        elif isinstance(pre, str):
+            if pre not in _PREPROCESS_RECIPES:
+                raise bad("preprocess", f"must be one of {', '.join(_PREPROCESS_RECIPES)} or a table")
+        elif not isinstance(pre, PreprocessConfig):
+            raise bad("preprocess", "must be a recipe name or a preprocess table")
+        if self.method not in METHODS:
+            raise bad("method", f"must be one of {', '.join(METHODS)}")
+        if self.solver not in SOLVER_NAMES:
+            raise bad("solver", f"must be one of {', '.join(SOLVER_NAMES)}")
+        for key in ("beta", "fit_tol", "threshold", "cfar_pfa", "object_prior_min"):
+            v = getattr(self, key)
+            if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
+                raise bad(key, "must be a finite number")
+            object.__setattr__(self, key, float(v))
+        if self.beta < 0:
+            raise bad("beta", "must be >= 0")
+        if not 0 <= self.object_prior_min < 0.5:
+            raise bad("object_prior_min", "must lie in [0, 0.5)")
+        if self.fit_tol <= 0:
+            raise bad("fit_tol", "must be > 0")
+        if not 0 < self.cfar_pfa < 1:
+            raise bad("cfar_pfa", "must lie in (0, 1)")
+        for key, lo in (("neighbourhood", 4), ("n_levels", 2), ("cfar_train", 2), ("cfar_guard", 0),
+                        ("min_run", 1), ("neighbour_beams", 1), ("max_jump_bins", 0),
+                        ("min_segment_beams", 1), ("min_component_beams", 1),
+                        ("min_component_bins", 1)):
+            v = getattr(self, key)
+            if isinstance(v, bool) or not isinstance(v, int) or v < lo:
+                raise bad(key, f"must be an integer >= {lo}")
+        if self.neighbourhood not in (4, 8):
+            raise bad("neighbourhood", "must be 4 or 8")
+        if self.cfar_train % 2 or self.cfar_guard % 2:
+            raise bad("cfar_train" if self.cfar_train % 2 else "cfar_guard", "must be even")
+        for key in ("contrast", "cfar_two_d", "reject_isolated"):
+            if not isinstance(getattr(self, key), bool):
+                raise bad(key, "must be true or false")
+        if self.fit_method not in ("em", "lsq"):
+            raise bad("fit_method", "must be 'em' or 'lsq'")
+        if self.range_mode not in ("first", "strongest"):
+            raise bad("range_mode", "must be 'first' or 'strongest'")
+        fams = self.families
+        if isinstance(fams, str) or not isinstance(fams, list | tuple) or len(fams) < 2:
+            raise bad("families", "must be a list of at least two family names")
+        object.__setattr__(self, "families", tuple(str(f) for f in fams))
+
+    # ------------------------------------------------------------------ (de)serialisation
+    def to_dict(self) -> dict[str, Any]:
+        """JSON/TOML-compatible dict; :meth:`from_dict` reads it back."""
+        d = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
+        d["families"] = list(self.families)
+        if not isinstance(self.preprocess, str):
+            d["preprocess"] = self.preprocess.to_dict()
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> PipelineConfig:
+        """Build from a dict; unknown keys or bad values raise :class:`InputError` naming the key.
+
+        A nested ``{"pipeline": {...}}`` table (TOML) is accepted.
+        """
+        if not isinstance(d, dict):
+            raise InputError(f"pipeline config: expected a table, got {type(d).__name__}")
+        if set(d) == {"pipeline"} and isinstance(d["pipeline"], dict):
+            d = d["pipeline"]
+        known = {f.name for f in dataclasses.fields(cls)}
+        for key in d:
+            if key not in known:
+                raise InputError(f"pipeline config: unknown key '{key}' (valid: {', '.join(sorted(known))})")
+        return cls(**d)
+
+    @classmethod
+    def from_toml(cls, path: str | os.PathLike[str]) -> PipelineConfig:
+        """Read a TOML file (top-level keys or a ``[pipeline]`` table)."""
+        p = Path(path)
+        try:
+            d = tomllib.loads(p.read_text(encoding="utf-8"))
+        except OSError as exc:
+            raise InputError(f"{p}: cannot read pipeline config ({exc.strerror or exc})") from None
+        except tomllib.TOMLDecodeError as exc:
+            raise InputError(f"{p}: invalid TOML ({exc})") from None
+        try:
+            return cls.from_dict(d)
+        except InputError as exc:
+            raise InputError(f"{p}: {exc}") from None
+
+    def replace(self, **changes: Any) -> PipelineConfig:
+        """Copy with fields replaced (validated)."""
+        return dataclasses.replace(self, **changes)
+
+    def preprocess_config(self) -> Any:
+        """The :class:`PreprocessConfig` used, or None for ``"none"``."""
+        from sonarmap.preprocess.pipeline import PreprocessConfig, recipe
+
+        if isinstance(self.preprocess, PreprocessConfig):
+            return self.preprocess
+        return None if self.preprocess == "none" else recipe(self.preprocess)
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class PingProducts:
+    """Everything the per-ping pipeline produces.
+
+    Attributes
+    ----------
+    time_ns, source
+        From the ping.
+    fit : MixtureFit or None
+        The fitted mixture (None if it could not be computed, e.g. an all-zero ping).
+    kld : float
+        KL divergence of the fit (eq. 11); NaN without a fit.
+    flags : tuple of str
+        Fit flags plus pipeline flags (``"no_fit"``, ``"no_returns"``).
+    ranges : BeamRanges
+        Per-beam returns.
+    labels : ndarray of uint8 or None
+        Label image (only with ``keep_labels=True``).
+    pd, pfa : float
+        Detection and false-alarm probabilities of the per-pixel decision under the fitted model
+        (eq. 15-16): for MRF and MAP those of the local MAP rule, for the fixed threshold those of
+        the threshold; CFAR reports its design pFA and NaN pD.
+    method : str
+        Classification method.
+    """
+
+    time_ns: int
+    source: str
+    fit: Any
+    kld: float
+    flags: tuple[str, ...]
+    ranges: BeamRanges
+    labels: NDArray[np.uint8] | None
+    pd: float
+    pfa: float
+    method: str = "mrf"
+
+
+def _fit(levels: NDArray[Any], config: PipelineConfig) -> Any:
+    from sonarmap.stats.mixture import fit_mixture
+
+    counts = np.bincount(levels.ravel(), minlength=config.n_levels).astype(np.float64)
+    try:
+        return fit_mixture(counts, families=config.families, method=config.fit_method,  # type: ignore[arg-type]
+                           n_levels=config.n_levels, tol=config.fit_tol)
+    except FitError:
+        return None
+
+
+def _class_prior(fit: Any, prior_min: float) -> NDArray[np.float64]:
+    """Fitted class priors with every object class raised to at least ``prior_min``."""
+    prior = np.asarray(fit.class_prior(), dtype=np.float64).copy()
+    if prior_min > 0 and prior.size > 1:
+        prior[1:] = np.maximum(prior[1:], prior_min)
+        prior[0] = max(1.0 - prior[1:].sum(), 1e-12)
+    return prior
+
+
+def _cost_lut(fit: Any, prior_min: float = 0.0, floor: float = -50.0) -> NDArray[np.float64]:
+    """``-log p(level|k) - log pi_k`` per class and level (eq. 17-18), clipped, min-shifted."""
+    lp = np.asarray(fit.class_log_pmf(), dtype=np.float64)
+    with np.errstate(divide="ignore"):
+        lp = lp + np.log(_class_prior(fit, prior_min))[:, None]
+    lp = np.nan_to_num(lp, nan=floor, neginf=floor, posinf=0.0)
+    cost = -np.maximum(lp, floor)
+    return cost - cost.min(axis=0, keepdims=True)
+
+
+def _model_pd_pfa(fit: Any, lut: NDArray[Any]) -> tuple[float, float]:
+    pmf = np.asarray(fit.class_pmf())
+    det = np.asarray(lut) != 0
+    pfa = float(pmf[0][det].sum())
+    pd = float((pmf[1:][:, det].sum(axis=1) * np.asarray(fit.class_prior())[1:]).sum()
+               / max(float(np.asarray(fit.class_prior())[1:].sum()), 1e-300))
+    return min(pd, 1.0), min(pfa, 1.0)
+
+
+def classify_image(image: NDArray[np.float32], config: PipelineConfig = PipelineConfig()) -> tuple[NDArray[np.uint8], Any, float, float]:
+    """Label a pre-processed image: returns ``(labels, fit, pd, pfa)`` (see :class:`PingProducts`).
+
+    Labels: 0 background, >= 1 structure classes.  A ping whose fit is missing or flagged
+    ``"no_object"`` / ``"all_zero"`` / ``"degenerate"`` is all background for the fit-based
+    methods.
+    """
+    from sonarmap.stats.mixture import quantize
+
+    method = config.method
+    if method.startswith("cfar-"):
+        from sonarmap.classify.cfar import CFARConfig, cfar
+
+        cfg = CFARConfig(method=method[5:], n_train=config.cfar_train, n_guard=config.cfar_guard,  # type: ignore[arg-type]
+                         pfa=config.cfar_pfa, two_d=config.cfar_two_d)
+        res = cfar(image, config=cfg)
+        levels = quantize(image, config.n_levels)
+        return res.labels, _fit(levels, config), math.nan, config.cfar_pfa
+    levels = quantize(image, config.n_levels)
+    fit = _fit(levels, config)
+    empty = np.zeros(image.shape, dtype=np.uint8)
+    if method == "threshold":
+        from sonarmap.classify.threshold import threshold_labels
+
+        labels = threshold_labels(image, config.threshold)
+        pd, pfa = math.nan, math.nan
+        if fit is not None:
+            from sonarmap.stats.roc import pd_pfa_at_threshold
+
+            pd, pfa = pd_pfa_at_threshold(fit, config.threshold)
+        return labels, fit, pd, pfa
+    if fit is None or fit.flags & {"all_zero", "degenerate"} or len(fit.class_names) < 2:
+        return empty, fit, 0.0, 0.0
+    from sonarmap.classify.local_map import map_lookup_table
+
+    lut = map_lookup_table(fit)
+    pd, pfa = _model_pd_pfa(fit, lut)
+    if method == "map":
+        return lut[levels], fit, pd, pfa
+    from sonarmap.classify import mrf
+
+    cost = _cost_lut(fit, config.object_prior_min)
+    if config.solver == "graphcut" and cost.shape[0] == 2 and not config.contrast:
+        res = mrf.solve_graphcut_levels(levels, cost, beta=config.beta, neighbourhood=config.neighbourhood)
+    else:
+        from sonarmap.classify._kernels import gather_costs
+
+        unary = gather_costs(np.ascontiguousarray(levels), cost)
+        wt = mrf.pairwise_weights(image.shape, beta=config.beta, neighbourhood=config.neighbourhood,
+                                  image=image, contrast=config.contrast)
+        res = mrf.solve(unary, solver=config.solver, beta=config.beta,  # type: ignore[arg-type]
+                        neighbourhood=config.neighbourhood, weights=wt)
+    return res.labels, fit, pd, pfa
+
+
+def process_ping(ping: Ping, config: PipelineConfig = PipelineConfig(), *, keep_labels: bool = False) -> PingProducts:
+    """Run the per-ping pipeline (pure function of ``ping`` and ``config``).
+
+    Parameters
+    ----------
+    ping : Ping
+        A raw ping.
+    config : PipelineConfig
+        Pipeline configuration; the default is the most accurate measured pipeline.
+    keep_labels : bool
+        Keep the label image in the result.
+
+    Returns
+    -------
+    PingProducts
+    """
+    if not isinstance(ping, Ping):
+        raise InputError(f"ping: expected a Ping, got {type(ping).__name__}")
+    if not isinstance(config, PipelineConfig):
+        raise InputError(f"config: expected a PipelineConfig, got {type(config).__name__}")
+    geom = ping.geometry
+    pre = config.preprocess_config()
+    if pre is None:
+        image = ping.image
+    else:
+        from sonarmap.preprocess.pipeline import preprocess_image
+
+        image = preprocess_image(ping.image, geom, pre)
+    if not np.any(image > 0) or float(image.max()) == float(image.min()):
+        labels = np.zeros(image.shape, dtype=np.uint8)
+        fit = None
+        ranges = no_returns(geom, time_ns=ping.time_ns, source=ping.source, mode=config.range_mode)
+        return PingProducts(time_ns=ping.time_ns, source=ping.source, fit=fit, kld=math.nan,
+                            flags=("constant_image", "no_returns"), ranges=ranges,
+                            labels=labels if keep_labels else None, pd=0.0, pfa=0.0, method=config.method)
+    labels, fit, pd, pfa = classify_image(image, config)
+    ranges = extract_ranges(
+        labels >= 1, image, geom, mode=config.range_mode,  # type: ignore[arg-type]
+        min_run=config.min_run, reject_isolated=config.reject_isolated,
+        neighbour_beams=config.neighbour_beams, max_jump_bins=config.max_jump_bins,
+        min_segment_beams=config.min_segment_beams,
+        min_component_beams=config.min_component_beams,
+        min_component_bins=config.min_component_bins, time_ns=ping.time_ns, source=ping.source,
+    )
+    flags = set(fit.flags) if fit is not None else {"no_fit"}
+    if ranges.n_returns == 0:
+        flags.add("no_returns")
+    return PingProducts(
+        time_ns=ping.time_ns, source=ping.source, fit=fit,
+        kld=float(fit.kld) if fit is not None else math.nan, flags=tuple(sorted(flags)),
+        ranges=ranges, labels=labels if keep_labels else None, pd=float(pd), pfa=float(pfa),
+        method=config.method,
+    )

@@ -1,0 +1,112 @@
+"""Per-beam range extraction: first/strongest return, consistency rules, explicit no-return."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from sonarmap.errors import GeometryError, InputError
+from sonarmap.geometry import SonarGeometry
+from sonarmap.ranges import BeamRanges, extract_ranges, first_return_bins, no_returns
+
+
+@pytest.fixture(scope="module")
+def geom() -> SonarGeometry:
+    return SonarGeometry.from_window(min_range_m=2.0, max_range_m=12.0, n_bins=100, n_beams=20, fov_rad=0.5)
+
+
+def test_first_and_strongest_in_metres(geom):
+    mask = np.zeros(geom.shape, bool)
+    img = np.zeros(geom.shape, np.float32)
+    mask[40:44, :] = True
+    img[40:44, :] = 0.5
+    img[42, :] = 0.9
+    r = extract_ranges(mask, img, geom)
+    assert r.n_returns == 20
+    np.testing.assert_array_equal(r.bin, 40)
+    np.testing.assert_allclose(r.range_m, 2.0 + 40 * 0.1)
+    np.testing.assert_allclose(r.intensity, 0.5)
+    np.testing.assert_allclose(r.confidence, 1.0)
+    s = extract_ranges(mask, img, geom, mode="strongest")
+    np.testing.assert_array_equal(s.bin, 42)
+    np.testing.assert_allclose(s.azimuth_rad, geom.azimuth_rad)
+
+
+def test_no_return_is_explicit(geom):
+    r = extract_ranges(np.zeros(geom.shape, np.uint8), np.zeros(geom.shape), geom)
+    assert r.n_returns == 0
+    assert (r.bin == -1).all() and np.isnan(r.range_m).all() and np.isnan(r.intensity).all()
+    assert (r.confidence == 0).all()
+    n = no_returns(geom, source="x")
+    assert n.n_returns == 0 and n.source == "x"
+
+
+def test_isolated_return_rejected_and_min_run(geom):
+    lab = np.zeros(geom.shape, np.uint8)
+    lab[50, 3:15] = 1       # a surface over 12 beams
+    lab[10, 18] = 1         # an isolated speckle on beam 18
+    lab[20, 5] = 1          # a lone pixel in front of the surface on beam 5
+    r = extract_ranges(lab, np.ones(geom.shape), geom, min_run=1)
+    assert r.bin[18] == -1  # no neighbour within max_jump_bins -> rejected
+    assert r.bin[5] == 50   # the lone pixel in front has no support: falls back to the surface
+    r2 = extract_ranges(lab, np.ones(geom.shape), geom, min_run=1, reject_isolated=False)
+    assert r2.bin[18] == 10
+    lab[21, 5] = 1
+    lab[20:22, 5] = 1
+    thick = lab.copy()
+    thick[51, 3:15] = 1
+    r3 = extract_ranges(thick, np.ones(geom.shape), geom, min_run=2, reject_isolated=False)
+    assert r3.bin[5] == 20  # a 2-bin run in front is a return
+    lab2 = np.zeros(geom.shape, np.uint8)
+    lab2[50:52, 3:15] = 1
+    lab2[20, 5] = 1
+    r4 = extract_ranges(lab2, np.ones(geom.shape), geom, min_run=2)
+    assert r4.bin[5] == 50  # the single-bin speckle is skipped
+
+
+def test_component_and_segment_rules(geom):
+    lab = np.zeros(geom.shape, bool)
+    lab[60:62, 0:15] = True       # wide surface
+    lab[30:32, 16:20] = True      # narrow blob (fish) on beams 16-19
+    r = extract_ranges(lab, np.ones(geom.shape), geom, min_component_beams=6)
+    assert (r.bin[:15] == 60).all() and (r.bin[16:] == -1).all()
+    r = extract_ranges(lab, np.ones(geom.shape), geom, min_segment_beams=6)
+    assert (r.bin[16:] == -1).all()
+    steep = np.zeros(geom.shape, bool)
+    for j in range(4):
+        steep[10 + 20 * j:30 + 20 * j, j] = True   # a steep surface: 4 beams, 80 bins
+    r = extract_ranges(steep, np.ones(geom.shape), geom, min_component_beams=6, min_component_bins=40,
+                       max_jump_bins=20)
+    assert r.n_returns == 4
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 2**31 - 1), st.sampled_from(["first", "strongest"]), st.booleans())
+def test_returns_are_structure_pixels(seed, mode, reject):
+    geom = SonarGeometry.from_window(min_range_m=1.0, max_range_m=5.0, n_bins=30, n_beams=12, fov_rad=0.4)
+    rng = np.random.default_rng(seed)
+    mask = rng.random(geom.shape) < 0.1
+    img = rng.random(geom.shape).astype(np.float32)
+    r = extract_ranges(mask, img, geom, mode=mode, reject_isolated=reject)
+    v = r.valid
+    cols = np.flatnonzero(v)
+    assert mask[r.bin[v], cols].all()
+    assert np.array_equal(v, np.isfinite(r.range_m))
+    assert ((r.confidence >= 0) & (r.confidence <= 1)).all()
+    if mode == "first" and not reject:
+        np.testing.assert_array_equal(r.bin, first_return_bins(mask))
+    if mode == "strongest":
+        for j in cols:
+            assert img[r.bin[j], j] == img[mask[:, j], j].max()
+
+
+def test_bad_inputs(geom):
+    with pytest.raises(GeometryError, match="labels_or_mask"):
+        extract_ranges(np.zeros((3, 3)), np.zeros(geom.shape), geom)
+    with pytest.raises(InputError, match="mode"):
+        extract_ranges(np.zeros(geom.shape), np.zeros(geom.shape), geom, mode="last")  # type: ignore[arg-type]
+    with pytest.raises(InputError, match="bin/range_m"):
+        BeamRanges(range_m=np.array([1.0]), bin=np.array([-1]), intensity=np.zeros(1, np.float32),
+                   confidence=np.zeros(1, np.float32), azimuth_rad=np.zeros(1))

@@ -1,0 +1,64 @@
+"""One entry point: read_pings detects formats by content (not extension) and yields lazily."""
+
+from __future__ import annotations
+
+import shutil
+import tracemalloc
+from pathlib import Path
+
+import numpy as np
+import pytest
+from ddf_writer import write_ddf
+
+from sonarmap.errors import DataFormatError
+from sonarmap.io import detect_format, format_module, read_pings
+from sonarmap.io.dataset import write_survey
+from sonarmap.io.rosbag import write_bag
+
+
+def test_detection_by_content_not_extension(data_dir: Path, tmp_path: Path) -> None:
+    # copies with misleading names (temp files, never in the repo)
+    a = tmp_path / "recording.dat"
+    shutil.copy(data_dir / "aris" / "sample.aris", a)
+    o = tmp_path / "ping.aris"
+    shutil.copy(data_dir / "oculus" / "one_ping_8bit.raw", o)
+    d = tmp_path / "x.bin"
+    write_ddf(d, [np.zeros((512, 96), np.uint8)])
+    b = tmp_path / "bag.raw"
+    write_bag([next(read_pings(o))], b, version=1)
+    b2 = tmp_path / "ros2"
+    write_bag([next(read_pings(o))], b2, version=2)
+    z = tmp_path / "survey"
+    write_survey(read_pings(o), z)
+    assert [detect_format(p) for p in (a, o, d, b, b2, z)] == ["aris", "oculus", "ddf", "rosbag", "rosbag", "zarr"]
+    assert [len(list(read_pings(p))) for p in (a, o, d, b, b2, z)] == [6, 1, 1, 1, 1, 1]
+    for name in ("aris", "oculus", "ddf", "rosbag", "zarr", "pngjson"):
+        mod = format_module(name)
+        assert all(hasattr(mod, f) for f in ("sniff", "iter_pings", "count_pings"))
+        if name != "pngjson":
+            assert hasattr(mod, "summary")
+
+
+def test_unknown_content(tmp_path: Path) -> None:
+    p = tmp_path / "sample.aris"
+    p.write_bytes(b"hello world, not sonar")
+    with pytest.raises(DataFormatError, match="unrecognised file format"):
+        list(read_pings(p))
+
+
+def test_several_inputs_in_order_and_lazy(data_dir: Path) -> None:
+    paths = [data_dir / "oculus" / "three_pings_8bit.raw", data_dir / "aris" / "sample.aris"]
+    it = read_pings(paths)
+    tracemalloc.start()
+    first = next(it)  # nothing is read before the first ping is asked for
+    _, peak = tracemalloc.get_traced_memory()
+    tracemalloc.stop()
+    assert first.meta["format"] == "oculus"
+    assert peak < 20e6  # one ping in memory, not the recordings
+    rest = list(it)
+    assert [p.meta["format"] for p in rest] == ["oculus"] * 2 + ["aris"] * 6
+
+
+def test_png_folder_still_works(didson_dir: Path) -> None:
+    pings = list(read_pings(didson_dir / "test"))
+    assert len(pings) == 10 and pings[0].shape == (512, 96)

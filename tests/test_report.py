@@ -1,0 +1,146 @@
+"""HTML survey report: self-contained, and renders in headless Chromium without page errors."""
+
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from sonarmap.report import ReportConfig, build_report, render_report
+from sonarmap.survey import process_survey, replicate_pings
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from test_survey import PING_FUNCTION  # noqa: E402
+
+CHROMIUM_NAMES = ("chromium", "chromium-browser", "google-chrome", "google-chrome-stable")
+
+
+def find_chromium() -> str | None:
+    """Path of a Chromium binary, installing Debian's ``chromium`` package if possible."""
+    for name in CHROMIUM_NAMES:
+        path = shutil.which(name)
+        if path:
+            return path
+    if shutil.which("apt-get") and hasattr(os, "geteuid") and os.geteuid() == 0:
+        env = dict(os.environ, DEBIAN_FRONTEND="noninteractive")
+        for cmd in (["apt-get", "install", "-y", "--no-install-recommends", "chromium"],
+                    ["apt-get", "update"],
+                    ["apt-get", "install", "-y", "--no-install-recommends", "chromium"]):
+            try:
+                subprocess.run(cmd, env=env, capture_output=True, timeout=900, check=False)
+            except (OSError, subprocess.TimeoutExpired):
+                break
+            path = shutil.which("chromium")
+            if path:
+                return path
+    return None
+
+
+def screenshot(html_path: Path, png_path: Path, *, width: int = 1280, height: int = 2000) -> str:
+    """Render ``html_path`` in headless Chromium to ``png_path``; returns Chromium's log (stderr)."""
+    exe = find_chromium()
+    if exe is None:
+        pytest.skip("chromium not found and could not be installed (apt-get install -y chromium)")
+    profile = png_path.parent / "chromium-profile"
+    cmd = [
+        exe, "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+        "--disable-background-networking", "--disable-component-update", "--disable-sync",
+        f"--user-data-dir={profile}", f"--screenshot={png_path}", f"--window-size={width},{height}",
+        "--enable-logging=stderr", "--v=0", html_path.resolve().as_uri(),
+    ]
+    r = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
+    assert png_path.exists(), f"chromium wrote no screenshot (exit {r.returncode}): {r.stderr[-2000:]}"
+    return r.stderr
+
+
+def page_errors(log: str) -> list[str]:
+    """Console messages and uncaught exceptions in a Chromium log (the page has no scripts)."""
+    return [ln for ln in log.splitlines() if "CONSOLE" in ln or "Uncaught" in ln]
+
+
+@pytest.fixture(scope="module")
+def store(tmp_path_factory: pytest.TempPathFactory, test_ping_paths: list[Path]) -> Path:
+    d = tmp_path_factory.mktemp("report")
+    pings = replicate_pings(test_ping_paths, 30, d / "pings")
+    out = d / "survey.zarr"
+    process_survey([pings], out, workers=0, chunk_size=10, ping_function=PING_FUNCTION)
+    return out
+
+
+@pytest.fixture(scope="module")
+def report_html(store: Path) -> Path:
+    return build_report(store, store.parent / "report.html", config=ReportConfig(n_examples=2, dpi=60))
+
+
+def test_report_is_self_contained(report_html: Path) -> None:
+    text = report_html.read_text(encoding="utf-8")
+    assert text.startswith("<!DOCTYPE html>")
+    for section in ("Summary", "Mixture parameters", "ROC curves", "Flagged pings", "Example pings"):
+        assert section in text
+    assert "<td>30</td>" in text  # number of pings in the summary
+    # Every resource is inline: no scripts, stylesheets links or external URLs.
+    srcs = re.findall(r'src="([^"]*)"', text)
+    assert len(srcs) >= 3 and all(s.startswith("data:image/png;base64,") for s in srcs)
+    assert "<script" not in text and "<link" not in text and "http://" not in text
+    assert "https://" not in text
+    # The embedded images decode as PNG.
+    import base64
+
+    for s in srcs:
+        assert base64.b64decode(s.split(",", 1)[1])[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+@pytest.mark.skipif(PING_FUNCTION is not None, reason="sonarmap.pipeline not available yet")
+def test_report_draws_example_fans(report_html: Path) -> None:
+    text = report_html.read_text(encoding="utf-8")
+    assert text.count('alt="ping ') == 2
+    assert "not drawn" not in text
+
+
+def test_report_renders_in_headless_chromium(report_html: Path, tmp_path: Path) -> None:
+    from PIL import Image
+
+    png = tmp_path / "shot.png"
+    log = screenshot(report_html, png)
+    assert page_errors(log) == []
+    img = np.asarray(Image.open(png).convert("L"), dtype=np.float64)
+    assert img.shape == (2000, 1280)
+    # Not blank: text and figures give many dark pixels and a broad spread of grey levels.
+    assert (img < 128).mean() > 0.01
+    assert img.std() > 20
+
+
+def test_page_error_detection_works(tmp_path: Path) -> None:
+    """The check above would catch a broken page (guards against a silently weak test)."""
+    bad = tmp_path / "bad.html"
+    bad.write_text("<html><body>x<script>undefinedFunction();</script></body></html>")
+    log = screenshot(bad, tmp_path / "bad.png")
+    assert any("undefinedFunction" in e for e in page_errors(log))
+
+
+def test_report_refuses_to_overwrite(store: Path, report_html: Path) -> None:
+    from sonarmap.errors import DataFormatError
+
+    with pytest.raises(DataFormatError, match="overwrite"):
+        build_report(store, report_html)
+    assert render_report(store, config=ReportConfig(n_examples=0)).count("<img") >= 3
+
+
+def test_cli_report(store: Path, tmp_path: Path) -> None:
+    out = tmp_path / "r.html"
+    r = subprocess.run([sys.executable, "-m", "sonarmap", "report", str(store), "-o", str(out),
+                        "--examples", "0"], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    assert out.exists() and str(out) in r.stdout
+    r = subprocess.run([sys.executable, "-m", "sonarmap", "report", str(store), "-o", str(out)],
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 1 and "--overwrite" in r.stderr
+    r = subprocess.run([sys.executable, "-m", "sonarmap", "report", str(tmp_path), "-o", str(tmp_path / "x.html")],
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 1 and "not a sonarmap survey store" in r.stderr
