@@ -176,3 +176,23 @@ def test_fuzz_byte_flips_only_raise_data_format_error(small_aris: bytes, tmp_pat
             aris.summary(p)
         except DataFormatError as exc:
             assert str(p) in str(exc)
+
+
+def test_pose_from_sonar_position(sample: Path, tmp_path: Path) -> None:
+    data = bytearray(_small_aris(sample, tmp_path / "s.aris", n_frames=1))
+    h = np.frombuffer(bytes(data[FILE_HEADER_SIZE : FILE_HEADER_SIZE + FRAME_HEADER_SIZE]), FRAME_HEADER_DTYPE).copy()
+    h["SonarX"], h["SonarY"], h["SonarZ"], h["Heading"] = 10.0, -2.0, 3.5, 90.0
+    data[FILE_HEADER_SIZE : FILE_HEADER_SIZE + FRAME_HEADER_SIZE] = h.tobytes()
+    p = tmp_path / "pose.aris"
+    p.write_bytes(bytes(data))
+    ping = ArisFile(p)[0]
+    assert ping.pose is not None and ping.pose.frame == "ned"
+    assert ping.pose.position_m.tolist() == [10.0, -2.0, 3.5]
+    assert np.allclose(ping.pose.orientation_xyzw, [0, 0, np.sqrt(0.5), np.sqrt(0.5)])  # 90 deg yaw
+
+
+def test_header_only_file_has_no_frames(sample: Path, tmp_path: Path) -> None:
+    p = tmp_path / "empty.aris"
+    p.write_bytes(sample.read_bytes()[:FILE_HEADER_SIZE])
+    assert len(ArisFile(p)) == 0 and list(read_pings(p)) == []
+    assert aris.summary(p)["pings"] == 0

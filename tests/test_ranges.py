@@ -110,3 +110,20 @@ def test_bad_inputs(geom):
     with pytest.raises(InputError, match="bin/range_m"):
         BeamRanges(range_m=np.array([1.0]), bin=np.array([-1]), intensity=np.zeros(1, np.float32),
                    confidence=np.zeros(1, np.float32), azimuth_rad=np.zeros(1))
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 2**31 - 1), st.integers(1, 10), st.integers(0, 15))
+def test_wide_components_matches_scipy_labelling(seed, min_beams, min_bins):
+    from scipy import ndimage
+
+    from sonarmap.ranges import wide_components
+
+    rng = np.random.default_rng(seed)
+    m = rng.random((40, 30)) < rng.uniform(0.05, 0.5)
+    lab, n = ndimage.label(m, structure=np.ones((3, 3)))
+    keep = np.zeros(n + 1, bool)
+    for k, sl in enumerate(ndimage.find_objects(lab), 1):
+        keep[k] = sl[1].stop - sl[1].start >= min_beams or (min_bins > 0 and sl[0].stop - sl[0].start >= min_bins)
+    got = wide_components(m, min_beams, min_bins=min_bins if min_bins > 0 else None)
+    np.testing.assert_array_equal(got, keep[lab] & m)

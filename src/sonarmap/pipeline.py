@@ -381,13 +381,16 @@ def process_ping(ping: Ping, config: PipelineConfig = PipelineConfig(), *, keep_
         raise InputError(f"config: expected a PipelineConfig, got {type(config).__name__}")
     geom = ping.geometry
     pre = config.preprocess_config()
-    if pre is None:
-        image = ping.image
+    raw = ping.image
+    constant = float(raw.max()) == float(raw.min())
+    if pre is None or constant:
+        image = raw
     else:
         from sonarmap.preprocess.pipeline import preprocess_image
 
-        image = preprocess_image(ping.image, geom, pre)
-    if not np.any(image > 0) or float(image.max()) == float(image.min()):
+        image = preprocess_image(raw, geom, pre)
+    # a constant ping (all zero, saturated, a dead sensor) carries no range information
+    if constant or not np.any(image > 0) or float(image.max()) == float(image.min()):
         labels = np.zeros(image.shape, dtype=np.uint8)
         fit = None
         ranges = no_returns(geom, time_ns=ping.time_ns, source=ping.source, mode=config.range_mode)

@@ -115,40 +115,24 @@ def no_returns(geometry: SonarGeometry, *, time_ns: int = 0, source: str = "", m
 
 def first_return_bins(mask: ArrayLike, *, min_run: int = 1) -> NDArray[np.int64]:
     """Per beam, the first bin starting a run of ``min_run`` true bins; -1 if none."""
+    from sonarmap.classify._kernels import first_runs
+
     m = np.asarray(mask, dtype=bool)
     if m.ndim != 2:
         raise InputError(f"mask: expected (n_bins, n_beams), got shape {m.shape}")
-    if min_run > 1:
-        c = np.zeros((m.shape[0] + 1, m.shape[1]), dtype=np.int32)
-        np.cumsum(m, axis=0, out=c[1:])
-        h = m.shape[0]
-        if h < min_run:
-            return np.full(m.shape[1], -1, dtype=np.int64)
-        ok = np.zeros_like(m)
-        ok[: h - min_run + 1] = (c[min_run:] - c[: h - min_run + 1]) == min_run
-        m = ok
-    first = m.argmax(axis=0).astype(np.int64)
-    first[~m.any(axis=0)] = -1
-    return first
+    if min_run < 1:
+        raise InputError(f"min_run: must be >= 1 (got {min_run})")
+    return first_runs(m, int(min_run))
 
 
 def wide_components(mask: ArrayLike, min_beams: int, *, min_bins: int | None = None) -> NDArray[np.bool_]:
     """Keep the 8-connected components of ``mask`` spanning >= ``min_beams`` beams or >= ``min_bins`` bins."""
-    from scipy import ndimage
+    from sonarmap.classify._kernels import wide_components as kernel
 
-    m = np.asarray(mask, dtype=bool)
-    lab, n = ndimage.label(m, structure=np.ones((3, 3), dtype=bool))
-    if n == 0:
-        return m
-    keep = np.zeros(n + 1, dtype=bool)
-    for k, sl in enumerate(ndimage.find_objects(lab), start=1):
-        if sl is None:
-            continue
-        if sl[1].stop - sl[1].start >= min_beams or (
-            min_bins is not None and sl[0].stop - sl[0].start >= min_bins
-        ):
-            keep[k] = True
-    return keep[lab]
+    m = np.ascontiguousarray(mask, dtype=bool)
+    if m.ndim != 2:
+        raise InputError(f"mask: expected (n_bins, n_beams), got shape {m.shape}")
+    return kernel(m, int(min_beams), int(min_bins) if min_bins is not None else 0)
 
 
 def _support(bins: NDArray[np.int64], neighbour_beams: int, max_jump: int) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
@@ -265,7 +249,7 @@ def extract_ranges(
                 while end < mask.shape[0] and mask[end, j]:
                     end += 1
                 mask[:end, j] = False
-            bins = np.where(bad, first_return_bins(mask[:, bad], min_run=min_run)[np.cumsum(bad) - 1], bins)
+            bins = np.where(bad, first_return_bins(np.ascontiguousarray(mask[:, bad]), min_run=min_run)[np.cumsum(bad) - 1], bins)
     if min_segment_beams > 1:
         bins = np.where(_segments_short(bins, max_jump_bins, min_segment_beams), -1, bins)
     valid = bins >= 0

@@ -270,6 +270,19 @@ def energy_lut(levels, cost_lut, weights, labels):  # pragma: no cover - numba
 
 
 @njit(cache=True, nogil=True)
+def gather_costs(levels, cost):  # pragma: no cover - numba
+    """``out[k, i, j] = cost[k, levels[i, j]]`` as float64."""
+    n = cost.shape[0]
+    h, w = levels.shape
+    out = np.empty((n, h, w))
+    for k in range(n):
+        for i in range(h):
+            for j in range(w):
+                out[k, i, j] = cost[k, levels[i, j]]
+    return out
+
+
+@njit(cache=True, nogil=True)
 def expansion_arrays(unary, weights, labels, alpha):  # pragma: no cover - numba
     """Graph arrays of one alpha-expansion move (Boykov, Veksler & Zabih 2001) for Potts terms.
 
@@ -322,3 +335,95 @@ def expansion_arrays(unary, weights, labels, alpha):  # pragma: no cover - numba
                     cap[k] = c
                     k += 1
     return c0, c1, ei[:k], ej[:k], cap[:k]
+
+
+# ----------------------------------------------------------------------------- range extraction
+
+
+@njit(cache=True, nogil=True)
+def _find(parent, a):  # pragma: no cover - numba
+    while parent[a] != a:
+        parent[a] = parent[parent[a]]
+        a = parent[a]
+    return a
+
+
+@njit(cache=True, nogil=True)
+def wide_components(mask, min_beams, min_bins):  # pragma: no cover - numba
+    """Keep 8-connected components spanning >= ``min_beams`` beams or >= ``min_bins`` bins.
+
+    Union-find over the true pixels (raster order, 4 already-visited neighbours), then the beam
+    and bin extent of every component.  ``min_bins <= 0`` disables the bin test.
+    """
+    h, w = mask.shape
+    idx = np.full((h, w), -1, dtype=np.int32)
+    n = 0
+    for i in range(h):
+        for j in range(w):
+            if mask[i, j]:
+                idx[i, j] = n
+                n += 1
+    parent = np.arange(n, dtype=np.int32)
+    for i in range(h):
+        for j in range(w):
+            a = idx[i, j]
+            if a < 0:
+                continue
+            # already-visited 8-neighbours: (i, j-1), (i-1, j-1), (i-1, j), (i-1, j+1)
+            for di, dj in ((0, -1), (-1, -1), (-1, 0), (-1, 1)):
+                ii = i + di
+                jj = j + dj
+                if 0 <= ii and 0 <= jj < w:
+                    b = idx[ii, jj]
+                    if b >= 0:
+                        ra = _find(parent, a)
+                        rb = _find(parent, b)
+                        if ra != rb:
+                            if ra < rb:
+                                parent[rb] = ra
+                            else:
+                                parent[ra] = rb
+    jmin = np.full(n, w, dtype=np.int32)
+    jmax = np.full(n, -1, dtype=np.int32)
+    imin = np.full(n, h, dtype=np.int32)
+    imax = np.full(n, -1, dtype=np.int32)
+    for i in range(h):
+        for j in range(w):
+            a = idx[i, j]
+            if a >= 0:
+                r = _find(parent, a)
+                if j < jmin[r]:
+                    jmin[r] = j
+                if j > jmax[r]:
+                    jmax[r] = j
+                if i < imin[r]:
+                    imin[r] = i
+                if i > imax[r]:
+                    imax[r] = i
+    out = np.zeros((h, w), dtype=np.bool_)
+    for i in range(h):
+        for j in range(w):
+            a = idx[i, j]
+            if a >= 0:
+                r = _find(parent, a)
+                if jmax[r] - jmin[r] + 1 >= min_beams or (min_bins > 0 and imax[r] - imin[r] + 1 >= min_bins):
+                    out[i, j] = True
+    return out
+
+
+@njit(cache=True, nogil=True)
+def first_runs(mask, min_run):  # pragma: no cover - numba
+    """Per column, the first row starting a run of ``min_run`` true pixels (-1 if none)."""
+    h, w = mask.shape
+    out = np.full(w, -1, dtype=np.int64)
+    for j in range(w):
+        run = 0
+        for i in range(h):
+            if mask[i, j]:
+                run += 1
+                if run >= min_run:
+                    out[j] = i - min_run + 1
+                    break
+            else:
+                run = 0
+    return out

@@ -86,7 +86,12 @@ def main(argv: list[str] | None = None) -> int:
     args = sys.argv[1:] if argv is None else argv
     debug = "--debug" in args
     try:
-        app(args=args, prog_name="sonarmap", standalone_mode=False)
+        rv = app(args=args, prog_name="sonarmap", standalone_mode=False)
+        # typer turns Ctrl-C into Exit(130), *returned* (not raised) when standalone_mode=False.
+        if isinstance(rv, int) and not isinstance(rv, bool) and rv != 0:
+            if rv == 130:
+                print("sonarmap: interrupted", file=sys.stderr)
+            return rv
     except SystemExit as exc:  # pragma: no cover - typer.Exit inside standalone_mode=False
         code = exc.code
         return int(code) if isinstance(code, int) else (0 if code is None else 1)

@@ -677,7 +677,7 @@ def dataset_to_pings(
     times = ds[DIM_PING].values.astype("datetime64[ns]").astype(np.int64)
     for i0 in range(0, n, chunk):
         sl = slice(i0, min(i0 + chunk, n))
-        block = ds.isel({DIM_PING: sl})
+        block = ds.isel({DIM_PING: sl}).compute()  # one dask pass for all variables
         img = np.asarray(block[VAR_INTENSITY].values, dtype=np.float32)
         gi = block[VAR_GEOMETRY].values
         si = block[VAR_SOURCE].values if VAR_SOURCE in block else np.zeros(img.shape[0], int)
@@ -698,7 +698,14 @@ def dataset_to_pings(
             pose = None
             if pos is not None and quat is not None and np.all(np.isfinite(pos[k])):
                 pose = Pose(position_m=pos[k], orientation_xyzw=quat[k], frame=frame)
-            g = geometry if geometry is not None else geoms[int(gi[k])]
+            if geometry is not None:
+                g = geometry
+            elif 0 <= int(gi[k]) < len(geoms):
+                g = geoms[int(gi[k])]
+            else:
+                raise DataFormatError(
+                    f"ping {i}: geometry_index {int(gi[k])} outside the {len(geoms)} stored geometries"
+                )
             src = source if source is not None else (
                 sources[int(si[k])] if 0 <= int(si[k]) < len(sources) else ""
             )

@@ -1,0 +1,250 @@
+"""Scoring segmentations and per-beam ranges against simulator truth.
+
+For every simulated ping (:func:`sonarmap.simulate.simulate_ping`) the truth is the class mask
+(0 background, 1 structure, 2 clutter such as fish) and the per-beam first-return bin of structure
+(-1 where a beam sees no structure).  A pipeline (:class:`sonarmap.pipeline.PipelineConfig`) is run
+on the noisy ping and scored with:
+
+``pixel_f1``
+    F1 of predicted structure pixels (label >= 1) against truth structure (class 1); clutter
+    counts as background, so labelling fish as structure is a false positive.
+``recall``
+    Fraction of beams *with* structure whose reported first return lies within ``tol_bins``
+    (default 3) range bins of the truth.
+``median_error_m``
+    Median absolute range error (metres) over beams with structure that report a return.
+``false_return_rate``
+    Fraction of beams *without* structure that report a return (a false surface in the map).
+
+Scores are pooled over all pings of a method (counts are summed before the ratios are taken).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Iterable, Mapping, Sequence
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from sonarmap.errors import InputError
+
+__all__ = [
+    "PingScore",
+    "MethodScore",
+    "score_ping",
+    "pool_scores",
+    "evaluate",
+    "format_table",
+    "DEFAULT_SCENES",
+    "baseline_configs",
+]
+
+#: Scenes of the acceptance table (the simulator's names).
+DEFAULT_SCENES = ("hull", "curved_hull", "propeller", "seafloor", "fish_over_hull", "fish", "empty")
+
+
+@dataclasses.dataclass(frozen=True)
+class PingScore:
+    """Counts of one ping (see the module notes)."""
+
+    tp: int
+    fp: int
+    fn: int
+    n_struct_beams: int
+    n_hit_beams: int
+    n_empty_beams: int
+    n_false_beams: int
+    errors_m: tuple[float, ...]
+
+
+@dataclasses.dataclass(frozen=True)
+class MethodScore:
+    """Pooled scores of one method."""
+
+    method: str
+    n_pings: int
+    pixel_f1: float
+    recall: float
+    median_error_m: float
+    false_return_rate: float
+    n_struct_beams: int
+    n_empty_beams: int
+
+    def as_row(self) -> dict[str, Any]:
+        """Plain dict for tables and CSV."""
+        return dataclasses.asdict(self)
+
+
+def score_ping(
+    labels: ArrayLike | None,
+    range_bins: ArrayLike,
+    range_m: ArrayLike,
+    class_mask: ArrayLike,
+    truth_bins: ArrayLike,
+    truth_range_m: ArrayLike,
+    *,
+    tol_bins: int = 3,
+) -> PingScore:
+    """Score one ping's labels and per-beam first returns against truth.
+
+    Parameters
+    ----------
+    labels : ndarray (n_bins, n_beams) or None
+        Predicted labels (>= 1 = structure); ``None`` skips the pixel counts.
+    range_bins, range_m : ndarray (n_beams,)
+        Reported first-return bin (-1 none) and range (NaN none).
+    class_mask : ndarray (n_bins, n_beams)
+        Truth classes (1 = structure).
+    truth_bins, truth_range_m : ndarray (n_beams,)
+        Truth first-return bin (-1 none) and range (NaN none).
+    tol_bins : int
+        Recall tolerance in range bins.
+    """
+    rb = np.asarray(range_bins, dtype=np.int64)
+    tb = np.asarray(truth_bins, dtype=np.int64)
+    if rb.shape != tb.shape:
+        raise InputError(f"range_bins: shape {rb.shape} does not match truth {tb.shape}")
+    cm = np.asarray(class_mask)
+    tp = fp = fn = 0
+    if labels is not None:
+        lab = np.asarray(labels)
+        if lab.shape != cm.shape:
+            raise InputError(f"labels: shape {lab.shape} does not match truth {cm.shape}")
+        pred = lab >= 1
+        truth = cm == 1
+        tp = int((pred & truth).sum())
+        fp = int((pred & ~truth).sum())
+        fn = int((~pred & truth).sum())
+    has = tb >= 0
+    rep = rb >= 0
+    hit = has & rep & (np.abs(rb - tb) <= tol_bins)
+    both = has & rep
+    err = np.abs(np.asarray(range_m, dtype=np.float64)[both] - np.asarray(truth_range_m, dtype=np.float64)[both])
+    return PingScore(tp=tp, fp=fp, fn=fn, n_struct_beams=int(has.sum()), n_hit_beams=int(hit.sum()),
+                     n_empty_beams=int((~has).sum()), n_false_beams=int((~has & rep).sum()),
+                     errors_m=tuple(float(e) for e in err))
+
+
+def pool_scores(method: str, scores: Iterable[PingScore]) -> MethodScore:
+    """Pool per-ping counts into a :class:`MethodScore`."""
+    s = list(scores)
+    tp = sum(x.tp for x in s)
+    fp = sum(x.fp for x in s)
+    fn = sum(x.fn for x in s)
+    ns = sum(x.n_struct_beams for x in s)
+    ne = sum(x.n_empty_beams for x in s)
+    errs = [e for x in s for e in x.errors_m]
+    return MethodScore(
+        method=method,
+        n_pings=len(s),
+        pixel_f1=2 * tp / (2 * tp + fp + fn) if (2 * tp + fp + fn) else math.nan,
+        recall=sum(x.n_hit_beams for x in s) / ns if ns else math.nan,
+        median_error_m=float(np.median(errs)) if errs else math.nan,
+        false_return_rate=sum(x.n_false_beams for x in s) / ne if ne else math.nan,
+        n_struct_beams=ns,
+        n_empty_beams=ne,
+    )
+
+
+def baseline_configs(default: Any = None) -> dict[str, Any]:
+    """The methods of the acceptance table: the default pipeline and its baselines.
+
+    Every baseline shares the default's pre-processing and range rules; only the classifier
+    changes, so differences are due to the classifier.  ``"cfar-so (sonar-SLAM)"`` is the peer's
+    exact detector (40 training, 10 guard cells, pFA 0.1).
+    """
+    from sonarmap.pipeline import PipelineConfig
+
+    d = PipelineConfig() if default is None else default
+    out = {
+        "default (mrf graphcut)": d,
+        "mrf icm": d.replace(solver="icm"),
+        "mrf anneal (paper)": d.replace(solver="anneal"),
+        "local MAP": d.replace(method="map"),
+        f"fixed threshold {d.threshold:g}": d.replace(method="threshold"),
+    }
+    for m in ("ca", "so", "go", "os"):
+        out[f"cfar-{m} pfa 1e-3"] = d.replace(method=f"cfar-{m}", cfar_pfa=1e-3)
+    out["cfar-so (sonar-SLAM)"] = d.replace(method="cfar-so", cfar_train=40, cfar_guard=10, cfar_pfa=0.1)
+    return out
+
+
+def _simulate(scene: str, geometry: Any, sim_config: Any, seed: int) -> Any:
+    from sonarmap.simulate import scene_from_name, simulate_ping
+
+    return simulate_ping(scene_from_name(scene), geometry, config=sim_config, seed=seed)
+
+
+def evaluate(
+    configs: Mapping[str, Any] | None = None,
+    *,
+    scenes: Sequence[str] = DEFAULT_SCENES,
+    sim_configs: Sequence[Any] | None = None,
+    seeds: Sequence[int] = (0, 1, 2),
+    geometry: Any = None,
+    tol_bins: int = 3,
+    per_scene: bool = False,
+) -> list[MethodScore]:
+    """Run every pipeline on simulated pings and pool the scores per method.
+
+    Parameters
+    ----------
+    configs : mapping of name -> PipelineConfig, optional
+        Methods to compare (default :func:`baseline_configs`).
+    scenes : sequence of str
+        Simulator scene names.
+    sim_configs : sequence of SimulationConfig, optional
+        Simulator settings (e.g. noise levels); default the simulator's default.
+    seeds : sequence of int
+        Simulator seeds.
+    geometry : SonarGeometry, optional
+        Default the ``didson-hf`` preset.
+    tol_bins : int
+        Recall tolerance.
+    per_scene : bool
+        Also return one row per (method, scene), named ``"<method> | <scene>"``.
+
+    Returns
+    -------
+    list of MethodScore
+    """
+    from sonarmap.geometry import preset
+    from sonarmap.pipeline import process_ping
+
+    geom = preset("didson-hf") if geometry is None else geometry
+    cfgs = baseline_configs() if configs is None else dict(configs)
+    if sim_configs is None:
+        from sonarmap.simulate import SimulationConfig
+
+        sim_configs = (SimulationConfig(),)
+    sims = [(scene, _simulate(scene, geom, sc, seed)) for scene in scenes for sc in sim_configs for seed in seeds]
+    out: list[MethodScore] = []
+    for name, cfg in cfgs.items():
+        per: dict[str, list[PingScore]] = {}
+        for scene, sim in sims:
+            prod = process_ping(sim.ping, cfg, keep_labels=True)
+            sc = score_ping(prod.labels, prod.ranges.bin, prod.ranges.range_m, sim.class_mask,
+                            sim.first_return_bin, sim.first_return_range_m, tol_bins=tol_bins)
+            per.setdefault(scene, []).append(sc)
+        out.append(pool_scores(name, [x for v in per.values() for x in v]))
+        if per_scene:
+            out.extend(pool_scores(f"{name} | {scene}", v) for scene, v in per.items())
+    return out
+
+
+def format_table(scores: Sequence[MethodScore]) -> str:
+    """Markdown table of scores."""
+    lines = [
+        "| method | pings | pixel F1 | recall (3 bins) | median error (m) | false-return rate |",
+        "|---|---|---|---|---|---|",
+    ]
+    for s in scores:
+        lines.append(
+            f"| {s.method} | {s.n_pings} | {s.pixel_f1:.3f} | {s.recall:.3f} | "
+            f"{s.median_error_m:.3f} | {s.false_return_rate:.3f} |"
+        )
+    return "\n".join(lines)
+

@@ -1,0 +1,145 @@
+"""The fused per-ping pipeline, its configuration, and the `ranges` / `segment` commands."""
+
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from sonarmap.errors import InputError
+from sonarmap.io import read_pings
+from sonarmap.pipeline import PipelineConfig, process_ping
+
+
+@pytest.fixture(scope="module")
+def test_pings(test_ping_paths):
+    return list(read_pings([str(p) for p in test_ping_paths]))
+
+
+@pytest.fixture(scope="module")
+def products(test_pings):
+    return [process_ping(p, keep_labels=True) for p in test_pings]
+
+
+def test_config_validation_names_key(tmp_path):
+    with pytest.raises(InputError, match="unknown key 'betta'"):
+        PipelineConfig.from_dict({"betta": 1.0})
+    with pytest.raises(InputError, match="beta"):
+        PipelineConfig(beta=-1.0)
+    with pytest.raises(InputError, match="method"):
+        PipelineConfig(method="magic")
+    with pytest.raises(InputError, match="neighbourhood"):
+        PipelineConfig(neighbourhood=6)
+    with pytest.raises(InputError, match="cfar_train"):
+        PipelineConfig(cfar_train=41)
+    cfg = PipelineConfig(method="cfar-os", beta=0.5, families=["exponential", "rayleigh", "rayleigh"])
+    assert PipelineConfig.from_dict(cfg.to_dict()) == cfg
+    toml = tmp_path / "p.toml"
+    toml.write_text('[pipeline]\nmethod = "map"\nmin_run = 3\n')
+    assert PipelineConfig.from_toml(toml) == PipelineConfig(method="map", min_run=3)
+    toml.write_text('[pipeline]\nmin_run = "x"\n')
+    with pytest.raises(InputError, match="min_run"):
+        PipelineConfig.from_toml(toml)
+
+
+def test_fish_only_pings_report_nothing(products):
+    # paper images 1-3 contain fish schools only
+    for prod in products[1:4]:
+        assert prod.ranges.n_returns == 0, prod.source
+
+
+def test_hull_pings_report_the_hull(products):
+    # image 8: flat hull at rows ~183-200 across the whole fan
+    r8 = products[8].ranges
+    assert r8.n_returns >= 80
+    assert np.all((r8.bin[r8.valid] >= 175) & (r8.bin[r8.valid] <= 205))
+    # image 4: a curved hull from row ~277 (beam 0) to ~350 (beam 88); range grows with beam
+    r4 = products[4].ranges
+    assert r4.n_returns >= 80
+    b = r4.bin[r4.valid]
+    assert 270 <= b[0] <= 285 and 335 <= b[-1] <= 360
+    assert np.all(np.diff(b) >= -3)
+    # ranges in metres from the geometry's bins
+    g = products[4].ranges
+    np.testing.assert_allclose(g.range_m[g.valid], np.asarray(2.25 + g.bin[g.valid] * 9.0 / 512), atol=1e-9)
+
+
+def test_pipeline_is_pure(test_pings):
+    a = process_ping(test_pings[7], keep_labels=True)
+    b = process_ping(test_pings[7], keep_labels=True)
+    np.testing.assert_array_equal(a.ranges.bin, b.ranges.bin)
+    np.testing.assert_array_equal(a.labels, b.labels)
+    assert a.flags == b.flags and a.kld == b.kld
+
+
+@pytest.mark.parametrize("value", [0.0, 0.5])
+def test_constant_pings_give_no_returns(test_pings, value):
+    p = test_pings[0].replace(image=np.full(test_pings[0].shape, value, np.float32))
+    for method in ("mrf", "map", "threshold", "cfar-so"):
+        prod = process_ping(p, PipelineConfig(method=method))
+        assert prod.ranges.n_returns == 0
+        assert "no_returns" in prod.flags
+
+
+def test_other_methods_and_solvers_run(test_pings):
+    p = test_pings[8]
+    ref = process_ping(p, PipelineConfig()).ranges
+    icm = process_ping(p, PipelineConfig(solver="icm")).ranges
+    assert np.mean(np.abs(icm.bin[ref.valid & icm.valid] - ref.bin[ref.valid & icm.valid]) <= 3) > 0.9
+    for m in ("map", "threshold", "cfar-ca", "cfar-go", "cfar-os"):
+        prod = process_ping(p, PipelineConfig(method=m))
+        assert prod.ranges.n_beams == 96
+
+
+def _rows(path: Path) -> list[list[str]]:
+    with open(path, newline="") as fh:
+        return list(csv.reader(fh))
+
+
+def test_ranges_cli_960_rows(tmp_path, test_ping_paths):
+    from sonarmap.cli import main
+
+    out = tmp_path / "ranges.csv"
+    assert main(["ranges", str(test_ping_paths[0].parent), "-o", str(out)]) == 0
+    rows = _rows(out)
+    assert rows[0] == ["ping", "beam", "azimuth_rad", "bin", "range_m", "intensity"]
+    assert len(rows) == 961
+    pings = {r[0] for r in rows[1:]}
+    assert pings == {str(p) for p in test_ping_paths}
+    for r in rows[1:]:
+        assert (r[3] == "") == (r[4] == "")
+        if r[3]:
+            assert float(r[4]) == pytest.approx(2.25 + int(r[3]) * 9.0 / 512, abs=1e-5)
+    fish = [r for r in rows[1:] if r[0] == str(test_ping_paths[1])]
+    assert len(fish) == 96 and all(r[3] == "" for r in fish)
+
+
+def test_ranges_cli_zero_and_constant_pings(tmp_path, test_pings):
+    from sonarmap.cli import main
+    from sonarmap.io.pngjson import write_png_ping
+
+    p = test_pings[0]
+    write_png_ping(p.replace(image=np.zeros(p.shape, np.float32)), tmp_path, stem="1468966347175925")
+    write_png_ping(p.replace(image=np.full(p.shape, 0.4, np.float32)), tmp_path, stem="1468966347175926")
+    out = tmp_path / "r.csv"
+    for method in (None, "cfar-os", "threshold"):
+        args = ["ranges", str(tmp_path), "-o", str(out)] + ([] if method is None else ["--method", method])
+        assert main(args) == 0
+        rows = _rows(out)[1:]
+        assert len(rows) == 192 and all(r[3] == "" and r[4] == "" for r in rows)
+    assert main(["ranges", str(tmp_path), "-o", str(out), "--method", "nope"]) == 1
+
+
+def test_segment_cli_writes_labels_and_figure(tmp_path, test_ping_paths):
+    from PIL import Image
+
+    from sonarmap.cli import main
+
+    assert main(["segment", str(test_ping_paths[8]), "-o", str(tmp_path)]) == 0
+    stem = test_ping_paths[8].name.replace("_raw.png", "")
+    lab = np.asarray(Image.open(tmp_path / f"{stem}_labels.png"))
+    assert lab.shape == (512, 96) and set(np.unique(lab)) <= {0, 127, 254}
+    assert (lab[175:205] > 0).sum() > 100
+    assert (tmp_path / f"{stem}_segment.png").stat().st_size > 10_000
