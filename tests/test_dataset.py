@@ -148,3 +148,25 @@ def test_cli_convert_and_info(data_dir: Path, tmp_path: Path, capsys: pytest.Cap
                  "-o", str(bad), "--no-progress"]) == 1
     assert "differs from the survey" in capsys.readouterr().err
     assert not bad.exists()
+
+
+def test_append_pings_to_store_with_products(aris_pings: list[Ping], tmp_path: Path) -> None:
+    """Pings appended after a processing stage added a variable get that variable's fill value."""
+    store = tmp_path / "p.zarr"
+    write_survey(aris_pings[:2], store)
+    add_ping_variable(store, PingVariable("label_count", (), dtype="int16", fill_value=-1))
+    write_ping_variable(store, "label_count", [3, 4], start=0)
+    write_survey(aris_pings[2:4], store, append=True)
+    assert open_survey(store)["label_count"].values.tolist() == [3, 4, -1, -1]
+
+
+def test_corrupt_store(aris_pings: list[Ping], tmp_path: Path) -> None:
+    store = tmp_path / "c.zarr"
+    write_survey(aris_pings[:3], store, chunk_pings=2)
+    chunk = next(p for p in (store / VAR_INTENSITY).rglob("*") if p.is_file() and p.name != "zarr.json")
+    chunk.write_bytes(chunk.read_bytes()[:50])
+    with pytest.raises(DataFormatError, match=r"c\.zarr: cannot read pings 0-1"):
+        list(read_pings(store))
+    (store / "zarr.json").write_text("{ not json")
+    with pytest.raises(DataFormatError, match=r"c\.zarr"):
+        open_survey(store)

@@ -142,3 +142,12 @@ def test_fuzz_byte_flips(small_stream: bytes, tmp_path: Path, flips: list[tuple[
                 assert np.all((ping.image >= 0) & (ping.image <= 1))
         except DataFormatError as exc:
             assert str(p) in str(exc)
+
+
+def test_corrupt_sqlite_log(tmp_path: Path) -> None:
+    p = tmp_path / "v2.oculus"
+    write_log_v2(p, [encode_ping(_image(np.random.default_rng(5)), BEARINGS)], [1.6e9])
+    data = p.read_bytes()
+    p.write_bytes(data[:100] + b"\xff" * (len(data) - 100))
+    with pytest.raises(DataFormatError, match=r"v2\.oculus"):
+        list(read_pings(p))

@@ -41,7 +41,7 @@ def test_detection_by_content_not_extension(data_dir: Path, tmp_path: Path) -> N
 
 def test_unknown_content(tmp_path: Path) -> None:
     p = tmp_path / "sample.aris"
-    p.write_bytes(b"hello world, not sonar")
+    p.write_bytes(b"SOME TEXT that starts like an Oculus message id")
     with pytest.raises(DataFormatError, match="unrecognised file format"):
         list(read_pings(p))
 

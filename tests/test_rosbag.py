@@ -129,3 +129,16 @@ def test_fuzz_byte_flips(small_bag: bytes, tmp_path: Path, flips: list[tuple[int
                 assert ping.image.dtype == np.float32
         except DataFormatError as exc:
             assert str(p) in str(exc)
+
+
+def test_corrupt_ros2_bag(aris_pings: list[Ping], tmp_path: Path) -> None:
+    path = tmp_path / "r2"
+    write_bag(aris_pings[:1], path, version=2)
+    db = next(path.glob("*.db3"))
+    data = db.read_bytes()
+    db.write_bytes(data[:200] + b"\x13" * (len(data) - 200))
+    with pytest.raises(DataFormatError, match="r2"):
+        list(read_pings(path))
+    (path / "metadata.yaml").write_text("rosbag2_bagfile_information: [unclosed")
+    with pytest.raises(DataFormatError, match="r2"):
+        rosbag.count_pings(path)

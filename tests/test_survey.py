@@ -8,7 +8,6 @@ import subprocess
 import sys
 import threading
 import time
-import types
 from pathlib import Path
 
 import numpy as np
@@ -27,50 +26,12 @@ from sonarmap.survey import (
 N_PINGS = 40
 
 
-def _standin(ping, config, *, keep_labels=False):  # noqa: ANN001, ANN202
-    """Stand-in for sonarmap.pipeline.process_ping when that module is not there yet."""
-    img = ping.image
-    thr = float(img.mean() + 2 * img.std())
-    lab = img > thr
-    hit = lab.any(axis=0)
-    b = np.where(hit, lab.argmax(axis=0), -1)
-    cols = np.arange(img.shape[1])
-    ranges = types.SimpleNamespace(
-        range_m=np.where(b >= 0, ping.geometry.range_m[np.clip(b, 0, None)], np.nan),
-        bin=b,
-        intensity=np.where(b >= 0, img[np.clip(b, 0, None), cols], np.nan),
-        confidence=hit.astype(float),
-        azimuth_rad=ping.geometry.azimuth_rad,
-        time_ns=ping.time_ns,
-        source=ping.source,
-    )
-    return types.SimpleNamespace(
-        time_ns=ping.time_ns, source=ping.source,
-        fit={"weights": [0.9, 0.1], "params": [[float(img.mean()), 1.0], [thr, 2.0]]},
-        kld=float(img.std()), flags=("dim",) if img.mean() < 0.02 else (), ranges=ranges,
-        labels=lab if keep_labels else None, pd=0.9, pfa=0.01,
-    )
-
-
-def _has_pipeline() -> bool:
-    try:
-        import sonarmap.pipeline  # noqa: F401
-    except ModuleNotFoundError:
-        return False
-    return True
-
-
-#: The real pipeline when it exists (None = default), else the stand-in.
-PING_FUNCTION = None if _has_pipeline() else _standin
-
-
 def _slow(ping, config, *, keep_labels=False):  # noqa: ANN001, ANN202
     """The per-ping function, slowed so a run can be interrupted part-way."""
+    from sonarmap.pipeline import process_ping
+
     time.sleep(0.02)
-    fn = PING_FUNCTION
-    if fn is None:
-        from sonarmap.pipeline import process_ping as fn
-    return fn(ping, config, keep_labels=keep_labels)
+    return process_ping(ping, config, keep_labels=keep_labels)
 
 
 @pytest.fixture(scope="module")
@@ -84,7 +45,7 @@ def survey_dir(tmp_path_factory: pytest.TempPathFactory, test_ping_paths: list[P
 @pytest.fixture(scope="module")
 def serial_store(survey_dir: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
     out = tmp_path_factory.mktemp("serial") / "s.zarr"
-    process_survey([survey_dir], out, workers=0, chunk_size=8, ping_function=PING_FUNCTION)
+    process_survey([survey_dir], out, workers=0, chunk_size=8)
     return out
 
 
@@ -152,20 +113,19 @@ def test_serial_store_holds_all_products(serial_store: Path, survey_dir: Path) -
 
 def test_local_processes_match_serial(serial_store: Path, survey_dir: Path, tmp_path: Path) -> None:
     out = tmp_path / "p.zarr"
-    res = process_survey([survey_dir], out, workers=2, chunk_size=8, ping_function=PING_FUNCTION)
+    res = process_survey([survey_dir], out, workers=2, chunk_size=8)
     assert res.executor == "processes:2" and res.n_pings == N_PINGS and res.chunks_run == 5
     assert_same_dataset(serial_store, out)
 
 
 def test_dask_cluster_matches_serial(cluster, serial_store: Path, survey_dir: Path, tmp_path: Path) -> None:  # noqa: ANN001
     out = tmp_path / "d.zarr"
-    res = process_survey([survey_dir], out, client=cluster, chunk_size=8, ping_function=PING_FUNCTION)
+    res = process_survey([survey_dir], out, client=cluster, chunk_size=8)
     assert res.executor.startswith("dask:")
     assert_same_dataset(serial_store, out)
     # The same through a scheduler address (what --scheduler does).
     out2 = tmp_path / "d2.zarr"
-    process_survey([survey_dir], out2, scheduler=cluster.scheduler.address, chunk_size=8,
-                   ping_function=PING_FUNCTION)
+    process_survey([survey_dir], out2, scheduler=cluster.scheduler.address, chunk_size=8)
     assert_same_dataset(serial_store, out2)
 
 
@@ -219,11 +179,11 @@ def test_interrupted_run_resumes_to_identical_output(
             raise KeyboardInterrupt
 
     with pytest.raises(KeyboardInterrupt):
-        process_survey([survey_dir], out, workers=0, chunk_size=8, ping_function=PING_FUNCTION,
+        process_survey([survey_dir], out, workers=0, chunk_size=8,
                        progress=stop_after_two_chunks)
     st = survey_status(out)
     assert st["done"] == 2 and not st["complete"]
-    res = process_survey([survey_dir], out, workers=2, chunk_size=8, ping_function=PING_FUNCTION)
+    res = process_survey([survey_dir], out, workers=2, chunk_size=8)
     assert res.chunks_skipped == 2 and res.chunks_run == 3
     assert_same_dataset(serial_store, out)
 
@@ -232,23 +192,57 @@ def test_existing_output_is_never_overwritten_silently(
     serial_store: Path, survey_dir: Path, tmp_path: Path,
 ) -> None:
     # A completed run of the same command is a no-op.
-    again = process_survey([survey_dir], serial_store, workers=0, chunk_size=8, ping_function=PING_FUNCTION)
+    again = process_survey([survey_dir], serial_store, workers=0, chunk_size=8)
     assert again.chunks_run == 0 and again.chunks_skipped == 5
     # Different options -> refused, store untouched.
     before = (serial_store / "zarr.json").read_bytes()
     with pytest.raises(SurveyExistsError, match="overwrite"):
-        process_survey([survey_dir], serial_store, workers=0, chunk_size=4, ping_function=PING_FUNCTION)
+        process_survey([survey_dir], serial_store, workers=0, chunk_size=4)
     assert (serial_store / "zarr.json").read_bytes() == before
     # Something that is not a survey -> refused; with overwrite -> replaced.
     other = tmp_path / "o.zarr"
     other.mkdir()
     (other / "keep.txt").write_text("precious")
     with pytest.raises(SurveyExistsError, match="not a sonarmap survey"):
-        process_survey([survey_dir], other, workers=0, chunk_size=8, ping_function=PING_FUNCTION)
+        process_survey([survey_dir], other, workers=0, chunk_size=8)
     assert (other / "keep.txt").exists()
-    process_survey([survey_dir], other, workers=0, chunk_size=8, ping_function=PING_FUNCTION, overwrite=True)
+    process_survey([survey_dir], other, workers=0, chunk_size=8, overwrite=True)
     assert not (other / "keep.txt").exists()
     assert_same_dataset(serial_store, other)
+
+
+def test_labels_on_request_and_points_with_poses(
+    serial_store: Path, survey_dir: Path, tmp_path: Path,
+) -> None:
+    from sonarmap.mapping import Trajectory, read_point_cloud, write_trajectory_csv
+
+    t = open_products(serial_store)["ping_time"].values.astype(np.int64)
+    # The vehicle moves north at 1 m/s, level; the sonar (= body) looks forward.
+    tt = np.array([t[0] - 10**9, t[-1] + 10**9])
+    traj = Trajectory(tt, np.array([[0.0, 0, 0], [(tt[1] - tt[0]) * 1e-9, 0, 0]]), np.array([[0, 0, 0, 1.0]] * 2))
+    poses = tmp_path / "poses.csv"
+    write_trajectory_csv(traj, poses)
+    out = tmp_path / "lp.zarr"
+    res = process_survey([survey_dir], out, workers=0, chunk_size=8, keep_labels=True, poses=poses)
+    ds = open_products(out).load()
+    assert ds["labels"].dims == ("ping_time", "range_sample", "beam")
+    assert ds["labels"].shape == (N_PINGS, 512, 96) and ds["labels"].dtype == np.uint8
+    # A beam's first return lies on an object-labelled pixel.
+    p, b = np.nonzero(ds["range_bin"].values >= 0)
+    assert (ds["labels"].values[p, ds["range_bin"].values[p, b], b] >= 1).all()
+    # One point per return, placed at range r along the beam from the interpolated position.
+    r = ds["range"].values
+    n_ret = int(np.isfinite(r).sum())
+    assert res.n_points == n_ret == ds.sizes["point"] > 0
+    xyz = ds["point_xyz"].values
+    pt = ds["point_time"].values.astype(np.int64)
+    x0 = (pt - tt[0]) * 1e-9
+    np.testing.assert_allclose(np.hypot(xyz[:, 0] - x0, xyz[:, 1]), r[np.isfinite(r)], rtol=1e-5)
+    assert res.points_path == out.with_suffix(".ply")
+    assert len(read_point_cloud(res.points_path)) == n_ret
+    # Products other than labels/points are those of the plain run.
+    base = open_products(serial_store).load()
+    np.testing.assert_array_equal(ds["range"].values, base["range"].values)
 
 
 # ---------------------------------------------------------------------------- CLI
@@ -256,38 +250,48 @@ def _cli(*args: str) -> list[str]:
     return [sys.executable, "-m", "sonarmap", *args]
 
 
-@pytest.mark.skipif(PING_FUNCTION is not None, reason="sonarmap.pipeline not available yet")
+KILL_ARGS = ("--chunk-size", "4", "--workers", "1", "--quiet")
+
+
+@pytest.fixture(scope="module")
+def kill_survey(tmp_path_factory: pytest.TempPathFactory, test_ping_paths: list[Path]) -> tuple[Path, Path]:
+    """64 pings and their clean, uninterrupted `sonarmap process` output."""
+    d = tmp_path_factory.mktemp("kill")
+    pings = replicate_pings(test_ping_paths, 64, d / "pings")
+    clean = d / "clean.zarr"
+    r = subprocess.run(_cli("process", str(pings), *KILL_ARGS, "-o", str(clean)),
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    return pings, clean
+
+
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGKILL], ids=["SIGINT", "SIGKILL"])
 def test_cli_kill_and_rerun_gives_identical_dataset(
-    sig: int, test_ping_paths: list[Path], tmp_path: Path,
+    sig: int, kill_survey: tuple[Path, Path], tmp_path: Path,
 ) -> None:
-    pings = replicate_pings(test_ping_paths, 96, tmp_path / "pings")
-    args = ["process", str(pings), "--chunk-size", "4", "--workers", "1", "--quiet"]
-    clean = tmp_path / "clean.zarr"
-    r = subprocess.run(_cli(*args, "-o", str(clean)), capture_output=True, text=True, timeout=120)
-    assert r.returncode == 0, r.stderr
+    pings, clean = kill_survey
     out = tmp_path / "killed.zarr"
+    cmd = _cli("process", str(pings), *KILL_ARGS, "-o", str(out))
     # SIGINT must reach Python's handler even if this test runs with SIGINT ignored (background job).
-    proc = subprocess.Popen(_cli(*args, "-o", str(out)), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
                             preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     marks = out / ".sonarmap" / "chunks"
-    deadline = time.monotonic() + 60
+    deadline = time.monotonic() + 120
     while time.monotonic() < deadline and proc.poll() is None:
-        if marks.is_dir() and len(os.listdir(marks)) >= 2:
+        if marks.is_dir() and sum(f.endswith(".done") for f in os.listdir(marks)) >= 2:
             break
         time.sleep(0.002)
     proc.send_signal(sig)
-    _, err = proc.communicate(timeout=60)
-    assert proc.returncode == (130 if sig == signal.SIGINT else -signal.SIGKILL), err
+    proc.wait(timeout=60)
+    assert proc.returncode == (130 if sig == signal.SIGINT else -signal.SIGKILL)
     st = survey_status(out)
     assert 0 < st["done"] < st["n_chunks"] and not st["complete"], st
-    r = subprocess.run(_cli(*args, "-o", str(out)), capture_output=True, text=True, timeout=120)
+    r = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stderr
     assert survey_status(out)["complete"]
     assert_same_dataset(clean, out)
 
 
-@pytest.mark.skipif(PING_FUNCTION is not None, reason="sonarmap.pipeline not available yet")
 def test_cli_summary_quiet_and_refusal(survey_dir: Path, tmp_path: Path) -> None:
     out = tmp_path / "c.zarr"
     r = subprocess.run(_cli("process", str(survey_dir), "-o", str(out), "-k", "16"),

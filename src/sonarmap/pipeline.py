@@ -64,6 +64,14 @@ class PipelineConfig:
         a ping with a thin, faint surface can be ~0.001 (Table I image 6), which makes the
         posterior reject the surface however clearly it stands out; the Potts prior (not the
         class prior) is then what should suppress speckle.
+    speckle_eps : float
+        Speckle-robust object likelihood ``(1 - eps) p(y|object) + eps p(y|background)`` in the
+        MRF unary (0: the paper's model, where a zero pixel can never be structure).
+    grow_prior_min, grow_beta : float
+        Hysteresis growth (MRF only; off when ``grow_prior_min`` is 0): a second, more permissive
+        cut (object prior raised to ``grow_prior_min``, Potts weight ``grow_beta``) labels faint
+        structure, which is kept only where it is 8-connected to the first cut's structure -
+        faint low-incidence continuations of a surface are recovered, isolated faint blobs are not.
     families : tuple of str
         Mixture families after the zero spike (background first).
     fit_method : str
@@ -90,6 +98,10 @@ class PipelineConfig:
         Support window and range tolerance of the consistency rules.
     min_segment_beams : int
         Drop runs of consistent returns narrower than this many consecutive beams.
+    refine_bins, edge_factor : int, float
+        Leading-edge refinement of first returns (0 = off): up to ``refine_bins`` bins towards
+        the sonar while the local mean intensity is >= ``edge_factor`` x the fitted background
+        class's mean intensity.
     min_component_beams, min_component_bins : int
         Drop 8-connected structure components spanning fewer than ``min_component_beams`` beams
         *and* fewer than ``min_component_bins`` range bins (fish, speckle).
@@ -102,6 +114,9 @@ class PipelineConfig:
     neighbourhood: int = 4
     contrast: bool = False
     object_prior_min: float = 0.0
+    speckle_eps: float = 0.0
+    grow_prior_min: float = 0.0
+    grow_beta: float = 1.0
     families: tuple[str, ...] = ("exponential", "rayleigh")
     fit_method: str = "em"
     fit_tol: float = 1e-6
@@ -119,6 +134,8 @@ class PipelineConfig:
     min_segment_beams: int = 1
     min_component_beams: int = 12
     min_component_bins: int = 40
+    refine_bins: int = 0
+    edge_factor: float = 3.0
 
     def __post_init__(self) -> None:
         from sonarmap.preprocess.pipeline import PreprocessConfig
@@ -138,15 +155,19 @@ class PipelineConfig:
             raise bad("method", f"must be one of {', '.join(METHODS)}")
         if self.solver not in SOLVER_NAMES:
             raise bad("solver", f"must be one of {', '.join(SOLVER_NAMES)}")
-        for key in ("beta", "fit_tol", "threshold", "cfar_pfa", "object_prior_min"):
+        for key in ("beta", "fit_tol", "threshold", "cfar_pfa", "object_prior_min", "grow_prior_min",
+                    "grow_beta", "speckle_eps", "edge_factor"):
             v = getattr(self, key)
             if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
                 raise bad(key, "must be a finite number")
             object.__setattr__(self, key, float(v))
         if self.beta < 0:
             raise bad("beta", "must be >= 0")
-        if not 0 <= self.object_prior_min < 0.5:
-            raise bad("object_prior_min", "must lie in [0, 0.5)")
+        for key in ("object_prior_min", "grow_prior_min", "speckle_eps"):
+            if not 0 <= getattr(self, key) < 0.5:
+                raise bad(key, "must lie in [0, 0.5)")
+        if self.grow_beta < 0:
+            raise bad("grow_beta", "must be >= 0")
         if self.fit_tol <= 0:
             raise bad("fit_tol", "must be > 0")
         if not 0 < self.cfar_pfa < 1:
@@ -154,7 +175,7 @@ class PipelineConfig:
         for key, lo in (("neighbourhood", 4), ("n_levels", 2), ("cfar_train", 2), ("cfar_guard", 0),
                         ("min_run", 1), ("neighbour_beams", 1), ("max_jump_bins", 0),
                         ("min_segment_beams", 1), ("min_component_beams", 1),
-                        ("min_component_bins", 1)):
+                        ("min_component_bins", 1), ("refine_bins", 0)):
             v = getattr(self, key)
             if isinstance(v, bool) or not isinstance(v, int) or v < lo:
                 raise bad(key, f"must be an integer >= {lo}")
@@ -285,9 +306,18 @@ def _class_prior(fit: Any, prior_min: float) -> NDArray[np.float64]:
     return prior
 
 
-def _cost_lut(fit: Any, prior_min: float = 0.0, floor: float = -50.0) -> NDArray[np.float64]:
-    """``-log p(level|k) - log pi_k`` per class and level (eq. 17-18), clipped, min-shifted."""
+def _cost_lut(fit: Any, prior_min: float = 0.0, speckle_eps: float = 0.0, floor: float = -50.0) -> NDArray[np.float64]:
+    """``-log p(level|k) - log pi_k`` per class and level (eq. 17-18), clipped, min-shifted.
+
+    With ``speckle_eps > 0`` every object class's pmf is replaced by
+    ``(1 - eps) p(y|k) + eps p(y|background)``: a structure pixel may fade into the background's
+    range (speckle, the receiver threshold's zeros), so a dark pixel costs structure at most
+    ``-log eps`` instead of an unbounded amount.
+    """
     lp = np.asarray(fit.class_log_pmf(), dtype=np.float64)
+    if speckle_eps > 0 and lp.shape[0] > 1:
+        with np.errstate(divide="ignore"):
+            lp[1:] = np.logaddexp(np.log1p(-speckle_eps) + lp[1:], math.log(speckle_eps) + lp[0])
     with np.errstate(divide="ignore"):
         lp = lp + np.log(_class_prior(fit, prior_min))[:, None]
     lp = np.nan_to_num(lp, nan=floor, neginf=floor, posinf=0.0)
@@ -343,20 +373,29 @@ def classify_image(image: NDArray[np.float32], config: PipelineConfig = Pipeline
     pd, pfa = _model_pd_pfa(fit, lut)
     if method == "map":
         return lut[levels], fit, pd, pfa
+    labels = _mrf_labels(image, levels, _cost_lut(fit, config.object_prior_min, config.speckle_eps), config.beta, config)
+    if config.grow_prior_min > 0:
+        from sonarmap.ranges import wide_components
+
+        weak = _mrf_labels(image, levels, _cost_lut(fit, config.grow_prior_min, config.speckle_eps), config.grow_beta, config)
+        grown = wide_components((weak >= 1) | (labels >= 1), 1, seeds=labels >= 1)
+        labels = np.where(grown & (labels == 0), np.uint8(1), labels).astype(np.uint8)
+    return labels, fit, pd, pfa
+
+
+def _mrf_labels(image: NDArray[np.float32], levels: NDArray[Any], cost: NDArray[np.float64], beta: float,
+                config: PipelineConfig) -> NDArray[np.uint8]:
     from sonarmap.classify import mrf
 
-    cost = _cost_lut(fit, config.object_prior_min)
     if config.solver == "graphcut" and cost.shape[0] == 2 and not config.contrast:
-        res = mrf.solve_graphcut_levels(levels, cost, beta=config.beta, neighbourhood=config.neighbourhood)
-    else:
-        from sonarmap.classify._kernels import gather_costs
+        return mrf.solve_graphcut_levels(levels, cost, beta=beta, neighbourhood=config.neighbourhood).labels
+    from sonarmap.classify._kernels import gather_costs
 
-        unary = gather_costs(np.ascontiguousarray(levels), cost)
-        wt = mrf.pairwise_weights(image.shape, beta=config.beta, neighbourhood=config.neighbourhood,
-                                  image=image, contrast=config.contrast)
-        res = mrf.solve(unary, solver=config.solver, beta=config.beta,  # type: ignore[arg-type]
-                        neighbourhood=config.neighbourhood, weights=wt)
-    return res.labels, fit, pd, pfa
+    unary = gather_costs(np.ascontiguousarray(levels), cost)
+    wt = mrf.pairwise_weights(image.shape, beta=beta, neighbourhood=config.neighbourhood,
+                              image=image, contrast=config.contrast)
+    return mrf.solve(unary, solver=config.solver, beta=beta,  # type: ignore[arg-type]
+                     neighbourhood=config.neighbourhood, weights=wt).labels
 
 
 def process_ping(ping: Ping, config: PipelineConfig = PipelineConfig(), *, keep_labels: bool = False) -> PingProducts:
@@ -398,13 +437,18 @@ def process_ping(ping: Ping, config: PipelineConfig = PipelineConfig(), *, keep_
                             flags=("constant_image", "no_returns"), ranges=ranges,
                             labels=labels if keep_labels else None, pd=0.0, pfa=0.0, method=config.method)
     labels, fit, pd, pfa = classify_image(image, config)
+    edge = None
+    if config.refine_bins > 0 and fit is not None:
+        bg = np.asarray(fit.class_pmf())[0]
+        edge = config.edge_factor * float(bg @ np.asarray(fit.levels))
     ranges = extract_ranges(
         labels >= 1, image, geom, mode=config.range_mode,  # type: ignore[arg-type]
         min_run=config.min_run, reject_isolated=config.reject_isolated,
         neighbour_beams=config.neighbour_beams, max_jump_bins=config.max_jump_bins,
         min_segment_beams=config.min_segment_beams,
         min_component_beams=config.min_component_beams,
-        min_component_bins=config.min_component_bins, time_ns=ping.time_ns, source=ping.source,
+        min_component_bins=config.min_component_bins,
+        refine_bins=config.refine_bins, edge_level=edge, time_ns=ping.time_ns, source=ping.source,
     )
     flags = set(fit.flags) if fit is not None else {"no_fit"}
     if ranges.n_returns == 0:

@@ -24,6 +24,7 @@ Rules (applied in this order)
 3. **Short-segment rejection** (``min_segment_beams``).  Consecutive beams whose returns differ
    by at most ``max_jump_bins`` form a segment; segments spanning fewer than
    ``min_segment_beams`` beams are removed (off by default).
+5. **Leading-edge refinement** (``refine_bins``, first returns): see :func:`extract_ranges`.
 4. **Confidence** of a kept return = the fraction of its existing neighbour beams
    (``|k - j| <= neighbour_beams``) that support it, in [0, 1]; NaN-free, 0 where no return.
 """
@@ -125,14 +126,20 @@ def first_return_bins(mask: ArrayLike, *, min_run: int = 1) -> NDArray[np.int64]
     return first_runs(m, int(min_run))
 
 
-def wide_components(mask: ArrayLike, min_beams: int, *, min_bins: int | None = None) -> NDArray[np.bool_]:
-    """Keep the 8-connected components of ``mask`` spanning >= ``min_beams`` beams or >= ``min_bins`` bins."""
+def wide_components(
+    mask: ArrayLike, min_beams: int, *, min_bins: int | None = None, seeds: ArrayLike | None = None
+) -> NDArray[np.bool_]:
+    """Keep the 8-connected components of ``mask`` spanning >= ``min_beams`` beams or >= ``min_bins``
+    bins (and, if ``seeds`` is given, containing at least one seed pixel: hysteresis growth)."""
     from sonarmap.classify._kernels import wide_components as kernel
 
     m = np.ascontiguousarray(mask, dtype=bool)
     if m.ndim != 2:
         raise InputError(f"mask: expected (n_bins, n_beams), got shape {m.shape}")
-    return kernel(m, int(min_beams), int(min_bins) if min_bins is not None else 0)
+    sd = m if seeds is None else np.ascontiguousarray(seeds, dtype=bool)
+    if sd.shape != m.shape:
+        raise InputError(f"seeds: shape {sd.shape} does not match mask {m.shape}")
+    return kernel(m, sd, int(min_beams), int(min_bins) if min_bins is not None else 0)
 
 
 def _support(bins: NDArray[np.int64], neighbour_beams: int, max_jump: int) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
@@ -151,6 +158,29 @@ def _support(bins: NDArray[np.int64], neighbour_beams: int, max_jump: int) -> tu
             cnt[lo:hi] += 1
             sup[lo:hi] += (valid[lo:hi] & valid[lo + s:hi + s] & (np.abs(a - b) <= max_jump)).astype(np.int64)
     return sup, cnt
+
+
+def _refine_leading_edge(img: NDArray[np.float32], bins: NDArray[np.int64], k_max: int, level: float) -> NDArray[np.int64]:
+    h = img.shape[0]
+    c = np.zeros((h + 1, img.shape[1]), dtype=np.float64)
+    np.cumsum(img, axis=0, out=c[1:])
+    cols = np.flatnonzero(bins >= 0)
+    b = bins[cols].copy()
+    active = np.ones(cols.size, dtype=bool)
+    for _ in range(k_max):
+        r = b - 1                      # candidate bin above
+        ok = active & (r >= 0)
+        lo = np.clip(r - 1, 0, h)
+        hi = np.clip(r + 2, 0, h)
+        mean = (c[hi, cols] - c[lo, cols]) / np.maximum(hi - lo, 1)
+        ok &= mean >= level
+        b = np.where(ok, r, b)
+        active = ok
+        if not active.any():
+            break
+    out = bins.copy()
+    out[cols] = b
+    return out
 
 
 def _segments_short(bins: NDArray[np.int64], max_jump: int, min_beams: int) -> NDArray[np.bool_]:
@@ -185,6 +215,8 @@ def extract_ranges(
     min_segment_beams: int = 1,
     min_component_beams: int = 1,
     min_component_bins: int | None = None,
+    refine_bins: int = 0,
+    edge_level: float | None = None,
     time_ns: int = 0,
     source: str = "",
 ) -> BeamRanges:
@@ -208,6 +240,11 @@ def extract_ranges(
     min_component_beams, min_component_bins : int
         Rule 0: a component is kept if it spans at least ``min_component_beams`` beams or at
         least ``min_component_bins`` bins (default: beams only).
+    refine_bins, edge_level : int, float
+        Rule 5 (first returns only): move each first return up (towards the sonar) by up to
+        ``refine_bins`` bins while the 3-bin running mean of ``image`` along range, centred on the
+        bin above, stays >= ``edge_level`` - the leading edge of a speckled surface band, where
+        the segmentation's first pixel is often a few bins late.
     time_ns, source
         Copied into the result.
 
@@ -252,6 +289,8 @@ def extract_ranges(
             bins = np.where(bad, first_return_bins(np.ascontiguousarray(mask[:, bad]), min_run=min_run)[np.cumsum(bad) - 1], bins)
     if min_segment_beams > 1:
         bins = np.where(_segments_short(bins, max_jump_bins, min_segment_beams), -1, bins)
+    if refine_bins > 0 and edge_level is not None and mode == "first":
+        bins = _refine_leading_edge(img, bins, refine_bins, float(edge_level))
     valid = bins >= 0
     sup, cnt = _support(bins, neighbour_beams, max_jump_bins)
     conf = np.where(valid, sup / np.maximum(cnt, 1), 0.0).astype(np.float32)

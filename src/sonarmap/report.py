@@ -216,16 +216,21 @@ def _fig_map(ds: Any, max_points: int, dpi: int) -> str | None:
 
 # ---------------------------------------------------------------------------- examples
 def _pick_examples(ds: Any, n: int) -> list[int]:
+    """The first flagged ping, then pings with returns spread over the survey, then any."""
     if n <= 0:
         return []
     n_p = int(ds.sizes["ping_time"])
     flagged = np.flatnonzero(flagged_mask(ds["flags"].values)).tolist()
-    picks: list[int] = flagged[:1]
-    for i in np.linspace(0, n_p - 1, n + 2)[1:-1].round().astype(int):
-        if len(picks) >= n:
-            break
-        if int(i) not in picks:
-            picks.append(int(i))
+    with_returns = np.flatnonzero(np.isfinite(ds["range"].values).any(axis=1))
+    picks: list[int] = [int(i) for i in flagged[:1]]
+    for pool in (with_returns, np.arange(n_p)):
+        if len(pool) == 0:
+            continue
+        for j in np.linspace(0, len(pool) - 1, n + 2)[1:-1].round().astype(int):
+            if len(picks) >= n:
+                break
+            if int(pool[j]) not in picks:
+                picks.append(int(pool[j]))
     return sorted(picks[:n])
 
 

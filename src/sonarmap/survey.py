@@ -164,7 +164,7 @@ class SurveyPlan:
     @property
     def n_pings(self) -> int:
         """Total number of pings."""
-        return sum(n for _, _, n in self.files)
+        return int(self._offsets[-1]) + self.files[-1][2] if self.files else 0
 
     @property
     def n_chunks(self) -> int:
@@ -639,13 +639,25 @@ def _write_chunk(root: Any, store: Path, chunk_index: int, start: int, data: Map
 
 
 # ============================================================================ executors
-def _pool_initializer() -> None:  # pragma: no cover - runs in workers
+def _pool_initializer(parent_pid: int) -> None:  # pragma: no cover - runs in workers
     import signal
+    import threading
 
     # Ctrl-C is handled by the parent, which stops the pool; workers must not die half-way.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-    for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
-        os.environ.setdefault(var, "1")
+
+    def watch() -> None:
+        # A parent killed with SIGKILL cannot stop its pool: leave instead of idling forever.
+        while True:
+            time.sleep(0.5)
+            try:
+                os.kill(parent_pid, 0)
+            except ProcessLookupError:
+                os._exit(1)
+            except OSError:
+                pass
+
+    threading.Thread(target=watch, name="sonarmap-parent-watch", daemon=True).start()
 
 
 def _run_serial(chunks, task):  # type: ignore[no-untyped-def]
@@ -669,6 +681,9 @@ def _warm_worker(ping_function: PingFunction | None) -> int:  # pragma: no cover
     return os.getpid()
 
 
+_THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS")
+
+
 class _ProcessPool:
     """Local worker processes (forkserver: safe with the parent's threads), warmed at creation."""
 
@@ -680,9 +695,19 @@ class _ProcessPool:
         with contextlib.suppress(Exception):
             ctx.set_forkserver_preload(["sonarmap.survey", "sonarmap.pipeline"])
         self.workers = workers
-        self.ex = cf.ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_pool_initializer)
-        for _ in range(workers):
-            self.ex.submit(_warm_worker, ping_function)
+        self.ex = cf.ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_pool_initializer,
+                                         initargs=(os.getpid(),))
+        # Parallelism is across processes: each worker's numerical libraries get one thread
+        # (set before the fork server - and so the workers - import numpy; restored after).
+        saved = {v: os.environ.get(v) for v in _THREAD_VARS}
+        os.environ.update({v: "1" for v, old in saved.items() if old is None})
+        try:
+            for _ in range(workers):
+                self.ex.submit(_warm_worker, ping_function)
+        finally:
+            for v, old in saved.items():
+                if old is None:
+                    os.environ.pop(v, None)
 
     def run(self, chunks: Sequence[ChunkSpec], task: Callable[[ChunkSpec], Any]) -> Iterator[tuple[ChunkSpec, Any]]:
         """Yield ``(chunk, products)`` as chunks finish (at most 2 per worker in flight)."""
@@ -715,29 +740,32 @@ class _ProcessPool:
 
 
 def _run_dask(chunks, task, client):  # type: ignore[no-untyped-def]
+    """Yield ``(chunk, products)`` from a dask.distributed cluster (bounded number in flight)."""
+    import uuid
+
     from distributed import as_completed
 
+    run_id = uuid.uuid4().hex[:12]
     nthreads = max(1, sum(client.nthreads().values()))
     pending = list(chunks)[::-1]
-    futures = {}
+    futures: dict[Any, ChunkSpec] = {}
     ac = as_completed()
+
+    def submit() -> None:
+        c = pending.pop()
+        f = client.submit(task, c, key=f"sonarmap-chunk-{c.index}-{run_id}", pure=False, retries=3)
+        futures[f] = c
+        ac.add(f)
+
     try:
         while pending and len(futures) < 2 * nthreads + 1:
-            c = pending.pop()
-            f = client.submit(task, c, key=f"sonarmap-chunk-{c.index}-{os.getpid()}-{id(task)}",
-                              pure=False, retries=3)
-            futures[f] = c
-            ac.add(f)
+            submit()
         for f in ac:
             c = futures.pop(f)
             result = f.result()
             f.release()
             if pending:
-                nc = pending.pop()
-                nf = client.submit(task, nc, key=f"sonarmap-chunk-{nc.index}-{os.getpid()}-{id(task)}",
-                                   pure=False, retries=3)
-                futures[nf] = nc
-                ac.add(nf)
+                submit()
             yield c, result
     finally:
         if futures:

@@ -148,6 +148,9 @@ def reduce_binary(levels, margin_lut, weights, wtot, fixed, node, m, wfree, stac
                 fixed[i, j] = -1
                 stack[top] = i * w + j
                 top += 1
+    n_cand = top
+    cand = stack[stack.size - n_cand:]
+    cand[:] = stack[:n_cand]
     # effective margins of the survivors given their fixed neighbours
     for k in range(top):
         p = stack[k]
@@ -212,33 +215,37 @@ def reduce_binary(levels, margin_lut, weights, wtot, fixed, node, m, wfree, stac
                     continue
                 m[ii, jj] += sgn * wt
                 wfree[ii, jj] -= wt
-                if top < stack.size:
+                if top < stack.size - n_cand:
                     stack[top] = ii * w + jj
                     top += 1
+    # number the survivors (a subset of the first-pass candidates) and list their edges
     n_free = 0
-    for i in range(h):
-        for j in range(w):
-            if fixed[i, j] < 0:
-                node[i, j] = n_free
-                n_free += 1
+    for k in range(n_cand):
+        p = cand[k]
+        i = p // w
+        j = p - i * w
+        if fixed[i, j] < 0:
+            node[i, j] = n_free
+            cand[n_free] = p
+            n_free += 1
     m_eff = np.empty(n_free)
     ei = np.empty(n_free * n_dirs, dtype=np.int64)
     ej = np.empty(n_free * n_dirs, dtype=np.int64)
     ew = np.empty(n_free * n_dirs)
     n_edges = 0
-    for i in range(h):
-        for j in range(w):
-            if fixed[i, j] < 0:
-                a = node[i, j]
-                m_eff[a] = m[i, j]
-                for d in range(n_dirs):
-                    ii = i + DI[d]
-                    jj = j + DJ[d]
-                    if 0 <= ii < h and 0 <= jj < w and fixed[ii, jj] < 0 and weights[d, i, j] != 0.0:
-                        ei[n_edges] = a
-                        ej[n_edges] = node[ii, jj]
-                        ew[n_edges] = weights[d, i, j]
-                        n_edges += 1
+    for a in range(n_free):
+        p = cand[a]
+        i = p // w
+        j = p - i * w
+        m_eff[a] = m[i, j]
+        for d in range(n_dirs):
+            ii = i + DI[d]
+            jj = j + DJ[d]
+            if 0 <= ii < h and 0 <= jj < w and fixed[ii, jj] < 0 and weights[d, i, j] != 0.0:
+                ei[n_edges] = a
+                ej[n_edges] = node[ii, jj]
+                ew[n_edges] = weights[d, i, j]
+                n_edges += 1
     return n_free, m_eff, ei[:n_edges], ej[:n_edges], ew[:n_edges]
 
 
@@ -259,12 +266,15 @@ def energy_lut(levels, cost_lut, weights, labels):  # pragma: no cover - numba
     e = 0.0
     for i in range(h):
         for j in range(w):
-            lab = labels[i, j]
-            e += cost_lut[lab, levels[i, j]]
-            for d in range(weights.shape[0]):
-                ii = i + DI[d]
-                jj = j + DJ[d]
-                if 0 <= ii < h and 0 <= jj < w and labels[ii, jj] != lab:
+            e += cost_lut[labels[i, j], levels[i, j]]
+    for d in range(weights.shape[0]):
+        di = DI[d]
+        dj = DJ[d]
+        j0 = max(0, -dj)
+        j1 = w - max(0, dj)
+        for i in range(h - di):
+            for j in range(j0, j1):
+                if labels[i, j] != labels[i + di, j + dj]:
                     e += weights[d, i, j]
     return e
 
@@ -349,11 +359,13 @@ def _find(parent, a):  # pragma: no cover - numba
 
 
 @njit(cache=True, nogil=True)
-def wide_components(mask, min_beams, min_bins):  # pragma: no cover - numba
-    """Keep 8-connected components spanning >= ``min_beams`` beams or >= ``min_bins`` bins.
+def wide_components(mask, seeds, min_beams, min_bins):  # pragma: no cover - numba
+    """Keep 8-connected components of ``mask`` that contain a ``seeds`` pixel and span
+    >= ``min_beams`` beams or >= ``min_bins`` bins.
 
     Union-find over the true pixels (raster order, 4 already-visited neighbours), then the beam
-    and bin extent of every component.  ``min_bins <= 0`` disables the bin test.
+    and bin extent of every component.  ``min_bins <= 0`` disables the bin test; pass
+    ``seeds = mask`` to keep components regardless of seeds.
     """
     h, w = mask.shape
     idx = np.full((h, w), -1, dtype=np.int32)
@@ -387,11 +399,14 @@ def wide_components(mask, min_beams, min_bins):  # pragma: no cover - numba
     jmax = np.full(n, -1, dtype=np.int32)
     imin = np.full(n, h, dtype=np.int32)
     imax = np.full(n, -1, dtype=np.int32)
+    seeded = np.zeros(n, dtype=np.bool_)
     for i in range(h):
         for j in range(w):
             a = idx[i, j]
             if a >= 0:
                 r = _find(parent, a)
+                if seeds[i, j]:
+                    seeded[r] = True
                 if j < jmin[r]:
                     jmin[r] = j
                 if j > jmax[r]:
@@ -406,7 +421,7 @@ def wide_components(mask, min_beams, min_bins):  # pragma: no cover - numba
             a = idx[i, j]
             if a >= 0:
                 r = _find(parent, a)
-                if jmax[r] - jmin[r] + 1 >= min_beams or (min_bins > 0 and imax[r] - imin[r] + 1 >= min_bins):
+                if seeded[r] and (jmax[r] - jmin[r] + 1 >= min_beams or (min_bins > 0 and imax[r] - imin[r] + 1 >= min_bins)):
                     out[i, j] = True
     return out
 

@@ -17,7 +17,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from sonarmap.errors import InputError
-from sonarmap.stats.mixture import MixtureFit, quantize
+from sonarmap.stats.mixture import MixtureFit, _as_float_image, _kernel_args, _not_finite
 
 __all__ = ["map_lookup_table", "local_map_labels"]
 
@@ -38,6 +38,21 @@ def map_lookup_table(fit: MixtureFit, *, eta: float | None = None) -> NDArray[np
     -------
     ndarray of uint8, shape (L,)
     """
+    return _lookup_table(fit, eta).copy()
+
+
+def _lookup_table(fit: MixtureFit, eta: float | None) -> NDArray[np.uint8]:
+    """The table of :func:`map_lookup_table`, computed once per fit and ``eta`` (read-only)."""
+    key = ("map_lut", None if eta is None else float(eta))
+    lut = fit._cache.get(key)
+    if lut is None:
+        lut = _compute_table(fit, eta)
+        lut.setflags(write=False)
+        fit._cache[key] = lut
+    return lut  # type: ignore[no-any-return]
+
+
+def _compute_table(fit: MixtureFit, eta: float | None) -> NDArray[np.uint8]:
     logp = fit.class_log_pmf()
     prior = fit.class_prior()
     n_cls = logp.shape[0]
@@ -54,8 +69,11 @@ def map_lookup_table(fit: MixtureFit, *, eta: float | None = None) -> NDArray[np
         with np.errstate(invalid="ignore"):
             llr = logp[1] - logp[0]
         log_eta = math.log(eta) if eta > 0 else -math.inf
-        # levels impossible under both classes (nan) default to background
-        return np.where(np.nan_to_num(llr, nan=-np.inf) >= log_eta, 1, 0).astype(np.uint8)
+        # levels impossible under both classes (nan) count as llr = -inf
+        lut = llr >= log_eta
+        if log_eta == -math.inf:
+            lut |= np.isnan(llr)
+        return lut.astype(np.uint8)
     if eta is not None:
         raise InputError("eta: only defined for two classes")
     with np.errstate(divide="ignore"):
@@ -83,7 +101,18 @@ def local_map_labels(
     Returns
     -------
     ndarray of uint8, same shape as ``image``
+
+    Notes
+    -----
+    The table is computed once per fit (cached on the immutable fit); quantisation and look-up
+    are one fused pass over the pixels (numba), equal to ``map_lookup_table(fit)[quantize(image)]``.
     """
-    lut = map_lookup_table(fit, eta=eta)
-    q = quantize(image, fit.n_levels, binning=fit.binning)  # type: ignore[arg-type]
-    return lut[q]
+    from sonarmap.stats._em_kernels import lookup_kernel
+
+    lut = _lookup_table(fit, eta)
+    arr = _as_float_image(image)
+    flat, zero, one, scale, n, floor = _kernel_args(arr, fit.n_levels, fit.binning)
+    out = np.empty(arr.shape, dtype=np.uint8)
+    if not lookup_kernel(flat, zero, one, scale, n, floor, lut, out.reshape(-1)):
+        raise _not_finite()
+    return out

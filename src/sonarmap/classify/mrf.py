@@ -424,7 +424,7 @@ class _Workspace(threading.local):
                 np.empty((h, w), dtype=np.int64),
                 np.empty((h, w)),
                 np.empty((h, w)),
-                np.empty(h * w * (2 * n_dirs + 1) + 1, dtype=np.int64),
+                np.empty(h * w * (2 * n_dirs + 2) + 1, dtype=np.int64),
             )
             self.arrays[key] = arr
         return arr

@@ -14,14 +14,11 @@ __all__ = ["register", "convert"]
 
 def _count(paths: list[Path], **kwargs: Any) -> int | None:
     """Total pings of the inputs from headers only (``None`` if a reader cannot tell cheaply)."""
-    from sonarmap.io import detect_format, format_module
-    from sonarmap.io import pngjson
+    from sonarmap.io import _is_store_dir, detect_format, format_module, pngjson
 
     total = 0
     for p in paths:
-        fmt = "pngjson" if p.is_dir() and not (
-            (p / "zarr.json").exists() or (p / ".zgroup").exists() or (p / "metadata.yaml").exists()
-        ) else detect_format(p)
+        fmt = "pngjson" if p.is_dir() and not _is_store_dir(p) else detect_format(p)
         mod = pngjson if fmt == "pngjson" else format_module(fmt)
         try:
             total += int(mod.count_pings(p))

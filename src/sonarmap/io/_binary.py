@@ -9,12 +9,11 @@ from __future__ import annotations
 
 import contextlib
 import math
-import mmap
 import os
 import warnings
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any
 
 import numpy as np
 
@@ -26,10 +25,10 @@ __all__ = [
     "header_errors",
     "warn_partial",
     "finite_or",
-    "time_ns_from_us",
+    "make_summary",
+    "U8_SCALE",
+    "MAX_TIME_NS",
 ]
-
-T = TypeVar("T")
 
 
 class PartialFrameWarning(SonarmapWarning):
@@ -92,26 +91,6 @@ def finite_or(value: Any, default: float | None = None) -> float | None:
     return v if math.isfinite(v) else default
 
 
-def time_ns_from_us(us: int) -> int:
-    """Microseconds since the epoch to integer nanoseconds (exact)."""
-    return int(us) * 1000
-
-
-def checked(fn: Callable[[], T], path: str | os.PathLike[str], offset: int, what: str) -> T:
-    """Call ``fn`` translating validation errors to DataFormatError (see :func:`header_errors`)."""
-    with header_errors(path, offset, what):
-        return fn()
-
-
-def map_bytes(buf: bytes | bytearray | memoryview | np.ndarray) -> memoryview:
-    """A read-only memoryview over ``buf`` (ndarray, bytes or mmap)."""
-    if isinstance(buf, np.ndarray):
-        return memoryview(buf).cast("B")
-    if isinstance(buf, mmap.mmap):
-        return memoryview(buf)
-    return memoryview(buf)
-
-
 #: 8-bit sensor data -> [0, 1] (the same factor as the PNG reader, so values agree bit for bit).
 U8_SCALE = np.float32(1.0 / 255.0)
 
@@ -139,7 +118,11 @@ def make_summary(
     """
 
     def iso(t: int | None) -> str:
-        return "unknown" if t is None else str(np.datetime64(int(t), "ns"))
+        if t is None:
+            return "unknown"
+        if not 0 <= int(t) <= MAX_TIME_NS:
+            return f"invalid ({t} ns)"
+        return str(np.datetime64(int(t), "ns"))
 
     out: dict[str, Any] = {"path": str(path), "format": fmt, "pings": int(n_pings)}
     if geometry is not None:

@@ -150,8 +150,12 @@ class PingVariable:
         object.__setattr__(self, "dims", tuple(self.dims))
 
     def attrs(self) -> dict[str, str]:
-        """CF attributes."""
-        return {"units": self.units, "long_name": self.long_name or self.name}
+        """CF attributes (plus the fill value, so appends can fill pings without a value)."""
+        return {
+            "units": self.units,
+            "long_name": self.long_name or self.name,
+            "sonarmap_fill_value": repr(float(self.fill_value)),
+        }
 
 
 # ---------------------------------------------------------------------- helpers
@@ -457,10 +461,12 @@ class SurveyWriter:
         """Write the buffered pings as one chunk."""
         if not self._buffer:
             return
+        declared = {v.name for v in self.extra_variables}
+        stored = [v for name, v in self._state.extras.items() if name not in declared]
         ds = pings_to_dataset(
             self._buffer,
             extras=self._extras,
-            extra_variables=self.extra_variables,
+            extra_variables=(*self.extra_variables, *stored),  # undeclared: fill values
             _state=self._state,
         )
         if self._written == 0 and not self._append:
@@ -587,21 +593,41 @@ def _read_state(path: Path) -> _State:
         )
     except (json.JSONDecodeError, TypeError) as exc:
         raise DataFormatError(f"corrupt survey attributes ({exc})", path) from None
+    core = {VAR_INTENSITY, VAR_GEOMETRY, VAR_SOURCE, VAR_POSITION, VAR_ORIENTATION, COORD_RANGE,
+            COORD_AZIMUTH, DIM_PING, DIM_RANGE, DIM_BEAM}
     for name in g.array_keys():
+        arr = g[name]
         if name.startswith(META_PREFIX):
-            st.meta[name[len(META_PREFIX):]] = str(g[name].attrs.get("sonarmap_kind", "float"))
+            st.meta[name[len(META_PREFIX):]] = str(arr.attrs.get("sonarmap_kind", "float"))
+        elif name not in core:
+            dims = _dims(arr)
+            if dims and dims[0] == DIM_PING:
+                try:
+                    fill = float(arr.attrs.get("sonarmap_fill_value", "nan"))
+                except ValueError:
+                    fill = math.nan
+                st.extras[name] = PingVariable(
+                    name, tuple(dims[1:]), dtype=str(arr.dtype), units=str(arr.attrs.get("units", "1")),
+                    long_name=str(arr.attrs.get("long_name", "")), fill_value=fill,
+                )
     if VAR_INTENSITY in g:
         st.shape = tuple(g[VAR_INTENSITY].shape[1:])  # type: ignore[assignment]
     return st
+
+
+def _dims(arr: Any) -> tuple[str, ...]:
+    """Dimension names of a zarr array written by xarray (v3 metadata or v2 attribute)."""
+    dims = getattr(arr.metadata, "dimension_names", None)
+    if dims is None:
+        dims = arr.attrs.get("_ARRAY_DIMENSIONS")
+    return tuple(dims or ())
 
 
 def _ping_lengths(g: Any) -> dict[str, int]:
     out = {}
     for name in g.array_keys():
         arr = g[name]
-        dims = arr.metadata.dimension_names if hasattr(arr.metadata, "dimension_names") else None
-        if dims is None:
-            dims = arr.attrs.get("_ARRAY_DIMENSIONS")
+        dims = _dims(arr)
         if dims and dims[0] == DIM_PING:
             out[name] = int(arr.shape[0])
     return out
@@ -645,9 +671,11 @@ def open_survey(path: str | os.PathLike[str], *, repair: bool = False) -> xr.Dat
                 arr = gw[name]
                 arr.resize((n, *arr.shape[1:]))
     try:
-        return xr.open_zarr(p, consolidated=False, chunks={})
+        ds = xr.open_zarr(p, consolidated=False, chunks={})
     except Exception as exc:  # noqa: BLE001
         raise DataFormatError(f"cannot open survey: {exc}", p) from None
+    ds.encoding["source"] = str(p)
+    return ds
 
 
 def survey_geometries(ds: xr.Dataset) -> list[SonarGeometry]:
@@ -677,7 +705,13 @@ def dataset_to_pings(
     times = ds[DIM_PING].values.astype("datetime64[ns]").astype(np.int64)
     for i0 in range(0, n, chunk):
         sl = slice(i0, min(i0 + chunk, n))
-        block = ds.isel({DIM_PING: sl}).compute()  # one dask pass for all variables
+        try:
+            block = ds.isel({DIM_PING: sl}).compute()  # one dask pass for all variables
+        except Exception as exc:  # noqa: BLE001 - codecs/zarr raise many types on corrupt chunks
+            raise DataFormatError(
+                f"cannot read pings {sl.start}-{sl.stop - 1}: {type(exc).__name__}: {exc}",
+                ds.encoding.get("source"),
+            ) from None
         img = np.asarray(block[VAR_INTENSITY].values, dtype=np.float32)
         gi = block[VAR_GEOMETRY].values
         si = block[VAR_SOURCE].values if VAR_SOURCE in block else np.zeros(img.shape[0], int)
@@ -764,8 +798,6 @@ def write_ping_variable(
         raise InputError(f"{name}: values of shape {vals.shape[1:]} per ping, store has {arr.shape[1:]}")
     if not 0 <= start and start + vals.shape[0] <= arr.shape[0]:
         raise InputError(f"{name}: pings {start}..{start + vals.shape[0]} outside 0..{arr.shape[0]}")
-    dims = arr.metadata.dimension_names if hasattr(arr.metadata, "dimension_names") else None
-    dims = tuple(dims or arr.attrs.get("_ARRAY_DIMENSIONS") or ())
-    ds = xr.Dataset({name: (dims, vals)}, attrs=dict(g.attrs))
+    ds = xr.Dataset({name: (_dims(arr), vals)}, attrs=dict(g.attrs))
     ds.to_zarr(p, region={DIM_PING: slice(start, start + vals.shape[0])}, consolidated=False)
 

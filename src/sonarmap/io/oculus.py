@@ -497,7 +497,8 @@ def sniff(path: Path, head: bytes) -> bool:
     if not path.is_file():
         return False
     if head[:2] == b"SO" and len(head) >= HEADER.size:
-        return True
+        _oid, _s, _d, msg_id, version, _p, _pn = HEADER.unpack_from(head, 0)
+        return msg_id < 0x100 and version < 16  # rejects text that merely starts with "SO"
     if head[:4] == struct.pack("<I", LOG_FILE_MAGIC):
         return True
     return head[:16] == SQLITE_MAGIC and _is_viewpoint_sqlite(path)

@@ -37,6 +37,9 @@ __all__ = [
 ]
 
 IMAGE_SUFFIXES = (".png", ".bmp")
+#: Stems ending like this are products written beside pings (simulator truth, label images), not
+#: pings; directory and glob listings skip them (an explicitly named file is still read).
+PRODUCT_STEM_SUFFIXES = ("_truth", "_labels", "_mask")
 _STAMP = re.compile(r"^(\d{9,19})(?:_raw)?$")
 _UNIT_BY_DIGITS = {10: 10**9, 13: 10**6, 16: 10**3, 19: 1}
 
@@ -219,6 +222,10 @@ def write_png_ping(
     return img_path
 
 
+def _is_ping_image(path: Path) -> bool:
+    return path.suffix.lower() in IMAGE_SUFFIXES and not path.stem.endswith(PRODUCT_STEM_SUFFIXES)
+
+
 def _sort_key(path: Path) -> tuple[int, int, str]:
     t = time_ns_from_stem(path.stem)
     return (0 if t is not None else 1, t or 0, str(path))
@@ -236,9 +243,9 @@ def find_png_pings(source: str | os.PathLike[str] | Iterable[str | os.PathLike[s
         s = str(item)
         p = Path(s)
         if p.is_dir():
-            cands = [c for c in p.iterdir() if c.suffix.lower() in IMAGE_SUFFIXES]
+            cands = [c for c in p.iterdir() if _is_ping_image(c)]
         elif any(ch in s for ch in "*?["):
-            cands = [Path(c) for c in glob.glob(s) if Path(c).suffix.lower() in IMAGE_SUFFIXES]
+            cands = [Path(c) for c in glob.glob(s) if _is_ping_image(Path(c))]
         else:
             if not p.exists():
                 raise DataFormatError("no such file or directory", p)
@@ -267,7 +274,7 @@ FORMAT = "pngjson"
 def sniff(path: Path, head: bytes) -> bool:
     """PNG/BMP images, their JSON sidecars, or directories holding them."""
     if path.is_dir():
-        return any(c.suffix.lower() in IMAGE_SUFFIXES for c in path.iterdir())
+        return any(_is_ping_image(c) for c in path.iterdir())
     if head.startswith(b"\x89PNG\r\n\x1a\n") or head.startswith(b"BM"):
         return True
     if path.suffix.lower() == ".json":

@@ -87,7 +87,8 @@ FLAG_DESCRIPTIONS: dict[str, str] = {
 # ---------------------------------------------------------------------------- histogram
 
 
-def _as_intensity_image(image: ArrayLike, name: str = "image") -> NDArray[np.floating[Any]]:
+def _as_float_image(image: ArrayLike, name: str = "image") -> NDArray[np.floating[Any]]:
+    """Validate dtype and size only (finiteness is checked by the fused kernels)."""
     try:
         arr = np.asarray(image)
     except Exception as exc:  # pragma: no cover - exotic array-likes
@@ -101,9 +102,46 @@ def _as_intensity_image(image: ArrayLike, name: str = "image") -> NDArray[np.flo
         raise InputError(f"{name}: expected a float intensity image, got dtype {arr.dtype}")
     if arr.size == 0:
         raise InputError(f"{name}: image is empty (shape {arr.shape})")
-    if not np.isfinite(arr).all():
-        raise InputError(f"{name}: contains NaN or infinite values")
     return arr
+
+
+def _not_finite(name: str = "image") -> InputError:
+    return InputError(f"{name}: contains NaN or infinite values")
+
+
+def _as_intensity_image(image: ArrayLike, name: str = "image") -> NDArray[np.floating[Any]]:
+    arr = _as_float_image(image, name)
+    if not np.isfinite(arr).all():
+        raise _not_finite(name)
+    return arr
+
+
+def _kernel_args(arr: NDArray[np.floating[Any]], n_levels: int, binning: str) -> tuple[Any, ...]:
+    """Flat float32/float64 view, ``0``, ``1`` and the scale in the array's dtype, ``L``, floor.
+
+    The scale has the image's dtype so that the kernels reproduce numpy's float32 arithmetic
+    bit for bit (``rint(clip(y, 0, 1) * (L - 1))`` or ``floor(clip(y, 0, 1) * L)``).
+    """
+    n = _check_levels_binning(n_levels, binning)
+    if arr.dtype not in (np.float32, np.float64):
+        arr = arr.astype(np.float64)  # float16 / longdouble: rare, convert once
+    flat = arr.reshape(-1)
+    floor = binning == "floor"
+    t = arr.dtype.type
+    return flat, t(0), t(1), t(n if floor else n - 1), n, floor
+
+
+_LEVELS_OK: dict[tuple[int, str], int] = {}
+
+
+def _check_levels_binning(n_levels: int, binning: str) -> int:
+    key = (n_levels, binning) if isinstance(n_levels, int) and isinstance(binning, str) else None
+    if key is not None and key in _LEVELS_OK:
+        return _LEVELS_OK[key]
+    n = int(quantization_levels(n_levels, binning=binning).size)  # type: ignore[arg-type]
+    if key is not None:
+        _LEVELS_OK[key] = n
+    return n
 
 
 def quantize(
@@ -129,21 +167,41 @@ def quantize(
     ------
     InputError
         Integer, bool or non-numeric dtype, empty image, NaN or inf.
+
+    Notes
+    -----
+    One fused pass (numba): validation, clipping, scaling and rounding in the image's dtype.
     """
-    arr = _as_intensity_image(image)
-    n = int(quantization_levels(n_levels, binning=binning).size)
-    dtype = np.uint8 if n <= 256 else np.uint16
-    if binning == "round":
-        q = np.clip(arr, 0.0, 1.0) * (n - 1)
-        return np.rint(q).astype(dtype)
-    q = np.floor(np.clip(arr, 0.0, 1.0) * n)
-    return np.minimum(q, n - 1).astype(dtype)
+    from sonarmap.stats._em_kernels import quantize_kernel
+
+    arr = _as_float_image(image)
+    flat, zero, one, scale, n, floor = _kernel_args(arr, n_levels, binning)
+    out = np.empty(arr.shape, dtype=np.uint8 if n <= 256 else np.uint16)
+    if not quantize_kernel(flat, zero, one, scale, n, floor, out.reshape(-1)):
+        raise _not_finite()
+    return out
+
+
+def _histogram_clipped(
+    image: ArrayLike, n_levels: int, binning: str
+) -> tuple[NDArray[np.int64], int]:
+    from sonarmap.stats._em_kernels import histogram_kernel
+
+    arr = _as_float_image(image)
+    flat, zero, one, scale, n, floor = _kernel_args(arr, n_levels, binning)
+    counts = np.zeros(n, dtype=np.int64)
+    clipped, finite = histogram_kernel(flat, zero, one, scale, n, floor, counts)
+    if not finite:
+        raise _not_finite()
+    return counts, int(clipped)
 
 
 def histogram(image: ArrayLike, n_levels: int = 256, *, binning: Binning = "round") -> NDArray[np.int64]:
-    """Counts of pixels per quantisation level (:func:`quantize`), shape ``(n_levels,)``."""
-    q = quantize(image, n_levels, binning=binning)
-    return np.bincount(q.ravel(), minlength=int(n_levels)).astype(np.int64)
+    """Counts of pixels per quantisation level (:func:`quantize`), shape ``(n_levels,)``.
+
+    One fused pass over the pixels (numba), no intermediate level image.
+    """
+    return _histogram_clipped(image, n_levels, binning)[0]
 
 
 def as_counts(
@@ -160,9 +218,8 @@ def as_counts(
         if not np.isfinite(c).all() or (c < 0).any():
             raise InputError("counts: must be finite and non-negative")
         return c, 0
-    img = _as_intensity_image(arr)
-    clipped = int(np.count_nonzero(img > 1.0 + 1e-6))
-    return histogram(img, n_levels, binning=binning).astype(np.float64), clipped
+    counts, clipped = _histogram_clipped(arr, n_levels, binning)
+    return counts.astype(np.float64), clipped
 
 
 def kl_divergence(counts: ArrayLike, model_pmf: ArrayLike) -> float:
@@ -236,6 +293,10 @@ class MixtureFit:
         default_factory=lambda: np.zeros(0), repr=False
     )
     discretization: str = "exact"
+    # derived arrays computed once per fit (the fit is immutable); private
+    _cache: dict[Any, Any] = dataclasses.field(
+        default_factory=dict, init=False, repr=False, compare=False
+    )
 
     # ------------------------------------------------------------------ derived
     @property
@@ -303,9 +364,8 @@ class MixtureFit:
 
     def class_prior(self) -> NDArray[np.float64]:
         """Prior probability of each class (sum of its component weights), shape ``(n_classes,)``."""
-        out = np.zeros(len(self.class_names))
-        np.add.at(out, np.asarray(self.component_classes), self.weights)
-        return out
+        return np.bincount(np.asarray(self.component_classes), weights=self.weights,
+                           minlength=len(self.class_names)).astype(np.float64)
 
     def class_log_pmf(self) -> NDArray[np.float64]:
         """``log p(level | class)``, shape ``(n_classes, L)``, each class normalised over levels.
@@ -313,16 +373,25 @@ class MixtureFit:
         A class with zero weight uses the equal-weight average of its components' pmfs, so the
         result is always a proper pmf (classification with a zero prior is then well defined).
         """
+        cached = self._cache.get("class_log_pmf")
+        if cached is None:
+            cached = self._class_log_pmf()
+            cached.setflags(write=False)
+            self._cache["class_log_pmf"] = cached
+        return cached.copy()
+
+    def _class_log_pmf(self) -> NDArray[np.float64]:
         comp = self.component_pmfs()
         cls = np.asarray(self.component_classes)
-        out = np.empty((len(self.class_names), self.n_levels))
+        mix = np.empty((len(self.class_names), self.n_levels))
         for j in range(len(self.class_names)):
             members = cls == j
             w = self.weights[members]
-            w = w / w.sum() if w.sum() > 0 else np.full(w.size, 1.0 / w.size)
-            with np.errstate(divide="ignore"):
-                out[j] = np.log(w @ comp[members])
-        return out
+            tot = w.sum()
+            w = w / tot if tot > 0 else np.full(w.size, 1.0 / w.size)
+            mix[j] = w @ comp[members]
+        with np.errstate(divide="ignore"):
+            return np.log(mix)
 
     def class_pmf(self) -> NDArray[np.float64]:
         """``p(level | class)``, shape ``(n_classes, L)``."""
@@ -417,20 +486,26 @@ def _loglik(counts: NDArray[np.float64], q: NDArray[np.float64]) -> float:
 def _initial_guesses(
     spec: _Spec, counts: NDArray[np.float64]
 ) -> list[tuple[NDArray[np.float64], list[tuple[float, ...]]]]:
-    """Data-driven starting points (several object scales)."""
+    """Data-driven starting points (several object scales), the preferred one first."""
     x = spec.levels
-    N = counts.sum()
-    nz = counts.copy()
-    nz[0] = 0
-    frac0 = counts[0] / N
-    if nz.sum() > 0:
-        cdf = np.cumsum(nz) / nz.sum()
-        q50 = float(x[min(np.searchsorted(cdf, 0.5), x.size - 1)])
-        q99 = float(x[min(np.searchsorted(cdf, 0.99), x.size - 1)])
+    N = float(counts.sum())
+    frac0 = float(counts[0]) / N
+    cdf = np.cumsum(counts[1:])
+    n_nz = float(cdf[-1])
+    if n_nz > 0:
+        q50 = float(x[min(int(np.searchsorted(cdf, 0.5 * n_nz)) + 1, x.size - 1)])
+        q99 = float(x[min(int(np.searchsorted(cdf, 0.99 * n_nz)) + 1, x.size - 1)])
     else:
         q50, q99 = 2 * spec.smin, 10 * spec.smin
-    bg_scale = float(np.clip(q50 / math.log(2.0), spec.smin * 1.5, spec.smax / 2))
-    obj_scales = sorted({float(np.clip(s, 2 * spec.smin, spec.smax / 2)) for s in (q99 / 2.0, q99, 4 * bg_scale)})
+    lo_s, hi_s = 2 * spec.smin, spec.smax / 2
+    bg_scale = min(max(q50 / math.log(2.0), spec.smin * 1.5), hi_s)
+    # the first start is the one used alone when its fit looks sound (see ``_needs_restart``);
+    # q99 / 2 comes last: it can lead EM to an object that mimics the background
+    obj_scales: list[float] = []
+    for s in (q99, 4 * bg_scale, q99 / 2.0):
+        s = min(max(s, lo_s), hi_s)
+        if s not in obj_scales:
+            obj_scales.append(s)
     starts = []
     free = spec.free
     n_obj = len(free) - 1
@@ -484,25 +559,15 @@ def _em(
     return _em_general(spec, counts, w0, params0, max_iter, tol)
 
 
-def _expfam_arrays(spec: _Spec, name: str) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    x = spec.levels
-    with np.errstate(divide="ignore"):
-        if name == "exponential":
-            return x.copy(), np.zeros_like(x)
-        if name == "rayleigh":
-            return x * x, np.log(x)
-    t = np.zeros_like(x)
-    lb = np.full_like(x, -np.inf)
-    lb[0] = 0.0
-    return t, lb
-
-
 def _eta_of(name: str, scale: float) -> float:
     return -1.0 / scale if name == "exponential" else -1.0 / (2.0 * scale * scale)
 
 
 def _scale_of(name: str, eta: float) -> float:
     return -1.0 / eta if name == "exponential" else math.sqrt(-1.0 / (2.0 * eta))
+
+
+_KIND = {"zero": 0, "exponential": 1, "rayleigh": 2}
 
 
 def _em_fast(
@@ -513,26 +578,23 @@ def _em_fast(
     max_iter: int,
     tol: float,
 ) -> tuple[NDArray[np.float64], list[tuple[float, ...]], int, bool, NDArray[np.float64]]:
-    from sonarmap.stats._em_kernels import em_expfam
+    """EM for spike + exponential + Rayleigh components, entirely in one numba kernel."""
+    from sonarmap.stats._em_kernels import em_kernel
 
     C = len(spec.names)
-    L = spec.levels.size
-    T = np.empty((C, L))
-    logB = np.empty((C, L))
+    kind = np.empty(C, dtype=np.int64)
     eta = np.zeros(C)
     lo = np.zeros(C)
     hi = np.zeros(C)
-    free = np.zeros(C, dtype=np.bool_)
     for c, name in enumerate(spec.names):
-        T[c], logB[c] = _expfam_arrays(spec, name)
+        kind[c] = _KIND[name]
         if name != "zero":
-            free[c] = True
             eta[c] = _eta_of(name, params0[c][0])
             lo[c] = _eta_of(name, spec.smin)
             hi[c] = _eta_of(name, spec.smax)
     w = np.array(w0, dtype=np.float64)
-    trace = np.zeros(max_iter + 1)
-    n_iter, conv = em_expfam(counts, T, logB, eta, w, free, lo, hi, int(max_iter), float(tol), trace)
+    trace = np.empty(max_iter + 1)
+    n_iter, conv = em_kernel(counts, spec.levels, kind, eta, w, lo, hi, int(max_iter), float(tol), trace)
     params = [() if n == "zero" else (_scale_of(n, float(eta[c])),) for c, n in enumerate(spec.names)]
     return w, params, int(n_iter), bool(conv), trace[: n_iter + 1].copy()
 
@@ -548,7 +610,7 @@ def _em_general(
     """Generalised EM: exact E-step, M-step improving each component's expected log-likelihood."""
     from scipy.optimize import minimize
 
-    from sonarmap.stats._em_kernels import solve_eta
+    from sonarmap.stats._em_kernels import solve_eta_kind
 
     w = np.array(w0, dtype=np.float64)
     params = [tuple(p) for p in params0]
@@ -580,9 +642,9 @@ def _em_general(
                 continue
             r = resp[c]
             if name in ("exponential", "rayleigh"):
-                T, lb = _expfam_arrays(spec, name)
-                eta = solve_eta(
-                    lb, T, float(r @ T / Nc[c]), _eta_of(name, params[c][0]),
+                T = spec.levels if name == "exponential" else spec.levels * spec.levels
+                eta = solve_eta_kind(
+                    _KIND[name], spec.levels, float(r @ T / Nc[c]), _eta_of(name, params[c][0]),
                     _eta_of(name, spec.smin), _eta_of(name, spec.smax),
                 )
                 params[c] = (_scale_of(name, eta),)
@@ -601,6 +663,57 @@ def _em_general(
                 params[c] = tuple(float(v) for v in res.x)
         it += 1
     return w, params, it, conv, np.asarray(trace)
+
+
+def _em_best(
+    spec: _Spec,
+    counts: NDArray[np.float64],
+    starts: list[tuple[NDArray[np.float64], list[tuple[float, ...]]]],
+    max_iter: int,
+    tol: float,
+    min_weight: float,
+) -> tuple[NDArray[np.float64], list[tuple[float, ...]], int, bool, NDArray[np.float64]]:
+    """EM from the first (preferred) start; the other starts only when its result looks unsound
+    (:func:`_needs_restart`), keeping the highest log-likelihood."""
+    best = _em(spec, counts, starts[0][0], starts[0][1], max_iter, tol)
+    if len(starts) > 1 and _needs_restart(spec, best, min_weight):
+        for w0, p0 in starts[1:]:
+            out = _em(spec, counts, w0, p0, max_iter, tol)
+            if out[4][-1] > best[4][-1]:
+                best = out
+    return best
+
+
+def _needs_restart(
+    spec: _Spec,
+    out: tuple[NDArray[np.float64], list[tuple[float, ...]], int, bool, NDArray[np.float64]],
+    min_weight: float,
+    min_ratio: float = 2.0,
+) -> bool:
+    """Whether an EM result from one start should be checked against the other starts.
+
+    True when it did not converge, or when it would be flagged (object weight below
+    ``min_weight``, a scale collapsed to a level step or at its bound), or when an object scale is
+    below ``min_ratio`` times the background scale (an object component mimicking the background:
+    a local optimum EM reaches from some starts, e.g. Table I image 6).
+    """
+    w, params, _, conv, trace = out
+    if not conv or not math.isfinite(float(trace[-1])):
+        return True
+    free = spec.free
+    bg = free[0]
+    s_bg = params[bg][-1]
+    obj_w = 0.0
+    for c in free:
+        s = params[c][-1]
+        if w[c] >= min_weight and (s <= 1.5 * spec.smin or s >= spec.smax * (1 - 1e-6)):
+            return True
+        if c != bg:
+            obj_w += float(w[c])
+            # scale ratio only comparable between one-parameter families (exponential, Rayleigh)
+            if len(params[c]) == 1 and s < min_ratio * s_bg:
+                return True
+    return len(free) > 1 and obj_w < min_weight
 
 
 def _stick_to_weights(v: NDArray[np.float64], spike: bool, n: int) -> NDArray[np.float64]:
@@ -633,12 +746,89 @@ def _weights_to_stick(w: NDArray[np.float64], spike: bool) -> NDArray[np.float64
     return np.array(v, dtype=np.float64)
 
 
+def _lsq_jacobian_factory(
+    spec: _Spec, nv: int, bg: int
+) -> Any:
+    """Analytic Jacobian of the least-squares residual for spike/exponential/Rayleigh mixtures.
+
+    ``p_c(k) = f(x_k; s) / sum_j f(xn_j; s)`` (``xn = x`` unless ``discretization="paper"``), so
+    ``d p_c(k) / d s = p_c(k) (g(x_k) - E_n[g]) / s^m`` with ``g = x, m = 2`` (exponential) or
+    ``g = x^2, m = 3`` (Rayleigh), ``E_n`` the mean over the normalising grid.  Returns None for
+    other families (finite differences are used then).
+    """
+    names = spec.names
+    if not all(n in ("zero", "exponential", "rayleigh") for n in names):
+        return None
+    x = spec.levels
+    L = x.size
+    xn = np.arange(L) / (L - 1) if spec.discretization == "paper" else x
+    n = len(names)
+    spike = spec.spike
+    smax = spec.smax
+    x2, xn2 = x * x, xn * xn
+
+    def dlogp(name: str, s: float) -> NDArray[np.float64]:
+        # d log p_c(x_k) / d s, shape (L,)
+        if name == "exponential":
+            e = np.exp(xn * (-1.0 / s))
+            return (x - (e @ xn) / e.sum()) / (s * s)
+        e = xn * np.exp(xn2 * (-0.5 / (s * s)))
+        return (x2 - (e @ xn2) / e.sum()) / (s * s * s)
+
+    def jac(theta: NDArray[np.float64], w: NDArray[np.float64], params: list[tuple[float, ...]],
+            P: NDArray[np.float64]) -> NDArray[np.float64]:
+        J = np.zeros((L, theta.size))
+        # weights from stick-breaking fractions: w_i = v_i prod_{j<i} (1 - v_j), remainder
+        v = theta[:nv]
+        order = list(range(1, n)) if spike else list(range(0, n - 1))
+        rest_idx = 0 if spike else n - 1
+        for m in range(nv):
+            dw = np.zeros(n)
+            for pos, i in enumerate(order):
+                if pos < m:
+                    continue
+                prod = 1.0
+                for j in range(pos):
+                    if j != m:
+                        prod *= 1.0 - v[j]
+                dw[i] = prod if pos == m else -v[pos] * prod
+            prod = 1.0
+            for j in range(nv):
+                if j != m:
+                    prod *= 1.0 - v[j]
+            dw[rest_idx] = -prod
+            J[:, m] = dw @ P
+        s_bg = params[bg][0]
+        col = nv
+        for i, name in enumerate(names):
+            if name == "zero":
+                continue
+            s = params[i][0]
+            d = w[i] * P[i] * dlogp(name, s)  # d r / d s_i
+            if i == bg:
+                J[:, col] += d
+                bg_col = col
+            else:
+                ratio = theta[col]
+                if ratio * s_bg < smax:  # s_i = ratio * s_bg (not capped)
+                    J[:, col] = d * s_bg
+                    J[:, bg_col] += d * ratio
+            col += 1
+        return J
+
+    return jac
+
+
 def _lsq(
     spec: _Spec,
     counts: NDArray[np.float64],
     starts: list[tuple[NDArray[np.float64], list[tuple[float, ...]]]],
     loss: str,
+    min_weight: float = 0.0,
+    lazy: bool = False,
 ) -> tuple[NDArray[np.float64], list[tuple[float, ...]], int, bool]:
+    """Bounded least squares from each start (all of them, or with ``lazy`` only until a result
+    is not suspicious, see :func:`_lsq_suspicious`); the lowest cost wins."""
     from scipy.optimize import least_squares
 
     p_hat = counts / counts.sum()
@@ -660,14 +850,16 @@ def _lsq(
         hi.append(spec.smax if i == bg else ratio_max)
     lo_a = np.array(lo)
     hi_a = np.array(hi)
+    n_par = [family(name).n_params for name in spec.names]
+    bg_scale_idx = nv + n_par[bg] - 1
 
     def unpack(theta: NDArray[np.float64]) -> tuple[NDArray[np.float64], list[tuple[float, ...]]]:
         w = _stick_to_weights(theta[:nv], spec.spike, n)
         params: list[tuple[float, ...]] = []
         k = nv
-        s_bg = float(theta[nv + family(spec.names[bg]).n_params - 1])
-        for i, name in enumerate(spec.names):
-            m = family(name).n_params
+        s_bg = float(theta[bg_scale_idx])
+        for i in range(n):
+            m = n_par[i]
             vals = [float(t) for t in theta[k : k + m]]
             if m and i != bg:
                 vals[-1] = min(vals[-1] * s_bg, spec.smax)
@@ -675,9 +867,23 @@ def _lsq(
             k += m
         return w, params
 
+    analytic = _lsq_jacobian_factory(spec, nv, bg)
+    cache: dict[str, Any] = {}
+
+    def model(theta: NDArray[np.float64]) -> tuple[NDArray[np.float64], list[tuple[float, ...]], NDArray[np.float64]]:
+        key = theta.tobytes()
+        if cache.get("key") != key:
+            w, params = unpack(theta)
+            cache.update(key=key, val=(w, params, _pmfs(spec, params)))
+        return cache["val"]  # type: ignore[no-any-return]
+
     def resid(theta: NDArray[np.float64]) -> NDArray[np.float64]:
-        w, params = unpack(theta)
-        return w @ _pmfs(spec, params) - p_hat
+        w, _, P = model(theta)
+        return w @ P - p_hat
+
+    def jac(theta: NDArray[np.float64]) -> NDArray[np.float64]:
+        w, params, P = model(theta)
+        return analytic(theta, w, params, P)  # type: ignore[no-any-return]
 
     best = None
     nfev = 0
@@ -690,14 +896,27 @@ def _lsq(
         # keep starts strictly inside the box (trust-region reflective requirement)
         span = hi_a - lo_a
         theta0 = np.clip(theta0, lo_a + 1e-9 * span, hi_a - 1e-9 * span)
-        res = least_squares(resid, theta0, bounds=(lo_a, hi_a), method="trf", loss=loss,
+        res = least_squares(resid, theta0, jac=jac if analytic is not None else "2-point",
+                            bounds=(lo_a, hi_a), method="trf", loss=loss,
                             x_scale="jac", xtol=1e-12, ftol=1e-12, gtol=1e-12, max_nfev=2000)
         nfev += int(res.nfev)
         if best is None or res.cost < best.cost:
             best = res
+        if lazy and not _lsq_suspicious(spec, res, unpack, min_weight):
+            break
     assert best is not None
     w, params = unpack(best.x)
     return w, params, nfev, bool(best.status > 0)
+
+
+def _lsq_suspicious(spec: _Spec, res: Any, unpack: Any, min_weight: float) -> bool:
+    """A least-squares result worth checking against another start: not converged, or one that
+    would be flagged (no object, a weighted scale collapsed or at its bound, an object scale at
+    its lower ratio bound)."""
+    if res.status <= 0:
+        return True
+    w, params = unpack(res.x)
+    return _needs_restart(spec, (w, params, 0, True, np.zeros(1)), min_weight, spec.min_ratio * 1.001)
 
 
 def _paper_start(spec: _Spec) -> tuple[NDArray[np.float64], list[tuple[float, ...]]] | None:
@@ -849,22 +1068,17 @@ def fit_mixture(
         params = starts[0][1]
         n_iter, conv = 0, True
     elif method == "em":
-        best = None
-        for w0, p0 in starts:
-            out = _em(spec, counts, w0, p0, max_iter, tol)
-            if best is None or out[4][-1] > best[4][-1]:
-                best = out
-        assert best is not None
-        w, params, n_iter, conv, trace = best
+        w, params, n_iter, conv, trace = _em_best(spec, counts, starts, max_iter, tol, min_weight)
     else:
         lsq_starts = list(starts)
         if init is None:
-            em_out = _em(spec, counts, starts[0][0], starts[0][1], 200, 1e-9)
+            # warm start from the EM fit; the paper's p0 only when that result looks unsound
+            em_out = _em_best(spec, counts, starts, 200, 1e-9, min_weight)
             lsq_starts = [(em_out[0], em_out[1])]
             ps = _paper_start(spec)
             if ps is not None:
                 lsq_starts.append(ps)
-        w, params, n_iter, conv = _lsq(spec, counts, lsq_starts, loss)
+        w, params, n_iter, conv = _lsq(spec, counts, lsq_starts, loss, min_weight, lazy=init is None)
 
     w = np.clip(np.asarray(w, dtype=np.float64), 0.0, None)
     w = w / w.sum()

@@ -1,0 +1,225 @@
+"""Tests of the simulator (sonarmap.simulate) and ``sonarmap simulate``."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from sonarmap.errors import InputError
+from sonarmap.geometry import preset
+from sonarmap.simulate import (
+    SCENE_NAMES,
+    Scene,
+    SimulationConfig,
+    expected_background_image,
+    expected_background_level,
+    channel_gain,
+    point_target,
+    read_truth,
+    scene_from_name,
+    simulate_ping,
+    write_simulation,
+)
+from sonarmap.simulate.compare import background_stats, histogram_kld
+
+GEOM = preset("didson-hf")
+QUIET = SimulationConfig(speckle=False)
+
+
+def test_same_seed_identical_bytes_and_different_seed_differs() -> None:
+    scene = scene_from_name("fish_over_hull", 3)
+    a = simulate_ping(scene, GEOM, seed=7)
+    b = simulate_ping(scene_from_name("fish_over_hull", 3), GEOM, seed=7)
+    c = simulate_ping(scene, GEOM, seed=8)
+    assert a.ping.image.tobytes() == b.ping.image.tobytes()
+    assert a.class_mask.tobytes() == b.class_mask.tobytes()
+    assert not np.array_equal(a.ping.image, c.ping.image)
+    img = a.ping.image
+    assert img.dtype == np.float32 and img.shape == GEOM.shape
+    assert np.allclose(img * 255, np.rint(img * 255), atol=1e-4)  # 8-bit levels k/255
+
+
+@pytest.mark.parametrize("beam, range_m", [(7, 3.1), (30, 6.02), (50, 8.5), (90, 10.9)])
+def test_point_target_lands_on_nearest_bin_and_beam(beam: int, range_m: float) -> None:
+    # Non-uniform azimuth table: aim a little off the beam centre, still nearest to `beam`.
+    az = GEOM.azimuth_rad[beam] + 0.3 * (GEOM.azimuth_rad[beam + 1] - GEOM.azimuth_rad[beam])
+    res = simulate_ping(point_target(range_m, az, ts_db=-45.0), GEOM, config=QUIET, seed=0)
+    exp_bin = int(GEOM.bin_of_range(range_m))
+    # Compare after removing the taper: a ghost at +-16 beams in a high-gain beam can outshine a
+    # target in a low-gain edge beam (taper 0.32 vs 0.78), exactly as in real DIDSON images.
+    assert np.unravel_index(np.argmax(res.clean / GEOM.taper), GEOM.shape) == (exp_bin, beam)
+    assert np.unravel_index(np.argmax(res.ping.image / GEOM.taper), GEOM.shape) == (exp_bin, beam)
+    assert res.first_return_bin[beam] == exp_bin
+    assert res.first_return_range_m[beam] == pytest.approx(GEOM.range_m[exp_bin])
+    assert (res.class_mask == 1).sum() == 1
+
+
+def test_psf_ghosts_at_plus_minus_8_beams_with_pattern_ratio() -> None:
+    beam = 48
+    res = simulate_ping(point_target(6.0, GEOM.azimuth_rad[beam], ts_db=-45.0), GEOM, config=QUIET, seed=0)
+    row = res.clean[int(GEOM.bin_of_range(6.0))].astype(np.float64) / GEOM.taper
+    c = GEOM.n_beams // 2
+    for d in (-16, -8, 8, 16):
+        assert row[beam + d] / row[beam] == pytest.approx(GEOM.psf[c + d] / GEOM.psf[c], rel=1e-4)
+    # Non-tap beams are empty: ghosts only every 8th beam.
+    assert np.all(row[[beam + 1, beam - 3, beam + 5]] == 0)
+    # Linear (not circular) convolution: a target at beam 2 puts nothing at beam 2 - 8 + 96 = 90.
+    res2 = simulate_ping(point_target(6.0, GEOM.azimuth_rad[2], ts_db=-45.0), GEOM, config=QUIET, seed=0)
+    row2 = res2.clean[int(GEOM.bin_of_range(6.0))]
+    assert row2[90] == 0 and row2[10] > 0
+
+
+def test_hull_ghost_energy_measurable_and_truth_has_no_ghosts() -> None:
+    # A narrow rudder plate: ghost copies at +-8 beams carry psf[c+-8]/psf[c] of its energy.
+    from sonarmap.simulate import rudder
+
+    cfg = SimulationConfig(speckle=False, full_scale_db=200.0)  # no clipping at 1
+    res = simulate_ping(rudder(width_m=0.25, yaw_deg=0.0), GEOM, config=cfg, seed=0)
+    assert res.clean.max() < 1.0
+    cols = np.flatnonzero((res.class_mask == 1).any(axis=0))
+    assert 2 <= cols.size <= 7
+    e = (res.clean.astype(np.float64) / GEOM.taper).sum(axis=0)
+    main_e = e[cols].sum()
+    ghost = e[np.clip(cols + 8, 0, 95)].sum() + e[np.clip(cols - 8, 0, 95)].sum()
+    ratio_db = 10 * math.log10(ghost / main_e)
+    c = GEOM.n_beams // 2
+    expected_db = 10 * math.log10((GEOM.psf[c + 8] + GEOM.psf[c - 8]) / GEOM.psf[c])
+    assert ratio_db == pytest.approx(expected_db, abs=1.0)
+    # Truth mask only covers the real plate (ghost columns are background).
+    assert not (res.class_mask[:, np.setdiff1d(cols + 8, cols)[:1]] == 1).any()
+
+
+def test_taper_multiplies_echo_and_background() -> None:
+    g = GEOM.replace(psf=None)
+    r0 = simulate_ping(point_target(5.0, g.azimuth_rad[5], ts_db=-55.0), g, config=QUIET, seed=0)
+    r1 = simulate_ping(point_target(5.0, g.azimuth_rad[42], ts_db=-55.0), g, config=QUIET, seed=0)
+    assert r1.clean.max() < 1.0
+    ratio = r0.clean.max() / r1.clean.max()
+    assert ratio == pytest.approx(g.taper[5] / g.taper[42], rel=1e-4)
+    # Open-water pings: mean per beam follows the exact expectation (taper + threshold + quantiser).
+    imgs = np.stack([simulate_ping(scene_from_name("empty"), g, seed=s).ping.image for s in range(24)])
+    exp_mean, exp_zero = expected_background_image(g)
+    np.testing.assert_allclose(imgs.mean(axis=(0, 1)), exp_mean.mean(axis=0), rtol=0.08)
+    assert (imgs == 0).mean() == pytest.approx(exp_zero.mean(), abs=0.005)
+
+
+def test_background_level_follows_channel_loss() -> None:
+    cfg = SimulationConfig()
+    lvl = expected_background_level(GEOM, cfg)
+    gain = channel_gain(GEOM, cfg)
+    flat = lvl / gain
+    assert flat.std() / flat.mean() < 1e-3  # noise term negligible; reverb goes through the channel
+    r = GEOM.range_m
+    tl = -10 * np.log10(gain / gain[0])
+    k1, k2 = 20 * cfg.spreading_beta, 2 * cfg.alpha_db_per_m
+    np.testing.assert_allclose(tl, k1 * np.log10(r / r[0]) + k2 * (r - r[0]), atol=1e-9)
+
+
+@pytest.mark.parametrize("name", ["hull", "curved_hull", "fish_over_hull", "seafloor", "propeller"])
+def test_first_return_matches_class_mask(name: str) -> None:
+    res = simulate_ping(scene_from_name(name, 1), GEOM, seed=0)
+    s = res.class_mask == 1
+    assert s.any()
+    for j in range(GEOM.n_beams):
+        rows = np.flatnonzero(s[:, j])
+        if rows.size:
+            assert res.first_return_bin[j] == rows[0]
+            assert res.first_return_range_m[j] == GEOM.range_m[rows[0]]
+        else:
+            assert res.first_return_bin[j] == -1 and math.isnan(res.first_return_range_m[j])
+
+
+def test_hull_band_is_continuous_and_fish_are_clutter() -> None:
+    res = simulate_ping(scene_from_name("hull"), GEOM, seed=0)
+    assert (res.first_return_bin >= 0).all()  # every beam sees the hull
+    assert np.abs(np.diff(res.first_return_bin)).max() <= 3  # continuous band
+    fish = simulate_ping(scene_from_name("fish", 0), GEOM, seed=0)
+    assert (fish.class_mask == 2).sum() >= 10 and not (fish.class_mask == 1).any()
+    empty = simulate_ping(scene_from_name("empty"), GEOM, seed=0)
+    assert not empty.class_mask.any() and (empty.first_return_bin == -1).all()
+
+
+def test_all_named_scenes_render() -> None:
+    assert {"hull", "curved_hull", "propeller", "rudder", "seafloor", "fish", "fish_over_hull",
+            "empty"} <= set(SCENE_NAMES)
+    for name in SCENE_NAMES:
+        res = simulate_ping(scene_from_name(name, 0), GEOM, seed=0)
+        assert (res.class_mask > 0).any() == (name != "empty"), name
+
+
+def test_background_histogram_close_to_real(background_paths: list[Path]) -> None:
+    from sonarmap.io.pngjson import read_image_file
+
+    real = background_stats(read_image_file(p) for p in background_paths)
+    sim = background_stats(
+        simulate_ping(scene_from_name("empty"), GEOM, seed=s).ping.image for s in range(40)
+    )
+    assert sim.zero_fraction == pytest.approx(real.zero_fraction, abs=0.05)
+    assert histogram_kld(real.histogram, sim.histogram) < 0.03
+    assert sim.mean == pytest.approx(real.mean, rel=0.15)
+
+
+def test_write_and_read_back(tmp_path: Path) -> None:
+    from sonarmap.io.pngjson import read_png_ping
+
+    res = simulate_ping(scene_from_name("fish_over_hull", 0), GEOM, seed=5, time_ns=1_700_000_000_123_456_000)
+    files = write_simulation(res, tmp_path, "1700000000123456")
+    back = read_png_ping(files.image)
+    assert np.array_equal(back.image, res.ping.image)
+    assert back.geometry == GEOM and back.time_ns == res.ping.time_ns
+    mask, info = read_truth(tmp_path, "1700000000123456")
+    assert np.array_equal(mask, res.class_mask)
+    assert info["first_return_bin"] == res.first_return_bin.tolist()
+    assert info["scene"] == "fish_over_hull" and info["seed"] == 5
+
+
+def test_bad_input_names_argument() -> None:
+    pts = np.array([[5.0, 0.0, 0.0], [6.0, 0.1, 0.0]])
+    ok = dict(normals=np.zeros((2, 3)), reflectivity=np.ones(2), labels=np.ones(2, np.uint8),
+              patch_area_m2=np.ones(2))
+    with pytest.raises(InputError, match="normals"):
+        Scene(points_m=pts, **{**ok, "normals": np.zeros((2, 2))})
+    with pytest.raises(InputError, match="points_m"):
+        Scene(points_m=np.array([[5.0, np.nan, 0.0], [6.0, 0.0, 0.0]]), **ok)
+    with pytest.raises(InputError, match="normals"):
+        Scene(points_m=pts, **{**ok, "normals": np.full((2, 3), 0.3)})
+    with pytest.raises(InputError, match="labels"):
+        Scene(points_m=pts, **{**ok, "labels": np.array([1, 7])})
+    with pytest.raises(InputError, match="scene"):
+        scene_from_name("submarine")
+    with pytest.raises(InputError, match="seed"):
+        simulate_ping(Scene(points_m=pts, **ok), GEOM, seed=1.5)  # type: ignore[arg-type]
+    with pytest.raises(InputError, match="threshold"):
+        SimulationConfig(threshold=2.0)
+
+
+def test_transformed_and_concat() -> None:
+    hull = scene_from_name("hull")
+    a = 0.3
+    rot = np.array([[math.cos(a), -math.sin(a), 0], [math.sin(a), math.cos(a), 0], [0, 0, 1]])
+    t = np.array([1.0, -2.0, 0.5])
+    moved = hull.transformed(rot, t)
+    back = moved.transformed(rot.T, -rot.T @ t)
+    np.testing.assert_allclose(back.points_m, hull.points_m, atol=1e-12)
+    np.testing.assert_allclose(back.normals, hull.normals, atol=1e-12)
+    both = Scene.concat(hull, point_target(3.0, 0.0))
+    assert len(both) == len(hull) + 1 and both.labels[-1] == 1
+    with pytest.raises(InputError, match="rotation_matrix"):
+        hull.transformed(2 * np.eye(3), t)
+
+
+def test_cli_simulate(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from sonarmap.cli import main
+
+    assert main(["simulate", "--list-scenes"]) == 0
+    assert "curved_hull" in capsys.readouterr().out
+    out = tmp_path / "sim"
+    assert main(["simulate", "--scene", "hull", "--seed", "0", "--count", "2", "--sonar", "didson-hf",
+                 "-o", str(out)]) == 0
+    assert str(out) in capsys.readouterr().out
+    assert len(list(out.glob("*_raw.png"))) == 2 and len(list(out.glob("*_truth.json"))) == 2
+    assert main(["simulate", "--scene", "nope", "-o", str(out)]) == 1
+    assert "nope" in capsys.readouterr().err
