@@ -159,3 +159,18 @@ def test_dense_array_values_and_iou() -> None:
     v = voxelize(pts, 0.1)
     assert len(v) == 2
     assert voxel_iou(v, v[:1]) == pytest.approx(0.5) and voxel_iou(v, [[9, 9, 9]]) == 0.0
+
+
+def test_cell_and_arc_sensor_model() -> None:
+    from sonarmap.mapping.occupancy import pd_pfa_increments
+
+    lh, lm = pd_pfa_increments(0.9, 0.01)  # one bin per cell, one arc cell: the per-pixel model
+    assert lh == pytest.approx(math.log(90)) and lm == pytest.approx(math.log(0.1 / 0.99))
+    f_cell = 1 - 0.99**3
+    lh3, lm3 = pd_pfa_increments(0.9, 0.01, bins_per_cell=3)
+    assert lh3 == pytest.approx(math.log(0.9 / f_cell)) and lm3 == pytest.approx(math.log(0.1 / (1 - f_cell)))
+    lha, _ = pd_pfa_increments(0.9, 0.01, bins_per_cell=3, n_arc=4)  # hit shared over a 4-cell arc
+    assert lha == pytest.approx(math.log(0.9 / (f_cell + (1 - f_cell) * 0.9 * 0.75)))
+    assert 0 < lha < lh3
+    with pytest.raises(InputError, match="pd/pfa"):
+        SensorModel.from_pd_pfa(0.5, 0.3, bins_per_cell=5)  # per cell the detector is no better than chance

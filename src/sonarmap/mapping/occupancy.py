@@ -15,7 +15,10 @@ With a uniform prior the Bayes update of a cell's log-odds ``l = log(P(m) / (1 -
 * cells the beam crossed before the return, or up to the maximum range when there is no return
   (``z = not object``):  ``l += log((1 - pD) / (1 - pFA))``,
 
-and cells behind the return are not updated (occluded).  So a confident detector (high pD, low
+and cells behind the return are not updated (occluded).  Given the range-bin size, ``pFA`` is
+made per cell (``1 - (1 - pFA)^m`` over the ``m`` bins a ray crosses in a cell) and, with rays
+over the vertical aperture, a hit is discounted for the ``n`` cells of its elevation arc:
+``l_hit = log(pD / (pFA_cell + (1 - pFA_cell) pD (1 - 1/n)))`` (see docs/mapping.md).  So a confident detector (high pD, low
 pFA) moves the map quickly, a poor one slowly, ping by ping - unlike fixed ``P(occ | hit) = 0.8``,
 ``P(occ | miss) = 0.3`` constants (``l_hit = logit 0.8``, ``l_miss = logit 0.3``), which are
 available as :meth:`SensorModel.fixed` for comparison.  Log-odds are clamped to ``[l_min, l_max]``
@@ -49,6 +52,7 @@ from sonarmap.mapping.register import DEFAULT_APERTURE_RAD, PointCloud, elevatio
 
 __all__ = [
     "SensorModel",
+    "pd_pfa_increments",
     "OccupancyConfig",
     "OccupancyMap",
     "OccupancyArray",
@@ -64,6 +68,24 @@ def logit(p: ArrayLike) -> NDArray[np.float64]:
     """``log(p / (1 - p))``."""
     q = np.asarray(p, dtype=np.float64)
     return np.log(q) - np.log1p(-q)
+
+
+def pd_pfa_increments(
+    pd: ArrayLike, pfa: ArrayLike, *, bins_per_cell: ArrayLike = 1.0, n_arc: ArrayLike = 1
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Log-odds increments ``(l_hit, l_miss)`` of the pD/pFA inverse sensor model (broadcasting).
+
+    See :meth:`SensorModel.from_pd_pfa`; non-informative inputs give ``l_hit <= 0`` or
+    ``l_miss >= 0`` (no error here).
+    """
+    d = np.clip(np.asarray(pd, dtype=np.float64), _P_EPS, 1 - _P_EPS)
+    f = np.clip(np.asarray(pfa, dtype=np.float64), _P_EPS, 1 - _P_EPS)
+    m = np.maximum(np.asarray(bins_per_cell, dtype=np.float64), 1.0)
+    n = np.maximum(np.asarray(n_arc, dtype=np.float64), 1.0)
+    f_cell = -np.expm1(m * np.log1p(-f))  # 1 - (1 - pfa)^m
+    l_hit = np.log(d) - np.log(f_cell + (1.0 - f_cell) * d * (1.0 - 1.0 / n))
+    l_miss = np.log1p(-d) - np.log1p(-f_cell)
+    return l_hit, l_miss
 
 
 @dataclasses.dataclass(frozen=True)
@@ -88,16 +110,28 @@ class SensorModel:
             raise InputError(f"l_miss: must be a negative finite log-odds increment, got {self.l_miss}")
 
     @classmethod
-    def from_pd_pfa(cls, pd: float, pfa: float) -> SensorModel:
-        """``l_hit = log(pD / pFA)``, ``l_miss = log((1 - pD) / (1 - pFA))`` (needs pD > pFA).
+    def from_pd_pfa(cls, pd: float, pfa: float, *, bins_per_cell: float = 1.0, n_arc: int = 1) -> SensorModel:
+        """Inverse sensor model from the detector's pD and per-pixel pFA (see the module notes).
 
-        Probabilities are clipped to ``[1e-4, 1 - 1e-4]`` so the increments stay finite.
+        ``pfa_cell = 1 - (1 - pfa) ** bins_per_cell`` (a ray crosses ``bins_per_cell`` range bins
+        in one cell); ``l_miss = log((1 - pD) / (1 - pfa_cell))``;
+        ``l_hit = log(pD / (pfa_cell + (1 - pfa_cell) pD (1 - 1/n_arc)))`` - with ``n_arc`` cells
+        on the return's elevation arc, a free cell still sees the return when the surface is in
+        one of the other cells.  ``n_arc = bins_per_cell = 1`` gives ``log(pD / pFA)`` and
+        ``log((1 - pD) / (1 - pFA))``.  Probabilities are clipped to ``[1e-4, 1 - 1e-4]``.
+
+        Raises
+        ------
+        InputError
+            If the increments are not informative (``l_hit <= 0`` or ``l_miss >= 0``).
         """
-        d = float(np.clip(pd, _P_EPS, 1 - _P_EPS))
-        f = float(np.clip(pfa, _P_EPS, 1 - _P_EPS))
-        if not d > f:
-            raise InputError(f"pd/pfa: detection probability ({pd}) must exceed the false-alarm probability ({pfa})")
-        return cls(math.log(d / f), math.log((1 - d) / (1 - f)))
+        lh, lm = pd_pfa_increments(pd, pfa, bins_per_cell=bins_per_cell, n_arc=n_arc)
+        if not (float(lh) > 0 and float(lm) < 0):
+            raise InputError(
+                f"pd/pfa: detection probability ({pd}) must exceed the false-alarm probability ({pfa}) "
+                f"per cell ({bins_per_cell} bins) and arc ({n_arc} cells)"
+            )
+        return cls(float(lh), float(lm))
 
     @classmethod
     def fixed(cls, p_hit: float = 0.8, p_miss: float = 0.3) -> SensorModel:
@@ -302,6 +336,7 @@ class OccupancyMap:
         pd: float | ArrayLike | None = None,
         pfa: float | ArrayLike | None = None,
         model: SensorModel | None = None,
+        range_resolution_m: float | None = None,
     ) -> int:
         """Integrate a batch of pings.
 
@@ -323,6 +358,12 @@ class OccupancyMap:
         model : SensorModel, optional
             A fixed inverse sensor model (used when ``pd``/``pfa`` are not given, and as the
             fallback for uninformative pings).
+        range_resolution_m : float, optional
+            Range-bin size.  When given, ``pfa`` is read as a per-pixel probability and turned
+            into a per-cell one over the ``resolution_m / range_resolution_m`` bins a ray crosses
+            in a cell; with ``n_elevation > 1`` hits are also discounted for the elevation-arc
+            ambiguity (``n_arc`` = cells the arc spans at the ping's median return range).
+            Without it, ``pd``/``pfa`` are used as per-cell probabilities directly.
 
         Returns
         -------
@@ -347,10 +388,17 @@ class OccupancyMap:
             pdv = np.broadcast_to(np.asarray(pd, dtype=np.float64), (P,))
             pfv = np.broadcast_to(np.asarray(pfa, dtype=np.float64), (P,))
             informative = np.isfinite(pdv) & np.isfinite(pfv) & (pdv > pfv)
-            pdc = np.clip(np.where(informative, pdv, 0.9), _P_EPS, 1 - _P_EPS)
-            pfc = np.clip(np.where(informative, pfv, 0.1), _P_EPS, 1 - _P_EPS)
-            l_hit = np.log(pdc / pfc)
-            l_miss = np.log1p(-pdc) - np.log1p(-pfc)
+            m_bins = 1.0 if range_resolution_m is None else max(1.0, cfg.resolution_m / float(range_resolution_m))
+            n_arc = np.ones(P)
+            if range_resolution_m is not None and cfg.n_elevation > 1:
+                hit_r = np.where(np.isfinite(r) & (r > 0), r, np.inf)
+                k = (np.isfinite(hit_r)).sum(axis=1)
+                srt = np.sort(hit_r, axis=1)
+                r_med = np.where(k > 0, srt[np.arange(P), np.maximum(k - 1, 0) // 2], 0.0)
+                n_arc = np.clip(np.ceil(r_med * cfg.vertical_aperture_rad / cfg.resolution_m), 1, cfg.n_elevation)
+            l_hit, l_miss = pd_pfa_increments(np.where(informative, pdv, 0.9), np.where(informative, pfv, 0.1),
+                                              bins_per_cell=m_bins, n_arc=n_arc)
+            informative &= (l_hit > 0) & (l_miss < 0)
             if model is not None:  # fallback for pings whose pD/pFA are missing or uninformative
                 l_hit = np.where(informative, l_hit, model.l_hit)
                 l_miss = np.where(informative, l_miss, model.l_miss)
@@ -429,6 +477,7 @@ class OccupancyMap:
         pd: ArrayLike | None = None,
         pfa: ArrayLike | None = None,
         model: SensorModel | None = None,
+        range_resolution_m: float | None = None,
     ) -> int:
         """Integrate :class:`sonarmap.ranges.BeamRanges` (one per ping, equal beam counts)."""
         ranges = list(ranges)
@@ -443,6 +492,7 @@ class OccupancyMap:
             pd=pd,
             pfa=pfa,
             model=model,
+            range_resolution_m=range_resolution_m,
         )
 
     # ------------------------------------------------------------------ queries and export

@@ -31,7 +31,6 @@ from numpy.typing import ArrayLike, NDArray
 
 from sonarmap.errors import InputError
 from sonarmap.geometry import SonarGeometry, as_geometry
-from sonarmap.mapping.frames import transform_points
 from sonarmap.mapping.poses import Extrinsics, SensorPoses, Trajectory, sensor_poses
 from sonarmap.ping import Ping
 
@@ -176,6 +175,7 @@ class SurveyConfig:
     sample_spacing_m: float = 0.01
     geometry: Any = "didson-hf"
     seed: int = 0
+    reflectivity_db: float = -20.0
 
     def __post_init__(self) -> None:
         if self.kind not in ("hull", "seafloor"):
@@ -418,21 +418,39 @@ def simulate_survey(
         from sonarmap.simulate import Scene, SimulationConfig, simulate_ping
 
         scfg = sim_config if sim_config is not None else SimulationConfig()
-        from sonarmap.mapping.frames import invert_transform
+        refl = 10.0 ** (cfg.reflectivity_db / 10.0)
+        # samples farther out of the imaging plane than this contribute nothing (Gaussian pattern:
+        # weight exp(-4 ln2 2.5^2) = 3e-8 at 2.5 apertures; box pattern: half the aperture)
+        w = scfg.elevation_aperture_rad
+        half_el = 2.5 * w if scfg.elevation_pattern == "gaussian" else 0.5 * w
+        tan_el = math.tan(half_el)
+        r_cut = geometry.max_range_m + 0.05
+        h = cfg.sample_spacing_m
+        xs = pts[:, 0]  # samples are generated in increasing x (u-major grid)
 
         for i in range(cfg.n_pings):
-            R_sw, t_sw = invert_transform(poses.rotation[i], poses.translation_m[i])
-            # only samples near this ping's imaging plane (within the vertical aperture + margin)
-            ps = transform_points(R_sw, t_sw, pts)
-            rng_ = np.linalg.norm(ps, axis=1)
-            near = (np.abs(ps[:, 2]) <= rng_ * math.tan(math.radians(9.0)) + 0.05) & (rng_ <= geometry.max_range_m + 0.5)
+            R_ws, t_ws = poses.rotation[i], poses.translation_m[i]
+            # samples within the vertical aperture of this ping's imaging plane (normal = sensor z),
+            # searched in the slab of x that the plane (nearly across track) can reach
+            n = R_ws[:, 2]
+            d_max = r_cut * tan_el + h
+            nx = abs(float(n[0]))
+            half = (d_max + r_cut * math.sqrt(max(0.0, 1.0 - nx * nx))) / max(nx, 1e-3)
+            lo, hi = np.searchsorted(xs, [t_ws[0] - half, t_ws[0] + half])
+            dist = pts[lo:hi] @ n - float(n @ t_ws)
+            near = lo + np.flatnonzero(np.abs(dist) <= d_max)
+            ps = (pts[near] - t_ws) @ R_ws  # world -> sensor: R_ws^T (p - t)
+            rho = np.hypot(ps[:, 0], ps[:, 1])
+            keep = (np.abs(ps[:, 2]) <= rho * tan_el + h) & (np.hypot(rho, ps[:, 2]) <= r_cut) & (ps[:, 0] > 0)
+            sel = near[keep]
             scene = Scene(
-                points_m=pts[near],
-                normals=normals[near],
-                reflectivity=np.ones(int(near.sum())),
-                labels=np.ones(int(near.sum()), dtype=np.int32),
-                patch_area=area[near],
-            ).transformed(R_sw, t_sw)
+                points_m=ps[keep],
+                normals=normals[sel] @ R_ws,
+                reflectivity=np.full(sel.size, refl),
+                labels=np.ones(sel.size, dtype=np.uint8),
+                patch_area_m2=area[sel],
+                name=f"survey-{cfg.kind}",
+            )
             res = simulate_ping(scene, geometry, config=scfg, seed=cfg.seed + i, time_ns=int(ping_t[i]))
             pose = Pose(vehicle.translation_m[i], vehicle.orientation_xyzw[i], "ned")
             pings.append(res.ping.replace(pose=pose, source=f"sim:{cfg.kind}#{i}"))
@@ -527,13 +545,15 @@ def evaluate_survey(
     pipeline_config: Any = None,
     resolutions_m: tuple[float, ...] = (0.05, 0.1),
     products: list[Any] | None = None,
+    n_elevation: int = 1,
 ) -> SurveyEvaluation:
     """Run the per-ping pipeline on a rendered survey, register and map, and score against truth.
 
     Registration uses the true sensor poses, so the errors measured are those of the ranges and
     of the zero-elevation assumption.  Occupancy IoU compares the occupied cells with
-    :func:`truth_voxels` for each resolution, with the pD/pFA-driven inverse sensor model and with
-    fixed ``P(occ|hit) = 0.8``, ``P(occ|miss) = 0.3``.
+    :func:`truth_voxels` for each resolution, with the pD/pFA-driven inverse sensor model (per-pixel
+    pFA turned into a per-cell one, elevation-arc ambiguity over ``n_elevation`` rays spanning the
+    renderer's vertical aperture) and with fixed ``P(occ|hit) = 0.8``, ``P(occ|miss) = 0.3``.
     """
     from sonarmap.mapping.occupancy import OccupancyConfig, OccupancyMap, SensorModel, voxel_iou
     from sonarmap.mapping.register import register_ranges
@@ -549,11 +569,13 @@ def evaluate_survey(
     pd = np.array([float(p.pd) for p in products])
     pfa = np.array([float(p.pfa) for p in products])
     g = survey.geometry
+    aperture = survey.sim_truth[0].config.elevation_aperture_rad if survey.sim_truth else math.radians(1.0)
     iou: dict[tuple[float, str], float] = {}
     for res in resolutions_m:
         truth = truth_voxels(survey, res)
-        for name, kw in (("pd/pfa", {"pd": pd, "pfa": pfa}), ("fixed 0.8/0.3", {"model": SensorModel.fixed(0.8, 0.3)})):
-            m = OccupancyMap(OccupancyConfig(resolution_m=res))
+        for name, kw in (("pd/pfa", {"pd": pd, "pfa": pfa, "range_resolution_m": g.range_resolution_m}),
+                         ("fixed 0.8/0.3", {"model": SensorModel.fixed(0.8, 0.3)})):
+            m = OccupancyMap(OccupancyConfig(resolution_m=res, n_elevation=n_elevation, vertical_aperture_rad=aperture))
             m.integrate_ranges(ranges, survey.poses, min_range_m=g.min_range_m, max_range_m=g.max_range_m, **kw)
             iou[(res, name)] = voxel_iou(m.occupied_cells(), truth)
     return SurveyEvaluation(acc, iou, float(np.nanmean(pd)), float(np.nanmean(pfa)))
