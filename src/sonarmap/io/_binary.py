@@ -139,3 +139,19 @@ def make_summary(
     out.update(details)
     out["_geometry"] = geometry
     return out
+
+
+def iter_container_pings(opener: Any, path: str | os.PathLike[str], geometry: Any = None) -> Iterator[Any]:
+    """Registry hook body shared by the file readers: open, yield every ping lazily, close.
+
+    ``opener`` is a reader class (``ArisFile``, ``DdfFile``, ``OculusFile``) usable as a context
+    manager that iterates over its pings.
+    """
+    with opener(path, geometry=geometry) as f:
+        yield from f
+
+
+def count_container_pings(opener: Any, path: str | os.PathLike[str]) -> int:
+    """Registry hook body: number of pings of a reader, closing its memory map afterwards."""
+    with opener(path) as f:
+        return len(f)

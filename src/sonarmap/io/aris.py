@@ -39,6 +39,8 @@ from numpy.typing import NDArray
 from sonarmap.errors import DataFormatError, SonarmapWarning
 from sonarmap.geometry import SonarGeometry, as_geometry, preset
 from sonarmap.io._binary import (
+    count_container_pings,
+    iter_container_pings,
     MAX_TIME_NS,
     U8_SCALE,
     finite_or,
@@ -523,16 +525,12 @@ def iter_pings(
     **_: Any,
 ) -> Iterator[Ping]:
     """Lazily yield the frames of an ARIS file (memory-mapped; one image in memory at a time)."""
-    f = ArisFile(path, geometry=geometry)
-    try:
-        yield from f
-    finally:
-        f.close()
+    yield from iter_container_pings(ArisFile, path, geometry)
 
 
 def count_pings(path: str | os.PathLike[str]) -> int:
     """Number of complete frames (from the file size and the first frame header)."""
-    return len(ArisFile(path))
+    return count_container_pings(ArisFile, path)
 
 
 def summary(path: str | os.PathLike[str]) -> dict[str, Any]:

@@ -45,7 +45,17 @@ import numpy as np
 
 from sonarmap.errors import DataFormatError
 from sonarmap.geometry import GeometryWarning, SonarGeometry, as_geometry, preset, uniform_azimuths
-from sonarmap.io._binary import MAX_TIME_NS, U8_SCALE, finite_or, header_errors, make_summary, map_file, warn_partial
+from sonarmap.io._binary import (
+    MAX_TIME_NS,
+    U8_SCALE,
+    count_container_pings,
+    finite_or,
+    header_errors,
+    iter_container_pings,
+    make_summary,
+    map_file,
+    warn_partial,
+)
 from sonarmap.ping import Ping
 
 __all__ = [
@@ -341,16 +351,12 @@ def iter_pings(
     **_: Any,
 ) -> Iterator[Ping]:
     """Lazily yield the frames of a DDF file (memory-mapped)."""
-    f = DdfFile(path, geometry=geometry)
-    try:
-        yield from f
-    finally:
-        f.close()
+    yield from iter_container_pings(DdfFile, path, geometry)
 
 
 def count_pings(path: str | os.PathLike[str]) -> int:
     """Number of complete frames (from the file size)."""
-    return len(DdfFile(path))
+    return count_container_pings(DdfFile, path)
 
 
 def summary(path: str | os.PathLike[str]) -> dict[str, Any]:

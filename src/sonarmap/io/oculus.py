@@ -45,7 +45,16 @@ import numpy as np
 
 from sonarmap.errors import DataFormatError
 from sonarmap.geometry import SonarGeometry, as_geometry
-from sonarmap.io._binary import MAX_TIME_NS, U8_SCALE, header_errors, make_summary, map_file, warn_partial
+from sonarmap.io._binary import (
+    MAX_TIME_NS,
+    U8_SCALE,
+    count_container_pings,
+    header_errors,
+    iter_container_pings,
+    make_summary,
+    map_file,
+    warn_partial,
+)
 from sonarmap.ping import Ping
 
 __all__ = [
@@ -511,17 +520,12 @@ def iter_pings(
     **_: Any,
 ) -> Iterator[Ping]:
     """Lazily yield the pings of an Oculus stream or ViewPoint log."""
-    f = OculusFile(path, geometry=geometry)
-    try:
-        yield from f
-    finally:
-        f.close()
+    yield from iter_container_pings(OculusFile, path, geometry)
 
 
 def count_pings(path: str | os.PathLike[str]) -> int:
     """Number of ``SimplePingResult`` messages (headers only)."""
-    with OculusFile(path) as f:
-        return len(f)
+    return count_container_pings(OculusFile, path)
 
 
 def summary(path: str | os.PathLike[str]) -> dict[str, Any]:
