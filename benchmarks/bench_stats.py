@@ -13,6 +13,7 @@ def run(quick: bool) -> list[dict]:
     from sonarmap.classify.local_map import local_map_labels
     from sonarmap.io import read_ping
     from sonarmap.stats.mixture import fit_mixture
+    from sonarmap.stats.selection import default_candidates, select_model
 
     ping = read_ping(sorted((DATA / "didson" / "test").glob("*_raw.png"))[0])
     img = ping.image
@@ -41,5 +42,16 @@ def run(quick: bool) -> list[dict]:
          "target_ms": 10.0, "baseline": "authors curve_fit", "baseline_ms": base},
         {"benchmark": "stats", "case": "MAP labels 512x96", "median_ms": timeit(lambda: local_map_labels(img, fit), repeat=rep),
          "target_ms": 0.2},
+        {"benchmark": "stats", "case": "MAP fresh fit + labels 512x96",
+         "median_ms": timeit(lambda: local_map_labels(img, fit_mixture(img, method="em")), repeat=rep),
+         "note": "EM fit, table build, labels"},
     ]
+    rep_sel = 3 if quick else 10
+    for n_obj in (1, 2):
+        cands = default_candidates(n_obj)
+        rows.append(
+            {"benchmark": "stats", "case": f"select_model {len(cands)} candidates 512x96",
+             "median_ms": timeit(lambda c=cands: select_model(img, candidates=c), repeat=rep_sel,
+                                 warmup=1, min_time_s=0.0),
+             "target_ms": 500.0, "note": f"exponential bg + 0..{n_obj} objects, BIC"})
     return rows

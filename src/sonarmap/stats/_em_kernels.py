@@ -291,3 +291,348 @@ def em_kernel(
                                 m_lo[c], m_hi[c], u)
         it += 1
     return it, converged
+
+
+# ---------------------------------------------------------------------------- general EM
+#
+# Two-parameter families, in the coordinates the M-step works in (``kind``: coordinates):
+#   3 gamma   (a, b = 1/scale):       g = (a - 1) log x - b x     (natural parameters: Q concave)
+#   4 weibull (c, t = log scale):     g = (c - 1) l - exp(c l),   l = log x - t
+#   5 rice    (nu, v = 1/scale^2):    g = log x - (x - nu)^2 v / 2 + log i0e(x nu v)
+# ``g`` is the unnormalised log-density of :meth:`sonarmap.stats.components.Family.log_density`
+# (up to terms constant in x); gamma and Weibull with shape < 1 evaluate level 0 at half a step.
+
+
+@njit(cache=True, nogil=True)
+def bessel_i0e_ratio(z: float) -> tuple[float, float]:
+    """``(i0e(z), I1(z) / I0(z))`` for ``z >= 0`` (power series below 17, asymptotic above)."""
+    if z <= 0.0:
+        return 1.0, 0.0
+    if z < 17.0:
+        t = 0.25 * z * z
+        a0 = 1.0  # t^k / (k!)^2
+        a1 = 1.0  # t^k / (k! (k+1)!)
+        s0 = 1.0
+        s1 = 1.0
+        for k in range(1, 200):
+            a0 *= t / (k * k)
+            a1 *= t / (k * (k + 1))
+            s0 += a0
+            s1 += a1
+            if a0 < 1e-17 * s0:
+                break
+        return s0 * np.exp(-z), 0.5 * z * s1 / s0
+    # asymptotic: I_n(z) e^-z ~ (2 pi z)^-1/2 sum_k (-1)^k prod_j (4n^2 - (2j-1)^2) / (k! (8z)^k)
+    c0 = 1.0
+    c1 = 1.0
+    s0 = 1.0
+    s1 = 1.0
+    for k in range(1, 200):
+        o = (2.0 * k - 1.0) ** 2
+        n0 = c0 * o / (8.0 * k * z)
+        n1 = -c1 * (4.0 - o) / (8.0 * k * z)
+        if abs(n0) > abs(c0) or abs(n1) > abs(c1):
+            break
+        c0 = n0
+        c1 = n1
+        s0 += c0
+        s1 += c1
+        if abs(c0) < 1e-17 * s0 and abs(c1) < 1e-17 * abs(s1):
+            break
+    return s0 / np.sqrt(2.0 * np.pi * z), s1 / s0
+
+
+@njit(cache=True, nogil=True)
+def _logdens2(kind: int, p0: float, p1: float, x: np.ndarray, xe: np.ndarray, lx: np.ndarray,
+              g: np.ndarray, gr: np.ndarray, hs: np.ndarray, derivs: bool) -> float:
+    """Unnormalised log-density ``g`` (``-inf`` off the support) and, with ``derivs``, its
+    gradient ``gr (L, 2)`` and Hessian ``hs (L, 3)`` (``h00, h01, h11``) in the kernel's
+    coordinates; returns ``max g``."""
+    L = x.shape[0]
+    top = -np.inf
+    for k in range(L):
+        if k == 0 and (kind == 5 or (p0 >= 1.0)):
+            g[0] = -np.inf
+            continue
+        if kind == 3:
+            v = (p0 - 1.0) * lx[k] - p1 * xe[k]
+            if derivs:
+                gr[k, 0] = lx[k]
+                gr[k, 1] = -xe[k]
+                hs[k, 0] = 0.0
+                hs[k, 1] = 0.0
+                hs[k, 2] = 0.0
+        elif kind == 4:
+            l = lx[k] - p1
+            zc = np.exp(p0 * l)
+            v = (p0 - 1.0) * l - zc
+            if derivs:
+                gr[k, 0] = l * (1.0 - zc)
+                gr[k, 1] = -(p0 - 1.0) + p0 * zc
+                hs[k, 0] = -l * l * zc
+                hs[k, 1] = -1.0 + zc * (1.0 + p0 * l)
+                hs[k, 2] = -p0 * p0 * zc
+        else:
+            xk = x[k]
+            z = xk * p0 * p1
+            e0, a = bessel_i0e_ratio(z)
+            d = xk - p0
+            v = lx[k] - 0.5 * d * d * p1 + np.log(e0)
+            if derivs:
+                dd = a - 1.0
+                dp = 0.5 if z < 1e-6 else 1.0 - a / z - a * a
+                gr[k, 0] = d * p1 + xk * p1 * dd
+                gr[k, 1] = -0.5 * d * d + xk * p0 * dd
+                hs[k, 0] = -p1 + (xk * p1) ** 2 * dp
+                hs[k, 1] = d + xk * dd + xk * p1 * xk * p0 * dp
+                hs[k, 2] = (xk * p0) ** 2 * dp
+        if v != v:
+            v = -np.inf
+        g[k] = v
+        if v > top:
+            top = v
+    return top
+
+
+@njit(cache=True, nogil=True)
+def _q2(kind: int, p0: float, p1: float, x: np.ndarray, xe: np.ndarray, lx: np.ndarray,
+        r: np.ndarray, R: float, g: np.ndarray, gr: np.ndarray, hs: np.ndarray, derivs: bool,
+        out: np.ndarray) -> float:
+    """Expected complete-data log-likelihood ``Q = sum_k r_k log p(k)`` of one component; with
+    ``derivs``, ``out = (dQ0, dQ1, H00, H01, H11)``."""
+    L = x.shape[0]
+    top = _logdens2(kind, p0, p1, x, xe, lx, g, gr, hs, derivs)
+    if not top > -np.inf or top != top:
+        return -np.inf
+    z = 0.0
+    for k in range(L):
+        if g[k] > -np.inf:
+            z += np.exp(g[k] - top)
+    logz = top + np.log(z)
+    q = 0.0
+    for k in range(L):
+        if r[k] > 0:
+            if not g[k] > -np.inf:
+                return -np.inf
+            q += r[k] * g[k]
+    q -= R * logz
+    if derivs:
+        m0 = 0.0
+        m1 = 0.0
+        for k in range(L):
+            if g[k] > -np.inf:
+                p = np.exp(g[k] - logz)
+                m0 += p * gr[k, 0]
+                m1 += p * gr[k, 1]
+        g0 = 0.0
+        g1 = 0.0
+        h00 = 0.0
+        h01 = 0.0
+        h11 = 0.0
+        for k in range(L):
+            if g[k] > -np.inf:
+                p = np.exp(g[k] - logz)
+                d0 = gr[k, 0] - m0
+                d1 = gr[k, 1] - m1
+                h00 -= R * p * (hs[k, 0] + d0 * d0)
+                h01 -= R * p * (hs[k, 1] + d0 * d1)
+                h11 -= R * p * (hs[k, 2] + d1 * d1)
+                if r[k] > 0:
+                    g0 += r[k] * d0
+                    g1 += r[k] * d1
+                    h00 += r[k] * hs[k, 0]
+                    h01 += r[k] * hs[k, 1]
+                    h11 += r[k] * hs[k, 2]
+        out[0] = g0
+        out[1] = g1
+        out[2] = h00
+        out[3] = h01
+        out[4] = h11
+    return q
+
+
+@njit(cache=True, nogil=True)
+def _mstep2(kind: int, par: np.ndarray, lo: np.ndarray, hi: np.ndarray, x: np.ndarray,
+            xe: np.ndarray, lx: np.ndarray, r: np.ndarray, R: float, g: np.ndarray,
+            gr: np.ndarray, hs: np.ndarray, max_newton: int) -> None:
+    """Damped Newton on ``Q`` of one two-parameter component, in place on ``par`` (2,), inside
+    the box ``[lo, hi]``; a step is taken only if it increases ``Q`` (so EM stays monotone)."""
+    out = np.empty(5)
+    p0 = par[0]
+    p1 = par[1]
+    q0 = _q2(kind, p0, p1, x, xe, lx, r, R, g, gr, hs, True, out)
+    if not q0 > -np.inf:
+        return
+    for _ in range(max_newton):
+        # ascent direction: solve (-H + mu I) d = grad with -H + mu I positive definite
+        a00 = -out[2]
+        a01 = -out[3]
+        a11 = -out[4]
+        g0 = out[0]
+        g1 = out[1]
+        tr = a00 + a11
+        det = a00 * a11 - a01 * a01
+        mu = 0.0
+        if not (a00 > 0 and det > 1e-12 * tr * tr):
+            # smallest eigenvalue of the 2x2 symmetric matrix
+            disc = np.sqrt(0.25 * (a00 - a11) ** 2 + a01 * a01)
+            lam = 0.5 * tr - disc
+            mu = -lam + 1e-6 * (abs(tr) + 1e-300) + 1e-300
+        b00 = a00 + mu
+        b11 = a11 + mu
+        det = b00 * b11 - a01 * a01
+        if not det > 0 or det != det:
+            return
+        d0 = (b11 * g0 - a01 * g1) / det
+        d1 = (b00 * g1 - a01 * g0) / det
+        step = 1.0
+        accepted = False
+        qc = q0
+        c0 = p0
+        c1 = p1
+        for _bt in range(40):
+            c0 = min(max(p0 + step * d0, lo[0]), hi[0])
+            c1 = min(max(p1 + step * d1, lo[1]), hi[1])
+            if c0 == p0 and c1 == p1:
+                break
+            qc = _q2(kind, c0, c1, x, xe, lx, r, R, g, gr, hs, False, out)
+            if qc > q0:
+                accepted = True
+                break
+            step *= 0.5
+        if not accepted:
+            break
+        gain = qc - q0
+        p0 = c0
+        p1 = c1
+        q0 = qc
+        if gain <= 1e-13 * (abs(q0) + 1.0):
+            break
+        q0 = _q2(kind, p0, p1, x, xe, lx, r, R, g, gr, hs, True, out)
+    par[0] = p0
+    par[1] = p1
+
+
+@njit(cache=True, nogil=True)
+def em_general_kernel(
+    counts: np.ndarray,
+    x: np.ndarray,
+    kind: np.ndarray,
+    par: np.ndarray,
+    w: np.ndarray,
+    lo: np.ndarray,
+    hi: np.ndarray,
+    max_iter: int,
+    tol: float,
+    max_newton: int,
+    ll_trace: np.ndarray,
+) -> tuple[int, bool]:
+    """(Generalised) EM for any mix of kinds 0-5, in place on ``par (C, 2)`` and ``w``.
+
+    ``par[c, 0]`` is ``eta`` for kinds 1-2 (exact M-step as in :func:`em_kernel`) and the first
+    coordinate of kinds 3-5 (damped Newton, improvement only); ``lo``/``hi`` are ``(C, 2)``
+    bounds.  Same trace and stopping rule as :func:`em_kernel`.
+    """
+    C = kind.shape[0]
+    L = x.shape[0]
+    h = x[1] - x[0]
+    xe = x.copy()
+    xe[0] = 0.5 * h
+    lx = np.log(xe)
+    N = 0.0
+    n_occ = 0
+    for k in range(L):
+        if counts[k] > 0:
+            n_occ += 1
+            N += counts[k]
+    occ = np.empty(n_occ, dtype=np.int64)
+    j = 0
+    for k in range(L):
+        if counts[k] > 0:
+            occ[j] = k
+            j += 1
+    P = np.zeros((C, L))
+    Rsp = np.zeros((C, L))
+    u = np.empty(L)
+    g = np.empty(L)
+    gr = np.empty((L, 2))
+    hs = np.empty((L, 3))
+    m_lo = np.zeros(C)
+    m_hi = np.zeros(C)
+    for c in range(C):
+        if kind[c] == 1 or kind[c] == 2:
+            m_lo[c] = _mean(kind[c], x, lo[c, 0], u)
+            m_hi[c] = _mean(kind[c], x, hi[c, 0], u)
+    Nc = np.empty(C)
+    tbar = np.empty(C)
+    pk = np.empty(C)
+    converged = False
+    it = 0
+    ll_prev = -np.inf
+    while True:
+        for c in range(C):
+            kc = kind[c]
+            if kc == 0:
+                P[c, 0] = 1.0
+            elif kc <= 2:
+                z, _, _ = _eval(kc, x, par[c, 0], u)
+                inv = 1.0 / z
+                for k in range(L):
+                    P[c, k] = u[k] * inv
+            else:
+                top = _logdens2(kc, par[c, 0], par[c, 1], x, xe, lx, g, gr, hs, False)
+                z = 0.0
+                for k in range(L):
+                    e = np.exp(g[k] - top) if g[k] > -np.inf else 0.0
+                    P[c, k] = e
+                    z += e
+                inv = 1.0 / z
+                for k in range(L):
+                    P[c, k] *= inv
+        ll = 0.0
+        for c in range(C):
+            Nc[c] = 0.0
+            tbar[c] = 0.0
+        for jj in range(n_occ):
+            k = occ[jj]
+            n = counts[k]
+            s = 0.0
+            for c in range(C):
+                v = w[c] * P[c, k]
+                pk[c] = v
+                s += v
+            if s <= 0:
+                ll = -np.inf
+                for c in range(C):
+                    Rsp[c, k] = 0.0
+                continue
+            ll += n * np.log(s)
+            f = n / s
+            xk = x[k]
+            for c in range(C):
+                rr = pk[c] * f
+                Rsp[c, k] = rr
+                Nc[c] += rr
+                if kind[c] == 1:
+                    tbar[c] += rr * xk
+                elif kind[c] == 2:
+                    tbar[c] += rr * xk * xk
+        ll_trace[it] = ll
+        if it > 0 and ll - ll_prev <= tol * (abs(ll) + 1.0):
+            converged = True
+            break
+        if it >= max_iter:
+            break
+        ll_prev = ll
+        for c in range(C):
+            w[c] = Nc[c] / N
+            kc = kind[c]
+            if kc == 0 or Nc[c] <= 0:
+                continue
+            if kc <= 2:
+                par[c, 0] = _solve(kc, x, tbar[c] / Nc[c], par[c, 0], lo[c, 0], hi[c, 0],
+                                   m_lo[c], m_hi[c], u)
+            else:
+                _mstep2(kc, par[c], lo[c], hi[c], x, xe, lx, Rsp[c], Nc[c], g, gr, hs, max_newton)
+        it += 1
+    return it, converged

@@ -599,6 +599,34 @@ def _em_fast(
     return w, params, int(n_iter), bool(conv), trace[: n_iter + 1].copy()
 
 
+_KIND_GENERAL = {"zero": 0, "exponential": 1, "rayleigh": 2, "gamma": 3, "weibull": 4, "rice": 5}
+
+
+def _to_coords(name: str, p: tuple[float, ...]) -> tuple[float, float]:
+    """Family parameters -> the coordinates of :func:`em_general_kernel`."""
+    if name in ("exponential", "rayleigh"):
+        return _eta_of(name, p[0]), 0.0
+    if name == "gamma":
+        return p[0], 1.0 / p[1]
+    if name == "weibull":
+        return p[0], math.log(p[1])
+    if name == "rice":
+        return p[0], 1.0 / (p[1] * p[1])
+    return 0.0, 0.0
+
+
+def _from_coords(name: str, c0: float, c1: float) -> tuple[float, ...]:
+    if name in ("exponential", "rayleigh"):
+        return (_scale_of(name, c0),)
+    if name == "gamma":
+        return (c0, 1.0 / c1)
+    if name == "weibull":
+        return (c0, math.exp(c1))
+    if name == "rice":
+        return (c0, 1.0 / math.sqrt(c1))
+    return ()
+
+
 def _em_general(
     spec: _Spec,
     counts: NDArray[np.float64],
@@ -607,62 +635,43 @@ def _em_general(
     max_iter: int,
     tol: float,
 ) -> tuple[NDArray[np.float64], list[tuple[float, ...]], int, bool, NDArray[np.float64]]:
-    """Generalised EM: exact E-step, M-step improving each component's expected log-likelihood."""
-    from scipy.optimize import minimize
+    """Generalised EM for any families, entirely in one numba kernel (:func:`em_general_kernel`).
 
-    from sonarmap.stats._em_kernels import solve_eta_kind
+    Exact E-step; exact M-step for the exponential and Rayleigh components; for gamma (in its
+    natural parameters, where the expected log-likelihood is concave), Weibull and Rice a few
+    damped Newton steps with analytic gradient and Hessian, each accepted only if it increases
+    that component's expected log-likelihood - so the log-likelihood never decreases.
+    """
+    from sonarmap.stats._em_kernels import em_general_kernel
 
+    C = len(spec.names)
+    kind = np.empty(C, dtype=np.int64)
+    par = np.zeros((C, 2))
+    lo = np.zeros((C, 2))
+    hi = np.zeros((C, 2))
+    for c, name in enumerate(spec.names):
+        kind[c] = _KIND_GENERAL[name]
+        if name == "zero":
+            continue
+        (b_lo, b_hi) = _bounds(spec, name)[0]
+        if name in ("exponential", "rayleigh"):
+            lo[c, 0], hi[c, 0] = _eta_of(name, spec.smin), _eta_of(name, spec.smax)
+        else:
+            # coordinate 1 decreases with the scale for gamma and Rice
+            a = _to_coords(name, (b_lo, spec.smin))
+            b = _to_coords(name, (b_hi, spec.smax))
+            lo[c] = (b_lo, min(a[1], b[1]))
+            hi[c] = (b_hi, max(a[1], b[1]))
+        p = params0[c]
+        if len(p) == 2:
+            p = (min(max(p[0], b_lo), b_hi), min(max(p[1], spec.smin), spec.smax))
+        par[c] = _to_coords(name, p)
     w = np.array(w0, dtype=np.float64)
-    params = [tuple(p) for p in params0]
-    N = counts.sum()
-    occ = counts > 0
-    trace: list[float] = []
-    conv = False
-    it = 0
-    while True:
-        logp = np.stack([log_pmf(n, p, spec.levels) for n, p in zip(spec.names, params)])
-        with np.errstate(divide="ignore"):
-            lw = np.log(w)[:, None] + logp
-        m = lw.max(axis=0)
-        m_safe = np.where(np.isfinite(m), m, 0.0)
-        s = np.exp(lw - m_safe).sum(axis=0)
-        with np.errstate(divide="ignore"):
-            ll = float(np.sum(counts[occ] * (m_safe[occ] + np.log(s[occ]))))
-        trace.append(ll)
-        if it > 0 and ll - trace[-2] <= tol * (abs(ll) + 1.0):
-            conv = True
-            break
-        if it >= max_iter:
-            break
-        resp = np.where(occ, np.exp(lw - m_safe) / np.where(s > 0, s, 1.0), 0.0) * counts
-        Nc = resp.sum(axis=1)
-        w = Nc / N
-        for c, name in enumerate(spec.names):
-            if name == "zero" or Nc[c] <= 0:
-                continue
-            r = resp[c]
-            if name in ("exponential", "rayleigh"):
-                T = spec.levels if name == "exponential" else spec.levels * spec.levels
-                eta = solve_eta_kind(
-                    _KIND[name], spec.levels, float(r @ T / Nc[c]), _eta_of(name, params[c][0]),
-                    _eta_of(name, spec.smin), _eta_of(name, spec.smax),
-                )
-                params[c] = (_scale_of(name, eta),)
-                continue
-            bnds = _bounds(spec, name)
-
-            def negq(theta: NDArray[np.float64], name: str = name, r: NDArray[np.float64] = r) -> float:
-                lp = log_pmf(name, tuple(theta), spec.levels)
-                mask = r > 0
-                v = -float(r[mask] @ lp[mask])
-                return v if math.isfinite(v) else 1e300
-
-            old = np.array(params[c])
-            res = minimize(negq, old, method="L-BFGS-B", bounds=bnds, options={"maxiter": 50})
-            if res.fun < negq(old):
-                params[c] = tuple(float(v) for v in res.x)
-        it += 1
-    return w, params, it, conv, np.asarray(trace)
+    trace = np.empty(max_iter + 1)
+    n_iter, conv = em_general_kernel(counts, spec.levels, kind, par, w, lo, hi, int(max_iter),
+                                     float(tol), 3, trace)
+    params = [_from_coords(n, float(par[c, 0]), float(par[c, 1])) for c, n in enumerate(spec.names)]
+    return w, params, int(n_iter), bool(conv), trace[: n_iter + 1].copy()
 
 
 def _em_best(

@@ -57,9 +57,15 @@ class ModelSelection:
         ]
 
 
-def default_candidates(max_objects: int = 1) -> list[tuple[str, ...]]:
-    """Exponential background plus 0..``max_objects`` object components from the object families."""
-    objs = ("rayleigh", "rice", "weibull", "gamma")
+OBJECT_FAMILIES = ("exponential", "rayleigh", "rice", "weibull", "gamma")
+
+
+def default_candidates(max_objects: int = 2) -> list[tuple[str, ...]]:
+    """Exponential background plus 0..``max_objects`` object components from
+    :data:`OBJECT_FAMILIES` (every multiset of families: 1 + 5 + 15 candidates for 2)."""
+    if isinstance(max_objects, bool) or int(max_objects) != max_objects or max_objects < 0:
+        raise InputError(f"max_objects: must be a non-negative integer, got {max_objects!r}")
+    objs = OBJECT_FAMILIES
     out: list[tuple[str, ...]] = [("exponential",)]
     for n in range(1, max_objects + 1):
         for combo in itertools.combinations_with_replacement(objs, n):
@@ -75,6 +81,7 @@ def select_model(
     method: Literal["lsq", "em"] = "em",
     n_levels: int = 256,
     binning: Binning = "round",
+    max_iter: int = 2000,
 ) -> ModelSelection:
     """Fit every candidate model and choose by BIC, AIC or KLD (eq. 11).
 
@@ -93,6 +100,9 @@ def select_model(
         Selection score (lower is better).
     method : {"lsq", "em"}
         Fitter (EM is the maximum-likelihood fit the information criteria assume).
+    max_iter : int
+        EM iteration limit per candidate (a fit that hits it is flagged ``not_converged`` and
+        not chosen).
     """
     if criterion not in ("bic", "aic", "kld"):
         raise InputError(f"criterion: must be 'bic', 'aic' or 'kld', got {criterion!r}")
@@ -104,7 +114,7 @@ def select_model(
     scores = []
     bad = {"not_converged", "collapsed_scale", "zero_mass", "degenerate"}
     for c in cands:
-        f = fit_mixture(counts, families=c, method=method, binning=binning, max_iter=100)
+        f = fit_mixture(counts, families=c, method=method, binning=binning, max_iter=max_iter)
         fits.append(f)
         s = {"bic": f.bic, "aic": f.aic, "kld": f.kld}[criterion]
         scores.append(math.inf if (f.flags & bad) or not math.isfinite(s) else float(s))
