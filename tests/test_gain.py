@@ -102,3 +102,35 @@ def test_estimate_radial_gain_flattens_background():
     assert estimate_radial_gain(pings, fix_k1=20.0).k2 == pytest.approx(0.6, abs=0.05)
     with pytest.raises(InputError, match="range_m"):
         estimate_radial_gain([p.image for p in pings])
+
+
+@pytest.mark.parametrize("rule", ["floor", "round"])
+def test_intensity_from_nonzero_mean_is_threshold_free(rule):
+    # pixel = Q(max(I - t, 0)), I ~ Exp(mu): the non-zero mean gives mu whatever t is.
+    from sonarmap.preprocess.gain import intensity_from_nonzero_mean
+
+    rng = np.random.default_rng(3)
+    d = 1 / 255
+    for mu in (0.004, 0.0125, 0.05):
+        for t in (0.0, 0.01218, 0.03):
+            p = np.maximum(rng.exponential(mu, 400_000) - t, 0.0)
+            q = (np.floor(p / d + 1e-9) if rule == "floor" else np.rint(p / d)) * d
+            nz = q[q > 0]
+            est = float(intensity_from_nonzero_mean(nz.mean(), d))
+            assert est == pytest.approx(mu, rel=4 / np.sqrt(nz.size))  # 4 standard errors
+    assert float(intensity_from_nonzero_mean(0.3, 0.0)) == 0.3
+
+
+def test_estimate_taper_mean_estimator_kept_and_recorded():
+    rng = np.random.default_rng(1)
+    g = preset("didson-hf")
+    truth = np.asarray(g.taper) / np.max(g.taper)
+    imgs = [_background(rng, g.shape, truth) for _ in range(20)]
+    old = estimate_taper(imgs, estimator="mean")
+    new = estimate_taper(imgs, estimator="nonzero_mean")
+    assert old.estimator == "mean" and old.statistic == "median"
+    assert new.estimator == "nonzero-mean" and new.quantum == 0.0  # continuous values
+    assert np.max(np.abs(new.taper / truth - 1)) < 0.05
+    assert set(new.to_dict()) >= {"estimator", "quantum", "excluded"}
+    with pytest.raises(InputError, match="estimator"):
+        estimate_taper(imgs, estimator="mode")

@@ -16,16 +16,45 @@ from sonarmap.preprocess.gain import RadialGain, apply_radial_gain, correct_tape
 from sonarmap.preprocess.pipeline import PreprocessConfig, load_config, preprocess, preprocess_image
 
 
-def test_steps_in_stated_order_equal_the_individual_functions():
+@pytest.mark.parametrize("edge", ["pad", "truncated", "circular"])
+def test_steps_in_stated_order_equal_the_individual_functions(edge):
     g = preset("didson-hf")
     img = np.random.default_rng(0).random(g.shape).astype(np.float32)
     gain = RadialGain(k1=20.0, k2=2.1, k3=-10.0)
-    cfg = PreprocessConfig(noise=0.01, edge="pad", clip_negative=True, radial_gain=gain)
-    ref = deconvolve(img, g, noise=0.01, edge="pad")
-    ref = apply_radial_gain(correct_taper(ref, g.taper), g, gain)
-    np.testing.assert_allclose(preprocess_image(img, g, cfg), np.maximum(ref, 0), rtol=1e-3, atol=1e-3)
+    # Default: taper first (it is a receive gain after the beam pattern), then deconvolve.
+    cfg = PreprocessConfig(noise=0.01, edge=edge, clip_negative=True, radial_gain=gain)
+    assert cfg.taper_order == "before-deconvolution"
+    ref = deconvolve(correct_taper(img, g.taper), g, noise=0.01, edge=edge)
+    ref = apply_radial_gain(ref, g, gain)
+    out = preprocess_image(img, g, cfg)
+    np.testing.assert_allclose(out, np.maximum(ref, 0), rtol=1e-3, atol=1e-3)
+    # The paper's order: deconvolve, then taper.
+    after = cfg.replace(taper_order="after_deconvolution")  # underscores accepted
+    assert after.taper_order == "after-deconvolution"
+    ref_a = apply_radial_gain(correct_taper(deconvolve(img, g, noise=0.01, edge=edge), g.taper), g, gain)
+    out_a = preprocess_image(img, g, after)
+    np.testing.assert_allclose(out_a, np.maximum(ref_a, 0), rtol=1e-3, atol=1e-3)
+    # The two orders really differ (the taper does not commute with the beam-axis filter).
+    assert np.abs(out - out_a).max() > 100 * 1e-3
     none = PreprocessConfig(deconvolve=False, taper=False, clip_negative=False)
     np.testing.assert_array_equal(preprocess_image(img, g, none), img)
+
+
+def test_taper_order_recorded_in_metadata_and_recipes():
+    g = preset("didson-hf")
+    ping = Ping(np.random.default_rng(2).random(g.shape).astype(np.float32), g)
+    rec = preprocess(ping).meta["preprocess"]
+    assert rec["taper_order"] == "before-deconvolution" == rec["config"]["taper_order"]
+    assert rec["steps"] == ["taper", "deconvolve", "clip_negative"]
+    assert rec["order"][:2] == ["taper", "deconvolve"]
+    assert PreprocessConfig.paper_table1().taper_order == "after-deconvolution"
+    assert PreprocessConfig.paper_background().taper_order == "after-deconvolution"
+    rec = preprocess(ping, PreprocessConfig.paper_table1()).meta["preprocess"]
+    assert rec["taper_order"] == "after-deconvolution" and rec["order"][:2] == ["deconvolve", "taper"]
+    with pytest.raises(InputError, match="taper_order"):
+        PreprocessConfig(taper_order="first")
+    cfg = PreprocessConfig(taper_order="after-deconvolution")
+    assert PreprocessConfig.from_dict(json.loads(json.dumps(cfg.to_dict()))) == cfg
 
 
 def test_normalisation_and_metadata():

@@ -18,6 +18,13 @@ def register(app: typer.Typer) -> None:
         output: Path = OUTPUT_OPTION,
         sonar: str | None = GEOMETRY_OPTION,
         method: str = typer.Option("lsq", "--method", "-m", help="Background fit: lsq (paper) or em."),
+        taper_estimator: str = typer.Option(
+            "mean",
+            "--taper-estimator",
+            help="Taper/range-gain estimator: 'mean' (per-beam pixel mean; reproduces the DIDSON "
+            "files' taper, r=0.996) or 'nonzero-mean' (unbiased under a single receiver threshold, "
+            "as in the simulator). See docs/preprocessing.md.",
+        ),
     ) -> None:
         """Estimate taper, radial gain and p(y|B) = (1-pi_B) delta + pi_B lambda e^(-lambda y) (eq. 19).
 
@@ -50,8 +57,10 @@ def register(app: typer.Typer) -> None:
         for p in pings:
             counts += histogram(preprocess_image(p.image, p.geometry, cfg), 256, binning="floor")
         fit = fit_mixture(counts, families=("exponential",), method=method, binning="floor")  # type: ignore[arg-type]
-        taper = estimate_taper(pings)
-        gain = estimate_radial_gain(pings, geom)
+        if taper_estimator not in ("mean", "nonzero-mean"):
+            raise typer.BadParameter("must be 'mean' or 'nonzero-mean'", param_hint="--taper-estimator")
+        taper = estimate_taper(pings, estimator=taper_estimator)
+        gain = estimate_radial_gain(pings, geom, estimator=taper_estimator)
         out_geom = geom.replace(taper=taper.taper)
         d = out_geom.to_dict()
         d["calibration"] = {

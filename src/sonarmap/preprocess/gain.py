@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from typing import Any, Literal
 
 import numpy as np
@@ -31,6 +31,8 @@ __all__ = [
     "apply_radial_gain",
     "estimate_radial_gain",
     "range_profile",
+    "background_intensity",
+    "intensity_from_nonzero_mean",
 ]
 
 Scale = Literal["power", "amplitude"]
@@ -87,6 +89,224 @@ def _iter_images(
         raise InputError(f"{name}: no images given (empty set)")
 
 
+# ---------------------------------------------------------------------- background under the zero spike
+_GRIDS = (255.0, 65535.0)
+
+
+def intensity_from_nonzero_mean(mean_nonzero: ArrayLike, quantum: float) -> NDArray[np.float64]:
+    """Mean speckle intensity ``mu`` from the mean ``m`` of the *non-zero* pixels (threshold-free).
+
+    Model (``docs/preprocessing.md``, ``docs/simulator.md``): pixel ``= Q(max(I - t, 0))`` with
+    ``I`` exponential of mean ``mu`` (single-look speckle), an unknown threshold ``t`` and ``Q`` the
+    quantiser of step ``quantum``.  By memorylessness ``I - t`` given ``I > t`` is again exponential
+    with mean ``mu`` whatever ``t`` is, so:
+
+    * ``quantum = 0`` (continuous data): ``m = mu``.
+    * floor quantisation ``q = floor((I - t) / d) d``: given ``q > 0``, ``q / d - 1`` is geometric
+      with ratio ``r = exp(-d / mu)``, so ``m = d / (1 - r)`` and
+      ``mu = -d / ln(1 - d / m)``.
+    * rounding ``q = rint((I - t) / d) d``: ``q > 0`` iff ``I - t >= d / 2`` and, given that,
+      ``q / d - 1 = floor((I - t - d/2) / d)`` - the same geometric law, so the *same* formula.
+
+    Parameters
+    ----------
+    mean_nonzero : array_like
+        Mean of the non-zero pixel values (``>= quantum`` for quantised data; ``nan`` allowed).
+    quantum : float
+        Quantisation step (``1/255`` for 8-bit pixels), ``0`` for continuous values.
+
+    Returns
+    -------
+    ndarray of float64
+        ``mu`` (``0`` where ``m <= quantum``: all non-zero pixels at the first level).
+    """
+    m = np.asarray(mean_nonzero, dtype=np.float64)
+    d = float(quantum)
+    if d <= 0:
+        return m.copy()
+    with np.errstate(divide="ignore", invalid="ignore"):
+        mu = -d / np.log1p(-d / np.where(m > d, m, np.inf))
+    return np.where(m > d, mu, np.where(np.isnan(m), np.nan, 0.0))
+
+
+def _grid_of(img: NDArray[np.float32]) -> float:
+    """Largest quantisation step (1/255, 1/65535) on whose grid all positive values lie, else 0."""
+    v = img[img > 0].astype(np.float64)
+    if v.size == 0:
+        return math.inf  # compatible with any grid
+    for levels in _GRIDS:
+        s = v * levels
+        if np.all(np.abs(s - np.rint(s)) < 1e-3):
+            return 1.0 / levels
+    return 0.0
+
+
+def _resolve_quantum(quantum: float | Literal["auto"], detected: list[float]) -> float:
+    if quantum == "auto":
+        finite = [d for d in detected if math.isfinite(d)]
+        return min(finite) if finite else 0.0
+    try:
+        q = float(quantum)
+    except (TypeError, ValueError):
+        raise InputError(f"quantum: must be 'auto' or a step >= 0, got {quantum!r}") from None
+    if not math.isfinite(q) or q < 0:
+        raise InputError(f"quantum: must be 'auto' or a step >= 0, got {quantum!r}")
+    return q
+
+
+@dataclasses.dataclass(frozen=True)
+class _Cells:
+    """Non-zero sums/counts of a background set, pooled over pings after outlier rejection."""
+
+    block_sum: NDArray[np.float64]  # (n_blocks, n_beams)
+    block_count: NDArray[np.float64]  # (n_blocks, n_beams)
+    bin_sum: NDArray[np.float64] | None  # (n_bins, n_beams) or None
+    bin_count: NDArray[np.float64] | None
+    quantum: float
+    n_images: int
+    excluded: float  # fraction of (ping, block, beam) cells rejected as outliers
+    geometry: SonarGeometry | None
+
+
+def _background_cells(
+    images: Iterable[ArrayLike] | Iterable[Ping],
+    *,
+    rows: slice | None,
+    block_rows: int,
+    outlier_sigma: float | None,
+    quantum: float | Literal["auto"],
+    per_bin: bool,
+) -> _Cells:
+    """Per-(ping, range block, beam) sums and counts of the positive pixels; robust pooling.
+
+    A (ping, block, beam) cell is rejected when its non-zero mean ``m`` departs from the median
+    over pings ``med`` by more than ``outlier_sigma * med / sqrt(n)`` (``n`` its non-zero count;
+    the standard error of an exponential mean), so an object or interference in a few pings does
+    not bias the pooled means.  Non-positive pixels are the zero spike.
+    """
+    if isinstance(block_rows, bool) or not isinstance(block_rows, int | np.integer) or block_rows < 1:
+        raise InputError(f"block_rows: must be a positive integer, got {block_rows!r}")
+    if outlier_sigma is not None and not (math.isfinite(outlier_sigma) and outlier_sigma > 0):
+        raise InputError(f"outlier_sigma: must be a positive number or None, got {outlier_sigma!r}")
+    sl = slice(None) if rows is None else rows
+    sums: list[NDArray[np.float64]] = []
+    counts: list[NDArray[np.float64]] = []
+    kept: list[NDArray[np.float32]] = []
+    grids: list[float] = []
+    geom: SonarGeometry | None = None
+    starts: NDArray[np.intp] | None = None
+    for img, g, label in _iter_images(images, "images"):
+        geom = geom or g
+        sub = img[sl]
+        if sub.shape[0] == 0:
+            raise InputError(f"rows: selects no range bins of {label}")
+        if starts is None:
+            starts = np.arange(0, sub.shape[0], int(block_rows))
+        pos = np.where(sub > 0, sub, np.float32(0.0))
+        sums.append(np.add.reduceat(pos, starts, axis=0, dtype=np.float64))
+        counts.append(np.add.reduceat((sub > 0).astype(np.float64), starts, axis=0))
+        grids.append(_grid_of(sub))
+        if per_bin:
+            kept.append(pos)
+    S = np.stack(sums)  # (n_img, n_blocks, n_beams)
+    N = np.stack(counts)
+    keep = np.ones(S.shape, dtype=bool)
+    if outlier_sigma is not None and S.shape[0] >= 3:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            m = np.where(N > 0, S / np.where(N > 0, N, 1.0), np.nan)
+            ok = ~np.all(np.isnan(m), axis=0)
+            med = np.full(m.shape[1:], np.nan)
+            med[ok] = np.nanmedian(m[:, ok], axis=0)
+            dev = np.abs(m - med) > outlier_sigma * med / np.sqrt(np.where(N > 0, N, 1.0))
+        keep = ~(dev & (N > 0))
+    w = keep.astype(np.float64)
+    bin_sum = bin_count = None
+    if per_bin:
+        assert starts is not None
+        reps = np.diff(np.append(starts, kept[0].shape[0]))
+        bin_sum = np.zeros(kept[0].shape, dtype=np.float64)
+        bin_count = np.zeros(kept[0].shape, dtype=np.float64)
+        for k, pos in enumerate(kept):
+            wk = np.repeat(w[k], reps, axis=0)
+            bin_sum += pos * wk
+            bin_count += (pos > 0) * wk
+    n_cells = int(np.count_nonzero(N > 0))
+    return _Cells(
+        block_sum=(S * w).sum(axis=0),
+        block_count=(N * w).sum(axis=0),
+        bin_sum=bin_sum,
+        bin_count=bin_count,
+        quantum=_resolve_quantum(quantum, grids),
+        n_images=S.shape[0],
+        excluded=float(np.count_nonzero(~keep & (N > 0)) / n_cells) if n_cells else 0.0,
+        geometry=geom,
+    )
+
+
+def background_intensity(
+    images: Iterable[ArrayLike] | Iterable[Ping],
+    *,
+    block_rows: int = 1,
+    outlier_sigma: float | None = 5.0,
+    quantum: float | Literal["auto"] = "auto",
+    rows: slice | None = None,
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Recovered speckle intensity ``mu`` per (range block, beam) of a set of background pings.
+
+    ``mu`` is :func:`intensity_from_nonzero_mean` of the mean of the positive pixels of each cell
+    (``block_rows`` range bins x 1 beam, pooled over the pings after outlier rejection, see
+    ``outlier_sigma``): the mean of the exponential intensity *before* the receiver's threshold and
+    quantisation, independent of the threshold.  Use raw (quantised) pings: dividing them by a
+    taper first moves their values off the quantisation grid.
+
+    Parameters
+    ----------
+    images : iterable of array_like (n_bins, n_beams) or Ping
+    block_rows : int
+        Range bins per cell (the last block may be shorter).
+    outlier_sigma : float or None
+        Reject a (ping, block, beam) cell whose non-zero mean is more than this many standard
+        errors (``median / sqrt(count)``) from the median over pings; ``None`` keeps all.
+    quantum : float or "auto"
+        Quantisation step; ``"auto"``: 1/255 (or 1/65535) when every positive value lies on that
+        grid, else 0 (continuous).
+    rows : slice, optional
+        Range bins used (default all).
+
+    Returns
+    -------
+    mu : ndarray, shape (n_blocks, n_beams)
+        ``nan`` where a cell has no positive pixel.
+    count : ndarray, shape (n_blocks, n_beams)
+        Number of positive pixels pooled per cell.
+    """
+    cells = _background_cells(images, rows=rows, block_rows=block_rows, outlier_sigma=outlier_sigma,
+                              quantum=quantum, per_bin=False)
+    return _cell_mu(cells.block_sum, cells.block_count, cells.quantum), cells.block_count
+
+
+def _cell_mu(s: NDArray[np.float64], n: NDArray[np.float64], quantum: float) -> NDArray[np.float64]:
+    with np.errstate(divide="ignore", invalid="ignore"):
+        m = np.where(n > 0, s / np.where(n > 0, n, 1.0), np.nan)
+    return intensity_from_nonzero_mean(m, quantum)
+
+
+
+
+def _block_taper(
+    cells: _Cells, combine: Callable[[NDArray[np.float64]], NDArray[np.float64]]
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Per-beam level from the block intensities: each block divided by its mean over the beams,
+    combined over blocks; returns (level scaled to the mean block intensity, per-block ratios)."""
+    mu = _cell_mu(cells.block_sum, cells.block_count, cells.quantum)  # (n_blocks, n_beams)
+    with np.errstate(invalid="ignore"):
+        good = np.all(np.isfinite(mu), axis=1) & (mu.mean(axis=1) > 0)
+    if not np.any(good):
+        raise FitError("images: no range block has non-zero pixels in every beam; taper undefined")
+    block_mean = mu[good].mean(axis=1, keepdims=True)
+    lv = mu[good] / block_mean  # (n_good_blocks, n_beams), mean 1 per block
+    return combine(lv) * float(block_mean.mean()), lv
+
 # ---------------------------------------------------------------------- taper (eq. 5)
 def correct_taper(image: ArrayLike, taper: ArrayLike | SonarGeometry | None) -> NDArray[np.float32]:
     """Divide column ``j`` of ``image`` by ``taper[j]`` (undo the per-beam gain ``k(theta)``).
@@ -130,6 +350,13 @@ class TaperEstimate:
         Robust relative spread (MAD / median) of the per-ping beam levels: a per-beam uncertainty.
     scale : float
         The factor the raw levels were divided by (undo with ``taper * scale``).
+    estimator : str
+        ``"nonzero-mean"`` or ``"mean"`` (see :func:`estimate_taper`).  For ``"nonzero-mean"``,
+        ``statistic`` combines range blocks and ``spread`` is the spread over the blocks.
+    quantum : float
+        Quantisation step assumed by ``nonzero-mean`` (``nan`` for ``mean``).
+    excluded : float
+        Fraction of (ping, block, beam) cells rejected as outliers (``nonzero-mean``).
     """
 
     taper: NDArray[np.float64]
@@ -138,6 +365,9 @@ class TaperEstimate:
     statistic: str
     spread: NDArray[np.float64]
     scale: float
+    estimator: str = "mean"
+    quantum: float = math.nan
+    excluded: float = 0.0
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-compatible dict."""
@@ -148,38 +378,64 @@ class TaperEstimate:
             "statistic": self.statistic,
             "spread": self.spread.tolist(),
             "scale": self.scale,
+            "estimator": self.estimator,
+            "quantum": None if math.isnan(self.quantum) else self.quantum,
+            "excluded": self.excluded,
         }
 
 
 def estimate_taper(
     images: Iterable[ArrayLike] | Iterable[Ping],
     *,
-    statistic: Literal["median", "trimmed-mean"] = "median",
+    estimator: Literal["nonzero-mean", "mean"] = "nonzero-mean",
+    statistic: Literal["median", "trimmed-mean"] | None = None,
     trim: float = 0.2,
     normalisation: Literal["max", "mean", "none"] = "max",
     rows: slice | None = None,
+    block_rows: int = 32,
+    outlier_sigma: float | None = 5.0,
+    quantum: float | Literal["auto"] = "auto",
 ) -> TaperEstimate:
     """Estimate the per-beam taper ``k(theta)`` from a set of open-water (background) pings.
 
-    Each ping contributes one level per beam: the mean intensity of that beam over the range
-    bins (``rows``).  The per-beam levels of all pings are combined with a robust statistic (median
-    or trimmed mean across pings), so pings containing objects or interference do not bias the
-    estimate.  The result is normalised (largest gain 1 by default).
+    ``estimator="nonzero-mean"`` (default): the recovered speckle intensity ``mu`` of
+    :func:`background_intensity` - from the mean of the *non-zero* pixels, which under the
+    threshold-and-quantise receiver model is independent of the threshold - in each range block of
+    ``block_rows`` bins and each beam, pooled over the pings after rejecting outlier
+    (ping, block, beam) cells.  Each block's ``mu`` is divided by its mean over the beams (removing
+    the range dependence), and the blocks are combined per beam with ``statistic`` (default
+    trimmed mean).  Unbiased under the zero spike: the per-beam mean of thresholded pixels is not
+    proportional to ``k`` (on the simulator, 73 % error; see ``docs/preprocessing.md``).
 
-    The images should already have been through the pre-processing steps that precede the taper
-    in the pipeline (e.g. deconvolution) if the estimate is to be used after them.
+    ``estimator="mean"``: the previous estimator - per ping the mean level of each beam over the
+    range bins, combined across pings with ``statistic`` (default median).  Correct only when the
+    pixel values are proportional to the intensity (no threshold).
+
+    Use raw pings (or pings through the steps that precede the taper and keep the pixel scale,
+    i.e. none with the default ``taper_order``); the result is normalised (largest gain 1 by
+    default).
 
     Parameters
     ----------
     images : iterable of array_like (n_bins, n_beams) or of Ping
         Background pings, all of the same geometry.
-    statistic : {"median", "trimmed-mean"}
-        Combination across pings.
+    estimator : {"nonzero-mean", "mean"}
+        See above (underscores accepted).
+    statistic : {"median", "trimmed-mean"}, optional
+        Combination across blocks (``nonzero-mean``, default ``"trimmed-mean"``) or across pings
+        (``mean``, default ``"median"``).
     trim : float
         Fraction trimmed from *each* end for ``"trimmed-mean"`` (0 <= trim < 0.5).
     normalisation : {"max", "mean", "none"}
     rows : slice, optional
         Range bins used (default all).
+    block_rows : int
+        Range bins per block (``nonzero-mean``); small enough that the range dependence within a
+        block is negligible, large enough for a few hundred non-zero pixels per block and beam.
+    outlier_sigma : float or None
+        Outlier rejection of :func:`background_intensity` (``nonzero-mean``).
+    quantum : float or "auto"
+        Quantisation step (``nonzero-mean``); ``"auto"`` detects 8-bit (1/255) pixels.
 
     Returns
     -------
@@ -192,39 +448,57 @@ def estimate_taper(
     GeometryError
         Images of different shapes or pings of different geometries.
     FitError
-        If a beam has zero mean level in every ping (the taper is undefined there).
+        If a beam has zero level (the taper is undefined there), or no range block has a non-zero
+        pixel in every beam.
 
     Notes
     -----
     Eq. 5 of Teixeira et al. (2018) (``y = k(theta) x``): under a background that is statistically
-    the same in every beam, the mean level of beam ``j`` is proportional to ``k(theta_j)``.
+    the same in every beam, the mean intensity of beam ``j`` is proportional to ``k(theta_j)``.
     """
+    est = estimator.replace("_", "-") if isinstance(estimator, str) else estimator
+    if est not in ("nonzero-mean", "mean"):
+        raise InputError(f"estimator: must be 'nonzero-mean' or 'mean', got {estimator!r}")
+    if statistic is None:
+        statistic = "trimmed-mean" if est == "nonzero-mean" else "median"
     if statistic not in ("median", "trimmed-mean"):
         raise InputError(f"statistic: must be 'median' or 'trimmed-mean', got {statistic!r}")
     if not 0 <= trim < 0.5:
         raise InputError(f"trim: must be in [0, 0.5), got {trim}")
     if normalisation not in ("max", "mean", "none"):
         raise InputError(f"normalisation: must be 'max', 'mean' or 'none', got {normalisation!r}")
-    sl = slice(None) if rows is None else rows
-    levels = []
-    for img, _geom, label in _iter_images(images, "images"):
-        sub = img[sl]
-        if sub.shape[0] == 0:
-            raise InputError(f"rows: selects no range bins of {label}")
-        levels.append(sub.mean(axis=0, dtype=np.float64))
-    lv = np.vstack(levels)  # (n_images, n_beams)
-    if statistic == "median":
-        level = np.median(lv, axis=0)
-    else:
+
+    def combine(lv: NDArray[np.float64]) -> NDArray[np.float64]:
+        if statistic == "median":
+            return np.median(lv, axis=0)
         from scipy import stats
 
-        level = np.asarray(stats.trim_mean(lv, trim, axis=0), dtype=np.float64)
+        return np.asarray(stats.trim_mean(lv, trim, axis=0), dtype=np.float64)
+
+    q_used = math.nan
+    excluded = 0.0
+    if est == "mean":
+        sl = slice(None) if rows is None else rows
+        levels = []
+        for img, _geom, label in _iter_images(images, "images"):
+            sub = img[sl]
+            if sub.shape[0] == 0:
+                raise InputError(f"rows: selects no range bins of {label}")
+            levels.append(sub.mean(axis=0, dtype=np.float64))
+        lv = np.vstack(levels)  # (n_images, n_beams)
+        n_images = lv.shape[0]
+        level = combine(lv)
+    else:
+        cells = _background_cells(images, rows=rows, block_rows=block_rows,
+                                  outlier_sigma=outlier_sigma, quantum=quantum, per_bin=False)
+        level, lv = _block_taper(cells, combine)
+        n_images, q_used, excluded = cells.n_images, cells.quantum, cells.excluded
     med = np.median(lv, axis=0)
     mad = np.median(np.abs(lv - med), axis=0) * 1.4826
     with np.errstate(divide="ignore", invalid="ignore"):
         spread = np.where(med > 0, mad / med, np.inf)
-    if np.any(level <= 0):
-        bad = np.flatnonzero(level <= 0)
+    if np.any(~(level > 0)):
+        bad = np.flatnonzero(~(level > 0))
         raise FitError(f"images: beams {bad.tolist()[:10]} have zero level; taper undefined")
     if normalisation == "max":
         scale = float(level.max())
@@ -238,10 +512,13 @@ def estimate_taper(
     return TaperEstimate(
         taper=taper,
         normalisation=normalisation,
-        n_images=lv.shape[0],
+        n_images=n_images,
         statistic=statistic,
         spread=spread,
         scale=scale,
+        estimator=est,
+        quantum=q_used,
+        excluded=excluded,
     )
 
 
@@ -430,22 +707,38 @@ def estimate_radial_gain(
     images: Iterable[ArrayLike] | Iterable[Ping],
     range_m: ArrayLike | SonarGeometry | None = None,
     *,
+    estimator: Literal["nonzero-mean", "mean"] = "nonzero-mean",
+    taper: ArrayLike | SonarGeometry | TaperEstimate | None = None,
     nonzero: bool = True,
     statistic: Literal["mean", "trimmed-mean", "median"] = "mean",
     fix_k1: float | None = None,
     fix_k2: float | None = None,
     min_count: int = 10,
     scale: Scale = "power",
+    block_rows: int = 32,
+    outlier_sigma: float | None = 5.0,
+    quantum: float | Literal["auto"] = "auto",
 ) -> RadialGain:
     """Fit ``k1, k2, k3`` of eq. 7 so that the background level is flat in range after the gain.
 
-    The level ``p(r)`` of each range bin (mean of the non-zero intensities over beams and pings by
-    default) is converted to dB and regressed on ``[log10 r, r, 1]``::
+    The level ``p(r)`` of each range bin is converted to dB and regressed on ``[log10 r, r, 1]``::
 
         10 log10 p(r) = c - k1 log10 r - k2 r + e(r)
 
     ``k3`` is set so that the corrected profile equals the mean dB level of the raw profile, so the
     gain flattens the background without changing its overall brightness.
+
+    Levels (``estimator``):
+
+    * ``"nonzero-mean"`` (default): the recovered speckle intensity of each (bin, beam) cell,
+      ``mu_ij`` = :func:`intensity_from_nonzero_mean` of the mean of its non-zero pixels over the
+      pings (threshold-free; outlier (ping, block, beam) cells rejected as in
+      :func:`background_intensity`), divided by the beam's taper ``k_j`` and averaged over the
+      beams with the non-zero counts as weights: ``p(r_i) = sum_j n_ij mu_ij / k_j / sum_j n_ij``.
+      The gain then flattens the *intensity* of the background, which the pixel means of a
+      thresholded receiver do not follow.  Use raw (quantised) pings.
+    * ``"mean"``: the previous estimator, :func:`range_profile` (``nonzero``, ``statistic``) of the
+      pixel values pooled over beams and pings.
 
     Parameters
     ----------
@@ -453,14 +746,22 @@ def estimate_radial_gain(
         Background (open-water) pings of one geometry.
     range_m : array_like (n_bins,) or SonarGeometry, optional
         Required for bare arrays; defaults to the pings' geometry.
+    estimator : {"nonzero-mean", "mean"}
+        See above (underscores accepted).
+    taper : array_like (n_beams,), SonarGeometry or TaperEstimate, optional
+        Per-beam gain the raw pings carry (``nonzero-mean``); ``None`` estimates it from the same
+        pings with :func:`estimate_taper`.
     nonzero, statistic
-        See :func:`range_profile`.
+        See :func:`range_profile` (``mean`` estimator only).
     fix_k1, fix_k2 : float, optional
         Hold a coefficient fixed (e.g. ``fix_k1=20*beta`` from the channel model) and fit the rest.
     min_count : int
-        Range bins with fewer samples are left out of the regression.
+        Range bins with fewer (non-zero) samples are left out of the regression.
     scale : {"power", "amplitude"}
         ``"amplitude"`` fits with ``20 log10``.
+    block_rows, outlier_sigma, quantum
+        See :func:`background_intensity` (``nonzero-mean`` only; ``block_rows`` is the block of the
+        outlier test and of the taper estimate).
 
     Returns
     -------
@@ -470,7 +771,7 @@ def estimate_radial_gain(
     Raises
     ------
     InputError, GeometryError
-        Empty or mixed sets, missing ``range_m``.
+        Empty or mixed sets, missing ``range_m``, a taper not matching the beams.
     FitError
         Fewer usable range bins than free parameters.
 
@@ -478,7 +779,36 @@ def estimate_radial_gain(
     -----
     Eq. 6-7 of Teixeira et al. (2018).
     """
-    level, count, geom = range_profile(images, nonzero=nonzero, statistic=statistic)
+    est = estimator.replace("_", "-") if isinstance(estimator, str) else estimator
+    if est not in ("nonzero-mean", "mean"):
+        raise InputError(f"estimator: must be 'nonzero-mean' or 'mean', got {estimator!r}")
+    if est == "mean":
+        level, count, geom = range_profile(images, nonzero=nonzero, statistic=statistic)
+    else:
+        cells = _background_cells(images, rows=None, block_rows=block_rows,
+                                  outlier_sigma=outlier_sigma, quantum=quantum, per_bin=True)
+        geom = cells.geometry
+        assert cells.bin_sum is not None and cells.bin_count is not None
+        n_beams = cells.bin_sum.shape[1]
+        if taper is None:  # as estimate_taper (trimmed mean over blocks); the scale is irrelevant
+            from scipy import stats
+
+            k, _ = _block_taper(cells, lambda lv: np.asarray(stats.trim_mean(lv, 0.2, axis=0)))
+        else:
+            tv = taper.taper if isinstance(taper, TaperEstimate) else taper
+            t = _check_taper(tv, n_beams)
+            if t is None:
+                raise InputError("taper: the geometry has no taper")
+            k = t.astype(np.float64)
+        if np.any(~(k > 0)):
+            raise FitError("images: a beam has zero level; taper undefined")
+        mu = _cell_mu(cells.bin_sum, cells.bin_count, cells.quantum)  # (n_bins, n_beams)
+        n = cells.bin_count
+        count = n.sum(axis=1)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            level = np.where(n > 0, mu / k, 0.0)
+            level = np.where(count > 0, (n * level).sum(axis=1) / np.where(count > 0, count, 1), np.nan)
+        count = count.astype(np.int64)
     if range_m is None:
         if geom is None:
             raise InputError("range_m: required when images are bare arrays (not Pings)")

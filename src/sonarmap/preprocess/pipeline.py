@@ -1,19 +1,24 @@
 """Composable per-ping pre-processing (paper sections III-IV, eq. 2-7).
 
-Steps, always in this order, each optional:
+Steps, each optional, in this order (``taper_order`` places the taper before or after step 1):
 
+0. ``taper``       - with ``taper_order="before-deconvolution"`` (the default): division of each
+   beam by the taper ``k(theta)`` (eq. 5), the geometry's taper or ``taper_values``.  The taper is
+   a per-beam *receive* gain applied after the beam pattern (``y_j = k_j sum_m h_m x_{j-m}``, also
+   how :mod:`sonarmap.simulate` renders), so it has to be undone before the beam pattern is.
 1. ``deconvolve``  - Wiener deconvolution of the beam pattern along the beams (eq. 3-4), with
    ``1/SNR = noise`` (default: the geometry's ``noise``) and the ``edge`` model; negatives are set
    to zero when ``clip_negative`` is true.
-2. ``taper``       - division of each beam by the taper ``k(theta)`` (eq. 5): the geometry's taper or
-   ``taper_values``.
+2. ``taper``       - with ``taper_order="after-deconvolution"`` (the paper's order, used by
+   :meth:`PreprocessConfig.paper_table1`).
 3. ``radial_gain`` - multiplication of each range bin by ``10**(k(r)/10)`` (eq. 6-7).
 4. ``normalise``   - ``"none"``; ``"rescale-max"``: scale so the maximum equals the *input's*
    maximum; ``"min-max"``: subtract the minimum, then scale to the input's maximum.
 
-Because steps 1-3 are linear and positive scalings commute with clipping, the fast path
+Because steps 0-3 are linear and positive scalings commute with clipping, the fast path
 (:func:`preprocess_image`) folds them into one cached ``(n_beams, n_beams)`` matrix (deconvolution
-with the taper folded in) and one per-range factor, so a ping costs one BLAS product and one
+``M`` with the taper folded in: ``diag(1/k) M`` before, ``M diag(1/k)`` after, in the row form
+``x_hat = y @ matrix``) and one per-range factor, so a ping costs one BLAS product and one
 multiply.
 """
 
@@ -39,8 +44,10 @@ from sonarmap.preprocess.gain import RadialGain, _check_range, _check_taper, rad
 __all__ = ["PreprocessConfig", "preprocess", "preprocess_image", "load_config", "RECIPES", "recipe"]
 
 Normalise = Literal["none", "rescale-max", "min-max"]
+TaperOrder = Literal["before-deconvolution", "after-deconvolution"]
 _EDGES = ("pad", "circular", "truncated")
 _NORMALISE = ("none", "rescale-max", "min-max")
+_TAPER_ORDERS = ("before-deconvolution", "after-deconvolution")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -61,6 +68,11 @@ class PreprocessConfig:
         Divide by the per-beam taper (eq. 5).
     taper_values : tuple of float, optional
         Taper to use instead of ``geometry.taper`` (e.g. from ``estimate_taper``).
+    taper_order : {"before-deconvolution", "after-deconvolution"}
+        Where the taper division goes.  ``"before-deconvolution"`` (default) inverts the physical
+        model ``y_j = k_j (h * x)_j`` (the taper is a receive gain after the beam pattern);
+        ``"after-deconvolution"`` is the paper's order (``paper_table1``).  Underscores are
+        accepted for hyphens.  See ``docs/preprocessing.md``.
     radial_gain : RadialGain, optional
         Range gain of eq. 7; ``None`` skips the step.
     normalise : {"none", "rescale-max", "min-max"}
@@ -75,6 +87,7 @@ class PreprocessConfig:
     clip_negative: bool = True
     taper: bool = True
     taper_values: tuple[float, ...] | None = None
+    taper_order: TaperOrder = "before-deconvolution"
     radial_gain: RadialGain | None = None
     normalise: Normalise = "none"
     name: str = "default"
@@ -92,6 +105,12 @@ class PreprocessConfig:
             object.__setattr__(self, "noise", float(self.noise))
         if self.edge not in _EDGES:
             raise InputError(f"edge: must be one of {', '.join(_EDGES)}, got {self.edge!r}")
+        order = self.taper_order.replace("_", "-") if isinstance(self.taper_order, str) else None
+        if order not in _TAPER_ORDERS:
+            raise InputError(
+                f"taper_order: must be one of {', '.join(_TAPER_ORDERS)}, got {self.taper_order!r}"
+            )
+        object.__setattr__(self, "taper_order", order)
         if self.normalise not in _NORMALISE:
             raise InputError(
                 f"normalise: must be one of {', '.join(_NORMALISE)}, got {self.normalise!r}"
@@ -123,21 +142,25 @@ class PreprocessConfig:
         Wiener deconvolution with the per-ping ``1/SNR`` (0.01 in the DIDSON files), *circular*
         along the beams as in the authors' code, negatives clipped, rescaled to the input's maximum;
         no taper or range correction.  On the 116 background pings this gives a non-zero fraction
-        of 0.311 (paper: pi_B = 0.312).
+        of 0.311 (paper: pi_B = 0.312).  ``taper_order`` is the paper's (after deconvolution), so
+        ``.replace(taper=True)`` (``sonarmap.paper.background_config``) divides after deconvolving.
         """
         return cls(deconvolve=True, noise=None, edge="circular", clip_negative=True, taper=False,
-                   radial_gain=None, normalise="rescale-max", name="paper-background")
+                   taper_order="after-deconvolution", radial_gain=None, normalise="rescale-max",
+                   name="paper-background")
 
     @classmethod
     def paper_table1(cls) -> PreprocessConfig:
         """The recipe of the paper's Table I / Fig. 7 pre-processing.
 
         Per-ping PSF with ``1/SNR = 0.001`` (circular, negatives clipped, as the authors'
-        ``deconvolve``), division by the per-ping taper, then subtraction of the minimum and
-        rescaling to the input's maximum; no radial gain.
+        ``deconvolve``), division by the per-ping taper *after* the deconvolution (the paper's
+        order), then subtraction of the minimum and rescaling to the input's maximum; no radial
+        gain.
         """
         return cls(deconvolve=True, noise=1e-3, edge="circular", clip_negative=True, taper=True,
-                   radial_gain=None, normalise="min-max", name="paper-table1")
+                   taper_order="after-deconvolution", radial_gain=None, normalise="min-max",
+                   name="paper-table1")
 
     # ------------------------------------------------------------------ (de)serialisation
     def to_dict(self) -> dict[str, Any]:
@@ -148,6 +171,7 @@ class PreprocessConfig:
             "edge": self.edge,
             "clip_negative": self.clip_negative,
             "taper": self.taper,
+            "taper_order": self.taper_order,
             "normalise": self.normalise,
         }
         if self.noise is not None:
@@ -260,8 +284,17 @@ def _plan(geometry: SonarGeometry, config: PreprocessConfig) -> _Plan:
             taper_source = "geometry" if t is not None else None
         if t is not None:
             inv = 1.0 / t.astype(np.float64)
-            M = np.diag(inv) if M is None else M * inv[None, :]
-            steps.append("taper")
+            # Row form x_hat = y @ M.  Taper first: (y / k) @ M = y @ (diag(1/k) M) -> scale rows
+            # of M; taper after: (y @ M) / k = y @ (M diag(1/k)) -> scale columns.
+            if M is None:
+                M = np.diag(inv)
+                steps.append("taper")
+            elif config.taper_order == "before-deconvolution":
+                M = M * inv[:, None]
+                steps.insert(0, "taper")
+            else:
+                M = M * inv[None, :]
+                steps.append("taper")
     row: NDArray[np.float32] | None = None
     if config.radial_gain is not None:
         r = _check_range(geometry, geometry.n_bins)
@@ -332,7 +365,8 @@ def preprocess(ping: Ping, config: PreprocessConfig | None = None) -> Ping:
     """Pre-process a ping; returns a new :class:`Ping` with ``meta["preprocess"]`` recorded.
 
     ``meta["preprocess"]`` holds ``steps`` (in the order applied), ``config`` (the full
-    configuration as a dict) and the resolved parameters (``noise`` used, ``taper_source``).
+    configuration as a dict), the resolved parameters (``noise`` used, ``taper_source``),
+    ``taper_order`` and ``order`` (the order of all steps for that ``taper_order``).
     The geometry is kept unchanged.
     """
     if not isinstance(ping, Ping):
@@ -348,7 +382,12 @@ def preprocess(ping: Ping, config: PreprocessConfig | None = None) -> Ping:
         "config": cfg.to_dict(),
         "noise": plan.noise,
         "taper_source": plan.taper_source,
-        "order": ["deconvolve", "taper", "radial_gain", "clip_negative", "normalise"],
+        "taper_order": cfg.taper_order,
+        "order": (
+            ["taper", "deconvolve", "radial_gain", "clip_negative", "normalise"]
+            if cfg.taper_order == "before-deconvolution"
+            else ["deconvolve", "taper", "radial_gain", "clip_negative", "normalise"]
+        ),
     }
     if "preprocess" in meta:
         prev = meta["preprocess"]
