@@ -26,7 +26,7 @@ def _problem(index: int):  # type: ignore[no-untyped-def]
     ping = list(read_pings(Path(DATA) / "didson" / "test"))[index]
     img = preprocess_image(ping.image, ping.geometry, cfg.preprocess_config())
     levels = np.ascontiguousarray(quantize(img, cfg.n_levels))
-    cost = _cost_lut(_fit(levels, cfg), cfg.object_prior_min)
+    cost = _cost_lut(_fit(levels, cfg), cfg.object_prior_min, cfg.speckle_eps)
     return cfg, levels, cost, gather_costs(levels, cost)
 
 
@@ -37,23 +37,25 @@ def run(quick: bool) -> list[dict]:
     rep = 10 if quick else 50
     for index, name in ((4, "hull (test 4)"), (7, "propeller (test 7)")):
         cfg, levels, cost, unary = _problem(index)
-        r = mrf.solve_graphcut_levels(levels, cost, beta=cfg.beta, neighbourhood=cfg.neighbourhood)
-        full_ms = timeit(lambda: mrf.solve_graphcut(unary, beta=cfg.beta, neighbourhood=cfg.neighbourhood, reduce=False),
-                         repeat=max(3, rep // 5))
-        t = timeit(lambda: mrf.solve_graphcut_levels(levels, cost, beta=cfg.beta, neighbourhood=cfg.neighbourhood), repeat=rep)
+        lv = {"beta": cfg.beta, "neighbourhood": cfg.neighbourhood, "range_weight": cfg.range_weight}
+        wt = mrf.pairwise_weights(levels.shape, beta=cfg.beta, neighbourhood=cfg.neighbourhood,
+                                  range_weight=cfg.range_weight)
+        r = mrf.solve_graphcut_levels(levels, cost, **lv)
+        full_ms = timeit(lambda: mrf.solve_graphcut(unary, weights=wt, reduce=False), repeat=max(3, rep // 5))
+        t = timeit(lambda: mrf.solve_graphcut_levels(levels, cost, **lv), repeat=rep)
         rows.append({"benchmark": "mrf", "case": f"graph cut exact, 512x96 {name}", "median_ms": t,
                      "target_ms": 2.0, "baseline": "full-lattice cut", "baseline_ms": full_ms,
                      "note": f"{r.n_free} of {levels.size} px in graph; E={r.energy:.1f}"})
-        t8 = timeit(lambda: mrf.solve_graphcut_levels(levels, cost, beta=cfg.beta, neighbourhood=8), repeat=rep)
+        lv8 = dict(lv, neighbourhood=8)
+        t8 = timeit(lambda: mrf.solve_graphcut_levels(levels, cost, **lv8), repeat=rep)
         rows.append({"benchmark": "mrf", "case": f"graph cut exact 8-nbhd, {name}", "median_ms": t8})
-        icm = mrf.solve_icm(unary, beta=cfg.beta, neighbourhood=cfg.neighbourhood)
-        ticm = timeit(lambda: mrf.solve_icm(unary, beta=cfg.beta, neighbourhood=cfg.neighbourhood), repeat=max(3, rep // 5))
+        icm = mrf.solve_icm(unary, weights=wt)
+        ticm = timeit(lambda: mrf.solve_icm(unary, weights=wt), repeat=max(3, rep // 5))
         rows.append({"benchmark": "mrf", "case": f"ICM, {name}", "median_ms": ticm,
                      "note": f"E={icm.energy:.1f} (cut {r.energy:.1f})"})
         sched = mrf.AnnealSchedule()
-        ann = mrf.solve_anneal(unary, beta=cfg.beta, neighbourhood=cfg.neighbourhood, schedule=sched)
-        tann = timeit(lambda: mrf.solve_anneal(unary, beta=cfg.beta, neighbourhood=cfg.neighbourhood, schedule=sched),
-                      repeat=3, warmup=1, min_time_s=0.0)
+        ann = mrf.solve_anneal(unary, weights=wt, schedule=sched)
+        tann = timeit(lambda: mrf.solve_anneal(unary, weights=wt, schedule=sched), repeat=3, warmup=1, min_time_s=0.0)
         rows.append({"benchmark": "mrf", "case": f"annealing (paper) {sched.n_sweeps} sweeps, {name}",
                      "median_ms": tann, "note": f"E={ann.energy:.1f} (cut {r.energy:.1f})"})
     return rows

@@ -71,7 +71,6 @@ def run(quick: bool) -> list[dict]:
     rep = 30 if quick else 200
     ours = timeit(lambda: process_ping(read_png_ping(next(it)), cfg), repeat=rep)
     base = timeit(lambda: _authors_path(next(it_b)), repeat=max(10, rep // 4))
-    compute = {}
     pings = [read_png_ping(p) for p in paths]
     it_c = itertools.cycle(pings)
     compute = timeit(lambda: process_ping(next(it_c), cfg), repeat=rep)

@@ -137,3 +137,16 @@ def test_anneal_deterministic_per_seed():
     b = mrf.solve_anneal(u, beta=0.7, seed=5)
     np.testing.assert_array_equal(a.labels, b.labels)
     assert a.energy == pytest.approx(mrf.energy(a.labels, u, beta=0.7))
+
+
+def test_range_weight_scales_range_edges_only():
+    w = mrf.pairwise_weights((4, 3), beta=2.0, range_weight=0.25)
+    assert w[0, 0, 0] == pytest.approx(0.5) and w[1, 0, 0] == pytest.approx(2.0)
+    assert w[0, -1].sum() == 0 and w[1, :, -1].sum() == 0
+    rng = np.random.default_rng(0)
+    u = rng.normal(0, 1, (2, 3, 3))
+    wt = mrf.pairwise_weights((3, 3), beta=1.0, range_weight=0.3)
+    assert mrf.solve_graphcut(u, weights=wt).energy == pytest.approx(_brute(u, wt))
+    lev = np.arange(9).reshape(3, 3)
+    a = mrf.solve_graphcut_levels(lev, u.reshape(2, 9), beta=1.0, range_weight=0.3)
+    assert a.energy == pytest.approx(_brute(u, wt))

@@ -7,10 +7,12 @@
     ->  per-beam ranges (:mod:`sonarmap.ranges`)
 
 and returns a :class:`PingProducts` value.  The default :class:`PipelineConfig` is the most
-accurate pipeline measured on simulator truth and the shared DIDSON pings (``docs/segmentation.md``):
-the paper's Table-I pre-processing, an EM fit of the paper's exponential + Rayleigh mixture,
-an exact graph-cut MRF (4-neighbourhood, ``beta = 1.5``), first returns with a 2-bin run, the
-isolated-return rule and a minimum surface width of 6 beams.
+accurate pipeline measured on the shared DIDSON pings and on simulator truth
+(``docs/segmentation.md``): the paper's Table-I pre-processing, an EM fit of the paper's zero
+spike + exponential + Rayleigh mixture, an exact graph-cut MRF (4-neighbourhood, ``beta = 2``, range edges x 0.25,
+object prior raised to >= 0.2), then first returns from structure components spanning >= 16 beams
+or >= 16 bins (plus pieces within 6 beams of them), the isolated-return rule and a leading-edge
+refinement of up to 8 bins.
 
 Degenerate pings (all zero, constant, nothing but background) give no returns, never an error:
 their fit flags are carried in :attr:`PingProducts.flags`.
@@ -23,7 +25,7 @@ import math
 import os
 import tomllib
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -59,6 +61,9 @@ class PipelineConfig:
         4 or 8.
     contrast : bool
         Contrast-sensitive pairwise weights.
+    range_weight : float
+        Factor on the Potts weight along range (anisotropic prior): surfaces are thin in range and
+        long across beams; 0.25 keeps 1-3-bin surfaces intact while smoothing across beams.
     object_prior_min : float
         Lower bound on each object class's prior in the MRF unary.  The fitted object weight of
         a ping with a thin, faint surface can be ~0.001 (Table I image 6), which makes the
@@ -105,15 +110,18 @@ class PipelineConfig:
     min_component_beams, min_component_bins : int
         Drop 8-connected structure components spanning fewer than ``min_component_beams`` beams
         *and* fewer than ``min_component_bins`` range bins (fish, speckle).
+    link_beams : int
+        Keep rejected components within this many beams (and 1 bin) of kept ones.
     """
 
     preprocess: Any = "paper-table1"
     method: str = "mrf"
     solver: str = "graphcut"
-    beta: float = 1.5
+    beta: float = 2.0
     neighbourhood: int = 4
     contrast: bool = False
-    object_prior_min: float = 0.0
+    range_weight: float = 0.25
+    object_prior_min: float = 0.2
     speckle_eps: float = 0.0
     grow_prior_min: float = 0.0
     grow_beta: float = 1.0
@@ -127,14 +135,15 @@ class PipelineConfig:
     cfar_pfa: float = 0.1
     cfar_two_d: bool = False
     range_mode: str = "first"
-    min_run: int = 2
+    min_run: int = 1
     reject_isolated: bool = True
     neighbour_beams: int = 2
-    max_jump_bins: int = 6
+    max_jump_bins: int = 20
     min_segment_beams: int = 1
-    min_component_beams: int = 12
-    min_component_bins: int = 40
-    refine_bins: int = 0
+    min_component_beams: int = 16
+    min_component_bins: int = 16
+    link_beams: int = 6
+    refine_bins: int = 8
     edge_factor: float = 3.0
 
     def __post_init__(self) -> None:
@@ -156,7 +165,7 @@ class PipelineConfig:
         if self.solver not in SOLVER_NAMES:
             raise bad("solver", f"must be one of {', '.join(SOLVER_NAMES)}")
         for key in ("beta", "fit_tol", "threshold", "cfar_pfa", "object_prior_min", "grow_prior_min",
-                    "grow_beta", "speckle_eps", "edge_factor"):
+                    "grow_beta", "speckle_eps", "edge_factor", "range_weight"):
             v = getattr(self, key)
             if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
                 raise bad(key, "must be a finite number")
@@ -168,6 +177,8 @@ class PipelineConfig:
                 raise bad(key, "must lie in [0, 0.5)")
         if self.grow_beta < 0:
             raise bad("grow_beta", "must be >= 0")
+        if not 0 <= self.range_weight <= 1:
+            raise bad("range_weight", "must lie in [0, 1]")
         if self.fit_tol <= 0:
             raise bad("fit_tol", "must be > 0")
         if not 0 < self.cfar_pfa < 1:
@@ -175,7 +186,7 @@ class PipelineConfig:
         for key, lo in (("neighbourhood", 4), ("n_levels", 2), ("cfar_train", 2), ("cfar_guard", 0),
                         ("min_run", 1), ("neighbour_beams", 1), ("max_jump_bins", 0),
                         ("min_segment_beams", 1), ("min_component_beams", 1),
-                        ("min_component_bins", 1), ("refine_bins", 0)):
+                        ("min_component_bins", 1), ("refine_bins", 0), ("link_beams", 0)):
             v = getattr(self, key)
             if isinstance(v, bool) or not isinstance(v, int) or v < lo:
                 raise bad(key, f"must be an integer >= {lo}")
@@ -388,12 +399,13 @@ def _mrf_labels(image: NDArray[np.float32], levels: NDArray[Any], cost: NDArray[
     from sonarmap.classify import mrf
 
     if config.solver == "graphcut" and cost.shape[0] == 2 and not config.contrast:
-        return mrf.solve_graphcut_levels(levels, cost, beta=beta, neighbourhood=config.neighbourhood).labels
+        return mrf.solve_graphcut_levels(levels, cost, beta=beta, neighbourhood=config.neighbourhood,
+                                         range_weight=config.range_weight).labels
     from sonarmap.classify._kernels import gather_costs
 
     unary = gather_costs(np.ascontiguousarray(levels), cost)
     wt = mrf.pairwise_weights(image.shape, beta=beta, neighbourhood=config.neighbourhood,
-                              image=image, contrast=config.contrast)
+                              image=image, contrast=config.contrast, range_weight=config.range_weight)
     return mrf.solve(unary, solver=config.solver, beta=beta,  # type: ignore[arg-type]
                      neighbourhood=config.neighbourhood, weights=wt).labels
 
@@ -447,7 +459,7 @@ def process_ping(ping: Ping, config: PipelineConfig = PipelineConfig(), *, keep_
         neighbour_beams=config.neighbour_beams, max_jump_bins=config.max_jump_bins,
         min_segment_beams=config.min_segment_beams,
         min_component_beams=config.min_component_beams,
-        min_component_bins=config.min_component_bins,
+        min_component_bins=config.min_component_bins, link_beams=config.link_beams,
         refine_bins=config.refine_bins, edge_level=edge, time_ns=ping.time_ns, source=ping.source,
     )
     flags = set(fit.flags) if fit is not None else {"no_fit"}

@@ -9,9 +9,11 @@ Rules (applied in this order)
 -----------------------------
 0. **Narrow components** (``min_component_beams``).  Structure pixels are grouped into
    8-connected components; components spanning fewer than ``min_component_beams`` beams and
-   fewer than ``min_component_bins`` range bins are discarded (a steep surface spans few beams
-   but many bins).  Surfaces (hull, seafloor, rudder) extend over many beams even when steep in range;
-   speckle and fish appear as blobs a few beams wide (the beam pattern smears them over ~5-8 beams).
+   fewer than ``min_component_bins`` range bins are discarded (off by default).  Surfaces (hull,
+   seafloor, rudder) extend over many beams, or over many bins when steep; speckle and fish
+   appear as blobs a few beams wide and 2-5 bins tall.
+   Components within ``link_beams`` beams (and 1 bin) of a kept one are kept as well, so a
+   surface broken into pieces by fading survives while isolated blobs do not.
 1. **Return per beam.**  ``mode="first"``: the nearest range bin that starts a run of at least
    ``min_run`` consecutive structure bins (a lone speckle pixel in front of the surface is skipped
    when ``min_run > 1``).  ``mode="strongest"``: the structure bin of highest intensity.
@@ -24,8 +26,10 @@ Rules (applied in this order)
 3. **Short-segment rejection** (``min_segment_beams``).  Consecutive beams whose returns differ
    by at most ``max_jump_bins`` form a segment; segments spanning fewer than
    ``min_segment_beams`` beams are removed (off by default).
-5. **Leading-edge refinement** (``refine_bins``, first returns): see :func:`extract_ranges`.
-4. **Confidence** of a kept return = the fraction of its existing neighbour beams
+4. **Leading-edge refinement** (``refine_bins``, first returns only).  The return moves up to
+   ``refine_bins`` bins towards the sonar while the mean intensity of the 3 bins x 3 beams box
+   centred on the bin above stays >= ``edge_level`` (off by default).
+5. **Confidence** of a kept return = the fraction of its existing neighbour beams
    (``|k - j| <= neighbour_beams``) that support it, in [0, 1]; NaN-free, 0 where no return.
 """
 
@@ -142,6 +146,19 @@ def wide_components(
     return kernel(m, sd, int(min_beams), int(min_bins) if min_bins is not None else 0)
 
 
+def _link_components(mask: NDArray[np.bool_], kept: NDArray[np.bool_], gap: int, rounds: int = 4) -> NDArray[np.bool_]:
+    """Add components of ``mask`` within ``gap`` beams and 1 bin of ``kept`` ones (chained)."""
+    from sonarmap.classify._kernels import near_mask
+
+    for _ in range(rounds):
+        rest = mask & ~kept
+        seeds, hit = near_mask(kept, rest, int(gap))
+        if not hit:
+            break
+        kept = kept | wide_components(rest, 1, seeds=seeds)
+    return kept
+
+
 def _support(bins: NDArray[np.int64], neighbour_beams: int, max_jump: int) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
     """(number of supporting neighbours, number of existing neighbours) per beam."""
     n = bins.size
@@ -161,26 +178,10 @@ def _support(bins: NDArray[np.int64], neighbour_beams: int, max_jump: int) -> tu
 
 
 def _refine_leading_edge(img: NDArray[np.float32], bins: NDArray[np.int64], k_max: int, level: float) -> NDArray[np.int64]:
-    h = img.shape[0]
-    c = np.zeros((h + 1, img.shape[1]), dtype=np.float64)
-    np.cumsum(img, axis=0, out=c[1:])
-    cols = np.flatnonzero(bins >= 0)
-    b = bins[cols].copy()
-    active = np.ones(cols.size, dtype=bool)
-    for _ in range(k_max):
-        r = b - 1                      # candidate bin above
-        ok = active & (r >= 0)
-        lo = np.clip(r - 1, 0, h)
-        hi = np.clip(r + 2, 0, h)
-        mean = (c[hi, cols] - c[lo, cols]) / np.maximum(hi - lo, 1)
-        ok &= mean >= level
-        b = np.where(ok, r, b)
-        active = ok
-        if not active.any():
-            break
-    out = bins.copy()
-    out[cols] = b
-    return out
+    """Move first returns up while the 3-bin x 3-beam box mean above them is >= ``level``."""
+    from sonarmap.classify._kernels import refine_leading_edge
+
+    return refine_leading_edge(np.ascontiguousarray(img, dtype=np.float32), bins, int(k_max), float(level))
 
 
 def _segments_short(bins: NDArray[np.int64], max_jump: int, min_beams: int) -> NDArray[np.bool_]:
@@ -215,6 +216,7 @@ def extract_ranges(
     min_segment_beams: int = 1,
     min_component_beams: int = 1,
     min_component_bins: int | None = None,
+    link_beams: int = 0,
     refine_bins: int = 0,
     edge_level: float | None = None,
     time_ns: int = 0,
@@ -240,10 +242,13 @@ def extract_ranges(
     min_component_beams, min_component_bins : int
         Rule 0: a component is kept if it spans at least ``min_component_beams`` beams or at
         least ``min_component_bins`` bins (default: beams only).
+    link_beams : int
+        Rule 0b: a rejected component lying within ``link_beams`` beams and 1 bin of a kept
+        one is kept too (chained up to 4 times) - a faint surface broken by speckle into pieces.
     refine_bins, edge_level : int, float
-        Rule 5 (first returns only): move each first return up (towards the sonar) by up to
-        ``refine_bins`` bins while the 3-bin running mean of ``image`` along range, centred on the
-        bin above, stays >= ``edge_level`` - the leading edge of a speckled surface band, where
+        Rule 4 (first returns only): move each first return up (towards the sonar) by up to
+        ``refine_bins`` bins while the mean of ``image`` over 3 bins x 3 beams centred on the bin
+        above stays >= ``edge_level`` - the leading edge of a speckled surface band, where
         the segmentation's first pixel is often a few bins late.
     time_ns, source
         Copied into the result.
@@ -262,7 +267,10 @@ def extract_ranges(
         raise InputError("min_run, neighbour_beams, min_segment_beams must be >= 1; max_jump_bins >= 0")
     mask = lab if lab.dtype == np.bool_ else (lab == structure_label)
     if min_component_beams > 1:
-        mask = wide_components(mask, min_component_beams, min_bins=min_component_bins)
+        kept = wide_components(mask, min_component_beams, min_bins=min_component_bins)
+        if link_beams > 0:
+            kept = _link_components(mask, kept, link_beams)
+        mask = kept
     if mode == "first":
         bins = first_return_bins(mask, min_run=min_run)
     else:

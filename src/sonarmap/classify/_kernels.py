@@ -19,7 +19,7 @@ DI = np.array([1, 0, 1, 1], dtype=np.int64)
 DJ = np.array([0, 1, 1, -1], dtype=np.int64)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def _label_costs(unary, weights, labels, i, j, out):  # pragma: no cover - numba
     n_labels, h, w = unary.shape
     n_dirs = weights.shape[0]
@@ -108,6 +108,72 @@ def anneal(unary, weights, labels, temperatures, seed):  # pragma: no cover - nu
                 labels[i, j] = choice
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _pull(f, wt, acc):  # pragma: no cover - numba
+    """(free weight, margin change) contribution of one neighbour state ``f``."""
+    if f < 0:
+        return wt, acc
+    if f == 1:
+        return 0.0, acc + wt
+    return 0.0, acc - wt
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _try_fix(levels, margin_lut, weights, fixed, i, j, h, w):  # pragma: no cover - numba
+    """Fix (i, j) if its effective margin beats the weight of its free edges; returns 1 if fixed."""
+    mm = margin_lut[levels[i, j]]
+    wf = 0.0
+    if weights.shape[0] == 2 and 0 < i < h - 1 and 0 < j < w - 1:
+        # interior pixel of a 4-neighbourhood: unrolled
+        a, mm = _pull(fixed[i + 1, j], weights[0, i, j], mm)
+        wf += a
+        a, mm = _pull(fixed[i - 1, j], weights[0, i - 1, j], mm)
+        wf += a
+        a, mm = _pull(fixed[i, j + 1], weights[1, i, j], mm)
+        wf += a
+        a, mm = _pull(fixed[i, j - 1], weights[1, i, j - 1], mm)
+        wf += a
+        if mm > wf:
+            fixed[i, j] = 1
+            return 1
+        if mm < -wf:
+            fixed[i, j] = 0
+            return 1
+        return 0
+    for d in range(weights.shape[0]):
+        di = DI[d]
+        dj = DJ[d]
+        ii = i + di
+        jj = j + dj
+        if 0 <= ii < h and 0 <= jj < w:
+            wt = weights[d, i, j]
+            f = fixed[ii, jj]
+            if f < 0:
+                wf += wt
+            elif f == 1:
+                mm += wt
+            else:
+                mm -= wt
+        ii = i - di
+        jj = j - dj
+        if 0 <= ii < h and 0 <= jj < w:
+            wt = weights[d, ii, jj]
+            f = fixed[ii, jj]
+            if f < 0:
+                wf += wt
+            elif f == 1:
+                mm += wt
+            else:
+                mm -= wt
+    if mm > wf:
+        fixed[i, j] = 1
+        return 1
+    if mm < -wf:
+        fixed[i, j] = 0
+        return 1
+    return 0
+
+
 @njit(cache=True, nogil=True)
 def reduce_binary(levels, margin_lut, weights, wtot, fixed, node, m, wfree, stack):  # pragma: no cover
     """Exact persistency reduction of a binary Potts problem, then graph arrays for the rest.
@@ -118,12 +184,13 @@ def reduce_binary(levels, margin_lut, weights, wtot, fixed, node, m, wfree, stac
     ``fixed``, ``node``, ``m``, ``wfree`` and ``stack`` are caller-owned work arrays (reused
     across pings of equal shape, so no large allocation happens per call).
 
-    A pixel whose effective margin exceeds the total weight of its still-free edges,
-    ``|m_eff| > W_free``, takes the label the margin favours in *every* minimiser (changing it
-    alone would lower the energy strictly).  Fixing it turns its edges into unary terms of its
-    neighbours (``m_eff += w`` if fixed to 1, ``-= w`` if fixed to 0) and lowers their ``W_free``,
-    so the test is propagated with a work stack until nothing more can be fixed.  Cost: one cheap
-    pass over all pixels plus time proportional to the pixels that survive it.
+    A pixel whose effective margin - its own plus ``+w`` for every edge to a neighbour already
+    fixed to 1 and ``-w`` for one fixed to 0 - exceeds the total weight of its edges to still-free
+    neighbours takes the label the margin favours in *every* minimiser (changing it alone would
+    lower the energy strictly, whatever the free neighbours do).  The test is applied in
+    alternating forward and backward raster sweeps until nothing changes, so a fixed region grows
+    across the image in one sweep (memory-sequential, ~0.1 ms per 512 x 96 sweep); the fixed point
+    is the same as with any other propagation order.
 
     Returns
     -------
@@ -135,117 +202,87 @@ def reduce_binary(levels, margin_lut, weights, wtot, fixed, node, m, wfree, stac
     """
     h, w = levels.shape
     n_dirs = weights.shape[0]
-    top = 0
     for i in range(h):
         for j in range(w):
-            mm = margin_lut[levels[i, j]]
-            wt = wtot[i, j]
-            if mm > wt:
-                fixed[i, j] = 1
-            elif mm < -wt:
-                fixed[i, j] = 0
-            else:
-                fixed[i, j] = -1
-                stack[top] = i * w + j
-                top += 1
-    n_cand = top
-    cand = stack[stack.size - n_cand:]
-    cand[:] = stack[:n_cand]
-    # effective margins of the survivors given their fixed neighbours
-    for k in range(top):
-        p = stack[k]
-        i = p // w
-        j = p - i * w
-        mm = margin_lut[levels[i, j]]
-        wf = 0.0
-        for d in range(n_dirs):
-            for s in range(2):
-                if s == 0:
-                    ii = i + DI[d]
-                    jj = j + DJ[d]
-                    if not (0 <= ii < h and 0 <= jj < w):
-                        continue
-                    wt = weights[d, i, j]
-                else:
-                    ii = i - DI[d]
-                    jj = j - DJ[d]
-                    if not (0 <= ii < h and 0 <= jj < w):
-                        continue
-                    wt = weights[d, ii, jj]
-                f = fixed[ii, jj]
-                if f < 0:
-                    wf += wt
-                elif f == 1:
-                    mm += wt
-                else:
-                    mm -= wt
-        m[i, j] = mm
-        wfree[i, j] = wf
-    while top > 0:
-        top -= 1
-        p = stack[top]
-        i = p // w
-        j = p - i * w
-        if fixed[i, j] >= 0:
-            continue
-        lab = -1
-        if m[i, j] > wfree[i, j]:
-            lab = 1
-        elif m[i, j] < -wfree[i, j]:
-            lab = 0
-        if lab < 0:
-            continue
-        fixed[i, j] = lab
-        sgn = 1.0 if lab == 1 else -1.0
-        for d in range(n_dirs):
-            for s in range(2):
-                if s == 0:
-                    ii = i + DI[d]
-                    jj = j + DJ[d]
-                    if not (0 <= ii < h and 0 <= jj < w):
-                        continue
-                    wt = weights[d, i, j]
-                else:
-                    ii = i - DI[d]
-                    jj = j - DJ[d]
-                    if not (0 <= ii < h and 0 <= jj < w):
-                        continue
-                    wt = weights[d, ii, jj]
-                if wt == 0.0 or fixed[ii, jj] >= 0:
-                    continue
-                m[ii, jj] += sgn * wt
-                wfree[ii, jj] -= wt
-                if top < stack.size - n_cand:
-                    stack[top] = ii * w + jj
-                    top += 1
-    # number the survivors (a subset of the first-pass candidates) and list their edges
+            fixed[i, j] = -1
+    # one full forward sweep listing the survivors, then alternating sweeps over that list only
+    n_left = 0
+    for i in range(h):
+        for j in range(w):
+            if _try_fix(levels, margin_lut, weights, fixed, i, j, h, w) == 0:
+                stack[n_left] = i * w + j          # ascending raster order
+                n_left += 1
+    changed = 1
+    sweep = 0
+    while changed and sweep < 256:
+        changed = 0
+        k_out = 0
+        if sweep % 2 == 0:
+            for k in range(n_left - 1, -1, -1):   # backward
+                p = stack[k]
+                i = p // w
+                j = p - i * w
+                if _try_fix(levels, margin_lut, weights, fixed, i, j, h, w):
+                    changed += 1
+        else:
+            for k in range(n_left):                # forward
+                p = stack[k]
+                i = p // w
+                j = p - i * w
+                if _try_fix(levels, margin_lut, weights, fixed, i, j, h, w):
+                    changed += 1
+        for k in range(n_left):                    # compact, keeping the order
+            p = stack[k]
+            if fixed[p // w, p - (p // w) * w] < 0:
+                stack[k_out] = p
+                k_out += 1
+        n_left = k_out
+        sweep += 1
+    # number the survivors and list their edges
     n_free = 0
-    for k in range(n_cand):
-        p = cand[k]
-        i = p // w
-        j = p - i * w
-        if fixed[i, j] < 0:
-            node[i, j] = n_free
-            cand[n_free] = p
-            n_free += 1
+    for i in range(h):
+        for j in range(w):
+            if fixed[i, j] < 0:
+                node[i, j] = n_free
+                stack[n_free] = i * w + j
+                n_free += 1
     m_eff = np.empty(n_free)
     ei = np.empty(n_free * n_dirs, dtype=np.int64)
     ej = np.empty(n_free * n_dirs, dtype=np.int64)
     ew = np.empty(n_free * n_dirs)
     n_edges = 0
     for a in range(n_free):
-        p = cand[a]
+        p = stack[a]
         i = p // w
         j = p - i * w
-        m_eff[a] = m[i, j]
+        mm = margin_lut[levels[i, j]]
         for d in range(n_dirs):
-            ii = i + DI[d]
-            jj = j + DJ[d]
-            if 0 <= ii < h and 0 <= jj < w and fixed[ii, jj] < 0 and weights[d, i, j] != 0.0:
-                ei[n_edges] = a
-                ej[n_edges] = node[ii, jj]
-                ew[n_edges] = weights[d, i, j]
-                n_edges += 1
+            di = DI[d]
+            dj = DJ[d]
+            ii = i + di
+            jj = j + dj
+            if 0 <= ii < h and 0 <= jj < w:
+                wt = weights[d, i, j]
+                f = fixed[ii, jj]
+                if f < 0:
+                    if wt != 0.0:
+                        ei[n_edges] = a
+                        ej[n_edges] = node[ii, jj]
+                        ew[n_edges] = wt
+                        n_edges += 1
+                elif f == 1:
+                    mm += wt
+                else:
+                    mm -= wt
+            ii = i - di
+            jj = j - dj
+            if 0 <= ii < h and 0 <= jj < w:
+                f = fixed[ii, jj]
+                if f == 1:
+                    mm += weights[d, ii, jj]
+                elif f == 0:
+                    mm -= weights[d, ii, jj]
+        m_eff[a] = mm
     return n_free, m_eff, ei[:n_edges], ej[:n_edges], ew[:n_edges]
 
 
@@ -441,4 +478,50 @@ def first_runs(mask, min_run):  # pragma: no cover - numba
                     break
             else:
                 run = 0
+    return out
+
+
+@njit(cache=True, nogil=True)
+def near_mask(kept, rest, gap):  # pragma: no cover - numba
+    """``rest`` pixels within ``gap`` beams and 1 bin of a ``kept`` pixel."""
+    h, w = kept.shape
+    out = np.zeros((h, w), dtype=np.bool_)
+    any_hit = False
+    for i in range(h):
+        for j in range(w):
+            if kept[i, j]:
+                for ii in range(max(i - 1, 0), min(i + 2, h)):
+                    for jj in range(max(j - gap, 0), min(j + gap + 1, w)):
+                        if rest[ii, jj]:
+                            out[ii, jj] = True
+                            any_hit = True
+    return out, any_hit
+
+
+@njit(cache=True, nogil=True)
+def refine_leading_edge(img, bins, k_max, level):  # pragma: no cover - numba
+    """Move each first return up while the 3 bin x 3 beam mean above it is >= ``level``."""
+    h, w = img.shape
+    out = bins.copy()
+    for j in range(w):
+        b = bins[j]
+        if b < 0:
+            continue
+        j0 = max(j - 1, 0)
+        j1 = min(j + 2, w)
+        for _ in range(k_max):
+            r = b - 1
+            if r < 0:
+                break
+            i0 = max(r - 1, 0)
+            i1 = min(r + 2, h)
+            s = 0.0
+            for ii in range(i0, i1):
+                for jj in range(j0, j1):
+                    s += img[ii, jj]
+            if s / ((i1 - i0) * (j1 - j0)) >= level:
+                b = r
+            else:
+                break
+        out[j] = b
     return out

@@ -159,8 +159,9 @@ def pairwise_weights(
     neighbourhood: int = 4,
     image: ArrayLike | None = None,
     contrast: bool = False,
+    range_weight: float = 1.0,
 ) -> NDArray[np.float64]:
-    """Potts edge weights of the lattice (eq. 22), optionally contrast-sensitive.
+    """Potts edge weights of the lattice (eq. 22), optionally contrast-sensitive and anisotropic.
 
     Parameters
     ----------
@@ -175,6 +176,10 @@ def pairwise_weights(
     contrast : bool
         Multiply each weight by ``exp(-(y_p - y_q)^2 / (2 s))``, ``s`` the mean squared difference
         over all edges (Boykov & Jolly 2001), so boundaries prefer intensity edges.
+    range_weight : float
+        Factor on the edges along range (between bins of one beam).  Surfaces are thin in range
+        and long across beams, so ``range_weight < 1`` keeps a 1-3-bin surface from paying the
+        full ``2 beta`` per pixel for its range boundaries while keeping the smoothing across beams.
 
     Returns
     -------
@@ -186,9 +191,13 @@ def pairwise_weights(
     if neighbourhood not in (4, 8):
         raise InputError(f"neighbourhood: must be 4 or 8 (got {neighbourhood})")
     h, w = int(shape[0]), int(shape[1])
+    rw = float(range_weight)
+    if not math.isfinite(rw) or rw < 0:
+        raise InputError(f"range_weight: must be finite and >= 0 (got {range_weight})")
     if not contrast:
-        return _uniform(h, w, neighbourhood, beta)[0]
-    base = _base_weights(h, w, neighbourhood)
+        return _uniform(h, w, neighbourhood, beta, rw)[0]
+    base = _base_weights(h, w, neighbourhood).copy()
+    base[0] *= rw
     if image is None:
         raise InputError("image: required for contrast-sensitive weights")
     y = np.asarray(image, dtype=np.float64)
@@ -222,9 +231,10 @@ def _base_weights(h: int, w: int, neighbourhood: int) -> NDArray[np.float64]:
 
 
 @functools.lru_cache(maxsize=32)
-def _uniform(h: int, w: int, neighbourhood: int, beta: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+def _uniform(h: int, w: int, neighbourhood: int, beta: float, range_weight: float = 1.0) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Uniform Potts weights and their per-pixel totals, cached (reused across equal pings)."""
     wt = _base_weights(h, w, neighbourhood) * beta
+    wt[0] *= range_weight
     wt.setflags(write=False)
     tot = _total_weight(wt)
     tot.setflags(write=False)
@@ -461,6 +471,7 @@ def solve_graphcut_levels(
     beta: float = 1.0,
     neighbourhood: int = 4,
     weights: ArrayLike | None = None,
+    range_weight: float = 1.0,
 ) -> MRFResult:
     """Exact binary graph cut when the unary depends on a pixel only through its level.
 
@@ -483,7 +494,7 @@ def solve_graphcut_levels(
     if weights is None:
         if neighbourhood not in (4, 8):
             raise InputError(f"neighbourhood: must be 4 or 8 (got {neighbourhood})")
-        wt, wtot = _uniform(h, w, neighbourhood, beta)
+        wt, wtot = _uniform(h, w, neighbourhood, beta, float(range_weight))
     else:
         wt = _weights_for(np.empty((2, h, w)), beta, neighbourhood, weights)
         wtot = None

@@ -26,7 +26,7 @@ METHOD_OPTION: Any = typer.Option(
 )
 SOLVER_OPTION: Any = typer.Option(None, "--solver", help="MRF solver: graphcut (exact, default), icm, anneal, expansion.")
 BETA_OPTION: Any = typer.Option(None, "--beta", help="Potts weight of the MRF (eq. 22).")
-CONFIG_OPTION: Any = typer.Option(None, "--config", "-c", help="Pipeline configuration TOML ([pipeline] table).")
+CONFIG_OPTION: Any = typer.Option(None, "--config", "-c", help="Pipeline configuration TOML (keys at top level or in a \\[pipeline] table).")
 
 
 def pipeline_config_from_options(
