@@ -145,3 +145,14 @@ def test_intensity_scale_in_sidecar_is_applied(tmp_path: Path) -> None:
     (tmp_path / "5000000.json").write_text(json.dumps(d))
     with pytest.raises(DataFormatError, match="intensity_scale must be a positive number"):
         read_png_ping(out)
+
+
+def test_outputs_follow_umask(tmp_path: Path) -> None:
+    import os
+
+    old = os.umask(0o022)
+    try:
+        out = write_png_ping(Ping(np.zeros(preset("didson-hf").shape, np.float32), preset("didson-hf")), tmp_path)
+    finally:
+        os.umask(old)
+    assert out.stat().st_mode & 0o777 == 0o644

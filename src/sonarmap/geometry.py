@@ -304,6 +304,8 @@ class SonarGeometry:
         return h.hexdigest()
 
     def __eq__(self, other: object) -> bool:
+        if self is other:
+            return True
         if not isinstance(other, SonarGeometry):
             return NotImplemented
         return self.key == other.key and self.name == other.name
