@@ -83,7 +83,8 @@ def test_report_is_self_contained(report_html: Path) -> None:
     assert "<td>30</td>" in text  # number of pings in the summary
     # Every resource is inline: no scripts, stylesheets links or external URLs.
     srcs = re.findall(r'src="([^"]*)"', text)
-    assert len(srcs) >= 6 and all(s.startswith("data:image/png;base64,") for s in srcs)
+    assert len(srcs) == 5  # time series, ranges, ROC, 2 example pings (no map: no poses)
+    assert all(s.startswith("data:image/png;base64,") for s in srcs)
     assert "<script" not in text and "<link" not in text and "http://" not in text
     assert "https://" not in text
     # The embedded images decode as PNG.

@@ -183,7 +183,7 @@ def test_interrupted_run_resumes_to_identical_output(
                        progress=stop_after_two_chunks)
     st = survey_status(out)
     assert st["done"] == 2 and not st["complete"]
-    res = process_survey([survey_dir], out, workers=2, chunk_size=8)
+    res = process_survey([survey_dir], out, workers=0, chunk_size=8)
     assert res.chunks_skipped == 2 and res.chunks_run == 3
     assert_same_dataset(serial_store, out)
 
@@ -227,9 +227,15 @@ def test_labels_on_request_and_points_with_poses(
     ds = open_products(out).load()
     assert ds["labels"].dims == ("ping_time", "range_sample", "beam")
     assert ds["labels"].shape == (N_PINGS, 512, 96) and ds["labels"].dtype == np.uint8
-    # A beam's first return lies on an object-labelled pixel.
-    p, b = np.nonzero(ds["range_bin"].values >= 0)
-    assert (ds["labels"].values[p, ds["range_bin"].values[p, b], b] >= 1).all()
+    # Stored labels are the pipeline's, ping by ping and in order.
+    from sonarmap.io import read_ping
+    from sonarmap.pipeline import PipelineConfig, process_ping
+
+    for i in (0, 17, N_PINGS - 1):
+        ping = read_ping(str(ds["source"].values[i]))
+        expect = process_ping(ping, PipelineConfig(), keep_labels=True).labels
+        np.testing.assert_array_equal(ds["labels"].values[i], expect)
+    assert ds["labels"].values.any()
     # One point per return, placed at range r along the beam from the interpolated position.
     r = ds["range"].values
     n_ret = int(np.isfinite(r).sum())
@@ -255,9 +261,9 @@ KILL_ARGS = ("--chunk-size", "4", "--workers", "1", "--quiet")
 
 @pytest.fixture(scope="module")
 def kill_survey(tmp_path_factory: pytest.TempPathFactory, test_ping_paths: list[Path]) -> tuple[Path, Path]:
-    """64 pings and their clean, uninterrupted `sonarmap process` output."""
+    """48 pings and their clean, uninterrupted `sonarmap process` output."""
     d = tmp_path_factory.mktemp("kill")
-    pings = replicate_pings(test_ping_paths, 64, d / "pings")
+    pings = replicate_pings(test_ping_paths, 48, d / "pings")
     clean = d / "clean.zarr"
     r = subprocess.run(_cli("process", str(pings), *KILL_ARGS, "-o", str(clean)),
                        capture_output=True, text=True, timeout=300)
@@ -298,6 +304,7 @@ def test_cli_summary_quiet_and_refusal(survey_dir: Path, tmp_path: Path) -> None
                        capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stderr
     assert f"{N_PINGS} pings" in r.stdout and "flagged" in r.stdout and "pings/s" in r.stdout
+    assert "[processes:" in r.stdout and len(r.stdout.strip().splitlines()) == 1
     r = subprocess.run(_cli("process", str(survey_dir), "-o", str(out), "-k", "8", "--quiet"),
                        capture_output=True, text=True, timeout=120)
     assert r.returncode == 1 and "--overwrite" in r.stderr and r.stdout == ""
@@ -307,3 +314,18 @@ def test_cli_summary_quiet_and_refusal(survey_dir: Path, tmp_path: Path) -> None
                        capture_output=True, text=True, timeout=120)
     assert r.returncode == 1 and "bad.toml" in r.stderr
     assert not (tmp_path / "x.zarr").exists()
+
+
+def test_cli_scheduler_option_runs_on_the_cluster(
+    cluster, serial_store: Path, survey_dir: Path, tmp_path: Path,  # noqa: ANN001
+) -> None:
+    out = tmp_path / "cli-dask.zarr"
+    r = subprocess.run(_cli("process", str(survey_dir), "-o", str(out), "-k", "8",
+                            "--scheduler", cluster.scheduler.address),
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    assert f"[dask:{cluster.scheduler.address}]" in r.stdout
+    assert_same_dataset(serial_store, out)
+    r = subprocess.run(_cli("process", str(survey_dir), "-o", str(tmp_path / "y.zarr"), "--workers", "2",
+                            "--scheduler", cluster.scheduler.address), capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2 and "--workers" in r.stderr

@@ -199,18 +199,28 @@ def _fig_map(ds: Any, max_points: int, dpi: int) -> str | None:
         return None
     step = max(1, math.ceil(len(xyz) / max_points))
     xyz = xyz[::step]
-    fig, axes = new_figure(1, 2, figsize=(10, 4.4))
-    sc = axes[0].scatter(xyz[:, 1], xyz[:, 0], c=xyz[:, 2], s=0.5, cmap="viridis_r", linewidths=0)
-    axes[0].set_aspect("equal")
-    axes[0].set_xlabel("east / y (m)")
-    axes[0].set_ylabel("north / x (m)")
-    axes[0].set_title(f"Map, top view ({len(xyz)} of the points, colour = depth)", fontsize=9)
-    fig.colorbar(sc, ax=axes[0], label="z (m)")
-    axes[1].scatter(xyz[:, 0], xyz[:, 2], s=0.5, c="tab:blue", linewidths=0)
-    axes[1].invert_yaxis()
-    axes[1].set_xlabel("north / x (m)")
-    axes[1].set_ylabel("z, down (m)")
-    axes[1].set_title("Side view", fontsize=9)
+    names = ("north x (m)", "east y (m)", "down z (m)")
+    span = np.ptp(xyz, axis=0)
+    # Main view: the plane of the two largest extents (a hull side seen from abeam, a seafloor
+    # from above); colour = the third coordinate.  Second view: from above (x-y).
+    h, v = (int(i) for i in np.argsort(span)[::-1][:2])  # horizontal: largest extent
+    c = 3 - h - v
+    fig, axes = new_figure(1, 2, figsize=(10, 4.6))
+    sc = axes[0].scatter(xyz[:, h], xyz[:, v], c=xyz[:, c], s=1.0, cmap="viridis", linewidths=0)
+    axes[0].set_aspect("equal", adjustable="datalim")
+    axes[0].set_xlabel(names[h])
+    axes[0].set_ylabel(names[v])
+    if v == 2:
+        axes[0].invert_yaxis()  # down is down
+    elif h == 2:
+        axes[0].invert_xaxis()
+    axes[0].set_title(f"Map: {len(xyz)} points, colour = {names[c].split(' (')[0]}", fontsize=9)
+    fig.colorbar(sc, ax=axes[0], label=names[c])
+    axes[1].scatter(xyz[:, 1], xyz[:, 0], c=xyz[:, 2], s=1.0, cmap="viridis", linewidths=0)
+    axes[1].set_aspect("equal", adjustable="datalim")
+    axes[1].set_xlabel(names[1])
+    axes[1].set_ylabel(names[0])
+    axes[1].set_title("Seen from above (colour = depth)", fontsize=9)
     return _png(fig, dpi)
 
 

@@ -126,7 +126,7 @@ def process_command(
             progress=bar,
         )
     if not quiet:
-        console().print(result.summary(), soft_wrap=True)
+        console().print(result.summary(), soft_wrap=True, markup=False)
 
 
 def register(app: typer.Typer) -> None:

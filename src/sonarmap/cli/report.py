@@ -23,7 +23,7 @@ def report_command(
 
     path = build_report(store, output, config=ReportConfig(n_examples=examples, title=title),
                         overwrite=overwrite)
-    console().print(f"report: {path}", soft_wrap=True)
+    console().print(f"report: {path}", soft_wrap=True, markup=False)
 
 
 def register(app: typer.Typer) -> None:
