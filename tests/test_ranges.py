@@ -127,3 +127,17 @@ def test_wide_components_matches_scipy_labelling(seed, min_beams, min_bins):
         keep[k] = sl[1].stop - sl[1].start >= min_beams or (min_bins > 0 and sl[0].stop - sl[0].start >= min_bins)
     got = wide_components(m, min_beams, min_bins=min_bins if min_bins > 0 else None)
     np.testing.assert_array_equal(got, keep[lab] & m)
+
+
+def test_accepted_pixels_bypass_component_rule_and_refinement(geom):
+    img = np.zeros((100, 20), np.float32)
+    mask = np.zeros((100, 20), bool)
+    acc = np.zeros((100, 20), bool)
+    acc[50, :] = True                      # one pixel per beam: dropped by the component rule alone
+    img[45:51, :] = 1.0                    # a bright leading edge that rule 4 would climb
+    kw = dict(min_component_beams=30, min_component_bins=30, refine_bins=8, edge_level=0.5)
+    assert extract_ranges(mask | acc, img, geom, **kw).n_returns == 0
+    r = extract_ranges(mask, img, geom, accepted=acc, **kw)
+    assert r.n_returns == 20 and (r.bin == 50).all()
+    with pytest.raises((InputError, GeometryError)):
+        extract_ranges(mask, img, geom, accepted=acc[:, :5])

@@ -12,7 +12,9 @@ accurate pipeline measured on the shared DIDSON pings and on simulator truth
 spike + exponential + Rayleigh mixture, an exact graph-cut MRF (4-neighbourhood, ``beta = 2``, range edges x 0.25,
 object prior raised to >= 0.2), then first returns from structure components spanning >= 16 beams
 or >= 16 bins (plus pieces within 6 beams of them), the isolated-return rule and a leading-edge
-refinement of up to 8 bins.
+refinement of up to 8 bins; when that leaves fewer than 40 returns, band pooling (3 bins x 9 beams
+box mean >= 6x the background mean, >= 40-beam components, strongest pixel per beam) recovers thin
+single-look-speckle surface bands.
 
 Degenerate pings (all zero, constant, nothing but background) give no returns, never an error:
 their fit flags are carried in :attr:`PingProducts.flags`.
@@ -34,7 +36,7 @@ from sonarmap.errors import FitError, InputError
 from sonarmap.ping import Ping
 from sonarmap.ranges import BeamRanges, extract_ranges, no_returns
 
-__all__ = ["PipelineConfig", "PingProducts", "process_ping", "classify_image", "METHODS", "SOLVER_NAMES"]
+__all__ = ["PipelineConfig", "PingProducts", "process_ping", "classify_image", "pooled_band_pixels", "METHODS", "SOLVER_NAMES"]
 
 METHODS = ("mrf", "map", "threshold", "cfar-ca", "cfar-so", "cfar-go", "cfar-os")
 SOLVER_NAMES = ("graphcut", "icm", "anneal", "expansion")
@@ -112,6 +114,15 @@ class PipelineConfig:
         *and* fewer than ``min_component_bins`` range bins (fish, speckle).
     link_beams : int
         Keep rejected components within this many beams (and 1 bin) of kept ones.
+    pool_factor, pool_beams, pool_bins, pool_min_beams : float, int, int, int
+        Band pooling (off when ``pool_factor`` is 0): the pre-processed image is averaged over a
+        box of ``pool_bins`` range bins x ``2 pool_beams + 1`` beams (multi-look across beams),
+        thresholded at ``pool_factor`` x the fitted background class's mean intensity, and its
+        8-connected components spanning >= ``pool_min_beams`` beams are surfaces; on each of
+        their beams the strongest pixel of the component's first run is a structure pixel that
+        bypasses the component rule (no leading-edge refinement).  Recovers thin surface bands
+        of single-look speckle that the per-pixel model leaves in fragments of 0-5 pixels per
+        beam; fish schools and speckle do not span ``pool_min_beams`` beams.
     """
 
     preprocess: Any = "paper-table1"
@@ -145,6 +156,10 @@ class PipelineConfig:
     link_beams: int = 6
     refine_bins: int = 8
     edge_factor: float = 3.0
+    pool_factor: float = 6.0
+    pool_beams: int = 4
+    pool_bins: int = 3
+    pool_min_beams: int = 40
 
     def __post_init__(self) -> None:
         from sonarmap.preprocess.pipeline import PreprocessConfig
@@ -165,7 +180,7 @@ class PipelineConfig:
         if self.solver not in SOLVER_NAMES:
             raise bad("solver", f"must be one of {', '.join(SOLVER_NAMES)}")
         for key in ("beta", "fit_tol", "threshold", "cfar_pfa", "object_prior_min", "grow_prior_min",
-                    "grow_beta", "speckle_eps", "edge_factor", "range_weight"):
+                    "grow_beta", "speckle_eps", "edge_factor", "range_weight", "pool_factor"):
             v = getattr(self, key)
             if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
                 raise bad(key, "must be a finite number")
@@ -175,6 +190,8 @@ class PipelineConfig:
         for key in ("object_prior_min", "grow_prior_min", "speckle_eps"):
             if not 0 <= getattr(self, key) < 0.5:
                 raise bad(key, "must lie in [0, 0.5)")
+        if self.pool_factor < 0:
+            raise bad("pool_factor", "must be >= 0")
         if self.grow_beta < 0:
             raise bad("grow_beta", "must be >= 0")
         if not 0 <= self.range_weight <= 1:
@@ -186,7 +203,8 @@ class PipelineConfig:
         for key, lo in (("neighbourhood", 4), ("n_levels", 2), ("cfar_train", 2), ("cfar_guard", 0),
                         ("min_run", 1), ("neighbour_beams", 1), ("max_jump_bins", 0),
                         ("min_segment_beams", 1), ("min_component_beams", 1),
-                        ("min_component_bins", 1), ("refine_bins", 0), ("link_beams", 0)):
+                        ("min_component_bins", 1), ("refine_bins", 0), ("link_beams", 0),
+                        ("pool_beams", 0), ("pool_bins", 1), ("pool_min_beams", 1)):
             v = getattr(self, key)
             if isinstance(v, bool) or not isinstance(v, int) or v < lo:
                 raise bad(key, f"must be an integer >= {lo}")
@@ -410,6 +428,38 @@ def _mrf_labels(image: NDArray[np.float32], levels: NDArray[Any], cost: NDArray[
                      neighbourhood=config.neighbourhood, weights=wt).labels
 
 
+def pooled_band_pixels(image: NDArray[np.float32], level: float, *, pool_beams: int = 4, pool_bins: int = 3,
+                       min_beams: int = 40) -> NDArray[np.bool_] | None:
+    """Band pooling (see :class:`PipelineConfig`): one structure pixel per beam of every wide band.
+
+    The image is averaged over ``pool_bins`` x ``2 pool_beams + 1`` pixels and thresholded at
+    ``level``; 8-connected components spanning >= ``min_beams`` beams are kept, and on each of
+    their beams the strongest pixel of the first run of kept rows is returned.  None if no band.
+    """
+    from scipy.ndimage import uniform_filter
+
+    from sonarmap.ranges import wide_components
+
+    img = np.asarray(image, dtype=np.float32)
+    pooled = uniform_filter(img, size=(pool_bins, 2 * pool_beams + 1), mode="constant")
+    band = pooled >= level
+    if not band.any():
+        return None
+    band = wide_components(band, min_beams, min_bins=img.shape[0] + 1)
+    cols = band.any(axis=0)
+    if not cols.any():
+        return None
+    first = band.argmax(axis=0)
+    rows = np.arange(img.shape[0])[:, None]
+    below = rows >= first[None, :]
+    run = np.logical_and.accumulate(band | ~below, axis=0) & below & cols[None, :]
+    pick = np.where(run, img, -np.inf).argmax(axis=0)
+    out = np.zeros(img.shape, dtype=bool)
+    j = np.flatnonzero(cols)
+    out[pick[j], j] = True
+    return out
+
+
 def process_ping(ping: Ping, config: PipelineConfig = PipelineConfig(), *, keep_labels: bool = False) -> PingProducts:
     """Run the per-ping pipeline (pure function of ``ping`` and ``config``).
 
@@ -450,18 +500,32 @@ def process_ping(ping: Ping, config: PipelineConfig = PipelineConfig(), *, keep_
                             labels=labels if keep_labels else None, pd=0.0, pfa=0.0, method=config.method)
     labels, fit, pd, pfa = classify_image(image, config)
     edge = None
+    bg_mean = None
+    if fit is not None and len(fit.class_names) >= 2 and not fit.flags & {"all_zero", "degenerate"}:
+        bg_mean = float(np.asarray(fit.class_pmf())[0] @ np.asarray(fit.levels))
     if config.refine_bins > 0 and fit is not None:
-        bg = np.asarray(fit.class_pmf())[0]
-        edge = config.edge_factor * float(bg @ np.asarray(fit.levels))
-    ranges = extract_ranges(
-        labels >= 1, image, geom, mode=config.range_mode,  # type: ignore[arg-type]
-        min_run=config.min_run, reject_isolated=config.reject_isolated,
-        neighbour_beams=config.neighbour_beams, max_jump_bins=config.max_jump_bins,
-        min_segment_beams=config.min_segment_beams,
-        min_component_beams=config.min_component_beams,
-        min_component_bins=config.min_component_bins, link_beams=config.link_beams,
-        refine_bins=config.refine_bins, edge_level=edge, time_ns=ping.time_ns, source=ping.source,
-    )
+        edge = config.edge_factor * float(np.asarray(fit.class_pmf())[0] @ np.asarray(fit.levels))
+
+    def _ranges(accepted: NDArray[np.bool_] | None) -> BeamRanges:
+        return extract_ranges(
+            labels >= 1, image, geom, mode=config.range_mode,  # type: ignore[arg-type]
+            min_run=config.min_run, reject_isolated=config.reject_isolated,
+            neighbour_beams=config.neighbour_beams, max_jump_bins=config.max_jump_bins,
+            min_segment_beams=config.min_segment_beams,
+            min_component_beams=config.min_component_beams,
+            min_component_bins=config.min_component_bins, link_beams=config.link_beams,
+            refine_bins=config.refine_bins, edge_level=edge, accepted=accepted, time_ns=ping.time_ns,
+            source=ping.source,
+        )
+
+    ranges = _ranges(None)
+    # band pooling: only when the per-pixel route found less than one wide surface
+    if (config.pool_factor > 0 and bg_mean is not None and bg_mean > 0
+            and ranges.n_returns < config.pool_min_beams):
+        accepted = pooled_band_pixels(image, config.pool_factor * bg_mean, pool_beams=config.pool_beams,
+                                      pool_bins=config.pool_bins, min_beams=config.pool_min_beams)
+        if accepted is not None:
+            ranges = _ranges(accepted)
     flags = set(fit.flags) if fit is not None else {"no_fit"}
     if ranges.n_returns == 0:
         flags.add("no_returns")

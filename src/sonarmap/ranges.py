@@ -219,6 +219,7 @@ def extract_ranges(
     link_beams: int = 0,
     refine_bins: int = 0,
     edge_level: float | None = None,
+    accepted: ArrayLike | None = None,
     time_ns: int = 0,
     source: str = "",
 ) -> BeamRanges:
@@ -250,6 +251,10 @@ def extract_ranges(
         ``refine_bins`` bins while the mean of ``image`` over 3 bins x 3 beams centred on the bin
         above stays >= ``edge_level`` - the leading edge of a speckled surface band, where
         the segmentation's first pixel is often a few bins late.
+    accepted : ndarray of bool, shape (n_bins, n_beams), optional
+        Structure pixels accepted without rule 0 (added after it), e.g. the pipeline's pooled
+        band detections, which were already validated as wide components.  A first return on
+        such a pixel is not moved by rule 4.
     time_ns, source
         Copied into the result.
 
@@ -271,6 +276,12 @@ def extract_ranges(
         if link_beams > 0:
             kept = _link_components(mask, kept, link_beams)
         mask = kept
+    acc_only = None
+    if accepted is not None:
+        acc = np.asarray(accepted, dtype=bool)
+        geometry.check_image(acc, "accepted")
+        acc_only = acc & ~mask
+        mask = mask | acc
     if mode == "first":
         bins = first_return_bins(mask, min_run=min_run)
     else:
@@ -298,7 +309,12 @@ def extract_ranges(
     if min_segment_beams > 1:
         bins = np.where(_segments_short(bins, max_jump_bins, min_segment_beams), -1, bins)
     if refine_bins > 0 and edge_level is not None and mode == "first":
-        bins = _refine_leading_edge(img, bins, refine_bins, float(edge_level))
+        refined = _refine_leading_edge(img, bins, refine_bins, float(edge_level))
+        if acc_only is not None:
+            # accepted (pooled) picks are the band's peak: not moved by the leading-edge rule
+            keep = (bins >= 0) & acc_only[np.maximum(bins, 0), np.arange(bins.size)]
+            refined = np.where(keep, bins, refined)
+        bins = refined
     valid = bins >= 0
     sup, cnt = _support(bins, neighbour_beams, max_jump_bins)
     conf = np.where(valid, sup / np.maximum(cnt, 1), 0.0).astype(np.float32)
