@@ -48,7 +48,12 @@ from numpy.typing import ArrayLike, NDArray
 
 from sonarmap.errors import InputError
 from sonarmap.mapping.poses import SensorPoses
-from sonarmap.mapping.register import DEFAULT_APERTURE_RAD, PointCloud, elevation_samples
+from sonarmap.mapping.register import (
+    DEFAULT_APERTURE_RAD,
+    PointCloud,
+    elevation_samples,
+    range_matrix,
+)
 
 __all__ = [
     "SensorModel",
@@ -371,14 +376,8 @@ class OccupancyMap:
             Number of pings integrated.
         """
         cfg = self.config
-        r = np.asarray(range_m, dtype=np.float64)
-        if r.ndim == 1:
-            r = r[None, :]
-        if r.ndim != 2:
-            raise InputError(f"range_m: expected (n_pings, n_beams), got shape {r.shape}")
+        r = range_matrix(range_m, poses)
         P, B = r.shape
-        if len(poses) != P:
-            raise InputError(f"poses: {len(poses)} poses for {P} pings")
         az = np.broadcast_to(np.asarray(azimuth_rad, dtype=np.float64), (P, B))
         rmin = np.broadcast_to(np.asarray(min_range_m, dtype=np.float64), (P,))
         rmax = np.broadcast_to(np.asarray(max_range_m, dtype=np.float64), (P,))

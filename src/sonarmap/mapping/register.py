@@ -162,6 +162,22 @@ _ATTRS: dict[str, Any] = {
 }
 
 
+def range_matrix(range_m: ArrayLike, poses: Sequence[Any] | SensorPoses) -> NDArray[np.float64]:
+    """Per-beam ranges as a float64 ``(n_pings, n_beams)`` array checked against one pose per ping.
+
+    A single ping's ``(n_beams,)`` ranges become one row.  Raises :class:`InputError` naming the
+    argument on a wrong shape or a pose count that differs from the ping count.
+    """
+    r = np.asarray(range_m, dtype=np.float64)
+    if r.ndim == 1:
+        r = r[None, :]
+    if r.ndim != 2:
+        raise InputError(f"range_m: expected (n_pings, n_beams), got shape {r.shape}")
+    if len(poses) != r.shape[0]:
+        raise InputError(f"poses: {len(poses)} poses for {r.shape[0]} pings")
+    return r
+
+
 def _as_2d(values: ArrayLike | None, shape: tuple[int, int], name: str, dtype: Any, fill: float) -> NDArray[Any]:
     if values is None:
         return np.full(shape, fill, dtype=dtype)
@@ -201,14 +217,8 @@ def register_returns(
         Points ordered by ping, then beam, then elevation sample.
     """
     cfg = config or RegistrationConfig()
-    r = np.asarray(range_m, dtype=np.float64)
-    if r.ndim == 1:
-        r = r[None, :]
-    if r.ndim != 2:
-        raise InputError(f"range_m: expected (n_pings, n_beams), got shape {r.shape}")
+    r = range_matrix(range_m, poses)
     P, B = r.shape
-    if len(poses) != P:
-        raise InputError(f"poses: {len(poses)} poses for {P} pings")
     az = _as_2d(azimuth_rad, (P, B), "azimuth_rad", np.float64, 0.0)
     inten = _as_2d(intensity, (P, B), "intensity", np.float32, 1.0)
     conf = _as_2d(confidence, (P, B), "confidence", np.float32, 1.0)
