@@ -26,6 +26,8 @@ from sonarmap.preprocess.pipeline import PreprocessConfig, preprocess
 from sonarmap.simulate import (
     SimulationConfig,
     View,
+    channel_gain,
+    expected_background_level,
     empty_scene,
     planar_hull,
     point_target,
@@ -101,28 +103,89 @@ def test_point_target_deconvolves_to_one_dominant_beam() -> None:
         assert np.abs(others).max() < 0.1 * d[i, beam]
 
 
-def test_expected_ghost_reduction_with_speckle() -> None:
-    """Speckle on (linear receiver): the filter is linear, so the mean of the deconvolved pings is
-    the filter applied to the mean ping; 50 pings estimate the *expected* ghost reduction.
+def _expected_pixel(mu: np.ndarray) -> np.ndarray:
+    """Exact mean recorded pixel for speckle on, threshold 0, floor quantisation and clip at 1:
+    the intensity is exponential with mean ``mu``, so ``E[q] = sum_k P(I >= k/255) / 255``."""
+    k = np.arange(1, 256) / 255.0
+    return np.exp(-k / mu[..., None]).sum(axis=-1) / 255.0
 
-    Measured 5.5 / 7.3 / 5.8 dB at beams 20 / 48 / 80 (50 pings; 6.1 / 6.9 / 5.3 with 200), short
-    of the 10 dB of the speckle-free case: see docs/preprocessing.md.  Guarded at >= 3 dB.
-    """
+
+def _speckle_mean_images(beam: int, cfg: SimulationConfig):
+    """Expected hull and empty pings (speckle on) from the simulator's public outputs, and the
+    hull's rows / true beams / ghost beams.  ``mu`` = ``clean`` (echo through beam pattern, taper
+    and channel; exact while < 1) + background ``rv * taper + noise``."""
+    res = simulate_ping(_hull_patch(beam), GEOM, config=cfg, seed=0)
+    assert res.clean.max() < 1.0  # clean is clipped at 1: only exact below
+    rv = channel_gain(GEOM, cfg) * 10.0 ** (cfg.reverb_db / 10.0)
+    noise = expected_background_level(GEOM, cfg) - rv
+    mu_bg = rv[:, None] * np.asarray(GEOM.taper)[None, :] + noise[:, None]
+    cols = np.flatnonzero((res.class_mask == 1).any(axis=0))
+    rows = np.flatnonzero((res.class_mask == 1).any(axis=1))
+    ghosts = np.setdiff1d(np.concatenate([cols - 8, cols + 8]), cols)
+    hull = _expected_pixel(res.clean.astype(np.float64) + mu_bg).astype(np.float32)
+    empty = _expected_pixel(mu_bg).astype(np.float32)
+    return res, hull, empty, rows, cols, ghosts
+
+
+def _ghost_reduction_db(hull, empty, rows, ghosts) -> tuple[float, np.ndarray]:
+    raw = correct_taper(hull - empty, GEOM)[np.ix_(rows, ghosts)].astype(np.float64).sum()
+    dec = preprocess(Ping(hull, GEOM), PRE).image - preprocess(Ping(empty, GEOM), PRE).image
+    return 10 * math.log10(raw / abs(dec[np.ix_(rows, ghosts)].astype(np.float64).sum())), dec
+
+
+@pytest.mark.parametrize("beam", [20, 48, 80])
+def test_expected_ghost_reduction_with_speckle(beam: int) -> None:
+    """Speckle on (default brightness, full_scale 170; threshold 0): the filter is linear, so the
+    expected deconvolved ping is the filter applied to the expected ping, computed exactly here
+    (8-bit floor quantisation and the clip at 1 included).  Measured 14.4 / 12.8 / 13.8 dB at
+    beams 20 / 48 / 80; a 4000-ping Monte Carlo gives 14.1 dB at beam 20.  A 50-ping average
+    cannot show it: the deconvolved ghost sum has a per-ping sd of ~1.3-1.5x the raw ghost energy
+    (single-look speckle on the main return), see docs/preprocessing.md."""
     cfg = SimulationConfig(threshold=0.0)
-    n = 50
-    bg = np.mean([simulate_ping(empty_scene(), GEOM, config=cfg, seed=1000 + s).ping.image
-                  for s in range(n)], axis=0)
-    bg_dec = preprocess(Ping(bg, GEOM), PRE).image
+    res, hull, empty, rows, cols, ghosts = _speckle_mean_images(beam, cfg)
+    assert 5 <= cols.size <= 7 and not res.unblurred[:, ghosts].any()
+    db, dec = _ghost_reduction_db(hull, empty, rows, ghosts)
+    assert db >= 10.0
+    # Main return kept: the beams holding >= half the peak are the true beams, same leading edge.
+    raw = correct_taper(hull - empty, GEOM)
+    truth = res.unblurred / GEOM.taper
+    peak_cols = lambda im: np.flatnonzero(im[rows].max(axis=0) >= 0.5 * im[rows].max())  # noqa: E731
+    assert np.array_equal(peak_cols(dec), peak_cols(truth))
+    strong = peak_cols(truth)
+    assert np.abs(_leading_edge(dec, strong) - _leading_edge(raw, strong)).max() <= 1
+
+
+def test_expected_speckle_images_match_simulator() -> None:
+    """The exact expectation used above agrees with the simulator's empirical mean (200 pings)."""
+    cfg = SimulationConfig(threshold=0.0)
+    _, hull, empty, rows, cols, ghosts = _speckle_mean_images(48, cfg)
+    n = 200
+    pings = np.stack([simulate_ping(_hull_patch(48), GEOM, config=cfg, seed=s).ping.image for s in range(n)])
+    block = np.ix_(rows, np.concatenate([cols, ghosts]))
+    emp = pings.mean(axis=0)[block].sum()
+    assert emp == pytest.approx(hull[block].astype(np.float64).sum(), rel=0.02)
+    # Deconvolved ghost sum: per-ping spread ~1.3-1.5x the raw ghost energy, so the 200-ping mean
+    # is within a few standard errors of the (small) expectation but far from resolving 10 dB.
+    dec = np.array([preprocess(Ping(p, GEOM), PRE).image[np.ix_(rows, ghosts)].astype(np.float64).sum()
+                    for p in pings])
+    exp_dec = preprocess(Ping(hull, GEOM), PRE).image[np.ix_(rows, ghosts)].astype(np.float64).sum()
+    raw_ghost = correct_taper(hull - empty, GEOM)[np.ix_(rows, ghosts)].astype(np.float64).sum()
+    assert 1.0 < dec.std() / raw_ghost < 2.0
+    assert abs(dec.mean() - exp_dec) < 4 * dec.std() / math.sqrt(n)
+
+
+def test_ghost_reduction_limits_quantisation_and_saturation() -> None:
+    """Where the >= 10 dB fails even in expectation (docs/preprocessing.md): ghosts within ~1-2
+    8-bit quanta of the background (full_scale 182: ghost mean excess <= 1.7 quanta; floor
+    quantisation erases them) and a main return whose speckle saturates (full_scale 163: the hull
+    peak mean 0.6, P(I > 1) = 19 %; the clip at 1 compresses the main beam but not its ghosts)."""
+    dim = SimulationConfig(threshold=0.0, full_scale_db=182.0)
     for beam in (20, 48, 80):
-        patch = _hull_patch(beam)
-        res = simulate_ping(patch, GEOM, config=cfg, seed=0)
-        cols = np.flatnonzero((res.class_mask == 1).any(axis=0))
-        rows = np.flatnonzero((res.class_mask == 1).any(axis=1))
-        ghosts = np.setdiff1d(np.concatenate([cols - 8, cols + 8]), cols)
-        mean = np.mean([simulate_ping(patch, GEOM, config=cfg, seed=s).ping.image for s in range(n)], axis=0)
-        raw = correct_taper(mean - bg, GEOM)[np.ix_(rows, ghosts)].sum()
-        dec = (preprocess(Ping(mean, GEOM), PRE).image - bg_dec)[np.ix_(rows, ghosts)].sum()
-        assert 10 * math.log10(raw / abs(dec)) >= 3.0
+        _, hull, empty, rows, _, ghosts = _speckle_mean_images(beam, dim)
+        assert _ghost_reduction_db(hull, empty, rows, ghosts)[0] < 3.0  # measured -1.9 / 1.9 / -0.1
+    bright = SimulationConfig(threshold=0.0, full_scale_db=163.0)
+    _, hull, empty, rows, _, ghosts = _speckle_mean_images(20, bright)
+    assert _ghost_reduction_db(hull, empty, rows, ghosts)[0] < 6.0  # measured 4.8 (13.7 unclipped)
 
 
 @pytest.fixture(scope="module")
