@@ -141,3 +141,20 @@ def test_accepted_pixels_bypass_component_rule_and_refinement(geom):
     assert r.n_returns == 20 and (r.bin == 50).all()
     with pytest.raises((InputError, GeometryError)):
         extract_ranges(mask, img, geom, accepted=acc[:, :5])
+
+
+def test_fused_rule0_equals_wide_then_linked_components():
+    """The one-kernel rule 0 equals wide_components followed by _link_components."""
+    from sonarmap.ranges import _link_components, _rule0, wide_components
+
+    rng = np.random.default_rng(3)
+    for t in range(400):
+        h, w = int(rng.integers(1, 40)), int(rng.integers(1, 40))
+        m = rng.random((h, w)) < rng.uniform(0.02, 0.5)
+        mb = int(rng.integers(1, 10))
+        mn = None if t % 2 else int(rng.integers(1, 10))
+        gap = int(rng.integers(0, 6))
+        ref = wide_components(m, mb, min_bins=mn)
+        if gap > 0:
+            ref = _link_components(m, ref, gap)
+        assert np.array_equal(_rule0(m, mb, mn, gap), ref)

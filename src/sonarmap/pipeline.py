@@ -318,7 +318,12 @@ class PingProducts:
 def _fit(levels: NDArray[Any], config: PipelineConfig) -> Any:
     from sonarmap.stats.mixture import fit_mixture
 
-    counts = np.bincount(levels.ravel(), minlength=config.n_levels).astype(np.float64)
+    if levels.ndim == 2 and levels.dtype.kind == "u":
+        from sonarmap.classify._kernels import level_counts
+
+        counts = level_counts(levels, int(config.n_levels))
+    else:
+        counts = np.bincount(levels.ravel(), minlength=config.n_levels).astype(np.float64)
     try:
         return fit_mixture(counts, families=config.families, method=config.fit_method,  # type: ignore[arg-type]
                            n_levels=config.n_levels, tol=config.fit_tol)
@@ -383,7 +388,6 @@ def classify_image(image: NDArray[np.float32], config: PipelineConfig = Pipeline
         return res.labels, _fit(levels, config), math.nan, config.cfar_pfa
     levels = quantize(image, config.n_levels)
     fit = _fit(levels, config)
-    empty = np.zeros(image.shape, dtype=np.uint8)
     if method == "threshold":
         from sonarmap.classify.threshold import threshold_labels
 
@@ -395,7 +399,7 @@ def classify_image(image: NDArray[np.float32], config: PipelineConfig = Pipeline
             pd, pfa = pd_pfa_at_threshold(fit, config.threshold)
         return labels, fit, pd, pfa
     if fit is None or fit.flags & {"all_zero", "degenerate"} or len(fit.class_names) < 2:
-        return empty, fit, 0.0, 0.0
+        return np.zeros(image.shape, dtype=np.uint8), fit, 0.0, 0.0
     from sonarmap.classify.local_map import map_lookup_table
 
     lut = map_lookup_table(fit)
@@ -417,8 +421,8 @@ def _mrf_labels(image: NDArray[np.float32], levels: NDArray[Any], cost: NDArray[
     from sonarmap.classify import mrf
 
     if config.solver == "graphcut" and cost.shape[0] == 2 and not config.contrast:
-        return mrf.solve_graphcut_levels(levels, cost, beta=beta, neighbourhood=config.neighbourhood,
-                                         range_weight=config.range_weight).labels
+        return mrf.graphcut_levels_labels(levels, cost, beta=beta, neighbourhood=config.neighbourhood,
+                                          range_weight=config.range_weight)
     from sonarmap.classify._kernels import gather_costs
 
     unary = gather_costs(np.ascontiguousarray(levels), cost)
@@ -436,16 +440,21 @@ def pooled_band_pixels(image: NDArray[np.float32], level: float, *, pool_beams: 
     ``level``; 8-connected components spanning >= ``min_beams`` beams are kept, and on each of
     their beams the strongest pixel of the first run of kept rows is returned.  None if no band.
     """
-    from scipy.ndimage import uniform_filter
-
-    from sonarmap.ranges import wide_components
+    from sonarmap.classify._kernels import box_mean_f32
+    from sonarmap.ranges import _rule0
 
     img = np.asarray(image, dtype=np.float32)
-    pooled = uniform_filter(img, size=(pool_bins, 2 * pool_beams + 1), mode="constant")
+    if img.ndim != 2 or img.size == 0:
+        from scipy.ndimage import uniform_filter
+
+        pooled = uniform_filter(img, size=(pool_bins, 2 * pool_beams + 1), mode="constant")
+    else:
+        # = scipy.ndimage.uniform_filter(img, size=(pool_bins, 2 pool_beams + 1), mode="constant")
+        pooled = box_mean_f32(img, int(pool_bins), 2 * int(pool_beams) + 1)
     band = pooled >= level
     if not band.any():
         return None
-    band = wide_components(band, min_beams, min_bins=img.shape[0] + 1)
+    band = _rule0(band, min_beams, img.shape[0] + 1, 0)
     cols = band.any(axis=0)
     if not cols.any():
         return None
@@ -501,10 +510,11 @@ def process_ping(ping: Ping, config: PipelineConfig = PipelineConfig(), *, keep_
     labels, fit, pd, pfa = classify_image(image, config)
     edge = None
     bg_mean = None
-    if fit is not None and len(fit.class_names) >= 2 and not fit.flags & {"all_zero", "degenerate"}:
-        bg_mean = float(np.asarray(fit.class_pmf())[0] @ np.asarray(fit.levels))
-    if config.refine_bins > 0 and fit is not None:
-        edge = config.edge_factor * float(np.asarray(fit.class_pmf())[0] @ np.asarray(fit.levels))
+    usable = fit is not None and len(fit.class_names) >= 2 and not fit.flags & {"all_zero", "degenerate"}
+    if usable or (config.refine_bins > 0 and fit is not None):
+        bg = float(np.asarray(fit.class_pmf())[0] @ np.asarray(fit.levels))  # background class mean
+        bg_mean = bg if usable else None
+        edge = config.edge_factor * bg if config.refine_bins > 0 else None
 
     def _ranges(accepted: NDArray[np.bool_] | None) -> BeamRanges:
         return extract_ranges(

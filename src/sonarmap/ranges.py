@@ -36,6 +36,7 @@ Rules (applied in this order)
 from __future__ import annotations
 
 import dataclasses
+import threading
 from typing import Literal
 
 import numpy as np
@@ -146,6 +147,35 @@ def wide_components(
     return kernel(m, sd, int(min_beams), int(min_bins) if min_bins is not None else 0)
 
 
+class _IdxWork(threading.local):
+    """Per-thread all -1 int32 work arrays of :func:`_kernels.linked_components`, per shape."""
+
+    def __init__(self) -> None:
+        self.arrays: dict[tuple[int, int], NDArray[np.int32]] = {}
+
+    def get(self, h: int, w: int) -> NDArray[np.int32]:
+        arr = self.arrays.get((h, w))
+        if arr is None:
+            if len(self.arrays) > 4:
+                self.arrays.clear()
+            arr = self.arrays[(h, w)] = np.full((h, w), -1, dtype=np.int32)
+        return arr
+
+
+_IDX_WORK = _IdxWork()
+
+
+def _rule0(mask: NDArray[np.bool_], min_beams: int, min_bins: int | None, link_beams: int) -> NDArray[np.bool_]:
+    """Rule 0 (wide components, then linked pieces) in one kernel: same as :func:`wide_components`
+    followed by :func:`_link_components`."""
+    from sonarmap.classify._kernels import linked_components
+
+    m = np.ascontiguousarray(mask, dtype=bool)
+    h, w = m.shape
+    return linked_components(m, int(min_beams), int(min_bins) if min_bins is not None else 0,
+                             int(link_beams), 4 if link_beams > 0 else 0, _IDX_WORK.get(h, w))
+
+
 def _link_components(mask: NDArray[np.bool_], kept: NDArray[np.bool_], gap: int, rounds: int = 4) -> NDArray[np.bool_]:
     """Add components of ``mask`` within ``gap`` beams and 1 bin of ``kept`` ones (chained)."""
     from sonarmap.classify._kernels import near_mask
@@ -161,6 +191,10 @@ def _link_components(mask: NDArray[np.bool_], kept: NDArray[np.bool_], gap: int,
 
 def _support(bins: NDArray[np.int64], neighbour_beams: int, max_jump: int) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
     """(number of supporting neighbours, number of existing neighbours) per beam."""
+    if bins.dtype == np.int64 and bins.ndim == 1:
+        from sonarmap.classify._kernels import support_counts
+
+        return support_counts(bins, int(neighbour_beams), int(max_jump))
     n = bins.size
     sup = np.zeros(n, dtype=np.int64)
     cnt = np.zeros(n, dtype=np.int64)
@@ -272,10 +306,7 @@ def extract_ranges(
         raise InputError("min_run, neighbour_beams, min_segment_beams must be >= 1; max_jump_bins >= 0")
     mask = lab if lab.dtype == np.bool_ else (lab == structure_label)
     if min_component_beams > 1:
-        kept = wide_components(mask, min_component_beams, min_bins=min_component_bins)
-        if link_beams > 0:
-            kept = _link_components(mask, kept, link_beams)
-        mask = kept
+        mask = _rule0(mask, min_component_beams, min_component_bins, link_beams)
     acc_only = None
     if accepted is not None:
         acc = np.asarray(accepted, dtype=bool)

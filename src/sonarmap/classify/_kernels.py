@@ -174,78 +174,186 @@ def _try_fix(levels, margin_lut, weights, fixed, i, j, h, w):  # pragma: no cove
     return 0
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _try_fix_u(levels, margin_lut, weights, fixed, i, j, h, w, wr, wb):  # pragma: no cover - numba
+    """:func:`_try_fix` for uniform 4-neighbourhood weights (``wr`` along range, ``wb`` across
+    beams) - interior pixels read no weight array."""
+    if 0 < i < h - 1 and 0 < j < w - 1:
+        mm = margin_lut[levels[i, j]]
+        wf = 0.0
+        f = fixed[i + 1, j]
+        if f < 0:
+            wf += wr
+        elif f == 1:
+            mm += wr
+        else:
+            mm -= wr
+        f = fixed[i - 1, j]
+        if f < 0:
+            wf += wr
+        elif f == 1:
+            mm += wr
+        else:
+            mm -= wr
+        f = fixed[i, j + 1]
+        if f < 0:
+            wf += wb
+        elif f == 1:
+            mm += wb
+        else:
+            mm -= wb
+        f = fixed[i, j - 1]
+        if f < 0:
+            wf += wb
+        elif f == 1:
+            mm += wb
+        else:
+            mm -= wb
+        if mm > wf:
+            fixed[i, j] = 1
+            return 1
+        if mm < -wf:
+            fixed[i, j] = 0
+            return 1
+        return 0
+    return _try_fix(levels, margin_lut, weights, fixed, i, j, h, w)
+
+
 @njit(cache=True, nogil=True)
-def reduce_binary(levels, margin_lut, weights, wtot, fixed, node, m, wfree, stack):  # pragma: no cover
+def reduce_binary(levels, margin_lut, weights, wtot, fixed, node, m, wfree, stack, uniform):  # pragma: no cover
     """Exact persistency reduction of a binary Potts problem, then graph arrays for the rest.
 
     The margin of pixel ``(i, j)`` is ``margin_lut[levels[i, j]]`` (``unary[0] - unary[1]``,
     positive favours label 1); a general unary is passed as ``levels = arange(h*w)`` and
     ``margin_lut = margin.ravel()``.  ``wtot`` is the total incident edge weight per pixel;
     ``fixed``, ``node``, ``m``, ``wfree`` and ``stack`` are caller-owned work arrays (reused
-    across pings of equal shape, so no large allocation happens per call).
+    across pings of equal shape, so no large allocation happens per call; ``m`` and ``wfree``
+    are unused and kept for the signature).
 
     A pixel whose effective margin - its own plus ``+w`` for every edge to a neighbour already
     fixed to 1 and ``-w`` for one fixed to 0 - exceeds the total weight of its edges to still-free
     neighbours takes the label the margin favours in *every* minimiser (changing it alone would
-    lower the energy strictly, whatever the free neighbours do).  The test is applied in
-    alternating forward and backward raster sweeps until nothing changes, so a fixed region grows
-    across the image in one sweep (memory-sequential, ~0.1 ms per 512 x 96 sweep); the fixed point
-    is the same as with any other propagation order.
+    lower the energy strictly, whatever the free neighbours do).  The test is monotone (fixing a
+    neighbour lowers the free weight by ``w`` and moves the margin by at most ``w``, so a fixable
+    pixel stays fixable with the same label), hence the fixed point does not depend on the
+    propagation order.  Pass 1 is one forward raster sweep in which the unconditional test
+    ``|margin| > wtot`` (no neighbour reads) settles most pixels and only the others read their
+    already-visited neighbours; its survivors (a few per cent) are then swept, in alternating
+    backward and forward order, with the full test until nothing changes.  No lattice-sized
+    initialisation pass is needed.
 
     Returns
     -------
     n_free : int
     m_eff : float64 (n_free,)
-        Effective margin of each free node (``node[i, j]`` is its index, -1 if fixed).
+        Effective margin of each free node (``node[i, j]`` is its index, valid only where
+        ``fixed[i, j] < 0``).
     ei, ej : int64 (n_edges,), ew : float64 (n_edges,)
         Free-free edges and their weights.  ``fixed`` holds 0/1, or -1 for free pixels.
     """
     h, w = levels.shape
     n_dirs = weights.shape[0]
-    for i in range(h):
-        for j in range(w):
-            fixed[i, j] = -1
-    # one full forward sweep listing the survivors, then alternating sweeps over that list only
+    uni = uniform.size == 2 and n_dirs == 2
+    wr = uniform[0] if uni else 0.0
+    wb = uniform[1] if uni else 0.0
+    # pass 1, forward raster order: the unconditional test |margin| > wtot (no neighbour reads)
+    # decides most pixels; the rest get the full test with their already-visited (backward)
+    # neighbours' states - the forward neighbours are not visited yet, hence free
     n_left = 0
     for i in range(h):
         for j in range(w):
-            if _try_fix(levels, margin_lut, weights, fixed, i, j, h, w) == 0:
+            mm = margin_lut[levels[i, j]]
+            t = wtot[i, j]
+            if mm > t:
+                fixed[i, j] = 1
+                continue
+            if mm < -t:
+                fixed[i, j] = 0
+                continue
+            if uni and i > 0 and j > 0 and i < h - 1 and j < w - 1:
+                wf = wr + wb
+                f = fixed[i - 1, j]
+                if f < 0:
+                    wf += wr
+                elif f == 1:
+                    mm += wr
+                else:
+                    mm -= wr
+                f = fixed[i, j - 1]
+                if f < 0:
+                    wf += wb
+                elif f == 1:
+                    mm += wb
+                else:
+                    mm -= wb
+            else:
+                wf = 0.0
+                for d in range(n_dirs):
+                    ii = i + DI[d]
+                    jj = j + DJ[d]
+                    if 0 <= ii < h and 0 <= jj < w:
+                        wf += weights[d, i, j]
+                    ii = i - DI[d]
+                    jj = j - DJ[d]
+                    if 0 <= ii < h and 0 <= jj < w:
+                        wt = weights[d, ii, jj]
+                        f = fixed[ii, jj]
+                        if f < 0:
+                            wf += wt
+                        elif f == 1:
+                            mm += wt
+                        else:
+                            mm -= wt
+            if mm > wf:
+                fixed[i, j] = 1
+            elif mm < -wf:
+                fixed[i, j] = 0
+            else:
+                fixed[i, j] = -1
                 stack[n_left] = i * w + j          # ascending raster order
                 n_left += 1
+    # propagation: alternating backward / forward sweeps over the undecided pixels with the full
+    # test, compacting the list in place (it stays in ascending raster order in stack[lo:hi])
+    lo = 0
+    hi = n_left
     changed = 1
     sweep = 0
     while changed and sweep < 256:
         changed = 0
-        k_out = 0
-        if sweep % 2 == 0:
-            for k in range(n_left - 1, -1, -1):   # backward
+        if sweep % 2 == 1:
+            k_out = lo
+            for k in range(lo, hi):                # forward
                 p = stack[k]
                 i = p // w
                 j = p - i * w
-                if _try_fix(levels, margin_lut, weights, fixed, i, j, h, w):
+                if _try_fix_u(levels, margin_lut, weights, fixed, i, j, h, w, wr, wb) if uni else \
+                        _try_fix(levels, margin_lut, weights, fixed, i, j, h, w):
                     changed += 1
+                else:
+                    stack[k_out] = p
+                    k_out += 1
+            hi = k_out
         else:
-            for k in range(n_left):                # forward
+            k_out = hi - 1
+            for k in range(hi - 1, lo - 1, -1):   # backward
                 p = stack[k]
                 i = p // w
                 j = p - i * w
-                if _try_fix(levels, margin_lut, weights, fixed, i, j, h, w):
+                if _try_fix_u(levels, margin_lut, weights, fixed, i, j, h, w, wr, wb) if uni else \
+                        _try_fix(levels, margin_lut, weights, fixed, i, j, h, w):
                     changed += 1
-        for k in range(n_left):                    # compact, keeping the order
-            p = stack[k]
-            if fixed[p // w, p - (p // w) * w] < 0:
-                stack[k_out] = p
-                k_out += 1
-        n_left = k_out
+                else:
+                    stack[k_out] = p
+                    k_out -= 1
+            lo = k_out + 1
         sweep += 1
-    # number the survivors and list their edges
-    n_free = 0
-    for i in range(h):
-        for j in range(w):
-            if fixed[i, j] < 0:
-                node[i, j] = n_free
-                stack[n_free] = i * w + j
-                n_free += 1
+    # number the survivors (ascending raster order) and list their edges
+    n_free = hi - lo
+    for a in range(n_free):
+        p = stack[lo + a]
+        stack[a] = p
+        i = p // w
+        node[i, p - i * w] = a
     m_eff = np.empty(n_free)
     ei = np.empty(n_free * n_dirs, dtype=np.int64)
     ej = np.empty(n_free * n_dirs, dtype=np.int64)
@@ -524,4 +632,210 @@ def refine_leading_edge(img, bins, k_max, level):  # pragma: no cover - numba
             else:
                 break
         out[j] = b
+    return out
+
+
+@njit(cache=True, nogil=True)
+def linked_components(mask, min_beams, min_bins, gap, rounds, idx):  # pragma: no cover - numba
+    """Rule 0 of :func:`sonarmap.ranges.extract_ranges` in one kernel: the 8-connected components
+    of ``mask`` spanning >= ``min_beams`` beams or >= ``min_bins`` bins (``min_bins <= 0``: beams
+    only), then up to ``rounds`` rounds adding every other component with a pixel within ``gap``
+    beams and 1 bin of a pixel kept at the start of the round (stopping at the first round that
+    adds nothing).
+
+    Same result as :func:`wide_components` followed by ``_link_components`` (whose components of
+    ``mask & ~kept`` are exactly the components of ``mask`` not kept yet), but the lattice is
+    labelled once.  ``idx`` is a caller-owned int32 work array of ``mask``'s shape that must be
+    all -1 on entry; it is restored to -1 before returning.
+    """
+    h, w = mask.shape
+    n = 0
+    for i in range(h):
+        for j in range(w):
+            if mask[i, j]:
+                n += 1
+    pi = np.empty(n, dtype=np.int32)
+    pj = np.empty(n, dtype=np.int32)
+    n = 0
+    for i in range(h):
+        for j in range(w):
+            if mask[i, j]:
+                idx[i, j] = n
+                pi[n] = i
+                pj[n] = j
+                n += 1
+    parent = np.arange(n, dtype=np.int32)
+    for a in range(n):
+        i = pi[a]
+        j = pj[a]
+        # already-visited 8-neighbours: (i, j-1), (i-1, j-1), (i-1, j), (i-1, j+1)
+        for di, dj in ((0, -1), (-1, -1), (-1, 0), (-1, 1)):
+            ii = i + di
+            jj = j + dj
+            if 0 <= ii and 0 <= jj < w:
+                b = idx[ii, jj]
+                if b >= 0:
+                    ra = _find(parent, a)
+                    rb = _find(parent, b)
+                    if ra != rb:
+                        if ra < rb:
+                            parent[rb] = ra
+                        else:
+                            parent[ra] = rb
+    root = np.empty(n, dtype=np.int32)
+    jmin = np.full(n, w, dtype=np.int32)
+    jmax = np.full(n, -1, dtype=np.int32)
+    imin = np.full(n, h, dtype=np.int32)
+    imax = np.full(n, -1, dtype=np.int32)
+    for a in range(n):
+        r = _find(parent, a)
+        root[a] = r
+        i = pi[a]
+        j = pj[a]
+        if j < jmin[r]:
+            jmin[r] = j
+        if j > jmax[r]:
+            jmax[r] = j
+        if i < imin[r]:
+            imin[r] = i
+        if i > imax[r]:
+            imax[r] = i
+    kept = np.zeros(n, dtype=np.bool_)      # per root
+    n_kept = 0
+    for a in range(n):
+        r = root[a]
+        if r == a and (jmax[r] - jmin[r] + 1 >= min_beams or (min_bins > 0 and imax[r] - imin[r] + 1 >= min_bins)):
+            kept[r] = True
+    for a in range(n):
+        if kept[root[a]]:
+            n_kept += 1
+    add = np.zeros(n, dtype=np.bool_)
+    for _ in range(rounds):
+        if n_kept == 0 or n_kept == n:
+            break
+        # near pairs are symmetric: scan the windows of the smaller of the two pixel sets
+        from_kept = n_kept <= n - n_kept
+        hit = False
+        for a in range(n):
+            if kept[root[a]] != from_kept or (not from_kept and add[root[a]]):
+                continue
+            i = pi[a]
+            j = pj[a]
+            for ii in range(max(i - 1, 0), min(i + 2, h)):
+                for jj in range(max(j - gap, 0), min(j + gap + 1, w)):
+                    b = idx[ii, jj]
+                    if b >= 0 and kept[root[b]] != from_kept:
+                        hit = True
+                        if from_kept:
+                            add[root[b]] = True
+                        else:
+                            add[root[a]] = True
+                            break
+                if hit and not from_kept and add[root[a]]:
+                    break
+        if not hit:
+            break
+        for a in range(n):
+            r = root[a]
+            if add[r]:
+                if not kept[r]:
+                    kept[r] = True
+                add[r] = False
+        n_kept = 0
+        for a in range(n):
+            if kept[root[a]]:
+                n_kept += 1
+    out = np.zeros((h, w), dtype=np.bool_)
+    for a in range(n):
+        if kept[root[a]]:
+            out[pi[a], pj[a]] = True
+        idx[pi[a], pj[a]] = -1
+    return out
+
+
+@njit(cache=True, nogil=True)
+def support_counts(bins, neighbour_beams, max_jump):  # pragma: no cover - numba
+    """Per beam ``(number of supporting neighbours, number of existing neighbours)``: beam ``k``
+    with ``0 < |k - j| <= neighbour_beams`` exists if it lies in range and supports ``j`` if both
+    have a return (``bin >= 0``) within ``max_jump`` bins."""
+    n = bins.size
+    sup = np.zeros(n, dtype=np.int64)
+    cnt = np.zeros(n, dtype=np.int64)
+    for j in range(n):
+        bj = bins[j]
+        for k in range(max(j - neighbour_beams, 0), min(j + neighbour_beams + 1, n)):
+            if k == j:
+                continue
+            cnt[j] += 1
+            bk = bins[k]
+            if bj >= 0 and bk >= 0 and abs(bj - bk) <= max_jump:
+                sup[j] += 1
+    return sup, cnt
+
+
+@njit(cache=True, nogil=True)
+def level_counts(levels, n_levels):  # pragma: no cover - numba
+    """``np.bincount(levels.ravel(), minlength=n_levels)`` as float64 (levels are non-negative)."""
+    h, w = levels.shape
+    top = n_levels
+    for i in range(h):
+        for j in range(w):
+            if levels[i, j] >= top:
+                top = levels[i, j] + 1
+    # four interleaved partial histograms: runs of one level (the zeros) do not serialise
+    part = np.zeros((4, top), dtype=np.int64)
+    n = h * w
+    flat = levels.ravel()
+    n4 = n - n % 4
+    for k in range(0, n4, 4):
+        part[0, flat[k]] += 1
+        part[1, flat[k + 1]] += 1
+        part[2, flat[k + 2]] += 1
+        part[3, flat[k + 3]] += 1
+    for k in range(n4, n):
+        part[0, flat[k]] += 1
+    out = np.empty(top)
+    for v in range(top):
+        out[v] = float(part[0, v] + part[1, v] + part[2, v] + part[3, v])
+    return out
+
+
+@njit(cache=True, nogil=True)
+def box_mean_f32(img, size0, size1):  # pragma: no cover - numba
+    """``scipy.ndimage.uniform_filter(img, size=(size0, size1), mode="constant")`` of a 2-D float32
+    image, bit for bit (scipy's arithmetic: axis 0 then axis 1, axes of size 1 skipped, each line
+    zero-padded by ``size // 2`` before, a double running sum ``+= new - old`` divided by the size
+    and rounded to float32; ``tests/test_pipeline.py`` checks the identity against scipy)."""
+    h, w = img.shape
+    mid = np.empty((h, w), dtype=np.float32)
+    if size0 > 1:
+        b0 = size0 // 2
+        buf = np.zeros(h + size0 - 1)
+        for j in range(w):
+            for i in range(h):
+                buf[b0 + i] = img[i, j]
+            tmp = 0.0
+            for k in range(size0):
+                tmp += buf[k]
+            mid[0, j] = tmp / size0
+            for k in range(1, h):
+                tmp += buf[k + size0 - 1] - buf[k - 1]
+                mid[k, j] = tmp / size0
+    else:
+        mid[:, :] = img
+    if size1 <= 1:
+        return mid
+    out = np.empty((h, w), dtype=np.float32)
+    b1 = size1 // 2
+    buf = np.zeros(w + size1 - 1)
+    for i in range(h):
+        for j in range(w):
+            buf[b1 + j] = mid[i, j]
+        tmp = 0.0
+        for k in range(size1):
+            tmp += buf[k]
+        out[i, 0] = tmp / size1
+        for k in range(1, w):
+            tmp += buf[k + size1 - 1] - buf[k - 1]
+            out[i, k] = tmp / size1
     return out

@@ -241,6 +241,18 @@ def _uniform(h: int, w: int, neighbourhood: int, beta: float, range_weight: floa
     return wt, tot
 
 
+_NOT_UNIFORM = np.empty(0)
+
+
+def _uniform_pair(wt: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``[w_range, w_beam]`` of a uniform 4-neighbourhood weight array from :func:`_uniform` (the
+    weight of every interior edge along range / across beams), for the reduction kernel."""
+    h, w = wt.shape[1:]
+    if wt.shape[0] != 2 or h < 3 or w < 3:
+        return _NOT_UNIFORM
+    return np.array([wt[0, 1, 1], wt[1, 1, 1]])
+
+
 def _total_weight(wt: NDArray[np.float64]) -> NDArray[np.float64]:
     """Sum of the weights of the edges at each pixel, shape (n_bins, n_beams)."""
     tot = wt.sum(axis=0)
@@ -448,8 +460,15 @@ def _graphcut_lut(
     cost_lut: NDArray[np.float64],
     wt: NDArray[np.float64],
     wtot: NDArray[np.float64] | None,
+    with_energy: bool = True,
+    uniform: bool = False,
 ) -> tuple[NDArray[np.uint8], float, int]:
-    """Exact binary cut with unary ``cost_lut[label, levels]``; returns (labels, energy, n_free)."""
+    """Exact binary cut with unary ``cost_lut[label, levels]``; returns (labels, energy, n_free).
+
+    ``with_energy=False`` skips the energy evaluation (a full lattice pass) and returns NaN for it.
+    ``uniform=True`` promises that ``wt`` comes from :func:`_uniform` (all interior edges along a
+    direction have one weight), so the reduction reads scalars instead of ``wt`` inside the lattice.
+    """
     from sonarmap.classify._kernels import energy_lut, reduce_binary, write_free_labels
 
     h, w = levels.shape
@@ -457,11 +476,37 @@ def _graphcut_lut(
         wtot = _total_weight(wt)
     fixed, node, m, wfree, stack = _WORK.get(h, w, wt.shape[0])
     margin_lut = np.ascontiguousarray(cost_lut[0] - cost_lut[1])
-    n_free, m_eff, ei, ej, ew = reduce_binary(levels, margin_lut, wt, wtot, fixed, node, m, wfree, stack)
+    n_free, m_eff, ei, ej, ew = reduce_binary(levels, margin_lut, wt, wtot, fixed, node, m, wfree, stack,
+                                              _uniform_pair(wt) if uniform else _NOT_UNIFORM)
     labels = np.empty((h, w), dtype=np.uint8)
     x = _cut(m_eff, ei, ej, ew)[0].astype(np.uint8) if n_free else np.zeros(1, dtype=np.uint8)
     write_free_labels(fixed, node, x, labels)
-    return labels, float(energy_lut(levels, cost_lut, wt, labels)), int(n_free)
+    e = float(energy_lut(levels, cost_lut, wt, labels)) if with_energy else math.nan
+    return labels, e, int(n_free)
+
+
+def graphcut_levels_labels(
+    levels: NDArray[Any],
+    cost_lut: NDArray[np.float64],
+    *,
+    beta: float,
+    neighbourhood: int = 4,
+    range_weight: float = 1.0,
+) -> NDArray[np.uint8]:
+    """Labels of :func:`solve_graphcut_levels` without the energy (the per-ping pipeline's path).
+
+    Same labelling; skips the energy evaluation and, for ``uint8`` levels with a >= 256-entry
+    table, the level range check (every level is a valid index).
+    """
+    lev = np.asarray(levels)
+    lut = np.ascontiguousarray(cost_lut, dtype=np.float64)
+    if (lev.ndim != 2 or lev.dtype != np.uint8 or lut.ndim != 2 or lut.shape[0] != 2 or lut.shape[1] < 256
+            or neighbourhood not in (4, 8) or not np.isfinite(lut).all()):
+        return solve_graphcut_levels(levels, cost_lut, beta=beta, neighbourhood=neighbourhood,
+                                     range_weight=range_weight).labels
+    h, w = lev.shape
+    wt, wtot = _uniform(h, w, neighbourhood, _check_beta(beta), float(range_weight))
+    return _graphcut_lut(np.ascontiguousarray(lev), lut, wt, wtot, with_energy=False, uniform=True)[0]
 
 
 def solve_graphcut_levels(
@@ -498,7 +543,7 @@ def solve_graphcut_levels(
     else:
         wt = _weights_for(np.empty((2, h, w)), beta, neighbourhood, weights)
         wtot = None
-    labels, e, n_free = _graphcut_lut(np.ascontiguousarray(lev), lut, wt, wtot)
+    labels, e, n_free = _graphcut_lut(np.ascontiguousarray(lev), lut, wt, wtot, uniform=weights is None)
     return MRFResult(labels=labels, energy=e, solver="graphcut", beta=beta,
                      neighbourhood=4 if wt.shape[0] == 2 else 8, n_iterations=1, n_free=n_free,
                      exact=True)
@@ -534,13 +579,14 @@ def solve_graphcut(
         raise InputError(f"unary: graph cut is binary; got {u.shape[0]} labels (use 'expansion')")
     beta = _check_beta(beta)
     h, w = u.shape[1:]
-    if weights is None and neighbourhood in (4, 8):
+    uniform = weights is None and neighbourhood in (4, 8)
+    if uniform:
         wt, wtot = _uniform(h, w, neighbourhood, beta)
     else:
         wt = _weights_for(u, beta, neighbourhood, weights)
         wtot = None
     if reduce:
-        labels, e, n_free = _graphcut_lut(_flat_levels(h, w), u.reshape(2, -1), wt, wtot)
+        labels, e, n_free = _graphcut_lut(_flat_levels(h, w), u.reshape(2, -1), wt, wtot, uniform=uniform)
     else:
         ei, ej, sel = _lattice_edges(h, w, wt.shape[0])
         cap = wt.ravel()[sel]
