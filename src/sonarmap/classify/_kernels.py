@@ -504,6 +504,25 @@ def _find(parent, a):  # pragma: no cover - numba
 
 
 @njit(cache=True, nogil=True)
+def _union_back_neighbours(idx, parent, a, i, j, w):  # pragma: no cover - numba
+    """Union node ``a`` at ``(i, j)`` with its already-visited 8-neighbours in a raster scan,
+    ``(i, j-1)``, ``(i-1, j-1)``, ``(i-1, j)``, ``(i-1, j+1)`` (smaller root wins)."""
+    for di, dj in ((0, -1), (-1, -1), (-1, 0), (-1, 1)):
+        ii = i + di
+        jj = j + dj
+        if 0 <= ii and 0 <= jj < w:
+            b = idx[ii, jj]
+            if b >= 0:
+                ra = _find(parent, a)
+                rb = _find(parent, b)
+                if ra != rb:
+                    if ra < rb:
+                        parent[rb] = ra
+                    else:
+                        parent[ra] = rb
+
+
+@njit(cache=True, nogil=True)
 def wide_components(mask, seeds, min_beams, min_bins):  # pragma: no cover - numba
     """Keep 8-connected components of ``mask`` that contain a ``seeds`` pixel and span
     >= ``min_beams`` beams or >= ``min_bins`` bins.
@@ -526,20 +545,7 @@ def wide_components(mask, seeds, min_beams, min_bins):  # pragma: no cover - num
             a = idx[i, j]
             if a < 0:
                 continue
-            # already-visited 8-neighbours: (i, j-1), (i-1, j-1), (i-1, j), (i-1, j+1)
-            for di, dj in ((0, -1), (-1, -1), (-1, 0), (-1, 1)):
-                ii = i + di
-                jj = j + dj
-                if 0 <= ii and 0 <= jj < w:
-                    b = idx[ii, jj]
-                    if b >= 0:
-                        ra = _find(parent, a)
-                        rb = _find(parent, b)
-                        if ra != rb:
-                            if ra < rb:
-                                parent[rb] = ra
-                            else:
-                                parent[ra] = rb
+            _union_back_neighbours(idx, parent, a, i, j, w)
     jmin = np.full(n, w, dtype=np.int32)
     jmax = np.full(n, -1, dtype=np.int32)
     imin = np.full(n, h, dtype=np.int32)
@@ -668,20 +674,7 @@ def linked_components(mask, min_beams, min_bins, gap, rounds, idx):  # pragma: n
     for a in range(n):
         i = pi[a]
         j = pj[a]
-        # already-visited 8-neighbours: (i, j-1), (i-1, j-1), (i-1, j), (i-1, j+1)
-        for di, dj in ((0, -1), (-1, -1), (-1, 0), (-1, 1)):
-            ii = i + di
-            jj = j + dj
-            if 0 <= ii and 0 <= jj < w:
-                b = idx[ii, jj]
-                if b >= 0:
-                    ra = _find(parent, a)
-                    rb = _find(parent, b)
-                    if ra != rb:
-                        if ra < rb:
-                            parent[rb] = ra
-                        else:
-                            parent[ra] = rb
+        _union_back_neighbours(idx, parent, a, i, j, w)
     root = np.empty(n, dtype=np.int32)
     jmin = np.full(n, w, dtype=np.int32)
     jmax = np.full(n, -1, dtype=np.int32)
