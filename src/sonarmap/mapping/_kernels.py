@@ -99,6 +99,17 @@ def rebuild_table(chunk_keys: np.ndarray, n: int, capacity: int) -> tuple[np.nda
     return keys, slots
 
 
+
+@njit(cache=True, nogil=True)
+def _axis_step(p, d, i):  # pragma: no cover - numba
+    """Amanatides-Woo set-up for one axis of a ray starting at ``p`` (in cells) in cell ``i`` with
+    direction component ``d``: (step, parameter distance per cell, parameter to the first boundary)."""
+    if d > 0:
+        return 1, 1.0 / d, (i + 1 - p) / d
+    if d < 0:
+        return -1, -1.0 / d, (p - i) / -d
+    return 0, np.inf, np.inf
+
 @njit(cache=True)
 def integrate_rays(
     starts: np.ndarray,  # (n_rays, 3) float64, voxel units (world / resolution)
@@ -166,25 +177,9 @@ def integrate_rays(
             ey = int(np.floor(ends[r, 1]))
             ez = int(np.floor(ends[r, 2]))
             n_steps = abs(ex - ix) + abs(ey - iy) + abs(ez - iz)
-            inf = np.inf
-            if dx > 0:
-                stx, tdx, tmx = 1, 1.0 / dx, (ix + 1 - px) / dx
-            elif dx < 0:
-                stx, tdx, tmx = -1, -1.0 / dx, (px - ix) / -dx
-            else:
-                stx, tdx, tmx = 0, inf, inf
-            if dy > 0:
-                sty, tdy, tmy = 1, 1.0 / dy, (iy + 1 - py) / dy
-            elif dy < 0:
-                sty, tdy, tmy = -1, -1.0 / dy, (py - iy) / -dy
-            else:
-                sty, tdy, tmy = 0, inf, inf
-            if dz > 0:
-                stz, tdz, tmz = 1, 1.0 / dz, (iz + 1 - pz) / dz
-            elif dz < 0:
-                stz, tdz, tmz = -1, -1.0 / dz, (pz - iz) / -dz
-            else:
-                stz, tdz, tmz = 0, inf, inf
+            stx, tdx, tmx = _axis_step(px, dx, ix)
+            sty, tdy, tmy = _axis_step(py, dy, iy)
+            stz, tdz, tmz = _axis_step(pz, dz, iz)
             for _ in range(n_steps + 1):
                 cx, cy, cz = ix >> sx, iy >> sy, iz >> sz
                 key = _pack(cx, cy, cz)
