@@ -151,10 +151,13 @@ def test_band_pooling_recovers_speckled_survey_band():
     from sonarmap.mapping.survey_sim import simulate_survey
     from sonarmap.pipeline import PipelineConfig, pooled_band_pixels, process_ping
 
-    s = simulate_survey(n_pings=3, seed=1, kind="hull")
+    from sonarmap.simulate import SimulationConfig
+
+    # the stated DIDSON PSF with independent speckle per beam: a diffuse, fragmented band
+    s = simulate_survey(n_pings=3, seed=1, kind="hull", sim_config=SimulationConfig(ghosts="incoherent"))
     p = s.pings[2]
     assert process_ping(p, PipelineConfig(pool_factor=0.0)).ranges.n_returns == 0
-    r = process_ping(p, PipelineConfig()).ranges
+    r = process_ping(p, PipelineConfig(pool_factor=6.0, pool_beams=4, pool_mode="fallback")).ranges
     assert r.n_returns >= 40
     truth = s.sim_truth[2].first_return_bin
     err = np.abs(r.bin[r.valid] - truth[r.valid])
@@ -204,3 +207,37 @@ def test_level_counts_is_bincount():
         lev[rng.random(shape) < 0.6] = 0
         ref = np.bincount(lev.ravel(), minlength=256).astype(np.float64)
         assert np.array_equal(level_counts(lev, 256), ref)
+
+
+def test_pool_fill_only_adds_returns_on_empty_beams():
+    """pool_mode="fill": pooled band pixels are added only on beams the per-pixel route left
+    empty; its own returns are unchanged."""
+    from sonarmap.mapping.survey_sim import simulate_survey
+    from sonarmap.pipeline import PipelineConfig, process_ping
+
+    s = simulate_survey(n_pings=6, seed=3, kind="seafloor")
+    added = 0
+    for p in s.pings:
+        a = process_ping(p, PipelineConfig(pool_factor=0.0)).ranges
+        b = process_ping(p, PipelineConfig()).ranges
+        assert np.array_equal(b.bin[a.valid], a.bin[a.valid])
+        added += int(b.n_returns - a.n_returns)
+    assert added > 0
+    with pytest.raises(Exception, match="pool_mode"):
+        PipelineConfig(pool_mode="always")
+
+
+def test_component_pixel_rule_keeps_compact_targets_drops_fish_sized_blobs():
+    from sonarmap.geometry import preset
+    from sonarmap.ranges import extract_ranges
+
+    g = preset("didson-hf")
+    lab = np.zeros(g.shape, dtype=bool)
+    lab[100:105, 10:22] = True       # a blade seen edge-on: 12 beams x 5 bins = 60 pixels
+    lab[300:304, 60:66] = True       # a fish: 6 beams x 4 bins = 24 pixels
+    img = lab.astype(np.float32)
+    kw = dict(min_component_beams=16, min_component_bins=16, reject_isolated=False)
+    r0 = extract_ranges(lab, img, g, **kw)
+    assert r0.n_returns == 0
+    r = extract_ranges(lab, img, g, min_component_pixels=40, **kw)
+    assert r.n_returns == 12 and (r.bin[10:22] == 100).all() and (r.bin[60:66] == -1).all()

@@ -87,25 +87,30 @@ def test_rendered_survey_pings_and_poses(rendered) -> None:
     assert [p.time_ns for p in s.pings] == s.ping_times_ns.tolist()
 
 
-@pytest.mark.xfail(
-    strict=False,
-    reason="with band pooling the default finds the surface on ~50-64 % of beams, but the early "
-    "beam-pattern leak of the near-normal centre echo (PSF ghosts every 8 beams) puts outer-beam "
-    "returns up to ~10 bins early: hull RMS 3.95 bins / coverage 49 %, seafloor 3.81 / 38 % "
-    "(before pooling: 0 returns) - docs/mapping.md",
-)
 def test_acceptance_registration_within_2_bins_and_coverage(rendered) -> None:
+    """Issue #6: the default pipeline's registered points lie within 2 range bins RMS of the true
+    hull and cover >= 90 % of the visible surface (measured: 1.2-1.3 bins, ~99.9 %)."""
     _, ev = rendered
+    assert ev.accuracy.rms_bins <= 2.0, ev.accuracy
+    assert ev.accuracy.coverage >= 0.90, ev.accuracy
+
+
+def test_acceptance_registration_seafloor() -> None:
+    from sonarmap.mapping.survey_sim import evaluate_survey
+
+    s = simulate_survey(n_pings=24, seed=2, kind="seafloor")
+    ev = evaluate_survey(s, resolutions_m=(0.1,))
     assert ev.accuracy.rms_bins <= 2.0, ev.accuracy
     assert ev.accuracy.coverage >= 0.90, ev.accuracy
 
 
 @pytest.mark.xfail(
     strict=False,
-    reason="with rays in the imaging plane each cell is seen by ~1 ping, only the sign of an update "
-    "matters and both models give the same map (hull IoU 0.209/0.321, seafloor 0.177/0.303 at "
-    "0.05/0.10 m); with 3 rays over the aperture pD/pFA wins on the hull (0.145 vs 0.137, 0.336 vs "
-    "0.329) but loses on the seafloor (0.120 vs 0.126, 0.271 vs 0.299) - docs/mapping.md",
+    reason="with rays in the imaging plane each 0.05 m cell is seen by ~1 ping, only the sign of an "
+    "update matters and both models give the same map (hull IoU 0.376 vs 0.376 at 0.05 m, 0.526 vs "
+    "0.523 at 0.10 m; seafloor 0.558 vs 0.558, 0.770 vs 0.769); with 3 rays over the vertical "
+    "aperture pD/pFA wins three of four (hull 0.250 vs 0.225, 0.571 vs 0.527; seafloor 0.337 vs "
+    "0.305) but not seafloor at 0.10 m (0.699 vs 0.701) - docs/mapping.md",
 )
 def test_acceptance_pd_pfa_occupancy_beats_fixed_constants(rendered) -> None:
     _, ev = rendered

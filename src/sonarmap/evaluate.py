@@ -94,6 +94,7 @@ def score_ping(
     truth_range_m: ArrayLike,
     *,
     tol_bins: int = 3,
+    empty_beams: ArrayLike | None = None,
 ) -> PingScore:
     """Score one ping's labels and per-beam first returns against truth.
 
@@ -109,6 +110,10 @@ def score_ping(
         Truth first-return bin (-1 none) and range (NaN none).
     tol_bins : int
         Recall tolerance in range bins.
+    empty_beams : ndarray of bool (n_beams,), optional
+        Beams that see no structure at all (default: beams without a truth first return).  Beams
+        that are neither (faint structure below the truth threshold) count for neither recall
+        nor false returns.
     """
     rb = np.asarray(range_bins, dtype=np.int64)
     tb = np.asarray(truth_bins, dtype=np.int64)
@@ -126,12 +131,13 @@ def score_ping(
         fp = int((pred & ~truth).sum())
         fn = int((~pred & truth).sum())
     has = tb >= 0
+    empty = ~has if empty_beams is None else (np.asarray(empty_beams, dtype=bool) & ~has)
     rep = rb >= 0
     hit = has & rep & (np.abs(rb - tb) <= tol_bins)
     both = has & rep
     err = np.abs(np.asarray(range_m, dtype=np.float64)[both] - np.asarray(truth_range_m, dtype=np.float64)[both])
     return PingScore(tp=tp, fp=fp, fn=fn, n_struct_beams=int(has.sum()), n_hit_beams=int(hit.sum()),
-                     n_empty_beams=int((~has).sum()), n_false_beams=int((~has & rep).sum()),
+                     n_empty_beams=int(empty.sum()), n_false_beams=int((empty & rep).sum()),
                      errors_m=tuple(float(e) for e in err))
 
 
@@ -183,13 +189,20 @@ def default_sim_configs(noise_levels_db: Sequence[float] = (80.0, 86.0), truth_s
     """Simulator settings of the acceptance table: receiver noise levels x one truth threshold."""
     from sonarmap.simulate import SimulationConfig
 
-    return [SimulationConfig(noise_level_db=float(n), truth_snr_db=float(truth_snr_db)) for n in noise_levels_db]
+    return [SimulationConfig(noise_level_db=float(n), truth_snr_db=float(truth_snr_db), beam_pattern="measured")
+            for n in noise_levels_db]
 
 
-def _simulate(scene: str, geometry: Any, sim_config: Any, seed: int) -> Any:
+def _simulate(scene: str, geometry: Any, sim_config: Any, seed: int, empty_snr_db: float) -> tuple[Any, Any]:
+    """The simulated ping and its 'no structure at all' beams (no structure pixel >= empty_snr_db)."""
     from sonarmap.simulate import scene_from_name, simulate_ping
 
-    return simulate_ping(scene_from_name(scene), geometry, config=sim_config, seed=seed)
+    sc = scene_from_name(scene)
+    sim = simulate_ping(sc, geometry, config=sim_config, seed=seed)
+    if empty_snr_db >= sim_config.truth_snr_db:
+        return sim, None
+    faint = simulate_ping(sc, geometry, config=sim_config.replace(truth_snr_db=empty_snr_db), seed=seed)
+    return sim, ~(faint.class_mask == 1).any(axis=0)
 
 
 def evaluate(
@@ -201,6 +214,7 @@ def evaluate(
     geometry: Any = None,
     tol_bins: int = 3,
     per_scene: bool = False,
+    empty_snr_db: float = -3.0,
 ) -> list[MethodScore]:
     """Run every pipeline on simulated pings and pool the scores per method.
 
@@ -220,6 +234,11 @@ def evaluate(
         Recall tolerance.
     per_scene : bool
         Also return one row per (method, scene), named ``"<method> | <scene>"``.
+    empty_snr_db : float
+        A beam is "without structure" (false-return denominator) when no structure pixel's
+        unblurred expected echo reaches this level re background (default -3 dB, the
+        simulator's own truth threshold); beams with structure between this and the truth
+        threshold are scored for neither recall nor false returns.
 
     Returns
     -------
@@ -232,14 +251,15 @@ def evaluate(
     cfgs = baseline_configs() if configs is None else dict(configs)
     if sim_configs is None:
         sim_configs = default_sim_configs()
-    sims = [(scene, _simulate(scene, geom, sc, seed)) for scene in scenes for sc in sim_configs for seed in seeds]
+    sims = [(scene, _simulate(scene, geom, sc, seed, empty_snr_db)) for scene in scenes for sc in sim_configs for seed in seeds]
     out: list[MethodScore] = []
     for name, cfg in cfgs.items():
         per: dict[str, list[PingScore]] = {}
-        for scene, sim in sims:
+        for scene, (sim, empty) in sims:
             prod = process_ping(sim.ping, cfg, keep_labels=True)
             sc = score_ping(prod.labels, prod.ranges.bin, prod.ranges.range_m, sim.class_mask,
-                            sim.first_return_bin, sim.first_return_range_m, tol_bins=tol_bins)
+                            sim.first_return_bin, sim.first_return_range_m, tol_bins=tol_bins,
+                            empty_beams=empty)
             per.setdefault(scene, []).append(sc)
         out.append(pool_scores(name, [x for v in per.values() for x in v]))
         if per_scene:

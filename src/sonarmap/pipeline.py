@@ -11,10 +11,10 @@ accurate pipeline measured on the shared DIDSON pings and on simulator truth
 (``docs/segmentation.md``): the paper's Table-I pre-processing, an EM fit of the paper's zero
 spike + exponential + Rayleigh mixture, an exact graph-cut MRF (4-neighbourhood, ``beta = 2``, range edges x 0.25,
 object prior raised to >= 0.2), then first returns from structure components spanning >= 16 beams
-or >= 16 bins (plus pieces within 6 beams of them), the isolated-return rule and a leading-edge
-refinement of up to 8 bins; when that leaves fewer than 40 returns, band pooling (3 bins x 9 beams
-box mean >= 6x the background mean, >= 40-beam components, strongest pixel per beam) recovers thin
-single-look-speckle surface bands.
+or >= 16 bins or holding >= 40 pixels (plus pieces within 4 beams of them), the isolated-return
+rule and a leading-edge refinement of up to 8 bins; on the beams that leaves empty, band pooling
+(3 bins x 5 beams box mean >= 4x the background mean, >= 40-beam components, strongest pixel per
+beam) recovers thin single-look-speckle surface bands.
 
 Degenerate pings (all zero, constant, nothing but background) give no returns, never an error:
 their fit flags are carried in :attr:`PingProducts.flags`.
@@ -109,11 +109,18 @@ class PipelineConfig:
         Leading-edge refinement of first returns (0 = off): up to ``refine_bins`` bins towards
         the sonar while the local mean intensity is >= ``edge_factor`` x the fitted background
         class's mean intensity.
-    min_component_beams, min_component_bins : int
+    min_component_beams, min_component_bins, min_component_pixels : int
         Drop 8-connected structure components spanning fewer than ``min_component_beams`` beams
-        *and* fewer than ``min_component_bins`` range bins (fish, speckle).
+        *and* fewer than ``min_component_bins`` range bins *and* holding fewer than
+        ``min_component_pixels`` pixels (fish, speckle: on the real fish-only pings 1-3 every
+        component has <= 25 pixels; a simulated propeller blade seen edge-on, 13-14 beams wide,
+        has 55-64).
     link_beams : int
         Keep rejected components within this many beams (and 1 bin) of kept ones.
+    pool_mode : str
+        ``"fill"``: band pooling adds returns on the beams the per-pixel route left empty (its
+        returns are kept as they are); ``"fallback"``: only when the per-pixel route found fewer
+        than ``pool_min_beams`` returns, on every beam.
     pool_factor, pool_beams, pool_bins, pool_min_beams : float, int, int, int
         Band pooling (off when ``pool_factor`` is 0): the pre-processed image is averaged over a
         box of ``pool_bins`` range bins x ``2 pool_beams + 1`` beams (multi-look across beams),
@@ -153,13 +160,15 @@ class PipelineConfig:
     min_segment_beams: int = 1
     min_component_beams: int = 16
     min_component_bins: int = 16
-    link_beams: int = 6
+    link_beams: int = 4
+    min_component_pixels: int = 40
     refine_bins: int = 8
-    edge_factor: float = 3.0
-    pool_factor: float = 6.0
-    pool_beams: int = 4
+    edge_factor: float = 4.0
+    pool_factor: float = 4.0
+    pool_beams: int = 2
     pool_bins: int = 3
     pool_min_beams: int = 40
+    pool_mode: str = "fill"
 
     def __post_init__(self) -> None:
         from sonarmap.preprocess.pipeline import PreprocessConfig
@@ -203,7 +212,7 @@ class PipelineConfig:
         for key, lo in (("neighbourhood", 4), ("n_levels", 2), ("cfar_train", 2), ("cfar_guard", 0),
                         ("min_run", 1), ("neighbour_beams", 1), ("max_jump_bins", 0),
                         ("min_segment_beams", 1), ("min_component_beams", 1),
-                        ("min_component_bins", 1), ("refine_bins", 0), ("link_beams", 0),
+                        ("min_component_bins", 1), ("min_component_pixels", 0), ("refine_bins", 0), ("link_beams", 0),
                         ("pool_beams", 0), ("pool_bins", 1), ("pool_min_beams", 1)):
             v = getattr(self, key)
             if isinstance(v, bool) or not isinstance(v, int) or v < lo:
@@ -215,6 +224,8 @@ class PipelineConfig:
         for key in ("contrast", "cfar_two_d", "reject_isolated"):
             if not isinstance(getattr(self, key), bool):
                 raise bad(key, "must be true or false")
+        if self.pool_mode not in ("fallback", "fill"):
+            raise bad("pool_mode", "must be 'fallback' or 'fill'")
         if self.fit_method not in ("em", "lsq"):
             raise bad("fit_method", "must be 'em' or 'lsq'")
         if self.range_mode not in ("first", "strongest"):
@@ -524,17 +535,22 @@ def process_ping(ping: Ping, config: PipelineConfig = PipelineConfig(), *, keep_
             min_segment_beams=config.min_segment_beams,
             min_component_beams=config.min_component_beams,
             min_component_bins=config.min_component_bins, link_beams=config.link_beams,
+            min_component_pixels=config.min_component_pixels,
             refine_bins=config.refine_bins, edge_level=edge, accepted=accepted, time_ns=ping.time_ns,
             source=ping.source,
         )
 
     ranges = _ranges(None)
-    # band pooling: only when the per-pixel route found less than one wide surface
+    # band pooling: "fallback" only when the per-pixel route found less than one wide surface,
+    # "fill" on the beams it left without a return
+    fallback = ranges.n_returns < config.pool_min_beams
     if (config.pool_factor > 0 and bg_mean is not None and bg_mean > 0
-            and ranges.n_returns < config.pool_min_beams):
+            and (fallback or config.pool_mode == "fill")):
         accepted = pooled_band_pixels(image, config.pool_factor * bg_mean, pool_beams=config.pool_beams,
                                       pool_bins=config.pool_bins, min_beams=config.pool_min_beams)
-        if accepted is not None:
+        if accepted is not None and not fallback:
+            accepted[:, ranges.bin >= 0] = False
+        if accepted is not None and accepted.any():
             ranges = _ranges(accepted)
     flags = set(fit.flags) if fit is not None else {"no_fit"}
     if ranges.n_returns == 0:

@@ -165,7 +165,8 @@ class _IdxWork(threading.local):
 _IDX_WORK = _IdxWork()
 
 
-def _rule0(mask: NDArray[np.bool_], min_beams: int, min_bins: int | None, link_beams: int) -> NDArray[np.bool_]:
+def _rule0(mask: NDArray[np.bool_], min_beams: int, min_bins: int | None, link_beams: int,
+           min_pixels: int = 0) -> NDArray[np.bool_]:
     """Rule 0 (wide components, then linked pieces) in one kernel: same as :func:`wide_components`
     followed by :func:`_link_components`."""
     from sonarmap.classify._kernels import linked_components
@@ -173,7 +174,7 @@ def _rule0(mask: NDArray[np.bool_], min_beams: int, min_bins: int | None, link_b
     m = np.ascontiguousarray(mask, dtype=bool)
     h, w = m.shape
     return linked_components(m, int(min_beams), int(min_bins) if min_bins is not None else 0,
-                             int(link_beams), 4 if link_beams > 0 else 0, _IDX_WORK.get(h, w))
+                             int(link_beams), 4 if link_beams > 0 else 0, _IDX_WORK.get(h, w), int(min_pixels))
 
 
 def _link_components(mask: NDArray[np.bool_], kept: NDArray[np.bool_], gap: int, rounds: int = 4) -> NDArray[np.bool_]:
@@ -251,6 +252,7 @@ def extract_ranges(
     min_component_beams: int = 1,
     min_component_bins: int | None = None,
     link_beams: int = 0,
+    min_component_pixels: int = 0,
     refine_bins: int = 0,
     edge_level: float | None = None,
     accepted: ArrayLike | None = None,
@@ -277,6 +279,9 @@ def extract_ranges(
     min_component_beams, min_component_bins : int
         Rule 0: a component is kept if it spans at least ``min_component_beams`` beams or at
         least ``min_component_bins`` bins (default: beams only).
+    min_component_pixels : int
+        Rule 0 also keeps a component of at least this many pixels (0: off) - a compact solid
+        target (a propeller blade seen edge-on) narrower than a surface but denser than a fish.
     link_beams : int
         Rule 0b: a rejected component lying within ``link_beams`` beams and 1 bin of a kept
         one is kept too (chained up to 4 times) - a faint surface broken by speckle into pieces.
@@ -305,8 +310,8 @@ def extract_ranges(
     if min_run < 1 or neighbour_beams < 1 or max_jump_bins < 0 or min_segment_beams < 1:
         raise InputError("min_run, neighbour_beams, min_segment_beams must be >= 1; max_jump_bins >= 0")
     mask = lab if lab.dtype == np.bool_ else (lab == structure_label)
-    if min_component_beams > 1:
-        mask = _rule0(mask, min_component_beams, min_component_bins, link_beams)
+    if min_component_beams > 1 or min_component_pixels > 0:
+        mask = _rule0(mask, min_component_beams, min_component_bins, link_beams, min_component_pixels)
     acc_only = None
     if accepted is not None:
         acc = np.asarray(accepted, dtype=bool)

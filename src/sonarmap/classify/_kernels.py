@@ -642,10 +642,10 @@ def refine_leading_edge(img, bins, k_max, level):  # pragma: no cover - numba
 
 
 @njit(cache=True, nogil=True)
-def linked_components(mask, min_beams, min_bins, gap, rounds, idx):  # pragma: no cover - numba
+def linked_components(mask, min_beams, min_bins, gap, rounds, idx, min_pixels=0):  # pragma: no cover - numba
     """Rule 0 of :func:`sonarmap.ranges.extract_ranges` in one kernel: the 8-connected components
     of ``mask`` spanning >= ``min_beams`` beams or >= ``min_bins`` bins (``min_bins <= 0``: beams
-    only), then up to ``rounds`` rounds adding every other component with a pixel within ``gap``
+    only) or holding >= ``min_pixels`` pixels (``min_pixels <= 0``: off), then up to ``rounds`` rounds adding every other component with a pixel within ``gap``
     beams and 1 bin of a pixel kept at the start of the round (stopping at the first round that
     adds nothing).
 
@@ -680,9 +680,11 @@ def linked_components(mask, min_beams, min_bins, gap, rounds, idx):  # pragma: n
     jmax = np.full(n, -1, dtype=np.int32)
     imin = np.full(n, h, dtype=np.int32)
     imax = np.full(n, -1, dtype=np.int32)
+    npx = np.zeros(n, dtype=np.int32)
     for a in range(n):
         r = _find(parent, a)
         root[a] = r
+        npx[r] += 1
         i = pi[a]
         j = pj[a]
         if j < jmin[r]:
@@ -697,7 +699,8 @@ def linked_components(mask, min_beams, min_bins, gap, rounds, idx):  # pragma: n
     n_kept = 0
     for a in range(n):
         r = root[a]
-        if r == a and (jmax[r] - jmin[r] + 1 >= min_beams or (min_bins > 0 and imax[r] - imin[r] + 1 >= min_bins)):
+        if r == a and (jmax[r] - jmin[r] + 1 >= min_beams or (min_bins > 0 and imax[r] - imin[r] + 1 >= min_bins)
+                       or (min_pixels > 0 and npx[r] >= min_pixels)):
             kept[r] = True
     for a in range(n):
         if kept[root[a]]:

@@ -417,7 +417,7 @@ def simulate_survey(
         from sonarmap.ping import Pose
         from sonarmap.simulate import Scene, SimulationConfig, simulate_ping
 
-        scfg = sim_config if sim_config is not None else SimulationConfig()
+        scfg = sim_config if sim_config is not None else SimulationConfig(beam_pattern="measured")
         refl = 10.0 ** (cfg.reflectivity_db / 10.0)
         # samples farther out of the imaging plane than this contribute nothing (Gaussian pattern:
         # weight exp(-4 ln2 2.5^2) = 3e-8 at 2.5 apertures; box pattern: half the aperture)

@@ -17,7 +17,7 @@ from sonarmap.ping import Ping
 from sonarmap.simulate.render import SimulationConfig, simulate_ping
 from sonarmap.simulate.scene import empty_scene
 
-__all__ = ["BackgroundStats", "background_stats", "histogram_kld", "compare_background"]
+__all__ = ["BackgroundStats", "background_stats", "histogram_kld", "compare_background", "ghost_ratios"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -125,11 +125,51 @@ def compare_background(
     }
 
 
+def ghost_ratios(ping: Ping, *, n_ghosts: int = 3, step: int = 8, min_peak: float = 0.15,
+                 max_offset: int = 40) -> tuple[float, ...]:
+    """Ghost-to-main intensity ratios at ``+-step k`` beams (k = 1..n_ghosts) of a real ping.
+
+    For a ping showing one bright line (e.g. the DIDSON test ping 5's diagonal hull), every range
+    row whose strongest beam (taper removed) reaches ``min_peak`` gives, for each offset ``d``, the
+    3-row mean at the line's beam ``+ d`` over the 3-row mean at the line's beam (rows whose line
+    lies within ``n_ghosts step`` beams of an edge are skipped: every offset is measured on the
+    same rows).  The ratio at
+    the ghost offsets minus the median ratio at non-ghost offsets (``4 < |d| <= max_offset``, not
+    a multiple of ``step``: the background and the line's own width), averaged over both sides,
+    is the ghost ratio.  Used for :data:`sonarmap.simulate.render.MEASURED_DIDSON_GHOSTS`.
+    """
+    img = np.asarray(ping.image, dtype=np.float64) / np.asarray(ping.geometry.taper, dtype=np.float64)[None, :]
+    h, w = img.shape
+    sums: dict[int, list[float]] = {d: [] for d in range(-max_offset, max_offset + 1)}
+    for r in range(1, h - 1):
+        j = int(img[r].argmax())
+        pk = float(img[r - 1:r + 2, j].mean())
+        if pk < min_peak or not n_ghosts * step <= j < w - n_ghosts * step:
+            continue  # faint, or a ghost offset outside the fan
+        for d in sums:
+            if 0 <= j + d < w:
+                sums[d].append(float(img[r - 1:r + 2, j + d].mean()) / pk)
+    mean = {d: float(np.mean(v)) for d, v in sums.items() if v}
+    base = float(np.median([v for d, v in mean.items() if abs(d) > 4 and d % step]))
+    out = []
+    for k in range(1, n_ghosts + 1):
+        sides = [mean[d] - base for d in (-k * step, k * step) if d in mean]
+        out.append(round(float(np.mean(sides)), 3) if sides else float("nan"))
+    return tuple(out)
+
+
 def main(argv: list[str] | None = None) -> int:
-    """Print the comparison for a directory of real background pings."""
+    """Print the comparison for a directory of real background pings (``--ghosts PING``: the
+    ghost ratios of one real ping, see :func:`ghost_ratios`)."""
     from sonarmap.io.pngjson import iter_png_pings
 
     args = sys.argv[1:] if argv is None else argv
+    if args and args[0] == "--ghosts":
+        from sonarmap.io.pngjson import read_png_ping
+
+        src = args[1] if len(args) > 1 else "../shared/data/didson/test/1468967281261719_raw.png"
+        print("ghost ratios at +-8, +-16, +-24 beams:", ghost_ratios(read_png_ping(src)))
+        return 0
     src = args[0] if args else "../shared/data/didson/background"
     res = compare_background(iter_png_pings(src))
     for k, v in res.items():

@@ -117,6 +117,21 @@ class SimulationConfig:
         full-scale units; with quantisation it produces the zero spike of real DIDSON data.
     speckle : bool
         Apply Rayleigh fading to echoes and reverberation (``False``: use their expected value).
+    ghosts : {"coherent", "incoherent"}
+        How the beam pattern meets speckle.  ``"coherent"`` (default, physical): each direction's
+        echo is a complex Gaussian field, and beam ``j`` receives ``sum_k sqrt(psf[j - k]) a_k`` -
+        the ghost of a direction is a scaled copy of *its* echo, speckle included (the same
+        scatterers seen through a sidelobe / the DIDSON's channel cross-talk).  ``"incoherent"``
+        (the model before 0.2): the blurred *expected* intensity receives independent speckle on
+        every beam, so a ghost fades independently of its source and no deconvolution of a single
+        ping can remove it.  Both have the same expected image.
+    beam_pattern : {"geometry", "measured"}
+        Across-beam pattern the image is rendered with.  ``"geometry"``: the sonar's stated PSF
+        (``geometry.psf``; for the DIDSON the authors' 12-tap pattern, whose ghosts at +-8 beams
+        are 57 % of the main beam).  ``"measured"``: the ghost taps measured on the real DIDSON
+        test ping 5 (:data:`MEASURED_DIDSON_GHOSTS`: 3.1 % at +-8 beams, 0.7 / 0.5 % at +-16 / +-24), placed
+        on the geometry PSF's tap grid - what the recorded images actually show.  Pre-processing
+        still deconvolves with ``geometry.psf``, as on real data.
     quantization : {"floor", "round"}
         8-bit quantisation rule (ADC truncation by default).
     truth_snr_db : float
@@ -139,6 +154,8 @@ class SimulationConfig:
     speckle: bool = True
     quantization: Literal["floor", "round"] = "floor"
     truth_snr_db: float = -3.0
+    ghosts: Literal["coherent", "incoherent"] = "coherent"
+    beam_pattern: Literal["geometry", "measured"] = "geometry"
 
     def __post_init__(self) -> None:
         for f in dataclasses.fields(self):
@@ -152,6 +169,10 @@ class SimulationConfig:
             )
         if self.elevation_pattern not in ("gaussian", "uniform"):
             raise InputError(f"config.elevation_pattern: 'gaussian' or 'uniform', got {self.elevation_pattern!r}")
+        if self.ghosts not in ("coherent", "incoherent"):
+            raise InputError(f"config.ghosts: 'coherent' or 'incoherent', got {self.ghosts!r}")
+        if self.beam_pattern not in ("geometry", "measured"):
+            raise InputError(f"config.beam_pattern: 'geometry' or 'measured', got {self.beam_pattern!r}")
         if self.quantization not in ("floor", "round"):
             raise InputError(f"config.quantization: 'floor' or 'round', got {self.quantization!r}")
         if not 0 <= self.threshold < 1:
@@ -293,8 +314,11 @@ def _edges(centres: NDArray[np.float64]) -> NDArray[np.float64]:
     return np.concatenate([[lo], mid, [hi]])
 
 
-def _beam_pattern(image: NDArray[np.float64], psf: NDArray[np.float64] | None) -> NDArray[np.float64]:
+def _beam_pattern(image: NDArray[np.float64], psf: NDArray[np.float64] | None, *,
+                  amplitude: bool = False) -> NDArray[np.float64]:
     """Linear (zero-padded) convolution across beams with ``psf`` centred at ``n // 2``.
+
+    ``amplitude=True`` convolves with ``sqrt(psf)`` (a field, whose intensity the psf blurs).
 
     ``out[:, j] = sum_k image[:, k] psf[c + j - k]``; only the non-zero taps are visited, so the
     DIDSON's 12-tap pattern costs 12 shifted additions and introduces no FFT round-off.
@@ -306,7 +330,7 @@ def _beam_pattern(image: NDArray[np.float64], psf: NDArray[np.float64] | None) -
     out = np.zeros_like(image)
     for idx in np.flatnonzero(psf):
         d = int(idx) - c  # output beam = input beam + d
-        w = float(psf[idx])
+        w = math.sqrt(float(psf[idx])) if amplitude else float(psf[idx])
         if d >= 0:
             if d < n:
                 out[:, d:] += w * image[:, : n - d]
@@ -359,6 +383,33 @@ def _accumulate(
             acc = np.zeros(size)
         out.append(acc.reshape(nb, nbeam))
     return out[0], out[1]
+
+
+#: Ghost-to-main-beam intensity ratios at +-8, +-16, +-24 beams measured on the real DIDSON test
+#: ping 5 (a clean diagonal hull line) by :func:`sonarmap.simulate.compare.ghost_ratios`;
+#: ``python -m sonarmap.simulate.compare --ghosts PING`` reproduces them.  The sonar's stated PSF
+#: (``geometry.psf``) implies 0.57 / 0.46 / 0.39.
+MEASURED_DIDSON_GHOSTS: tuple[float, ...] = (0.031, 0.007, 0.005)
+
+
+def render_psf(geometry: SonarGeometry, config: SimulationConfig) -> NDArray[np.float64] | None:
+    """The across-beam pattern :func:`simulate_ping` renders with (see ``beam_pattern``)."""
+    psf = geometry.psf
+    if psf is None or config.beam_pattern == "geometry":
+        return psf
+    p = np.asarray(psf, dtype=np.float64)
+    c = p.size // 2
+    taps = np.flatnonzero(p)
+    offs = np.abs(taps - c)
+    step = int(offs[offs > 0].min()) if (offs > 0).any() else 0
+    out = np.zeros_like(p)
+    out[c] = 1.0
+    if step:
+        for k, ratio in enumerate(MEASURED_DIDSON_GHOSTS, start=1):
+            for idx in (c - k * step, c + k * step):
+                if 0 <= idx < p.size and p[idx] > 0:
+                    out[idx] = ratio
+    return out / out.sum()
 
 
 def _validate(scene: Any, geometry: Any, config: Any) -> None:
@@ -415,7 +466,8 @@ def simulate_ping(
     gain_r = channel_gain(geometry, config)[:, None]
     taper = _taper(geometry)[None, :]
     total = e_struct + e_clutter
-    blurred = _beam_pattern(total, geometry.psf)
+    psf = render_psf(geometry, config)
+    blurred = _beam_pattern(total, psf)
     m_echo = blurred * taper * gain_r
     m_bg = _background_mean(geometry, config)
     noise = _noise_power(geometry, config)
@@ -424,7 +476,19 @@ def simulate_ping(
     z = rng.standard_normal((4,) + shape)
     z *= math.sqrt(0.5)
     m_scatter = m_echo + (m_bg - noise)
-    if config.speckle:
+    if config.speckle and config.ghosts == "coherent" and psf is not None:
+        # complex echo field per source direction, seen through the pattern's amplitude taps
+        zs = rng.standard_normal((2,) + shape)
+        zs *= math.sqrt(0.5)
+        a = np.sqrt(total * gain_r)
+        field_re = _beam_pattern(a * zs[0], psf, amplitude=True)
+        field_im = _beam_pattern(a * zs[1], psf, amplitude=True)
+        st = np.sqrt(taper)
+        amp_bg = np.sqrt(np.maximum(m_bg - noise, 0.0))
+        re = st * field_re + amp_bg * z[0] + math.sqrt(noise) * z[2]
+        im = st * field_im + amp_bg * z[1] + math.sqrt(noise) * z[3]
+        intensity = re * re + im * im
+    elif config.speckle:
         amp = np.sqrt(m_scatter)
         re = amp * z[0] + math.sqrt(noise) * z[2]
         im = amp * z[1] + math.sqrt(noise) * z[3]
