@@ -241,3 +241,23 @@ def test_component_pixel_rule_keeps_compact_targets_drops_fish_sized_blobs():
     assert r0.n_returns == 0
     r = extract_ranges(lab, img, g, min_component_pixels=40, **kw)
     assert r.n_returns == 12 and (r.bin[10:22] == 100).all() and (r.bin[60:66] == -1).all()
+
+
+def test_band_peak_kernel_matches_numpy_formulation():
+    from sonarmap.classify._kernels import band_peak_pixels
+
+    rng = np.random.default_rng(5)
+    for _ in range(100):
+        h, w = int(rng.integers(1, 40)), int(rng.integers(1, 30))
+        band = rng.random((h, w)) < rng.uniform(0.05, 0.9)
+        img = np.floor(rng.random((h, w)) * 6).astype(np.float32)  # ties are common
+        cols = band.any(axis=0) & (rng.random(w) < 0.8)
+        first = band.argmax(axis=0)
+        rows = np.arange(h)[:, None]
+        below = rows >= first[None, :]
+        run = np.logical_and.accumulate(band | ~below, axis=0) & below & cols[None, :]
+        pick = np.where(run, img, -np.inf).argmax(axis=0)
+        ref = np.zeros((h, w), bool)
+        j = np.flatnonzero(cols)
+        ref[pick[j], j] = True
+        assert np.array_equal(band_peak_pixels(band, img, cols), ref)

@@ -444,14 +444,15 @@ def _mrf_labels(image: NDArray[np.float32], levels: NDArray[Any], cost: NDArray[
 
 
 def pooled_band_pixels(image: NDArray[np.float32], level: float, *, pool_beams: int = 4, pool_bins: int = 3,
-                       min_beams: int = 40) -> NDArray[np.bool_] | None:
+                       min_beams: int = 40, beams: NDArray[np.bool_] | None = None) -> NDArray[np.bool_] | None:
     """Band pooling (see :class:`PipelineConfig`): one structure pixel per beam of every wide band.
 
     The image is averaged over ``pool_bins`` x ``2 pool_beams + 1`` pixels and thresholded at
     ``level``; 8-connected components spanning >= ``min_beams`` beams are kept, and on each of
-    their beams the strongest pixel of the first run of kept rows is returned.  None if no band.
+    their beams (only those with ``beams[j]`` when given) the strongest pixel of the first run of
+    kept rows is returned.  None if no band.
     """
-    from sonarmap.classify._kernels import box_mean_f32
+    from sonarmap.classify._kernels import band_peak_pixels, box_mean_f32
     from sonarmap.ranges import _rule0
 
     img = np.asarray(image, dtype=np.float32)
@@ -461,23 +462,17 @@ def pooled_band_pixels(image: NDArray[np.float32], level: float, *, pool_beams: 
         pooled = uniform_filter(img, size=(pool_bins, 2 * pool_beams + 1), mode="constant")
     else:
         # = scipy.ndimage.uniform_filter(img, size=(pool_bins, 2 pool_beams + 1), mode="constant")
-        pooled = box_mean_f32(img, int(pool_bins), 2 * int(pool_beams) + 1)
+        pooled = box_mean_f32(np.ascontiguousarray(img), int(pool_bins), 2 * int(pool_beams) + 1)
     band = pooled >= level
     if not band.any():
         return None
     band = _rule0(band, min_beams, img.shape[0] + 1, 0)
     cols = band.any(axis=0)
+    if beams is not None:
+        cols &= np.asarray(beams, dtype=bool)
     if not cols.any():
         return None
-    first = band.argmax(axis=0)
-    rows = np.arange(img.shape[0])[:, None]
-    below = rows >= first[None, :]
-    run = np.logical_and.accumulate(band | ~below, axis=0) & below & cols[None, :]
-    pick = np.where(run, img, -np.inf).argmax(axis=0)
-    out = np.zeros(img.shape, dtype=bool)
-    j = np.flatnonzero(cols)
-    out[pick[j], j] = True
-    return out
+    return band_peak_pixels(band, np.ascontiguousarray(img), cols)
 
 
 def process_ping(ping: Ping, config: PipelineConfig = PipelineConfig(), *, keep_labels: bool = False) -> PingProducts:
@@ -544,13 +539,13 @@ def process_ping(ping: Ping, config: PipelineConfig = PipelineConfig(), *, keep_
     # band pooling: "fallback" only when the per-pixel route found less than one wide surface,
     # "fill" on the beams it left without a return
     fallback = ranges.n_returns < config.pool_min_beams
+    n_beams = ranges.bin.size
     if (config.pool_factor > 0 and bg_mean is not None and bg_mean > 0
-            and (fallback or config.pool_mode == "fill")):
+            and (fallback or (config.pool_mode == "fill" and ranges.n_returns < n_beams))):
         accepted = pooled_band_pixels(image, config.pool_factor * bg_mean, pool_beams=config.pool_beams,
-                                      pool_bins=config.pool_bins, min_beams=config.pool_min_beams)
-        if accepted is not None and not fallback:
-            accepted[:, ranges.bin >= 0] = False
-        if accepted is not None and accepted.any():
+                                      pool_bins=config.pool_bins, min_beams=config.pool_min_beams,
+                                      beams=None if fallback else ranges.bin < 0)
+        if accepted is not None:
             ranges = _ranges(accepted)
     flags = set(fit.flags) if fit is not None else {"no_fit"}
     if ranges.n_returns == 0:

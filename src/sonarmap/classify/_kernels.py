@@ -835,3 +835,30 @@ def box_mean_f32(img, size0, size1):  # pragma: no cover - numba
             tmp += buf[k + size1 - 1] - buf[k - 1]
             out[i, k] = tmp / size1
     return out
+
+
+@njit(cache=True, nogil=True)
+def band_peak_pixels(band, img, cols):  # pragma: no cover - numba
+    """Band pooling's pick: on each beam ``j`` with ``cols[j]``, the strongest ``img`` pixel of
+    the first run of ``band`` rows (first maximum on ties); returns a boolean image with one pixel
+    per picked beam.  Same as the numpy formulation in :func:`sonarmap.pipeline.pooled_band_pixels`."""
+    h, w = band.shape
+    out = np.zeros((h, w), dtype=np.bool_)
+    for j in range(w):
+        if not cols[j]:
+            continue
+        i = 0
+        while i < h and not band[i, j]:
+            i += 1
+        if i == h:
+            continue
+        best = i
+        bv = img[i, j]
+        i += 1
+        while i < h and band[i, j]:
+            if img[i, j] > bv:
+                bv = img[i, j]
+                best = i
+            i += 1
+        out[best, j] = True
+    return out
