@@ -38,6 +38,7 @@ from numpy.typing import ArrayLike
 from sonarmap.errors import InputError
 
 __all__ = [
+    "PEER_RANGE_RULES",
     "PingScore",
     "MethodScore",
     "score_ping",
@@ -162,26 +163,45 @@ def pool_scores(method: str, scores: Iterable[PingScore]) -> MethodScore:
     )
 
 
-def baseline_configs(default: Any = None) -> dict[str, Any]:
+#: Range rules of the "peer" protocol: the issue's per-beam extraction (first return, rejection of
+#: isolated returns) without the default pipeline's component filter, linking, band pooling and
+#: leading-edge refinement.
+PEER_RANGE_RULES: dict[str, Any] = dict(min_component_beams=1, min_component_pixels=0, link_beams=0,
+                                        pool_factor=0.0, refine_bins=0)
+
+
+def baseline_configs(default: Any = None, *, protocol: str = "peer") -> dict[str, Any]:
     """The methods of the acceptance table: the default pipeline and its baselines.
 
-    Every baseline shares the default's pre-processing and range rules; only the classifier
-    changes, so differences are due to the classifier.  ``"cfar-so (sonar-SLAM)"`` is the peer's
-    exact detector (40 training, 10 guard cells, pFA 0.1).
+    Parameters
+    ----------
+    default : PipelineConfig, optional
+        The pipeline under test (default ``PipelineConfig()``).
+    protocol : {"peer", "shared"}
+        ``"peer"``: each baseline is a detector followed by the plain per-beam extraction
+        (:data:`PEER_RANGE_RULES`: first return + isolated-return rejection) - how the peers turn
+        detections into ranges (sonar-SLAM takes CFAR detections as points); pipeline against
+        pipeline.  ``"shared"``: every baseline gets the default's pre-processing *and* range rules
+        (components, linking, band pooling, refinement), so only the classifier changes - the
+        classifier ablation.  ``"cfar-so (sonar-SLAM)"`` is the peer's exact detector (40
+        training, 10 guard cells, pFA 0.1).
     """
     from sonarmap.pipeline import PipelineConfig
 
+    if protocol not in ("peer", "shared"):
+        raise InputError(f"protocol: must be 'peer' or 'shared', got {protocol!r}")
     d = PipelineConfig() if default is None else default
+    b = d if protocol == "shared" else d.replace(**PEER_RANGE_RULES)
     out = {
         "default (mrf graphcut)": d,
         "mrf icm": d.replace(solver="icm"),
         "mrf anneal (paper)": d.replace(solver="anneal"),
-        "local MAP": d.replace(method="map"),
-        f"fixed threshold {d.threshold:g}": d.replace(method="threshold"),
+        "local MAP": b.replace(method="map"),
+        f"fixed threshold {d.threshold:g}": b.replace(method="threshold"),
     }
     for m in ("ca", "so", "go", "os"):
-        out[f"cfar-{m} pfa 1e-3"] = d.replace(method=f"cfar-{m}", cfar_pfa=1e-3)
-    out["cfar-so (sonar-SLAM)"] = d.replace(method="cfar-so", cfar_train=40, cfar_guard=10, cfar_pfa=0.1)
+        out[f"cfar-{m} pfa 1e-3"] = b.replace(method=f"cfar-{m}", cfar_pfa=1e-3)
+    out["cfar-so (sonar-SLAM)"] = b.replace(method="cfar-so", cfar_train=40, cfar_guard=10, cfar_pfa=0.1)
     return out
 
 
