@@ -522,15 +522,20 @@ def process_ping(ping: Ping, config: PipelineConfig = PipelineConfig(), *, keep_
         bg_mean = bg if usable else None
         edge = config.edge_factor * bg if config.refine_bins > 0 else None
 
+    # rule 0 (components) once; both extraction passes below start from its mask
+    mask = labels >= 1
+    if config.min_component_beams > 1 or config.min_component_pixels > 0:
+        from sonarmap.ranges import _rule0
+
+        mask = _rule0(mask, config.min_component_beams, config.min_component_bins, config.link_beams,
+                      config.min_component_pixels)
+
     def _ranges(accepted: NDArray[np.bool_] | None) -> BeamRanges:
         return extract_ranges(
-            labels >= 1, image, geom, mode=config.range_mode,  # type: ignore[arg-type]
+            mask, image, geom, mode=config.range_mode,  # type: ignore[arg-type]
             min_run=config.min_run, reject_isolated=config.reject_isolated,
             neighbour_beams=config.neighbour_beams, max_jump_bins=config.max_jump_bins,
             min_segment_beams=config.min_segment_beams,
-            min_component_beams=config.min_component_beams,
-            min_component_bins=config.min_component_bins, link_beams=config.link_beams,
-            min_component_pixels=config.min_component_pixels,
             refine_bins=config.refine_bins, edge_level=edge, accepted=accepted, time_ns=ping.time_ns,
             source=ping.source,
         )
