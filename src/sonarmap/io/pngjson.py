@@ -67,6 +67,10 @@ def sidecar_json(image_path: str | os.PathLike[str]) -> Path:
     return p.with_name(_base_stem(p) + ".json")
 
 
+_U8_TO_UNIT = np.arange(256, dtype=np.float32) * np.float32(1.0 / 255.0)
+_U8_TO_UNIT.setflags(write=False)
+
+
 def read_image_file(path: str | os.PathLike[str], data: bytes | None = None) -> NDArray[np.float32]:
     """Decode a greyscale PNG/BMP into float32 in [0, 1].
 
@@ -101,7 +105,8 @@ def read_image_file(path: str | os.PathLike[str], data: bytes | None = None) -> 
     if arr.ndim != 2:
         raise DataFormatError(f"expected a greyscale image, got mode {mode} shape {arr.shape}", p)
     if arr.dtype == np.uint8:
-        return arr.astype(np.float32) * np.float32(1.0 / 255.0)
+        # one gather instead of astype + multiply; the table holds float32(k) * float32(1/255)
+        return _U8_TO_UNIT.take(arr)
     if arr.dtype in (np.uint16, np.int32) or mode.startswith("I"):
         return (arr.astype(np.float32) / np.float32(65535.0)).clip(0, 1)
     if arr.dtype == np.bool_:
