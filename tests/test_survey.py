@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -73,6 +74,18 @@ def assert_same_dataset(a: Path, b: Path) -> None:
         else:
             assert xv.tolist() == yv.tolist(), name
     assert da.attrs == db.attrs
+
+
+def assert_same_products(a: Path, b: Path) -> None:
+    """Every product variable equal exactly (the stores may differ in chunking/provenance)."""
+    da, db = open_products(a).load(), open_products(b).load()
+    assert sorted(da.variables) == sorted(db.variables)
+    for name in da.variables:
+        xv, yv = da[name].values, db[name].values
+        if xv.dtype.kind == "f":
+            np.testing.assert_array_equal(xv, yv, err_msg=name)
+        else:
+            assert xv.tolist() == yv.tolist(), name
 
 
 def test_plan_covers_every_ping_once_in_time_order(survey_dir: Path) -> None:
@@ -329,3 +342,168 @@ def test_cli_scheduler_option_runs_on_the_cluster(
     r = subprocess.run(_cli("process", str(survey_dir), "-o", str(tmp_path / "y.zarr"), "--workers", "2",
                             "--scheduler", cluster.scheduler.address), capture_output=True, text=True, timeout=120)
     assert r.returncode == 2 and "--workers" in r.stderr
+
+
+# ---------------------------------------------------------------------------- direct chunk writes
+def test_chunk_writer_writes_the_bytes_zarr_writes(tmp_path: Path) -> None:
+    """Chunk files encoded by the survey's writer are byte-identical to zarr's own (full and edge
+    chunks, numeric and string variables, NaN fills) and read back through zarr unchanged."""
+    import zarr
+
+    from sonarmap._survey_store import ChunkWriter, array_codec_kwargs
+
+    rng = np.random.default_rng(1)
+    n, k = 10, 4
+    values = {
+        "f": rng.random((n, 3)).astype(np.float32),
+        "d": np.where(rng.random(n) < 0.3, np.nan, rng.random(n)),
+        "i": rng.integers(-1, 500, (n, 5)).astype(np.int32),
+        "u": rng.integers(0, 2, (n, 2, 3)).astype(np.uint8),
+        "t": np.arange(n, dtype=np.int64) * 10**9,
+        "s": np.array([f"ping-{i}-é" if i % 3 else "" for i in range(n)], dtype=object),
+    }
+    fills = {"f": np.nan, "d": np.nan, "i": -1, "u": 0, "t": 0, "s": ""}
+    stores = {}
+    for which in ("zarr", "direct"):
+        root = zarr.open_group(str(tmp_path / f"{which}.zarr"), mode="w", zarr_format=3)
+        for name, v in values.items():
+            root.create_array(name, shape=v.shape, chunks=(k, *v.shape[1:]),
+                              dtype=str if name == "s" else v.dtype, fill_value=fills[name],
+                              **array_codec_kwargs())
+        stores[which] = tmp_path / f"{which}.zarr"
+    zroot = zarr.open_group(str(stores["zarr"]), mode="r+")
+    writer = ChunkWriter.open(stores["direct"], list(values))
+    assert writer is not None
+    for c in range(3):  # chunks of 4, 4 and 2 (edge) rows
+        sl = slice(c * k, min(n, (c + 1) * k))
+        for name, v in values.items():
+            zroot[name][sl] = v[sl]
+        writer.write(c, {name: v[sl] for name, v in values.items()})
+    for name in values:
+        files = sorted(p.relative_to(stores["zarr"]) for p in (stores["zarr"] / name / "c").rglob("*") if p.is_file())
+        assert len(files) == 3, name
+        for f in files:
+            assert (stores["direct"] / f).read_bytes() == (stores["zarr"] / f).read_bytes(), f
+        back = zarr.open_group(str(stores["direct"]), mode="r")[name][:]
+        if back.dtype.kind == "f":
+            np.testing.assert_array_equal(back, values[name])
+        else:
+            assert back.tolist() == values[name].tolist(), name
+    assert not any((stores["direct"] / ".sonarmap" / "tmp").iterdir())  # temporaries all moved
+    # A writer never writes into a store that was replaced after it was made.
+    from sonarmap._survey_store import StoreReplacedError
+
+    os.replace(stores["direct"], tmp_path / "aside.zarr")
+    stores["direct"].mkdir()
+    with pytest.raises(StoreReplacedError):
+        writer.write(0, {name: v[:k] for name, v in values.items()})
+    assert not any(stores["direct"].iterdir())
+
+
+def test_local_workers_store_their_own_chunks(
+    serial_store: Path, survey_dir: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Local workers write their chunk files themselves: the parent receives only a receipt per
+    chunk (no products) and writes the marker; the dataset is the serial run's."""
+    import sonarmap.survey as sv
+
+    got: list[object] = []
+    put = sv._Sink.put
+
+    def spy(self, chunk, result):  # noqa: ANN001, ANN202
+        got.append(result)
+        return put(self, chunk, result)
+
+    monkeypatch.setattr(sv._Sink, "put", spy)
+    out = tmp_path / "w.zarr"
+    process_survey([survey_dir], out, workers=2, chunk_size=8)
+    # 5 chunks: 0-2 whole, 3 and 4 (the last one per worker) in two parts each to balance the
+    # tail; the first 2 * workers jobs started before the store existed.  All those products
+    # came back here to be stored: chunks 0, 1, 2 and 3, 4 (assembled from their parts).
+    assert len(got) == 5 and all(isinstance(r, dict) and len(r["ping_time"]) == 8 for r in got)
+    assert_same_dataset(serial_store, out)
+    # With more chunks, the workers store the rest themselves and send a receipt only.
+    got.clear()
+    out4 = tmp_path / "w4.zarr"
+    process_survey([survey_dir], out4, workers=2, chunk_size=4)  # 10 chunks, too small to split
+    stored = sorted(r.index for r in got if isinstance(r, sv._Stored))
+    assert len(got) == 10 and stored == [4, 5, 6, 7, 8, 9]
+    assert_same_products(serial_store, out4)
+    # Resumed runs have no store to create: every chunk is stored by its worker.
+    shutil.rmtree(out4 / "range" / "c")
+    for m in (out4 / ".sonarmap" / "chunks").iterdir():
+        m.unlink()
+    (out4 / ".sonarmap" / "complete").unlink()
+    got.clear()
+    process_survey([survey_dir], out4, workers=2, chunk_size=4)
+    assert sorted(r.index for r in got if isinstance(r, sv._Stored)) == list(range(10))
+    assert_same_products(serial_store, out4)
+    assert not (out / ".sonarmap" / "tmp").exists()
+
+
+def test_zarr_fallback_writer_gives_the_same_store(
+    serial_store: Path, survey_dir: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Stores whose arrays the direct writer does not recognise are written through zarr."""
+    from sonarmap._survey_store import ChunkWriter
+
+    monkeypatch.setattr(ChunkWriter, "open", classmethod(lambda cls, store, names: None))
+    out = tmp_path / "z.zarr"
+    process_survey([survey_dir], out, workers=0, chunk_size=8)
+    assert_same_dataset(serial_store, out)
+
+
+def test_resume_removes_temporaries_of_the_interrupted_run(
+    serial_store: Path, survey_dir: Path, tmp_path: Path,
+) -> None:
+    out = tmp_path / "t.zarr"
+
+    def stop(done: int, total: int) -> None:
+        if done >= 16:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        process_survey([survey_dir], out, workers=0, chunk_size=8, progress=stop)
+    leftover = out / ".sonarmap" / "tmp" / "12345-deadbeef"  # as a worker killed mid-write leaves
+    leftover.write_bytes(b"partial")
+    process_survey([survey_dir], out, workers=0, chunk_size=8)
+    assert not leftover.exists() and not leftover.parent.exists()
+    assert_same_dataset(serial_store, out)
+
+
+def test_pool_workers_start_with_a_warm_pipeline() -> None:
+    """The fork server preloads and runs the pipeline once; workers inherit it warm."""
+    from sonarmap._survey_warm import status
+    from sonarmap.survey import _ProcessPool
+
+    pool = _ProcessPool(2, None)
+    try:
+        states = {pool.ex.submit(status).result(timeout=120) for _ in range(4)}
+    finally:
+        pool.close(True)
+    assert states == {(True, True)}
+
+
+def test_tail_parts_cover_the_last_chunks_and_give_their_products(survey_dir: Path) -> None:
+    from sonarmap.survey import _concat_parts, _resolve_config, _sub_chunk, _tail_parts, run_chunk
+
+    plan = plan_survey([survey_dir], chunk_size=12)  # chunks of 12, 12, 12, 4
+    chunks = plan.chunks()
+    assert [c.n_pings for c in chunks] == [12, 12, 12, 4]
+    jobs = _tail_parts(chunks, 2)
+    # The last 2 (= workers) chunks are split into 2 * workers parts of >= 4 pings: chunk 2 into
+    # 3 parts, chunk 3 (4 pings) not at all; earlier chunks stay whole.
+    assert [(c.index, None if p is None else (p.start, p.stop)) for c, p in jobs] == [
+        (0, None), (1, None), (2, (24, 28)), (2, (28, 32)), (2, (32, 36)), (3, None),
+    ]
+    cfg = _resolve_config(None)
+    c = chunks[2]
+    whole = run_chunk(c, cfg)
+    halves = _concat_parts([run_chunk(_sub_chunk(c, 0, 5), cfg), run_chunk(_sub_chunk(c, 5, 12), cfg)])
+    assert sorted(whole) == sorted(halves)
+    for name in whole:
+        if whole[name].dtype.kind == "f":
+            np.testing.assert_array_equal(whole[name], halves[name], err_msg=name)
+        else:
+            assert whole[name].tolist() == halves[name].tolist(), name
+    assert [it[0] for it in _sub_chunk(c, 5, 12).items] == [it[0] for it in c.items[5:12]]

@@ -3,13 +3,18 @@
 A survey is a list of pings (one PNG+JSON file each, or frames of multi-ping files) cut into
 chunks of ``chunk_size`` consecutive pings.  Each chunk is one task: a worker reads its own pings
 from disk (tasks carry file names, never images), runs the fused per-ping pipeline
-(:func:`sonarmap.pipeline.process_ping`: pre-process -> mixture fit -> segment -> ranges) and sends
-back only the per-ping products (a few kB per ping).  The calling process is the single writer: it
-stores chunk ``k`` into zarr chunk ``k`` of every product variable and *then* writes the chunk's
-completion marker atomically.  Because the per-ping path is a pure function of (ping, configuration)
-and every chunk has a fixed place in the store, the output is identical whether chunks ran
-serially, in local worker processes or on a dask cluster, in any order, with retries, or across an
-interruption and a resumed run.
+(:func:`sonarmap.pipeline.process_ping`: pre-process -> mixture fit -> segment -> ranges) and stores
+chunk ``k`` in zarr chunk ``k`` of every product variable.  Who writes the chunk files depends on
+the executor: local worker processes (same file system) write their own chunk's files directly
+(:class:`sonarmap._survey_store.ChunkWriter`: whole chunk files encoded exactly as zarr would,
+each moved into place atomically; distinct chunks are distinct files, so concurrent writers are
+safe) and report success; dask workers, possibly on other machines, send back the products (a few
+kB per ping) and the calling process writes them with the same encoder.  Either way the calling
+process alone writes a chunk's completion marker, atomically, and only *after* the chunk's data is
+in place.  Because the per-ping path is a pure function of (ping, configuration), every chunk has
+a fixed place in the store and the chunk files are the same bytes whoever encodes them, the output
+is identical whether chunks ran serially, in local worker processes or on a dask cluster, in any
+order, with retries, or across an interruption and a resumed run.
 
 Layout of the output store (zarr v3, readable with :func:`open_products` / ``xarray.open_zarr``)::
 
@@ -19,6 +24,7 @@ Layout of the output store (zarr v3, readable with :func:`open_products` / ``xar
       ping_time, source, kld, flags, mixture_weight, mixture_param, range, range_bin, ... arrays
       point_xyz, point_ping ... when poses were given (written after the last chunk)
       .sonarmap/chunks/<k>.done completion markers (data first, marker second)
+      .sonarmap/tmp/            chunk files being written (moved into place; cleared on resume)
       .sonarmap/complete        the run finished (summary in JSON)
 
 The store is created in a temporary directory and renamed into place, so it either exists with
@@ -578,6 +584,8 @@ def _create_store(path: Path, plan: SurveyPlan, schema: Mapping[str, tuple[tuple
     """Create the empty store in a temporary directory, then rename it onto ``path``."""
     import zarr
 
+    from sonarmap._survey_store import array_codec_kwargs
+
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent))
     try:
@@ -602,7 +610,7 @@ def _create_store(path: Path, plan: SurveyPlan, schema: Mapping[str, tuple[tuple
                     fill = _FILL[name]
                 root.create_array(
                     name, shape=(n, *shape), chunks=(k, *shape), dtype=dt, fill_value=fill,
-                    dimension_names=dims, attributes=vattrs,
+                    dimension_names=dims, attributes=vattrs, **array_codec_kwargs(),
                 )
             # Static coordinates along beam / range_sample.
             for name, values, dims, vattrs in coords.get("arrays", ()):
@@ -628,14 +636,50 @@ def _remove_store(path: Path) -> None:
         path.unlink()
 
 
-def _write_chunk(root: Any, store: Path, chunk_index: int, start: int, data: Mapping[str, np.ndarray]) -> None:
-    stop = start + len(data["ping_time"])
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        for name, values in data.items():
-            root[name][start:stop] = values
+def _write_marker(store: Path, chunk_index: int, start: int, stop: int) -> None:
+    """The chunk's completion marker, written atomically once its data files are in place."""
     marker = _marker_dir(store) / f"{chunk_index:08d}.done"
     atomic_write_text(marker, json.dumps({"start": start, "stop": stop}) + "\n")
+
+
+@dataclasses.dataclass(frozen=True)
+class _Stored:
+    """What a task that wrote its own chunk returns instead of the products."""
+
+    index: int
+    n_pings: int
+
+
+class _Sink:
+    """The parent's side of storing chunks: data (unless a worker already wrote it), then marker.
+
+    With a :class:`~sonarmap._survey_store.ChunkWriter` (stores this module creates) chunk files
+    are encoded and written directly; otherwise (an unrecognised array layout) through zarr, with
+    the group and arrays opened once.
+    """
+
+    def __init__(self, store: Path, writer: Any) -> None:
+        self.store = store
+        self.writer = writer
+        self._arrays: dict[str, Any] = {}
+
+    def put(self, chunk: ChunkSpec, result: Any) -> None:
+        if isinstance(result, _Stored):
+            if result.index != chunk.index or result.n_pings != chunk.n_pings:
+                raise SonarmapError(f"chunk {chunk.index}: worker reported {result}")
+        elif self.writer is not None:
+            self.writer.write(chunk.index, result)
+        else:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                for name, values in result.items():
+                    arr = self._arrays.get(name)
+                    if arr is None:
+                        if not self._arrays:
+                            self._root = _zarr_open(self.store)
+                        arr = self._arrays[name] = self._root[name]
+                    arr[chunk.start : chunk.stop] = values
+        _write_marker(self.store, chunk.index, chunk.start, chunk.stop)
 
 
 # ============================================================================ executors
@@ -693,7 +737,7 @@ class _ProcessPool:
 
         ctx = multiprocessing.get_context("forkserver")
         with contextlib.suppress(Exception):
-            ctx.set_forkserver_preload(["sonarmap.survey", "sonarmap.pipeline"])
+            ctx.set_forkserver_preload(["sonarmap.survey", "sonarmap.pipeline", "sonarmap._survey_warm"])
         self.workers = workers
         self.ex = cf.ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_pool_initializer,
                                          initargs=(os.getpid(),))
@@ -709,20 +753,64 @@ class _ProcessPool:
                 if old is None:
                     os.environ.pop(v, None)
 
-    def run(self, chunks: Sequence[ChunkSpec], task: Callable[[ChunkSpec], Any]) -> Iterator[tuple[ChunkSpec, Any]]:
-        """Yield ``(chunk, products)`` as chunks finish (at most 2 per worker in flight)."""
+    def start(self, chunks: Sequence[ChunkSpec], part_task: Callable[[ChunkSpec], Any],
+              task: Callable[[ChunkSpec], Any] | None = None) -> None:
+        """Plan the jobs of ``chunks`` and submit the first ones now, with ``task``.
+
+        Without ``task``, whole chunks also run ``part_task``, which returns the products instead
+        of storing them: the workers can start before the store exists - the first chunks of a
+        new survey run while this process creates the store (their products are stored here).
+        """
+        jobs: list[tuple[ChunkSpec, ChunkSpec | None]] = [(c, None) for c in chunks]
+        if self.workers > 1:
+            jobs = _tail_parts(list(chunks), self.workers)
+        self._chunks = [c.index for c in chunks]
+        self._part_task = part_task
+        self._pending = jobs[::-1]
+        self._inflight: dict[Any, tuple[ChunkSpec, ChunkSpec | None]] = {}
+        self._fill(task or part_task)
+
+    def _fill(self, task: Callable[[ChunkSpec], Any]) -> None:
+        while self._pending and len(self._inflight) < 2 * self.workers:
+            c, part = self._pending.pop()
+            fut = self.ex.submit(task, c) if part is None else self.ex.submit(self._part_task, part)
+            self._inflight[fut] = (c, part)
+
+    def run(self, chunks: Sequence[ChunkSpec], task: Callable[[ChunkSpec], Any],
+            part_task: Callable[[ChunkSpec], Any]) -> Iterator[tuple[ChunkSpec, Any]]:
+        """Yield ``(chunk, result)`` as chunks finish (at most 2 per worker in flight).
+
+        Whole chunks run ``task``.  With several workers the last chunks are cut into parts run
+        with ``part_task`` (returns the products of the part), so the workers finish together
+        instead of one worker running the last whole chunk alone (:func:`_tail_parts`); a split
+        chunk is yielded once all its parts are back, with its parts' products concatenated.
+        Continues what :meth:`start` began, if it was called with the same chunks.
+        """
         import concurrent.futures as cf
 
-        pending = list(chunks)[::-1]
-        inflight: dict[Any, ChunkSpec] = {}
+        if getattr(self, "_chunks", None) != [c.index for c in chunks]:
+            if getattr(self, "_inflight", None):
+                raise SonarmapError("internal: the pool was started on other chunks")
+            self.start(chunks, part_task, task)
+        pending, inflight = self._pending, self._inflight
+        n_parts: dict[int, int] = {}
+        for c, part in [*pending, *inflight.values()]:
+            if part is not None:
+                n_parts[c.index] = n_parts.get(c.index, 0) + 1
+        got: dict[int, list[tuple[int, Any]]] = {}
         while pending or inflight:
-            while pending and len(inflight) < 2 * self.workers:
-                c = pending.pop()
-                inflight[self.ex.submit(task, c)] = c
+            self._fill(task)
             done, _ = cf.wait(inflight, return_when=cf.FIRST_COMPLETED)
-            for fut in sorted(done, key=lambda f: inflight[f].index):
-                c = inflight.pop(fut)
-                yield c, fut.result()
+            for fut in sorted(done, key=lambda f: (inflight[f][0].index, inflight[f][1] is not None)):
+                c, part = inflight.pop(fut)
+                if part is None:
+                    yield c, fut.result()
+                    continue
+                parts = got.setdefault(c.index, [])
+                parts.append((part.start, fut.result()))
+                if len(parts) == n_parts[c.index]:
+                    del got[c.index]
+                    yield c, _concat_parts([data for _, data in sorted(parts, key=lambda p: p[0])])
 
     def close(self, ok: bool) -> None:
         """Shut down; on failure or interrupt, terminate the workers at once."""
@@ -737,6 +825,50 @@ class _ProcessPool:
         for p in procs:
             with contextlib.suppress(Exception):
                 p.join(timeout=5)
+
+
+def _sub_chunk(chunk: ChunkSpec, lo: int, hi: int) -> ChunkSpec:
+    """Pings ``lo:hi`` (positions within the chunk) of ``chunk`` as a :class:`ChunkSpec` of its own
+    (same ``index``: a part is never stored on its own)."""
+    if not 0 <= lo < hi <= chunk.n_pings:
+        raise InputError(f"chunk {chunk.index}: part {lo}:{hi} out of range 0:{chunk.n_pings}")
+    items: list[tuple[str, str, int, int]] = []
+    pos = 0
+    for path, fmt, first, count in chunk.items:
+        a, b = max(lo, pos), min(hi, pos + count)
+        if b > a:
+            items.append((path, fmt, first + a - pos, b - a))
+        pos += count
+    return ChunkSpec(chunk.index, chunk.start + lo, chunk.start + hi, tuple(items), chunk.geometry)
+
+
+#: Minimum pings per part when the tail is split (a part costs a task round trip: keep it useful).
+_MIN_PART = 4
+
+
+def _tail_parts(chunks: list[ChunkSpec], workers: int) -> list[tuple[ChunkSpec, ChunkSpec | None]]:
+    """Jobs ``(chunk, part or None)``: the chunks in order, the last ``workers`` of them cut into
+    ``2 * workers`` parts each.
+
+    Whole chunks keep the workers busy with few round trips; near the end, when fewer chunks than
+    workers remain, each worker would otherwise idle while another finishes a whole chunk (on
+    average half a chunk of lost time per worker).  Parts bound that to half a part.
+    """
+    n_split = min(workers, len(chunks))
+    jobs: list[tuple[ChunkSpec, ChunkSpec | None]] = [(c, None) for c in chunks[: len(chunks) - n_split]]
+    for c in chunks[len(chunks) - n_split :]:
+        n = max(1, min(2 * workers, c.n_pings // _MIN_PART))
+        if n == 1:
+            jobs.append((c, None))
+            continue
+        edges = [round(i * c.n_pings / n) for i in range(n + 1)]
+        jobs.extend((c, _sub_chunk(c, lo, hi)) for lo, hi in zip(edges[:-1], edges[1:], strict=True))
+    return jobs
+
+
+def _concat_parts(parts: Sequence[Mapping[str, np.ndarray]]) -> dict[str, np.ndarray]:
+    """One chunk's products from its parts' (in ping order)."""
+    return {name: np.concatenate([p[name] for p in parts], axis=0) for name in parts[0]}
 
 
 def _run_dask(chunks, task, client):  # type: ignore[no-untyped-def]
@@ -781,10 +913,16 @@ class _Task:
     schema: Mapping[str, tuple[tuple[int, ...], str]]
     ping_function: PingFunction | None
     reference: tuple[np.ndarray, np.ndarray] | None = None
+    #: If set, the task writes its chunk files itself and returns a :class:`_Stored`.
+    writer: Any = None
 
-    def __call__(self, chunk: ChunkSpec) -> dict[str, np.ndarray]:
-        return run_chunk(chunk, self.config, keep_labels=self.keep_labels, schema=self.schema,
+    def __call__(self, chunk: ChunkSpec) -> dict[str, np.ndarray] | _Stored:
+        data = run_chunk(chunk, self.config, keep_labels=self.keep_labels, schema=self.schema,
                          ping_function=self.ping_function, reference=self.reference)
+        if self.writer is None:
+            return data
+        self.writer.write(chunk.index, data)
+        return _Stored(chunk.index, chunk.n_pings)
 
 
 # ============================================================================ driver
@@ -958,6 +1096,10 @@ def process_survey(
             schema = _schema_of(rec)
             _, _, cnames = _fit_arrays(prod.fit)
             geom = first.geometry
+            if pool is not None:
+                # Start the first chunks now (products sent back) while the store is created.
+                pool.start(plan.chunks(), dataclasses.replace(task, schema=schema, reference=(
+                    np.asarray(geom.azimuth_rad, np.float64), np.asarray(geom.range_m, np.float64))))
             coord_arrays = [
                 (COORD_AZIMUTH, np.asarray(geom.azimuth_rad, np.float64), (DIM_BEAM,),
                  dict(DATA_MODEL_ATTRS[COORD_AZIMUTH])),
@@ -987,6 +1129,12 @@ def process_survey(
         root = _zarr_open(out)
         reference = (np.asarray(root[COORD_AZIMUTH][:]), np.asarray(root[COORD_RANGE][:]))
         task = dataclasses.replace(task, schema=schema, reference=reference)
+        from sonarmap._survey_store import ChunkWriter
+
+        writer = ChunkWriter.open(out, list(schema))
+        if writer is not None:
+            writer.clean_tmp()  # temporary files of an interrupted run (no writer of ours runs yet)
+        sink = _Sink(out, writer)
 
         done = _done_chunks(out)
         todo = [plan.chunk(i) for i in range(plan.n_chunks) if i not in done]
@@ -1003,10 +1151,16 @@ def process_survey(
             stream = _run_serial(todo, task)
             executor = "serial"
         else:
-            stream = pool.run(todo, task)
+            # Local workers share the file system: each writes its own chunk files (distinct
+            # files, so concurrent writers are safe) and reports back; this process only writes
+            # the completion markers.  (Dask workers may be on other machines: they return the
+            # products and this process writes them.)  The last chunks run in parts whose
+            # products come back to be stored here, to balance the tail.
+            stream = pool.run(todo, task if writer is None else dataclasses.replace(task, writer=writer),
+                              part_task=task)
             executor = f"processes:{pool.workers}"
-        for chunk, data in stream:
-            _write_chunk(root, out, chunk.index, chunk.start, data)
+        for chunk, result in stream:
+            sink.put(chunk, result)
             n_done += chunk.n_pings
             if progress:
                 progress(n_done, plan.n_pings)
@@ -1028,6 +1182,8 @@ def process_survey(
             points_path, n_points = target, int(root["point_xyz"].shape[0])
         else:
             points_path, n_points = _register_points(root, out, poses, target, extrinsics)
+    with contextlib.suppress(OSError):
+        os.rmdir(out / STATE_DIR / "tmp")  # empty once every chunk is stored
     if not complete.exists():
         atomic_write_text(complete, json.dumps({"n_pings": plan.n_pings, "n_flagged": n_flagged}) + "\n")
     return SurveyResult(
