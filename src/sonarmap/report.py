@@ -142,7 +142,7 @@ def _fig_ranges(ds: Any, dpi: int) -> str:
     axes[1].plot(az, hit, color="tab:blue")
     axes[1].set_xlabel("beam azimuth (deg)")
     axes[1].set_ylabel("fraction of pings")
-    axes[1].set_ylim(0, 1)
+    axes[1].set_ylim(0, 1.05)  # a fraction of 1 stays visible above the frame
     axes[1].set_title("Beams with a return", fontsize=9)
     return _png(fig, dpi)
 
