@@ -119,6 +119,19 @@ def _pull(f, wt, acc):  # pragma: no cover - numba
 
 
 @njit(cache=True, nogil=True, inline="always")
+def _settle(fixed, i, j, mm, wf):  # pragma: no cover - numba
+    """Fix (i, j) to the label its effective margin ``mm`` favours if ``|mm|`` beats the free
+    edge weight ``wf``; returns 1 if fixed."""
+    if mm > wf:
+        fixed[i, j] = 1
+        return 1
+    if mm < -wf:
+        fixed[i, j] = 0
+        return 1
+    return 0
+
+
+@njit(cache=True, nogil=True, inline="always")
 def _try_fix(levels, margin_lut, weights, fixed, i, j, h, w):  # pragma: no cover - numba
     """Fix (i, j) if its effective margin beats the weight of its free edges; returns 1 if fixed."""
     mm = margin_lut[levels[i, j]]
@@ -133,45 +146,21 @@ def _try_fix(levels, margin_lut, weights, fixed, i, j, h, w):  # pragma: no cove
         wf += a
         a, mm = _pull(fixed[i, j - 1], weights[1, i, j - 1], mm)
         wf += a
-        if mm > wf:
-            fixed[i, j] = 1
-            return 1
-        if mm < -wf:
-            fixed[i, j] = 0
-            return 1
-        return 0
+        return _settle(fixed, i, j, mm, wf)
     for d in range(weights.shape[0]):
         di = DI[d]
         dj = DJ[d]
         ii = i + di
         jj = j + dj
         if 0 <= ii < h and 0 <= jj < w:
-            wt = weights[d, i, j]
-            f = fixed[ii, jj]
-            if f < 0:
-                wf += wt
-            elif f == 1:
-                mm += wt
-            else:
-                mm -= wt
+            a, mm = _pull(fixed[ii, jj], weights[d, i, j], mm)
+            wf += a
         ii = i - di
         jj = j - dj
         if 0 <= ii < h and 0 <= jj < w:
-            wt = weights[d, ii, jj]
-            f = fixed[ii, jj]
-            if f < 0:
-                wf += wt
-            elif f == 1:
-                mm += wt
-            else:
-                mm -= wt
-    if mm > wf:
-        fixed[i, j] = 1
-        return 1
-    if mm < -wf:
-        fixed[i, j] = 0
-        return 1
-    return 0
+            a, mm = _pull(fixed[ii, jj], weights[d, ii, jj], mm)
+            wf += a
+    return _settle(fixed, i, j, mm, wf)
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -180,42 +169,14 @@ def _try_fix_u(levels, margin_lut, weights, fixed, i, j, h, w, wr, wb):  # pragm
     beams) - interior pixels read no weight array."""
     if 0 < i < h - 1 and 0 < j < w - 1:
         mm = margin_lut[levels[i, j]]
-        wf = 0.0
-        f = fixed[i + 1, j]
-        if f < 0:
-            wf += wr
-        elif f == 1:
-            mm += wr
-        else:
-            mm -= wr
-        f = fixed[i - 1, j]
-        if f < 0:
-            wf += wr
-        elif f == 1:
-            mm += wr
-        else:
-            mm -= wr
-        f = fixed[i, j + 1]
-        if f < 0:
-            wf += wb
-        elif f == 1:
-            mm += wb
-        else:
-            mm -= wb
-        f = fixed[i, j - 1]
-        if f < 0:
-            wf += wb
-        elif f == 1:
-            mm += wb
-        else:
-            mm -= wb
-        if mm > wf:
-            fixed[i, j] = 1
-            return 1
-        if mm < -wf:
-            fixed[i, j] = 0
-            return 1
-        return 0
+        wf, mm = _pull(fixed[i + 1, j], wr, mm)
+        a, mm = _pull(fixed[i - 1, j], wr, mm)
+        wf += a
+        a, mm = _pull(fixed[i, j + 1], wb, mm)
+        wf += a
+        a, mm = _pull(fixed[i, j - 1], wb, mm)
+        wf += a
+        return _settle(fixed, i, j, mm, wf)
     return _try_fix(levels, margin_lut, weights, fixed, i, j, h, w)
 
 
@@ -272,20 +233,10 @@ def reduce_binary(levels, margin_lut, weights, wtot, fixed, node, m, wfree, stac
                 continue
             if uni and i > 0 and j > 0 and i < h - 1 and j < w - 1:
                 wf = wr + wb
-                f = fixed[i - 1, j]
-                if f < 0:
-                    wf += wr
-                elif f == 1:
-                    mm += wr
-                else:
-                    mm -= wr
-                f = fixed[i, j - 1]
-                if f < 0:
-                    wf += wb
-                elif f == 1:
-                    mm += wb
-                else:
-                    mm -= wb
+                a, mm = _pull(fixed[i - 1, j], wr, mm)
+                wf += a
+                a, mm = _pull(fixed[i, j - 1], wb, mm)
+                wf += a
             else:
                 wf = 0.0
                 for d in range(n_dirs):
@@ -296,19 +247,9 @@ def reduce_binary(levels, margin_lut, weights, wtot, fixed, node, m, wfree, stac
                     ii = i - DI[d]
                     jj = j - DJ[d]
                     if 0 <= ii < h and 0 <= jj < w:
-                        wt = weights[d, ii, jj]
-                        f = fixed[ii, jj]
-                        if f < 0:
-                            wf += wt
-                        elif f == 1:
-                            mm += wt
-                        else:
-                            mm -= wt
-            if mm > wf:
-                fixed[i, j] = 1
-            elif mm < -wf:
-                fixed[i, j] = 0
-            else:
+                        a, mm = _pull(fixed[ii, jj], weights[d, ii, jj], mm)
+                        wf += a
+            if not _settle(fixed, i, j, mm, wf):
                 fixed[i, j] = -1
                 stack[n_left] = i * w + j          # ascending raster order
                 n_left += 1
@@ -645,9 +586,9 @@ def refine_leading_edge(img, bins, k_max, level):  # pragma: no cover - numba
 def linked_components(mask, min_beams, min_bins, gap, rounds, idx, min_pixels=0):  # pragma: no cover - numba
     """Rule 0 of :func:`sonarmap.ranges.extract_ranges` in one kernel: the 8-connected components
     of ``mask`` spanning >= ``min_beams`` beams or >= ``min_bins`` bins (``min_bins <= 0``: beams
-    only) or holding >= ``min_pixels`` pixels (``min_pixels <= 0``: off), then up to ``rounds`` rounds adding every other component with a pixel within ``gap``
-    beams and 1 bin of a pixel kept at the start of the round (stopping at the first round that
-    adds nothing).
+    only) or holding >= ``min_pixels`` pixels (``min_pixels <= 0``: off), then up to ``rounds``
+    rounds adding every other component with a pixel within ``gap`` beams and 1 bin of a pixel
+    kept at the start of the round (stopping at the first round that adds nothing).
 
     Same result as :func:`wide_components` followed by ``_link_components`` (whose components of
     ``mask & ~kept`` are exactly the components of ``mask`` not kept yet), but the lattice is
