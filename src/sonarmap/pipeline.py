@@ -34,7 +34,7 @@ from numpy.typing import NDArray
 
 from sonarmap.errors import FitError, InputError
 from sonarmap.ping import Ping
-from sonarmap.ranges import BeamRanges, extract_ranges, no_returns
+from sonarmap.ranges import BeamRanges, component_rule, extract_ranges, no_returns
 
 __all__ = ["PipelineConfig", "PingProducts", "process_ping", "classify_image", "pooled_band_pixels", "METHODS", "SOLVER_NAMES"]
 
@@ -523,12 +523,8 @@ def process_ping(ping: Ping, config: PipelineConfig = PipelineConfig(), *, keep_
         edge = config.edge_factor * bg if config.refine_bins > 0 else None
 
     # rule 0 (components) once; both extraction passes below start from its mask
-    mask = labels >= 1
-    if config.min_component_beams > 1 or config.min_component_pixels > 0:
-        from sonarmap.ranges import _rule0
-
-        mask = _rule0(mask, config.min_component_beams, config.min_component_bins, config.link_beams,
-                      config.min_component_pixels)
+    mask = component_rule(labels >= 1, config.min_component_beams, config.min_component_bins,
+                          config.link_beams, config.min_component_pixels)
 
     def _ranges(accepted: NDArray[np.bool_] | None) -> BeamRanges:
         return extract_ranges(

@@ -177,6 +177,14 @@ def _rule0(mask: NDArray[np.bool_], min_beams: int, min_bins: int | None, link_b
                              int(link_beams), 4 if link_beams > 0 else 0, _IDX_WORK.get(h, w), int(min_pixels))
 
 
+def component_rule(mask: NDArray[np.bool_], min_component_beams: int = 1, min_component_bins: int | None = None,
+                   link_beams: int = 0, min_component_pixels: int = 0) -> NDArray[np.bool_]:
+    """Rule 0 of :func:`extract_ranges` with its parameters (the mask unchanged when it is off)."""
+    if min_component_beams > 1 or min_component_pixels > 0:
+        return _rule0(mask, min_component_beams, min_component_bins, link_beams, min_component_pixels)
+    return mask
+
+
 def _link_components(mask: NDArray[np.bool_], kept: NDArray[np.bool_], gap: int, rounds: int = 4) -> NDArray[np.bool_]:
     """Add components of ``mask`` within ``gap`` beams and 1 bin of ``kept`` ones (chained)."""
     from sonarmap.classify._kernels import near_mask
@@ -310,8 +318,7 @@ def extract_ranges(
     if min_run < 1 or neighbour_beams < 1 or max_jump_bins < 0 or min_segment_beams < 1:
         raise InputError("min_run, neighbour_beams, min_segment_beams must be >= 1; max_jump_bins >= 0")
     mask = lab if lab.dtype == np.bool_ else (lab == structure_label)
-    if min_component_beams > 1 or min_component_pixels > 0:
-        mask = _rule0(mask, min_component_beams, min_component_bins, link_beams, min_component_pixels)
+    mask = component_rule(mask, min_component_beams, min_component_bins, link_beams, min_component_pixels)
     acc_only = None
     if accepted is not None:
         acc = np.asarray(accepted, dtype=bool)

@@ -133,8 +133,7 @@ def ghost_ratios(ping: Ping, *, n_ghosts: int = 3, step: int = 8, min_peak: floa
     row whose strongest beam (taper removed) reaches ``min_peak`` gives, for each offset ``d``, the
     3-row mean at the line's beam ``+ d`` over the 3-row mean at the line's beam (rows whose line
     lies within ``n_ghosts step`` beams of an edge are skipped: every offset is measured on the
-    same rows).  The ratio at
-    the ghost offsets minus the median ratio at non-ghost offsets (``4 < |d| <= max_offset``, not
+    same rows).  The ratio at the ghost offsets minus the median ratio at non-ghost offsets (``4 < |d| <= max_offset``, not
     a multiple of ``step``: the background and the line's own width), averaged over both sides,
     is the ghost ratio.  Used for :data:`sonarmap.simulate.render.MEASURED_DIDSON_GHOSTS`.
     """
@@ -167,7 +166,7 @@ def main(argv: list[str] | None = None) -> int:
     if args and args[0] == "--ghosts":
         from sonarmap.io.pngjson import read_png_ping
 
-        src = args[1] if len(args) > 1 else "../shared/data/didson/test/1468967281261719_raw.png"
+        src = args[1] if len(args) > 1 else "../shared/data/didson/test/1468970074505798_raw.png"  # test ping 5
         print("ghost ratios at +-8, +-16, +-24 beams:", ghost_ratios(read_png_ping(src)))
         return 0
     src = args[0] if args else "../shared/data/didson/background"

@@ -122,7 +122,7 @@ class SimulationConfig:
         echo is a complex Gaussian field, and beam ``j`` receives ``sum_k sqrt(psf[j - k]) a_k`` -
         the ghost of a direction is a scaled copy of *its* echo, speckle included (the same
         scatterers seen through a sidelobe / the DIDSON's channel cross-talk).  ``"incoherent"``
-        (the model before 0.2): the blurred *expected* intensity receives independent speckle on
+        (the previous model): the blurred *expected* intensity receives independent speckle on
         every beam, so a ghost fades independently of its source and no deconvolution of a single
         ping can remove it.  Both have the same expected image.
     beam_pattern : {"geometry", "measured"}
