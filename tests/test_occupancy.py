@@ -174,3 +174,34 @@ def test_cell_and_arc_sensor_model() -> None:
     assert 0 < lha < lh3
     with pytest.raises(InputError, match="pd/pfa"):
         SensorModel.from_pd_pfa(0.5, 0.3, bins_per_cell=5)  # per cell the detector is no better than chance
+
+
+def test_range_error_weakens_the_hit_and_arc_hits_may_carry_nothing() -> None:
+    from sonarmap.mapping.occupancy import pd_pfa_increments
+
+    f_cell = 1 - 0.99**3
+    q = 1 - 1.0 * math.sqrt(2 / math.pi) / 3  # 1-bin range error over a 3-bin cell
+    lh, lm = pd_pfa_increments(0.9, 0.01, bins_per_cell=3, range_sigma_bins=1.0)
+    assert lh == pytest.approx(math.log(0.9 * q / (f_cell + (1 - f_cell) * 0.9 * 0.5 * (1 - q))))
+    assert lm == pytest.approx(math.log(0.1 / (1 - f_cell)))  # the miss is unchanged
+    assert 0 < lh < pd_pfa_increments(0.9, 0.01, bins_per_cell=3)[0]
+    # a finer cell (fewer bins) loses more of its returns to the neighbours: weaker still
+    assert pd_pfa_increments(0.9, 0.01, bins_per_cell=1.5, range_sigma_bins=1.0)[0] < lh
+    # an arc of n cells: a free arc cell sees the return (at this range) with probability (1 - 1/n) q
+    lha, _ = pd_pfa_increments(0.9, 0.01, bins_per_cell=3, n_arc=4, range_sigma_bins=1.0)
+    assert lha == pytest.approx(math.log(0.9 * q / (f_cell + (1 - f_cell) * 0.9 * (0.75 * q + 0.5 * (1 - q)))))
+
+
+def test_ping_with_uninformative_hits_still_carves_free_space() -> None:
+    # 1 bin per cell and a 1.5-bin range error: q = 0.20, the hit carries no information
+    # (log(pD q / (pfa + pD (1 - q)/2)) < 0), but the miss does - the ping is integrated with a
+    # zero hit increment instead of being dropped
+    m = OccupancyMap(OccupancyConfig(resolution_m=0.1, range_sigma_bins=1.5, l_min=-10.0))
+    assert m.integrate([2.53], [0.0], ID, min_range_m=1.0, max_range_m=3.0, pd=0.9, pfa=1e-4,
+                       range_resolution_m=0.1) == 1
+    lo, seen = m.logodds_at([[2.55, 0.01, 0.01], [1.55, 0.01, 0.01]])
+    assert seen.all() and lo[0] == 0.0  # the return's cell: observed, unchanged
+    assert lo[1] == pytest.approx(math.log(0.1 / (1 - 1e-4)), rel=1e-5)  # free space before it
+    assert m.n_uninformative == 0
+    with pytest.raises(InputError, match="range_sigma_bins"):
+        OccupancyConfig(range_sigma_bins=-1.0)

@@ -312,6 +312,14 @@ class PingProducts:
         the threshold; CFAR reports its design pFA and NaN pD.
     method : str
         Classification method.
+    pd_range : float
+        Detection probability of the ping's *range measurement*, the input of the occupancy
+        map's pD/pFA model: ``pd`` times the fraction of the beams with any classifier detection
+        (or a return) that kept a return, i.e. the chance that a surface in a beam is both
+        detected per pixel and reported as the beam's return.  A ping whose detections were all
+        rejected by the range rules (echoes too weak to form a surface: aeration, dropouts) gets
+        0, so the map learns nothing from its empty beams.  NaN without a fit or a finite
+        ``pd`` (CFAR).
     """
 
     time_ns: int
@@ -324,6 +332,7 @@ class PingProducts:
     pd: float
     pfa: float
     method: str = "mrf"
+    pd_range: float = math.nan
 
 
 def _fit(levels: NDArray[Any], config: PipelineConfig) -> Any:
@@ -512,7 +521,8 @@ def process_ping(ping: Ping, config: PipelineConfig = PipelineConfig(), *, keep_
         ranges = no_returns(geom, time_ns=ping.time_ns, source=ping.source, mode=config.range_mode)
         return PingProducts(time_ns=ping.time_ns, source=ping.source, fit=fit, kld=math.nan,
                             flags=("constant_image", "no_returns"), ranges=ranges,
-                            labels=labels if keep_labels else None, pd=0.0, pfa=0.0, method=config.method)
+                            labels=labels if keep_labels else None, pd=0.0, pfa=0.0, method=config.method,
+                            pd_range=0.0)
     labels, fit, pd, pfa = classify_image(image, config)
     edge = None
     bg_mean = None
@@ -555,5 +565,15 @@ def process_ping(ping: Ping, config: PipelineConfig = PipelineConfig(), *, keep_
         time_ns=ping.time_ns, source=ping.source, fit=fit,
         kld=float(fit.kld) if fit is not None else math.nan, flags=tuple(sorted(flags)),
         ranges=ranges, labels=labels if keep_labels else None, pd=float(pd), pfa=float(pfa),
-        method=config.method,
+        method=config.method, pd_range=_pd_range(float(pd), labels, ranges, flags),
     )
+
+
+def _pd_range(pd: float, labels: NDArray[np.uint8], ranges: BeamRanges, flags: set[str]) -> float:
+    """``pd`` times the fraction of detecting beams that kept a return (see ``PingProducts.pd_range``)."""
+    if "no_fit" in flags or not math.isfinite(pd):
+        return math.nan
+    detecting = int(np.count_nonzero((labels >= 1).any(axis=0) | (ranges.bin >= 0)))
+    if detecting == 0:
+        return pd
+    return pd * ranges.n_returns / detecting

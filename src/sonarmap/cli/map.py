@@ -117,10 +117,11 @@ def map_command(
             stats["returns"] += len(cloud) // rcfg.n_elevation
         else:
             g = batch[0][0].geometry
-            pd = None if fixed else np.array([float(prod.pd) for _, prod in batch])
+            pd = None if fixed else np.array([float(prod.pd_range) for _, prod in batch])
             pfa = None if fixed else np.array([float(prod.pfa) for _, prod in batch])
             occ.integrate_ranges(
-                ranges, sp, min_range_m=g.min_range_m, max_range_m=g.max_range_m, pd=pd, pfa=pfa, model=fixed
+                ranges, sp, min_range_m=g.min_range_m, max_range_m=g.max_range_m, pd=pd, pfa=pfa, model=fixed,
+                range_resolution_m=None if fixed else g.range_resolution_m,
             )
             stats["returns"] += int(sum(r.n_returns for r in ranges))
         batch.clear()

@@ -16,9 +16,12 @@ With a uniform prior the Bayes update of a cell's log-odds ``l = log(P(m) / (1 -
   (``z = not object``):  ``l += log((1 - pD) / (1 - pFA))``,
 
 and cells behind the return are not updated (occluded).  Given the range-bin size, ``pFA`` is
-made per cell (``1 - (1 - pFA)^m`` over the ``m`` bins a ray crosses in a cell) and, with rays
-over the vertical aperture, a hit is discounted for the ``n`` cells of its elevation arc:
-``l_hit = log(pD / (pFA_cell + (1 - pFA_cell) pD (1 - 1/n)))`` (see docs/mapping.md).  So a confident detector (high pD, low
+made per cell (``1 - (1 - pFA)^m`` over the ``m`` bins a ray crosses in a cell), and a hit is
+discounted for the range error (the return leaves its surface's cell with probability
+``1 - q``) and, with rays over the vertical aperture, for the ``n`` cells of its elevation arc:
+``l_hit = log(pD q / (pFA_cell + (1 - pFA_cell) pD ((1 - 1/n) q + (1 - q)/2)))`` (see
+docs/mapping.md).  The pD to use is the pipeline's ``PingProducts.pd_range``, the detection
+probability of the range measurement.  So a confident detector (high pD, low
 pFA) moves the map quickly, a poor one slowly, ping by ping - unlike fixed ``P(occ | hit) = 0.8``,
 ``P(occ | miss) = 0.3`` constants (``l_hit = logit 0.8``, ``l_miss = logit 0.3``), which are
 available as :meth:`SensorModel.fixed` for comparison.  Log-odds are clamped to ``[l_min, l_max]``
@@ -76,7 +79,12 @@ def logit(p: ArrayLike) -> NDArray[np.float64]:
 
 
 def pd_pfa_increments(
-    pd: ArrayLike, pfa: ArrayLike, *, bins_per_cell: ArrayLike = 1.0, n_arc: ArrayLike = 1
+    pd: ArrayLike,
+    pfa: ArrayLike,
+    *,
+    bins_per_cell: ArrayLike = 1.0,
+    n_arc: ArrayLike = 1,
+    range_sigma_bins: ArrayLike = 0.0,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Log-odds increments ``(l_hit, l_miss)`` of the pD/pFA inverse sensor model (broadcasting).
 
@@ -87,8 +95,15 @@ def pd_pfa_increments(
     f = np.clip(np.asarray(pfa, dtype=np.float64), _P_EPS, 1 - _P_EPS)
     m = np.maximum(np.asarray(bins_per_cell, dtype=np.float64), 1.0)
     n = np.maximum(np.asarray(n_arc, dtype=np.float64), 1.0)
+    sig = np.maximum(np.asarray(range_sigma_bins, dtype=np.float64), 0.0)
     f_cell = -np.expm1(m * np.log1p(-f))  # 1 - (1 - pfa)^m
-    l_hit = np.log(d) - np.log(f_cell + (1.0 - f_cell) * d * (1.0 - 1.0 / n))
+    # a return stays in its surface's cell with probability q (Gaussian range error, E|e| =
+    # sigma sqrt(2/pi), over a cell m bins long); the rest lands in a neighbour along the ray.
+    # A free cell gets the hit when the surface is in another cell of the elevation arc at this
+    # range (and stays there), or one cell nearer or farther and is displaced into it.
+    q = np.clip(1.0 - sig * math.sqrt(2.0 / math.pi) / m, 0.05, 1.0)
+    leak = np.minimum((1.0 - 1.0 / n) * q + 0.5 * (1.0 - q), 1.0)
+    l_hit = np.log(d * q) - np.log(f_cell + (1.0 - f_cell) * d * leak)
     l_miss = np.log1p(-d) - np.log1p(-f_cell)
     return l_hit, l_miss
 
@@ -115,22 +130,28 @@ class SensorModel:
             raise InputError(f"l_miss: must be a negative finite log-odds increment, got {self.l_miss}")
 
     @classmethod
-    def from_pd_pfa(cls, pd: float, pfa: float, *, bins_per_cell: float = 1.0, n_arc: int = 1) -> SensorModel:
+    def from_pd_pfa(
+        cls, pd: float, pfa: float, *, bins_per_cell: float = 1.0, n_arc: int = 1, range_sigma_bins: float = 0.0
+    ) -> SensorModel:
         """Inverse sensor model from the detector's pD and per-pixel pFA (see the module notes).
 
         ``pfa_cell = 1 - (1 - pfa) ** bins_per_cell`` (a ray crosses ``bins_per_cell`` range bins
         in one cell); ``l_miss = log((1 - pD) / (1 - pfa_cell))``;
-        ``l_hit = log(pD / (pfa_cell + (1 - pfa_cell) pD (1 - 1/n_arc)))`` - with ``n_arc`` cells
-        on the return's elevation arc, a free cell still sees the return when the surface is in
-        one of the other cells.  ``n_arc = bins_per_cell = 1`` gives ``log(pD / pFA)`` and
-        ``log((1 - pD) / (1 - pFA))``.  Probabilities are clipped to ``[1e-4, 1 - 1e-4]``.
+        ``l_hit = log(pD q / (pfa_cell + (1 - pfa_cell) pD ((1 - 1/n_arc) q + (1 - q)/2)))``: with
+        a range error of ``range_sigma_bins`` (Gaussian) a return stays in its surface's cell with
+        probability ``q = 1 - range_sigma_bins sqrt(2/pi) / bins_per_cell`` and otherwise lands
+        in one of the two neighbours along the ray; with ``n_arc`` cells on the return's
+        elevation arc, a free cell also sees the return when the surface is in one of the other
+        arc cells.  ``n_arc = bins_per_cell = 1``, ``range_sigma_bins = 0``
+        give ``log(pD / pFA)`` and ``log((1 - pD) / (1 - pFA))``.  Probabilities are clipped to
+        ``[1e-4, 1 - 1e-4]``.
 
         Raises
         ------
         InputError
             If the increments are not informative (``l_hit <= 0`` or ``l_miss >= 0``).
         """
-        lh, lm = pd_pfa_increments(pd, pfa, bins_per_cell=bins_per_cell, n_arc=n_arc)
+        lh, lm = pd_pfa_increments(pd, pfa, bins_per_cell=bins_per_cell, n_arc=n_arc, range_sigma_bins=range_sigma_bins)
         if not (float(lh) > 0 and float(lm) < 0):
             raise InputError(
                 f"pd/pfa: detection probability ({pd}) must exceed the false-alarm probability ({pfa}) "
@@ -168,6 +189,10 @@ class OccupancyConfig:
         Vertical aperture spread over when ``n_elevation > 1``.
     free_without_return : bool
         Carve free space to the maximum range along beams without a return.
+    range_sigma_bins : float
+        1-sigma range error of a return, in range bins, used by the pD/pFA model when
+        ``range_resolution_m`` is given: a return leaves its surface's cell for a neighbour along
+        the ray with probability ``sigma sqrt(2/pi) / bins_per_cell``, which weakens the hit.
     max_chunks : int, optional
         Upper bound on allocated chunks (memory ~ ``8 * chunk_size**3`` bytes each); exceeding it
         raises :class:`InputError`.
@@ -182,6 +207,7 @@ class OccupancyConfig:
     n_elevation: int = 1
     vertical_aperture_rad: float = DEFAULT_APERTURE_RAD
     free_without_return: bool = True
+    range_sigma_bins: float = 1.0
     max_chunks: int | None = None
 
     def __post_init__(self) -> None:
@@ -196,6 +222,8 @@ class OccupancyConfig:
             raise InputError(f"l_min < occupied_logodds < l_max violated ({self.l_min}, {self.occupied_logodds}, {self.l_max})")
         if int(self.n_elevation) != self.n_elevation or self.n_elevation < 1:
             raise InputError(f"n_elevation: must be a positive integer, got {self.n_elevation}")
+        if not (math.isfinite(self.range_sigma_bins) and self.range_sigma_bins >= 0):
+            raise InputError(f"range_sigma_bins: must be finite and >= 0, got {self.range_sigma_bins}")
         if self.max_chunks is not None and self.max_chunks < 1:
             raise InputError(f"max_chunks: must be positive, got {self.max_chunks}")
 
@@ -395,9 +423,13 @@ class OccupancyMap:
                 srt = np.sort(hit_r, axis=1)
                 r_med = np.where(k > 0, srt[np.arange(P), np.maximum(k - 1, 0) // 2], 0.0)
                 n_arc = np.clip(np.ceil(r_med * cfg.vertical_aperture_rad / cfg.resolution_m), 1, cfg.n_elevation)
+            sig_bins = 0.0 if range_resolution_m is None else cfg.range_sigma_bins
             l_hit, l_miss = pd_pfa_increments(np.where(informative, pdv, 0.9), np.where(informative, pfv, 0.1),
-                                              bins_per_cell=m_bins, n_arc=n_arc)
-            informative &= (l_hit > 0) & (l_miss < 0)
+                                              bins_per_cell=m_bins, n_arc=n_arc, range_sigma_bins=sig_bins)
+            # hits that carry no information (an elevation arc as wide as the range error's reach)
+            # leave the return's cell unchanged; the ping's free space still counts
+            informative &= l_miss < 0
+            l_hit = np.maximum(l_hit, 0.0)
             if model is not None:  # fallback for pings whose pD/pFA are missing or uninformative
                 l_hit = np.where(informative, l_hit, model.l_hit)
                 l_miss = np.where(informative, l_miss, model.l_miss)

@@ -41,6 +41,7 @@ __all__ = [
     "SeafloorSurface",
     "simulate_survey",
     "truth_ranges",
+    "dropout_losses_db",
     "RegistrationAccuracy",
     "registration_accuracy",
     "truth_voxels",
@@ -163,6 +164,14 @@ class SurveyConfig:
         The sonar (preset name, JSON path or object).
     seed : int
         Seeds the renderer's noise (ping ``i`` uses ``seed + i``).
+    reflectivity_db : float
+        Surface backscatter strength.
+    dropout_fraction : float
+        Fraction of pings whose echoes are attenuated (aeration: bubble sweeps from thrusters or
+        the ship's wake, which blank hull-inspection sonar frames intermittently), chosen at
+        random from ``seed``.
+    dropout_db : (float, float)
+        Range of the two-way attenuation of those pings, drawn uniformly.
     """
 
     kind: SurveyKind = "hull"
@@ -176,8 +185,15 @@ class SurveyConfig:
     geometry: Any = "didson-hf"
     seed: int = 0
     reflectivity_db: float = -20.0
+    dropout_fraction: float = 0.0
+    dropout_db: tuple[float, float] = (6.0, 15.0)
 
     def __post_init__(self) -> None:
+        if not 0.0 <= self.dropout_fraction <= 1.0:
+            raise InputError(f"dropout_fraction: must lie in [0, 1], got {self.dropout_fraction}")
+        lo_db, hi_db = self.dropout_db
+        if not 0.0 <= lo_db <= hi_db:
+            raise InputError(f"dropout_db: need 0 <= low <= high, got {self.dropout_db}")
         if self.kind not in ("hull", "seafloor"):
             raise InputError(f"kind: must be 'hull' or 'seafloor', got {self.kind!r}")
         if self.n_pings < 1:
@@ -322,6 +338,14 @@ def _surface_samples(
     return P, normals, area
 
 
+def dropout_losses_db(config: SurveyConfig) -> NDArray[np.float64]:
+    """Per-ping echo attenuation (dB, 0 for unaffected pings) of a survey's dropouts."""
+    rng = np.random.default_rng(config.seed + 4242)
+    hit = rng.random(config.n_pings) < config.dropout_fraction
+    loss = rng.uniform(config.dropout_db[0], config.dropout_db[1], config.n_pings)
+    return np.where(hit, loss, 0.0)
+
+
 def _ray_points(range_m: NDArray[np.float64], azimuth_rad: NDArray[np.float64], poses: SensorPoses) -> NDArray[np.float64]:
     d = np.stack([np.cos(azimuth_rad), np.sin(azimuth_rad), np.zeros_like(azimuth_rad)], axis=1)
     ok = np.isfinite(range_m)
@@ -418,7 +442,7 @@ def simulate_survey(
         from sonarmap.simulate import Scene, SimulationConfig, simulate_ping
 
         scfg = sim_config if sim_config is not None else SimulationConfig(beam_pattern="measured")
-        refl = 10.0 ** (cfg.reflectivity_db / 10.0)
+        loss_db = dropout_losses_db(cfg)
         # samples farther out of the imaging plane than this contribute nothing (Gaussian pattern:
         # weight exp(-4 ln2 2.5^2) = 3e-8 at 2.5 apertures; box pattern: half the aperture)
         w = scfg.elevation_aperture_rad
@@ -446,7 +470,7 @@ def simulate_survey(
             scene = Scene(
                 points_m=ps[keep],
                 normals=normals[sel] @ R_ws,
-                reflectivity=np.full(sel.size, refl),
+                reflectivity=np.full(sel.size, 10.0 ** ((cfg.reflectivity_db - loss_db[i]) / 10.0)),
                 labels=np.ones(sel.size, dtype=np.uint8),
                 patch_area_m2=area[sel],
                 name=f"survey-{cfg.kind}",
@@ -530,13 +554,18 @@ class SurveyEvaluation:
     iou : dict
         ``{(resolution_m, model): IoU}`` with model ``"pd/pfa"`` or ``"fixed 0.8/0.3"``.
     mean_pd, mean_pfa : float
-        Mean of the pings' pD / pFA.
+        Mean of the pings' range-measurement pD (``pd_range``, over pings where it is defined)
+        and per-pixel pFA.
     """
 
     accuracy: RegistrationAccuracy
     iou: dict[tuple[float, str], float]
     mean_pd: float
     mean_pfa: float
+
+
+#: Sensor models :func:`evaluate_survey` can compare.
+SURVEY_MODELS = ("pd/pfa", "fixed 0.8/0.3", "pd/pfa per pixel", "fixed, pings with returns")
 
 
 def evaluate_survey(
@@ -546,18 +575,31 @@ def evaluate_survey(
     resolutions_m: tuple[float, ...] = (0.05, 0.1),
     products: list[Any] | None = None,
     n_elevation: int = 1,
+    models: tuple[str, ...] = ("pd/pfa", "fixed 0.8/0.3"),
 ) -> SurveyEvaluation:
     """Run the per-ping pipeline on a rendered survey, register and map, and score against truth.
 
     Registration uses the true sensor poses, so the errors measured are those of the ranges and
     of the zero-elevation assumption.  Occupancy IoU compares the occupied cells with
-    :func:`truth_voxels` for each resolution, with the pD/pFA-driven inverse sensor model (per-pixel
-    pFA turned into a per-cell one, elevation-arc ambiguity over ``n_elevation`` rays spanning the
-    renderer's vertical aperture) and with fixed ``P(occ|hit) = 0.8``, ``P(occ|miss) = 0.3``.
+    :func:`truth_voxels` for each resolution and sensor model (:data:`SURVEY_MODELS`):
+
+    * ``"pd/pfa"``: the pD/pFA-driven inverse sensor model with each ping's range-measurement
+      ``pd_range`` and per-pixel pFA (turned into a per-cell one, range error of
+      ``OccupancyConfig.range_sigma_bins``, elevation-arc ambiguity over ``n_elevation`` rays
+      spanning the renderer's vertical aperture); pings without an identified object class are
+      not integrated (their pD is unknown);
+    * ``"fixed 0.8/0.3"``: ``P(occ|hit) = 0.8``, ``P(occ|miss) = 0.3`` for every ping (a peer's
+      constants);
+    * ``"pd/pfa per pixel"``: as ``"pd/pfa"`` with the per-pixel local-MAP ``pd`` (ablation);
+    * ``"fixed, pings with returns"``: the constants, skipping pings without any return
+      (a heuristic guard, ablation).
     """
     from sonarmap.mapping.occupancy import OccupancyConfig, OccupancyMap, SensorModel, voxel_iou
     from sonarmap.mapping.register import register_ranges
 
+    unknown = set(models) - set(SURVEY_MODELS)
+    if unknown:
+        raise InputError(f"models: unknown {sorted(unknown)}; choose from {SURVEY_MODELS}")
     if products is None:
         from sonarmap.pipeline import PipelineConfig, process_ping
 
@@ -567,15 +609,29 @@ def evaluate_survey(
     cloud = register_ranges(ranges, survey.poses)
     acc = registration_accuracy(survey, cloud.xyz_m)
     pd = np.array([float(p.pd) for p in products])
+    pd_range = np.array([float(getattr(p, "pd_range", math.nan)) for p in products])
     pfa = np.array([float(p.pfa) for p in products])
+    with_returns = np.array([r.n_returns > 0 for r in ranges])
     g = survey.geometry
     aperture = survey.sim_truth[0].config.elevation_aperture_rad if survey.sim_truth else math.radians(1.0)
+    fixed = SensorModel.fixed(0.8, 0.3)
+    kwargs: dict[str, dict[str, Any]] = {
+        "pd/pfa": {"pd": pd_range, "pfa": pfa, "range_resolution_m": g.range_resolution_m},
+        "fixed 0.8/0.3": {"model": fixed},
+        "pd/pfa per pixel": {"pd": pd, "pfa": pfa, "range_resolution_m": g.range_resolution_m},
+        "fixed, pings with returns": {},
+    }
     iou: dict[tuple[float, str], float] = {}
     for res in resolutions_m:
         truth = truth_voxels(survey, res)
-        for name, kw in (("pd/pfa", {"pd": pd, "pfa": pfa, "range_resolution_m": g.range_resolution_m}),
-                         ("fixed 0.8/0.3", {"model": SensorModel.fixed(0.8, 0.3)})):
+        for name in models:
+            kw = dict(kwargs[name])
             m = OccupancyMap(OccupancyConfig(resolution_m=res, n_elevation=n_elevation, vertical_aperture_rad=aperture))
-            m.integrate_ranges(ranges, survey.poses, min_range_m=g.min_range_m, max_range_m=g.max_range_m, **kw)
+            if name == "fixed, pings with returns":
+                sel = with_returns
+                m.integrate_ranges([r for r, k in zip(ranges, sel, strict=True) if k], survey.poses.select(sel),
+                                   min_range_m=g.min_range_m, max_range_m=g.max_range_m, model=fixed)
+            else:
+                m.integrate_ranges(ranges, survey.poses, min_range_m=g.min_range_m, max_range_m=g.max_range_m, **kw)
             iou[(res, name)] = voxel_iou(m.occupied_cells(), truth)
-    return SurveyEvaluation(acc, iou, float(np.nanmean(pd)), float(np.nanmean(pfa)))
+    return SurveyEvaluation(acc, iou, float(np.nanmean(pd_range)), float(np.nanmean(pfa)))
