@@ -463,6 +463,25 @@ def _union_back_neighbours(idx, parent, a, i, j, w):  # pragma: no cover - numba
                         parent[ra] = rb
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _grow_box(r, i, j, imin, imax, jmin, jmax):  # pragma: no cover - numba
+    """Extend component ``r``'s bin (``i``) and beam (``j``) extent by pixel ``(i, j)``."""
+    if j < jmin[r]:
+        jmin[r] = j
+    if j > jmax[r]:
+        jmax[r] = j
+    if i < imin[r]:
+        imin[r] = i
+    if i > imax[r]:
+        imax[r] = i
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _is_wide(r, imin, imax, jmin, jmax, min_beams, min_bins):  # pragma: no cover - numba
+    """Component ``r`` spans >= ``min_beams`` beams, or >= ``min_bins`` bins (``min_bins <= 0``: off)."""
+    return jmax[r] - jmin[r] + 1 >= min_beams or (min_bins > 0 and imax[r] - imin[r] + 1 >= min_bins)
+
+
 @njit(cache=True, nogil=True)
 def wide_components(mask, seeds, min_beams, min_bins):  # pragma: no cover - numba
     """Keep 8-connected components of ``mask`` that contain a ``seeds`` pixel and span
@@ -499,21 +518,14 @@ def wide_components(mask, seeds, min_beams, min_bins):  # pragma: no cover - num
                 r = _find(parent, a)
                 if seeds[i, j]:
                     seeded[r] = True
-                if j < jmin[r]:
-                    jmin[r] = j
-                if j > jmax[r]:
-                    jmax[r] = j
-                if i < imin[r]:
-                    imin[r] = i
-                if i > imax[r]:
-                    imax[r] = i
+                _grow_box(r, i, j, imin, imax, jmin, jmax)
     out = np.zeros((h, w), dtype=np.bool_)
     for i in range(h):
         for j in range(w):
             a = idx[i, j]
             if a >= 0:
                 r = _find(parent, a)
-                if seeded[r] and (jmax[r] - jmin[r] + 1 >= min_beams or (min_bins > 0 and imax[r] - imin[r] + 1 >= min_bins)):
+                if seeded[r] and _is_wide(r, imin, imax, jmin, jmax, min_beams, min_bins):
                     out[i, j] = True
     return out
 
@@ -628,19 +640,12 @@ def linked_components(mask, min_beams, min_bins, gap, rounds, idx, min_pixels=0)
         npx[r] += 1
         i = pi[a]
         j = pj[a]
-        if j < jmin[r]:
-            jmin[r] = j
-        if j > jmax[r]:
-            jmax[r] = j
-        if i < imin[r]:
-            imin[r] = i
-        if i > imax[r]:
-            imax[r] = i
+        _grow_box(r, i, j, imin, imax, jmin, jmax)
     kept = np.zeros(n, dtype=np.bool_)      # per root
     n_kept = 0
     for a in range(n):
         r = root[a]
-        if r == a and (jmax[r] - jmin[r] + 1 >= min_beams or (min_bins > 0 and imax[r] - imin[r] + 1 >= min_bins)
+        if r == a and (_is_wide(r, imin, imax, jmin, jmax, min_beams, min_bins)
                        or (min_pixels > 0 and npx[r] >= min_pixels)):
             kept[r] = True
     for a in range(n):
