@@ -586,8 +586,8 @@ def evaluate_survey(
     * ``"pd/pfa"``: the pD/pFA-driven inverse sensor model with each ping's range-measurement
       ``pd_range`` and per-pixel pFA (turned into a per-cell one, range error of
       ``OccupancyConfig.range_sigma_bins``, elevation-arc ambiguity over ``n_elevation`` rays
-      spanning the renderer's vertical aperture); pings without an identified object class are
-      not integrated (their pD is unknown);
+      spanning the renderer's vertical aperture); pings with ``pd_range = 0`` (every detection
+      rejected by the range rules) or NaN are not integrated;
     * ``"fixed 0.8/0.3"``: ``P(occ|hit) = 0.8``, ``P(occ|miss) = 0.3`` for every ping (a peer's
       constants);
     * ``"pd/pfa per pixel"``: as ``"pd/pfa"`` with the per-pixel local-MAP ``pd`` (ablation);
@@ -609,29 +609,28 @@ def evaluate_survey(
     cloud = register_ranges(ranges, survey.poses)
     acc = registration_accuracy(survey, cloud.xyz_m)
     pd = np.array([float(p.pd) for p in products])
-    pd_range = np.array([float(getattr(p, "pd_range", math.nan)) for p in products])
+    pd_range = np.array([float(p.pd_range) for p in products])
     pfa = np.array([float(p.pfa) for p in products])
-    with_returns = np.array([r.n_returns > 0 for r in ranges])
     g = survey.geometry
     aperture = survey.sim_truth[0].config.elevation_aperture_rad if survey.sim_truth else math.radians(1.0)
     fixed = SensorModel.fixed(0.8, 0.3)
-    kwargs: dict[str, dict[str, Any]] = {
-        "pd/pfa": {"pd": pd_range, "pfa": pfa, "range_resolution_m": g.range_resolution_m},
-        "fixed 0.8/0.3": {"model": fixed},
-        "pd/pfa per pixel": {"pd": pd, "pfa": pfa, "range_resolution_m": g.range_resolution_m},
-        "fixed, pings with returns": {},
+    every = np.ones(len(ranges), dtype=bool)
+    with_returns = np.array([r.n_returns > 0 for r in ranges])
+    # (pings integrated, integrate() keywords) per model
+    setups: dict[str, tuple[NDArray[np.bool_], dict[str, Any]]] = {
+        "pd/pfa": (every, {"pd": pd_range, "pfa": pfa, "range_resolution_m": g.range_resolution_m}),
+        "fixed 0.8/0.3": (every, {"model": fixed}),
+        "pd/pfa per pixel": (every, {"pd": pd, "pfa": pfa, "range_resolution_m": g.range_resolution_m}),
+        "fixed, pings with returns": (with_returns, {"model": fixed}),
     }
     iou: dict[tuple[float, str], float] = {}
     for res in resolutions_m:
         truth = truth_voxels(survey, res)
         for name in models:
-            kw = dict(kwargs[name])
+            sel, kw = setups[name]
+            kw = {k: v[sel] if isinstance(v, np.ndarray) else v for k, v in kw.items()}
             m = OccupancyMap(OccupancyConfig(resolution_m=res, n_elevation=n_elevation, vertical_aperture_rad=aperture))
-            if name == "fixed, pings with returns":
-                sel = with_returns
-                m.integrate_ranges([r for r, k in zip(ranges, sel, strict=True) if k], survey.poses.select(sel),
-                                   min_range_m=g.min_range_m, max_range_m=g.max_range_m, model=fixed)
-            else:
-                m.integrate_ranges(ranges, survey.poses, min_range_m=g.min_range_m, max_range_m=g.max_range_m, **kw)
+            m.integrate_ranges([r for r, k in zip(ranges, sel, strict=True) if k], survey.poses.select(sel),
+                               min_range_m=g.min_range_m, max_range_m=g.max_range_m, **kw)
             iou[(res, name)] = voxel_iou(m.occupied_cells(), truth)
     return SurveyEvaluation(acc, iou, float(np.nanmean(pd_range)), float(np.nanmean(pfa)))
