@@ -205,3 +205,44 @@ def test_ping_with_uninformative_hits_still_carves_free_space() -> None:
     assert m.n_uninformative == 0
     with pytest.raises(InputError, match="range_sigma_bins"):
         OccupancyConfig(range_sigma_bins=-1.0)
+
+
+def test_default_clamps_keep_evidence_that_octomap_clamps_lose() -> None:
+    """Three hits then two misses of the pD/pFA model: the default bounds (0.001 / 0.999) keep the
+    cell occupied; OctoMap's (0.12 / 0.97) cap the hits at 3.5 and the misses free it."""
+    from sonarmap.mapping.occupancy import OCTOMAP_CLAMP_LOGODDS, pd_pfa_increments
+
+    lh, lm = pd_pfa_increments(0.93, 3e-5, bins_per_cell=5.7, range_sigma_bins=1.0)
+    assert 2.0 < lh < 3.0 and -3.0 < lm < -2.4  # the increments a simulated DIDSON survey gets
+    assert OCTOMAP_CLAMP_LOGODDS == pytest.approx((math.log(0.1192 / 0.8808), math.log(0.971 / 0.029)))
+    poses = _poses(np.stack([np.eye(3)] * 5), np.full((5, 3), 0.01))
+    ranges = np.array([[5.03]] * 3 + [[5.23]] * 2)  # the last two pings' beams pass the cell at 5.0-5.1
+    got = {}
+    for name, kw in (("default", {}), ("octomap", dict(zip(("l_min", "l_max"), OCTOMAP_CLAMP_LOGODDS)))):
+        m = OccupancyMap(OccupancyConfig(resolution_m=0.1, **kw))
+        m.integrate(ranges, [0.0], poses, min_range_m=1.0, max_range_m=8.0, pd=0.93, pfa=3e-5,
+                    range_resolution_m=0.1 / 5.7)
+        got[name] = float(m.logodds_at([[5.05, 0.01, 0.01]])[0][0])
+    l_max = OccupancyConfig().l_max
+    assert l_max == pytest.approx(math.log(999)) and 3 * lh > l_max
+    assert got["default"] == pytest.approx(l_max + 2 * lm, rel=1e-5) and got["default"] > 0
+    assert got["octomap"] == pytest.approx(OCTOMAP_CLAMP_LOGODDS[1] + 2 * lm, rel=1e-5) and got["octomap"] < 0
+
+
+def test_elevation_arc_discount_is_an_option() -> None:
+    """n_elevation rays over a wide aperture: by default every ray's hit counts in full (the
+    surface spans the aperture); with elevation_ambiguity the hit is shared over the arc's cells."""
+    from sonarmap.mapping.occupancy import pd_pfa_increments
+
+    dr = 0.1 / 3
+    vals = {}
+    for amb in (False, True):
+        m = OccupancyMap(OccupancyConfig(resolution_m=0.1, n_elevation=3, vertical_aperture_rad=math.radians(6),
+                                         elevation_ambiguity=amb))
+        m.integrate([4.03], [0.0], ID, min_range_m=1.0, max_range_m=8.0, pd=0.9, pfa=1e-4, range_resolution_m=dr)
+        vals[amb] = float(m.logodds_at([[4.05, 0.01, 0.01]])[0][0])  # the centre ray's hit cell
+    full, _ = pd_pfa_increments(0.9, 1e-4, bins_per_cell=3, range_sigma_bins=1.0)
+    n_arc = math.ceil(4.03 * math.radians(6) / 0.1)  # 5 cells, capped at n_elevation = 3
+    shared, _ = pd_pfa_increments(0.9, 1e-4, bins_per_cell=3, n_arc=3, range_sigma_bins=1.0)
+    assert n_arc > 3 and vals[False] == pytest.approx(full, rel=1e-5)
+    assert vals[True] == pytest.approx(shared, rel=1e-5) and 0 < shared < full

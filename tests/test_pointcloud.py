@@ -124,6 +124,17 @@ def test_cli_map_registers_pipeline_returns(tmp_path, test_ping_paths, capsys) -
     occ = read_point_cloud(grid)
     z = np.load(arr)
     assert len(occ) > 0 and (z["logodds"][z["observed"]] > 0).sum() == len(occ)
+    lo, hi = float(np.log(0.1192 / 0.8808)), float(np.log(0.971 / 0.029))
+    default = z["logodds"][z["observed"]]
+    assert default.min() < lo - 0.5 or default.max() > hi + 0.5  # the default clamps are wider
+    # --clamp: OctoMap's bounds cap the map; a malformed value is a usage error
+    assert main(["map", *map(str, paths), "--poses", str(poses), "-o", str(grid), "--grid", "0.1",
+                 "--grid-array", str(arr), "--clamp", "0.1192,0.971", "-q"]) == 0
+    z = np.load(arr)
+    octo = z["logodds"][z["observed"]]
+    assert octo.min() >= lo - 1e-5 and octo.max() <= hi + 1e-5 and octo.size == default.size
+    assert main(["map", *map(str, paths), "--poses", str(poses), "-o", str(grid), "--grid", "0.1",
+                 "--clamp", "0.6,0.9", "-q"]) != 0
 
 
 def test_cli_map_outside_trajectory_error_or_skip(tmp_path, test_ping_paths, capsys) -> None:

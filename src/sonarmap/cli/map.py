@@ -28,6 +28,19 @@ def _count(inputs: list[Path]) -> int | None:
     return total
 
 
+def _clamp_logodds(text: str) -> tuple[float, float]:
+    """``"PMIN,PMAX"`` probabilities -> clamping log-odds, or a ``--clamp`` usage error."""
+    import math
+
+    try:
+        lo, hi = (float(v) for v in text.split(","))
+    except ValueError:
+        raise typer.BadParameter(f"expected two probabilities PMIN,PMAX, got {text!r}", param_hint="--clamp") from None
+    if not 0.0 < lo < 0.5 < hi < 1.0:
+        raise typer.BadParameter(f"need 0 < PMIN < 0.5 < PMAX < 1, got {text!r}", param_hint="--clamp")
+    return math.log(lo / (1 - lo)), math.log(hi / (1 - hi))
+
+
 def map_command(
     pings: list[Path] = typer.Argument(..., help="Ping files, directories or globs (any supported format)."),
     poses: Path | None = typer.Option(
@@ -58,6 +71,11 @@ def map_command(
     fixed_model: bool = typer.Option(
         False, "--fixed-model", help="Use fixed 0.8/0.3 hit/miss probabilities instead of each ping's pD/pFA."
     ),
+    clamp: str | None = typer.Option(
+        None, "--clamp",
+        help="Occupancy clamping probabilities PMIN,PMAX (default 0.001,0.999 for static scenes; "
+        "OctoMap's 0.1192,0.971 forget faster, for scenes that change).",
+    ),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar and no summary."),
 ) -> None:
     """Register per-beam ranges into a world point cloud, or build an occupancy map (--grid)."""
@@ -86,7 +104,8 @@ def map_command(
     traj = read_trajectory_csv(poses, frame=poses_frame) if poses is not None else None
     ext = load_extrinsics(extrinsics) if extrinsics is not None else None
     rcfg = RegistrationConfig(n_elevation=spread, min_confidence=min_confidence)
-    occ = OccupancyMap(OccupancyConfig(resolution_m=grid, dims=dims)) if grid is not None else None
+    bounds = {} if clamp is None else dict(zip(("l_min", "l_max"), _clamp_logodds(clamp), strict=True))
+    occ = OccupancyMap(OccupancyConfig(resolution_m=grid, dims=dims, **bounds)) if grid is not None else None
     fixed = SensorModel.fixed(0.8, 0.3) if fixed_model else None
 
     inputs = expand_inputs([str(p) for p in pings])

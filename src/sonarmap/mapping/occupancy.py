@@ -18,15 +18,20 @@ With a uniform prior the Bayes update of a cell's log-odds ``l = log(P(m) / (1 -
 and cells behind the return are not updated (occluded).  Given the range-bin size, ``pFA`` is
 made per cell (``1 - (1 - pFA)^m`` over the ``m`` bins a ray crosses in a cell), and a hit is
 discounted for the range error (the return leaves its surface's cell with probability
-``1 - q``) and, with rays over the vertical aperture, for the ``n`` cells of its elevation arc:
+``1 - q``) and, with rays over the vertical aperture and ``elevation_ambiguity``, for the ``n``
+cells of its elevation arc:
 ``l_hit = log(pD q / (pFA_cell + (1 - pFA_cell) pD ((1 - 1/n) q + (1 - q)/2)))`` (see
 docs/mapping.md).  The pD to use is the pipeline's ``PingProducts.pd_range``, the detection
 probability of the range measurement.  So a confident detector (high pD, low
 pFA) moves the map quickly, a poor one slowly, ping by ping - unlike fixed ``P(occ | hit) = 0.8``,
 ``P(occ | miss) = 0.3`` constants (``l_hit = logit 0.8``, ``l_miss = logit 0.3``), which are
-available as :meth:`SensorModel.fixed` for comparison.  Log-odds are clamped to ``[l_min, l_max]``
-(OctoMap's 0.12 / 0.97 by default) so the map stays responsive.  Within one ping a cell is updated
-at most once, and a hit in any beam takes precedence over misses of other beams crossing it.
+available as :meth:`SensorModel.fixed` for comparison.  Log-odds are clamped to ``[l_min, l_max]``,
+by default probabilities ``[0.001, 0.999]`` (``+-6.9``): room for a few pD/pFA updates (``l_hit``
+~2.5, ``l_miss`` ~-2.7 on simulated DIDSON surveys) or 5-8 fixed-model updates.  OctoMap's
+``[0.12, 0.97]`` (:data:`OCTOMAP_CLAMP_LOGODDS`) suit its weak ``+0.85 / -0.4`` increments and
+dynamic scenes; with pD/pFA increments they let each ping overwrite a cell's history (measured in
+docs/mapping.md).  Within one ping a cell is updated at most once, and a hit in any beam takes
+precedence over misses of other beams crossing it.
 
 Free space starts at the sonar's minimum range (nothing nearer is observed).  Rays lie in the
 imaging plane (zero elevation); ``n_elevation > 1`` spreads each beam over the vertical aperture.
@@ -67,6 +72,7 @@ __all__ = [
     "voxelize",
     "voxel_iou",
     "logit",
+    "OCTOMAP_CLAMP_LOGODDS",
 ]
 
 _P_EPS = 1e-4
@@ -76,6 +82,11 @@ def logit(p: ArrayLike) -> NDArray[np.float64]:
     """``log(p / (1 - p))``."""
     q = np.asarray(p, dtype=np.float64)
     return np.log(q) - np.log1p(-q)
+
+
+#: OctoMap's clamping thresholds (probabilities 0.1192 and 0.971) as log-odds ``(l_min, l_max)``,
+#: for :class:`OccupancyConfig` when a dynamic scene needs a map that forgets quickly.
+OCTOMAP_CLAMP_LOGODDS: tuple[float, float] = (float(logit(0.1192)), float(logit(0.971)))
 
 
 def pd_pfa_increments(
@@ -180,13 +191,24 @@ class OccupancyConfig:
     chunk_size : int
         Cells per chunk edge (power of two, 2-256).
     l_min, l_max : float
-        Log-odds clamping bounds.
+        Log-odds clamping bounds; default probabilities 0.001 / 0.999, for static scenes (hulls,
+        seafloor, structures): they leave room for a few pD/pFA updates so the map integrates
+        evidence over the pings that see a cell.  Bounds narrower than ``l_hit`` / ``l_miss``
+        make the last ping decide a cell; :data:`OCTOMAP_CLAMP_LOGODDS` are OctoMap's, for
+        dynamic scenes.
     occupied_logodds : float
         Cells with log-odds above this are occupied (0 = probability 0.5).
     n_elevation : int
         Rays per beam across the vertical aperture (1 = imaging plane only).
     vertical_aperture_rad : float
         Vertical aperture spread over when ``n_elevation > 1``.
+    elevation_ambiguity : bool
+        With ``n_elevation > 1`` and the pD/pFA model: discount each hit for the ``n_arc`` cells
+        its elevation arc spans, as if only one of them held the surface (a surface oblique to
+        the vertical aperture, whose return could come from any elevation).  Default False: the
+        surface spans the aperture at the return's range, so every ray of the arc hits it - the
+        profiling geometry that the zero-elevation registration assumes (docs/mapping.md
+        measures both).
     free_without_return : bool
         Carve free space to the maximum range along beams without a return.
     range_sigma_bins : float
@@ -201,11 +223,12 @@ class OccupancyConfig:
     resolution_m: float = 0.05
     dims: int = 3
     chunk_size: int = 16
-    l_min: float = float(logit(0.12))
-    l_max: float = float(logit(0.97))
+    l_min: float = float(logit(0.001))
+    l_max: float = float(logit(0.999))
     occupied_logodds: float = 0.0
     n_elevation: int = 1
     vertical_aperture_rad: float = DEFAULT_APERTURE_RAD
+    elevation_ambiguity: bool = False
     free_without_return: bool = True
     range_sigma_bins: float = 1.0
     max_chunks: int | None = None
@@ -394,8 +417,9 @@ class OccupancyMap:
         range_resolution_m : float, optional
             Range-bin size.  When given, ``pfa`` is read as a per-pixel probability and turned
             into a per-cell one over the ``resolution_m / range_resolution_m`` bins a ray crosses
-            in a cell; with ``n_elevation > 1`` hits are also discounted for the elevation-arc
-            ambiguity (``n_arc`` = cells the arc spans at the ping's median return range).
+            in a cell; with ``n_elevation > 1`` and ``elevation_ambiguity`` hits are also
+            discounted for the elevation arc (``n_arc`` = cells the arc spans at the ping's median
+            return range).
             Without it, ``pd``/``pfa`` are used as per-cell probabilities directly.
 
         Returns
@@ -417,7 +441,7 @@ class OccupancyMap:
             informative = np.isfinite(pdv) & np.isfinite(pfv) & (pdv > pfv)
             m_bins = 1.0 if range_resolution_m is None else max(1.0, cfg.resolution_m / float(range_resolution_m))
             n_arc = np.ones(P)
-            if range_resolution_m is not None and cfg.n_elevation > 1:
+            if range_resolution_m is not None and cfg.n_elevation > 1 and cfg.elevation_ambiguity:
                 hit_r = np.where(np.isfinite(r) & (r > 0), r, np.inf)
                 k = (np.isfinite(hit_r)).sum(axis=1)
                 srt = np.sort(hit_r, axis=1)

@@ -552,7 +552,7 @@ class SurveyEvaluation:
     accuracy : RegistrationAccuracy
         Registered points of the pipeline's ranges.
     iou : dict
-        ``{(resolution_m, model): IoU}`` with model ``"pd/pfa"`` or ``"fixed 0.8/0.3"``.
+        ``{(resolution_m, model): IoU}`` for the models of :data:`SURVEY_MODELS` evaluated.
     mean_pd, mean_pfa : float
         Mean of the pings' range-measurement pD (``pd_range``, over pings where it is defined)
         and per-pixel pFA.
@@ -565,7 +565,9 @@ class SurveyEvaluation:
 
 
 #: Sensor models :func:`evaluate_survey` can compare.
-SURVEY_MODELS = ("pd/pfa", "fixed 0.8/0.3", "pd/pfa per pixel", "fixed, pings with returns")
+SURVEY_MODELS = (
+    "pd/pfa", "fixed 0.8/0.3", "fixed 0.8/0.3, OctoMap clamps", "pd/pfa per pixel", "fixed, pings with returns",
+)
 
 
 def evaluate_survey(
@@ -575,7 +577,8 @@ def evaluate_survey(
     resolutions_m: tuple[float, ...] = (0.05, 0.1),
     products: list[Any] | None = None,
     n_elevation: int = 1,
-    models: tuple[str, ...] = ("pd/pfa", "fixed 0.8/0.3"),
+    elevation_ambiguity: bool = False,
+    models: tuple[str, ...] = ("pd/pfa", "fixed 0.8/0.3", "fixed 0.8/0.3, OctoMap clamps"),
 ) -> SurveyEvaluation:
     """Run the per-ping pipeline on a rendered survey, register and map, and score against truth.
 
@@ -585,16 +588,25 @@ def evaluate_survey(
 
     * ``"pd/pfa"``: the pD/pFA-driven inverse sensor model with each ping's range-measurement
       ``pd_range`` and per-pixel pFA (turned into a per-cell one, range error of
-      ``OccupancyConfig.range_sigma_bins``, elevation-arc ambiguity over ``n_elevation`` rays
-      spanning the renderer's vertical aperture); pings with ``pd_range = 0`` (every detection
+      ``OccupancyConfig.range_sigma_bins``; ``n_elevation`` rays spanning the renderer's
+      vertical aperture, hits discounted for the arc when ``elevation_ambiguity``); pings with ``pd_range = 0`` (every detection
       rejected by the range rules) or NaN are not integrated;
     * ``"fixed 0.8/0.3"``: ``P(occ|hit) = 0.8``, ``P(occ|miss) = 0.3`` for every ping (a peer's
       constants);
+    * ``"fixed 0.8/0.3, OctoMap clamps"``: the same constants with the log-odds clamped to
+      OctoMap's ``[0.12, 0.97]`` (:data:`~sonarmap.mapping.occupancy.OCTOMAP_CLAMP_LOGODDS`), as
+      a peer running OctoMap would; every other model uses :class:`OccupancyConfig`'s defaults;
     * ``"pd/pfa per pixel"``: as ``"pd/pfa"`` with the per-pixel local-MAP ``pd`` (ablation);
     * ``"fixed, pings with returns"``: the constants, skipping pings without any return
       (a heuristic guard, ablation).
     """
-    from sonarmap.mapping.occupancy import OccupancyConfig, OccupancyMap, SensorModel, voxel_iou
+    from sonarmap.mapping.occupancy import (
+        OCTOMAP_CLAMP_LOGODDS,
+        OccupancyConfig,
+        OccupancyMap,
+        SensorModel,
+        voxel_iou,
+    )
     from sonarmap.mapping.register import register_ranges
 
     unknown = set(models) - set(SURVEY_MODELS)
@@ -616,20 +628,23 @@ def evaluate_survey(
     fixed = SensorModel.fixed(0.8, 0.3)
     every = np.ones(len(ranges), dtype=bool)
     with_returns = np.array([r.n_returns > 0 for r in ranges])
-    # (pings integrated, integrate() keywords) per model
-    setups: dict[str, tuple[NDArray[np.bool_], dict[str, Any]]] = {
-        "pd/pfa": (every, {"pd": pd_range, "pfa": pfa, "range_resolution_m": g.range_resolution_m}),
-        "fixed 0.8/0.3": (every, {"model": fixed}),
-        "pd/pfa per pixel": (every, {"pd": pd, "pfa": pfa, "range_resolution_m": g.range_resolution_m}),
-        "fixed, pings with returns": (with_returns, {"model": fixed}),
+    octomap = dict(zip(("l_min", "l_max"), OCTOMAP_CLAMP_LOGODDS, strict=True))
+    # (pings integrated, integrate() keywords, OccupancyConfig overrides) per model
+    setups: dict[str, tuple[NDArray[np.bool_], dict[str, Any], dict[str, float]]] = {
+        "pd/pfa": (every, {"pd": pd_range, "pfa": pfa, "range_resolution_m": g.range_resolution_m}, {}),
+        "fixed 0.8/0.3": (every, {"model": fixed}, {}),
+        "fixed 0.8/0.3, OctoMap clamps": (every, {"model": fixed}, octomap),
+        "pd/pfa per pixel": (every, {"pd": pd, "pfa": pfa, "range_resolution_m": g.range_resolution_m}, {}),
+        "fixed, pings with returns": (with_returns, {"model": fixed}, {}),
     }
     iou: dict[tuple[float, str], float] = {}
     for res in resolutions_m:
         truth = truth_voxels(survey, res)
         for name in models:
-            sel, kw = setups[name]
+            sel, kw, overrides = setups[name]
             kw = {k: v[sel] if isinstance(v, np.ndarray) else v for k, v in kw.items()}
-            m = OccupancyMap(OccupancyConfig(resolution_m=res, n_elevation=n_elevation, vertical_aperture_rad=aperture))
+            m = OccupancyMap(OccupancyConfig(resolution_m=res, n_elevation=n_elevation, vertical_aperture_rad=aperture,
+                                             elevation_ambiguity=elevation_ambiguity, **overrides))
             m.integrate_ranges([r for r, k in zip(ranges, sel, strict=True) if k], survey.poses.select(sel),
                                min_range_m=g.min_range_m, max_range_m=g.max_range_m, **kw)
             iou[(res, name)] = voxel_iou(m.occupied_cells(), truth)
