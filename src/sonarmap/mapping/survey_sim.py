@@ -589,8 +589,8 @@ def evaluate_survey(
     * ``"pd/pfa"``: the pD/pFA-driven inverse sensor model with each ping's range-measurement
       ``pd_range`` and per-pixel pFA (turned into a per-cell one, range error of
       ``OccupancyConfig.range_sigma_bins``; ``n_elevation`` rays spanning the renderer's
-      vertical aperture, hits discounted for the arc when ``elevation_ambiguity``); pings with ``pd_range = 0`` (every detection
-      rejected by the range rules) or NaN are not integrated;
+      vertical aperture, hits discounted for the arc when ``elevation_ambiguity``); pings with
+      ``pd_range = 0`` (every detection rejected by the range rules) or NaN are not integrated;
     * ``"fixed 0.8/0.3"``: ``P(occ|hit) = 0.8``, ``P(occ|miss) = 0.3`` for every ping (a peer's
       constants);
     * ``"fixed 0.8/0.3, OctoMap clamps"``: the same constants with the log-odds clamped to
