@@ -132,6 +132,24 @@ def test_first_return_matches_class_mask(name: str) -> None:
             assert res.first_return_bin[j] == -1 and math.isnan(res.first_return_range_m[j])
 
 
+@pytest.mark.parametrize("name, changes", [("fish_over_hull", False), ("seafloor", True), ("propeller", True)])
+def test_structure_peak_snr_gives_the_class_mask_at_any_threshold(name: str, changes: bool) -> None:
+    """A beam holds structure at truth threshold t exactly when its structure_peak_snr_db >= t:
+    the same answer as rendering again with truth_snr_db = t (the evaluator relies on it)."""
+    sc = scene_from_name(name, 1)
+    res = simulate_ping(sc, GEOM, seed=0)
+    assert np.array_equal(res.structure_peak_snr_db >= res.config.truth_snr_db, (res.class_mask == 1).any(axis=0))
+    differ = 0
+    for t in (-9.0, -6.0, 0.0, 6.0, 12.0):
+        again = simulate_ping(sc, GEOM, config=res.config.replace(truth_snr_db=t), seed=0)
+        has = (again.class_mask == 1).any(axis=0)
+        assert np.array_equal(res.structure_peak_snr_db >= t, has), t
+        differ += int((has != (res.class_mask == 1).any(axis=0)).sum())
+    assert (differ > 0) == changes  # whether the thresholds change which beams hold structure
+    empty = simulate_ping(scene_from_name("empty"), GEOM, seed=0)
+    assert np.isneginf(empty.structure_peak_snr_db).all()
+
+
 def test_hull_band_is_continuous_and_fish_are_clutter() -> None:
     res = simulate_ping(scene_from_name("hull"), GEOM, seed=0)
     assert (res.first_return_bin >= 0).all()  # every beam sees the hull

@@ -221,8 +221,7 @@ def _simulate(scene: str, geometry: Any, sim_config: Any, seed: int, empty_snr_d
     sim = simulate_ping(sc, geometry, config=sim_config, seed=seed)
     if empty_snr_db >= sim_config.truth_snr_db:
         return sim, None
-    faint = simulate_ping(sc, geometry, config=sim_config.replace(truth_snr_db=empty_snr_db), seed=seed)
-    return sim, ~(faint.class_mask == 1).any(axis=0)
+    return sim, ~(sim.structure_peak_snr_db >= empty_snr_db)
 
 
 def evaluate(

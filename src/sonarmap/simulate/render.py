@@ -214,6 +214,11 @@ class SimResult:
         The integer seed when one was given.
     unblurred : ndarray, shape (n_bins, n_beams), float32
         Like ``clean`` but before the beam pattern (the ideal image deconvolution aims at).
+    structure_peak_snr_db : ndarray, shape (n_beams,), float64
+        Per beam, the highest structure-to-background ratio (dB, unblurred) of a pixel where
+        structure is not outshone by clutter; ``-inf`` where none.  A beam has structure in the
+        class mask at a truth threshold ``t`` exactly when this is ``>= t``, so callers can ask
+        about another threshold without rendering again.
     """
 
     ping: Ping
@@ -225,6 +230,7 @@ class SimResult:
     scene_name: str
     seed: int | None = None
     unblurred: NDArray[np.float32] | None = None
+    structure_peak_snr_db: NDArray[np.float64] | None = None
 
 
 # ---------------------------------------------------------------------- channel quantities
@@ -514,6 +520,9 @@ def simulate_ping(
     mask[is_c & (~is_s | (c_int > s_int))] = CLUTTER
     struct = mask == STRUCTURE
     has = struct.any(axis=0)
+    # a pixel is structure at threshold t iff s_int >= floor_t and clutter does not exceed it
+    with np.errstate(divide="ignore", invalid="ignore"):
+        peak_db = 10.0 * np.log10(np.where(s_int >= c_int, s_int / m_bg, 0.0).max(axis=0))
     first = np.where(has, struct.argmax(axis=0), -1).astype(np.int64)
     first_r = np.where(has, geometry.range_m[np.maximum(first, 0)], np.nan)
     ping = Ping(
@@ -534,6 +543,7 @@ def simulate_ping(
         scene_name=scene.name,
         seed=int_seed,
         unblurred=np.clip(total * scale, 0.0, 1.0).astype(np.float32),
+        structure_peak_snr_db=peak_db.astype(np.float64),
     )
 
 
