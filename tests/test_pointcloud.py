@@ -135,6 +135,13 @@ def test_cli_map_registers_pipeline_returns(tmp_path, test_ping_paths, capsys) -
     assert octo.min() >= lo - 1e-5 and octo.max() <= hi + 1e-5 and octo.size == default.size
     assert main(["map", *map(str, paths), "--poses", str(poses), "-o", str(grid), "--grid", "0.1",
                  "--clamp", "0.6,0.9", "-q"]) != 0
+    # --spread with --grid: rays over the vertical aperture observe cells above and below the plane
+    assert main(["map", *map(str, paths), "--poses", str(poses), "-o", str(grid), "--grid", "0.1",
+                 "--grid-array", str(arr), "--spread", "3", "-q"]) == 0
+    spread = np.load(arr)
+    assert spread["observed"].sum() > 2 * default.size and spread["logodds"].shape[2] > 1
+    assert main(["map", *map(str, paths), "--poses", str(poses), "-o", str(grid), "--grid", "0.1",
+                 "--min-confidence", "0.5", "-q"]) != 0
 
 
 def test_cli_map_outside_trajectory_error_or_skip(tmp_path, test_ping_paths, capsys) -> None:

@@ -61,8 +61,13 @@ def map_command(
     grid_array: Path | None = typer.Option(
         None, "--grid-array", help="Also save the occupancy grid as a dense array (.npz: logodds, observed, origin_m)."
     ),
-    spread: int = typer.Option(1, "--spread", min=1, help="Points per return across the vertical aperture."),
-    min_confidence: float = typer.Option(0.0, "--min-confidence", min=0.0, max=1.0, help="Drop weaker returns."),
+    spread: int = typer.Option(
+        1, "--spread", min=1,
+        help="Points per return across the vertical aperture (with --grid: rays per beam in the occupancy map).",
+    ),
+    min_confidence: float = typer.Option(
+        0.0, "--min-confidence", min=0.0, max=1.0, help="Drop weaker returns from the point cloud (not with --grid)."
+    ),
     poses_frame: str | None = typer.Option(None, "--poses-frame", help="Override the CSV's frame: ned | enu."),
     out_frame: str = typer.Option("ned", "--frame", help="Output coordinates: ned (default) | enu (z up, for viewers)."),
     outside: str = typer.Option(
@@ -98,14 +103,19 @@ def map_command(
     out_fmt = (fmt or format_from_suffix(output)).lower()
     if out_fmt not in CLOUD_FORMATS:
         raise typer.BadParameter(f"must be one of {', '.join(CLOUD_FORMATS)}", param_hint="--format")
+    if grid is not None and min_confidence > 0:
+        # a dropped return would leave its beam empty, and the map would carve it free to the maximum range
+        raise typer.BadParameter("applies to point clouds; the occupancy map keeps every return",
+                                 param_hint="--min-confidence")
+    bounds = {} if clamp is None else dict(zip(("l_min", "l_max"), _clamp_logodds(clamp), strict=True))
 
     geometry = load_geometry_option(sonar)
     pcfg = PipelineConfig.from_toml(config) if config is not None else PipelineConfig()
     traj = read_trajectory_csv(poses, frame=poses_frame) if poses is not None else None
     ext = load_extrinsics(extrinsics) if extrinsics is not None else None
     rcfg = RegistrationConfig(n_elevation=spread, min_confidence=min_confidence)
-    bounds = {} if clamp is None else dict(zip(("l_min", "l_max"), _clamp_logodds(clamp), strict=True))
-    occ = OccupancyMap(OccupancyConfig(resolution_m=grid, dims=dims, **bounds)) if grid is not None else None
+    occ = (OccupancyMap(OccupancyConfig(resolution_m=grid, dims=dims, n_elevation=spread, **bounds))
+           if grid is not None else None)
     fixed = SensorModel.fixed(0.8, 0.3) if fixed_model else None
 
     inputs = expand_inputs([str(p) for p in pings])
