@@ -28,9 +28,10 @@ def _count(inputs: list[Path]) -> int | None:
     return total
 
 
-def _clamp_logodds(text: str) -> tuple[float, float]:
-    """``"PMIN,PMAX"`` probabilities -> clamping log-odds, or a ``--clamp`` usage error."""
-    import math
+def _clamp_bounds(text: str) -> dict[str, float]:
+    """``"PMIN,PMAX"`` probabilities -> the ``l_min``/``l_max`` of :class:`OccupancyConfig`, or a
+    ``--clamp`` usage error."""
+    from sonarmap.mapping.occupancy import logit
 
     try:
         lo, hi = (float(v) for v in text.split(","))
@@ -38,7 +39,7 @@ def _clamp_logodds(text: str) -> tuple[float, float]:
         raise typer.BadParameter(f"expected two probabilities PMIN,PMAX, got {text!r}", param_hint="--clamp") from None
     if not 0.0 < lo < 0.5 < hi < 1.0:
         raise typer.BadParameter(f"need 0 < PMIN < 0.5 < PMAX < 1, got {text!r}", param_hint="--clamp")
-    return math.log(lo / (1 - lo)), math.log(hi / (1 - hi))
+    return {"l_min": float(logit(lo)), "l_max": float(logit(hi))}
 
 
 def map_command(
@@ -107,7 +108,7 @@ def map_command(
         # a dropped return would leave its beam empty, and the map would carve it free to the maximum range
         raise typer.BadParameter("applies to point clouds; the occupancy map keeps every return",
                                  param_hint="--min-confidence")
-    bounds = {} if clamp is None else dict(zip(("l_min", "l_max"), _clamp_logodds(clamp), strict=True))
+    bounds = {} if clamp is None else _clamp_bounds(clamp)
 
     geometry = load_geometry_option(sonar)
     pcfg = PipelineConfig.from_toml(config) if config is not None else PipelineConfig()
