@@ -104,7 +104,7 @@ def test_ranges_cli_960_rows(tmp_path, test_ping_paths):
     out = tmp_path / "ranges.csv"
     assert main(["ranges", str(test_ping_paths[0].parent), "-o", str(out)]) == 0
     rows = _rows(out)
-    assert rows[0] == ["ping", "beam", "azimuth_rad", "bin", "range_m", "intensity"]
+    assert rows[0] == ["ping", "beam", "azimuth_rad", "bin", "range_m", "intensity", "flags"]
     assert len(rows) == 961
     pings = {r[0] for r in rows[1:]}
     assert pings == {str(p) for p in test_ping_paths}

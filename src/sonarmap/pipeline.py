@@ -34,7 +34,7 @@ from numpy.typing import NDArray
 
 from sonarmap.errors import FitError, InputError
 from sonarmap.ping import Ping
-from sonarmap.ranges import BeamRanges, component_rule, extract_ranges, no_returns
+from sonarmap.ranges import BeamRanges, component_rule, drop_small_components, extract_ranges, no_returns
 
 __all__ = ["PipelineConfig", "PingProducts", "process_ping", "classify_image", "pooled_band_pixels", "METHODS", "SOLVER_NAMES"]
 
@@ -51,7 +51,12 @@ class PipelineConfig:
     ----------
     preprocess : str or PreprocessConfig
         A recipe name (``"paper-table1"``, ``"default"``, ``"paper-background"``, ``"none"``) or an
-        explicit :class:`sonarmap.preprocess.pipeline.PreprocessConfig`.
+        explicit :class:`sonarmap.preprocess.pipeline.PreprocessConfig`; applied to images that
+        are not normalised (thresholded images such as DIDSON's).
+    normalise : str
+        ``"auto"``: images without a zero spike (ARIS, Oculus, water column) are normalised by
+        their own background level (:mod:`sonarmap.preprocess.normalise`) instead of being
+        pre-processed; ``"off"``: always the ``preprocess`` recipe.
     method : str
         ``"mrf"``, ``"map"`` (local MAP), ``"threshold"`` (fixed), or ``"cfar-ca|so|go|os"``.
     solver : str
@@ -117,6 +122,15 @@ class PipelineConfig:
         has 55-64).
     link_beams : int
         Keep rejected components within this many beams (and 1 bin) of kept ones.
+    normalised_component_beams, normalised_component_bins, normalised_component_pixels : int
+        The same three component thresholds for normalised images, whose multi-look box
+        correlates neighbouring pixels: i.i.d. exponential speckle of 512 x 96, 2000 x 48 and
+        703 x 256 pixels, normalised and segmented, leaves components of at most 65 pixels,
+        17 beams and 13 bins (8 seeds each; ``docs/segmentation.md``).
+    min_component_extent_m : float
+        Drop structure components smaller than this in both cross-range (arc length at their far
+        edge) and range extent: fish, particles and interference dashes, whatever the beam count
+        (0 = off).
     pool_mode : str
         ``"fill"``: band pooling adds returns on the beams the per-pixel route left empty (its
         returns are kept as they are); ``"fallback"``: only when the per-pixel route found fewer
@@ -129,10 +143,15 @@ class PipelineConfig:
         their beams the strongest pixel of the component's first run is a structure pixel that
         bypasses the component rule (no leading-edge refinement).  Recovers thin surface bands
         of single-look speckle that the per-pixel model leaves in fragments of 0-5 pixels per
-        beam; fish schools and speckle do not span ``pool_min_beams`` beams.
+        beam; fish schools and speckle do not span ``pool_min_beams`` beams.  Not applied to
+        normalised images, which are multi-looked already.
+    max_kld, max_object_weight, min_separation : float
+        Fit gates (:func:`sonarmap.stats.gates.fit_gates`): a ping whose fit fails one yields no
+        returns and carries the gate's name in its flags.
     """
 
     preprocess: Any = "paper-table1"
+    normalise: str = "auto"
     method: str = "mrf"
     solver: str = "graphcut"
     beta: float = 2.0
@@ -162,6 +181,10 @@ class PipelineConfig:
     min_component_bins: int = 16
     link_beams: int = 4
     min_component_pixels: int = 40
+    normalised_component_beams: int = 24
+    normalised_component_bins: int = 24
+    normalised_component_pixels: int = 100
+    min_component_extent_m: float = 0.05
     refine_bins: int = 8
     edge_factor: float = 4.0
     pool_factor: float = 4.0
@@ -169,6 +192,9 @@ class PipelineConfig:
     pool_bins: int = 3
     pool_min_beams: int = 40
     pool_mode: str = "fill"
+    max_kld: float = 0.02
+    max_object_weight: float = 0.5
+    min_separation: float = 1.9
 
     def __post_init__(self) -> None:
         from sonarmap.preprocess.pipeline import PreprocessConfig
@@ -184,12 +210,15 @@ class PipelineConfig:
                 raise bad("preprocess", f"must be one of {', '.join(_PREPROCESS_RECIPES)} or a table")
         elif not isinstance(pre, PreprocessConfig):
             raise bad("preprocess", "must be a recipe name or a preprocess table")
+        if self.normalise not in ("auto", "off"):
+            raise bad("normalise", "must be 'auto' or 'off'")
         if self.method not in METHODS:
             raise bad("method", f"must be one of {', '.join(METHODS)}")
         if self.solver not in SOLVER_NAMES:
             raise bad("solver", f"must be one of {', '.join(SOLVER_NAMES)}")
         for key in ("beta", "fit_tol", "threshold", "cfar_pfa", "object_prior_min", "grow_prior_min",
-                    "grow_beta", "speckle_eps", "edge_factor", "range_weight", "pool_factor"):
+                    "grow_beta", "speckle_eps", "edge_factor", "range_weight", "pool_factor",
+                    "min_component_extent_m", "max_kld", "max_object_weight", "min_separation"):
             v = getattr(self, key)
             if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
                 raise bad(key, "must be a finite number")
@@ -201,6 +230,8 @@ class PipelineConfig:
                 raise bad(key, "must lie in [0, 0.5)")
         if self.pool_factor < 0:
             raise bad("pool_factor", "must be >= 0")
+        if self.min_component_extent_m < 0:
+            raise bad("min_component_extent_m", "must be >= 0")
         if self.grow_beta < 0:
             raise bad("grow_beta", "must be >= 0")
         if not 0 <= self.range_weight <= 1:
@@ -212,7 +243,9 @@ class PipelineConfig:
         for key, lo in (("neighbourhood", 4), ("n_levels", 2), ("cfar_train", 2), ("cfar_guard", 0),
                         ("min_run", 1), ("neighbour_beams", 1), ("max_jump_bins", 0),
                         ("min_segment_beams", 1), ("min_component_beams", 1),
-                        ("min_component_bins", 1), ("min_component_pixels", 0), ("refine_bins", 0), ("link_beams", 0),
+                        ("min_component_bins", 1), ("min_component_pixels", 0),
+                        ("normalised_component_beams", 1), ("normalised_component_bins", 1),
+                        ("normalised_component_pixels", 0), ("refine_bins", 0), ("link_beams", 0),
                         ("pool_beams", 0), ("pool_bins", 1), ("pool_min_beams", 1)):
             v = getattr(self, key)
             if isinstance(v, bool) or not isinstance(v, int) or v < lo:
@@ -320,6 +353,12 @@ class PingProducts:
         rejected by the range rules (echoes too weak to form a surface: aeration, dropouts) gets
         0, so the map learns nothing from its empty beams.  NaN without a fit or a finite
         ``pd`` (CFAR).
+    background : BackgroundLevel or None
+        What the background normalisation estimated (:mod:`sonarmap.preprocess.normalise`);
+        ``applied`` is False for thresholded images.
+    gates : tuple of str
+        Fit gates the ping failed (:data:`sonarmap.stats.gates.GATE_DESCRIPTIONS`); a gated ping
+        has no returns.  Also part of ``flags``.
     """
 
     time_ns: int
@@ -333,6 +372,13 @@ class PingProducts:
     pfa: float
     method: str = "mrf"
     pd_range: float = math.nan
+    background: Any = None
+    gates: tuple[str, ...] = ()
+
+    @property
+    def flagged(self) -> bool:
+        """True when a fit gate refused the ping (:mod:`sonarmap.stats.gates`): no returns by design."""
+        return bool(self.gates)
 
 
 def _fit(levels: NDArray[Any], config: PipelineConfig) -> Any:
@@ -508,7 +554,15 @@ def process_ping(ping: Ping, config: PipelineConfig = PipelineConfig(), *, keep_
     pre = config.preprocess_config()
     raw = ping.image
     constant = float(raw.max()) == float(raw.min())
-    if pre is None or constant:
+    background = None
+    normalised = None
+    if config.normalise == "auto" and not constant:
+        from sonarmap.preprocess.normalise import estimate_background
+
+        background, normalised = estimate_background(raw)
+    if normalised is not None:
+        image = normalised
+    elif pre is None or constant:
         image = raw
     else:
         from sonarmap.preprocess.pipeline import preprocess_image
@@ -522,8 +576,23 @@ def process_ping(ping: Ping, config: PipelineConfig = PipelineConfig(), *, keep_
         return PingProducts(time_ns=ping.time_ns, source=ping.source, fit=fit, kld=math.nan,
                             flags=("constant_image", "no_returns"), ranges=ranges,
                             labels=labels if keep_labels else None, pd=0.0, pfa=0.0, method=config.method,
-                            pd_range=0.0)
+                            pd_range=0.0, background=background)
     labels, fit, pd, pfa = classify_image(image, config)
+    gates: frozenset[str] = frozenset()
+    if fit is not None and not config.method.startswith("cfar-"):
+        from sonarmap.stats.gates import fit_gates
+
+        gates = fit_gates(fit, max_kld=config.max_kld, max_object_weight=config.max_object_weight,
+                          min_separation=config.min_separation)
+    if gates:
+        # an implausible fit never becomes confident output: no returns, the reasons as flags
+        flags_g = set(fit.flags) | set(gates) | {"no_returns"}
+        ranges = no_returns(geom, time_ns=ping.time_ns, source=ping.source, mode=config.range_mode)
+        return PingProducts(time_ns=ping.time_ns, source=ping.source, fit=fit, kld=float(fit.kld),
+                            flags=tuple(sorted(flags_g)), ranges=ranges,
+                            labels=np.zeros(image.shape, dtype=np.uint8) if keep_labels else None,
+                            pd=float(pd), pfa=float(pfa), method=config.method, pd_range=0.0,
+                            background=background, gates=tuple(sorted(gates)))
     edge = None
     bg_mean = None
     usable = fit is not None and len(fit.class_names) >= 2 and not fit.flags & {"all_zero", "degenerate"}
@@ -533,8 +602,14 @@ def process_ping(ping: Ping, config: PipelineConfig = PipelineConfig(), *, keep_
         edge = config.edge_factor * bg if config.refine_bins > 0 else None
 
     # rule 0 (components) once; both extraction passes below start from its mask
-    mask = component_rule(labels >= 1, config.min_component_beams, config.min_component_bins,
-                          config.link_beams, config.min_component_pixels)
+    if normalised is not None:
+        rule = (config.normalised_component_beams, config.normalised_component_bins,
+                config.normalised_component_pixels)
+    else:
+        rule = (config.min_component_beams, config.min_component_bins, config.min_component_pixels)
+    mask = component_rule(labels >= 1, rule[0], rule[1], config.link_beams, rule[2])
+    if config.min_component_extent_m > 0:
+        mask = drop_small_components(mask, geom, config.min_component_extent_m)
 
     def _ranges(accepted: NDArray[np.bool_] | None) -> BeamRanges:
         return extract_ranges(
@@ -551,7 +626,8 @@ def process_ping(ping: Ping, config: PipelineConfig = PipelineConfig(), *, keep_
     # "fill" on the beams it left without a return
     fallback = ranges.n_returns < config.pool_min_beams
     n_beams = ranges.bin.size
-    if (config.pool_factor > 0 and bg_mean is not None and bg_mean > 0
+    # band pooling multi-looks single-look speckle; a normalised image is multi-looked already
+    if (config.pool_factor > 0 and bg_mean is not None and bg_mean > 0 and normalised is None
             and (fallback or (config.pool_mode == "fill" and ranges.n_returns < n_beams))):
         accepted = pooled_band_pixels(image, config.pool_factor * bg_mean, pool_beams=config.pool_beams,
                                       pool_bins=config.pool_bins, min_beams=config.pool_min_beams,
@@ -566,6 +642,7 @@ def process_ping(ping: Ping, config: PipelineConfig = PipelineConfig(), *, keep_
         kld=float(fit.kld) if fit is not None else math.nan, flags=tuple(sorted(flags)),
         ranges=ranges, labels=labels if keep_labels else None, pd=float(pd), pfa=float(pfa),
         method=config.method, pd_range=_pd_range(float(pd), labels, ranges, flags),
+        background=background,
     )
 
 

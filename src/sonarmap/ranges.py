@@ -185,6 +185,31 @@ def component_rule(mask: NDArray[np.bool_], min_component_beams: int = 1, min_co
     return mask
 
 
+def drop_small_components(mask: NDArray[np.bool_], geometry: SonarGeometry, min_extent_m: float) -> NDArray[np.bool_]:
+    """Drop the 8-connected components of ``mask`` smaller than ``min_extent_m`` both across range
+    (arc length at the component's far edge, one beam spacing included) and along range."""
+    from scipy import ndimage
+
+    m = np.asarray(mask, dtype=bool)
+    if not m.any() or min_extent_m <= 0:
+        return m
+    lab, n = ndimage.label(m, structure=np.ones((3, 3), dtype=bool))
+    if n == 0:
+        return m
+    r = np.asarray(geometry.range_m, dtype=np.float64)
+    az = np.asarray(geometry.azimuth_rad, dtype=np.float64)
+    dr = float(abs(r[-1] - r[0]) / max(r.size - 1, 1)) if r.size > 1 else 0.0
+    daz = float(abs(az[-1] - az[0]) / max(az.size - 1, 1)) if az.size > 1 else 0.0
+    keep = np.zeros(n + 1, dtype=bool)
+    for k, sl in enumerate(ndimage.find_objects(lab), start=1):
+        i0, i1 = sl[0].start, sl[0].stop - 1
+        j0, j1 = sl[1].start, sl[1].stop - 1
+        cross = max(abs(r[i1]), abs(r[i0])) * (abs(az[j1] - az[j0]) + daz)
+        along = (i1 - i0 + 1) * dr
+        keep[k] = max(cross, along) >= min_extent_m
+    return keep[lab]
+
+
 def _link_components(mask: NDArray[np.bool_], kept: NDArray[np.bool_], gap: int, rounds: int = 4) -> NDArray[np.bool_]:
     """Add components of ``mask`` within ``gap`` beams and 1 bin of ``kept`` ones (chained)."""
     from sonarmap.classify._kernels import near_mask

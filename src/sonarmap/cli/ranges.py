@@ -1,8 +1,11 @@
 """``sonarmap ranges PING... -o ranges.csv``: per-beam first returns of structure.
 
-Writes exactly one row per (ping, beam) with the header ``ping,beam,azimuth_rad,bin,range_m,intensity``
-(``ping`` = the ping's source file path; ``bin`` 0-based range bin of the first return; ``bin``,
-``range_m`` and ``intensity`` empty where the beam has no return).  Without ``--method`` the
+Writes exactly one row per (ping, beam) with the header
+``ping,beam,azimuth_rad,bin,range_m,intensity,flags`` (``ping`` = the ping's source file path;
+``bin`` 0-based range bin of the first return; ``bin``, ``range_m`` and ``intensity`` empty where
+the beam has no return; ``flags`` the ping's fit gates, ``;``-separated, empty when the ping's fit
+is plausible).  One summary line on stderr counts the flagged pings and their reasons;
+``--strict`` exits 1 when any ping was flagged.  Without ``--method`` the
 default :class:`sonarmap.pipeline.PipelineConfig` runs end to end (pre-processing, mixture fit,
 exact graph-cut MRF, consistency-filtered first returns).
 """
@@ -16,9 +19,9 @@ import typer
 
 from sonarmap.cli._common import GEOMETRY_OPTION, OUTPUT_OPTION, load_geometry_option
 
-__all__ = ["register", "pipeline_config_from_options", "write_ranges_rows", "CSV_HEADER"]
+__all__ = ["register", "pipeline_config_from_options", "write_ranges_rows", "flagged_summary", "CSV_HEADER"]
 
-CSV_HEADER = ("ping", "beam", "azimuth_rad", "bin", "range_m", "intensity")
+CSV_HEADER = ("ping", "beam", "azimuth_rad", "bin", "range_m", "intensity", "flags")
 
 METHOD_OPTION: Any = typer.Option(
     None, "--method", "-m",
@@ -26,6 +29,7 @@ METHOD_OPTION: Any = typer.Option(
 )
 SOLVER_OPTION: Any = typer.Option(None, "--solver", help="MRF solver: graphcut (exact, default), icm, anneal, expansion.")
 BETA_OPTION: Any = typer.Option(None, "--beta", help="Potts weight of the MRF (eq. 22).")
+STRICT_OPTION: Any = typer.Option(False, "--strict", help="Exit 1 when any ping's fit was flagged as implausible.")
 CONFIG_OPTION: Any = typer.Option(None, "--config", "-c", help="Pipeline configuration TOML (keys at top level or in a \\[pipeline] table).")
 
 
@@ -50,8 +54,8 @@ def _fmt(v: float, digits: int = 6) -> str:
     return "" if v != v else f"{v:.{digits}g}"
 
 
-def write_ranges_rows(writer: Any, source: str, ranges: Any) -> int:
-    """Write one CSV row per beam of ``ranges``; returns the number of rows."""
+def write_ranges_rows(writer: Any, source: str, ranges: Any, flags: str = "") -> int:
+    """Write one CSV row per beam of ``ranges`` (``flags``: the ping's gates); returns the number of rows."""
     for j in range(ranges.n_beams):
         b = int(ranges.bin[j])
         writer.writerow([
@@ -61,8 +65,21 @@ def write_ranges_rows(writer: Any, source: str, ranges: Any) -> int:
             "" if b < 0 else b,
             "" if b < 0 else f"{float(ranges.range_m[j]):.6f}",
             "" if b < 0 else _fmt(float(ranges.intensity[j])),
+            flags,
         ])
     return ranges.n_beams
+
+
+def flagged_summary(gates: list[tuple[str, ...]]) -> str:
+    """One line: ``"2 of 6 pings flagged: object_weight (2)"`` or ``"0 of 6 pings flagged"``."""
+    from collections import Counter
+
+    n = sum(1 for g in gates if g)
+    line = f"{n} of {len(gates)} pings flagged"
+    if n:
+        counts = Counter(name for g in gates for name in g)
+        line += ": " + ", ".join(f"{k} ({v})" for k, v in sorted(counts.items(), key=lambda kv: (-kv[1], kv[0])))
+    return line
 
 
 def register(app: typer.Typer) -> None:
@@ -77,6 +94,7 @@ def register(app: typer.Typer) -> None:
         solver: str | None = SOLVER_OPTION,
         beta: float | None = BETA_OPTION,
         config: Path | None = CONFIG_OPTION,
+        strict: bool = STRICT_OPTION,
     ) -> None:
         """Per-beam first-return ranges of structure, one CSV row per (ping, beam)."""
         import csv
@@ -89,15 +107,22 @@ def register(app: typer.Typer) -> None:
         cfg = pipeline_config_from_options(config, method, solver, beta)
         geom = load_geometry_option(sonar)
         n_pings = n_rows = n_ret = 0
+        gated: list[tuple[str, ...]] = []
         with atomic_open(output, "w", newline="", encoding="utf-8") as fh:
             w = csv.writer(fh)
             w.writerow(CSV_HEADER)
             for ping in read_pings([str(p) for p in pings], geometry=geom):
                 prod = process_ping(ping, cfg)
-                n_rows += write_ranges_rows(w, ping.source, prod.ranges)
+                n_rows += write_ranges_rows(w, ping.source, prod.ranges, ";".join(prod.gates))
                 n_ret += prod.ranges.n_returns
                 n_pings += 1
-        err_console().print(
+                gated.append(prod.gates)
+        console = err_console()
+        console.print(
             f"{n_pings} pings, {n_rows} rows ({n_ret} returns) -> {output} (method={cfg.method}"
-            + (f", solver={cfg.solver}" if cfg.method == "mrf" else "") + ")"
+            + (f", solver={cfg.solver}" if cfg.method == "mrf" else "") + ")", markup=False
         )
+        line = flagged_summary(gated)
+        console.print(line, markup=False)
+        if strict and any(gated):
+            raise typer.Exit(1)
