@@ -167,7 +167,7 @@ def pool_scores(method: str, scores: Iterable[PingScore]) -> MethodScore:
 #: isolated returns) without the default pipeline's component filter, linking, band pooling and
 #: leading-edge refinement.
 PEER_RANGE_RULES: dict[str, Any] = dict(min_component_beams=1, min_component_pixels=0, link_beams=0,
-                                        pool_factor=0.0, refine_bins=0)
+                                        pool_factor=0.0, refine_bins=0, min_component_extent_m=0.0)
 
 
 def baseline_configs(default: Any = None, *, protocol: str = "peer") -> dict[str, Any]:

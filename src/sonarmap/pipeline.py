@@ -184,7 +184,7 @@ class PipelineConfig:
     normalised_component_beams: int = 24
     normalised_component_bins: int = 24
     normalised_component_pixels: int = 100
-    min_component_extent_m: float = 0.05
+    min_component_extent_m: float = 0.02
     refine_bins: int = 8
     edge_factor: float = 4.0
     pool_factor: float = 4.0
