@@ -98,9 +98,11 @@ def fit_gates(fit: MixtureFit, *, max_kld: float = 0.02, max_object_weight: floa
     --------
     >>> import numpy as np
     >>> from sonarmap.stats.mixture import fit_mixture
-    >>> counts = np.bincount(np.r_[np.zeros(600, int), np.arange(1, 40).repeat(10)], minlength=256)
-    >>> sorted(fit_gates(fit_mixture(counts.astype(float), method="em")))
-    ['collapsed']
+    >>> rng = np.random.default_rng(0)
+    >>> y = np.r_[np.zeros(6000), rng.exponential(0.02, 3500), rng.rayleigh(0.2, 500)]
+    >>> fit = fit_mixture(np.clip(y, 0, 1).reshape(100, 100), method="em")
+    >>> sorted(fit_gates(fit)), sorted(fit_gates(fit, max_object_weight=0.01))
+    ([], ['object_weight'])
     """
     if not isinstance(fit, MixtureFit):
         raise InputError(f"fit: expected a MixtureFit, got {type(fit).__name__}")

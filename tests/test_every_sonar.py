@@ -1,0 +1,196 @@
+"""One default configuration on every real recording, and fit gates that refuse garbage.
+
+Real ARIS, Oculus and DIDSON pings go through the default :func:`process_ping`; degenerate pings
+(pure noise, binary, constant) must give no returns and a flag.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from sonarmap.io import read_pings
+from sonarmap.ping import Ping
+from sonarmap.pipeline import PipelineConfig, process_ping
+from sonarmap.preprocess.normalise import BACKGROUND_MEAN, estimate_background
+from sonarmap.stats.gates import GATE_DESCRIPTIONS, IMPLAUSIBLE, class_separation, fit_gates
+from sonarmap.stats.mixture import fit_mixture
+
+
+@pytest.fixture(scope="module")
+def test_pings(test_ping_paths):
+    return [next(iter(read_pings(p))) for p in test_ping_paths]
+
+
+@pytest.fixture(scope="module")
+def aris_pings(data_dir):
+    return list(read_pings(data_dir / "aris" / "sample.aris"))
+
+
+@pytest.fixture(scope="module")
+def oculus_pings(data_dir):
+    return list(read_pings(data_dir / "oculus" / "three_pings_8bit.raw"))
+
+
+# --------------------------------------------------------------------------- normalisation
+
+
+def test_normalisation_applies_to_aris_and_not_to_thresholded_didson(aris_pings, test_pings):
+    bg, u = estimate_background(aris_pings[0].image)
+    assert bg.applied and bg.reason == "estimated" and u is not None
+    assert u.dtype == np.float32 and u.shape == aris_pings[0].image.shape
+    assert 0.0 <= float(u.min()) and float(u.max()) <= 1.0
+    # the lower-quartile level falls with range (~3x over the window: 3.8-3.9 dB between deciles)
+    assert 3.0 < bg.range_dependence_db < 5.0
+    assert bg.level_by_bin[:100].mean() > 1.5 * bg.level_by_bin[-100:].mean()
+    # 90 % of the pixels under the emulated receiver threshold: a zero spike like DIDSON's
+    assert np.mean(u == 0) == pytest.approx(0.9, abs=0.01)
+    assert float(u[u > 0].mean()) == pytest.approx(BACKGROUND_MEAN, rel=0.05)
+    for p in test_pings:
+        bg, u = estimate_background(p.image)
+        assert not bg.applied and bg.reason == "thresholded" and u is None
+        assert bg.zero_fraction > 0.4
+
+
+def test_normalisation_bad_input():
+    from sonarmap.errors import InputError
+
+    with pytest.raises(InputError, match="NaN"):
+        estimate_background(np.full((8, 8), np.nan, np.float32))
+    with pytest.raises(InputError, match="shape"):
+        estimate_background(np.zeros(5, np.float32))
+    with pytest.raises(InputError, match="floor_quantile"):
+        estimate_background(np.ones((8, 8), np.float32), floor_quantile=1.0)
+    # a binary 0/1 image is "thresholded" (half zeros), a sparse one degenerate
+    img = np.zeros((64, 16), np.float32)
+    img[::2, ::2] = 1.0
+    assert estimate_background(img)[0].reason == "thresholded"
+    sparse = np.full((64, 16), 0.5, np.float32)
+    sparse[:, :12] = 0.0
+    bg, u = estimate_background(sparse, thresholded_fraction=0.9)
+    assert bg.reason == "degenerate" and u is None
+
+
+# --------------------------------------------------------------------------- real recordings
+
+
+def test_real_aris_returns_on_the_target_and_none_in_the_water_column(aris_pings):
+    """The slanted line at ~15.7-17.3 m: every frame has returns on it and none in front of it
+    (before this normalisation every beam of every frame reported the first range bin)."""
+    for p in aris_pings:
+        prod = process_ping(p)
+        assert not prod.gates and prod.background.applied
+        r = prod.ranges
+        rm = r.range_m[r.valid]
+        assert r.n_returns >= 20, p.source
+        assert rm.min() > 15.5, p.source  # nothing in the water column (3.3-15.5 m)
+        on_target = (rm >= 15.5) & (rm <= 17.6)
+        assert on_target.sum() >= 12, p.source
+        # the target lies on beams 0-40 (its faint right end fades out of the fan)
+        assert np.all(np.nonzero(r.valid)[0][on_target] <= 40)
+
+
+def test_real_oculus_seabed_and_nothing_in_front(oculus_pings):
+    """The first seabed arc lies at 0.50-0.70 m; in front of it only water column, fish and
+    interference dashes (before: ring-down returns at bin 0 on every beam)."""
+    for p in oculus_pings:
+        prod = process_ping(p)
+        r = prod.ranges
+        assert not prod.gates
+        assert r.n_returns >= 0.75 * r.n_beams, p.source  # measured 197-206 of 256
+        assert r.range_m[r.valid].min() >= 0.49, p.source
+        assert np.median(r.range_m[r.valid]) < 0.75
+
+
+def test_real_didson_fish_only_pings_keep_no_returns(test_pings):
+    counts = [process_ping(p).ranges.n_returns for p in test_pings]
+    assert counts[1:4] == [0, 0, 0]
+    assert counts[4] == 96 and counts[8] == 96  # hull pings: every beam
+    for p in test_pings:
+        assert not process_ping(p).gates
+
+
+# --------------------------------------------------------------------------- degenerate pings
+
+
+def _degenerate(rng: np.random.Generator) -> dict[str, np.ndarray]:
+    shape = (512, 96)
+    return {
+        "rayleigh": rng.rayleigh(0.05, shape),
+        "exponential": rng.exponential(0.05, shape),
+        "gamma": rng.gamma(3.0, 0.03, shape),
+        "uniform": rng.uniform(0.0, 1.0, shape),
+        "checkerboard": (np.indices(shape).sum(0) % 2).astype(float),
+        "constant100": np.full(shape, 100 / 255),
+        "constant100_noisy": np.full(shape, 100 / 255) + rng.normal(0, 0.5 / 255, shape),
+        "zero": np.zeros(shape),
+    }
+
+
+@pytest.mark.parametrize("preprocess", ["paper-table1", "none"])
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_degenerate_pings_give_no_returns_and_a_flag(test_pings, preprocess, seed):
+    geom = test_pings[0].geometry
+    cfg = PipelineConfig(preprocess=preprocess)
+    for name, img in _degenerate(np.random.default_rng(seed)).items():
+        prod = process_ping(Ping(image=np.clip(img, 0, 1).astype(np.float32), geometry=geom), cfg)
+        assert prod.ranges.n_returns == 0, name
+        assert "no_returns" in prod.flags, name
+    # the binary image is refused by name, not just empty
+    chk = _degenerate(np.random.default_rng(seed))["checkerboard"].astype(np.float32)
+    prod = process_ping(Ping(image=chk, geometry=geom), cfg)
+    assert prod.gates or {"degenerate", "constant_image"} & set(prod.flags)
+
+
+def test_default_gates_on_an_unnormalised_aris_frame_refuse_it(aris_pings):
+    """Without normalisation the ARIS frames are the old failure (object weight 1.0, a bin-0
+    return on every beam); the gates now refuse them by name."""
+    prod = process_ping(aris_pings[0], PipelineConfig(normalise="off"))
+    assert prod.ranges.n_returns == 0
+    assert prod.gates and set(prod.gates) <= IMPLAUSIBLE
+    assert prod.flagged
+
+
+# --------------------------------------------------------------------------- gates
+
+
+def test_fit_gates_named_reasons():
+    rng = np.random.default_rng(0)
+    # spike + exponential + a clearly separate Rayleigh object: plausible
+    y = np.concatenate([np.zeros(6000), rng.exponential(0.02, 3500), rng.rayleigh(0.2, 500)])
+    fit = fit_mixture(np.clip(y, 0, 1).reshape(100, 100).astype(np.float32), method="em")
+    assert fit_gates(fit) == frozenset()
+    assert class_separation(fit) > 5
+    # an object component no brighter than 1.9x the background is a reshaped background
+    assert "collapsed" in fit_gates(fit, min_separation=class_separation(fit) + 0.1)
+    # most pixels "object": the background model does not hold
+    y = np.concatenate([np.zeros(1000), rng.exponential(0.02, 1000), rng.rayleigh(0.3, 8000)])
+    fit = fit_mixture(np.clip(y, 0, 1).reshape(100, 100).astype(np.float32), method="em")
+    assert "object_weight" in fit_gates(fit)
+    assert "kld" in fit_gates(fit, max_kld=0.0)
+    assert set(GATE_DESCRIPTIONS) == IMPLAUSIBLE
+    from sonarmap.errors import InputError
+
+    with pytest.raises(InputError, match="MixtureFit"):
+        fit_gates("nope")  # type: ignore[arg-type]
+
+
+def test_ranges_cli_flags_column_summary_and_strict(tmp_path, test_pings, capsys):
+    from sonarmap.cli import main
+    from sonarmap.io.pngjson import write_png_ping
+
+    p = test_pings[0]
+    chk = (np.indices(p.shape).sum(0) % 2).astype(np.float32)
+    write_png_ping(p.replace(image=chk), tmp_path, stem="1468966347175925")
+    write_png_ping(test_pings[4], tmp_path, stem="1468966347175926")
+    out = tmp_path / "r.csv"
+    assert main(["ranges", str(tmp_path), "-o", str(out)]) == 0
+    err = capsys.readouterr().err
+    assert "1 of 2 pings flagged:" in err
+    import csv
+
+    rows = list(csv.reader(open(out, newline="")))
+    assert rows[0][-1] == "flags"
+    flagged = {r[0]: r[-1] for r in rows[1:]}
+    assert sum(1 for v in flagged.values() if v) == 1
+    assert main(["ranges", str(tmp_path), "-o", str(tmp_path / "s.csv"), "--strict"]) == 1
