@@ -27,3 +27,56 @@ def test_fit_command(test_ping_paths, tmp_path):
     assert [r["ping"] for r in rows] == [p.name for p in test_ping_paths[:2]]
     assert set(rows[0]) == {"ping", "family", "weights", "scales", "kld", "flags"}
     assert abs(sum(float(v) for v in rows[0]["weights"].split(";")) - 1) < 1e-6
+
+
+def test_calibrate_aris_recording_and_use_it(data_dir, tmp_path, capsys):
+    """Any recording, not only open water: the ARIS file gives the background level vs range and
+    beam, and `ranges --calibration` normalises every frame by it."""
+    import numpy as np
+
+    out = tmp_path / "aris.json"
+    assert main(["calibrate", str(data_dir / "aris" / "sample.aris"), "-o", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "not thresholded" in text and "cannot estimate: only 6 pings" in text
+    cal = json.loads(out.read_text())["calibration"]
+    assert cal["kind"] == "normalised"
+    bl = cal["background_level"]
+    assert bl["n_pings"] == 6 and not bl["thresholded"] and len(bl["level_by_bin"]) == 2000
+    level = np.asarray(bl["level_by_bin"])
+    assert 2.5 < level[:100].mean() / level[-100:].mean() < 4.0  # falls ~3x over the window
+    assert 3.0 < bl["range_dependence_db"] < 5.0
+    assert len(cal["taper"]) == 48 and 0.8 < min(cal["taper"]) <= max(cal["taper"]) < 1.2
+    assert cal["model"]["families"][0] in ("exponential", "gamma", "weibull")
+    csv_out = tmp_path / "r.csv"
+    assert main(["ranges", str(data_dir / "aris" / "sample.aris"), "-o", str(csv_out), "--calibration", str(out)]) == 0
+    rows = list(csv.DictReader(csv_out.open()))
+    rm = [float(r["range_m"]) for r in rows if r["range_m"]]
+    assert len(rm) >= 100 and min(rm) > 15.5
+    # a calibration of another sonar setting is refused in one line
+    oc = tmp_path / "oc.json"
+    assert main(["calibrate", str(data_dir / "oculus" / "three_pings_8bit.raw"), "-o", str(oc)]) == 0
+    assert main(["ranges", str(data_dir / "aris" / "sample.aris"), "-o", str(csv_out), "--calibration", str(oc)]) == 1
+
+
+def test_calibrate_three_ping_oculus_says_what_it_cannot_estimate(data_dir, tmp_path, capsys):
+    out = tmp_path / "oc.json"
+    assert main(["calibrate", str(data_dir / "oculus" / "three_pings_8bit.raw"), "-o", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "cannot estimate: only 3 pings" in text
+    assert "window starts at 0 m" in text
+    cal = json.loads(out.read_text())["calibration"]
+    assert any("only 3 pings" in x for x in cal["not_estimated"])
+    assert cal["radial_gain"] is not None  # fitted on the bins beyond 0 m, no log10(0) error
+
+
+def test_calibrate_degenerate_recording_exits_1(tmp_path, test_ping_paths, capsys):
+    import numpy as np
+
+    from sonarmap.io import read_pings
+    from sonarmap.io.pngjson import write_png_ping
+
+    p = next(iter(read_pings(test_ping_paths[0])))
+    write_png_ping(p.replace(image=np.zeros(p.shape, np.float32)), tmp_path, stem="1468966347175925")
+    rc = main(["calibrate", str(tmp_path), "-o", str(tmp_path / "c.json")])
+    err = capsys.readouterr().err
+    assert rc == 1 and err.count("\n") == 1 and "error" in err

@@ -80,8 +80,12 @@ def test_radial_gain_formula_and_channel():
     np.testing.assert_allclose(amp[:, 0], [1.0, 10.0], rtol=1e-6)
     with pytest.raises(GeometryError, match="range_m"):
         apply_radial_gain(img, [1.0, 2.0, 3.0], gain)
-    with pytest.raises(InputError, match="positive"):
-        radial_gain_db([0.0, 1.0], gain)
+    with pytest.raises(InputError, match=">= 0"):
+        radial_gain_db([-1.0, 1.0], gain)
+    with pytest.raises(InputError, match="all ranges are 0"):
+        radial_gain_db([0.0, 0.0], gain)
+    # a window starting at the transducer (Oculus): the first bin is evaluated at half a bin
+    np.testing.assert_allclose(radial_gain_db([0.0, 0.5, 1.0], gain), radial_gain_db([0.25, 0.5, 1.0], gain))
     assert RadialGain.from_dict(gain.to_dict()) == gain
 
 

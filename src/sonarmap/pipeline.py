@@ -530,8 +530,9 @@ def pooled_band_pixels(image: NDArray[np.float32], level: float, *, pool_beams: 
     return band_peak_pixels(band, np.ascontiguousarray(img), cols)
 
 
-def process_ping(ping: Ping, config: PipelineConfig = PipelineConfig(), *, keep_labels: bool = False) -> PingProducts:
-    """Run the per-ping pipeline (pure function of ``ping`` and ``config``).
+def process_ping(ping: Ping, config: PipelineConfig = PipelineConfig(), *, keep_labels: bool = False,
+                 background: Any = None) -> PingProducts:
+    """Run the per-ping pipeline (pure function of ``ping``, ``config`` and ``background``).
 
     Parameters
     ----------
@@ -541,6 +542,10 @@ def process_ping(ping: Ping, config: PipelineConfig = PipelineConfig(), *, keep_
         Pipeline configuration; the default is the most accurate measured pipeline.
     keep_labels : bool
         Keep the label image in the result.
+    background : RecordingBackground, optional
+        Recording-level background (``sonarmap calibrate``,
+        :func:`sonarmap.preprocess.normalise.estimate_recording_background`); without it a
+        ping that needs normalisation is normalised by its own background estimate.
 
     Returns
     -------
@@ -554,12 +559,15 @@ def process_ping(ping: Ping, config: PipelineConfig = PipelineConfig(), *, keep_
     pre = config.preprocess_config()
     raw = ping.image
     constant = float(raw.max()) == float(raw.min())
+    reference = background
     background = None
     normalised = None
     if config.normalise == "auto" and not constant:
-        from sonarmap.preprocess.normalise import estimate_background
+        from sonarmap.preprocess.normalise import RecordingBackground, estimate_background
 
-        background, normalised = estimate_background(raw)
+        if reference is not None and not isinstance(reference, RecordingBackground):
+            raise InputError(f"background: expected a RecordingBackground, got {type(reference).__name__}")
+        background, normalised = estimate_background(raw, reference=reference)
     if normalised is not None:
         image = normalised
     elif pre is None or constant:

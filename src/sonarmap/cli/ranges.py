@@ -29,6 +29,11 @@ METHOD_OPTION: Any = typer.Option(
 )
 SOLVER_OPTION: Any = typer.Option(None, "--solver", help="MRF solver: graphcut (exact, default), icm, anneal, expansion.")
 BETA_OPTION: Any = typer.Option(None, "--beta", help="Potts weight of the MRF (eq. 22).")
+CALIBRATION_OPTION: Any = typer.Option(
+    None, "--calibration",
+    help="Output of `sonarmap calibrate` on this recording: normalise every ping by the recording's "
+    "background level instead of its own.",
+)
 STRICT_OPTION: Any = typer.Option(False, "--strict", help="Exit 1 when any ping's fit was flagged as implausible.")
 CONFIG_OPTION: Any = typer.Option(None, "--config", "-c", help="Pipeline configuration TOML (keys at top level or in a \\[pipeline] table).")
 
@@ -70,6 +75,32 @@ def write_ranges_rows(writer: Any, source: str, ranges: Any, flags: str = "") ->
     return ranges.n_beams
 
 
+def load_calibration(path: Path | None) -> Any:
+    """The recording background of a ``sonarmap calibrate`` output (None without a path, or for a
+    thresholded recording, whose calibration is its geometry: pass it with ``--sonar``)."""
+    if path is None:
+        return None
+    import json
+
+    from sonarmap.errors import InputError
+    from sonarmap.preprocess.normalise import RecordingBackground
+
+    try:
+        d = json.loads(Path(path).read_text(encoding="utf-8"))
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read calibration ({exc.strerror or exc})") from None
+    except (ValueError, UnicodeDecodeError) as exc:
+        raise InputError(f"{path}: not a JSON calibration ({exc})") from None
+    cal = d.get("calibration") if isinstance(d, dict) else None
+    if not isinstance(cal, dict) or "background_level" not in cal:
+        raise InputError(f"{path}: no calibration.background_level table (write it with `sonarmap calibrate`)")
+    try:
+        rec = RecordingBackground.from_dict(cal["background_level"], name="calibration.background_level")
+    except InputError as exc:
+        raise InputError(f"{path}: {exc}") from None
+    return None if rec.thresholded else rec
+
+
 def flagged_summary(gates: list[tuple[str, ...]]) -> str:
     """One line: ``"2 of 6 pings flagged: object_weight (2)"`` or ``"0 of 6 pings flagged"``."""
     from collections import Counter
@@ -95,6 +126,7 @@ def register(app: typer.Typer) -> None:
         beta: float | None = BETA_OPTION,
         config: Path | None = CONFIG_OPTION,
         strict: bool = STRICT_OPTION,
+        calibration: Path | None = CALIBRATION_OPTION,
     ) -> None:
         """Per-beam first-return ranges of structure, one CSV row per (ping, beam)."""
         import csv
@@ -106,13 +138,14 @@ def register(app: typer.Typer) -> None:
 
         cfg = pipeline_config_from_options(config, method, solver, beta)
         geom = load_geometry_option(sonar)
+        rec = load_calibration(calibration)
         n_pings = n_rows = n_ret = 0
         gated: list[tuple[str, ...]] = []
         with atomic_open(output, "w", newline="", encoding="utf-8") as fh:
             w = csv.writer(fh)
             w.writerow(CSV_HEADER)
             for ping in read_pings([str(p) for p in pings], geometry=geom):
-                prod = process_ping(ping, cfg)
+                prod = process_ping(ping, cfg, background=rec)
                 n_rows += write_ranges_rows(w, ping.source, prod.ranges, ";".join(prod.gates))
                 n_ret += prod.ranges.n_returns
                 n_pings += 1

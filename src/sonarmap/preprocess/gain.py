@@ -621,8 +621,16 @@ def _check_range(range_m: ArrayLike | SonarGeometry, n_bins: int | None = None) 
         raise GeometryError(f"range_m: {r.size} ranges do not match the image's {n_bins} range bins")
     if not np.all(np.isfinite(r)):
         raise InputError("range_m: contains NaN or infinite values")
-    if np.any(r <= 0):
-        raise InputError("range_m: ranges must be positive (log10(r) is undefined at r <= 0)")
+    if np.any(r < 0):
+        raise InputError("range_m: ranges must be >= 0")
+    if np.any(r == 0):
+        # a window starting at the transducer (Oculus: first bin at 0 m): log10(r) is evaluated at
+        # half a bin, the centre of the first range cell
+        pos = np.diff(np.sort(r))
+        pos = pos[pos > 0]
+        if pos.size == 0:
+            raise InputError("range_m: all ranges are 0 (log10(r) is undefined)")
+        r = np.maximum(r, 0.5 * float(pos.min()))
     return r
 
 

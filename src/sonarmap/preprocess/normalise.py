@@ -12,9 +12,13 @@ hardware:
    filtered over 5 bins along range.  A surface must cover more than 3/4 of the beams at one
    range to bias it; artefacts at constant range across the whole fan (transmit ring-down near
    the sonar) are part of the background, as they should be.
+   The level may rise at most ``max_rise`` (2x) above its minimum at nearer ranges: reverberation
+   and noise fall with range (or stay flat under the sonar's TVG), so a surface that fills most
+   beams over a range interval (a seabed) is not taken for background.
 2. **Level vs beam** ``f(r, theta)``: the lower quartile of ``y / b(r)`` in blocks of
-   ``n_bins / 16`` bins x ``max(16, n_beams / 16)`` beams, bilinearly interpolated - the beam
-   pattern's taper and range-dependent fan-edge brightening.
+   ``n_bins / 16`` bins x ``max(16, n_beams / 16)`` beams relative to their median, clipped to
+   [0.5, 2] and bilinearly interpolated - the beam pattern's taper and range-dependent fan-edge
+   brightening.
 3. **Multi-look**: ``z = y / (b f)`` averaged over ``pool`` = 5 bins x 3 beams (the background of
    a single look is speckle; surfaces are coherent over a few bins and beams).
 4. **Receiver threshold**: ``u = g max(z - t, 0)``, ``t`` the ``floor_quantile`` (0.9) of ``z``;
@@ -39,7 +43,8 @@ from numpy.typing import NDArray
 
 from sonarmap.errors import InputError
 
-__all__ = ["BackgroundLevel", "estimate_background", "normalise_image", "BACKGROUND_MEAN"]
+__all__ = ["BackgroundLevel", "RecordingBackground", "estimate_background", "estimate_recording_background",
+           "normalise_image", "BACKGROUND_MEAN"]
 
 #: Mean of the background excess after normalisation (the DIDSON background's 1/lambda, Table I).
 BACKGROUND_MEAN = 1.0 / 44.6
@@ -104,7 +109,8 @@ def _block_factor(z: NDArray[np.float32]) -> NDArray[np.float32]:
     med = float(np.median(grid))
     if not med > 0 or not np.all(np.isfinite(grid)):
         return np.ones((nr, nc), dtype=np.float32)
-    return np.maximum(grid / med, 1e-3).astype(np.float32)
+    # beam-pattern and fan-edge effects are a few dB; a block-filling surface is not background
+    return np.clip(grid / med, 0.5, 2.0).astype(np.float32)
 
 
 def _expand(grid: NDArray[np.float32], shape: tuple[int, int]) -> NDArray[np.float32]:
@@ -127,7 +133,7 @@ def _expand(grid: NDArray[np.float32], shape: tuple[int, int]) -> NDArray[np.flo
 
 def estimate_background(
     image: NDArray[np.floating], *, thresholded_fraction: float = 0.2, floor_quantile: float = 0.9,
-    pool: tuple[int, int] = (5, 3),
+    pool: tuple[int, int] = (5, 3), max_rise: float = 2.0, reference: RecordingBackground | None = None,
 ) -> tuple[BackgroundLevel, NDArray[np.float32] | None]:
     """Estimate the background level of one ping and return it with the normalised image.
 
@@ -142,6 +148,12 @@ def estimate_background(
         Quantile of the normalised, multi-looked image used as the receiver threshold ``t``.
     pool : (int, int)
         Multi-look box (range bins, beams).
+    max_rise : float
+        The level may rise at most this factor above its minimum at nearer ranges (0 = off).
+    reference : RecordingBackground, optional
+        A recording-level estimate (:func:`estimate_recording_background`, ``sonarmap
+        calibrate``): its level and beam factor replace the ping's own (``reason``
+        ``"calibration"``); the threshold and gain stay per ping.  Its shape must match.
 
     Returns
     -------
@@ -167,6 +179,24 @@ def estimate_background(
     if zero_fraction >= thresholded_fraction:
         return BackgroundLevel(False, "thresholded", zero_fraction), None
     n, m = img.shape
+    if reference is not None and reference.level_by_bin is not None:
+        if reference.level_by_bin.size != n or reference.n_beams != m:
+            raise InputError(f"reference: a background of {reference.level_by_bin.size} bins x {reference.n_beams} "
+                             f"beams does not fit an image of {n} x {m} (calibration of another sonar setting?)")
+        return _finish(img, reference.level_by_bin, reference.beam_factor, zero_fraction, floor_quantile, pool,
+                       "calibration")
+    level = _row_level(img, max_rise)
+    if level is None:
+        return BackgroundLevel(False, "degenerate", zero_fraction), None
+    z = img / level[:, None]
+    factor = _block_factor(z)
+    return _finish(img, level, factor, zero_fraction, floor_quantile, pool, "estimated")
+
+
+def _row_level(img: NDArray[np.float32], max_rise: float) -> NDArray[np.float32] | None:
+    """Step 1: the lower quartile of each row across beams, median filtered, rise-capped (None if
+    most rows have a zero level)."""
+    n = img.shape[0]
     level = _lower_quartile(np.maximum(img, 0.0), 1)
     if n >= 5:
         from scipy.ndimage import median_filter
@@ -174,11 +204,23 @@ def estimate_background(
         level = median_filter(level, size=5, mode="nearest")
     good = level > _ZERO
     if np.count_nonzero(good) < 0.5 * n:
-        return BackgroundLevel(False, "degenerate", zero_fraction), None
+        return None
     level = np.where(good, level, float(np.median(level[good]))).astype(np.float32)
+    if max_rise > 0:
+        # a surface across most beams (seabed) is no background: the level may rise at most
+        # max_rise x above its minimum nearer to the sonar
+        level = np.minimum(level, max_rise * np.minimum.accumulate(level)).astype(np.float32)
+    return level
+
+
+def _finish(img: NDArray[np.float32], level: NDArray[np.float32], factor: NDArray[np.float32] | None,
+            zero_fraction: float, floor_quantile: float, pool: tuple[int, int],
+            reason: str) -> tuple[BackgroundLevel, NDArray[np.float32] | None]:
+    """Steps 2-4: divide by level x factor, multi-look, threshold, scale."""
+    n, m = img.shape
     z = img / level[:, None]
-    factor = _block_factor(z)
-    z /= _expand(factor, z.shape)
+    if factor is not None:
+        z /= _expand(factor, z.shape)
     if pool[0] > 1 or pool[1] > 1:
         from scipy.ndimage import uniform_filter
 
@@ -194,7 +236,159 @@ def estimate_background(
     u = np.minimum(excess * g, 1.0).astype(np.float32)
     q10, q90 = np.percentile(level, [10, 90])
     dep = float(10 * np.log10(q90 / q10)) if q10 > 0 else math.inf
-    return BackgroundLevel(True, "estimated", zero_fraction, level.astype(np.float32), factor, dep, t, g), u
+    return BackgroundLevel(True, reason, zero_fraction, level.astype(np.float32), factor, dep, t, g), u
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class RecordingBackground:
+    """Background level of a whole recording: the median over its pings of each ping's estimate.
+
+    Attributes
+    ----------
+    n_pings : int
+        Pings the estimate is made of.
+    n_beams : int
+        Beams of the recording's geometry.
+    thresholded : bool
+        The recording's pings are thresholded (median zero fraction >= 0.2): no level is estimated
+        and the paper's calibrated pre-processing applies.
+    zero_fraction : float
+        Median over the pings of the fraction of zero pixels.
+    level_by_bin : ndarray, shape (n_bins,), float32, or None
+        Median over the pings of ``b(r)``.
+    beam_factor : ndarray, shape (n_blocks_range, n_blocks_beam), float32, or None
+        Median over the pings of ``f(r, theta)``.
+    range_dependence_db : float
+        ``10 log10`` of the 90th over the 10th percentile of ``level_by_bin``.
+    ping_spread_db : float
+        Median over the range bins of the ping-to-ping spread (inter-quartile range, dB) of
+        ``b(r)``: how stable the background is over the recording (NaN for one ping).
+    degenerate_pings : int
+        Pings whose level could not be estimated (zero in most rows).
+    """
+
+    n_pings: int
+    n_beams: int
+    thresholded: bool
+    zero_fraction: float
+    level_by_bin: NDArray[np.float32] | None = None
+    beam_factor: NDArray[np.float32] | None = None
+    range_dependence_db: float = math.nan
+    ping_spread_db: float = math.nan
+    degenerate_pings: int = 0
+
+    def to_dict(self) -> dict[str, object]:
+        """JSON-compatible dict; :meth:`from_dict` reads it back."""
+        return {
+            "n_pings": self.n_pings, "n_beams": self.n_beams, "thresholded": self.thresholded,
+            "zero_fraction": self.zero_fraction,
+            "level_by_bin": None if self.level_by_bin is None else [float(v) for v in self.level_by_bin],
+            "beam_factor": None if self.beam_factor is None else [[float(v) for v in row] for row in self.beam_factor],
+            "range_dependence_db": None if not math.isfinite(self.range_dependence_db) else self.range_dependence_db,
+            "ping_spread_db": None if not math.isfinite(self.ping_spread_db) else self.ping_spread_db,
+            "degenerate_pings": self.degenerate_pings,
+        }
+
+    @classmethod
+    def from_dict(cls, d: dict[str, object], name: str = "background") -> RecordingBackground:
+        """Inverse of :meth:`to_dict`; a bad field raises :class:`InputError` naming it."""
+        if not isinstance(d, dict):
+            raise InputError(f"{name}: expected a table, got {type(d).__name__}")
+        known = {f.name for f in dataclasses.fields(cls)}
+        for key in d:
+            if key not in known:
+                raise InputError(f"{name}.{key}: unknown key (expected {sorted(known)})")
+        try:
+            n_pings = int(d["n_pings"])  # type: ignore[call-overload]
+            n_beams = int(d["n_beams"])  # type: ignore[call-overload]
+            thresholded = bool(d["thresholded"])
+        except (KeyError, TypeError, ValueError) as exc:
+            raise InputError(f"{name}: missing or bad n_pings / n_beams / thresholded ({exc})") from None
+        level = d.get("level_by_bin")
+        factor = d.get("beam_factor")
+        try:
+            lv = None if level is None else np.asarray(level, dtype=np.float32)
+            fv = None if factor is None else np.asarray(factor, dtype=np.float32)
+        except (TypeError, ValueError):
+            raise InputError(f"{name}: level_by_bin / beam_factor must be numeric arrays") from None
+        if lv is not None and (lv.ndim != 1 or lv.size == 0 or not np.all(np.isfinite(lv)) or np.any(lv <= 0)):
+            raise InputError(f"{name}.level_by_bin: must be a non-empty list of positive numbers")
+        if fv is not None and (fv.ndim != 2 or fv.size == 0 or not np.all(np.isfinite(fv)) or np.any(fv <= 0)):
+            raise InputError(f"{name}.beam_factor: must be a non-empty 2-D table of positive numbers")
+
+        def num(key: str) -> float:
+            v = d.get(key)
+            return math.nan if v is None else float(v)  # type: ignore[arg-type]
+
+        return cls(n_pings, n_beams, thresholded, num("zero_fraction"), lv, fv, num("range_dependence_db"),
+                   num("ping_spread_db"), int(d.get("degenerate_pings", 0) or 0))  # type: ignore[call-overload]
+
+
+def estimate_recording_background(
+    images: object, *, thresholded_fraction: float = 0.2, max_rise: float = 2.0,
+) -> RecordingBackground:
+    """Recording-level background: the median over the pings of :func:`estimate_background`'s
+    level and beam factor (robust to a target that moves through the window).
+
+    Parameters
+    ----------
+    images : iterable of ndarray or Ping
+        The pings of one recording (one geometry).
+    thresholded_fraction, max_rise : float
+        As in :func:`estimate_background`.
+
+    Returns
+    -------
+    RecordingBackground
+
+    Raises
+    ------
+    InputError
+        No pings, mixed shapes, or no ping with an estimable level.
+    """
+    levels: list[NDArray[np.float32]] = []
+    factors: list[NDArray[np.float32]] = []
+    zeros: list[float] = []
+    shape: tuple[int, int] | None = None
+    n = 0
+    degenerate = 0
+    for item in images:  # type: ignore[attr-defined]
+        img = np.asarray(getattr(item, "image", item), dtype=np.float32)
+        src = getattr(item, "source", "") or f"ping {n}"
+        if img.ndim != 2 or img.size == 0:
+            raise InputError(f"{src}: expected a (n_bins, n_beams) image, got shape {img.shape}")
+        if shape is None:
+            shape = img.shape
+        elif img.shape != shape:
+            raise InputError(f"{src}: shape {img.shape} differs from the recording's {shape}")
+        if not np.all(np.isfinite(img)):
+            raise InputError(f"{src}: contains NaN or infinite values")
+        n += 1
+        zeros.append(float(np.count_nonzero(img <= _ZERO)) / img.size)
+        lv = _row_level(img, max_rise)
+        if lv is None:
+            degenerate += 1
+            continue
+        levels.append(lv)
+        factors.append(_block_factor(img / lv[:, None]))
+    if n == 0 or shape is None:
+        raise InputError("recording: no pings")
+    zf = float(np.median(zeros))
+    if zf >= thresholded_fraction:
+        return RecordingBackground(n, shape[1], True, zf, degenerate_pings=degenerate)
+    if not levels:
+        raise InputError(f"recording: the background level is zero in most range rows of all {n} pings "
+                         "(nothing to estimate)")
+    stack = np.stack(levels)
+    level = np.median(stack, axis=0).astype(np.float32)
+    factor = np.median(np.stack(factors), axis=0).astype(np.float32)
+    q10, q90 = np.percentile(level, [10, 90])
+    dep = float(10 * np.log10(q90 / q10)) if q10 > 0 else math.inf
+    spread = math.nan
+    if len(levels) > 1:
+        db = 10 * np.log10(stack)
+        spread = float(np.median(np.subtract(*np.percentile(db, [75, 25], axis=0))))
+    return RecordingBackground(n, shape[1], False, zf, level, factor, dep, spread, degenerate)
 
 
 def normalise_image(image: NDArray[np.floating], **kwargs: object) -> NDArray[np.float32]:
