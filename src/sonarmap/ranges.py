@@ -200,13 +200,15 @@ def drop_small_components(mask: NDArray[np.bool_], geometry: SonarGeometry, min_
     az = np.asarray(geometry.azimuth_rad, dtype=np.float64)
     dr = float(abs(r[-1] - r[0]) / max(r.size - 1, 1)) if r.size > 1 else 0.0
     daz = float(abs(az[-1] - az[0]) / max(az.size - 1, 1)) if az.size > 1 else 0.0
+    box = np.array([(sl[0].start, sl[0].stop - 1, sl[1].start, sl[1].stop - 1)
+                    for sl in ndimage.find_objects(lab)], dtype=np.int64).reshape(-1, 4)
+    i0, i1, j0, j1 = box.T
+    cross = np.maximum(np.abs(r[i1]), np.abs(r[i0])) * (np.abs(az[j1] - az[j0]) + daz)
+    along = (i1 - i0 + 1) * dr
     keep = np.zeros(n + 1, dtype=bool)
-    for k, sl in enumerate(ndimage.find_objects(lab), start=1):
-        i0, i1 = sl[0].start, sl[0].stop - 1
-        j0, j1 = sl[1].start, sl[1].stop - 1
-        cross = max(abs(r[i1]), abs(r[i0])) * (abs(az[j1] - az[j0]) + daz)
-        along = (i1 - i0 + 1) * dr
-        keep[k] = max(cross, along) >= min_extent_m
+    keep[1:] = np.maximum(cross, along) >= min_extent_m
+    if keep[1:].all():
+        return m
     return keep[lab]
 
 

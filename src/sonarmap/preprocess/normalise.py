@@ -36,6 +36,7 @@ many vendor displays) are left alone; the paper's calibrated pre-processing appl
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 
 import numpy as np
@@ -113,22 +114,26 @@ def _block_factor(z: NDArray[np.float32]) -> NDArray[np.float32]:
     return np.clip(grid / med, 0.5, 2.0).astype(np.float32)
 
 
+@functools.lru_cache(maxsize=32)
+def _interp_matrix(n: int, nb: int) -> NDArray[np.float32]:
+    """(n, nb) linear interpolation weights from ``nb`` block centres to ``n`` samples (edges held)."""
+    w = np.zeros((n, nb), dtype=np.float32)
+    x = np.clip((np.arange(n) + 0.5) * nb / n - 0.5, 0, nb - 1)
+    i0 = np.minimum(x.astype(np.int64), max(nb - 2, 0))
+    i1 = np.minimum(i0 + 1, nb - 1)
+    f = (x - i0).astype(np.float32)
+    rows = np.arange(n)
+    np.add.at(w, (rows, i0), 1 - f)
+    np.add.at(w, (rows, i1), f)
+    w.setflags(write=False)
+    return w
+
+
 def _expand(grid: NDArray[np.float32], shape: tuple[int, int]) -> NDArray[np.float32]:
     """Bilinear interpolation of a block grid to the full lattice (block centres; edges held)."""
     nr, nc = grid.shape
-    n, m = shape
-    ri = np.clip((np.arange(n) + 0.5) * nr / n - 0.5, 0, nr - 1)
-    ci = np.clip((np.arange(m) + 0.5) * nc / m - 0.5, 0, nc - 1)
-    r0 = np.minimum(ri.astype(np.int64), max(nr - 2, 0))
-    c0 = np.minimum(ci.astype(np.int64), max(nc - 2, 0))
-    r1 = np.minimum(r0 + 1, nr - 1)
-    c1 = np.minimum(c0 + 1, nc - 1)
-    fr = (ri - r0).astype(np.float32)[:, None]
-    fc = (ci - c0).astype(np.float32)[None, :]
-    g = grid
-    top = g[r0][:, c0] * (1 - fc) + g[r0][:, c1] * fc
-    bot = g[r1][:, c0] * (1 - fc) + g[r1][:, c1] * fc
-    return (top * (1 - fr) + bot * fr).astype(np.float32)
+    return (_interp_matrix(shape[0], nr) @ grid.astype(np.float32) @ _interp_matrix(shape[1], nc).T).astype(
+        np.float32, copy=False)
 
 
 def estimate_background(
@@ -217,23 +222,23 @@ def _finish(img: NDArray[np.float32], level: NDArray[np.float32], factor: NDArra
             zero_fraction: float, floor_quantile: float, pool: tuple[int, int],
             reason: str) -> tuple[BackgroundLevel, NDArray[np.float32] | None]:
     """Steps 2-4: divide by level x factor, multi-look, threshold, scale."""
-    n, m = img.shape
-    z = img / level[:, None]
-    if factor is not None:
-        z /= _expand(factor, z.shape)
-    if pool[0] > 1 or pool[1] > 1:
-        from scipy.ndimage import uniform_filter
+    from sonarmap.preprocess._kernels import excess, pooled_ratio
 
-        z = uniform_filter(z, size=(min(pool[0], n), min(pool[1], m)), mode="nearest")
+    n, m = img.shape
+    full = np.ones((n, m), np.float32) if factor is None else _expand(factor, (n, m))
+    z = pooled_ratio(np.ascontiguousarray(img, dtype=np.float32), np.ascontiguousarray(level, dtype=np.float32),
+                     np.ascontiguousarray(full), int(min(max(pool[0], 1), n)), int(min(max(pool[1], 1), m)))
+    # the threshold quantile on a fixed sub-lattice (every 4th pixel beyond 40 000: +-0.3 % in t)
     flat = z.ravel()
+    if flat.size > 40000:
+        flat = flat[:: 4]
     k = min(int(floor_quantile * (flat.size - 1)), flat.size - 1)
     t = float(np.partition(flat, k)[k])
-    excess = np.maximum(z - t, 0.0)
-    pos = excess[excess > 0]
-    if pos.size == 0 or not float(pos.mean()) > 0:
+    _, mean_excess, n_pos = excess(z, np.float32(t), np.float32(0.0))
+    if n_pos == 0 or not mean_excess > 0:
         return BackgroundLevel(False, "degenerate", zero_fraction, level, factor), None
-    g = BACKGROUND_MEAN / float(pos.mean())
-    u = np.minimum(excess * g, 1.0).astype(np.float32)
+    g = BACKGROUND_MEAN / float(mean_excess)
+    u, _, _ = excess(z, np.float32(t), np.float32(g))
     q10, q90 = np.percentile(level, [10, 90])
     dep = float(10 * np.log10(q90 / q10)) if q10 > 0 else math.inf
     return BackgroundLevel(True, reason, zero_fraction, level.astype(np.float32), factor, dep, t, g), u
