@@ -359,6 +359,8 @@ class PingProducts:
     gates : tuple of str
         Fit gates the ping failed (:data:`sonarmap.stats.gates.GATE_DESCRIPTIONS`); a gated ping
         has no returns.  Also part of ``flags``.
+    image : ndarray of float32 or None
+        The image the classifier saw (normalised or pre-processed; only with ``keep_labels=True``).
     """
 
     time_ns: int
@@ -374,6 +376,7 @@ class PingProducts:
     pd_range: float = math.nan
     background: Any = None
     gates: tuple[str, ...] = ()
+    image: NDArray[np.float32] | None = None
 
     @property
     def flagged(self) -> bool:
@@ -584,7 +587,7 @@ def process_ping(ping: Ping, config: PipelineConfig = PipelineConfig(), *, keep_
         return PingProducts(time_ns=ping.time_ns, source=ping.source, fit=fit, kld=math.nan,
                             flags=("constant_image", "no_returns"), ranges=ranges,
                             labels=labels if keep_labels else None, pd=0.0, pfa=0.0, method=config.method,
-                            pd_range=0.0, background=background)
+                            pd_range=0.0, background=background, image=image if keep_labels else None)
     labels, fit, pd, pfa = classify_image(image, config)
     gates: frozenset[str] = frozenset()
     if fit is not None and not config.method.startswith("cfar-"):
@@ -600,7 +603,8 @@ def process_ping(ping: Ping, config: PipelineConfig = PipelineConfig(), *, keep_
                             flags=tuple(sorted(flags_g)), ranges=ranges,
                             labels=np.zeros(image.shape, dtype=np.uint8) if keep_labels else None,
                             pd=float(pd), pfa=float(pfa), method=config.method, pd_range=0.0,
-                            background=background, gates=tuple(sorted(gates)))
+                            background=background, gates=tuple(sorted(gates)),
+                            image=image if keep_labels else None)
     edge = None
     bg_mean = None
     usable = fit is not None and len(fit.class_names) >= 2 and not fit.flags & {"all_zero", "degenerate"}
@@ -650,7 +654,7 @@ def process_ping(ping: Ping, config: PipelineConfig = PipelineConfig(), *, keep_
         kld=float(fit.kld) if fit is not None else math.nan, flags=tuple(sorted(flags)),
         ranges=ranges, labels=labels if keep_labels else None, pd=float(pd), pfa=float(pfa),
         method=config.method, pd_range=_pd_range(float(pd), labels, ranges, flags),
-        background=background,
+        background=background, image=image if keep_labels else None,
     )
 
 

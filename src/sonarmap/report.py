@@ -3,7 +3,7 @@
 One HTML file with inline CSS and the figures embedded as base64 PNG - no scripts, no external
 assets - so it can be mailed, archived or opened offline.  Sections: survey summary and
 provenance, mixture-parameter and KLD time series, per-beam ranges over time, ROC curves,
-flagged pings, example pings as fans (raw | pre-processed | segmented with ranges) and, when the
+flagged pings, example pings as fans (raw | pre-processed or background-normalised | segmented with ranges) and, when the
 survey holds registered points, a map preview.
 """
 
@@ -263,19 +263,13 @@ def _example(ds: Any, index: int, config: Any, dpi: int) -> dict[str, Any]:
         return {"label": label, "index": index, "source": source, "missing": True}
     ping = read_ping(path, index=int(frame) if frame.isdigit() else 0)
     prod = process_ping(ping, config, keep_labels=True)
-    pre = None
-    pre_cfg = config.preprocess_config() if hasattr(config, "preprocess_config") else None
-    if pre_cfg is not None:
-        from sonarmap.preprocess.pipeline import preprocess_image
-
-        pre = preprocess_image(ping.image, ping.geometry, pre_cfg)
     g = ping.geometry
     fig, axes = new_figure(1, 3, figsize=(11, 4.6))
     draw_fan(axes[0], ping.image, g, title="raw", colorbar=False)
-    if pre is not None:
-        draw_fan(axes[1], np.clip(pre, 0, None), g, title="pre-processed", colorbar=False)
-    else:
-        draw_fan(axes[1], ping.image, g, title="pre-processed (none configured)", colorbar=False)
+    # what the classifier saw: the background-normalised image, or the pre-processed one
+    normalised = prod.background is not None and prod.background.applied
+    title = "background-normalised" if normalised else "pre-processed"
+    draw_fan(axes[1], np.clip(prod.image, 0, None), g, title=title, colorbar=False)
     labels = np.asarray(prod.labels) >= 1 if prod.labels is not None else np.zeros(g.shape, bool)
     draw_fan(axes[2], labels.astype(np.float32), g, vmin=0, vmax=1, cmap="gray",
              title="segmented + ranges", colorbar=False, resolution_m=None)
