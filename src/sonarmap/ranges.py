@@ -193,13 +193,18 @@ def drop_small_components(mask: NDArray[np.bool_], geometry: SonarGeometry, min_
     m = np.asarray(mask, dtype=bool)
     if not m.any() or min_extent_m <= 0:
         return m
-    lab, n = ndimage.label(m, structure=np.ones((3, 3), dtype=bool))
+    rows = np.flatnonzero(m.any(axis=1))
+    cols = np.flatnonzero(m.any(axis=0))
+    ra, rb, ca, cb = int(rows[0]), int(rows[-1]) + 1, int(cols[0]), int(cols[-1]) + 1
+    lab, n = ndimage.label(m[ra:rb, ca:cb], structure=np.ones((3, 3), dtype=bool))
     if n == 0:
         return m
-    r = np.asarray(geometry.range_m, dtype=np.float64)
-    az = np.asarray(geometry.azimuth_rad, dtype=np.float64)
-    dr = float(abs(r[-1] - r[0]) / max(r.size - 1, 1)) if r.size > 1 else 0.0
-    daz = float(abs(az[-1] - az[0]) / max(az.size - 1, 1)) if az.size > 1 else 0.0
+    r = np.asarray(geometry.range_m, dtype=np.float64)[ra:rb]
+    az_all = np.asarray(geometry.azimuth_rad, dtype=np.float64)
+    r_all = np.asarray(geometry.range_m, dtype=np.float64)
+    dr = float(abs(r_all[-1] - r_all[0]) / max(r_all.size - 1, 1)) if r_all.size > 1 else 0.0
+    daz = float(abs(az_all[-1] - az_all[0]) / max(az_all.size - 1, 1)) if az_all.size > 1 else 0.0
+    az = az_all[ca:cb]
     box = np.array([(sl[0].start, sl[0].stop - 1, sl[1].start, sl[1].stop - 1)
                     for sl in ndimage.find_objects(lab)], dtype=np.int64).reshape(-1, 4)
     i0, i1, j0, j1 = box.T
@@ -209,7 +214,9 @@ def drop_small_components(mask: NDArray[np.bool_], geometry: SonarGeometry, min_
     keep[1:] = np.maximum(cross, along) >= min_extent_m
     if keep[1:].all():
         return m
-    return keep[lab]
+    out = np.zeros_like(m)
+    out[ra:rb, ca:cb] = keep[lab]
+    return out
 
 
 def _link_components(mask: NDArray[np.bool_], kept: NDArray[np.bool_], gap: int, rounds: int = 4) -> NDArray[np.bool_]:
