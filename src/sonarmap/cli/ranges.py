@@ -75,11 +75,14 @@ def write_ranges_rows(writer: Any, source: str, ranges: Any, flags: str = "") ->
     return ranges.n_beams
 
 
-def load_calibration(path: Path | None) -> Any:
-    """The recording background of a ``sonarmap calibrate`` output (None without a path, or for a
-    thresholded recording, whose calibration is its geometry: pass it with ``--sonar``)."""
+def load_calibration(path: Path | None) -> tuple[Any, tuple[str, ...] | None]:
+    """The recording background and model families of a ``sonarmap calibrate`` output.
+
+    ``(None, None)`` without a path; the background is None for a thresholded recording, whose
+    calibration is its geometry (pass it with ``--sonar``).
+    """
     if path is None:
-        return None
+        return None, None
     import json
 
     from sonarmap.errors import InputError
@@ -98,7 +101,13 @@ def load_calibration(path: Path | None) -> Any:
         rec = RecordingBackground.from_dict(cal["background_level"], name="calibration.background_level")
     except InputError as exc:
         raise InputError(f"{path}: {exc}") from None
-    return None if rec.thresholded else rec
+    if rec.thresholded:
+        return None, None
+    model = cal.get("model") or {}
+    fams = model.get("families") if isinstance(model, dict) else None
+    if fams is not None and (not isinstance(fams, list) or len(fams) < 2 or not all(isinstance(f, str) for f in fams)):
+        raise InputError(f"{path}: calibration.model.families must be a list of at least two family names")
+    return rec, (tuple(fams) if fams else None)
 
 
 def flagged_summary(gates: list[tuple[str, ...]]) -> str:
@@ -138,7 +147,9 @@ def register(app: typer.Typer) -> None:
 
         cfg = pipeline_config_from_options(config, method, solver, beta)
         geom = load_geometry_option(sonar)
-        rec = load_calibration(calibration)
+        rec, families = load_calibration(calibration)
+        if families is not None and cfg.families != families:
+            cfg = cfg.replace(families=families)  # the recording's model (chosen by calibrate)
         n_pings = n_rows = n_ret = 0
         gated: list[tuple[str, ...]] = []
         with atomic_open(output, "w", newline="", encoding="utf-8") as fh:
