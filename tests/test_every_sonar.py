@@ -222,3 +222,18 @@ def test_drop_small_components_matches_a_per_component_reference(test_pings):
         for e in (0.02, 0.1, 0.3):
             np.testing.assert_array_equal(drop_small_components(m, g, e), reference(m, e))
     assert not drop_small_components(np.zeros(g.shape, bool), g, 0.1).any()
+
+
+@pytest.mark.parametrize("shape,pool", [((2000, 48), (5, 3)), ((7, 2), (5, 3)), ((703, 256), (5, 3)),
+                                        ((10, 10), (1, 1)), ((6, 4), (4, 2))])
+def test_pooled_ratio_kernel_is_scipys_uniform_filter(shape, pool):
+    from scipy.ndimage import uniform_filter
+
+    from sonarmap.preprocess._kernels import pooled_ratio
+
+    rng = np.random.default_rng(0)
+    img = rng.random(shape).astype(np.float32) + 0.1
+    level = (rng.random(shape[0]) + 0.5).astype(np.float32)
+    factor = (rng.random(shape) + 0.5).astype(np.float32)
+    np.testing.assert_allclose(pooled_ratio(img, level, factor, *pool),
+                               uniform_filter(img / level[:, None] / factor, pool, mode="nearest"), atol=1e-6)

@@ -6,13 +6,26 @@ import numpy as np
 from numba import njit
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _running_mean(src, dst, size):  # pragma: no cover - numba
+    """``dst[i]`` = mean of ``src[i - size // 2 : i - size // 2 + size]``, edge samples repeated
+    (scipy ``uniform_filter1d(mode="nearest")``, default origin)."""
+    n = src.shape[0]
+    h = size // 2
+    s = 0.0
+    for k in range(-h, size - h):
+        s += src[min(max(k, 0), n - 1)]
+    for i in range(n):
+        dst[i] = s / size
+        s += src[min(max(i - h + size, 0), n - 1)] - src[min(max(i - h, 0), n - 1)]
+
+
 @njit(cache=True, nogil=True)
 def pooled_ratio(img, level, factor, pool_r, pool_c):  # pragma: no cover - numba
     """``uniform_filter(img / (level[:, None] * factor), (pool_r, pool_c), mode="nearest")``.
 
-    ``img`` and ``factor`` are float32 (n, m), ``level`` float32 (n,).  Separable running box
-    sums (rows, then beams) with edge samples repeated, as scipy's ``mode="nearest"``; the box
-    is centred (offset ``size // 2`` to the start, scipy's default origin).
+    ``img`` and ``factor`` are float32 (n, m), ``level`` float32 (n,): separable running means,
+    along range then across beams.
     """
     n, m = img.shape
     z = np.empty((n, m), dtype=np.float32)
@@ -20,31 +33,11 @@ def pooled_ratio(img, level, factor, pool_r, pool_c):  # pragma: no cover - numb
         inv = 1.0 / level[i]
         for j in range(m):
             z[i, j] = img[i, j] * inv / factor[i, j]
-    # along range
     tmp = np.empty((n, m), dtype=np.float32)
-    hr = pool_r // 2
     for j in range(m):
-        s = 0.0
-        for k in range(-hr, pool_r - hr):
-            ii = min(max(k, 0), n - 1)
-            s += z[ii, j]
-        for i in range(n):
-            tmp[i, j] = s / pool_r
-            out_i = min(max(i - hr, 0), n - 1)
-            in_i = min(max(i - hr + pool_r, 0), n - 1)
-            s += z[in_i, j] - z[out_i, j]
-    # across beams
-    hc = pool_c // 2
+        _running_mean(z[:, j], tmp[:, j], pool_r)
     for i in range(n):
-        s = 0.0
-        for k in range(-hc, pool_c - hc):
-            jj = min(max(k, 0), m - 1)
-            s += tmp[i, jj]
-        for j in range(m):
-            z[i, j] = s / pool_c
-            out_j = min(max(j - hc, 0), m - 1)
-            in_j = min(max(j - hc + pool_c, 0), m - 1)
-            s += tmp[i, in_j] - tmp[i, out_j]
+        _running_mean(tmp[i], z[i], pool_c)
     return z
 
 
