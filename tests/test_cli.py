@@ -26,7 +26,7 @@ def test_info_json_and_presets(capsys: pytest.CaptureFixture[str], didson_dir: P
     d = json.loads(capsys.readouterr().out)
     assert d["kind"] == "geometry" and d["beams"] == 96 and d["azimuth_table"] == "non-uniform"
     assert main(["info", "--presets", "--json"]) == 0
-    assert len(json.loads(capsys.readouterr().out)) == 7
+    assert len(json.loads(capsys.readouterr().out)) == 8
 
 
 def test_malformed_json_exits_1_one_line(capsys: pytest.CaptureFixture[str], data_dir: Path) -> None:

@@ -13,7 +13,7 @@ from sonarmap.io import read_pings
 from sonarmap.ping import Ping
 from sonarmap.pipeline import PipelineConfig, process_ping
 from sonarmap.preprocess.normalise import BACKGROUND_MEAN, estimate_background
-from sonarmap.stats.gates import GATE_DESCRIPTIONS, IMPLAUSIBLE, class_separation, fit_gates
+from sonarmap.stats.gates import GATE_DESCRIPTIONS, IMPLAUSIBLE, REFUSING, class_separation, fit_gates
 from sonarmap.stats.mixture import fit_mixture
 
 
@@ -148,7 +148,7 @@ def test_default_gates_on_an_unnormalised_aris_frame_refuse_it(aris_pings):
     return on every beam); the gates now refuse them by name."""
     prod = process_ping(aris_pings[0], PipelineConfig(normalise="off"))
     assert prod.ranges.n_returns == 0
-    assert prod.gates and set(prod.gates) <= IMPLAUSIBLE
+    assert prod.gates and set(prod.gates) <= REFUSING and {"kld", "object_weight"} <= set(prod.gates)
     assert prod.flagged
 
 
@@ -169,7 +169,7 @@ def test_fit_gates_named_reasons():
     fit = fit_mixture(np.clip(y, 0, 1).reshape(100, 100).astype(np.float32), method="em")
     assert "object_weight" in fit_gates(fit)
     assert "kld" in fit_gates(fit, max_kld=0.0)
-    assert set(GATE_DESCRIPTIONS) == IMPLAUSIBLE
+    assert set(GATE_DESCRIPTIONS) == REFUSING and IMPLAUSIBLE == REFUSING - {"collapsed"}
     from sonarmap.errors import InputError
 
     with pytest.raises(InputError, match="MixtureFit"):
@@ -237,3 +237,22 @@ def test_pooled_ratio_kernel_is_scipys_uniform_filter(shape, pool):
     factor = (rng.random(shape) + 0.5).astype(np.float32)
     np.testing.assert_allclose(pooled_ratio(img, level, factor, *pool),
                                uniform_filter(img / level[:, None] / factor, pool, mode="nearest"), atol=1e-6)
+
+
+@pytest.mark.slow
+def test_process_strict_and_flag_summary(tmp_path, test_pings, capsys):
+    from sonarmap.cli import main
+    from sonarmap.io.pngjson import write_png_ping
+
+    src = tmp_path / "in"
+    chk = (np.indices(test_pings[0].shape).sum(0) % 2).astype(np.float32)
+    write_png_ping(test_pings[0].replace(image=chk), src, stem="1468966347175925")
+    write_png_ping(test_pings[4], src, stem="1468966347175926")
+    assert main(["process", str(src), "-o", str(tmp_path / "s.zarr"), "--workers", "1"]) == 0
+    cap = capsys.readouterr()
+    assert "1 of 2 pings flagged: " in cap.out + cap.err
+    assert main(["process", str(src), "-o", str(tmp_path / "s.zarr"), "--workers", "1", "--strict"]) == 1
+    import zarr
+
+    flags = [str(f) for f in zarr.open_group(str(tmp_path / "s.zarr"), mode="r")["flags"][:]]
+    assert sum("kld" in f.split() or "collapsed" in f.split() for f in flags) == 1

@@ -317,7 +317,8 @@ def test_cli_summary_quiet_and_refusal(survey_dir: Path, tmp_path: Path) -> None
                        capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stderr
     assert f"{N_PINGS} pings" in r.stdout and "flagged" in r.stdout and "pings/s" in r.stdout
-    assert "[processes:" in r.stdout and len(r.stdout.strip().splitlines()) == 1
+    assert "[processes:" in r.stdout and len(r.stdout.strip().splitlines()) == 2
+    assert "of 40 pings flagged" in r.stdout.strip().splitlines()[1]
     r = subprocess.run(_cli("process", str(survey_dir), "-o", str(out), "-k", "8", "--quiet"),
                        capture_output=True, text=True, timeout=120)
     assert r.returncode == 1 and "--overwrite" in r.stderr and r.stdout == ""

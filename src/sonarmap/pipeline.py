@@ -380,8 +380,11 @@ class PingProducts:
 
     @property
     def flagged(self) -> bool:
-        """True when a fit gate refused the ping (:mod:`sonarmap.stats.gates`): no returns by design."""
-        return bool(self.gates)
+        """True when the model cannot explain the ping (a gate of
+        :data:`sonarmap.stats.gates.IMPLAUSIBLE`); such a ping has no returns."""
+        from sonarmap.stats.gates import IMPLAUSIBLE
+
+        return bool(set(self.gates) & IMPLAUSIBLE)
 
 
 def _fit(levels: NDArray[Any], config: PipelineConfig) -> Any:

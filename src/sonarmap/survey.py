@@ -110,7 +110,7 @@ PRODUCT_VARIABLES: dict[str, tuple[tuple[str, ...], dict[str, str]]] = {
 PingFunction = Callable[..., Any]
 
 #: Flags that describe the scene rather than a doubtful fit (not counted as "flagged fits").
-INFORMATIONAL_FLAGS = frozenset({"no_returns", "no_object"})
+INFORMATIONAL_FLAGS = frozenset({"no_returns", "no_object", "collapsed"})
 
 
 def flagged_mask(flags: Iterable[Any]) -> NDArray[np.bool_]:
@@ -946,6 +946,9 @@ class SurveyResult:
         Point cloud written when poses were given.
     n_points : int
         Number of registered points.
+    gates : tuple of tuple of str
+        Per ping, the fit gates it failed (:mod:`sonarmap.stats.gates`): such pings have no
+        returns.
     """
 
     output: Path
@@ -958,6 +961,7 @@ class SurveyResult:
     executor: str
     points_path: Path | None = None
     n_points: int = 0
+    gates: tuple[tuple[str, ...], ...] = ()
 
     @property
     def pings_per_s(self) -> float:
@@ -1172,7 +1176,11 @@ def process_survey(
             own_client.close()
 
     # ---------------------------------------------------------------- finalise
-    n_flagged = int(flagged_mask(root["flags"][:]).sum())
+    all_flags = root["flags"][:]
+    n_flagged = int(flagged_mask(all_flags).sum())
+    from sonarmap.stats.gates import REFUSING
+
+    gates = tuple(tuple(sorted(set(str(f).split()) & REFUSING)) for f in all_flags)
     points_path: Path | None = None
     n_points = 0
     complete = out / STATE_DIR / "complete"
@@ -1190,7 +1198,7 @@ def process_survey(
         output=out, n_pings=plan.n_pings, n_flagged=n_flagged, n_chunks=plan.n_chunks,
         chunks_run=len(todo), chunks_skipped=plan.n_chunks - len(todo),
         elapsed_s=time.perf_counter() - t0, executor=executor, points_path=points_path,
-        n_points=n_points,
+        n_points=n_points, gates=gates,
     )
 
 

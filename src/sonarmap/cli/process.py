@@ -99,6 +99,7 @@ def process_command(
     sonar: str | None = GEOMETRY_OPTION,
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing, different output."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar and no summary."),
+    strict: bool = typer.Option(False, "--strict", help="Exit 1 when the model could not explain some ping (a flagged fit)."),
 ) -> None:
     """Process a survey: read -> pre-process -> fit -> segment -> ranges (-> points), per chunk.
 
@@ -126,7 +127,15 @@ def process_command(
             progress=bar,
         )
     if not quiet:
+        from sonarmap.cli.ranges import flagged_summary
+
         console().print(result.summary(), soft_wrap=True, markup=False)
+        console().print(flagged_summary(list(result.gates)), soft_wrap=True, markup=False)
+    if strict:
+        from sonarmap.cli.ranges import flagged_any
+
+        if flagged_any(list(result.gates)):
+            raise typer.Exit(1)
 
 
 def register(app: typer.Typer) -> None:

@@ -19,7 +19,7 @@ import typer
 
 from sonarmap.cli._common import GEOMETRY_OPTION, OUTPUT_OPTION, load_geometry_option
 
-__all__ = ["register", "pipeline_config_from_options", "write_ranges_rows", "flagged_summary", "CSV_HEADER"]
+__all__ = ["register", "pipeline_config_from_options", "write_ranges_rows", "flagged_summary", "flagged_any", "CSV_HEADER"]
 
 CSV_HEADER = ("ping", "beam", "azimuth_rad", "bin", "range_m", "intensity", "flags")
 
@@ -34,7 +34,7 @@ CALIBRATION_OPTION: Any = typer.Option(
     help="Output of `sonarmap calibrate` on this recording: normalise every ping by the recording's "
     "background level instead of its own.",
 )
-STRICT_OPTION: Any = typer.Option(False, "--strict", help="Exit 1 when any ping's fit was flagged as implausible.")
+STRICT_OPTION: Any = typer.Option(False, "--strict", help="Exit 1 when the model could not explain some ping (a flagged fit).")
 CONFIG_OPTION: Any = typer.Option(None, "--config", "-c", help="Pipeline configuration TOML (keys at top level or in a \\[pipeline] table).")
 
 
@@ -111,15 +111,32 @@ def load_calibration(path: Path | None) -> tuple[Any, tuple[str, ...] | None]:
 
 
 def flagged_summary(gates: list[tuple[str, ...]]) -> str:
-    """One line: ``"2 of 6 pings flagged: object_weight (2)"`` or ``"0 of 6 pings flagged"``."""
+    """One line: ``"2 of 6 pings flagged: kld (2)"``, plus the pings without an object class.
+
+    Flagged pings fail a gate of :data:`sonarmap.stats.gates.IMPLAUSIBLE`; ``collapsed`` pings
+    (explained by the background alone) are counted after a semicolon.
+    """
     from collections import Counter
 
-    n = sum(1 for g in gates if g)
+    from sonarmap.stats.gates import IMPLAUSIBLE
+
+    bad = [tuple(g for g in gs if g in IMPLAUSIBLE) for gs in gates]
+    n = sum(1 for g in bad if g)
     line = f"{n} of {len(gates)} pings flagged"
     if n:
-        counts = Counter(name for g in gates for name in g)
+        counts = Counter(name for g in bad for name in g)
         line += ": " + ", ".join(f"{k} ({v})" for k, v in sorted(counts.items(), key=lambda kv: (-kv[1], kv[0])))
+    n_bg = sum(1 for gs, b in zip(gates, bad) if "collapsed" in gs and not b)
+    if n_bg:
+        line += f"; {n_bg} explained by the background alone (collapsed: no returns)"
     return line
+
+
+def flagged_any(gates: list[tuple[str, ...]]) -> bool:
+    """Whether any ping failed a gate of :data:`sonarmap.stats.gates.IMPLAUSIBLE` (``--strict``)."""
+    from sonarmap.stats.gates import IMPLAUSIBLE
+
+    return any(set(g) & IMPLAUSIBLE for g in gates)
 
 
 def register(app: typer.Typer) -> None:
@@ -168,5 +185,5 @@ def register(app: typer.Typer) -> None:
         )
         line = flagged_summary(gated)
         console.print(line, markup=False)
-        if strict and any(gated):
+        if strict and flagged_any(gated):
             raise typer.Exit(1)

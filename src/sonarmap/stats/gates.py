@@ -1,7 +1,8 @@
 """Fit gates: named reasons why a per-ping mixture fit cannot be trusted.
 
-A ping whose fit fails a gate yields no returns (never confident garbage); the gate's name travels
-with the ping's products (:attr:`sonarmap.pipeline.PingProducts.flags`), the ranges CSV, the zarr
+A ping whose fit fails a gate yields no returns (never confident garbage); every gate but
+``collapsed`` also marks the ping as *flagged* (:data:`IMPLAUSIBLE`: the model cannot explain it).
+The gate's name travels with the ping's products (:attr:`sonarmap.pipeline.PingProducts.flags`), the ranges CSV, the zarr
 products, the CLI summary and the report.
 
 Gates (:data:`GATE_DESCRIPTIONS`):
@@ -36,7 +37,7 @@ import numpy as np
 from sonarmap.errors import InputError
 from sonarmap.stats.mixture import MixtureFit
 
-__all__ = ["GATE_DESCRIPTIONS", "IMPLAUSIBLE", "fit_gates", "class_separation"]
+__all__ = ["GATE_DESCRIPTIONS", "REFUSING", "IMPLAUSIBLE", "fit_gates", "class_separation"]
 
 GATE_DESCRIPTIONS: dict[str, str] = {
     "kld": "the fitted mixture does not describe the histogram (KL divergence too large)",
@@ -48,8 +49,13 @@ GATE_DESCRIPTIONS: dict[str, str] = {
     "zero_mass": "the model gives zero probability to an occupied level",
 }
 
-#: Flags that make a ping's fit unusable: such a ping yields no returns.
-IMPLAUSIBLE = frozenset(GATE_DESCRIPTIONS)
+#: Every gate: a ping failing any of them yields no returns.
+REFUSING = frozenset(GATE_DESCRIPTIONS)
+
+#: Gates that say the model cannot explain the ping ("flagged" pings; ``--strict`` exits 1 on them).
+#: ``collapsed`` is not among them: a ping whose object class merely reshapes the background is
+#: explained by the background alone (open water, pure speckle) - no returns, but nothing wrong.
+IMPLAUSIBLE = REFUSING - {"collapsed"}
 
 
 def class_separation(fit: MixtureFit) -> float:
