@@ -58,7 +58,8 @@ def test_aris_presets_from_vendor_tables(name: str, beams: int, half_fov_deg: fl
 
 
 def test_preset_names_and_unknown() -> None:
-    assert "didson-hf" in preset_names() and len(preset_names()) == 7
+    assert "didson-hf" in preset_names() and len(preset_names()) == 8
+    assert "oculus-m750d-like" in preset_names()
     with pytest.raises(GeometryError, match="unknown preset 'nope'.*didson-hf"):
         preset("nope")
 

@@ -531,6 +531,18 @@ def _presets() -> dict[str, SonarGeometry]:
             name=name,
             azimuth_source=f"preset:{name}",
         )
+    ocu = json.loads(_data_text("oculus_m750d_like.json"))
+    az = np.deg2rad(np.asarray(ocu["bearings_centideg"], dtype=np.float64) / 100.0)
+    out["oculus-m750d-like"] = SonarGeometry.from_window(
+        min_range_m=float(ocu["min_range"]),
+        max_range_m=float(ocu["max_range"]),
+        n_bins=int(ocu["num_bins"]),
+        azimuth_rad=az,
+        frequency_hz=float(ocu["frequency"]),
+        sound_speed_m_s=float(ocu["sound_speed"]),
+        name="oculus-m750d-like",
+        azimuth_source="preset:oculus-m750d-like",
+    )
     return out
 
 
@@ -546,6 +558,8 @@ def preset(name: str, **changes: Any) -> SonarGeometry:
     with the measured beam azimuths, beam pattern and taper of Teixeira et al.  ``"aris*"``: every
     ARIS model/lens/beam count with the vendor's beam-angle tables (SoundMetrics, MIT licence); the
     range window is a placeholder (1-11 m, 1000 bins) that readers replace from the file.
+    ``"oculus-m750d-like"``: a Blueprint Oculus M750d in its 2.1 MHz mode as recorded in the
+    liboculus test file (256 beams at the recorded bearings over +-30 deg, 703 bins over 0-2 m).
 
     Raises
     ------

@@ -23,7 +23,10 @@ def register(app: typer.Typer) -> None:
         output: Path = typer.Option(None, "--output", "-o", help="Output directory."),
         list_scenes: bool = typer.Option(False, "--list-scenes", help="List scene names and exit."),
     ) -> None:
-        """Simulate pings (PNG + JSON, like the real DIDSON data) plus truth (_truth.png/.json)."""
+        """Simulate pings (PNG + JSON, like the real DIDSON data) plus truth (_truth.png/.json).
+
+        Each sonar renders with its profile's gain, floor and receiver (docs/simulator.md).
+        """
         from sonarmap.simulate import SCENE_NAMES
 
         if list_scenes:
@@ -38,7 +41,7 @@ def register(app: typer.Typer) -> None:
         from sonarmap.simulate import scene_from_name, simulate_ping, write_simulation
 
         geom = as_geometry(sonar)
-        built = scene_from_name(scene, seed)
+        built = scene_from_name(scene, seed, geometry=geom)  # scaled into short windows (Oculus)
         t0_ns = 1_700_000_000_000_000_000
         out = Path(output)
         for i in range(count):

@@ -6,8 +6,9 @@
 >>> res.ping.image.shape, int(res.class_mask.max())
 ((512, 96), 1)
 
-See ``docs/simulator.md`` for the model, its order of operations and how it compares with the real
-DIDSON background pings.
+Every sonar renders with its own profile of gain, floor and receiver (:mod:`sonarmap.simulate.presets`)
+for the :class:`SimulationConfig` fields the caller leaves unset.  See ``docs/simulator.md`` for the
+model, its order of operations and how it compares with the real DIDSON, ARIS and Oculus recordings.
 """
 
 from __future__ import annotations
@@ -22,9 +23,11 @@ from sonarmap.simulate.render import (
     read_truth,
     seawater_absorption_db_per_m,
     simulate_ping,
+    simulation_config_for,
     transmission_loss_db,
     write_simulation,
 )
+from sonarmap.simulate.presets import SONAR_PROFILES, SonarProfile, profile_for
 from sonarmap.simulate.scene import (
     CLUTTER,
     SCENE_NAMES,
@@ -40,11 +43,19 @@ from sonarmap.simulate.scene import (
     propeller,
     rudder,
     scene_from_name,
+    scene_scale_for,
     seafloor,
+    view_for,
 )
 
 __all__ = [
     "SimulationConfig",
+    "simulation_config_for",
+    "SonarProfile",
+    "SONAR_PROFILES",
+    "profile_for",
+    "scene_scale_for",
+    "view_for",
     "SimResult",
     "SimulationFiles",
     "Scene",

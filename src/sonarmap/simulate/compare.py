@@ -1,23 +1,35 @@
-"""Compare simulated open-water pings with real background pings (histograms, zero spike, KLD).
+"""Compare simulated pings with real recordings (histograms, zero spike, levels vs range, KLD).
 
-Run ``python -m sonarmap.simulate.compare ../shared/data/didson/background`` to print the table
-quoted in ``docs/simulator.md``.
+Run ``python -m sonarmap.simulate.compare ../shared/data/didson/background`` to print the DIDSON
+table quoted in ``docs/simulator.md``; give a recording file instead (``sample.aris``,
+``three_pings_8bit.raw``) for the ARIS / Oculus tables, or ``--all`` for all three.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import sys
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
+from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
 
+from sonarmap.errors import InputError
 from sonarmap.ping import Ping
 from sonarmap.simulate.render import SimulationConfig, simulate_ping
-from sonarmap.simulate.scene import empty_scene
+from sonarmap.simulate.scene import empty_scene, scene_from_name
 
-__all__ = ["BackgroundStats", "background_stats", "histogram_kld", "compare_background", "ghost_ratios"]
+__all__ = [
+    "BackgroundStats",
+    "background_stats",
+    "histogram_kld",
+    "compare_background",
+    "RecordingComparison",
+    "compare_recording",
+    "recording_comparisons",
+    "ghost_ratios",
+]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -125,6 +137,203 @@ def compare_background(
     }
 
 
+@dataclasses.dataclass(frozen=True)
+class RecordingComparison:
+    """Simulated pings of one scene against a real recording, over a range window.
+
+    Attributes
+    ----------
+    label : str
+        What was compared (e.g. ``"aris sample.aris vs empty"``).
+    scene : str
+        Scene simulated.
+    geometry_name : str
+        Name of the recording's geometry (it selects the sonar profile).
+    rows : tuple of int
+        First and one-past-last image row compared.
+    real, sim : BackgroundStats
+        Statistics of the real and the simulated pings over those rows.
+    kld_real_sim : float
+        ``KL(real || sim)`` of the 256-bin histograms, nats.
+    kld_sim_sim : float
+        The same between two independent simulated sets (the sampling floor).
+    band_range_m : ndarray, shape (n_bands,)
+        Centre range of each range band.
+    real_percentiles, sim_percentiles : ndarray, shape (n_bands, 3)
+        10th, 50th and 90th percentile of the pixel values in each band.
+    real_band_mean, sim_band_mean : ndarray, shape (n_bands,)
+        Mean pixel value in each band.
+    """
+
+    label: str
+    scene: str
+    geometry_name: str
+    rows: tuple[int, int]
+    real: BackgroundStats
+    sim: BackgroundStats
+    kld_real_sim: float
+    kld_sim_sim: float
+    band_range_m: NDArray[np.float64]
+    real_percentiles: NDArray[np.float64]
+    sim_percentiles: NDArray[np.float64]
+    real_band_mean: NDArray[np.float64]
+    sim_band_mean: NDArray[np.float64]
+
+    def summary(self) -> dict[str, float]:
+        """Scalar figures: zero fractions, means, medians, KLDs and the near/far background ratio."""
+        return {
+            "real_zero_fraction": self.real.zero_fraction,
+            "sim_zero_fraction": self.sim.zero_fraction,
+            "real_mean": self.real.mean,
+            "sim_mean": self.sim.mean,
+            "real_median": float(np.median(self.real_percentiles[:, 1])),
+            "sim_median": float(np.median(self.sim_percentiles[:, 1])),
+            "real_near_far_ratio": float(self.real_band_mean[0] / self.real_band_mean[-1]),
+            "sim_near_far_ratio": float(self.sim_band_mean[0] / self.sim_band_mean[-1]),
+            "kld_real_sim": self.kld_real_sim,
+            "kld_sim_sim": self.kld_sim_sim,
+        }
+
+    def table(self) -> str:
+        """Plain-text table: the summary, then the percentiles and means per range band."""
+        lines = [f"{self.label}  (rows {self.rows[0]}-{self.rows[1] - 1}, geometry {self.geometry_name})"]
+        lines += [f"  {k:22s} {v:.4f}" for k, v in self.summary().items()]
+        lines.append("  range_m    real p10/p50/p90 (mean)       sim p10/p50/p90 (mean)")
+        for i, r in enumerate(self.band_range_m):
+            rp, sp = self.real_percentiles[i], self.sim_percentiles[i]
+            lines.append(
+                f"  {r:7.3f}   {rp[0]:.3f}/{rp[1]:.3f}/{rp[2]:.3f} ({self.real_band_mean[i]:.3f})"
+                f"   {sp[0]:.3f}/{sp[1]:.3f}/{sp[2]:.3f} ({self.sim_band_mean[i]:.3f})"
+            )
+        return "\n".join(lines)
+
+
+def _band_stats(stack: NDArray[np.float64], edges: NDArray[np.int64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    pct = np.array([np.percentile(stack[:, a:b], [10, 50, 90]) for a, b in zip(edges[:-1], edges[1:], strict=True)])
+    mean = np.array([stack[:, a:b].mean() for a, b in zip(edges[:-1], edges[1:], strict=True)])
+    return pct, mean
+
+
+def compare_recording(
+    real: Iterable[Ping],
+    *,
+    scene: str = "empty",
+    config: SimulationConfig = SimulationConfig(),
+    n_sim: int | None = None,
+    seed: int = 0,
+    min_range_m: float | None = None,
+    max_range_m: float | None = None,
+    n_bands: int = 10,
+    label: str | None = None,
+) -> RecordingComparison:
+    """Simulate ``scene`` with the recording's geometry and compare pixel statistics.
+
+    Parameters
+    ----------
+    real : iterable of Ping
+        Real pings of one geometry (8-bit values k / 255).
+    scene : str
+        Named scene to simulate (built for the geometry: :func:`scene_from_name` with
+        ``geometry=``); ``"empty"`` compares the background.
+    config : SimulationConfig
+        Resolved for the geometry, so the sonar profile fills the fields not set explicitly.
+    n_sim : int, optional
+        Number of simulated pings (default: as many as real ones).
+    seed : int
+        Ping ``i`` uses seed ``seed + i``; the second simulated set ``10_000 + seed + i``.
+    min_range_m, max_range_m : float, optional
+        Compare only the rows in this range window (e.g. the water column in front of a seabed).
+    n_bands : int
+        Number of equal range bands for the per-range percentiles.
+    label : str, optional
+        Name printed in :meth:`RecordingComparison.table`.
+
+    Returns
+    -------
+    RecordingComparison
+
+    Raises
+    ------
+    InputError
+        If there are no pings, the pings' shapes differ, or the window holds fewer rows than bands.
+
+    Examples
+    --------
+    >>> from sonarmap.io import read_pings
+    >>> c = compare_recording(read_pings("../shared/data/aris/sample.aris"))  # doctest: +SKIP
+    >>> round(c.kld_real_sim, 3)  # doctest: +SKIP
+    0.005
+    """
+    pings = list(real)
+    if not pings:
+        raise InputError("real: no pings given")
+    geom = pings[0].geometry
+    if any(p.image.shape != geom.shape for p in pings):
+        raise InputError("real: pings of different shapes; compare one geometry at a time")
+    r = geom.range_m
+    lo = 0 if min_range_m is None else int(np.searchsorted(r, min_range_m))
+    hi = geom.n_bins if max_range_m is None else int(np.searchsorted(r, max_range_m))
+    if hi - lo < n_bands or n_bands < 1:
+        raise InputError(f"min_range_m/max_range_m: window holds {hi - lo} rows, need >= n_bands={n_bands}")
+    n = len(pings) if n_sim is None else int(n_sim)
+    built = scene_from_name(scene, seed, geometry=geom)
+    real_stack = np.stack([np.asarray(p.image, dtype=np.float64)[lo:hi] for p in pings])
+
+    def sims(base: int) -> NDArray[np.float64]:
+        return np.stack([
+            np.asarray(simulate_ping(built, geom, config=config, seed=base + i).ping.image, dtype=np.float64)[lo:hi]
+            for i in range(n)
+        ])
+
+    sim_stack = sims(seed)
+    sim2 = sims(10_000 + seed)
+    rs, ss = background_stats(real_stack), background_stats(sim_stack)
+    edges = np.linspace(0, hi - lo, n_bands + 1).round().astype(np.int64)
+    rp, rm = _band_stats(real_stack, edges)
+    sp, sm = _band_stats(sim_stack, edges)
+    centres = np.array([r[lo + (a + b - 1) // 2] for a, b in zip(edges[:-1], edges[1:], strict=True)])
+    return RecordingComparison(
+        label=label or f"{geom.name} vs simulated '{scene}'",
+        scene=scene,
+        geometry_name=geom.name,
+        rows=(lo, hi),
+        real=rs,
+        sim=ss,
+        kld_real_sim=histogram_kld(rs.histogram, ss.histogram),
+        kld_sim_sim=histogram_kld(ss.histogram, background_stats(sim2).histogram),
+        band_range_m=centres,
+        real_percentiles=rp,
+        sim_percentiles=sp,
+        real_band_mean=rm,
+        sim_band_mean=sm,
+    )
+
+
+#: Range in front of the seabed of the Oculus recording compared with the empty scene (m).
+OCULUS_WATER_COLUMN_M = 0.45
+
+
+def recording_comparisons(data_dir: str | Path = "../shared/data") -> list[RecordingComparison]:
+    """The ARIS and Oculus comparisons quoted in ``docs/simulator.md``.
+
+    ``aris/sample.aris`` (all 6 frames) against as many simulated ``empty`` pings;
+    ``oculus/three_pings_8bit.raw``: the water column (range < :data:`OCULUS_WATER_COLUMN_M`,
+    ring-down included) against ``empty``, and the whole image against ``seafloor``.
+    """
+    from sonarmap.io import read_pings
+
+    d = Path(data_dir)
+    aris = list(read_pings(d / "aris" / "sample.aris"))
+    ocu = list(read_pings(d / "oculus" / "three_pings_8bit.raw"))
+    return [
+        compare_recording(aris, label="ARIS sample.aris (6 frames) vs simulated 'empty'"),
+        compare_recording(ocu, max_range_m=OCULUS_WATER_COLUMN_M, n_bands=8,
+                          label=f"Oculus three_pings_8bit.raw, water column (< {OCULUS_WATER_COLUMN_M} m) vs 'empty'"),
+        compare_recording(ocu, scene="seafloor",
+                          label="Oculus three_pings_8bit.raw, whole image vs simulated 'seafloor'"),
+    ]
+
+
 def ghost_ratios(ping: Ping, *, n_ghosts: int = 3, step: int = 8, min_peak: float = 0.15,
                  max_offset: int = 40) -> tuple[float, ...]:
     """Ghost-to-main intensity ratios at ``+-step k`` beams (k = 1..n_ghosts) of a real ping.
@@ -157,19 +366,38 @@ def ghost_ratios(ping: Ping, *, n_ghosts: int = 3, step: int = 8, min_peak: floa
     return tuple(out)
 
 
-def main(argv: list[str] | None = None) -> int:
-    """Print the comparison for a directory of real background pings (``--ghosts PING``: the
-    ghost ratios of one real ping, see :func:`ghost_ratios`)."""
+def main(argv: Sequence[str] | None = None) -> int:
+    """Print comparisons with real recordings.
+
+    ``[DIR]``: a directory of real DIDSON background pings (default
+    ``../shared/data/didson/background``); ``FILE``: any recording :func:`sonarmap.io.read_pings`
+    reads, against the simulated ``empty`` scene; ``--all [DATA_DIR]``: DIDSON, then the ARIS and
+    Oculus tables of :func:`recording_comparisons`; ``--ghosts PING``: the ghost ratios of one real
+    ping (:func:`ghost_ratios`).
+    """
     from sonarmap.io.pngjson import iter_png_pings
 
-    args = sys.argv[1:] if argv is None else argv
+    args = list(sys.argv[1:] if argv is None else argv)
     if args and args[0] == "--ghosts":
         from sonarmap.io.pngjson import read_png_ping
 
         src = args[1] if len(args) > 1 else "../shared/data/didson/test/1468970074505798_raw.png"  # test ping 5
         print("ghost ratios at +-8, +-16, +-24 beams:", ghost_ratios(read_png_ping(src)))
         return 0
-    src = args[0] if args else "../shared/data/didson/background"
+    if args and args[0] == "--all":
+        data = Path(args[1] if len(args) > 1 else "../shared/data")
+        print(f"DIDSON {data / 'didson' / 'background'} (116 pings) vs 116 simulated 'empty'")
+        for k, v in compare_background(iter_png_pings(data / "didson" / "background")).items():
+            print(f"  {k:22s} {v:.4f}")
+        for comp in recording_comparisons(data):
+            print(comp.table())
+        return 0
+    src = Path(args[0] if args else "../shared/data/didson/background")
+    if src.is_file():
+        from sonarmap.io import read_pings
+
+        print(compare_recording(read_pings(src), label=f"{src.name} vs simulated 'empty'").table())
+        return 0
     res = compare_background(iter_png_pings(src))
     for k, v in res.items():
         print(f"{k:22s} {v:.4f}")

@@ -11,19 +11,24 @@ Processing order (each step documented in ``docs/simulator.md``)::
     background             m_bg = k(theta_j) 10^((SL + G - FS + RV - TL(r)) / 10)
                            (volume reverberation: through taper and channel exactly like echoes)
     speckle + noise        A = sqrt(m + m_bg) z1 + sqrt(n) z2,  z ~ CN(0, 1);  I = |A|^2
-                           (Rayleigh amplitude; I is exponential with mean m + m_bg + n)
-    receiver mapping       p = clip(I - threshold, 0, 1)
+                           (Rayleigh amplitude; I is exponential with mean m + m_bg + n),
+                           averaged over ``looks`` independent draws (gamma with shape looks)
+    receiver mapping       linear: p = clip(I - threshold, 0, 1)
+                           log:    p = clip(1 + 10 log10(I) / D - threshold, 0, 1)
     quantisation           q = floor(255 p) / 255
 
 ``SL`` source level, ``G`` receiver gain (``geometry.rx_gain_db`` unless overridden), ``FS`` the
 full-scale level (received level that maps to pixel 1), ``RV`` the per-pixel volume backscatter,
-``n`` the receiver noise power.  The defaults were fitted to the 116 real DIDSON background pings
-(see ``docs/simulator.md``).
+``n`` the receiver noise power, ``D`` the log receiver's dynamic range.  The defaults were fitted
+to the 116 real DIDSON background pings; other sonars take their defaults from a sonar profile
+(:mod:`sonarmap.simulate.presets`, chosen from the geometry's name) for every field the caller does
+not set (see ``docs/simulator.md``).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 import math
 import os
@@ -40,6 +45,7 @@ from sonarmap.simulate.scene import CLUTTER, STRUCTURE, Scene
 
 __all__ = [
     "SimulationConfig",
+    "simulation_config_for",
     "SimResult",
     "SimulationFiles",
     "simulate_ping",
@@ -138,6 +144,43 @@ class SimulationConfig:
         A pixel belongs to a class in the truth mask when that class's *unblurred* expected echo
         intensity is at least this many dB relative to the expected background intensity
         (reverberation + noise) at the pixel (default -3 dB, i.e. half the noise floor).
+    receiver : {"linear", "log"}
+        Receiver mapping from intensity ``I`` (full-scale units) to the pixel value before
+        quantisation: ``"linear"`` ``p = clip(I - threshold, 0, 1)`` (DIDSON, Oculus) or
+        ``"log"`` ``p = clip(1 + 10 log10(I) / dynamic_range_db - threshold, 0, 1)`` (ARIS: full
+        scale maps to 1, ``dynamic_range_db`` below it to 0).
+    dynamic_range_db : float
+        Input range of the log receiver mapped onto [0, 1] (unused by ``"linear"``).
+    looks : int
+        Independent speckle draws averaged per pixel (intensity gamma-distributed with this shape;
+        1: single-look exponential speckle, as the DIDSON).
+    range_resolution_m : float
+        Range resolution of the pulse: the expected echo is averaged along range over a box of
+        ``round(range_resolution_m / bin spacing)`` bins when that is 2 or more (0: none).
+    ring_down_level : float
+        Near-field ring-down of the transducer, in full-scale intensity at range 0; it decays as
+        ``exp(-r / ring_down_m)``, is not tapered and fades like reverberation (0: none).
+    ring_down_m : float
+        Decay length of the ring-down.
+
+    Notes
+    -----
+    Sonar profiles (:mod:`sonarmap.simulate.presets`) give other sonars their own defaults for
+    gain, loss, floor and receiver.  A field passed to the constructor (or to :meth:`replace`) is
+    *explicit* and always used as given; the others take the profile's value when the config
+    meets a geometry (:meth:`resolved`, which :func:`simulate_ping` calls).  For DIDSON and any
+    geometry no profile claims, the defaults above are used unchanged.
+    ``rx_gain_db=None`` passed explicitly means the geometry's gain.
+
+    Examples
+    --------
+    >>> from sonarmap import preset
+    >>> SimulationConfig(looks=3).resolved(preset("aris3000-128")).receiver
+    'log'
+    >>> SimulationConfig(looks=3).resolved(preset("aris3000-128")).looks
+    3
+    >>> SimulationConfig().resolved(preset("didson-hf")) == SimulationConfig()
+    True
     """
 
     source_level_db: float = 200.0
@@ -156,6 +199,12 @@ class SimulationConfig:
     truth_snr_db: float = -3.0
     ghosts: Literal["coherent", "incoherent"] = "coherent"
     beam_pattern: Literal["geometry", "measured"] = "geometry"
+    receiver: Literal["linear", "log"] = "linear"
+    dynamic_range_db: float = 40.0
+    looks: int = 1
+    range_resolution_m: float = 0.0
+    ring_down_level: float = 0.0
+    ring_down_m: float = 0.005
 
     def __post_init__(self) -> None:
         for f in dataclasses.fields(self):
@@ -179,14 +228,106 @@ class SimulationConfig:
             raise InputError(f"config.threshold: must be in [0, 1) (got {self.threshold})")
         if self.incidence_exponent < 0:
             raise InputError(f"config.incidence_exponent: must be >= 0 (got {self.incidence_exponent})")
+        if self.receiver not in ("linear", "log"):
+            raise InputError(f"config.receiver: 'linear' or 'log', got {self.receiver!r}")
+        if not self.dynamic_range_db > 0:
+            raise InputError(f"config.dynamic_range_db: must be positive (got {self.dynamic_range_db})")
+        if isinstance(self.looks, bool) or not isinstance(self.looks, int | np.integer) or self.looks < 1:
+            raise InputError(f"config.looks: must be an integer >= 1 (got {self.looks!r})")
+        object.__setattr__(self, "looks", int(self.looks))
+        if self.range_resolution_m < 0:
+            raise InputError(f"config.range_resolution_m: must be >= 0 (got {self.range_resolution_m})")
+        if self.ring_down_level < 0:
+            raise InputError(f"config.ring_down_level: must be >= 0 (got {self.ring_down_level})")
+        if not self.ring_down_m > 0:
+            raise InputError(f"config.ring_down_m: must be positive (got {self.ring_down_m})")
+
+    @property
+    def explicit_fields(self) -> frozenset[str]:
+        """Names of the fields set by the caller (never replaced by a sonar profile)."""
+        return self.__dict__.get("_explicit", frozenset())
 
     def replace(self, **changes: Any) -> SimulationConfig:
-        """A copy with fields replaced."""
-        return dataclasses.replace(self, **changes)
+        """A copy with fields replaced; the replaced fields become explicit."""
+        new = dataclasses.replace(self, **changes)
+        object.__setattr__(new, "_explicit", self.explicit_fields | frozenset(changes))
+        return new
+
+    def resolved(self, geometry: SonarGeometry) -> SimulationConfig:
+        """This config with the sonar profile of ``geometry`` filling every non-explicit field.
+
+        Returns ``self`` when the profile changes nothing (DIDSON and unknown sonars); otherwise a
+        config whose fields are all explicit (resolving it again, for any geometry, is a no-op).
+        """
+        from sonarmap.simulate.presets import profile_for
+
+        prof = profile_for(geometry)
+        changes = {k: v for k, v in prof.values.items() if k not in self.explicit_fields}
+        if not changes:
+            return self
+        new = dataclasses.replace(self, **changes)
+        object.__setattr__(new, "_explicit", frozenset(f.name for f in dataclasses.fields(self)))
+        return new
+
+    @classmethod
+    def for_geometry(cls, geometry: SonarGeometry, **changes: Any) -> SimulationConfig:
+        """The defaults of ``geometry``'s sonar profile with ``changes`` applied (see
+        :func:`simulation_config_for`)."""
+        out = cls(**changes).resolved(geometry)
+        # a fresh object: mark it fully specified so it renders the same for any geometry
+        object.__setattr__(out, "_explicit", frozenset(f.name for f in dataclasses.fields(cls)))
+        return out
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-compatible dict of the parameters."""
         return dataclasses.asdict(self)
+
+
+def _track_explicit_fields(cls: type[SimulationConfig]) -> type[SimulationConfig]:
+    """Record which fields each constructor call set (for :meth:`SimulationConfig.resolved`)."""
+    init = cls.__init__
+    names = tuple(f.name for f in dataclasses.fields(cls) if f.init)
+
+    @functools.wraps(init)
+    def __init__(self: SimulationConfig, *args: Any, **kwargs: Any) -> None:
+        init(self, *args, **kwargs)
+        object.__setattr__(self, "_explicit", frozenset(names[: len(args)]) | frozenset(kwargs))
+
+    cls.__init__ = __init__  # type: ignore[method-assign]
+    return cls
+
+
+_track_explicit_fields(SimulationConfig)
+
+
+def simulation_config_for(geometry: SonarGeometry, **changes: Any) -> SimulationConfig:
+    """The rendering defaults of ``geometry``'s sonar profile, with ``changes`` applied.
+
+    Parameters
+    ----------
+    geometry : SonarGeometry
+        The profile is chosen from ``geometry.name`` (:func:`sonarmap.simulate.presets.profile_for`:
+        ``aris*`` -> ARIS, ``oculus*`` -> Oculus, anything else -> the DIDSON defaults).
+    **changes
+        :class:`SimulationConfig` fields to set explicitly (they override the profile).
+
+    Returns
+    -------
+    SimulationConfig
+        Fully specified (every field explicit).
+
+    Examples
+    --------
+    >>> from sonarmap import preset
+    >>> cfg = simulation_config_for(preset("aris-telephoto-48"), speckle=False)
+    >>> cfg.receiver, cfg.rx_gain_db, cfg.speckle
+    ('log', 24.0, False)
+    >>> simulation_config_for(preset("didson-hf")) == SimulationConfig()
+    True
+    """
+    if not isinstance(geometry, SonarGeometry):
+        raise InputError(f"geometry: expected a SonarGeometry, got {type(geometry).__name__}")
+    return SimulationConfig.for_geometry(geometry, **changes)
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -237,7 +378,10 @@ class SimResult:
 
 
 def transmission_loss_db(range_m: NDArray[np.float64] | float, config: SimulationConfig) -> NDArray[np.float64]:
-    """Two-way loss ``20 beta log10 r + 2 alpha r`` in dB (eqs. 6-7); ranges below 1 cm are clamped."""
+    """Two-way loss ``20 beta log10 r + 2 alpha r`` in dB (eqs. 6-7); ranges below 1 cm are clamped.
+
+    ``config`` is used as given (resolve it for a geometry first: :meth:`SimulationConfig.resolved`).
+    """
     r = np.maximum(np.asarray(range_m, dtype=np.float64), 0.01)
     return 20.0 * config.spreading_beta * np.log10(r) + 2.0 * config.alpha_db_per_m * r
 
@@ -249,8 +393,10 @@ def _rx_gain(geometry: SonarGeometry, config: SimulationConfig) -> float:
 def channel_gain(geometry: SonarGeometry, config: SimulationConfig = SimulationConfig()) -> NDArray[np.float64]:
     """Per-bin factor from target strength (linear, m^2) to full-scale intensity, shape (n_bins,).
 
-    ``10 ** ((SL + G - FS - TL(r)) / 10)``; the taper is *not* included.
+    ``10 ** ((SL + G - FS - TL(r)) / 10)``; the taper is *not* included.  ``config`` is
+    resolved for ``geometry`` (its sonar profile fills the fields not set explicitly).
     """
+    config = config.resolved(geometry)
     offset = config.source_level_db + _rx_gain(geometry, config) - config.full_scale_db
     return 10.0 ** ((offset - transmission_loss_db(geometry.range_m, config)) / 10.0)
 
@@ -264,10 +410,19 @@ def expected_background_level(
 ) -> NDArray[np.float64]:
     """Mean background intensity per bin for a beam of unit taper, before threshold, shape (n_bins,).
 
-    ``channel_gain(r) * 10^(reverb_db/10) + noise``: multiply by ``geometry.taper[j]`` (the noise
-    term is tiny by default) for beam ``j``.  After a radial gain ``1 / channel_gain`` it is flat.
+    ``channel_gain(r) * 10^(reverb_db/10) + noise`` (+ the ring-down, where a profile has one):
+    multiply the first term by ``geometry.taper[j]`` (the noise term is tiny by default) for beam
+    ``j``.  After a radial gain ``1 / channel_gain`` it is flat.
     """
-    return channel_gain(geometry, config) * 10.0 ** (config.reverb_db / 10.0) + _noise_power(geometry, config)
+    config = config.resolved(geometry)
+    out = channel_gain(geometry, config) * 10.0 ** (config.reverb_db / 10.0) + _noise_power(geometry, config)
+    if config.ring_down_level > 0:
+        out = out + _ring_down(geometry, config)
+    return out
+
+
+def _ring_down(geometry: SonarGeometry, config: SimulationConfig) -> NDArray[np.float64]:
+    return config.ring_down_level * np.exp(-np.asarray(geometry.range_m) / config.ring_down_m)
 
 
 def _taper(geometry: SonarGeometry) -> NDArray[np.float64]:
@@ -276,7 +431,26 @@ def _taper(geometry: SonarGeometry) -> NDArray[np.float64]:
 
 def _background_mean(geometry: SonarGeometry, config: SimulationConfig) -> NDArray[np.float64]:
     rv = channel_gain(geometry, config) * 10.0 ** (config.reverb_db / 10.0)
-    return rv[:, None] * _taper(geometry)[None, :] + _noise_power(geometry, config)
+    out = rv[:, None] * _taper(geometry)[None, :] + _noise_power(geometry, config)
+    if config.ring_down_level > 0:
+        out = out + _ring_down(geometry, config)[:, None]
+    return out
+
+
+def _level_thresholds(config: SimulationConfig, ks: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Intensity at which the receiver mapping reaches the pixel values ``ks`` (in [0, 1])."""
+    if config.receiver == "log":
+        return 10.0 ** ((ks + config.threshold - 1.0) * config.dynamic_range_db / 10.0)
+    return config.threshold + ks
+
+
+def _exceedance(x: NDArray[np.float64], mean: NDArray[np.float64], looks: int) -> NDArray[np.float64]:
+    """``P(I >= x)`` for ``I`` the average of ``looks`` exponentials of mean ``mean``."""
+    if looks == 1:
+        return np.exp(-x / mean)
+    from scipy.special import gammaincc
+
+    return gammaincc(looks, looks * x / mean)
 
 
 def expected_background_image(
@@ -285,26 +459,33 @@ def expected_background_image(
     """Expected recorded pixel value and probability of a zero pixel in open water.
 
     Exact for the model: ``I`` is exponential with mean ``mu = m_bg + n``, so
-    ``P(q >= k/255) = exp(-(threshold + k/255) / mu)`` (floor quantisation) and
-    ``E[q] = sum_k P(q >= k/255) / 255``.
+    ``P(q >= k/255) = exp(-(threshold + k/255) / mu)`` (floor quantisation, linear receiver) and
+    ``E[q] = sum_k P(q >= k/255) / 255``.  With ``looks`` L > 1 the exponential becomes a gamma
+    distribution of shape L (``scipy.special.gammaincc``); the log receiver reaches level ``k``
+    at ``I = 10^((k/255 + threshold - 1) D / 10)``.  ``config`` is resolved for ``geometry``.
 
     Returns
     -------
     mean, p_zero : ndarray, shape (n_bins, n_beams)
     """
-    mu = _background_mean(geometry, config)
+    config = config.resolved(geometry)
+    mu_full = _background_mean(geometry, config)
+    # every pixel with the same mean has the same distribution: evaluate each level once
+    mu, inverse = np.unique(mu_full, return_inverse=True)
     shift = 0.5 if config.quantization == "round" else 0.0
     ks = (np.arange(1, 256) - shift) / 255.0
+    x = _level_thresholds(config, ks)
     if config.speckle:
-        exceed = np.exp(-(config.threshold + ks) / mu[..., None])
-    else:  # deterministic reverberation; receiver noise still exponential
+        exceed = _exceedance(x, mu[..., None], config.looks)
+    else:  # deterministic reverberation; receiver noise still exponential (gamma with looks)
         rv = mu - _noise_power(geometry, config)
         n = _noise_power(geometry, config)
-        need = np.maximum(config.threshold + ks - rv[..., None], 0.0)
-        exceed = np.exp(-need / n)
+        need = np.maximum(x - rv[..., None], 0.0)
+        exceed = _exceedance(need, n, config.looks)
     mean = exceed.sum(axis=-1) / 255.0
     p_zero = 1.0 - exceed[..., 0]
-    return mean, p_zero
+    shape = mu_full.shape
+    return mean[inverse].reshape(shape), p_zero[inverse].reshape(shape)
 
 
 # ---------------------------------------------------------------------- rendering
@@ -400,6 +581,7 @@ MEASURED_DIDSON_GHOSTS: tuple[float, ...] = (0.031, 0.007, 0.005)
 
 def render_psf(geometry: SonarGeometry, config: SimulationConfig) -> NDArray[np.float64] | None:
     """The across-beam pattern :func:`simulate_ping` renders with (see ``beam_pattern``)."""
+    config = config.resolved(geometry)
     psf = geometry.psf
     if psf is None or config.beam_pattern == "geometry":
         return psf
@@ -416,6 +598,56 @@ def render_psf(geometry: SonarGeometry, config: SimulationConfig) -> NDArray[np.
                 if 0 <= idx < p.size and p[idx] > 0:
                     out[idx] = ratio
     return out / out.sum()
+
+
+def _pulse_smooth(energy: NDArray[np.float64], geometry: SonarGeometry,
+                  config: SimulationConfig) -> NDArray[np.float64]:
+    """Average ``energy`` along range over the pulse's range resolution (unit-sum box)."""
+    if config.range_resolution_m <= 0 or geometry.n_bins < 2:
+        return energy
+    n = int(round(config.range_resolution_m / geometry.range_resolution_m))
+    if n < 2 or not energy.any():
+        return energy
+    from scipy.ndimage import uniform_filter1d
+
+    return uniform_filter1d(energy, size=n, axis=0, mode="constant")
+
+
+def _one_look(
+    rng: np.random.Generator,
+    shape: tuple[int, int],
+    config: SimulationConfig,
+    psf: NDArray[np.float64] | None,
+    a: NDArray[np.float64] | None,
+    taper: NDArray[np.float64],
+    m_bg: NDArray[np.float64],
+    m_scatter: NDArray[np.float64],
+    noise: float,
+) -> NDArray[np.float64]:
+    """One speckle realisation of the received intensity (full-scale units).
+
+    Speckle (Rayleigh amplitude) and additive receiver noise, in the complex amplitude domain;
+    ``a`` (the per-direction echo amplitude) is given for coherent ghosts.
+    """
+    z = rng.standard_normal((4,) + shape)
+    z *= math.sqrt(0.5)
+    if a is not None:
+        # complex echo field per source direction, seen through the pattern's amplitude taps
+        zs = rng.standard_normal((2,) + shape)
+        zs *= math.sqrt(0.5)
+        field_re = _beam_pattern(a * zs[0], psf, amplitude=True)
+        field_im = _beam_pattern(a * zs[1], psf, amplitude=True)
+        st = np.sqrt(taper)
+        amp_bg = np.sqrt(np.maximum(m_bg - noise, 0.0))
+        re = st * field_re + amp_bg * z[0] + math.sqrt(noise) * z[2]
+        im = st * field_im + amp_bg * z[1] + math.sqrt(noise) * z[3]
+        return re * re + im * im
+    if config.speckle:
+        amp = np.sqrt(m_scatter)
+        re = amp * z[0] + math.sqrt(noise) * z[2]
+        im = amp * z[1] + math.sqrt(noise) * z[3]
+        return re * re + im * im
+    return m_scatter + noise * (z[2] ** 2 + z[3] ** 2)
 
 
 def _validate(scene: Any, geometry: Any, config: Any) -> None:
@@ -445,7 +677,8 @@ def simulate_ping(
         Range bins (``range_m``), beam azimuth table (``azimuth_rad``, may be non-uniform), beam
         pattern ``psf``, ``taper`` and ``rx_gain_db``.
     config : SimulationConfig
-        Sonar-equation and receiver parameters.
+        Sonar-equation and receiver parameters; fields not set explicitly take the values of the
+        geometry's sonar profile (:meth:`SimulationConfig.resolved`; unchanged for DIDSON).
     seed : int or numpy.random.Generator
         Randomness (speckle, noise); the same integer seed gives identical bytes.
     time_ns : int
@@ -454,6 +687,7 @@ def simulate_ping(
     Returns
     -------
     SimResult
+        Its ``config`` is the resolved configuration actually rendered.
 
     Notes
     -----
@@ -461,10 +695,21 @@ def simulate_ping(
     ``atan2(y, x)`` (samples outside the window or fan are dropped), weighted by its target
     strength and the vertical pattern at elevation ``atan2(z, hypot(x, y))``.  Then: beam pattern
     across beams (linear convolution, eq. 2 of Teixeira et al. 2018), taper ``k(theta)`` (eq. 5),
-    channel ``SL + G - FS - (20 beta log10 r + 2 alpha r)`` (eqs. 6-7), Rayleigh speckle, receiver
-    noise, receiver mapping and 8-bit quantisation.
+    channel ``SL + G - FS - (20 beta log10 r + 2 alpha r)`` (eqs. 6-7), Rayleigh speckle averaged
+    over ``looks``, receiver noise, receiver mapping (linear with threshold, or log) and 8-bit
+    quantisation.
+
+    Examples
+    --------
+    >>> from sonarmap import preset
+    >>> from sonarmap.simulate import scene_from_name
+    >>> g = preset("aris3000-128")
+    >>> res = simulate_ping(scene_from_name("hull", geometry=g), g, seed=0)
+    >>> res.config.receiver, bool(res.ping.image.min() > 0)
+    ('log', True)
     """
     _validate(scene, geometry, config)
+    config = config.resolved(geometry)
     if isinstance(seed, bool) or not isinstance(seed, int | np.integer | np.random.Generator):
         raise InputError(f"seed: expected an int or numpy Generator, got {type(seed).__name__}")
     rng = np.random.default_rng(seed)
@@ -472,36 +717,27 @@ def simulate_ping(
     gain_r = channel_gain(geometry, config)[:, None]
     taper = _taper(geometry)[None, :]
     total = e_struct + e_clutter
+    total = _pulse_smooth(total, geometry, config)
     psf = render_psf(geometry, config)
     blurred = _beam_pattern(total, psf)
     m_echo = blurred * taper * gain_r
     m_bg = _background_mean(geometry, config)
     noise = _noise_power(geometry, config)
     shape = geometry.shape
-    # Speckle (Rayleigh amplitude) and additive receiver noise, in the complex amplitude domain.
-    z = rng.standard_normal((4,) + shape)
-    z *= math.sqrt(0.5)
     m_scatter = m_echo + (m_bg - noise)
-    if config.speckle and config.ghosts == "coherent" and psf is not None:
-        # complex echo field per source direction, seen through the pattern's amplitude taps
-        zs = rng.standard_normal((2,) + shape)
-        zs *= math.sqrt(0.5)
-        a = np.sqrt(total * gain_r)
-        field_re = _beam_pattern(a * zs[0], psf, amplitude=True)
-        field_im = _beam_pattern(a * zs[1], psf, amplitude=True)
-        st = np.sqrt(taper)
-        amp_bg = np.sqrt(np.maximum(m_bg - noise, 0.0))
-        re = st * field_re + amp_bg * z[0] + math.sqrt(noise) * z[2]
-        im = st * field_im + amp_bg * z[1] + math.sqrt(noise) * z[3]
-        intensity = re * re + im * im
-    elif config.speckle:
-        amp = np.sqrt(m_scatter)
-        re = amp * z[0] + math.sqrt(noise) * z[2]
-        im = amp * z[1] + math.sqrt(noise) * z[3]
-        intensity = re * re + im * im
+    coherent = config.speckle and config.ghosts == "coherent" and psf is not None
+    a = np.sqrt(total * gain_r) if coherent else None
+    intensity = _one_look(rng, shape, config, psf, a, taper, m_bg, m_scatter, noise)
+    if config.looks > 1:
+        for _ in range(config.looks - 1):
+            intensity += _one_look(rng, shape, config, psf, a, taper, m_bg, m_scatter, noise)
+        intensity /= config.looks
+    if config.receiver == "log":
+        with np.errstate(divide="ignore"):
+            level = 1.0 + 10.0 * np.log10(intensity) / config.dynamic_range_db
+        p = np.clip(level - config.threshold, 0.0, 1.0)
     else:
-        intensity = m_scatter + noise * (z[2] ** 2 + z[3] ** 2)
-    p = np.clip(intensity - config.threshold, 0.0, 1.0)
+        p = np.clip(intensity - config.threshold, 0.0, 1.0)
     if config.quantization == "floor":
         q = np.floor(p * 255.0 + 1e-9)
     else:

@@ -24,6 +24,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -37,6 +38,9 @@ __all__ = [
     "CLUTTER",
     "SCENE_NAMES",
     "scene_from_name",
+    "scene_scale_for",
+    "view_for",
+    "SCENE_REFERENCE_RANGE_M",
     "plane_patch",
     "planar_hull",
     "curved_hull",
@@ -224,6 +228,29 @@ class Scene:
             & (p[:, 0] > 0)
         )
         return self.subset(keep)
+
+    def scaled(self, factor: float) -> Scene:
+        """A geometrically similar scene: positions times ``factor``, patch areas times ``factor**2``.
+
+        Normals and reflectivities are unchanged, so target strengths scale with the areas (a
+        smaller copy of the same surfaces, e.g. to put a named scene inside a short-range window).
+
+        Raises
+        ------
+        InputError
+            If ``factor`` is not a positive finite number.
+        """
+        f = float(factor)
+        if not (math.isfinite(f) and f > 0):
+            raise InputError(f"factor: must be a positive finite number (got {factor})")
+        return Scene(
+            points_m=self.points_m * f,
+            normals=self.normals,
+            reflectivity=self.reflectivity,
+            labels=self.labels,
+            patch_area_m2=self.patch_area_m2 * (f * f),
+            name=self.name,
+        )
 
     def subset(self, mask: NDArray[np.bool_]) -> Scene:
         """The samples selected by a boolean mask or index array."""
@@ -600,45 +627,120 @@ def point_target(
 # ---------------------------------------------------------------------- named scenes
 
 
-def _hull(gen: np.random.Generator) -> Scene:
-    return planar_hull()
+def _hull(gen: np.random.Generator, view: View) -> Scene:
+    return planar_hull(view=view)
 
 
-def _fish_over_hull(gen: np.random.Generator) -> Scene:
-    hull = planar_hull(8.0, incidence_deg=55.0)
-    fish = fish_school(4.0, azimuth_deg=3.0, n_fish=40, rng=gen)
+def _fish_over_hull(gen: np.random.Generator, view: View) -> Scene:
+    hull = planar_hull(8.0, incidence_deg=55.0, view=view)
+    fish = fish_school(4.0, azimuth_deg=3.0, n_fish=40, rng=gen, view=view)
     return Scene.concat(hull, fish, name="fish_over_hull")
 
 
-_BUILDERS: dict[str, Callable[[np.random.Generator], Scene]] = {
+_BUILDERS: dict[str, Callable[[np.random.Generator, View], Scene]] = {
     "hull": _hull,
-    "hull_oblique": lambda g: Scene.concat(planar_hull(7.0, yaw_deg=20.0), name="hull_oblique"),
-    "curved_hull": lambda g: curved_hull(),
-    "propeller": lambda g: propeller(),
-    "rudder": lambda g: rudder(),
-    "seafloor": lambda g: seafloor(),
-    "fish": lambda g: fish_school(rng=g),
+    "hull_oblique": lambda g, v: Scene.concat(planar_hull(7.0, yaw_deg=20.0, view=v), name="hull_oblique"),
+    "curved_hull": lambda g, v: curved_hull(view=v),
+    "propeller": lambda g, v: propeller(view=v),
+    "rudder": lambda g, v: rudder(view=v),
+    "seafloor": lambda g, v: seafloor(view=v),
+    "fish": lambda g, v: fish_school(rng=g, view=v),
     "fish_over_hull": _fish_over_hull,
-    "fish_over_seafloor": lambda g: Scene.concat(
-        seafloor(), fish_school(3.5, azimuth_deg=-6.0, rng=g), name="fish_over_seafloor"
+    "fish_over_seafloor": lambda g, v: Scene.concat(
+        seafloor(view=v), fish_school(3.5, azimuth_deg=-6.0, rng=g, view=v), name="fish_over_seafloor"
     ),
-    "empty": lambda g: empty_scene(),
+    "empty": lambda g, v: empty_scene(),
 }
 
 #: Names accepted by :func:`scene_from_name`.
 SCENE_NAMES: tuple[str, ...] = tuple(_BUILDERS)
 
 
-def scene_from_name(name: str, rng_or_seed: int | np.random.Generator | None = 0) -> Scene:
+#: Range the named scenes are laid out around (the centre of the DIDSON's 2.25-11.25 m window).
+SCENE_REFERENCE_RANGE_M = 6.75
+
+
+def scene_scale_for(geometry: Any) -> float:
+    """Factor :func:`scene_from_name` scales the named scenes by for ``geometry``'s range window.
+
+    1 when the window contains :data:`SCENE_REFERENCE_RANGE_M` (DIDSON, ARIS), else the window's
+    centre over that range (e.g. 0.148 for the 0-2 m Oculus window: the hull plate then crosses the axis at 0.96 m).
+    """
+    lo, hi = float(geometry.min_range_m), float(geometry.max_range_m)
+    if lo <= SCENE_REFERENCE_RANGE_M <= hi:
+        return 1.0
+    return 0.5 * (lo + hi) / SCENE_REFERENCE_RANGE_M
+
+
+def view_for(geometry: Any) -> View:
+    """The :class:`View` :func:`scene_from_name` crops to for ``geometry`` (before scaling).
+
+    The default view, widened to the geometry's fan (``fov / 2 + 2 deg``) and to its sonar
+    profile's vertical aperture (:mod:`sonarmap.simulate.presets`) where those exceed 20 / 4 deg;
+    the default view itself for DIDSON and ARIS.
+    """
+    from sonarmap.simulate.presets import profile_for
+
+    base = View()
+    fov = geometry.fov_rad
+    if fov is None:
+        fov = float(geometry.azimuth_rad[-1] - geometry.azimuth_rad[0])
+    half_az = max(base.half_azimuth_rad, 0.5 * float(fov) + math.radians(2.0))
+    aperture = float(profile_for(geometry).values.get("elevation_aperture_rad", 0.0))
+    half_el = max(base.half_elevation_rad, aperture)
+    if half_az == base.half_azimuth_rad and half_el == base.half_elevation_rad:
+        return base
+    return View(max_range_m=base.max_range_m, half_azimuth_rad=min(half_az, math.radians(80.0)),
+                half_elevation_rad=min(half_el, math.radians(60.0)))
+
+
+def scene_from_name(
+    name: str,
+    rng_or_seed: int | np.random.Generator | None = 0,
+    *,
+    geometry: Any = None,
+    view: View | None = None,
+) -> Scene:
     """Build a named scene (see :data:`SCENE_NAMES`); random parts (fish) use ``rng_or_seed``.
+
+    Parameters
+    ----------
+    name : str
+        One of :data:`SCENE_NAMES`.
+    rng_or_seed : int or numpy.random.Generator or None
+        Randomness of the random parts.
+    geometry : SonarGeometry, optional
+        Build the scene for this sonar: cropped to :func:`view_for` (its fan and vertical beam)
+        and scaled by :func:`scene_scale_for` to lie inside its range window.  Unchanged for
+        DIDSON and ARIS geometries; the Oculus-like preset gets a smaller, wider scene.
+    view : View, optional
+        Crop to this view instead (in the unscaled scene's frame); default ``View()`` or, with
+        ``geometry``, :func:`view_for`.
 
     Raises
     ------
     InputError
         If ``name`` is unknown (the message lists the valid names).
+
+    Examples
+    --------
+    >>> from sonarmap import preset
+    >>> from sonarmap import preset
+    >>> round(scene_scale_for(preset("oculus-m750d-like")), 3)
+    0.148
+    >>> len(scene_from_name("hull", geometry=preset("didson-hf"))) == len(scene_from_name("hull"))
+    True
     """
     if name not in _BUILDERS:
         raise InputError(f"scene: unknown scene '{name}'; choose from {', '.join(SCENE_NAMES)}")
     gen = np.random.default_rng(rng_or_seed)
-    scene = _BUILDERS[name](gen)
+    if view is None:
+        view = View() if geometry is None else view_for(geometry)
+    elif not isinstance(view, View):
+        raise InputError(f"view: expected a View, got {type(view).__name__}")
+    scene = _BUILDERS[name](gen, view)
+    if geometry is not None:
+        factor = scene_scale_for(geometry)
+        if factor != 1.0:
+            scene = scene.scaled(factor)
     return dataclasses.replace(scene, name=name)
