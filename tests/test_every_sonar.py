@@ -43,9 +43,10 @@ def test_normalisation_applies_to_aris_and_not_to_thresholded_didson(aris_pings,
     # the lower-quartile level falls with range (~3x over the window: 3.8-3.9 dB between deciles)
     assert 3.0 < bg.range_dependence_db < 5.0
     assert bg.level_by_bin[:100].mean() > 1.5 * bg.level_by_bin[-100:].mean()
-    # 90 % of the pixels under the emulated receiver threshold: a zero spike like DIDSON's
-    assert np.mean(u == 0) == pytest.approx(0.9, abs=0.01)
-    assert float(u[u > 0].mean()) == pytest.approx(BACKGROUND_MEAN, rel=0.05)
+    # most pixels under the emulated receiver threshold (the background's 0.9 quantile for an
+    # exponential tail; ARIS's log-compressed background has a lighter tail): a zero spike
+    assert 0.75 <= np.mean(u == 0) <= 0.92
+    assert float(u[u > 0].mean()) == pytest.approx(BACKGROUND_MEAN, rel=0.4)
     for p in test_pings:
         bg, u = estimate_background(p.image)
         assert not bg.applied and bg.reason == "thresholded" and u is None
@@ -83,11 +84,11 @@ def test_real_aris_returns_on_the_target_and_none_in_the_water_column(aris_pings
         r = prod.ranges
         rm = r.range_m[r.valid]
         assert r.n_returns >= 20, p.source
-        assert rm.min() > 15.5, p.source  # nothing in the water column (3.3-15.5 m)
-        on_target = (rm >= 15.5) & (rm <= 17.6)
-        assert on_target.sum() >= 12, p.source
-        # the target lies on beams 0-40 (its faint right end fades out of the fan)
-        assert np.all(np.nonzero(r.valid)[0][on_target] <= 40)
+        assert rm.min() > 15.4, p.source  # nothing in the water column (3.3-15.4 m)
+        on_target = (rm >= 15.4) & (rm <= 17.6)
+        assert on_target.sum() >= 28, p.source  # measured 33-43 of 48
+        # the target runs from beam 0 (17.2 m) to beam ~42 (15.5 m)
+        assert np.all(np.nonzero(r.valid)[0][on_target] <= 44)
 
 
 def test_real_oculus_seabed_and_nothing_in_front(oculus_pings):

@@ -217,7 +217,7 @@ def _simulate(scene: str, geometry: Any, sim_config: Any, seed: int, empty_snr_d
     """The simulated ping and its 'no structure at all' beams (no structure pixel >= empty_snr_db)."""
     from sonarmap.simulate import scene_from_name, simulate_ping
 
-    sc = scene_from_name(scene)
+    sc = scene_from_name(scene, geometry=geometry)
     sim = simulate_ping(sc, geometry, config=sim_config, seed=seed)
     if empty_snr_db >= sim_config.truth_snr_db:
         return sim, None

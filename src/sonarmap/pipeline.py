@@ -34,7 +34,7 @@ from numpy.typing import NDArray
 
 from sonarmap.errors import FitError, InputError
 from sonarmap.ping import Ping
-from sonarmap.ranges import BeamRanges, component_rule, drop_small_components, extract_ranges, no_returns
+from sonarmap.ranges import BeamRanges, component_rule, drop_small_components, extract_ranges, half_peak_edges, no_returns
 
 __all__ = ["PipelineConfig", "PingProducts", "process_ping", "classify_image", "pooled_band_pixels", "METHODS", "SOLVER_NAMES"]
 
@@ -145,6 +145,9 @@ class PipelineConfig:
         of single-look speckle that the per-pixel model leaves in fragments of 0-5 pixels per
         beam; fish schools and speckle do not span ``pool_min_beams`` beams.  Not applied to
         normalised images, which are multi-looked already.
+    edge_fraction : float
+        Normalised images: each first return moves to the first crossing of this fraction of its
+        echo's first peak (:func:`sonarmap.ranges.half_peak_edges`; 0 = the first structure pixel).
     max_kld, max_object_weight, min_separation : float
         Fit gates (:func:`sonarmap.stats.gates.fit_gates`): a ping whose fit fails one yields no
         returns and carries the gate's name in its flags.
@@ -192,7 +195,8 @@ class PipelineConfig:
     pool_bins: int = 3
     pool_min_beams: int = 40
     pool_mode: str = "fill"
-    max_kld: float = 0.02
+    max_kld: float = 0.05
+    edge_fraction: float = 0.5
     max_object_weight: float = 0.5
     min_separation: float = 1.9
 
@@ -218,7 +222,8 @@ class PipelineConfig:
             raise bad("solver", f"must be one of {', '.join(SOLVER_NAMES)}")
         for key in ("beta", "fit_tol", "threshold", "cfar_pfa", "object_prior_min", "grow_prior_min",
                     "grow_beta", "speckle_eps", "edge_factor", "range_weight", "pool_factor",
-                    "min_component_extent_m", "max_kld", "max_object_weight", "min_separation"):
+                    "min_component_extent_m", "max_kld", "max_object_weight", "min_separation",
+                    "edge_fraction"):
             v = getattr(self, key)
             if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
                 raise bad(key, "must be a finite number")
@@ -230,6 +235,8 @@ class PipelineConfig:
                 raise bad(key, "must lie in [0, 0.5)")
         if self.pool_factor < 0:
             raise bad("pool_factor", "must be >= 0")
+        if not 0 <= self.edge_fraction < 1:
+            raise bad("edge_fraction", "must lie in [0, 1)")
         if self.min_component_extent_m < 0:
             raise bad("min_component_extent_m", "must be >= 0")
         if self.grow_beta < 0:
@@ -632,7 +639,8 @@ def process_ping(ping: Ping, config: PipelineConfig = PipelineConfig(), *, keep_
             min_run=config.min_run, reject_isolated=config.reject_isolated,
             neighbour_beams=config.neighbour_beams, max_jump_bins=config.max_jump_bins,
             min_segment_beams=config.min_segment_beams,
-            refine_bins=config.refine_bins, edge_level=edge, accepted=accepted, time_ns=ping.time_ns,
+            refine_bins=config.refine_bins if normalised is None else 0, edge_level=edge, accepted=accepted,
+            time_ns=ping.time_ns,
             source=ping.source,
         )
 
@@ -649,6 +657,9 @@ def process_ping(ping: Ping, config: PipelineConfig = PipelineConfig(), *, keep_
                                       beams=None if fallback else ranges.bin < 0)
         if accepted is not None:
             ranges = _ranges(accepted)
+    if normalised is not None and config.edge_fraction > 0:
+        # the range convention: the leading edge of the echo (a fraction of its first peak)
+        ranges = half_peak_edges(ranges, image, labels >= 1, geom, fraction=config.edge_fraction, peak="first")
     flags = set(fit.flags) if fit is not None else {"no_fit"}
     if ranges.n_returns == 0:
         flags.add("no_returns")

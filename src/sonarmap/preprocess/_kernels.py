@@ -43,19 +43,11 @@ def pooled_ratio(img, level, factor, pool_r, pool_c):  # pragma: no cover - numb
 
 @njit(cache=True, nogil=True)
 def excess(z, t, gain):  # pragma: no cover - numba
-    """``min(gain * max(z - t, 0), 1)`` as float32, and the mean of ``z - t`` where positive."""
+    """``min(gain * max(z - t, 0), 1)`` as float32."""
     n, m = z.shape
     out = np.empty((n, m), dtype=np.float32)
-    s = 0.0
-    c = 0
     for i in range(n):
         for j in range(m):
-            e = z[i, j] - t
-            if e > 0:
-                s += e
-                c += 1
-                v = gain * e
-                out[i, j] = 1.0 if v > 1.0 else v
-            else:
-                out[i, j] = 0.0
-    return out, (s / c if c > 0 else 0.0), c
+            e = (z[i, j] - t) * gain
+            out[i, j] = 0.0 if e <= 0 else (1.0 if e > 1.0 else e)
+    return out

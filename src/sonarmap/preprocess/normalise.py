@@ -21,9 +21,13 @@ hardware:
    brightening.
 3. **Multi-look**: ``z = y / (b f)`` averaged over ``pool`` = 5 bins x 3 beams (the background of
    a single look is speckle; surfaces are coherent over a few bins and beams).
-4. **Receiver threshold**: ``u = g max(z - t, 0)``, ``t`` the ``floor_quantile`` (0.9) of ``z``;
-   ``g`` puts the mean background excess at ``1 / 44.6`` (the DIDSON background scale of the
-   paper's Table I, so that its 256-level quantisation resolves the background tail).
+4. **Receiver threshold**: ``u = g max(z - t, 0)`` with ``t`` the background's 90th percentile
+   and ``g`` putting the mean background excess at ``1 / 44.6`` (the DIDSON background scale of
+   the paper's Table I, so that its 256-level quantisation resolves the background tail).  Both
+   come from the lower half of each row, in the quarter of the rows with the lowest median -
+   robust to surfaces on up to half the beams of a row and filling up to 3/4 of the rows - for an
+   exponential tail of scale ``s`` above the median: ``q50 - q25 = s ln 1.5``,
+   ``t = q50 + s ln 5``, mean excess ``s``.
 
 The result is a zero spike (the pixels under the threshold) plus the excess of the background
 over it - exponential for any background whose tail is (gamma, Rayleigh and K speckle all are) -
@@ -150,7 +154,8 @@ def estimate_background(
         An image with at least this fraction of zero pixels is taken as already thresholded
         and is not normalised.
     floor_quantile : float
-        Quantile of the normalised, multi-looked image used as the receiver threshold ``t``.
+        Quantile of the normalised, multi-looked *background* used as the receiver threshold ``t``
+        (``t = q50 + s ln(0.5 / (1 - floor_quantile))`` for an exponential tail of scale ``s``).
     pool : (int, int)
         Multi-look box (range bins, beams).
     max_rise : float
@@ -199,23 +204,50 @@ def estimate_background(
 
 
 def _row_level(img: NDArray[np.float32], max_rise: float) -> NDArray[np.float32] | None:
-    """Step 1: the lower quartile of each row across beams, median filtered, rise-capped (None if
-    most rows have a zero level)."""
+    """Step 1: the background level vs range (None if most rows have a zero level).
+
+    The lower quartile of each row across the beams, median filtered over 5 bins, then smoothed
+    along range in the log domain over ``max(n_bins / 16, 15)`` bins with rows far above the
+    smooth curve left out (3 rounds, > 2.5 robust sigma): a surface at one range across most of
+    the fan (a hull seen head-on through a narrow fan) is not background.  Rows from the first
+    bin on that stay above the curve are the transmitter's ring-down and keep their own level.
+    Finally the level may rise at most ``max_rise`` above its minimum at nearer ranges.
+    """
+    from scipy.ndimage import median_filter, uniform_filter1d
+
     n = img.shape[0]
     level = _lower_quartile(np.maximum(img, 0.0), 1)
     if n >= 5:
-        from scipy.ndimage import median_filter
-
         level = median_filter(level, size=5, mode="nearest")
     good = level > _ZERO
     if np.count_nonzero(good) < 0.5 * n:
         return None
-    level = np.where(good, level, float(np.median(level[good]))).astype(np.float32)
+    level = np.where(good, level, float(np.median(level[good]))).astype(np.float64)
+    log_level = np.log(level)
+    width = max(n // 16, 15)
+    keep = np.ones(n)
+    smooth = log_level
+    above = np.zeros(n, dtype=bool)
+    if n > width:
+        for _ in range(3):
+            den = uniform_filter1d(keep, width, mode="nearest")
+            num = uniform_filter1d(log_level * keep, width, mode="nearest")
+            smooth = np.where(den > 0.05, num / np.maximum(den, 1e-12), smooth)
+            resid = log_level - smooth
+            sigma = 1.4826 * float(np.median(np.abs(resid[keep > 0]))) if np.any(keep > 0) else 0.0
+            above = resid > 2.5 * max(sigma, 0.02)
+            keep = (~above).astype(np.float64)
+    out = np.exp(smooth)
+    if above.any():
+        # ring-down: the leading rows above the curve stay background at their own level
+        lead = int(np.argmin(above)) if not above.all() else n
+        out[:lead] = level[:lead]
+    out = out.astype(np.float32)
     if max_rise > 0:
         # a surface across most beams (seabed) is no background: the level may rise at most
         # max_rise x above its minimum nearer to the sonar
-        level = np.minimum(level, max_rise * np.minimum.accumulate(level)).astype(np.float32)
-    return level
+        out = np.minimum(out, max_rise * np.minimum.accumulate(out)).astype(np.float32)
+    return out
 
 
 def _finish(img: NDArray[np.float32], level: NDArray[np.float32], factor: NDArray[np.float32] | None,
@@ -228,17 +260,24 @@ def _finish(img: NDArray[np.float32], level: NDArray[np.float32], factor: NDArra
     full = np.ones((n, m), np.float32) if factor is None else _expand(factor, (n, m))
     z = pooled_ratio(np.ascontiguousarray(img, dtype=np.float32), np.ascontiguousarray(level, dtype=np.float32),
                      np.ascontiguousarray(full), int(min(max(pool[0], 1), n)), int(min(max(pool[1], 1), m)))
-    # the threshold quantile on a fixed sub-lattice (every 4th pixel beyond 40 000: +-0.3 % in t)
-    flat = z.ravel()
-    if flat.size > 40000:
-        flat = flat[:: 4]
-    k = min(int(floor_quantile * (flat.size - 1)), flat.size - 1)
-    t = float(np.partition(flat, k)[k])
-    _, mean_excess, n_pos = excess(z, np.float32(t), np.float32(0.0))
-    if n_pos == 0 or not mean_excess > 0:
+    # the background's threshold and scale from the lower half of each row (robust to surfaces
+    # on up to half the beams of a row) in the quarter of the rows with the lowest median (robust
+    # to surfaces filling up to 3/4 of the rows): exponential tail of scale s above the median:
+    # q50 - q25 = s ln(3/2), q90 = q50 + s ln 5
+    k25, k50 = (m - 1) // 4, (m - 1) // 2
+    part = np.partition(z, (k25, k50), axis=1)
+    q25, q50 = part[:, k25].astype(np.float64), part[:, k50].astype(np.float64)
+    # background rows: the quarter of the rows with the lowest median (saturated or surface rows
+    # have high medians); their median level and median spread
+    rows = np.argsort(q50, kind="stable")[: max(n // 4, 1)]
+    c50 = float(np.median(q50[rows]))
+    spread = float(np.median((q50 - q25)[rows]))
+    scale = float(spread) / math.log(1.5)
+    if not scale > 0 or not math.isfinite(scale):
         return BackgroundLevel(False, "degenerate", zero_fraction, level, factor), None
-    g = BACKGROUND_MEAN / float(mean_excess)
-    u, _, _ = excess(z, np.float32(t), np.float32(g))
+    t = c50 + math.log(0.5 / (1.0 - floor_quantile)) * scale  # ln 5 at the 0.9 quantile
+    g = BACKGROUND_MEAN / scale
+    u = excess(z, np.float32(t), np.float32(g))
     q10, q90 = np.percentile(level, [10, 90])
     dep = float(10 * np.log10(q90 / q10)) if q10 > 0 else math.inf
     return BackgroundLevel(True, reason, zero_fraction, level.astype(np.float32), factor, dep, t, g), u

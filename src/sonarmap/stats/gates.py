@@ -8,7 +8,9 @@ products, the CLI summary and the report.
 Gates (:data:`GATE_DESCRIPTIONS`):
 
 ``kld``
-    The KL divergence (eq. 11) exceeds ``max_kld``.  A correct model leaves
+    The KL divergence (eq. 11) exceeds ``max_kld`` (0.05); with more than 1 % of the pixels in
+    the top level (a saturated surface, a censored bin the pmfs do not model) the KLD over the
+    other levels.  A correct model leaves
     ``2 N kld ~ chi2(L - 1 - k)``, i.e. ``kld ~ L / 2N`` (0.003 for a 512 x 96 ping); the real
     DIDSON pings give 0.001-0.004, a binary image 0.6.
 ``object_weight``
@@ -84,7 +86,22 @@ def class_separation(fit: MixtureFit) -> float:
     return obj_mean / bg_mean
 
 
-def fit_gates(fit: MixtureFit, *, max_kld: float = 0.02, max_object_weight: float = 0.5,
+def _kld_unclipped(fit: MixtureFit) -> float:
+    """The fit's KLD, or - when more than 1 % of the pixels sit in the top level (saturated
+    surfaces: the ``clipped`` flag, a censored bin the pmfs do not model) - the KLD over the other
+    levels, both pmfs renormalised there."""
+    counts = np.asarray(fit.counts, dtype=np.float64)
+    if "clipped" not in fit.flags and not counts[-1] > 0.01 * counts.sum():
+        return float(fit.kld) if math.isfinite(fit.kld) else math.inf
+    from sonarmap.stats.mixture import kl_divergence
+
+    q = np.asarray(fit.pmf(), dtype=np.float64)[:-1]
+    if not q.sum() > 0 or not counts[:-1].sum() > 0:
+        return math.inf
+    return float(kl_divergence(counts[:-1], q / q.sum()))
+
+
+def fit_gates(fit: MixtureFit, *, max_kld: float = 0.05, max_object_weight: float = 0.5,
               min_separation: float = 1.9) -> frozenset[str]:
     """Names of the gates ``fit`` fails (empty when it is plausible).
 
@@ -115,7 +132,7 @@ def fit_gates(fit: MixtureFit, *, max_kld: float = 0.02, max_object_weight: floa
     out = set(fit.flags & {"not_converged", "degenerate", "all_zero", "zero_mass"})
     if "all_zero" in out or "degenerate" in out:
         return frozenset(out)
-    if math.isfinite(fit.kld) and fit.kld > max_kld:
+    if _kld_unclipped(fit) > max_kld:
         out.add("kld")
     if fit.object_weight > max_object_weight:
         out.add("object_weight")
