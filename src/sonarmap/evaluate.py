@@ -48,6 +48,11 @@ __all__ = [
     "DEFAULT_SCENES",
     "baseline_configs",
     "default_sim_configs",
+    "preset_sim_configs",
+    "evaluate_presets",
+    "ACCEPTANCE_PRESETS",
+    "ACCEPTANCE_SCENES",
+    "main",
 ]
 
 #: Scenes of the acceptance table (the simulator's names).
@@ -213,6 +218,62 @@ def default_sim_configs(noise_levels_db: Sequence[float] = (80.0, 86.0), truth_s
             for n in noise_levels_db]
 
 
+#: Sonar presets and scenes of the every-sonar acceptance table (``docs/segmentation.md``).
+ACCEPTANCE_PRESETS = ("didson-hf", "aris3000-128", "aris-telephoto-48", "oculus-m750d-like")
+ACCEPTANCE_SCENES = ("hull", "seafloor", "propeller", "fish", "empty")
+
+
+def preset_sim_configs(geometry: Any, noise_steps_db: Sequence[float] = (0.0, 6.0),
+                       truth_snr_db: float = 6.0) -> list[Any]:
+    """Two noise levels of ``geometry``'s simulator profile: its own noise floor and ``+6 dB``.
+
+    DIDSON renders with the measured ghost pattern, the others with their geometry's beam pattern.
+    """
+    from sonarmap.simulate.render import simulation_config_for
+
+    base = simulation_config_for(geometry)
+    measured = not str(geometry.name).startswith(("aris", "oculus"))
+    return [simulation_config_for(geometry, noise_level_db=float(base.noise_level_db + d),
+                                  truth_snr_db=float(truth_snr_db),
+                                  beam_pattern="measured" if measured else "geometry")
+            for d in noise_steps_db]
+
+
+def evaluate_presets(
+    config: Any = None, *, presets: Sequence[str] = ACCEPTANCE_PRESETS,
+    scenes: Sequence[str] = ACCEPTANCE_SCENES, seeds: Sequence[int] = (0, 1, 2), per_scene: bool = True,
+) -> list[MethodScore]:
+    """The same pipeline on every sonar preset: one row per preset (and per preset and scene).
+
+    Rows are named ``"<preset>"`` and ``"<preset> | <scene>"``; the pings are those of
+    :func:`preset_sim_configs` x ``seeds`` x ``scenes`` (scenes scaled to each sonar's window).
+    """
+    from sonarmap.geometry import preset
+    from sonarmap.pipeline import PipelineConfig
+
+    cfg = PipelineConfig() if config is None else config
+    out: list[MethodScore] = []
+    for name in presets:
+        geom = preset(name)
+        rows = evaluate({name: cfg}, scenes=scenes, sim_configs=preset_sim_configs(geom), seeds=seeds,
+                        geometry=geom, per_scene=per_scene)
+        out.extend(rows)
+    return out
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """``python -m sonarmap.evaluate [--presets NAME,...] [--seeds N]``: the every-sonar table."""
+    import argparse
+
+    ap = argparse.ArgumentParser(prog="python -m sonarmap.evaluate", description=main.__doc__)
+    ap.add_argument("--presets", default=",".join(ACCEPTANCE_PRESETS), help="comma-separated preset names")
+    ap.add_argument("--seeds", type=int, default=3, help="seeds per scene and noise level")
+    args = ap.parse_args(None if argv is None else list(argv))
+    rows = evaluate_presets(presets=[p for p in args.presets.split(",") if p], seeds=tuple(range(args.seeds)))
+    print(format_table(rows))
+    return 0
+
+
 def _simulate(scene: str, geometry: Any, sim_config: Any, seed: int, empty_snr_db: float) -> tuple[Any, Any]:
     """The simulated ping and its 'no structure at all' beams (no structure pixel >= empty_snr_db)."""
     from sonarmap.simulate import scene_from_name, simulate_ping
@@ -299,3 +360,6 @@ def format_table(scores: Sequence[MethodScore]) -> str:
         )
     return "\n".join(lines)
 
+
+if __name__ == "__main__":  # pragma: no cover
+    raise SystemExit(main())

@@ -659,7 +659,7 @@ def process_ping(ping: Ping, config: PipelineConfig = PipelineConfig(), *, keep_
             ranges = _ranges(accepted)
     if normalised is not None and config.edge_fraction > 0:
         # the range convention: the leading edge of the echo (a fraction of its first peak)
-        ranges = half_peak_edges(ranges, image, labels >= 1, geom, fraction=config.edge_fraction, peak="first")
+        ranges = half_peak_edges(ranges, image, labels >= 1, geom, fraction=config.edge_fraction)
     flags = set(fit.flags) if fit is not None else {"no_fit"}
     if ranges.n_returns == 0:
         flags.add("no_returns")

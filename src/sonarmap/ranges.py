@@ -220,7 +220,7 @@ def drop_small_components(mask: NDArray[np.bool_], geometry: SonarGeometry, min_
 
 
 def half_peak_edges(ranges: BeamRanges, image: ArrayLike, mask: ArrayLike, geometry: SonarGeometry, *,
-                    fraction: float = 0.5, peak: str = "first") -> BeamRanges:
+                    fraction: float = 0.5, peak: str = "first", smooth: int = 1) -> BeamRanges:
     """Move each first return to the leading edge of its echo: the first crossing of ``fraction``
     of the echo's first peak (the range convention of ``DESIGN.md``).
 
@@ -228,7 +228,9 @@ def half_peak_edges(ranges: BeamRanges, image: ArrayLike, mask: ArrayLike, geome
     beam within the run of ``mask`` that starts there; the edge is the first bin of that run whose
     value reaches ``fraction`` x the peak, interpolated linearly to sub-bin ``range_m`` (``bin``
     is the bin at or after the crossing).  ``image`` should be smooth along range (the normalised,
-    multi-looked image is).  Strongest-mode ranges are returned unchanged.
+    multi-looked image is; ``smooth`` > 1 adds a running mean of that many bins before the peak
+    search).  ``peak="max"`` uses the run's maximum instead of its first peak.  Strongest-mode
+    ranges are returned unchanged.
     """
     if ranges.mode != "first" or ranges.n_returns == 0:
         return ranges
@@ -245,6 +247,9 @@ def half_peak_edges(ranges: BeamRanges, image: ArrayLike, mask: ArrayLike, geome
         while end + 1 < n and m[end + 1, j]:
             end += 1
         col = img[b:end + 1, j]
+        if smooth > 1 and col.size > 2:
+            col = np.convolve(np.pad(col, (smooth // 2, smooth - 1 - smooth // 2), mode="edge"),
+                              np.full(smooth, 1.0 / smooth), mode="valid")
         k = int(np.argmax(col)) if peak == "max" else 0
         if peak == "first":
             while k + 1 < col.size and col[k + 1] >= col[k]:
