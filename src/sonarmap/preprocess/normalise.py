@@ -9,10 +9,10 @@ image into the domain the paper's model describes, which is what a DIDSON receiv
 hardware:
 
 1. **Level vs range** ``b(r)``: the lower quartile of each range row across the beams, median
-   filtered over 5 bins along range.  A surface must cover more than 3/4 of the beams at one
-   range to bias it; artefacts at constant range across the whole fan (transmit ring-down near
-   the sonar) are part of the background, as they should be.
-   The level may rise at most ``max_rise`` (2x) above its minimum at nearer ranges: reverberation
+   filtered over 5 bins along range, then smoothed in the log domain over ``n_bins / 16`` bins
+   with the rows far above the curve left out (a surface across most of a narrow fan, a hull
+   seen head-on, is not background), except for the leading rows above it: the transmitter's
+   ring-down at the start of the window stays background.  The level may rise at most ``max_rise`` (2x) above its minimum at nearer ranges: reverberation
    and noise fall with range (or stay flat under the sonar's TVG), so a surface that fills most
    beams over a range interval (a seabed) is not taken for background.
 2. **Level vs beam** ``f(r, theta)``: the lower quartile of ``y / b(r)`` in blocks of
