@@ -25,7 +25,7 @@ def test_fit_command(test_ping_paths, tmp_path):
     assert main(["fit", *map(str, test_ping_paths[:2]), "-o", str(out), "-m", "em"]) == 0
     rows = list(csv.DictReader(out.open()))
     assert [r["ping"] for r in rows] == [p.name for p in test_ping_paths[:2]]
-    assert set(rows[0]) == {"ping", "family", "weights", "scales", "kld", "flags"}
+    assert set(rows[0]) == {"ping", "family", "weights", "scales", "kld", "flags", "gates"}
     assert abs(sum(float(v) for v in rows[0]["weights"].split(";")) - 1) < 1e-6
 
 
@@ -80,3 +80,18 @@ def test_calibrate_degenerate_recording_exits_1(tmp_path, test_ping_paths, capsy
     rc = main(["calibrate", str(tmp_path), "-o", str(tmp_path / "c.json")])
     err = capsys.readouterr().err
     assert rc == 1 and err.count("\n") == 1 and "error" in err
+
+
+def test_fit_command_normalises_aris_and_reports_gates(data_dir, tmp_path):
+    aris = data_dir / "aris" / "sample.aris"
+    out = tmp_path / "a.csv"
+    assert main(["fit", str(aris), "-o", str(out), "-m", "em"]) == 0
+    rows = list(csv.DictReader(out.open()))
+    assert len(rows) == 6
+    for r in rows:
+        w = [float(v) for v in r["weights"].split(";")]
+        assert w[0] > 0.7 and w[1] + w[2] < 0.3 and r["gates"] == ""  # zero spike, plausible
+    raw = tmp_path / "raw.csv"
+    assert main(["fit", str(aris), "-o", str(raw), "-m", "em", "--no-normalise"]) == 0
+    for r in csv.DictReader(raw.open()):
+        assert "object_weight" in r["gates"].split(";")  # the old failure, now named

@@ -21,8 +21,16 @@ def register(app: typer.Typer) -> None:
         families: str = typer.Option("exponential,rayleigh", help="Comma-separated families after the zero spike."),
         binning: str = typer.Option("round", help="Histogram binning: round or floor."),
         recipe: str | None = typer.Option(None, help="Pre-process first with a named recipe (e.g. paper-table1)."),
+        normalise: bool = typer.Option(
+            True, "--normalise/--no-normalise",
+            help="Normalise images without a zero spike (ARIS, Oculus) by their background level first, "
+            "as the pipeline does; thresholded images (DIDSON) are fitted as they are."),
     ) -> None:
-        """Fit the zero-spike mixture to each ping's histogram; write ping, family, weights, scales, kld, flags."""
+        """Fit the zero-spike mixture to each ping's histogram; write ping, family, weights, scales, kld, flags, gates.
+
+        ``gates`` lists the fit gates the ping fails (a ping failing one yields no returns in the
+        pipeline).
+        """
         import csv
 
         from sonarmap._atomic import atomic_open
@@ -38,11 +46,19 @@ def register(app: typer.Typer) -> None:
         fams = tuple(f.strip() for f in families.split(",") if f.strip())
         with atomic_open(output, "w", newline="", encoding="utf-8") as fh:
             w = csv.writer(fh)
-            w.writerow(["ping", "family", "weights", "scales", "kld", "flags"])
+            w.writerow(["ping", "family", "weights", "scales", "kld", "flags", "gates"])
             n = 0
+            from sonarmap.preprocess.normalise import estimate_background
+            from sonarmap.stats.gates import fit_gates
+
             for ping in read_pings([str(p) for p in pings], geometry=geom):
                 img = ping.image
-                if cfg is not None:
+                normalised = None
+                if normalise and float(img.max()) > float(img.min()):
+                    normalised = estimate_background(img)[1]
+                if normalised is not None:
+                    img = normalised
+                elif cfg is not None:
                     from sonarmap.preprocess.pipeline import preprocess_image
 
                     img = preprocess_image(img, ping.geometry, cfg)
@@ -54,6 +70,7 @@ def register(app: typer.Typer) -> None:
                     ";".join("" if s != s else f"{s:.6g}" for s in f.scales),
                     f"{f.kld:.6g}",
                     ";".join(sorted(f.flags)),
+                    ";".join(sorted(fit_gates(f))),
                 ])
                 n += 1
         typer.echo(f"fitted {n} pings -> {output}", err=True)

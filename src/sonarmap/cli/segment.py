@@ -97,12 +97,8 @@ def register(app: typer.Typer) -> None:
             if figure:
                 import matplotlib.pyplot as plt
 
-                pre = cfg.preprocess_config()
-                img = ping.image
-                if pre is not None:
-                    from sonarmap.preprocess.pipeline import preprocess_image
-
-                    img = preprocess_image(img, ping.geometry, pre)
+                # the fixed threshold on the image the classifier saw (pre-processed or normalised)
+                img = prod.image if prod.image is not None else ping.image
                 thr = threshold_labels(np.clip(img, 0.0, 1.0), cfg.threshold)
                 fig = segment_figure(ping.image, thr, labels, prod.ranges, title=Path(ping.source).name,
                                      threshold=cfg.threshold, method=cfg.method)
