@@ -88,6 +88,9 @@ PRODUCT_VARIABLES: dict[str, tuple[tuple[str, ...], dict[str, str]]] = {
     "kld": ((DIM_PING,), {"long_name": "Kullback-Leibler divergence, data || mixture fit",
                           "units": "nat"}),
     "flags": ((DIM_PING,), {"long_name": "Fit quality flags, space separated (empty: none)"}),
+    "background_range_db": ((DIM_PING,), {
+        "long_name": "Range dependence of the estimated background level (90th / 10th percentile over "
+                     "range; NaN: image not normalised, e.g. thresholded)", "units": "dB"}),
     "mixture_weight": ((DIM_PING, "component"), {"long_name": "Mixture component weight",
                                                  "units": "1"}),
     "mixture_param": ((DIM_PING, "component", "parameter"),
@@ -322,6 +325,7 @@ def _record(products: Any, *, keep_labels: bool) -> dict[str, Any]:
         "source": str(products.source),
         "kld": np.float64(np.nan if products.kld is None else products.kld),
         "flags": " ".join(str(f) for f in (products.flags or ())),
+        "background_range_db": np.float64(_background_db(products)),
         "mixture_weight": weights,
         "mixture_param": params,
         "pd": np.float64(np.nan if getattr(products, "pd", None) is None else products.pd),
@@ -339,8 +343,13 @@ def _record(products: Any, *, keep_labels: bool) -> dict[str, Any]:
     return rec
 
 
+def _background_db(products: Any) -> float:
+    bg = getattr(products, "background", None)
+    return float(bg.range_dependence_db) if bg is not None and bg.applied else math.nan
+
+
 _FILL: dict[str, Any] = {
-    "kld": np.nan, "pd": np.nan, "pfa": np.nan, "mixture_weight": np.nan, "mixture_param": np.nan,
+    "background_range_db": np.nan, "kld": np.nan, "pd": np.nan, "pfa": np.nan, "mixture_weight": np.nan, "mixture_param": np.nan,
     "range": np.nan, "range_bin": -1, "range_intensity": np.nan, "range_confidence": np.nan,
     "labels": 0, "ping_time": 0, "source": "", "flags": "",
 }
