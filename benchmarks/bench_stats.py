@@ -54,4 +54,20 @@ def run(quick: bool) -> list[dict]:
              "median_ms": timeit(lambda c=cands: select_model(img, candidates=c), repeat=rep_sel,
                                  warmup=1, min_time_s=0.0),
              "target_ms": 500.0, "note": f"exponential bg + 0..{n_obj} objects, BIC"})
+    # a whole recording: pooled histograms (10 DIDSON test pings, 6 ARIS frames); one run each.
+    # Adding a K-distribution background with 0..2 objects (42 candidates) measured 269 s (DIDSON)
+    # and 139 s (ARIS): too slow for this table until select_model prunes candidates.
+    from sonarmap.io import read_pings
+    from sonarmap.stats.mixture import histogram
+
+    didson = sum(histogram(read_ping(p).image).astype(float)
+                 for p in sorted((DATA / "didson" / "test").glob("*_raw.png")))
+    aris = sum(histogram(p.image).astype(float) for p in read_pings(str(DATA / "aris" / "sample.aris")))
+    for name, counts in (("DIDSON 10 pings", didson), ("ARIS 6 frames", aris)):
+        for label, cands in (("21 candidates", default_candidates(2)),):
+            rows.append(
+                {"benchmark": "stats", "case": f"select_model {label}, pooled {name}",
+                 "median_ms": timeit(lambda c=cands, h=counts: select_model(h, candidates=c),
+                                     repeat=1, warmup=1, min_time_s=0.0),
+                 "target_ms": 500.0, "note": "whole recording, BIC"})
     return rows

@@ -299,8 +299,10 @@ def em_kernel(
 #   3 gamma   (a, b = 1/scale):       g = (a - 1) log x - b x     (natural parameters: Q concave)
 #   4 weibull (c, t = log scale):     g = (c - 1) l - exp(c l),   l = log x - t
 #   5 rice    (nu, v = 1/scale^2):    g = log x - (x - nu)^2 v / 2 + log i0e(x nu v)
+#   6 k       (nu, w = log scale):    g = (nu - 1)/2 log x + log K_{nu-1}(2 sqrt(nu x) e^{-w/2})
 # ``g`` is the unnormalised log-density of :meth:`sonarmap.stats.components.Family.log_density`
-# (up to terms constant in x); gamma and Weibull with shape < 1 evaluate level 0 at half a step.
+# (up to terms constant in x); gamma and Weibull with shape < 1 evaluate level 0 at half a step,
+# the K distribution always does.
 
 
 @njit(cache=True, nogil=True)
@@ -343,6 +345,82 @@ def bessel_i0e_ratio(z: float) -> tuple[float, float]:
 
 
 @njit(cache=True, nogil=True)
+def log_bessel_k(v: float, z: float, derivs: bool, out: np.ndarray) -> float:
+    """``log K_v(z)`` for real ``v`` and ``z > 0``; with ``derivs``, ``out[:5] = (F_v, F_z, F_vv,
+    F_vz, F_zz)``, the first and second derivatives of ``F = log K_v(z)``.
+
+    Trapezoid rule on ``K_v(z) = int_0^inf exp(-z cosh t) cosh(v t) dt``: the integrand is entire
+    and even in ``t``, so the rule converges geometrically in the step.  The nodes cover the
+    region where ``-z cosh t + |v| t`` is within 46 of its maximum (found by monotone Newton on
+    the concave exponent), with a step of at most 0.6 / sqrt(curvature at the peak) and 0.25;
+    everything is scaled by that maximum, so there is no overflow for any order (large ``v`` is
+    the near-exponential end of the K distribution).  Within 2e-14 (relative) of
+    ``log(scipy.special.kve(v, z)) - z`` wherever that is finite.  The derivatives use the same
+    nodes (``d/dv`` brings ``t tanh(v t)``, ``d/dz`` brings ``-cosh t``).
+    """
+    av = abs(v)
+    ts = np.arcsinh(av / z)
+    cts = np.cosh(ts)
+    amax = -z * cts + av * ts
+    curv = z * cts
+    drop = 46.0
+    t = ts + np.sqrt(2.0 * drop / curv)  # right of the root (the exponent is more than quadratic)
+    for _ in range(80):
+        d = -z * np.sinh(t) + av
+        step = (-z * np.cosh(t) + av * t - amax + drop) / d
+        t -= step
+        if abs(step) < 1e-3:
+            break
+    t_hi = t
+    t_lo = 0.0
+    if -z < amax - drop:
+        t = 0.0
+        for _ in range(80):
+            d = -z * np.sinh(t) + av
+            step = (-z * np.cosh(t) + av * t - amax + drop) / d
+            t -= step
+            if abs(step) < 1e-3:
+                break
+        t_lo = max(t - 1e-3, 0.0)
+    hmax = min(0.25, 0.6 / np.sqrt(curv))
+    n = int(np.ceil((t_hi - t_lo) / hmax))
+    if n < 8:
+        n = 8
+    hs = (t_hi - t_lo) / n
+    sg = 1.0 if v >= 0 else -1.0
+    s0 = 0.0
+    s1 = 0.0
+    s2 = 0.0
+    s3 = 0.0
+    s4 = 0.0
+    s5 = 0.0
+    for j in range(n + 1):
+        tj = t_lo + j * hs
+        ch = np.cosh(tj)
+        ep = np.exp(-z * ch + av * tj - amax)
+        em = ep * np.exp(-2.0 * av * tj)
+        wgt = 0.5 if (j == 0 or j == n) else 1.0
+        c = wgt * 0.5 * (ep + em)
+        s0 += c
+        if derivs:
+            sh = sg * wgt * 0.5 * (ep - em) * tj
+            s1 += sh
+            s2 += c * tj * tj
+            s3 += c * ch
+            s4 += c * ch * ch
+            s5 += sh * ch
+    if derivs:
+        fv = s1 / s0
+        fz = -s3 / s0
+        out[0] = fv
+        out[1] = fz
+        out[2] = s2 / s0 - fv * fv
+        out[3] = -s5 / s0 - fv * fz
+        out[4] = s4 / s0 - fz * fz
+    return amax + np.log(hs * s0)
+
+
+@njit(cache=True, nogil=True)
 def _logdens2(kind: int, p0: float, p1: float, x: np.ndarray, xe: np.ndarray, lx: np.ndarray,
               g: np.ndarray, gr: np.ndarray, hs: np.ndarray, derivs: bool) -> float:
     """Unnormalised log-density ``g`` (``-inf`` off the support) and, with ``derivs``, its
@@ -350,7 +428,28 @@ def _logdens2(kind: int, p0: float, p1: float, x: np.ndarray, xe: np.ndarray, lx
     coordinates; returns ``max g``."""
     L = x.shape[0]
     top = -np.inf
+    fk = np.empty(5)
+    if kind == 6:
+        c2 = 2.0 * np.sqrt(p0) * np.exp(-0.5 * p1)  # z = c2 sqrt(x)
     for k in range(L):
+        if kind == 6:
+            # K distribution (level 0 at half a step, xe[0]); F = log K_{nu-1}(z)
+            z = c2 * np.sqrt(xe[k])
+            v = 0.5 * (p0 - 1.0) * lx[k] + log_bessel_k(p0 - 1.0, z, derivs, fk)
+            if derivs:
+                zn = z / (2.0 * p0)
+                zw = -0.5 * z
+                gr[k, 0] = 0.5 * lx[k] + fk[0] + fk[1] * zn
+                gr[k, 1] = fk[1] * zw
+                hs[k, 0] = fk[2] + 2.0 * fk[3] * zn + fk[4] * zn * zn - fk[1] * z / (4.0 * p0 * p0)
+                hs[k, 1] = fk[3] * zw + fk[4] * zn * zw - fk[1] * z / (4.0 * p0)
+                hs[k, 2] = fk[4] * zw * zw + 0.25 * fk[1] * z
+            if v != v:
+                v = -np.inf
+            g[k] = v
+            if v > top:
+                top = v
+            continue
         if k == 0 and (kind == 5 or (p0 >= 1.0)):
             g[0] = -np.inf
             continue
@@ -514,6 +613,78 @@ def _mstep2(kind: int, par: np.ndarray, lo: np.ndarray, hi: np.ndarray, x: np.nd
 
 
 @njit(cache=True, nogil=True)
+def _estep_general(counts, x, xe, lx, kind, par, w, occ, P, Rsp, Nc, tbar, pk, u, g, gr, hs) -> float:
+    """Component pmfs at ``(par, w)``, responsibilities ``Rsp``, ``Nc``, ``tbar``; returns the
+    log-likelihood."""
+    C = kind.shape[0]
+    L = x.shape[0]
+    for c in range(C):
+        kc = kind[c]
+        if kc == 0:
+            P[c, 0] = 1.0
+        elif kc <= 2:
+            z, _, _ = _eval(kc, x, par[c, 0], u)
+            inv = 1.0 / z
+            for k in range(L):
+                P[c, k] = u[k] * inv
+        else:
+            top = _logdens2(kc, par[c, 0], par[c, 1], x, xe, lx, g, gr, hs, False)
+            z = 0.0
+            for k in range(L):
+                e = np.exp(g[k] - top) if g[k] > -np.inf else 0.0
+                P[c, k] = e
+                z += e
+            inv = 1.0 / z
+            for k in range(L):
+                P[c, k] *= inv
+    ll = 0.0
+    for c in range(C):
+        Nc[c] = 0.0
+        tbar[c] = 0.0
+    for jj in range(occ.shape[0]):
+        k = occ[jj]
+        n = counts[k]
+        s = 0.0
+        for c in range(C):
+            v = w[c] * P[c, k]
+            pk[c] = v
+            s += v
+        if s <= 0:
+            ll = -np.inf
+            for c in range(C):
+                Rsp[c, k] = 0.0
+            continue
+        ll += n * np.log(s)
+        f = n / s
+        xk = x[k]
+        for c in range(C):
+            rr = pk[c] * f
+            Rsp[c, k] = rr
+            Nc[c] += rr
+            if kind[c] == 1:
+                tbar[c] += rr * xk
+            elif kind[c] == 2:
+                tbar[c] += rr * xk * xk
+    return ll
+
+
+@njit(cache=True, nogil=True)
+def _mstep_general(x, xe, lx, kind, par, w, lo, hi, N, Rsp, Nc, tbar, m_lo, m_hi, u, g, gr, hs,
+                   max_newton) -> None:
+    C = kind.shape[0]
+    for c in range(C):
+        w[c] = Nc[c] / N
+        kc = kind[c]
+        if kc == 0 or Nc[c] <= 0:
+            continue
+        if kc <= 2:
+            par[c, 0] = _solve(kc, x, tbar[c] / Nc[c], par[c, 0], lo[c, 0], hi[c, 0],
+                               m_lo[c], m_hi[c], u)
+        else:
+            _mstep2(kc, par[c], lo[c], hi[c], x, xe, lx, Rsp[c], Nc[c], g, gr, hs, max_newton)
+
+
+@njit(cache=True, nogil=True)
 def em_general_kernel(
     counts: np.ndarray,
     x: np.ndarray,
@@ -527,11 +698,13 @@ def em_general_kernel(
     max_newton: int,
     ll_trace: np.ndarray,
 ) -> tuple[int, bool]:
-    """(Generalised) EM for any mix of kinds 0-5, in place on ``par (C, 2)`` and ``w``.
+    """(Generalised) EM for any mix of kinds 0-6, in place on ``par (C, 2)`` and ``w``.
 
     ``par[c, 0]`` is ``eta`` for kinds 1-2 (exact M-step as in :func:`em_kernel`) and the first
-    coordinate of kinds 3-5 (damped Newton, improvement only); ``lo``/``hi`` are ``(C, 2)``
-    bounds.  Same trace and stopping rule as :func:`em_kernel`.
+    coordinate of kinds 3-6 (damped Newton, improvement only); ``lo``/``hi`` are ``(C, 2)``
+    bounds.  Same trace and stopping rule as :func:`em_kernel`: ``n_iter`` counts M-steps, and
+    the fit has converged when one EM step gains at most ``tol * (|ll| + 1)``.
+
     """
     C = kind.shape[0]
     L = x.shape[0]
@@ -568,71 +741,16 @@ def em_general_kernel(
     pk = np.empty(C)
     converged = False
     it = 0
-    ll_prev = -np.inf
-    while True:
-        for c in range(C):
-            kc = kind[c]
-            if kc == 0:
-                P[c, 0] = 1.0
-            elif kc <= 2:
-                z, _, _ = _eval(kc, x, par[c, 0], u)
-                inv = 1.0 / z
-                for k in range(L):
-                    P[c, k] = u[k] * inv
-            else:
-                top = _logdens2(kc, par[c, 0], par[c, 1], x, xe, lx, g, gr, hs, False)
-                z = 0.0
-                for k in range(L):
-                    e = np.exp(g[k] - top) if g[k] > -np.inf else 0.0
-                    P[c, k] = e
-                    z += e
-                inv = 1.0 / z
-                for k in range(L):
-                    P[c, k] *= inv
-        ll = 0.0
-        for c in range(C):
-            Nc[c] = 0.0
-            tbar[c] = 0.0
-        for jj in range(n_occ):
-            k = occ[jj]
-            n = counts[k]
-            s = 0.0
-            for c in range(C):
-                v = w[c] * P[c, k]
-                pk[c] = v
-                s += v
-            if s <= 0:
-                ll = -np.inf
-                for c in range(C):
-                    Rsp[c, k] = 0.0
-                continue
-            ll += n * np.log(s)
-            f = n / s
-            xk = x[k]
-            for c in range(C):
-                rr = pk[c] * f
-                Rsp[c, k] = rr
-                Nc[c] += rr
-                if kind[c] == 1:
-                    tbar[c] += rr * xk
-                elif kind[c] == 2:
-                    tbar[c] += rr * xk * xk
+    ll = _estep_general(counts, x, xe, lx, kind, par, w, occ, P, Rsp, Nc, tbar, pk, u, g, gr, hs)
+    ll_trace[0] = ll
+    while it < max_iter:
+        ll_prev = ll
+        _mstep_general(x, xe, lx, kind, par, w, lo, hi, N, Rsp, Nc, tbar, m_lo, m_hi, u, g, gr,
+                       hs, max_newton)
+        it += 1
+        ll = _estep_general(counts, x, xe, lx, kind, par, w, occ, P, Rsp, Nc, tbar, pk, u, g, gr, hs)
         ll_trace[it] = ll
-        if it > 0 and ll - ll_prev <= tol * (abs(ll) + 1.0):
+        if ll - ll_prev <= tol * (abs(ll) + 1.0):
             converged = True
             break
-        if it >= max_iter:
-            break
-        ll_prev = ll
-        for c in range(C):
-            w[c] = Nc[c] / N
-            kc = kind[c]
-            if kc == 0 or Nc[c] <= 0:
-                continue
-            if kc <= 2:
-                par[c, 0] = _solve(kc, x, tbar[c] / Nc[c], par[c, 0], lo[c, 0], hi[c, 0],
-                                   m_lo[c], m_hi[c], u)
-            else:
-                _mstep2(kc, par[c], lo[c], hi[c], x, xe, lx, Rsp[c], Nc[c], g, gr, hs, max_newton)
-        it += 1
     return it, converged

@@ -16,10 +16,27 @@ name           parameters       unnormalised log-density at ``x > 0``
 ``gamma``      (shape, scale)   ``(shape - 1) log x - x / scale``
 ``weibull``    (shape, scale)   ``(shape - 1) log x - (x / scale)^shape``
 ``rice``       (nu, scale)      ``log x - (x - nu)^2 / (2 scale^2) + log i0e(x nu / scale^2)``
+``k``          (nu, scale)      ``(nu - 1)/2 log x + log K_{nu-1}(2 sqrt(nu x / scale))``
 =============  ===============  ==================================================================
 
 The scale is always the *last* parameter.  Densities singular at zero (gamma or Weibull with
 ``shape < 1``) are evaluated at half a level step instead of at ``x_0 = 0``.
+
+K distribution
+--------------
+The intensity K distribution, the standard model of sonar and radar clutter: speckle
+``e ~ Exp(mean scale)`` modulated by a gamma texture ``g ~ Gamma(nu, 1/nu)`` (mean 1), ``I = g e``::
+
+    p(x) = 2 / (Gamma(nu) b) (x / b)^((nu - 1) / 2) K_{nu-1}(2 sqrt(x / b)),   b = scale / nu
+
+``scale`` is the mean intensity, so ``nu -> infinity`` is the exponential of the same scale (eq.
+19's background) and small ``nu`` is heavy-tailed.  ``K_v`` is evaluated as
+``log(scipy.special.kve(v, z)) - z``, falling back to the quadrature of
+:func:`sonarmap.stats._em_kernels.log_bessel_k` where ``kve`` overflows (large order, small
+argument); level 0 is always evaluated at half a level step (the density is singular there for
+``nu <= 1`` and finite otherwise), the same convention as the EM kernel.  ``nu`` is bounded to
+``[0.1, 100]``: at ``nu = 100`` the pmf on 256 levels is within a few 1e-3 (total variation) of
+the exponential.
 """
 
 from __future__ import annotations
@@ -93,11 +110,14 @@ class Family:
     shape_bounds : tuple of float
         Bounds of the first (shape) parameter for two-parameter families; for ``rice`` the bound of
         ``nu`` is in intensity units.
+    half_step_at_zero : bool
+        Level 0 is always evaluated at half a level step (the K distribution).
     """
 
     name: str
     param_names: tuple[str, ...]
     shape_bounds: tuple[float, float] = (0.0, 0.0)
+    half_step_at_zero: bool = False
 
     @property
     def n_params(self) -> int:
@@ -132,7 +152,28 @@ class Family:
                 nu, s = params
                 s2 = s * s
                 return np.log(x) - (x - nu) ** 2 / (2 * s2) + np.log(special.i0e(x * nu / s2))
+            if self.name == "k":
+                return _k_log_density(x, *params)
         raise InputError(f"family: unknown family {self.name!r}")  # pragma: no cover
+
+
+def _k_log_density(x: NDArray[np.float64], nu: float, scale: float) -> NDArray[np.float64]:
+    """Normalised log-density of the intensity K distribution (mean ``scale``, shape ``nu``)."""
+    b = scale / nu
+    v = nu - 1.0
+    xb = x / b
+    z = 2.0 * np.sqrt(xb)
+    logk = np.log(special.kve(v, z)) - z
+    bad = ~np.isfinite(logk) & (z > 0)
+    if bad.any():  # kve overflows for a large order at a small argument
+        from sonarmap.stats._em_kernels import log_bessel_k
+
+        out = np.empty(5)
+        logk[bad] = [log_bessel_k(v, float(zi), False, out) for zi in z[bad]]
+    out_ld: NDArray[np.float64] = (
+        math.log(2.0) - math.lgamma(nu) - math.log(b) + 0.5 * v * np.log(xb) + logk
+    )
+    return out_ld
 
 
 FAMILIES: dict[str, Family] = {
@@ -142,6 +183,7 @@ FAMILIES: dict[str, Family] = {
     "gamma": Family("gamma", ("shape", "scale"), (0.2, 50.0)),
     "weibull": Family("weibull", ("shape", "scale"), (0.2, 20.0)),
     "rice": Family("rice", ("nu", "scale"), (0.0, 1.0)),
+    "k": Family("k", ("nu", "scale"), (0.1, 100.0), half_step_at_zero=True),
 }
 
 
@@ -185,7 +227,7 @@ def log_pmf(
     f = family(fam)
     x = np.asarray(levels, dtype=np.float64)
     logf = f.log_density(x, tuple(float(p) for p in params))
-    if not np.isfinite(logf[0]) and logf[0] > 0 and x.size > 1:
+    if x.size > 1 and (f.half_step_at_zero or (not np.isfinite(logf[0]) and logf[0] > 0)):
         # density singular at zero: evaluate level 0 at half a step
         logf[0] = f.log_density(np.array([0.5 * x[1]]), tuple(params))[0]
     logf = np.where(np.isnan(logf), -np.inf, logf)
