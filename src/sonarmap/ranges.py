@@ -234,35 +234,23 @@ def half_peak_edges(ranges: BeamRanges, image: ArrayLike, mask: ArrayLike, geome
     """
     if ranges.mode != "first" or ranges.n_returns == 0:
         return ranges
-    img = np.asarray(image, dtype=np.float64)
-    m = np.asarray(mask, dtype=bool)
+    from sonarmap.classify._kernels import half_peak_edges as kernel
+
+    img = np.ascontiguousarray(image, dtype=np.float64)
+    m = np.ascontiguousarray(mask, dtype=bool)
+    if img.shape != m.shape or img.ndim != 2 or img.shape[1] != ranges.n_beams:
+        raise InputError(f"image/mask: shapes {img.shape} / {m.shape} do not match {ranges.n_beams} beams")
+    if peak not in ("first", "max"):
+        raise InputError(f"peak: must be 'first' or 'max', got {peak!r}")
     r = np.asarray(geometry.range_m, dtype=np.float64)
-    n = img.shape[0]
-    b_out = ranges.bin.copy()
-    r_out = ranges.range_m.copy()
-    i_out = ranges.intensity.copy()
-    for j in np.flatnonzero(ranges.valid):
-        b = int(ranges.bin[j])
-        end = b
-        while end + 1 < n and m[end + 1, j]:
-            end += 1
-        col = img[b:end + 1, j]
-        if smooth > 1 and col.size > 2:
-            col = np.convolve(np.pad(col, (smooth // 2, smooth - 1 - smooth // 2), mode="edge"),
-                              np.full(smooth, 1.0 / smooth), mode="valid")
-        k = int(np.argmax(col)) if peak == "max" else 0
-        if peak == "first":
-            while k + 1 < col.size and col[k + 1] >= col[k]:
-                k += 1
-        level = fraction * col[k]
-        e = int(np.argmax(col[: k + 1] >= level))
-        if e > 0 and col[e] > col[e - 1]:
-            f = (level - col[e - 1]) / (col[e] - col[e - 1])
-            r_out[j] = r[b + e - 1] + f * (r[b + e] - r[b + e - 1])
-        else:
-            r_out[j] = r[b + e]
-        b_out[j] = b + e
-        i_out[j] = np.float32(img[b + e, j])
+    b_out, frac = kernel(img, m, np.ascontiguousarray(ranges.bin, dtype=np.int64), float(fraction),
+                         max(int(smooth), 1), peak == "first")
+    ok = b_out >= 0
+    r_out = np.full(b_out.shape, np.nan)
+    prev = np.maximum(b_out - 1, 0)
+    r_out[ok] = r[b_out[ok]] - frac[ok] * (r[b_out[ok]] - r[prev[ok]])
+    i_out = np.full(b_out.shape, np.nan, dtype=np.float32)
+    i_out[ok] = img[b_out[ok], np.flatnonzero(ok)].astype(np.float32)
     return dataclasses.replace(ranges, bin=b_out, range_m=r_out, intensity=i_out)
 
 

@@ -808,3 +808,50 @@ def band_peak_pixels(band, img, cols):  # pragma: no cover - numba
             i += 1
         out[best, j] = True
     return out
+
+
+@njit(cache=True, nogil=True)
+def half_peak_edges(img, mask, bins, fraction, smooth, first_peak):  # pragma: no cover - numba
+    """Per beam with ``bins[j] >= 0``: the leading edge of the echo that starts there.
+
+    The run of ``mask`` from ``bins[j]`` (at least that bin) is smoothed by a running mean of
+    ``smooth`` bins (edge samples repeated); its first local maximum (``first_peak``) or its
+    maximum is the peak; the edge is the first bin of the run reaching ``fraction`` x the peak.
+    Returns ``(edge_bin, frac)``: the crossing lies ``frac`` of a bin before ``edge_bin``
+    (0 when it is exactly there or at the run's start).  See :func:`sonarmap.ranges.half_peak_edges`.
+    """
+    n, m = img.shape
+    out = bins.copy()
+    frac = np.zeros(m)
+    buf = np.empty(n)
+    for j in range(m):
+        b = bins[j]
+        if b < 0:
+            continue
+        end = b
+        while end + 1 < n and mask[end + 1, j]:
+            end += 1
+        L = end - b + 1
+        h = smooth // 2
+        for i in range(L):
+            s = 0.0
+            for k in range(i - h, i - h + smooth):
+                kk = min(max(k, 0), L - 1)
+                s += img[b + kk, j]
+            buf[i] = s / smooth
+        k = 0
+        if first_peak:
+            while k + 1 < L and buf[k + 1] >= buf[k]:
+                k += 1
+        else:
+            for i in range(L):
+                if buf[i] > buf[k]:
+                    k = i
+        level = fraction * buf[k]
+        e = 0
+        while e < k and buf[e] < level:
+            e += 1
+        out[j] = b + e
+        if e > 0 and buf[e] > buf[e - 1]:
+            frac[j] = (buf[e] - level) / (buf[e] - buf[e - 1])
+    return out, frac
