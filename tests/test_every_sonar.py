@@ -303,3 +303,16 @@ def test_every_preset_same_default_no_false_returns_and_surfaces_found():
                                                 seeds=(0,))}
     assert oc["oculus-m750d-like"].false_return_rate <= 0.05
     assert oc["oculus-m750d-like | propeller"].recall >= 0.7
+
+
+def test_capped_persistency_reduction_gives_the_same_minimiser(monkeypatch, aris_pings, oculus_pings, test_pings):
+    """The MRF's reduction stops after 2 propagation sweeps and leaves the rest to the exact cut:
+    the labels equal those of the reduction run to its fixed point, on real pings of 3 sonars."""
+    import sonarmap.classify.mrf as mrf
+
+    pings = [aris_pings[0], oculus_pings[0], test_pings[4], test_pings[7]]
+    capped = [process_ping(p, keep_labels=True).labels for p in pings]
+    monkeypatch.setattr(mrf, "_REDUCTION_SWEEPS", 256)
+    full = [process_ping(p, keep_labels=True).labels for p in pings]
+    for a, b in zip(capped, full):
+        np.testing.assert_array_equal(a, b)

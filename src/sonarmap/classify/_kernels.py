@@ -181,7 +181,7 @@ def _try_fix_u(levels, margin_lut, weights, fixed, i, j, h, w, wr, wb):  # pragm
 
 
 @njit(cache=True, nogil=True)
-def reduce_binary(levels, margin_lut, weights, wtot, fixed, node, m, wfree, stack, uniform):  # pragma: no cover
+def reduce_binary(levels, margin_lut, weights, wtot, fixed, node, m, wfree, stack, uniform, max_sweeps=256):  # pragma: no cover
     """Exact persistency reduction of a binary Potts problem, then graph arrays for the rest.
 
     The margin of pixel ``(i, j)`` is ``margin_lut[levels[i, j]]`` (``unary[0] - unary[1]``,
@@ -200,7 +200,8 @@ def reduce_binary(levels, margin_lut, weights, wtot, fixed, node, m, wfree, stac
     propagation order.  Pass 1 is one forward raster sweep in which the unconditional test
     ``|margin| > wtot`` (no neighbour reads) settles most pixels and only the others read their
     already-visited neighbours; its survivors (a few per cent) are then swept, in alternating
-    backward and forward order, with the full test until nothing changes.  No lattice-sized
+    backward and forward order, with the full test until nothing changes or ``max_sweeps``
+    sweeps have run (what is left free goes to the cut, which is exact either way).  No lattice-sized
     initialisation pass is needed.
 
     Returns
@@ -259,7 +260,7 @@ def reduce_binary(levels, margin_lut, weights, wtot, fixed, node, m, wfree, stac
     hi = n_left
     changed = 1
     sweep = 0
-    while changed and sweep < 256:
+    while changed and sweep < max_sweeps:
         changed = 0
         if sweep % 2 == 1:
             k_out = lo
