@@ -16,6 +16,13 @@ rule and a leading-edge refinement of up to 8 bins; on the beams that leaves emp
 (3 bins x 5 beams box mean >= 4x the background mean, >= 40-beam components, strongest pixel per
 beam) recovers thin single-look-speckle surface bands.
 
+Images without a zero spike (ARIS, Oculus: anything but a thresholded receiver's output) are
+first normalised by their own background level (:mod:`sonarmap.preprocess.normalise`) instead of
+the pre-processing recipe, which brings them into the same zero spike + exponential + object
+domain; their components must be larger (multi-looked pixels are correlated), band pooling is not
+applied and first returns move to the half-peak leading edge of their echo.  A ping whose fit fails
+a gate (:mod:`sonarmap.stats.gates`) yields no returns and carries the gate's name.
+
 Degenerate pings (all zero, constant, nothing but background) give no returns, never an error:
 their fit flags are carried in :attr:`PingProducts.flags`.
 """
