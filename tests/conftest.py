@@ -43,3 +43,27 @@ def background_paths(didson_dir: Path) -> list[Path]:
     paths = sorted((didson_dir / "background").glob("*.png"))
     assert len(paths) == 116
     return paths
+
+
+@pytest.fixture(scope="session")
+def test_pings(test_ping_paths: list[Path]) -> list:
+    """The 10 paper test pings as :class:`sonarmap.ping.Ping`, in time order."""
+    from sonarmap.io import read_pings
+
+    return list(read_pings([str(p) for p in test_ping_paths]))
+
+
+@pytest.fixture(scope="session")
+def aris_pings(data_dir: Path) -> list:
+    """The 6 frames of ``aris/sample.aris``."""
+    from sonarmap.io import read_pings
+
+    return list(read_pings(_need(data_dir / "aris" / "sample.aris")))
+
+
+@pytest.fixture(scope="session")
+def oculus_pings(data_dir: Path) -> list:
+    """The 3 pings of ``oculus/three_pings_8bit.raw``."""
+    from sonarmap.io import read_pings
+
+    return list(read_pings(_need(data_dir / "oculus" / "three_pings_8bit.raw")))

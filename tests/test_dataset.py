@@ -30,10 +30,6 @@ from sonarmap.io.dataset import (
 from sonarmap.ping import Ping, Pose
 
 
-@pytest.fixture(scope="module")
-def aris_pings(data_dir: Path) -> list[Ping]:
-    return list(read_pings(data_dir / "aris" / "sample.aris"))
-
 
 def _same(a: Ping, b: Ping) -> None:
     assert np.array_equal(a.image, b.image)

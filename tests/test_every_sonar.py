@@ -9,7 +9,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from sonarmap.io import read_pings
 from sonarmap.ping import Ping
 from sonarmap.pipeline import PipelineConfig, process_ping
 from sonarmap.preprocess.normalise import BACKGROUND_MEAN, estimate_background
@@ -17,19 +16,7 @@ from sonarmap.stats.gates import GATE_DESCRIPTIONS, IMPLAUSIBLE, REFUSING, class
 from sonarmap.stats.mixture import fit_mixture
 
 
-@pytest.fixture(scope="module")
-def test_pings(test_ping_paths):
-    return [next(iter(read_pings(p))) for p in test_ping_paths]
 
-
-@pytest.fixture(scope="module")
-def aris_pings(data_dir):
-    return list(read_pings(data_dir / "aris" / "sample.aris"))
-
-
-@pytest.fixture(scope="module")
-def oculus_pings(data_dir):
-    return list(read_pings(data_dir / "oculus" / "three_pings_8bit.raw"))
 
 
 # --------------------------------------------------------------------------- normalisation

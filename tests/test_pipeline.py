@@ -9,13 +9,8 @@ import numpy as np
 import pytest
 
 from sonarmap.errors import InputError
-from sonarmap.io import read_pings
 from sonarmap.pipeline import PipelineConfig, process_ping
 
-
-@pytest.fixture(scope="module")
-def test_pings(test_ping_paths):
-    return list(read_pings([str(p) for p in test_ping_paths]))
 
 
 @pytest.fixture(scope="module")

@@ -14,7 +14,6 @@ import pytest
 
 from sonarmap.errors import InputError
 from sonarmap.geometry import preset
-from sonarmap.io import read_pings
 from sonarmap.simulate import (
     SimulationConfig,
     expected_background_image,
@@ -42,14 +41,6 @@ def renders():
     return out
 
 
-@pytest.fixture(scope="module")
-def aris_pings(data_dir):
-    return list(read_pings(data_dir / "aris" / "sample.aris"))
-
-
-@pytest.fixture(scope="module")
-def oculus_pings(data_dir):
-    return list(read_pings(data_dir / "oculus" / "three_pings_8bit.raw"))
 
 
 # --------------------------------------------------------------------------- profile selection
