@@ -596,15 +596,19 @@ def process_ping(ping: Ping, config: PipelineConfig = PipelineConfig(), *, keep_
         from sonarmap.preprocess.pipeline import preprocess_image
 
         image = preprocess_image(raw, geom, pre)
+    def no_return_products(fit: Any, flags: set[str], pd: float, pfa: float,
+                           gates: tuple[str, ...] = ()) -> PingProducts:
+        return PingProducts(
+            time_ns=ping.time_ns, source=ping.source, fit=fit,
+            kld=float(fit.kld) if fit is not None else math.nan, flags=tuple(sorted(flags | {"no_returns"})),
+            ranges=no_returns(geom, time_ns=ping.time_ns, source=ping.source, mode=config.range_mode),
+            labels=np.zeros(image.shape, dtype=np.uint8) if keep_labels else None, pd=pd, pfa=pfa,
+            method=config.method, pd_range=0.0, background=background, gates=gates,
+            image=image if keep_labels else None)
+
     # a constant ping (all zero, saturated, a dead sensor) carries no range information
     if constant or not np.any(image > 0) or float(image.max()) == float(image.min()):
-        labels = np.zeros(image.shape, dtype=np.uint8)
-        fit = None
-        ranges = no_returns(geom, time_ns=ping.time_ns, source=ping.source, mode=config.range_mode)
-        return PingProducts(time_ns=ping.time_ns, source=ping.source, fit=fit, kld=math.nan,
-                            flags=("constant_image", "no_returns"), ranges=ranges,
-                            labels=labels if keep_labels else None, pd=0.0, pfa=0.0, method=config.method,
-                            pd_range=0.0, background=background, image=image if keep_labels else None)
+        return no_return_products(None, {"constant_image"}, 0.0, 0.0)
     labels, fit, pd, pfa = classify_image(image, config)
     gates: frozenset[str] = frozenset()
     if fit is not None and not config.method.startswith("cfar-"):
@@ -614,14 +618,7 @@ def process_ping(ping: Ping, config: PipelineConfig = PipelineConfig(), *, keep_
                           min_separation=config.min_separation)
     if gates:
         # an implausible fit never becomes confident output: no returns, the reasons as flags
-        flags_g = set(fit.flags) | set(gates) | {"no_returns"}
-        ranges = no_returns(geom, time_ns=ping.time_ns, source=ping.source, mode=config.range_mode)
-        return PingProducts(time_ns=ping.time_ns, source=ping.source, fit=fit, kld=float(fit.kld),
-                            flags=tuple(sorted(flags_g)), ranges=ranges,
-                            labels=np.zeros(image.shape, dtype=np.uint8) if keep_labels else None,
-                            pd=float(pd), pfa=float(pfa), method=config.method, pd_range=0.0,
-                            background=background, gates=tuple(sorted(gates)),
-                            image=image if keep_labels else None)
+        return no_return_products(fit, set(fit.flags) | gates, float(pd), float(pfa), tuple(sorted(gates)))
     edge = None
     bg_mean = None
     usable = fit is not None and len(fit.class_names) >= 2 and not fit.flags & {"all_zero", "degenerate"}

@@ -201,9 +201,8 @@ def drop_small_components(mask: NDArray[np.bool_], geometry: SonarGeometry, min_
         return m
     r = np.asarray(geometry.range_m, dtype=np.float64)[ra:rb]
     az_all = np.asarray(geometry.azimuth_rad, dtype=np.float64)
-    r_all = np.asarray(geometry.range_m, dtype=np.float64)
-    dr = float(abs(r_all[-1] - r_all[0]) / max(r_all.size - 1, 1)) if r_all.size > 1 else 0.0
-    daz = float(abs(az_all[-1] - az_all[0]) / max(az_all.size - 1, 1)) if az_all.size > 1 else 0.0
+    dr = abs(geometry.range_resolution_m)
+    daz = float(abs(az_all[-1] - az_all[0]) / (az_all.size - 1)) if az_all.size > 1 else 0.0
     az = az_all[ca:cb]
     box = np.array([(sl[0].start, sl[0].stop - 1, sl[1].start, sl[1].stop - 1)
                     for sl in ndimage.find_objects(lab)], dtype=np.int64).reshape(-1, 4)
@@ -220,7 +219,7 @@ def drop_small_components(mask: NDArray[np.bool_], geometry: SonarGeometry, min_
 
 
 def half_peak_edges(ranges: BeamRanges, image: ArrayLike, mask: ArrayLike, geometry: SonarGeometry, *,
-                    fraction: float = 0.5, peak: str = "first", smooth: int = 1) -> BeamRanges:
+                    fraction: float = 0.5) -> BeamRanges:
     """Move each first return to the leading edge of its echo: the first crossing of ``fraction``
     of the echo's first peak (the range convention of ``DESIGN.md``).
 
@@ -228,9 +227,7 @@ def half_peak_edges(ranges: BeamRanges, image: ArrayLike, mask: ArrayLike, geome
     beam within the run of ``mask`` that starts there; the edge is the first bin of that run whose
     value reaches ``fraction`` x the peak, interpolated linearly to sub-bin ``range_m`` (``bin``
     is the bin at or after the crossing).  ``image`` should be smooth along range (the normalised,
-    multi-looked image is; ``smooth`` > 1 adds a running mean of that many bins before the peak
-    search).  ``peak="max"`` uses the run's maximum instead of its first peak.  Strongest-mode
-    ranges are returned unchanged.
+    multi-looked image is).  Strongest-mode ranges are returned unchanged.
     """
     if ranges.mode != "first" or ranges.n_returns == 0:
         return ranges
@@ -240,11 +237,8 @@ def half_peak_edges(ranges: BeamRanges, image: ArrayLike, mask: ArrayLike, geome
     m = np.ascontiguousarray(mask, dtype=bool)
     if img.shape != m.shape or img.ndim != 2 or img.shape[1] != ranges.n_beams:
         raise InputError(f"image/mask: shapes {img.shape} / {m.shape} do not match {ranges.n_beams} beams")
-    if peak not in ("first", "max"):
-        raise InputError(f"peak: must be 'first' or 'max', got {peak!r}")
     r = np.asarray(geometry.range_m, dtype=np.float64)
-    b_out, frac = kernel(img, m, np.ascontiguousarray(ranges.bin, dtype=np.int64), float(fraction),
-                         max(int(smooth), 1), peak == "first")
+    b_out, frac = kernel(img, m, np.ascontiguousarray(ranges.bin, dtype=np.int64), float(fraction))
     ok = b_out >= 0
     r_out = np.full(b_out.shape, np.nan)
     prev = np.maximum(b_out - 1, 0)

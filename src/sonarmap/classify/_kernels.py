@@ -812,19 +812,17 @@ def band_peak_pixels(band, img, cols):  # pragma: no cover - numba
 
 
 @njit(cache=True, nogil=True)
-def half_peak_edges(img, mask, bins, fraction, smooth, first_peak):  # pragma: no cover - numba
+def half_peak_edges(img, mask, bins, fraction):  # pragma: no cover - numba
     """Per beam with ``bins[j] >= 0``: the leading edge of the echo that starts there.
 
-    The run of ``mask`` from ``bins[j]`` (at least that bin) is smoothed by a running mean of
-    ``smooth`` bins (edge samples repeated); its first local maximum (``first_peak``) or its
-    maximum is the peak; the edge is the first bin of the run reaching ``fraction`` x the peak.
-    Returns ``(edge_bin, frac)``: the crossing lies ``frac`` of a bin before ``edge_bin``
-    (0 when it is exactly there or at the run's start).  See :func:`sonarmap.ranges.half_peak_edges`.
+    The peak is the first local maximum of ``img`` along the run of ``mask`` from ``bins[j]`` (at
+    least that bin); the edge is the first bin of the run reaching ``fraction`` x the peak.
+    Returns ``(edge_bin, frac)``: the crossing lies ``frac`` of a bin before ``edge_bin`` (0 when
+    it is exactly there or at the run's start).  See :func:`sonarmap.ranges.half_peak_edges`.
     """
     n, m = img.shape
     out = bins.copy()
     frac = np.zeros(m)
-    buf = np.empty(n)
     for j in range(m):
         b = bins[j]
         if b < 0:
@@ -832,27 +830,14 @@ def half_peak_edges(img, mask, bins, fraction, smooth, first_peak):  # pragma: n
         end = b
         while end + 1 < n and mask[end + 1, j]:
             end += 1
-        L = end - b + 1
-        h = smooth // 2
-        for i in range(L):
-            s = 0.0
-            for k in range(i - h, i - h + smooth):
-                kk = min(max(k, 0), L - 1)
-                s += img[b + kk, j]
-            buf[i] = s / smooth
-        k = 0
-        if first_peak:
-            while k + 1 < L and buf[k + 1] >= buf[k]:
-                k += 1
-        else:
-            for i in range(L):
-                if buf[i] > buf[k]:
-                    k = i
-        level = fraction * buf[k]
-        e = 0
-        while e < k and buf[e] < level:
+        k = b
+        while k < end and img[k + 1, j] >= img[k, j]:
+            k += 1
+        level = fraction * img[k, j]
+        e = b
+        while e < k and img[e, j] < level:
             e += 1
-        out[j] = b + e
-        if e > 0 and buf[e] > buf[e - 1]:
-            frac[j] = (buf[e] - level) / (buf[e] - buf[e - 1])
+        out[j] = e
+        if e > b and img[e, j] > img[e - 1, j]:
+            frac[j] = (img[e, j] - level) / (img[e, j] - img[e - 1, j])
     return out, frac

@@ -134,8 +134,8 @@ def _calibrate_normalised(pings: list, geom: object, rec: object) -> tuple[dict,
     import numpy as np
 
     from sonarmap.errors import FitError
-    from sonarmap.preprocess.gain import RadialGain
-    from sonarmap.preprocess.normalise import _expand, estimate_background
+    from sonarmap.preprocess.gain import fit_range_profile
+    from sonarmap.preprocess.normalise import estimate_background
     from sonarmap.stats.mixture import histogram
     from sonarmap.stats.selection import select_model
 
@@ -143,24 +143,17 @@ def _calibrate_normalised(pings: list, geom: object, rec: object) -> tuple[dict,
     r = np.asarray(geom.range_m, dtype=np.float64)  # type: ignore[attr-defined]
     not_estimated: list[str] = []
     # net range dependence of the background (after the sonar's own gain): eq. 6-7 regression
-    ok = r > 0
     gain_d = None
-    if np.count_nonzero(ok) >= 3:
-        y = 10 * np.log10(level[ok].astype(np.float64))
-        a = np.column_stack([-np.log10(r[ok]), -r[ok], np.ones(np.count_nonzero(ok))])
-        coef, *_ = np.linalg.lstsq(a, y, rcond=None)
-        rms = float(np.sqrt(np.mean((a @ coef - y) ** 2)))
-        gain = RadialGain(k1=float(coef[0]), k2=float(coef[1]), k3=0.0, source="fit", rms_db=rms)
-        gain_d = gain.to_dict()
+    try:
+        gain_d = fit_range_profile(level, r, usable=r > 0, what="range bins beyond 0 m").to_dict()
+    except FitError:
+        pass
     if not r[0] > 0:
         not_estimated.append("the window starts at 0 m: the range fit uses the bins beyond it")
     if rec.range_dependence_db < 1.0:  # type: ignore[attr-defined]
         not_estimated.append("radial gain: the background is flat over the window (the sonar applied TVG); "
                              "none is applied")
-    # per-beam taper implied by the beam factor (mean over the range blocks)
-    full = _expand(rec.beam_factor, level.shape + (rec.n_beams,))  # type: ignore[attr-defined]
-    taper = full.mean(axis=0)
-    taper = taper / float(np.median(taper))
+    taper = rec.beam_profile()  # type: ignore[attr-defined]
     # intensity model on the pooled normalised pings
     counts = np.zeros(256)
     for p in pings:

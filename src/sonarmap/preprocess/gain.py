@@ -30,6 +30,7 @@ __all__ = [
     "radial_gain_factor",
     "apply_radial_gain",
     "estimate_radial_gain",
+    "fit_range_profile",
     "range_profile",
     "background_intensity",
     "intensity_from_nonzero_mean",
@@ -821,8 +822,58 @@ def estimate_radial_gain(
         if geom is None:
             raise InputError("range_m: required when images are bare arrays (not Pings)")
         range_m = geom
-    r = _check_range(range_m, level.size)
     ok = (count >= min_count) & np.isfinite(level) & (level > 0)
+    return fit_range_profile(level, range_m, usable=ok, scale=scale, fix_k1=fix_k1, fix_k2=fix_k2,
+                             what=f"range bins have >= {min_count} non-zero samples")
+
+
+def fit_range_profile(
+    level: ArrayLike,
+    range_m: ArrayLike | SonarGeometry,
+    *,
+    usable: ArrayLike | None = None,
+    scale: Scale = "power",
+    fix_k1: float | None = None,
+    fix_k2: float | None = None,
+    what: str = "range bins have a positive level",
+) -> RadialGain:
+    """Regress a level profile on the channel model: ``10 log10 p(r) = c - k1 log10 r - k2 r``.
+
+    The regression of :func:`estimate_radial_gain`, for a profile measured any other way (e.g.
+    the background level of :mod:`sonarmap.preprocess.normalise`).
+
+    Parameters
+    ----------
+    level : array_like (n_bins,)
+        Level per range bin (intensity units).
+    range_m : array_like (n_bins,) or SonarGeometry
+    usable : array_like of bool (n_bins,), optional
+        Bins to regress on (default: finite, positive levels).
+    scale, fix_k1, fix_k2
+        As in :func:`estimate_radial_gain`.
+    what : str
+        What the usable bins are, for the error message.
+
+    Returns
+    -------
+    RadialGain
+        ``k3`` set so the corrected profile keeps the raw profile's mean dB level; ``rms_db`` the
+        residual RMS.
+
+    Raises
+    ------
+    FitError
+        Fewer usable bins than free parameters.
+
+    Notes
+    -----
+    Eq. 6-7 of Teixeira et al. (2018).
+    """
+    level = np.asarray(level, dtype=np.float64).reshape(-1)
+    r = _check_range(range_m, level.size)
+    ok = np.isfinite(level) & (level > 0)
+    if usable is not None:
+        ok &= np.asarray(usable, dtype=bool).reshape(-1)
     mul = 10.0 if scale == "power" else 20.0
     y = np.full(level.size, np.nan)
     y[ok] = mul * np.log10(level[ok])
@@ -842,8 +893,7 @@ def estimate_radial_gain(
     t = target[ok]
     if t.size < X.shape[1] + 1:
         raise FitError(
-            f"images: only {t.size} range bins have >= {min_count} non-zero samples; "
-            f"cannot fit {X.shape[1]} parameters"
+            f"images: only {t.size} {what}; cannot fit {X.shape[1]} parameters"
         )
     coef, *_ = np.linalg.lstsq(X, t, rcond=None)
     vals = dict(zip(names, coef.tolist(), strict=True))

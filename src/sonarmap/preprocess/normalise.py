@@ -97,6 +97,17 @@ class BackgroundLevel:
                 "range_dependence_db": self.range_dependence_db, "floor": self.floor, "gain": self.gain}
 
 
+def _zero_fraction(img: NDArray[np.float32]) -> float:
+    """Fraction of the pixels at the zero level of 8-bit data."""
+    return float(np.count_nonzero(img <= _ZERO)) / img.size
+
+
+def _range_dependence_db(level: NDArray[np.floating]) -> float:
+    """``10 log10`` of the 90th over the 10th percentile of a level profile."""
+    q10, q90 = np.percentile(level, [10, 90])
+    return float(10 * np.log10(q90 / q10)) if q10 > 0 else math.inf
+
+
 def _lower_quartile(x: NDArray[np.float32], axis: int) -> NDArray[np.float32]:
     # np.sort is ~10x faster than np.partition along short rows (vectorised sort kernels)
     n = x.shape[axis]
@@ -186,7 +197,7 @@ def estimate_background(
         raise InputError(f"thresholded_fraction: must lie in (0, 1], got {thresholded_fraction}")
     if not 0.5 <= floor_quantile < 1:
         raise InputError(f"floor_quantile: must lie in [0.5, 1), got {floor_quantile}")
-    zero_fraction = float(np.count_nonzero(img <= _ZERO)) / img.size
+    zero_fraction = _zero_fraction(img)
     if zero_fraction >= thresholded_fraction:
         return BackgroundLevel(False, "thresholded", zero_fraction), None
     n, m = img.shape
@@ -279,9 +290,8 @@ def _finish(img: NDArray[np.float32], level: NDArray[np.float32], factor: NDArra
     t = c50 + math.log(0.5 / (1.0 - floor_quantile)) * scale  # ln 5 at the 0.9 quantile
     g = BACKGROUND_MEAN / scale
     u = excess(z, np.float32(t), np.float32(g))
-    q10, q90 = np.percentile(level, [10, 90])
-    dep = float(10 * np.log10(q90 / q10)) if q10 > 0 else math.inf
-    return BackgroundLevel(True, reason, zero_fraction, level.astype(np.float32), factor, dep, t, g), u
+    return BackgroundLevel(True, reason, zero_fraction, level.astype(np.float32), factor,
+                           _range_dependence_db(level), t, g), u
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -321,6 +331,14 @@ class RecordingBackground:
     range_dependence_db: float = math.nan
     ping_spread_db: float = math.nan
     degenerate_pings: int = 0
+
+    def beam_profile(self) -> NDArray[np.float32] | None:
+        """Per-beam gain implied by the beam factor (its mean over range, median 1): the taper."""
+        if self.beam_factor is None or self.level_by_bin is None:
+            return None
+        full = _expand(self.beam_factor, (self.level_by_bin.size, self.n_beams))
+        taper = full.mean(axis=0)
+        return (taper / float(np.median(taper))).astype(np.float32)
 
     def to_dict(self) -> dict[str, object]:
         """JSON-compatible dict; :meth:`from_dict` reads it back."""
@@ -409,7 +427,7 @@ def estimate_recording_background(
         if not np.all(np.isfinite(img)):
             raise InputError(f"{src}: contains NaN or infinite values")
         n += 1
-        zeros.append(float(np.count_nonzero(img <= _ZERO)) / img.size)
+        zeros.append(_zero_fraction(img))
         lv = _row_level(img, max_rise)
         if lv is None:
             degenerate += 1
@@ -427,8 +445,7 @@ def estimate_recording_background(
     stack = np.stack(levels)
     level = np.median(stack, axis=0).astype(np.float32)
     factor = np.median(np.stack(factors), axis=0).astype(np.float32)
-    q10, q90 = np.percentile(level, [10, 90])
-    dep = float(10 * np.log10(q90 / q10)) if q10 > 0 else math.inf
+    dep = _range_dependence_db(level)
     spread = math.nan
     if len(levels) > 1:
         db = 10 * np.log10(stack)
