@@ -72,6 +72,16 @@ class BeamRanges:
         Ping source (file path).
     mode : str
         ``"first"`` or ``"strongest"``.
+    sigma_m : ndarray of float64, shape (n_beams,)
+        One-sigma uncertainty of ``range_m`` in metres (from the pulse length, the bin size and
+        the echo's signal-to-background ratio; :func:`sonarmap.ranges.echoes.range_sigma_m`);
+        NaN where there is no return or no estimate.
+    p_detect : ndarray of float32, shape (n_beams,)
+        Probability that a surface in this beam is detected and reported (the mapping sensor
+        model's pD for this beam); NaN where unknown.
+    other_range_m : ndarray of float64, shape (n_other, n_beams)
+        Leading-edge ranges of further surfaces behind the reported return on each beam (nearest
+        first); NaN where none.  ``n_other`` may be 0.
     """
 
     range_m: NDArray[np.float64]
@@ -82,12 +92,26 @@ class BeamRanges:
     time_ns: int = 0
     source: str = ""
     mode: str = "first"
+    sigma_m: NDArray[np.float64] | None = None
+    p_detect: NDArray[np.float32] | None = None
+    other_range_m: NDArray[np.float64] | None = None
 
     def __post_init__(self) -> None:
         n = np.asarray(self.azimuth_rad).shape[0]
-        for name in ("range_m", "bin", "intensity", "confidence"):
+        if self.sigma_m is None:
+            object.__setattr__(self, "sigma_m", np.full(n, np.nan))
+        if self.p_detect is None:
+            object.__setattr__(self, "p_detect", np.full(n, np.nan, dtype=np.float32))
+        if self.other_range_m is None:
+            object.__setattr__(self, "other_range_m", np.full((0, n), np.nan))
+        object.__setattr__(self, "sigma_m", np.asarray(self.sigma_m, dtype=np.float64))
+        object.__setattr__(self, "p_detect", np.asarray(self.p_detect, dtype=np.float32))
+        object.__setattr__(self, "other_range_m", np.asarray(self.other_range_m, dtype=np.float64))
+        for name in ("range_m", "bin", "intensity", "confidence", "sigma_m", "p_detect"):
             if np.asarray(getattr(self, name)).shape != (n,):
                 raise InputError(f"{name}: expected shape ({n},)")
+        if self.other_range_m.ndim != 2 or self.other_range_m.shape[1] != n:
+            raise InputError(f"other_range_m: expected shape (n_other, {n}), got {self.other_range_m.shape}")
         b = np.asarray(self.bin)
         if not np.array_equal(b < 0, ~np.isfinite(np.asarray(self.range_m))):
             raise InputError("bin/range_m: no-return beams must have bin -1 and range NaN together")
