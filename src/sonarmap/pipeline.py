@@ -43,7 +43,7 @@ from sonarmap.errors import FitError, InputError
 from sonarmap.ping import Ping
 from sonarmap.ranges import BeamRanges, component_rule, drop_small_components, extract_ranges, half_peak_edges, no_returns
 
-__all__ = ["PipelineConfig", "PingProducts", "process_ping", "classify_image", "pooled_band_pixels", "METHODS", "SOLVER_NAMES"]
+__all__ = ["PipelineConfig", "PingProducts", "process_ping", "classify_image", "pooled_band_pixels", "pooled_band_mask", "pulse_bins", "METHODS", "SOLVER_NAMES"]
 
 METHODS = ("mrf", "map", "threshold", "cfar-ca", "cfar-so", "cfar-go", "cfar-os")
 SOLVER_NAMES = ("graphcut", "icm", "anneal", "expansion")
@@ -153,8 +153,19 @@ class PipelineConfig:
         beam; fish schools and speckle do not span ``pool_min_beams`` beams.  Not applied to
         normalised images, which are multi-looked already.
     edge_fraction : float
-        Normalised images: each first return moves to the first crossing of this fraction of its
-        echo's first peak (:func:`sonarmap.ranges.half_peak_edges`; 0 = the first structure pixel).
+        The range convention: a return's range is the first crossing of this fraction of its
+        echo's first peak (:mod:`sonarmap.ranges.echoes`).  With ``tracker="rules"`` it applies to
+        normalised images only (0 = the first structure pixel).
+    tracker : str
+        ``"surface"``: per-beam echoes of the candidate structure, tracked across beams by the
+        surface model (:mod:`sonarmap.ranges.tracking`); every return is an echo's leading edge
+        with a sigma.  ``"rules"``: the previous per-beam rules (isolated-return rule,
+        leading-edge refinement, band pooling at the band's peak), kept for comparison.
+    track : TrackConfig or dict, optional
+        Costs of the surface model (default :class:`sonarmap.ranges.tracking.TrackConfig`).
+    pulse_length_m : float, optional
+        Transmit pulse length along range (``c tau / 2``); echoes are measured on the image
+        smoothed over it.  Default: from the ping (``meta["pulse_width_us"]``, ARIS), else none.
     max_kld, max_object_weight, min_separation : float
         Fit gates (:func:`sonarmap.stats.gates.fit_gates`): a ping whose fit fails one yields no
         returns and carries the gate's name in its flags.
@@ -204,6 +215,9 @@ class PipelineConfig:
     pool_mode: str = "fill"
     max_kld: float = 0.05
     edge_fraction: float = 0.5
+    tracker: str = "surface"
+    track: Any = None
+    pulse_length_m: float | None = None
     max_object_weight: float = 0.5
     min_separation: float = 1.9
 
@@ -221,6 +235,24 @@ class PipelineConfig:
                 raise bad("preprocess", f"must be one of {', '.join(_PREPROCESS_RECIPES)} or a table")
         elif not isinstance(pre, PreprocessConfig):
             raise bad("preprocess", "must be a recipe name or a preprocess table")
+        from sonarmap.ranges.tracking import TrackConfig
+
+        if self.track is None:
+            object.__setattr__(self, "track", TrackConfig())
+        elif isinstance(self.track, dict):
+            try:
+                object.__setattr__(self, "track", TrackConfig(**self.track))
+            except TypeError as exc:
+                raise InputError(f"pipeline config: track: {exc}") from None
+        elif not isinstance(self.track, TrackConfig):
+            raise bad("track", "must be a track table")
+        if self.tracker not in ("surface", "rules"):
+            raise bad("tracker", "must be 'surface' or 'rules'")
+        if self.pulse_length_m is not None:
+            v = self.pulse_length_m
+            if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v) or v < 0:
+                raise bad("pulse_length_m", "must be a finite number >= 0")
+            object.__setattr__(self, "pulse_length_m", float(v))
         if self.normalise not in ("auto", "off"):
             raise bad("normalise", "must be 'auto' or 'off'")
         if self.method not in METHODS:
@@ -289,6 +321,9 @@ class PipelineConfig:
         d["families"] = list(self.families)
         if not isinstance(self.preprocess, str):
             d["preprocess"] = self.preprocess.to_dict()
+        d["track"] = dataclasses.asdict(self.track)
+        if d["pulse_length_m"] is None:
+            del d["pulse_length_m"]
         return d
 
     @classmethod
@@ -518,6 +553,22 @@ def _mrf_labels(image: NDArray[np.float32], levels: NDArray[Any], cost: NDArray[
                      neighbourhood=config.neighbourhood, weights=wt).labels
 
 
+def pooled_band_mask(image: NDArray[np.float32], level: float, *, pool_beams: int = 4, pool_bins: int = 3,
+                     min_beams: int = 40) -> NDArray[np.bool_] | None:
+    """Band pooling as a mask: pixels of ``image`` averaged over ``pool_bins`` x ``2 pool_beams + 1``
+    that reach ``level`` and belong to an 8-connected band spanning >= ``min_beams`` beams (None: none)."""
+    from sonarmap.classify._kernels import box_mean_f32
+    from sonarmap.ranges import _rule0
+
+    img = np.ascontiguousarray(image, dtype=np.float32)
+    pooled = box_mean_f32(img, int(pool_bins), 2 * int(pool_beams) + 1)
+    band = pooled >= level
+    if not band.any():
+        return None
+    band = _rule0(band, min_beams, img.shape[0] + 1, 0)
+    return band if band.any() else None
+
+
 def pooled_band_pixels(image: NDArray[np.float32], level: float, *, pool_beams: int = 4, pool_bins: int = 3,
                        min_beams: int = 40, beams: NDArray[np.bool_] | None = None) -> NDArray[np.bool_] | None:
     """Band pooling (see :class:`PipelineConfig`): one structure pixel per beam of every wide band.
@@ -637,43 +688,105 @@ def process_ping(ping: Ping, config: PipelineConfig = PipelineConfig(), *, keep_
     if config.min_component_extent_m > 0:
         mask = drop_small_components(mask, geom, config.min_component_extent_m)
 
-    def _ranges(accepted: NDArray[np.bool_] | None) -> BeamRanges:
-        return extract_ranges(
-            mask, image, geom, mode=config.range_mode,  # type: ignore[arg-type]
-            min_run=config.min_run, reject_isolated=config.reject_isolated,
-            neighbour_beams=config.neighbour_beams, max_jump_bins=config.max_jump_bins,
-            min_segment_beams=config.min_segment_beams,
-            refine_bins=config.refine_bins if normalised is None else 0, edge_level=edge, accepted=accepted,
-            time_ns=ping.time_ns,
-            source=ping.source,
-        )
+    if config.tracker == "surface":
+        ranges = _surface_ranges(ping, image, labels, mask, fit, config, normalised is not None, bg_mean)
+    else:
+        def _ranges(accepted: NDArray[np.bool_] | None) -> BeamRanges:
+            return extract_ranges(
+                mask, image, geom, mode=config.range_mode,  # type: ignore[arg-type]
+                min_run=config.min_run, reject_isolated=config.reject_isolated,
+                neighbour_beams=config.neighbour_beams, max_jump_bins=config.max_jump_bins,
+                min_segment_beams=config.min_segment_beams,
+                refine_bins=config.refine_bins if normalised is None else 0, edge_level=edge, accepted=accepted,
+                time_ns=ping.time_ns,
+                source=ping.source,
+            )
 
-    ranges = _ranges(None)
-    # band pooling: "fallback" only when the per-pixel route found less than one wide surface,
-    # "fill" on the beams it left without a return
-    fallback = ranges.n_returns < config.pool_min_beams
-    n_beams = ranges.bin.size
-    # band pooling multi-looks single-look speckle; a normalised image is multi-looked already
-    if (config.pool_factor > 0 and bg_mean is not None and bg_mean > 0 and normalised is None
-            and (fallback or (config.pool_mode == "fill" and ranges.n_returns < n_beams))):
-        accepted = pooled_band_pixels(image, config.pool_factor * bg_mean, pool_beams=config.pool_beams,
-                                      pool_bins=config.pool_bins, min_beams=config.pool_min_beams,
-                                      beams=None if fallback else ranges.bin < 0)
-        if accepted is not None:
-            ranges = _ranges(accepted)
-    if normalised is not None and config.edge_fraction > 0:
-        # the range convention: the leading edge of the echo (a fraction of its first peak)
-        ranges = half_peak_edges(ranges, image, labels >= 1, geom, fraction=config.edge_fraction)
+        ranges = _ranges(None)
+        # band pooling: "fallback" only when the per-pixel route found less than one wide surface,
+        # "fill" on the beams it left without a return
+        fallback = ranges.n_returns < config.pool_min_beams
+        n_beams = ranges.bin.size
+        # band pooling multi-looks single-look speckle; a normalised image is multi-looked already
+        if (config.pool_factor > 0 and bg_mean is not None and bg_mean > 0 and normalised is None
+                and (fallback or (config.pool_mode == "fill" and ranges.n_returns < n_beams))):
+            accepted = pooled_band_pixels(image, config.pool_factor * bg_mean, pool_beams=config.pool_beams,
+                                          pool_bins=config.pool_bins, min_beams=config.pool_min_beams,
+                                          beams=None if fallback else ranges.bin < 0)
+            if accepted is not None:
+                ranges = _ranges(accepted)
+        if normalised is not None and config.edge_fraction > 0:
+            # the range convention: the leading edge of the echo (a fraction of its first peak)
+            ranges = half_peak_edges(ranges, image, labels >= 1, geom, fraction=config.edge_fraction)
     flags = set(fit.flags) if fit is not None else {"no_fit"}
     if ranges.n_returns == 0:
         flags.add("no_returns")
+    pd_range = _pd_range(float(pd), labels, ranges, flags)
+    if config.tracker == "surface":
+        ranges = dataclasses.replace(ranges, p_detect=_p_detect(float(pd), pd_range, ranges))
     return PingProducts(
         time_ns=ping.time_ns, source=ping.source, fit=fit,
         kld=float(fit.kld) if fit is not None else math.nan, flags=tuple(sorted(flags)),
         ranges=ranges, labels=labels if keep_labels else None, pd=float(pd), pfa=float(pfa),
-        method=config.method, pd_range=_pd_range(float(pd), labels, ranges, flags),
+        method=config.method, pd_range=pd_range,
         background=background, image=image if keep_labels else None,
     )
+
+
+def pulse_bins(ping: Ping, config: PipelineConfig) -> int:
+    """The pulse length in range bins (>= 1): ``config.pulse_length_m``, else the ping's
+    ``meta["pulse_width_us"]`` at its sound speed (``meta["sound_speed_m_s"]``, default 1500 m/s)."""
+    length = config.pulse_length_m
+    if length is None:
+        meta = ping.meta if isinstance(ping.meta, dict) else {}
+        us = meta.get("pulse_width_us")
+        c = meta.get("sound_speed_m_s", 1500.0)
+        ok = (isinstance(us, int | float) and not isinstance(us, bool) and math.isfinite(us) and 0 < us < 1e5
+              and isinstance(c, int | float) and math.isfinite(c) and 1300 <= c <= 1700)
+        length = float(us) * 1e-6 * float(c) / 2.0 if ok else 0.0
+    dr = abs(ping.geometry.range_resolution_m)
+    return max(1, int(round(length / dr))) if dr > 0 else 1
+
+
+def _surface_ranges(ping: Ping, image: NDArray[np.float32], labels: NDArray[np.uint8], mask: NDArray[np.bool_],
+                    fit: Any, config: PipelineConfig, normalised: bool, bg_mean: float | None) -> BeamRanges:
+    """Echoes of the candidate structure (``mask`` plus pooled bands), tracked across beams."""
+    from sonarmap.ranges import ranges_from_tracks
+    from sonarmap.ranges.echoes import find_echoes, pixel_llr
+    from sonarmap.ranges.tracking import track_surfaces
+    from sonarmap.stats.mixture import quantize
+
+    geom = ping.geometry
+    cand = mask
+    band = None
+    if (config.pool_factor > 0 and bg_mean is not None and bg_mean > 0 and not normalised
+            and config.method in ("mrf", "map", "threshold")):
+        band = pooled_band_mask(image, config.pool_factor * bg_mean, pool_beams=config.pool_beams,
+                                pool_bins=config.pool_bins, min_beams=config.pool_min_beams)
+        if band is not None:
+            cand = cand | band
+    if not cand.any():
+        return no_returns(geom, time_ns=ping.time_ns, source=ping.source, mode=config.range_mode)
+    if fit is not None and len(fit.class_names) >= 2:
+        llr = np.maximum(pixel_llr(quantize(image, config.n_levels), fit), 0.0)
+    else:
+        llr = np.ones(image.shape)
+    if band is not None:
+        # a pooled band pixel passed a >= pool_factor x background test over the whole box: one
+        # nat at least, whatever its own (single-look, speckled) value says
+        llr = np.where(band & ~mask, np.maximum(llr, 1.0), llr)
+    pb = pulse_bins(ping, config)
+    echoes = find_echoes(cand, image, geom, llr=llr, pulse_bins=pb,
+                         fraction=config.edge_fraction if config.edge_fraction > 0 else 0.5,
+                         looks=5.0 if normalised else 1.0, background=bg_mean or 0.0)
+    tracks = track_surfaces(echoes, config.track)
+    return ranges_from_tracks(echoes, tracks, geom, image, mode=config.range_mode,  # type: ignore[arg-type]
+                              time_ns=ping.time_ns, source=ping.source)
+
+
+def _p_detect(pd: float, pd_range: float, ranges: BeamRanges) -> NDArray[np.float32]:
+    """Per beam: the ping's range-measurement pD (``pd_range``); NaN when unknown."""
+    return np.full(ranges.n_beams, pd_range if math.isfinite(pd_range) else np.nan, dtype=np.float32)
 
 
 def _pd_range(pd: float, labels: NDArray[np.uint8], ranges: BeamRanges, flags: set[str]) -> float:

@@ -1,0 +1,214 @@
+"""Echoes along each beam and the range convention: leading edge, peak and uncertainty.
+
+An *echo* is a run of classifier structure pixels along one beam (runs separated by at most
+``max_gap`` background bins are one echo: speckle fades inside a surface echo).  Its range is
+measured on the image smoothed along range over the pulse length (``DESIGN.md``, "Range
+convention"):
+
+* **first peak** ``p``: the first local maximum inside the echo that reaches ``peak_rel`` (0.5)
+  of the echo's maximum (a weak halo or speck in front of the surface is not the peak);
+* **leading edge**: walking from ``p`` towards the sonar, the first crossing of
+  ``fraction x value(p)`` (default 0.5, "half peak"), linearly interpolated between the two bins
+  around it (sub-bin).  The walk may leave the echo by up to ``back`` bins: the rising flank of
+  an echo is often below the classifier's threshold;
+* **strongest**: the range of ``p``;
+* **sigma** (:func:`range_sigma_m`): the quantisation of the bin grid and the timing jitter of
+  the crossing, ``sigma_v / slope``, where ``slope`` is the image's rise per bin at the crossing
+  and ``sigma_v`` the fluctuation of the smoothed image there (speckle of the echo at the
+  crossing level plus background), added in quadrature with a pulse term.
+
+Every return the pipeline reports is one echo's leading edge (or peak with
+``range_mode="strongest"``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from sonarmap.errors import InputError
+from sonarmap.geometry import SonarGeometry
+
+__all__ = ["Echoes", "find_echoes", "range_sigma_m", "smooth_along_range", "pixel_llr"]
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Echoes:
+    """The echoes of one ping, sorted by beam and then by range (flat arrays, one entry per echo).
+
+    Attributes
+    ----------
+    beam : ndarray of int64
+        Beam index.
+    start_bin, stop_bin : ndarray of int64
+        First and one-past-last structure bin of the echo.
+    peak_bin : ndarray of int64
+        The echo's first peak (see the module notes).
+    peak_value : ndarray of float64
+        Smoothed image value at the peak.
+    edge_bin : ndarray of float64
+        Fractional bin index of the leading edge (half-peak crossing).
+    edge_range_m, peak_range_m : ndarray of float64
+        Ranges of the leading edge (interpolated on ``geometry.range_m``) and of the peak.
+    slope : ndarray of float64
+        Rise of the smoothed image per bin at the crossing.
+    evidence : ndarray of float64
+        Sum of the per-pixel log-likelihood ratio (structure vs background, nats) over the echo's
+        structure pixels.
+    n_pixels : ndarray of int64
+        Structure pixels in the echo.
+    sigma_m : ndarray of float64
+        One-sigma uncertainty of ``edge_range_m`` (:func:`range_sigma_m`).
+    n_beams : int
+        Beams of the ping.
+    """
+
+    beam: NDArray[np.int64]
+    start_bin: NDArray[np.int64]
+    stop_bin: NDArray[np.int64]
+    peak_bin: NDArray[np.int64]
+    peak_value: NDArray[np.float64]
+    edge_bin: NDArray[np.float64]
+    edge_range_m: NDArray[np.float64]
+    peak_range_m: NDArray[np.float64]
+    slope: NDArray[np.float64]
+    evidence: NDArray[np.float64]
+    n_pixels: NDArray[np.int64]
+    sigma_m: NDArray[np.float64]
+    n_beams: int
+
+    @property
+    def size(self) -> int:
+        """Number of echoes."""
+        return int(self.beam.size)
+
+    def per_beam(self) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+        """``(first, count)``: the echoes of beam ``j`` are ``first[j] : first[j] + count[j]``."""
+        count = np.bincount(self.beam, minlength=self.n_beams).astype(np.int64)
+        first = np.concatenate([[0], np.cumsum(count)[:-1]]).astype(np.int64)
+        return first, count
+
+
+def smooth_along_range(image: ArrayLike, pulse_bins: int) -> NDArray[np.float64]:
+    """The image averaged along range over ``pulse_bins`` bins (centred box; unchanged below 2)."""
+    img = np.asarray(image, dtype=np.float64)
+    if pulse_bins < 2 or img.shape[0] < 2:
+        return np.ascontiguousarray(img)
+    from scipy.ndimage import uniform_filter1d
+
+    return np.ascontiguousarray(uniform_filter1d(img, size=int(pulse_bins), axis=0, mode="nearest"))
+
+
+def pixel_llr(levels: NDArray[np.integer], fit: object, *, clip: float = 4.0) -> NDArray[np.float64]:
+    """Per-pixel log-likelihood ratio ``log p(y|structure) - log p(y|background)`` (nats) under a
+    fitted mixture (eq. 8-10; the best object class), clipped to ``[-clip, clip]``."""
+    lp = np.asarray(fit.class_log_pmf(), dtype=np.float64)  # type: ignore[attr-defined]
+    if lp.shape[0] < 2:
+        return np.zeros(np.shape(levels))
+    with np.errstate(invalid="ignore"):
+        lut = lp[1:].max(axis=0) - lp[0]
+    lut = np.clip(np.nan_to_num(lut, nan=0.0, posinf=clip, neginf=-clip), -clip, clip)
+    return lut[np.asarray(levels)]
+
+
+def range_sigma_m(edge_value: ArrayLike, slope: ArrayLike, bin_m: float, *, looks: float = 1.0,
+                  background: float = 0.0, pulse_m: float = 0.0) -> NDArray[np.float64]:
+    """One-sigma uncertainty of a leading-edge range (metres).
+
+    ``sigma^2 = bin^2 / 12 + (bin sigma_v / slope)^2 + (pulse / sqrt(12))^2`` with
+    ``sigma_v = (edge_value + background) / sqrt(looks)``: the crossing of a speckled echo moves by
+    the image's fluctuation at the crossing level divided by its rise per bin, and the bin grid
+    and the pulse's own extent add their uniform spreads.
+
+    Parameters
+    ----------
+    edge_value : array_like
+        Image value at the crossing (``fraction`` x the peak).
+    slope : array_like
+        Rise of the image per bin at the crossing (> 0).
+    bin_m : float
+        Range bin spacing.
+    looks : float
+        Effective independent looks of the smoothed image (1: single-look speckle).
+    background : float
+        Mean background level of the image.
+    pulse_m : float
+        Pulse length along range.
+    """
+    v = np.asarray(edge_value, dtype=np.float64)
+    s = np.maximum(np.asarray(slope, dtype=np.float64), 1e-12)
+    sig_v = (np.abs(v) + max(float(background), 0.0)) / math.sqrt(max(float(looks), 1.0))
+    jitter = np.minimum(sig_v / s, 8.0) * bin_m  # a crossing is never more than ~8 bins uncertain
+    return np.sqrt(bin_m**2 / 12.0 + jitter**2 + (pulse_m**2) / 12.0)
+
+
+def find_echoes(
+    mask: ArrayLike,
+    image: ArrayLike,
+    geometry: SonarGeometry,
+    *,
+    llr: ArrayLike | None = None,
+    pulse_bins: int = 1,
+    fraction: float = 0.5,
+    peak_rel: float = 0.5,
+    max_gap: int | None = None,
+    back: int | None = None,
+    looks: float = 1.0,
+    background: float = 0.0,
+) -> Echoes:
+    """Find the echoes of a ping (see the module notes).
+
+    Parameters
+    ----------
+    mask : ndarray of bool, shape (n_bins, n_beams)
+        Classifier structure pixels.
+    image : ndarray, shape (n_bins, n_beams)
+        The image the classifier saw; smoothed along range over ``pulse_bins`` before measuring.
+    geometry : SonarGeometry
+    llr : ndarray, shape (n_bins, n_beams), optional
+        Per-pixel evidence (:func:`pixel_llr`); default 1 per structure pixel.
+    pulse_bins : int
+        Pulse length in bins (smoothing box; < 2 = none).
+    fraction : float
+        Leading-edge fraction of the first peak (0.5 = half peak).
+    peak_rel : float
+        The first peak is the first local maximum reaching this fraction of the echo's maximum.
+    max_gap : int, optional
+        Background bins bridged inside one echo (default ``max(2, pulse_bins)``).
+    back : int, optional
+        Bins the leading-edge walk may go in front of the echo (default ``pulse_bins + 2``).
+    looks, background : float
+        Speckle looks and background mean of ``image`` for :func:`range_sigma_m`.
+    """
+    from sonarmap.ranges import _kernels
+
+    m = np.ascontiguousarray(mask, dtype=bool)
+    geometry.check_image(m, "mask")
+    img = smooth_along_range(image, pulse_bins)
+    geometry.check_image(img, "image")
+    if not 0 < fraction < 1:
+        raise InputError(f"fraction: must lie in (0, 1) (got {fraction})")
+    if not 0 < peak_rel <= 1:
+        raise InputError(f"peak_rel: must lie in (0, 1] (got {peak_rel})")
+    ev = np.ones(m.shape) if llr is None else np.ascontiguousarray(llr, dtype=np.float64)
+    if ev.shape != m.shape:
+        raise InputError(f"llr: shape {ev.shape} does not match mask {m.shape}")
+    gap = max(2, int(pulse_bins)) if max_gap is None else int(max_gap)
+    bk = int(pulse_bins) + 2 if back is None else int(back)
+    beam, start, stop, peak, pval, edge, slope, evid, npx = _kernels.find_echoes(
+        m, img, ev, gap, float(fraction), float(peak_rel), bk)
+    n = beam.size
+    r = np.asarray(geometry.range_m, dtype=np.float64)
+    idx = np.arange(r.size, dtype=np.float64)
+    edge_r = np.interp(edge, idx, r)
+    peak_r = r[peak] if n else np.zeros(0)
+    bin_m = abs(geometry.range_resolution_m)
+    pulse_m = max(int(pulse_bins), 1) * bin_m if pulse_bins >= 2 else 0.0
+    sigma = range_sigma_m(fraction * pval, slope, bin_m, looks=looks * max(int(pulse_bins), 1),
+                          background=background, pulse_m=pulse_m)
+    return Echoes(beam=beam, start_bin=start, stop_bin=stop, peak_bin=peak, peak_value=pval, edge_bin=edge,
+                  edge_range_m=edge_r, peak_range_m=np.asarray(peak_r, dtype=np.float64), slope=slope,
+                  evidence=evid, n_pixels=npx, sigma_m=sigma, n_beams=int(m.shape[1]))

@@ -1,0 +1,115 @@
+"""Surface tracking across beams: which echoes are surfaces, decided by one dynamic programme.
+
+Per beam the candidates are the beam's echoes (:mod:`sonarmap.ranges.echoes`) plus "no
+return".  A *surface piece* is a sequence of echoes on increasing beams; its cost is
+
+* ``segment_cost`` once (a surface must earn its existence: fish, speckle and side-lobe leaks do
+  not carry enough evidence over enough beams),
+* per echo ``beam_cost - evidence`` (evidence = the classifier's log-likelihood ratio summed over
+  the echo, nats),
+* between consecutive echoes ``g`` beams apart, ``slope_cost x |d| / slope_bins`` where ``d`` is
+  the change of the leading edge per beam in bins (a Laplace prior on the surface slope), plus
+  ``gap_cost`` per skipped beam (faint beams inside a surface are bridged, up to ``max_gap``);
+  echoes more than ``jump_bins`` per beam apart are not neighbours, nor are echoes whose bin
+  intervals (leading edge to last structure bin) lie more than ``touch_bins`` per beam apart: a
+  surface is contiguous across beams (a sloped surface's echoes are as thick as its slope), a
+  school of fish is not.
+
+:func:`track_surfaces` finds the set of pieces of least total cost exactly (Viterbi over the
+beams, ``O(n_beams x max_gap x K^2)`` for ``K`` echoes per beam), removes their echoes and repeats
+for the surfaces behind (``n_surfaces`` passes).  Per beam the nearest tracked echo is the
+return; the others are kept as further surfaces.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+from numpy.typing import NDArray
+
+from sonarmap.errors import InputError
+from sonarmap.ranges.echoes import Echoes
+
+__all__ = ["TrackConfig", "Tracks", "track_surfaces"]
+
+
+@dataclasses.dataclass(frozen=True)
+class TrackConfig:
+    """Costs of the surface model (nats; see the module notes)."""
+
+    segment_cost: float = 60.0
+    beam_cost: float = 1.0
+    slope_cost: float = 1.0
+    slope_bins: float = 2.0
+    gap_cost: float = 4.0
+    max_gap: int = 3
+    jump_bins: float = 20.0
+    touch_bins: float = 1.0
+    n_surfaces: int = 3
+
+    def __post_init__(self) -> None:
+        for key in ("segment_cost", "beam_cost", "slope_cost", "slope_bins", "gap_cost", "jump_bins", "touch_bins"):
+            v = getattr(self, key)
+            if isinstance(v, bool) or not isinstance(v, int | float) or not np.isfinite(v) or v < 0:
+                raise InputError(f"track config: {key}: must be a finite number >= 0 (got {v!r})")
+            object.__setattr__(self, key, float(v))
+        if self.slope_bins <= 0:
+            raise InputError(f"track config: slope_bins: must be > 0 (got {self.slope_bins})")
+        for key, lo in (("max_gap", 0), ("n_surfaces", 1)):
+            v = getattr(self, key)
+            if isinstance(v, bool) or not isinstance(v, int) or v < lo:
+                raise InputError(f"track config: {key}: must be an integer >= {lo} (got {v!r})")
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Tracks:
+    """Tracked surfaces of one ping.
+
+    Attributes
+    ----------
+    echo : ndarray of int64, shape (n_surfaces, n_beams)
+        Per beam, the echo index of each tracked surface, nearest first; -1 where none.
+    """
+
+    echo: NDArray[np.int64]
+
+    @property
+    def first(self) -> NDArray[np.int64]:
+        """Per beam the nearest tracked echo (-1 none)."""
+        return self.echo[0]
+
+
+def track_surfaces(echoes: Echoes, config: TrackConfig = TrackConfig()) -> Tracks:
+    """Track surfaces across beams (see the module notes); the result is sorted by range per beam."""
+    from sonarmap.ranges import _kernels
+
+    if not isinstance(echoes, Echoes):
+        raise InputError(f"echoes: expected Echoes, got {type(echoes).__name__}")
+    m = echoes.n_beams
+    out = np.full((config.n_surfaces, m), -1, dtype=np.int64)
+    if echoes.size == 0:
+        return Tracks(echo=out)
+    first, count = echoes.per_beam()
+    unary = config.beam_cost - echoes.evidence
+    usable = np.ones(echoes.size, dtype=bool)
+    lo = np.minimum(echoes.start_bin, np.floor(echoes.edge_bin).astype(np.int64))
+    hi = echoes.stop_bin - 1
+    picks = []
+    for _ in range(config.n_surfaces):
+        chosen = _kernels.viterbi_surfaces(
+            first, count, echoes.beam, np.ascontiguousarray(echoes.edge_bin), lo, hi, unary, usable,
+            int(config.max_gap), config.slope_bins, config.slope_cost, config.jump_bins, config.touch_bins,
+            config.segment_cost, config.gap_cost)
+        if not (chosen >= 0).any():
+            break
+        picks.append(chosen)
+        usable[chosen[chosen >= 0]] = False
+    if not picks:
+        return Tracks(echo=out)
+    stack = np.stack(picks)
+    key = np.where(stack >= 0, echoes.edge_bin[np.maximum(stack, 0)], np.inf)
+    order = np.argsort(key, axis=0, kind="stable")
+    stack = np.take_along_axis(stack, order, axis=0)
+    out[: stack.shape[0]] = stack
+    return Tracks(echo=out)

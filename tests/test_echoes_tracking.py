@@ -1,0 +1,201 @@
+"""Echoes (leading edge, peak, sigma) and surface tracking across beams."""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+import pytest
+
+from sonarmap.errors import InputError
+from sonarmap.geometry import SonarGeometry
+from sonarmap.ranges import ranges_from_tracks
+from sonarmap.ranges.echoes import Echoes, find_echoes, range_sigma_m
+from sonarmap.ranges.tracking import TrackConfig, track_surfaces
+
+
+def _geom(n_bins: int = 200, n_beams: int = 16) -> SonarGeometry:
+    return SonarGeometry(range_m=1.0 + 0.01 * np.arange(n_bins),
+                         azimuth_rad=np.linspace(-0.2, 0.2, n_beams))
+
+
+def test_leading_edge_is_the_interpolated_half_peak_crossing():
+    g = _geom(n_beams=2)
+    img = np.zeros(g.shape)
+    # linear rise over bins 10..14 to a peak of 1 at bin 14, then a slow decay
+    img[10:15, 0] = [0.2, 0.4, 0.6, 0.8, 1.0]
+    img[15:20, 0] = [0.9, 0.8, 0.7, 0.6, 0.5]
+    mask = img > 0.3
+    e = find_echoes(mask, img, g)
+    assert e.size == 1
+    assert e.peak_bin[0] == 14
+    # the peak's parabola through 0.8, 1.0, 0.9 tops at 1.0042; half of it lies between bin 11
+    # (0.4) and bin 12 (0.6)
+    top = 1.0 + 0.125 * 0.1**2 / 0.3
+    assert e.peak_value[0] == pytest.approx(top)
+    assert e.edge_bin[0] == pytest.approx(11 + (0.5 * top - 0.4) / 0.2)
+    assert e.edge_range_m[0] == pytest.approx(1.0 + 0.01 * e.edge_bin[0])
+    assert e.peak_range_m[0] == pytest.approx(1.14)
+    # the walk may leave the mask (its first pixel is bin 11, the crossing before bin 12 is kept)
+    assert e.start_bin[0] == 11
+
+
+def test_edge_moves_with_a_sub_bin_shift_of_the_echo():
+    g = _geom(n_beams=1)
+    r = np.arange(g.n_bins, dtype=float)
+    edges = []
+    for shift in (0.0, 0.25, 0.5):
+        img = np.exp(-0.5 * ((r - (60.0 + shift)) / 3.0) ** 2)[:, None]
+        e = find_echoes(img > 0.1, img, g)
+        edges.append(float(e.edge_bin[0]))
+    # half maximum of a Gaussian of sigma 3 bins lies 3.53 bins before its centre
+    assert np.asarray(edges) - np.array([60.0, 60.25, 60.5]) == pytest.approx(-3.53, abs=0.05)
+    assert np.diff(edges) == pytest.approx([0.25, 0.25], abs=0.03)
+
+
+def test_first_peak_skips_a_weak_halo_in_front():
+    g = _geom(n_beams=1)
+    img = np.zeros(g.shape)
+    img[40:44, 0] = [0.1, 0.2, 0.25, 0.2]  # halo (a local maximum of 0.25)
+    img[44:50, 0] = [0.3, 0.6, 1.0, 1.0, 0.8, 0.4]
+    e = find_echoes(img > 0.05, img, g)
+    assert e.size == 1 and e.peak_bin[0] == 46
+    assert e.edge_bin[0] == pytest.approx(44 + (0.5 - 0.3) / 0.3)
+
+
+def test_gaps_inside_an_echo_are_bridged_and_far_runs_are_separate():
+    g = _geom(n_beams=1)
+    m = np.zeros(g.shape, dtype=bool)
+    m[[10, 11, 13, 14, 40, 41], 0] = True
+    e = find_echoes(m, m.astype(float), g, max_gap=2)
+    assert e.size == 2
+    assert list(e.start_bin) == [10, 40] and list(e.stop_bin) == [15, 42]
+    assert list(e.n_pixels) == [4, 2]
+
+
+def test_sigma_grows_with_noise_and_shrinks_with_slope_and_looks():
+    base = float(range_sigma_m(0.5, 0.25, 0.01)[()])
+    assert base > 0.01 / np.sqrt(12)
+    assert float(range_sigma_m(0.5, 0.5, 0.01)[()]) < base
+    assert float(range_sigma_m(0.5, 0.25, 0.01, looks=9)[()]) < base
+    assert float(range_sigma_m(0.5, 0.25, 0.01, background=0.5)[()]) > base
+    assert float(range_sigma_m(0.0, 1e9, 0.01)[()]) == pytest.approx(0.01 / np.sqrt(12))
+
+
+def test_find_echoes_rejects_bad_arguments():
+    g = _geom()
+    with pytest.raises(InputError, match="fraction"):
+        find_echoes(np.zeros(g.shape, bool), np.zeros(g.shape), g, fraction=1.5)
+    with pytest.raises(InputError, match="llr"):
+        find_echoes(np.zeros(g.shape, bool), np.zeros(g.shape), g, llr=np.zeros((3, 3)))
+    with pytest.raises(InputError):
+        TrackConfig(segment_cost=-1)
+    with pytest.raises(InputError):
+        TrackConfig(n_surfaces=0)
+
+
+def _line_image(g: SonarGeometry, rows, width: int = 2, value: float = 1.0):
+    img = np.zeros(g.shape)
+    for j, r in enumerate(rows):
+        if r >= 0:
+            img[r:r + width, j] = value
+    return img
+
+
+def test_tracking_keeps_the_surface_and_drops_specks_and_a_short_blob():
+    g = _geom(n_beams=40)
+    rows = 100 + np.arange(40) // 4
+    img = _line_image(g, rows)
+    rng = np.random.default_rng(0)
+    for _ in range(15):  # isolated specks anywhere
+        img[rng.integers(0, 90), rng.integers(0, 40)] = 1.0
+    img[60:62, 10:14] = 1.0  # a short blob in front of the surface on 4 beams
+    llr = 3.0 * (img > 0)
+    e = find_echoes(img > 0, img, g, llr=llr)
+    t = track_surfaces(e, TrackConfig(segment_cost=30.0))
+    br = ranges_from_tracks(e, t, g, img)
+    assert br.n_returns == 40
+    assert np.all(np.abs(br.bin - rows) <= 1)
+    assert np.all(np.isfinite(br.sigma_m))
+
+
+def test_faint_gaps_are_bridged_and_a_front_surface_is_reported_first():
+    g = _geom(n_beams=40)
+    rows = np.full(40, 120)
+    rows[[15, 16]] = -1  # two faint beams inside the surface
+    img = _line_image(g, rows)
+    img[80:82, 5:35] = 1.0  # a second, nearer surface over 30 beams
+    e = find_echoes(img > 0, img, g, llr=3.0 * (img > 0))
+    t = track_surfaces(e, TrackConfig(segment_cost=30.0))
+    br = ranges_from_tracks(e, t, g, img)
+    assert np.all(br.bin[5:35] == 80)
+    assert np.all(br.bin[:5] == 120) and np.all(br.bin[35:] == 120)
+    # the surface behind is kept where both exist
+    behind = br.other_range_m[0]
+    on = np.r_[5:15, 17:35]
+    assert np.allclose(behind[on], g.range_m[120] - 0.005, atol=1e-9)
+    assert np.all(np.isnan(behind[[15, 16]]))
+
+
+def test_viterbi_is_exact_on_small_problems():
+    from sonarmap.ranges import _kernels
+
+    rng = np.random.default_rng(1)
+    cfg = TrackConfig(segment_cost=5.0, beam_cost=0.0, slope_cost=1.0, slope_bins=1.0, gap_cost=1.0,
+                      max_gap=1, jump_bins=6.0, touch_bins=2.0)
+    for _ in range(40):
+        m = 5
+        count = rng.integers(0, 3, m).astype(np.int64)
+        first = np.concatenate([[0], np.cumsum(count)[:-1]]).astype(np.int64)
+        n = int(count.sum())
+        beam = np.repeat(np.arange(m), count).astype(np.int64)
+        pos = np.sort(rng.uniform(0, 10, n))
+        lo = np.floor(pos).astype(np.int64)
+        hi = lo + rng.integers(0, 3, n)
+        unary = rng.uniform(-6, 1, n)
+        chosen = _kernels.viterbi_surfaces(first, count, beam, pos, lo, hi, unary, np.ones(n, bool), cfg.max_gap,
+                                           cfg.slope_bins, cfg.slope_cost, cfg.jump_bins, cfg.touch_bins,
+                                           cfg.segment_cost, cfg.gap_cost)
+        # cost of the kernel's choice under the same model, and the exhaustive optimum
+        got = _path_cost(chosen, pos, lo, hi, unary, cfg)
+        assert got == pytest.approx(_optimum(first, count, pos, lo, hi, unary, cfg), abs=1e-9)
+
+
+def _path_cost(chosen, pos, lo, hi, unary, cfg):
+    cost = 0.0
+    last_j, last_e = -100, -1
+    for j, a in enumerate(chosen):
+        if a < 0:
+            continue
+        cost += unary[a]
+        g = j - last_j
+        if last_e >= 0 and g <= cfg.max_gap + 1 and _linkable(a, last_e, g, pos, lo, hi, cfg):
+            link = cfg.slope_cost * abs(pos[a] - pos[last_e]) / g / cfg.slope_bins + cfg.gap_cost * (g - 1)
+            cost += min(link, cfg.segment_cost)
+        else:
+            cost += cfg.segment_cost
+        last_j, last_e = j, a
+    return cost
+
+
+def _linkable(a, b, g, pos, lo, hi, cfg):
+    d = abs(pos[a] - pos[b]) / g
+    sep = max(lo[a] - hi[b], lo[b] - hi[a])
+    return d <= cfg.jump_bins and sep <= cfg.touch_bins * g
+
+
+def _optimum(first, count, pos, lo, hi, unary, cfg):
+    m = first.size
+    opts = [[-1] + list(range(first[j], first[j] + count[j])) for j in range(m)]
+    return min(_path_cost(np.array(c), pos, lo, hi, unary, cfg) for c in itertools.product(*opts))
+
+
+def test_echoes_per_beam_index():
+    g = _geom(n_beams=3)
+    m = np.zeros(g.shape, dtype=bool)
+    m[[5, 50], 0] = True
+    m[70, 2] = True
+    e = find_echoes(m, m.astype(float), g)
+    assert isinstance(e, Echoes)
+    first, count = e.per_beam()
+    assert list(count) == [2, 0, 1] and list(first) == [0, 2, 2]
