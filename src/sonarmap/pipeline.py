@@ -688,8 +688,9 @@ def process_ping(ping: Ping, config: PipelineConfig = PipelineConfig(), *, keep_
     if config.min_component_extent_m > 0:
         mask = drop_small_components(mask, geom, config.min_component_extent_m)
 
+    thickness = None
     if config.tracker == "surface":
-        ranges = _surface_ranges(ping, image, labels, mask, fit, config, normalised is not None, bg_mean)
+        ranges, thickness = _surface_ranges(ping, image, labels, mask, fit, config, normalised is not None, bg_mean)
     else:
         def _ranges(accepted: NDArray[np.bool_] | None) -> BeamRanges:
             return extract_ranges(
@@ -722,8 +723,8 @@ def process_ping(ping: Ping, config: PipelineConfig = PipelineConfig(), *, keep_
     if ranges.n_returns == 0:
         flags.add("no_returns")
     pd_range = _pd_range(float(pd), labels, ranges, flags)
-    if config.tracker == "surface":
-        ranges = dataclasses.replace(ranges, p_detect=_p_detect(float(pd), pd_range, ranges))
+    if thickness is not None:
+        ranges = dataclasses.replace(ranges, p_detect=_p_detect(float(pd), pd_range, ranges, thickness))
     return PingProducts(
         time_ns=ping.time_ns, source=ping.source, fit=fit,
         kld=float(fit.kld) if fit is not None else math.nan, flags=tuple(sorted(flags)),
@@ -749,8 +750,10 @@ def pulse_bins(ping: Ping, config: PipelineConfig) -> int:
 
 
 def _surface_ranges(ping: Ping, image: NDArray[np.float32], labels: NDArray[np.uint8], mask: NDArray[np.bool_],
-                    fit: Any, config: PipelineConfig, normalised: bool, bg_mean: float | None) -> BeamRanges:
-    """Echoes of the candidate structure (``mask`` plus pooled bands), tracked across beams."""
+                    fit: Any, config: PipelineConfig, normalised: bool,
+                    bg_mean: float | None) -> tuple[BeamRanges, NDArray[np.int64]]:
+    """Echoes of the candidate structure (``mask`` plus pooled bands), tracked across beams; also
+    the number of bins each return's echo spans (0 where no return)."""
     from sonarmap.ranges import ranges_from_tracks
     from sonarmap.ranges.echoes import find_echoes, pixel_llr
     from sonarmap.ranges.tracking import track_surfaces
@@ -759,14 +762,17 @@ def _surface_ranges(ping: Ping, image: NDArray[np.float32], labels: NDArray[np.u
     geom = ping.geometry
     cand = mask
     band = None
+    # band pooling recovers thin single-look surface bands the per-pixel route leaves in pieces;
+    # only needed where some beam has no candidate at all
     if (config.pool_factor > 0 and bg_mean is not None and bg_mean > 0 and not normalised
-            and config.method in ("mrf", "map", "threshold")):
+            and config.method in ("mrf", "map", "threshold") and not mask.any(axis=0).all()):
         band = pooled_band_mask(image, config.pool_factor * bg_mean, pool_beams=config.pool_beams,
                                 pool_bins=config.pool_bins, min_beams=config.pool_min_beams)
         if band is not None:
             cand = cand | band
     if not cand.any():
-        return no_returns(geom, time_ns=ping.time_ns, source=ping.source, mode=config.range_mode)
+        return (no_returns(geom, time_ns=ping.time_ns, source=ping.source, mode=config.range_mode),
+                np.zeros(geom.n_beams, dtype=np.int64))
     if fit is not None and len(fit.class_names) >= 2:
         llr = np.maximum(pixel_llr(quantize(image, config.n_levels), fit), 0.0)
     else:
@@ -780,13 +786,29 @@ def _surface_ranges(ping: Ping, image: NDArray[np.float32], labels: NDArray[np.u
                          fraction=config.edge_fraction if config.edge_fraction > 0 else 0.5,
                          looks=5.0 if normalised else 1.0, background=bg_mean or 0.0)
     tracks = track_surfaces(echoes, config.track)
-    return ranges_from_tracks(echoes, tracks, geom, image, mode=config.range_mode,  # type: ignore[arg-type]
-                              time_ns=ping.time_ns, source=ping.source)
+    sel = tracks.first
+    thickness = np.where(sel >= 0, (echoes.stop_bin - echoes.start_bin)[np.maximum(sel, 0)] if echoes.size else 0, 0)
+    return (ranges_from_tracks(echoes, tracks, geom, image, mode=config.range_mode,  # type: ignore[arg-type]
+                               time_ns=ping.time_ns, source=ping.source), thickness.astype(np.int64))
 
 
-def _p_detect(pd: float, pd_range: float, ranges: BeamRanges) -> NDArray[np.float32]:
-    """Per beam: the ping's range-measurement pD (``pd_range``); NaN when unknown."""
-    return np.full(ranges.n_beams, pd_range if math.isfinite(pd_range) else np.nan, dtype=np.float32)
+def _p_detect(pd: float, pd_range: float, ranges: BeamRanges, thickness: NDArray[np.int64]) -> NDArray[np.float32]:
+    """Per-beam detection probability of a surface (the mapping sensor model's pD).
+
+    An echo spanning ``n`` bins is detected when at least one of its pixels is (per-pixel ``pd``
+    of the fitted model, eq. 15), ``1 - (1 - pd)^n``, and then reported when the tracker keeps it
+    (the ping's share of detecting beams that kept a return, ``pd_range / pd``).  Beams without a
+    return use the median echo thickness of the ping's returns (1 bin when there is none).  NaN
+    when the ping has no finite ``pd`` (CFAR, no fit).
+    """
+    n = ranges.n_beams
+    if not (math.isfinite(pd) and math.isfinite(pd_range)) or pd <= 0:
+        return np.full(n, np.nan if not math.isfinite(pd_range) else pd_range, dtype=np.float32)
+    keep = min(pd_range / pd, 1.0)
+    t = np.asarray(thickness, dtype=np.float64)
+    fill = float(np.median(t[ranges.valid])) if ranges.n_returns else 1.0
+    t = np.where(ranges.valid, np.maximum(t, 1.0), max(fill, 1.0))
+    return (keep * (1.0 - (1.0 - min(pd, 1.0)) ** t)).astype(np.float32)
 
 
 def _pd_range(pd: float, labels: NDArray[np.uint8], ranges: BeamRanges, flags: set[str]) -> float:

@@ -1,0 +1,60 @@
+"""Range stage: echo finding + surface tracking per ping, and the default against the rules."""
+
+from __future__ import annotations
+
+import itertools
+import time
+from pathlib import Path
+
+from run import DATA, timeit
+
+
+def run(quick: bool) -> list[dict]:
+    import numpy as np
+
+    from sonarmap.io import read_pings
+    from sonarmap.pipeline import PipelineConfig, process_ping
+    from sonarmap.ranges import component_rule
+    from sonarmap.ranges.echoes import find_echoes, pixel_llr
+    from sonarmap.ranges.tracking import track_surfaces
+    from sonarmap.stats.mixture import quantize
+
+    rep = 30 if quick else 200
+    rows = []
+    for name, paths in (("DIDSON 512 x 96 (10 test pings)", sorted((Path(DATA) / "didson" / "test").glob("*_raw.png"))),
+                        ("ARIS 2000 x 48 (sample.aris)", [Path(DATA) / "aris" / "sample.aris"]),
+                        ("Oculus 703 x 256 (three_pings_8bit.raw)", [Path(DATA) / "oculus" / "three_pings_8bit.raw"])):
+        pings = list(read_pings([str(p) for p in paths]))
+        cases = []
+        for p in pings:
+            pr = process_ping(p, keep_labels=True)
+            if pr.fit is None or pr.gates:
+                continue
+            mask = component_rule(pr.labels >= 1, 16, 16, 4, 40)
+            llr = np.maximum(pixel_llr(quantize(pr.image, 256), pr.fit), 0.0)
+            cases.append((mask, pr.image, p.geometry, llr))
+        it = itertools.cycle(cases)
+
+        def stage() -> None:
+            mask, img, geom, llr = next(it)
+            track_surfaces(find_echoes(mask, img, geom, llr=llr))
+
+        rows.append({"benchmark": "ranges", "case": f"find_echoes + track_surfaces, {name}",
+                     "median_ms": timeit(stage, repeat=rep), "target_ms": 0.3 if name.startswith("DIDSON") else None})
+        # the whole default against the previous per-beam rules, interleaved ping by ping
+        rules = PipelineConfig(tracker="rules")
+        cfg = PipelineConfig()
+        t_new: list[float] = []
+        t_old: list[float] = []
+        for _ in range(max(rep // len(pings), 3)):
+            for p in pings:
+                t0 = time.perf_counter()
+                process_ping(p, cfg)
+                t_new.append(time.perf_counter() - t0)
+                t0 = time.perf_counter()
+                process_ping(p, rules)
+                t_old.append(time.perf_counter() - t0)
+        rows.append({"benchmark": "ranges", "case": f"process_ping default, {name}",
+                     "median_ms": 1e3 * sorted(t_new)[len(t_new) // 2], "baseline": "tracker='rules'",
+                     "baseline_ms": 1e3 * sorted(t_old)[len(t_old) // 2], "note": "target: no slower"})
+    return rows
