@@ -178,9 +178,8 @@ def test_ranges_cli_flags_column_summary_and_strict(tmp_path, test_pings, capsys
     assert "1 of 2 pings flagged:" in err
     import csv
 
-    rows = list(csv.reader(open(out, newline="")))
-    assert rows[0][-1] == "flags"
-    flagged = {r[0]: r[-1] for r in rows[1:]}
+    rows = list(csv.DictReader(open(out, newline="")))
+    flagged = {r["ping"]: r["flags"] for r in rows}
     assert sum(1 for v in flagged.values() if v) == 1
     assert main(["ranges", str(tmp_path), "-o", str(tmp_path / "s.csv"), "--strict"]) == 1
 

@@ -100,14 +100,19 @@ def test_ranges_cli_960_rows(tmp_path, test_ping_paths):
     out = tmp_path / "ranges.csv"
     assert main(["ranges", str(test_ping_paths[0].parent), "-o", str(out)]) == 0
     rows = _rows(out)
-    assert rows[0] == ["ping", "beam", "azimuth_rad", "bin", "range_m", "intensity", "flags"]
+    assert rows[0] == ["ping", "beam", "azimuth_rad", "bin", "range_m", "intensity", "flags", "sigma_m", "p_detect"]
+    # every return has a finite sigma; beams without one have empty cells
+    ret = [r for r in rows[1:] if r[4]]
+    assert ret and all(float(r[7]) > 0 for r in ret)
+    assert all(r[7] == "" for r in rows[1:] if not r[4])
     assert len(rows) == 961
     pings = {r[0] for r in rows[1:]}
     assert pings == {str(p) for p in test_ping_paths}
     for r in rows[1:]:
         assert (r[3] == "") == (r[4] == "")
         if r[3]:
-            assert float(r[4]) == pytest.approx(2.25 + int(r[3]) * 9.0 / 512, abs=1e-5)
+            # the sub-bin leading edge lies within half a bin of its bin's centre
+            assert abs(float(r[4]) - (2.25 + int(r[3]) * 9.0 / 512)) <= 0.5 * 9.0 / 512 + 1e-5
     fish = [r for r in rows[1:] if r[0] == str(test_ping_paths[1])]
     assert len(fish) == 96 and all(r[3] == "" for r in fish)
 

@@ -795,20 +795,23 @@ def _surface_ranges(ping: Ping, image: NDArray[np.float32], labels: NDArray[np.u
 def _p_detect(pd: float, pd_range: float, ranges: BeamRanges, thickness: NDArray[np.int64]) -> NDArray[np.float32]:
     """Per-beam detection probability of a surface (the mapping sensor model's pD).
 
-    An echo spanning ``n`` bins is detected when at least one of its pixels is (per-pixel ``pd``
-    of the fitted model, eq. 15), ``1 - (1 - pd)^n``, and then reported when the tracker keeps it
-    (the ping's share of detecting beams that kept a return, ``pd_range / pd``).  Beams without a
-    return use the median echo thickness of the ping's returns (1 bin when there is none).  NaN
-    when the ping has no finite ``pd`` (CFAR, no fit).
+    The ping's range-measurement pD (``pd_range``: the model's per-pixel pD times the share of
+    detecting beams that kept a return) is the rate; it is shared among the beams in proportion to
+    ``1 - (1 - pd)^n``, the chance that at least one of the ``n`` bins of the beam's echo is
+    detected (eq. 15), so a thick echo (a steep surface) counts as more reliable than a one-bin
+    one, and the mean over the ping's returns stays ``pd_range``.  Beams without a return use the
+    median echo thickness of the ping's returns (1 bin when there is none).  NaN when the ping has
+    no finite ``pd`` (CFAR, no fit).
     """
     n = ranges.n_beams
     if not (math.isfinite(pd) and math.isfinite(pd_range)) or pd <= 0:
         return np.full(n, np.nan if not math.isfinite(pd_range) else pd_range, dtype=np.float32)
-    keep = min(pd_range / pd, 1.0)
     t = np.asarray(thickness, dtype=np.float64)
     fill = float(np.median(t[ranges.valid])) if ranges.n_returns else 1.0
     t = np.where(ranges.valid, np.maximum(t, 1.0), max(fill, 1.0))
-    return (keep * (1.0 - (1.0 - min(pd, 1.0)) ** t)).astype(np.float32)
+    f = 1.0 - (1.0 - min(pd, 1.0)) ** t
+    mean = float(f[ranges.valid].mean()) if ranges.n_returns else float(f.mean())
+    return np.clip(pd_range * f / max(mean, 1e-12), 0.0, 1.0).astype(np.float32)
 
 
 def _pd_range(pd: float, labels: NDArray[np.uint8], ranges: BeamRanges, flags: set[str]) -> float:

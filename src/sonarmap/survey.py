@@ -78,6 +78,10 @@ STATE_DIR = ".sonarmap"
 SURVEY_FORMAT = "sonarmap-survey/1"
 DEFAULT_CHUNK_SIZE = 256
 TIME_UNITS = "nanoseconds since 1970-01-01T00:00:00"
+#: Dimension of ``other_range``: the surfaces behind a beam's return that are stored.
+DIM_OTHER = "other_return"
+#: At most this many surfaces behind each return are stored (``other_range``).
+N_OTHER_RETURNS = 2
 
 #: Product variables: name -> (dims, attrs).  Dimension names follow the survey data model
 #: (echopype style: ``ping_time``, ``range_sample``, ``beam``); ``component`` and ``parameter``
@@ -100,12 +104,30 @@ PRODUCT_VARIABLES: dict[str, tuple[tuple[str, ...], dict[str, str]]] = {
     "pfa": ((DIM_PING,), {"long_name": "Probability of false alarm at the chosen threshold",
                           "units": "1"}),
     "range": ((DIM_PING, DIM_BEAM), {"long_name": "Range to the first return per beam (NaN: none)",
-                                     "units": "m"}),
+                                     "units": "m",
+                                     "description": "Leading edge of the return's echo along the beam: the "
+                                                    "first crossing of half its first peak, interpolated "
+                                                    "between range bins (the echo's peak in strongest mode)"}),
     "range_bin": ((DIM_PING, DIM_BEAM), {"long_name": "Range-bin index of the return (-1: none)",
                                          "units": "1"}),
     "range_intensity": ((DIM_PING, DIM_BEAM), {"long_name": "Intensity at the return", "units": "1"}),
     "range_confidence": ((DIM_PING, DIM_BEAM), {"long_name": "Confidence of the return",
                                                 "units": "1"}),
+    "range_sigma": ((DIM_PING, DIM_BEAM), {
+        "long_name": "One-sigma uncertainty of the return's range (NaN: no return or no estimate)",
+        "units": "m",
+        "description": "Standard deviation of the error of range, estimated per echo by the ranges "
+                       "stage (sonarmap.ranges.echoes)"}),
+    "p_detect": ((DIM_PING, DIM_BEAM), {
+        "long_name": "Probability that a surface in the beam is detected and reported (NaN: unknown)",
+        "units": "1",
+        "description": "The occupancy map's per-beam pD: P(the beam reports a return | a surface in "
+                       "the beam), for the hit and the free-space updates of that beam"}),
+    "other_range": ((DIM_PING, DIM_OTHER, DIM_BEAM), {
+        "long_name": "Ranges of further surfaces behind the return, nearest first (NaN: none)",
+        "units": "m",
+        "description": "Leading edges of the echoes of further surfaces on the beam behind the "
+                       f"reported return; at most {N_OTHER_RETURNS}, NaN-padded"}),
     "labels": ((DIM_PING, DIM_RANGE, DIM_BEAM),
                {"long_name": "Segmentation labels (1: object, 0: free space)", "units": "1"}),
 }
@@ -334,6 +356,9 @@ def _record(products: Any, *, keep_labels: bool) -> dict[str, Any]:
         "range_bin": np.asarray(r.bin, dtype=np.int32),
         "range_intensity": np.asarray(r.intensity, dtype=np.float32),
         "range_confidence": np.asarray(r.confidence, dtype=np.float32),
+        "range_sigma": _beam_row(r, "sigma_m"),
+        "p_detect": _beam_row(r, "p_detect"),
+        "other_range": _other_rows(r),
     }
     if keep_labels:
         labels = getattr(products, "labels", None)
@@ -341,6 +366,25 @@ def _record(products: Any, *, keep_labels: bool) -> dict[str, Any]:
             raise SonarmapError(f"{products.source}: pipeline returned no labels with keep_labels")
         rec["labels"] = np.asarray(labels).astype(np.uint8)
     return rec
+
+
+def _beam_row(ranges: Any, name: str) -> NDArray[np.float32]:
+    """``ranges.<name>`` as a float32 row (NaN when the ranges do not carry it)."""
+    v = getattr(ranges, name, None)
+    n = np.asarray(ranges.range_m).shape[0]
+    return np.full(n, np.nan, np.float32) if v is None else np.asarray(v, dtype=np.float32)
+
+
+def _other_rows(ranges: Any) -> NDArray[np.float32]:
+    """``ranges.other_range_m`` as float32 ``(N_OTHER_RETURNS, n_beams)``: the nearest surfaces,
+    NaN-padded (further ones are not stored)."""
+    n = np.asarray(ranges.range_m).shape[0]
+    out = np.full((N_OTHER_RETURNS, n), np.nan, np.float32)
+    v = getattr(ranges, "other_range_m", None)
+    if v is not None and np.ndim(v) == 2:
+        v = np.asarray(v, dtype=np.float32)[:N_OTHER_RETURNS]
+        out[: v.shape[0]] = v
+    return out
 
 
 def _background_db(products: Any) -> float:
@@ -351,6 +395,7 @@ def _background_db(products: Any) -> float:
 _FILL: dict[str, Any] = {
     "background_range_db": np.nan, "kld": np.nan, "pd": np.nan, "pfa": np.nan, "mixture_weight": np.nan, "mixture_param": np.nan,
     "range": np.nan, "range_bin": -1, "range_intensity": np.nan, "range_confidence": np.nan,
+    "range_sigma": np.nan, "p_detect": np.nan, "other_range": np.nan,
     "labels": 0, "ping_time": 0, "source": "", "flags": "",
 }
 
@@ -1230,8 +1275,9 @@ def _register_points(root: Any, out: Path, poses: Any, points: Any, extrinsics: 
     """Register the stored ranges with the trajectory into world points (stored + written to a file).
 
     Pings outside the trajectory's time span are skipped.  The cloud is stored in the survey as
-    ``point_xyz (point, xyz)``, ``point_time``, ``point_beam``, ``point_intensity`` and written to
-    ``points`` (default ``<output>.ply``) in the format given by its suffix.
+    ``point_xyz (point, xyz)``, ``point_time``, ``point_beam``, ``point_intensity``,
+    ``point_range_sigma`` (NaN in a store without ``range_sigma``) and written to ``points``
+    (default ``<output>.ply``) in the format given by its suffix.
     """
     from sonarmap.mapping import (
         load_extrinsics,
@@ -1249,6 +1295,7 @@ def _register_points(root: Any, out: Path, poses: Any, points: Any, extrinsics: 
         root["range"][:], root[COORD_AZIMUTH][:], sp,
         intensity=np.nan_to_num(root["range_intensity"][:], nan=0.0),
         confidence=np.nan_to_num(root["range_confidence"][:], nan=0.0),
+        sigma_m=root["range_sigma"][:] if "range_sigma" in root else None,
     )
     n = len(cloud)
     block = max(1, min(n, 1 << 18))
@@ -1258,6 +1305,8 @@ def _register_points(root: Any, out: Path, poses: Any, points: Any, extrinsics: 
                                                    "calendar": "proleptic_gregorian"}),
         "point_beam": (cloud.beam, ("point",), {"long_name": "Beam index of the point"}),
         "point_intensity": (cloud.intensity, ("point",), {"long_name": "Intensity of the return"}),
+        "point_range_sigma": (cloud.sigma_m, ("point",), {
+            "long_name": "One-sigma uncertainty of the return's range (NaN: unknown)", "units": "m"}),
     }
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")

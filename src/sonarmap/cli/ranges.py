@@ -1,10 +1,26 @@
 """``sonarmap ranges PING... -o ranges.csv``: per-beam first returns of structure.
 
 Writes exactly one row per (ping, beam) with the header
-``ping,beam,azimuth_rad,bin,range_m,intensity,flags`` (``ping`` = the ping's source file path;
-``bin`` 0-based range bin of the first return; ``bin``, ``range_m`` and ``intensity`` empty where
-the beam has no return; ``flags`` the ping's fit gates, ``;``-separated, empty when the ping's fit
-is plausible).  One summary line on stderr counts the flagged pings and their reasons;
+``ping,beam,azimuth_rad,bin,range_m,intensity,flags,sigma_m,p_detect`` (:data:`CSV_HEADER`; an
+empty cell is "none" / "unknown", never a number that looks like one):
+
+* ``ping``: the ping's source file path (and frame);
+* ``beam``: 0-based beam (image column) index;
+* ``azimuth_rad``: the beam's azimuth, radians, positive to starboard;
+* ``bin``: 0-based range bin of the return (the bin at or after ``range_m``); empty where the
+  beam has no return;
+* ``range_m``: range of the return in metres, the leading edge of its echo: the first crossing
+  of half the echo's first peak along the beam, interpolated between bins (sub-bin; the echo's
+  peak with ``range_mode = "strongest"``); empty where the beam has no return;
+* ``intensity``: image intensity at the return; empty where the beam has no return;
+* ``flags``: the ping's fit gates, ``;``-separated, empty when the ping's fit is plausible;
+* ``sigma_m``: one-sigma uncertainty of ``range_m`` in metres; empty where the beam has no
+  return or no estimate;
+* ``p_detect``: probability that a surface in this beam is detected and reported as its
+  return (the occupancy map's per-beam pD), in [0, 1]; empty where unknown.  A property of the
+  beam, so it may be set on a beam without a return.
+
+One summary line on stderr counts the flagged pings and their reasons;
 ``--strict`` exits 1 when any ping was flagged.  Without ``--method`` the
 default :class:`sonarmap.pipeline.PipelineConfig` runs end to end (pre-processing, mixture fit,
 exact graph-cut MRF, consistency-filtered first returns).
@@ -21,7 +37,8 @@ from sonarmap.cli._common import GEOMETRY_OPTION, OUTPUT_OPTION, load_geometry_o
 
 __all__ = ["register", "pipeline_config_from_options", "write_ranges_rows", "flagged_summary", "flagged_any", "CSV_HEADER"]
 
-CSV_HEADER = ("ping", "beam", "azimuth_rad", "bin", "range_m", "intensity", "flags")
+#: Columns of the ranges CSV, in order (their meaning: the module notes).
+CSV_HEADER = ("ping", "beam", "azimuth_rad", "bin", "range_m", "intensity", "flags", "sigma_m", "p_detect")
 
 METHOD_OPTION: Any = typer.Option(
     None, "--method", "-m",
@@ -61,7 +78,10 @@ def _fmt(v: float, digits: int = 6) -> str:
 
 def write_ranges_rows(writer: Any, source: str, ranges: Any, flags: str = "") -> int:
     """Write one CSV row per beam of ``ranges`` (``flags``: the ping's gates); returns the number of rows."""
-    for j in range(ranges.n_beams):
+    n = ranges.n_beams
+    sigma = getattr(ranges, "sigma_m", None)
+    p_det = getattr(ranges, "p_detect", None)
+    for j in range(n):
         b = int(ranges.bin[j])
         writer.writerow([
             source,
@@ -71,8 +91,10 @@ def write_ranges_rows(writer: Any, source: str, ranges: Any, flags: str = "") ->
             "" if b < 0 else f"{float(ranges.range_m[j]):.6f}",
             "" if b < 0 else _fmt(float(ranges.intensity[j])),
             flags,
+            "" if b < 0 or sigma is None else _fmt(float(sigma[j])),
+            "" if p_det is None else _fmt(float(p_det[j])),
         ])
-    return ranges.n_beams
+    return n
 
 
 def load_calibration(path: Path | None) -> tuple[Any, tuple[str, ...] | None]:
@@ -154,7 +176,16 @@ def register(app: typer.Typer) -> None:
         strict: bool = STRICT_OPTION,
         calibration: Path | None = CALIBRATION_OPTION,
     ) -> None:
-        """Per-beam first-return ranges of structure, one CSV row per (ping, beam)."""
+        """Per-beam first-return ranges of structure, one CSV row per (ping, beam).
+
+        Columns (an empty cell: no return, no estimate or unknown):
+        ping: source file; beam: 0-based beam index; azimuth_rad: beam azimuth;
+        bin: 0-based range bin of the return;
+        range_m: echo's leading edge (first crossing of half its first peak, sub-bin);
+        intensity: image intensity at the return; flags: the ping's fit gates;
+        sigma_m: one-sigma uncertainty of range_m (m);
+        p_detect: probability that a surface in the beam is detected and reported.
+        """
         import csv
 
         from sonarmap._atomic import atomic_open

@@ -116,8 +116,8 @@ def integrate_rays(
     ends: np.ndarray,  # (n_rays, 3) float64, voxel units
     hit: np.ndarray,  # (n_rays,) bool: the ray ends on a return
     ray_offsets: np.ndarray,  # (n_pings + 1,) int64: rays of ping p are [off[p], off[p+1])
-    l_hit: np.ndarray,  # (n_pings,) float32
-    l_miss: np.ndarray,  # (n_pings,) float32
+    l_hit: np.ndarray,  # (n_rays,) float32: added to the cell holding the ray's return
+    l_miss: np.ndarray,  # (n_rays,) float32: added to the cells the ray crosses before it
     ping_ids: np.ndarray,  # (n_pings,) int32, > 0 and increasing
     first_ping: int,
     shifts: np.ndarray,  # (3,) int64 chunk shifts
@@ -138,8 +138,6 @@ def integrate_rays(
     n_pings = ray_offsets.size - 1
     for p in range(first_ping, n_pings):
         pid = ping_ids[p]
-        lh = l_hit[p]
-        lm = l_miss[p]
         r0 = ray_offsets[p]
         r1 = ray_offsets[p + 1]
         last_key = EMPTY
@@ -164,10 +162,11 @@ def integrate_rays(
             idx = (last_c << vol_shift) | ((ix & mx) << (sy + sz)) | ((iy & my) << sz) | (iz & mz)
             if stamp[idx] != pid:
                 stamp[idx] = pid
-                v = logodds[idx] + lh
+                v = logodds[idx] + l_hit[r]
                 logodds[idx] = min(max(v, l_min), l_max)
         # ---- pass 2: free space along each ray (Amanatides & Woo 1987)
         for r in range(r0, r1):
+            lm = l_miss[r]
             px, py, pz = starts[r, 0], starts[r, 1], starts[r, 2]
             dx, dy, dz = ends[r, 0] - px, ends[r, 1] - py, ends[r, 2] - pz
             ix = int(np.floor(px))

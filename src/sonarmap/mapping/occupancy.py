@@ -22,8 +22,11 @@ discounted for the range error (the return leaves its surface's cell with probab
 cells of its elevation arc:
 ``l_hit = log(pD q / (pFA_cell + (1 - pFA_cell) pD ((1 - 1/n) q + (1 - q)/2)))`` (see
 docs/mapping.md).  The pD to use is the pipeline's ``PingProducts.pd_range``, the detection
-probability of the range measurement.  So a confident detector (high pD, low
-pFA) moves the map quickly, a poor one slowly, ping by ping - unlike fixed ``P(occ | hit) = 0.8``,
+probability of the range measurement, or per beam ``BeamRanges.p_detect`` where that is finite;
+the range error is each return's ``BeamRanges.sigma_m`` where finite, else the constant
+``OccupancyConfig.range_sigma_bins``.  Both therefore vary per ray: a beam's ``pD`` sets its
+hit and its misses, a return's ``sigma`` sets ``q`` of its hit.  So a confident detector (high
+pD, low pFA) moves the map quickly, a poor one slowly, beam by beam - unlike fixed ``P(occ | hit) = 0.8``,
 ``P(occ | miss) = 0.3`` constants (``l_hit = logit 0.8``, ``l_miss = logit 0.3``), which are
 available as :meth:`SensorModel.fixed` for comparison.  Log-odds are clamped to ``[l_min, l_max]``,
 by default probabilities ``[0.001, 0.999]`` (``+-6.9``): room for a few pD/pFA updates (``l_hit``
@@ -59,6 +62,8 @@ from sonarmap.mapping.poses import SensorPoses
 from sonarmap.mapping.register import (
     DEFAULT_APERTURE_RAD,
     PointCloud,
+    _as_2d,
+    _stack_field,
     elevation_samples,
     range_matrix,
 )
@@ -76,6 +81,20 @@ __all__ = [
 ]
 
 _P_EPS = 1e-4
+
+
+def _per_ping(values: ArrayLike, n: int, name: str) -> NDArray[np.float64]:
+    """A scalar or one value per ping as float64 ``(n,)``."""
+    arr = np.asarray(values, dtype=np.float64)
+    try:
+        return np.broadcast_to(arr, (n,))
+    except ValueError:
+        raise InputError(f"{name}: shape {arr.shape} does not broadcast to ({n},) pings") from None
+
+
+def _per_beam(values: ArrayLike | None, shape: tuple[int, int], name: str) -> NDArray[np.float64]:
+    """Per-beam values as float64 ``(n_pings, n_beams)`` (all NaN when None)."""
+    return _as_2d(values, shape, name, np.float64, np.nan)
 
 
 def logit(p: ArrayLike) -> NDArray[np.float64]:
@@ -213,8 +232,9 @@ class OccupancyConfig:
         Carve free space to the maximum range along beams without a return.
     range_sigma_bins : float
         1-sigma range error of a return, in range bins, used by the pD/pFA model when
-        ``range_resolution_m`` is given: a return leaves its surface's cell for a neighbour along
-        the ray with probability ``sigma sqrt(2/pi) / bins_per_cell``, which weakens the hit.
+        ``range_resolution_m`` is given and the return has no finite ``sigma_m`` of its own: a
+        return leaves its surface's cell for a neighbour along the ray with probability
+        ``sigma sqrt(2/pi) / bins_per_cell``, which weakens the hit.
     max_chunks : int, optional
         Upper bound on allocated chunks (memory ~ ``8 * chunk_size**3`` bytes each); exceeding it
         raises :class:`InputError`.
@@ -330,8 +350,8 @@ class OccupancyMap:
         self._next_id = 1
         #: Pings integrated.
         self.n_pings = 0
-        #: Pings skipped because their pD/pFA were missing (NaN) or pD <= pFA and no fallback model
-        #: was given.
+        #: Pings skipped because the pD/pFA of every beam were missing (NaN) or pD <= pFA and no
+        #: fallback model was given.
         self.n_uninformative = 0
 
     # ------------------------------------------------------------------ storage
@@ -393,6 +413,8 @@ class OccupancyMap:
         pfa: float | ArrayLike | None = None,
         model: SensorModel | None = None,
         range_resolution_m: float | None = None,
+        sigma_m: ArrayLike | None = None,
+        p_detect: ArrayLike | None = None,
     ) -> int:
         """Integrate a batch of pings.
 
@@ -408,19 +430,27 @@ class OccupancyMap:
             ``max_range_m``.
         pd, pfa : float or array_like (n_pings,), optional
             Each ping's detection / false-alarm probability at the operating threshold; give
-            these or ``model``.  Pings whose pD/pFA are NaN or have ``pD <= pFA`` (no
-            information) use ``model`` when given, else are skipped and counted in
-            :attr:`n_uninformative`.
+            these or ``model``.  Beams whose pD (``p_detect``, else the ping's ``pd``) or pFA is
+            NaN, or has ``pD <= pFA`` (no information), use ``model`` when given, else are
+            skipped; pings with no informative beam are counted in :attr:`n_uninformative`.
         model : SensorModel, optional
             A fixed inverse sensor model (used when ``pd``/``pfa`` are not given, and as the
-            fallback for uninformative pings).
+            fallback for uninformative beams and pings).  It ignores ``sigma_m`` and ``p_detect``.
         range_resolution_m : float, optional
             Range-bin size.  When given, ``pfa`` is read as a per-pixel probability and turned
             into a per-cell one over the ``resolution_m / range_resolution_m`` bins a ray crosses
-            in a cell; with ``n_elevation > 1`` and ``elevation_ambiguity`` hits are also
-            discounted for the elevation arc (``n_arc`` = cells the arc spans at the ping's median
-            return range).
-            Without it, ``pd``/``pfa`` are used as per-cell probabilities directly.
+            in a cell, and returns without a finite ``sigma_m`` carry the range error
+            ``OccupancyConfig.range_sigma_bins``; with ``n_elevation > 1`` and
+            ``elevation_ambiguity`` hits are also discounted for the elevation arc (``n_arc`` =
+            cells the arc spans at the ping's median return range).
+            Without it, ``pd``/``pfa`` are used as per-cell probabilities directly and returns
+            without a finite ``sigma_m`` have no range error.
+        sigma_m : array_like, shape like ``range_m``, optional
+            One-sigma range error of each return in metres (``BeamRanges.sigma_m``), used for
+            that return's hit instead of ``range_sigma_bins``; NaN = no estimate (the fallback).
+        p_detect : array_like, shape like ``range_m``, optional
+            Per-beam detection probability (``BeamRanges.p_detect``), used for that beam's hit
+            and misses instead of the ping's ``pd``; NaN = unknown (the fallback).
 
         Returns
         -------
@@ -436,42 +466,28 @@ class OccupancyMap:
         if pd is not None or pfa is not None:
             if pd is None or pfa is None:
                 raise InputError("pd/pfa: give both, or a fixed model")
-            pdv = np.broadcast_to(np.asarray(pd, dtype=np.float64), (P,))
-            pfv = np.broadcast_to(np.asarray(pfa, dtype=np.float64), (P,))
-            informative = np.isfinite(pdv) & np.isfinite(pfv) & (pdv > pfv)
-            m_bins = 1.0 if range_resolution_m is None else max(1.0, cfg.resolution_m / float(range_resolution_m))
-            n_arc = np.ones(P)
-            if range_resolution_m is not None and cfg.n_elevation > 1 and cfg.elevation_ambiguity:
-                hit_r = np.where(np.isfinite(r) & (r > 0), r, np.inf)
-                k = (np.isfinite(hit_r)).sum(axis=1)
-                srt = np.sort(hit_r, axis=1)
-                r_med = np.where(k > 0, srt[np.arange(P), np.maximum(k - 1, 0) // 2], 0.0)
-                n_arc = np.clip(np.ceil(r_med * cfg.vertical_aperture_rad / cfg.resolution_m), 1, cfg.n_elevation)
-            sig_bins = 0.0 if range_resolution_m is None else cfg.range_sigma_bins
-            l_hit, l_miss = pd_pfa_increments(np.where(informative, pdv, 0.9), np.where(informative, pfv, 0.1),
-                                              bins_per_cell=m_bins, n_arc=n_arc, range_sigma_bins=sig_bins)
-            # hits that carry no information (an elevation arc as wide as the range error's reach)
-            # leave the return's cell unchanged; the ping's free space still counts
-            informative &= l_miss < 0
-            l_hit = np.maximum(l_hit, 0.0)
-            if model is not None:  # fallback for pings whose pD/pFA are missing or uninformative
+            l_hit, l_miss, informative = self._increments(
+                r, _per_ping(pd, P, "pd"), _per_ping(pfa, P, "pfa"), range_resolution_m,
+                _per_beam(sigma_m, (P, B), "sigma_m"), _per_beam(p_detect, (P, B), "p_detect"))
+            if model is not None:  # fallback for beams whose pD/pFA are missing or uninformative
                 l_hit = np.where(informative, l_hit, model.l_hit)
                 l_miss = np.where(informative, l_miss, model.l_miss)
-                informative = np.ones(P, dtype=bool)
+                informative = np.ones((P, B), dtype=bool)
         elif model is not None:
-            l_hit = np.full(P, model.l_hit)
-            l_miss = np.full(P, model.l_miss)
-            informative = np.ones(P, dtype=bool)
+            l_hit = np.full((P, B), model.l_hit)
+            l_miss = np.full((P, B), model.l_miss)
+            informative = np.ones((P, B), dtype=bool)
         else:
             raise InputError("pd/pfa: give each ping's pD and pFA, or a fixed SensorModel")
-        self.n_uninformative += int((~informative & poses.valid).sum())
-        ok = poses.valid & np.isfinite(rmin) & np.isfinite(rmax) & informative
+        ping_informative = informative.any(axis=1)
+        self.n_uninformative += int((~ping_informative & poses.valid).sum())
+        ok = poses.valid & np.isfinite(rmin) & np.isfinite(rmax) & ping_informative
         if not ok.any():
             return 0
         sel = np.flatnonzero(ok)
         r, az, rmin, rmax = r[sel], az[sel], rmin[sel], rmax[sel]
         R, t = poses.rotation[sel], poses.translation_m[sel]
-        l_hit, l_miss = l_hit[sel], l_miss[sel]
+        l_hit, l_miss, informative = l_hit[sel], l_miss[sel], informative[sel]
         P = sel.size
         elev = elevation_samples(cfg.n_elevation, cfg.vertical_aperture_rad)
         E = elev.size
@@ -484,7 +500,7 @@ class OccupancyMap:
         d[..., 2] = np.broadcast_to(se, (P, B, E))
         dw = np.einsum("pij,pbej->pbei", R, d)
         rend = np.where(hit, np.clip(r, rmin[:, None], rmax[:, None]), rmax[:, None])
-        keep = hit | cfg.free_without_return
+        keep = (hit | cfg.free_without_return) & informative
         starts = t[:, None, None, :] + dw * rmin[:, None, None, None]
         ends = t[:, None, None, :] + dw * rend[:, :, None, None]
         hits = np.broadcast_to(hit[:, :, None], (P, B, E))
@@ -493,6 +509,8 @@ class OccupancyMap:
         starts = starts[keep3]
         ends = ends[keep3]
         hits = np.ascontiguousarray(hits[keep3])
+        ray_hit = np.broadcast_to(l_hit.astype(np.float32)[:, :, None], (P, B, E))[keep3]
+        ray_miss = np.broadcast_to(l_miss.astype(np.float32)[:, :, None], (P, B, E))[keep3]
         inv = 1.0 / cfg.resolution_m
         starts *= inv
         ends *= inv
@@ -502,10 +520,53 @@ class OccupancyMap:
         offsets = np.zeros(P + 1, dtype=np.int64)
         np.cumsum(counts, out=offsets[1:])
         ids = np.arange(self._next_id, self._next_id + P, dtype=np.int32)
-        self._run(starts, ends, hits, offsets, l_hit.astype(np.float32), l_miss.astype(np.float32), ids)
+        self._run(starts, ends, hits, offsets, ray_hit, ray_miss, ids)
         self._next_id += P
         self.n_pings += P
         return P
+
+    def _increments(
+        self,
+        r: NDArray[np.float64],
+        pd: NDArray[np.float64],
+        pfa: NDArray[np.float64],
+        range_resolution_m: float | None,
+        sigma_m: NDArray[np.float64],
+        p_detect: NDArray[np.float64],
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_]]:
+        """Per-beam ``(l_hit, l_miss, informative)``, each (n_pings, n_beams), of the pD/pFA model.
+
+        A beam's pD is its ``p_detect`` where finite, else its ping's ``pd``; a return's range
+        error is its ``sigma_m`` where finite, else ``range_sigma_bins`` bins (with a range-bin
+        size) or none.  With all-NaN ``sigma_m`` / ``p_detect`` every beam of a ping gets the
+        ping's increments.
+        """
+        cfg = self.config
+        P, B = r.shape
+        pdb = np.where(np.isfinite(p_detect), p_detect, pd[:, None])
+        pfb = np.broadcast_to(pfa[:, None], (P, B))
+        informative = np.isfinite(pdb) & np.isfinite(pfb) & (pdb > pfb)
+        if range_resolution_m is None:
+            m_bins, bin_m, sig_default = 1.0, cfg.resolution_m, 0.0  # a "bin" is a cell
+        else:
+            dr = float(range_resolution_m)
+            m_bins, bin_m, sig_default = max(1.0, cfg.resolution_m / dr), dr, cfg.range_sigma_bins
+        n_arc = np.ones((P, 1))
+        if range_resolution_m is not None and cfg.n_elevation > 1 and cfg.elevation_ambiguity:
+            hit_r = np.where(np.isfinite(r) & (r > 0), r, np.inf)
+            k = (np.isfinite(hit_r)).sum(axis=1)
+            srt = np.sort(hit_r, axis=1)
+            r_med = np.where(k > 0, srt[np.arange(P), np.maximum(k - 1, 0) // 2], 0.0)
+            n_arc = np.clip(np.ceil(r_med * cfg.vertical_aperture_rad / cfg.resolution_m), 1, cfg.n_elevation)[:, None]
+        with np.errstate(invalid="ignore"):
+            own = np.isfinite(sigma_m) & (sigma_m >= 0)
+        sig_bins = np.where(own, np.where(own, sigma_m, 0.0) / bin_m, sig_default)
+        l_hit, l_miss = pd_pfa_increments(np.where(informative, pdb, 0.9), np.where(informative, pfb, 0.1),
+                                          bins_per_cell=m_bins, n_arc=n_arc, range_sigma_bins=sig_bins)
+        # hits that carry no information (an elevation arc as wide as the range error's reach)
+        # leave the return's cell unchanged; the beam's free space still counts
+        informative &= l_miss < 0
+        return np.maximum(l_hit, 0.0), l_miss, informative
 
     def _run(self, starts: Any, ends: Any, hits: Any, offsets: Any, l_hit: Any, l_miss: Any, ids: Any) -> None:
         first = 0
@@ -533,11 +594,19 @@ class OccupancyMap:
         pfa: ArrayLike | None = None,
         model: SensorModel | None = None,
         range_resolution_m: float | None = None,
+        use_sigma: bool = True,
+        use_p_detect: bool = True,
     ) -> int:
-        """Integrate :class:`sonarmap.ranges.BeamRanges` (one per ping, equal beam counts)."""
+        """Integrate :class:`sonarmap.ranges.BeamRanges` (one per ping, equal beam counts).
+
+        Each return's ``sigma_m`` and each beam's ``p_detect`` feed the pD/pFA model where finite
+        (see :meth:`integrate`); ``use_sigma=False`` / ``use_p_detect=False`` ignore them (the
+        constant range error, the per-ping ``pd``).
+        """
         ranges = list(ranges)
         if not ranges:
             return 0
+
         return self.integrate(
             np.stack([br.range_m for br in ranges]),
             np.stack([br.azimuth_rad for br in ranges]),
@@ -548,6 +617,8 @@ class OccupancyMap:
             pfa=pfa,
             model=model,
             range_resolution_m=range_resolution_m,
+            sigma_m=_stack_field(ranges, "sigma_m") if use_sigma else None,
+            p_detect=_stack_field(ranges, "p_detect") if use_p_detect else None,
         )
 
     # ------------------------------------------------------------------ queries and export

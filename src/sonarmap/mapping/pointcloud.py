@@ -3,17 +3,22 @@
 * **PLY** (binary little-endian): vertex element with ``x, y, z`` (float32), ``time`` (float64,
   seconds after the ``comment time_offset_ns N`` stamp: exact to the nanosecond for surveys up to
   ~100 days), ``beam`` (int32), ``range`` / ``intensity`` / ``confidence`` /
-  ``elevation`` (float32).  Coordinates are stored relative to an ``offset_m`` (default zero)
-  recorded in a ``comment offset_m X Y Z`` line so large world coordinates keep float32 precision;
+  ``elevation`` / ``sigma`` (float32; ``sigma`` = one-sigma range uncertainty, NaN = unknown).
+  Coordinates are stored relative to an ``offset_m`` (default zero) recorded in a
+  ``comment offset_m X Y Z`` line so large world coordinates keep float32 precision;
   a ``comment frame ned|enu`` line records the frame.  Opens in CloudCompare, MeshLab, Open3D.
 * **LAS 1.4** (point format 6): coordinates as scaled integers (``scale_m``, default 0.1 mm;
   offset = the cloud's minimum rounded down to a metre), ``gps_time`` = seconds since the epoch,
   ``intensity`` = intensity x 65535 (uint16, clipped to [0, 1] first), ``point_source_id`` = beam,
   and extra bytes ``range_m``, ``confidence``, ``elevation_rad``, ``intensity_f`` (float32),
-  ``beam_index`` (int32) and ``time_ns`` (int64).  Reading back gives the written coordinates to
+  ``beam_index`` (int32), ``time_ns`` (int64) and ``sigma_m`` (float32, one-sigma range
+  uncertainty, NaN = unknown).  Reading back gives the written coordinates to
   within ``scale_m / 2`` (exactly the quantised values).
-* **CSV**: ``x,y,z,time_ns,beam,range_m,intensity,confidence,elevation_rad`` with a ``# frame:``
-  comment; float64 coordinates are written with ``repr`` (exact round trip).
+* **CSV**: ``x,y,z,time_ns,beam,range_m,intensity,confidence,elevation_rad,sigma_m`` with a
+  ``# frame:`` comment; float64 coordinates are written with ``repr`` (exact round trip).
+
+Files without the ``sigma`` / ``sigma_m`` attribute (written before it existed, or by other
+tools) read back with NaN uncertainties.
 
 LAS/PLY viewers expect z up: pass ``frame="enu"`` to write ROS/ENU coordinates (the default is the
 library's NED frame, in which depth is positive ``z``).
@@ -87,6 +92,7 @@ def write_ply(
     dt = [
         ("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("time", "<f8"), ("beam", "<i4"),
         ("range", "<f4"), ("intensity", "<f4"), ("confidence", "<f4"), ("elevation", "<f4"),
+        ("sigma", "<f4"),
     ]
     v = np.empty(len(c), dtype=dt)
     v["x"], v["y"], v["z"] = xyz[:, 0], xyz[:, 1], xyz[:, 2]
@@ -97,6 +103,7 @@ def write_ply(
     v["intensity"] = c.intensity
     v["confidence"] = c.confidence
     v["elevation"] = c.elevation_rad
+    v["sigma"] = c.sigma_m
     comments = [
         "sonarmap point cloud",
         f"frame {c.frame}",
@@ -137,7 +144,7 @@ def read_ply(path: str | os.PathLike[str]) -> PointCloud:
     time_ns = np.rint(get("time", 0.0).astype(np.float64) * 1e9).astype(np.int64) + t_off
     return PointCloud(
         xyz, time_ns, get("beam", -1), get("range", np.nan), get("intensity", 1.0),
-        get("confidence", 1.0), get("elevation", 0.0), frame=frame,
+        get("confidence", 1.0), get("elevation", 0.0), frame=frame, sigma_m=get("sigma", np.nan),
     )
 
 
@@ -168,6 +175,7 @@ def write_las(
             laspy.ExtraBytesParams(name="intensity_f", type=np.float32, description="intensity (float)"),
             laspy.ExtraBytesParams(name="beam_index", type=np.int32, description="beam index"),
             laspy.ExtraBytesParams(name="time_ns", type=np.int64, description="ping time (ns)"),
+            laspy.ExtraBytesParams(name="sigma_m", type=np.float32, description="range 1-sigma (m)"),
         ]
     )
     las = laspy.LasData(header)
@@ -183,6 +191,7 @@ def write_las(
     las.intensity_f = c.intensity
     las.beam_index = c.beam
     las.time_ns = c.time_ns
+    las.sigma_m = c.sigma_m
     with atomic_path(path) as tmp:
         las.write(str(tmp))
 
@@ -214,12 +223,13 @@ def read_las(path: str | os.PathLike[str]) -> PointCloud:
         inten = np.asarray(las.intensity, dtype=np.float32) / 65535.0
     beam = get("beam_index", -1) if "beam_index" in dims else np.asarray(las.point_source_id, dtype=np.int32)
     return PointCloud(
-        xyz, t, beam, get("range_m", np.nan), inten, get("confidence", 1.0), get("elevation_rad", 0.0), frame=frame
+        xyz, t, beam, get("range_m", np.nan), inten, get("confidence", 1.0), get("elevation_rad", 0.0), frame=frame,
+        sigma_m=get("sigma_m", np.nan),
     )
 
 
 # ---------------------------------------------------------------------- CSV
-_CSV_COLS = ("x", "y", "z", "time_ns", "beam", "range_m", "intensity", "confidence", "elevation_rad")
+_CSV_COLS = ("x", "y", "z", "time_ns", "beam", "range_m", "intensity", "confidence", "elevation_rad", "sigma_m")
 
 
 def write_csv(cloud: PointCloud, path: str | os.PathLike[str], *, frame: str | None = None) -> None:
@@ -238,6 +248,7 @@ def write_csv(cloud: PointCloud, path: str | os.PathLike[str], *, frame: str | N
             np.char.mod("%.9g", c.intensity),
             np.char.mod("%.9g", c.confidence),
             np.char.mod("%.9g", c.elevation_rad),
+            np.char.mod("%.9g", c.sigma_m),
         ]
         rows = cols[0]
         for col in cols[1:]:
@@ -285,6 +296,7 @@ def read_csv(path: str | os.PathLike[str]) -> PointCloud:
             xyz, np.array([int(v) for v in table[:, col["time_ns"]]] if n and "time_ns" in col else np.zeros(n), np.int64),
             get("beam", np.int32, -1), get("range_m", np.float32, np.nan), get("intensity", np.float32, 1.0),
             get("confidence", np.float32, 1.0), get("elevation_rad", np.float32, 0.0), frame=frame,
+            sigma_m=get("sigma_m", np.float32, np.nan),
         )
     except (ValueError, TypeError) as exc:
         raise DataFormatError(f"non-numeric or ragged CSV rows ({exc})", p) from None

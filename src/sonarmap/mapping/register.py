@@ -87,6 +87,9 @@ class PointCloud:
         Assumed elevation (0 under the profiling assumption).
     frame : str
         ``"ned"`` (default) or ``"enu"``.
+    sigma_m : ndarray, shape (n,), float32, optional
+        One-sigma range uncertainty of the return (``BeamRanges.sigma_m``); NaN (the default)
+        where unknown.
     """
 
     xyz_m: NDArray[np.float64]
@@ -97,11 +100,14 @@ class PointCloud:
     confidence: NDArray[np.float32]
     elevation_rad: NDArray[np.float32]
     frame: str = "ned"
+    sigma_m: NDArray[np.float32] | None = None
 
     def __post_init__(self) -> None:
         xyz = np.asarray(self.xyz_m, dtype=np.float64).reshape(-1, 3)
         n = xyz.shape[0]
         object.__setattr__(self, "xyz_m", xyz)
+        if self.sigma_m is None:
+            object.__setattr__(self, "sigma_m", np.full(n, np.nan, dtype=np.float32))
         for name, dt in _ATTRS.items():
             arr = np.asarray(getattr(self, name), dtype=dt).reshape(-1)
             if arr.size != n:
@@ -114,7 +120,7 @@ class PointCloud:
     @classmethod
     def empty(cls, frame: str = "ned") -> PointCloud:
         """A cloud with no points."""
-        return cls(np.zeros((0, 3)), *(np.zeros(0, dt) for dt in _ATTRS.values()), frame=frame)
+        return cls(np.zeros((0, 3)), **{k: np.zeros(0, dt) for k, dt in _ATTRS.items()}, frame=frame)
 
     @classmethod
     def concat(cls, clouds: Sequence[PointCloud]) -> PointCloud:
@@ -127,14 +133,14 @@ class PointCloud:
             raise InputError(f"clouds: cannot concatenate frames {sorted(frames)}")
         return cls(
             np.concatenate([c.xyz_m for c in clouds]),
-            *(np.concatenate([getattr(c, k) for c in clouds]) for k in _ATTRS),
+            **{k: np.concatenate([getattr(c, k) for c in clouds]) for k in _ATTRS},
             frame=clouds[0].frame,
         )
 
     def select(self, index: ArrayLike) -> PointCloud:
         """Subset by boolean mask or indices."""
         k = np.asarray(index)
-        return PointCloud(self.xyz_m[k], *(getattr(self, a)[k] for a in _ATTRS), frame=self.frame)
+        return PointCloud(self.xyz_m[k], **{a: getattr(self, a)[k] for a in _ATTRS}, frame=self.frame)
 
     def to_frame(self, frame: str) -> PointCloud:
         """The same points with coordinates in ``"ned"`` or ``"enu"``."""
@@ -159,6 +165,7 @@ _ATTRS: dict[str, Any] = {
     "intensity": np.float32,
     "confidence": np.float32,
     "elevation_rad": np.float32,
+    "sigma_m": np.float32,
 }
 
 
@@ -195,6 +202,7 @@ def register_returns(
     *,
     intensity: ArrayLike | None = None,
     confidence: ArrayLike | None = None,
+    sigma_m: ArrayLike | None = None,
     config: RegistrationConfig | None = None,
 ) -> PointCloud:
     """Register a batch of per-beam ranges into world points.
@@ -209,6 +217,8 @@ def register_returns(
         Sensor -> world transforms, one per ping (invalid poses drop their pings' returns).
     intensity, confidence : array_like, shape (n_pings, n_beams), optional
         Per-return attributes (default 1).
+    sigma_m : array_like, shape (n_pings, n_beams), optional
+        One-sigma range uncertainty per return (default NaN: unknown).
     config : RegistrationConfig, optional
 
     Returns
@@ -222,6 +232,7 @@ def register_returns(
     az = _as_2d(azimuth_rad, (P, B), "azimuth_rad", np.float64, 0.0)
     inten = _as_2d(intensity, (P, B), "intensity", np.float32, 1.0)
     conf = _as_2d(confidence, (P, B), "confidence", np.float32, 1.0)
+    sig = _as_2d(sigma_m, (P, B), "sigma_m", np.float32, np.nan)
     keep = np.isfinite(r) & (r > 0) & poses.valid[:, None]
     if cfg.min_confidence > 0:
         keep &= conf >= cfg.min_confidence
@@ -264,7 +275,17 @@ def register_returns(
         rep(inten[keep]),
         rep(conf[keep]),
         np.tile(elev.astype(np.float32), n_keep) if E > 1 else np.zeros(n_keep, np.float32),
+        sigma_m=rep(sig[keep]),
     )
+
+
+def _stack_field(ranges: Sequence[Any], name: str) -> NDArray[np.float64] | None:
+    """The per-beam field ``name`` of each of ``ranges`` stacked into float64 (n_pings, n_beams),
+    or None if one of them has none (``BeamRanges`` from before the field existed, duck types)."""
+    vals = [getattr(br, name, None) for br in ranges]
+    if any(v is None for v in vals):
+        return None
+    return np.stack([np.asarray(v, dtype=np.float64) for v in vals])
 
 
 def register_ranges(
@@ -280,7 +301,8 @@ def register_ranges(
     Parameters
     ----------
     ranges : sequence of BeamRanges
-        Each with ``range_m``, ``azimuth_rad``, ``intensity``, ``confidence`` of shape (n_beams,).
+        Each with ``range_m``, ``azimuth_rad``, ``intensity``, ``confidence`` (and ``sigma_m``,
+        carried to the points when present) of shape (n_beams,).
     poses : SensorPoses
         One sensor pose per element of ``ranges``.
     """
@@ -297,13 +319,15 @@ def register_ranges(
             poses,
             intensity=np.stack([br.intensity for br in ranges]),
             confidence=np.stack([br.confidence for br in ranges]),
+            sigma_m=_stack_field(ranges, "sigma_m"),
             config=config,
         )
     return PointCloud.concat(
         [
             register_returns(
                 br.range_m, br.azimuth_rad, poses.select([i]),
-                intensity=br.intensity, confidence=br.confidence, config=config,
+                intensity=br.intensity, confidence=br.confidence, sigma_m=_stack_field([br], "sigma_m"),
+                config=config,
             )
             for i, br in enumerate(ranges)
         ]

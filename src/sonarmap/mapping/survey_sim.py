@@ -587,7 +587,8 @@ def evaluate_survey(
     :func:`truth_voxels` for each resolution and sensor model (:data:`SURVEY_MODELS`):
 
     * ``"pd/pfa"``: the pD/pFA-driven inverse sensor model with each ping's range-measurement
-      ``pd_range`` and per-pixel pFA (turned into a per-cell one, range error of
+      ``pd_range`` (each beam's ``BeamRanges.p_detect`` where finite) and per-pixel pFA (turned
+      into a per-cell one, range error ``BeamRanges.sigma_m`` where finite, else
       ``OccupancyConfig.range_sigma_bins``; ``n_elevation`` rays spanning the renderer's
       vertical aperture, hits discounted for the arc when ``elevation_ambiguity``); pings with
       ``pd_range = 0`` (every detection rejected by the range rules) or NaN are not integrated;
@@ -596,7 +597,8 @@ def evaluate_survey(
     * ``"fixed 0.8/0.3, OctoMap clamps"``: the same constants with the log-odds clamped to
       OctoMap's ``[0.12, 0.97]`` (:data:`~sonarmap.mapping.occupancy.OCTOMAP_CLAMP_LOGODDS`), as
       a peer running OctoMap would; every other model uses :class:`OccupancyConfig`'s defaults;
-    * ``"pd/pfa per pixel"``: as ``"pd/pfa"`` with the per-pixel local-MAP ``pd`` (ablation);
+    * ``"pd/pfa per pixel"``: as ``"pd/pfa"`` with the per-pixel local-MAP ``pd`` on every beam
+      (``p_detect`` ignored; ablation);
     * ``"fixed, pings with returns"``: the constants, skipping pings without any return
       (a heuristic guard, ablation).
     """
@@ -634,7 +636,8 @@ def evaluate_survey(
         "pd/pfa": (every, {"pd": pd_range, "pfa": pfa, "range_resolution_m": g.range_resolution_m}, {}),
         "fixed 0.8/0.3": (every, {"model": fixed}, {}),
         "fixed 0.8/0.3, OctoMap clamps": (every, {"model": fixed}, octomap),
-        "pd/pfa per pixel": (every, {"pd": pd, "pfa": pfa, "range_resolution_m": g.range_resolution_m}, {}),
+        "pd/pfa per pixel": (every, {"pd": pd, "pfa": pfa, "range_resolution_m": g.range_resolution_m,
+                                     "use_p_detect": False}, {}),
         "fixed, pings with returns": (with_returns, {"model": fixed}, {}),
     }
     iou: dict[tuple[float, str], float] = {}
