@@ -496,6 +496,12 @@ def classify_image(image: NDArray[np.float32], config: PipelineConfig = Pipeline
     ``"no_object"`` / ``"all_zero"`` / ``"degenerate"`` is all background for the fit-based
     methods.
     """
+    labels, fit, pd, pfa, _ = _classify(image, config)
+    return labels, fit, pd, pfa
+
+
+def _classify(image: NDArray[np.float32], config: PipelineConfig) -> tuple[NDArray[np.uint8], Any, float, float, NDArray[Any]]:
+    """:func:`classify_image` plus the quantised levels it classified."""
     from sonarmap.stats.mixture import quantize
 
     method = config.method
@@ -506,7 +512,7 @@ def classify_image(image: NDArray[np.float32], config: PipelineConfig = Pipeline
                          pfa=config.cfar_pfa, two_d=config.cfar_two_d)
         res = cfar(image, config=cfg)
         levels = quantize(image, config.n_levels)
-        return res.labels, _fit(levels, config), math.nan, config.cfar_pfa
+        return res.labels, _fit(levels, config), math.nan, config.cfar_pfa, levels
     levels = quantize(image, config.n_levels)
     fit = _fit(levels, config)
     if method == "threshold":
@@ -518,15 +524,15 @@ def classify_image(image: NDArray[np.float32], config: PipelineConfig = Pipeline
             from sonarmap.stats.roc import pd_pfa_at_threshold
 
             pd, pfa = pd_pfa_at_threshold(fit, config.threshold)
-        return labels, fit, pd, pfa
+        return labels, fit, pd, pfa, levels
     if fit is None or fit.flags & {"all_zero", "degenerate"} or len(fit.class_names) < 2:
-        return np.zeros(image.shape, dtype=np.uint8), fit, 0.0, 0.0
+        return np.zeros(image.shape, dtype=np.uint8), fit, 0.0, 0.0, levels
     from sonarmap.classify.local_map import map_lookup_table
 
     lut = map_lookup_table(fit)
     pd, pfa = _model_pd_pfa(fit, lut)
     if method == "map":
-        return lut[levels], fit, pd, pfa
+        return lut[levels], fit, pd, pfa, levels
     labels = _mrf_labels(image, levels, _cost_lut(fit, config.object_prior_min, config.speckle_eps), config.beta, config)
     if config.grow_prior_min > 0:
         from sonarmap.ranges import wide_components
@@ -534,7 +540,7 @@ def classify_image(image: NDArray[np.float32], config: PipelineConfig = Pipeline
         weak = _mrf_labels(image, levels, _cost_lut(fit, config.grow_prior_min, config.speckle_eps), config.grow_beta, config)
         grown = wide_components((weak >= 1) | (labels >= 1), 1, seeds=labels >= 1)
         labels = np.where(grown & (labels == 0), np.uint8(1), labels).astype(np.uint8)
-    return labels, fit, pd, pfa
+    return labels, fit, pd, pfa, levels
 
 
 def _mrf_labels(image: NDArray[np.float32], levels: NDArray[Any], cost: NDArray[np.float64], beta: float,
@@ -660,7 +666,7 @@ def process_ping(ping: Ping, config: PipelineConfig = PipelineConfig(), *, keep_
     # a constant ping (all zero, saturated, a dead sensor) carries no range information
     if constant or not np.any(image > 0) or float(image.max()) == float(image.min()):
         return no_return_products(None, {"constant_image"}, 0.0, 0.0)
-    labels, fit, pd, pfa = classify_image(image, config)
+    labels, fit, pd, pfa, levels = _classify(image, config)
     gates: frozenset[str] = frozenset()
     if fit is not None and not config.method.startswith("cfar-"):
         from sonarmap.stats.gates import fit_gates
@@ -690,7 +696,7 @@ def process_ping(ping: Ping, config: PipelineConfig = PipelineConfig(), *, keep_
 
     thickness = None
     if config.tracker == "surface":
-        ranges, thickness = _surface_ranges(ping, image, labels, mask, fit, config, normalised is not None, bg_mean)
+        ranges, thickness = _surface_ranges(ping, image, levels, mask, fit, config, normalised is not None, bg_mean)
     else:
         def _ranges(accepted: NDArray[np.bool_] | None) -> BeamRanges:
             return extract_ranges(
@@ -749,15 +755,14 @@ def pulse_bins(ping: Ping, config: PipelineConfig) -> int:
     return max(1, int(round(length / dr))) if dr > 0 else 1
 
 
-def _surface_ranges(ping: Ping, image: NDArray[np.float32], labels: NDArray[np.uint8], mask: NDArray[np.bool_],
+def _surface_ranges(ping: Ping, image: NDArray[np.float32], levels: NDArray[Any], mask: NDArray[np.bool_],
                     fit: Any, config: PipelineConfig, normalised: bool,
                     bg_mean: float | None) -> tuple[BeamRanges, NDArray[np.int64]]:
     """Echoes of the candidate structure (``mask`` plus pooled bands), tracked across beams; also
     the number of bins each return's echo spans (0 where no return)."""
     from sonarmap.ranges import ranges_from_tracks
-    from sonarmap.ranges.echoes import find_echoes, pixel_llr
+    from sonarmap.ranges.echoes import find_echoes, level_llr
     from sonarmap.ranges.tracking import track_surfaces
-    from sonarmap.stats.mixture import quantize
 
     geom = ping.geometry
     cand = mask
@@ -774,15 +779,14 @@ def _surface_ranges(ping: Ping, image: NDArray[np.float32], labels: NDArray[np.u
         return (no_returns(geom, time_ns=ping.time_ns, source=ping.source, mode=config.range_mode),
                 np.zeros(geom.n_beams, dtype=np.int64))
     if fit is not None and len(fit.class_names) >= 2:
-        llr = np.maximum(pixel_llr(quantize(image, config.n_levels), fit), 0.0)
+        lut = np.maximum(level_llr(fit), 0.0)
     else:
-        llr = np.ones(image.shape)
-    if band is not None:
-        # a pooled band pixel passed a >= pool_factor x background test over the whole box: one
-        # nat at least, whatever its own (single-look, speckled) value says
-        llr = np.where(band & ~mask, np.maximum(llr, 1.0), llr)
+        lut = np.ones(int(levels.max()) + 1)
     pb = pulse_bins(ping, config)
-    echoes = find_echoes(cand, image, geom, llr=llr, pulse_bins=pb,
+    # a pooled band pixel passed a >= pool_factor x background test over the whole box: one nat
+    # at least, whatever its own (single-look, speckled) value says
+    echoes = find_echoes(cand, image, geom, levels=levels, level_evidence=lut,
+                         boost=None if band is None else band, boost_min=1.0, pulse_bins=pb,
                          fraction=config.edge_fraction if config.edge_fraction > 0 else 0.5,
                          looks=5.0 if normalised else 1.0, background=bg_mean or 0.0)
     tracks = track_surfaces(echoes, config.track)

@@ -12,14 +12,16 @@ from numba import njit
 
 
 @njit(cache=True, nogil=True)
-def find_echoes(mask, img, llr, max_gap, fraction, peak_rel, back):  # pragma: no cover - numba
+def find_echoes(mask, img, code, lut, boost, boost_min, max_gap, fraction, peak_rel, back):  # pragma: no cover - numba
     """Echoes along every beam (see :func:`sonarmap.ranges.echoes.find_echoes`).
 
     Returns per echo: beam, start, stop (exclusive, structure pixels), peak bin, peak value,
     edge position (fractional bin index of the ``fraction`` crossing), edge slope (value per
-    bin at the crossing), evidence (sum of ``llr`` over the echo's structure pixels) and its
-    number of structure pixels.
+    bin at the crossing), evidence (sum over the echo's structure pixels of ``lut[code[i, j]]``,
+    at least ``boost_min`` where ``boost`` (shape (1, 1): nowhere) is set) and its number of
+    structure pixels.
     """
+    has_boost = boost.shape[0] == mask.shape[0]
     n, m = mask.shape
     # echoes are separated by more than max_gap bins: an upper bound of their number
     n_echoes = m * (n // (max_gap + 2) + 1)
@@ -46,7 +48,10 @@ def find_echoes(mask, img, llr, max_gap, fraction, peak_rel, back):  # pragma: n
             while i < n and (mask[i, j] or i - last <= max_gap):
                 if mask[i, j]:
                     last = i
-                    ev += llr[i, j]
+                    v = lut[code[i, j]]
+                    if has_boost and boost[i, j] and v < boost_min:
+                        v = boost_min
+                    ev += v
                     npx += 1
                 i += 1
             e = last + 1

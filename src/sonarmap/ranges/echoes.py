@@ -32,7 +32,7 @@ from numpy.typing import ArrayLike, NDArray
 from sonarmap.errors import InputError
 from sonarmap.geometry import SonarGeometry
 
-__all__ = ["Echoes", "find_echoes", "range_sigma_m", "smooth_along_range", "pixel_llr"]
+__all__ = ["Echoes", "find_echoes", "range_sigma_m", "smooth_along_range", "pixel_llr", "level_llr"]
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -102,16 +102,20 @@ def smooth_along_range(image: ArrayLike, pulse_bins: int) -> NDArray[np.float64]
     return np.ascontiguousarray(uniform_filter1d(img, size=int(pulse_bins), axis=0, mode="nearest"))
 
 
-def pixel_llr(levels: NDArray[np.integer], fit: object, *, clip: float = 4.0) -> NDArray[np.float64]:
-    """Per-pixel log-likelihood ratio ``log p(y|structure) - log p(y|background)`` (nats) under a
-    fitted mixture (eq. 8-10; the best object class), clipped to ``[-clip, clip]``."""
+def level_llr(fit: object, *, clip: float = 4.0) -> NDArray[np.float64]:
+    """Per quantised level, the log-likelihood ratio ``log p(y|structure) - log p(y|background)``
+    (nats) under a fitted mixture (eq. 8-10; the best object class), clipped to ``[-clip, clip]``."""
     lp = np.asarray(fit.class_log_pmf(), dtype=np.float64)  # type: ignore[attr-defined]
     if lp.shape[0] < 2:
-        return np.zeros(np.shape(levels))
+        return np.zeros(lp.shape[1])
     with np.errstate(invalid="ignore"):
         lut = lp[1:].max(axis=0) - lp[0]
-    lut = np.clip(np.nan_to_num(lut, nan=0.0, posinf=clip, neginf=-clip), -clip, clip)
-    return lut[np.asarray(levels)]
+    return np.clip(np.nan_to_num(lut, nan=0.0, posinf=clip, neginf=-clip), -clip, clip)
+
+
+def pixel_llr(levels: NDArray[np.integer], fit: object, *, clip: float = 4.0) -> NDArray[np.float64]:
+    """:func:`level_llr` at every pixel of a quantised image."""
+    return level_llr(fit, clip=clip)[np.asarray(levels)]
 
 
 def range_sigma_m(edge_value: ArrayLike, slope: ArrayLike, bin_m: float, *, looks: float = 1.0,
@@ -151,6 +155,10 @@ def find_echoes(
     geometry: SonarGeometry,
     *,
     llr: ArrayLike | None = None,
+    levels: ArrayLike | None = None,
+    level_evidence: ArrayLike | None = None,
+    boost: ArrayLike | None = None,
+    boost_min: float = 1.0,
     pulse_bins: int = 1,
     fraction: float = 0.5,
     peak_rel: float = 0.5,
@@ -170,6 +178,11 @@ def find_echoes(
     geometry : SonarGeometry
     llr : ndarray, shape (n_bins, n_beams), optional
         Per-pixel evidence (:func:`pixel_llr`); default 1 per structure pixel.
+    levels, level_evidence : ndarray, optional
+        Instead of ``llr``: the quantised image and the evidence per level (:func:`level_llr`),
+        looked up only at structure pixels.
+    boost, boost_min : ndarray of bool, float
+        Pixels whose evidence is at least ``boost_min`` (e.g. pooled band pixels).
     pulse_bins : int
         Pulse length in bins (smoothing box; < 2 = none).
     fraction : float
@@ -193,13 +206,26 @@ def find_echoes(
         raise InputError(f"fraction: must lie in (0, 1) (got {fraction})")
     if not 0 < peak_rel <= 1:
         raise InputError(f"peak_rel: must lie in (0, 1] (got {peak_rel})")
-    ev = np.ones(m.shape) if llr is None else np.ascontiguousarray(llr, dtype=np.float64)
-    if ev.shape != m.shape:
-        raise InputError(f"llr: shape {ev.shape} does not match mask {m.shape}")
+    if levels is not None and level_evidence is not None:
+        code = np.ascontiguousarray(levels)
+        lut = np.ascontiguousarray(level_evidence, dtype=np.float64)
+        if code.shape != m.shape:
+            raise InputError(f"levels: shape {code.shape} does not match mask {m.shape}")
+        if code.size and (int(code.min()) < 0 or int(code.max()) >= lut.size):
+            raise InputError(f"levels: values must lie in [0, {lut.size})")
+    else:
+        ev = np.ones(m.shape) if llr is None else np.asarray(llr, dtype=np.float64)
+        if ev.shape != m.shape:
+            raise InputError(f"llr: shape {ev.shape} does not match mask {m.shape}")
+        code = np.arange(ev.size, dtype=np.int64).reshape(ev.shape)
+        lut = np.ascontiguousarray(ev.ravel())
+    bst = np.zeros((1, 1), dtype=bool) if boost is None else np.ascontiguousarray(boost, dtype=bool)
+    if boost is not None and bst.shape != m.shape:
+        raise InputError(f"boost: shape {bst.shape} does not match mask {m.shape}")
     gap = max(2, int(pulse_bins)) if max_gap is None else int(max_gap)
     bk = int(pulse_bins) + 2 if back is None else int(back)
     beam, start, stop, peak, pval, edge, slope, evid, npx = _kernels.find_echoes(
-        m, img, ev, gap, float(fraction), float(peak_rel), bk)
+        m, img, code, lut, bst, float(boost_min), gap, float(fraction), float(peak_rel), bk)
     n = beam.size
     r = np.asarray(geometry.range_m, dtype=np.float64)
     idx = np.arange(r.size, dtype=np.float64)
