@@ -43,7 +43,7 @@ from sonarmap.errors import FitError, InputError
 from sonarmap.ping import Ping
 from sonarmap.ranges import BeamRanges, component_rule, drop_small_components, extract_ranges, half_peak_edges, no_returns
 
-__all__ = ["PipelineConfig", "PingProducts", "process_ping", "classify_image", "pooled_band_pixels", "pooled_band_mask", "pulse_bins", "METHODS", "SOLVER_NAMES"]
+__all__ = ["PipelineConfig", "PingProducts", "process_ping", "classify_image", "pooled_band_pixels", "pooled_band_mask", "pulse_bins", "measurement_image", "METHODS", "SOLVER_NAMES"]
 
 METHODS = ("mrf", "map", "threshold", "cfar-ca", "cfar-so", "cfar-go", "cfar-os")
 SOLVER_NAMES = ("graphcut", "icm", "anneal", "expansion")
@@ -166,6 +166,15 @@ class PipelineConfig:
     pulse_length_m : float, optional
         Transmit pulse length along range (``c tau / 2``); echoes are measured on the image
         smoothed over it.  Default: from the ping (``meta["pulse_width_us"]``, ARIS), else none.
+    edge_scan : str
+        How the leading-edge crossing is found (:func:`sonarmap.ranges.echoes.find_echoes`):
+        ``"back"`` (walk from the first peak towards the sonar to the first bin below the level;
+        better on the simulated ARIS pings) or ``"forward"`` (the first bin from in front of the
+        echo that reaches the level).
+    log_dynamic_range_db : float, optional
+        The raw samples are log-compressed, ``dynamic range`` dB per unit of pixel value (ARIS):
+        echoes of normalised images are measured in linear intensity.  Default: the ping's
+        ``meta["log_dynamic_range_db"]``, else linear samples.
     max_kld, max_object_weight, min_separation : float
         Fit gates (:func:`sonarmap.stats.gates.fit_gates`): a ping whose fit fails one yields no
         returns and carries the gate's name in its flags.
@@ -218,6 +227,8 @@ class PipelineConfig:
     tracker: str = "surface"
     track: Any = None
     pulse_length_m: float | None = None
+    edge_scan: str = "back"
+    log_dynamic_range_db: float | None = None
     max_object_weight: float = 0.5
     min_separation: float = 1.9
 
@@ -248,6 +259,13 @@ class PipelineConfig:
             raise bad("track", "must be a track table")
         if self.tracker not in ("surface", "rules"):
             raise bad("tracker", "must be 'surface' or 'rules'")
+        if self.edge_scan not in ("forward", "back"):
+            raise bad("edge_scan", "must be 'forward' or 'back'")
+        if self.log_dynamic_range_db is not None:
+            v = self.log_dynamic_range_db
+            if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v) or v <= 0:
+                raise bad("log_dynamic_range_db", "must be a finite number > 0")
+            object.__setattr__(self, "log_dynamic_range_db", float(v))
         if self.pulse_length_m is not None:
             v = self.pulse_length_m
             if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v) or v < 0:
@@ -322,8 +340,9 @@ class PipelineConfig:
         if not isinstance(self.preprocess, str):
             d["preprocess"] = self.preprocess.to_dict()
         d["track"] = dataclasses.asdict(self.track)
-        if d["pulse_length_m"] is None:
-            del d["pulse_length_m"]
+        for key in ("pulse_length_m", "log_dynamic_range_db"):
+            if d[key] is None:
+                del d[key]
         return d
 
     @classmethod
@@ -696,7 +715,8 @@ def process_ping(ping: Ping, config: PipelineConfig = PipelineConfig(), *, keep_
 
     thickness = None
     if config.tracker == "surface":
-        ranges, thickness = _surface_ranges(ping, image, levels, mask, fit, config, normalised is not None, bg_mean)
+        ranges, thickness = _surface_ranges(ping, image, levels, mask, fit, config, normalised is not None, bg_mean,
+                                            background)
     else:
         def _ranges(accepted: NDArray[np.bool_] | None) -> BeamRanges:
             return extract_ranges(
@@ -755,9 +775,42 @@ def pulse_bins(ping: Ping, config: PipelineConfig) -> int:
     return max(1, int(round(length / dr))) if dr > 0 else 1
 
 
+def _log_range_db(ping: Ping, config: PipelineConfig) -> float | None:
+    """dB per unit of raw pixel value of log-compressed samples (None: linear samples)."""
+    if config.log_dynamic_range_db is not None:
+        return config.log_dynamic_range_db
+    meta = ping.meta if isinstance(ping.meta, dict) else {}
+    v = meta.get("log_dynamic_range_db")
+    ok = isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v) and 0 < v < 1000
+    return float(v) if ok else None
+
+
+def measurement_image(ping: Ping, background: Any, config: PipelineConfig = PipelineConfig()) -> NDArray[np.float64]:
+    """The image a normalised ping's echoes are measured on: echo intensity above the background,
+    in units of the background level, linear in intensity.
+
+    ``ratio = raw / b`` for linear samples, ``10^(D (raw - b) / 10)`` for log-compressed ones
+    (``D`` dB per unit, :attr:`PipelineConfig.log_dynamic_range_db`), with ``b`` the estimated
+    background level x beam factor (:mod:`sonarmap.preprocess.normalise`); then
+    ``max(ratio - 1, 0)``.  No multi-look: the leading edge keeps the raw range resolution.
+    """
+    from sonarmap.preprocess.normalise import _expand
+
+    raw = np.asarray(ping.image, dtype=np.float64)
+    level = np.asarray(background.level_by_bin, dtype=np.float64)[:, None]
+    full = 1.0 if background.beam_factor is None else _expand(background.beam_factor, raw.shape)
+    b = level * full
+    d = _log_range_db(ping, config)
+    if d is not None:
+        ratio = np.power(10.0, np.clip(d * (raw - b) / 10.0, -30.0, 30.0))
+    else:
+        ratio = raw / np.maximum(b, 1e-12)
+    return np.maximum(ratio - 1.0, 0.0)
+
+
 def _surface_ranges(ping: Ping, image: NDArray[np.float32], levels: NDArray[Any], mask: NDArray[np.bool_],
                     fit: Any, config: PipelineConfig, normalised: bool,
-                    bg_mean: float | None) -> tuple[BeamRanges, NDArray[np.int64]]:
+                    bg_mean: float | None, background: Any = None) -> tuple[BeamRanges, NDArray[np.int64]]:
     """Echoes of the candidate structure (``mask`` plus pooled bands), tracked across beams; also
     the number of bins each return's echo spans (0 where no return)."""
     from sonarmap.ranges import ranges_from_tracks
@@ -785,10 +838,15 @@ def _surface_ranges(ping: Ping, image: NDArray[np.float32], levels: NDArray[Any]
     pb = pulse_bins(ping, config)
     # a pooled band pixel passed a >= pool_factor x background test over the whole box: one nat
     # at least, whatever its own (single-look, speckled) value says
-    echoes = find_echoes(cand, image, geom, levels=levels, level_evidence=lut,
+    meas = image
+    looks, bg = 1.0, bg_mean or 0.0
+    if normalised and background is not None and getattr(background, "level_by_bin", None) is not None:
+        meas = measurement_image(ping, background, config)
+        looks, bg = 1.0, 1.0
+    echoes = find_echoes(cand, meas, geom, levels=levels, level_evidence=lut,
                          boost=None if band is None else band, boost_min=1.0, pulse_bins=pb,
                          fraction=config.edge_fraction if config.edge_fraction > 0 else 0.5,
-                         looks=5.0 if normalised else 1.0, background=bg_mean or 0.0)
+                         looks=looks, background=bg, scan=config.edge_scan)
     tracks = track_surfaces(echoes, config.track)
     sel = tracks.first
     thickness = np.where(sel >= 0, (echoes.stop_bin - echoes.start_bin)[np.maximum(sel, 0)] if echoes.size else 0, 0)

@@ -452,6 +452,10 @@ class ArisFile:
         )
 
 
+#: Estimated dB per unit of ARIS pixel value (see :func:`_meta`).
+ARIS_LOG_DYNAMIC_RANGE_DB = 37.0
+
+
 def _meta(h: np.void, i: int) -> dict[str, Any]:
     meta: dict[str, Any] = {
         "format": FORMAT,
@@ -467,6 +471,11 @@ def _meta(h: np.void, i: int) -> dict[str, Any]:
         "system_type": int(h["TheSystemType"]),
         "large_lens": bool(h["LargeLens"]),
         "serial_number": int(h["SonarSerialNumber"]),
+        # ARIS samples are log-compressed: their speckle spread is the same at every level
+        # (~0.05 of full scale on sample.aris).  37 dB over the 8-bit range is the compression at
+        # which the simulator's 6-look speckle reproduces that spread (simulate/presets.py) - an
+        # estimate, not a vendor figure; PipelineConfig.log_dynamic_range_db overrides it.
+        "log_dynamic_range_db": ARIS_LOG_DYNAMIC_RANGE_DB,
     }
     floats = {
         "water_temperature_c": "WaterTemp",

@@ -12,7 +12,7 @@ from numba import njit
 
 
 @njit(cache=True, nogil=True)
-def find_echoes(mask, img, code, lut, boost, boost_min, max_gap, fraction, peak_rel, back):  # pragma: no cover - numba
+def find_echoes(mask, img, code, lut, boost, boost_min, max_gap, fraction, peak_rel, back, forward):  # pragma: no cover - numba
     """Echoes along every beam (see :func:`sonarmap.ranges.echoes.find_echoes`).
 
     Returns per echo: beam, start, stop (exclusive, structure pixels), peak bin, peak value,
@@ -77,8 +77,14 @@ def find_echoes(mask, img, code, lut, boost, boost_min, max_gap, fraction, peak_
             if lo < 0:
                 lo = 0
             q = p
-            while q > lo and img[q - 1, j] >= level:
-                q -= 1
+            if forward:
+                # the first bin from in front of the echo that reaches the level
+                q = lo
+                while q < p and img[q, j] < level:
+                    q += 1
+            else:
+                while q > lo and img[q - 1, j] >= level:
+                    q -= 1
             if q > 0 and img[q - 1, j] < level and img[q, j] > img[q - 1, j]:
                 d = img[q, j] - img[q - 1, j]
                 pos = (q - 1) + (level - img[q - 1, j]) / d

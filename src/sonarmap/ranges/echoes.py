@@ -166,6 +166,7 @@ def find_echoes(
     back: int | None = None,
     looks: float = 1.0,
     background: float = 0.0,
+    scan: str = "back",
 ) -> Echoes:
     """Find the echoes of a ping (see the module notes).
 
@@ -195,6 +196,10 @@ def find_echoes(
         Bins the leading-edge walk may go in front of the echo (default ``pulse_bins + 2``).
     looks, background : float
         Speckle looks and background mean of ``image`` for :func:`range_sigma_m`.
+    scan : {"back", "forward"}
+        How the crossing is found: walking from the peak towards the sonar to the first bin below
+        the level (``"back"``), or from ``back`` bins in front of the echo to the first bin that
+        reaches it (``"forward"``: a speckle dip on the rising flank does not stop it).
     """
     from sonarmap.ranges import _kernels
 
@@ -204,6 +209,8 @@ def find_echoes(
     geometry.check_image(img, "image")
     if not 0 < fraction < 1:
         raise InputError(f"fraction: must lie in (0, 1) (got {fraction})")
+    if scan not in ("back", "forward"):
+        raise InputError(f"scan: must be 'back' or 'forward' (got {scan!r})")
     if not 0 < peak_rel <= 1:
         raise InputError(f"peak_rel: must lie in (0, 1] (got {peak_rel})")
     if levels is not None and level_evidence is not None:
@@ -225,7 +232,7 @@ def find_echoes(
     gap = max(2, int(pulse_bins)) if max_gap is None else int(max_gap)
     bk = int(pulse_bins) + 2 if back is None else int(back)
     beam, start, stop, peak, pval, edge, slope, evid, npx = _kernels.find_echoes(
-        m, img, code, lut, bst, float(boost_min), gap, float(fraction), float(peak_rel), bk)
+        m, img, code, lut, bst, float(boost_min), gap, float(fraction), float(peak_rel), bk, scan == "forward")
     n = beam.size
     r = np.asarray(geometry.range_m, dtype=np.float64)
     idx = np.arange(r.size, dtype=np.float64)
