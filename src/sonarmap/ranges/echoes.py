@@ -119,13 +119,15 @@ def pixel_llr(levels: NDArray[np.integer], fit: object, *, clip: float = 4.0) ->
 
 
 def range_sigma_m(edge_value: ArrayLike, slope: ArrayLike, bin_m: float, *, looks: float = 1.0,
-                  background: float = 0.0, pulse_m: float = 0.0) -> NDArray[np.float64]:
+                  background: float = 0.0, pulse_m: float = 0.0, scale: float = 1.0) -> NDArray[np.float64]:
     """One-sigma uncertainty of a leading-edge range (metres).
 
-    ``sigma^2 = bin^2 / 12 + (bin sigma_v / slope)^2 + (pulse / sqrt(12))^2`` with
-    ``sigma_v = (edge_value + background) / sqrt(looks)``: the crossing of a speckled echo moves by
-    the image's fluctuation at the crossing level divided by its rise per bin, and the bin grid
-    and the pulse's own extent add their uniform spreads.
+    ``sigma^2 = bin^2 / 12 + (scale bin sigma_v / slope)^2 + (pulse / sqrt(12))^2`` with
+    ``sigma_v = sqrt(2) (edge_value + background) / sqrt(looks)``: the crossing of a speckled echo
+    moves by the image's fluctuation at the crossing level divided by its rise per bin - the
+    sample at the crossing and the peak that sets the level fluctuate alike, hence ``sqrt(2)`` -
+    and the bin grid and the pulse's own extent add their uniform spreads.  ``scale`` calibrates
+    the jitter term (the pipeline's value is fitted on the simulator, ``docs/segmentation.md``).
 
     Parameters
     ----------
@@ -144,8 +146,8 @@ def range_sigma_m(edge_value: ArrayLike, slope: ArrayLike, bin_m: float, *, look
     """
     v = np.asarray(edge_value, dtype=np.float64)
     s = np.maximum(np.asarray(slope, dtype=np.float64), 1e-12)
-    sig_v = (np.abs(v) + max(float(background), 0.0)) / math.sqrt(max(float(looks), 1.0))
-    jitter = np.minimum(sig_v / s, 8.0) * bin_m  # a crossing is never more than ~8 bins uncertain
+    sig_v = math.sqrt(2.0) * (np.abs(v) + max(float(background), 0.0)) / math.sqrt(max(float(looks), 1.0))
+    jitter = np.minimum(float(scale) * sig_v / s, 8.0) * bin_m  # never more than ~8 bins uncertain
     return np.sqrt(bin_m**2 / 12.0 + jitter**2 + (pulse_m**2) / 12.0)
 
 
@@ -167,6 +169,7 @@ def find_echoes(
     looks: float = 1.0,
     background: float = 0.0,
     scan: str = "back",
+    sigma_scale: float = 1.0,
 ) -> Echoes:
     """Find the echoes of a ping (see the module notes).
 
@@ -194,8 +197,9 @@ def find_echoes(
         Background bins bridged inside one echo (default ``max(2, pulse_bins)``).
     back : int, optional
         Bins the leading-edge walk may go in front of the echo (default ``pulse_bins + 2``).
-    looks, background : float
-        Speckle looks and background mean of ``image`` for :func:`range_sigma_m`.
+    looks, background, sigma_scale : float
+        Speckle looks, background mean of ``image`` and jitter calibration for
+        :func:`range_sigma_m`.
     scan : {"back", "forward"}
         How the crossing is found: walking from the peak towards the sonar to the first bin below
         the level (``"back"``), or from ``back`` bins in front of the echo to the first bin that
@@ -241,7 +245,7 @@ def find_echoes(
     bin_m = abs(geometry.range_resolution_m)
     pulse_m = max(int(pulse_bins), 1) * bin_m if pulse_bins >= 2 else 0.0
     sigma = range_sigma_m(fraction * pval, slope, bin_m, looks=looks * max(int(pulse_bins), 1),
-                          background=background, pulse_m=pulse_m)
+                          background=background, pulse_m=pulse_m, scale=sigma_scale)
     return Echoes(beam=beam, start_bin=start, stop_bin=stop, peak_bin=peak, peak_value=pval, edge_bin=edge,
                   edge_range_m=edge_r, peak_range_m=np.asarray(peak_r, dtype=np.float64), slope=slope,
                   evidence=evid, n_pixels=npx, sigma_m=sigma, n_beams=int(m.shape[1]))
