@@ -10,11 +10,30 @@ on the noisy ping and scored with:
     counts as background, so labelling fish as structure is a false positive.
 ``recall``
     Fraction of beams *with* structure whose reported first return lies within ``tol_bins``
-    (default 3) range bins of the truth.
+    (default 3) range bins of the truth.  Two truths (``truth=``): the integer first-return bin
+    of the class mask (``"first_return"``, the default of :func:`evaluate` and
+    :func:`evaluate_presets`, which the existing acceptance tables were measured with), or the
+    simulator's sub-bin physical surface ``SimResult.surface_range_m`` (``"surface"``: the
+    nearest range of the beam's -3 dB footprint on the structure, what a leading-edge detector
+    should report), converted to fractional bins, the reported ``range_m`` likewise (a
+    leading-edge range between two bins is scored by its real position) - the ranges
+    acceptance :func:`evaluate_ranges` scores against it.
+``recall_1bin``
+    The same within 1 bin.
 ``median_error_m``
     Median absolute range error (metres) over beams with structure that report a return.
+``median_signed_error_bins``
+    Median of ``reported - truth`` in bins (positive: ranges too far, e.g. a leading edge not
+    corrected for the pulse's delay).
 ``false_return_rate``
     Fraction of beams *without* structure that report a return (a false surface in the map).
+``sigma_coverage``
+    When the ranges carry a one-sigma uncertainty (``BeamRanges.sigma_m``): the fraction of the
+    scored returns with ``|range_m - truth| <= sigma_m`` (0.68 for calibrated Gaussian sigmas);
+    NaN when no scored return has a finite sigma.
+``hull_under_fish``
+    Recall (within ``tol_bins``) on the beams whose structure has clutter (fish) in front of it
+    in the truth mask: is the hull still reported, not the fish?
 
 Scores are pooled over all pings of a method (counts are summed before the ratios are taken).
 
@@ -33,12 +52,18 @@ from collections.abc import Iterable, Mapping, Sequence
 from typing import Any
 
 import numpy as np
-from numpy.typing import ArrayLike
+from numpy.typing import ArrayLike, NDArray
 
 from sonarmap.errors import InputError
 
 __all__ = [
     "PEER_RANGE_RULES",
+    "RangesReport",
+    "TRUTHS",
+    "RANGES_PRESETS",
+    "RANGES_SCENES",
+    "SLOPED_SCENES",
+    "evaluate_ranges",
     "PingScore",
     "MethodScore",
     "score_ping",
@@ -61,7 +86,28 @@ DEFAULT_SCENES = ("hull", "curved_hull", "propeller", "seafloor", "fish_over_hul
 
 @dataclasses.dataclass(frozen=True)
 class PingScore:
-    """Counts of one ping (see the module notes)."""
+    """Counts of one ping (see the module notes).
+
+    Attributes
+    ----------
+    tp, fp, fn : int
+        Pixel counts of predicted structure against truth structure.
+    n_struct_beams, n_hit_beams : int
+        Beams with truth structure; those reported within ``tol_bins`` of the truth.
+    n_empty_beams, n_false_beams : int
+        Beams without structure; those that report a return.
+    errors_m : tuple of float
+        Absolute range errors (m) of the beams with structure that report a return.
+    n_hit1_beams : int
+        Beams with structure reported within 1 bin.
+    errors_bins : tuple of float
+        Signed errors ``reported - truth`` (bins), same beams as ``errors_m``.
+    n_sigma_beams, n_within_sigma : int
+        Scored returns with a finite ``sigma_m``; those with ``|error| <= sigma_m``.
+    n_fish_beams, n_fish_hit_beams : int
+        Beams with clutter in front of their structure (truth mask); those reported within
+        ``tol_bins`` of the structure.
+    """
 
     tp: int
     fp: int
@@ -71,11 +117,17 @@ class PingScore:
     n_empty_beams: int
     n_false_beams: int
     errors_m: tuple[float, ...]
+    n_hit1_beams: int = 0
+    errors_bins: tuple[float, ...] = ()
+    n_sigma_beams: int = 0
+    n_within_sigma: int = 0
+    n_fish_beams: int = 0
+    n_fish_hit_beams: int = 0
 
 
 @dataclasses.dataclass(frozen=True)
 class MethodScore:
-    """Pooled scores of one method."""
+    """Pooled scores of one method (see the module notes)."""
 
     method: str
     n_pings: int
@@ -85,10 +137,27 @@ class MethodScore:
     false_return_rate: float
     n_struct_beams: int
     n_empty_beams: int
+    recall_1bin: float = math.nan
+    median_signed_error_bins: float = math.nan
+    sigma_coverage: float = math.nan
+    hull_under_fish: float = math.nan
+    n_fish_beams: int = 0
 
     def as_row(self) -> dict[str, Any]:
         """Plain dict for tables and CSV."""
         return dataclasses.asdict(self)
+
+
+def _fractional_bins(range_m: NDArray[np.float64], bin_range_m: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Ranges (m) as fractional bin indices of the bin-centre table (linear between centres and
+    extrapolated with the end spacings); NaN stays NaN."""
+    idx = np.arange(bin_range_m.size, dtype=np.float64)
+    out = np.interp(range_m, bin_range_m, idx)
+    if bin_range_m.size > 1:
+        lo, hi = range_m < bin_range_m[0], range_m > bin_range_m[-1]
+        out[lo] = (range_m[lo] - bin_range_m[0]) / (bin_range_m[1] - bin_range_m[0])
+        out[hi] = idx[-1] + (range_m[hi] - bin_range_m[-1]) / (bin_range_m[-1] - bin_range_m[-2])
+    return np.where(np.isfinite(range_m), out, np.nan)
 
 
 def score_ping(
@@ -101,6 +170,9 @@ def score_ping(
     *,
     tol_bins: int = 3,
     empty_beams: ArrayLike | None = None,
+    surface_range_m: ArrayLike | None = None,
+    bin_range_m: ArrayLike | None = None,
+    sigma_m: ArrayLike | None = None,
 ) -> PingScore:
     """Score one ping's labels and per-beam first returns against truth.
 
@@ -111,19 +183,36 @@ def score_ping(
     range_bins, range_m : ndarray (n_beams,)
         Reported first-return bin (-1 none) and range (NaN none).
     class_mask : ndarray (n_bins, n_beams)
-        Truth classes (1 = structure).
+        Truth classes (1 = structure, 2 = clutter).
     truth_bins, truth_range_m : ndarray (n_beams,)
-        Truth first-return bin (-1 none) and range (NaN none).
+        Truth first-return bin (-1 none) and range (NaN none); ``truth_bins >= 0`` selects the
+        beams with structure.
     tol_bins : int
         Recall tolerance in range bins.
     empty_beams : ndarray of bool (n_beams,), optional
         Beams that see no structure at all (default: beams without a truth first return).  Beams
         that are neither (faint structure below the truth threshold) count for neither recall
         nor false returns.
+    surface_range_m : ndarray (n_beams,), optional
+        Sub-bin truth (``SimResult.surface_range_m``).  When given, errors are measured against
+        it, in fractional bins of ``bin_range_m`` (reported positions from ``range_m``, or
+        ``range_bins`` where ``range_m`` is NaN); otherwise against ``truth_bins`` /
+        ``truth_range_m`` (integer bins).
+    bin_range_m : ndarray (n_bins,), optional
+        The geometry's bin ranges (``geometry.range_m``); required with ``surface_range_m``.
+    sigma_m : ndarray (n_beams,), optional
+        One-sigma uncertainty of each reported range (``BeamRanges.sigma_m``), for the sigma
+        coverage.
+
+    Raises
+    ------
+    InputError
+        If shapes disagree or ``surface_range_m`` comes without ``bin_range_m``.
     """
     rb = np.asarray(range_bins, dtype=np.int64)
     tb = np.asarray(truth_bins, dtype=np.int64)
-    if rb.shape != tb.shape:
+    rm = np.asarray(range_m, dtype=np.float64)
+    if rb.shape != tb.shape or rm.shape != tb.shape:
         raise InputError(f"range_bins: shape {rb.shape} does not match truth {tb.shape}")
     cm = np.asarray(class_mask)
     tp = fp = fn = 0
@@ -137,14 +226,47 @@ def score_ping(
         fp = int((pred & ~truth).sum())
         fn = int((~pred & truth).sum())
     has = tb >= 0
-    empty = ~has if empty_beams is None else (np.asarray(empty_beams, dtype=bool) & ~has)
+    if surface_range_m is not None:
+        if bin_range_m is None:
+            raise InputError("bin_range_m: required with surface_range_m (the geometry's range_m)")
+        grid = np.asarray(bin_range_m, dtype=np.float64)
+        truth_m = np.asarray(surface_range_m, dtype=np.float64)
+        if truth_m.shape != tb.shape:
+            raise InputError(f"surface_range_m: shape {truth_m.shape} does not match truth {tb.shape}")
+        has = has & np.isfinite(truth_m)
+        tpos = _fractional_bins(truth_m, grid)
+        rpos = np.where(np.isfinite(rm), _fractional_bins(rm, grid), rb.astype(np.float64))
+    else:
+        truth_m = np.asarray(truth_range_m, dtype=np.float64)
+        tpos = tb.astype(np.float64)
+        rpos = rb.astype(np.float64)
+    empty = ~(tb >= 0) if empty_beams is None else (np.asarray(empty_beams, dtype=bool) & ~(tb >= 0))
     rep = rb >= 0
-    hit = has & rep & (np.abs(rb - tb) <= tol_bins)
     both = has & rep
-    err = np.abs(np.asarray(range_m, dtype=np.float64)[both] - np.asarray(truth_range_m, dtype=np.float64)[both])
+    err_bins = np.where(both, rpos - tpos, np.nan)
+    hit = both & (np.abs(err_bins) <= tol_bins)
+    hit1 = both & (np.abs(err_bins) <= 1.0)
+    err_m = np.abs(rm - truth_m)
+    n_sigma = n_within = 0
+    if sigma_m is not None:
+        sg = np.asarray(sigma_m, dtype=np.float64)
+        if sg.shape != tb.shape:
+            raise InputError(f"sigma_m: shape {sg.shape} does not match truth {tb.shape}")
+        scored = both & np.isfinite(sg) & np.isfinite(err_m)
+        n_sigma = int(scored.sum())
+        n_within = int((scored & (err_m <= sg)).sum())
+    # beams whose structure has clutter (fish) in front of it in the truth mask
+    if cm.ndim == 2 and cm.shape[1] == tb.size:
+        rows = np.arange(cm.shape[0])[:, None]
+        fish = has & ((cm == 2) & (rows < np.where(tb >= 0, tb, 0)[None, :])).any(axis=0)
+    else:
+        fish = np.zeros(tb.shape, dtype=bool)
     return PingScore(tp=tp, fp=fp, fn=fn, n_struct_beams=int(has.sum()), n_hit_beams=int(hit.sum()),
                      n_empty_beams=int(empty.sum()), n_false_beams=int((empty & rep).sum()),
-                     errors_m=tuple(float(e) for e in err))
+                     errors_m=tuple(float(e) for e in err_m[both]), n_hit1_beams=int(hit1.sum()),
+                     errors_bins=tuple(float(e) for e in err_bins[both]), n_sigma_beams=n_sigma,
+                     n_within_sigma=n_within, n_fish_beams=int(fish.sum()),
+                     n_fish_hit_beams=int((fish & hit).sum()))
 
 
 def pool_scores(method: str, scores: Iterable[PingScore]) -> MethodScore:
@@ -155,7 +277,10 @@ def pool_scores(method: str, scores: Iterable[PingScore]) -> MethodScore:
     fn = sum(x.fn for x in s)
     ns = sum(x.n_struct_beams for x in s)
     ne = sum(x.n_empty_beams for x in s)
-    errs = [e for x in s for e in x.errors_m]
+    nsig = sum(x.n_sigma_beams for x in s)
+    nfish = sum(x.n_fish_beams for x in s)
+    errs = [e for x in s for e in x.errors_m if math.isfinite(e)]
+    errs_b = [e for x in s for e in x.errors_bins if math.isfinite(e)]
     return MethodScore(
         method=method,
         n_pings=len(s),
@@ -165,13 +290,18 @@ def pool_scores(method: str, scores: Iterable[PingScore]) -> MethodScore:
         false_return_rate=sum(x.n_false_beams for x in s) / ne if ne else math.nan,
         n_struct_beams=ns,
         n_empty_beams=ne,
+        recall_1bin=sum(x.n_hit1_beams for x in s) / ns if ns else math.nan,
+        median_signed_error_bins=float(np.median(errs_b)) if errs_b else math.nan,
+        sigma_coverage=sum(x.n_within_sigma for x in s) / nsig if nsig else math.nan,
+        hull_under_fish=sum(x.n_fish_hit_beams for x in s) / nfish if nfish else math.nan,
+        n_fish_beams=nfish,
     )
 
 
 #: Range rules of the "peer" protocol: the issue's per-beam extraction (first return, rejection of
 #: isolated returns) without the default pipeline's component filter, linking, band pooling and
 #: leading-edge refinement.
-PEER_RANGE_RULES: dict[str, Any] = dict(min_component_beams=1, min_component_pixels=0, link_beams=0,
+PEER_RANGE_RULES: dict[str, Any] = dict(tracker="rules", min_component_beams=1, min_component_pixels=0, link_beams=0,
                                         pool_factor=0.0, refine_bins=0, min_component_extent_m=0.0)
 
 
@@ -242,11 +372,13 @@ def preset_sim_configs(geometry: Any, noise_steps_db: Sequence[float] = (0.0, 6.
 def evaluate_presets(
     config: Any = None, *, presets: Sequence[str] = ACCEPTANCE_PRESETS,
     scenes: Sequence[str] = ACCEPTANCE_SCENES, seeds: Sequence[int] = (0, 1, 2), per_scene: bool = True,
+    truth: str = "first_return",
 ) -> list[MethodScore]:
     """The same pipeline on every sonar preset: one row per preset (and per preset and scene).
 
     Rows are named ``"<preset>"`` and ``"<preset> | <scene>"``; the pings are those of
-    :func:`preset_sim_configs` x ``seeds`` x ``scenes`` (scenes scaled to each sonar's window).
+    :func:`preset_sim_configs` x ``seeds`` x ``scenes`` (scenes scaled to each sonar's window);
+    ``truth`` as in :func:`evaluate`.
     """
     from sonarmap.geometry import preset
     from sonarmap.pipeline import PipelineConfig
@@ -256,33 +388,80 @@ def evaluate_presets(
     for name in presets:
         geom = preset(name)
         rows = evaluate({name: cfg}, scenes=scenes, sim_configs=preset_sim_configs(geom), seeds=seeds,
-                        geometry=geom, per_scene=per_scene)
+                        geometry=geom, per_scene=per_scene, truth=truth)
         out.extend(rows)
     return out
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """``python -m sonarmap.evaluate [--presets NAME,...] [--seeds N]``: the every-sonar table."""
+    """``python -m sonarmap.evaluate [--ranges] [--presets NAME,...] [--seeds N]``.
+
+    Without ``--ranges``: the every-sonar table (:func:`evaluate_presets`).  With ``--ranges``:
+    the ranges acceptance (:func:`evaluate_ranges`: presets x :data:`RANGES_SCENES`, scored
+    against the sub-bin surface truth), its per-preset table and the sloped-hull and
+    hull-under-fish figures.
+    """
     import argparse
 
     ap = argparse.ArgumentParser(prog="python -m sonarmap.evaluate", description=main.__doc__)
     ap.add_argument("--presets", default=",".join(ACCEPTANCE_PRESETS), help="comma-separated preset names")
     ap.add_argument("--seeds", type=int, default=3, help="seeds per scene and noise level")
+    ap.add_argument("--ranges", action="store_true", help="the ranges acceptance (sub-bin truth)")
+    ap.add_argument("--per-scene", action="store_true", help="with --ranges: also one row per preset and scene")
     args = ap.parse_args(None if argv is None else list(argv))
-    rows = evaluate_presets(presets=[p for p in args.presets.split(",") if p], seeds=tuple(range(args.seeds)))
+    presets = [p for p in args.presets.split(",") if p]
+    if args.ranges:
+        report = evaluate_ranges(presets=presets, seeds=tuple(range(args.seeds)))
+        print(report.table(per_scene=args.per_scene))
+        return 0
+    rows = evaluate_presets(presets=presets, seeds=tuple(range(args.seeds)))
     print(format_table(rows))
     return 0
 
 
-def _simulate(scene: str, geometry: Any, sim_config: Any, seed: int, empty_snr_db: float) -> tuple[Any, Any]:
+def _simulate(scene: str, geometry: Any, sim_config: Any, seed: int, empty_snr_db: float,
+              recording_meta: bool = False) -> tuple[Any, Any]:
     """The simulated ping and its 'no structure at all' beams (no structure pixel >= empty_snr_db)."""
     from sonarmap.simulate import scene_from_name, simulate_ping
 
     sc = scene_from_name(scene, geometry=geometry)
-    sim = simulate_ping(sc, geometry, config=sim_config, seed=seed)
+    sim = simulate_ping(sc, geometry, config=sim_config, seed=seed, recording_meta=recording_meta)
     if empty_snr_db >= sim_config.truth_snr_db:
         return sim, None
     return sim, ~(sim.structure_peak_snr_db >= empty_snr_db)
+
+
+#: Range truths :func:`evaluate` can score against.
+TRUTHS = ("first_return", "surface")
+
+
+def _score_sim(prod: Any, sim: Any, empty: Any, tol_bins: int, truth: str) -> PingScore:
+    """Score a pipeline product against a simulated ping's truth (``truth`` in :data:`TRUTHS`)."""
+    ranges = prod.ranges
+    surface = sim.surface_range_m if truth == "surface" else None
+    return score_ping(prod.labels, ranges.bin, ranges.range_m, sim.class_mask, sim.first_return_bin,
+                      sim.first_return_range_m, tol_bins=tol_bins, empty_beams=empty,
+                      surface_range_m=surface, bin_range_m=sim.ping.geometry.range_m,
+                      sigma_m=getattr(ranges, "sigma_m", None))
+
+
+def _run(
+    configs: Mapping[str, Any], scenes: Sequence[str], sim_configs: Sequence[Any], seeds: Sequence[int],
+    geometry: Any, tol_bins: int, empty_snr_db: float, truth: str = "first_return", recording_meta: bool = False,
+) -> dict[str, dict[str, list[PingScore]]]:
+    """Per method and scene, the scores of every simulated ping."""
+    from sonarmap.pipeline import process_ping
+
+    sims = [(scene, _simulate(scene, geometry, sc, seed, empty_snr_db, recording_meta))
+            for scene in scenes for sc in sim_configs for seed in seeds]
+    out: dict[str, dict[str, list[PingScore]]] = {}
+    for name, cfg in configs.items():
+        per: dict[str, list[PingScore]] = {}
+        for scene, (sim, empty) in sims:
+            prod = process_ping(sim.ping, cfg, keep_labels=True)
+            per.setdefault(scene, []).append(_score_sim(prod, sim, empty, tol_bins, truth))
+        out[name] = per
+    return out
 
 
 def evaluate(
@@ -295,6 +474,7 @@ def evaluate(
     tol_bins: int = 3,
     per_scene: bool = False,
     empty_snr_db: float = -3.0,
+    truth: str = "surface",
 ) -> list[MethodScore]:
     """Run every pipeline on simulated pings and pool the scores per method.
 
@@ -319,44 +499,148 @@ def evaluate(
         unblurred expected echo reaches this level re background (default -3 dB, the
         simulator's own truth threshold); beams with structure between this and the truth
         threshold are scored for neither recall nor false returns.
+    truth : {"first_return", "surface"}
+        Range truth: ``"first_return"`` the integer first structure bin of the class mask
+        (``SimResult.first_return_bin``: the earliest bin whose echo clears the truth threshold,
+        the convention of the per-pixel first-return pipeline the existing acceptance tables
+        were measured with); ``"surface"`` the sub-bin physical surface
+        ``SimResult.surface_range_m`` in fractional bins (the leading-edge convention of
+        ``DESIGN.md``; :func:`evaluate_ranges`).
 
     Returns
     -------
     list of MethodScore
+
+    Raises
+    ------
+    InputError
+        For an unknown ``truth``.
     """
     from sonarmap.geometry import preset
-    from sonarmap.pipeline import process_ping
 
+    if truth not in TRUTHS:
+        raise InputError(f"truth: one of {', '.join(TRUTHS)}, got {truth!r}")
     geom = preset("didson-hf") if geometry is None else geometry
     cfgs = baseline_configs() if configs is None else dict(configs)
     if sim_configs is None:
         sim_configs = default_sim_configs()
-    sims = [(scene, _simulate(scene, geom, sc, seed, empty_snr_db)) for scene in scenes for sc in sim_configs for seed in seeds]
+    runs = _run(cfgs, scenes, sim_configs, seeds, geom, tol_bins, empty_snr_db, truth)
     out: list[MethodScore] = []
-    for name, cfg in cfgs.items():
-        per: dict[str, list[PingScore]] = {}
-        for scene, (sim, empty) in sims:
-            prod = process_ping(sim.ping, cfg, keep_labels=True)
-            sc = score_ping(prod.labels, prod.ranges.bin, prod.ranges.range_m, sim.class_mask,
-                            sim.first_return_bin, sim.first_return_range_m, tol_bins=tol_bins,
-                            empty_beams=empty)
-            per.setdefault(scene, []).append(sc)
+    for name, per in runs.items():
         out.append(pool_scores(name, [x for v in per.values() for x in v]))
         if per_scene:
             out.extend(pool_scores(f"{name} | {scene}", v) for scene, v in per.items())
     return out
 
 
+#: Presets and scenes of the ranges acceptance (:func:`evaluate_ranges`).
+RANGES_PRESETS = ACCEPTANCE_PRESETS
+RANGES_SCENES = ("hull", "hull_slope2", "hull_slope4", "hull_slope8", "curved_hull", "propeller", "seafloor",
+                 "fish_over_hull", "fish", "empty")
+#: Sloped-hull scenes (2-8 bins of range change per beam) pooled for the sloped-recall figure.
+SLOPED_SCENES = ("hull_slope2", "hull_slope4", "hull_slope8")
+
+
+@dataclasses.dataclass(frozen=True)
+class RangesReport:
+    """The ranges acceptance: per-preset (and per preset and scene) scores and two figures.
+
+    Attributes
+    ----------
+    rows : tuple of MethodScore
+        ``"<preset>"`` (all scenes) and ``"<preset> | <scene>"`` rows.
+    sloped : MethodScore
+        Pooled over every preset's sloped-hull scenes (:data:`SLOPED_SCENES`): its ``recall`` is
+        the "sloped (2-8 bins/beam) recall within 3 bins".
+    fish_over_hull : MethodScore
+        Pooled over every preset's ``fish_over_hull`` pings: its ``hull_under_fish`` is the
+        "hull reported under fish" figure.
+    """
+
+    rows: tuple[MethodScore, ...]
+    sloped: MethodScore
+    fish_over_hull: MethodScore
+
+    def table(self, *, per_scene: bool = False) -> str:
+        """The per-preset markdown table (with ``per_scene``, also the scene rows) and the figures."""
+        rows = [r for r in self.rows if per_scene or " | " not in r.method]
+        s, f = self.sloped, self.fish_over_hull
+        return "\n".join([
+            format_table(rows),
+            "",
+            f"sloped (2-8 bins/beam) recall within 3 bins: {s.recall:.3f} (within 1 bin {s.recall_1bin:.3f}, "
+            f"median signed error {s.median_signed_error_bins:+.2f} bins, {s.n_struct_beams} beams)",
+            f"hull reported under fish (within 3 bins): {f.hull_under_fish:.3f} ({f.n_fish_beams} beams with "
+            "fish in front of the hull)",
+        ])
+
+
+def evaluate_ranges(
+    config: Any = None, *, presets: Sequence[str] = RANGES_PRESETS, scenes: Sequence[str] = RANGES_SCENES,
+    seeds: Sequence[int] = (0,), noise_steps_db: Sequence[float] = (0.0, 6.0), tol_bins: int = 3,
+) -> RangesReport:
+    """The ranges acceptance: one pipeline on every preset x scene, scored on sub-bin truth.
+
+    Pings: :func:`preset_sim_configs` (each preset's own noise floor and +6 dB, truth threshold
+    +6 dB; DIDSON with its measured ghosts) x ``seeds`` x ``scenes``, each declaring its pulse
+    and (ARIS) log compression as a recording's header would (``simulate_ping(...,
+    recording_meta=True)``), so the pipeline measures echoes as on real data.  Scores as in
+    :func:`evaluate` (recall within 3 and 1 bins of ``SimResult.surface_range_m``, median signed
+    error in bins, false-return rate on empty beams, sigma coverage when the ranges carry
+    ``sigma_m``, hull under fish).
+
+    Parameters
+    ----------
+    config : PipelineConfig, optional
+        The pipeline (default ``PipelineConfig()``).
+    presets, scenes : sequence of str
+        Sonar presets and simulator scenes.
+    seeds : sequence of int
+        Simulator seeds.
+    noise_steps_db : sequence of float
+        Receiver-noise steps over each preset's profile.
+    tol_bins : int
+        Recall tolerance.
+
+    Returns
+    -------
+    RangesReport
+    """
+    from sonarmap.geometry import preset
+    from sonarmap.pipeline import PipelineConfig
+
+    cfg = PipelineConfig() if config is None else config
+    rows: list[MethodScore] = []
+    sloped: list[PingScore] = []
+    fish: list[PingScore] = []
+    for name in presets:
+        geom = preset(name)
+        per = _run({name: cfg}, scenes, preset_sim_configs(geom, noise_steps_db), seeds, geom, tol_bins,
+                   -3.0, "surface", recording_meta=True)[name]
+        rows.append(pool_scores(name, [x for v in per.values() for x in v]))
+        rows.extend(pool_scores(f"{name} | {scene}", v) for scene, v in per.items())
+        sloped.extend(x for scene in SLOPED_SCENES for x in per.get(scene, []))
+        fish.extend(per.get("fish_over_hull", []))
+    return RangesReport(rows=tuple(rows), sloped=pool_scores("sloped hulls", sloped),
+                        fish_over_hull=pool_scores("fish_over_hull", fish))
+
+
+def _fmt(x: float, spec: str = ".3f") -> str:
+    return "-" if not math.isfinite(x) else format(x, spec)
+
+
 def format_table(scores: Sequence[MethodScore]) -> str:
-    """Markdown table of scores."""
+    """Markdown table of scores (``-`` where a figure is undefined, e.g. no sigma)."""
     lines = [
-        "| method | pings | pixel F1 | recall (3 bins) | median error (m) | false-return rate |",
-        "|---|---|---|---|---|---|",
+        "| method | pings | pixel F1 | recall (3 bins) | recall (1 bin) | median error (m) | "
+        "median signed error (bins) | false-return rate | sigma coverage |",
+        "|---|---|---|---|---|---|---|---|---|",
     ]
     for s in scores:
         lines.append(
-            f"| {s.method} | {s.n_pings} | {s.pixel_f1:.3f} | {s.recall:.3f} | "
-            f"{s.median_error_m:.3f} | {s.false_return_rate:.3f} |"
+            f"| {s.method} | {s.n_pings} | {_fmt(s.pixel_f1)} | {_fmt(s.recall)} | {_fmt(s.recall_1bin)} | "
+            f"{_fmt(s.median_error_m)} | {_fmt(s.median_signed_error_bins, '+.2f')} | "
+            f"{_fmt(s.false_return_rate)} | {_fmt(s.sigma_coverage)} |"
         )
     return "\n".join(lines)
 

@@ -6,21 +6,30 @@
 >>> res.ping.image.shape, int(res.class_mask.max())
 ((512, 96), 1)
 
-Every sonar renders with its own profile of gain, floor and receiver (:mod:`sonarmap.simulate.presets`)
-for the :class:`SimulationConfig` fields the caller leaves unset.  See ``docs/simulator.md`` for the
+Every sonar renders with its own profile of gain, floor, receiver, transmit pulse and main lobe
+(:mod:`sonarmap.simulate.presets`) for the :class:`SimulationConfig` fields the caller leaves unset.
+Besides the class mask, every ping carries the sub-bin physical surface range per beam
+(:attr:`SimResult.surface_range_m`).  See ``docs/simulator.md`` for the
 model, its order of operations and how it compares with the real DIDSON, ARIS and Oculus recordings.
 """
 
 from __future__ import annotations
 
 from sonarmap.simulate.render import (
+    EdgeRise,
     SimResult,
     SimulationConfig,
     SimulationFiles,
+    beam_widths_for,
     channel_gain,
     expected_background_image,
     expected_background_level,
+    first_peak_crossing,
+    leading_edges_m,
+    measure_edge_rise,
+    pulse_envelope,
     read_truth,
+    render_psf,
     seawater_absorption_db_per_m,
     simulate_ping,
     simulation_config_for,
@@ -45,6 +54,8 @@ from sonarmap.simulate.scene import (
     scene_from_name,
     scene_scale_for,
     seafloor,
+    sloped_hull,
+    sloped_hull_yaw_deg,
     view_for,
 )
 
@@ -72,6 +83,15 @@ __all__ = [
     "expected_background_level",
     "expected_background_image",
     "seawater_absorption_db_per_m",
+    "pulse_envelope",
+    "beam_widths_for",
+    "render_psf",
+    "first_peak_crossing",
+    "leading_edges_m",
+    "EdgeRise",
+    "measure_edge_rise",
+    "sloped_hull",
+    "sloped_hull_yaw_deg",
     "plane_patch",
     "planar_hull",
     "curved_hull",

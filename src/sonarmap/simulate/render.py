@@ -2,9 +2,13 @@
 
 Processing order (each step documented in ``docs/simulator.md``)::
 
-    per-pixel echo energy  E[i, j]  = sum over samples in (bin i, beam j) of
+    per-pixel echo energy  E[i, j]  = sum over samples of
                                       reflectivity * area * |cos inc|^p * b(elevation)
-    beam pattern           E' = E (*) psf        linear convolution across beams (eq. 2)
+                                      * P_i(r) * L_j(azimuth)
+                           P_i: share of the sample's echo - its patch's range tent through the
+                           causal transmit pulse (pulse_envelope) - falling in bin i (sub-bin);
+                           L_j: beam j's Gaussian main lobe towards the sample (sub-beam)
+    ghost taps             E' = E (*) psf        linear convolution across beams (eq. 2)
     taper                  E'' = k(theta_j) E'   per-beam gain (eq. 5)
     channel                m = E'' 10^((SL + G - FS - TL(r)) / 10),
                            TL(r) = 20 beta log10 r + 2 alpha r      (eqs. 6-7: k1 = 20 beta, k2 = 2 alpha)
@@ -23,6 +27,11 @@ full-scale level (received level that maps to pixel 1), ``RV`` the per-pixel vol
 to the 116 real DIDSON background pings; other sonars take their defaults from a sonar profile
 (:mod:`sonarmap.simulate.presets`, chosen from the geometry's name) for every field the caller does
 not set (see ``docs/simulator.md``).
+
+Truth: the class mask and first-return bin from every sample in its nearest bin and azimuth
+cell; the sub-bin physical surface ``SimResult.surface_range_m`` from the nearest structure in
+each beam's two-way -3 dB footprint.  :func:`measure_edge_rise`, :func:`first_peak_crossing` and
+:func:`leading_edges_m` measure leading edges of real and simulated pings alike.
 """
 
 from __future__ import annotations
@@ -36,7 +45,7 @@ from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from sonarmap.errors import InputError
 from sonarmap.geometry import SonarGeometry
@@ -56,6 +65,18 @@ __all__ = [
     "seawater_absorption_db_per_m",
     "write_simulation",
     "read_truth",
+    "pulse_envelope",
+    "beam_widths_for",
+    "DEFAULT_BEAM_WIDTH_GAPS",
+    "main_lobe_taps",
+    "ghost_psf",
+    "render_psf",
+    "MEASURED_DIDSON_GHOSTS",
+    "MAX_FURTHER_SURFACES",
+    "first_peak_crossing",
+    "leading_edges_m",
+    "EdgeRise",
+    "measure_edge_rise",
 ]
 
 
@@ -154,9 +175,31 @@ class SimulationConfig:
     looks : int
         Independent speckle draws averaged per pixel (intensity gamma-distributed with this shape;
         1: single-look exponential speckle, as the DIDSON).
+    pulse_length_m : float
+        Length along range of the transmit pulse, ``L = c tau / 2`` (m).  The echo of a point at
+        range ``r0`` starts at ``r0`` (causal) and lasts ``L``, with the intensity envelope of
+        :func:`pulse_envelope` (raised-cosine rise and fall of ``pulse_rise_m``, flat between);
+        each sample's echo energy is split over the bins its envelope overlaps in proportion to
+        the envelope's integral over each bin (sub-bin: a surface's echo is not quantised to the
+        bin grid).  Energy is conserved (the envelope has unit area).  0: no pulse.  Default
+        5 mm (0.28 DIDSON bin, ``tau`` ~7 us): the real DIDSON speckle is almost uncorrelated
+        along range and its sharpest echoes rise as fast as the simulator's
+        (``docs/simulator.md``).  A surface's half-peak leading edge lags the surface by
+        :attr:`leading_edge_delay_m`.
+    pulse_rise_m : float or None
+        Raised-cosine rise (= fall) length of the envelope, ``0 <= rise <= L / 2``; ``None``: ``L / 2``
+        (a Hann-shaped envelope without flat top).  ``0`` gives a rectangular pulse.
+    beam_width_rad : float or None
+        Two-way -3 dB horizontal width of a beam's main lobe (rad).  The main lobe spreads each
+        direction's echo into the neighbouring beams with the Gaussian two-way pattern
+        ``exp(-4 ln2 (d dtheta / beam_width)^2)`` at ``d`` beams (``dtheta`` the mean beam
+        spacing), convolved with the ghost taps in :func:`render_psf`: a sloped surface then has
+        the halo of the neighbouring beams' nearer echoes in front of it.  ``None``: the
+        geometry's own beam width (:func:`beam_width_for`: the ARIS beam-width tables, else one
+        beam spacing); ``0``: no main-lobe spread (each direction only in its own beam).
     range_resolution_m : float
-        Range resolution of the pulse: the expected echo is averaged along range over a box of
-        ``round(range_resolution_m / bin spacing)`` bins when that is 2 or more (0: none).
+        Deprecated (the centred range box of earlier versions): a value larger than
+        ``pulse_length_m`` is used as the pulse length.  Default 0.
     ring_down_level : float
         Near-field ring-down of the transducer, in full-scale intensity at range 0; it decays as
         ``exp(-r / ring_down_m)``, is not tapered and fades like reverberation (0: none).
@@ -203,6 +246,9 @@ class SimulationConfig:
     dynamic_range_db: float = 40.0
     looks: int = 1
     range_resolution_m: float = 0.0
+    pulse_length_m: float = 0.005
+    pulse_rise_m: float | None = None
+    beam_width_rad: float | None = None
     ring_down_level: float = 0.0
     ring_down_m: float = 0.005
 
@@ -237,10 +283,44 @@ class SimulationConfig:
         object.__setattr__(self, "looks", int(self.looks))
         if self.range_resolution_m < 0:
             raise InputError(f"config.range_resolution_m: must be >= 0 (got {self.range_resolution_m})")
+        if self.pulse_length_m < 0:
+            raise InputError(f"config.pulse_length_m: must be >= 0 (got {self.pulse_length_m})")
+        if self.pulse_rise_m is not None:
+            if not math.isfinite(float(self.pulse_rise_m)):
+                raise InputError(f"config.pulse_rise_m: must be finite (got {self.pulse_rise_m})")
+            if not 0 <= self.pulse_rise_m <= 0.5 * max(self.pulse_length_m, self.range_resolution_m) + 1e-12:
+                raise InputError(
+                    f"config.pulse_rise_m: must be in [0, pulse_length_m / 2] (got {self.pulse_rise_m})"
+                )
+        if self.beam_width_rad is not None:
+            if not math.isfinite(float(self.beam_width_rad)) or self.beam_width_rad < 0:
+                raise InputError(f"config.beam_width_rad: must be >= 0 or None (got {self.beam_width_rad})")
         if self.ring_down_level < 0:
             raise InputError(f"config.ring_down_level: must be >= 0 (got {self.ring_down_level})")
         if not self.ring_down_m > 0:
             raise InputError(f"config.ring_down_m: must be positive (got {self.ring_down_m})")
+
+    @property
+    def pulse(self) -> tuple[float, float]:
+        """``(length, rise)`` of the rendered pulse envelope in metres.
+
+        The length is ``max(pulse_length_m, range_resolution_m)`` (the deprecated field only ever
+        lengthens it); the rise is ``pulse_rise_m``, or half the length when that is ``None``.
+        """
+        length = max(float(self.pulse_length_m), float(self.range_resolution_m))
+        rise = 0.5 * length if self.pulse_rise_m is None else min(float(self.pulse_rise_m), 0.5 * length)
+        return length, rise
+
+    @property
+    def leading_edge_delay_m(self) -> float:
+        """How far the half-peak leading edge of a surface's echo lies behind the surface (m).
+
+        The pulse is causal, so the echo's 0.5-of-first-peak crossing is late by the envelope's
+        centroid, half the pulse length (measured on noise-free renders of flat and sloped hulls
+        and the seafloor: ``docs/simulator.md``); a point target's by ``rise / 2``.  Subtract it
+        from a leading-edge range to compare with ``SimResult.surface_range_m``.
+        """
+        return 0.5 * self.pulse[0]
 
     @property
     def explicit_fields(self) -> frozenset[str]:
@@ -354,12 +434,26 @@ class SimResult:
     seed : int or None
         The integer seed when one was given.
     unblurred : ndarray, shape (n_bins, n_beams), float32
-        Like ``clean`` but before the beam pattern (the ideal image deconvolution aims at).
+        Like ``clean`` but before the beam pattern - main lobe and ghosts: each direction's echo
+        in its own azimuth cell (through the pulse; the ideal image deconvolution aims at).
     structure_peak_snr_db : ndarray, shape (n_beams,), float64
         Per beam, the highest structure-to-background ratio (dB, unblurred) of a pixel where
         structure is not outshone by clutter; ``-inf`` where none.  A beam has structure in the
         class mask at a truth threshold ``t`` exactly when this is ``>= t``, so callers can ask
         about another threshold without rendering again.
+    surface_range_m : ndarray, shape (n_beams,), float64
+        Sub-bin physical truth of the first surface: per beam, the nearest range of the structure
+        samples in the beam's azimuth cell (and the range window) whose two-way elevation weight
+        is >= 0.5 (the beam's -3 dB footprint; a beam whose structure never reaches 0.5 uses half
+        its largest weight instead).  It is not quantised to the bin grid: it is the range a
+        leading-edge detector (first crossing of 0.5 x the echo's first peak) should report.
+        NaN on the beams without truth structure (``first_return_bin == -1``).
+    surface_ranges_m : ndarray, shape (k, n_beams), float64
+        Further surfaces behind ``surface_range_m`` on each beam, nearest first (like
+        ``BeamRanges.other_range_m``): the same rule applied to the footprint samples after a gap
+        in range of more than the pulse length plus two bins (e.g. propeller blades behind the
+        hub, a hull behind a rudder).  Geometric only (no visibility test); NaN where none;
+        ``k`` (at most :data:`MAX_FURTHER_SURFACES`) may be 0.
     """
 
     ping: Ping
@@ -372,6 +466,8 @@ class SimResult:
     seed: int | None = None
     unblurred: NDArray[np.float32] | None = None
     structure_peak_snr_db: NDArray[np.float64] | None = None
+    surface_range_m: NDArray[np.float64] | None = None
+    surface_ranges_m: NDArray[np.float64] | None = None
 
 
 # ---------------------------------------------------------------------- channel quantities
@@ -533,43 +629,443 @@ def _elevation_weight(el: NDArray[np.float64], config: SimulationConfig) -> NDAr
     return np.exp(-4.0 * math.log(2.0) * (el / w) ** 2)
 
 
-def _accumulate(
-    scene: Scene, geometry: SonarGeometry, config: SimulationConfig
-) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Unblurred per-pixel echo energy (linear m^2) for structure and clutter, each (n_bins, n_beams)."""
-    nb, nbeam = geometry.shape
-    size = nb * nbeam
+# ---------------------------------------------------------------------- transmit pulse
+
+
+def pulse_envelope(x_m: ArrayLike, length_m: float, rise_m: float | None = None) -> NDArray[np.float64]:
+    """Intensity envelope (peak 1) of the echo of a point target, ``x_m`` metres behind it.
+
+    Causal: 0 for ``x < 0`` and ``x > L``; a raised-cosine rise ``(1 - cos(pi x / R)) / 2`` over
+    ``0 <= x < R``, 1 over ``R <= x <= L - R`` and the mirrored raised-cosine fall over the last
+    ``R``.  ``R = rise_m`` (default ``L / 2``: a Hann-shaped envelope without flat top; ``0``: a
+    rectangle).  Its area is ``L - R``; its 10-90 % rise is ``0.59 R``.
+
+    Parameters
+    ----------
+    x_m : array_like
+        Distance behind the target along range (m).
+    length_m : float
+        Pulse length along range ``L = c tau / 2`` (m), > 0.
+    rise_m : float, optional
+        Rise (= fall) length, ``0 <= R <= L / 2``.
+
+    Returns
+    -------
+    ndarray
+        The envelope at ``x_m``.
+
+    Examples
+    --------
+    >>> pulse_envelope([-0.01, 0.0025, 0.005, 0.01, 0.02], 0.01).round(3).tolist()
+    [0.0, 0.5, 1.0, 0.0, 0.0]
+    """
+    x = np.asarray(x_m, dtype=np.float64)
+    length = float(length_m)
+    rise = 0.5 * length if rise_m is None else float(rise_m)
+    if not length > 0 or not 0 <= rise <= 0.5 * length + 1e-15:
+        raise InputError(f"length_m/rise_m: need L > 0 and 0 <= R <= L/2 (got {length_m}, {rise_m})")
+    out = ((x >= 0) & (x <= length)).astype(np.float64)
+    if rise > 0:
+        up = (x >= 0) & (x < rise)
+        out[up] = 0.5 * (1.0 - np.cos(math.pi * x[up] / rise))
+        down = (x > length - rise) & (x <= length)
+        out[down] = 0.5 * (1.0 + np.cos(math.pi * (x[down] - (length - rise)) / rise))
+    return out
+
+
+def _pulse_cdf(x: NDArray[np.float64], length: float, rise: float) -> NDArray[np.float64]:
+    """Fraction of the unit-area envelope of :func:`pulse_envelope` lying before ``x``."""
+    if length <= 0:
+        return (x >= 0).astype(np.float64)
+    xc = np.clip(x, 0.0, length)
+    if rise <= 0:
+        return xc / length
+    k = rise / math.pi
+    flat_end = length - rise
+    e = np.where(
+        xc < rise,
+        0.5 * (xc - k * np.sin(xc / k)),
+        np.where(
+            xc <= flat_end,
+            0.5 * rise + (xc - rise),
+            (length - 1.5 * rise) + 0.5 * ((xc - flat_end) + k * np.sin((xc - flat_end) / k)),
+        ),
+    )
+    return e / (length - rise)
+
+
+class _PulseKernel:
+    """CDF of the echo of a patch: the unit-area pulse envelope convolved with a tent.
+
+    A patch of range half-extent ``h`` spreads its echo with the tent ``box(h) * box(h)``
+    (half-width ``h``; unlike a box, a row of tents at any spacing below ``h`` sums to an almost
+    flat surface).  With ``P`` the pulse's CDF and ``S`` its second antiderivative, the CDF is the
+    second difference ``(S(x + h) - 2 S(x) + S(x - h)) / h^2``.
+    """
+
+    def __init__(self, length: float, rise: float) -> None:
+        self.length = float(length)
+        self.rise = float(rise)
+        if self.length > 0:
+            x = np.linspace(0.0, self.length, 4097)
+            p = _pulse_cdf(x, self.length, self.rise)
+            dx = np.diff(x)
+            q = np.concatenate([[0.0], np.cumsum(0.5 * (p[1:] + p[:-1]) * dx)])
+            s2 = np.concatenate([[0.0], np.cumsum(0.5 * (q[1:] + q[:-1]) * dx)])
+            self._x, self._q, self._s = x, q, s2
+
+    def _second(self, x: NDArray[np.float64]) -> NDArray[np.float64]:
+        """``S(x)``: the pulse CDF integrated twice (0 before the pulse, quadratic after it)."""
+        if self.length <= 0:
+            return 0.5 * np.maximum(x, 0.0) ** 2
+        # linear interpolation on the uniform table, by index (no search)
+        n = self._s.size - 1
+        pos = np.clip(x * (n / self.length), 0.0, n)
+        i = np.minimum(pos.astype(np.int64), n - 1)
+        f = pos - i
+        inside = self._s[i] * (1.0 - f) + self._s[i + 1] * f
+        u = x - self.length
+        after = self._s[-1] + self._q[-1] * u + 0.5 * u * u
+        return np.where(u > 0, after, inside)
+
+    def cdf(self, x: NDArray[np.float64], half_width: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Fraction of the echo of a patch at ``r`` (tent half-width ``half_width``) before ``r + x``."""
+        wide = half_width > 1e-9
+        if not wide.any():
+            return _pulse_cdf(x, self.length, self.rise)
+        h = np.where(wide, half_width, 1.0)
+        tent = np.clip((self._second(x + h) - 2.0 * self._second(x) + self._second(x - h)) / (h * h), 0.0, 1.0)
+        if wide.all():
+            return tent
+        return np.where(wide, tent, _pulse_cdf(x, self.length, self.rise))
+
+
+@dataclasses.dataclass(frozen=True)
+class _Samples:
+    """Per-sample quantities of a scene seen by a geometry (only samples inside the fan)."""
+
+    r: NDArray[np.float64]
+    beam: NDArray[np.int64]
+    weight_el: NDArray[np.float64]
+    energy: NDArray[np.float64]
+    labels: NDArray[np.uint8]
+    extent: NDArray[np.float64]
+    az: NDArray[np.float64]
+    az_extent: NDArray[np.float64]
+    points: NDArray[np.float64]
+    normals: NDArray[np.float64]
+    size: NDArray[np.float64]
+
+
+def _samples(scene: Scene, geometry: SonarGeometry, config: SimulationConfig) -> _Samples:
+    """Range, beam (azimuth cell), two-way elevation weight, echo energy and range extent of
+    every sample inside the fan.
+
+    A surface sample stands for a patch of side ``sqrt(patch_area_m2)``; its echo is spread in
+    range by a tent of half-width ``side * sin(incidence)`` (``extent``; the patch's range
+    extent) and in azimuth by a tent of half-width its across-track extent over ``hypot(x, y)``
+    (``az_extent``), so a surface's samples tile it instead of beating against the bin and beam
+    grids; point scatterers (zero normal) have no extent.
+    """
     if len(scene) == 0:
-        z = np.zeros((nb, nbeam))
-        return z, z.copy()
+        z = np.zeros(0)
+        z3 = np.zeros((0, 3))
+        return _Samples(z, np.zeros(0, np.int64), z, z, np.zeros(0, np.uint8), z, z, z, z3, z3, z)
     p = scene.points_m
     x, y, zc = p[:, 0], p[:, 1], p[:, 2]
     rho = np.hypot(x, y)
     r = np.hypot(rho, zc)
     az = np.arctan2(y, x)
     el = np.arctan2(zc, rho)
-    r_edges = _edges(geometry.range_m)
     a_edges = _edges(geometry.azimuth_rad)
-    bi = np.searchsorted(r_edges, r, side="right") - 1
     bj = np.searchsorted(a_edges, az, side="right") - 1
-    inside = (bi >= 0) & (bi < nb) & (bj >= 0) & (bj < nbeam) & (r > 0)
     nrm = scene.normals
     with np.errstate(invalid="ignore", divide="ignore"):
-        cos_inc = np.abs(np.einsum("ij,ij->i", nrm, p)) / r
+        cos_inc = np.nan_to_num(np.abs(np.einsum("ij,ij->i", nrm, p)) / r)
     isotropic = ~np.any(nrm != 0, axis=1)
-    g = np.where(isotropic, 1.0, np.nan_to_num(cos_inc) ** config.incidence_exponent)
-    energy = scene.reflectivity * scene.patch_area_m2 * g * _elevation_weight(el, config)
-    flat = bi * nbeam + bj
-    sel = inside & (energy > 0)
+    g = np.where(isotropic, 1.0, cos_inc ** config.incidence_exponent)
+    w_el = _elevation_weight(el, config)
+    energy = scene.reflectivity * scene.patch_area_m2 * g * w_el
+    size = np.where(isotropic, 0.0, np.sqrt(scene.patch_area_m2))
+    extent = size * np.sqrt(np.clip(1.0 - cos_inc * cos_inc, 0.0, 1.0))
+    # across-track extent: the patch projected on the azimuth direction (-sin az, cos az, 0)
+    n_az = -nrm[:, 0] * np.sin(az) + nrm[:, 1] * np.cos(az)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        az_extent = np.nan_to_num(size * np.sqrt(np.clip(1.0 - n_az * n_az, 0.0, 1.0)) / rho)
+    keep = (bj >= 0) & (bj < geometry.n_beams) & (r > 0) & (energy > 0)
+    return _Samples(r[keep], bj[keep].astype(np.int64), w_el[keep], energy[keep], scene.labels[keep],
+                    extent[keep], az[keep], az_extent[keep], p[keep], nrm[keep], size[keep])
+
+
+def _accumulate(
+    smp: _Samples, geometry: SonarGeometry, labels: tuple[int, ...] = (STRUCTURE, CLUTTER),
+) -> list[NDArray[np.float64]]:
+    """Per-pixel echo energy (linear m^2) for the truth, one (n_bins, n_beams) image per label:
+    each sample in the bin containing its range (the nearest bin centre) and its azimuth cell."""
+    nb, nbeam = geometry.shape
+    size = nb * nbeam
+    r_edges = _edges(geometry.range_m)
     out = []
-    for label in (STRUCTURE, CLUTTER):
-        m = sel & (scene.labels == label)
-        if np.any(m):
-            acc = np.bincount(flat[m], weights=energy[m], minlength=size)
-        else:
-            acc = np.zeros(size)
+    for label in labels:
+        m = smp.labels == label
+        b0 = np.searchsorted(r_edges, smp.r[m], side="right") - 1
+        ok = (b0 >= 0) & (b0 < nb)
+        acc = np.bincount((b0 * nbeam + smp.beam[m])[ok], weights=smp.energy[m][ok], minlength=size)
         out.append(acc.reshape(nb, nbeam))
-    return out[0], out[1]
+    return out
+
+
+def _azimuth_parts(
+    az: NDArray[np.float64], cell: NDArray[np.int64], half_extent: NDArray[np.float64],
+    a_edges: NDArray[np.float64], nbeam: int,
+) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.float64]]:
+    """The azimuth cells each patch's tent (half-width ``half_extent``) overlaps:
+    (sample index, cell, share), zero shares dropped."""
+    step = _min_step(a_edges)
+    reach = int(math.ceil(_max(half_extent) / step)) if math.isfinite(step) else 0
+    parts = []
+    for d in range(-reach, reach + 1):
+        beam = cell + d
+        cb = np.clip(beam, 0, nbeam - 1)
+        frac = _tent_cdf(a_edges[cb + 1] - az, half_extent) - _tent_cdf(a_edges[cb] - az, half_extent)
+        parts.append((beam, np.where((beam >= 0) & (beam < nbeam), frac, 0.0)))
+    idx, beams, weights = [], [], []
+    for beam, w in parts:
+        ok = np.flatnonzero(w > 0)
+        idx.append(ok)
+        beams.append(beam[ok])
+        weights.append(w[ok])
+    if not idx:
+        z = np.zeros(0, np.int64)
+        return z, z, np.zeros(0)
+    return np.concatenate(idx), np.concatenate(beams), np.concatenate(weights)
+
+
+def _render_energy(
+    smp: _Samples, geometry: SonarGeometry, length: float, rise: float, lobe: _MainLobe | None,
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The echo energy images of the rendering, each (n_bins, n_beams): through the main lobe,
+    and in each direction's own azimuth cell (the same as the first without a lobe).
+
+    Each sample's echo - its patch's range tent (:class:`_PulseKernel`) through the unit-area
+    envelope of :func:`pulse_envelope` starting at its range (length 0: no pulse) - is integrated
+    over every bin it overlaps (``cdf(upper edge - r) - cdf(lower edge - r)``); across beams it is
+    received by every beam through that beam's main lobe (:class:`_MainLobe`; the sample's
+    azimuth is resolved to 1/``_SUB_DIRECTIONS`` of a beam), or, for the cell image, split over
+    the azimuth cells its patch's tent overlaps.
+    """
+    nb, nbeam = geometry.shape
+    size = nb * nbeam
+    r_edges = _edges(geometry.range_m)
+    a_edges = _edges(geometry.azimuth_rad)
+    r_step = _min_step(r_edges)
+    kernel = _PulseKernel(length, rise)
+    cell_acc = np.zeros(size)
+    r, bj, e, ext = smp.r, smp.beam, smp.energy, smp.extent
+    if r.size == 0:
+        return cell_acc.reshape(nb, nbeam), cell_acc.reshape(nb, nbeam).copy()
+    b0 = np.searchsorted(r_edges, r - ext, side="right") - 1
+    live = (b0 < nb) & (r + ext + kernel.length >= r_edges[0])
+    r, bj, e, ext, b0, az, az_ext = (v[live] for v in (r, bj, e, ext, b0, smp.az, smp.az_extent))
+    n_off = 1 + (int(math.ceil((kernel.length + 2.0 * _max(ext)) / r_step)) + 1 if math.isfinite(r_step) else 0)
+    # cells: the patch's azimuth tent split over the cells; the lobe: each sample split linearly
+    # between the two nearest of _SUB_DIRECTIONS sub-directions per beam, which the beams then
+    # receive through their lobes (a sparse sub-direction x beam matrix)
+    images = [(cell_acc, _azimuth_parts(az, bj, az_ext, a_edges, nbeam), nbeam)]
+    fine = None
+    if lobe is not None:
+        fine_az, lobe_matrix = lobe.sub_directions(a_edges)
+        nfine = fine_az.size
+        pos = np.interp(az, fine_az, np.arange(nfine, dtype=np.float64))
+        lo_u = np.clip(np.floor(pos).astype(np.int64), 0, nfine - 2)
+        frac = np.clip(pos - lo_u, 0.0, 1.0)
+        n = az.size
+        fine = np.zeros(nb * nfine)
+        images.append((fine, (np.concatenate([np.arange(n), np.arange(n)]), np.concatenate([lo_u, lo_u + 1]),
+                              np.concatenate([1.0 - frac, frac])), nfine))
+    lo_cdf = np.zeros_like(r)
+    for k in range(n_off):
+        b = b0 + k
+        hi_cdf = kernel.cdf(r_edges[np.clip(b + 1, 0, nb)] - r, ext)
+        w = e * (hi_cdf - lo_cdf)
+        lo_cdf = hi_cdf
+        w[(b < 0) | (b >= nb)] = 0.0
+        if not (w > 0).any():
+            continue
+        for acc, (idx, col, wt), ncol in images:
+            wk = w[idx] * wt
+            ok = wk > 0
+            acc += np.bincount((b[idx] * ncol + col)[ok], weights=wk[ok], minlength=acc.size)
+    if fine is None:
+        return cell_acc.reshape(nb, nbeam), cell_acc.reshape(nb, nbeam)
+    lobe_img = np.asarray(lobe_matrix.T @ fine.reshape(nb, -1).T).T
+    return np.ascontiguousarray(lobe_img), cell_acc.reshape(nb, nbeam)
+
+
+def _max(x: NDArray[np.float64]) -> float:
+    return float(x.max()) if x.size else 0.0
+
+
+def _min_step(edges: NDArray[np.float64]) -> float:
+    widths = np.diff(edges)
+    finite = widths[np.isfinite(widths)]
+    return float(finite.min()) if finite.size else math.inf
+
+
+def _tent_cdf(x: NDArray[np.float64], half_width: NDArray[np.float64]) -> NDArray[np.float64]:
+    """CDF of a unit-area tent of half-width ``half_width`` centred at 0 (a step where it is 0)."""
+    h = np.where(half_width > 0, half_width, 1.0)
+    u = np.clip(x / h, -1.0, 1.0)
+    tent = np.where(u < 0, 0.5 * (1.0 + u) ** 2, 1.0 - 0.5 * (1.0 - u) ** 2)
+    return np.where(half_width > 0, tent, (x >= 0).astype(np.float64))
+
+
+#: At most this many further surfaces per beam in :attr:`SimResult.surface_ranges_m`.
+MAX_FURTHER_SURFACES = 3
+
+#: Sub-samples per side of a patch when :func:`_surface_truth` refines the footprint's edge.
+_TRUTH_SUBSAMPLES = 8
+
+
+def _tangent_offsets(normals: NDArray[np.float64], size: NDArray[np.float64], k: int) -> NDArray[np.float64]:
+    """Offsets (n, k*k, 3) of a k x k grid over each patch (side ``size``, in its tangent plane)."""
+    ref = np.where(np.abs(normals[:, 2:3]) < 0.9, np.array([[0.0, 0.0, 1.0]]), np.array([[1.0, 0.0, 0.0]]))
+    a = np.cross(normals, ref)
+    a /= np.linalg.norm(a, axis=1, keepdims=True)
+    b = np.cross(normals, a)
+    f = (np.arange(k) + 0.5) / k - 0.5
+    fu, fv = (g.ravel() for g in np.meshgrid(f, f, indexing="ij"))
+    return size[:, None, None] * (fu[None, :, None] * a[:, None, :] + fv[None, :, None] * b[:, None, :])
+
+
+def _footprint_pairs(
+    r: NDArray[np.float64], az: NDArray[np.float64], cell: NDArray[np.int64], w_el: NDArray[np.float64],
+    lobe: _MainLobe | None, nbeam: int,
+) -> list[tuple[NDArray[np.int64], NDArray[np.float64]]]:
+    """(beam, two-way weight) for every sample and each beam whose -3 dB lobe can hold it.
+
+    With a main lobe: ``w_el * pattern_beam(az)`` for the beams within half a lobe width; without
+    one, ``w_el`` for the sample's own azimuth cell only.
+    """
+    if lobe is None:
+        return [(cell, w_el)]
+    out = []
+    for d in range(-lobe.half_reach, lobe.half_reach + 1):
+        beam = cell + d
+        ok = (beam >= 0) & (beam < nbeam)
+        cb = np.clip(beam, 0, nbeam - 1)
+        out.append((np.where(ok, beam, -1), np.where(ok, w_el * lobe.pattern(az, cb), 0.0)))
+    return out
+
+
+def _surface_truth(
+    smp: _Samples, geometry: SonarGeometry, config: SimulationConfig, has: NDArray[np.bool_], gap_m: float,
+    lobe: _MainLobe | None = None,
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """``surface_range_m`` (n_beams,) and ``surface_ranges_m`` (k, n_beams) - see :class:`SimResult`.
+
+    A structure sample belongs to beam ``j``'s footprint when its two-way weight - elevation
+    pattern times beam ``j``'s main lobe towards its azimuth (without a main lobe: elevation
+    pattern, in ``j``'s azimuth cell) - is at least 0.5 (or half the beam's largest weight when
+    no sample reaches 0.5).  The nearest footprint sample is refined to a fraction of the sample
+    spacing: the patches near the footprint's edge are sub-sampled (``_TRUTH_SUBSAMPLES`` per
+    side, in their tangent plane) and the nearest passing sub-sample is taken.
+    """
+    nbeam = geometry.n_beams
+    r_edges = _edges(geometry.range_m)
+    a_edges = _edges(geometry.azimuth_rad)
+    m = (smp.labels == STRUCTURE) & (smp.r >= r_edges[0]) & (smp.r < r_edges[-1])
+    r, bj, w, az, size = smp.r[m], smp.beam[m], smp.weight_el[m], smp.az[m], smp.size[m]
+    first = np.full(nbeam, np.nan)
+    if r.size == 0:
+        return first, np.full((0, nbeam), np.nan)
+    reach = lobe.half_reach if lobe is not None else 0
+
+    def near_beams(beams: NDArray[np.bool_]) -> NDArray[np.bool_]:
+        """Beams within the lobe's reach of a selected beam."""
+        out = beams.copy()
+        for d in range(1, reach + 1):
+            out[d:] |= beams[:-d]
+            out[:-d] |= beams[d:]
+        return out
+
+    def weights(sel: NDArray[np.bool_]) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.float64]]:
+        """(sample index, beam, two-way weight) of the selected samples, zero weights dropped."""
+        idx = np.flatnonzero(sel)
+        ii, bb, ww = [], [], []
+        for beam, wt in _footprint_pairs(r[idx], az[idx], bj[idx], w[idx], lobe, nbeam):
+            ok = (beam >= 0) & (wt > 0)
+            ii.append(idx[ok])
+            bb.append(beam[ok])
+            ww.append(wt[ok])
+        return np.concatenate(ii), np.concatenate(bb), np.concatenate(ww)
+
+    # beams whose footprint reaches 0.5 are settled by the samples at w_el >= 0.5; the others
+    # (faint skirts) take half their largest weight over all their samples
+    ii, bb, ww = weights(w >= 0.5)
+    wmax = np.zeros(nbeam)
+    np.maximum.at(wmax, bb, ww)
+    weak = wmax < 0.5
+    if weak.any():
+        ii2, bb2, ww2 = weights((w < 0.5) & near_beams(weak)[bj])
+        keep = weak[bb2]
+        ii, bb, ww = np.concatenate([ii, ii2[keep]]), np.concatenate([bb, bb2[keep]]), np.concatenate([ww, ww2[keep]])
+        np.maximum.at(wmax, bb2[keep], ww2[keep])
+    thr = np.where(wmax >= 0.5, 0.5, 0.5 * wmax) * (1.0 - 1e-12)
+    ok = ww >= thr[bb]
+    rp, bp = r[ii[ok]], bb[ok]
+    order = np.lexsort((rp, bp))
+    rp, bp = rp[order], bp[order]
+    new = np.ones(rp.size, dtype=bool)
+    new[1:] = (bp[1:] != bp[:-1]) | (np.diff(rp) > gap_m)
+    starts = np.flatnonzero(new)
+    sb, sr = bp[starts], rp[starts]
+    rank = np.arange(starts.size) - np.searchsorted(sb, sb, side="left")
+    first[sb[rank == 0]] = sr[rank == 0]
+    # refine the first surface: sub-sample the patches that can hold a footprint's near edge
+    if config.elevation_pattern == "uniform":
+        margin = np.ones(r.size)
+    else:  # the largest change of the Gaussian elevation weight across a patch
+        margin = 1.43 * 0.75 * size / (r * config.elevation_aperture_rad) + 0.02
+    # a patch can move beam b's edge when it lies within a patch of b's nearest footprint sample
+    cand = np.zeros(r.size, dtype=bool)
+    for d in range(-reach - 1, reach + 2):
+        b = np.clip(bj + d, 0, nbeam - 1)
+        fb = first[b]
+        with np.errstate(invalid="ignore"):
+            cand |= (r >= fb - 2.0 * size) & (r <= fb + size) & (w >= thr[b] - margin)
+    cand &= size > 0
+    if cand.any():
+        pts = smp.points[m][cand]
+        offs = _tangent_offsets(smp.normals[m][cand], size[cand], _TRUTH_SUBSAMPLES)
+        sub = (pts[:, None, :] + offs).reshape(-1, 3)
+        rho = np.hypot(sub[:, 0], sub[:, 1])
+        rs = np.hypot(rho, sub[:, 2])
+        azs = np.arctan2(sub[:, 1], sub[:, 0])
+        js = np.searchsorted(a_edges, azs, side="right") - 1
+        ws = _elevation_weight(np.arctan2(sub[:, 2], rho), config)
+        inb = (js >= 0) & (js < nbeam) & (rs >= r_edges[0]) & (rs < r_edges[-1])
+        js, rs, ws, azs = js[inb], rs[inb], ws[inb], azs[inb]
+        refined = np.full(nbeam, np.inf)
+        for beam, wt in _footprint_pairs(rs, azs, js, ws, lobe, nbeam):
+            ok = (beam >= 0) & (wt > 0)
+            ok[ok] = (wt[ok] >= thr[beam[ok]]) & np.isfinite(first[beam[ok]])
+            # only within the first surface (not a further one reached through a gap)
+            ok[ok] = rs[ok] <= first[beam[ok]] + gap_m
+            np.minimum.at(refined, beam[ok], rs[ok])
+        better = np.isfinite(refined) & np.isfinite(first)
+        first[better] = refined[better]
+    k = int(min(MAX_FURTHER_SURFACES, rank.max())) if rank.size else 0
+    others = np.full((k, nbeam), np.nan)
+    for i in range(1, k + 1):
+        sel = rank == i
+        others[i - 1, sb[sel]] = sr[sel]
+    first[~has] = np.nan
+    others[:, ~has] = np.nan
+    return first, others
+
+
+# ---------------------------------------------------------------------- beam pattern
 
 
 #: Ghost-to-main-beam intensity ratios at +-8, +-16, +-24 beams measured on the real DIDSON test
@@ -578,9 +1074,191 @@ def _accumulate(
 #: (``geometry.psf``) implies 0.57 / 0.46 / 0.39.
 MEASURED_DIDSON_GHOSTS: tuple[float, ...] = (0.031, 0.007, 0.005)
 
+_FOUR_LN2 = 4.0 * math.log(2.0)
+#: Sub-directions per beam at which the renderer resolves a sample's azimuth for the main lobe.
+_SUB_DIRECTIONS = 8
+#: Integral of ``exp(-4 ln2 x^2)`` over x: a Gaussian lobe of -3 dB width W covers 1.0645 W.
+_GAUSS_AREA = math.sqrt(math.pi / _FOUR_LN2)
 
-def render_psf(geometry: SonarGeometry, config: SimulationConfig) -> NDArray[np.float64] | None:
-    """The across-beam pattern :func:`simulate_ping` renders with (see ``beam_pattern``)."""
+
+@functools.cache
+def _aris_beam_widths() -> dict[str, NDArray[np.float64]]:
+    """Preset name -> per-beam two-way beam widths (rad, column order) from the ARIS tables."""
+    from importlib import resources
+
+    from sonarmap.geometry import _ARIS_LENS
+
+    tables = json.loads(resources.files("sonarmap.data").joinpath("aris_beamwidths.json").read_text("utf-8"))
+    out = {}
+    for table, (name, _freq) in _ARIS_LENS.items():
+        t = tables["tables"][table]
+        width = np.abs(np.asarray(t["right_deg"], dtype=np.float64) - np.asarray(t["left_deg"], dtype=np.float64))
+        arr = np.deg2rad(width[::-1])  # column j is vendor beam n - 1 - j (see sonarmap.geometry)
+        arr.setflags(write=False)
+        out[name] = arr
+    return out
+
+
+def _local_spacing(geometry: SonarGeometry) -> NDArray[np.float64]:
+    """Mean of the gaps to the two neighbouring beams (the one gap at the fan's ends)."""
+    az = np.asarray(geometry.azimuth_rad, dtype=np.float64)
+    return np.gradient(az) if az.size > 1 else np.zeros(az.size)
+
+
+def _nearest_gap(geometry: SonarGeometry) -> NDArray[np.float64]:
+    """Gap to the nearer neighbouring beam."""
+    az = np.asarray(geometry.azimuth_rad, dtype=np.float64)
+    if az.size < 2:
+        return np.zeros(az.size)
+    d = np.diff(az)
+    return np.minimum(np.concatenate([d[:1], d]), np.concatenate([d, d[-1:]]))
+
+
+def beam_widths_for(geometry: SonarGeometry) -> NDArray[np.float64]:
+    """Two-way -3 dB horizontal width of each of ``geometry``'s beams (rad), shape (n_beams,).
+
+    ARIS geometries (preset name - also what the ARIS reader names its geometries - and matching
+    beam count): the vendor's beam-width tables (``right - left`` of
+    ``sonarmap/data/aris_beamwidths.json``; one beam spacing for every model except the
+    telephoto lens at 48 beams, whose beams are half a spacing wide).  Any other geometry:
+    :data:`DEFAULT_BEAM_WIDTH_GAPS` (0.9) times the gap to the nearer neighbouring beam - about
+    one spacing (DIDSON HF: 0.3 deg beams on a table 0.23-0.37 deg apart), narrow enough that
+    a neighbour receives at most 2^-4.9 = 3 % of a beam's centre (0 for a single beam).
+
+    Examples
+    --------
+    >>> from sonarmap import preset
+    >>> g = preset("aris3000-128")
+    >>> round(float(beam_widths_for(g).mean() / np.diff(g.azimuth_rad).mean()), 2)
+    1.0
+    """
+    name = str(getattr(geometry, "name", "")).lower()
+    hit = _aris_beam_widths().get(name)
+    if hit is not None and hit.size == geometry.n_beams:
+        return hit.copy()
+    return DEFAULT_BEAM_WIDTH_GAPS * _nearest_gap(geometry)
+
+
+#: Default two-way -3 dB beam width of a geometry without a beam-width table, in units of the
+#: gap to the nearer neighbouring beam.
+DEFAULT_BEAM_WIDTH_GAPS = 0.9
+
+
+def _beam_widths(geometry: SonarGeometry, config: SimulationConfig) -> NDArray[np.float64]:
+    if config.beam_width_rad is None:
+        return beam_widths_for(geometry)
+    return np.full(geometry.n_beams, float(config.beam_width_rad))
+
+
+@dataclasses.dataclass(frozen=True)
+class _MainLobe:
+    """Each beam's Gaussian main lobe at sub-beam resolution.
+
+    Beam ``j`` receives ``k exp(-4 ln2 ((az - theta_j) / W_j)^2)`` of the echo from azimuth
+    ``az``, ``W_j`` its two-way -3 dB width and ``k = mean spacing / (1.0645 mean W)`` (one
+    constant per geometry) so that an extended surface gives the beams, on average, the echo of
+    one beam spacing of it - the level of the azimuth-cell model the profiles were fitted with -
+    and a point target on a beam's axis the same level in every beam.
+    """
+
+    azimuth: NDArray[np.float64]
+    width: NDArray[np.float64]
+    gain: NDArray[np.float64]
+    reach: int
+    half_reach: int
+
+    @classmethod
+    def of(cls, geometry: SonarGeometry, config: SimulationConfig) -> _MainLobe | None:
+        width = _beam_widths(geometry, config)
+        spacing = np.abs(_local_spacing(geometry))
+        if geometry.n_beams < 2 or not np.all(width > 0) or not np.all(spacing > 0):
+            return None
+        reach = int(math.ceil(1.83 * float(width.max()) / float(spacing.min()))) + 1
+        half_reach = int(math.ceil(0.5 * float(width.max()) / float(spacing.min()))) + 1
+        k = float(spacing.mean()) / (_GAUSS_AREA * float(width.mean()))
+        return cls(np.asarray(geometry.azimuth_rad, dtype=np.float64), width,
+                   np.full(width.size, k), reach, half_reach)
+
+    def sub_directions(self, a_edges: NDArray[np.float64]) -> tuple[NDArray[np.float64], Any]:
+        """Sub-direction azimuths (``_SUB_DIRECTIONS`` per azimuth cell, at equal steps inside it)
+        and the sparse (n_sub, n_beams) matrix of each beam's lobe towards each of them."""
+        from scipy import sparse
+
+        q = (np.arange(_SUB_DIRECTIONS) + 0.5) / _SUB_DIRECTIONS
+        lo, hi = a_edges[:-1], a_edges[1:]
+        width = np.where(np.isfinite(hi - lo), hi - lo, 0.0)
+        fine = (lo[:, None] + q[None, :] * width[:, None]).ravel()
+        if not np.all(np.isfinite(fine)):
+            fine = np.repeat(self.azimuth, _SUB_DIRECTIONS)
+        n = self.azimuth.size
+        rows, cols, vals = [], [], []
+        cell = np.repeat(np.arange(n), _SUB_DIRECTIONS)
+        for beam, val in self.parts(fine, cell):
+            ok = val > 0
+            rows.append(np.flatnonzero(ok))
+            cols.append(beam[ok])
+            vals.append(val[ok])
+        mat = sparse.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                                shape=(fine.size, n))
+        return fine, mat
+
+    def pattern(self, az: NDArray[np.float64], beam: NDArray[np.int64]) -> NDArray[np.float64]:
+        """Two-way power pattern (peak 1) of ``beam`` towards ``az``."""
+        return np.exp(-_FOUR_LN2 * ((az - self.azimuth[beam]) / self.width[beam]) ** 2)
+
+    def parts(self, az: NDArray[np.float64], cell: NDArray[np.int64]
+              ) -> list[tuple[NDArray[np.int64], NDArray[np.float64]]]:
+        """Per beam offset from each direction's cell: (beam, ``k`` x pattern), cut below 1e-4."""
+        n = self.azimuth.size
+        out = []
+        for d in range(-self.reach, self.reach + 1):
+            beam = cell + d
+            ok = (beam >= 0) & (beam < n)
+            cb = np.clip(beam, 0, n - 1)
+            x = (az - self.azimuth[cb]) / self.width[cb]
+            val = np.where(ok & (x * x < 4.0 * math.log(10.0) / _FOUR_LN2),
+                           self.gain[cb] * np.exp(-_FOUR_LN2 * x * x), 0.0)
+            if (val > 0).any():
+                out.append((beam, val))
+        return out
+
+
+def main_lobe_taps(geometry: SonarGeometry, config: SimulationConfig) -> NDArray[np.float64] | None:
+    """The main lobe on the beam grid, length ``n_beams`` centred at ``n_beams // 2``, unit sum.
+
+    Tap ``d`` is ``exp(-4 ln2 (d dtheta / W)^2)`` with ``W`` the mean beam width
+    (:func:`beam_widths_for`, or ``config.beam_width_rad``) and ``dtheta`` the mean spacing: what a
+    direction at a beam's centre gives its neighbours.  Taps below 1e-4 of the centre are dropped;
+    ``None`` when the width is 0, there is one beam, or no neighbour reaches 1e-4.
+    """
+    config = config.resolved(geometry)
+    n = geometry.n_beams
+    az = np.asarray(geometry.azimuth_rad, dtype=np.float64)
+    spacing = float(np.diff(az).mean()) if n > 1 else 0.0
+    width = float(_beam_widths(geometry, config).mean()) if n else 0.0
+    if n < 2 or width <= 0 or spacing <= 0:
+        return None
+    c = n // 2
+    d = np.arange(n) - c
+    taps = np.exp(-_FOUR_LN2 * (d * spacing / width) ** 2)
+    taps[taps < 1e-4] = 0.0
+    if np.count_nonzero(taps) < 2:
+        return None
+    return taps / taps.sum()
+
+
+def _centred_convolve(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Convolution of two centred length-n patterns, centred and cut to length n."""
+    n = a.size
+    return np.convolve(a, b)[n // 2: n // 2 + n]
+
+
+def ghost_psf(geometry: SonarGeometry, config: SimulationConfig) -> NDArray[np.float64] | None:
+    """The ghost taps on the beam grid (``beam_pattern``), unit sum, centred at ``n // 2``.
+
+    ``"geometry"``: the sonar's stated ``geometry.psf`` (the object itself); ``"measured"``:
+    :data:`MEASURED_DIDSON_GHOSTS` on that pattern's tap grid.  ``None`` for a geometry without one.
+    """
     config = config.resolved(geometry)
     psf = geometry.psf
     if psf is None or config.beam_pattern == "geometry":
@@ -600,25 +1278,31 @@ def render_psf(geometry: SonarGeometry, config: SimulationConfig) -> NDArray[np.
     return out / out.sum()
 
 
-def _pulse_smooth(energy: NDArray[np.float64], geometry: SonarGeometry,
-                  config: SimulationConfig) -> NDArray[np.float64]:
-    """Average ``energy`` along range over the pulse's range resolution (unit-sum box)."""
-    if config.range_resolution_m <= 0 or geometry.n_bins < 2:
-        return energy
-    n = int(round(config.range_resolution_m / geometry.range_resolution_m))
-    if n < 2 or not energy.any():
-        return energy
-    from scipy.ndimage import uniform_filter1d
+def render_psf(geometry: SonarGeometry, config: SimulationConfig) -> NDArray[np.float64] | None:
+    """The across-beam pattern of :func:`simulate_ping` on the beam grid, unit sum, centred at ``n // 2``.
 
-    return uniform_filter1d(energy, size=n, axis=0, mode="constant")
+    The ghost taps (:func:`ghost_psf`) convolved with the main lobe (:func:`main_lobe_taps`): the
+    image of a direction at a beam's centre.  The renderer applies the main lobe at sub-beam
+    resolution (a direction between two beams reaches both at half power) and then the ghost
+    taps; this is the pattern it amounts to on the grid.  Without a main lobe
+    (``beam_width_rad=0``) this is :func:`ghost_psf`; ``None`` when there is neither.
+    """
+    config = config.resolved(geometry)
+    psf = ghost_psf(geometry, config)
+    main = main_lobe_taps(geometry, config)
+    if main is None:
+        return psf
+    if psf is None:
+        return main
+    out = _centred_convolve(np.asarray(psf, dtype=np.float64), main)
+    return out / out.sum()
 
 
 def _one_look(
     rng: np.random.Generator,
     shape: tuple[int, int],
     config: SimulationConfig,
-    psf: NDArray[np.float64] | None,
-    a: NDArray[np.float64] | None,
+    field: _CoherentField | None,
     taper: NDArray[np.float64],
     m_bg: NDArray[np.float64],
     m_scatter: NDArray[np.float64],
@@ -627,16 +1311,15 @@ def _one_look(
     """One speckle realisation of the received intensity (full-scale units).
 
     Speckle (Rayleigh amplitude) and additive receiver noise, in the complex amplitude domain;
-    ``a`` (the per-direction echo amplitude) is given for coherent ghosts.
+    ``field`` (the echo sources and patterns) is given for coherent ghosts.
     """
     z = rng.standard_normal((4,) + shape)
     z *= math.sqrt(0.5)
-    if a is not None:
-        # complex echo field per source direction, seen through the pattern's amplitude taps
-        zs = rng.standard_normal((2,) + shape)
+    if field is not None:
+        zs = rng.standard_normal((4,) + shape)
         zs *= math.sqrt(0.5)
-        field_re = _beam_pattern(a * zs[0], psf, amplitude=True)
-        field_im = _beam_pattern(a * zs[1], psf, amplitude=True)
+        field_re = field.realise(zs[0], zs[2])
+        field_im = field.realise(zs[1], zs[3])
         st = np.sqrt(taper)
         amp_bg = np.sqrt(np.maximum(m_bg - noise, 0.0))
         re = st * field_re + amp_bg * z[0] + math.sqrt(noise) * z[2]
@@ -648,6 +1331,31 @@ def _one_look(
         im = amp * z[1] + math.sqrt(noise) * z[3]
         return re * re + im * im
     return m_scatter + noise * (z[2] ** 2 + z[3] ** 2)
+
+
+@dataclasses.dataclass(frozen=True)
+class _CoherentField:
+    """Complex echo field of one ping's sources, for coherent ghosts and main-lobe overlap.
+
+    The sources are the azimuth cells (``a`` = amplitude of each cell's echo); beam ``j``
+    receives ``sum_k sqrt(taps[j - k]) a_k z_k`` through the main lobe on the beam grid
+    (neighbouring beams share their sources' speckle), scaled per pixel to the sub-beam expected
+    intensity (``scale``; pixels no cell source reaches get an independent field of amplitude
+    ``orphan``), then every beam's field goes through the ghost taps ``ghosts`` in amplitude (a
+    ghost is a scaled copy of its source beam's echo, speckle included).  The expected intensity
+    is the ghost pattern applied to the sub-beam echo.
+    """
+
+    a: NDArray[np.float64]
+    taps: NDArray[np.float64] | None
+    scale: NDArray[np.float64]
+    orphan: NDArray[np.float64]
+    ghosts: NDArray[np.float64] | None
+
+    def realise(self, z: NDArray[np.float64], z_orphan: NDArray[np.float64]) -> NDArray[np.float64]:
+        """One real component of the field, given unit-variance normals per source."""
+        f = _beam_pattern(self.a * z, self.taps, amplitude=True) * self.scale + self.orphan * z_orphan
+        return _beam_pattern(f, self.ghosts, amplitude=True)
 
 
 def _validate(scene: Any, geometry: Any, config: Any) -> None:
@@ -666,6 +1374,7 @@ def simulate_ping(
     config: SimulationConfig = SimulationConfig(),
     seed: int | np.random.Generator,
     time_ns: int = 0,
+    recording_meta: bool = False,
 ) -> SimResult:
     """Render one ping of ``scene`` seen by ``geometry`` through the active sonar equation.
 
@@ -683,6 +1392,11 @@ def simulate_ping(
         Randomness (speckle, noise); the same integer seed gives identical bytes.
     time_ns : int
         Ping time stamp.
+    recording_meta : bool
+        Also declare in ``ping.meta`` what a recording's header would: ``pulse_width_us``
+        (``2 L / c``), ``sound_speed_m_s`` and, for a log receiver, ``log_dynamic_range_db`` (as
+        the ARIS reader does), so a pipeline reads the simulated ping as it reads a real one.
+        Default off: only ``meta["simulated"]``.
 
     Returns
     -------
@@ -691,13 +1405,16 @@ def simulate_ping(
 
     Notes
     -----
-    Each sample falls into the bin nearest its range ``|p|`` and the beam nearest its azimuth
-    ``atan2(y, x)`` (samples outside the window or fan are dropped), weighted by its target
-    strength and the vertical pattern at elevation ``atan2(z, hypot(x, y))``.  Then: beam pattern
-    across beams (linear convolution, eq. 2 of Teixeira et al. 2018), taper ``k(theta)`` (eq. 5),
+    Each sample at range ``|p|``, azimuth ``atan2(y, x)`` and elevation ``atan2(z, hypot(x, y))``
+    (samples outside the fan are dropped) echoes its target strength times the vertical pattern;
+    its echo - the patch's range extent through the causal transmit pulse - is integrated over
+    the bins it overlaps, and every beam receives it through its Gaussian main lobe at sub-beam
+    resolution (``pulse_length_m``, ``beam_width_rad``).  Then: ghost taps across beams (linear
+    convolution, eq. 2 of Teixeira et al. 2018), taper ``k(theta)`` (eq. 5),
     channel ``SL + G - FS - (20 beta log10 r + 2 alpha r)`` (eqs. 6-7), Rayleigh speckle averaged
     over ``looks``, receiver noise, receiver mapping (linear with threshold, or log) and 8-bit
-    quantisation.
+    quantisation.  The truth (class mask, first return) puts every sample in its nearest bin and
+    azimuth cell; ``surface_range_m`` is the sub-bin physical surface (see :class:`SimResult`).
 
     Examples
     --------
@@ -713,24 +1430,36 @@ def simulate_ping(
     if isinstance(seed, bool) or not isinstance(seed, int | np.integer | np.random.Generator):
         raise InputError(f"seed: expected an int or numpy Generator, got {type(seed).__name__}")
     rng = np.random.default_rng(seed)
-    e_struct, e_clutter = _accumulate(scene, geometry, config)
+    smp = _samples(scene, geometry, config)
+    # truth: every sample in its nearest bin (no pulse, no beam pattern)
+    e_struct, e_clutter = _accumulate(smp, geometry)
+    length, rise = config.pulse
+    lobe = _MainLobe.of(geometry, config)
+    # the image: every sample's echo spread over the bins its patch and pulse envelope overlap,
+    # received by every beam through its main lobe; and in its own azimuth cell
+    total, cells = _render_energy(smp, geometry, length, rise, lobe)
     gain_r = channel_gain(geometry, config)[:, None]
     taper = _taper(geometry)[None, :]
-    total = e_struct + e_clutter
-    total = _pulse_smooth(total, geometry, config)
-    psf = render_psf(geometry, config)
-    blurred = _beam_pattern(total, psf)
-    m_echo = blurred * taper * gain_r
+    ghosts = ghost_psf(geometry, config)
+    taps = main_lobe_taps(geometry, config) if lobe is not None else None
+    m_echo = _beam_pattern(total, ghosts) * taper * gain_r
     m_bg = _background_mean(geometry, config)
     noise = _noise_power(geometry, config)
     shape = geometry.shape
     m_scatter = m_echo + (m_bg - noise)
-    coherent = config.speckle and config.ghosts == "coherent" and psf is not None
-    a = np.sqrt(total * gain_r) if coherent else None
-    intensity = _one_look(rng, shape, config, psf, a, taper, m_bg, m_scatter, noise)
+    field = None
+    if config.speckle and config.ghosts == "coherent" and (ghosts is not None or taps is not None):
+        e_tap = _beam_pattern(cells, taps)
+        sub = total * gain_r
+        with np.errstate(divide="ignore", invalid="ignore"):
+            reached = e_tap > 1e-12 * max(float(e_tap.max()), 1e-300)
+            scale = np.where(reached, np.sqrt(total / np.where(reached, e_tap, 1.0)), 0.0)
+        field = _CoherentField(a=np.sqrt(cells * gain_r), taps=taps, scale=scale,
+                               orphan=np.sqrt(np.where(reached, 0.0, sub)), ghosts=ghosts)
+    intensity = _one_look(rng, shape, config, field, taper, m_bg, m_scatter, noise)
     if config.looks > 1:
         for _ in range(config.looks - 1):
-            intensity += _one_look(rng, shape, config, psf, a, taper, m_bg, m_scatter, noise)
+            intensity += _one_look(rng, shape, config, field, taper, m_bg, m_scatter, noise)
         intensity /= config.looks
     if config.receiver == "log":
         with np.errstate(divide="ignore"):
@@ -761,12 +1490,20 @@ def simulate_ping(
         peak_db = 10.0 * np.log10(np.where(s_int >= c_int, s_int / m_bg, 0.0).max(axis=0))
     first = np.where(has, struct.argmax(axis=0), -1).astype(np.int64)
     first_r = np.where(has, geometry.range_m[np.maximum(first, 0)], np.nan)
+    surf, surfs = _surface_truth(smp, geometry, config, has, gap_m=length + 2.0 * geometry.range_resolution_m,
+                                 lobe=lobe)
+    meta: dict[str, Any] = {"simulated": scene.name or "scene"}
+    if recording_meta:
+        meta["pulse_width_us"] = 2e6 * length / geometry.sound_speed_m_s
+        meta["sound_speed_m_s"] = geometry.sound_speed_m_s
+        if config.receiver == "log":
+            meta["log_dynamic_range_db"] = config.dynamic_range_db
     ping = Ping(
         image=image,
         geometry=geometry,
         time_ns=time_ns,
         source="",
-        meta={"simulated": scene.name or "scene"},
+        meta=meta,
     )
     int_seed = int(seed) if isinstance(seed, int | np.integer) else None
     return SimResult(
@@ -778,9 +1515,226 @@ def simulate_ping(
         config=config,
         scene_name=scene.name,
         seed=int_seed,
-        unblurred=np.clip(total * scale, 0.0, 1.0).astype(np.float32),
+        unblurred=np.clip(cells * scale, 0.0, 1.0).astype(np.float32),
         structure_peak_snr_db=peak_db.astype(np.float64),
+        surface_range_m=surf,
+        surface_ranges_m=surfs,
     )
+
+
+# ---------------------------------------------------------------------- measuring leading edges
+
+
+def first_peak_crossing(profile: ArrayLike, fraction: float = 0.5, *, min_peak: float = 0.5) -> float:
+    """Fractional index where ``profile`` first crosses ``fraction`` x its first peak.
+
+    The first peak is the first local maximum among the samples reaching ``min_peak`` x the
+    profile's maximum (so ripple and faint echoes in front do not count); the crossing is the last
+    upward crossing of ``fraction x peak`` before it, interpolated linearly between the two
+    samples around it - the leading edge of ``docs/DESIGN`` "Range convention".  NaN when the
+    profile has no positive sample or is already above the level at its start.
+
+    Examples
+    --------
+    >>> first_peak_crossing([0.0, 0.0, 0.2, 0.6, 1.0, 0.7, 0.9])
+    2.75
+    """
+    y = np.asarray(profile, dtype=np.float64)
+    if y.size == 0 or not np.isfinite(y).any() or not np.nanmax(y) > 0:
+        return math.nan
+    y = np.nan_to_num(y, nan=-np.inf)
+    k = int(np.argmax(y >= min_peak * y.max()))
+    while k + 1 < y.size and y[k + 1] >= y[k]:
+        k += 1
+    level = fraction * y[k]
+    below = np.flatnonzero(y[: k + 1] < level)
+    if below.size == 0:
+        return math.nan
+    i = int(below[-1])
+    return float(i + (level - y[i]) / (y[i + 1] - y[i]))
+
+
+def leading_edges_m(
+    image: ArrayLike, geometry: SonarGeometry, *, fraction: float = 0.5, min_peak: float = 0.5,
+    background: ArrayLike | None = None,
+) -> NDArray[np.float64]:
+    """Per beam, the range (m) of :func:`first_peak_crossing` of an image column.
+
+    For a noise-free render (``SimResult.clean``; render with a high ``full_scale_db`` so nothing
+    clips) this is what an ideal leading-edge detector reports; compare with
+    ``SimResult.surface_range_m``.  ``background`` (per bin, per beam or scalar) is subtracted
+    first.  NaN where a column has no echo.
+    """
+    img = np.asarray(image, dtype=np.float64)
+    if background is not None:
+        img = img - np.asarray(background, dtype=np.float64)
+    idx = np.array([first_peak_crossing(img[:, j], fraction, min_peak=min_peak) for j in range(img.shape[1])])
+    return np.interp(idx, np.arange(geometry.n_bins), geometry.range_m, left=np.nan, right=np.nan)
+
+
+@dataclasses.dataclass(frozen=True)
+class EdgeRise:
+    """Leading edge of the surface echoes in a range window, averaged over beams and pings.
+
+    Attributes
+    ----------
+    rise_bins : float
+        10-90 % rise (bins) of ``profile`` before its first peak (:func:`first_peak_crossing`).
+    n_profiles : int
+        Beam profiles averaged.
+    offsets_bins : ndarray
+        Offsets (bins) of ``profile`` from each beam's 50 % crossing.
+    profile : ndarray
+        Mean background-subtracted linear intensity at those offsets.
+    """
+
+    rise_bins: float
+    n_profiles: int
+    offsets_bins: NDArray[np.float64]
+    profile: NDArray[np.float64]
+
+
+def _linear_intensity(image: NDArray[np.float64], config: SimulationConfig | None) -> NDArray[np.float64]:
+    """Undo a log receiver mapping (intensity in full-scale units); linear images unchanged."""
+    if config is None or config.receiver != "log":
+        return image
+    return 10.0 ** ((image + config.threshold - 1.0) * config.dynamic_range_db / 10.0)
+
+
+def _smooth_edge_positions(pos: NDArray[np.float64], align: str, degree: int, max_jump: float) -> dict[int, float]:
+    """Beam -> smoothed edge position (beams with an edge, outliers beyond ``max_jump`` dropped).
+
+    ``"median"``: the running median over 5 edge beams.  ``"poly"``: a robust polynomial in beam
+    index per run of edge beams (runs split where more than 3 beams lack an edge; runs of fewer
+    than ``2 degree + 3`` beams dropped; outliers rejected and the fit repeated, 3 times).
+    """
+    idx = np.flatnonzero(np.isfinite(pos))
+    out: dict[int, float] = {}
+    if idx.size == 0:
+        return out
+    if align == "median":
+        v = pos[idx]
+        med = np.array([np.median(v[max(0, k - 2): k + 3]) for k in range(v.size)])
+        return {int(j): float(mv) for j, p, mv in zip(idx, v, med, strict=True) if abs(p - mv) <= max_jump}
+    runs = np.split(idx, np.flatnonzero(np.diff(idx) > 4) + 1)
+    for run in runs:
+        keep = run
+        for _ in range(3):
+            if keep.size < 2 * degree + 3:
+                keep = keep[:0]
+                break
+            coef = np.polyfit(keep - run[0], pos[keep], degree)
+            fit = np.polyval(coef, run - run[0])
+            ok = np.abs(pos[run] - fit) <= max_jump
+            if np.array_equal(run[ok], keep):
+                break
+            keep = run[ok]
+        if keep.size:
+            coef = np.polyfit(keep - run[0], pos[keep], degree)
+            for j in keep:
+                out[int(j)] = float(np.polyval(coef, j - run[0]))
+    return out
+
+
+def measure_edge_rise(
+    images: Any,
+    geometry: SonarGeometry,
+    *,
+    min_range_m: float,
+    max_range_m: float,
+    config: SimulationConfig | None = None,
+    half_bins: int = 25,
+    background_bins: int = 40,
+    min_snr: float = 4.0,
+    max_jump_bins: float = 3.0,
+    floor_bins: int = 0,
+    align: Literal["median", "poly"] = "median",
+    poly_degree: int = 3,
+) -> EdgeRise:
+    """10-90 % rise (bins) of the first surface echo in a range window: real and simulated alike.
+
+    Single pings are speckled (a single-look edge is a few random samples), so the edge is
+    averaged: per beam, the window's column (background - the median of the ``background_bins``
+    rows in front of the window - subtracted) smoothed 3 x 3 locates the 50 % crossing of its
+    first peak; a running median over 5 edge beams (``align="median"``) or a robust polynomial in
+    beam index (``"poly"``) smooths those positions (the alignment error, not the pulse,
+    otherwise dominates a single-look edge), beams more than ``max_jump_bins`` off it are
+    dropped, and the *unsmoothed* linear intensity is sampled at
+    ``position + offset`` (linear interpolation) and averaged over beams and pings.  The rise of
+    that mean edge is :func:`first_peak_crossing` at 0.9 minus at 0.1, measured above the
+    background (``floor_bins=0``) or above the mean edge's lowest level over offsets
+    ``-floor_bins .. 0`` (for a pedestal: a water column brightening towards a seabed; a halo
+    rising over the last few bins stays part of the edge).
+
+    Parameters
+    ----------
+    images : iterable of ndarray or Ping
+        Pings of ``geometry`` (pixel values in [0, 1]).
+    geometry : SonarGeometry
+    min_range_m, max_range_m : float
+        Window holding the surface; the rows just in front of it must be background.
+    config : SimulationConfig, optional
+        Receiver to undo (a ``"log"`` receiver is linearised); resolve it for the geometry.
+    half_bins : int
+        Profile offsets ``-half_bins .. half_bins``.
+    background_bins : int
+        Rows in front of the window used as background.
+    min_snr : float
+        A beam counts when its smoothed peak exceeds the background by this many robust standard
+        deviations of the (smoothed) background rows.
+    max_jump_bins : float
+        Outlier rejection against the polynomial fit of the edge positions.
+    floor_bins : int
+        0: the rise is measured above the background; else above the mean edge's minimum over
+        offsets ``-floor_bins .. 0``.
+    align : {"median", "poly"}
+        How the edge positions are smoothed across beams.
+    poly_degree : int
+        Degree of the ``"poly"`` fit.
+
+    Returns
+    -------
+    EdgeRise
+
+    Raises
+    ------
+    InputError
+        If no beam holds an edge.
+    """
+    from scipy.ndimage import uniform_filter
+
+    lo = int(np.searchsorted(geometry.range_m, min_range_m))
+    hi = int(np.searchsorted(geometry.range_m, max_range_m))
+    offs = np.arange(-half_bins, half_bins + 1, dtype=np.float64)
+    acc: list[NDArray[np.float64]] = []
+    for item in images:
+        img = _linear_intensity(np.asarray(getattr(item, "image", item), dtype=np.float64), config)
+        n, m = img.shape
+        b0 = max(0, lo - background_bins)
+        bg = np.median(img[b0:lo], axis=0) if lo > b0 else np.zeros(m)
+        sm = uniform_filter(img, size=3, mode="nearest")
+        if lo > b0:
+            spread = 1.4826 * np.median(np.abs(sm[b0:lo] - np.median(sm[b0:lo], axis=0)), axis=0)
+        else:
+            spread = np.zeros(m)
+        pos = np.full(m, np.nan)
+        for j in range(m):
+            y = sm[lo:hi, j] - bg[j]
+            if y.size < 3 or y.max() <= min_snr * max(spread[j], 1e-6):
+                continue
+            c = first_peak_crossing(y)
+            pos[j] = lo + c
+        for j, mv in _smooth_edge_positions(pos, align, poly_degree, max_jump_bins).items():
+            x = mv + offs
+            if x[0] < 0 or x[-1] > n - 1:
+                continue
+            acc.append(np.interp(x, np.arange(n), img[:, j]) - bg[j])
+    if not acc:
+        raise InputError("images: no beam holds a leading edge in the window")
+    prof = np.mean(acc, axis=0)
+    y = prof - prof[(offs >= -floor_bins) & (offs <= 0)].min() if floor_bins > 0 else prof
+    rise = first_peak_crossing(y, 0.9) - first_peak_crossing(y, 0.1)
+    return EdgeRise(rise_bins=float(rise), n_profiles=len(acc), offsets_bins=offs, profile=prof)
 
 
 # ---------------------------------------------------------------------- files
@@ -796,12 +1750,20 @@ class SimulationFiles:
     truth_json: Path
 
 
+def _json_ranges(values: NDArray[np.float64] | None) -> list[float | None] | None:
+    """Ranges as a JSON list (null where NaN); ``None`` when absent."""
+    if values is None:
+        return None
+    return [None if not math.isfinite(v) else float(v) for v in np.asarray(values, dtype=np.float64)]
+
+
 def write_simulation(result: SimResult, directory: str | os.PathLike[str], stem: str | None = None) -> SimulationFiles:
     """Write ``<stem>_raw.png`` + ``<stem>.json`` (the real data's format) and the truth files.
 
     ``<stem>_truth.png`` is the class mask as raw 8-bit values (0 background, 1 structure,
     2 clutter); ``<stem>_truth.json`` holds ``first_return_bin``, ``first_return_range_m`` (null
-    where none), ``scene``, ``seed``, ``time_ns`` and ``config``.  All files are written atomically.
+    where none), the sub-bin ``surface_range_m`` (null where none) and ``surface_ranges_m`` (one
+    list per further surface), ``scene``, ``seed``, ``time_ns`` and ``config``.  All files are written atomically.
     ``stem`` defaults to the ping time in microseconds.
     """
     from PIL import Image
@@ -825,6 +1787,9 @@ def write_simulation(result: SimResult, directory: str | os.PathLike[str], stem:
         "first_return_range_m": [
             None if not math.isfinite(v) else float(v) for v in result.first_return_range_m
         ],
+        "surface_range_m": _json_ranges(result.surface_range_m),
+        "surface_ranges_m": [_json_ranges(row) for row in
+                             (result.surface_ranges_m if result.surface_ranges_m is not None else ())],
         "config": result.config.to_dict(),
     }
     truth_json = d / f"{stem}_truth.json"

@@ -41,6 +41,9 @@ __all__ = [
     "scene_scale_for",
     "view_for",
     "SCENE_REFERENCE_RANGE_M",
+    "SLOPED_HULL_INCIDENCE_DEG",
+    "sloped_hull",
+    "sloped_hull_yaw_deg",
     "plane_patch",
     "planar_hull",
     "curved_hull",
@@ -627,37 +630,113 @@ def point_target(
 # ---------------------------------------------------------------------- named scenes
 
 
-def _hull(gen: np.random.Generator, view: View) -> Scene:
+#: Range the named scenes are laid out around (the centre of the DIDSON's 2.25-11.25 m window).
+SCENE_REFERENCE_RANGE_M = 6.75
+
+#: Vertical incidence of the sloped hull plates (``hull_slope*``): a thin band (~4 DIDSON bins),
+#: like the real DIDSON test ping 5's diagonal hull line.
+SLOPED_HULL_INCIDENCE_DEG = 30.0
+
+
+def sloped_hull_yaw_deg(bins_per_beam: float, geometry: Any = None, *, range_m: float | None = None) -> float:
+    """Yaw of :func:`planar_hull` whose band changes range by ``bins_per_beam`` bins per beam.
+
+    At the band's centre (azimuth 0, range ``range_m``) a plate yawed by ``psi`` has
+    ``dr / dtheta = range tan(psi)``, so ``tan(psi) = bins_per_beam * bin / (range * dtheta)``
+    with ``bin`` the geometry's range-bin spacing and ``dtheta`` its beam spacing at azimuth 0.
+
+    Parameters
+    ----------
+    bins_per_beam : float
+        Slope of the band across beams, >= 0.
+    geometry : SonarGeometry, optional
+        The sonar (default the ``didson-hf`` preset).
+    range_m : float, optional
+        Range of the band's centre; default :data:`SCENE_REFERENCE_RANGE_M` times
+        :func:`scene_scale_for` (where the named scenes put it for ``geometry``).
+
+    Returns
+    -------
+    float
+        Yaw in degrees (0 for a flat band).
+
+    Examples
+    --------
+    >>> round(sloped_hull_yaw_deg(4.0), 1)
+    58.2
+    """
+    if geometry is None:
+        from sonarmap.geometry import preset
+
+        geometry = preset("didson-hf")
+    if not (math.isfinite(bins_per_beam) and bins_per_beam >= 0):
+        raise InputError(f"bins_per_beam: must be a finite number >= 0 (got {bins_per_beam})")
+    r = SCENE_REFERENCE_RANGE_M * scene_scale_for(geometry) if range_m is None else float(range_m)
+    az = np.asarray(geometry.azimuth_rad, dtype=np.float64)
+    # local beam spacing at azimuth 0 (the DIDSON and Oculus tables are not uniform)
+    dtheta = float(np.interp(0.0, az, np.gradient(az))) if az.size > 1 else 1.0
+    return math.degrees(math.atan(bins_per_beam * float(geometry.range_resolution_m) / (r * dtheta)))
+
+
+def sloped_hull(
+    bins_per_beam: float,
+    geometry: Any = None,
+    *,
+    range_m: float = SCENE_REFERENCE_RANGE_M,
+    incidence_deg: float = SLOPED_HULL_INCIDENCE_DEG,
+    scale: float | None = None,
+    view: View = View(),
+) -> Scene:
+    """A :func:`planar_hull` yawed so its band slopes ``bins_per_beam`` bins per beam.
+
+    The yaw comes from :func:`sloped_hull_yaw_deg` at the plate's range after the named scenes'
+    scaling (``scale``, default :func:`scene_scale_for` of ``geometry``).  The reflectivity is
+    raised by the Lambert loss of the yaw and the tilt, so every slope echoes as brightly as
+    the flat ``hull`` (60 deg incidence, -12 dB): ``-12 + 10 log10(cos^2 60 / (cos incidence cos
+    yaw)^2)`` dB.  The result is *not* scaled (:func:`scene_from_name` does that).
+    """
+    if geometry is None:
+        from sonarmap.geometry import preset
+
+        geometry = preset("didson-hf")
+    f = scene_scale_for(geometry) if scale is None else float(scale)
+    yaw = sloped_hull_yaw_deg(bins_per_beam, geometry, range_m=range_m * f)
+    cos_total = math.cos(math.radians(incidence_deg)) * math.cos(math.radians(yaw))
+    refl = -12.0 + 10.0 * math.log10(math.cos(math.radians(60.0)) ** 2 / cos_total**2)
+    hull = planar_hull(range_m, incidence_deg=incidence_deg, yaw_deg=yaw, reflectivity_db=refl, view=view)
+    return dataclasses.replace(hull, name=f"hull_slope{bins_per_beam:g}")
+
+
+def _hull(gen: np.random.Generator, view: View, geometry: Any) -> Scene:
     return planar_hull(view=view)
 
 
-def _fish_over_hull(gen: np.random.Generator, view: View) -> Scene:
+def _fish_over_hull(gen: np.random.Generator, view: View, geometry: Any) -> Scene:
     hull = planar_hull(8.0, incidence_deg=55.0, view=view)
     fish = fish_school(4.0, azimuth_deg=3.0, n_fish=40, rng=gen, view=view)
     return Scene.concat(hull, fish, name="fish_over_hull")
 
 
-_BUILDERS: dict[str, Callable[[np.random.Generator, View], Scene]] = {
+_BUILDERS: dict[str, Callable[[np.random.Generator, View, Any], Scene]] = {
     "hull": _hull,
-    "hull_oblique": lambda g, v: Scene.concat(planar_hull(7.0, yaw_deg=20.0, view=v), name="hull_oblique"),
-    "curved_hull": lambda g, v: curved_hull(view=v),
-    "propeller": lambda g, v: propeller(view=v),
-    "rudder": lambda g, v: rudder(view=v),
-    "seafloor": lambda g, v: seafloor(view=v),
-    "fish": lambda g, v: fish_school(rng=g, view=v),
+    "hull_oblique": lambda g, v, geo: Scene.concat(planar_hull(7.0, yaw_deg=20.0, view=v), name="hull_oblique"),
+    "hull_slope2": lambda g, v, geo: sloped_hull(2.0, geo, view=v),
+    "hull_slope4": lambda g, v, geo: sloped_hull(4.0, geo, view=v),
+    "hull_slope8": lambda g, v, geo: sloped_hull(8.0, geo, view=v),
+    "curved_hull": lambda g, v, geo: curved_hull(view=v),
+    "propeller": lambda g, v, geo: propeller(view=v),
+    "rudder": lambda g, v, geo: rudder(view=v),
+    "seafloor": lambda g, v, geo: seafloor(view=v),
+    "fish": lambda g, v, geo: fish_school(rng=g, view=v),
     "fish_over_hull": _fish_over_hull,
-    "fish_over_seafloor": lambda g, v: Scene.concat(
+    "fish_over_seafloor": lambda g, v, geo: Scene.concat(
         seafloor(view=v), fish_school(3.5, azimuth_deg=-6.0, rng=g, view=v), name="fish_over_seafloor"
     ),
-    "empty": lambda g, v: empty_scene(),
+    "empty": lambda g, v, geo: empty_scene(),
 }
 
 #: Names accepted by :func:`scene_from_name`.
 SCENE_NAMES: tuple[str, ...] = tuple(_BUILDERS)
-
-
-#: Range the named scenes are laid out around (the centre of the DIDSON's 2.25-11.25 m window).
-SCENE_REFERENCE_RANGE_M = 6.75
 
 
 def scene_scale_for(geometry: Any) -> float:
@@ -738,7 +817,7 @@ def scene_from_name(
         view = View() if geometry is None else view_for(geometry)
     elif not isinstance(view, View):
         raise InputError(f"view: expected a View, got {type(view).__name__}")
-    scene = _BUILDERS[name](gen, view)
+    scene = _BUILDERS[name](gen, view, geometry)
     if geometry is not None:
         factor = scene_scale_for(geometry)
         if factor != 1.0:
