@@ -184,13 +184,14 @@ def _assert_pd_pfa_wins(evaluations, margin: float) -> None:
 
 
 def test_acceptance_pd_pfa_occupancy_beats_fixed_constants_hull(dense_hull) -> None:
-    """Issue #6 (hull): each ping's pD/pFA beats fixed 0.8/0.3 (with our clamps or OctoMap's) at
-    both resolutions: measured 0.466 vs 0.449 / 0.449 at 0.05 m, 0.680 vs 0.644 / 0.644 at
-    0.10 m; per-pixel pD 0.431 / 0.629 (docs/mapping.md).  Three rays: 0.580 vs 0.521, 0.672 vs 0.646."""
+    """Hull, 30 % dropouts: each ping's pD/pFA (with per-return sigma and p_detect) beats fixed
+    0.8/0.3 (with our clamps or OctoMap's) at both resolutions: measured 0.648 vs 0.620 / 0.620 at
+    0.05 m, 0.783 vs 0.739 / 0.739 at 0.10 m; per-pixel pD 0.531 / 0.705 (docs/mapping.md).
+    Three rays: 0.725 vs 0.670, 0.775 vs 0.736."""
     _assert_pd_pfa_wins(dense_hull, 0.01)
 
 
 def test_acceptance_pd_pfa_occupancy_beats_fixed_constants_seafloor(dense_seafloor) -> None:
-    """Issue #6 (seafloor): measured 0.597 vs 0.581 / 0.581 at 0.05 m, 0.854 vs 0.842 / 0.843 at
-    0.10 m; per-pixel pD 0.514 / 0.829.  Three rays: 0.701 vs 0.675, 0.862 vs 0.858."""
+    """Seafloor, 30 % dropouts: measured 0.639 vs 0.623 / 0.623 at 0.05 m, 0.865 vs 0.842 / 0.842
+    at 0.10 m; per-pixel pD 0.479 / 0.689.  Three rays: 0.709 vs 0.706, 0.887 vs 0.855."""
     _assert_pd_pfa_wins(dense_seafloor, 0.005)
