@@ -798,7 +798,8 @@ def _log_range_db(ping: Ping, config: PipelineConfig) -> float | None:
     return float(v) if ok else None
 
 
-def measurement_image(ping: Ping, background: Any, config: PipelineConfig = PipelineConfig()) -> NDArray[np.float64]:
+def measurement_image(ping: Ping, background: Any, config: PipelineConfig = PipelineConfig(), *,
+                      rows: tuple[int, int] | None = None) -> NDArray[np.float64]:
     """The image a normalised ping's echoes are measured on: echo intensity above the background,
     in units of the background level, linear in intensity.
 
@@ -806,19 +807,18 @@ def measurement_image(ping: Ping, background: Any, config: PipelineConfig = Pipe
     (``D`` dB per unit, :attr:`PipelineConfig.log_dynamic_range_db`), with ``b`` the estimated
     background level x beam factor (:mod:`sonarmap.preprocess.normalise`); then
     ``max(ratio - 1, 0)``.  No multi-look: the leading edge keeps the raw range resolution.
+    ``rows=(r0, r1)`` computes only those rows (zero elsewhere).
     """
     from sonarmap.preprocess.normalise import _expand
+    from sonarmap.ranges._kernels import excess_ratio
 
-    raw = np.asarray(ping.image, dtype=np.float64)
-    level = np.asarray(background.level_by_bin, dtype=np.float64)[:, None]
-    full = 1.0 if background.beam_factor is None else _expand(background.beam_factor, raw.shape)
-    b = level * full
+    raw = np.ascontiguousarray(ping.image, dtype=np.float32)
+    level = np.ascontiguousarray(background.level_by_bin, dtype=np.float32)
+    full = (np.ones(raw.shape, np.float32) if background.beam_factor is None
+            else np.ascontiguousarray(_expand(background.beam_factor, raw.shape), dtype=np.float32))
     d = _log_range_db(ping, config)
-    if d is not None:
-        ratio = np.power(10.0, np.clip(d * (raw - b) / 10.0, -30.0, 30.0))
-    else:
-        ratio = raw / np.maximum(b, 1e-12)
-    return np.maximum(ratio - 1.0, 0.0)
+    r0, r1 = (0, raw.shape[0]) if rows is None else rows
+    return excess_ratio(raw, level, full, float(d) if d is not None else 0.0, int(r0), int(r1))
 
 
 def _surface_ranges(ping: Ping, image: NDArray[np.float32], levels: NDArray[Any], mask: NDArray[np.bool_],
@@ -854,7 +854,10 @@ def _surface_ranges(ping: Ping, image: NDArray[np.float32], levels: NDArray[Any]
     meas = image
     looks, bg = 1.0, bg_mean or 0.0
     if normalised and background is not None and getattr(background, "level_by_bin", None) is not None:
-        meas = measurement_image(ping, background, config)
+        occupied = np.flatnonzero(cand.any(axis=1))
+        pad = pulse_bins(ping, config) + 4
+        meas = measurement_image(ping, background, config,
+                                 rows=(int(occupied[0]) - pad, int(occupied[-1]) + 1 + pad))
         looks, bg = 1.0, 1.0
     echoes = find_echoes(cand, meas, geom, levels=levels, level_evidence=lut,
                          boost=None if band is None else band, boost_min=1.0, pulse_bins=pb,

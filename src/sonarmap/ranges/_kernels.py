@@ -177,3 +177,25 @@ def viterbi_surfaces(first, count, echo_beam, pos, lo_bin, hi_bin, unary, usable
             cur = prev[cur]
         j = echo_beam[cur]
     return chosen
+
+
+@njit(cache=True, nogil=True)
+def excess_ratio(raw, level, full, log_db, r0, r1):  # pragma: no cover - numba
+    """``max(ratio - 1, 0)`` with ``ratio = raw / b`` (``log_db <= 0``) or ``10^(log_db (raw - b) / 10)``,
+    ``b = level[i] * full[i, j]``, on rows ``r0 .. r1 - 1`` (zero elsewhere); float64."""
+    n, m = raw.shape
+    out = np.zeros((n, m))
+    k = log_db * np.log(10.0) / 10.0
+    for i in range(max(r0, 0), min(r1, n)):
+        for j in range(m):
+            b = level[i] * full[i, j]
+            if log_db > 0:
+                x = k * (raw[i, j] - b)
+                if x > 69.0:
+                    x = 69.0
+                v = np.exp(x) - 1.0
+            else:
+                v = raw[i, j] / max(b, 1e-12) - 1.0
+            if v > 0.0:
+                out[i, j] = v
+    return out
