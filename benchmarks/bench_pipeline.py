@@ -75,22 +75,12 @@ def run(quick: bool) -> list[dict]:
     read = timeit(lambda: read_png_ping(next(it)), repeat=rep)
     # the per-ping default against the same pipeline before background normalisation, fit gates
     # and the extent rule, interleaved ping by ping so that machine drift hits both alike
-    import time as _time
+    from run import interleaved
 
     before = cfg.replace(normalise="off", min_component_extent_m=0.0, max_kld=1e9, max_object_weight=1.0,
                          min_separation=0.0)
-    t_new: list[float] = []
-    t_old: list[float] = []
-    for _ in range(max(rep // len(pings), 3)):
-        for p in pings:
-            t0 = _time.perf_counter()
-            process_ping(p, cfg)
-            t_new.append(_time.perf_counter() - t0)
-            t0 = _time.perf_counter()
-            process_ping(p, before)
-            t_old.append(_time.perf_counter() - t0)
-    compute = 1e3 * sorted(t_new)[len(t_new) // 2]
-    compute_before = 1e3 * sorted(t_old)[len(t_old) // 2]
+    compute, compute_before = interleaved(lambda p: process_ping(p, cfg), lambda p: process_ping(p, before), pings,
+                                          rounds=rep // len(pings))
     from sonarmap.io import read_pings
 
     rows_other = []

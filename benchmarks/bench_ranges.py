@@ -3,10 +3,9 @@
 from __future__ import annotations
 
 import itertools
-import time
 from pathlib import Path
 
-from run import DATA, timeit
+from run import DATA, interleaved, timeit
 
 
 def run(quick: bool) -> list[dict]:
@@ -44,17 +43,9 @@ def run(quick: bool) -> list[dict]:
         # the whole default against the previous per-beam rules, interleaved ping by ping
         rules = PipelineConfig(tracker="rules")
         cfg = PipelineConfig()
-        t_new: list[float] = []
-        t_old: list[float] = []
-        for _ in range(max(rep // len(pings), 3)):
-            for p in pings:
-                t0 = time.perf_counter()
-                process_ping(p, cfg)
-                t_new.append(time.perf_counter() - t0)
-                t0 = time.perf_counter()
-                process_ping(p, rules)
-                t_old.append(time.perf_counter() - t0)
+        t_new, t_old = interleaved(lambda p: process_ping(p, cfg), lambda p: process_ping(p, rules), pings,
+                                   rounds=max(rep // len(pings), 3))
         rows.append({"benchmark": "ranges", "case": f"process_ping default, {name}",
-                     "median_ms": 1e3 * sorted(t_new)[len(t_new) // 2], "baseline": "tracker='rules'",
-                     "baseline_ms": 1e3 * sorted(t_old)[len(t_old) // 2], "note": "target: no slower"})
+                     "median_ms": t_new, "baseline": "tracker='rules'", "baseline_ms": t_old,
+                     "note": "target: no slower"})
     return rows

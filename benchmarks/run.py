@@ -44,6 +44,23 @@ def timeit(fn: Callable[[], Any], *, repeat: int = 50, warmup: int = 3, min_time
     return 1e3 * times[len(times) // 2]
 
 
+def interleaved(fn_a: Callable[[Any], Any], fn_b: Callable[[Any], Any], items: list[Any], *,
+                rounds: int = 3) -> tuple[float, float]:
+    """Median wall times (ms) of ``fn_a(item)`` and ``fn_b(item)``, alternated item by item so that
+    machine drift hits both alike."""
+    t_a: list[float] = []
+    t_b: list[float] = []
+    for _ in range(max(rounds, 1)):
+        for it in items:
+            t0 = time.perf_counter()
+            fn_a(it)
+            t_a.append(time.perf_counter() - t0)
+            t0 = time.perf_counter()
+            fn_b(it)
+            t_b.append(time.perf_counter() - t0)
+    return 1e3 * sorted(t_a)[len(t_a) // 2], 1e3 * sorted(t_b)[len(t_b) // 2]
+
+
 def _load(path: Path) -> Any:
     spec = importlib.util.spec_from_file_location(path.stem, path)
     assert spec and spec.loader

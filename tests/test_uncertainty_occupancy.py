@@ -10,21 +10,13 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from sonarmap.mapping.occupancy import OccupancyConfig, OccupancyMap, SensorModel, pd_pfa_increments
-from sonarmap.mapping.poses import SensorPoses
 from sonarmap.ranges import BeamRanges
 
 DR = 0.0625  # a power-of-two bin size: sigma_m / DR is exact
 RES = 0.25  # 4 bins per cell
 
 
-def _poses(R, t) -> SensorPoses:
-    R = np.asarray(R, dtype=np.float64).reshape(-1, 3, 3)
-    n = R.shape[0]
-    return SensorPoses(np.arange(n, dtype=np.int64), R, np.asarray(t, np.float64).reshape(n, 3),
-                       Rotation.from_matrix(R).as_quat(), np.ones(n, bool))
-
-
-ID = _poses(np.eye(3), [[0.01, 0.01, 0.01]])
+from test_occupancy import ID, _poses  # noqa: E402  (the same pose helpers)
 
 
 def _scene(seed: int, P: int = 12, B: int = 24):
