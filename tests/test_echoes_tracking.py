@@ -199,3 +199,47 @@ def test_echoes_per_beam_index():
     assert isinstance(e, Echoes)
     first, count = e.per_beam()
     assert list(count) == [2, 0, 1] and list(first) == [0, 2, 2]
+
+
+def test_pipeline_config_track_table_round_trip():
+    import tomllib
+
+    from sonarmap.pipeline import PipelineConfig
+
+    c = PipelineConfig(track={"segment_cost": 80.0}, pulse_length_m=0.01, edge_scan="forward")
+    assert c.track == TrackConfig(segment_cost=80.0)
+    assert PipelineConfig.from_dict(c.to_dict()) == c
+    t = tomllib.loads('[pipeline]\ntracker = "surface"\n[pipeline.track]\nsegment_cost = 90\n')
+    assert PipelineConfig.from_dict(t).track.segment_cost == 90.0
+    with pytest.raises(InputError, match="track: unknown key 'bogus'"):
+        PipelineConfig(track={"bogus": 1})
+    with pytest.raises(InputError, match="tracker"):
+        PipelineConfig(tracker="viterbi")
+    with pytest.raises(InputError, match="pulse_length_m"):
+        PipelineConfig(pulse_length_m=-1.0)
+
+
+def test_real_pings_leading_edges_sigma_and_p_detect(test_pings, aris_pings):
+    """The default's returns are leading edges behind the halo (real DIDSON ping 0's steep seafloor
+    and ping 5's steep hull: the previous rules' first structure pixel lay 9.6 / 4.3 bins in front),
+    each with a finite sigma and a p_detect in [0, 1]; on ARIS nothing before the target."""
+    from sonarmap.pipeline import PipelineConfig, process_ping
+
+    for k, min_shift in ((0, 5.0), (5, 2.0)):
+        p = test_pings[k]
+        new = process_ping(p).ranges
+        old = process_ping(p, PipelineConfig(tracker="rules")).ranges
+        both = new.valid & old.valid
+        assert both.sum() >= 25
+        shift = np.median(new.range_m[both] - old.range_m[both]) / p.geometry.range_resolution_m
+        assert shift >= min_shift, (k, shift)
+        assert np.all(np.isfinite(new.sigma_m[new.valid])) and np.all(np.isnan(new.sigma_m[~new.valid]))
+        assert np.all((new.p_detect >= 0) & (new.p_detect <= 1))
+        # sigma: between a quarter of a bin and 8 bins
+        sig = new.sigma_m[new.valid] / p.geometry.range_resolution_m
+        assert sig.min() >= 0.25 and sig.max() <= 8.5
+    for f in aris_pings[:2]:
+        r = process_ping(f).ranges
+        assert r.n_returns >= 40
+        assert np.nanmin(r.range_m) > 15.4
+        assert np.all(np.isfinite(r.sigma_m[r.valid]))

@@ -258,10 +258,11 @@ class PipelineConfig:
         if self.track is None:
             object.__setattr__(self, "track", TrackConfig())
         elif isinstance(self.track, dict):
-            try:
-                object.__setattr__(self, "track", TrackConfig(**self.track))
-            except TypeError as exc:
-                raise InputError(f"pipeline config: track: {exc}") from None
+            known = {f.name for f in dataclasses.fields(TrackConfig)}
+            for key in self.track:
+                if key not in known:
+                    raise InputError(f"pipeline config: track: unknown key '{key}' (valid: {', '.join(sorted(known))})")
+            object.__setattr__(self, "track", TrackConfig(**self.track))
         elif not isinstance(self.track, TrackConfig):
             raise bad("track", "must be a track table")
         if self.tracker not in ("surface", "rules"):
