@@ -14,7 +14,7 @@ def run(quick: bool) -> list[dict]:
     from sonarmap.io import read_pings
     from sonarmap.pipeline import PipelineConfig, process_ping
     from sonarmap.ranges import component_rule
-    from sonarmap.ranges.echoes import find_echoes, pixel_llr
+    from sonarmap.ranges.echoes import find_echoes, level_llr
     from sonarmap.ranges.tracking import track_surfaces
     from sonarmap.stats.mixture import quantize
 
@@ -24,19 +24,20 @@ def run(quick: bool) -> list[dict]:
                         ("ARIS 2000 x 48 (sample.aris)", [Path(DATA) / "aris" / "sample.aris"]),
                         ("Oculus 703 x 256 (three_pings_8bit.raw)", [Path(DATA) / "oculus" / "three_pings_8bit.raw"])):
         pings = list(read_pings([str(p) for p in paths]))
+        c = PipelineConfig()
         cases = []
         for p in pings:
             pr = process_ping(p, keep_labels=True)
             if pr.fit is None or pr.gates:
                 continue
-            mask = component_rule(pr.labels >= 1, 16, 16, 4, 40)
-            llr = np.maximum(pixel_llr(quantize(pr.image, 256), pr.fit), 0.0)
-            cases.append((mask, pr.image, p.geometry, llr))
+            mask = component_rule(pr.labels >= 1, c.min_component_beams, c.min_component_bins, c.link_beams,
+                                  c.min_component_pixels)
+            cases.append((mask, pr.image, p.geometry, quantize(pr.image, c.n_levels), np.maximum(level_llr(pr.fit), 0.0)))
         it = itertools.cycle(cases)
 
         def stage() -> None:
-            mask, img, geom, llr = next(it)
-            track_surfaces(find_echoes(mask, img, geom, llr=llr))
+            mask, img, geom, levels, lut = next(it)
+            track_surfaces(find_echoes(mask, img, geom, levels=levels, level_evidence=lut), c.track)
 
         rows.append({"benchmark": "ranges", "case": f"find_echoes + track_surfaces, {name}",
                      "median_ms": timeit(stage, repeat=rep), "target_ms": 0.3 if name.startswith("DIDSON") else None})

@@ -39,6 +39,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from sonarmap._config import is_finite_number
 from sonarmap.errors import FitError, InputError
 from sonarmap.ping import Ping
 from sonarmap.ranges import BeamRanges, component_rule, drop_small_components, extract_ranges, half_peak_edges, no_returns
@@ -269,16 +270,13 @@ class PipelineConfig:
             raise bad("tracker", "must be 'surface' or 'rules'")
         if self.edge_scan not in ("forward", "back"):
             raise bad("edge_scan", "must be 'forward' or 'back'")
-        if self.log_dynamic_range_db is not None:
-            v = self.log_dynamic_range_db
-            if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v) or v <= 0:
-                raise bad("log_dynamic_range_db", "must be a finite number > 0")
-            object.__setattr__(self, "log_dynamic_range_db", float(v))
-        if self.pulse_length_m is not None:
-            v = self.pulse_length_m
-            if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v) or v < 0:
-                raise bad("pulse_length_m", "must be a finite number >= 0")
-            object.__setattr__(self, "pulse_length_m", float(v))
+        for key, positive in (("log_dynamic_range_db", True), ("pulse_length_m", False)):
+            v = getattr(self, key)
+            if v is None:
+                continue
+            if not is_finite_number(v) or (v <= 0 if positive else v < 0):
+                raise bad(key, "must be a finite number > 0" if positive else "must be a finite number >= 0")
+            object.__setattr__(self, key, float(v))
         if self.normalise not in ("auto", "off"):
             raise bad("normalise", "must be 'auto' or 'off'")
         if self.method not in METHODS:
@@ -290,7 +288,7 @@ class PipelineConfig:
                     "min_component_extent_m", "max_kld", "max_object_weight", "min_separation",
                     "edge_fraction", "sigma_scale"):
             v = getattr(self, key)
-            if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
+            if not is_finite_number(v):
                 raise bad(key, "must be a finite number")
             object.__setattr__(self, key, float(v))
         if self.beta < 0:
@@ -599,27 +597,6 @@ def pooled_band_mask(image: NDArray[np.float32], level: float, *, pool_beams: in
     from sonarmap.classify._kernels import box_mean_f32
     from sonarmap.ranges import _rule0
 
-    img = np.ascontiguousarray(image, dtype=np.float32)
-    pooled = box_mean_f32(img, int(pool_bins), 2 * int(pool_beams) + 1)
-    band = pooled >= level
-    if not band.any():
-        return None
-    band = _rule0(band, min_beams, img.shape[0] + 1, 0)
-    return band if band.any() else None
-
-
-def pooled_band_pixels(image: NDArray[np.float32], level: float, *, pool_beams: int = 4, pool_bins: int = 3,
-                       min_beams: int = 40, beams: NDArray[np.bool_] | None = None) -> NDArray[np.bool_] | None:
-    """Band pooling (see :class:`PipelineConfig`): one structure pixel per beam of every wide band.
-
-    The image is averaged over ``pool_bins`` x ``2 pool_beams + 1`` pixels and thresholded at
-    ``level``; 8-connected components spanning >= ``min_beams`` beams are kept, and on each of
-    their beams (only those with ``beams[j]`` when given) the strongest pixel of the first run of
-    kept rows is returned.  None if no band.
-    """
-    from sonarmap.classify._kernels import band_peak_pixels, box_mean_f32
-    from sonarmap.ranges import _rule0
-
     img = np.asarray(image, dtype=np.float32)
     if img.ndim != 2 or img.size == 0:
         from scipy.ndimage import uniform_filter
@@ -632,12 +609,27 @@ def pooled_band_pixels(image: NDArray[np.float32], level: float, *, pool_beams: 
     if not band.any():
         return None
     band = _rule0(band, min_beams, img.shape[0] + 1, 0)
+    return band if band.any() else None
+
+
+def pooled_band_pixels(image: NDArray[np.float32], level: float, *, pool_beams: int = 4, pool_bins: int = 3,
+                       min_beams: int = 40, beams: NDArray[np.bool_] | None = None) -> NDArray[np.bool_] | None:
+    """Band pooling (see :class:`PipelineConfig`): one structure pixel per beam of every wide band.
+
+    The bands of :func:`pooled_band_mask`; on each of their beams (only those with ``beams[j]``
+    when given) the strongest pixel of the first run of band rows is returned.  None if no band.
+    """
+    from sonarmap.classify._kernels import band_peak_pixels
+
+    band = pooled_band_mask(image, level, pool_beams=pool_beams, pool_bins=pool_bins, min_beams=min_beams)
+    if band is None:
+        return None
     cols = band.any(axis=0)
     if beams is not None:
         cols &= np.asarray(beams, dtype=bool)
     if not cols.any():
         return None
-    return band_peak_pixels(band, np.ascontiguousarray(img), cols)
+    return band_peak_pixels(band, np.ascontiguousarray(image, dtype=np.float32), cols)
 
 
 def process_ping(ping: Ping, config: PipelineConfig = PipelineConfig(), *, keep_labels: bool = False,
@@ -774,17 +766,24 @@ def process_ping(ping: Ping, config: PipelineConfig = PipelineConfig(), *, keep_
     )
 
 
+def _meta_number(ping: Ping, key: str, default: float | None = None) -> float | None:
+    """``ping.meta[key]`` as a float: ``default`` when absent, None when it is not a finite number."""
+    meta = ping.meta if isinstance(ping.meta, dict) else {}
+    if key not in meta:
+        return default
+    v = meta[key]
+    return float(v) if is_finite_number(v) else None
+
+
 def pulse_bins(ping: Ping, config: PipelineConfig) -> int:
     """The pulse length in range bins (>= 1): ``config.pulse_length_m``, else the ping's
     ``meta["pulse_width_us"]`` at its sound speed (``meta["sound_speed_m_s"]``, default 1500 m/s)."""
     length = config.pulse_length_m
     if length is None:
-        meta = ping.meta if isinstance(ping.meta, dict) else {}
-        us = meta.get("pulse_width_us")
-        c = meta.get("sound_speed_m_s", 1500.0)
-        ok = (isinstance(us, int | float) and not isinstance(us, bool) and math.isfinite(us) and 0 < us < 1e5
-              and isinstance(c, int | float) and math.isfinite(c) and 1300 <= c <= 1700)
-        length = float(us) * 1e-6 * float(c) / 2.0 if ok else 0.0
+        us = _meta_number(ping, "pulse_width_us")
+        c = _meta_number(ping, "sound_speed_m_s", 1500.0)
+        ok = us is not None and 0 < us < 1e5 and c is not None and 1300 <= c <= 1700
+        length = us * 1e-6 * c / 2.0 if ok else 0.0  # type: ignore[operator]
     dr = abs(ping.geometry.range_resolution_m)
     return max(1, int(round(length / dr))) if dr > 0 else 1
 
@@ -793,10 +792,8 @@ def _log_range_db(ping: Ping, config: PipelineConfig) -> float | None:
     """dB per unit of raw pixel value of log-compressed samples (None: linear samples)."""
     if config.log_dynamic_range_db is not None:
         return config.log_dynamic_range_db
-    meta = ping.meta if isinstance(ping.meta, dict) else {}
-    v = meta.get("log_dynamic_range_db")
-    ok = isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v) and 0 < v < 1000
-    return float(v) if ok else None
+    v = _meta_number(ping, "log_dynamic_range_db")
+    return v if v is not None and 0 < v < 1000 else None
 
 
 def measurement_image(ping: Ping, background: Any, config: PipelineConfig = PipelineConfig(), *,
@@ -850,20 +847,19 @@ def _surface_ranges(ping: Ping, image: NDArray[np.float32], levels: NDArray[Any]
     else:
         lut = np.ones(int(levels.max()) + 1)
     pb = pulse_bins(ping, config)
-    # a pooled band pixel passed a >= pool_factor x background test over the whole box: one nat
-    # at least, whatever its own (single-look, speckled) value says
-    meas = image
-    looks, bg = 1.0, bg_mean or 0.0
+    meas, bg = image, bg_mean or 0.0
     if normalised and background is not None and getattr(background, "level_by_bin", None) is not None:
+        # echo intensity above the background, in background units (its mean is 1)
         occupied = np.flatnonzero(cand.any(axis=1))
-        pad = pulse_bins(ping, config) + 4
+        pad = pb + 4
         meas = measurement_image(ping, background, config,
                                  rows=(int(occupied[0]) - pad, int(occupied[-1]) + 1 + pad))
-        looks, bg = 1.0, 1.0
-    echoes = find_echoes(cand, meas, geom, levels=levels, level_evidence=lut,
-                         boost=None if band is None else band, boost_min=1.0, pulse_bins=pb,
-                         fraction=config.edge_fraction if config.edge_fraction > 0 else 0.5,
-                         looks=looks, background=bg, scan=config.edge_scan, sigma_scale=config.sigma_scale)
+        bg = 1.0
+    # a pooled band pixel passed a >= pool_factor x background test over the whole box: one nat
+    # at least, whatever its own (single-look, speckled) value says
+    echoes = find_echoes(cand, meas, geom, levels=levels, level_evidence=lut, boost=band, boost_min=1.0,
+                         pulse_bins=pb, fraction=config.edge_fraction if config.edge_fraction > 0 else 0.5,
+                         background=bg, scan=config.edge_scan, sigma_scale=config.sigma_scale)
     tracks = track_surfaces(echoes, config.track)
     sel = tracks.first
     thickness = np.where(sel >= 0, (echoes.stop_bin - echoes.start_bin)[np.maximum(sel, 0)] if echoes.size else 0, 0)

@@ -464,38 +464,31 @@ def extract_ranges(
 
 
 def ranges_from_tracks(echoes: "Echoes", tracks: "Tracks", geometry: SonarGeometry, image: ArrayLike, *,
-                       mode: Mode = "first", p_detect: ArrayLike | None = None, time_ns: int = 0,
-                       source: str = "") -> BeamRanges:
+                       mode: Mode = "first", time_ns: int = 0, source: str = "") -> BeamRanges:
     """The :class:`BeamRanges` of tracked surfaces: per beam the nearest tracked echo's leading
-    edge (``mode="first"``) or peak (``"strongest"``), its sigma, and the surfaces behind it."""
+    edge (``mode="first"``) or peak (``"strongest"``), its sigma, and the surfaces behind it.
+    ``p_detect`` is left NaN (the pipeline sets it from the ping's model)."""
     e = tracks.echo
     sel = e[0]
     ok = sel >= 0
+    if not ok.any():
+        return no_returns(geometry, time_ns=time_ns, source=source, mode=mode)
     s = np.maximum(sel, 0)
     n = geometry.n_beams
     r = np.asarray(geometry.range_m, dtype=np.float64)
+    at = echoes.edge_range_m if mode == "first" else echoes.peak_range_m
+    rng = np.where(ok, at[s], np.nan)
     if mode == "first":
-        rng = np.where(ok, echoes.edge_range_m[s] if echoes.size else np.nan, np.nan)
-        b = np.where(ok, np.clip(np.floor(echoes.edge_bin[s] + 0.5) if echoes.size else 0, 0, r.size - 1), -1)
+        b = np.where(ok, np.clip(np.floor(echoes.edge_bin[s] + 0.5), 0, r.size - 1), -1).astype(np.int64)
     else:
-        rng = np.where(ok, echoes.peak_range_m[s] if echoes.size else np.nan, np.nan)
-        b = np.where(ok, echoes.peak_bin[s] if echoes.size else 0, -1)
-    b = b.astype(np.int64)
+        b = np.where(ok, echoes.peak_bin[s], -1).astype(np.int64)
     img = np.asarray(image, dtype=np.float32)
     inten = np.where(ok, img[np.maximum(b, 0), np.arange(n)], np.nan).astype(np.float32)
-    sigma = np.where(ok, echoes.sigma_m[s] if echoes.size else np.nan, np.nan)
-    other = np.full((max(e.shape[0] - 1, 0), n), np.nan)
-    for k in range(1, e.shape[0]):
-        okk = e[k] >= 0
-        if echoes.size:
-            src = echoes.edge_range_m if mode == "first" else echoes.peak_range_m
-            other[k - 1] = np.where(okk, src[np.maximum(e[k], 0)], np.nan)
-    # confidence: the share of existing neighbour beams (+-2) whose return lies on the same piece
-    conf = np.zeros(n, dtype=np.float32)
-    if ok.any():
-        sup, cnt = _support(np.where(ok, b, -1), 2, 20)
-        conf = np.where(ok, sup / np.maximum(cnt, 1), 0.0).astype(np.float32)
-    pdet = np.full(n, np.nan, dtype=np.float32) if p_detect is None else np.asarray(p_detect, dtype=np.float32)
+    sigma = np.where(ok, echoes.sigma_m[s], np.nan)
+    other = np.where(e[1:] >= 0, at[np.maximum(e[1:], 0)], np.nan)
+    # confidence: the share of existing neighbour beams (+-2) whose return lies within 20 bins
+    sup, cnt = _support(b, 2, 20)
+    conf = np.where(ok, sup / np.maximum(cnt, 1), 0.0).astype(np.float32)
     return BeamRanges(range_m=rng, bin=b, intensity=inten, confidence=conf,
                       azimuth_rad=np.asarray(geometry.azimuth_rad, dtype=np.float64), time_ns=int(time_ns),
-                      source=source, mode=mode, sigma_m=sigma, p_detect=pdet, other_range_m=other)
+                      source=source, mode=mode, sigma_m=sigma, other_range_m=other)

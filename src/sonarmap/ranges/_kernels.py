@@ -72,17 +72,18 @@ def find_echoes(mask, img, code, lut, boost, boost_min, max_gap, fraction, peak_
                 if den < 0.0:
                     pv = pv - 0.125 * (img[p - 1, j] - img[p + 1, j]) ** 2 / den
             level = fraction * pv
-            # the leading edge: walk back from the peak while the image stays above the level
+            # the leading edge, at most `back` bins in front of the echo
             lo = s - back
             if lo < 0:
                 lo = 0
-            q = p
             if forward:
                 # the first bin from in front of the echo that reaches the level
                 q = lo
                 while q < p and img[q, j] < level:
                     q += 1
             else:
+                # walk back from the peak while the image stays at or above the level
+                q = p
                 while q > lo and img[q - 1, j] >= level:
                     q -= 1
             if q > 0 and img[q - 1, j] < level and img[q, j] > img[q - 1, j]:

@@ -32,7 +32,7 @@ from numpy.typing import ArrayLike, NDArray
 from sonarmap.errors import InputError
 from sonarmap.geometry import SonarGeometry
 
-__all__ = ["Echoes", "find_echoes", "range_sigma_m", "smooth_along_range", "pixel_llr", "level_llr"]
+__all__ = ["Echoes", "find_echoes", "range_sigma_m", "smooth_along_range", "level_llr"]
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -113,11 +113,6 @@ def level_llr(fit: object, *, clip: float = 4.0) -> NDArray[np.float64]:
     return np.clip(np.nan_to_num(lut, nan=0.0, posinf=clip, neginf=-clip), -clip, clip)
 
 
-def pixel_llr(levels: NDArray[np.integer], fit: object, *, clip: float = 4.0) -> NDArray[np.float64]:
-    """:func:`level_llr` at every pixel of a quantised image."""
-    return level_llr(fit, clip=clip)[np.asarray(levels)]
-
-
 def range_sigma_m(edge_value: ArrayLike, slope: ArrayLike, bin_m: float, *, looks: float = 1.0,
                   background: float = 0.0, pulse_m: float = 0.0, scale: float = 1.0) -> NDArray[np.float64]:
     """One-sigma uncertainty of a leading-edge range (metres).
@@ -181,7 +176,8 @@ def find_echoes(
         The image the classifier saw; smoothed along range over ``pulse_bins`` before measuring.
     geometry : SonarGeometry
     llr : ndarray, shape (n_bins, n_beams), optional
-        Per-pixel evidence (:func:`pixel_llr`); default 1 per structure pixel.
+        Per-pixel evidence (e.g. :func:`level_llr` looked up at every pixel); default 1 per
+        structure pixel.
     levels, level_evidence : ndarray, optional
         Instead of ``llr``: the quantised image and the evidence per level (:func:`level_llr`),
         looked up only at structure pixels.
@@ -237,15 +233,13 @@ def find_echoes(
     bk = int(pulse_bins) + 2 if back is None else int(back)
     beam, start, stop, peak, pval, edge, slope, evid, npx = _kernels.find_echoes(
         m, img, code, lut, bst, float(boost_min), gap, float(fraction), float(peak_rel), bk, scan == "forward")
-    n = beam.size
     r = np.asarray(geometry.range_m, dtype=np.float64)
     idx = np.arange(r.size, dtype=np.float64)
     edge_r = np.interp(edge, idx, r)
-    peak_r = r[peak] if n else np.zeros(0)
     bin_m = abs(geometry.range_resolution_m)
-    pulse_m = max(int(pulse_bins), 1) * bin_m if pulse_bins >= 2 else 0.0
+    pulse_m = int(pulse_bins) * bin_m if pulse_bins >= 2 else 0.0
     sigma = range_sigma_m(fraction * pval, slope, bin_m, looks=looks * max(int(pulse_bins), 1),
                           background=background, pulse_m=pulse_m, scale=sigma_scale)
     return Echoes(beam=beam, start_bin=start, stop_bin=stop, peak_bin=peak, peak_value=pval, edge_bin=edge,
-                  edge_range_m=edge_r, peak_range_m=np.asarray(peak_r, dtype=np.float64), slope=slope,
+                  edge_range_m=edge_r, peak_range_m=r[peak], slope=slope,
                   evidence=evid, n_pixels=npx, sigma_m=sigma, n_beams=int(m.shape[1]))

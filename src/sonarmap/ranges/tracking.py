@@ -28,6 +28,7 @@ import dataclasses
 import numpy as np
 from numpy.typing import NDArray
 
+from sonarmap._config import is_finite_number
 from sonarmap.errors import InputError
 from sonarmap.ranges.echoes import Echoes
 
@@ -51,7 +52,7 @@ class TrackConfig:
     def __post_init__(self) -> None:
         for key in ("segment_cost", "beam_cost", "slope_cost", "slope_bins", "gap_cost", "jump_bins", "touch_bins"):
             v = getattr(self, key)
-            if isinstance(v, bool) or not isinstance(v, int | float) or not np.isfinite(v) or v < 0:
+            if not is_finite_number(v) or v < 0:
                 raise InputError(f"track config: {key}: must be a finite number >= 0 (got {v!r})")
             object.__setattr__(self, key, float(v))
         if self.slope_bins <= 0:
