@@ -10,8 +10,12 @@ wrong), 2 usage error.  ``--debug`` shows tracebacks.
 
 from __future__ import annotations
 
+import contextlib
 import importlib
+import logging
 import sys
+import warnings
+from collections.abc import Iterator
 
 import typer
 
@@ -81,10 +85,61 @@ def _register_all() -> None:
 _register_all()
 
 
+def _one_line(text: object) -> str:
+    return " ".join(str(text).split())
+
+
+def _show_warning(
+    message: Warning | str,
+    category: type[Warning],
+    filename: str,
+    lineno: int,
+    file: object | None = None,
+    line: str | None = None,
+) -> None:
+    """Print a warning as one line on stderr: ``sonarmap: warning: <message>``."""
+    text = _one_line(message) or category.__name__
+    if not issubclass(category, UserWarning) or category is UserWarning:
+        text = f"{category.__name__}: {text}"
+    print(f"sonarmap: warning: {text}", file=sys.stderr)
+
+
+#: Loggers of libraries that print multi-line tracebacks on connection loss (a killed dask
+#: scheduler or worker); the CLI reports such failures itself, in one line.
+_QUIET_LOGGERS = ("distributed", "tornado", "asyncio")
+
+
+@contextlib.contextmanager
+def _cli_output(debug: bool) -> Iterator[None]:
+    """One-line warnings and quiet library loggers for the duration of one CLI call."""
+    saved_show = warnings.showwarning
+    saved_levels = {name: logging.getLogger(name).level for name in _QUIET_LOGGERS}
+    if not debug:
+        warnings.showwarning = _show_warning
+        for name in _QUIET_LOGGERS:
+            logging.getLogger(name).setLevel(logging.CRITICAL + 1)
+    try:
+        yield
+    finally:
+        warnings.showwarning = saved_show
+        for name, level in saved_levels.items():
+            logging.getLogger(name).setLevel(level)
+
+
+def _is_dask_error(exc: BaseException) -> bool:
+    mod = type(exc).__module__ or ""
+    return mod.split(".", 1)[0] in {"distributed", "dask", "tornado"}
+
+
 def main(argv: list[str] | None = None) -> int:
     """Console-script entry point; returns the exit code."""
     args = sys.argv[1:] if argv is None else argv
     debug = "--debug" in args
+    with _cli_output(debug):
+        return _main(args, debug)
+
+
+def _main(args: list[str], debug: bool) -> int:
     try:
         rv = app(args=args, prog_name="sonarmap", standalone_mode=False)
         # typer turns Ctrl-C into Exit(130), *returned* (not raised) when standalone_mode=False.
@@ -111,10 +166,14 @@ def main(argv: list[str] | None = None) -> int:
         if debug:
             raise
         if isinstance(exc, SonarmapError | OSError | ValueError):
-            msg = " ".join(str(exc).split()) or type(exc).__name__
+            msg = _one_line(exc) or type(exc).__name__
             print(f"sonarmap: error: {msg}", file=sys.stderr)
             return 1
-        print(f"sonarmap: internal error: {type(exc).__name__}: {exc} (rerun with --debug)", file=sys.stderr)
+        if _is_dask_error(exc):
+            msg = _one_line(exc) or "connection lost"
+            print(f"sonarmap: error: dask: {type(exc).__name__}: {msg}", file=sys.stderr)
+            return 1
+        print(f"sonarmap: internal error: {type(exc).__name__}: {_one_line(exc)} (rerun with --debug)", file=sys.stderr)
         return 1
     return 0
 
