@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 from pathlib import Path
 from typing import Any
 
@@ -162,10 +163,20 @@ def map_command(
         TextColumn("map"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn(),
         console=err_console(), disable=quiet, transient=False,
     )
+    # The first ping is read before any processing, so that input and pose errors come first.
+    ping_iter = read_pings(inputs, geometry=geometry)
+    first = next(ping_iter, None)
+    if first is None:
+        raise InputError("PINGS: no complete ping in the input (nothing written)")
+    if traj is None and first.pose is None:
+        raise InputError(
+            f"--poses: no trajectory given and ping {first.source} carries no pose "
+            "(give --poses TRAJECTORY.csv)"
+        )
     with progress:
         task = progress.add_task("map", total=total)
         last_geom = None
-        for ping in read_pings(inputs, geometry=geometry):
+        for ping in itertools.chain([first], ping_iter):
             if last_geom is not None and ping.geometry.shape != last_geom.shape:
                 flush()
             last_geom = ping.geometry
@@ -175,8 +186,6 @@ def map_command(
                 flush()
             progress.advance(task)
         flush()
-    if stats["pings"] == 0:
-        raise InputError("PINGS: no pings read")
 
     if occ is None:
         out_cloud = PointCloud.concat(clouds)

@@ -209,6 +209,10 @@ def register(app: typer.Typer) -> None:
                 n_ret += prod.ranges.n_returns
                 n_pings += 1
                 gated.append(prod.gates)
+            if n_pings == 0:
+                from sonarmap.errors import InputError
+
+                raise InputError("PINGS: no complete ping in the input (nothing written)")
         console = err_console()
         console.print(
             f"{n_pings} pings, {n_rows} rows ({n_ret} returns) -> {output} (method={cfg.method}"

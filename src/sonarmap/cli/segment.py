@@ -106,4 +106,8 @@ def register(app: typer.Typer) -> None:
                     fig.savefig(tmp, dpi=90, format="png")
                 plt.close(fig)
             n += 1
+        if n == 0:
+            from sonarmap.errors import InputError
+
+            raise InputError("PINGS: no complete ping in the input (nothing written)")
         err_console().print(f"segmented {n} pings -> {output}")

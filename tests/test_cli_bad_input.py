@@ -1,0 +1,171 @@
+"""The CLI on bad input: every processing error one line and exit 1, usage errors exit 2.
+
+A matrix of commands (info, ranges, segment, process, report, map) × inputs (missing, junk,
+truncated, mutated, non-regular) must never print "internal error" or a traceback.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import signal
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from sonarmap.cli import main
+
+COMMANDS = ("info", "ranges", "segment", "process", "report", "map")
+
+
+def _args(cmd: str, inp: Path, out: Path) -> list[str]:
+    if cmd == "info":
+        return ["info", str(inp)]
+    if cmd == "report":
+        return ["report", str(inp), "-o", str(out / "r.html")]
+    if cmd == "process":
+        return ["process", str(inp), "-o", str(out / "s.zarr")]
+    if cmd == "map":
+        return ["map", str(inp), "-o", str(out / "m.ply")]
+    if cmd == "segment":
+        return ["segment", str(inp), "-o", str(out / "seg")]
+    return ["ranges", str(inp), "-o", str(out / "r.csv")]
+
+
+def _missing(d: Path, data: Path) -> Path:
+    return d / "nope.aris"
+
+
+def _junk(suffix: str) -> Callable[[Path, Path], Path]:
+    def make(d: Path, data: Path) -> Path:
+        p = d / f"junk{suffix}"
+        p.write_bytes(np.random.default_rng(3).integers(0, 256, 5000, dtype=np.uint8).tobytes())
+        return p
+
+    return make
+
+
+def _truncated_aris(d: Path, data: Path) -> Path:
+    p = d / "t.aris"
+    p.write_bytes((data / "aris" / "sample.aris").read_bytes()[:700])
+    return p
+
+
+def _truncated_oculus(d: Path, data: Path) -> Path:
+    p = d / "t.raw"
+    raw = (data / "oculus" / "three_pings_8bit.raw").read_bytes()
+    p.write_bytes(raw[:90])
+    return p
+
+
+def _truncated_png(d: Path, data: Path) -> Path:
+    src = sorted((data / "didson" / "test").glob("*_raw.png"))[0]
+    p = d / src.name
+    p.write_bytes(src.read_bytes()[:300])
+    shutil.copy2(src.with_name(src.name.replace("_raw.png", ".json")), d)
+    return p
+
+
+def _bad_sidecar(d: Path, data: Path) -> Path:
+    src = sorted((data / "didson" / "test").glob("*_raw.png"))[0]
+    p = Path(shutil.copy2(src, d))
+    side = json.loads(src.with_name(src.name.replace("_raw.png", ".json")).read_text())
+    side["num_beams"] = 0
+    (d / src.name.replace("_raw.png", ".json")).write_text(json.dumps(side))
+    return p
+
+
+def _absurd_aris(d: Path, data: Path) -> Path:
+    raw = bytearray((data / "aris" / "sample.aris").read_bytes())
+    # every frame's SamplePeriod (frame-header offset 452, uint32) set to 0xFFFFFFFF
+    for off in range(1024, len(raw) - 1024, 1024 + 48 * 2000):
+        raw[off + 452 : off + 456] = b"\xff\xff\xff\xff"
+    p = d / "absurd.aris"
+    p.write_bytes(bytes(raw))
+    return p
+
+
+def _fifo(d: Path, data: Path) -> Path:
+    p = d / "pipe.aris"
+    os.mkfifo(p)
+    return p
+
+
+def _dev_zero(d: Path, data: Path) -> Path:
+    p = d / "zero.oculus"
+    p.symlink_to("/dev/zero")
+    return p
+
+
+def _bad_store(d: Path, data: Path) -> Path:
+    p = d / "bad.zarr"
+    p.mkdir()
+    (p / "zarr.json").write_bytes(b'{"zarr_format": 3, "node_type": "group", \xc0')
+    return p
+
+
+def _empty_dir(d: Path, data: Path) -> Path:
+    p = d / "empty"
+    p.mkdir()
+    return p
+
+
+INPUTS: dict[str, Callable[[Path, Path], Path]] = {
+    "missing": _missing,
+    "junk.aris": _junk(".aris"),
+    "junk.png": _junk("_raw.png"),
+    "junk.oculus": _junk(".oculus"),
+    "junk.bag": _junk(".bag"),
+    "truncated.aris": _truncated_aris,
+    "truncated.raw": _truncated_oculus,
+    "truncated.png": _truncated_png,
+    "sidecar num_beams 0": _bad_sidecar,
+    "aris SamplePeriod 0xFFFFFFFF": _absurd_aris,
+    "fifo": _fifo,
+    "/dev/zero": _dev_zero,
+    "corrupt store": _bad_store,
+    "empty dir": _empty_dir,
+}
+
+
+@pytest.fixture
+def alarm() -> Iterator[None]:
+    """Fail instead of hanging forever (a FIFO read blocks)."""
+
+    def boom(signum: int, frame: object) -> None:
+        raise TimeoutError("command hung")
+
+    old = signal.signal(signal.SIGALRM, boom)
+    signal.alarm(60)
+    yield
+    signal.alarm(0)
+    signal.signal(signal.SIGALRM, old)
+
+
+@pytest.mark.parametrize("kind", list(INPUTS))
+@pytest.mark.parametrize("cmd", COMMANDS)
+def test_bad_input_is_one_line_exit_1(cmd: str, kind: str, tmp_path: Path, data_dir: Path,
+                                      capsys: pytest.CaptureFixture[str], alarm: None) -> None:
+    d = tmp_path / "in"
+    d.mkdir()
+    out = tmp_path / "out"
+    out.mkdir()
+    inp = INPUTS[kind](d, data_dir)
+    rc = main(_args(cmd, inp, out))
+    err = capsys.readouterr().err
+    lines = [ln for ln in err.splitlines() if ln.strip() and not ln.startswith("sonarmap: warning:")]
+    assert "internal error" not in err and "Traceback" not in err, err
+    if cmd == "info" and rc == 0:  # info describes what it could read; what it skipped is a warning
+        assert any(ln.startswith("sonarmap: warning:") for ln in err.splitlines()), err
+        return
+    assert rc == 1, f"{cmd} on {kind}: exit {rc}, stderr {err!r}"
+    assert len(lines) == 1 and lines[0].startswith("sonarmap: error:"), err
+
+
+@pytest.mark.parametrize("cmd", COMMANDS)
+def test_unknown_option_is_usage_error(cmd: str, tmp_path: Path, data_dir: Path) -> None:
+    args = _args(cmd, data_dir / "aris" / "sample.aris", tmp_path) + ["--no-such-option"]
+    assert main(args) == 2
