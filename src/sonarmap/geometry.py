@@ -29,6 +29,7 @@ import hashlib
 import json
 import math
 import os
+import sys
 import warnings
 from collections.abc import Mapping
 from importlib import resources
@@ -50,20 +51,126 @@ __all__ = [
     "preset",
     "preset_names",
     "uniform_azimuths",
+    "MAX_BEAMS",
+    "MAX_BINS",
+    "MAX_RANGE_M",
+    "SINGLE_BEAM_WIDTH_RAD",
 ]
+
+#: Largest beam count accepted, from files and in the constructor (imaging sonars have <= 1024).
+MAX_BEAMS = 4096
+#: Largest range-bin count accepted (ARIS records at most a few thousand samples per beam).
+MAX_BINS = 65536
+#: Largest range in metres accepted: far beyond the reach of any imaging sonar.
+MAX_RANGE_M = 10_000.0
+#: Field of view (= beam width) given to a single-beam geometry built without ``fov_rad``: one
+#: azimuth says nothing about the beam's width, so a nominal 1 degree is assumed, with a
+#: :class:`GeometryWarning`.  Pass ``fov_rad`` to state the real width.
+SINGLE_BEAM_WIDTH_RAD = math.radians(1.0)
+
+_TWO_PI = 2.0 * math.pi
+#: Geometry JSON files up to this size are parsed once and cached by content.
+_CACHE_MAX_BYTES = 1024 * 1024
 
 
 class GeometryWarning(SonarmapWarning):
     """A geometry had to be completed by assumption (e.g. uniform azimuths)."""
 
 
-def _frozen_array(values: ArrayLike, name: str, *, ndim: int = 1) -> NDArray[np.float64]:
+def _describe(value: object) -> str:
+    """A short one-line description of a (possibly huge or nested) value for an error message."""
+    if value is None or isinstance(value, bool | np.bool_):
+        return repr(bool(value)) if value is not None else "null"
+    if isinstance(value, np.integer | np.floating):
+        value = value.item()
+    if isinstance(value, int):
+        bits = value.bit_length()
+        return str(value) if bits <= 64 else f"an integer of about {int(bits * 0.30103) + 1} digits"
+    if isinstance(value, float):
+        return repr(value)
+    if isinstance(value, str):
+        return repr(value) if len(value) <= 40 else repr(value[:37]) + "..."
+    if isinstance(value, list | tuple):
+        return f"a {type(value).__name__} of {len(value)} items"
+    if isinstance(value, Mapping):
+        return f"an object with {len(value)} keys"
+    if isinstance(value, np.ndarray):
+        return f"an array of shape {value.shape} and dtype {value.dtype}"
+    return f"a {type(value).__name__}"
+
+
+def _real(value: object, what: str) -> float:
+    """``value`` as a finite float; bools, strings, containers and NaN/inf are refused.
+
+    Raises
+    ------
+    GeometryError
+        ``"<what> must be a number, got ..."`` or ``"<what> must be finite, got ..."``.
+    """
+    if isinstance(value, bool | np.bool_) or not isinstance(value, int | float | np.integer | np.floating):
+        raise GeometryError(f"{what} must be a number, got {_describe(value)}")
     try:
-        arr = np.array(values, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
+        out = float(value)
+    except OverflowError:
+        raise GeometryError(f"{what} must be a finite number, got {_describe(value)}") from None
+    if not math.isfinite(out):
+        raise GeometryError(f"{what} must be finite, got {out!r}")
+    return out
+
+
+def _count(value: object, what: str, maximum: int) -> int:
+    """``value`` as an integer count in ``1..maximum`` (integral floats such as ``512.0`` pass).
+
+    Raises
+    ------
+    GeometryError
+        If ``value`` is a bool, not a number, not integral, not finite or out of range.
+    """
+    if isinstance(value, bool | np.bool_) or not isinstance(value, int | float | np.integer | np.floating):
+        raise GeometryError(f"{what} must be an integer, got {_describe(value)}")
+    if isinstance(value, float | np.floating) and not (math.isfinite(value) and float(value).is_integer()):
+        raise GeometryError(f"{what} must be an integer, got {_describe(value)}")
+    n = int(value)
+    if not 1 <= n <= maximum:
+        raise GeometryError(f"{what} must be between 1 and {maximum}, got {_describe(value)}")
+    return n
+
+
+def _real_list(value: object, what: str, max_len: int) -> NDArray[np.float64]:
+    """A non-empty list of at most ``max_len`` finite numbers (no bools, strings or nesting).
+
+    Raises
+    ------
+    GeometryError
+        Naming the first offending entry.
+    """
+    if isinstance(value, np.ndarray):
+        if value.ndim != 1 or value.dtype.kind not in "iuf":
+            raise GeometryError(f"{what} must be a list of numbers, got {_describe(value)}")
+        items: list[Any] = value.tolist()
+    elif isinstance(value, list | tuple):
+        items = list(value)
+    else:
+        raise GeometryError(f"{what} must be a list of numbers, got {_describe(value)}")
+    if not 1 <= len(items) <= max_len:
+        raise GeometryError(f"{what} must have 1 to {max_len} entries, got {len(items)}")
+    return np.array([_real(v, f"{what} entry {i}") for i, v in enumerate(items)], dtype=np.float64)
+
+
+def _frozen_array(
+    values: ArrayLike, name: str, *, ndim: int = 1, max_size: int | None = None
+) -> NDArray[np.float64]:
+    try:
+        raw = np.asarray(values)
+        if raw.dtype.kind not in "iufO":
+            raise TypeError(f"dtype {raw.dtype}")
+        arr = np.array(raw, dtype=np.float64)
+    except (TypeError, ValueError, OverflowError) as exc:
         raise GeometryError(f"{name}: not a numeric array ({exc})") from None
     if arr.ndim != ndim:
         raise GeometryError(f"{name}: expected {ndim}-D array, got shape {arr.shape}")
+    if max_size is not None and arr.size > max_size:
+        raise GeometryError(f"{name}: {arr.size} entries, more than the {max_size} supported")
     if not np.all(np.isfinite(arr)):
         raise GeometryError(f"{name}: contains NaN or infinite values")
     arr.setflags(write=False)
@@ -74,9 +181,30 @@ def uniform_azimuths(n_beams: int, fov_rad: float) -> NDArray[np.float64]:
     """Beam centres uniformly spread over ``fov_rad``, centred on zero.
 
     Each beam covers ``fov/n``; centres are at ``-fov/2 + (j + 1/2) fov/n``.
+
+    Parameters
+    ----------
+    n_beams : int
+        Number of beams, ``1..MAX_BEAMS``.
+    fov_rad : float
+        Field of view in radians, in ``(0, 2 pi]``.
+
+    Returns
+    -------
+    ndarray, shape (n_beams,)
+        Beam centre azimuths in radians.
+
+    Raises
+    ------
+    GeometryError
+        If ``n_beams`` is not an integer in range or ``fov_rad`` is not a finite angle in range.
     """
-    step = fov_rad / n_beams
-    return -fov_rad / 2 + (np.arange(n_beams) + 0.5) * step
+    n = _count(n_beams, "num_beams", MAX_BEAMS)
+    fov = _real(fov_rad, "fov")
+    if not 0.0 < fov <= _TWO_PI:
+        raise GeometryError(f"fov must be in (0, 2 pi] rad, got {fov!r}")
+    step = fov / n
+    return -fov / 2 + (np.arange(n) + 0.5) * step
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -97,7 +225,9 @@ class SonarGeometry:
     noise : float
         Inverse signal-to-noise ratio ``1/SNR`` used by Wiener deconvolution (eq. 4).
     fov_rad : float, optional
-        Horizontal field of view; defaults to the azimuth span plus one mean beam spacing.
+        Horizontal field of view in ``(0, 2 pi]``; defaults to the azimuth span plus one mean beam
+        spacing.  For a single beam it is that beam's width; without it
+        :data:`SINGLE_BEAM_WIDTH_RAD` is assumed with a :class:`GeometryWarning`.
     frequency_hz, sound_speed_m_s, rx_gain_db : float
         Operating frequency, sound speed and receiver gain.
     name : str
@@ -106,6 +236,13 @@ class SonarGeometry:
         Where the azimuth table came from: ``"table"``, ``"preset:<name>"`` or ``"uniform"``.
     window : tuple of float, optional
         ``(min_range, max_range)`` window the bins were derived from, kept for lossless JSON output.
+
+    Raises
+    ------
+    GeometryError
+        If a field has the wrong type, contains NaN/inf, or is out of range: at most
+        :data:`MAX_BEAMS` beams and :data:`MAX_BINS` bins, ranges in ``[0, MAX_RANGE_M]``,
+        azimuths strictly increasing in ``(-pi, pi)``, ``psf``/``taper`` of one entry per beam.
     """
 
     azimuth_rad: NDArray[np.float64]
@@ -123,8 +260,8 @@ class SonarGeometry:
     psf_raw: NDArray[np.float64] | None = dataclasses.field(default=None, repr=False)
 
     def __post_init__(self) -> None:
-        az = _frozen_array(self.azimuth_rad, "azimuth_rad")
-        rng = _frozen_array(self.range_m, "range_m")
+        az = _frozen_array(self.azimuth_rad, "azimuth_rad", max_size=MAX_BEAMS)
+        rng = _frozen_array(self.range_m, "range_m", max_size=MAX_BINS)
         if az.size < 1:
             raise GeometryError("azimuth_rad: at least one beam is required")
         if rng.size < 1:
@@ -137,40 +274,34 @@ class SonarGeometry:
             raise GeometryError("range_m: range bins must be strictly increasing")
         if rng[0] < 0:
             raise GeometryError(f"range_m: ranges must be non-negative (first is {rng[0]})")
+        if rng[-1] > MAX_RANGE_M:
+            raise GeometryError(f"range_m: ranges must be at most {MAX_RANGE_M:g} m (last is {rng[-1]:g})")
         object.__setattr__(self, "azimuth_rad", az)
         object.__setattr__(self, "range_m", rng)
         n = az.size
-        for field in ("psf", "taper"):
+        for field in ("psf", "taper", "psf_raw"):
             val = getattr(self, field)
             if val is None:
                 continue
-            arr = _frozen_array(val, field)
+            arr = _frozen_array(val, field, max_size=MAX_BEAMS)
             if arr.size != n:
                 raise GeometryError(f"{field}: length {arr.size} does not match {n} beams")
             object.__setattr__(self, field, arr)
         if self.psf is not None:
             if np.any(self.psf < 0):
                 raise GeometryError("psf: beam pattern must be non-negative")
-            total = float(self.psf.sum())
-            if total <= 0:
-                raise GeometryError("psf: beam pattern sums to zero")
+            with np.errstate(over="ignore"):
+                total = float(self.psf.sum())
+            if not 0 < total < math.inf:
+                raise GeometryError("psf: beam pattern sums to zero" if total <= 0 else "psf: sum overflows")
             if self.psf_raw is None:
                 object.__setattr__(self, "psf_raw", self.psf)
-            else:
-                object.__setattr__(self, "psf_raw", _frozen_array(self.psf_raw, "psf_raw"))
             if not math.isclose(total, 1.0, rel_tol=1e-12):
                 object.__setattr__(self, "psf", _frozen_array(self.psf / total, "psf"))
         if self.taper is not None and np.any(self.taper <= 0):
             raise GeometryError("taper: per-beam gains must be positive")
         for field in ("noise", "frequency_hz", "sound_speed_m_s", "rx_gain_db"):
-            val = getattr(self, field)
-            try:
-                fval = float(val)
-            except (TypeError, ValueError):
-                raise GeometryError(f"{field}: not a number ({val!r})") from None
-            if not math.isfinite(fval):
-                raise GeometryError(f"{field}: must be finite")
-            object.__setattr__(self, field, fval)
+            object.__setattr__(self, field, _real(getattr(self, field), field))
         if self.noise < 0:
             raise GeometryError(f"noise: 1/SNR must be >= 0 (got {self.noise})")
         if self.frequency_hz <= 0:
@@ -180,15 +311,35 @@ class SonarGeometry:
                 f"sound_speed_m_s: {self.sound_speed_m_s} is outside 1300-1700 m/s (water)"
             )
         if self.fov_rad is None:
-            spacing = float(np.mean(np.diff(az))) if n > 1 else 0.0
-            object.__setattr__(self, "fov_rad", float(az[-1] - az[0] + spacing))
+            if n > 1:
+                fov = float(az[-1] - az[0] + np.mean(np.diff(az)))
+            else:
+                # one azimuth says nothing about the beam's width; never write an fov of 0
+                warnings.warn(
+                    f"geometry '{self.name}': a single beam without fov_rad; assuming a "
+                    f"{math.degrees(SINGLE_BEAM_WIDTH_RAD):g} deg beam width",
+                    GeometryWarning,
+                    stacklevel=3,
+                )
+                fov = SINGLE_BEAM_WIDTH_RAD
+            object.__setattr__(self, "fov_rad", min(fov, _TWO_PI))
         else:
-            fov = float(self.fov_rad)
-            if not 0 < fov < 2 * math.pi:
-                raise GeometryError(f"fov_rad: must be in (0, 2 pi) (got {fov})")
+            fov = _real(self.fov_rad, "fov_rad")
+            if not 0 < fov <= _TWO_PI:
+                raise GeometryError(f"fov_rad: must be in (0, 2 pi] (got {fov})")
             object.__setattr__(self, "fov_rad", fov)
         if self.window is not None:
-            lo, hi = (float(v) for v in self.window)
+            try:
+                lo_v, hi_v = self.window
+            except (TypeError, ValueError):
+                raise GeometryError(
+                    f"window: must be a (min_range, max_range) pair, got {_describe(self.window)}"
+                ) from None
+            lo, hi = _real(lo_v, "window min_range"), _real(hi_v, "window max_range")
+            if not 0 <= lo < hi <= MAX_RANGE_M:
+                raise GeometryError(
+                    f"window: need 0 <= min_range < max_range <= {MAX_RANGE_M:g} m, got ({lo}, {hi})"
+                )
             object.__setattr__(self, "window", (lo, hi))
 
     # ------------------------------------------------------------------ construction helpers
@@ -208,27 +359,27 @@ class SonarGeometry:
 
         Bins are placed at ``min + i (max - min) / n_bins`` (row 0 = ``min_range_m``).
         """
-        if not (math.isfinite(min_range_m) and math.isfinite(max_range_m)):
-            raise GeometryError("min_range/max_range: must be finite")
-        if max_range_m <= min_range_m:
-            raise GeometryError(
-                f"max_range ({max_range_m}) must exceed min_range ({min_range_m})"
-            )
-        if int(n_bins) != n_bins or n_bins < 1:
-            raise GeometryError(f"num_bins: must be a positive integer (got {n_bins})")
-        n_bins = int(n_bins)
-        step = (max_range_m - min_range_m) / n_bins
-        ranges = min_range_m + np.arange(n_bins) * step
+        lo = _real(min_range_m, "min_range")
+        hi = _real(max_range_m, "max_range")
+        if lo < 0:
+            raise GeometryError(f"min_range: must be >= 0 (got {lo})")
+        if hi > MAX_RANGE_M:
+            raise GeometryError(f"max_range: must be at most {MAX_RANGE_M:g} m (got {hi:g})")
+        if hi <= lo:
+            raise GeometryError(f"max_range ({hi}) must exceed min_range ({lo})")
+        n_bins = _count(n_bins, "num_bins", MAX_BINS)  # bounded before anything is allocated
+        step = (hi - lo) / n_bins
+        ranges = lo + np.arange(n_bins) * step
         if azimuth_rad is None:
             if n_beams is None or fov_rad is None:
                 raise GeometryError("need azimuth_rad, or both n_beams and fov_rad")
-            azimuth_rad = uniform_azimuths(int(n_beams), float(fov_rad))
+            azimuth_rad = uniform_azimuths(n_beams, fov_rad)
             kwargs.setdefault("azimuth_source", "uniform")
         return cls(
-            azimuth_rad=np.asarray(azimuth_rad, dtype=np.float64),
+            azimuth_rad=azimuth_rad,
             range_m=ranges,
             fov_rad=fov_rad,
-            window=(float(min_range_m), float(max_range_m)),
+            window=(lo, hi),
             **kwargs,
         )
 
@@ -369,6 +520,8 @@ _KNOWN_KEYS = {
     "frequency", "sound_speed", "azimuths", "ranges", "psf", "taper",
 }  # fmt: skip
 
+_MAX_NAME_CHARS = 256
+
 
 def geometry_from_dict(
     d: Mapping[str, Any], *, source: str = "<dict>", default_name: str = "sonar"
@@ -379,10 +532,32 @@ def geometry_from_dict(
     view match (e.g. the DIDSON's measured table), else spread uniformly over ``fov`` with a
     :class:`GeometryWarning`.
 
+    Every field is checked before anything is allocated: numbers must be finite numbers (not
+    bools or strings), ``num_beams`` an integer in ``1..MAX_BEAMS``, ``num_bins`` an integer in
+    ``1..MAX_BINS``, ``0 <= min_range < max_range <= MAX_RANGE_M``, ``fov`` in ``(0, 2 pi]``,
+    ``azimuths`` / ``psf`` / ``taper`` lists of one finite number per beam, ``ranges`` a list of
+    ``num_bins`` finite numbers, ``noise >= 0``, ``name`` a short printable string.  Unknown keys
+    are ignored; ``null`` counts as absent for the optional fields.
+
+    Parameters
+    ----------
+    d : mapping
+        The decoded JSON object.
+    source : str
+        Prefix of error messages (the file name).
+    default_name : str
+        Geometry name when ``d`` has no ``name``.
+
+    Returns
+    -------
+    SonarGeometry
+        The validated geometry.
+
     Raises
     ------
     GeometryError
-        With ``source`` in the message, when fields are missing or inconsistent.
+        With ``source`` in the message, when fields are missing, of the wrong type, out of range
+        or inconsistent.
     """
     if not isinstance(d, Mapping):
         raise GeometryError(f"{source}: geometry JSON must be an object, got {type(d).__name__}")
@@ -392,57 +567,71 @@ def geometry_from_dict(
             raise GeometryError(f"{source}: missing field '{key}'")
         return d[key]
 
+    def opt(key: str) -> Any:
+        return d.get(key)
+
     def num(key: str, default: float | None = None) -> float:
-        val = d.get(key, default) if default is not None else need(key)
-        if isinstance(val, bool) or not isinstance(val, int | float):
-            raise GeometryError(f"{source}: field '{key}' must be a number, got {val!r}")
-        return float(val)
+        val = need(key) if default is None else d.get(key, default)
+        return _real(val, f"field '{key}'")
+
+    def table(key: str, max_len: int) -> NDArray[np.float64] | None:
+        val = opt(key)
+        return None if val is None else _real_list(val, f"field '{key}'", max_len)
 
     try:
-        n_beams_field = d.get("num_beams")
-        azimuths = d.get("azimuths")
-        fov = num("fov") if "fov" in d else None
-        name = str(d.get("name", default_name))
+        name = d.get("name", default_name)
+        if not isinstance(name, str) or len(name) > _MAX_NAME_CHARS or not name.isprintable():
+            raise GeometryError(
+                f"field 'name' must be a printable string of at most {_MAX_NAME_CHARS} characters, "
+                f"got {_describe(name)}"
+            )
+        fov = None
+        if opt("fov") is not None:
+            fov = num("fov")
+            if not 0.0 < fov <= _TWO_PI:
+                raise GeometryError(f"field 'fov' must be in (0, 2 pi] rad, got {fov!r}")
+        n_beams = None if opt("num_beams") is None else _count(d["num_beams"], "field 'num_beams'", MAX_BEAMS)
+        n_bins = None if opt("num_bins") is None else _count(d["num_bins"], "field 'num_bins'", MAX_BINS)
+        azimuths = table("azimuths", MAX_BEAMS)
+        if azimuths is not None and n_beams is not None and azimuths.size != n_beams:
+            raise GeometryError(f"'azimuths' has {azimuths.size} entries but num_beams is {n_beams}")
         kwargs: dict[str, Any] = {
             "noise": num("noise", 1e-2),
             "rx_gain_db": num("rx_gain", 0.0),
             "frequency_hz": num("frequency", 1.8e6),
             "sound_speed_m_s": num("sound_speed", 1500.0),
-            "psf": d.get("psf"),
-            "taper": d.get("taper"),
+            "psf": table("psf", MAX_BEAMS),
+            "taper": table("taper", MAX_BEAMS),
             "name": name,
         }
         if azimuths is None:
-            if n_beams_field is None or fov is None:
-                raise GeometryError(f"{source}: need 'azimuths', or 'num_beams' and 'fov'")
-            match = _matching_preset(int(n_beams_field), fov)
+            if n_beams is None or fov is None:
+                raise GeometryError("need 'azimuths', or 'num_beams' and 'fov'")
+            match = _matching_preset(n_beams, fov)
             if match is not None:
                 azimuths = match.azimuth_rad
                 kwargs["azimuth_source"] = f"preset:{match.name}"
             else:
                 warnings.warn(
-                    f"{source}: no azimuth table; assuming {int(n_beams_field)} beams uniform "
+                    f"{source}: no azimuth table; assuming {n_beams} beams uniform "
                     f"over fov={fov:.4f} rad",
                     GeometryWarning,
                     stacklevel=3,
                 )
-                azimuths = uniform_azimuths(int(n_beams_field), fov)
+                azimuths = uniform_azimuths(n_beams, fov)
                 kwargs["azimuth_source"] = "uniform"
-        elif n_beams_field is not None and len(azimuths) != int(n_beams_field):
-            raise GeometryError(
-                f"{source}: 'azimuths' has {len(azimuths)} entries but num_beams is {n_beams_field}"
-            )
-        if "ranges" in d:
-            geom = SonarGeometry(azimuth_rad=azimuths, range_m=d["ranges"], fov_rad=fov, **kwargs)
-            if "num_bins" in d and geom.n_bins != int(d["num_bins"]):
-                raise GeometryError(
-                    f"{source}: 'ranges' has {geom.n_bins} entries but num_bins is {d['num_bins']}"
-                )
-            return geom
+        ranges = table("ranges", MAX_BINS)
+        if ranges is not None:
+            if n_bins is not None and ranges.size != n_bins:
+                raise GeometryError(f"'ranges' has {ranges.size} entries but num_bins is {n_bins}")
+            return SonarGeometry(azimuth_rad=azimuths, range_m=ranges, fov_rad=fov, **kwargs)
+        if n_bins is None:
+            need("num_bins")
+            raise GeometryError("field 'num_bins' must be an integer, got null")
         return SonarGeometry.from_window(
             min_range_m=num("min_range"),
             max_range_m=num("max_range"),
-            n_bins=int(num("num_bins")),
+            n_bins=n_bins,
             azimuth_rad=azimuths,
             fov_rad=fov,
             **kwargs,
@@ -454,8 +643,7 @@ def geometry_from_dict(
         raise
 
 
-@functools.lru_cache(maxsize=64)
-def _geometry_from_json_bytes(data: bytes, source: str, default_name: str) -> SonarGeometry:
+def _parse_geometry_json(data: bytes, source: str, default_name: str) -> SonarGeometry:
     try:
         d = json.loads(data)
     except json.JSONDecodeError as exc:
@@ -464,24 +652,52 @@ def _geometry_from_json_bytes(data: bytes, source: str, default_name: str) -> So
         ) from None
     except UnicodeDecodeError as exc:
         raise DataFormatError(f"not UTF-8 text ({exc.reason})", source) from None
+    except RecursionError:
+        raise DataFormatError("invalid JSON: arrays or objects nested too deeply", source) from None
+    except ValueError as exc:  # e.g. an integer beyond Python's int-str digit limit
+        if "integer string conversion" in str(exc):
+            raise DataFormatError(
+                f"invalid JSON: an integer has more than {sys.get_int_max_str_digits()} digits", source
+            ) from None
+        raise DataFormatError(f"invalid JSON: {' '.join(str(exc).split())}", source) from None
     return geometry_from_dict(d, source=source, default_name=default_name)
+
+
+_cached_geometry_json = functools.lru_cache(maxsize=64)(_parse_geometry_json)
+
+
+def _geometry_from_json_bytes(data: bytes, source: str, default_name: str) -> SonarGeometry:
+    """Parse and validate geometry JSON bytes; results of small files are cached by content.
+
+    Raises
+    ------
+    DataFormatError
+        If ``data`` is not JSON (bad syntax, not UTF-8, nested too deeply, oversized integers).
+    GeometryError
+        If the fields are missing, out of range or inconsistent.
+    """
+    if len(data) > _CACHE_MAX_BYTES:  # do not pin large files in the cache
+        return _parse_geometry_json(data, source, default_name)
+    return _cached_geometry_json(data, source, default_name)
 
 
 def load_geometry(path: str | os.PathLike[str]) -> SonarGeometry:
     """Load a geometry JSON file (DIDSON format, extended); results are cached by content.
 
+    Only regular files of at most ``MAX_SIDECAR_BYTES`` are read.
+
     Raises
     ------
     DataFormatError
-        If the file cannot be read or is not valid JSON (message gives line and column).
+        If the file is missing, not a regular file (FIFO, device, directory), too large, cannot be
+        read or is not valid JSON (message gives line and column).
     GeometryError
         If fields are missing or inconsistent.
     """
+    from sonarmap.io._files import MAX_SIDECAR_BYTES, read_bytes_bounded  # io imports geometry
+
     p = Path(path)
-    try:
-        data = p.read_bytes()
-    except OSError as exc:
-        raise DataFormatError(f"cannot read geometry: {exc.strerror or exc}", p) from None
+    data = read_bytes_bounded(p, MAX_SIDECAR_BYTES, "geometry JSON")
     return _geometry_from_json_bytes(data, str(p), p.stem)
 
 
@@ -584,9 +800,21 @@ def _matching_preset(n_beams: int, fov_rad: float) -> SonarGeometry | None:
 
 
 def as_geometry(spec: SonarGeometry | str | os.PathLike[str]) -> SonarGeometry:
-    """Resolve a geometry given as an object, a preset name, or a JSON path."""
+    """Resolve a geometry given as an object, a preset name, or a JSON path.
+
+    Raises
+    ------
+    GeometryError
+        If ``spec`` is of another type, or the JSON file's fields are invalid.
+    DataFormatError
+        If the JSON file is missing, not a regular file, too large or not valid JSON.
+    """
     if isinstance(spec, SonarGeometry):
         return spec
+    if not isinstance(spec, str | os.PathLike):
+        raise GeometryError(
+            f"geometry: expected a SonarGeometry, preset name or JSON path, got {type(spec).__name__}"
+        )
     s = str(spec)
     if s in _presets():
         return _presets()[s]

@@ -23,12 +23,13 @@ from typing import Any
 
 from sonarmap.errors import DataFormatError
 from sonarmap.geometry import SonarGeometry
+from sonarmap.io._files import open_regular, require_regular_file
 from sonarmap.ping import Ping
 
 __all__ = ["read_pings", "read_ping", "detect_format", "expand_inputs", "FORMAT_MODULES", "format_module"]
 
 #: Modules tried in order by :func:`detect_format` (those that exist).
-FORMAT_MODULES = ("zarrstore", "aris", "oculus", "ddf", "rosbag", "pngjson")
+FORMAT_MODULES = ("zarrstore", "aris", "oculus", "ddf", "rosbag", "kongsberg", "pngjson")
 
 GeometrySpec = SonarGeometry | str | os.PathLike[str] | None
 
@@ -56,29 +57,46 @@ def format_module(name: str) -> ModuleType:
 def detect_format(path: str | os.PathLike[str]) -> str:
     """Name of the format of ``path``, detected from its content.
 
+    Directories (of PNG pings, zarr stores, ROS 2 bags) are recognised by their entries; any other
+    path must be a regular file, whose first 4096 bytes are read through
+    :func:`~sonarmap.io._files.open_regular` (so a FIFO or device is refused at once, never read).
+
     Raises
     ------
     DataFormatError
-        If the path does not exist or no reader recognises it.
+        If the path does not exist, is a FIFO, device or socket, cannot be read, or no reader
+        recognises it.
     """
     p = Path(path)
     if not p.exists():
         raise DataFormatError("no such file or directory", p)
     head = b""
-    if p.is_file():
-        try:
-            with open(p, "rb") as fh:
+    if not p.is_dir():
+        with open_regular(p, "input") as fh:
+            try:
                 head = fh.read(4096)
-        except OSError as exc:
-            raise DataFormatError(f"cannot read: {exc.strerror or exc}", p) from None
-    for mod in _modules():
-        if mod.sniff(p, head):
-            return str(getattr(mod, "FORMAT", mod.__name__.rsplit(".", 1)[-1]))
+            except OSError as exc:
+                raise DataFormatError(f"cannot read: {exc.strerror or exc}", p) from None
+    try:
+        for mod in _modules():
+            if mod.sniff(p, head):
+                return str(getattr(mod, "FORMAT", mod.__name__.rsplit(".", 1)[-1]))
+    except DataFormatError:
+        raise
+    except OSError as exc:  # e.g. a directory that cannot be listed
+        raise DataFormatError(f"cannot read: {exc.strerror or exc}", p) from None
     raise DataFormatError("unrecognised file format (no reader matched its content)", p)
 
 
 def expand_inputs(inputs: str | os.PathLike[str] | Iterable[str | os.PathLike[str]]) -> list[Path]:
-    """Expand globs; keep files and directories; raise if an input matches nothing."""
+    """Expand globs; keep regular files and directories; raise if an input matches nothing.
+
+    Raises
+    ------
+    DataFormatError
+        If an input does not exist, a glob matches nothing, or a path (given or matched) is a
+        FIFO, device or socket rather than a regular file or directory.
+    """
     items = [inputs] if isinstance(inputs, str | os.PathLike) else list(inputs)
     out: list[Path] = []
     for item in items:
@@ -87,12 +105,16 @@ def expand_inputs(inputs: str | os.PathLike[str] | Iterable[str | os.PathLike[st
             hits = sorted(glob.glob(s))
             if not hits:
                 raise DataFormatError("glob matched no files", s)
-            out.extend(Path(h) for h in hits)
+            paths = [Path(h) for h in hits]
         else:
             p = Path(s)
             if not p.exists():
                 raise DataFormatError("no such file or directory", p)
-            out.append(p)
+            paths = [p]
+        for p in paths:
+            if not p.is_dir():
+                require_regular_file(p, "input")
+        out.extend(paths)
     return out
 
 

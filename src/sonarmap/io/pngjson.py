@@ -4,15 +4,24 @@ A ping is ``<ts>_raw.png`` or ``<ts>.png`` (or ``.bmp``) next to ``<ts>.json`` h
 (see :mod:`sonarmap.geometry`).  ``<ts>`` is an integer time stamp since the Unix epoch whose unit is
 inferred from its digit count (10: s, 13: ms, 16: µs, 19: ns).  Images are 8-bit (0-255 -> [0, 1])
 or 16-bit (0-65535 -> [0, 1]) greyscale; palettised images are converted through their palette.
+
+Inputs are untrusted: images and sidecars are opened only if they are regular files (a FIFO or a
+device named like a ping is refused, see :mod:`sonarmap.io._files`), sidecars are read up to
+``MAX_SIDECAR_BYTES`` and validated field by field, and an image's size is checked from its header
+against :data:`MAX_IMAGE_PIXELS` and the geometry before any pixel is decoded.  Every failure is a
+:class:`~sonarmap.errors.DataFormatError` (or a :class:`~sonarmap.errors.GeometryError` for a
+geometry that does not fit the image) naming the file.
 """
 
 from __future__ import annotations
 
+import contextlib
 import glob
 import io
 import json
 import os
 import re
+import struct
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import Any
@@ -23,6 +32,7 @@ from numpy.typing import NDArray
 from sonarmap._atomic import atomic_path, atomic_write_text
 from sonarmap.errors import DataFormatError, GeometryError
 from sonarmap.geometry import SonarGeometry, _geometry_from_json_bytes, as_geometry
+from sonarmap.io._files import MAX_SIDECAR_BYTES, open_regular, read_bytes_bounded, require_regular_file
 from sonarmap.ping import Ping
 
 __all__ = [
@@ -34,6 +44,7 @@ __all__ = [
     "sidecar_json",
     "time_ns_from_stem",
     "read_image_file",
+    "MAX_IMAGE_PIXELS",
 ]
 
 IMAGE_SUFFIXES = (".png", ".bmp")
@@ -42,6 +53,13 @@ IMAGE_SUFFIXES = (".png", ".bmp")
 PRODUCT_STEM_SUFFIXES = ("_truth", "_labels", "_mask")
 _STAMP = re.compile(r"^(\d{9,19})(?:_raw)?$")
 _UNIT_BY_DIGITS = {10: 10**9, 13: 10**6, 16: 10**3, 19: 1}
+#: Largest image accepted, in pixels (64 Mpixel; a DIDSON ping is 49 152), checked from the file
+#: header before decoding - below PIL's own decompression-bomb threshold, so PIL never warns.
+MAX_IMAGE_PIXELS = 64 * 1024 * 1024
+_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+#: The only PIL decoders used: a ``.png`` that is really a TIFF or JPEG is refused, not decoded.
+_PIL_FORMATS = ("PNG", "BMP")
+_BMP_INFO_HEADERS = (40, 52, 56, 64, 108, 124)
 
 
 def time_ns_from_stem(stem: str) -> int | None:
@@ -71,37 +89,115 @@ _U8_TO_UNIT = np.arange(256, dtype=np.float32) * np.float32(1.0 / 255.0)
 _U8_TO_UNIT.setflags(write=False)
 
 
-def read_image_file(path: str | os.PathLike[str], data: bytes | None = None) -> NDArray[np.float32]:
-    """Decode a greyscale PNG/BMP into float32 in [0, 1].
+def _header_size(head: bytes, path: Path) -> tuple[int, int] | None:
+    """``(width, height)`` from the first bytes of a PNG or BMP, or ``None`` for other content.
 
     Raises
     ------
     DataFormatError
-        If the file is missing, truncated, not an image, or a colour image.
+        If a PNG does not start with its IHDR chunk (the PNG specification requires it first).
+    """
+    if head.startswith(_PNG_SIGNATURE):
+        if len(head) < 24 or head[12:16] != b"IHDR":
+            raise DataFormatError("corrupt or truncated image (no IHDR chunk after the PNG signature)", path)
+        width, height = struct.unpack(">II", head[16:24])
+        return int(width), int(height)
+    if head.startswith(b"BM") and len(head) >= 26:
+        info = int.from_bytes(head[14:18], "little")
+        if info == 12:  # OS/2 1.x BITMAPCOREHEADER
+            width, height = struct.unpack("<HH", head[18:22])
+            return int(width), int(height)
+        if info in _BMP_INFO_HEADERS:
+            width, height = struct.unpack("<ii", head[18:26])
+            return int(width), abs(int(height))  # negative height: rows stored top-down
+    return None  # PIL refuses it (unsupported BMP header, or neither PNG nor BMP)
+
+
+def _check_size(size: tuple[int, int], path: Path, geometry: SonarGeometry | None) -> None:
+    """Refuse an empty or oversized image, or one whose shape is not the geometry's."""
+    width, height = size
+    if width < 1 or height < 1:
+        raise DataFormatError(f"image header gives an empty image ({width} x {height} pixels)", path)
+    if width * height > MAX_IMAGE_PIXELS:
+        raise DataFormatError(
+            f"image header gives {width} x {height} = {width * height} pixels, "
+            f"more than the {MAX_IMAGE_PIXELS} allowed",
+            path,
+        )
+    if geometry is not None and (height, width) != geometry.shape:
+        raise GeometryError(
+            f"{path}: image shape {(height, width)} does not match geometry '{geometry.name}' "
+            f"(n_bins, n_beams) = {geometry.shape}"
+        )
+
+
+def read_image_file(
+    path: str | os.PathLike[str],
+    data: bytes | None = None,
+    *,
+    geometry: SonarGeometry | None = None,
+) -> NDArray[np.float32]:
+    """Decode a greyscale PNG/BMP into float32 in [0, 1].
+
+    The image size is read from the file header and checked against :data:`MAX_IMAGE_PIXELS`
+    (and ``geometry``) before any pixel is decoded.  Truncated or corrupt pixel data is an error,
+    never a partly zero image.
+
+    Parameters
+    ----------
+    path : path-like
+        The image file (read only if it is a regular file), or the name used in messages when
+        ``data`` is given.
+    data : bytes, optional
+        The file's content, already read.
+    geometry : SonarGeometry, optional
+        When given, the image must have shape ``geometry.shape`` = ``(n_bins, n_beams)``.
+
+    Returns
+    -------
+    ndarray, shape (height, width), float32
+        Intensities in [0, 1].
+
+    Raises
+    ------
+    DataFormatError
+        If the file is missing, not a regular file, truncated, corrupt, too large, not a PNG/BMP,
+        or a colour image.
+    GeometryError
+        If ``geometry`` is given and the header's size does not match it.
     """
     from PIL import Image, UnidentifiedImageError
 
     p = Path(path)
+    size: tuple[int, int] | None = None
     try:
-        if data is None:
-            data = p.read_bytes()
-        with Image.open(io.BytesIO(data)) as im:
+        with contextlib.ExitStack() as stack:
+            fh = io.BytesIO(data) if data is not None else stack.enter_context(open_regular(p, "image"))
+            size = _header_size(fh.read(32), p)
+            fh.seek(0)
+            if size is not None:
+                _check_size(size, p, geometry)
+            im = stack.enter_context(Image.open(fh, formats=_PIL_FORMATS))
+            _check_size(im.size, p, geometry)  # the size PIL will decode
             mode = im.mode
             if mode == "P":
                 pal = np.asarray(im.getpalette() or [], dtype=np.uint8).reshape(-1, 3)
                 if pal.size and not np.array_equal(pal[:, 0], pal[:, 1]):
                     raise DataFormatError("palette is not greyscale", p)
-                im = im.convert("L")
+                im = stack.enter_context(im.convert("L"))
                 mode = "L"
             arr = np.asarray(im)
-    except DataFormatError:
+    except (DataFormatError, GeometryError):
         raise
-    except FileNotFoundError:
-        raise DataFormatError("file not found", p) from None
     except UnidentifiedImageError:
+        if size is not None:  # a PNG/BMP header PIL could not parse further
+            raise DataFormatError("corrupt or truncated image (PNG/BMP headers unreadable)", p) from None
         raise DataFormatError("not a PNG/BMP image (unrecognised content)", p) from None
-    except (OSError, SyntaxError, ValueError) as exc:
-        raise DataFormatError(f"corrupt or truncated image ({exc})", p) from None
+    except (Image.DecompressionBombError, Image.DecompressionBombWarning) as exc:
+        raise DataFormatError(f"image too large ({exc})", p) from None
+    except (OSError, SyntaxError, ValueError, EOFError, struct.error) as exc:
+        msg = " ".join(str(exc).split()) or type(exc).__name__
+        raise DataFormatError(f"corrupt or truncated image ({msg})", p) from None
     if arr.ndim != 2:
         raise DataFormatError(f"expected a greyscale image, got mode {mode} shape {arr.shape}", p)
     if arr.dtype == np.uint8:
@@ -121,6 +217,9 @@ def read_png_ping(
 ) -> Ping:
     """Read one ping from an image and its sidecar JSON.
 
+    The sidecar is read (at most ``MAX_SIDECAR_BYTES``) and validated first, then the image's
+    header is checked against it, and only then are the pixels decoded.
+
     Parameters
     ----------
     path : path-like
@@ -128,12 +227,18 @@ def read_png_ping(
     geometry : SonarGeometry, preset name or JSON path, optional
         Overrides the sidecar; required when the image has no sidecar.
 
+    Returns
+    -------
+    Ping
+        The ping, its image float32 in [0, 1] (times the sidecar's ``intensity_scale``, if any).
+
     Raises
     ------
     DataFormatError
-        Missing/corrupt image or JSON (JSON errors give line and column).
+        Missing, non-regular, oversized, truncated or corrupt image or JSON (JSON errors give line
+        and column).
     GeometryError
-        When the image shape disagrees with the geometry.
+        When a sidecar field is invalid, or the image shape disagrees with the geometry.
     """
     p = Path(path)
     if p.suffix.lower() == ".json":
@@ -144,24 +249,22 @@ def read_png_ping(
                 break
         else:
             raise DataFormatError("no image (<ts>_raw.png, <ts>.png or .bmp) beside this JSON", p)
-    image = read_image_file(p)
+    require_regular_file(p, "image")
     scale = 1.0
     if geometry is None:
         side = sidecar_json(p)
-        try:
-            data = side.read_bytes()
-        except FileNotFoundError:
+        if not os.path.lexists(side):
             raise DataFormatError(
                 f"no sidecar JSON ({side.name}); pass a geometry (preset or JSON file)", p
-            ) from None
-        except OSError as exc:
-            raise DataFormatError(f"cannot read sidecar: {exc.strerror or exc}", side) from None
+            )
+        data = read_bytes_bounded(side, MAX_SIDECAR_BYTES, "sidecar JSON")
         geom = _geometry_from_json_bytes(data, str(side), _base_stem(p))
         if b'"intensity_scale"' in data:
             scale = _intensity_scale(data, side)
     else:
         geom = as_geometry(geometry)
-    if image.shape != geom.shape:
+    image = read_image_file(p, geometry=geom)
+    if image.shape != geom.shape:  # pragma: no cover - the header check above guarantees it
         raise GeometryError(
             f"{p}: image shape {image.shape} does not match geometry '{geom.name}' "
             f"(n_bins, n_beams) = {geom.shape}"
@@ -175,10 +278,14 @@ def read_png_ping(
 
 
 def _intensity_scale(data: bytes, side: Path) -> float:
-    """The sidecar's ``intensity_scale``: stored pixels are ``image / intensity_scale``."""
-    value = json.loads(data).get("intensity_scale", 1.0)
+    """The sidecar's ``intensity_scale``: stored pixels are ``image / intensity_scale``.
+
+    ``data`` has already been parsed successfully as a JSON object by the geometry reader.
+    """
+    d = json.loads(data)
+    value = d.get("intensity_scale", 1.0) if isinstance(d, dict) else 1.0
     if isinstance(value, bool) or not isinstance(value, int | float) or not 0 < value < 1e12:
-        raise DataFormatError(f"intensity_scale must be a positive number, got {value!r}", side)
+        raise DataFormatError(f"intensity_scale must be a positive number, got {value!r:.40}", side)
     return float(value)
 
 
