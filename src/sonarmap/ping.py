@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import dataclasses
+import math
+import numbers
+import operator
 from typing import Any
 
 import numpy as np
@@ -12,6 +15,8 @@ from sonarmap.errors import InputError
 from sonarmap.geometry import SonarGeometry
 
 __all__ = ["Ping", "Pose", "as_image"]
+
+_INT64_MIN, _INT64_MAX = -(2**63), 2**63 - 1
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -85,6 +90,7 @@ class Ping:
         The sonar geometry; ``image.shape`` must equal ``geometry.shape``.
     time_ns : int
         Ping time in integer nanoseconds since the Unix epoch (UTC); exact for µs file stamps.
+        Must fit in int64 (``numpy.datetime64[ns]``), else :class:`~sonarmap.errors.InputError`.
     pose : Pose, optional
         Vehicle pose at the ping time, when known.
     source : str
@@ -106,7 +112,7 @@ class Ping:
             raise InputError(f"geometry: expected SonarGeometry, got {type(self.geometry).__name__}")
         self.geometry.check_image(img, f"{self.source or 'ping'} image")
         object.__setattr__(self, "image", img)
-        object.__setattr__(self, "time_ns", int(self.time_ns))
+        object.__setattr__(self, "time_ns", _time_ns(self.time_ns, self.source or "ping"))
 
     @property
     def time_s(self) -> float:
@@ -127,3 +133,32 @@ class Ping:
         """A copy with fields replaced; ``meta`` is copied, not shared."""
         changes.setdefault("meta", dict(self.meta))
         return dataclasses.replace(self, **changes)
+
+
+def _time_ns(value: Any, name: str) -> int:
+    """``value`` as a Python int of nanoseconds that fits in int64 (``datetime64[ns]``).
+
+    Raises
+    ------
+    InputError
+        If ``value`` is not a real number, is NaN/inf, or lies outside the int64 range.
+    """
+    if isinstance(value, bool):
+        raise InputError(f"{name} time_ns: expected an integer number of ns, got bool")
+    if isinstance(value, numbers.Integral):
+        t = int(value)
+    elif not isinstance(value, numbers.Real):
+        try:
+            t = operator.index(value)
+        except TypeError:
+            raise InputError(
+                f"{name} time_ns: expected an integer number of ns, got {type(value).__name__}"
+            ) from None
+    else:
+        f = float(value)
+        if not math.isfinite(f):
+            raise InputError(f"{name} time_ns: {f} is not a finite time")
+        t = int(f)
+    if not _INT64_MIN <= t <= _INT64_MAX:
+        raise InputError(f"{name} time_ns: {t} is outside the int64 range of datetime64[ns]")
+    return t

@@ -1,8 +1,9 @@
 """Shared helpers of the binary sonar-file readers (ARIS, DIDSON, Oculus).
 
-One place for: the partial-frame warning, memory-mapping a file read-only, and turning any
-inconsistency found while decoding headers into a :class:`~sonarmap.errors.DataFormatError` that
-names the file and the byte offset.
+One place for: the partial-frame warning, memory-mapping a regular file read-only, the plausibility
+limits every reader applies to header fields (times, sound speed, range window, ping size), and
+turning any inconsistency found while decoding headers into a
+:class:`~sonarmap.errors.DataFormatError` that names the file and the byte offset.
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ from typing import Any
 import numpy as np
 
 from sonarmap.errors import DataFormatError, GeometryError, InputError, SonarmapWarning
+from sonarmap.io._files import open_regular
 
 __all__ = [
     "PartialFrameWarning",
@@ -28,6 +30,13 @@ __all__ = [
     "make_summary",
     "U8_SCALE",
     "MAX_TIME_NS",
+    "MAX_PLAUSIBLE_TIME_NS",
+    "MAX_PING_BYTES",
+    "MAX_WINDOW_M",
+    "SOUND_SPEED_RANGE_M_S",
+    "check_plausible",
+    "check_time_ns",
+    "check_sound_speed",
 ]
 
 
@@ -38,28 +47,31 @@ class PartialFrameWarning(SonarmapWarning):
 def map_file(path: str | os.PathLike[str], *, min_size: int = 0, what: str = "file") -> np.memmap | np.ndarray:
     """Memory-map ``path`` read-only as a flat ``uint8`` array (empty files give an empty array).
 
+    The file is opened with :func:`~sonarmap.io._files.open_regular` and mapped through that
+    descriptor, so FIFOs, devices (a symlink to ``/dev/zero``), sockets and directories are refused
+    before anything is read or mapped.
+
     Raises
     ------
     DataFormatError
-        If the file cannot be opened or is shorter than ``min_size`` bytes.
+        If the file is not a regular file, cannot be opened, or is shorter than ``min_size`` bytes.
     """
     p = Path(path)
-    try:
-        size = p.stat().st_size
-    except FileNotFoundError:
-        raise DataFormatError("no such file", p) from None
-    except OSError as exc:
-        raise DataFormatError(f"cannot read: {exc.strerror or exc}", p) from None
-    if size < min_size:
-        raise DataFormatError(
-            f"truncated {what}: {size} bytes, the header alone needs {min_size}", p, size
-        )
-    if size == 0:
-        return np.zeros(0, dtype=np.uint8)
-    try:
-        return np.memmap(p, dtype=np.uint8, mode="r")
-    except (OSError, ValueError) as exc:
-        raise DataFormatError(f"cannot memory-map: {exc}", p) from None
+    with open_regular(p, what) as fh:
+        try:
+            size = os.fstat(fh.fileno()).st_size
+        except OSError as exc:
+            raise DataFormatError(f"cannot read: {exc.strerror or exc}", p) from None
+        if size < min_size:
+            raise DataFormatError(
+                f"truncated {what}: {size} bytes, the header alone needs {min_size}", p, size
+            )
+        if size == 0:
+            return np.zeros(0, dtype=np.uint8)
+        try:
+            return np.memmap(fh, dtype=np.uint8, mode="r", shape=(size,))
+        except (OSError, ValueError) as exc:
+            raise DataFormatError(f"cannot memory-map: {exc}", p) from None
 
 
 @contextlib.contextmanager
@@ -96,6 +108,64 @@ U8_SCALE = np.float32(1.0 / 255.0)
 
 #: Largest ping time representable as datetime64[ns] (int64 nanoseconds).
 MAX_TIME_NS = 2**63 - 1
+
+#: Latest plausible ping time, 2200-01-01T00:00:00Z in ns since the epoch (0 means "unknown").
+MAX_PLAUSIBLE_TIME_NS = 7_258_118_400 * 10**9
+
+#: Largest single ping message / frame a reader accepts (also the cap on decompressed items).
+MAX_PING_BYTES = 64 * 1024 * 1024
+
+#: Farthest plausible range of an imaging sonar's window (start or end), in metres.
+MAX_WINDOW_M = 1000.0
+
+#: Plausible sound speed in water (m/s), the range :class:`~sonarmap.geometry.SonarGeometry` accepts.
+SOUND_SPEED_RANGE_M_S = (1300.0, 1700.0)
+
+
+def check_plausible(value: Any, lo: float, hi: float, what: str, unit: str = "") -> float:
+    """``float(value)`` if it is finite and within ``[lo, hi]``.
+
+    Raises
+    ------
+    ValueError
+        Otherwise (message names ``what``, the value and the accepted range).
+    """
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{what} {value!r} is not a number") from None
+    if not (math.isfinite(v) and lo <= v <= hi):
+        u = f" {unit}" if unit else ""
+        raise ValueError(f"{what} {value}{u} is outside {lo:g}-{hi:g}{u}")
+    return v
+
+
+def check_time_ns(t: int, what: str = "ping time") -> int:
+    """``t`` if it is 0 (unknown) or a time between 1970 and 2200 in integer ns since the epoch.
+
+    Raises
+    ------
+    ValueError
+        If ``t`` is negative or later than 2200-01-01 (which includes everything beyond int64).
+    """
+    t = int(t)
+    if not 0 <= t <= MAX_PLAUSIBLE_TIME_NS:
+        raise ValueError(f"{what} {t} ns is outside the years 1970-2200")
+    return t
+
+
+def check_sound_speed(c: Any, what: str = "sound speed", *, unset_ok: bool = False) -> float | None:
+    """A plausible sound speed in water (m/s); ``None`` for 0 when ``unset_ok`` (0 = not set).
+
+    Raises
+    ------
+    ValueError
+        If ``c`` is not finite or outside :data:`SOUND_SPEED_RANGE_M_S`.
+    """
+    if unset_ok and finite_or(c) == 0.0:
+        return None
+    lo, hi = SOUND_SPEED_RANGE_M_S
+    return check_plausible(c, lo, hi, what, "m/s")
 
 
 def make_summary(

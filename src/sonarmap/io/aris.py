@@ -19,14 +19,20 @@ Layout (SoundMetrics ``aris-file-sdk``, public; little-endian throughout)::
   and the beam count.  The ARIS 1200 uses the 1800's 48-beam table (the SDK's table is named
   ``ARIS1800_1200_48``).
 * Ping time is ``FrameTime`` (PC clock at recording, µs since the Unix epoch, UTC); the on-sonar
-  clock ``sonarTimeStamp`` is kept in ``Ping.meta["sonar_time_ns"]``.
+  clock ``sonarTimeStamp`` is kept in ``Ping.meta["sonar_time_ns"]``.  Both must be 0 (unknown) or
+  lie in the years 1970-2200.
+* Header fields are checked for plausibility (a corrupt frame is a
+  :class:`~sonarmap.errors.DataFormatError`, never an absurd geometry): ``SamplePeriod`` 1-1000 µs,
+  ``SoundSpeed`` 1300-1700 m/s, the range window (from ``SampleStartDelay``, ``SamplePeriod``,
+  ``SoundSpeed``) and the recorded ``WindowStart``/``WindowLength`` within 1 km, ``ReceiverGain``
+  0-100 dB, ``FrameRate`` 0-100 Hz.  With a ``geometry`` override the range-window fields are
+  not used and not checked.
 * 8-bit samples (0-255, i.e. 0-80 dB) map to [0, 1] as ``value / 255``.
 """
 
 from __future__ import annotations
 
 import functools
-import math
 import os
 import warnings
 from collections.abc import Iterator
@@ -39,12 +45,15 @@ from numpy.typing import NDArray
 from sonarmap.errors import DataFormatError, SonarmapWarning
 from sonarmap.geometry import SonarGeometry, as_geometry, preset
 from sonarmap.io._binary import (
-    count_container_pings,
-    iter_container_pings,
-    MAX_TIME_NS,
+    MAX_WINDOW_M,
     U8_SCALE,
+    check_plausible,
+    check_sound_speed,
+    check_time_ns,
+    count_container_pings,
     finite_or,
     header_errors,
+    iter_container_pings,
     make_summary,
     map_file,
     warn_partial,
@@ -72,6 +81,9 @@ MAGIC = b"DDF\x05"
 FILE_HEADER_SIZE = 1024
 FRAME_HEADER_SIZE = 1024
 _MAX_SAMPLES = 1 << 16  # SamplesPerBeam is a small integer (<= a few thousand) in practice
+_SAMPLE_PERIOD_US = (1, 1000)  # the SDK's sample periods are 4-100 µs
+_MAX_GAIN_DB = 100.0
+_MAX_FRAME_RATE_HZ = 100.0
 
 _u4, _i4, _f4, _f8, _u8, _u2 = "<u4", "<i4", "<f4", "<f8", "<u8", "<u2"
 
@@ -220,19 +232,25 @@ def _frame_geometry(
     high_frequency: bool,
     rx_gain_db: float,
 ) -> SonarGeometry:
-    name = aris_preset_name(system_type, large_lens, n_beams)
-    base = preset(name)
-    if sample_period_us <= 0:
-        raise ValueError(f"SamplePeriod must be positive (got {sample_period_us})")
-    if not (math.isfinite(sound_speed_m_s) and 1300.0 <= sound_speed_m_s <= 1700.0):
-        raise ValueError(f"SoundSpeed {sound_speed_m_s} m/s is outside 1300-1700 m/s")
+    check_plausible(sample_period_us, *_SAMPLE_PERIOD_US, "SamplePeriod", "µs")
+    check_sound_speed(sound_speed_m_s, "SoundSpeed")
+    check_plausible(rx_gain_db, 0.0, _MAX_GAIN_DB, "ReceiverGain", "dB")
     half_c = 1e-6 * sound_speed_m_s / 2.0
     start = start_delay_us * half_c
     step = sample_period_us * half_c
+    end = start + n_samples * step
+    if end > MAX_WINDOW_M:
+        raise ValueError(
+            f"range window {start:.6g}-{end:.6g} m (SampleStartDelay {start_delay_us} µs, "
+            f"SamplePeriod {sample_period_us} µs, SoundSpeed {sound_speed_m_s:.6g} m/s, "
+            f"{n_samples} samples) reaches beyond {MAX_WINDOW_M:g} m"
+        )
+    name = aris_preset_name(system_type, large_lens, n_beams)
+    base = preset(name)
     hf, lf = _FREQUENCIES.get(system_type, _FREQUENCIES[0])
     return SonarGeometry.from_window(
         min_range_m=start,
-        max_range_m=start + n_samples * step,
+        max_range_m=end,
         n_bins=n_samples,
         azimuth_rad=base.azimuth_rad,
         fov_rad=base.fov_rad,
@@ -417,8 +435,11 @@ class ArisFile:
                     f"{int(h['SamplesPerBeam'])} (frame 0: {self.n_beams} beams x "
                     f"{self.n_samples} samples)"
                 )
+            check_plausible(float(h["FrameRate"]), 0.0, _MAX_FRAME_RATE_HZ, "FrameRate", "Hz")
             if self._override is not None:
                 return self._override
+            check_plausible(float(h["WindowStart"]), 0.0, MAX_WINDOW_M, "WindowStart", "m")
+            check_plausible(float(h["WindowLength"]), 0.0, MAX_WINDOW_M, "WindowLength", "m")
             return _frame_geometry(
                 int(h["TheSystemType"]),
                 bool(h["LargeLens"]),
@@ -436,32 +457,38 @@ class ArisFile:
         rec = frames[i]
         h = rec["header"]
         geom = self._geometry(i, h)
-        offset = FILE_HEADER_SIZE + i * self.frame_size
-        t_us = int(h["FrameTime"])
-        if t_us * 1000 > MAX_TIME_NS:
-            raise DataFormatError(f"frame {i}: FrameTime {t_us} µs is out of range", self.path, offset + 4)
+        t_ns, sonar_ns = self._times(i, h)
         # [sample][beam] with beam 0 right-most -> columns of increasing (starboard) azimuth.
         image = np.multiply(rec["samples"][:, ::-1], U8_SCALE, dtype=np.float32)
         return Ping(
             image=image,
             geometry=geom,
-            time_ns=t_us * 1000,
+            time_ns=t_ns,
             pose=_pose(h),
             source=f"{self.path}#{i}",
-            meta=_meta(h, i),
+            meta=_meta(h, i, sonar_ns),
         )
+
+    def _times(self, i: int, h: np.void) -> tuple[int, int]:
+        """``(FrameTime, sonarTimeStamp)`` of frame ``i`` in ns, checked (0 = unknown, 1970-2200)."""
+        offset = FILE_HEADER_SIZE + i * self.frame_size
+        with header_errors(self.path, offset + FRAME_HEADER_DTYPE.fields["FrameTime"][1], f"frame {i} time"):
+            t_ns = check_time_ns(int(h["FrameTime"]) * 1000, "FrameTime")
+        with header_errors(self.path, offset + FRAME_HEADER_DTYPE.fields["sonarTimeStamp"][1], f"frame {i} time"):
+            sonar_ns = check_time_ns(int(h["sonarTimeStamp"]) * 1000, "sonarTimeStamp")
+        return t_ns, sonar_ns
 
 
 #: Estimated dB per unit of ARIS pixel value (see :func:`_meta`).
 ARIS_LOG_DYNAMIC_RANGE_DB = 37.0
 
 
-def _meta(h: np.void, i: int) -> dict[str, Any]:
+def _meta(h: np.void, i: int, sonar_time_ns: int) -> dict[str, Any]:
     meta: dict[str, Any] = {
         "format": FORMAT,
         "frame_index": i,
         "frame_number": int(h["FrameIndex"]),
-        "sonar_time_ns": int(h["sonarTimeStamp"]) * 1000,
+        "sonar_time_ns": sonar_time_ns,
         "ping_mode": int(h["PingMode"]),
         "frequency_high": bool(h["FrequencyHiLow"]),
         "receiver_gain_db": int(h["ReceiverGain"]),
@@ -549,15 +576,17 @@ def summary(path: str | os.PathLike[str]) -> dict[str, Any]:
         if n == 0:
             return make_summary(FORMAT, path, n_pings=0, geometry=None, time_start_ns=None,
                                 time_end_ns=None)
-        h0, h1 = f.frame_header(0), f.frame_header(n - 1)
+        h0 = f.frame_header(0)
         geom = f.geometry(0)
+        t0 = f._times(0, f._header(0))[0]
+        t1 = f._times(n - 1, f._header(n - 1))[0]
         return make_summary(
             FORMAT,
             path,
             n_pings=n,
             geometry=geom,
-            time_start_ns=int(h0["FrameTime"]) * 1000,
-            time_end_ns=int(h1["FrameTime"]) * 1000,
+            time_start_ns=t0,
+            time_end_ns=t1,
             system=_SYSTEMS.get(int(h0["TheSystemType"]), f"unknown ({h0['TheSystemType']})"),
             lens="telephoto" if h0["LargeLens"] else "standard",
             beam_table=geom.name,

@@ -21,7 +21,11 @@ little-endian)::
   Serial numbers below 19 are classic windows, serial 15 is an LR classic unit (vendor's special
   cases).  Range of row ``i`` is ``start + i * length / samples``.
 * Time: the frame header's calendar fields (year ... hundredths), taken as UTC; if they are all
-  zero, ``frametime`` (seconds, microseconds).
+  zero, ``frametime`` (seconds, microseconds).  Times must lie in the years 1970-2200 (all-zero
+  fields give 0, "unknown").
+* Plausibility: ``numbeams`` 1-512, ``samplesperchannel`` 1-8192, file-header ``framerate``
+  0-100 Hz, frame ``receivergain`` -100-100 dB; anything else is a
+  :class:`~sonarmap.errors.DataFormatError`.
 * Azimuths: 96-beam standard DIDSON frames use the measured table of the ``didson-hf`` preset
   (with its beam pattern and taper); other configurations assume uniform beams over 28.8 degrees
   (0.3 degree spacing x 96 or 0.6 degree x 48) with a :class:`~sonarmap.geometry.GeometryWarning`.
@@ -46,8 +50,9 @@ import numpy as np
 from sonarmap.errors import DataFormatError
 from sonarmap.geometry import GeometryWarning, SonarGeometry, as_geometry, preset, uniform_azimuths
 from sonarmap.io._binary import (
-    MAX_TIME_NS,
     U8_SCALE,
+    check_plausible,
+    check_time_ns,
     count_container_pings,
     finite_or,
     header_errors,
@@ -120,6 +125,8 @@ WINDOW_LENGTHS_M = {
 }
 _MAX_BEAMS = 512
 _MAX_SAMPLES = 8192
+_MAX_FRAME_RATE_HZ = 100
+_GAIN_DB = (-100.0, 100.0)
 
 
 def effective_config(configflags: int, serial_number: int) -> int:
@@ -220,6 +227,7 @@ class DdfFile:
                 raise ValueError(f"numbeams {self.n_beams} is outside 1-{_MAX_BEAMS}")
             if not 0 < self.n_samples <= _MAX_SAMPLES:
                 raise ValueError(f"samplesperchannel {self.n_samples} is outside 1-{_MAX_SAMPLES}")
+            check_plausible(int(fh["framerate"]), 0, _MAX_FRAME_RATE_HZ, "framerate", "Hz")
         self.high_frequency = bool(fh["resolution"])
         self.reverse = bool(fh["reverse"])
         self.serial_number = int(fh["serialnumber"])
@@ -285,8 +293,9 @@ class DdfFile:
             cfg = effective_config(int(h["configflags"]), self.serial_number)
             start, length = window_m(int(h["windowstart"]), int(h["windowlength"]),
                                      high_frequency=self.high_frequency, config=cfg)
+            gain = check_plausible(int(h["receivergain"]), *_GAIN_DB, "receivergain", "dB")
             return _geometry(self.n_beams, self.n_samples, start, length, self.high_frequency,
-                             bool(cfg & 2), float(int(h["receivergain"])))
+                             bool(cfg & 2), gain)
 
     def _time_ns(self, i: int, h: np.void) -> int:
         offset = self.header_size + i * self.frame_size
@@ -294,9 +303,11 @@ class DdfFile:
         with header_errors(self.path, offset + 20, f"frame {i} time"):
             if any(cal):
                 y, mo, d, hh, mi, s, hs = cal
-                if not (1970 <= y <= 2200 and 1 <= mo <= 12 and 1 <= d <= 31 and 0 <= hh < 24
+                if not (1970 <= y <= 2200 and 1 <= mo <= 12 and 0 <= hh < 24
                         and 0 <= mi < 60 and 0 <= s < 61 and 0 <= hs < 100):
                     raise ValueError(f"invalid date/time fields {cal}")
+                if not 1 <= d <= calendar.monthrange(y, mo)[1]:
+                    raise ValueError(f"invalid date/time fields {cal} (no day {d} in {y}-{mo:02d})")
                 secs = calendar.timegm((y, mo, d, hh, mi, s, 0, 0, 0))
                 t = secs * 10**9 + hs * 10**7
             else:
@@ -304,8 +315,7 @@ class DdfFile:
                 if sec < 0 or not 0 <= usec < 10**6:
                     raise ValueError(f"invalid frametime ({sec}, {usec})")
                 t = sec * 10**9 + usec * 1000
-            if t > MAX_TIME_NS:
-                raise ValueError("time out of range")
+            check_time_ns(t, "frame time")
         return t
 
     def __getitem__(self, index: int) -> Ping:

@@ -27,6 +27,15 @@ range-major (``nRanges`` rows of ``nBeams`` samples of 8/16/24/32 bits).
 Geometry: the per-beam bearing table (int16, 1/100 degree) gives ``azimuth_rad`` directly -
 Oculus bearings are negative on the left (port) side of the image, positive to starboard, which
 is our convention.  Range of row ``i`` is ``i * rangeResolution``.
+
+Hardening: only regular files are opened (FIFOs and devices are refused); one message may hold at
+most :data:`~sonarmap.io._binary.MAX_PING_BYTES` (64 MiB), and a compressed log item is inflated
+into at most its declared size (so a small "zip bomb" item cannot exhaust memory); the SQLite log
+is opened read-only through a percent-encoded ``file:`` URI (paths with ``#``, ``?``, ``%`` or
+spaces work and nothing is ever created) with quoted column names.  Plausibility checks:
+``rangeResolution`` in (0, 10) m with the whole window within 1 km; ``speedOfSoundUsed`` 0
+(unset: 1500 m/s is assumed) or 1300-1700 m/s; ``frequency`` 0 (unset) or 10 kHz-10 MHz;
+``pingStartTime`` finite and non-negative; log time stamps 0 or in the years 1970-2200.
 """
 
 from __future__ import annotations
@@ -46,8 +55,12 @@ import numpy as np
 from sonarmap.errors import DataFormatError
 from sonarmap.geometry import SonarGeometry, as_geometry
 from sonarmap.io._binary import (
-    MAX_TIME_NS,
+    MAX_PING_BYTES,
+    MAX_WINDOW_M,
     U8_SCALE,
+    check_plausible,
+    check_sound_speed,
+    check_time_ns,
     count_container_pings,
     header_errors,
     iter_container_pings,
@@ -55,6 +68,7 @@ from sonarmap.io._binary import (
     map_file,
     warn_partial,
 )
+from sonarmap.io._files import decompress_bounded, open_regular, require_regular_file
 from sonarmap.ping import Ping
 
 __all__ = [
@@ -109,27 +123,67 @@ class _Record(NamedTuple):
     compressed: bool
 
 
-def _epoch_ns(value: float) -> int:
-    """A time stamp since the epoch in s, ms, µs or ns (by magnitude) -> integer ns."""
-    v = float(value)
+def _epoch_ns(value: Any) -> int:
+    """A time stamp since the epoch in s, ms, µs or ns (by magnitude) -> integer ns.
+
+    Raises
+    ------
+    ValueError
+        If the stamp is not a finite non-negative number or lies outside the years 1970-2200
+        (0, "unknown", is accepted).
+    """
+    if isinstance(value, bytes | bytearray | memoryview):
+        raise ValueError("time stamp is a BLOB, not a number")
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"time stamp {value!r} is not a number") from None
     if not math.isfinite(v) or v < 0:
         raise ValueError(f"time stamp {value!r} is not a finite non-negative number")
     scale = 1e9 if v < 1e11 else 1e6 if v < 1e14 else 1e3 if v < 1e17 else 1.0
-    t = int(round(v * scale))
-    if t > MAX_TIME_NS:
-        raise ValueError(f"time stamp {value!r} is out of range")
-    return t
+    return check_time_ns(int(round(v * scale)), f"time stamp {value!r} ->")
 
 
-def _q_uncompress(data: bytes | memoryview) -> bytes:
-    """Qt ``qUncompress``: 4-byte big-endian expected length, then a zlib stream."""
+def _q_uncompress(
+    data: bytes | memoryview, path: str | os.PathLike[str] | None = None, offset: int | None = None
+) -> bytes:
+    """Qt ``qUncompress``: 4-byte big-endian expected length, then a zlib stream.
+
+    The stream is inflated into at most the declared length (itself at most
+    :data:`~sonarmap.io._binary.MAX_PING_BYTES`), so a compression bomb cannot exhaust memory.
+
+    Raises
+    ------
+    DataFormatError
+        If the prefix is missing, declares an implausible size, or the stream is corrupt or does
+        not inflate to exactly the declared size.
+    """
     if len(data) < 4:
-        raise ValueError("compressed payload shorter than its 4-byte length prefix")
+        raise DataFormatError("compressed payload shorter than its 4-byte length prefix", path, offset)
     (n,) = struct.unpack_from(">I", data, 0)
-    out = zlib.decompress(bytes(data[4:]))
+    if n > MAX_PING_BYTES:
+        raise DataFormatError(
+            f"compressed payload declares {n} bytes, more than the {MAX_PING_BYTES} allowed for "
+            "one message", path, offset,
+        )
+    try:
+        out = decompress_bounded(data[4:], n, None, "compressed payload")
+    except DataFormatError as exc:
+        raise DataFormatError(str(exc), path, offset) from None
     if len(out) != n:
-        raise ValueError(f"decompressed {len(out)} bytes, header says {n}")
+        raise DataFormatError(f"compressed payload inflates to {len(out)} bytes, its prefix says {n}",
+                              path, offset)
     return out
+
+
+def _quote_ident(name: object) -> str:
+    """``name`` as an SQL quoted identifier (double quotes, internal quotes doubled)."""
+    return '"' + str(name).replace('"', '""') + '"'
+
+
+def _sqlite_uri(path: Path) -> str:
+    """A read-only SQLite ``file:`` URI for ``path`` (percent-encoded: ``#``, ``?``, ``%`` work)."""
+    return Path(path).resolve().as_uri() + "?mode=ro"
 
 
 @functools.lru_cache(maxsize=64)
@@ -236,10 +290,18 @@ def decode_simple_ping(
             )
         if not (math.isfinite(res) and 0 < res < 10):
             raise ValueError(f"rangeResolution {res} m is not a positive number below 10 m")
-        c = c_used if math.isfinite(c_used) and 1300 <= c_used <= 1700 else 1500.0
-        if c != c_used:
+        if n_ranges * res > MAX_WINDOW_M:
+            raise ValueError(
+                f"range window {n_ranges} x {res:.6g} m = {n_ranges * res:.6g} m is beyond "
+                f"{MAX_WINDOW_M:g} m"
+            )
+        checked_c = check_sound_speed(c_used, "speedOfSoundUsed", unset_ok=True)
+        c = 1500.0 if checked_c is None else checked_c
+        if checked_c is None:
             meta["sound_speed_reported"] = c_used
-        f_hz = freq if math.isfinite(freq) and 1e3 < freq < 1e8 else 1.2e6
+        f_hz = 1.2e6 if freq == 0 else check_plausible(freq, 1e4, 1e7, "frequency", "Hz")
+        if not (math.isfinite(start) and start >= 0):
+            raise ValueError(f"pingStartTime {start} s is not a finite non-negative time")
         bearings = bytes(mv[need : need + 2 * n_beams])
         geom = geometry if geometry is not None else _geometry(
             bearings, n_ranges, float(res), float(c), float(f_hz), int(part)
@@ -320,6 +382,11 @@ class OculusFile:
                     self.path, o,
                 )
             total = HEADER.size + payload
+            if total > MAX_PING_BYTES:
+                raise DataFormatError(
+                    f"message declares {total} bytes, more than the {MAX_PING_BYTES} allowed for one "
+                    "message", self.path, o + 10,
+                )
             if o + total > size:
                 warn_partial(self.path, o, size - o, total, "message")
                 break
@@ -360,13 +427,15 @@ class OculusFile:
             if typ == RT_OCULUS_SONAR:
                 if comp not in (0, 1):
                     raise DataFormatError(f"unknown compression {comp}", self.path, o + 24)
-                head = bytes(mm[start : start + min(payload, HEADER.size + 4)])
+                if payload > MAX_PING_BYTES:
+                    raise DataFormatError(
+                        f"log item payload of {payload} bytes is more than the {MAX_PING_BYTES} "
+                        "allowed for one message", self.path, o + 32,
+                    )
                 if comp == 1:
-                    try:
-                        d = zlib.decompressobj()
-                        head = d.decompress(head[4:] + bytes(mm[start + len(head) : start + 64]), HEADER.size)
-                    except zlib.error as exc:
-                        raise DataFormatError(f"corrupt compressed payload ({exc})", self.path, start) from None
+                    head = self._peek_compressed(start, payload)
+                else:
+                    head = bytes(mm[start : start + min(payload, HEADER.size)])
                 if len(head) >= HEADER.size:
                     oid, _s, _d, msg_id, _v, _p, _pn = HEADER.unpack_from(head, 0)
                     if oid == OCULUS_ID and msg_id == MSG_SIMPLE_PING_RESULT:
@@ -376,11 +445,30 @@ class OculusFile:
             o = start + payload
         return out
 
+    def _peek_compressed(self, start: int, payload: int) -> bytes:
+        """The first (up to) 16 inflated bytes of the qCompress'ed item at ``start``.
+
+        Input is fed in small chunks until the message header is out (a deflate stream may need
+        more than a few dozen bytes before its first output byte); output is capped at 16 bytes.
+        """
+        d = zlib.decompressobj()
+        out = b""
+        pos, end = start + 4, start + payload
+        try:
+            while len(out) < HEADER.size and pos < end and not d.eof:
+                chunk = bytes(self._mm[pos : min(pos + 4096, end)])
+                pos += len(chunk)
+                out += d.decompress(chunk, HEADER.size - len(out))
+        except zlib.error as exc:
+            raise DataFormatError(f"corrupt compressed payload ({exc})", self.path, start) from None
+        return out
+
     def _connect(self) -> sqlite3.Connection:
         if self._db is None:
+            require_regular_file(self.path, "ViewPoint log")
             try:
-                self._db = sqlite3.connect(f"file:{self.path}?mode=ro", uri=True)
-            except sqlite3.Error as exc:
+                self._db = sqlite3.connect(_sqlite_uri(self.path), uri=True)
+            except (sqlite3.Error, OSError, ValueError) as exc:
                 raise DataFormatError(f"cannot open ViewPoint v2 log: {exc}", self.path) from None
         return self._db
 
@@ -390,12 +478,13 @@ class OculusFile:
             cols = db.execute("PRAGMA table_info(data)").fetchall()
             if not cols:
                 raise DataFormatError("SQLite file has no 'data' table (not a ViewPoint v2 log)", self.path)
-            blobs = [c[1] for c in cols if str(c[2]).upper() == "BLOB"]
-            self._payload_col = blobs[-1] if blobs else cols[-1][1]
-            times = [c[1] for c in cols if "time" in str(c[1]).lower()]
+            blobs = [str(c[1]) for c in cols if str(c[2]).upper() == "BLOB"]
+            self._payload_col = blobs[-1] if blobs else str(cols[-1][1])
+            times = [str(c[1]) for c in cols if "time" in str(c[1]).lower()]
             self._time_col = times[0] if times else None
-            tsel = f'"{self._time_col}"' if self._time_col else "0"
-            q = f'SELECT rowid, {tsel}, substr("{self._payload_col}", 1, 16), length("{self._payload_col}") FROM data ORDER BY rowid'
+            tsel = _quote_ident(self._time_col) if self._time_col else "0"
+            pcol = _quote_ident(self._payload_col)
+            q = f"SELECT rowid, {tsel}, substr({pcol}, 1, 16), length({pcol}) FROM data ORDER BY rowid"
             out: list[_Record] = []
             for rowid, t, head, length in db.execute(q):
                 if not isinstance(head, bytes | bytearray) or len(head) < HEADER.size:
@@ -403,6 +492,11 @@ class OculusFile:
                 oid, _s, _d, msg_id, _v, _p, _pn = HEADER.unpack_from(head, 0)
                 if oid != OCULUS_ID or msg_id != MSG_SIMPLE_PING_RESULT:
                     continue
+                if int(length) > MAX_PING_BYTES:
+                    raise DataFormatError(
+                        f"row {rowid}: message of {length} bytes is more than the {MAX_PING_BYTES} "
+                        "allowed for one message", self.path,
+                    )
                 tns = 0
                 if self._time_col is not None and t is not None:
                     with header_errors(self.path, None, f"row {rowid} time stamp"):  # type: ignore[arg-type]
@@ -451,35 +545,35 @@ class OculusFile:
 
     def _message(self, rec: _Record) -> bytes | memoryview:
         if self.kind == "log-v2":
+            pcol = _quote_ident(self._payload_col)
             try:
                 row = self._connect().execute(
-                    f'SELECT "{self._payload_col}" FROM data WHERE rowid = ?', (rec.offset,)
+                    f"SELECT {pcol} FROM data WHERE rowid = ? AND length({pcol}) <= ?",
+                    (rec.offset, MAX_PING_BYTES),
                 ).fetchone()
             except sqlite3.Error as exc:
                 raise DataFormatError(f"corrupt ViewPoint v2 log: {exc}", self.path) from None
-            if row is None:
-                raise DataFormatError(f"row {rec.offset} disappeared", self.path)
+            if row is None or not isinstance(row[0], bytes | bytearray):
+                raise DataFormatError(f"row {rec.offset} disappeared or changed", self.path)
             return bytes(row[0])
         data = memoryview(self._mm)[rec.offset : rec.offset + rec.length]
         if rec.compressed:
-            try:
-                return _q_uncompress(data)
-            except (ValueError, zlib.error) as exc:
-                raise DataFormatError(f"corrupt compressed payload ({exc})", self.path, rec.offset) from None
+            return _q_uncompress(data, self.path, rec.offset)
         return data
 
 
 class open_head:  # noqa: N801 - tiny context manager
-    """Read the first 64 bytes of a file (DataFormatError if it cannot be read)."""
+    """Read the first 64 bytes of a regular file (DataFormatError if it cannot be read).
+
+    FIFOs, devices, sockets and directories are refused without reading (no hang, no endless read).
+    """
 
     def __init__(self, path: Path) -> None:
-        try:
-            with open(path, "rb") as fh:
+        with open_regular(path, "Oculus file") as fh:
+            try:
                 self.head = fh.read(64)
-        except FileNotFoundError:
-            raise DataFormatError("no such file", path) from None
-        except OSError as exc:
-            raise DataFormatError(f"cannot read: {exc.strerror or exc}", path) from None
+            except OSError as exc:
+                raise DataFormatError(f"cannot read: {exc.strerror or exc}", path) from None
 
     def __enter__(self) -> bytes:
         return self.head
@@ -490,12 +584,12 @@ class open_head:  # noqa: N801 - tiny context manager
 
 def _is_viewpoint_sqlite(path: Path) -> bool:
     try:
-        con = sqlite3.connect(f"file:{path}?mode=ro", uri=True)
+        con = sqlite3.connect(_sqlite_uri(path), uri=True)
         try:
             names = {r[0] for r in con.execute("SELECT name FROM sqlite_master WHERE type='table'")}
         finally:
             con.close()
-    except sqlite3.Error:
+    except (sqlite3.Error, OSError, ValueError):
         return False
     return "data" in names and "messages" not in names
 

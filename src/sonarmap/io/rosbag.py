@@ -11,8 +11,16 @@ Conventions at the boundary
   ``x == 0`` for every beam and use ``z`` as forward.  Beams are re-ordered, if needed, so that
   azimuth increases with column.
 * ``image.data`` is range-major (``data[sample * beam_count + beam]``), which is what drivers
-  publish in practice; ``uint8`` data map to [0, 1] as ``value / 255`` (``uint16``: / 65535,
-  ``uint32``: / (2**32 - 1)), float data are taken as is.
+  publish in practice; unsigned integer data map to [0, 1] as ``value / max`` (``uint8``: / 255,
+  ``uint16``: / 65535, ``uint32``: / (2**32 - 1), ``uint64``: / (2**64 - 1)); signed integer data
+  as ``value / max`` too (``int8``: / 127 ...), and a negative sample is a
+  :class:`~sonarmap.errors.DataFormatError`.  Float data are taken as is and must be finite and
+  within [0, 1] (a raw ping's range, see :class:`~sonarmap.ping.Ping`) up to
+  :data:`FLOAT_TOLERANCE`, by which they are clipped; anything else is a DataFormatError naming
+  the bag, the topic and the message index.
+* Header stamps must give a time of 0 (unknown) or in the years 1970-2200 (``nanosec`` < 1e9).
+* Only regular files are opened: a FIFO or device named ``x.bag`` (or inside a ROS 2 bag
+  directory) is refused instead of hanging or reading forever.
 * ``ranges`` are float32 in the message.  :func:`write_bag` therefore also writes, once per distinct
   geometry, a ``std_msgs/String`` with the geometry JSON on ``<topic>/sonarmap_geometry``; the
   reader uses it when it agrees with the message (so sonarmap -> bag -> sonarmap is lossless:
@@ -36,7 +44,8 @@ import numpy as np
 
 from sonarmap.errors import DataFormatError, GeometryError, InputError
 from sonarmap.geometry import SonarGeometry, as_geometry, geometry_from_dict
-from sonarmap.io._binary import U8_SCALE, make_summary
+from sonarmap.io._binary import U8_SCALE, check_time_ns, make_summary
+from sonarmap.io._files import open_regular, require_regular_file
 from sonarmap.ping import Ping
 
 __all__ = [
@@ -45,6 +54,7 @@ __all__ = [
     "typestore",
     "write_bag",
     "iter_bag_pings",
+    "FLOAT_TOLERANCE",
     "sniff",
     "iter_pings",
     "count_pings",
@@ -64,6 +74,12 @@ _DTYPES = {
     5: np.dtype("i4"), 6: np.dtype("u8"), 7: np.dtype("i8"), 8: np.dtype("f4"), 9: np.dtype("f8"),
 }  # fmt: skip
 _DTYPE_CODES = {"uint8": 0, "uint16": 2, "float32": 8, "float64": 9}
+
+#: How far outside [0, 1] a float pixel may lie (rounding in a producer) before it is an error.
+FLOAT_TOLERANCE = 1e-6
+
+#: Files of a ROS 2 bag directory that rosbags may open (checked to be regular files first).
+_ROS2_FILE_SUFFIXES = (".yaml", ".db3", ".mcap", ".zstd")
 
 
 @functools.cache
@@ -250,14 +266,42 @@ def _decode_image(img: Any, n_ranges: int, n_beams: int) -> np.ndarray:
         raise ValueError(f"beam_count {img.beam_count} != {n_beams} beam directions")
     a = raw.view(dt).reshape(n_ranges, n_beams)
     if dt.kind == "f":
-        out = a.astype(np.float32)
-        if not np.all(np.isfinite(out)):
-            raise ValueError("image contains NaN or infinite values")
-        return out
+        if not np.all(np.isfinite(a)):
+            raise ValueError(f"{dt.name} image contains NaN or infinite values")
+        lo, hi = float(a.min()), float(a.max())
+        if lo < -FLOAT_TOLERANCE or hi > 1.0 + FLOAT_TOLERANCE:
+            raise ValueError(
+                f"{dt.name} pixels lie in [{lo:.6g}, {hi:.6g}], outside the [0, 1] of a raw ping"
+            )
+        return np.clip(a, 0.0, 1.0).astype(np.float32)
     if dt == np.dtype("u1"):
         return np.multiply(a, U8_SCALE, dtype=np.float32)
     info = np.iinfo(dt)
-    return (np.clip(a.astype(np.float64), 0, None) / float(info.max)).astype(np.float32)
+    if dt.kind == "i" and a.size and int(a.min()) < 0:
+        raise ValueError(
+            f"{dt.name} image has negative samples (min {int(a.min())}); intensities are >= 0"
+        )
+    return np.clip(a.astype(np.float64) / float(info.max), 0.0, 1.0).astype(np.float32)
+
+
+def _require_regular_bag(root: Path) -> None:
+    """Refuse a bag that is (or, for a ROS 2 directory, contains) a FIFO, device or socket.
+
+    Raises
+    ------
+    DataFormatError
+        Naming the offending file.
+    """
+    if root.is_dir():
+        try:
+            entries = sorted(root.iterdir())
+        except OSError as exc:
+            raise DataFormatError(f"cannot list bag directory: {exc.strerror or exc}", root) from None
+        for entry in entries:
+            if entry.name == "metadata.yaml" or entry.suffix in _ROS2_FILE_SUFFIXES:
+                require_regular_file(entry, "bag file")
+        return
+    require_regular_file(root, "bag")
 
 
 def _reader(path: Path) -> Any:
@@ -265,9 +309,10 @@ def _reader(path: Path) -> Any:
     from rosbags.highlevel import AnyReader
 
     root = _bag_root(path)
+    _require_regular_bag(root)
     link_dir = None
     if root.is_file() and root.suffix != ".bag":
-        with open(root, "rb") as fh:
+        with open_regular(root, "bag") as fh:
             is_ros1 = fh.read(len(ROS1_MAGIC)) == ROS1_MAGIC
         if is_ros1:  # rosbags picks the reader by extension; content decides here
             link_dir = Path(tempfile.mkdtemp(prefix="sonarmap-bag-"))
@@ -380,7 +425,10 @@ def _ping_from_msg(
         geom = override
     elif g is not None and np.allclose(g.azimuth_rad, geom.azimuth_rad, atol=1e-9):
         geom = g
-    t_ns = int(msg.header.stamp.sec) * 10**9 + int(msg.header.stamp.nanosec)
+    sec, nsec = int(msg.header.stamp.sec), int(msg.header.stamp.nanosec)
+    if not 0 <= nsec < 10**9:
+        raise ValueError(f"header stamp nanosec {nsec} is outside 0-999999999")
+    t_ns = check_time_ns(sec * 10**9 + nsec, "header stamp")
     meta: dict[str, Any] = {"format": FORMAT, "topic": topic, "message_index": idx}
     if hasattr(msg.header, "seq"):
         meta["seq"] = int(msg.header.seq)
@@ -415,6 +463,8 @@ def iter_pings(
 def _sonar_connections(path: Path) -> tuple[Any, list[Any]]:
     try:
         reader = _reader(path)
+    except DataFormatError:
+        raise
     except Exception as exc:  # noqa: BLE001
         raise DataFormatError(f"cannot read bag: {type(exc).__name__}: {exc}", path) from None
     return reader, [c for c in reader.connections if c.msgtype in _SONAR_TYPES]
