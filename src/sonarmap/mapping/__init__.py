@@ -1,11 +1,13 @@
-"""Mapping: poses and frames, registration, point clouds, occupancy maps, simulated surveys.
+"""Mapping: poses and frames, registration, point clouds, occupancy maps, georeferenced outputs,
+simulated surveys.
 
 Frames: world NED, body and sensor FRD (see :mod:`sonarmap.mapping.frames`); ROS ENU/FLU data is
-converted at the boundary.
+converted at the boundary.  :class:`GeoReference` ties the local frame to a projected CRS.
 """
 
 from __future__ import annotations
 
+from sonarmap.mapping.georef import GeoReference, utm_epsg
 from sonarmap.mapping.occupancy import (
     OccupancyArray,
     OccupancyConfig,
@@ -14,7 +16,8 @@ from sonarmap.mapping.occupancy import (
     voxel_iou,
     voxelize,
 )
-from sonarmap.mapping.pointcloud import read_point_cloud, write_point_cloud
+from sonarmap.mapping.octomap import OcTreeFile, OcTreeLeaves, read_octomap_bt, write_octomap_bt
+from sonarmap.mapping.pointcloud import read_point_cloud, read_point_cloud_crs, write_point_cloud
 from sonarmap.mapping.poses import (
     Extrinsics,
     SensorPoses,
@@ -25,10 +28,15 @@ from sonarmap.mapping.poses import (
     sensor_poses,
     write_trajectory_csv,
 )
+from sonarmap.mapping.raster import GeoRaster, height_raster, occupancy_raster, read_geotiff, write_geotiff
 from sonarmap.mapping.register import PointCloud, RegistrationConfig, register_ranges, register_returns
 
 __all__ = [
     "Extrinsics",
+    "GeoRaster",
+    "GeoReference",
+    "OcTreeFile",
+    "OcTreeLeaves",
     "OccupancyArray",
     "OccupancyConfig",
     "OccupancyMap",
@@ -37,15 +45,23 @@ __all__ = [
     "SensorModel",
     "SensorPoses",
     "Trajectory",
+    "height_raster",
     "load_extrinsics",
+    "occupancy_raster",
+    "read_geotiff",
+    "read_octomap_bt",
     "read_point_cloud",
+    "read_point_cloud_crs",
     "read_trajectory_csv",
     "register_ranges",
     "register_returns",
     "save_extrinsics",
     "sensor_poses",
+    "utm_epsg",
     "voxel_iou",
     "voxelize",
+    "write_geotiff",
+    "write_octomap_bt",
     "write_point_cloud",
     "write_trajectory_csv",
 ]

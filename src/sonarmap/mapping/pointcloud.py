@@ -20,22 +20,49 @@
 Files without the ``sigma`` / ``sigma_m`` attribute (written before it existed, or by other
 tools) read back with NaN uncertainties.
 
+Georeferenced files
+-------------------
+With ``georef=`` (a :class:`~sonarmap.mapping.georef.GeoReference`) every writer converts the
+cloud from its local frame into the georeference's projected CRS and records the CRS:
+``x`` = easting, ``y`` = northing, ``z`` = height (up, metres; see :mod:`sonarmap.mapping.georef`),
+so the file's frame is ``enu``-like and reads back with ``frame="enu"``.
+
+* **LAS**: a WKT coordinate-system VLR (OGC WKT as LAS 1.4 specifies, see
+  :func:`~sonarmap.mapping.georef.file_wkt`; ``laspy``'s ``header.parse_crs()``, PDAL and GDAL
+  read it) with the global-encoding WKT bit set;
+  scale 1 mm by default, offset = the minimum rounded down to a metre (so UTM-size coordinates
+  keep full resolution in the 32-bit integers).
+* **PLY**: float64 ``x, y, z`` (float32 would lose ~0.5 m at UTM northings) and the comments
+  ``crs EPSG:xxxx`` (when the CRS has a code), ``crs_wkt <OGC WKT on one line>`` and
+  ``georef_origin_deg <lat> <lon> <height_m>``.
+* **CSV**: the comment lines ``# crs: EPSG:xxxx``, ``# crs_wkt: <OGC WKT>`` and
+  ``# georef_origin_deg: ...`` after ``# frame: enu``, before the header row (pandas:
+  ``read_csv(path, comment="#")``).
+
+:func:`read_point_cloud_crs` returns the CRS of any of them (``None`` when there is none).
+
 LAS/PLY viewers expect z up: pass ``frame="enu"`` to write ROS/ENU coordinates (the default is the
 library's NED frame, in which depth is positive ``z``).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import io
 import os
 from pathlib import Path
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 
 from sonarmap._atomic import atomic_path, atomic_write_text
 from sonarmap.errors import DataFormatError, InputError
 from sonarmap.mapping.register import PointCloud
+
+if TYPE_CHECKING:  # pragma: no cover - typing only (pyproj is imported lazily)
+    import pyproj
+
+    from sonarmap.mapping.georef import GeoReference
 
 __all__ = [
     "CLOUD_FORMATS",
@@ -48,6 +75,7 @@ __all__ = [
     "write_csv",
     "read_csv",
     "format_from_suffix",
+    "read_point_cloud_crs",
 ]
 
 CloudFormat = Literal["ply", "las", "csv"]
@@ -67,6 +95,25 @@ def _in_frame(cloud: PointCloud, frame: str | None) -> PointCloud:
     return cloud if frame is None else cloud.to_frame(frame)
 
 
+def _georeferenced(cloud: PointCloud, frame: str | None, georef: GeoReference) -> PointCloud:
+    """The cloud with ``xyz_m`` = projected ``(E, N, h)`` and ``frame="enu"`` (E, N, up axes)."""
+    if frame is not None and str(frame).lower() != "enu":
+        raise InputError(
+            f"frame: a georeferenced cloud is written as easting, northing, height (z up); frame={frame!r} cannot apply"
+        )
+    return dataclasses.replace(cloud, xyz_m=georef.to_projected(cloud.xyz_m, cloud.frame), frame="enu")
+
+
+def _crs_comments(georef: GeoReference) -> list[str]:
+    """``crs``, ``crs_wkt`` and ``georef_origin_deg`` lines (without a comment prefix)."""
+    from sonarmap.mapping.georef import file_wkt
+
+    lines = [] if georef.epsg is None else [f"crs EPSG:{georef.epsg}"]
+    lines.append("crs_wkt " + file_wkt(georef.crs))
+    lines.append(f"georef_origin_deg {georef.lat0_deg!r} {georef.lon0_deg!r} {georef.height0_m!r}")
+    return lines
+
+
 # ---------------------------------------------------------------------- PLY
 def write_ply(
     cloud: PointCloud,
@@ -74,23 +121,28 @@ def write_ply(
     *,
     frame: str | None = None,
     offset_m: tuple[float, float, float] | None = None,
+    georef: GeoReference | None = None,
 ) -> None:
-    """Write a binary little-endian PLY (float32 xyz + attributes), atomically.
+    """Write a binary little-endian PLY (float32 xyz, float64 when georeferenced, + attributes), atomically.
 
     Parameters
     ----------
     frame : {"ned", "enu"}, optional
-        Convert coordinates first (default: the cloud's frame).
+        Convert coordinates first (default: the cloud's frame).  With ``georef`` only ``None`` or
+        ``"enu"`` (the projected axes) are accepted.
     offset_m : 3 floats, optional
         Subtracted from the coordinates before the float32 cast (recorded in a comment).
+    georef : GeoReference, optional
+        Write projected ``(E, N, h)`` coordinates as float64, with the CRS in the comments.
     """
     from plyfile import PlyData, PlyElement
 
-    c = _in_frame(cloud, frame)
+    c = _in_frame(cloud, frame) if georef is None else _georeferenced(cloud, frame, georef)
     off = np.zeros(3) if offset_m is None else np.asarray(offset_m, dtype=np.float64)
-    xyz = (c.xyz_m - off).astype(np.float32)
+    cdt = "<f4" if georef is None else "<f8"
+    xyz = (c.xyz_m - off).astype(cdt)
     dt = [
-        ("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("time", "<f8"), ("beam", "<i4"),
+        ("x", cdt), ("y", cdt), ("z", cdt), ("time", "<f8"), ("beam", "<i4"),
         ("range", "<f4"), ("intensity", "<f4"), ("confidence", "<f4"), ("elevation", "<f4"),
         ("sigma", "<f4"),
     ]
@@ -110,6 +162,8 @@ def write_ply(
         "offset_m " + " ".join(repr(float(o)) for o in off),
         f"time_offset_ns {t_off}",
     ]
+    if georef is not None:
+        comments += _crs_comments(georef)
     ply = PlyData([PlyElement.describe(v, "vertex")], text=False, byte_order="<", comments=comments)
     with atomic_path(path) as tmp:
         ply.write(str(tmp))
@@ -154,17 +208,43 @@ def write_las(
     path: str | os.PathLike[str],
     *,
     frame: str | None = None,
-    scale_m: float = 1e-4,
+    scale_m: float | None = None,
+    georef: GeoReference | None = None,
 ) -> None:
-    """Write a LAS 1.4 file (point format 6 + extra bytes), atomically."""
+    """Write a LAS 1.4 file (point format 6 + extra bytes), atomically.
+
+    Parameters
+    ----------
+    frame : {"ned", "enu"}, optional
+        Convert coordinates first (default: the cloud's frame).  With ``georef`` only ``None`` or
+        ``"enu"`` are accepted.
+    scale_m : float, optional
+        Coordinate quantum; default 0.1 mm (local) or 1 mm (georeferenced).
+    georef : GeoReference, optional
+        Write projected ``(E, N, h)`` coordinates with the CRS as a WKT VLR.
+
+    Raises
+    ------
+    InputError
+        If the cloud's extent does not fit the 32-bit scaled integers at ``scale_m``.
+    """
     import laspy
 
-    c = _in_frame(cloud, frame)
+    c = _in_frame(cloud, frame) if georef is None else _georeferenced(cloud, frame, georef)
+    if scale_m is None:
+        scale_m = 1e-4 if georef is None else 1e-3
     if not scale_m > 0:
         raise InputError(f"scale_m: must be positive, got {scale_m}")
     header = laspy.LasHeader(point_format=6, version="1.4")
     header.scales = np.array([scale_m] * 3)
     header.offsets = np.floor(c.xyz_m.min(axis=0)) if len(c) else np.zeros(3)
+    if len(c):
+        span = float(np.max(c.xyz_m.max(axis=0) - header.offsets)) / scale_m
+        if not span < 2**31 - 1:
+            raise InputError(
+                f"scale_m: the cloud spans {span * scale_m:.0f} m, more than 2**31 quanta of {scale_m} m; "
+                "use a larger scale_m"
+            )
     header.system_identifier = f"sonarmap frame={c.frame}"[:32]
     header.generating_software = "sonarmap"
     header.add_extra_dims(
@@ -178,6 +258,13 @@ def write_las(
             laspy.ExtraBytesParams(name="sigma_m", type=np.float32, description="range 1-sigma (m)"),
         ]
     )
+    if georef is not None:
+        from laspy.vlrs.known import WktCoordinateSystemVlr
+
+        from sonarmap.mapping.georef import file_wkt
+
+        header.vlrs.append(WktCoordinateSystemVlr(file_wkt(georef.crs)))
+        header.global_encoding.wkt = True
     las = laspy.LasData(header)
     las.x = c.xyz_m[:, 0]
     las.y = c.xyz_m[:, 1]
@@ -232,11 +319,21 @@ def read_las(path: str | os.PathLike[str]) -> PointCloud:
 _CSV_COLS = ("x", "y", "z", "time_ns", "beam", "range_m", "intensity", "confidence", "elevation_rad", "sigma_m")
 
 
-def write_csv(cloud: PointCloud, path: str | os.PathLike[str], *, frame: str | None = None) -> None:
-    """Write a CSV with a header row and a ``# frame:`` comment, atomically (exact round trip)."""
-    c = _in_frame(cloud, frame)
+def write_csv(
+    cloud: PointCloud, path: str | os.PathLike[str], *, frame: str | None = None, georef: GeoReference | None = None
+) -> None:
+    """Write a CSV with a header row and a ``# frame:`` comment, atomically (exact round trip).
+
+    With ``georef`` the coordinates are projected ``(E, N, h)`` and ``# crs:``, ``# crs_wkt:`` and
+    ``# georef_origin_deg:`` comments follow the frame comment.
+    """
+    c = _in_frame(cloud, frame) if georef is None else _georeferenced(cloud, frame, georef)
     buf = io.StringIO()
     buf.write(f"# sonarmap point cloud\n# frame: {c.frame}\n")
+    if georef is not None:
+        for line in _crs_comments(georef):
+            key, _, value = line.partition(" ")
+            buf.write(f"# {key}: {value}\n")
     buf.write(",".join(_CSV_COLS) + "\n")
     n = len(c)
     if n:
@@ -309,12 +406,37 @@ def write_point_cloud(
     *,
     format: str | None = None,  # noqa: A002 - the CLI's --format
     frame: str | None = None,
+    georef: GeoReference | None = None,
 ) -> str:
-    """Write ``cloud`` as PLY, LAS or CSV (from ``format`` or the suffix); returns the format."""
+    """Write ``cloud`` as PLY, LAS or CSV (from ``format`` or the suffix); returns the format.
+
+    Parameters
+    ----------
+    cloud : PointCloud
+        Points in the local world frame (``cloud.frame``).
+    path : path-like
+    format : {"ply", "las", "csv"}, optional
+        Default: from the suffix.
+    frame : {"ned", "enu"}, optional
+        Local frame to write (default the cloud's); must be ``None`` or ``"enu"`` with ``georef``.
+    georef : GeoReference, optional
+        Write projected coordinates (easting, northing, height) with the CRS recorded in the file
+        (see the module notes).
+
+    Examples
+    --------
+    >>> g = GeoReference.from_origin(51.3685, 3.139)              # doctest: +SKIP
+    >>> write_point_cloud(cloud, "map.las", georef=g)             # doctest: +SKIP
+    'las'
+    """
     fmt = (format or format_from_suffix(path)).lower()
     if fmt not in CLOUD_FORMATS:
         raise InputError(f"format: must be one of {CLOUD_FORMATS}, got {format!r}")
-    {"ply": write_ply, "las": write_las, "csv": write_csv}[fmt](cloud, path, frame=frame)
+    writer = {"ply": write_ply, "las": write_las, "csv": write_csv}[fmt]
+    if georef is None:
+        writer(cloud, path, frame=frame)
+    else:
+        writer(cloud, path, frame=frame, georef=georef)
     return fmt
 
 
@@ -324,3 +446,56 @@ def read_point_cloud(path: str | os.PathLike[str], *, format: str | None = None)
     if fmt not in CLOUD_FORMATS:
         raise InputError(f"format: must be one of {CLOUD_FORMATS}, got {format!r}")
     return {"ply": read_ply, "las": read_las, "csv": read_csv}[fmt](path)
+
+
+def read_point_cloud_crs(path: str | os.PathLike[str], *, format: str | None = None) -> pyproj.CRS | None:  # noqa: A002
+    """The CRS recorded in a point-cloud file (``None`` when it has none).
+
+    LAS: the WKT or GeoTIFF-key VLRs (``laspy``'s ``parse_crs``); PLY: the ``crs_wkt`` (else
+    ``crs``) comment; CSV: the ``# crs_wkt:`` (else ``# crs:``) comment.
+
+    Raises
+    ------
+    DataFormatError
+        If the file cannot be read or its CRS record cannot be parsed.
+    """
+    import pyproj
+
+    p = Path(path)
+    fmt = (format or format_from_suffix(p)).lower()
+    if fmt not in CLOUD_FORMATS:
+        raise InputError(f"format: must be one of {CLOUD_FORMATS}, got {format!r}")
+    if fmt == "las":
+        import laspy
+
+        try:
+            with laspy.open(str(p)) as fh:
+                return fh.header.parse_crs()
+        except Exception as exc:  # noqa: BLE001 - laspy / pyproj raise several unrelated types
+            raise DataFormatError(f"cannot read the LAS CRS: {' '.join(str(exc).split())[:200]}", p) from None
+    records: dict[str, str] = {}
+    try:
+        with open(p, "rb") as fh:
+            for n_line, raw in enumerate(fh):
+                line = raw.decode("utf-8", "replace").rstrip("\r\n")
+                if fmt == "ply":
+                    if line.startswith("end_header") or n_line > 100_000:  # no header that long
+                        break
+                    if not line.startswith("comment "):
+                        continue
+                    key, _, value = line.removeprefix("comment ").partition(" ")
+                else:
+                    if not line.startswith("#"):
+                        break
+                    key, _, value = line.lstrip("#").strip().partition(":")
+                if key in ("crs", "crs_wkt"):
+                    records[key] = value.strip()
+    except OSError as exc:
+        raise DataFormatError(f"cannot read: {exc.strerror or exc}", p) from None
+    text = records.get("crs_wkt") or records.get("crs")
+    if not text:
+        return None
+    try:
+        return pyproj.CRS.from_user_input(text)
+    except pyproj.exceptions.CRSError as exc:
+        raise DataFormatError(f"unreadable CRS record ({' '.join(str(exc).split())[:160]})", p) from None
