@@ -43,6 +43,17 @@ def _clamp_bounds(text: str) -> dict[str, float]:
     return {"l_min": float(logit(lo)), "l_max": float(logit(hi))}
 
 
+def _lat_lon(text: str) -> tuple[float, float]:
+    try:
+        lat, lon = (float(v) for v in text.split(","))
+    except ValueError:
+        raise typer.BadParameter(f"expected LAT,LON in degrees, got {text!r}", param_hint="--origin") from None
+    if not (abs(lat) <= 90.0 and abs(lon) <= 180.0):
+        raise typer.BadParameter(f"latitude within +-90 and longitude within +-180, got {text!r}",
+                                 param_hint="--origin")
+    return lat, lon
+
+
 def map_command(
     pings: list[Path] = typer.Argument(..., help="Ping files, directories or globs (any supported format)."),
     poses: Path | None = typer.Option(
@@ -83,6 +94,28 @@ def map_command(
         help="Occupancy clamping probabilities PMIN,PMAX (default 0.001,0.999 for static scenes; "
         "OctoMap's 0.1192,0.971 forget faster, for scenes that change).",
     ),
+    static: bool = typer.Option(
+        False, "--static",
+        help="Fixed sonar (tripod, pier, tank): every ping at the origin, placed by --extrinsics if given.",
+    ),
+    crs: str | None = typer.Option(
+        None, "--crs",
+        help="Projected CRS of the outputs, e.g. EPSG:32631 (default with navigation: the data's UTM zone).",
+    ),
+    origin: str | None = typer.Option(
+        None, "--origin", help="LAT,LON (WGS 84 degrees) of the local frame's origin, to georeference "
+        "--poses or --static maps.",
+    ),
+    geotiff: Path | None = typer.Option(
+        None, "--geotiff",
+        help="Also write a GeoTIFF: occupancy probability with --grid, else a bathymetry grid of the points.",
+    ),
+    raster_resolution: float = typer.Option(
+        0.5, "--raster-resolution", min=1e-3, help="Pixel size (m) of the bathymetry GeoTIFF."
+    ),
+    octomap: Path | None = typer.Option(
+        None, "--octomap", help="Also write the 3-D occupancy map (--grid, --dims 3) as an OctoMap .bt."
+    ),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar and no summary."),
 ) -> None:
     """Register per-beam ranges into a world point cloud, or build an occupancy map (--grid)."""
@@ -94,6 +127,8 @@ def map_command(
     from sonarmap.mapping.pointcloud import CLOUD_FORMATS, format_from_suffix, write_point_cloud
     from sonarmap.mapping.poses import SensorPoses, Trajectory, load_extrinsics, read_trajectory_csv
     from sonarmap.mapping.register import PointCloud, RegistrationConfig, register_ranges
+    from sonarmap.mapping.georef import GeoReference
+    from sonarmap.mapping.navigation import missing_navigation, navigation_origin, navigation_pose, static_pose
     from sonarmap.pipeline import PipelineConfig, process_ping
 
     if outside not in ("error", "skip"):
@@ -110,6 +145,11 @@ def map_command(
         raise typer.BadParameter("applies to point clouds; the occupancy map keeps every return",
                                  param_hint="--min-confidence")
     bounds = {} if clamp is None else _clamp_bounds(clamp)
+    if static and poses is not None:
+        raise typer.BadParameter("a fixed sonar needs no trajectory; give --static or --poses", param_hint="--static")
+    if octomap is not None and (grid is None or dims != 3):
+        raise typer.BadParameter("needs a 3-D occupancy map (--grid RES, --dims 3)", param_hint="--octomap")
+    origin_ll = None if origin is None else _lat_lon(origin)
 
     geometry = load_geometry_option(sonar)
     pcfg = PipelineConfig.from_toml(config) if config is not None else PipelineConfig()
@@ -168,11 +208,33 @@ def map_command(
     first = next(ping_iter, None)
     if first is None:
         raise InputError("PINGS: no complete ping in the input (nothing written)")
-    if traj is None and first.pose is None:
-        raise InputError(
-            f"--poses: no trajectory given and ping {first.source} carries no pose "
-            "(give --poses TRAJECTORY.csv)"
-        )
+    georef = None
+    use_nav = False
+    if traj is None and first.pose is None and not static:
+        why = missing_navigation(first)
+        if why is not None:
+            raise InputError(
+                f"no pose for ping {first.source}: no --poses trajectory, the ping carries no pose and {why}; "
+                "give --poses TRAJECTORY.csv, or --static for a fixed sonar"
+            )
+        use_nav = True
+        if origin_ll is None:
+            georef = navigation_origin(first, crs=crs)
+    if origin_ll is not None:
+        georef = GeoReference.from_origin(origin_ll[0], origin_ll[1], 0.0, crs=crs)
+    elif crs is not None and georef is None:
+        raise typer.BadParameter("needs a geodetic origin: navigation in the pings, or --origin LAT,LON",
+                                 param_hint="--crs")
+    if geotiff is not None and georef is None:
+        raise InputError("--geotiff: needs a georeferenced map (navigation in the pings, or --origin LAT,LON)")
+
+    def placed(ping: Any) -> Any:
+        if static:
+            return ping.replace(pose=static_pose())
+        if use_nav:
+            return ping.replace(pose=navigation_pose(ping, georef))
+        return ping
+
     with progress:
         task = progress.add_task("map", total=total)
         last_geom = None
@@ -180,6 +242,7 @@ def map_command(
             if last_geom is not None and ping.geometry.shape != last_geom.shape:
                 flush()
             last_geom = ping.geometry
+            ping = placed(ping)
             batch.append((ping, process_ping(ping, pcfg)))
             stats["pings"] += 1
             if len(batch) >= _BATCH:
@@ -200,7 +263,24 @@ def map_command(
                     fh, logodds=arr.logodds, observed=arr.observed, origin_m=arr.origin_m,
                     resolution_m=np.float64(arr.resolution_m), frame=np.str_("ned"),
                 )
-    write_point_cloud(out_cloud, output, format=out_fmt, frame=out_frame)
+    if georef is not None:
+        if out_frame != "ned":
+            raise typer.BadParameter("georeferenced outputs are in the projected CRS (E, N, up)",
+                                     param_hint="--frame")
+        write_point_cloud(out_cloud, output, format=out_fmt, georef=georef)
+    else:
+        write_point_cloud(out_cloud, output, format=out_fmt, frame=out_frame)
+    if geotiff is not None:
+        from sonarmap.mapping.raster import height_raster, occupancy_raster, write_geotiff
+
+        if occ is not None:
+            write_geotiff(geotiff, occupancy_raster(occ, georef=georef))
+        else:
+            write_geotiff(geotiff, height_raster(out_cloud, georef=georef, resolution_m=raster_resolution))
+    if octomap is not None and occ is not None:
+        from sonarmap.mapping.octomap import write_octomap_bt
+
+        write_octomap_bt(octomap, occ)
     if not quiet:
         what = f"{len(out_cloud)} occupied cells" if occ is not None else f"{len(out_cloud)} points"
         skipped = f", {stats['skipped']} skipped outside the trajectory" if stats["skipped"] else ""
