@@ -390,3 +390,13 @@ def test_fuzz_only_sonarmap_errors_or_valid_pings(kdir: Path, small_wcd: bytes, 
         outcomes["pings"] += bool(got)
         shutil.rmtree(d)
     assert outcomes["pings"] > 20 and outcomes["error"] > 20, outcomes
+
+
+def test_both_files_of_a_recording_read_once(data_dir: Path) -> None:
+    from sonarmap.io import read_pings
+
+    k = data_dir / "kongsberg"
+    one = [p.source for p in read_pings(k / "0077_20221109_123655_Belgica.all")]
+    both = [p.source for p in read_pings([k / "0077_20221109_123655_Belgica.all",
+                                          k / "0077_20221109_123655_Belgica.wcd"])]
+    assert both == one and len(one) >= 9

@@ -146,13 +146,22 @@ def read_pings(
             yield from pngjson.iter_png_pings(list(pngs), geometry=geometry)
             pngs.clear()
 
+    seen: set[object] = set()
     for p in paths:
         fmt = "pngjson" if p.is_dir() and not _is_store_dir(p) else detect_format(p)
         if fmt == "pngjson":
             pngs.append(p)
             continue
+        mod = format_module(fmt)
+        # a recording split over several files (Kongsberg .all + .wcd) is read once, from any of them
+        key_of = getattr(mod, "recording_key", None)
+        if key_of is not None:
+            key = key_of(p)
+            if key in seen:
+                continue
+            seen.add(key)
         yield from flush()
-        yield from format_module(fmt).iter_pings(p, geometry=geometry, **kwargs)
+        yield from mod.iter_pings(p, geometry=geometry, **kwargs)
     yield from flush()
 
 

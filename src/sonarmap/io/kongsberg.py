@@ -1408,6 +1408,12 @@ def iter_pings(
         yield from f
 
 
+def recording_key(path: str | os.PathLike[str]) -> tuple[str, ...]:
+    """The recording a file belongs to: its ``.all`` / ``.wcd`` pair (read once when both are given)."""
+    pair = sibling_paths(path)
+    return tuple(str(q.resolve()) if q is not None else "" for q in pair)
+
+
 def count_pings(path: str | os.PathLike[str]) -> int:
     """Number of pings (ping counter x head) from the datagram headers only."""
     return count_container_pings(KongsbergFile, path)
