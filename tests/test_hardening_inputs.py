@@ -181,7 +181,7 @@ SIDECAR_REPRODUCERS = [
     pytest.param({"psf": [True] * 96}, "field 'psf' entry 0 must be a number, got True", id="psf-bools"),
     pytest.param({"taper": [1.0] * 95}, "taper: length 95 does not match 96 beams", id="taper-short"),
     pytest.param({"noise": -1e-3}, "noise: 1/SNR must be >= 0", id="noise<0"),
-    pytest.param({"max_range": 1e6}, "max_range: must be at most 10000 m", id="max_range=1e6"),
+    pytest.param({"max_range": 1e6}, "max_range: must be at most 25000 m", id="max_range=1e6"),
     pytest.param({"min_range": 12.0}, "must exceed min_range", id="min>max"),
 ]
 
@@ -524,7 +524,7 @@ def test_geometry_file_with_fov_zero_is_a_clean_error(tmp_path: Path, capsys: py
         ({"fov_rad": 7.0}, r"fov must be in \(0, 2 pi\]"),
         ({"min_range_m": math.nan}, "min_range must be finite"),
         ({"max_range_m": math.inf}, "max_range must be finite"),
-        ({"max_range_m": 1e5}, "max_range: must be at most 10000 m"),
+        ({"max_range_m": 1e5}, "max_range: must be at most 25000 m"),
         ({"min_range_m": -1.0}, "min_range: must be >= 0"),
         ({"min_range_m": "1"}, "min_range must be a number, got '1'"),
         ({"noise": True}, "noise must be a number, got True"),
@@ -544,7 +544,7 @@ def test_constructor_refuses_bad_arrays_and_windows() -> None:
     for kw, message in [
         ({"azimuth_rad": np.linspace(-1, 1, MAX_BEAMS + 1)}, "4097 entries, more than the 4096"),
         ({"range_m": np.linspace(1, 2, MAX_BINS + 1)}, "65537 entries, more than the 65536"),
-        ({"range_m": [1.0, 2e4]}, "ranges must be at most 10000 m"),
+        ({"range_m": [1.0, 3e4]}, "ranges must be at most 25000 m"),
         ({"azimuth_rad": [True, False]}, "not a numeric array"),
         ({"azimuth_rad": ["0.1"]}, "not a numeric array"),
         ({"azimuth_rad": [10**400]}, "not a numeric array"),

@@ -61,8 +61,9 @@ __all__ = [
 MAX_BEAMS = 4096
 #: Largest range-bin count accepted (ARIS records at most a few thousand samples per beam).
 MAX_BINS = 65536
-#: Largest range in metres accepted: far beyond the reach of any imaging sonar.
-MAX_RANGE_M = 10_000.0
+#: Largest range in metres accepted: the slant range of a full-ocean-depth multibeam (11 km deep,
+#: beams to 60 degrees) is ~22 km; imaging-sonar readers apply their own, much tighter window limit.
+MAX_RANGE_M = 25_000.0
 #: Field of view (= beam width) given to a single-beam geometry built without ``fov_rad``: one
 #: azimuth says nothing about the beam's width, so a nominal 1 degree is assumed, with a
 #: :class:`GeometryWarning`.  Pass ``fov_rad`` to state the real width.
