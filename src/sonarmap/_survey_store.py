@@ -3,9 +3,11 @@
 A survey stores chunk ``k`` of every product variable in zarr chunk ``k``; a finished task
 therefore replaces whole chunk files only.  :class:`ChunkWriter` encodes those files itself,
 exactly as zarr would (the codecs the survey store is created with: ``bytes`` little endian or
-``vlen-utf8``, then ``zstd``; edge chunks padded with the fill value; default chunk keys
-``c/<k>/0/...``), and writes each one atomically (temporary file in ``.sonarmap/tmp``, then
-``os.replace``).  Going
+``vlen-utf8``, then ``zstd``, then - in stores made by this version - ``crc32c``, the 4-byte
+little-endian CRC32C of the compressed bytes appended; edge chunks padded with the fill value;
+default chunk keys ``c/<k>/0/...``), and writes each one atomically (temporary file in
+``.sonarmap/tmp``, then ``os.replace``).  Stores made before checksums (``bytes``/``vlen-utf8`` +
+``zstd`` only) are still recognised and written without.  Going
 through ``zarr.Array.__setitem__`` costs ~20 ms of CPU per chunk for the dozen tiny per-ping
 variables (event-loop round trips, metadata reads); this costs well under 1 ms.
 
@@ -22,6 +24,7 @@ from __future__ import annotations
 
 import json
 import os
+import struct
 import uuid
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -30,7 +33,10 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["ChunkWriter", "StoreReplacedError", "ZSTD_LEVEL", "array_codec_kwargs"]
+from sonarmap._atomic import write_error
+from sonarmap.errors import SonarmapError
+
+__all__ = ["ChunkWriter", "StoreReplacedError", "ZSTD_LEVEL", "array_codec_kwargs", "crc32c_suffix"]
 
 #: zstd level of every product variable (zarr's default; level 0 = zstd's default, 3).
 ZSTD_LEVEL = 0
@@ -39,15 +45,23 @@ ZSTD_LEVEL = 0
 def array_codec_kwargs() -> dict[str, Any]:
     """Codec / key options passed to ``zarr.Group.create_array`` for product variables.
 
-    They pin what zarr 3 uses by default, so the store's metadata is unchanged but no longer
-    depends on zarr's defaults - :class:`ChunkWriter` encodes exactly these.
+    They pin what zarr 3 uses by default (``zstd``), plus a ``crc32c`` checksum of every chunk, so
+    the store's metadata does not depend on zarr's defaults - :class:`ChunkWriter` encodes
+    exactly these - and a corrupt chunk file is an error when read, not wrong values.
     """
-    from zarr.codecs import ZstdCodec
+    from zarr.codecs import Crc32cCodec, ZstdCodec
 
     return {
-        "compressors": ZstdCodec(level=ZSTD_LEVEL, checksum=False),
+        "compressors": (ZstdCodec(level=ZSTD_LEVEL, checksum=False), Crc32cCodec()),
         "chunk_key_encoding": {"name": "default", "separator": "/"},
     }
+
+
+def crc32c_suffix(data: bytes) -> bytes:
+    """The 4 bytes zarr's ``crc32c`` codec appends to ``data``: its CRC32C, little endian."""
+    import google_crc32c
+
+    return struct.pack("<I", google_crc32c.value(data))
 
 
 @dataclass(frozen=True)
@@ -61,6 +75,7 @@ class _Var:
     fill: Any
     level: int
     separator: str
+    checksum: bool = False  # a crc32c codec follows zstd
 
 
 #: Temporary files are written here (inside the store, so ``os.replace`` stays on one file system)
@@ -68,7 +83,7 @@ class _Var:
 TMP_DIR = os.path.join(".sonarmap", "tmp")
 
 
-class StoreReplacedError(RuntimeError):
+class StoreReplacedError(SonarmapError, RuntimeError):
     """The store directory is not the one the writer was made for (deleted or replaced)."""
 
 
@@ -102,8 +117,11 @@ class ChunkWriter:
             if var is None:
                 return None
             out.append(var)
-        st = os.stat(root)
-        os.makedirs(root / TMP_DIR, exist_ok=True)
+        try:
+            st = os.stat(root)
+            os.makedirs(root / TMP_DIR, exist_ok=True)
+        except OSError as exc:
+            raise write_error(exc, root, "cannot prepare the store for writing") from None
         return cls(os.fspath(root), tuple(out), (st.st_dev, st.st_ino))
 
     def __getstate__(self) -> dict[str, Any]:
@@ -149,7 +167,8 @@ class ChunkWriter:
                 arr = np.full(var.chunk_shape, var.fill, dtype=var.dtype)
                 arr[:n] = vals
             raw = arr.tobytes()
-        return bytes(Zstd(level=var.level, checksum=False).encode(raw))
+        out = bytes(Zstd(level=var.level, checksum=False).encode(raw))
+        return out + crc32c_suffix(out) if var.checksum else out
 
     def write(self, index: int, data: Mapping[str, Any]) -> None:
         """Write chunk ``index`` of every variable from ``data`` (name -> rows), atomically per file."""
@@ -177,11 +196,13 @@ class ChunkWriter:
             with open(tmp, "wb") as fh:
                 fh.write(payload)
             os.replace(tmp, path)
-        except BaseException:
+        except BaseException as exc:
             try:
                 os.unlink(tmp)
             except OSError:
                 pass
+            if isinstance(exc, OSError):
+                raise write_error(exc, self.store, f"cannot write chunk {os.path.relpath(path, self.store)}") from None
             raise
 
 
@@ -206,7 +227,8 @@ def _parse(name: str, meta: Mapping[str, Any]) -> _Var | None:
         if sep != "/":
             return None
         codecs = meta["codecs"]
-        if len(codecs) != 2 or codecs[1]["name"] != "zstd":
+        checksum = len(codecs) == 3 and codecs[2].get("name") == "crc32c" and not codecs[2].get("configuration")
+        if len(codecs) not in (2, 3) or (len(codecs) == 3 and not checksum) or codecs[1]["name"] != "zstd":
             return None
         zconf = codecs[1].get("configuration") or {}
         if zconf.get("checksum", False):
@@ -217,7 +239,7 @@ def _parse(name: str, meta: Mapping[str, Any]) -> _Var | None:
         if dtype_name == "string":
             if first["name"] != "vlen-utf8":
                 return None
-            return _Var(name, "string", "", chunk_shape, str(meta.get("fill_value", "")), level, sep)
+            return _Var(name, "string", "", chunk_shape, str(meta.get("fill_value", "")), level, sep, checksum)
         if first["name"] != "bytes" or not isinstance(dtype_name, str):
             return None
         dt = np.dtype(dtype_name)
@@ -227,8 +249,8 @@ def _parse(name: str, meta: Mapping[str, Any]) -> _Var | None:
         if dt.itemsize > 1 and endian != "little":
             return None
         fill = _fill_value(meta.get("fill_value"), dt)
-        return _Var(name, "numeric", dt.newbyteorder("<").str, chunk_shape, fill, level, sep)
-    except (KeyError, TypeError, ValueError):
+        return _Var(name, "numeric", dt.newbyteorder("<").str, chunk_shape, fill, level, sep, checksum)
+    except (KeyError, TypeError, ValueError, AttributeError):
         return None
 
 

@@ -307,14 +307,22 @@ def render_report(store: str | os.PathLike[str], *, config: ReportConfig | None 
     Raises
     ------
     DataFormatError
-        If ``store`` is not a survey store.
+        If ``store`` is not a survey store, or is damaged: corrupt or missing metadata, arrays or
+        chunks, or values outside their documented ranges (:func:`sonarmap.survey.load_products`).
     """
-    from sonarmap.survey import open_products, survey_status
+    from sonarmap.survey import load_products, survey_status
 
     cfg = config or ReportConfig()
-    ds = open_products(store).load()
+    ds = load_products(store)  # metadata, chunks and values checked: a damaged store is one clean error
     status = survey_status(store)
     attrs = dict(ds.attrs)
+    try:
+        pipeline_config = json.loads(attrs.get("pipeline_config", "{}"))
+        if not isinstance(pipeline_config, dict):
+            raise ValueError("not a JSON object")
+    except (TypeError, ValueError, RecursionError) as exc:
+        raise DataFormatError(f"root attribute pipeline_config is not a JSON object ({exc})",
+                              Path(store) / "zarr.json") from None
     n = int(ds.sizes["ping_time"])
     t = _times(ds)
     written = t.astype(np.int64) != 0
@@ -350,7 +358,7 @@ def render_report(store: str | os.PathLike[str], *, config: ReportConfig | None 
         f"<p class='muted'>{html.escape(str(Path(store).resolve()))}</p>",
         "<h2>Summary</h2><table>", *(_row(k, v) for k, v in summary), "</table>",
         "<details><summary>Pipeline configuration</summary><pre>",
-        html.escape(json.dumps(json.loads(attrs.get("pipeline_config", "{}")), indent=1)),
+        html.escape(json.dumps(pipeline_config, indent=1)),
         "</pre></details>",
         "<h2>Mixture parameters and fit quality</h2>", _img(_fig_timeseries(ds, cfg.dpi), "time series"),
         "<h2>Ranges</h2>", _img(_fig_ranges(ds, cfg.dpi), "ranges over time"),

@@ -28,7 +28,12 @@ Layout of the output store (zarr v3, readable with :func:`open_products` / ``xar
       .sonarmap/complete        the run finished (summary in JSON)
 
 The store is created in a temporary directory and renamed into place, so it either exists with
-complete metadata or not at all.  Re-running the same command (same inputs, configuration and
+complete metadata or not at all.  Every chunk carries a CRC32C checksum (``crc32c`` codec after
+``zstd``); :func:`load_products` (what ``sonarmap report`` reads) checks the metadata, the chunks
+and every value against the documented ranges of the variables (:data:`PRODUCT_RANGES`).  A run
+holds an exclusive lock on its output (:class:`sonarmap._atomic.WriterLock`), so a second run on
+the same output fails at once instead of interleaving with the first; the lock of a killed run
+is taken over by the next.  Re-running the same command (same inputs, configuration and
 options: compared through a fingerprint) resumes; anything else needs ``overwrite=True``.
 """
 
@@ -51,10 +56,28 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from sonarmap._atomic import atomic_write_text
+from sonarmap._atomic import WriterLock, atomic_write_text, write_error
 from sonarmap.errors import DataFormatError, InputError, SonarmapError
+from sonarmap.io._files import MAX_SIDECAR_BYTES, read_bytes_bounded
 from sonarmap.io.dataset import ATTRS as DATA_MODEL_ATTRS
-from sonarmap.io.dataset import COORD_AZIMUTH, COORD_RANGE, DIM_BEAM, DIM_PING, DIM_RANGE
+from sonarmap.io.dataset import (
+    COORD_AZIMUTH,
+    COORD_RANGE,
+    DIM_BEAM,
+    DIM_PING,
+    DIM_RANGE,
+    _check_chunk_files,
+    _check_times,
+    _inspect_store,
+    _kind_of,
+    _locate_error,
+    _read_array,
+    _Store,
+    _TIME_UNITS,
+    check_values,
+    checksum_codecs,
+    remove_stale_store_temporaries,
+)
 from sonarmap.ping import Ping
 
 __all__ = [
@@ -66,6 +89,7 @@ __all__ = [
     "process_survey",
     "run_chunk",
     "open_products",
+    "load_products",
     "survey_status",
     "replicate_pings",
     "PRODUCT_VARIABLES",
@@ -296,14 +320,15 @@ def _iter_chunk_pings(chunk: ChunkSpec) -> Iterator[Ping]:
         if fmt == "pngjson":
             yield read_png_ping(path, geometry=chunk.geometry)
             continue
-        if fmt == "zarrstore":  # a converted survey: read only this chunk's pings
+        if fmt in ("zarr", "zarrstore"):  # a converted survey: read only this chunk's pings
             from sonarmap.geometry import as_geometry
             from sonarmap.io.dataset import dataset_to_pings
             from sonarmap.io.dataset import open_survey as open_dataset
 
-            ds = open_dataset(path).isel({DIM_PING: slice(first, first + count)})
+            # Pings first:first+count of the whole store (not of a subset): messages about a bad
+            # value or chunk give the store's ping and chunk numbers.
             g = None if chunk.geometry is None else as_geometry(chunk.geometry)
-            it: Iterator[Ping] = dataset_to_pings(ds, geometry=g)
+            it: Iterator[Ping] = dataset_to_pings(open_dataset(path), geometry=g, start=first, stop=first + count)
             first = 0
         else:
             it = format_module(fmt).iter_pings(Path(path), geometry=chunk.geometry)
@@ -604,12 +629,22 @@ def _done_chunks(store: Path) -> set[int]:
 
 
 def _read_root_attrs(store: Path) -> dict[str, Any] | None:
+    """The root attributes of a store, or ``None`` if it has no readable root ``zarr.json``."""
     meta = store / "zarr.json"
     try:
-        d = json.loads(meta.read_text(encoding="utf-8"))
-    except (OSError, ValueError):
+        d = json.loads(read_bytes_bounded(meta, MAX_SIDECAR_BYTES, "group metadata").decode("utf-8"))
+    except (OSError, ValueError, RecursionError):
         return None
-    return d.get("attributes", {})
+    attrs = d.get("attributes", {}) if isinstance(d, dict) else None
+    return attrs if isinstance(attrs, dict) else None
+
+
+def _int_attr(attrs: Mapping[str, Any], key: str, store: Path, *, low: int = 0) -> int:
+    """Root attribute ``key``, an integer >= ``low`` (else a DataFormatError naming zarr.json)."""
+    v = attrs.get(key)
+    if isinstance(v, bool) or not isinstance(v, int) or v < low:
+        raise DataFormatError(f"root attribute {key} is {v!r:.40}, expected an integer >= {low}", store / "zarr.json")
+    return v
 
 
 def survey_status(store: str | os.PathLike[str]) -> dict[str, Any]:
@@ -623,10 +658,12 @@ def survey_status(store: str | os.PathLike[str]) -> dict[str, Any]:
     p = Path(store)
     attrs = _read_root_attrs(p)
     if attrs is None or attrs.get("sonarmap_format") != SURVEY_FORMAT:
+        if (p / "zarr.json").is_file():
+            _inspect_store(p)  # a corrupt root zarr.json: say what is wrong with it
         raise DataFormatError("not a sonarmap survey store", p)
     return {
-        "n_chunks": int(attrs["n_chunks"]),
-        "n_pings": int(attrs["n_pings"]),
+        "n_chunks": _int_attr(attrs, "n_chunks", p),
+        "n_pings": _int_attr(attrs, "n_pings", p),
         "done": len(_done_chunks(p)),
         "complete": (p / STATE_DIR / "complete").exists(),
         "fingerprint": attrs.get("fingerprint"),
@@ -669,12 +706,15 @@ def _create_store(path: Path, plan: SurveyPlan, schema: Mapping[str, tuple[tuple
             # Static coordinates along beam / range_sample.
             for name, values, dims, vattrs in coords.get("arrays", ()):
                 arr = root.create_array(name, shape=values.shape, dtype=values.dtype,
-                                        dimension_names=dims, attributes=vattrs)
+                                        dimension_names=dims, attributes=vattrs, **checksum_codecs(),
+                                        config={"write_empty_chunks": True})
                 arr[...] = values
         (tmp / STATE_DIR / "chunks").mkdir(parents=True)
         os.replace(tmp, path)
-    except BaseException:
+    except BaseException as exc:
         shutil.rmtree(tmp, ignore_errors=True)
+        if isinstance(exc, OSError) and not isinstance(exc, SonarmapError):
+            raise write_error(exc, path, "cannot create the store") from None
         raise
 
 
@@ -693,7 +733,19 @@ def _remove_store(path: Path) -> None:
 def _write_marker(store: Path, chunk_index: int, start: int, stop: int) -> None:
     """The chunk's completion marker, written atomically once its data files are in place."""
     marker = _marker_dir(store) / f"{chunk_index:08d}.done"
-    atomic_write_text(marker, json.dumps({"start": start, "stop": stop}) + "\n")
+    # No scan for stale temporaries per marker (that would be quadratic in the chunks): the run
+    # clears the marker directory's leftovers once, at its start (_remove_marker_temporaries).
+    atomic_write_text(marker, json.dumps({"start": start, "stop": stop}) + "\n", clean=False)
+
+
+def _remove_marker_temporaries(store: Path) -> None:
+    """Remove what killed runs left among the markers: temporary files (``.<k>.done.*``) - call
+    only while holding the store's lock (no other run writes markers then)."""
+    d = _marker_dir(store)
+    for name in os.listdir(d) if d.is_dir() else ():
+        if name.startswith("."):
+            with contextlib.suppress(OSError):
+                os.unlink(d / name)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -724,15 +776,22 @@ class _Sink:
         elif self.writer is not None:
             self.writer.write(chunk.index, result)
         else:
-            with warnings.catch_warnings():
+            import zarr
+
+            # Every chunk is written, even one equal to the fill value: a checksummed store has
+            # all its chunks, so a missing one is recognised as damage when read.
+            with warnings.catch_warnings(), zarr.config.set({"array.write_empty_chunks": True}):
                 warnings.simplefilter("ignore")
-                for name, values in result.items():
-                    arr = self._arrays.get(name)
-                    if arr is None:
-                        if not self._arrays:
-                            self._root = _zarr_open(self.store)
-                        arr = self._arrays[name] = self._root[name]
-                    arr[chunk.start : chunk.stop] = values
+                try:
+                    for name, values in result.items():
+                        arr = self._arrays.get(name)
+                        if arr is None:
+                            if not self._arrays:
+                                self._root = _zarr_open(self.store)
+                            arr = self._arrays[name] = self._root[name]
+                        arr[chunk.start : chunk.stop] = values
+                except OSError as exc:
+                    raise write_error(exc, self.store, f"cannot write chunk {chunk.index}") from None
         _write_marker(self.store, chunk.index, chunk.start, chunk.stop)
 
 
@@ -1113,147 +1172,151 @@ def process_survey(
                       version=__version__,
                       ping_function=_function_name(ping_function))
 
-    # ---------------------------------------------------------------- existing output?
-    if out.exists() or out.is_symlink():
-        attrs = _read_root_attrs(out) if out.is_dir() else None
-        same = attrs is not None and attrs.get("sonarmap_format") == SURVEY_FORMAT and attrs.get("fingerprint") == fp
-        if overwrite:
-            _remove_store(out)
-        elif not same:
-            why = ("is not a sonarmap survey store" if not attrs or attrs.get("sonarmap_format") != SURVEY_FORMAT
-                   else "was made from different inputs, configuration or options")
-            raise SurveyExistsError(f"{out}: output exists and {why}; use --overwrite to replace it")
+    # One writer per output: a second run on it fails at once (naming the first's pid); the
+    # lock of a killed run is taken over, and what that run left beside the store is removed.
+    with WriterLock(out):
+        remove_stale_store_temporaries(out)
+        # ---------------------------------------------------------------- existing output?
+        if out.exists() or out.is_symlink():
+            attrs = _read_root_attrs(out) if out.is_dir() else None
+            same = attrs is not None and attrs.get("sonarmap_format") == SURVEY_FORMAT and attrs.get("fingerprint") == fp
+            if overwrite:
+                _remove_store(out)
+            elif not same:
+                why = ("is not a sonarmap survey store" if not attrs or attrs.get("sonarmap_format") != SURVEY_FORMAT
+                       else "was made from different inputs, configuration or options")
+                raise SurveyExistsError(f"{out}: output exists and {why}; use --overwrite to replace it")
 
-    task = _Task(cfg, bool(keep_labels), {}, ping_function)
-    own_client = None
-    pool: _ProcessPool | None = None
-    if client is None and scheduler is not None:
-        from distributed import Client
+        task = _Task(cfg, bool(keep_labels), {}, ping_function)
+        own_client = None
+        pool: _ProcessPool | None = None
+        if client is None and scheduler is not None:
+            from distributed import Client
 
-        client = own_client = Client(scheduler, timeout="30s")
-    n_workers = int(workers if workers is not None else (os.cpu_count() or 1))
-    serial = client is None and (workers == 0 or (workers is None and n_workers == 1))
-    finished_before = (out / STATE_DIR / "complete").exists()
-    ok = False
-    try:
-        if client is None and not serial and not finished_before:
-            # Start (and warm) the workers now: they load the pipeline while this process probes.
-            n_workers = max(1, min(n_workers, plan.n_chunks))
-            pool = _ProcessPool(n_workers, ping_function)
-        if not out.exists():
-            # Probe the first ping(s) in this process: product shapes and static coordinates.
-            fn = ping_function or _default_ping_function()
-            first: Ping | None = None
-            for ping in _iter_chunk_pings(plan.chunk(0)):
-                prod = fn(ping, cfg, keep_labels=keep_labels)
-                first = first or ping
-                if prod.fit is not None:  # a ping with a mixture fit gives the mixture's shape
-                    break
-            assert first is not None
-            rec = _record(prod, keep_labels=keep_labels)
-            schema = _schema_of(rec)
-            _, _, cnames = _fit_arrays(prod.fit)
-            geom = first.geometry
-            if pool is not None:
-                # Start the first chunks now (products sent back) while the store is created.
-                pool.start(plan.chunks(), dataclasses.replace(task, schema=schema, reference=(
-                    np.asarray(geom.azimuth_rad, np.float64), np.asarray(geom.range_m, np.float64))))
-            coord_arrays = [
-                (COORD_AZIMUTH, np.asarray(geom.azimuth_rad, np.float64), (DIM_BEAM,),
-                 dict(DATA_MODEL_ATTRS[COORD_AZIMUTH])),
-            ]
-            coord_arrays.append((COORD_RANGE, np.asarray(geom.range_m, np.float64), (DIM_RANGE,),
-                                 dict(DATA_MODEL_ATTRS[COORD_RANGE])))
-            attrs = {
-                "sonarmap_format": SURVEY_FORMAT,
-                "sonarmap_version": __version__,
-                "title": "sonarmap survey products",
-                "Conventions": "CF-1.8",
-                "source_geometry": json.dumps(_jsonable(geom.to_dict())),
-                "pipeline_config": json.dumps(_jsonable(cfg_dict), sort_keys=True),
-                "keep_labels": bool(keep_labels),
-                "chunk_size": plan.chunk_size,
-                "n_pings": plan.n_pings,
-                "n_chunks": plan.n_chunks,
-                "n_input_files": len(plan.files),
-                "inputs": [p for p, _, _ in plan.files[:20]] + (["..."] if len(plan.files) > 20 else []),
-                "poses": None if poses is None else os.path.abspath(poses),
-                "fingerprint": fp,
-                "schema": {k: [list(s), d] for k, (s, d) in schema.items()},
-            }
-            _create_store(out, plan, schema, attrs, {"arrays": coord_arrays, "component_names": cnames})
-        attrs = _read_root_attrs(out) or {}
-        schema = {k: (tuple(s), d) for k, (s, d) in attrs["schema"].items()}
-        root = _zarr_open(out)
-        reference = (np.asarray(root[COORD_AZIMUTH][:]), np.asarray(root[COORD_RANGE][:]))
-        task = dataclasses.replace(task, schema=schema, reference=reference)
-        from sonarmap._survey_store import ChunkWriter
+            client = own_client = Client(scheduler, timeout="30s")
+        n_workers = int(workers if workers is not None else (os.cpu_count() or 1))
+        serial = client is None and (workers == 0 or (workers is None and n_workers == 1))
+        finished_before = (out / STATE_DIR / "complete").exists()
+        ok = False
+        try:
+            if client is None and not serial and not finished_before:
+                # Start (and warm) the workers now: they load the pipeline while this process probes.
+                n_workers = max(1, min(n_workers, plan.n_chunks))
+                pool = _ProcessPool(n_workers, ping_function)
+            if not out.exists():
+                # Probe the first ping(s) in this process: product shapes and static coordinates.
+                fn = ping_function or _default_ping_function()
+                first: Ping | None = None
+                for ping in _iter_chunk_pings(plan.chunk(0)):
+                    prod = fn(ping, cfg, keep_labels=keep_labels)
+                    first = first or ping
+                    if prod.fit is not None:  # a ping with a mixture fit gives the mixture's shape
+                        break
+                assert first is not None
+                rec = _record(prod, keep_labels=keep_labels)
+                schema = _schema_of(rec)
+                _, _, cnames = _fit_arrays(prod.fit)
+                geom = first.geometry
+                if pool is not None:
+                    # Start the first chunks now (products sent back) while the store is created.
+                    pool.start(plan.chunks(), dataclasses.replace(task, schema=schema, reference=(
+                        np.asarray(geom.azimuth_rad, np.float64), np.asarray(geom.range_m, np.float64))))
+                coord_arrays = [
+                    (COORD_AZIMUTH, np.asarray(geom.azimuth_rad, np.float64), (DIM_BEAM,),
+                     dict(DATA_MODEL_ATTRS[COORD_AZIMUTH])),
+                ]
+                coord_arrays.append((COORD_RANGE, np.asarray(geom.range_m, np.float64), (DIM_RANGE,),
+                                     dict(DATA_MODEL_ATTRS[COORD_RANGE])))
+                attrs = {
+                    "sonarmap_format": SURVEY_FORMAT,
+                    "sonarmap_version": __version__,
+                    "title": "sonarmap survey products",
+                    "Conventions": "CF-1.8",
+                    "source_geometry": json.dumps(_jsonable(geom.to_dict())),
+                    "pipeline_config": json.dumps(_jsonable(cfg_dict), sort_keys=True),
+                    "keep_labels": bool(keep_labels),
+                    "chunk_size": plan.chunk_size,
+                    "n_pings": plan.n_pings,
+                    "n_chunks": plan.n_chunks,
+                    "n_input_files": len(plan.files),
+                    "inputs": [p for p, _, _ in plan.files[:20]] + (["..."] if len(plan.files) > 20 else []),
+                    "poses": None if poses is None else os.path.abspath(poses),
+                    "fingerprint": fp,
+                    "schema": {k: [list(s), d] for k, (s, d) in schema.items()},
+                }
+                _create_store(out, plan, schema, attrs, {"arrays": coord_arrays, "component_names": cnames})
+            st, schema = _inspect_products(out)  # metadata checked: a damaged store is a clean error
+            _remove_marker_temporaries(out)
+            root = _zarr_open(out)
+            reference = (np.asarray(_read_array(st, COORD_AZIMUTH)), np.asarray(_read_array(st, COORD_RANGE)))
+            task = dataclasses.replace(task, schema=schema, reference=reference)
+            from sonarmap._survey_store import ChunkWriter
 
-        writer = ChunkWriter.open(out, list(schema))
-        if writer is not None:
-            writer.clean_tmp()  # temporary files of an interrupted run (no writer of ours runs yet)
-        sink = _Sink(out, writer)
+            writer = ChunkWriter.open(out, list(schema))
+            if writer is not None:
+                writer.clean_tmp()  # temporary files of an interrupted run (no writer of ours runs yet)
+            sink = _Sink(out, writer)
 
-        done = _done_chunks(out)
-        todo = [plan.chunk(i) for i in range(plan.n_chunks) if i not in done]
-        n_done = sum(plan.chunk(i).n_pings for i in done if i < plan.n_chunks)
-        if progress:
-            progress(n_done, plan.n_pings)
-        if not todo:
-            stream: Iterator[Any] = iter(())
-            executor = "none"
-        elif client is not None:
-            stream = _run_dask(todo, task, client)
-            executor = f"dask:{client.scheduler.address}"
-        elif pool is None:
-            stream = _run_serial(todo, task)
-            executor = "serial"
-        else:
-            # Local workers share the file system: each writes its own chunk files (distinct
-            # files, so concurrent writers are safe) and reports back; this process only writes
-            # the completion markers.  (Dask workers may be on other machines: they return the
-            # products and this process writes them.)  The last chunks run in parts whose
-            # products come back to be stored here, to balance the tail.
-            stream = pool.run(todo, task if writer is None else dataclasses.replace(task, writer=writer),
-                              part_task=task)
-            executor = f"processes:{pool.workers}"
-        for chunk, result in stream:
-            sink.put(chunk, result)
-            n_done += chunk.n_pings
+            done = _done_chunks(out)
+            todo = [plan.chunk(i) for i in range(plan.n_chunks) if i not in done]
+            n_done = sum(plan.chunk(i).n_pings for i in done if i < plan.n_chunks)
             if progress:
                 progress(n_done, plan.n_pings)
-        ok = True
-    finally:
-        if pool is not None:
-            pool.close(ok)
-        if own_client is not None:
-            own_client.close()
+            if not todo:
+                stream: Iterator[Any] = iter(())
+                executor = "none"
+            elif client is not None:
+                stream = _run_dask(todo, task, client)
+                executor = f"dask:{client.scheduler.address}"
+            elif pool is None:
+                stream = _run_serial(todo, task)
+                executor = "serial"
+            else:
+                # Local workers share the file system: each writes its own chunk files (distinct
+                # files, so concurrent writers are safe) and reports back; this process only writes
+                # the completion markers.  (Dask workers may be on other machines: they return the
+                # products and this process writes them.)  The last chunks run in parts whose
+                # products come back to be stored here, to balance the tail.
+                stream = pool.run(todo, task if writer is None else dataclasses.replace(task, writer=writer),
+                                  part_task=task)
+                executor = f"processes:{pool.workers}"
+            for chunk, result in stream:
+                sink.put(chunk, result)
+                n_done += chunk.n_pings
+                if progress:
+                    progress(n_done, plan.n_pings)
+            ok = True
+        finally:
+            if pool is not None:
+                pool.close(ok)
+            if own_client is not None:
+                own_client.close()
 
-    # ---------------------------------------------------------------- finalise
-    all_flags = root["flags"][:]
-    n_flagged = int(flagged_mask(all_flags).sum())
-    from sonarmap.stats.gates import REFUSING
+        # ---------------------------------------------------------------- finalise
+        all_flags = _read_array(st, "flags")
+        n_flagged = int(flagged_mask(all_flags).sum())
+        from sonarmap.stats.gates import REFUSING
 
-    gates = tuple(tuple(sorted(set(str(f).split()) & REFUSING)) for f in all_flags)
-    points_path: Path | None = None
-    n_points = 0
-    complete = out / STATE_DIR / "complete"
-    if poses is not None:
-        target = Path(points) if points is not None else out.with_suffix(".ply")
-        if complete.exists() and "point_xyz" in root and target.exists():
-            points_path, n_points = target, int(root["point_xyz"].shape[0])
-        else:
-            points_path, n_points = _register_points(root, out, poses, target, extrinsics)
-    with contextlib.suppress(OSError):
-        os.rmdir(out / STATE_DIR / "tmp")  # empty once every chunk is stored
-    if not complete.exists():
-        atomic_write_text(complete, json.dumps({"n_pings": plan.n_pings, "n_flagged": n_flagged}) + "\n")
-    return SurveyResult(
-        output=out, n_pings=plan.n_pings, n_flagged=n_flagged, n_chunks=plan.n_chunks,
-        chunks_run=len(todo), chunks_skipped=plan.n_chunks - len(todo),
-        elapsed_s=time.perf_counter() - t0, executor=executor, points_path=points_path,
-        n_points=n_points, gates=gates,
-    )
+        gates = tuple(tuple(sorted(set(str(f).split()) & REFUSING)) for f in all_flags)
+        points_path: Path | None = None
+        n_points = 0
+        complete = out / STATE_DIR / "complete"
+        if poses is not None:
+            target = Path(points) if points is not None else out.with_suffix(".ply")
+            if complete.exists() and "point_xyz" in root and target.exists():
+                points_path, n_points = target, int(root["point_xyz"].shape[0])
+            else:
+                points_path, n_points = _register_points(root, st, out, poses, target, extrinsics)
+        with contextlib.suppress(OSError):
+            os.rmdir(out / STATE_DIR / "tmp")  # empty once every chunk is stored
+        if not complete.exists():
+            atomic_write_text(complete, json.dumps({"n_pings": plan.n_pings, "n_flagged": n_flagged}) + "\n")
+        return SurveyResult(
+            output=out, n_pings=plan.n_pings, n_flagged=n_flagged, n_chunks=plan.n_chunks,
+            chunks_run=len(todo), chunks_skipped=plan.n_chunks - len(todo),
+            elapsed_s=time.perf_counter() - t0, executor=executor, points_path=points_path,
+            n_points=n_points, gates=gates,
+        )
 
 
 def _zarr_open(path: Path) -> Any:
@@ -1271,7 +1334,8 @@ def _maybe_config(config: Any) -> Any:
         return config
 
 
-def _register_points(root: Any, out: Path, poses: Any, points: Any, extrinsics: Any) -> tuple[Path, int]:
+def _register_points(root: Any, st: _Store, out: Path, poses: Any, points: Any,
+                     extrinsics: Any) -> tuple[Path, int]:
     """Register the stored ranges with the trajectory into world points (stored + written to a file).
 
     Pings outside the trajectory's time span are skipped.  The cloud is stored in the survey as
@@ -1288,14 +1352,15 @@ def _register_points(root: Any, out: Path, poses: Any, points: Any, extrinsics: 
     )
 
     traj = read_trajectory_csv(poses)
-    t = np.asarray(root["ping_time"][:], dtype=np.int64)
+    t = np.asarray(_read_array(st, "ping_time"), dtype=np.int64)
+    _check_times(t, out)
     ext = load_extrinsics(extrinsics) if extrinsics is not None else None
     sp = sensor_poses(traj, t, extrinsics=ext, outside="skip")
     cloud = register_returns(
-        root["range"][:], root[COORD_AZIMUTH][:], sp,
-        intensity=np.nan_to_num(root["range_intensity"][:], nan=0.0),
-        confidence=np.nan_to_num(root["range_confidence"][:], nan=0.0),
-        sigma_m=root["range_sigma"][:] if "range_sigma" in root else None,
+        _read_array(st, "range"), _read_array(st, COORD_AZIMUTH), sp,
+        intensity=np.nan_to_num(_read_array(st, "range_intensity"), nan=0.0),
+        confidence=np.nan_to_num(_read_array(st, "range_confidence"), nan=0.0),
+        sigma_m=_read_array(st, "range_sigma") if "range_sigma" in st.arrays else None,
     )
     n = len(cloud)
     block = max(1, min(n, 1 << 18))
@@ -1314,30 +1379,198 @@ def _register_points(root: Any, out: Path, poses: Any, points: Any, extrinsics: 
             if name in root:
                 del root[name]
             arr = root.create_array(name, shape=values.shape, chunks=(block, *values.shape[1:]),
-                                    dtype=values.dtype, dimension_names=dims, attributes=attrs)
+                                    dtype=values.dtype, dimension_names=dims, attributes=attrs,
+                                    **checksum_codecs(), config={"write_empty_chunks": True})
             arr[...] = values
     target = Path(points) if points is not None else out.with_suffix(".ply")
     write_point_cloud(cloud, target)
     return target, n
 
 
-def open_products(path: str | os.PathLike[str]) -> Any:
-    """Open a survey store as an ``xarray.Dataset`` (lazy, decoded times).
+#: Documented value range of each product variable, checked by :func:`load_products`
+#: (keyword arguments of :func:`sonarmap.io.dataset.check_values`).  NaN is "none" / "unknown" /
+#: "not yet written" wherever a float variable has it as fill value.  ``range_bin`` is checked
+#: against the number of range bins, ``point_beam`` against the number of beams, the times by
+#: :func:`sonarmap.io.dataset._check_times`; ``labels`` (uint8) and the strings are not checked.
+PRODUCT_RANGES: dict[str, dict[str, Any]] = {
+    "kld": {"low": 0.0, "high": math.inf, "nan": True, "inf": True},  # inf: zero_mass fits
+    "background_range_db": {"nan": True},
+    "mixture_weight": {"low": 0.0, "high": 1.0, "nan": True},
+    "mixture_param": {"nan": True},
+    "pd": {"low": 0.0, "high": 1.0, "nan": True},
+    "pfa": {"low": 0.0, "high": 1.0, "nan": True},
+    "range": {"low": 0.0, "nan": True},
+    "range_intensity": {"nan": True},
+    "range_confidence": {"low": 0.0, "high": 1.0, "nan": True},
+    "range_sigma": {"low": 0.0, "nan": True},
+    "p_detect": {"low": 0.0, "high": 1.0, "nan": True},
+    "other_range": {"low": 0.0, "nan": True},
+    "point_xyz": {"nan": True, "item": "point"},
+    "point_intensity": {"nan": True, "item": "point"},
+    "point_range_sigma": {"low": 0.0, "nan": True, "item": "point"},
+    COORD_AZIMUTH: {"low": -math.pi, "high": math.pi, "item": "beam"},
+    COORD_RANGE: {"low": 0.0, "item": "range bin"},
+}
+
+
+def _inspect_products(p: Path) -> tuple[_Store, dict[str, tuple[tuple[int, ...], str]]]:
+    """Check a product store's metadata: every document parses, the schema's arrays exist with
+    the shapes, dimensions and dtypes it gives, the coordinates exist, the time units are ns.
 
     Raises
     ------
     DataFormatError
-        If ``path`` is not a sonarmap survey store.
+        Naming the store and the file or array at fault (``not a sonarmap survey store`` for a
+        directory that is not one).
     """
+    if not (p / "zarr.json").is_file() and not (p / ".zgroup").exists():
+        raise DataFormatError("not a sonarmap survey store", p)
+    st = _inspect_store(p)
+    meta = st.meta_file()
+    if st.attrs.get("sonarmap_format") != SURVEY_FORMAT:
+        raise DataFormatError("not a sonarmap survey store", p)
+    n = _int_attr(st.attrs, "n_pings", p)
+    _int_attr(st.attrs, "n_chunks", p)
+    _int_attr(st.attrs, "chunk_size", p, low=1)
+    raw = st.attrs.get("schema")
+    schema: dict[str, tuple[tuple[int, ...], str]] = {}
+    try:
+        for name, (shape, dtype) in raw.items():  # type: ignore[union-attr]
+            if not isinstance(name, str) or not isinstance(dtype, str) or not all(
+                    isinstance(k, int) and not isinstance(k, bool) and k >= 0 for k in shape):
+                raise TypeError(name)
+            schema[name] = (tuple(shape), dtype)
+    except (AttributeError, TypeError, ValueError):
+        raise DataFormatError("root attribute schema is not {name: [shape, dtype]}", meta) from None
+    for name in (DIM_PING, "source", "flags", "kld", "range"):
+        if name not in schema:
+            raise DataFormatError(f"root attribute schema lacks the required variable {name}", meta)
+    for name, (shape, dtype) in schema.items():
+        if name not in PRODUCT_VARIABLES:
+            raise DataFormatError(f"root attribute schema names an unknown variable {name!r:.40}", meta)
+        arr = st.require(name, what="sonarmap survey store")
+        if tuple(arr.shape) != (n, *shape):
+            raise DataFormatError(f"array '{name}' has shape {tuple(arr.shape)}, the store's schema says "
+                                  f"{(n, *shape)}", st.meta_file(name))
+        dims = st.dims(name)
+        if dims != PRODUCT_VARIABLES[name][0]:
+            raise DataFormatError(f"array '{name}' has dimensions {dims}, expected {PRODUCT_VARIABLES[name][0]}",
+                                  st.meta_file(name))
+        ok = _kind_of(arr) == "T" if dtype == "str" else np.dtype(arr.dtype) == np.dtype(dtype)
+        if not ok:
+            raise DataFormatError(f"array '{name}' has data type {arr.dtype}, the store's schema says {dtype}",
+                                  st.meta_file(name))
+    sizes = {DIM_BEAM: schema["range"][0][0] if schema["range"][0] else None,
+             DIM_RANGE: schema["labels"][0][0] if "labels" in schema else _n_bins(st.attrs)}
+    for name, dim in ((COORD_AZIMUTH, DIM_BEAM), (COORD_RANGE, DIM_RANGE)):
+        arr = st.require(name, ndim=1, kinds="f", what="sonarmap survey store")
+        if st.dims(name) != (dim,):
+            raise DataFormatError(f"array '{name}' has dimensions {st.dims(name)}, expected {(dim,)}",
+                                  st.meta_file(name))
+        if sizes[dim] is not None and int(arr.shape[0]) != sizes[dim]:
+            raise DataFormatError(f"array '{name}' has {arr.shape[0]} along {dim}, the survey has {sizes[dim]}",
+                                  st.meta_file(name))
+    points = {name: arr for name, arr in st.arrays.items() if name.startswith("point_")}
+    for name, arr in points.items():
+        if not arr.shape or st.dims(name)[:1] != ("point",) or (
+                int(arr.shape[0]) != int(next(iter(points.values())).shape[0])) or (
+                name == "point_xyz" and tuple(arr.shape[1:]) != (3,)):
+            raise DataFormatError(f"array '{name}' has shape {tuple(arr.shape)} / dimensions {st.dims(name)}, "
+                                  "inconsistent with the other point arrays", st.meta_file(name))
+    units = st.arrays[DIM_PING].attrs.get("units")
+    if not isinstance(units, str) or not _TIME_UNITS.fullmatch(units):
+        raise DataFormatError(f"array '{DIM_PING}' has units {units!r:.60}, expected {TIME_UNITS!r}",
+                              st.meta_file(DIM_PING))
+    return st, schema
+
+
+def _n_bins(attrs: Mapping[str, Any]) -> int | None:
+    """Range bins of the survey's sonar (``source_geometry`` attribute), if recorded."""
+    try:
+        n = json.loads(attrs.get("source_geometry", "{}")).get("num_bins")
+    except (TypeError, ValueError, AttributeError, RecursionError):
+        return None
+    return n if isinstance(n, int) and not isinstance(n, bool) else None
+
+
+def open_products(path: str | os.PathLike[str]) -> Any:
+    """Open a survey store as an ``xarray.Dataset`` (lazy, decoded times).
+
+    The metadata is checked first (:func:`load_products` also checks the chunks and values).
+
+    Raises
+    ------
+    DataFormatError
+        If ``path`` is not a sonarmap survey store, or its metadata is corrupt or incomplete (the
+        message names the file or array).
+    """
+    p = Path(path)
+    st, _ = _inspect_products(p)
+    _check_chunk_files(st, DIM_PING, required=False)  # read when opened (an index): no FIFO, no /dev/zero
+    return _open_checked(st)
+
+
+def _open_checked(st: _Store, *, lazy: bool = True) -> Any:
+    """``xarray.open_zarr`` of a checked store (dask-backed if ``lazy``); errors name the chunk."""
     import xarray as xr
 
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            kw: dict[str, Any] = {} if lazy else {"chunks": None}
+            return xr.open_zarr(str(st.path), consolidated=False, zarr_format=3, **kw)
+    except SonarmapError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - zarr/xarray raise many types on damaged stores
+        raise _locate_error(st, list(st.arrays), None, exc, "the survey") from None
+
+
+def load_products(path: str | os.PathLike[str]) -> Any:
+    """Load a survey store into memory, checking everything read.
+
+    Checks the metadata (:func:`open_products`), that every chunk of a completed task (its
+    marker exists) and of the other checksummed arrays is present, every chunk's checksum, and
+    every value against :data:`PRODUCT_RANGES` (times: int64 ns >= 0, 0 for pings not written).
+
+    Returns
+    -------
+    xarray.Dataset
+
+    Raises
+    ------
+    DataFormatError
+        Naming the store and the array and chunk (damaged data) or the variable and ping (a value
+        outside its documented range).
+    """
     p = Path(path)
-    attrs = _read_root_attrs(p)
-    if attrs is None or attrs.get("sonarmap_format") != SURVEY_FORMAT:
-        raise DataFormatError("not a sonarmap survey store", p)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        ds = xr.open_zarr(str(p), consolidated=False, zarr_format=3)
+    st, schema = _inspect_products(p)
+    k = _int_attr(st.attrs, "chunk_size", p, low=1)
+    done = sorted(_done_chunks(p))
+    for name in st.arrays:
+        if name in schema:  # chunks of unfinished tasks are legitimately missing (fill values)
+            _check_chunk_files(st, name, required=False)
+            for c in done:
+                _check_chunk_files(st, name, slice(c * k, (c + 1) * k))
+        else:
+            _check_chunk_files(st, name)
+    ds = _open_checked(st, lazy=False)  # one read per array, not one dask task per chunk
+    try:
+        ds = ds.load()
+    except SonarmapError:
+        raise
+    except Exception as exc:  # noqa: BLE001
+        raise _locate_error(st, list(st.arrays), None, exc, "the survey") from None
+    n_bins, n_beams = int(ds[COORD_RANGE].shape[0]), int(ds[COORD_AZIMUTH].shape[0])
+    _check_times(ds[DIM_PING].values, p)
+    if "point_time" in ds:
+        _check_times(ds["point_time"].values, p, name="point_time", item="point")
+    for name, kw in PRODUCT_RANGES.items():
+        if name in ds.variables:
+            check_values(ds[name].values, name, p, **kw)
+    if "range_bin" in ds:
+        check_values(ds["range_bin"].values, "range_bin", p, low=0, high=n_bins - 1, allowed=(-1,))
+    if "point_beam" in ds:
+        check_values(ds["point_beam"].values, "point_beam", p, low=0, high=n_beams - 1, item="point")
     return ds
 
 

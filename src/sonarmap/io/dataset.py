@@ -27,6 +27,15 @@ place; an interrupted append leaves arrays of unequal length, which :func:`open_
 with dims ``(ping_time, beam)``) are declared with :class:`PingVariable` and either written with
 each ping (``SurveyWriter(extra_variables=...)``) or added to an existing store with
 :func:`add_ping_variable` + :func:`write_ping_variable` (region writes, resumable).
+
+Integrity.  Every chunk is written with a CRC32C checksum (zarr's ``crc32c`` codec after
+``zstd``) and every chunk is written, even one equal to the fill value; stores written before
+(no checksum) still read.  Reading parses every metadata document first (one
+:class:`~sonarmap.errors.DataFormatError` naming the file for a corrupt or missing one), requires
+the arrays of the data model, and checks values as they are read: intensities in [0, 1], times
+int64 ns in [0, 2**63 - 1], indices inside their tables; a corrupt or missing chunk is an error
+naming the array and chunk.  A writer holds an exclusive lock on its store
+(:class:`sonarmap._atomic.WriterLock`): a second writer fails at once, naming the first's pid.
 """
 
 from __future__ import annotations
@@ -35,18 +44,22 @@ import dataclasses
 import json
 import math
 import os
+import re
 import shutil
+import struct
 import tempfile
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from numpy.typing import ArrayLike
+from numpy.typing import ArrayLike, NDArray
 
 from sonarmap import __version__
-from sonarmap.errors import DataFormatError, InputError
+from sonarmap._atomic import WriterLock, write_error
+from sonarmap.errors import DataFormatError, InputError, SonarmapError
 from sonarmap.geometry import SonarGeometry, geometry_from_dict
+from sonarmap.io._files import MAX_SIDECAR_BYTES, read_bytes_bounded, require_regular_file
 from sonarmap.ping import Ping, Pose
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -361,20 +374,55 @@ def _global_attrs(state: _State) -> dict[str, Any]:
     }
 
 
+def checksum_codecs() -> dict[str, Any]:
+    """Bytes-to-bytes codecs of every array this version writes: zstd, then a CRC32C checksum.
+
+    The ``crc32c`` codec appends the 4-byte little-endian CRC32C of the compressed chunk, so any
+    corruption of a chunk file (a flipped bit, a truncated or overwritten file) is detected when
+    the chunk is read instead of decoding to wrong values.
+    """
+    from zarr.codecs import Crc32cCodec, ZstdCodec
+
+    return {"compressors": (ZstdCodec(level=0, checksum=False), Crc32cCodec())}
+
+
 def _encoding(ds: xr.Dataset, chunk_pings: int) -> dict[str, dict[str, Any]]:
     enc: dict[str, dict[str, Any]] = {
-        DIM_PING: {"units": "nanoseconds since 1970-01-01", "dtype": "int64", "chunks": (max(chunk_pings, 1024),)},
+        DIM_PING: {"units": "nanoseconds since 1970-01-01", "dtype": "int64", "chunks": (max(chunk_pings, 1024),),
+                   **checksum_codecs()},
+        DIM_RANGE: checksum_codecs(),
+        DIM_BEAM: checksum_codecs(),
     }
     for name, var in ds.variables.items():
         if name in (DIM_PING, DIM_RANGE, DIM_BEAM):
             continue
+        e: dict[str, Any] = dict(checksum_codecs())
         if var.dims and var.dims[0] == DIM_PING:
-            chunks = (chunk_pings, *var.shape[1:])
-            e: dict[str, Any] = {"chunks": chunks}
+            e["chunks"] = (chunk_pings, *var.shape[1:])
             if var.dtype.kind in "iub" and name.startswith(META_PREFIX):
                 e["fill_value"] = None
-            enc[str(name)] = e
+        enc[str(name)] = e
     return enc
+
+
+#: Latest ping time a store holds (int64 nanoseconds since 1970: 2262-04-11).
+TIME_MAX_NS = int(np.iinfo(np.int64).max)
+
+
+def _check_ping_for_store(ping: Ping) -> None:
+    """A ping a survey store can hold: time in [0, TIME_MAX_NS] ns, intensities in [0, 1]."""
+    who = ping.source or "ping"
+    if not 0 <= int(ping.time_ns) <= TIME_MAX_NS:
+        raise InputError(
+            f"{who}: ping time {int(ping.time_ns)} ns is outside what a survey store holds "
+            f"(0 to {TIME_MAX_NS} ns since 1970, i.e. 1970-2262)"
+        )
+    img = ping.image
+    if img.size and not (float(img.min()) >= 0.0 and float(img.max()) <= 1.0):
+        raise InputError(
+            f"{who}: intensities span [{float(img.min()):.6g}, {float(img.max()):.6g}]; a survey store "
+            "holds raw intensities in [0, 1]"
+        )
 
 
 # ---------------------------------------------------------------------- writing
@@ -394,7 +442,15 @@ class SurveyWriter:
         Extra per-ping variables given to :meth:`add`.
 
     Use as a context manager; on an exception a new store is discarded (an existing one is left
-    untouched in ``"w"`` mode).
+    untouched in ``"w"`` mode).  The writer holds an exclusive lock on the store
+    (:class:`sonarmap._atomic.WriterLock`) from construction to :meth:`close` / :meth:`abort`;
+    temporary directories of earlier writers that were killed are removed when it is taken.
+    Every chunk is written with a CRC32C checksum (:func:`checksum_codecs`).
+
+    Raises
+    ------
+    DataFormatError
+        If another writer holds the store, or it cannot be written (the message names it).
     """
 
     def __init__(
@@ -417,16 +473,25 @@ class SurveyWriter:
         self._state = _State()
         self._written = 0
         self._closed = False
-        self._append = mode == "a" and _is_store(self.path)
-        if self._append:
-            self._target = self.path
-            self._state = _read_state(self.path)
-            self._written = _n_pings(self.path)
-            self._tmp: Path | None = None
-        else:
-            self.path.parent.mkdir(parents=True, exist_ok=True)
-            self._tmp = Path(tempfile.mkdtemp(prefix=f".{self.path.name}.", suffix=".tmp", dir=self.path.parent))
-            self._target = self._tmp / "store.zarr"
+        self._tmp: Path | None = None
+        self._lock = WriterLock(self.path).acquire()
+        try:
+            remove_stale_store_temporaries(self.path)
+            self._append = mode == "a" and _is_store(self.path)
+            if self._append:
+                self._target = self.path
+                self._state = _read_state(self.path)
+                self._written = _n_pings(self.path)
+            else:
+                try:
+                    self._tmp = Path(tempfile.mkdtemp(prefix=f".{self.path.name}.", suffix=".tmp",
+                                                      dir=self.path.parent))
+                except OSError as exc:
+                    raise write_error(exc, self.path, "cannot create the store") from None
+                self._target = self._tmp / "store.zarr"
+        except BaseException:
+            self._lock.release()
+            raise
 
     @property
     def n_written(self) -> int:
@@ -434,12 +499,20 @@ class SurveyWriter:
         return self._written
 
     def add(self, ping: Ping, **extras: Any) -> None:
-        """Buffer one ping (and its extra-variable values); writes a chunk when the buffer is full."""
+        """Buffer one ping (and its extra-variable values); writes a chunk when the buffer is full.
+
+        Raises
+        ------
+        InputError
+            If the writer is closed, an extra variable is undeclared, or the ping cannot be stored
+            (time outside 1970-2262, intensities outside [0, 1]).
+        """
         if self._closed:
             raise InputError("SurveyWriter is closed")
         unknown = set(extras) - set(self._extras)
         if unknown:
             raise InputError(f"undeclared extra variables: {', '.join(sorted(unknown))}")
+        _check_ping_for_store(ping)
         self._buffer.append(ping)
         for name, values in self._extras.items():
             var = next(v for v in self.extra_variables if v.name == name)
@@ -458,7 +531,13 @@ class SurveyWriter:
         return n
 
     def flush(self) -> None:
-        """Write the buffered pings as one chunk."""
+        """Write the buffered pings as one chunk.
+
+        Raises
+        ------
+        DataFormatError
+            If the store cannot be written (disk full ...); the message names the store.
+        """
         if not self._buffer:
             return
         declared = {v.name for v in self.extra_variables}
@@ -469,43 +548,63 @@ class SurveyWriter:
             extra_variables=(*self.extra_variables, *stored),  # undeclared: fill values
             _state=self._state,
         )
-        if self._written == 0 and not self._append:
-            ds.to_zarr(self._target, mode="w", encoding=_encoding(ds, self.chunk_pings), consolidated=False)
-        else:
-            _check_append_compatible(self._target, ds)
-            ds.to_zarr(self._target, append_dim=DIM_PING, consolidated=False)
-            _update_attrs(self._target, _global_attrs(self._state))
+        try:
+            if self._written == 0 and not self._append:
+                ds.to_zarr(self._target, mode="w", encoding=_encoding(ds, self.chunk_pings), consolidated=False,
+                           write_empty_chunks=True)
+            else:
+                _check_append_compatible(self._target, ds)
+                ds.to_zarr(self._target, append_dim=DIM_PING, consolidated=False, write_empty_chunks=True)
+                _update_attrs(self._target, _global_attrs(self._state))
+        except SonarmapError:
+            raise
+        except OSError as exc:
+            raise write_error(exc, self.path, "cannot write the store") from None
         self._written += len(self._buffer)
         self._buffer.clear()
         for v in self._extras.values():
             v.clear()
 
     def close(self) -> None:
-        """Flush and, for a new store, move it into place atomically."""
+        """Flush and, for a new store, move it into place atomically; releases the store's lock."""
         if self._closed:
             return
-        self.flush()
-        self._closed = True
-        if self._tmp is None:
-            return
-        if self._written == 0:
+        try:
+            self.flush()
+            self._closed = True
+            if self._tmp is None:
+                return
+            if self._written == 0:
+                shutil.rmtree(self._tmp, ignore_errors=True)
+                raise InputError(f"{self.path}: no pings to write")
+            try:
+                _replace_dir(self._target, self.path)
+            except OSError as exc:
+                raise write_error(exc, self.path, "cannot move the new store into place") from None
             shutil.rmtree(self._tmp, ignore_errors=True)
-            raise InputError(f"{self.path}: no pings to write")
-        _replace_dir(self._target, self.path)
-        shutil.rmtree(self._tmp, ignore_errors=True)
+        finally:
+            if self._closed:
+                self._lock.release()
 
     def abort(self) -> None:
-        """Discard a new store (no effect on appends already written)."""
+        """Discard a new store (no effect on appends already written); releases the store's lock."""
         self._closed = True
-        if self._tmp is not None:
-            shutil.rmtree(self._tmp, ignore_errors=True)
+        try:
+            if self._tmp is not None:
+                shutil.rmtree(self._tmp, ignore_errors=True)
+        finally:
+            self._lock.release()
 
     def __enter__(self) -> SurveyWriter:
         return self
 
     def __exit__(self, exc_type: object, *exc: object) -> None:
         if exc_type is None:
-            self.close()
+            try:
+                self.close()
+            except BaseException:
+                self.abort()
+                raise
         else:
             self.abort()
 
@@ -527,6 +626,33 @@ def _replace_dir(src: Path, dst: Path) -> None:
         os.replace(src, dst)
 
 
+def remove_stale_store_temporaries(path: str | os.PathLike[str]) -> list[Path]:
+    """Remove the temporary directories that killed writers of store ``path`` left beside it.
+
+    Call only while holding the store's :class:`~sonarmap._atomic.WriterLock`: no other writer of
+    ``path`` then runs, so every ``.{name}.<random>.tmp`` / ``.old`` / ``.old-<pid>`` directory
+    beside it (new stores being built, replaced stores being deleted) is left over.
+
+    Returns
+    -------
+    list of Path
+        The directories removed.
+    """
+    p = Path(os.path.abspath(path))
+    pattern = re.compile(rf"\.{re.escape(p.name)}\.(?:[a-z0-9_]{{8}}\.(?:tmp|old)|old-\d+)")
+    try:
+        names = os.listdir(p.parent)
+    except OSError:
+        return []
+    removed = []
+    for name in names:
+        d = p.parent / name
+        if pattern.fullmatch(name) and d.is_dir() and not d.is_symlink():
+            shutil.rmtree(d, ignore_errors=True)
+            removed.append(d)
+    return removed
+
+
 def _update_attrs(path: Path, attrs: Mapping[str, Any]) -> None:
     import zarr
 
@@ -534,17 +660,15 @@ def _update_attrs(path: Path, attrs: Mapping[str, Any]) -> None:
 
 
 def _check_append_compatible(path: Path, ds: xr.Dataset) -> None:
-    import zarr
-
-    g = zarr.open_group(str(path), mode="r")
-    if VAR_INTENSITY in g:
-        have = tuple(g[VAR_INTENSITY].shape[1:])
+    st = _inspect_store(path)
+    if VAR_INTENSITY in st.arrays:
+        have = tuple(st.arrays[VAR_INTENSITY].shape[1:])
         want = tuple(ds[VAR_INTENSITY].shape[1:])
         if have != want:
             raise InputError(
                 f"{path}: store holds images of shape {have}, cannot append shape {want}"
             )
-    missing = [v for v in g.array_keys() if v not in ds.variables and v not in (DIM_RANGE, DIM_BEAM)]
+    missing = [v for v in st.arrays if v not in ds.variables and v not in (DIM_RANGE, DIM_BEAM)]
     if missing:
         raise InputError(f"{path}: appended pings lack variables {', '.join(sorted(missing))}")
 
@@ -566,53 +690,150 @@ def write_survey(
         return w.write(pings, progress)
 
 
-# ---------------------------------------------------------------------- reading
+# ---------------------------------------------------------------------- reading: metadata
 def _is_store(path: Path) -> bool:
     return path.is_dir() and ((path / "zarr.json").exists() or (path / ".zgroup").exists())
 
 
-def _open_group(path: Path) -> Any:
-    import zarr
+def _one_line(exc: BaseException, limit: int = 200) -> str:
+    """An exception's message on one line, at most ``limit`` characters."""
+    msg = " ".join(str(exc).split()) or type(exc).__name__
+    return msg if len(msg) <= limit else msg[: limit - 3] + "..."
 
-    if not _is_store(path):
-        raise DataFormatError("not a zarr survey store (no zarr.json/.zgroup)", path)
+
+def _read_json_doc(path: Path, what: str, *, required: bool = True) -> dict[str, Any] | None:
+    """A zarr metadata document (JSON object), or ``None`` if absent and not ``required``.
+
+    Raises
+    ------
+    DataFormatError
+        Naming the file, if it is missing (and required), not a regular file, too large, not
+        UTF-8, not JSON, or not a JSON object.
+    """
+    if not required and not os.path.lexists(path):
+        return None
+    data = read_bytes_bounded(path, MAX_SIDECAR_BYTES, what)
     try:
-        return zarr.open_group(str(path), mode="r")
-    except Exception as exc:  # noqa: BLE001 - zarr raises many types on corrupt metadata
-        raise DataFormatError(f"cannot open zarr store: {exc}", path) from None
-
-
-def _read_state(path: Path) -> _State:
-    g = _open_group(path)
-    attrs = dict(g.attrs)
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise DataFormatError(f"{what} is not valid UTF-8 (byte {exc.start})", path) from None
     try:
-        st = _State(
-            geometries=list(json.loads(attrs.get(ATTR_GEOMETRIES, "[]"))),
-            sources=list(json.loads(attrs.get(ATTR_SOURCES, "[]"))),
-            pose_frame=str(attrs.get(ATTR_POSE_FRAME, "")),
-        )
-    except (json.JSONDecodeError, TypeError) as exc:
-        raise DataFormatError(f"corrupt survey attributes ({exc})", path) from None
-    core = {VAR_INTENSITY, VAR_GEOMETRY, VAR_SOURCE, VAR_POSITION, VAR_ORIENTATION, COORD_RANGE,
-            COORD_AZIMUTH, DIM_PING, DIM_RANGE, DIM_BEAM}
-    for name in g.array_keys():
-        arr = g[name]
-        if name.startswith(META_PREFIX):
-            st.meta[name[len(META_PREFIX):]] = str(arr.attrs.get("sonarmap_kind", "float"))
-        elif name not in core:
-            dims = _dims(arr)
-            if dims and dims[0] == DIM_PING:
-                try:
-                    fill = float(arr.attrs.get("sonarmap_fill_value", "nan"))
-                except ValueError:
-                    fill = math.nan
-                st.extras[name] = PingVariable(
-                    name, tuple(dims[1:]), dtype=str(arr.dtype), units=str(arr.attrs.get("units", "1")),
-                    long_name=str(arr.attrs.get("long_name", "")), fill_value=fill,
-                )
-    if VAR_INTENSITY in g:
-        st.shape = tuple(g[VAR_INTENSITY].shape[1:])  # type: ignore[assignment]
-    return st
+        doc = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise DataFormatError(f"{what} is not valid JSON ({exc.msg}; line {exc.lineno} column {exc.colno})",
+                              path) from None
+    except (ValueError, RecursionError) as exc:
+        raise DataFormatError(f"{what} is not valid JSON ({_one_line(exc)})", path) from None
+    if not isinstance(doc, dict):
+        raise DataFormatError(f"{what} is a JSON {type(doc).__name__}, expected an object", path)
+    return doc
+
+
+def _check_array_doc(doc: Mapping[str, Any], fmt: int, path: Path) -> None:
+    """Types of the keys of an array's metadata that zarr would otherwise trip over."""
+
+    def bad(key: str, want: str) -> DataFormatError:
+        return DataFormatError(f"array metadata: '{key}' is {doc.get(key)!r:.60}, expected {want}", path)
+
+    shape = doc.get("shape")
+    if not isinstance(shape, list) or not all(isinstance(s, int) and not isinstance(s, bool) and s >= 0
+                                              for s in shape):
+        raise bad("shape", "a list of non-negative integers")
+    if fmt == 3:
+        if doc.get("zarr_format") != 3 or doc.get("node_type") != "array":
+            raise DataFormatError("array metadata: not a zarr v3 array (zarr_format/node_type)", path)
+        if "attributes" in doc and not isinstance(doc["attributes"], dict):
+            raise bad("attributes", "an object")
+        if not isinstance(doc.get("codecs"), list) or not doc["codecs"]:
+            raise bad("codecs", "a non-empty list")
+        names = doc.get("dimension_names")
+        if names is not None and (not isinstance(names, list) or len(names) != len(shape)
+                                  or not all(n is None or isinstance(n, str) for n in names)):
+            raise bad("dimension_names", f"a list of {len(shape)} names")
+    else:
+        if doc.get("zarr_format") != 2:
+            raise DataFormatError("array metadata: not a zarr v2 array (zarr_format)", path)
+        chunks = doc.get("chunks")
+        if not isinstance(chunks, list) or len(chunks) != len(shape) or not all(
+            isinstance(c, int) and not isinstance(c, bool) and c > 0 for c in chunks
+        ):
+            raise bad("chunks", f"a list of {len(shape)} positive integers")
+
+
+@dataclasses.dataclass
+class _Store:
+    """A zarr store whose metadata documents were all parsed and checked (:func:`_inspect_store`).
+
+    Attributes
+    ----------
+    path : Path
+        The store directory.
+    zarr_format : int
+        2 or 3.
+    group : zarr.Group
+        The root group, read-only.
+    attrs : dict
+        Root attributes.
+    arrays : dict of str to zarr.Array
+        Every array of the root group, opened.
+    files : dict
+        Per array, its checked chunk files (key -> size), filled by :func:`_chunk_files`.
+    """
+
+    path: Path
+    zarr_format: int
+    group: Any
+    attrs: dict[str, Any]
+    arrays: dict[str, Any]
+    files: dict[str, dict[str, int]] = dataclasses.field(default_factory=dict)
+
+    def meta_file(self, name: str | None = None) -> Path:
+        """The metadata file of array ``name`` (of the group if ``None``)."""
+        base = self.path if name is None else self.path / name
+        if self.zarr_format == 3:
+            return base / "zarr.json"
+        return base / (".zgroup" if name is None else ".zarray")
+
+    def require(self, name: str, *, ndim: int | None = None, kinds: str | None = None,
+                what: str = "survey store") -> Any:
+        """Array ``name``; a :class:`DataFormatError` if it is missing or of another rank / dtype kind."""
+        arr = self.arrays.get(name)
+        if arr is None:
+            where = f"{name}/ has no array metadata" if (self.path / name).is_dir() else "deleted?"
+            raise DataFormatError(f"required array '{name}' is missing ({where}); not a readable {what}",
+                                  self.path)
+        if ndim is not None and len(arr.shape) != ndim:
+            raise DataFormatError(f"array '{name}' has {len(arr.shape)} dimensions, expected {ndim}",
+                                  self.meta_file(name))
+        if kinds is not None and _kind_of(arr) not in kinds:
+            raise DataFormatError(f"array '{name}' has data type {arr.dtype}, expected "
+                                  f"{_KIND_NAMES.get(kinds, kinds)}", self.meta_file(name))
+        return arr
+
+    def dims(self, name: str) -> tuple[str, ...]:
+        """Dimension names of array ``name`` (checked when the store was inspected)."""
+        return _dims(self.arrays[name])
+
+    def checksummed(self, name: str) -> bool:
+        """Whether the chunks of array ``name`` carry a CRC32C checksum (written by this version)."""
+        arr = self.arrays[name]
+        if self.zarr_format != 3:
+            return False
+        codecs = getattr(arr.metadata, "codecs", ()) or ()
+        return any(getattr(c, "to_dict", lambda: {})().get("name") == "crc32c" for c in codecs)
+
+
+_KIND_NAMES = {"f": "floating point", "i": "signed integer", "iu": "integer", "iub": "integer or boolean",
+               "biuf": "numeric", "T": "string"}
+
+
+def _kind_of(arr: Any) -> str:
+    """numpy dtype kind of a zarr array (``"T"`` for zarr's variable-length strings)."""
+    try:
+        k = np.dtype(arr.dtype).kind
+    except TypeError:
+        return "T"
+    return "T" if k in "OUST" else k
 
 
 def _dims(arr: Any) -> tuple[str, ...]:
@@ -620,40 +841,554 @@ def _dims(arr: Any) -> tuple[str, ...]:
     dims = getattr(arr.metadata, "dimension_names", None)
     if dims is None:
         dims = arr.attrs.get("_ARRAY_DIMENSIONS")
-    return tuple(dims or ())
+    if dims is None:
+        return ()
+    if not isinstance(dims, list | tuple) or not all(isinstance(d, str) for d in dims):
+        raise DataFormatError(f"dimension names {dims!r:.60} are not a list of names")
+    return tuple(dims)
 
 
-def _ping_lengths(g: Any) -> dict[str, int]:
+def _inspect_store(path: Path) -> _Store:
+    """Parse and check every metadata document of a zarr store and open each of its arrays.
+
+    Every failure is one :class:`DataFormatError` naming the metadata file (``zarr.json``,
+    ``.zgroup``, ``.zarray`` or ``.zattrs``) - never a foreign exception.
+    """
+    import zarr
+
+    path = Path(path)
+    if not _is_store(path):
+        raise DataFormatError("not a zarr survey store (no zarr.json/.zgroup)", path)
+    fmt = 3 if (path / "zarr.json").exists() else 2
+    if fmt == 3:
+        root = _read_json_doc(path / "zarr.json", "group metadata")
+        assert root is not None
+        if root.get("zarr_format") != 3 or root.get("node_type") != "group":
+            raise DataFormatError("group metadata: not a zarr v3 group (zarr_format/node_type)", path / "zarr.json")
+        if "attributes" in root and not isinstance(root["attributes"], dict):
+            raise DataFormatError("group metadata: 'attributes' is not an object", path / "zarr.json")
+    else:
+        root = _read_json_doc(path / ".zgroup", "group metadata")
+        assert root is not None
+        if root.get("zarr_format") != 2:
+            raise DataFormatError("group metadata: not a zarr v2 group (zarr_format)", path / ".zgroup")
+        _read_json_doc(path / ".zattrs", "group attributes", required=False)
+    names = []
+    try:
+        entries = sorted(os.listdir(path))
+    except OSError as exc:
+        raise DataFormatError(f"cannot list the store: {exc.strerror or exc}", path) from None
+    for name in entries:
+        d = path / name
+        if name.startswith(".") or not d.is_dir():
+            continue
+        if fmt == 3:
+            meta = d / "zarr.json"
+            if not os.path.lexists(meta):
+                continue
+            doc = _read_json_doc(meta, "array metadata")
+            assert doc is not None
+            if doc.get("node_type") == "group":
+                continue
+            _check_array_doc(doc, 3, meta)
+        else:
+            meta = d / ".zarray"
+            if not os.path.lexists(meta):
+                continue
+            doc = _read_json_doc(meta, "array metadata")
+            assert doc is not None
+            _check_array_doc(doc, 2, meta)
+            _read_json_doc(d / ".zattrs", "array attributes", required=False)
+        names.append(name)
+    try:
+        group = zarr.open_group(str(path), mode="r", zarr_format=fmt)
+        attrs = dict(group.attrs)
+    except Exception as exc:  # noqa: BLE001 - zarr raises many types on corrupt metadata
+        raise DataFormatError(f"group metadata: {_one_line(exc)}", path / ("zarr.json" if fmt == 3 else ".zgroup")) from None
+    arrays: dict[str, Any] = {}
+    for name in names:
+        meta = path / name / ("zarr.json" if fmt == 3 else ".zarray")
+        try:
+            arr = group[name]
+            _ = arr.dtype, arr.shape, arr.chunks, dict(arr.attrs)
+            dims = _dims(arr)
+            if dims and len(dims) != len(arr.shape):
+                raise DataFormatError(f"{len(dims)} dimension names for {len(arr.shape)} dimensions")
+        except DataFormatError as exc:
+            raise DataFormatError(f"array metadata: {exc}", meta) from None
+        except Exception as exc:  # noqa: BLE001
+            raise DataFormatError(f"array metadata: {type(exc).__name__}: {_one_line(exc)}", meta) from None
+        if not hasattr(arr, "shape") or isinstance(arr, zarr.Group):
+            continue
+        n_chunk = int(np.prod([int(c) for c in arr.chunks], dtype=object)) if arr.chunks else 1
+        if n_chunk > MAX_CHUNK_BYTES:
+            raise DataFormatError(f"array metadata: chunks of {n_chunk} elements are larger than sonarmap reads",
+                                  meta)
+        arrays[name] = arr
+    return _Store(path, fmt, group, attrs, arrays)
+
+
+def _open_group(path: Path) -> Any:
+    """The root group of a store whose metadata was checked (:func:`_inspect_store`)."""
+    return _inspect_store(path).group
+
+
+def _attr_json_list(st: _Store, key: str) -> list[str]:
+    """A root attribute holding a JSON list of strings (geometries, sources)."""
+    v = st.attrs.get(key)
+    if v is None:
+        raise DataFormatError(f"root attribute {key} is missing; not a sonarmap survey store", st.meta_file())
+    try:
+        out = json.loads(v) if isinstance(v, str) else None
+    except (ValueError, RecursionError):
+        out = None
+    if not isinstance(out, list) or not all(isinstance(s, str) for s in out):
+        raise DataFormatError(f"root attribute {key} is not a JSON list of strings", st.meta_file())
+    return out
+
+
+#: The arrays every raw survey store holds: name -> (rank, dtype kinds, trailing dims).
+_RAW_ARRAYS: dict[str, tuple[int, str, tuple[str, ...]]] = {
+    VAR_INTENSITY: (3, "f", (DIM_RANGE, DIM_BEAM)),
+    DIM_PING: (1, "i", ()),
+    VAR_GEOMETRY: (1, "iu", ()),
+    VAR_SOURCE: (1, "iu", ()),
+    VAR_POSITION: (2, "f", (DIM_XYZ,)),
+    VAR_ORIENTATION: (2, "f", (DIM_QUAT,)),
+}
+
+_TIME_UNITS = re.compile(r"nanoseconds since 1970-01-01(?:[ T]00:00(?::00(?:\.0+)?)?)?Z?")
+
+
+def _inspect_survey(path: Path) -> _Store:
+    """:func:`_inspect_store` plus the survey data model: required arrays, ranks, dtypes, attributes.
+
+    Raises
+    ------
+    DataFormatError
+        Naming the store and the file or array at fault.
+    """
+    st = _inspect_store(path)
+    if VAR_INTENSITY not in st.arrays:
+        raise DataFormatError(f"zarr store has no '{VAR_INTENSITY}' variable (not a survey)", st.path)
+    model = st.attrs.get(ATTR_MODEL)
+    if model is None:
+        raise DataFormatError(f"root attribute {ATTR_MODEL} is missing; not a sonarmap survey store", st.meta_file())
+    if isinstance(model, bool) or model != DATA_MODEL_VERSION:
+        raise DataFormatError(f"root attribute {ATTR_MODEL} is {model!r:.40}; this sonarmap reads data model "
+                              f"{DATA_MODEL_VERSION}", st.meta_file())
+    _attr_json_list(st, ATTR_GEOMETRIES)
+    _attr_json_list(st, ATTR_SOURCES)
+    img = st.require(VAR_INTENSITY, ndim=3, kinds="f")
+    sizes = {DIM_RANGE: int(img.shape[1]), DIM_BEAM: int(img.shape[2]), DIM_XYZ: 3, DIM_QUAT: 4}
+    for name, arr in st.arrays.items():
+        for dim, size in zip(st.dims(name), arr.shape, strict=False):
+            if dim in sizes and int(size) != sizes[dim]:
+                raise DataFormatError(f"array '{name}' has {size} along {dim}, the survey has {sizes[dim]}",
+                                      st.meta_file(name))
+    for name, (ndim, kinds, trailing) in _RAW_ARRAYS.items():
+        arr = st.require(name, ndim=ndim, kinds=kinds)
+        dims = st.dims(name)
+        if dims != (DIM_PING, *trailing):
+            raise DataFormatError(f"array '{name}' has dimensions {dims}, expected {(DIM_PING, *trailing)}",
+                                  st.meta_file(name))
+        if name == DIM_PING:
+            if np.dtype(arr.dtype) != np.int64:
+                raise DataFormatError(f"array '{DIM_PING}' has data type {arr.dtype}, expected int64 nanoseconds",
+                                      st.meta_file(name))
+            units = arr.attrs.get("units")
+            if not isinstance(units, str) or not _TIME_UNITS.fullmatch(units):
+                raise DataFormatError(f"array '{DIM_PING}' has units {units!r:.60}, expected 'nanoseconds since "
+                                      "1970-01-01'", st.meta_file(name))
+    if not isinstance(st.attrs.get(ATTR_POSE_FRAME), str):
+        raise DataFormatError(f"root attribute {ATTR_POSE_FRAME} is missing or not a string", st.meta_file())
+    for name in st.arrays:
+        if name.startswith(META_PREFIX):
+            arr = st.require(name, ndim=1, kinds="biuf")
+            kind = arr.attrs.get("sonarmap_kind")
+            if kind not in ("int", "float", "bool"):
+                raise DataFormatError(f"array '{name}': sonarmap_kind {kind!r:.40} is not int, float or bool",
+                                      st.meta_file(name))
+            if kind == "int" and _kind_of(arr) not in "iu":
+                raise DataFormatError(f"array '{name}': sonarmap_kind int but data type {arr.dtype}",
+                                      st.meta_file(name))
+    return st
+
+
+def _read_state(path: Path) -> _State:
+    st = _inspect_survey(path)
+    state = _State(
+        geometries=_attr_json_list(st, ATTR_GEOMETRIES),
+        sources=_attr_json_list(st, ATTR_SOURCES),
+        pose_frame=str(st.attrs.get(ATTR_POSE_FRAME, "")),
+    )
+    core = {VAR_INTENSITY, VAR_GEOMETRY, VAR_SOURCE, VAR_POSITION, VAR_ORIENTATION, COORD_RANGE,
+            COORD_AZIMUTH, DIM_PING, DIM_RANGE, DIM_BEAM}
+    for name, arr in st.arrays.items():
+        if name.startswith(META_PREFIX):
+            state.meta[name[len(META_PREFIX):]] = str(arr.attrs["sonarmap_kind"])
+        elif name not in core:
+            dims = st.dims(name)
+            if dims and dims[0] == DIM_PING:
+                try:
+                    fill = float(arr.attrs.get("sonarmap_fill_value", "nan"))
+                except (TypeError, ValueError):
+                    fill = math.nan
+                try:
+                    var = PingVariable(
+                        name, tuple(dims[1:]), dtype=str(arr.dtype), units=str(arr.attrs.get("units", "1")),
+                        long_name=str(arr.attrs.get("long_name", "")), fill_value=fill,
+                    )
+                except InputError as exc:
+                    raise DataFormatError(f"array '{name}': {exc}", st.meta_file(name)) from None
+                state.extras[name] = var
+    state.shape = tuple(st.arrays[VAR_INTENSITY].shape[1:])  # type: ignore[assignment]
+    return state
+
+
+def _ping_lengths(st: _Store) -> dict[str, int]:
     out = {}
-    for name in g.array_keys():
-        arr = g[name]
-        dims = _dims(arr)
+    for name, arr in st.arrays.items():
+        dims = st.dims(name)
         if dims and dims[0] == DIM_PING:
             out[name] = int(arr.shape[0])
     return out
 
 
 def _n_pings(path: Path) -> int:
-    lengths = _ping_lengths(_open_group(path))
+    lengths = _ping_lengths(_inspect_survey(path))
     return min(lengths.values()) if lengths else 0
 
 
-def open_survey(path: str | os.PathLike[str], *, repair: bool = False) -> xr.Dataset:
-    """Open a survey store lazily (dask-backed, chunked along ``ping_time``).
+# ---------------------------------------------------------------------- reading: chunks and values
+def _chunk_coords(arr: Any, rows: slice | None = None) -> Iterator[tuple[int, ...]]:
+    """Chunk-grid coordinates of ``arr`` covering rows ``rows`` of its first dimension."""
+    import itertools
+
+    shape, chunks = tuple(arr.shape), tuple(arr.chunks)
+    if not shape:
+        yield ()
+        return
+    if any(s == 0 for s in shape):
+        return
+    lo, hi = (0, shape[0]) if rows is None else (max(0, rows.start or 0), min(shape[0], rows.stop))
+    if hi <= lo:
+        return
+    first = range(lo // chunks[0], (hi - 1) // chunks[0] + 1)
+    rest = [range(-(-s // c)) for s, c in zip(shape[1:], chunks[1:], strict=True)]
+    yield from itertools.product(first, *rest)
+
+
+def _chunk_key(arr: Any, coords: tuple[int, ...]) -> str:
+    """The store key of chunk ``coords`` of ``arr`` (``c/1/0/0`` in v3, ``1.0.0`` in v2)."""
+    try:
+        return str(arr.metadata.encode_chunk_key(coords))
+    except Exception:  # noqa: BLE001 - only for messages
+        return "c/" + "/".join(str(c) for c in coords)
+
+
+def _reason(exc: BaseException) -> str:
+    """What a failed chunk decode means, for the message."""
+    msg = _one_line(exc, 160)
+    if "checksum" in msg.lower():
+        return "checksum mismatch (the chunk file is corrupt)"
+    return f"corrupt, cannot be decoded ({type(exc).__name__}: {msg})"
+
+
+#: Largest chunk (decoded bytes) sonarmap reads; a store's writers use a few MB.
+MAX_CHUNK_BYTES = 1 << 30
+#: Bytes per element assumed for variable-length strings when bounding a chunk's size.
+_STRING_ITEM_BYTES = 1024
+
+
+def _chunk_limit(arr: Any) -> int:
+    """Largest plausible size of one encoded chunk file of ``arr`` (zstd's worst case + checksum)."""
+    n = int(np.prod([int(c) for c in arr.chunks], dtype=object)) if arr.chunks else 1
+    try:
+        item = int(np.dtype(arr.dtype).itemsize) if _kind_of(arr) != "T" else _STRING_ITEM_BYTES
+    except TypeError:
+        item = _STRING_ITEM_BYTES
+    raw = n * max(item, 1)
+    return raw + raw // 64 + 4096
+
+
+def _chunk_files(st: _Store, name: str) -> dict[str, int]:
+    """The chunk files of array ``name`` (key -> size), every one checked to be a regular file of
+    plausible size - so zarr never opens a FIFO (hangs), a device such as ``/dev/zero`` (reads
+    without end) or an absurdly large file.  Cached on ``st``.
 
     Raises
     ------
     DataFormatError
-        If the path is not a survey store, or an interrupted append left arrays of different
-        lengths (pass ``repair=True`` to truncate them to the common length).
+        Naming the chunk file that is not a regular file or is too large.
+    """
+    cached = st.files.get(name)
+    if cached is not None:
+        return cached
+    root = st.path / name
+    meta_names = {"zarr.json"} if st.zarr_format == 3 else {".zarray", ".zattrs"}
+    limit = _chunk_limit(st.arrays[name])
+    out: dict[str, int] = {}
+    for dirpath, dirnames, filenames in os.walk(root):
+        dirnames[:] = [d for d in dirnames if not os.path.islink(os.path.join(dirpath, d))]
+        rel = os.path.relpath(dirpath, root)
+        for fname in filenames:
+            if rel == "." and fname in meta_names:
+                continue
+            path = Path(dirpath) / fname
+            if not os.path.exists(path):  # a dangling symlink: as good as missing
+                continue
+            require_regular_file(path, f"chunk file of array '{name}'")
+            size = os.stat(path).st_size
+            if size > limit:
+                raise DataFormatError(f"chunk file of array '{name}' is {size} bytes, more than a chunk of "
+                                      f"this array can take ({limit})", path)
+            out[fname if rel == "." else "/".join([*Path(rel).parts, fname])] = size
+    st.files[name] = out
+    return out
+
+
+def _check_chunk_files(st: _Store, name: str, rows: slice | None = None, *, required: bool | None = None) -> None:
+    """The chunk files of array ``name`` are regular files of plausible size (:func:`_chunk_files`)
+    and - if ``required`` (default: the array is checksummed, i.e. written by this version, which
+    writes every chunk) - every chunk covering ``rows`` exists.
+
+    zarr reads a missing chunk as the fill value; for arrays written without checksums (older
+    stores, where all-fill chunks were legitimately not written) presence cannot be required.
+
+    Raises
+    ------
+    DataFormatError
+        Naming the store, array and chunk.
+    """
+    files = _chunk_files(st, name)
+    if not (st.checksummed(name) if required is None else required):
+        return
+    arr = st.arrays[name]
+    for coords in _chunk_coords(arr, rows):
+        key = _chunk_key(arr, coords)
+        if key not in files:
+            raise DataFormatError(f"array '{name}', chunk {key}: missing (deleted?)", st.path)
+
+
+def _crc_scan(path: Path, names: Iterable[str], rows: slice | None) -> DataFormatError | None:
+    """Find a missing or corrupt chunk file of checksummed arrays by their CRC32C, without zarr.
+
+    For arrays whose last codec is ``crc32c`` (the 4-byte little-endian CRC32C of the rest of the
+    file is appended), each chunk file covering ``rows`` is read and its checksum recomputed.
+    Cheap enough for the error path: no zarr round trips, just the files.  Returns the error of
+    the first bad chunk, or ``None`` (nothing found, or no checksums to check).
+    """
+    import itertools
+
+    import google_crc32c
+
+    for name in names:
+        try:
+            doc = json.loads((path / name / "zarr.json").read_text(encoding="utf-8"))
+            if [c.get("name") if isinstance(c, dict) else c for c in doc["codecs"]][-1] != "crc32c":
+                continue
+            shape = [int(x) for x in doc["shape"]]
+            chunks = [int(x) for x in doc["chunk_grid"]["configuration"]["chunk_shape"]]
+            cke = doc.get("chunk_key_encoding") or {}
+            sep = (cke.get("configuration") or {}).get("separator", "/")
+            v2 = cke.get("name") == "v2"
+            if len(shape) != len(chunks) or any(c <= 0 for c in chunks):
+                continue
+            dt = doc.get("data_type")
+            item = np.dtype(dt).itemsize if isinstance(dt, str) and dt != "string" else _STRING_ITEM_BYTES
+            raw = int(np.prod(chunks, dtype=object)) * max(int(item), 1)
+            limit = raw + raw // 64 + 4096
+        except (OSError, ValueError, KeyError, TypeError, IndexError, AttributeError, OverflowError):
+            continue
+        if any(n == 0 for n in shape):
+            continue
+        ranges = [range(-(-n // c)) for n, c in zip(shape, chunks, strict=True)]
+        if shape and rows is not None:
+            lo, hi = max(0, rows.start or 0), min(shape[0], rows.stop)
+            if hi <= lo:
+                continue
+            ranges[0] = range(lo // chunks[0], (hi - 1) // chunks[0] + 1)
+        for coords in itertools.product(*ranges):
+            parts = [str(c) for c in coords] or (["0"] if v2 else [])
+            key = sep.join(parts) if v2 else sep.join(["c", *parts])
+            f = path / name / key
+            try:
+                size = os.stat(f).st_size
+            except OSError:
+                return DataFormatError(f"array '{name}', chunk {key}: missing (deleted?)", path)
+            try:
+                # bounded by the file's size (read() allocates its bound) and by what a chunk can take
+                data = read_bytes_bounded(f, min(size, limit), f"chunk file of array '{name}'")
+            except DataFormatError as exc:
+                return exc
+            if len(data) < 4 or struct.unpack("<I", data[-4:])[0] != google_crc32c.value(data[:-4]):
+                return DataFormatError(f"array '{name}', chunk {key}: checksum mismatch (the chunk file is corrupt)",
+                                       path)
+    return None
+
+
+def _locate_error(st: _Store, names: Iterable[str], rows: slice | None, exc: BaseException,
+                  what: str | None = None) -> DataFormatError:
+    """The :class:`DataFormatError` naming the array and chunk that made a read fail.
+
+    Checks the chunk files of ``names`` covering ``rows`` (only after a failure): first their
+    checksums (:func:`_crc_scan`), then, one chunk at a time through zarr, whether they decode
+    (corrupt compressed data in a store without checksums ...).  The message starts
+    ``cannot read <what>:`` when ``what`` is given.
+    """
+    prefix = f"cannot read {what}: " if what else ""
+    names = list(names)
+    found = _crc_scan(st.path, names, rows)
+    if found is not None:
+        return DataFormatError(prefix + str(found).removeprefix(f"{st.path}: "), st.path)
+    for name in names:
+        arr = st.arrays.get(name)
+        if arr is None:
+            continue
+        try:
+            _check_chunk_files(st, name, rows)
+        except DataFormatError as missing:
+            return DataFormatError(prefix + str(missing).removeprefix(f"{st.path}: "), st.path)
+        for coords in _chunk_coords(arr, rows):
+            sel = tuple(slice(c * k, (c + 1) * k) for c, k in zip(coords, arr.chunks, strict=True))
+            try:
+                arr[sel] if sel else arr[...]
+            except Exception as e:  # noqa: BLE001 - whatever the codecs raise
+                return DataFormatError(f"{prefix}array '{name}', chunk {_chunk_key(arr, coords)}: {_reason(e)}",
+                                       st.path)
+    return DataFormatError(f"{prefix or 'cannot read: '}{type(exc).__name__}: {_one_line(exc)}", st.path)
+
+
+def _read_array(st: _Store, name: str, rows: slice | None = None) -> NDArray[Any]:
+    """Rows ``rows`` of array ``name`` (all if ``None``), chunks checked: errors name the chunk."""
+    arr = st.arrays[name]
+    _check_chunk_files(st, name, rows)
+    try:
+        if not arr.shape:
+            return np.asarray(arr[...])
+        return np.asarray(arr[rows if rows is not None else slice(None)])
+    except Exception as exc:  # noqa: BLE001
+        raise _locate_error(st, [name], rows, exc) from None
+
+
+def check_values(
+    values: ArrayLike,
+    name: str,
+    path: str | os.PathLike[str] | None,
+    *,
+    low: float = -math.inf,
+    high: float = math.inf,
+    nan: bool = False,
+    inf: bool = False,
+    start: int = 0,
+    item: str = "ping",
+    allowed: Iterable[float] = (),
+) -> None:
+    """Check stored values of variable ``name`` against their documented range.
+
+    Parameters
+    ----------
+    values : array_like
+        Rows along the first axis (pings, or points); ``start`` is the index of the first row.
+    name : str
+        The variable (for the message).
+    path : path-like or None
+        The store (for the message).
+    low, high : float
+        Inclusive range of valid values.
+    nan : bool
+        NaN is valid ("none" / "unknown" / unwritten).
+    inf : bool
+        Infinities are valid if inside ``[low, high]``.
+    item : str
+        What a row is (``"ping"``, ``"point"``).
+    allowed : iterable of float
+        Extra valid values outside the range (sentinels such as -1 for "none").
+
+    Raises
+    ------
+    DataFormatError
+        Naming the store, the variable and the first offending row.
+    """
+    v = np.asarray(values)
+    if v.size == 0 or v.dtype.kind not in "biuf":
+        return
+    if v.dtype.kind == "f":
+        isnan = np.isnan(v)
+        ok = (v >= low) & (v <= high)
+        if not inf:
+            ok &= np.isfinite(v)
+        if nan:
+            ok |= isnan
+    else:
+        isnan = np.zeros(v.shape, bool)
+        ok = (v >= low) & (v <= high)
+    for a in allowed:
+        ok |= v == a
+    if ok.all():
+        return
+    bad = np.argwhere(~ok)[0]
+    x = v[tuple(bad)]
+    row = start + int(bad[0]) if v.ndim else start
+    at = f" at index {tuple(int(b) for b in bad[1:])}" if v.ndim > 1 else ""
+    if isnan[tuple(bad)]:
+        problem = "is NaN"
+    elif v.dtype.kind == "f" and not np.isfinite(x):
+        problem = f"is {float(x)}"
+    else:
+        lo = "-inf" if low == -math.inf else f"{low:g}"
+        hi = "inf" if high == math.inf else f"{high:g}"
+        extra = f" (or {', '.join(f'{a:g}' for a in allowed)})" if allowed else ""
+        problem = f"{x.item()!r} is outside the documented range [{lo}, {hi}]{extra}"
+    raise DataFormatError(f"{name}: {item} {row}{at}: value {problem}", path)
+
+
+def _check_times(times: ArrayLike, path: str | os.PathLike[str] | None, start: int = 0, *,
+                 name: str = DIM_PING, item: str = "ping") -> None:
+    """Times are int64 ns since 1970 in [0, TIME_MAX_NS] (NaT, i.e. int64 min, and negatives are not).
+
+    Raises
+    ------
+    DataFormatError
+        Naming the store, the variable ``name`` and the first offending ``item``.
+    """
+    t = np.asarray(times)
+    if t.dtype.kind == "M":
+        t = t.astype("datetime64[ns]").astype(np.int64)
+    if t.dtype.kind not in "iu":
+        raise DataFormatError(f"{name}: stored as {t.dtype}, expected int64 nanoseconds", path)
+    if t.dtype.kind == "i":
+        neg = np.flatnonzero(t < 0)
+        if neg.size:
+            i = int(neg[0])
+            what = "not a time (NaT)" if int(t[i]) == np.iinfo(np.int64).min else f"{int(t[i])} ns, before 1970"
+            raise DataFormatError(f"{name}: {item} {start + i}: time is {what}", path)
+    elif t.size and int(t.max()) > TIME_MAX_NS:
+        i = int(np.argmax(t > TIME_MAX_NS))
+        raise DataFormatError(f"{name}: {item} {start + i}: time {int(t[i])} ns is beyond the int64 range", path)
+
+
+# ---------------------------------------------------------------------- reading: datasets and pings
+def open_survey(path: str | os.PathLike[str], *, repair: bool = False) -> xr.Dataset:
+    """Open a survey store lazily (dask-backed, chunked along ``ping_time``).
+
+    Every metadata document is parsed and checked first, the ping times are read and checked
+    (int64 ns in [0, 2**63 - 1]), and every chunk of a checksummed array must exist.
+
+    Raises
+    ------
+    DataFormatError
+        If the path is not a survey store, its metadata is corrupt or incomplete (the message
+        names the file or array), a time is out of range or a chunk is missing or corrupt, or an
+        interrupted append left arrays of different lengths (pass ``repair=True`` to truncate
+        them to the common length).
     """
     import xarray as xr
 
     p = Path(path)
-    g = _open_group(p)
-    if VAR_INTENSITY not in g:
-        raise DataFormatError(f"zarr store has no '{VAR_INTENSITY}' variable (not a survey)", p)
-    lengths = _ping_lengths(g)
+    st = _inspect_survey(p)
+    lengths = _ping_lengths(st)
     if len(set(lengths.values())) > 1:
         n = min(lengths.values())
         if not repair:
@@ -665,25 +1400,63 @@ def open_survey(path: str | os.PathLike[str], *, repair: bool = False) -> xr.Dat
             )
         import zarr
 
-        gw = zarr.open_group(str(p), mode="r+")
-        for name, length in lengths.items():
-            if length != n:
-                arr = gw[name]
-                arr.resize((n, *arr.shape[1:]))
+        with WriterLock(p):
+            gw = zarr.open_group(str(p), mode="r+")
+            for name, length in lengths.items():
+                if length != n:
+                    arr = gw[name]
+                    arr.resize((n, *arr.shape[1:]))
+        st = _inspect_survey(p)
+    for name in st.arrays:
+        _check_chunk_files(st, name)
+    raw_times = _read_array(st, DIM_PING)
+    _check_times(raw_times, p)
     try:
         ds = xr.open_zarr(p, consolidated=False, chunks={})
+        decoded = ds[DIM_PING].values
+    except SonarmapError:
+        raise
     except Exception as exc:  # noqa: BLE001
-        raise DataFormatError(f"cannot open survey: {exc}", p) from None
+        raise _locate_error(st, list(st.arrays), None, exc, "the survey") from None
+    if decoded.dtype.kind != "M" or not np.array_equal(decoded.astype("datetime64[ns]").astype(np.int64), raw_times):
+        raise DataFormatError(f"array '{DIM_PING}': decoded times differ from the stored nanoseconds "
+                              f"(units {st.arrays[DIM_PING].attrs.get('units')!r})", st.meta_file(DIM_PING))
     ds.encoding["source"] = str(p)
     return ds
 
 
 def survey_geometries(ds: xr.Dataset) -> list[SonarGeometry]:
-    """The distinct geometries of a survey dataset (indexed by ``geometry_index``)."""
+    """The distinct geometries of a survey dataset (indexed by ``geometry_index``).
+
+    Raises
+    ------
+    DataFormatError
+        If the ``sonarmap_geometries`` attribute is missing or corrupt (naming the store).
+    """
+    src = ds.encoding.get("source")
+    raw = ds.attrs.get(ATTR_GEOMETRIES)
+    if raw is None:
+        raise DataFormatError(f"no {ATTR_GEOMETRIES} attribute; not a sonarmap survey", src)
     try:
-        return [_geometry_from_json(s) for s in json.loads(ds.attrs.get(ATTR_GEOMETRIES, "[]"))]
-    except (json.JSONDecodeError, TypeError, ValueError) as exc:
-        raise DataFormatError(f"corrupt {ATTR_GEOMETRIES} attribute ({exc})") from None
+        items = json.loads(raw) if isinstance(raw, str) else None
+        if not isinstance(items, list):
+            raise TypeError("not a JSON list")
+        return [_geometry_from_json(s) for s in items]
+    except Exception as exc:  # noqa: BLE001 - geometry parsing raises many types on corrupt JSON
+        raise DataFormatError(f"corrupt {ATTR_GEOMETRIES} attribute ({_one_line(exc)})", src) from None
+
+
+def _sources(ds: xr.Dataset) -> list[str]:
+    """The ``sonarmap_sources`` attribute (a JSON list of strings) of a survey dataset."""
+    src = ds.encoding.get("source")
+    raw = ds.attrs.get(ATTR_SOURCES)
+    try:
+        items = json.loads(raw) if isinstance(raw, str) else None
+    except (ValueError, RecursionError):
+        items = None
+    if not isinstance(items, list) or not all(isinstance(s, str) for s in items):
+        raise DataFormatError(f"{ATTR_SOURCES} attribute is missing or not a JSON list of strings", src)
+    return items
 
 
 def dataset_to_pings(
@@ -691,35 +1464,77 @@ def dataset_to_pings(
     *,
     geometry: SonarGeometry | None = None,
     source: str | None = None,
+    start: int = 0,
+    stop: int | None = None,
 ) -> Iterator[Ping]:
-    """Lazily rebuild pings from a survey dataset, one ``ping_time`` chunk in memory at a time."""
+    """Lazily rebuild pings from a survey dataset, one ``ping_time`` chunk in memory at a time.
+
+    Every value is checked against the data model as it is read: intensities in [0, 1], times in
+    [0, 2**63 - 1] ns, geometry and source indices inside their tables, poses all-NaN or valid.
+
+    Parameters
+    ----------
+    ds : xarray.Dataset
+        From :func:`open_survey` or :func:`pings_to_dataset`.
+    geometry : SonarGeometry, optional
+        Replaces the stored geometries.
+    source : str, optional
+        Replaces the stored sources.
+    start, stop : int
+        Pings ``start:stop`` of ``ds`` only (default: all).
+
+    Raises
+    ------
+    DataFormatError
+        If a chunk is corrupt or missing (naming store, array and chunk) or a value is outside the
+        data model (naming store, variable and ping).
+    """
+    path = ds.encoding.get("source")
+    for name in _RAW_ARRAYS:
+        if name not in ds.variables:
+            raise DataFormatError(f"no '{name}' variable; not a sonarmap survey", path)
     geoms = survey_geometries(ds)
-    sources = json.loads(ds.attrs.get(ATTR_SOURCES, "[]"))
+    sources = _sources(ds) if source is None else []
     frame = str(ds.attrs.get(ATTR_POSE_FRAME, "")) or "ned"
     n = int(ds.sizes.get(DIM_PING, 0))
+    stop = n if stop is None else min(int(stop), n)
+    start = max(0, int(start))
     chunk = 16
     enc_chunks = ds[VAR_INTENSITY].encoding.get("chunks") or ds[VAR_INTENSITY].encoding.get("preferred_chunks")
     if isinstance(enc_chunks, tuple | list) and enc_chunks:
-        chunk = int(enc_chunks[0])
+        chunk = max(1, int(enc_chunks[0]))
     meta_vars = [v for v in ds.data_vars if str(v).startswith(META_PREFIX)]
-    times = ds[DIM_PING].values.astype("datetime64[ns]").astype(np.int64)
-    for i0 in range(0, n, chunk):
-        sl = slice(i0, min(i0 + chunk, n))
+    times = ds[DIM_PING].values
+    if times.dtype.kind != "M":
+        raise DataFormatError(f"{DIM_PING}: not decoded as times (dtype {times.dtype})", path)
+    times = times.astype("datetime64[ns]").astype(np.int64)
+    _check_times(times[start:stop], path, start)
+    for i0 in range(start - start % chunk, stop, chunk):
+        sl = slice(max(i0, start), min(i0 + chunk, stop))
         try:
-            block = ds.isel({DIM_PING: sl}).compute()  # one dask pass for all variables
+            # One pass for all variables, in this thread: a block is one chunk of each, so threads
+            # would only add their overhead (~30 ms per block for small pings).
+            block = ds.isel({DIM_PING: sl}).compute(scheduler="synchronous")
         except Exception as exc:  # noqa: BLE001 - codecs/zarr raise many types on corrupt chunks
-            raise DataFormatError(
-                f"cannot read pings {sl.start}-{sl.stop - 1}: {type(exc).__name__}: {exc}",
-                ds.encoding.get("source"),
-            ) from None
+            raise _block_error(ds, sl, exc) from None
         img = np.asarray(block[VAR_INTENSITY].values, dtype=np.float32)
+        check_values(img, VAR_INTENSITY, path, low=0.0, high=1.0, start=sl.start)
         gi = block[VAR_GEOMETRY].values
-        si = block[VAR_SOURCE].values if VAR_SOURCE in block else np.zeros(img.shape[0], int)
-        pos = block[VAR_POSITION].values if VAR_POSITION in block else None
-        quat = block[VAR_ORIENTATION].values if VAR_ORIENTATION in block else None
-        metas = {v: (block[v].values, block[v].attrs.get("sonarmap_kind", "float")) for v in meta_vars}
+        si = block[VAR_SOURCE].values
+        pos = block[VAR_POSITION].values
+        quat = block[VAR_ORIENTATION].values
+        if geometry is None:
+            check_values(gi, VAR_GEOMETRY, path, low=0, high=len(geoms) - 1, start=sl.start)
+        if source is None:
+            check_values(si, VAR_SOURCE, path, low=0, high=len(sources) - 1, start=sl.start)
+        metas = {v: (block[v].values, block[v].attrs.get("sonarmap_kind")) for v in meta_vars}
+        for v, (vals, kind) in metas.items():
+            if kind not in ("int", "float", "bool"):
+                raise DataFormatError(f"{v}: sonarmap_kind attribute {kind!r:.40} is not int, float or bool", path)
+            if kind == "bool":
+                check_values(vals, str(v), path, low=0, high=1, nan=True, start=sl.start)
         for k in range(img.shape[0]):
-            i = i0 + k
+            i = sl.start + k
             meta: dict[str, Any] = {}
             for v, (vals, kind) in metas.items():
                 x = vals[k]
@@ -729,21 +1544,38 @@ def dataset_to_pings(
                         meta[key] = int(x)
                 elif np.isfinite(x):
                     meta[key] = bool(x) if kind == "bool" else float(x)
-            pose = None
-            if pos is not None and quat is not None and np.all(np.isfinite(pos[k])):
-                pose = Pose(position_m=pos[k], orientation_xyzw=quat[k], frame=frame)
-            if geometry is not None:
-                g = geometry
-            elif 0 <= int(gi[k]) < len(geoms):
-                g = geoms[int(gi[k])]
-            else:
-                raise DataFormatError(
-                    f"ping {i}: geometry_index {int(gi[k])} outside the {len(geoms)} stored geometries"
-                )
-            src = source if source is not None else (
-                sources[int(si[k])] if 0 <= int(si[k]) < len(sources) else ""
-            )
+            pose = _pose(pos[k], quat[k], frame, i, path)
+            g = geometry if geometry is not None else geoms[int(gi[k])]
+            src = source if source is not None else sources[int(si[k])]
             yield Ping(image=img[k], geometry=g, time_ns=int(times[i]), pose=pose, source=src, meta=meta)
+
+
+def _pose(pos: NDArray[Any], quat: NDArray[Any], frame: str, i: int, path: Any) -> Pose | None:
+    """The stored pose of ping ``i``: all NaN is "no pose", anything else must be a valid pose."""
+    if np.isnan(pos).all() and np.isnan(quat).all():
+        return None
+    try:
+        return Pose(position_m=pos, orientation_xyzw=quat, frame=frame)
+    except InputError as exc:
+        raise DataFormatError(f"{VAR_POSITION}/{VAR_ORIENTATION}: ping {i}: invalid pose ({exc})", path) from None
+
+
+def _block_error(ds: xr.Dataset, rows: slice, exc: BaseException) -> DataFormatError:
+    """The error of a failed read of pings ``rows`` of ``ds``, naming the array and chunk if it can."""
+    path = ds.encoding.get("source")
+    what = f"pings {rows.start}-{rows.stop - 1}"
+    if path is None:
+        return DataFormatError(f"cannot read {what}: {type(exc).__name__}: {_one_line(exc)}")
+    found = _crc_scan(Path(path), [str(v) for v in ds.variables], rows)
+    if found is not None:
+        return DataFormatError(f"cannot read {what}: " + str(found).removeprefix(f"{path}: "), path)
+    try:
+        st = _inspect_store(Path(path))
+    except DataFormatError as e:
+        return e
+    names = [str(v) for v in ds.variables if str(v) in st.arrays]
+    ping_names = [v for v in names if st.dims(v)[:1] == (DIM_PING,)]
+    return _locate_error(st, ping_names + [v for v in names if v not in ping_names], rows, exc, what)
 
 
 # ---------------------------------------------------------------------- extra variables
@@ -757,21 +1589,23 @@ def add_ping_variable(path: str | os.PathLike[str], var: PingVariable, *, chunk_
     import xarray as xr
 
     p = Path(path)
-    g = _open_group(p)
-    if var.name in g:
+    st = _inspect_survey(p)
+    if var.name in st.arrays:
         return
-    st = _read_state(p)
-    if st.shape is None:
-        raise DataFormatError("store has no intensity variable", p)
+    state = _read_state(p)
+    assert state.shape is not None
     n = _n_pings(p)
-    shape = (n, *_extra_shape(var, st.shape))
-    cp = chunk_pings or int(g[VAR_INTENSITY].chunks[0])
+    shape = (n, *_extra_shape(var, state.shape))
+    cp = chunk_pings or int(st.arrays[VAR_INTENSITY].chunks[0])
     data = da.full(shape, var.fill_value, dtype=var.dtype, chunks=(cp, *shape[1:]))
-    ds = xr.Dataset({var.name: ((DIM_PING, *var.dims), data, var.attrs())}, attrs=dict(g.attrs))
-    enc: dict[str, Any] = {var.name: {"chunks": (cp, *shape[1:])}}
+    ds = xr.Dataset({var.name: ((DIM_PING, *var.dims), data, var.attrs())}, attrs=dict(st.attrs))
+    enc: dict[str, Any] = {var.name: {"chunks": (cp, *shape[1:]), **checksum_codecs()}}
     if np.dtype(var.dtype).kind in "iub":
         enc[var.name]["fill_value"] = None
-    ds.to_zarr(p, mode="a", encoding=enc, consolidated=False, compute=True)
+    try:
+        ds.to_zarr(p, mode="a", encoding=enc, consolidated=False, compute=True, write_empty_chunks=True)
+    except OSError as exc:
+        raise write_error(exc, p, f"cannot add variable {var.name}") from None
 
 
 def write_ping_variable(
@@ -789,15 +1623,18 @@ def write_ping_variable(
     import xarray as xr
 
     p = Path(path)
-    g = _open_group(p)
-    if name not in g:
+    st = _inspect_store(p)
+    if name not in st.arrays:
         raise InputError(f"{p}: no variable {name!r}; declare it with add_ping_variable first")
-    arr = g[name]
+    arr = st.arrays[name]
     vals = np.asarray(values, dtype=arr.dtype)
     if vals.shape[1:] != tuple(arr.shape[1:]):
         raise InputError(f"{name}: values of shape {vals.shape[1:]} per ping, store has {arr.shape[1:]}")
-    if not 0 <= start and start + vals.shape[0] <= arr.shape[0]:
+    if not (0 <= start and start + vals.shape[0] <= arr.shape[0]):
         raise InputError(f"{name}: pings {start}..{start + vals.shape[0]} outside 0..{arr.shape[0]}")
-    ds = xr.Dataset({name: (_dims(arr), vals)}, attrs=dict(g.attrs))
-    ds.to_zarr(p, region={DIM_PING: slice(start, start + vals.shape[0])}, consolidated=False)
-
+    ds = xr.Dataset({name: (st.dims(name), vals)}, attrs=dict(st.attrs))
+    try:
+        ds.to_zarr(p, region={DIM_PING: slice(start, start + vals.shape[0])}, consolidated=False,
+                   write_empty_chunks=True)
+    except OSError as exc:
+        raise write_error(exc, p, f"cannot write variable {name}") from None

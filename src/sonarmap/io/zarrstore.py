@@ -13,15 +13,19 @@ from typing import Any
 
 import numpy as np
 
+from sonarmap.errors import DataFormatError
 from sonarmap.geometry import SonarGeometry, as_geometry
 from sonarmap.io._binary import make_summary
+from sonarmap.io._files import MAX_SIDECAR_BYTES, read_bytes_bounded
 from sonarmap.io.dataset import (
     ATTR_MODEL,
     DIM_PING,
     VAR_INTENSITY,
+    VAR_GEOMETRY,
+    _inspect_survey,
+    _read_array,
     _is_store,
     _n_pings,
-    _open_group,
     dataset_to_pings,
     open_survey,
     survey_geometries,
@@ -34,10 +38,20 @@ FORMAT = "zarr"
 
 
 def sniff(path: Path, head: bytes) -> bool:
-    """A zarr store directory (v2 ``.zgroup`` or v3 ``zarr.json``) holding an intensity array."""
+    """A zarr store directory (v2 ``.zgroup`` or v3 ``zarr.json``) holding an intensity array, or
+    whose root metadata names the sonarmap data model (so a store that lost its intensity array
+    is reported as a damaged survey, not as an unknown format)."""
     if not _is_store(path):
         return False
-    return (path / VAR_INTENSITY).is_dir()
+    if (path / VAR_INTENSITY).is_dir():
+        return True
+    for name in ("zarr.json", ".zattrs"):
+        try:
+            if ATTR_MODEL.encode() in read_bytes_bounded(path / name, MAX_SIDECAR_BYTES, "group metadata"):
+                return True
+        except DataFormatError:
+            continue
+    return False
 
 
 def iter_pings(
@@ -58,23 +72,37 @@ def count_pings(path: str | os.PathLike[str]) -> int:
 
 
 def summary(path: str | os.PathLike[str]) -> dict[str, Any]:
-    """Geometry, ping count, time span and store fields (metadata and the time coordinate only)."""
+    """Geometry, ping count, time span and store fields (metadata and the time coordinate only).
+
+    Raises
+    ------
+    DataFormatError
+        If the store's metadata, times or first geometry index are corrupt (naming the store).
+    """
     ds = open_survey(path)
     n = int(ds.sizes.get(DIM_PING, 0))
     geoms = survey_geometries(ds)
     t = ds[DIM_PING].values.astype("datetime64[ns]").astype(np.int64) if n else np.zeros(0, np.int64)
-    g = _open_group(Path(path))
+    st = _inspect_survey(Path(path))
+    g = st.group
+    first = None
+    if n and geoms:
+        gi = int(_read_array(st, VAR_GEOMETRY, slice(0, 1))[0])
+        if not 0 <= gi < len(geoms):
+            raise DataFormatError(f"{VAR_GEOMETRY}: ping 0: value {gi} outside the {len(geoms)} stored geometries",
+                                  path)
+        first = geoms[gi]
     return make_summary(
         FORMAT,
         path,
         n_pings=n,
-        geometry=geoms[int(ds["geometry_index"].values[0])] if n and geoms else None,
+        geometry=first,
         time_start_ns=int(t.min()) if n else None,
         time_end_ns=int(t.max()) if n else None,
         data_model=ds.attrs.get(ATTR_MODEL),
         image_shape=tuple(int(s) for s in ds[VAR_INTENSITY].shape[1:]),
         n_geometries=len(geoms),
         variables=sorted(str(v) for v in ds.data_vars),
-        chunk_pings=int(g[VAR_INTENSITY].chunks[0]),
+        chunk_pings=int(st.arrays[VAR_INTENSITY].chunks[0]),
         zarr_format=int(g.metadata.zarr_format),
     )
