@@ -67,3 +67,10 @@ def oculus_pings(data_dir: Path) -> list:
     from sonarmap.io import read_pings
 
     return list(read_pings(_need(data_dir / "oculus" / "three_pings_8bit.raw")))
+
+
+def pytest_addoption(parser: pytest.Parser) -> None:
+    parser.addoption(
+        "--fuzz-cases", type=int, default=200,
+        help="cases per reader in tests/test_fuzz.py (default 200; 1000+ for the long run)",
+    )
