@@ -109,6 +109,19 @@ def _show_warning(
 _QUIET_LOGGERS = ("distributed", "tornado", "asyncio")
 
 
+def quiet_library_loggers() -> None:
+    """Silence the loggers of dask.distributed and tornado (call after importing distributed).
+
+    ``distributed`` configures its loggers when it is imported, so the CLI calls this again once
+    a command has imported it; a lost scheduler is then reported by the command in one line.
+    """
+    if state.get("debug"):
+        return
+    names = [n for n in logging.root.manager.loggerDict if n.split(".", 1)[0] in _QUIET_LOGGERS]
+    for name in {*names, *_QUIET_LOGGERS}:
+        logging.getLogger(name).setLevel(logging.CRITICAL + 1)
+
+
 @contextlib.contextmanager
 def _cli_output(debug: bool) -> Iterator[None]:
     """One-line warnings and quiet library loggers for the duration of one CLI call."""

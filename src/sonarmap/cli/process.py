@@ -110,6 +110,12 @@ def process_command(
 
     if scheduler is not None and workers is not None:
         raise typer.BadParameter("give either --workers or --scheduler, not both", param_hint="--workers")
+    if scheduler is not None:
+        import distributed  # noqa: F401 - configures its loggers on import; quiet them afterwards
+
+        from sonarmap.cli import quiet_library_loggers
+
+        quiet_library_loggers()
     with survey_progress(f"{output.name}", quiet=quiet) as bar:
         result = process_survey(
             [str(p) for p in inputs],
