@@ -125,10 +125,17 @@ def map_command(
     from sonarmap.io import expand_inputs, read_pings
     from sonarmap.mapping.occupancy import OccupancyConfig, OccupancyMap, SensorModel
     from sonarmap.mapping.pointcloud import CLOUD_FORMATS, format_from_suffix, write_point_cloud
-    from sonarmap.mapping.poses import SensorPoses, Trajectory, load_extrinsics, read_trajectory_csv
+    from sonarmap.mapping.poses import load_extrinsics, read_trajectory_csv
     from sonarmap.mapping.register import PointCloud, RegistrationConfig, register_ranges
     from sonarmap.mapping.georef import GeoReference
-    from sonarmap.mapping.navigation import missing_navigation, navigation_origin, navigation_pose, static_pose
+    from sonarmap.mapping.navigation import (
+        missing_navigation,
+        navigation_origin,
+        navigation_pose,
+        ping_sensor_poses,
+        placed_ranges,
+        static_pose,
+    )
     from sonarmap.pipeline import PipelineConfig, process_ping
 
     if outside not in ("error", "skip"):
@@ -173,15 +180,12 @@ def map_command(
         if traj is not None:
             sp = traj.interpolate(times, outside=outside)  # type: ignore[arg-type]
         else:
-            missing = [p.source for p, _ in batch if p.pose is None]
-            if missing:
-                raise InputError(f"--poses: no trajectory given and ping {missing[0]} carries no pose")
-            tr = Trajectory.from_poses(np.arange(len(batch)), [p.pose for p, _ in batch])
-            body = tr.interpolate(np.arange(len(batch)))
-            sp = SensorPoses(times, body.rotation, body.translation_m, body.orientation_xyzw, body.valid, "body")
+            sp = ping_sensor_poses([p for p, _ in batch])
         sp = sp.with_extrinsics(ext)
         stats["skipped"] += sp.n_skipped
-        ranges = [prod.ranges for _, prod in batch]
+        # poses from the pings' own navigation come with their ranges' placement (Kongsberg EM:
+        # the bistatic range correction of the head's sensor frame)
+        ranges = [placed_ranges(p, prod.ranges) if use_nav else prod.ranges for p, prod in batch]
         if occ is None:
             cloud = register_ranges(ranges, sp, config=rcfg)
             clouds.append(cloud)

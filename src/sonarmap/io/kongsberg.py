@@ -25,7 +25,7 @@ What this reader uses:
   ``X`` and offset ``C`` (dB) applied.  The ``.wcd`` file holds them (or the ``.all`` itself).
 * ``N`` raw range and angle (two-way travel time, beam angle re the RX array, detection info,
   quality, reflectivity; TX signal length, delay, centre frequency, absorption per sector),
-  ``X`` XYZ (depth, across- and along-track from the vessel reference point, m), ``P`` position,
+  ``X`` XYZ (depth below the transmit transducer; across- and along-track from the position fix, m), ``P`` position,
   ``A`` attitude, ``I`` installation parameters (ASCII ``KEY=value,`` text) and ``R`` runtime
   parameters, all from the ``.all`` file.  Other datagram types are skipped.
 
