@@ -169,3 +169,33 @@ def test_bad_input_is_one_line_exit_1(cmd: str, kind: str, tmp_path: Path, data_
 def test_unknown_option_is_usage_error(cmd: str, tmp_path: Path, data_dir: Path) -> None:
     args = _args(cmd, data_dir / "aris" / "sample.aris", tmp_path) + ["--no-such-option"]
     assert main(args) == 2
+
+
+def test_warnings_print_as_one_line(tmp_path: Path, data_dir: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    raw = (data_dir / "aris" / "sample.aris").read_bytes()
+    p = tmp_path / "cut.aris"
+    p.write_bytes(raw[: 1024 + 97024 + 5000])  # one frame and a partial one
+    assert main(["info", str(p)]) == 0
+    err = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip()]
+    assert len(err) == 1 and err[0].startswith("sonarmap: warning: ") and "incomplete" in err[0], err
+
+
+def test_lost_dask_scheduler_is_one_line(tmp_path: Path, data_dir: Path, capfd: pytest.CaptureFixture[str],
+                                         monkeypatch: pytest.MonkeyPatch) -> None:
+    import logging
+
+    from distributed.client import FutureCancelledError
+
+    import sonarmap.survey
+
+    def lost(*args: object, **kwargs: object) -> None:
+        # what distributed logs and raises when the scheduler dies mid-run
+        logging.getLogger("distributed.client").error("Failed to reconnect to scheduler after 30.00 seconds")
+        raise FutureCancelledError("sonarmap-chunk-0", reason="scheduler-connection-lost")
+
+    monkeypatch.setattr(sonarmap.survey, "process_survey", lost)
+    rc = main(["process", str(data_dir / "aris" / "sample.aris"), "-o", str(tmp_path / "s.zarr"), "-q",
+               "--scheduler", "tcp://127.0.0.1:1"])
+    err = [ln for ln in capfd.readouterr().err.splitlines() if ln.strip()]
+    assert rc == 1
+    assert len(err) == 1 and err[0].startswith("sonarmap: error: dask: FutureCancelledError"), err
