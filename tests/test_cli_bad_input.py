@@ -9,12 +9,12 @@ from __future__ import annotations
 import json
 import os
 import shutil
-import signal
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import numpy as np
 import pytest
+from guards import deadline
 
 from sonarmap.cli import main
 
@@ -134,15 +134,8 @@ INPUTS: dict[str, Callable[[Path, Path], Path]] = {
 @pytest.fixture
 def alarm() -> Iterator[None]:
     """Fail instead of hanging forever (a FIFO read blocks)."""
-
-    def boom(signum: int, frame: object) -> None:
-        raise TimeoutError("command hung")
-
-    old = signal.signal(signal.SIGALRM, boom)
-    signal.alarm(60)
-    yield
-    signal.alarm(0)
-    signal.signal(signal.SIGALRM, old)
+    with deadline(60.0):
+        yield
 
 
 @pytest.mark.parametrize("kind", list(INPUTS))

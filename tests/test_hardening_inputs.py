@@ -15,7 +15,6 @@ import json
 import math
 import os
 import shutil
-import signal
 import struct
 import subprocess
 import sys
@@ -29,6 +28,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from guards import deadline
 
 from sonarmap.cli import main
 from sonarmap.errors import DataFormatError, GeometryError, SonarmapError
@@ -53,25 +53,6 @@ PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
 
 # ---------------------------------------------------------------------- helpers
-class _Hang(BaseException):
-    """Raised by :func:`_deadline` (a BaseException, so no ``except Exception`` can swallow it)."""
-
-
-@contextlib.contextmanager
-def _deadline(seconds: float = 10.0) -> Iterator[None]:
-    """Fail with :class:`_Hang` if the block runs longer than ``seconds`` (interrupts blocking I/O)."""
-
-    def on_alarm(signum: int, frame: object) -> None:
-        raise _Hang(f"still running after {seconds} s: the reader hangs")
-
-    old = signal.signal(signal.SIGALRM, on_alarm)
-    signal.setitimer(signal.ITIMER_REAL, seconds)
-    try:
-        yield
-    finally:
-        signal.setitimer(signal.ITIMER_REAL, 0)
-        signal.signal(signal.SIGALRM, old)
-
 
 @contextlib.contextmanager
 def _memory_cap(extra_bytes: int = 2 * 1024**3) -> Iterator[None]:
@@ -155,7 +136,7 @@ def _error_lines(capsys: pytest.CaptureFixture[str]) -> list[str]:
 
 def _assert_one_clean_cli_error(capsys: pytest.CaptureFixture[str], argv: list[str], *needles: str) -> str:
     capsys.readouterr()
-    with _deadline(20.0), _memory_cap():
+    with deadline(20.0), _memory_cap():
         rc = main(argv)
     lines = _error_lines(capsys)
     assert rc == 1, lines
@@ -408,7 +389,7 @@ def test_fifo_image_sidecar_and_geometry_fail_fast(tmp_path: Path, didson_dir: P
         (lambda: expand_inputs(str(tmp_path / "*.aris")), "is a FIFO"),
     ]
     for fn, message in calls:
-        with _deadline(10.0), _memory_cap(), pytest.raises(DataFormatError, match=message):
+        with deadline(10.0), _memory_cap(), pytest.raises(DataFormatError, match=message):
             fn()
 
 
@@ -733,7 +714,7 @@ def run_mini_fuzz(workdir: Path, didson_dir: Path, n_cases: int = 200, seed: int
 
 
 def test_mini_fuzz_reads_a_valid_ping_or_raises_a_sonarmap_error(tmp_path: Path, didson_dir: Path) -> None:
-    with _deadline(60.0), _memory_cap():
+    with deadline(60.0), _memory_cap():
         outcomes = run_mini_fuzz(tmp_path, didson_dir)
     bad = {k: v for k, v in outcomes.items() if k.startswith(("ESCAPED", "BAD"))}
     assert not bad, bad

@@ -8,11 +8,9 @@ else - and finish in bounded time.
 
 from __future__ import annotations
 
-import contextlib
 import json
 import math
 import os
-import signal
 import sqlite3
 import struct
 import subprocess
@@ -29,6 +27,7 @@ from typing import Any
 import numpy as np
 import pytest
 from ddf_writer import write_ddf
+from guards import Hang, deadline
 from oculus_writer import encode_ping, write_log_v1, write_log_v2
 
 from sonarmap.errors import DataFormatError, InputError, SonarmapError
@@ -549,28 +548,6 @@ def test_map_file_refuses_special_files(tmp_path: Path) -> None:
 
 
 # ====================================================================== seeded mini-fuzz
-class _Hang(Exception):
-    pass
-
-
-@contextlib.contextmanager
-def _deadline(seconds: float) -> Iterator[None]:
-    """Raise _Hang if the block runs longer than ``seconds`` (SIGALRM; Unix main thread)."""
-    if not hasattr(signal, "setitimer"):
-        yield
-        return
-
-    def on_alarm(signum: int, frame: Any) -> None:
-        raise _Hang(f"took more than {seconds} s")
-
-    old = signal.signal(signal.SIGALRM, on_alarm)
-    signal.setitimer(signal.ITIMER_REAL, seconds)
-    try:
-        yield
-    finally:
-        signal.setitimer(signal.ITIMER_REAL, 0)
-        signal.signal(signal.SIGALRM, old)
-
 
 #: 2200-01-01T00:00:00Z in ns: the readers accept ping times 0 (unknown) or 1970-2200.
 _YEAR_2200_NS = 7_258_118_400 * 10**9
@@ -618,7 +595,7 @@ def _exercise(path: Path, opener: Callable[[Path], Any], module: Any) -> str | N
             module.summary(path)
         except SonarmapError:
             return None
-        except _Hang:
+        except Hang:
             raise
         except Exception as exc:  # noqa: BLE001 - that is what the fuzz looks for
             return f"{type(exc).__name__}: {exc}"
@@ -715,9 +692,9 @@ def _run_fuzz(cases: Iterator[tuple[str, Path]], opener: Callable[[Path], Any], 
         n += 1
         t0 = time.perf_counter()
         try:
-            with _deadline(10.0):
+            with deadline(10.0):
                 problem = _exercise(path, opener, module)
-        except _Hang as exc:
+        except Hang as exc:
             problem = str(exc)
         dt = time.perf_counter() - t0
         if problem is None and dt > 5.0:
