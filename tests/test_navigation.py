@@ -177,3 +177,35 @@ def test_octomap_export_from_cli(data_dir: Path, tmp_path: Path) -> None:
     assert tree.resolution_m == pytest.approx(0.2) and tree.occupied.any() and (~tree.occupied).any()
     assert main(["map", str(data_dir / "aris" / "sample.aris"), "-o", str(tmp_path / "n.ply"), "--static",
                  "--octomap", str(bt)]) == 2
+
+
+def test_ddf_header_navigation_places_the_map(tmp_path: Path) -> None:
+    import laspy
+    import pyproj
+    from ddf_writer import write_ddf
+
+    from sonarmap.io.ddf import FILE_HEADER_DTYPES, FRAME_HEADER_DTYPES
+
+    rng = np.random.default_rng(0)
+    frames = []
+    for _ in range(2):
+        f = rng.rayleigh(12.0, (512, 96)).clip(0, 255).astype(np.uint8)
+        f[300:304] = 230
+        frames.append(f)
+    p = tmp_path / "nav.ddf"
+    write_ddf(p, frames)
+    raw = bytearray(p.read_bytes())
+    fh, fr = FILE_HEADER_DTYPES[4].itemsize, FRAME_HEADER_DTYPES[4]
+    for k in range(2):
+        off = fh + k * (fr.itemsize + 512 * 96)
+        h = np.frombuffer(bytes(raw[off : off + fr.itemsize]), fr, count=1).copy()
+        h["latitude"], h["longitude"], h["heading"] = LAT, LON, 180.0
+        raw[off : off + fr.itemsize] = h.tobytes()
+    p.write_bytes(bytes(raw))
+    las = tmp_path / "m.las"
+    assert main(["map", str(p), "-o", str(las), "-q"]) == 0
+    cloud = laspy.read(las)
+    assert pyproj.CRS(cloud.header.parse_crs()).to_epsg() == 32631
+    e0, n0 = pyproj.Transformer.from_crs(4326, 32631, always_xy=True).transform(LON, LAT)
+    # heading 180: the fan looks south of the fix
+    assert np.median(np.asarray(cloud.y)) < n0 - 1.0 and abs(np.median(np.asarray(cloud.x)) - e0) < 5.0

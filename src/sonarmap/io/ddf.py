@@ -344,6 +344,11 @@ class DdfFile:
             v = finite_or(h[field])
             if v is not None:
                 meta[key] = v
+        # WGS 84 degrees of the platform's fix; (0, 0) is how the format says "no fix"
+        lat, lon = finite_or(h["latitude"]), finite_or(h["longitude"])
+        if lat is not None and lon is not None and (lat, lon) != (0.0, 0.0) and abs(lat) <= 90 and abs(lon) <= 180:
+            meta["latitude_deg"] = lat
+            meta["longitude_deg"] = lon
         return Ping(image=image, geometry=geom, time_ns=self._time_ns(i, h),
                     source=f"{self.path}#{i}", meta=meta)
 
