@@ -267,13 +267,14 @@ def map_command(
                     fh, logodds=arr.logodds, observed=arr.observed, origin_m=arr.origin_m,
                     resolution_m=np.float64(arr.resolution_m), frame=np.str_("ned"),
                 )
+    kind = "occupancy" if occ is not None else "points"
     if georef is not None:
         if out_frame != "ned":
             raise typer.BadParameter("georeferenced outputs are in the projected CRS (E, N, up)",
                                      param_hint="--frame")
-        write_point_cloud(out_cloud, output, format=out_fmt, georef=georef)
+        write_point_cloud(out_cloud, output, format=out_fmt, georef=georef, kind=kind)
     else:
-        write_point_cloud(out_cloud, output, format=out_fmt, frame=out_frame)
+        write_point_cloud(out_cloud, output, format=out_fmt, frame=out_frame, kind=kind)
     if geotiff is not None:
         from sonarmap.mapping.raster import height_raster, occupancy_raster, write_geotiff
 

@@ -1,8 +1,9 @@
 """``sonarmap ranges PING... -o ranges.csv``: per-beam first returns of structure.
 
 Writes exactly one row per (ping, beam) with the header
-``ping,beam,azimuth_rad,bin,range_m,intensity,flags,sigma_m,p_detect`` (:data:`CSV_HEADER`; an
-empty cell is "none" / "unknown", never a number that looks like one):
+``ping,beam,azimuth_rad,bin,range_m,intensity,flags,sigma_m,p_detect,time,time_ns``
+(:data:`CSV_HEADER`; an empty cell is "none" / "unknown", never a number that looks like one).
+``-o -`` streams the CSV to stdout (the summary lines stay on stderr).
 
 * ``ping``: the ping's source file path (and frame);
 * ``beam``: 0-based beam (image column) index;
@@ -18,7 +19,10 @@ empty cell is "none" / "unknown", never a number that looks like one):
   return or no estimate;
 * ``p_detect``: probability that a surface in this beam is detected and reported as its
   return (the occupancy map's per-beam pD), in [0, 1]; empty where unknown.  A property of the
-  beam, so it may be set on a beam without a return.
+  beam, so it may be set on a beam without a return;
+* ``time``: the ping's time, ISO 8601 UTC to the nanosecond (``2016-07-19T14:03:05.250000000Z``;
+  ``pandas.read_csv(path, parse_dates=["time"])`` gives ``datetime64[ns, UTC]``);
+* ``time_ns``: the same time as integer nanoseconds since the Unix epoch (``Ping.time_ns``).
 
 One summary line on stderr counts the flagged pings and their reasons;
 ``--strict`` exits 1 when any ping was flagged.  Without ``--method`` the
@@ -35,10 +39,15 @@ import typer
 
 from sonarmap.cli._common import GEOMETRY_OPTION, OUTPUT_OPTION, load_geometry_option
 
-__all__ = ["register", "pipeline_config_from_options", "write_ranges_rows", "flagged_summary", "flagged_any", "CSV_HEADER"]
+__all__ = [
+    "register", "pipeline_config_from_options", "write_ranges_rows", "iso_time", "flagged_summary", "flagged_any",
+    "CSV_HEADER",
+]
 
 #: Columns of the ranges CSV, in order (their meaning: the module notes).
-CSV_HEADER = ("ping", "beam", "azimuth_rad", "bin", "range_m", "intensity", "flags", "sigma_m", "p_detect")
+CSV_HEADER = (
+    "ping", "beam", "azimuth_rad", "bin", "range_m", "intensity", "flags", "sigma_m", "p_detect", "time", "time_ns",
+)
 
 METHOD_OPTION: Any = typer.Option(
     None, "--method", "-m",
@@ -76,11 +85,39 @@ def _fmt(v: float, digits: int = 6) -> str:
     return "" if v != v else f"{v:.{digits}g}"
 
 
-def write_ranges_rows(writer: Any, source: str, ranges: Any, flags: str = "") -> int:
-    """Write one CSV row per beam of ``ranges`` (``flags``: the ping's gates); returns the number of rows."""
+def iso_time(time_ns: int) -> str:
+    """ISO 8601 UTC with nanoseconds: ``1468936985250000000`` -> ``"2016-07-19T14:03:05.250000000Z"``.
+
+    Examples
+    --------
+    >>> iso_time(1468936985250000000)
+    '2016-07-19T14:03:05.250000000Z'
+    """
+    import numpy as np
+
+    return str(np.datetime_as_string(np.datetime64(int(time_ns), "ns"), unit="ns")) + "Z"
+
+
+def write_ranges_rows(
+    writer: Any, source: str, ranges: Any, flags: str = "", *, time_ns: int | None = None
+) -> int:
+    """Write one CSV row per beam of ``ranges``; returns the number of rows.
+
+    Parameters
+    ----------
+    writer : csv.writer
+    source : str
+        The ping's source (``ping`` column).
+    ranges : BeamRanges
+    flags : str
+        The ping's gates, ``;``-separated.
+    time_ns : int, optional
+        The ping's time (``time`` and ``time_ns`` columns; empty when None).
+    """
     n = ranges.n_beams
     sigma = getattr(ranges, "sigma_m", None)
     p_det = getattr(ranges, "p_detect", None)
+    t_iso, t_ns = ("", "") if time_ns is None else (iso_time(time_ns), str(int(time_ns)))
     for j in range(n):
         b = int(ranges.bin[j])
         writer.writerow([
@@ -93,6 +130,8 @@ def write_ranges_rows(writer: Any, source: str, ranges: Any, flags: str = "") ->
             flags,
             "" if b < 0 or sigma is None else _fmt(float(sigma[j])),
             "" if p_det is None else _fmt(float(p_det[j])),
+            t_iso,
+            t_ns,
         ])
     return n
 
@@ -184,12 +223,13 @@ def register(app: typer.Typer) -> None:
         range_m: echo's leading edge (first crossing of half its first peak, sub-bin);
         intensity: image intensity at the return; flags: the ping's fit gates;
         sigma_m: one-sigma uncertainty of range_m (m);
-        p_detect: probability that a surface in the beam is detected and reported.
+        p_detect: probability that a surface in the beam is detected and reported;
+        time: ping time, ISO 8601 UTC with ns; time_ns: ping time, integer ns since the epoch.
+        Give -o - to write the CSV to stdout.
         """
         import csv
 
-        from sonarmap._atomic import atomic_open
-        from sonarmap.cli._common import err_console
+        from sonarmap.cli._common import err_console, open_output, output_name
         from sonarmap.io import read_pings
         from sonarmap.pipeline import process_ping
 
@@ -200,12 +240,13 @@ def register(app: typer.Typer) -> None:
             cfg = cfg.replace(families=families)  # the recording's model (chosen by calibrate)
         n_pings = n_rows = n_ret = 0
         gated: list[tuple[str, ...]] = []
-        with atomic_open(output, "w", newline="", encoding="utf-8") as fh:
+        with open_output(output, newline="") as fh:
             w = csv.writer(fh)
-            w.writerow(CSV_HEADER)
             for ping in read_pings([str(p) for p in pings], geometry=geom):
                 prod = process_ping(ping, cfg, background=rec)
-                n_rows += write_ranges_rows(w, ping.source, prod.ranges, ";".join(prod.gates))
+                if n_pings == 0:
+                    w.writerow(CSV_HEADER)  # after the first ping: an unreadable input writes nothing
+                n_rows += write_ranges_rows(w, ping.source, prod.ranges, ";".join(prod.gates), time_ns=ping.time_ns)
                 n_ret += prod.ranges.n_returns
                 n_pings += 1
                 gated.append(prod.gates)
@@ -215,7 +256,7 @@ def register(app: typer.Typer) -> None:
                 raise InputError("PINGS: no complete ping in the input (nothing written)")
         console = err_console()
         console.print(
-            f"{n_pings} pings, {n_rows} rows ({n_ret} returns) -> {output} (method={cfg.method}"
+            f"{n_pings} pings, {n_rows} rows ({n_ret} returns) -> {output_name(output)} (method={cfg.method}"
             + (f", solver={cfg.solver}" if cfg.method == "mrf" else "") + ")", markup=False
         )
         line = flagged_summary(gated)

@@ -6,8 +6,16 @@ Three containers are read, all yielding the same decoded ``SimplePingResult`` me
     Concatenated messages, each a 16-byte ``OculusMessageHeader`` (``oculusId`` 0x4F53, i.e. the
     bytes ``b"SO"``; ``msgId``; ``msgVersion``; ``payloadSize``) followed by ``payloadSize`` bytes.
     Only ``msgId`` 0x23 (``SimplePingResult``) carries pings; other messages are skipped.  The
-    stream has no wall clock, so ``Ping.time_ns`` is 0 and the sonar's own ``pingStartTime`` is
-    kept in ``Ping.meta``.
+    stream has no wall clock (the sonar's own ``pingStartTime``, of undocumented unit and epoch,
+    is kept in ``Ping.meta["ping_start_time"]``), so ping ``i`` is given the time
+    ``start + i / rate``: ``start`` is ``start_time_ns=`` when the caller passes it (integer ns
+    since the Unix epoch), else the file's modification time; ``rate`` is ``rate_hz=`` when
+    passed, else 10 Hz (a 0.1 s spacing, :data:`DEFAULT_RAW_INTERVAL_S`; the fire message's
+    ``pingRate`` is a maximum-rate setting, not the rate achieved).  Times are so unique and
+    increasing, and ``Ping.meta["time_source"]`` says where they came from:
+    ``"file_mtime+order"``, ``"file_mtime+rate_hz"``, ``"start_time_ns+order"`` or
+    ``"start_time_ns+rate_hz"`` (``"log"`` for the time stamps of ViewPoint logs, ``"none"``
+    for a log row without one).  ``sonarmap info`` shows it.
 ``log-v1`` (ViewPoint ``.oculus`` binary log, Blueprint's ``RmLogHeader``/``RmLogItem``)
     A file header (magic 0x11223344, its own size in ``sizeHeader``) then items (magic 0xAABBCCDD,
     ``sizeHeader``, ``type``, ``version``, ``time`` (double, seconds since the epoch),
@@ -52,10 +60,11 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from sonarmap.errors import DataFormatError
+from sonarmap.errors import DataFormatError, InputError
 from sonarmap.geometry import SonarGeometry, as_geometry
 from sonarmap.io._binary import (
     MAX_PING_BYTES,
+    MAX_PLAUSIBLE_TIME_NS,
     MAX_WINDOW_M,
     U8_SCALE,
     check_plausible,
@@ -63,7 +72,6 @@ from sonarmap.io._binary import (
     check_time_ns,
     count_container_pings,
     header_errors,
-    iter_container_pings,
     make_summary,
     map_file,
     warn_partial,
@@ -73,6 +81,7 @@ from sonarmap.ping import Ping
 
 __all__ = [
     "FORMAT",
+    "DEFAULT_RAW_INTERVAL_S",
     "OCULUS_ID",
     "MSG_SIMPLE_PING_RESULT",
     "OculusFile",
@@ -84,6 +93,8 @@ __all__ = [
 ]
 
 FORMAT = "oculus"
+#: Spacing of the pings of a raw network capture without ``rate_hz`` (s).
+DEFAULT_RAW_INTERVAL_S = 0.1
 OCULUS_ID = 0x4F53
 MSG_SIMPLE_PING_RESULT = 0x23
 LOG_FILE_MAGIC = 0x11223344
@@ -333,10 +344,28 @@ class OculusFile:
     ``len(f)`` pings; ``f[i]`` decodes ping ``i``; ``f.kind`` is ``"raw"``, ``"log-v1"`` or
     ``"log-v2"``.  Only the message headers are scanned on opening (bounded memory).
 
+    Parameters
+    ----------
+    path : path-like
+    geometry : SonarGeometry, preset name or JSON path, optional
+        Overrides the geometry of the messages.
+    start_time_ns : int, optional
+        Raw captures (no clock): time of the first ping, integer ns since the Unix epoch
+        (default: the file's modification time).  Ignored for logs, which have time stamps.
+    rate_hz : float, optional
+        Raw captures: ping rate (default 1 / :data:`DEFAULT_RAW_INTERVAL_S`).  Ignored for logs.
+
+    Attributes
+    ----------
+    time_source : str
+        Where the ping times come from (module notes).
+
     Raises
     ------
     DataFormatError
         Unknown container, bad magic or ids, or sizes that disagree with the file.
+    InputError
+        If ``start_time_ns`` or ``rate_hz`` is not a plausible value.
     """
 
     def __init__(
@@ -344,11 +373,17 @@ class OculusFile:
         path: str | os.PathLike[str],
         *,
         geometry: SonarGeometry | str | os.PathLike[str] | None = None,
+        start_time_ns: int | None = None,
+        rate_hz: float | None = None,
     ) -> None:
         self.path = Path(path)
+        _check_clock_arguments(start_time_ns, rate_hz)
         self._override = None if geometry is None else as_geometry(geometry)
         self._db: sqlite3.Connection | None = None
         self._mm: Any = None
+        self.time_source = "log"
+        #: Spacing of the pings of a raw capture (s); None for logs.
+        self.ping_interval_s: float | None = None
         with open_head(self.path) as head:
             pass
         if head[:16] == SQLITE_MAGIC:
@@ -361,7 +396,7 @@ class OculusFile:
             self._records = self._index_log_v1()
         elif head[:2] == b"SO":
             self.kind = "raw"
-            self._records = self._index_raw()
+            self._records = self._clock_raw(self._index_raw(), start_time_ns, rate_hz)
         else:
             raise DataFormatError(
                 f"not an Oculus stream or ViewPoint log (starts with {bytes(head[:4])!r})",
@@ -394,6 +429,30 @@ class OculusFile:
                 out.append(_Record(o, total, 0, False))
             o += total
         return out
+
+    def _clock_raw(self, records: list[_Record], start_time_ns: int | None, rate_hz: float | None) -> list[_Record]:
+        """Give the pings of a clockless capture ``start + i / rate`` (module notes)."""
+        if start_time_ns is None:
+            try:
+                start = int(os.stat(self.path).st_mtime_ns)
+            except OSError as exc:
+                raise DataFormatError(f"cannot stat: {exc.strerror or exc}", self.path) from None
+        else:
+            start = int(start_time_ns)
+        step_ns = 1e9 / rate_hz if rate_hz is not None else DEFAULT_RAW_INTERVAL_S * 1e9
+        self.time_source = (
+            f"{'file_mtime' if start_time_ns is None else 'start_time_ns'}+{'order' if rate_hz is None else 'rate_hz'}"
+        )
+        self.ping_interval_s = step_ns * 1e-9
+        end = start + round((len(records) - 1) * step_ns) if records else start
+        if not 0 < start <= end <= MAX_PLAUSIBLE_TIME_NS:
+            if start_time_ns is None:
+                raise DataFormatError(
+                    f"no clock, and the file's modification time ({start} ns) puts the pings outside the "
+                    "years 1970-2200; pass start_time_ns", self.path,
+                )
+            raise InputError(f"start_time_ns: {start_time_ns} ns puts the last ping of {self.path} after 2200")
+        return [r._replace(time_ns=start + round(i * step_ns)) for i, r in enumerate(records)]
 
     def _index_log_v1(self) -> list[_Record]:
         mm, size = self._mm, int(self._mm.size)
@@ -517,7 +576,7 @@ class OculusFile:
         if not 0 <= i < len(self._records):
             raise IndexError(f"ping index {index} out of range for {len(self._records)} pings")
         rec = self._records[i]
-        return decode_simple_ping(
+        ping = decode_simple_ping(
             self._message(rec),
             path=self.path,
             offset=rec.offset if self.kind != "log-v2" else None,  # type: ignore[arg-type]
@@ -525,6 +584,8 @@ class OculusFile:
             geometry=self._override,
             source=f"{self.path}#{i}",
         )
+        ping.meta["time_source"] = self.time_source if rec.time_ns or self.kind == "raw" else "none"
+        return ping
 
     def __iter__(self) -> Iterator[Ping]:
         for i in range(len(self)):
@@ -582,6 +643,22 @@ class open_head:  # noqa: N801 - tiny context manager
         return None
 
 
+def _check_clock_arguments(start_time_ns: int | None, rate_hz: float | None) -> None:
+    """Validate the ``start_time_ns`` / ``rate_hz`` arguments (InputError, one line)."""
+    if start_time_ns is not None:
+        if isinstance(start_time_ns, bool) or not isinstance(start_time_ns, int | np.integer):
+            raise InputError(f"start_time_ns: expected integer ns since the Unix epoch, got {start_time_ns!r}")
+        if not 0 < int(start_time_ns) <= MAX_PLAUSIBLE_TIME_NS:
+            raise InputError(f"start_time_ns: {start_time_ns} ns is outside the years 1970-2200")
+    if rate_hz is not None:
+        try:
+            r = float(rate_hz)
+        except (TypeError, ValueError):
+            raise InputError(f"rate_hz: expected a number of pings per second, got {rate_hz!r}") from None
+        if not (math.isfinite(r) and 0 < r <= 1e6):
+            raise InputError(f"rate_hz: must be in (0, 1e6] pings per second, got {rate_hz!r}")
+
+
 def _is_viewpoint_sqlite(path: Path) -> bool:
     try:
         con = sqlite3.connect(_sqlite_uri(path), uri=True)
@@ -611,10 +688,27 @@ def iter_pings(
     path: str | os.PathLike[str],
     *,
     geometry: SonarGeometry | str | os.PathLike[str] | None = None,
+    start_time_ns: int | None = None,
+    rate_hz: float | None = None,
     **_: Any,
 ) -> Iterator[Ping]:
-    """Lazily yield the pings of an Oculus stream or ViewPoint log."""
-    yield from iter_container_pings(OculusFile, path, geometry)
+    """Lazily yield the pings of an Oculus stream or ViewPoint log.
+
+    Parameters
+    ----------
+    path : path-like
+    geometry : SonarGeometry, preset name or JSON path, optional
+    start_time_ns, rate_hz : optional
+        Clock of a raw network capture (see :class:`OculusFile`); ``read_pings`` passes them on.
+
+    Examples
+    --------
+    >>> pings = list(iter_pings("capture.raw", start_time_ns=1_468_936_985 * 10**9, rate_hz=15))  # doctest: +SKIP
+    >>> pings[1].time_ns - pings[0].time_ns, pings[0].meta["time_source"]                       # doctest: +SKIP
+    (66666667, 'start_time_ns+rate_hz')
+    """
+    with OculusFile(path, geometry=geometry, start_time_ns=start_time_ns, rate_hz=rate_hz) as f:
+        yield from f
 
 
 def count_pings(path: str | os.PathLike[str]) -> int:
@@ -631,7 +725,7 @@ def summary(path: str | os.PathLike[str]) -> dict[str, Any]:
                                 time_end_ns=None, container=f.kind)
         first = f[0]
         g = first.geometry
-        has_clock = f.kind != "raw" and f._records[0].time_ns > 0
+        has_clock = f._records[0].time_ns > 0
         return make_summary(
             FORMAT,
             path,
@@ -640,6 +734,8 @@ def summary(path: str | os.PathLike[str]) -> dict[str, Any]:
             time_start_ns=f._records[0].time_ns if has_clock else None,
             time_end_ns=f._records[-1].time_ns if has_clock else None,
             container=f.kind,
+            time_source=first.meta["time_source"],
+            **({} if f.ping_interval_s is None else {"ping_interval_s": f.ping_interval_s}),
             message_version=first.meta["message_version"],
             model=_PART_NUMBERS.get(first.meta["part_number"], "unknown"),
             n_beams=g.n_beams,

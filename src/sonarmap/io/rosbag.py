@@ -5,11 +5,28 @@ definitions ship with sonarmap (``sonarmap/io/msgs``) and are registered in rosb
 
 Conventions at the boundary
 ---------------------------
-* ``beam_directions`` are unit vectors with **y to port** (REP-103 body frame: x forward, y left,
-  z up), so ``azimuth_ours = atan2(-y, forward)``.  The forward axis is ``x``; bags written with the
-  older ``acoustic_msgs`` convention (fan in the y-z plane, ``z`` forward) are recognised by
-  ``x == 0`` for every beam and use ``z`` as forward.  Beams are re-ordered, if needed, so that
-  azimuth increases with column.
+* ``beam_directions`` follow the upstream ``ProjectedSonarImage.msg``: "The Z-axis is centered in
+  the plane of the fan ("forward"), with X up ... the beams lie on the Y-Z plane, and each beam has
+  an azimuth (rotation about X) value.  Zero azimuth is in the direction of the Z-axis".  A beam of
+  our azimuth ``a`` (positive to starboard) is written as ``(x, y, z) = (0, -sin a, cos a)``, which
+  is what the reference producer (the UW-APL Oculus driver, ``y = -sin(bearing)``,
+  ``z = cos(bearing)``) writes and what the reference consumer (``sonar_image_proc``:
+  ``azimuth = atan2(-y, z)``, drawn positive to the right, beams in increasing azimuth) reads back
+  as ``a``.  So ``y`` points to port.  The .msg itself does not name y's direction (with X up a
+  right-handed frame would put y to starboard, which is what some drivers and simulators write);
+  the sign above is the one its reference producer and consumer agree on.  This is the
+  ``"upstream"`` handedness; ``"mirrored"`` (``y`` to starboard) reads ``azimuth = atan2(y, forward)``.
+* The fan plane is taken from the data: if ``z`` is 0 for every beam and ``x`` is not, the fan is
+  in the x-y plane with ``x`` forward (REP-103 body frame, y to port: what sonarmap wrote before it
+  followed the .msg); otherwise ``z`` is forward and ``x`` the out-of-fan (elevation) component.
+* Handedness (``handedness=`` of :func:`iter_bag_pings`): ``"upstream"`` or ``"mirrored"`` force a
+  rule.  ``"auto"`` (default) decides from the data where the data decide it: (1) the sonarmap
+  geometry side channel (see below) matches one reading exactly -> that one; else (2) the azimuths
+  of the upstream rule increase with beam index -> ``"upstream"`` (the order the reference
+  producer writes and ``sonar_image_proc`` assumes); else (beams in decreasing or no azimuth order:
+  upstream ``y`` with reversed beams and mirrored ``y`` with beams port to starboard look alike)
+  the upstream rule is used and a :class:`BagConventionWarning` says it was a guess, once per topic.
+  Beams are re-ordered, if needed, so that azimuth increases with column.
 * ``image.data`` is range-major (``data[sample * beam_count + beam]``), which is what drivers
   publish in practice; unsigned integer data map to [0, 1] as ``value / max`` (``uint8``: / 255,
   ``uint16``: / 65535, ``uint32``: / (2**32 - 1), ``uint64``: / (2**64 - 1)); signed integer data
@@ -18,7 +35,15 @@ Conventions at the boundary
   within [0, 1] (a raw ping's range, see :class:`~sonarmap.ping.Ping`) up to
   :data:`FLOAT_TOLERANCE`, by which they are clipped; anything else is a DataFormatError naming
   the bag, the topic and the message index.
-* Header stamps must give a time of 0 (unknown) or in the years 1970-2200 (``nanosec`` < 1e9).
+* Header stamps must give a time of 0 (unknown) or in the years 1970-2200 (``nanosec`` < 1e9);
+  ``sec * 10**9 + nanosec`` is computed in integers (no float on the way).
+* Topics read: ``ProjectedSonarImage`` (``marine_acoustic_msgs`` and the older ``acoustic_msgs``);
+  ``sensor_msgs/Image`` only with a ``geometry=`` (rows = the geometry's range bins, row 0 nearest,
+  columns = its beams in increasing azimuth; ``mono8``/``8UC1``, ``mono16``/``16UC1``, ``16SC1``,
+  ``32SC1``, ``32FC1``, ``64FC1``), and only when no ProjectedSonarImage topic exists or ``topic=``
+  names it.  A bag without such a topic is a :class:`~sonarmap.errors.DataFormatError` listing the
+  bag's topics and types (raw packets, ``RawSonarImage`` and ``acoustic_msgs/SonarImage`` are not
+  decoded).
 * Only regular files are opened: a FIFO or device named ``x.bag`` (or inside a ROS 2 bag
   directory) is refused instead of hanging or reading forever.
 * ``ranges`` are float32 in the message.  :func:`write_bag` therefore also writes, once per distinct
@@ -35,6 +60,7 @@ import math
 import os
 import shutil
 import tempfile
+import warnings
 from collections.abc import Iterable, Iterator
 from importlib import resources
 from pathlib import Path
@@ -42,7 +68,7 @@ from typing import Any
 
 import numpy as np
 
-from sonarmap.errors import DataFormatError, GeometryError, InputError
+from sonarmap.errors import DataFormatError, GeometryError, InputError, SonarmapWarning
 from sonarmap.geometry import SonarGeometry, as_geometry, geometry_from_dict
 from sonarmap.io._binary import U8_SCALE, check_time_ns, make_summary
 from sonarmap.io._files import open_regular, require_regular_file
@@ -50,6 +76,8 @@ from sonarmap.ping import Ping
 
 __all__ = [
     "FORMAT",
+    "HANDEDNESS",
+    "BagConventionWarning",
     "MSGTYPE",
     "typestore",
     "write_bag",
@@ -64,6 +92,20 @@ __all__ = [
 FORMAT = "rosbag"
 MSGTYPE = "marine_acoustic_msgs/msg/ProjectedSonarImage"
 _SONAR_TYPES = {MSGTYPE, "acoustic_msgs/msg/ProjectedSonarImage"}
+IMAGE_TYPE = "sensor_msgs/msg/Image"
+
+#: Accepted values of ``handedness=`` (see the module notes).
+HANDEDNESS = ("auto", "upstream", "mirrored")
+
+#: ``sensor_msgs/Image`` encodings read (single channel), as numpy dtypes.
+_IMAGE_ENCODINGS = {
+    "mono8": np.dtype("u1"), "8UC1": np.dtype("u1"), "mono16": np.dtype("u2"), "16UC1": np.dtype("u2"),
+    "16SC1": np.dtype("i2"), "32SC1": np.dtype("i4"), "32FC1": np.dtype("f4"), "64FC1": np.dtype("f8"),
+}  # fmt: skip
+
+
+class BagConventionWarning(SonarmapWarning):
+    """The handedness of a bag's ``beam_directions`` was guessed (see :mod:`sonarmap.io.rosbag`)."""
 _GEOMETRY_SUFFIX = "/sonarmap_geometry"
 ROS1_MAGIC = b"#ROSBAG V2.0\n"
 MCAP_MAGIC = b"\x89MCAP0\r\n"
@@ -114,7 +156,8 @@ def _encode(ping: Ping, store: Any, ros_version: int, frame_id: str, dtype: str,
         rx_beamwidths=np.zeros(0, np.float32),
     )
     v3 = T["geometry_msgs/msg/Vector3"]
-    dirs = [v3(x=float(math.cos(a)), y=float(-math.sin(a)), z=0.0) for a in g.azimuth_rad]
+    # upstream .msg: z forward, x up, azimuth = rotation about x -> (0, -sin a, cos a), y to port
+    dirs = [v3(x=0.0, y=float(-math.sin(a)), z=float(math.cos(a))) for a in g.azimuth_rad]
     if dtype == "float32":
         data = np.ascontiguousarray(ping.image, dtype="<f4")
     elif dtype == "float64":
@@ -163,6 +206,21 @@ def write_bag(
         Topic of the images and ``header.frame_id``.
     dtype : {"float32", "float64", "uint8", "uint16"}
         Pixel type; ``float32`` is lossless, ``uint8`` matches 8-bit sensor data.
+
+    Returns
+    -------
+    int
+        Number of ProjectedSonarImage messages written.
+
+    Notes
+    -----
+    ``beam_directions`` follow the upstream .msg (z forward, x up): ``(0, -sin a, cos a)`` for
+    azimuth ``a``, beams in increasing azimuth, so ``sonar_image_proc``'s ``atan2(-y, z)`` gives
+    ``a`` back (see the module notes).  ``ping_info`` beam widths are left empty.
+
+    Examples
+    --------
+    >>> write_bag(pings, "survey.bag", version=1, dtype="uint8")  # doctest: +SKIP
     """
     if version not in (1, 2):
         raise InputError(f"version: must be 1 or 2 (got {version!r})")
@@ -223,19 +281,47 @@ def _bag_root(path: Path) -> Path:
     return path
 
 
-def _is_uniform(r: np.ndarray) -> bool:
-    d = np.diff(r)
-    return r.size > 1 and bool(np.allclose(d, d.mean(), rtol=1e-5, atol=0))
+@functools.lru_cache(maxsize=64)
+def _fan_azimuths(dirs: bytes) -> tuple[np.ndarray, str]:
+    """Azimuths by the upstream rule (message beam order, positive to starboard) and the fan plane.
+
+    Parameters
+    ----------
+    dirs : bytes
+        ``beam_directions`` as float64 ``(n_beams, 3)`` ``x, y, z`` rows.
+
+    Returns
+    -------
+    azimuth_rad : ndarray of float64, shape (n_beams,)
+        ``atan2(-y, forward)`` with ``forward = z`` (the .msg's axis) or, for a fan in the x-y plane
+        (``z == 0`` for every beam, some ``x != 0``), ``forward = x``.
+    plane : {"yz", "xy"}
+        Which plane the fan lies in.
+
+    Raises
+    ------
+    ValueError
+        If no beam has a forward component.
+    """
+    v = np.frombuffer(dirs, dtype=np.float64).reshape(-1, 3)
+    x, y, z = v[:, 0], v[:, 1], v[:, 2]
+    if np.all(np.abs(z) < 1e-9) and np.any(np.abs(x) > 1e-9):
+        forward, plane = x, "xy"
+    else:
+        forward, plane = z, "yz"
+    if not np.any(forward > 0):
+        raise ValueError("no beam direction points forward (z > 0, or x > 0 for a fan in the x-y plane)")
+    az = np.arctan2(-y, forward)
+    az.flags.writeable = False
+    return az, plane
 
 
 @functools.lru_cache(maxsize=64)
 def _message_geometry(
-    dirs: bytes, ranges: bytes, frequency: float, sound_speed: float, name: str
+    az_bytes: bytes, ranges: bytes, frequency: float, sound_speed: float, name: str
 ) -> tuple[SonarGeometry, np.ndarray | None]:
-    v = np.frombuffer(dirs, dtype=np.float64).reshape(-1, 3)
-    x, y, z = v[:, 0], v[:, 1], v[:, 2]
-    forward = z if (np.all(np.abs(x) < 1e-9) and np.any(np.abs(z) > 0)) else x
-    az = np.arctan2(-y, forward)
+    """Geometry from per-beam azimuths (message order) and ranges; the column order if re-sorted."""
+    az = np.frombuffer(az_bytes, dtype=np.float64)
     order = None
     if az.size > 1 and np.any(np.diff(az) <= 0):
         order = np.argsort(az, kind="stable")
@@ -251,7 +337,63 @@ def _message_geometry(
     return geom, order
 
 
+def _geometry_key(ranges_f32: np.ndarray, azimuth_rad: np.ndarray) -> bytes:
+    """Side-channel lookup key: float32 ranges and float32 azimuths in increasing order."""
+    return ranges_f32.astype(np.float32).tobytes() + np.sort(azimuth_rad).astype(np.float32).tobytes()
+
+
+def _resolve_handedness(
+    handedness: str, az_up: np.ndarray, ranges_f32: np.ndarray, exact: dict[bytes, SonarGeometry]
+) -> tuple[int, bool]:
+    """Sign applied to the upstream-rule azimuths (+1 upstream, -1 mirrored) and whether it is a guess.
+
+    ``"auto"``: a side-channel geometry matching one reading decides; else upstream, which is
+    certain only when its azimuths increase with beam index (or the fan is a single beam at 0).
+    """
+    if handedness == "upstream":
+        return 1, False
+    if handedness == "mirrored":
+        return -1, False
+    if exact:
+        if _geometry_key(ranges_f32, az_up) in exact:
+            return 1, False
+        if _geometry_key(ranges_f32, -az_up) in exact:
+            return -1, False
+    if az_up.size > 1:
+        return 1, not bool(np.all(np.diff(az_up) > 0))
+    return 1, bool(az_up.size == 1 and az_up[0] != 0.0)
+
+
+def _scale_pixels(a: np.ndarray) -> np.ndarray:
+    """Pixels of any numeric dtype -> float32 in [0, 1] (see the module notes).
+
+    Raises
+    ------
+    ValueError
+        Non-finite or out-of-range floats, negative signed integers.
+    """
+    dt = a.dtype
+    if dt.kind == "f":
+        if not np.all(np.isfinite(a)):
+            raise ValueError(f"{dt.name} image contains NaN or infinite values")
+        lo, hi = (float(a.min()), float(a.max())) if a.size else (0.0, 0.0)
+        if lo < -FLOAT_TOLERANCE or hi > 1.0 + FLOAT_TOLERANCE:
+            raise ValueError(
+                f"{dt.name} pixels lie in [{lo:.6g}, {hi:.6g}], outside the [0, 1] of a raw ping"
+            )
+        return np.clip(a, 0.0, 1.0).astype(np.float32)
+    if dt.itemsize == 1 and dt.kind == "u":
+        return np.multiply(a, U8_SCALE, dtype=np.float32)
+    info = np.iinfo(dt)
+    if dt.kind == "i" and a.size and int(a.min()) < 0:
+        raise ValueError(
+            f"{dt.name} image has negative samples (min {int(a.min())}); intensities are >= 0"
+        )
+    return np.clip(a.astype(np.float64) / float(info.max), 0.0, 1.0).astype(np.float32)
+
+
 def _decode_image(img: Any, n_ranges: int, n_beams: int) -> np.ndarray:
+    """``SonarImageData`` -> float32 ``(n_ranges, n_beams)`` (range-major data)."""
     dt = _DTYPES.get(int(img.dtype))
     if dt is None:
         raise ValueError(f"unknown image dtype code {img.dtype}")
@@ -264,24 +406,27 @@ def _decode_image(img: Any, n_ranges: int, n_beams: int) -> np.ndarray:
         )
     if int(img.beam_count) not in (0, n_beams):
         raise ValueError(f"beam_count {img.beam_count} != {n_beams} beam directions")
-    a = raw.view(dt).reshape(n_ranges, n_beams)
-    if dt.kind == "f":
-        if not np.all(np.isfinite(a)):
-            raise ValueError(f"{dt.name} image contains NaN or infinite values")
-        lo, hi = float(a.min()), float(a.max())
-        if lo < -FLOAT_TOLERANCE or hi > 1.0 + FLOAT_TOLERANCE:
-            raise ValueError(
-                f"{dt.name} pixels lie in [{lo:.6g}, {hi:.6g}], outside the [0, 1] of a raw ping"
-            )
-        return np.clip(a, 0.0, 1.0).astype(np.float32)
-    if dt == np.dtype("u1"):
-        return np.multiply(a, U8_SCALE, dtype=np.float32)
-    info = np.iinfo(dt)
-    if dt.kind == "i" and a.size and int(a.min()) < 0:
+    return _scale_pixels(raw.view(dt).reshape(n_ranges, n_beams))
+
+
+def _decode_sensor_image(msg: Any, geometry: SonarGeometry) -> np.ndarray:
+    """``sensor_msgs/Image`` -> float32 ``(n_bins, n_beams)`` of ``geometry`` (rows = range bins)."""
+    enc = str(msg.encoding)
+    dt = _IMAGE_ENCODINGS.get(enc)
+    if dt is None:
+        raise ValueError(f"image encoding {enc!r} is not a single-channel one ({', '.join(_IMAGE_ENCODINGS)})")
+    dt = dt.newbyteorder(">" if msg.is_bigendian else "<")
+    h, w, step = int(msg.height), int(msg.width), int(msg.step)
+    if (h, w) != geometry.shape:
         raise ValueError(
-            f"{dt.name} image has negative samples (min {int(a.min())}); intensities are >= 0"
+            f"image is {h} x {w} (height x width), the geometry needs {geometry.n_bins} range bins x "
+            f"{geometry.n_beams} beams"
         )
-    return np.clip(a.astype(np.float64) / float(info.max), 0.0, 1.0).astype(np.float32)
+    raw = np.asarray(msg.data, dtype=np.uint8)
+    if step < w * dt.itemsize or raw.size < step * h:
+        raise ValueError(f"image step {step} / {raw.size} bytes do not hold {h} rows of {w} {enc} pixels")
+    rows = raw[: step * h].reshape(h, step)[:, : w * dt.itemsize]
+    return _scale_pixels(np.ascontiguousarray(rows).view(dt).reshape(h, w))
 
 
 def _require_regular_bag(root: Path) -> None:
@@ -328,24 +473,99 @@ def _reader(path: Path) -> Any:
     return reader
 
 
+def _describe_topics(reader: Any) -> str:
+    """``/a (pkg/msg/T), /b (...)`` for every connection of an opened bag (sorted, deduplicated)."""
+    seen = sorted({(c.topic, c.msgtype) for c in reader.connections})
+    if not seen:
+        return "the bag has no topics"
+    return "the bag has " + ", ".join(f"{t} ({m})" for t, m in seen)
+
+
+def _select_connections(
+    reader: Any, path: Path, topic: str | None, has_geometry: bool
+) -> tuple[list[Any], list[Any]]:
+    """The sonar connections to read, as ``(projected, images)``.
+
+    ``sensor_msgs/Image`` topics are read only with a user geometry, and only when no
+    ProjectedSonarImage topic exists or ``topic`` names one.
+
+    Raises
+    ------
+    DataFormatError
+        No readable topic (listing the bag's topics and types), or ``topic`` is not readable.
+    """
+    conns = list(reader.connections)
+    sonar = [c for c in conns if c.msgtype in _SONAR_TYPES and (topic is None or c.topic == topic)]
+    images = [c for c in conns if c.msgtype == IMAGE_TYPE and (topic is None or c.topic == topic)]
+    if topic is not None:
+        if sonar:
+            return sonar, []
+        if images and has_geometry:
+            return [], images
+        if images:
+            raise DataFormatError(
+                f"topic {topic!r} is a sensor_msgs/Image: pass a geometry (geometry=, --geometry) "
+                "whose range bins and beams match its rows and columns", path
+            )
+        raise DataFormatError(f"no ProjectedSonarImage messages on topic {topic!r}; {_describe_topics(reader)}", path)
+    if sonar:
+        return sonar, []
+    if images and has_geometry:
+        return [], images
+    hint = ""
+    if images:
+        hint = "; its sensor_msgs/Image topics need a geometry (geometry=, --geometry)"
+    raise DataFormatError(
+        f"no readable sonar topic (ProjectedSonarImage{', or sensor_msgs/Image with a geometry' if not images else ''}); "
+        f"{_describe_topics(reader)}{hint}", path
+    )
+
+
 def iter_bag_pings(
     path: str | os.PathLike[str],
     *,
     topic: str | None = None,
     geometry: SonarGeometry | str | os.PathLike[str] | None = None,
+    handedness: str = "auto",
 ) -> Iterator[Ping]:
-    """Lazily yield the ProjectedSonarImage pings of a ROS 1 or ROS 2 bag, in time order.
+    """Lazily yield the sonar pings of a ROS 1 or ROS 2 bag, in time order.
 
     Parameters
     ----------
+    path : path-like
+        ROS 1 ``.bag`` file, ROS 2 bag directory (or its ``metadata.yaml`` / storage file).
     topic : str, optional
-        Only this topic (default: every ProjectedSonarImage topic).
+        Only this topic (default: every ProjectedSonarImage topic; the ``sensor_msgs/Image``
+        topics when there is none and ``geometry`` is given).
+    geometry : SonarGeometry, preset name or JSON path, optional
+        Overrides the geometry of every ping; required for ``sensor_msgs/Image`` topics (rows =
+        its range bins, row 0 nearest; columns = its beams).
+    handedness : {"auto", "upstream", "mirrored"}
+        How ``beam_directions`` map to azimuth: ``"upstream"`` ``atan2(-y, forward)`` (the .msg's
+        frame, ``y`` to port), ``"mirrored"`` ``atan2(y, forward)`` (``y`` to starboard), ``"auto"``
+        decides from the data and warns (:class:`BagConventionWarning`) when it had to guess; see
+        the module notes.
+
+    Yields
+    ------
+    Ping
+        ``meta`` holds ``topic``, ``message_index``, ``seq`` (ROS 1) and, for ProjectedSonarImage,
+        ``handedness`` (the rule used) and ``fan_plane`` (``"yz"`` or ``"xy"``).
 
     Raises
     ------
     DataFormatError
-        If the bag cannot be parsed or a message is inconsistent (sizes, directions, ranges).
+        If the bag cannot be parsed, has no readable sonar topic (the message lists its topics and
+        types), or a message is inconsistent (sizes, directions, ranges, stamps).
+    InputError
+        If ``handedness`` is not one of :data:`HANDEDNESS`.
+
+    Examples
+    --------
+    >>> pings = iter_bag_pings("survey.bag", handedness="mirrored")  # doctest: +SKIP
     """
+    if handedness not in HANDEDNESS:
+        raise InputError(f"handedness: choose from {', '.join(HANDEDNESS)} (got {handedness!r})")
     p = Path(path)
     override = None if geometry is None else as_geometry(geometry)
     try:
@@ -355,9 +575,11 @@ def iter_bag_pings(
     except Exception as exc:  # noqa: BLE001 - rosbags raises various types on corrupt bags
         raise DataFormatError(f"cannot read bag: {type(exc).__name__}: {exc}", p) from None
     try:
-        conns = [c for c in reader.connections if c.msgtype in _SONAR_TYPES and (topic is None or c.topic == topic)]
-        if topic is not None and not conns:
-            raise DataFormatError(f"no ProjectedSonarImage messages on topic {topic!r}", p)
+        conns, images = _select_connections(reader, p, topic, override is not None)
+        if images:
+            assert override is not None
+            yield from _iter_sensor_images(reader, p, images, override)
+            return
         gtopics = {c.topic + _GEOMETRY_SUFFIX for c in conns} | {c.topic.rstrip("/") + _GEOMETRY_SUFFIX for c in conns}
         gconns = [c for c in reader.connections if c.topic in gtopics and c.msgtype == "std_msgs/msg/String"]
         exact: dict[bytes, SonarGeometry] = {}
@@ -368,9 +590,10 @@ def iter_bag_pings(
                 g = geometry_from_dict(d, source=f"{p} geometry")
                 if g.azimuth_source != src:
                     g = g.replace(azimuth_source=src)
-                exact[g.range_m.astype(np.float32).tobytes() + np.float32(g.azimuth_rad).tobytes()] = g
+                exact[_geometry_key(g.range_m, g.azimuth_rad)] = g
             except Exception:  # noqa: BLE001,S112 - damaged side channel: use the message fields
                 continue
+        warned: set[str] = set()
         idx = 0
         for conn, _t, raw in _guarded(p, reader.messages(connections=conns)) if conns else ():
             try:
@@ -378,9 +601,18 @@ def iter_bag_pings(
             except Exception as exc:  # noqa: BLE001
                 raise DataFormatError(f"corrupt message {idx}: {type(exc).__name__}: {exc}", p) from None
             try:
-                ping = _ping_from_msg(msg, p, conn.topic, idx, override, exact)
+                ping, guessed = _ping_from_msg(msg, p, conn.topic, idx, override, exact, handedness)
             except (ValueError, GeometryError) as exc:
                 raise DataFormatError(f"message {idx} on {conn.topic}: {exc}", p) from None
+            if guessed and conn.topic not in warned:
+                warned.add(conn.topic)
+                warnings.warn(
+                    f"{p}: {conn.topic}: beam_directions do not increase in azimuth with beam index, "
+                    "so y to port (upstream) and y to starboard cannot be told apart; read as upstream "
+                    "(azimuth = atan2(-y, forward)); pass handedness='mirrored' if the producer's y "
+                    "points to starboard, or handedness='upstream' to confirm",
+                    BagConventionWarning, stacklevel=2,
+                )
             idx += 1
             yield ping
     finally:
@@ -388,6 +620,34 @@ def iter_bag_pings(
             reader.close()
         except Exception:  # noqa: BLE001,S110 - closing a corrupt bag must not mask the real error
             pass
+
+
+def _iter_sensor_images(reader: Any, path: Path, conns: list[Any], geometry: SonarGeometry) -> Iterator[Ping]:
+    """Pings of ``sensor_msgs/Image`` topics with a user geometry (see :func:`iter_bag_pings`)."""
+    idx = 0
+    for conn, _t, raw in _guarded(path, reader.messages(connections=conns)):
+        try:
+            msg = reader.deserialize(raw, conn.msgtype)
+        except Exception as exc:  # noqa: BLE001
+            raise DataFormatError(f"corrupt message {idx}: {type(exc).__name__}: {exc}", path) from None
+        try:
+            image = _decode_sensor_image(msg, geometry)
+            t_ns = _stamp_ns(msg.header.stamp)
+        except ValueError as exc:
+            raise DataFormatError(f"message {idx} on {conn.topic}: {exc}", path) from None
+        meta: dict[str, Any] = {"format": FORMAT, "topic": conn.topic, "message_index": idx}
+        if hasattr(msg.header, "seq"):
+            meta["seq"] = int(msg.header.seq)
+        yield Ping(image=image, geometry=geometry, time_ns=t_ns, source=f"{path}#{conn.topic}:{idx}", meta=meta)
+        idx += 1
+
+
+def _stamp_ns(stamp: Any) -> int:
+    """``sec * 10**9 + nanosec`` in integers, checked (0 or 1970-2200)."""
+    sec, nsec = int(stamp.sec), int(stamp.nanosec)
+    if not 0 <= nsec < 10**9:
+        raise ValueError(f"header stamp nanosec {nsec} is outside 0-999999999")
+    return check_time_ns(sec * 10**9 + nsec, "header stamp")
 
 
 def _guarded(path: Path, it: Iterator[Any]) -> Iterator[Any]:
@@ -404,8 +664,9 @@ def _guarded(path: Path, it: Iterator[Any]) -> Iterator[Any]:
 
 def _ping_from_msg(
     msg: Any, path: Path, topic: str, idx: int, override: SonarGeometry | None,
-    exact: dict[bytes, SonarGeometry],
-) -> Ping:
+    exact: dict[bytes, SonarGeometry], handedness: str = "auto",
+) -> tuple[Ping, bool]:
+    """One ProjectedSonarImage -> (Ping, whether the handedness was a guess)."""
     dirs = np.array([[d.x, d.y, d.z] for d in msg.beam_directions], dtype=np.float64).reshape(-1, 3)
     ranges = np.asarray(msg.ranges, dtype=np.float32)
     if dirs.shape[0] < 1 or ranges.size < 1:
@@ -413,26 +674,33 @@ def _ping_from_msg(
     if not (np.all(np.isfinite(dirs)) and np.all(np.isfinite(ranges))):
         raise ValueError("beam directions or ranges contain NaN/inf")
     name = (msg.header.frame_id or topic).strip("/").replace("/", "-") or "sonar"
+    az_up, plane = _fan_azimuths(dirs.tobytes())
+    sign, guessed = _resolve_handedness(handedness, az_up, ranges, exact)
+    if override is not None:
+        guessed = False  # the user's geometry decides the azimuths
+    az = az_up if sign > 0 else -az_up
     geom, order = _message_geometry(
-        dirs.tobytes(), ranges.tobytes(), float(msg.ping_info.frequency),
+        np.ascontiguousarray(az).tobytes(), ranges.tobytes(), float(msg.ping_info.frequency),
         float(msg.ping_info.sound_speed), name,
     )
     image = _decode_image(msg.image, ranges.size, dirs.shape[0])
     if order is not None:
         image = np.ascontiguousarray(image[:, order])
-    g = exact.get(ranges.tobytes() + np.float32(geom.azimuth_rad).tobytes()) if override is None else None
     if override is not None:
         geom = override
-    elif g is not None and np.allclose(g.azimuth_rad, geom.azimuth_rad, atol=1e-9):
-        geom = g
-    sec, nsec = int(msg.header.stamp.sec), int(msg.header.stamp.nanosec)
-    if not 0 <= nsec < 10**9:
-        raise ValueError(f"header stamp nanosec {nsec} is outside 0-999999999")
-    t_ns = check_time_ns(sec * 10**9 + nsec, "header stamp")
-    meta: dict[str, Any] = {"format": FORMAT, "topic": topic, "message_index": idx}
+    else:
+        g = exact.get(_geometry_key(ranges, geom.azimuth_rad))
+        if g is not None and np.allclose(g.azimuth_rad, geom.azimuth_rad, atol=1e-9):
+            geom = g
+    t_ns = _stamp_ns(msg.header.stamp)
+    meta: dict[str, Any] = {
+        "format": FORMAT, "topic": topic, "message_index": idx,
+        "handedness": "upstream" if sign > 0 else "mirrored", "fan_plane": plane,
+    }
     if hasattr(msg.header, "seq"):
         meta["seq"] = int(msg.header.seq)
-    return Ping(image=image, geometry=geom, time_ns=t_ns, source=f"{path}#{topic}:{idx}", meta=meta)
+    ping = Ping(image=image, geometry=geom, time_ns=t_ns, source=f"{path}#{topic}:{idx}", meta=meta)
+    return ping, guessed
 
 
 # ---------------------------------------------------------------------- registry hooks
@@ -454,25 +722,45 @@ def iter_pings(
     *,
     geometry: SonarGeometry | str | os.PathLike[str] | None = None,
     topic: str | None = None,
+    handedness: str = "auto",
     **_: Any,
 ) -> Iterator[Ping]:
-    """Registry hook: :func:`iter_bag_pings`."""
-    yield from iter_bag_pings(path, topic=topic, geometry=geometry)
+    """Registry hook: :func:`iter_bag_pings` (``read_pings(..., handedness=...)`` reaches it)."""
+    yield from iter_bag_pings(path, topic=topic, geometry=geometry, handedness=handedness)
 
 
-def _sonar_connections(path: Path) -> tuple[Any, list[Any]]:
+def _sonar_connections(path: Path) -> tuple[Any, list[Any], bool]:
+    """Opened reader, the connections :func:`iter_bag_pings` would read given a geometry, and
+    whether they are ``sensor_msgs/Image`` ones (readable only with a geometry).
+
+    Raises
+    ------
+    DataFormatError
+        Unreadable bag, or no readable sonar topic.
+    """
     try:
         reader = _reader(path)
     except DataFormatError:
         raise
     except Exception as exc:  # noqa: BLE001
         raise DataFormatError(f"cannot read bag: {type(exc).__name__}: {exc}", path) from None
-    return reader, [c for c in reader.connections if c.msgtype in _SONAR_TYPES]
+    try:
+        sonar, images = _select_connections(reader, path, None, True)
+    except BaseException:
+        reader.close()
+        raise
+    return reader, sonar or images, not sonar
 
 
 def count_pings(path: str | os.PathLike[str]) -> int:
-    """Number of ProjectedSonarImage messages (from the bag's index)."""
-    reader, conns = _sonar_connections(Path(path))
+    """Number of sonar messages (from the bag's index): ProjectedSonarImage, else sensor_msgs/Image.
+
+    Raises
+    ------
+    DataFormatError
+        Unreadable bag, or no readable sonar topic (the message lists the bag's topics and types).
+    """
+    reader, conns, _images = _sonar_connections(Path(path))
     try:
         return int(sum(c.msgcount for c in conns))
     finally:
@@ -480,9 +768,12 @@ def count_pings(path: str | os.PathLike[str]) -> int:
 
 
 def summary(path: str | os.PathLike[str]) -> dict[str, Any]:
-    """Geometry of the first ping, ping count, time span and the sonar topics."""
+    """Geometry of the first ping, ping count, time span and the sonar topics.
+
+    A bag of ``sensor_msgs/Image`` sonar topics has no geometry of its own (``geometry`` None).
+    """
     p = Path(path)
-    reader, conns = _sonar_connections(p)
+    reader, conns, images = _sonar_connections(p)
     try:
         n = int(sum(c.msgcount for c in conns))
         topics = {c.topic: int(c.msgcount) for c in conns}
@@ -493,7 +784,11 @@ def summary(path: str | os.PathLike[str]) -> dict[str, Any]:
     finally:
         reader.close()
     ros = "ROS 2" if p.is_dir() or p.suffix in (".db3", ".mcap") or p.name == "metadata.yaml" else "ROS 1"
-    first = next(iter_bag_pings(p), None) if n else None
+    first = None
+    if n and not images:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", BagConventionWarning)  # reading all pings warns
+            first = next(iter_bag_pings(p), None)
     return make_summary(
         FORMAT, p, n_pings=n, geometry=first.geometry if first else None, time_start_ns=t0,
         time_end_ns=t1, ros_version=ros, topics=topics,

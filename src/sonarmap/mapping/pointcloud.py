@@ -1,24 +1,46 @@
 """Point-cloud files: binary PLY (plyfile), LAS 1.4 (laspy) and CSV, each readable back losslessly.
 
+Times are absolute in every file (the ping's UTC time; :attr:`PointCloud.time_ns` is integer ns
+since the Unix epoch):
+
 * **PLY** (binary little-endian): vertex element with ``x, y, z`` (float32), ``time`` (float64,
-  seconds after the ``comment time_offset_ns N`` stamp: exact to the nanosecond for surveys up to
-  ~100 days), ``beam`` (int32), ``range`` / ``intensity`` / ``confidence`` /
-  ``elevation`` / ``sigma`` (float32; ``sigma`` = one-sigma range uncertainty, NaN = unknown).
-  Coordinates are stored relative to an ``offset_m`` (default zero) recorded in a
+  **seconds since the Unix epoch**, UTC; float64 resolves 0.24 µs until 2038 and 0.48 µs until
+  2106), ``time_residual_ns`` (int32, ``time_ns`` minus ``time`` rounded to ns, so the file reads
+  back exactly; other tools can ignore it), ``beam`` (int32), ``range`` / ``intensity`` /
+  ``confidence`` / ``elevation`` / ``sigma`` (float32; ``sigma`` = one-sigma range uncertainty,
+  NaN = unknown).  Coordinates are stored relative to an ``offset_m`` (default zero) recorded in a
   ``comment offset_m X Y Z`` line so large world coordinates keep float32 precision;
   a ``comment frame ned|enu`` line records the frame.  Opens in CloudCompare, MeshLab, Open3D.
+  Files of earlier versions (``time`` relative to a ``comment time_offset_ns N``) still read.
 * **LAS 1.4** (point format 6): coordinates as scaled integers (``scale_m``, default 0.1 mm;
-  offset = the cloud's minimum rounded down to a metre), ``gps_time`` = seconds since the epoch,
+  offset = the cloud's minimum rounded down to a metre), ``gps_time`` = **adjusted standard GPS
+  time** (GPS seconds - 1e9, with the global-encoding GPS-time-type bit set, as LAS 1.4 specifies;
+  GPS seconds = Unix seconds - 315964800 + the leap seconds of :data:`GPS_LEAP_SECONDS`),
   ``intensity`` = intensity x 65535 (uint16, clipped to [0, 1] first), ``point_source_id`` = beam,
   and extra bytes ``range_m``, ``confidence``, ``elevation_rad``, ``intensity_f`` (float32),
-  ``beam_index`` (int32), ``time_ns`` (int64) and ``sigma_m`` (float32, one-sigma range
-  uncertainty, NaN = unknown).  Reading back gives the written coordinates to
+  ``beam_index`` (int32), ``time_ns`` (int64, exact Unix ns) and ``sigma_m`` (float32, one-sigma
+  range uncertainty, NaN = unknown).  Reading back gives the written coordinates to
   within ``scale_m / 2`` (exactly the quantised values).
-* **CSV**: ``x,y,z,time_ns,beam,range_m,intensity,confidence,elevation_rad,sigma_m`` with a
-  ``# frame:`` comment; float64 coordinates are written with ``repr`` (exact round trip).
+* **CSV**: the header row is the first line,
+  ``x,y,z,time_ns,beam,range_m,intensity,confidence,elevation_rad,sigma_m`` (``time_ns``: integer
+  Unix ns), so ``pandas.read_csv(path)`` reads it as is; float64 coordinates are written with
+  ``repr`` (exact round trip).  The metadata (frame, kind, CRS) is in a JSON sidecar
+  ``<path>.json`` (:func:`csv_sidecar`); without it the file reads back as NED.  Files of earlier
+  versions (``#`` comment lines before the header) still read.
 
 Files without the ``sigma`` / ``sigma_m`` attribute (written before it existed, or by other
 tools) read back with NaN uncertainties.
+
+Occupancy maps
+--------------
+The cloud of :meth:`~sonarmap.mapping.occupancy.OccupancyMap.to_point_cloud` (occupied cell
+centres) is not a set of returns and gets its own schema (``kind="occupancy"``; by default
+recognised by :func:`cloud_kind`): ``x, y, z`` (cell centre), ``p_occupied`` (float32, the
+cell's occupancy probability) and ``log_odds`` (float32, ``log(p / (1 - p))``) - no time, beam
+or range.  PLY: those vertex properties and ``comment kind occupancy``; CSV: those columns and
+``"kind": "occupancy"`` in the sidecar; LAS: the same coordinates, ``intensity`` =
+``p_occupied`` x 65535, ``gps_time`` 0 and extra bytes ``p_occupied``, ``log_odds``.  They read
+back as a cloud with ``confidence`` = ``intensity`` = ``p_occupied``, as ``to_point_cloud`` makes.
 
 Georeferenced files
 -------------------
@@ -35,9 +57,8 @@ so the file's frame is ``enu``-like and reads back with ``frame="enu"``.
 * **PLY**: float64 ``x, y, z`` (float32 would lose ~0.5 m at UTM northings) and the comments
   ``crs EPSG:xxxx`` (when the CRS has a code), ``crs_wkt <OGC WKT on one line>`` and
   ``georef_origin_deg <lat> <lon> <height_m>``.
-* **CSV**: the comment lines ``# crs: EPSG:xxxx``, ``# crs_wkt: <OGC WKT>`` and
-  ``# georef_origin_deg: ...`` after ``# frame: enu``, before the header row (pandas:
-  ``read_csv(path, comment="#")``).
+* **CSV**: ``"crs": "EPSG:xxxx"``, ``"crs_wkt": "<OGC WKT>"`` and ``"georef_origin_deg": [lat,
+  lon, height_m]`` in the JSON sidecar (``"frame": "enu"``).
 
 :func:`read_point_cloud_crs` returns the CRS of any of them (``None`` when there is none).
 
@@ -49,9 +70,10 @@ from __future__ import annotations
 
 import dataclasses
 import io
+import json
 import os
 from pathlib import Path
-from typing import TYPE_CHECKING, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 
@@ -66,6 +88,8 @@ if TYPE_CHECKING:  # pragma: no cover - typing only (pyproj is imported lazily)
 
 __all__ = [
     "CLOUD_FORMATS",
+    "CLOUD_KINDS",
+    "GPS_LEAP_SECONDS",
     "write_point_cloud",
     "read_point_cloud",
     "write_ply",
@@ -74,21 +98,137 @@ __all__ = [
     "read_las",
     "write_csv",
     "read_csv",
+    "csv_sidecar",
+    "cloud_kind",
     "format_from_suffix",
     "read_point_cloud_crs",
+    "unix_ns_to_gps_adjusted",
+    "gps_adjusted_to_unix_ns",
 ]
 
 CloudFormat = Literal["ply", "las", "csv"]
+CloudKind = Literal["points", "occupancy"]
 CLOUD_FORMATS: tuple[str, ...] = ("ply", "las", "csv")
+CLOUD_KINDS: tuple[str, ...] = ("points", "occupancy")
 _SUFFIX = {".ply": "ply", ".las": "las", ".laz": "las", ".csv": "csv", ".txt": "csv"}
 
+# ---------------------------------------------------------------------- time
+#: Leap seconds since the GPS epoch: (UTC date from which it applies, GPS - UTC in seconds from
+#: then on), from IERS Bulletin C.  No leap second has been announced after 2017-01-01.
+GPS_LEAP_SECONDS: tuple[tuple[str, int], ...] = (
+    ("1981-07-01", 1), ("1982-07-01", 2), ("1983-07-01", 3), ("1985-07-01", 4),
+    ("1988-01-01", 5), ("1990-01-01", 6), ("1991-01-01", 7), ("1992-07-01", 8),
+    ("1993-07-01", 9), ("1994-07-01", 10), ("1996-01-01", 11), ("1997-07-01", 12),
+    ("1999-01-01", 13), ("2006-01-01", 14), ("2009-01-01", 15), ("2012-07-01", 16),
+    ("2015-07-01", 17), ("2017-01-01", 18),
+)  # fmt: skip
+_GPS_EPOCH_UNIX_S = 315_964_800  # 1980-01-06T00:00:00Z
+_ADJUSTED_GPS_OFFSET_S = 1_000_000_000  # LAS 1.4: adjusted standard GPS time = GPS time - 1e9
+_NS = 1_000_000_000
+_LEAP_UNIX_S = np.array([np.datetime64(d, "s").astype(np.int64) for d, _ in GPS_LEAP_SECONDS], np.int64)
+_LEAP_COUNT = np.array([n for _, n in GPS_LEAP_SECONDS], np.int64)
+_LEAP_GPS_S = _LEAP_UNIX_S - _GPS_EPOCH_UNIX_S + _LEAP_COUNT  # the same instants in GPS seconds
 
+
+def _leap_at(seconds: np.ndarray, table: np.ndarray) -> np.ndarray:
+    idx = np.searchsorted(table, seconds, side="right")
+    return np.where(idx > 0, _LEAP_COUNT[np.maximum(idx - 1, 0)], 0)
+
+
+def _ns_to_seconds(time_ns: np.ndarray, offset_s: np.ndarray | int = 0) -> np.ndarray:
+    """Integer ns -> float64 seconds (+ an integer offset in s), rounding once."""
+    t = np.asarray(time_ns, dtype=np.int64)
+    whole = t // _NS + offset_s
+    return np.asarray(whole, dtype=np.float64) + (t % _NS).astype(np.float64) * 1e-9
+
+
+def _seconds_to_ns(seconds: np.ndarray, offset_s: np.ndarray | int = 0) -> np.ndarray:
+    """float64 seconds (+ an integer offset in s) -> integer ns, to the nearest ns."""
+    t = np.asarray(seconds, dtype=np.float64)
+    whole = np.floor(t)
+    frac = np.rint((t - whole) * 1e9).astype(np.int64)  # t - floor(t) is exact
+    return (whole.astype(np.int64) + offset_s) * _NS + frac
+
+
+def unix_ns_to_gps_adjusted(time_ns: np.ndarray) -> np.ndarray:
+    """Unix time (integer ns, UTC) -> LAS adjusted standard GPS time (float64 s).
+
+    ``GPS = Unix - 315964800 + leap seconds`` (:data:`GPS_LEAP_SECONDS`) and adjusted standard
+    GPS time is ``GPS - 1e9``.
+
+    Examples
+    --------
+    >>> float(unix_ns_to_gps_adjusted(np.array([1_483_228_800 * 10**9]))[0])   # 2017-01-01Z
+    167264018.0
+    """
+    t = np.asarray(time_ns, dtype=np.int64)
+    leap = _leap_at(t // _NS, _LEAP_UNIX_S)
+    return _ns_to_seconds(t, leap - _GPS_EPOCH_UNIX_S - _ADJUSTED_GPS_OFFSET_S)
+
+
+def gps_adjusted_to_unix_ns(gps_time: np.ndarray) -> np.ndarray:
+    """LAS adjusted standard GPS time (float64 s) -> Unix time (integer ns): the inverse of
+    :func:`unix_ns_to_gps_adjusted` (to the float64 resolution, ~30 ns)."""
+    g = np.asarray(gps_time, dtype=np.float64)
+    gps_s = np.floor(g).astype(np.int64) + _ADJUSTED_GPS_OFFSET_S
+    leap = _leap_at(gps_s, _LEAP_GPS_S)
+    return _seconds_to_ns(g, _ADJUSTED_GPS_OFFSET_S + _GPS_EPOCH_UNIX_S - leap)
+
+
+# ---------------------------------------------------------------------- helpers
 def format_from_suffix(path: str | os.PathLike[str]) -> str:
     """``"ply"``, ``"las"`` or ``"csv"`` from a file name; raises :class:`InputError` otherwise."""
     sfx = Path(path).suffix.lower()
     if sfx not in _SUFFIX:
         raise InputError(f"output: cannot infer the point-cloud format from suffix {sfx!r}; use .ply, .las or .csv")
     return _SUFFIX[sfx]
+
+
+def cloud_kind(cloud: PointCloud) -> str:
+    """``"occupancy"`` for the occupied-cell cloud of ``OccupancyMap.to_point_cloud``, else ``"points"``.
+
+    Recognised by what that cloud carries and a cloud of returns never does: at least one point,
+    every ``beam`` -1, ``time_ns`` 0, ``range_m`` / ``sigma_m`` NaN, ``elevation_rad`` 0 and
+    ``intensity`` equal to ``confidence`` (the probability), strictly inside (0, 1).  Pass
+    ``kind=`` to the writers to decide explicitly.
+    """
+    n = len(cloud)
+    if n == 0:
+        return "points"
+    p = cloud.confidence
+    occ = (
+        bool(np.all(cloud.beam == -1)) and bool(np.all(cloud.time_ns == 0))
+        and bool(np.all(np.isnan(cloud.range_m))) and bool(np.all(np.isnan(np.asarray(cloud.sigma_m))))
+        and bool(np.all(cloud.elevation_rad == 0)) and np.array_equal(cloud.intensity, p)
+        and bool(np.all((p > 0) & (p < 1)))
+    )
+    return "occupancy" if occ else "points"
+
+
+def _resolve_kind(cloud: PointCloud, kind: str | None) -> str:
+    if kind is None:
+        return cloud_kind(cloud)
+    if kind not in CLOUD_KINDS:
+        raise InputError(f"kind: must be one of {CLOUD_KINDS}, got {kind!r}")
+    return kind
+
+
+def _occupancy(cloud: PointCloud) -> tuple[np.ndarray, np.ndarray]:
+    """``p_occupied`` and ``log_odds`` (float32) of an occupancy cloud (p = its confidence)."""
+    p = np.asarray(cloud.confidence, dtype=np.float64)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        lo = np.log(p) - np.log1p(-p)
+    return p.astype(np.float32), lo.astype(np.float32)
+
+
+def _occupancy_cloud(xyz: np.ndarray, p: np.ndarray, frame: str) -> PointCloud:
+    """The cloud ``OccupancyMap.to_point_cloud`` makes from cell centres and probabilities."""
+    n = xyz.shape[0]
+    prob = np.asarray(p, dtype=np.float32)
+    return PointCloud(
+        xyz, np.zeros(n, np.int64), np.full(n, -1, np.int32), np.full(n, np.nan, np.float32), prob, prob,
+        np.zeros(n, np.float32), frame=frame,
+    )
 
 
 def _in_frame(cloud: PointCloud, frame: str | None) -> PointCloud:
@@ -104,14 +244,14 @@ def _georeferenced(cloud: PointCloud, frame: str | None, georef: GeoReference) -
     return dataclasses.replace(cloud, xyz_m=georef.to_projected(cloud.xyz_m, cloud.frame), frame="enu")
 
 
-def _crs_comments(georef: GeoReference) -> list[str]:
-    """``crs``, ``crs_wkt`` and ``georef_origin_deg`` lines (without a comment prefix)."""
+def _crs_records(georef: GeoReference) -> list[tuple[str, str]]:
+    """``crs``, ``crs_wkt`` and ``georef_origin_deg`` records (key, value)."""
     from sonarmap.mapping.georef import file_wkt
 
-    lines = [] if georef.epsg is None else [f"crs EPSG:{georef.epsg}"]
-    lines.append("crs_wkt " + file_wkt(georef.crs))
-    lines.append(f"georef_origin_deg {georef.lat0_deg!r} {georef.lon0_deg!r} {georef.height0_m!r}")
-    return lines
+    recs = [] if georef.epsg is None else [("crs", f"EPSG:{georef.epsg}")]
+    recs.append(("crs_wkt", file_wkt(georef.crs)))
+    recs.append(("georef_origin_deg", f"{georef.lat0_deg!r} {georef.lon0_deg!r} {georef.height0_m!r}"))
+    return recs
 
 
 # ---------------------------------------------------------------------- PLY
@@ -122,11 +262,14 @@ def write_ply(
     frame: str | None = None,
     offset_m: tuple[float, float, float] | None = None,
     georef: GeoReference | None = None,
+    kind: str | None = None,
 ) -> None:
     """Write a binary little-endian PLY (float32 xyz, float64 when georeferenced, + attributes), atomically.
 
     Parameters
     ----------
+    cloud : PointCloud
+    path : path-like
     frame : {"ned", "enu"}, optional
         Convert coordinates first (default: the cloud's frame).  With ``georef`` only ``None`` or
         ``"enu"`` (the projected axes) are accepted.
@@ -134,36 +277,47 @@ def write_ply(
         Subtracted from the coordinates before the float32 cast (recorded in a comment).
     georef : GeoReference, optional
         Write projected ``(E, N, h)`` coordinates as float64, with the CRS in the comments.
+    kind : {"points", "occupancy"}, optional
+        Schema (module notes); default :func:`cloud_kind`.
     """
     from plyfile import PlyData, PlyElement
 
+    knd = _resolve_kind(cloud, kind)
     c = _in_frame(cloud, frame) if georef is None else _georeferenced(cloud, frame, georef)
     off = np.zeros(3) if offset_m is None else np.asarray(offset_m, dtype=np.float64)
     cdt = "<f4" if georef is None else "<f8"
     xyz = (c.xyz_m - off).astype(cdt)
-    dt = [
-        ("x", cdt), ("y", cdt), ("z", cdt), ("time", "<f8"), ("beam", "<i4"),
-        ("range", "<f4"), ("intensity", "<f4"), ("confidence", "<f4"), ("elevation", "<f4"),
-        ("sigma", "<f4"),
-    ]
-    v = np.empty(len(c), dtype=dt)
+    if knd == "occupancy":
+        dt = [("x", cdt), ("y", cdt), ("z", cdt), ("p_occupied", "<f4"), ("log_odds", "<f4")]
+        v = np.empty(len(c), dtype=dt)
+        v["p_occupied"], v["log_odds"] = _occupancy(c)
+    else:
+        dt = [
+            ("x", cdt), ("y", cdt), ("z", cdt), ("time", "<f8"), ("time_residual_ns", "<i4"), ("beam", "<i4"),
+            ("range", "<f4"), ("intensity", "<f4"), ("confidence", "<f4"), ("elevation", "<f4"),
+            ("sigma", "<f4"),
+        ]
+        v = np.empty(len(c), dtype=dt)
+        t = _ns_to_seconds(c.time_ns)
+        v["time"] = t
+        v["time_residual_ns"] = c.time_ns - _seconds_to_ns(t)
+        v["beam"] = c.beam
+        v["range"] = c.range_m
+        v["intensity"] = c.intensity
+        v["confidence"] = c.confidence
+        v["elevation"] = c.elevation_rad
+        v["sigma"] = c.sigma_m
     v["x"], v["y"], v["z"] = xyz[:, 0], xyz[:, 1], xyz[:, 2]
-    t_off = int(c.time_ns.min()) if len(c) else 0
-    v["time"] = (c.time_ns - t_off).astype(np.float64) * 1e-9
-    v["beam"] = c.beam
-    v["range"] = c.range_m
-    v["intensity"] = c.intensity
-    v["confidence"] = c.confidence
-    v["elevation"] = c.elevation_rad
-    v["sigma"] = c.sigma_m
     comments = [
-        "sonarmap point cloud",
+        "sonarmap occupancy map" if knd == "occupancy" else "sonarmap point cloud",
+        f"kind {knd}",
         f"frame {c.frame}",
         "offset_m " + " ".join(repr(float(o)) for o in off),
-        f"time_offset_ns {t_off}",
     ]
+    if knd == "points":
+        comments.append("time unix_s")
     if georef is not None:
-        comments += _crs_comments(georef)
+        comments += [f"{k} {val}" for k, val in _crs_records(georef)]
     ply = PlyData([PlyElement.describe(v, "vertex")], text=False, byte_order="<", comments=comments)
     with atomic_path(path) as tmp:
         ply.write(str(tmp))
@@ -179,23 +333,29 @@ def read_ply(path: str | os.PathLike[str]) -> PointCloud:
         v = ply["vertex"].data
     except (OSError, KeyError, ValueError, Exception) as exc:  # plyfile raises its own errors
         raise DataFormatError(f"cannot read PLY: {exc}", p) from None
-    frame, off, t_off = "ned", np.zeros(3), 0
+    frame, off, t_off = "ned", np.zeros(3), None
     for com in ply.comments:
         parts = com.split()
         if parts[:1] == ["frame"] and len(parts) > 1:
             frame = parts[1]
         elif parts[:1] == ["offset_m"] and len(parts) == 4:
             off = np.array([float(s) for s in parts[1:]])
-        elif parts[:1] == ["time_offset_ns"] and len(parts) == 2:
+        elif parts[:1] == ["time_offset_ns"] and len(parts) == 2:  # files of earlier versions
             t_off = int(parts[1])
     names = v.dtype.names or ()
     n = v.shape[0]
     xyz = np.stack([v["x"], v["y"], v["z"]], axis=1).astype(np.float64) + off
+    if "p_occupied" in names:
+        return _occupancy_cloud(xyz, np.asarray(v["p_occupied"]), frame)
 
     def get(name: str, default: float) -> np.ndarray:
         return np.asarray(v[name]) if name in names else np.full(n, default)
 
-    time_ns = np.rint(get("time", 0.0).astype(np.float64) * 1e9).astype(np.int64) + t_off
+    t = get("time", 0.0).astype(np.float64)
+    if t_off is not None:
+        time_ns = np.rint(t * 1e9).astype(np.int64) + t_off
+    else:
+        time_ns = _seconds_to_ns(t) + get("time_residual_ns", 0).astype(np.int64)
     return PointCloud(
         xyz, time_ns, get("beam", -1), get("range", np.nan), get("intensity", 1.0),
         get("confidence", 1.0), get("elevation", 0.0), frame=frame, sigma_m=get("sigma", np.nan),
@@ -210,11 +370,16 @@ def write_las(
     frame: str | None = None,
     scale_m: float | None = None,
     georef: GeoReference | None = None,
+    kind: str | None = None,
 ) -> None:
     """Write a LAS 1.4 file (point format 6 + extra bytes), atomically.
 
+    ``gps_time`` is adjusted standard GPS time (global-encoding GPS-time-type bit set).
+
     Parameters
     ----------
+    cloud : PointCloud
+    path : path-like
     frame : {"ned", "enu"}, optional
         Convert coordinates first (default: the cloud's frame).  With ``georef`` only ``None`` or
         ``"enu"`` are accepted.
@@ -222,6 +387,8 @@ def write_las(
         Coordinate quantum; default 0.1 mm (local) or 1 mm (georeferenced).
     georef : GeoReference, optional
         Write projected ``(E, N, h)`` coordinates with the CRS as a WKT VLR.
+    kind : {"points", "occupancy"}, optional
+        Schema (module notes); default :func:`cloud_kind`.
 
     Raises
     ------
@@ -229,7 +396,9 @@ def write_las(
         If the cloud's extent does not fit the 32-bit scaled integers at ``scale_m``.
     """
     import laspy
+    from laspy.header import GpsTimeType
 
+    knd = _resolve_kind(cloud, kind)
     c = _in_frame(cloud, frame) if georef is None else _georeferenced(cloud, frame, georef)
     if scale_m is None:
         scale_m = 1e-4 if georef is None else 1e-3
@@ -246,18 +415,25 @@ def write_las(
                 "use a larger scale_m"
             )
     header.system_identifier = f"sonarmap frame={c.frame}"[:32]
-    header.generating_software = "sonarmap"
-    header.add_extra_dims(
-        [
-            laspy.ExtraBytesParams(name="range_m", type=np.float32, description="measured range (m)"),
-            laspy.ExtraBytesParams(name="confidence", type=np.float32, description="return confidence"),
-            laspy.ExtraBytesParams(name="elevation_rad", type=np.float32, description="assumed elevation"),
-            laspy.ExtraBytesParams(name="intensity_f", type=np.float32, description="intensity (float)"),
-            laspy.ExtraBytesParams(name="beam_index", type=np.int32, description="beam index"),
-            laspy.ExtraBytesParams(name="time_ns", type=np.int64, description="ping time (ns)"),
-            laspy.ExtraBytesParams(name="sigma_m", type=np.float32, description="range 1-sigma (m)"),
-        ]
-    )
+    header.generating_software = "sonarmap" if knd == "points" else "sonarmap occupancy"
+    header.global_encoding.gps_time_type = GpsTimeType.STANDARD
+    if knd == "occupancy":
+        header.add_extra_dims([
+            laspy.ExtraBytesParams(name="p_occupied", type=np.float32, description="occupancy probability"),
+            laspy.ExtraBytesParams(name="log_odds", type=np.float32, description="occupancy log-odds"),
+        ])
+    else:
+        header.add_extra_dims(
+            [
+                laspy.ExtraBytesParams(name="range_m", type=np.float32, description="measured range (m)"),
+                laspy.ExtraBytesParams(name="confidence", type=np.float32, description="return confidence"),
+                laspy.ExtraBytesParams(name="elevation_rad", type=np.float32, description="assumed elevation"),
+                laspy.ExtraBytesParams(name="intensity_f", type=np.float32, description="intensity (float)"),
+                laspy.ExtraBytesParams(name="beam_index", type=np.int32, description="beam index"),
+                laspy.ExtraBytesParams(name="time_ns", type=np.int64, description="ping time (Unix ns)"),
+                laspy.ExtraBytesParams(name="sigma_m", type=np.float32, description="range 1-sigma (m)"),
+            ]
+        )
     if georef is not None:
         from laspy.vlrs.known import WktCoordinateSystemVlr
 
@@ -269,22 +445,34 @@ def write_las(
     las.x = c.xyz_m[:, 0]
     las.y = c.xyz_m[:, 1]
     las.z = c.xyz_m[:, 2]
-    las.gps_time = c.time_ns.astype(np.float64) * 1e-9
-    las.intensity = np.rint(np.clip(np.nan_to_num(c.intensity), 0, 1) * 65535).astype(np.uint16)
-    las.point_source_id = np.clip(c.beam, 0, 65535).astype(np.uint16)
-    las.range_m = c.range_m
-    las.confidence = c.confidence
-    las.elevation_rad = c.elevation_rad
-    las.intensity_f = c.intensity
-    las.beam_index = c.beam
-    las.time_ns = c.time_ns
-    las.sigma_m = c.sigma_m
+    if knd == "occupancy":
+        prob, lo = _occupancy(c)
+        las.gps_time = np.zeros(len(c))
+        las.intensity = np.rint(np.clip(prob, 0, 1) * 65535).astype(np.uint16)
+        las.p_occupied = prob
+        las.log_odds = lo
+    else:
+        las.gps_time = unix_ns_to_gps_adjusted(c.time_ns)
+        las.intensity = np.rint(np.clip(np.nan_to_num(c.intensity), 0, 1) * 65535).astype(np.uint16)
+        las.point_source_id = np.clip(c.beam, 0, 65535).astype(np.uint16)
+        las.range_m = c.range_m
+        las.confidence = c.confidence
+        las.elevation_rad = c.elevation_rad
+        las.intensity_f = c.intensity
+        las.beam_index = c.beam
+        las.time_ns = c.time_ns
+        las.sigma_m = c.sigma_m
     with atomic_path(path) as tmp:
         las.write(str(tmp))
 
 
 def read_las(path: str | os.PathLike[str]) -> PointCloud:
-    """Read a LAS/LAZ file (extra dimensions written by :func:`write_las` are used when present)."""
+    """Read a LAS/LAZ file (extra dimensions written by :func:`write_las` are used when present).
+
+    Without the ``time_ns`` extra bytes, ``gps_time`` is converted from adjusted standard GPS time
+    when the file says so (global-encoding bit); GPS week time (no week number in the file) is
+    read as seconds, a relative time.
+    """
     import laspy
 
     p = Path(path)
@@ -297,12 +485,16 @@ def read_las(path: str | os.PathLike[str]) -> PointCloud:
     xyz = np.stack([np.asarray(las.x), np.asarray(las.y), np.asarray(las.z)], axis=1).astype(np.float64)
     ident = str(las.header.system_identifier)
     frame = "enu" if "frame=enu" in ident else "ned"
+    if "p_occupied" in dims:
+        return _occupancy_cloud(xyz, np.asarray(las["p_occupied"]), frame)
 
     def get(name: str, default: float) -> np.ndarray:
         return np.asarray(las[name]) if name in dims else np.full(n, default)
 
     if "time_ns" in dims:
         t = np.asarray(las["time_ns"], dtype=np.int64)
+    elif int(las.header.global_encoding.gps_time_type) == 1:
+        t = gps_adjusted_to_unix_ns(np.asarray(las.gps_time, dtype=np.float64))
     else:
         t = np.rint(np.asarray(las.gps_time, dtype=np.float64) * 1e9).astype(np.int64)
     inten = get("intensity_f", np.nan)
@@ -317,57 +509,106 @@ def read_las(path: str | os.PathLike[str]) -> PointCloud:
 
 # ---------------------------------------------------------------------- CSV
 _CSV_COLS = ("x", "y", "z", "time_ns", "beam", "range_m", "intensity", "confidence", "elevation_rad", "sigma_m")
+_CSV_OCC_COLS = ("x", "y", "z", "p_occupied", "log_odds")
+
+
+def csv_sidecar(path: str | os.PathLike[str]) -> Path:
+    """The JSON sidecar of a point-cloud CSV: ``map.csv`` -> ``map.csv.json``."""
+    p = Path(path)
+    return p.with_name(p.name + ".json")
+
+
+def _read_sidecar(path: Path) -> dict[str, Any]:
+    side = csv_sidecar(path)
+    if not side.is_file():
+        return {}
+    try:
+        d = json.loads(side.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, ValueError) as exc:
+        raise DataFormatError(f"cannot read the CSV's sidecar {side.name}: {exc}", path) from None
+    if not isinstance(d, dict):
+        raise DataFormatError(f"sidecar {side.name} is not a JSON object", path)
+    return d
 
 
 def write_csv(
-    cloud: PointCloud, path: str | os.PathLike[str], *, frame: str | None = None, georef: GeoReference | None = None
+    cloud: PointCloud,
+    path: str | os.PathLike[str],
+    *,
+    frame: str | None = None,
+    georef: GeoReference | None = None,
+    kind: str | None = None,
 ) -> None:
-    """Write a CSV with a header row and a ``# frame:`` comment, atomically (exact round trip).
+    """Write a CSV whose first line is its header row, and its JSON sidecar, atomically (exact round trip).
 
-    With ``georef`` the coordinates are projected ``(E, N, h)`` and ``# crs:``, ``# crs_wkt:`` and
-    ``# georef_origin_deg:`` comments follow the frame comment.
+    The sidecar (:func:`csv_sidecar`) records the frame, the kind and the columns; with ``georef``
+    the coordinates are projected ``(E, N, h)`` and it also records ``crs``, ``crs_wkt`` and
+    ``georef_origin_deg``.
+
+    Parameters
+    ----------
+    cloud : PointCloud
+    path : path-like
+    frame : {"ned", "enu"}, optional
+        Convert coordinates first (default: the cloud's frame).
+    georef : GeoReference, optional
+        Write projected coordinates.
+    kind : {"points", "occupancy"}, optional
+        Schema (module notes); default :func:`cloud_kind`.
     """
+    knd = _resolve_kind(cloud, kind)
     c = _in_frame(cloud, frame) if georef is None else _georeferenced(cloud, frame, georef)
-    buf = io.StringIO()
-    buf.write(f"# sonarmap point cloud\n# frame: {c.frame}\n")
+    cols = _CSV_OCC_COLS if knd == "occupancy" else _CSV_COLS
+    meta: dict[str, Any] = {"sonarmap": "point cloud", "kind": knd, "frame": c.frame, "columns": list(cols)}
     if georef is not None:
-        for line in _crs_comments(georef):
-            key, _, value = line.partition(" ")
-            buf.write(f"# {key}: {value}\n")
-    buf.write(",".join(_CSV_COLS) + "\n")
+        for key, value in _crs_records(georef):
+            meta[key] = [float(x) for x in value.split()] if key == "georef_origin_deg" else value
+    buf = io.StringIO()
+    buf.write(",".join(cols) + "\n")
     n = len(c)
     if n:
-        cols = [
-            *(np.array([repr(v) for v in c.xyz_m[:, k].tolist()]) for k in range(3)),
-            c.time_ns.astype(str),
-            c.beam.astype(str),
-            np.char.mod("%.9g", c.range_m),
-            np.char.mod("%.9g", c.intensity),
-            np.char.mod("%.9g", c.confidence),
-            np.char.mod("%.9g", c.elevation_rad),
-            np.char.mod("%.9g", c.sigma_m),
-        ]
-        rows = cols[0]
-        for col in cols[1:]:
+        xyz = [np.array([repr(v) for v in c.xyz_m[:, k].tolist()]) for k in range(3)]
+        if knd == "occupancy":
+            prob, lo = _occupancy(c)
+            fields = [*xyz, np.char.mod("%.9g", prob), np.char.mod("%.9g", lo)]
+        else:
+            fields = [
+                *xyz,
+                c.time_ns.astype(str),
+                c.beam.astype(str),
+                np.char.mod("%.9g", c.range_m),
+                np.char.mod("%.9g", c.intensity),
+                np.char.mod("%.9g", c.confidence),
+                np.char.mod("%.9g", c.elevation_rad),
+                np.char.mod("%.9g", c.sigma_m),
+            ]
+        rows = fields[0]
+        for col in fields[1:]:
             rows = np.char.add(np.char.add(rows, ","), col)
         buf.write("\n".join(rows.tolist()))
         buf.write("\n")
     atomic_write_text(path, buf.getvalue())
+    atomic_write_text(csv_sidecar(path), json.dumps(meta, indent=1) + "\n")
 
 
 def read_csv(path: str | os.PathLike[str]) -> PointCloud:
-    """Read a CSV written by :func:`write_csv` (needs at least ``x, y, z`` columns)."""
+    """Read a CSV written by :func:`write_csv` (needs at least ``x, y, z`` columns).
+
+    The frame comes from the sidecar, else from a ``# frame:`` comment (files of earlier
+    versions), else NED.
+    """
     p = Path(path)
     try:
         lines = p.read_text(encoding="utf-8").splitlines()
     except (OSError, UnicodeDecodeError) as exc:
         raise DataFormatError(f"cannot read CSV: {exc}", p) from None
-    frame = "ned"
+    side = _read_sidecar(p)
+    frame = str(side.get("frame", "ned"))
     body = []
     for ln in lines:
         if ln.startswith("#"):
             s = ln.lstrip("#").strip()
-            if s.startswith("frame:"):
+            if s.startswith("frame:") and "frame" not in side:
                 frame = s.split(":", 1)[1].strip()
             continue
         if ln.strip():
@@ -389,6 +630,8 @@ def read_csv(path: str | os.PathLike[str]) -> PointCloud:
             return np.array(table[:, col[name]].tolist() if n else [], dtype=dtype)
 
         xyz = np.stack([get(k, np.float64, np.nan) for k in "xyz"], axis=1) if n else np.zeros((0, 3))
+        if "p_occupied" in col:
+            return _occupancy_cloud(xyz, get("p_occupied", np.float32, np.nan), frame)
         return PointCloud(
             xyz, np.array([int(v) for v in table[:, col["time_ns"]]] if n and "time_ns" in col else np.zeros(n), np.int64),
             get("beam", np.int32, -1), get("range_m", np.float32, np.nan), get("intensity", np.float32, 1.0),
@@ -407,6 +650,7 @@ def write_point_cloud(
     format: str | None = None,  # noqa: A002 - the CLI's --format
     frame: str | None = None,
     georef: GeoReference | None = None,
+    kind: str | None = None,
 ) -> str:
     """Write ``cloud`` as PLY, LAS or CSV (from ``format`` or the suffix); returns the format.
 
@@ -422,6 +666,9 @@ def write_point_cloud(
     georef : GeoReference, optional
         Write projected coordinates (easting, northing, height) with the CRS recorded in the file
         (see the module notes).
+    kind : {"points", "occupancy"}, optional
+        The file's schema: returns, or the occupied cells of an occupancy map (``p_occupied``,
+        ``log_odds``); default :func:`cloud_kind` (recognises ``OccupancyMap.to_point_cloud``).
 
     Examples
     --------
@@ -433,10 +680,7 @@ def write_point_cloud(
     if fmt not in CLOUD_FORMATS:
         raise InputError(f"format: must be one of {CLOUD_FORMATS}, got {format!r}")
     writer = {"ply": write_ply, "las": write_las, "csv": write_csv}[fmt]
-    if georef is None:
-        writer(cloud, path, frame=frame)
-    else:
-        writer(cloud, path, frame=frame, georef=georef)
+    writer(cloud, path, frame=frame, georef=georef, kind=kind)
     return fmt
 
 
@@ -452,7 +696,8 @@ def read_point_cloud_crs(path: str | os.PathLike[str], *, format: str | None = N
     """The CRS recorded in a point-cloud file (``None`` when it has none).
 
     LAS: the WKT or GeoTIFF-key VLRs (``laspy``'s ``parse_crs``); PLY: the ``crs_wkt`` (else
-    ``crs``) comment; CSV: the ``# crs_wkt:`` (else ``# crs:``) comment.
+    ``crs``) comment; CSV: ``crs_wkt`` (else ``crs``) in the sidecar (:func:`csv_sidecar`), else
+    the ``# crs_wkt:`` / ``# crs:`` comment of files of earlier versions.
 
     Raises
     ------
@@ -474,6 +719,9 @@ def read_point_cloud_crs(path: str | os.PathLike[str], *, format: str | None = N
         except Exception as exc:  # noqa: BLE001 - laspy / pyproj raise several unrelated types
             raise DataFormatError(f"cannot read the LAS CRS: {' '.join(str(exc).split())[:200]}", p) from None
     records: dict[str, str] = {}
+    if fmt == "csv":
+        side = _read_sidecar(p)
+        records = {k: str(side[k]) for k in ("crs", "crs_wkt") if side.get(k)}
     try:
         with open(p, "rb") as fh:
             for n_line, raw in enumerate(fh):
@@ -485,7 +733,7 @@ def read_point_cloud_crs(path: str | os.PathLike[str], *, format: str | None = N
                         continue
                     key, _, value = line.removeprefix("comment ").partition(" ")
                 else:
-                    if not line.startswith("#"):
+                    if records or not line.startswith("#"):
                         break
                     key, _, value = line.lstrip("#").strip().partition(":")
                 if key in ("crs", "crs_wkt"):
