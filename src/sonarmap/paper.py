@@ -222,6 +222,7 @@ def _figures(data_dir: str | os.PathLike[str], out: Path, rows: list[Table1Row],
         ax.set_title(f"range segment {s + 1}/{segs}")
         ax.set_xlabel("intensity")
         ax.set_xlim(0, 0.3)
+        ax.set_ylim(1e-8, 1.5)  # the pooled histogram's smallest non-zero bin is ~1e-7
     axes[0].set_ylabel("pmf")
     axes[0].legend()
     fig.tight_layout()
@@ -236,6 +237,10 @@ def _figures(data_dir: str | os.PathLike[str], out: Path, rows: list[Table1Row],
         if "no_object" not in f.flags:
             roc = roc_curve(f)
             ax6.plot(roc.pfa, roc.pd, label=f"image {r.image} (AUC {roc.auc:.3f})")
+        else:
+            # the fit has no object class (image 6, the rudder): no ROC to draw, but the legend says so
+            # so that the figure accounts for every ping of Table I
+            ax6.plot([], [], " ", label=f"image {r.image}: no object class fitted (no ROC)")
         ax = axes8.flat[r.image]
         p = f.empirical_pmf()
         ax.semilogy(f.levels, np.where(p > 0, p, np.nan), ".", ms=3, label="histogram")
@@ -243,7 +248,11 @@ def _figures(data_dir: str | os.PathLike[str], out: Path, rows: list[Table1Row],
         ax.semilogy(r.em.levels, r.em.pmf(), "--", label="EM")
         ax.set_title(f"image {r.image}" + (" (no object)" if "no_object" in f.flags else ""))
         ax.set_ylim(1e-7, 1)
+        ax.set_xlabel("intensity")
+    for ax in axes8[:, 0]:
+        ax.set_ylabel("pmf")
     ax6.set_xscale("log")
+    ax6.set_xlim(1e-12, 1.0)
     ax6.set_xlabel("pFA")
     ax6.set_ylabel("pD")
     ax6.legend(fontsize=7)
