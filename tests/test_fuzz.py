@@ -24,7 +24,7 @@ import pytest
 from fuzzing import Result, Seed, Worker, fuzz
 
 READERS = ("pngjson", "aris", "oculus", "viewpoint_v1", "viewpoint_v2", "ddf", "rosbag1", "rosbag2",
-           "zarr", "kongsberg")
+           "zarr", "kongsberg", "kmall")
 
 _RESULTS: list[Result] = []
 
@@ -112,6 +112,12 @@ def _seed(name: str, data_dir: Path, root: Path) -> Seed:
         wcd = Path(shutil.copy2(k / "0077_20221109_123655_Belgica.wcd", d))
         al = Path(shutil.copy2(k / "0077_20221109_123655_Belgica.all", d))
         return Seed(name, al, header_bytes=4096, files=[wcd])
+    if name == "kmall":
+        from kmall_writer import write_kmall
+
+        p = d / "0001_synthetic.kmall"
+        write_kmall(p)
+        return Seed(name, p, header_bytes=2048)
     raise AssertionError(name)
 
 

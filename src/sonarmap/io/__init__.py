@@ -29,7 +29,7 @@ from sonarmap.ping import Ping
 __all__ = ["read_pings", "read_ping", "detect_format", "expand_inputs", "FORMAT_MODULES", "format_module"]
 
 #: Modules tried in order by :func:`detect_format` (those that exist).
-FORMAT_MODULES = ("zarrstore", "aris", "oculus", "ddf", "rosbag", "kongsberg", "pngjson")
+FORMAT_MODULES = ("zarrstore", "aris", "oculus", "ddf", "rosbag", "kongsberg", "kmall", "pngjson")
 
 GeometrySpec = SonarGeometry | str | os.PathLike[str] | None
 
