@@ -16,11 +16,14 @@ a fixed place in the store and the chunk files are the same bytes whoever encode
 is identical whether chunks ran serially, in local worker processes or on a dask cluster, in any
 order, with retries, or across an interruption and a resumed run.
 
-Layout of the output store (zarr v3, readable with :func:`open_products` / ``xarray.open_zarr``)::
+Layout of the output store (zarr v3, readable with :func:`open_products` / ``xarray.open_zarr``;
+dimensions and coordinates those of every sonarmap store, :mod:`sonarmap.datamodel`)::
 
     survey.zarr/
       zarr.json                 root attributes: provenance (sonarmap version, configuration,
-                                inputs, fingerprint), written once when the store is created
+                                inputs, fingerprint), written once when the store is created;
+                                consolidated metadata (re-written whenever arrays change)
+      range_sample, beam, echo_range (ping_time, range_sample), beam_azimuth (beam)  coordinates
       ping_time, source, kld, flags, mixture_weight, mixture_param, range, range_bin, ... arrays
       point_xyz, point_ping ... when poses were given (written after the last chunk)
       .sonarmap/chunks/<k>.done completion markers (data first, marker second)
@@ -57,6 +60,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from sonarmap._atomic import WriterLock, atomic_write_text, write_error
+from sonarmap.datamodel import COORDINATES, consolidate, consolidated_status, invalidate_consolidated
 from sonarmap.errors import DataFormatError, InputError, SonarmapError
 from sonarmap.io._files import MAX_SIDECAR_BYTES, read_bytes_bounded
 from sonarmap.io.dataset import ATTRS as DATA_MODEL_ATTRS
@@ -91,6 +95,9 @@ __all__ = [
     "open_products",
     "load_products",
     "survey_status",
+    "is_product_store",
+    "product_summary",
+    "product_ping",
     "replicate_pings",
     "PRODUCT_VARIABLES",
     "INFORMATIONAL_FLAGS",
@@ -709,13 +716,43 @@ def _create_store(path: Path, plan: SurveyPlan, schema: Mapping[str, tuple[tuple
                                         dimension_names=dims, attributes=vattrs, **checksum_codecs(),
                                         config={"write_empty_chunks": True})
                 arr[...] = values
+            if coords.get("echo_range") is not None:
+                _write_echo_range(root, tmp, np.asarray(coords["echo_range"], np.float64), n, k)
         (tmp / STATE_DIR / "chunks").mkdir(parents=True)
+        consolidate(tmp)
         os.replace(tmp, path)
     except BaseException as exc:
         shutil.rmtree(tmp, ignore_errors=True)
         if isinstance(exc, OSError) and not isinstance(exc, SonarmapError):
             raise write_error(exc, path, "cannot create the store") from None
         raise
+
+
+def _write_echo_range(root: Any, store: Path, range_m: NDArray[np.float64], n: int, k: int) -> None:
+    """``echo_range (ping_time, range_sample)`` of a product store: every ping's row is ``range_m``.
+
+    One product store holds one sonar geometry (:func:`run_chunk` refuses pings of another), so
+    the coordinate is known when the store is created.  Every full chunk holds the same values,
+    hence the same bytes: the first is encoded by zarr and copied to the others' files.
+    """
+    attrs = dict(DATA_MODEL_ATTRS[COORD_RANGE])
+    arr = root.create_array(COORD_RANGE, shape=(n, range_m.size), chunks=(k, range_m.size), dtype=np.float64,
+                            fill_value=np.nan, dimension_names=COORDINATES[COORD_RANGE], attributes=attrs,
+                            **checksum_codecs(), config={"write_empty_chunks": True})
+    if n == 0:
+        return
+    full = n // k
+    rows = np.broadcast_to(range_m, (min(n, k), range_m.size))
+    arr[: rows.shape[0]] = rows
+    if full > 1:
+        first = store / COORD_RANGE / "c" / "0" / "0"
+        data = first.read_bytes()
+        for i in range(1, full):
+            d = store / COORD_RANGE / "c" / str(i)
+            d.mkdir(parents=True, exist_ok=True)
+            (d / "0").write_bytes(data)
+    if n % k and full:
+        arr[full * k :] = np.broadcast_to(range_m, (n - full * k, range_m.size))
 
 
 def _remove_store(path: Path) -> None:
@@ -1221,12 +1258,15 @@ def process_survey(
                     # Start the first chunks now (products sent back) while the store is created.
                     pool.start(plan.chunks(), dataclasses.replace(task, schema=schema, reference=(
                         np.asarray(geom.azimuth_rad, np.float64), np.asarray(geom.range_m, np.float64))))
+                # The coordinate layout of every sonarmap store (sonarmap.datamodel).
                 coord_arrays = [
-                    (COORD_AZIMUTH, np.asarray(geom.azimuth_rad, np.float64), (DIM_BEAM,),
+                    (DIM_RANGE, np.arange(geom.n_bins, dtype=np.int32), COORDINATES[DIM_RANGE],
+                     dict(DATA_MODEL_ATTRS[DIM_RANGE])),
+                    (DIM_BEAM, np.arange(geom.n_beams, dtype=np.int32), COORDINATES[DIM_BEAM],
+                     dict(DATA_MODEL_ATTRS[DIM_BEAM])),
+                    (COORD_AZIMUTH, np.asarray(geom.azimuth_rad, np.float64), COORDINATES[COORD_AZIMUTH],
                      dict(DATA_MODEL_ATTRS[COORD_AZIMUTH])),
                 ]
-                coord_arrays.append((COORD_RANGE, np.asarray(geom.range_m, np.float64), (DIM_RANGE,),
-                                     dict(DATA_MODEL_ATTRS[COORD_RANGE])))
                 attrs = {
                     "sonarmap_format": SURVEY_FORMAT,
                     "sonarmap_version": __version__,
@@ -1243,12 +1283,14 @@ def process_survey(
                     "poses": None if poses is None else os.path.abspath(poses),
                     "fingerprint": fp,
                     "schema": {k: [list(s), d] for k, (s, d) in schema.items()},
+                    "coordinates": f"{COORD_RANGE} {COORD_AZIMUTH}",
                 }
-                _create_store(out, plan, schema, attrs, {"arrays": coord_arrays, "component_names": cnames})
+                _create_store(out, plan, schema, attrs, {"arrays": coord_arrays, "component_names": cnames,
+                                                         "echo_range": geom.range_m})
             st, schema = _inspect_products(out)  # metadata checked: a damaged store is a clean error
             _remove_marker_temporaries(out)
             root = _zarr_open(out)
-            reference = (np.asarray(_read_array(st, COORD_AZIMUTH)), np.asarray(_read_array(st, COORD_RANGE)))
+            reference = (np.asarray(_read_array(st, COORD_AZIMUTH)), _reference_range(st))
             task = dataclasses.replace(task, schema=schema, reference=reference)
             from sonarmap._survey_store import ChunkWriter
 
@@ -1306,9 +1348,12 @@ def process_survey(
             if complete.exists() and "point_xyz" in root and target.exists():
                 points_path, n_points = target, int(root["point_xyz"].shape[0])
             else:
+                invalidate_consolidated(out)  # arrays change: no stale consolidated metadata meanwhile
                 points_path, n_points = _register_points(root, st, out, poses, target, extrinsics)
         with contextlib.suppress(OSError):
             os.rmdir(out / STATE_DIR / "tmp")  # empty once every chunk is stored
+        if consolidated_status(out) != "current":  # new points, or a store of an older version
+            consolidate(out)
         if not complete.exists():
             atomic_write_text(complete, json.dumps({"n_pings": plan.n_pings, "n_flagged": n_flagged}) + "\n")
         return SurveyResult(
@@ -1323,7 +1368,7 @@ def _zarr_open(path: Path) -> Any:
     """The store's root zarr group, writable."""
     import zarr
 
-    return zarr.open_group(str(path), mode="r+", zarr_format=3)
+    return zarr.open_group(str(path), mode="r+", zarr_format=3, use_consolidated=False)
 
 
 def _maybe_config(config: Any) -> Any:
@@ -1463,13 +1508,25 @@ def _inspect_products(p: Path) -> tuple[_Store, dict[str, tuple[tuple[int, ...],
     sizes = {DIM_BEAM: schema["range"][0][0] if schema["range"][0] else None,
              DIM_RANGE: schema["labels"][0][0] if "labels" in schema else _n_bins(st.attrs)}
     for name, dim in ((COORD_AZIMUTH, DIM_BEAM), (COORD_RANGE, DIM_RANGE)):
-        arr = st.require(name, ndim=1, kinds="f", what="sonarmap survey store")
-        if st.dims(name) != (dim,):
-            raise DataFormatError(f"array '{name}' has dimensions {st.dims(name)}, expected {(dim,)}",
+        arr = st.require(name, kinds="f", what="sonarmap survey store")
+        # echo_range is (ping_time, range_sample); stores of earlier versions hold (range_sample)
+        allowed = [(dim,)] + ([COORDINATES[COORD_RANGE]] if name == COORD_RANGE else [])
+        if st.dims(name) not in allowed or len(arr.shape) != len(st.dims(name)):
+            raise DataFormatError(f"array '{name}' has dimensions {st.dims(name)}, expected "
+                                  f"{' or '.join(str(a) for a in allowed)}", st.meta_file(name))
+        if len(arr.shape) == 2 and int(arr.shape[0]) != n:
+            raise DataFormatError(f"array '{name}' has {arr.shape[0]} along {DIM_PING}, the survey has {n}",
                                   st.meta_file(name))
-        if sizes[dim] is not None and int(arr.shape[0]) != sizes[dim]:
-            raise DataFormatError(f"array '{name}' has {arr.shape[0]} along {dim}, the survey has {sizes[dim]}",
+        if sizes[dim] is not None and int(arr.shape[-1]) != sizes[dim]:
+            raise DataFormatError(f"array '{name}' has {arr.shape[-1]} along {dim}, the survey has {sizes[dim]}",
                                   st.meta_file(name))
+    for name, dim in ((DIM_RANGE, DIM_RANGE), (DIM_BEAM, DIM_BEAM)):
+        if name in st.arrays:  # index coordinates (absent in stores of earlier versions)
+            arr = st.require(name, ndim=1, kinds="iu", what="sonarmap survey store")
+            if st.dims(name) != (dim,) or int(arr.shape[0]) != int(st.arrays[COORD_RANGE if dim == DIM_RANGE
+                                                                            else COORD_AZIMUTH].shape[-1]):
+                raise DataFormatError(f"array '{name}' has shape {tuple(arr.shape)} / dimensions {st.dims(name)}, "
+                                      "inconsistent with the coordinates", st.meta_file(name))
     points = {name: arr for name, arr in st.arrays.items() if name.startswith("point_")}
     for name, arr in points.items():
         if not arr.shape or st.dims(name)[:1] != ("point",) or (
@@ -1482,6 +1539,16 @@ def _inspect_products(p: Path) -> tuple[_Store, dict[str, tuple[tuple[int, ...],
         raise DataFormatError(f"array '{DIM_PING}' has units {units!r:.60}, expected {TIME_UNITS!r}",
                               st.meta_file(DIM_PING))
     return st, schema
+
+
+def _reference_range(st: _Store) -> NDArray[np.float64]:
+    """The bin ranges of a product store's sonar: ``echo_range`` (its first row in this layout)."""
+    arr = st.arrays[COORD_RANGE]
+    if len(arr.shape) == 1:  # a store of an earlier version
+        return np.asarray(_read_array(st, COORD_RANGE), np.float64)
+    if int(arr.shape[0]) == 0:
+        return np.zeros(int(arr.shape[1]), np.float64)
+    return np.asarray(_read_array(st, COORD_RANGE, slice(0, 1))[0], np.float64)
 
 
 def _n_bins(attrs: Mapping[str, Any]) -> int | None:
@@ -1560,7 +1627,7 @@ def load_products(path: str | os.PathLike[str]) -> Any:
         raise
     except Exception as exc:  # noqa: BLE001
         raise _locate_error(st, list(st.arrays), None, exc, "the survey") from None
-    n_bins, n_beams = int(ds[COORD_RANGE].shape[0]), int(ds[COORD_AZIMUTH].shape[0])
+    n_bins, n_beams = int(ds[COORD_RANGE].shape[-1]), int(ds[COORD_AZIMUTH].shape[-1])
     _check_times(ds[DIM_PING].values, p)
     if "point_time" in ds:
         _check_times(ds["point_time"].values, p, name="point_time", item="point")
@@ -1572,6 +1639,142 @@ def load_products(path: str | os.PathLike[str]) -> Any:
     if "point_beam" in ds:
         check_values(ds["point_beam"].values, "point_beam", p, low=0, high=n_beams - 1, item="point")
     return ds
+
+
+# ============================================================================ info / show
+def is_product_store(path: str | os.PathLike[str]) -> bool:
+    """Whether ``path`` is a product store written by :func:`process_survey` (root attributes only)."""
+    p = Path(path)
+    if not p.is_dir():
+        return False
+    attrs = _read_root_attrs(p)
+    return attrs is not None and attrs.get("sonarmap_format") == SURVEY_FORMAT
+
+
+def _store_geometry(st: _Store) -> Any:
+    """The sonar geometry of a product store (its ``source_geometry`` attribute)."""
+    from sonarmap.geometry import geometry_from_dict
+
+    try:
+        d = json.loads(st.attrs.get("source_geometry", ""))
+        return geometry_from_dict(d, source="source_geometry attribute")
+    except (TypeError, ValueError, RecursionError, AttributeError) as exc:
+        raise DataFormatError(f"root attribute source_geometry is not a geometry ({_short(exc)})",
+                              st.meta_file()) from None
+
+
+def _short(exc: BaseException) -> str:
+    msg = " ".join(str(exc).split()) or type(exc).__name__
+    return msg[:160]
+
+
+def product_summary(path: str | os.PathLike[str]) -> dict[str, Any]:
+    """What ``sonarmap info`` says about a product store: pings, time span, variables, flagged fits.
+
+    The metadata is checked (:func:`open_products`); only the times and flags of the completed
+    chunks are read (a run still in progress, or interrupted, is summarised as far as it got).
+
+    Returns
+    -------
+    dict
+        :func:`sonarmap.io._binary.make_summary` fields (``format`` is ``"zarr-products"``) plus
+        ``pings_done``, ``complete``, ``flagged``, ``variables``, ``keep_labels``, ``chunk_pings``,
+        ``consolidated`` (see :func:`sonarmap.datamodel.consolidated_status`).
+
+    Raises
+    ------
+    DataFormatError
+        If the store's metadata, times or flags are corrupt (naming the store, array and chunk).
+    """
+    from sonarmap.io._binary import make_summary
+
+    p = Path(path)
+    st, schema = _inspect_products(p)
+    status = survey_status(p)
+    k = _int_attr(st.attrs, "chunk_size", p, low=1)
+    n = _int_attr(st.attrs, "n_pings", p)
+    rows = np.zeros(n, bool)
+    for c in _done_chunks(p):
+        rows[c * k : (c + 1) * k] = True
+    times = np.asarray(_read_array(st, DIM_PING), np.int64)[rows] if rows.any() else np.zeros(0, np.int64)
+    _check_times(times, p)
+    flags = _read_array(st, "flags")[rows] if rows.any() else np.zeros(0, object)
+    geometry = _store_geometry(st)
+    return make_summary(
+        "zarr-products", p, n_pings=n, geometry=geometry,
+        time_start_ns=int(times.min()) if times.size else None,
+        time_end_ns=int(times.max()) if times.size else None,
+        pings_done=int(rows.sum()),
+        complete=bool(status["complete"]),
+        flagged=int(flagged_mask(flags).sum()),
+        variables=sorted(schema),
+        keep_labels=bool(st.attrs.get("keep_labels", False)),
+        chunk_pings=k,
+        consolidated=consolidated_status(p),
+        sonarmap_version=str(st.attrs.get("sonarmap_version", "")),
+    )
+
+
+def product_ping(path: str | os.PathLike[str], index: int = 0, *, image: str = "auto") -> Ping:
+    """Ping ``index`` of a product store as a :class:`~sonarmap.ping.Ping` to draw.
+
+    Parameters
+    ----------
+    path : path-like
+        A store written by :func:`process_survey`.
+    index : int
+        The ping (0-based, in the store's order).
+    image : {"auto", "labels", "raw"}
+        ``"labels"``: the stored segmentation (1 object, 0 free space; needs ``keep_labels``);
+        ``"raw"``: the ping read again from its source file; ``"auto"``: labels if stored, else raw.
+
+    Returns
+    -------
+    Ping
+        With the store's geometry (labels) or the source's (raw), the stored time and source;
+        ``meta["image"]`` says which image it is.
+
+    Raises
+    ------
+    InputError
+        If ``index`` is outside the store or ``image`` is not one of the choices.
+    DataFormatError
+        If the ping's chunk is not written yet, the labels are not stored, or the source cannot
+        be read or no longer holds the ping (its time differs).
+    """
+    if image not in ("auto", "labels", "raw"):
+        raise InputError(f"image must be 'auto', 'labels' or 'raw', got {image!r}")
+    p = Path(path)
+    st, schema = _inspect_products(p)
+    n = _int_attr(st.attrs, "n_pings", p)
+    if not 0 <= int(index) < n:
+        raise InputError(f"{p}: index {index} is outside the store's {n} pings")
+    i = int(index)
+    k = _int_attr(st.attrs, "chunk_size", p, low=1)
+    if i // k not in _done_chunks(p):
+        raise DataFormatError(f"ping {i} is not processed yet (chunk {i // k} unfinished)", p)
+    row = slice(i, i + 1)
+    t = int(np.asarray(_read_array(st, DIM_PING, row), np.int64)[0])
+    _check_times(np.asarray([t]), p, i)
+    source = str(_read_array(st, "source", row)[0])
+    if image == "labels" or (image == "auto" and "labels" in schema):
+        if "labels" not in schema:
+            raise DataFormatError("no labels stored (run sonarmap process with --keep-labels)", p)
+        labels = np.asarray(_read_array(st, "labels", row)[0])
+        check_values(labels, "labels", p, low=0, high=1, start=i)
+        return Ping(image=labels.astype(np.float32), geometry=_store_geometry(st), time_ns=t, source=source,
+                    meta={"image": "labels"})
+    from sonarmap.io import read_ping
+
+    file = source.split("#", 1)[0]
+    if not file or not os.path.exists(file):
+        raise DataFormatError(f"ping {i}: its source {file!r:.200} is not available (and no labels are stored)", p)
+    sources = [str(x).split("#", 1)[0] for x in _read_array(st, "source", slice(0, i))]
+    raw = read_ping(file, index=sum(1 for x in sources if x == file))
+    if raw.time_ns != t:
+        raise DataFormatError(f"ping {i}: the ping read from {file} has another time than the stored one "
+                              "(the source changed)", p)
+    return raw.replace(meta={**raw.meta, "image": "raw"})
 
 
 def replicate_pings(

@@ -105,12 +105,16 @@ def _print(info: dict[str, Any]) -> None:
 def register(app: typer.Typer) -> None:
     @app.command("info")
     def info(
-        paths: list[Path] = typer.Argument(None, help="Geometry JSON, ping files, directories or recordings."),
+        paths: list[Path] = typer.Argument(None, help="Geometry JSON, ping files, directories, recordings "
+                                           "or stores (convert / process)."),
         sonar: str | None = GEOMETRY_OPTION,
         presets: bool = typer.Option(False, "--presets", help="List the built-in sonar presets."),
         as_json: bool = typer.Option(False, "--json", help="Print machine-readable JSON."),
     ) -> None:
         """Describe sonar geometry, ping count and time span of each input.
+
+        A product store of sonarmap process is summarised too: pings (done), time span,
+        variables, flagged fits, whether the run completed.
 
         Example: sonarmap info ../shared/data/didson/test/1468966347175925_raw.png
         """

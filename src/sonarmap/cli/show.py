@@ -1,4 +1,9 @@
-"""``sonarmap show``: render a ping as a fan (metric axes) to an image file."""
+"""``sonarmap show``: render a ping as a fan (metric axes) to an image file.
+
+A product store (``sonarmap process -o STORE``) is shown too: its stored segmentation when it
+has labels (``--keep-labels``), else the raw ping read again from the source file it records
+(:func:`sonarmap.survey.product_ping`); ``--image`` picks one.
+"""
 
 from __future__ import annotations
 
@@ -10,24 +15,44 @@ from sonarmap.cli._common import GEOMETRY_OPTION, load_geometry_option
 
 __all__ = ["register"]
 
+#: Figure formats matplotlib writes without extra backends.
+_FIGURE_FORMATS = ("png", "pdf", "svg", "jpg", "jpeg", "eps", "ps", "tif", "tiff", "webp")
+
 
 def register(app: typer.Typer) -> None:
     @app.command("show")
     def show(
-        ping: Path = typer.Argument(..., help="A ping file (PNG+JSON) or recording."),
+        ping: Path = typer.Argument(..., help="A ping file (PNG+JSON), recording, or survey / product store."),
         output: Path = typer.Option(..., "--output", "-o", help="Figure to write (.png, .pdf, .svg)."),
-        index: int = typer.Option(0, "--index", "-i", min=0, help="Ping index inside a recording."),
+        index: int = typer.Option(0, "--index", "-i", min=0, help="Ping index inside a recording or store."),
         sonar: str | None = GEOMETRY_OPTION,
         resolution: float | None = typer.Option(None, "--resolution", help="Fan pixel size in m."),
         polar: bool = typer.Option(False, "--polar", help="Also show the raw polar image."),
         vmax: float | None = typer.Option(None, "--vmax", help="Colour scale maximum."),
+        image: str = typer.Option("auto", "--image", help="For a product store: labels, raw or auto "
+                                  "(labels if stored, else the raw ping from its source)."),
     ) -> None:
-        """Render PING as a fan image with metric axes (honours the azimuth table)."""
+        """Render PING as a fan image with metric axes (honours the azimuth table).
+
+        Example: sonarmap show survey.zarr -o ping.png -i 3
+        """
         from sonarmap.io import read_ping
         from sonarmap.plots import save_figure, show_ping_figure
+        from sonarmap.survey import is_product_store, product_ping
 
+        fmt = output.suffix.lower().lstrip(".")
+        if fmt not in _FIGURE_FORMATS:
+            raise typer.BadParameter(f"must end in one of .{', .'.join(_FIGURE_FORMATS)} (got {output.name!r})",
+                                     param_hint="--output")
+        if image not in ("auto", "labels", "raw"):
+            raise typer.BadParameter(f"must be auto, labels or raw (got {image!r})", param_hint="--image")
         geom = load_geometry_option(sonar)
-        p = read_ping(ping, geometry=geom, index=index)
+        if is_product_store(ping):
+            if geom is not None:
+                raise typer.BadParameter("a product store records its geometry; drop --sonar", param_hint="--sonar")
+            p = product_ping(ping, index, image=image)
+        else:
+            p = read_ping(ping, geometry=geom, index=index)
         fig = show_ping_figure(p, resolution_m=resolution, polar=polar, vmax=vmax)
         save_figure(fig, output)
         typer.echo(f"wrote {output}")

@@ -5,12 +5,18 @@ Layout (following echopype's conventions where one exists)::
     dimensions   ping_time, range_sample, beam  (+ xyz, quaternion for poses)
     intensity    (ping_time, range_sample, beam) float32 in [0, 1], chunked along ping_time
     echo_range   (ping_time, range_sample) float64, m      coordinate: range of each bin
-    beam_azimuth (ping_time, beam) float64, rad            coordinate: positive to starboard
+    beam_azimuth (beam) float64, rad                       coordinate: positive to starboard;
+                 (ping_time, beam) if the pings' azimuth tables differ (beam-steered multibeams)
     geometry_index (ping_time) int32                       index into attrs["sonarmap_geometries"]
     source_index   (ping_time) int32                       index into attrs["sonarmap_sources"]
     pose_position_m (ping_time, xyz), pose_orientation_xyzw (ping_time, quaternion)  NaN if none
     meta_<key>   (ping_time)  numeric per-ping metadata (heading, gain, ...), see below
 
+The coordinate layout is the one of every sonarmap store (:mod:`sonarmap.datamodel`, shared with
+the product store of :mod:`sonarmap.survey`); stores written before it (``beam_azimuth`` always
+``(ping_time, beam)``) still read, and appends to them keep their layout.  Every store has
+consolidated metadata, written when a writer is done and removed while one changes the store
+(:func:`sonarmap.datamodel.consolidate`); the readers here never use it.
 Every variable has CF ``units`` and ``long_name``; the dataset has ``Conventions = "CF-1.8"``.
 ``ping_time`` is stored as int64 nanoseconds since 1970-01-01 (exact).  Each distinct
 :class:`~sonarmap.geometry.SonarGeometry` is stored once as JSON in ``sonarmap_geometries``, so
@@ -57,6 +63,20 @@ from numpy.typing import ArrayLike, NDArray
 
 from sonarmap import __version__
 from sonarmap._atomic import WriterLock, write_error
+from sonarmap.datamodel import (
+    COORD_ATTRS,
+    COORD_AZIMUTH,
+    COORD_RANGE,
+    DIM_BEAM,
+    DIM_PING,
+    DIM_QUAT,
+    DIM_RANGE,
+    DIM_XYZ,
+    VAR_INTENSITY,
+    azimuth_dims,
+    consolidate,
+    invalidate_consolidated,
+)
 from sonarmap.errors import DataFormatError, InputError, SonarmapError
 from sonarmap.geometry import SonarGeometry, geometry_from_dict
 from sonarmap.io._files import MAX_SIDECAR_BYTES, read_bytes_bounded, require_regular_file
@@ -85,14 +105,6 @@ __all__ = [
     "survey_geometries",
 ]
 
-DIM_PING = "ping_time"
-DIM_RANGE = "range_sample"
-DIM_BEAM = "beam"
-DIM_XYZ = "xyz"
-DIM_QUAT = "quaternion"
-VAR_INTENSITY = "intensity"
-COORD_RANGE = "echo_range"
-COORD_AZIMUTH = "beam_azimuth"
 VAR_GEOMETRY = "geometry_index"
 VAR_SOURCE = "source_index"
 VAR_POSITION = "pose_position_m"
@@ -108,19 +120,12 @@ ATTR_MODEL = "sonarmap_data_model"
 
 #: CF attributes of the core variables (the single definition used by writer and docs).
 ATTRS: dict[str, dict[str, str]] = {
-    DIM_PING: {"long_name": "Ping transmit time (UTC)", "axis": "T", "standard_name": "time"},
-    DIM_RANGE: {"long_name": "Range sample number (0 = nearest)", "units": "1"},
-    DIM_BEAM: {"long_name": "Beam number (azimuth increases with beam)", "units": "1"},
+    **COORD_ATTRS,
     VAR_INTENSITY: {
         "long_name": "Received echo intensity, sensor counts scaled to [0, 1]",
         "units": "1",
         "valid_min": "0",
         "valid_max": "1",
-    },
-    COORD_RANGE: {"long_name": "Range from the transducer to the range bin", "units": "m"},
-    COORD_AZIMUTH: {
-        "long_name": "Beam centre azimuth in the sonar frame, positive to starboard",
-        "units": "rad",
     },
     VAR_GEOMETRY: {"long_name": f"Index into the {ATTR_GEOMETRIES} attribute", "units": "1"},
     VAR_SOURCE: {"long_name": f"Index into the {ATTR_SOURCES} attribute", "units": "1"},
@@ -205,6 +210,17 @@ class _State:
     shape: tuple[int, int] | None = None
     pose_frame: str = ""
     extras: dict[str, PingVariable] = dataclasses.field(default_factory=dict)
+    #: The store's azimuth table (``beam_azimuth (beam)``), set by the first ping written.
+    azimuth: NDArray[np.float64] | None = None
+    #: ``beam_azimuth`` is ``(ping_time, beam)``: the pings' tables differ (or an old store).
+    azimuth_per_ping: bool = False
+
+    def azimuth_differs(self, pings: Sequence[Ping]) -> bool:
+        """Whether a ping of ``pings`` has another azimuth table than the store's (1-D layout only)."""
+        if self.azimuth_per_ping:
+            return False
+        ref = self.azimuth if self.azimuth is not None else pings[0].geometry.azimuth_rad
+        return any(not np.array_equal(p.geometry.azimuth_rad, ref) for p in pings)
 
     def geometry_index(self, g: SonarGeometry, cache: dict[int, int]) -> int:
         gid = id(g)
@@ -273,6 +289,10 @@ def pings_to_dataset(
                 kind = _meta_kind(v)
                 if kind and f"{META_PREFIX}{k}".isidentifier():
                     state.meta.setdefault(k, kind)
+    if state.azimuth_differs(plist):
+        state.azimuth_per_ping = True
+    if state.azimuth is None:
+        state.azimuth = np.asarray(plist[0].geometry.azimuth_rad, dtype=np.float64)
     frames = {p.pose.frame for p in plist if p.pose is not None}
     if frames:
         state.pose_frame = state.pose_frame or sorted(frames)[0]
@@ -336,7 +356,8 @@ def pings_to_dataset(
         DIM_RANGE: (DIM_RANGE, np.arange(shape[0], dtype=np.int32), ATTRS[DIM_RANGE]),
         DIM_BEAM: (DIM_BEAM, np.arange(shape[1], dtype=np.int32), ATTRS[DIM_BEAM]),
         COORD_RANGE: ((DIM_PING, DIM_RANGE), rng, ATTRS[COORD_RANGE]),
-        COORD_AZIMUTH: ((DIM_PING, DIM_BEAM), az, ATTRS[COORD_AZIMUTH]),
+        COORD_AZIMUTH: (azimuth_dims(state.azimuth_per_ping), az if state.azimuth_per_ping else state.azimuth,
+                        ATTRS[COORD_AZIMUTH]),
     }
     ds = xr.Dataset(data_vars=data_vars, coords=coords)
     ds.attrs.update(_global_attrs(state))
@@ -474,6 +495,7 @@ class SurveyWriter:
         self._written = 0
         self._closed = False
         self._tmp: Path | None = None
+        self._invalidated = False
         self._lock = WriterLock(self.path).acquire()
         try:
             remove_stale_store_temporaries(self.path)
@@ -542,6 +564,7 @@ class SurveyWriter:
             return
         declared = {v.name for v in self.extra_variables}
         stored = [v for name, v in self._state.extras.items() if name not in declared]
+        per_ping_before = self._state.azimuth_per_ping
         ds = pings_to_dataset(
             self._buffer,
             extras=self._extras,
@@ -553,6 +576,13 @@ class SurveyWriter:
                 ds.to_zarr(self._target, mode="w", encoding=_encoding(ds, self.chunk_pings), consolidated=False,
                            write_empty_chunks=True)
             else:
+                if self._append and not self._invalidated:
+                    # First change of an existing store: until close() re-consolidates, readers
+                    # that trust consolidated metadata fall back to the arrays' own.
+                    invalidate_consolidated(self._target)
+                    self._invalidated = True
+                if self._state.azimuth_per_ping and not per_ping_before:
+                    _azimuth_per_ping(self._target, self._written, self.chunk_pings)
                 _check_append_compatible(self._target, ds)
                 ds.to_zarr(self._target, append_dim=DIM_PING, consolidated=False, write_empty_chunks=True)
                 _update_attrs(self._target, _global_attrs(self._state))
@@ -573,10 +603,13 @@ class SurveyWriter:
             self.flush()
             self._closed = True
             if self._tmp is None:
+                if self._written:
+                    consolidate(self._target)
                 return
             if self._written == 0:
                 shutil.rmtree(self._tmp, ignore_errors=True)
                 raise InputError(f"{self.path}: no pings to write")
+            consolidate(self._target)
             try:
                 _replace_dir(self._target, self.path)
             except OSError as exc:
@@ -592,6 +625,8 @@ class SurveyWriter:
         try:
             if self._tmp is not None:
                 shutil.rmtree(self._tmp, ignore_errors=True)
+            elif self._append and self._invalidated:
+                _consolidate_if_whole(self._target)
         finally:
             self._lock.release()
 
@@ -656,7 +691,43 @@ def remove_stale_store_temporaries(path: str | os.PathLike[str]) -> list[Path]:
 def _update_attrs(path: Path, attrs: Mapping[str, Any]) -> None:
     import zarr
 
-    zarr.open_group(str(path), mode="r+").attrs.update(dict(attrs))
+    zarr.open_group(str(path), mode="r+", use_consolidated=False).attrs.update(dict(attrs))
+
+
+def _consolidate_if_whole(path: Path) -> None:
+    """Consolidate the metadata of a store whose arrays along ``ping_time`` agree in length.
+
+    An interrupted append (arrays of different lengths) is left without consolidated metadata:
+    :func:`open_survey` reports (and repairs) it from the arrays' own metadata.
+    """
+    try:
+        lengths = _ping_lengths(_inspect_survey(path))
+    except DataFormatError:
+        return
+    if len(set(lengths.values())) <= 1:
+        consolidate(path)
+
+
+def _azimuth_per_ping(path: Path, n: int, chunk_pings: int) -> None:
+    """Turn a store's ``beam_azimuth (beam)`` into ``(ping_time, beam)`` for its ``n`` pings.
+
+    Called when a ping with another azimuth table than the store's is written: the pings already
+    stored all have the store's table, so each of their rows is that table.
+    """
+    import zarr
+
+    g = zarr.open_group(str(path), mode="r+", use_consolidated=False)
+    old = g[COORD_AZIMUTH]
+    if _dims(old) != (DIM_BEAM,):
+        return
+    table = np.asarray(old[...], dtype=np.float64)
+    attrs = dict(old.attrs)
+    del g[COORD_AZIMUTH]
+    arr = g.create_array(COORD_AZIMUTH, shape=(n, table.size), chunks=(chunk_pings, table.size), dtype=np.float64,
+                         fill_value=np.nan, dimension_names=(DIM_PING, DIM_BEAM), attributes=attrs,
+                         **checksum_codecs(), config={"write_empty_chunks": True})
+    if n:
+        arr[...] = np.broadcast_to(table, (n, table.size))
 
 
 def _check_append_compatible(path: Path, ds: xr.Dataset) -> None:
@@ -901,7 +972,8 @@ def _inspect_store(path: Path) -> _Store:
             _read_json_doc(d / ".zattrs", "array attributes", required=False)
         names.append(name)
     try:
-        group = zarr.open_group(str(path), mode="r", zarr_format=fmt)
+        # never the consolidated copy: every array's own (checked) metadata is what is read
+        group = zarr.open_group(str(path), mode="r", zarr_format=fmt, use_consolidated=False)
         attrs = dict(group.attrs)
     except Exception as exc:  # noqa: BLE001 - zarr raises many types on corrupt metadata
         raise DataFormatError(f"group metadata: {_one_line(exc)}", path / ("zarr.json" if fmt == 3 else ".zgroup")) from None
@@ -1043,6 +1115,10 @@ def _read_state(path: Path) -> _State:
                     raise DataFormatError(f"array '{name}': {exc}", st.meta_file(name)) from None
                 state.extras[name] = var
     state.shape = tuple(st.arrays[VAR_INTENSITY].shape[1:])  # type: ignore[assignment]
+    if COORD_AZIMUTH in st.arrays and st.dims(COORD_AZIMUTH) == (DIM_BEAM,):
+        state.azimuth = np.asarray(_read_array(st, COORD_AZIMUTH), dtype=np.float64)
+    else:  # a store of pings with different tables, or written before the common layout
+        state.azimuth_per_ping = True
     return state
 
 
@@ -1401,11 +1477,13 @@ def open_survey(path: str | os.PathLike[str], *, repair: bool = False) -> xr.Dat
         import zarr
 
         with WriterLock(p):
-            gw = zarr.open_group(str(p), mode="r+")
+            invalidate_consolidated(p)
+            gw = zarr.open_group(str(p), mode="r+", use_consolidated=False)
             for name, length in lengths.items():
                 if length != n:
                     arr = gw[name]
                     arr.resize((n, *arr.shape[1:]))
+            consolidate(p)
         st = _inspect_survey(p)
     for name in st.arrays:
         _check_chunk_files(st, name)
@@ -1603,9 +1681,11 @@ def add_ping_variable(path: str | os.PathLike[str], var: PingVariable, *, chunk_
     if np.dtype(var.dtype).kind in "iub":
         enc[var.name]["fill_value"] = None
     try:
+        invalidate_consolidated(p)
         ds.to_zarr(p, mode="a", encoding=enc, consolidated=False, compute=True, write_empty_chunks=True)
     except OSError as exc:
         raise write_error(exc, p, f"cannot add variable {var.name}") from None
+    consolidate(p)
 
 
 def write_ping_variable(

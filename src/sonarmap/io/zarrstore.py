@@ -2,6 +2,9 @@
 
 The data model itself (names, attributes, writing and reading) lives in :mod:`sonarmap.io.dataset`;
 this module only lets :func:`sonarmap.io.read_pings` and ``sonarmap info`` recognise a store.
+A product store of ``sonarmap process`` (:mod:`sonarmap.survey`) is recognised too: ``info``
+summarises it (:func:`sonarmap.survey.product_summary`); it holds products, not pings, so reading
+pings from it is a clean error.
 """
 
 from __future__ import annotations
@@ -47,7 +50,8 @@ def sniff(path: Path, head: bytes) -> bool:
         return True
     for name in ("zarr.json", ".zattrs"):
         try:
-            if ATTR_MODEL.encode() in read_bytes_bounded(path / name, MAX_SIDECAR_BYTES, "group metadata"):
+            head = read_bytes_bounded(path / name, MAX_SIDECAR_BYTES, "group metadata")
+            if ATTR_MODEL.encode() in head or b"sonarmap_format" in head:
                 return True
         except DataFormatError:
             continue
@@ -60,14 +64,29 @@ def iter_pings(
     geometry: SonarGeometry | str | os.PathLike[str] | None = None,
     **_: Any,
 ) -> Iterator[Ping]:
-    """Lazily yield the pings of a survey store (one ``ping_time`` chunk in memory)."""
+    """Lazily yield the pings of a survey store (one ``ping_time`` chunk in memory).
+
+    Raises
+    ------
+    DataFormatError
+        If ``path`` is a product store (``sonarmap process``): it holds no ping images.
+    """
+    from sonarmap.survey import is_product_store
+
+    if is_product_store(path):
+        raise DataFormatError("is a product store (sonarmap process): it holds products, not pings; read its "
+                              "inputs, or use sonarmap info / sonarmap show on it", path)
     ds = open_survey(path)
     g = None if geometry is None else as_geometry(geometry)
     yield from dataset_to_pings(ds, geometry=g)
 
 
 def count_pings(path: str | os.PathLike[str]) -> int:
-    """Number of pings (array metadata only)."""
+    """Number of pings (array metadata only; a product store's ``n_pings``)."""
+    from sonarmap.survey import is_product_store, survey_status
+
+    if is_product_store(path):
+        return int(survey_status(path)["n_pings"])
     return _n_pings(Path(path))
 
 
@@ -79,6 +98,11 @@ def summary(path: str | os.PathLike[str]) -> dict[str, Any]:
     DataFormatError
         If the store's metadata, times or first geometry index are corrupt (naming the store).
     """
+    from sonarmap.datamodel import consolidated_status
+    from sonarmap.survey import is_product_store, product_summary
+
+    if is_product_store(path):
+        return product_summary(path)
     ds = open_survey(path)
     n = int(ds.sizes.get(DIM_PING, 0))
     geoms = survey_geometries(ds)
@@ -105,4 +129,5 @@ def summary(path: str | os.PathLike[str]) -> dict[str, Any]:
         variables=sorted(str(v) for v in ds.data_vars),
         chunk_pings=int(st.arrays[VAR_INTENSITY].chunks[0]),
         zarr_format=int(g.metadata.zarr_format),
+        consolidated=consolidated_status(path),
     )
