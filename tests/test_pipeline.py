@@ -100,7 +100,8 @@ def test_ranges_cli_960_rows(tmp_path, test_ping_paths):
     out = tmp_path / "ranges.csv"
     assert main(["ranges", str(test_ping_paths[0].parent), "-o", str(out)]) == 0
     rows = _rows(out)
-    assert rows[0] == ["ping", "beam", "azimuth_rad", "bin", "range_m", "intensity", "flags", "sigma_m", "p_detect"]
+    assert rows[0] == ["ping", "beam", "azimuth_rad", "bin", "range_m", "intensity", "flags", "sigma_m", "p_detect",
+                       "time", "time_ns"]
     # every return has a finite sigma; beams without one have empty cells
     ret = [r for r in rows[1:] if r[4]]
     assert ret and all(float(r[7]) > 0 for r in ret)
@@ -130,7 +131,7 @@ def test_ranges_cli_zero_and_constant_pings(tmp_path, test_pings):
         assert main(args) == 0
         rows = _rows(out)[1:]
         assert len(rows) == 192 and all(r[3] == "" and r[4] == "" for r in rows)
-    assert main(["ranges", str(tmp_path), "-o", str(out), "--method", "nope"]) == 1
+    assert main(["ranges", str(tmp_path), "-o", str(out), "--method", "nope"]) == 2  # usage error
 
 
 def test_segment_cli_writes_labels_and_figure(tmp_path, test_ping_paths):

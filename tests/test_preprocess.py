@@ -127,4 +127,4 @@ def test_cli_preprocess_writes_pings_and_figure(tmp_path, test_ping_paths):
     back = read_ping(sorted(out.glob("*_raw.png"))[0])
     direct = preprocess(read_ping(test_ping_paths[4]), PreprocessConfig.paper_table1())
     np.testing.assert_allclose(back.image, direct.image, atol=1.0 / 65535 + 1e-6)  # 16-bit
-    assert main(["preprocess", str(test_ping_paths[0]), "-o", str(out), "--recipe", "nope"]) == 1
+    assert main(["preprocess", str(test_ping_paths[0]), "-o", str(out), "--recipe", "nope"]) == 2  # usage error

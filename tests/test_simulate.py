@@ -248,7 +248,7 @@ def test_cli_simulate(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> Non
                  "-o", str(out)]) == 0
     assert str(out) in capsys.readouterr().out
     assert len(list(out.glob("*_raw.png"))) == 2 and len(list(out.glob("*_truth.json"))) == 2
-    assert main(["simulate", "--scene", "nope", "-o", str(out)]) == 1
+    assert main(["simulate", "--scene", "nope", "-o", str(out)]) == 2  # usage error
     assert "nope" in capsys.readouterr().err
 
 

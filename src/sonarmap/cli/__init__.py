@@ -13,11 +13,14 @@ from __future__ import annotations
 import contextlib
 import importlib
 import logging
+import os
 import sys
+import typing
 import warnings
 from collections.abc import Iterator
 
 import typer
+import typer.core
 
 from sonarmap import __version__
 from sonarmap.errors import SonarmapError
@@ -70,6 +73,54 @@ def _root(
     state["debug"] = debug
 
 
+def _plain_type(param: object) -> str | None:
+    """Click-style type label of a parameter for ``--help``: ``PATH``, ``TEXT``, ``INTEGER``, ...
+
+    Flags have none; an explicit ``metavar`` wins.  Replaces typer's annotation labels
+    (``<bool>``, ``<list[Path]>``), which show Python types rather than what to type.
+    """
+    if getattr(param, "is_flag", False) or getattr(param, "count", False):
+        return None
+    metavar = getattr(param, "metavar", None)
+    if metavar is not None and not isinstance(param, typer.core.TyperArgument):
+        return str(metavar)
+    desc = getattr(param, "type_descriptor", None)
+    choices = getattr(desc, "choices", None) if getattr(desc, "is_choice", False) else None
+    if choices:
+        return "[" + "|".join(str(getattr(c, "value", c)) for c in choices) + "]"
+    annotation = getattr(desc, "annotation", None)
+    args = typing.get_args(annotation)
+    if typing.get_origin(annotation) in (list, tuple) and args:
+        annotation = args[0]
+    if isinstance(annotation, type) and issubclass(annotation, os.PathLike):
+        return "PATH"
+    return _TYPE_LABELS.get(annotation, "TEXT")  # type: ignore[arg-type]
+
+
+#: Help labels of the annotation types the commands use.
+_TYPE_LABELS: dict[type, str] = {int: "INTEGER", float: "FLOAT", str: "TEXT", bool: "BOOLEAN"}
+
+
+def _usage_name(param: object) -> str:
+    """An argument in the usage line: ``PINGS...`` (required) or ``[PINGS]...`` (optional)."""
+    name = str(getattr(param, "metavar", None) or getattr(param, "name", "") or "").upper()
+    if not getattr(param, "required", False):
+        name = f"[{name}]"
+    return name + ("..." if getattr(param, "nargs", 1) != 1 else "")
+
+
+def _install_plain_help_types() -> None:
+    """Make typer's help show click-style types (``PATH``) instead of ``<Path>``/``<bool>``."""
+    core = typer.core
+    for cls_name in ("TyperOption", "TyperArgument"):
+        cls = getattr(core, cls_name, None)
+        if cls is not None and hasattr(cls, "display_type_rich"):
+            cls.display_type_rich = lambda self, ctx: _plain_type(self)  # type: ignore[method-assign]
+    arg_cls = getattr(core, "TyperArgument", None)
+    if arg_cls is not None and hasattr(arg_cls, "_usage_display_name"):
+        arg_cls._usage_display_name = _usage_name  # type: ignore[method-assign]
+
+
 def _register_all() -> None:
     for name in COMMAND_MODULES:
         modname = f"sonarmap.cli.{name}"
@@ -82,6 +133,7 @@ def _register_all() -> None:
         mod.register(app)
 
 
+_install_plain_help_types()
 _register_all()
 
 

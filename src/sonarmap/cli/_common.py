@@ -10,18 +10,21 @@ from typing import IO, Any
 import typer
 
 __all__ = [
-    "GEOMETRY_OPTION", "OUTPUT_OPTION", "STDOUT", "console", "err_console", "load_geometry_option", "open_output",
-    "output_name",
+    "GEOMETRY_OPTION", "OUTPUT_OPTION", "QUIET_OPTION", "STDOUT", "VERBOSE_OPTION", "PingProgress", "check_choice",
+    "console", "count_pings", "err_console", "example", "load_geometry_option", "open_output", "output_name", "ping_progress",
 ]
 
 GEOMETRY_OPTION: Any = typer.Option(
     None,
     "--sonar",
     "-s",
-    help="Sonar geometry: a preset name (see `sonarmap info --presets`) or a geometry JSON file; "
+    metavar="PRESET|JSON",
+    help="Sonar geometry: a preset name (list them with: sonarmap info --presets) or a geometry JSON file; "
     "overrides the pings' sidecar JSON.",
 )
 OUTPUT_OPTION: Any = typer.Option(..., "--output", "-o", help="Output path.")
+QUIET_OPTION: Any = typer.Option(False, "--quiet", "-q", help="No progress bar and no summary.")
+VERBOSE_OPTION: Any = typer.Option(False, "--verbose", "-v", help="One line per ping and the total time on stderr.")
 
 #: The ``-o`` value that means standard output.
 STDOUT = "-"
@@ -41,12 +44,84 @@ def err_console() -> Any:
     return Console(stderr=True, highlight=False)
 
 
+def example(*lines: str) -> str:
+    """The ``Example:`` epilog of a command's ``--help`` (one command line per argument).
+
+    Parameters
+    ----------
+    *lines : str
+        Command lines, without the leading ``sonarmap``.
+
+    Returns
+    -------
+    str
+        Text for ``app.command(epilog=...)``.
+
+    Examples
+    --------
+    >>> example("ranges pings/ -o ranges.csv")
+    'Example:  sonarmap ranges pings/ -o ranges.csv'
+    """
+    return "\n\n".join(f"Example:  sonarmap {line}" for line in lines)
+
+
+def check_choice(value: str, choices: tuple[str, ...] | list[str], option: str) -> str:
+    """``value`` if it is one of ``choices``, else a usage error (exit 2) naming them.
+
+    Parameters
+    ----------
+    value : str
+        The option's value.
+    choices : sequence of str
+        The accepted values.
+    option : str
+        The option's name for the message, e.g. ``"--method"``.
+
+    Returns
+    -------
+    str
+        ``value``.
+
+    Raises
+    ------
+    typer.BadParameter
+        If ``value`` is not in ``choices``.
+    """
+    if value not in choices:
+        raise typer.BadParameter(f"{value!r} is not one of {', '.join(choices)}", param_hint=option)
+    return value
+
+
 def load_geometry_option(value: str | Path | None) -> Any:
-    """Resolve ``--sonar`` to a SonarGeometry (or None)."""
+    """Resolve ``--sonar`` to a SonarGeometry (or None).
+
+    A value that names neither a preset nor an existing file is a usage error (exit 2) listing the
+    presets; an existing file that is not a valid geometry JSON is a processing error (exit 1).
+
+    Parameters
+    ----------
+    value : str or Path, optional
+        A preset name or a geometry JSON path.
+
+    Returns
+    -------
+    SonarGeometry or None
+
+    Raises
+    ------
+    typer.BadParameter
+        If ``value`` is neither a preset nor an existing path.
+    """
     if value is None:
         return None
-    from sonarmap.geometry import as_geometry
+    from sonarmap.geometry import as_geometry, preset_names
 
+    names = preset_names()
+    if str(value) not in names and not Path(value).exists():
+        raise typer.BadParameter(
+            f"{str(value)!r} is neither a sonar preset nor a geometry JSON file; presets: {', '.join(names)}",
+            param_hint="--sonar",
+        )
     return as_geometry(value)
 
 
@@ -84,3 +159,136 @@ def open_output(path: str | Path, *, newline: str | None = None) -> Iterator[IO[
 
     with atomic_open(path, "w", newline=newline, encoding="utf-8") as fh:
         yield fh
+
+
+class PingProgress:
+    """A progress bar over pings on stderr (rich), with optional per-ping lines.
+
+    Nothing is drawn before :meth:`start` or with ``quiet``.  On a terminal the bar is live; on a
+    pipe or file rich prints it once, completed, when the block ends.  When the block ends with an
+    error the bar is dropped (transient), so the error stays the only line.
+
+    Parameters
+    ----------
+    description : str
+        Label at the left of the bar (the command name).
+    total : int, optional
+        Number of pings, if known (else the bar counts up).
+    quiet : bool
+        Draw nothing and print no per-ping line.
+    verbose : bool
+        :meth:`log` prints its lines (above the bar).
+    """
+
+    def __init__(self, description: str, total: int | None = None, *, quiet: bool = False,
+                 verbose: bool = False) -> None:
+        self.description = description
+        self.total = total
+        self.quiet = quiet
+        self.verbose = verbose and not quiet
+        self.done = 0
+        self._progress: Any = None
+        self._task: Any = None
+        self._t0 = 0.0
+
+    def start(self) -> PingProgress:
+        """Start drawing the bar (call after the first ping was read, so input errors come first)."""
+        import time
+
+        self._t0 = time.perf_counter()
+        if self.quiet or self._progress is not None:
+            return self
+        from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+        self._progress = Progress(
+            TextColumn(self.description), BarColumn(), MofNCompleteColumn(), TextColumn("pings"),
+            TimeElapsedColumn(), console=err_console(), transient=False,
+        )
+        self._progress.start()
+        self._task = self._progress.add_task(self.description, total=self.total)
+        return self
+
+    def advance(self, n: int = 1) -> None:
+        """Count ``n`` more pings done."""
+        self.done += n
+        if self._progress is not None:
+            self._progress.advance(self._task, n)
+
+    def log(self, text: str) -> None:
+        """Print one line on stderr with ``verbose`` (above the bar)."""
+        if not self.verbose:
+            return
+        if self._progress is not None:
+            self._progress.console.print(text, markup=False, highlight=False, soft_wrap=True)
+        else:
+            err_console().print(text, markup=False, highlight=False, soft_wrap=True)
+
+    @property
+    def seconds(self) -> float:
+        """Seconds since :meth:`start`."""
+        import time
+
+        return time.perf_counter() - self._t0 if self._t0 else 0.0
+
+    def stop(self, *, failed: bool = False) -> None:
+        """Stop the bar; with ``failed`` remove it instead of printing it completed."""
+        if self._progress is None:
+            return
+        if failed:
+            self._progress.live.transient = True  # a terminal: erase the bar
+            if not self._progress.console.is_terminal:
+                self._progress.console.quiet = True  # a pipe or file: print nothing at all
+        elif self._task is not None and self.total is None:
+            self._progress.update(self._task, total=self.done)
+        self._progress.stop()
+        self._progress = None
+
+    def __enter__(self) -> PingProgress:
+        return self
+
+    def __exit__(self, exc_type: object, *exc: object) -> None:
+        self.stop(failed=exc_type is not None)
+        if exc_type is None and self.verbose:
+            self.log(f"{self.description}: {self.done} pings in {self.seconds:.2f} s")
+
+
+def ping_progress(description: str, total: int | None = None, *, quiet: bool = False,
+                  verbose: bool = False) -> PingProgress:
+    """A :class:`PingProgress` (use as a context manager; call ``start()`` after the first ping).
+
+    Examples
+    --------
+    >>> with ping_progress("ranges", 3, quiet=True) as bar:
+    ...     _ = bar.start()
+    ...     for _ in range(3):
+    ...         bar.advance()
+    >>> bar.done
+    3
+    """
+    return PingProgress(description, total, quiet=quiet, verbose=verbose)
+
+
+def count_pings(inputs: list[Path] | list[str]) -> int | None:
+    """Total pings of ``inputs`` from headers only, or None when a reader cannot count cheaply.
+
+    Parameters
+    ----------
+    inputs : list of Path or str
+        Ping files, directories or globs.
+
+    Returns
+    -------
+    int or None
+    """
+    try:
+        from sonarmap.io import _is_store_dir, detect_format, expand_inputs, format_module, pngjson
+
+        total = 0
+        for p in expand_inputs([str(x) for x in inputs]):
+            p = Path(p)
+            fmt = "pngjson" if p.is_dir() and not _is_store_dir(p) else detect_format(p)
+            mod = pngjson if fmt == "pngjson" else format_module(fmt)
+            total += int(mod.count_pings(p))
+    except Exception:  # noqa: BLE001 - the count only sizes the progress bar
+        return None
+    return total

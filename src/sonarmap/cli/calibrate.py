@@ -21,13 +21,22 @@ from pathlib import Path
 
 import typer
 
-from sonarmap.cli._common import GEOMETRY_OPTION, OUTPUT_OPTION, load_geometry_option
+from sonarmap.cli._common import (
+    GEOMETRY_OPTION,
+    OUTPUT_OPTION,
+    QUIET_OPTION,
+    VERBOSE_OPTION,
+    check_choice,
+    example,
+    load_geometry_option,
+)
 
 
 def register(app: typer.Typer) -> None:
     """Add the ``calibrate`` command to ``app``."""
 
-    @app.command("calibrate")
+    @app.command("calibrate", epilog=example("calibrate background/ -o sonar.json",
+                                             "calibrate recording.aris -o - -q > sonar.json"))
     def calibrate_cmd(
         background: list[Path] = typer.Argument(..., help="Recording(s): ping files, directories or globs (any format)."),
         output: Path = OUTPUT_OPTION,
@@ -40,6 +49,8 @@ def register(app: typer.Typer) -> None:
             "files' taper, r=0.996) or 'nonzero-mean' (unbiased under a single receiver threshold, "
             "as in the simulator). See docs/preprocessing.md.",
         ),
+        quiet: bool = QUIET_OPTION,
+        verbose: bool = VERBOSE_OPTION,
     ) -> None:
         """Estimate the background of a recording: level vs range and beam, taper, range gain, model.
 
@@ -47,38 +58,58 @@ def register(app: typer.Typer) -> None:
         p(y|B) = (1-pi_B) delta + pi_B lambda e^(-lambda y), with the taper written into the
         geometry.  Any other recording: the background level vs range and beam, its range
         dependence (eq. 6-7), taper and the intensity model; pass the output to
-        `sonarmap ranges --calibration`.  The geometry JSON gains a ``calibration`` table
-        (ignored by load_geometry) that also lists what could not be estimated.
+        sonarmap ranges --calibration.  The geometry JSON gains a calibration table (ignored when
+        the file is read as a geometry) that also lists what could not be estimated.  Give -o - to
+        write the JSON to stdout (the summary then goes to stderr); a file is replaced atomically.
         """
         import json
 
         import numpy as np
 
-        from sonarmap._atomic import atomic_write_text
+        from sonarmap.cli._common import count_pings, err_console, open_output, output_name, ping_progress
         from sonarmap.errors import GeometryError, InputError
         from sonarmap.io import read_pings
         from sonarmap.preprocess.normalise import estimate_recording_background
 
-        if taper_estimator not in ("mean", "nonzero-mean"):
-            raise typer.BadParameter("must be 'mean' or 'nonzero-mean'", param_hint="--taper-estimator")
+        check_choice(method, ("lsq", "em"), "--method")
+        check_choice(taper_estimator, ("mean", "nonzero-mean"), "--taper-estimator")
         geom_override = load_geometry_option(sonar)
-        pings = list(read_pings([str(p) for p in background], geometry=geom_override))
-        if not pings:
+        ping_iter = read_pings([str(p) for p in background], geometry=geom_override)
+        first = next(ping_iter, None)  # before the bar: an unreadable input prints only its error
+        if first is None:
             raise InputError("recording: no pings")
-        geom = pings[0].geometry
-        for p in pings[1:]:
-            if p.geometry.shape != geom.shape or not np.allclose(p.geometry.azimuth_rad, geom.azimuth_rad):
-                raise GeometryError(f"{p.source}: geometry differs from {pings[0].source} (mixed set)")
-        rec = estimate_recording_background(pings)
-        if rec.thresholded:
-            d, lines = _calibrate_thresholded(pings, geom, method, taper_estimator)
-        else:
-            d, lines = _calibrate_normalised(pings, geom, rec)
-        d["calibration"]["background_level"] = rec.to_dict()
-        atomic_write_text(output, json.dumps(d, indent=1) + "\n")
-        for line in lines:
-            typer.echo(line)
-        typer.echo(f"-> {output}")
+        pings = [first]
+        with ping_progress("calibrate", None if quiet else count_pings(background), quiet=quiet,
+                           verbose=verbose) as bar:
+            bar.start()
+            bar.advance()
+            bar.log(f"read {first.source}")
+            for ping in ping_iter:
+                pings.append(ping)
+                bar.advance()
+                bar.log(f"read {ping.source}")
+            geom = pings[0].geometry
+            for p in pings[1:]:
+                if p.geometry.shape != geom.shape or not np.allclose(p.geometry.azimuth_rad, geom.azimuth_rad):
+                    raise GeometryError(f"{p.source}: geometry differs from {pings[0].source} (mixed set)")
+            rec = estimate_recording_background(pings)
+            if rec.thresholded:
+                d, lines = _calibrate_thresholded(pings, geom, method, taper_estimator)
+            else:
+                d, lines = _calibrate_normalised(pings, geom, rec)
+            d["calibration"]["background_level"] = rec.to_dict()
+            with open_output(output) as fh:
+                fh.write(json.dumps(d, indent=1) + "\n")
+        if quiet:
+            return
+        # the summary is on stdout next to a file (what scripts of earlier versions read); on
+        # stderr when the JSON itself goes to stdout
+        to_stderr = output_name(output) == "stdout"
+        for line in [*lines, f"-> {output_name(output)}"]:
+            if to_stderr:
+                err_console().print(line, markup=False, soft_wrap=True)
+            else:
+                typer.echo(line)
 
 
 def _calibrate_thresholded(pings: list, geom: object, method: str, taper_estimator: str) -> tuple[dict, list[str]]:  # type: ignore[type-arg]

@@ -7,24 +7,18 @@ from typing import Any
 
 import typer
 
-from sonarmap.cli._common import GEOMETRY_OPTION, err_console, load_geometry_option
+from sonarmap.cli._common import (
+    GEOMETRY_OPTION,
+    QUIET_OPTION,
+    VERBOSE_OPTION,
+    check_choice,
+    count_pings,
+    example,
+    load_geometry_option,
+    ping_progress,
+)
 
 __all__ = ["register", "convert"]
-
-
-def _count(paths: list[Path], **kwargs: Any) -> int | None:
-    """Total pings of the inputs from headers only (``None`` if a reader cannot tell cheaply)."""
-    from sonarmap.io import _is_store_dir, detect_format, format_module, pngjson
-
-    total = 0
-    for p in paths:
-        fmt = "pngjson" if p.is_dir() and not _is_store_dir(p) else detect_format(p)
-        mod = pngjson if fmt == "pngjson" else format_module(fmt)
-        try:
-            total += int(mod.count_pings(p))
-        except Exception:  # noqa: BLE001 - the count only sizes the progress bar
-            return None
-    return total
 
 
 def convert(
@@ -38,34 +32,50 @@ def convert(
         None, "--to", help="Output kind: zarr, bag1 or bag2 (default: bag1 for *.bag, else zarr)."
     ),
     append: bool = typer.Option(False, "--append", help="Append to an existing zarr survey."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing output (survey or bag)."),
     chunk_pings: int = typer.Option(16, "--chunk-pings", min=1, help="Pings per zarr chunk (and per write)."),
     topic: str | None = typer.Option(None, "--topic", help="ROS topic to read (bags) or write (default /sonar/image)."),
     progress: bool = typer.Option(True, "--progress/--no-progress", help="Show a progress bar on stderr."),
+    quiet: bool = QUIET_OPTION,
+    verbose: bool = VERBOSE_OPTION,
 ) -> None:
-    """Convert sonar recordings into one survey dataset (xarray/zarr, chunked along ping_time)."""
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+    """Convert sonar recordings into one survey dataset (xarray/zarr, chunked along ping_time).
+
+    An existing output is extended with --append (zarr) or replaced with --overwrite; without
+    either it is left alone and the command exits 1 before reading anything.
+    """
+    import itertools
 
     from sonarmap.errors import InputError
     from sonarmap.io import expand_inputs, read_pings
 
+    if to is not None:
+        check_choice(to, ("zarr", "bag1", "bag2"), "--to")
     kind = to or ("bag1" if output.suffix == ".bag" else "zarr")
-    if kind not in ("zarr", "bag1", "bag2"):
-        raise InputError(f"--to: choose zarr, bag1 or bag2 (got {kind!r})")
     if append and kind != "zarr":
-        raise InputError("--append is only supported for zarr surveys")
+        raise typer.BadParameter("only zarr surveys can be appended to", param_hint="--append")
+    if append and overwrite:
+        raise typer.BadParameter("give either --append or --overwrite, not both", param_hint="--overwrite")
+    if output.exists() and not (append or overwrite):
+        from sonarmap.errors import DataFormatError
+
+        raise DataFormatError("output exists; use --append (zarr), --overwrite or another -o", output)
+    no_bar = quiet or not progress
     geometry = load_geometry_option(sonar)
     paths = expand_inputs([str(p) for p in inputs])
     read_kwargs: dict[str, Any] = {"topic": topic} if topic else {}
-    total = _count(paths) if progress else None
-    console = err_console()
-    columns = [TextColumn("[bold]converting"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn()]
-    with Progress(*columns, console=console, disable=not progress, transient=False) as bar:
-        task = bar.add_task("convert", total=total)
+    ping_iter = read_pings(paths, geometry=geometry, **read_kwargs)
+    first = next(ping_iter, None)  # before the bar: an unreadable input prints only its error
+    if first is None:
+        raise InputError("INPUTS: no complete ping in the input (nothing written)")
+    with ping_progress("convert", None if no_bar else count_pings(paths), quiet=no_bar, verbose=verbose) as bar:
+        bar.start()
 
         def pings() -> Any:
-            for ping in read_pings(paths, geometry=geometry, **read_kwargs):
+            for ping in itertools.chain([first], ping_iter):
                 yield ping
-                bar.advance(task)
+                bar.advance()
+                bar.log(f"{ping.source}")
 
         if kind == "zarr":
             from sonarmap.io.dataset import SurveyWriter
@@ -77,9 +87,11 @@ def convert(
 
             n = write_bag(pings(), output, version=1 if kind == "bag1" else 2,
                           topic=topic or "/sonar/image")
-    typer.echo(f"wrote {n} pings to {output}")
+    if not quiet:  # -q silences the summary too; --no-progress only the bar
+        typer.echo(f"wrote {n} pings to {output}")
 
 
 def register(app: typer.Typer) -> None:
     """Add the ``convert`` command to ``app``."""
-    app.command("convert")(convert)
+    app.command("convert", epilog=example("convert recording.aris -o survey.zarr",
+                                          "convert survey.zarr -o survey.bag --no-progress"))(convert)

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import typer
 
-from sonarmap.cli._common import console, err_console
+from sonarmap.cli._common import console, err_console, example
 
 __all__ = ["register", "demo_command", "run_demo", "DEMO_CONFIG"]
 
@@ -103,7 +103,11 @@ def demo_command(
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace the outputs of an earlier demo."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="Only print the output locations."),
 ) -> None:
-    """Simulate a short hull survey with poses, process it, build the map and the report."""
+    """Simulate a short hull survey with poses, process it, build the map and the report.
+
+    Steps and the progress bar go to stderr, the output locations and the map accuracy to stdout.
+    Earlier demo outputs in the directory are replaced only with --overwrite.
+    """
     out = run_demo(output, n_pings=pings, workers=workers, overwrite=overwrite, quiet=quiet)
     c = console()
     acc = out["accuracy"]
@@ -121,4 +125,5 @@ def demo_command(
 
 def register(app: typer.Typer) -> None:
     """Add ``demo`` to the CLI."""
-    app.command("demo")(demo_command)
+    app.command("demo", epilog=example("demo -o sonarmap-demo/ --pings 40", "demo -o sonarmap-demo/ --overwrite -q"))(
+        demo_command)

@@ -6,52 +6,82 @@ from pathlib import Path
 
 import typer
 
-from sonarmap.cli._common import GEOMETRY_OPTION, OUTPUT_OPTION, load_geometry_option
+from sonarmap.cli._common import (
+    GEOMETRY_OPTION,
+    OUTPUT_OPTION,
+    QUIET_OPTION,
+    VERBOSE_OPTION,
+    check_choice,
+    example,
+    load_geometry_option,
+)
 
 
 def register(app: typer.Typer) -> None:
     """Add the ``fit`` command to ``app``."""
 
-    @app.command("fit")
+    @app.command("fit", epilog=example("fit pings/ -o fits.csv -m em", "fit recording.aris -o - -q"))
     def fit_cmd(
         pings: list[Path] = typer.Argument(..., help="Ping files, directories or globs."),
         output: Path = OUTPUT_OPTION,
         sonar: str | None = GEOMETRY_OPTION,
         method: str = typer.Option("lsq", "--method", "-m", help="lsq (paper) or em."),
-        families: str = typer.Option("exponential,rayleigh", help="Comma-separated families after the zero spike."),
-        binning: str = typer.Option("round", help="Histogram binning: round or floor."),
-        recipe: str | None = typer.Option(None, help="Pre-process first with a named recipe (e.g. paper-table1)."),
+        families: str = typer.Option("exponential,rayleigh", "--families",
+                                     help="Comma-separated families after the zero spike."),
+        binning: str = typer.Option("round", "--binning", help="Histogram binning: round or floor."),
+        recipe: str | None = typer.Option(None, "--recipe",
+                                          help="Pre-process first with a named recipe (e.g. paper-table1)."),
         normalise: bool = typer.Option(
             True, "--normalise/--no-normalise",
             help="Normalise images without a zero spike (ARIS, Oculus) by their background level first, "
             "as the pipeline does; thresholded images (DIDSON) are fitted as they are."),
+        quiet: bool = QUIET_OPTION,
+        verbose: bool = VERBOSE_OPTION,
     ) -> None:
         """Fit the zero-spike mixture to each ping's histogram; write ping, family, weights, scales, kld, flags, gates.
 
-        ``gates`` lists the fit gates the ping fails (a ping failing one yields no returns in the
-        pipeline).
+        The gates column lists the fit gates the ping fails (a ping failing one yields no returns
+        in the pipeline).  Give -o - to write the CSV to stdout; a file is replaced atomically.
         """
         import csv
+        import itertools
 
-        from sonarmap._atomic import atomic_open
+        from sonarmap.cli._common import count_pings, err_console, open_output, output_name, ping_progress
+        from sonarmap.errors import InputError
         from sonarmap.io import read_pings
+        from sonarmap.preprocess.pipeline import RECIPES
+        from sonarmap.stats.components import FAMILIES
         from sonarmap.stats.mixture import fit_mixture
 
+        check_choice(method, ("lsq", "em"), "--method")
+        check_choice(binning, ("round", "floor"), "--binning")
+        fams = tuple(f.strip() for f in families.split(",") if f.strip())
+        for f in fams:
+            if f.lower() not in FAMILIES:
+                raise typer.BadParameter(f"unknown family {f!r}; choose from {', '.join(sorted(FAMILIES))}",
+                                         param_hint="--families")
+        if not fams:
+            raise typer.BadParameter("give at least one family", param_hint="--families")
         cfg = None
         if recipe is not None:
             from sonarmap.preprocess.pipeline import recipe as get_recipe
 
-            cfg = get_recipe(recipe)
+            cfg = get_recipe(check_choice(recipe, RECIPES, "--recipe"))
         geom = load_geometry_option(sonar)
-        fams = tuple(f.strip() for f in families.split(",") if f.strip())
-        with atomic_open(output, "w", newline="", encoding="utf-8") as fh:
+        ping_iter = read_pings([str(p) for p in pings], geometry=geom)
+        first = next(ping_iter, None)  # before the bar: an unreadable input prints only its error
+        if first is None:
+            raise InputError("PINGS: no complete ping in the input (nothing written)")
+        bar = ping_progress("fit", None if quiet else count_pings(pings), quiet=quiet, verbose=verbose)
+        with open_output(output, newline="") as fh, bar:
+            bar.start()
             w = csv.writer(fh)
             w.writerow(["ping", "family", "weights", "scales", "kld", "flags", "gates"])
             n = 0
             from sonarmap.preprocess.normalise import estimate_background
             from sonarmap.stats.gates import fit_gates
 
-            for ping in read_pings([str(p) for p in pings], geometry=geom):
+            for ping in itertools.chain([first], ping_iter):
                 img = ping.image
                 normalised = None
                 if normalise and float(img.max()) > float(img.min()):
@@ -73,4 +103,7 @@ def register(app: typer.Typer) -> None:
                     ";".join(sorted(fit_gates(f))),
                 ])
                 n += 1
-        typer.echo(f"fitted {n} pings -> {output}", err=True)
+                bar.advance()
+                bar.log(f"{ping.source}: KLD {f.kld:.3g}" + (f" ({';'.join(sorted(f.flags))})" if f.flags else ""))
+        if not quiet:
+            err_console().print(f"fitted {n} pings -> {output_name(output)}", markup=False)

@@ -8,7 +8,18 @@ from typing import Any
 
 import typer
 
-from sonarmap.cli._common import GEOMETRY_OPTION, err_console, load_geometry_option
+from sonarmap.cli._common import (
+    GEOMETRY_OPTION,
+    QUIET_OPTION,
+    STDOUT,
+    VERBOSE_OPTION,
+    check_choice,
+    err_console,
+    example,
+    load_geometry_option,
+    output_name,
+    ping_progress,
+)
 
 __all__ = ["register", "map_command"]
 
@@ -27,6 +38,36 @@ def _count(inputs: list[Path]) -> int | None:
     except Exception:  # noqa: BLE001 - only used for the progress bar
         return None
     return total
+
+
+def _cloud_to_stdout(cloud: Any, fmt: str, **kwargs: Any) -> None:
+    """Write ``cloud`` in ``fmt`` to standard output (through a temporary file: the writers take paths).
+
+    Parameters
+    ----------
+    cloud : PointCloud
+    fmt : str
+        ``ply``, ``las`` or ``csv``.
+    **kwargs
+        Passed to :func:`sonarmap.mapping.pointcloud.write_point_cloud`.
+    """
+    import shutil
+    import sys
+    import tempfile
+
+    from sonarmap.mapping.pointcloud import write_point_cloud
+
+    with tempfile.TemporaryDirectory(prefix="sonarmap-map-") as d:
+        tmp = Path(d) / f"cloud.{fmt}"
+        write_point_cloud(cloud, tmp, format=fmt, **kwargs)
+        sys.stdout.flush()
+        out = getattr(sys.stdout, "buffer", None)
+        with tmp.open("rb") as fh:
+            if out is not None:
+                shutil.copyfileobj(fh, out)
+                out.flush()
+            else:  # a text-only stream (tests): the formats that are text
+                sys.stdout.write(fh.read().decode("utf-8", errors="replace"))
 
 
 def _clamp_bounds(text: str) -> dict[str, float]:
@@ -63,7 +104,9 @@ def map_command(
     extrinsics: Path | None = typer.Option(
         None, "--extrinsics", "-e", help="Sonar mounting JSON (translation_m + rotation_xyzw|rotation_rpy_deg)."
     ),
-    output: Path = typer.Option(..., "--output", "-o", help="Output point cloud (.ply, .las or .csv)."),
+    output: Path = typer.Option(
+        ..., "--output", "-o", help="Output point cloud (.ply, .las or .csv); - writes it to stdout (give --format)."
+    ),
     grid: float | None = typer.Option(
         None, "--grid", min=1e-4, help="Build an occupancy map at this resolution (m) and write its occupied cells."
     ),
@@ -116,12 +159,16 @@ def map_command(
     octomap: Path | None = typer.Option(
         None, "--octomap", help="Also write the 3-D occupancy map (--grid, --dims 3) as an OctoMap .bt."
     ),
-    quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar and no summary."),
+    quiet: bool = QUIET_OPTION,
+    verbose: bool = VERBOSE_OPTION,
 ) -> None:
-    """Register per-beam ranges into a world point cloud, or build an occupancy map (--grid)."""
+    """Register per-beam ranges into a world point cloud, or build an occupancy map (--grid).
+
+    Output files are replaced atomically when the command succeeds.
+    """
     import numpy as np
 
-    from sonarmap.errors import InputError
+    from sonarmap.errors import InputError, SonarmapError
     from sonarmap.io import expand_inputs, read_pings
     from sonarmap.mapping.occupancy import OccupancyConfig, OccupancyMap, SensorModel
     from sonarmap.mapping.pointcloud import CLOUD_FORMATS, format_from_suffix, write_point_cloud
@@ -138,15 +185,22 @@ def map_command(
     )
     from sonarmap.pipeline import PipelineConfig, process_ping
 
-    if outside not in ("error", "skip"):
-        raise typer.BadParameter("must be 'error' or 'skip'", param_hint="--outside")
-    if out_frame not in ("ned", "enu"):
-        raise typer.BadParameter("must be 'ned' or 'enu'", param_hint="--frame")
-    if poses_frame is not None and poses_frame not in ("ned", "enu"):
-        raise typer.BadParameter("must be 'ned' or 'enu'", param_hint="--poses-frame")
-    out_fmt = (fmt or format_from_suffix(output)).lower()
+    check_choice(outside, ("error", "skip"), "--outside")
+    check_choice(out_frame, ("ned", "enu"), "--frame")
+    if poses_frame is not None:
+        check_choice(poses_frame, ("ned", "enu"), "--poses-frame")
+    if str(output) == STDOUT and fmt is None:
+        raise typer.BadParameter("-o - needs --format ply, las or csv", param_hint="--format")
+    try:
+        out_fmt = (fmt or format_from_suffix(output)).lower()
+    except (ValueError, SonarmapError) as exc:
+        raise typer.BadParameter(str(exc), param_hint="--output") from None
     if out_fmt not in CLOUD_FORMATS:
         raise typer.BadParameter(f"must be one of {', '.join(CLOUD_FORMATS)}", param_hint="--format")
+    for opt, path, suffixes in (("--geotiff", geotiff, (".tif", ".tiff")), ("--octomap", octomap, (".bt",)),
+                                ("--grid-array", grid_array, (".npz",))):
+        if path is not None and path.suffix.lower() not in suffixes:
+            raise typer.BadParameter(f"{path}: expected a {' or '.join(suffixes)} file", param_hint=opt)
     if grid is not None and min_confidence > 0:
         # a dropped return would leave its beam empty, and the map would carve it free to the maximum range
         raise typer.BadParameter("applies to point clouds; the occupancy map keeps every return",
@@ -201,12 +255,7 @@ def map_command(
             stats["returns"] += int(sum(r.n_returns for r in ranges))
         batch.clear()
 
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
-
-    progress = Progress(
-        TextColumn("map"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn(),
-        console=err_console(), disable=quiet, transient=False,
-    )
+    progress = ping_progress("map", total, quiet=quiet, verbose=verbose)
     # The first ping is read before any processing, so that input and pose errors come first.
     ping_iter = read_pings(inputs, geometry=geometry)
     first = next(ping_iter, None)
@@ -231,6 +280,8 @@ def map_command(
                                  param_hint="--crs")
     if geotiff is not None and georef is None:
         raise InputError("--geotiff: needs a georeferenced map (navigation in the pings, or --origin LAT,LON)")
+    if georef is not None and out_frame != "ned":
+        raise typer.BadParameter("georeferenced outputs are in the projected CRS (E, N, up)", param_hint="--frame")
 
     def placed(ping: Any) -> Any:
         if static:
@@ -240,58 +291,66 @@ def map_command(
         return ping
 
     with progress:
-        task = progress.add_task("map", total=total)
+        progress.start()
         last_geom = None
         for ping in itertools.chain([first], ping_iter):
             if last_geom is not None and ping.geometry.shape != last_geom.shape:
                 flush()
             last_geom = ping.geometry
             ping = placed(ping)
-            batch.append((ping, process_ping(ping, pcfg)))
+            prod = process_ping(ping, pcfg)
+            batch.append((ping, prod))
             stats["pings"] += 1
             if len(batch) >= _BATCH:
                 flush()
-            progress.advance(task)
+            progress.advance()
+            progress.log(f"{ping.source}: {prod.ranges.n_returns} returns")
         flush()
 
-    if occ is None:
-        out_cloud = PointCloud.concat(clouds)
-    else:
-        out_cloud = occ.to_point_cloud()
-        if grid_array is not None:
-            from sonarmap._atomic import atomic_path
-
-            arr = occ.to_array()
-            with atomic_path(grid_array, suffix=".npz") as tmp, open(tmp, "wb") as fh:
-                np.savez_compressed(
-                    fh, logodds=arr.logodds, observed=arr.observed, origin_m=arr.origin_m,
-                    resolution_m=np.float64(arr.resolution_m), frame=np.str_("ned"),
-                )
-    kind = "occupancy" if occ is not None else "points"
-    if georef is not None:
-        if out_frame != "ned":
-            raise typer.BadParameter("georeferenced outputs are in the projected CRS (E, N, up)",
-                                     param_hint="--frame")
-        write_point_cloud(out_cloud, output, format=out_fmt, georef=georef, kind=kind)
-    else:
-        write_point_cloud(out_cloud, output, format=out_fmt, frame=out_frame, kind=kind)
-    if geotiff is not None:
-        from sonarmap.mapping.raster import height_raster, occupancy_raster, write_geotiff
-
-        if occ is not None:
-            write_geotiff(geotiff, occupancy_raster(occ, georef=georef))
+        if occ is None:
+            out_cloud = PointCloud.concat(clouds)
         else:
-            write_geotiff(geotiff, height_raster(out_cloud, georef=georef, resolution_m=raster_resolution))
-    if octomap is not None and occ is not None:
-        from sonarmap.mapping.octomap import write_octomap_bt
+            out_cloud = occ.to_point_cloud()
+            if grid_array is not None:
+                from sonarmap._atomic import atomic_path
 
-        write_octomap_bt(octomap, occ)
+                arr = occ.to_array()
+                with atomic_path(grid_array, suffix=".npz") as tmp, open(tmp, "wb") as fh:
+                    np.savez_compressed(
+                        fh, logodds=arr.logodds, observed=arr.observed, origin_m=arr.origin_m,
+                        resolution_m=np.float64(arr.resolution_m), frame=np.str_("ned"),
+                    )
+        kind = "occupancy" if occ is not None else "points"
+        where = {"georef": georef} if georef is not None else {"frame": out_frame}
+        if str(output) == STDOUT:
+            _cloud_to_stdout(out_cloud, out_fmt, kind=kind, **where)
+        else:
+            write_point_cloud(out_cloud, output, format=out_fmt, kind=kind, **where)
+        if geotiff is not None:
+            from sonarmap.mapping.raster import height_raster, occupancy_raster, write_geotiff
+
+            if occ is not None:
+                write_geotiff(geotiff, occupancy_raster(occ, georef=georef))
+            else:
+                write_geotiff(geotiff, height_raster(out_cloud, georef=georef, resolution_m=raster_resolution))
+        if octomap is not None and occ is not None:
+            from sonarmap.mapping.octomap import write_octomap_bt
+
+            write_octomap_bt(octomap, occ)
     if not quiet:
         what = f"{len(out_cloud)} occupied cells" if occ is not None else f"{len(out_cloud)} points"
         skipped = f", {stats['skipped']} skipped outside the trajectory" if stats["skipped"] else ""
-        err_console().print(f"{stats['pings']} pings, {stats['returns']} returns{skipped} -> {what} in {output}")
+        err_console().print(f"{stats['pings']} pings, {stats['returns']} returns{skipped} -> {what} in {output_name(output)}",
+                            markup=False)
 
 
 def register(app: typer.Typer) -> None:
     """Add ``map`` to the CLI."""
-    app.command("map", help="Register ranges into a point cloud or an occupancy map (PLY/LAS/CSV).")(map_command)
+    app.command(
+        "map",
+        help="Register ranges into a point cloud or an occupancy map (PLY/LAS/CSV).\n\n"
+        "Give -o - with --format to write the cloud to stdout.  Output files are replaced atomically "
+        "when the command succeeds.",
+        epilog=example("map pings/ --poses poses.csv -o cloud.ply",
+                       "map recording.kmall --grid 0.2 -o occupied.ply --geotiff occupancy.tif"),
+    )(map_command)

@@ -6,21 +6,35 @@ from pathlib import Path
 
 import typer
 
-from sonarmap.cli._common import OUTPUT_OPTION
+from sonarmap.cli._common import OUTPUT_OPTION, QUIET_OPTION, example
 
 
 def register(app: typer.Typer) -> None:
     """Add the ``paper`` command to ``app``."""
 
-    @app.command("paper")
+    @app.command("paper", epilog=example("paper --data /data/didson -o paper-out/"))
     def paper_cmd(
         data: Path = typer.Option(..., "--data", help="The DIDSON folder (with test/ and background/)."),
         output: Path = OUTPUT_OPTION,
+        quiet: bool = QUIET_OPTION,
     ) -> None:
-        """Write table1.csv, background.csv, fig5.png, fig6.png, fig8.png and print Table I."""
+        """Write table1.csv, background.csv, fig5.png, fig6.png, fig8.png and print Table I.
+
+        Table I (this implementation, the paper's values and EM) is the result, on stdout; the
+        output directory is created if needed and its files are replaced.
+        """
+        if not data.is_dir():
+            raise typer.BadParameter(f"{data}: not a directory (the DIDSON folder with test/ and background/)",
+                                     param_hint="--data")
+        import contextlib
+
+        from sonarmap.cli._common import err_console
         from sonarmap.paper import PAPER_BACKGROUND, PAPER_TABLE1, Table1Row, write_paper_outputs
 
-        res = write_paper_outputs(data, output)
+        # a spinner on a terminal (the library reports no per-ping progress); nothing on a pipe
+        status = contextlib.nullcontext() if quiet else err_console().status("paper: Table I, background, figures")
+        with status:
+            res = write_paper_outputs(data, output)
         typer.echo("image   pi1    lambda    pi2    sigma   KLDe-3 | paper: pi1 lambda pi2 sigma KLDe-3 | EM: pi1 lambda pi2 sigma KLDe-3  flags")
         for r in res["rows"]:
             o = Table1Row.cells(r.paper)
@@ -35,4 +49,5 @@ def register(app: typer.Typer) -> None:
         b = res["background"]
         typer.echo(f"background: pi_B={b.weights[1]:.4f} lambda={1 / b.params[1][0]:.2f} KLD={b.kld:.3g} "
                    f"(paper {PAPER_BACKGROUND[0]}, {PAPER_BACKGROUND[1]}, {PAPER_BACKGROUND[2]:.3g})")
-        typer.echo(f"wrote {output}/table1.csv, background.csv, fig5.png, fig6.png, fig8.png", err=True)
+        if not quiet:
+            typer.echo(f"wrote {output}/table1.csv, background.csv, fig5.png, fig6.png, fig8.png", err=True)

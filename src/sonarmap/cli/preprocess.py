@@ -3,16 +3,26 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import typer
 
-from sonarmap.cli._common import GEOMETRY_OPTION, load_geometry_option
+from sonarmap.cli._common import (
+    GEOMETRY_OPTION,
+    QUIET_OPTION,
+    VERBOSE_OPTION,
+    check_choice,
+    example,
+    load_geometry_option,
+)
 
 __all__ = ["register"]
 
 
 def register(app: typer.Typer) -> None:
-    @app.command("preprocess")
+    """Add the ``preprocess`` command to ``app``."""
+
+    @app.command("preprocess", epilog=example("preprocess pings/ -o clean/ --recipe paper-table1 --figure fig1.png"))
     def preprocess_cmd(
         pings: list[Path] = typer.Argument(..., help="Ping files, directories or globs."),
         output: Path = typer.Option(..., "--output", "-o", help="Output directory."),
@@ -27,35 +37,62 @@ def register(app: typer.Typer) -> None:
             None, "--figure", help="Write a before/after fan figure of the first ping (Fig. 1 style)."
         ),
         sonar: str | None = GEOMETRY_OPTION,
+        quiet: bool = QUIET_OPTION,
+        verbose: bool = VERBOSE_OPTION,
     ) -> None:
         """Pre-process PINGS and write 16-bit PNG + JSON pings (parameters recorded) to OUTPUT.
 
-        Outputs are written atomically.  When a pre-processed ping exceeds 1 (e.g. after the taper
-        division), the PNG holds ``image / intensity_scale`` and the JSON records
-        ``intensity_scale``.
+        The output directory is created if needed; its files are replaced atomically.  When a
+        pre-processed ping exceeds 1 (e.g. after the taper division), the PNG holds the image
+        divided by intensity_scale and the JSON records intensity_scale.
         """
-        from sonarmap.io import read_pings
-        from sonarmap.io.pngjson import write_png_ping
-        from sonarmap.preprocess.pipeline import load_config, preprocess, recipe
+        import itertools
 
+        from sonarmap.cli._common import count_pings, err_console, ping_progress
+        from sonarmap.errors import InputError
+        from sonarmap.io import read_pings
+        from sonarmap.preprocess.pipeline import RECIPES, load_config, recipe
+
+        if config is None:
+            check_choice(recipe_name, RECIPES, "--recipe")
+        if figure is not None and figure.suffix.lower() not in (".png", ".pdf", ".svg"):
+            raise typer.BadParameter(f"{figure}: expected a .png, .pdf or .svg file", param_hint="--figure")
         cfg = load_config(config) if config is not None else recipe(recipe_name)
         geom = load_geometry_option(sonar)
+        ping_iter = read_pings([str(p) for p in pings], geometry=geom)
+        first = next(ping_iter, None)  # before the bar: an unreadable input prints only its error
+        if first is None:
+            raise InputError("PINGS: no complete ping in the input (nothing written)")
         n = 0
-        for ping in read_pings([str(p) for p in pings], geometry=geom):
-            out = preprocess(ping, cfg)
-            stem = Path(ping.source).stem.removesuffix("_raw") if ping.source else None
-            if not stem or not stem.isdigit():
-                stem = f"{ping.time_ns // 1000}" if ping.time_ns else f"ping{n:06d}"
-            extra = {"preprocess": out.meta["preprocess"]}
-            peak = float(out.image.max())
-            to_write = out
-            if peak > 1.0:  # PNG holds [0, 1]: store image / scale and record the scale
-                extra["intensity_scale"] = peak
-                to_write = out.replace(image=out.image / peak)
-            write_png_ping(to_write, output, stem=stem, bit_depth=16, extra=extra)
-            if figure is not None and n == 0:
-                from sonarmap.plots import fan_comparison, save_figure
+        bar = ping_progress("preprocess", None if quiet else count_pings(pings), quiet=quiet, verbose=verbose)
+        with bar:
+            bar.start()
+            for ping in itertools.chain([first], ping_iter):
+                _one(ping, n, cfg, output, figure)
+                n += 1
+                bar.advance()
+                bar.log(f"{ping.source} -> {output}")
+        if not quiet:
+            err_console().print(f"preprocessed {n} ping(s) with recipe '{cfg.name}' -> {output}", markup=False)
 
-                save_figure(fan_comparison(ping, out), figure)
-            n += 1
-        typer.echo(f"preprocessed {n} ping(s) with recipe '{cfg.name}' -> {output}")
+
+def _one(ping: Any, n: int, cfg: Any, output: Path, figure: Path | None) -> None:
+    """Pre-process one ping and write it into ``output`` (and, for the first, the figure)."""
+    from sonarmap.io.pngjson import write_png_ping
+    from sonarmap.preprocess.pipeline import preprocess
+
+    out = preprocess(ping, cfg)
+    stem = Path(ping.source).stem.removesuffix("_raw") if ping.source else None
+    if not stem or not stem.isdigit():
+        stem = f"{ping.time_ns // 1000}" if ping.time_ns else f"ping{n:06d}"
+    extra = {"preprocess": out.meta["preprocess"]}
+    peak = float(out.image.max())
+    to_write = out
+    if peak > 1.0:  # PNG holds [0, 1]: store image / scale and record the scale
+        extra["intensity_scale"] = peak
+        to_write = out.replace(image=out.image / peak)
+    write_png_ping(to_write, output, stem=stem, bit_depth=16, extra=extra)
+    if figure is not None and n == 0:
+        from sonarmap.plots import fan_comparison, save_figure
+
+        save_figure(fan_comparison(ping, out), figure)

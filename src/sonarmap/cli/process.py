@@ -7,7 +7,7 @@ from typing import Any
 
 import typer
 
-from sonarmap.cli._common import GEOMETRY_OPTION, console, err_console
+from sonarmap.cli._common import GEOMETRY_OPTION, console, err_console, example
 
 __all__ = ["register", "process_command", "survey_progress"]
 
@@ -91,23 +91,30 @@ def process_command(
         None, "--poses", help="Vehicle poses CSV: register the ranges into a point cloud."
     ),
     points: Path | None = typer.Option(
-        None, "--points", help="Point-cloud file written with --poses (.ply/.las; default <output>.ply)."
+        None, "--points", help="Point-cloud file written with --poses (.ply/.las; default: the output path with suffix .ply)."
     ),
     extrinsics: Path | None = typer.Option(
         None, "--extrinsics", help="Sensor mounting JSON used with --poses (default: sensor = body)."
     ),
     sonar: str | None = GEOMETRY_OPTION,
-    overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing, different output."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing store of other inputs or configuration."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar and no summary."),
     strict: bool = typer.Option(False, "--strict", help="Exit 1 when the model could not explain some ping (a flagged fit)."),
+    verbose: bool = typer.Option(False, "--verbose", "-v", help="Also print the total time on stderr."),
 ) -> None:
     """Process a survey: read -> pre-process -> fit -> segment -> ranges (-> points), per chunk.
 
     Re-running the same command after an interruption resumes where it stopped; the result is
-    identical to an uninterrupted run.
+    identical to an uninterrupted run.  A store of another input or configuration is replaced
+    only with --overwrite.  The progress bar is on stderr, the two summary lines on stdout.
     """
+    import time
+
+    from sonarmap.cli._common import load_geometry_option
     from sonarmap.survey import process_survey
 
+    t0 = time.perf_counter()
+    load_geometry_option(sonar)  # an unknown preset is a usage error before any work
     if scheduler is not None and workers is not None:
         raise typer.BadParameter("give either --workers or --scheduler, not both", param_hint="--workers")
     if scheduler is not None:
@@ -137,6 +144,9 @@ def process_command(
 
         console().print(result.summary(), soft_wrap=True, markup=False)
         console().print(flagged_summary(list(result.gates)), soft_wrap=True, markup=False)
+        if verbose:
+            err_console().print(f"process: {result.n_pings} pings in {time.perf_counter() - t0:.2f} s",
+                                soft_wrap=True, markup=False)
     if strict:
         from sonarmap.cli.ranges import flagged_any
 
@@ -146,4 +156,5 @@ def process_command(
 
 def register(app: typer.Typer) -> None:
     """Add ``process`` to the CLI."""
-    app.command("process")(process_command)
+    app.command("process", epilog=example("process pings/ -o survey.zarr -j 2",
+                                          "process recording.aris -o survey.zarr --poses poses.csv -q"))(process_command)

@@ -37,7 +37,15 @@ from typing import Any
 
 import typer
 
-from sonarmap.cli._common import GEOMETRY_OPTION, OUTPUT_OPTION, load_geometry_option
+from sonarmap.cli._common import (
+    GEOMETRY_OPTION,
+    OUTPUT_OPTION,
+    QUIET_OPTION,
+    VERBOSE_OPTION,
+    check_choice,
+    example,
+    load_geometry_option,
+)
 
 __all__ = [
     "register", "pipeline_config_from_options", "write_ranges_rows", "iso_time", "flagged_summary", "flagged_any",
@@ -57,7 +65,7 @@ SOLVER_OPTION: Any = typer.Option(None, "--solver", help="MRF solver: graphcut (
 BETA_OPTION: Any = typer.Option(None, "--beta", help="Potts weight of the MRF (eq. 22).")
 CALIBRATION_OPTION: Any = typer.Option(
     None, "--calibration",
-    help="Output of `sonarmap calibrate` on this recording: normalise every ping by the recording's "
+    help="Output of sonarmap calibrate on this recording: normalise every ping by the recording's "
     "background level instead of its own.",
 )
 STRICT_OPTION: Any = typer.Option(False, "--strict", help="Exit 1 when the model could not explain some ping (a flagged fit).")
@@ -67,17 +75,41 @@ CONFIG_OPTION: Any = typer.Option(None, "--config", "-c", help="Pipeline configu
 def pipeline_config_from_options(
     config: Path | None, method: str | None, solver: str | None, beta: float | None
 ) -> Any:
-    """Build the PipelineConfig from ``--config`` and the override options."""
-    from sonarmap.pipeline import PipelineConfig
+    """Build the PipelineConfig from ``--config`` and the override options.
 
-    cfg = PipelineConfig.from_toml(config) if config is not None else PipelineConfig()
+    Parameters
+    ----------
+    config : Path, optional
+        Pipeline configuration TOML (a bad file is a processing error, exit 1).
+    method, solver : str, optional
+        ``--method`` / ``--solver``; an unknown name is a usage error (exit 2).
+    beta : float, optional
+        ``--beta``; an invalid value is a usage error (exit 2).
+
+    Returns
+    -------
+    PipelineConfig
+
+    Raises
+    ------
+    typer.BadParameter
+        If an option value is invalid (checked before ``config`` is read).
+    """
+    from sonarmap.errors import SonarmapError
+    from sonarmap.pipeline import METHODS, SOLVER_NAMES, PipelineConfig
+
     changes: dict[str, Any] = {}
     if method is not None:
-        changes["method"] = method
+        changes["method"] = check_choice(method, METHODS, "--method")
     if solver is not None:
-        changes["solver"] = solver
+        changes["solver"] = check_choice(solver, SOLVER_NAMES, "--solver")
     if beta is not None:
+        try:
+            PipelineConfig(beta=beta)
+        except (SonarmapError, ValueError) as exc:
+            raise typer.BadParameter(str(exc), param_hint="--beta") from None
         changes["beta"] = beta
+    cfg = PipelineConfig.from_toml(config) if config is not None else PipelineConfig()
     return cfg.replace(**changes) if changes else cfg
 
 
@@ -203,7 +235,7 @@ def flagged_any(gates: list[tuple[str, ...]]) -> bool:
 def register(app: typer.Typer) -> None:
     """Add the ``ranges`` command to ``app``."""
 
-    @app.command("ranges")
+    @app.command("ranges", epilog=example("ranges pings/ -o ranges.csv", "ranges recording.aris -o - --method threshold"))
     def ranges_cmd(
         pings: list[Path] = typer.Argument(..., help="Ping files, directories or globs."),
         output: Path = OUTPUT_OPTION,
@@ -214,6 +246,8 @@ def register(app: typer.Typer) -> None:
         config: Path | None = CONFIG_OPTION,
         strict: bool = STRICT_OPTION,
         calibration: Path | None = CALIBRATION_OPTION,
+        quiet: bool = QUIET_OPTION,
+        verbose: bool = VERBOSE_OPTION,
     ) -> None:
         """Per-beam first-return ranges of structure, one CSV row per (ping, beam).
 
@@ -225,11 +259,13 @@ def register(app: typer.Typer) -> None:
         sigma_m: one-sigma uncertainty of range_m (m);
         p_detect: probability that a surface in the beam is detected and reported;
         time: ping time, ISO 8601 UTC with ns; time_ns: ping time, integer ns since the epoch.
-        Give -o - to write the CSV to stdout.
+        Give -o - to write the CSV to stdout (the summary stays on stderr).  The CSV file is
+        replaced atomically when the command succeeds.
         """
         import csv
+        import itertools
 
-        from sonarmap.cli._common import err_console, open_output, output_name
+        from sonarmap.cli._common import count_pings, open_output, output_name, ping_progress
         from sonarmap.io import read_pings
         from sonarmap.pipeline import process_ping
 
@@ -240,9 +276,17 @@ def register(app: typer.Typer) -> None:
             cfg = cfg.replace(families=families)  # the recording's model (chosen by calibrate)
         n_pings = n_rows = n_ret = 0
         gated: list[tuple[str, ...]] = []
-        with open_output(output, newline="") as fh:
+        bar = ping_progress("ranges", None if quiet else count_pings(pings), quiet=quiet, verbose=verbose)
+        with open_output(output, newline="") as fh, bar:
             w = csv.writer(fh)
-            for ping in read_pings([str(p) for p in pings], geometry=geom):
+            ping_iter = read_pings([str(p) for p in pings], geometry=geom)
+            first = next(ping_iter, None)  # before the bar: an unreadable input prints only its error
+            if first is None:
+                from sonarmap.errors import InputError
+
+                raise InputError("PINGS: no complete ping in the input (nothing written)")
+            bar.start()
+            for ping in itertools.chain([first], ping_iter):
                 prod = process_ping(ping, cfg, background=rec)
                 if n_pings == 0:
                     w.writerow(CSV_HEADER)  # after the first ping: an unreadable input writes nothing
@@ -250,16 +294,23 @@ def register(app: typer.Typer) -> None:
                 n_ret += prod.ranges.n_returns
                 n_pings += 1
                 gated.append(prod.gates)
-            if n_pings == 0:
-                from sonarmap.errors import InputError
-
-                raise InputError("PINGS: no complete ping in the input (nothing written)")
-        console = err_console()
-        console.print(
-            f"{n_pings} pings, {n_rows} rows ({n_ret} returns) -> {output_name(output)} (method={cfg.method}"
-            + (f", solver={cfg.solver}" if cfg.method == "mrf" else "") + ")", markup=False
-        )
-        line = flagged_summary(gated)
-        console.print(line, markup=False)
+                bar.advance()
+                bar.log(f"{ping.source}: {prod.ranges.n_returns} returns"
+                        + (f" ({';'.join(prod.gates)})" if prod.gates else ""))
+        if not quiet:
+            _print_summary(n_pings, n_rows, n_ret, output_name(output), cfg, gated)
         if strict and flagged_any(gated):
             raise typer.Exit(1)
+
+
+def _print_summary(n_pings: int, n_rows: int, n_ret: int, where: str, cfg: Any,
+                   gated: list[tuple[str, ...]]) -> None:
+    """The two summary lines of ``ranges`` on stderr."""
+    from sonarmap.cli._common import err_console
+
+    console = err_console()
+    console.print(
+        f"{n_pings} pings, {n_rows} rows ({n_ret} returns) -> {where} (method={cfg.method}"
+        + (f", solver={cfg.solver}" if cfg.method == "mrf" else "") + ")", markup=False
+    )
+    console.print(flagged_summary(gated), markup=False)

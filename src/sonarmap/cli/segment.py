@@ -12,7 +12,7 @@ from typing import Any
 
 import typer
 
-from sonarmap.cli._common import GEOMETRY_OPTION, load_geometry_option
+from sonarmap.cli._common import GEOMETRY_OPTION, QUIET_OPTION, VERBOSE_OPTION, example, load_geometry_option
 from sonarmap.cli.ranges import BETA_OPTION, CONFIG_OPTION, METHOD_OPTION, SOLVER_OPTION, pipeline_config_from_options
 
 __all__ = ["register", "segment_figure"]
@@ -59,7 +59,7 @@ def segment_figure(raw: Any, threshold_labels: Any, labels: Any, ranges: Any, *,
 def register(app: typer.Typer) -> None:
     """Add the ``segment`` command to ``app``."""
 
-    @app.command("segment")
+    @app.command("segment", epilog=example("segment pings/ -o labels/", "segment recording.aris -o labels/ --no-figure -q"))
     def segment_cmd(
         pings: list[Path] = typer.Argument(..., help="Ping files, directories or globs."),
         output: Path = typer.Option(..., "--output", "-o", help="Output directory."),
@@ -69,45 +69,67 @@ def register(app: typer.Typer) -> None:
         beta: float | None = BETA_OPTION,
         config: Path | None = CONFIG_OPTION,
         figure: bool = typer.Option(True, "--figure/--no-figure", help="Write the raw | threshold | MRF figure."),
+        quiet: bool = QUIET_OPTION,
+        verbose: bool = VERBOSE_OPTION,
     ) -> None:
-        """Segment pings; write label images and Fig.-7-style figures."""
-        import io
+        """Segment pings; write label images and Fig.-7-style figures.
 
-        import numpy as np
-        from PIL import Image
+        For every ping writes STEM_labels.png (0 background, 127 structure, 254 a second object
+        class) and STEM_segment.png (raw | fixed threshold | MRF) into the output directory,
+        which is created if needed; files in it are replaced atomically.
+        """
+        import itertools
 
-        from sonarmap._atomic import atomic_path, atomic_write_bytes
-        from sonarmap.classify.threshold import threshold_labels
-        from sonarmap.cli._common import err_console
+        from sonarmap.cli._common import count_pings, err_console, ping_progress
+        from sonarmap.errors import InputError
         from sonarmap.io import read_pings
-        from sonarmap.pipeline import process_ping
 
         cfg = pipeline_config_from_options(config, method, solver, beta)
         geom = load_geometry_option(sonar)
+        ping_iter = read_pings([str(p) for p in pings], geometry=geom)
+        first = next(ping_iter, None)  # before the bar and the directory: input errors come first
+        if first is None:
+            raise InputError("PINGS: no complete ping in the input (nothing written)")
         output.mkdir(parents=True, exist_ok=True)
         n = 0
-        for i, ping in enumerate(read_pings([str(p) for p in pings], geometry=geom)):
-            prod = process_ping(ping, cfg, keep_labels=True)
-            labels = prod.labels
-            assert labels is not None
-            stem = _stem(ping.source, i)
-            buf = io.BytesIO()
-            Image.fromarray((np.minimum(labels, 2) * 127).astype(np.uint8), mode="L").save(buf, format="PNG")
-            atomic_write_bytes(output / f"{stem}_labels.png", buf.getvalue())
-            if figure:
-                import matplotlib.pyplot as plt
+        bar = ping_progress("segment", None if quiet else count_pings(pings), quiet=quiet, verbose=verbose)
+        with bar:
+            bar.start()
+            for i, ping in enumerate(itertools.chain([first], ping_iter)):
+                _segment_one(ping, i, output, cfg, figure)
+                n += 1
+                bar.advance()
+                bar.log(f"{ping.source} -> {output / _stem(ping.source, i)}_labels.png")
+        if not quiet:
+            err_console().print(f"segmented {n} pings -> {output}", markup=False)
 
-                # the fixed threshold on the image the classifier saw (pre-processed or normalised)
-                img = prod.image if prod.image is not None else ping.image
-                thr = threshold_labels(np.clip(img, 0.0, 1.0), cfg.threshold)
-                fig = segment_figure(ping.image, thr, labels, prod.ranges, title=Path(ping.source).name,
-                                     threshold=cfg.threshold, method=cfg.method)
-                with atomic_path(output / f"{stem}_segment.png") as tmp:
-                    fig.savefig(tmp, dpi=90, format="png")
-                plt.close(fig)
-            n += 1
-        if n == 0:
-            from sonarmap.errors import InputError
 
-            raise InputError("PINGS: no complete ping in the input (nothing written)")
-        err_console().print(f"segmented {n} pings -> {output}")
+def _segment_one(ping: Any, i: int, output: Path, cfg: Any, figure: bool) -> None:
+    """Segment one ping and write its label image (and figure) into ``output``."""
+    import io
+
+    import numpy as np
+    from PIL import Image
+
+    from sonarmap._atomic import atomic_path, atomic_write_bytes
+    from sonarmap.classify.threshold import threshold_labels
+    from sonarmap.pipeline import process_ping
+
+    prod = process_ping(ping, cfg, keep_labels=True)
+    labels = prod.labels
+    assert labels is not None
+    stem = _stem(ping.source, i)
+    buf = io.BytesIO()
+    Image.fromarray((np.minimum(labels, 2) * 127).astype(np.uint8), mode="L").save(buf, format="PNG")
+    atomic_write_bytes(output / f"{stem}_labels.png", buf.getvalue())
+    if figure:
+        import matplotlib.pyplot as plt
+
+        # the fixed threshold on the image the classifier saw (pre-processed or normalised)
+        img = prod.image if prod.image is not None else ping.image
+        thr = threshold_labels(np.clip(img, 0.0, 1.0), cfg.threshold)
+        fig = segment_figure(ping.image, thr, labels, prod.ranges, title=Path(ping.source).name,
+                             threshold=cfg.threshold, method=cfg.method)
+        with atomic_path(output / f"{stem}_segment.png") as tmp:
+            fig.savefig(tmp, dpi=90, format="png")
+        plt.close(fig)
