@@ -7,6 +7,8 @@ Messages name the file or argument and say what is wrong, in one line.
 
 from __future__ import annotations
 
+import sys
+
 __all__ = [
     "SonarmapError",
     "InputError",
@@ -14,6 +16,7 @@ __all__ = [
     "DataFormatError",
     "FitError",
     "SonarmapWarning",
+    "show_warning_one_line",
 ]
 
 
@@ -59,3 +62,22 @@ class FitError(SonarmapError, ValueError):
 
 class SonarmapWarning(UserWarning):
     """Base class of sonarmap warnings."""
+
+
+def show_warning_one_line(
+    message: Warning | str,
+    category: type[Warning],
+    filename: str,
+    lineno: int,
+    file: object | None = None,
+    line: str | None = None,
+) -> None:
+    """A :func:`warnings.showwarning` that prints ``sonarmap: warning: <message>`` as one line on stderr.
+
+    The CLI installs it for the duration of a command, and the survey's worker processes install
+    it too, so that a warning raised while reading a file reads the same wherever it was raised.
+    """
+    text = " ".join(str(message).split()) or category.__name__
+    if not issubclass(category, UserWarning) or category is UserWarning:
+        text = f"{category.__name__}: {text}"
+    print(f"sonarmap: warning: {text}", file=sys.stderr)

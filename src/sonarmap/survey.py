@@ -839,6 +839,10 @@ def _pool_initializer(parent_pid: int) -> None:  # pragma: no cover - runs in wo
 
     # Ctrl-C is handled by the parent, which stops the pool; workers must not die half-way.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    # warnings raised while a worker reads its chunk print as one line, as the CLI prints its own
+    from sonarmap.errors import show_warning_one_line
+
+    warnings.showwarning = show_warning_one_line
 
     def watch() -> None:
         # A parent killed with SIGKILL cannot stop its pool: leave instead of idling forever.

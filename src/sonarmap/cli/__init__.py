@@ -23,7 +23,7 @@ import typer
 import typer.core
 
 from sonarmap import __version__
-from sonarmap.errors import SonarmapError
+from sonarmap.errors import SonarmapError, show_warning_one_line
 
 __all__ = ["app", "main", "COMMAND_MODULES", "state"]
 
@@ -141,21 +141,6 @@ def _one_line(text: object) -> str:
     return " ".join(str(text).split())
 
 
-def _show_warning(
-    message: Warning | str,
-    category: type[Warning],
-    filename: str,
-    lineno: int,
-    file: object | None = None,
-    line: str | None = None,
-) -> None:
-    """Print a warning as one line on stderr: ``sonarmap: warning: <message>``."""
-    text = _one_line(message) or category.__name__
-    if not issubclass(category, UserWarning) or category is UserWarning:
-        text = f"{category.__name__}: {text}"
-    print(f"sonarmap: warning: {text}", file=sys.stderr)
-
-
 #: Loggers of libraries that print multi-line tracebacks on connection loss (a killed dask
 #: scheduler or worker); the CLI reports such failures itself, in one line.
 _QUIET_LOGGERS = ("distributed", "tornado", "asyncio")
@@ -180,7 +165,7 @@ def _cli_output(debug: bool) -> Iterator[None]:
     saved_show = warnings.showwarning
     saved_levels = {name: logging.getLogger(name).level for name in _QUIET_LOGGERS}
     if not debug:
-        warnings.showwarning = _show_warning
+        warnings.showwarning = show_warning_one_line
         for name in _QUIET_LOGGERS:
             logging.getLogger(name).setLevel(logging.CRITICAL + 1)
     try:
