@@ -61,6 +61,14 @@ class ReportConfig:
 
 
 # ---------------------------------------------------------------------------- figure helpers
+
+def _metres(v: object) -> str:
+    """A range in metres for the summary table (3 decimals: mm), or "?"."""
+    try:
+        return f"{float(v):.3f}"  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        return "?"
+
 def _png(fig: Any, dpi: int) -> str:
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=dpi)
@@ -345,7 +353,7 @@ def render_report(store: str | os.PathLike[str], *, config: ReportConfig | None 
          if np.isfinite(kld).any() else "-"),
         ("beams with a return", f"{100 * hit.mean():.1f} %"),
         ("sonar", f"{geom.get('name', '?')}: {geom.get('num_beams', '?')} beams x {geom.get('num_bins', '?')} bins, "
-         f"{geom.get('min_range', '?')}-{geom.get('max_range', '?')} m"),
+         f"{_metres(geom.get('min_range'))}-{_metres(geom.get('max_range'))} m"),
         ("input files", attrs.get("n_input_files", "?")),
         ("registered points", int(ds.sizes["point"]) if "point" in ds.sizes else "none (no poses given)"),
         ("sonarmap version", attrs.get("sonarmap_version", "?")),
