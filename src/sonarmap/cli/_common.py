@@ -283,12 +283,16 @@ def count_pings(inputs: list[Path] | list[str]) -> int | None:
     try:
         from sonarmap.io import _is_store_dir, detect_format, expand_inputs, format_module, pngjson
 
+        import warnings
+
         total = 0
-        for p in expand_inputs([str(x) for x in inputs]):
-            p = Path(p)
-            fmt = "pngjson" if p.is_dir() and not _is_store_dir(p) else detect_format(p)
-            mod = pngjson if fmt == "pngjson" else format_module(fmt)
-            total += int(mod.count_pings(p))
+        with warnings.catch_warnings():  # reading the pings warns about the same records once
+            warnings.simplefilter("ignore")
+            for p in expand_inputs([str(x) for x in inputs]):
+                p = Path(p)
+                fmt = "pngjson" if p.is_dir() and not _is_store_dir(p) else detect_format(p)
+                mod = pngjson if fmt == "pngjson" else format_module(fmt)
+                total += int(mod.count_pings(p))
     except Exception:  # noqa: BLE001 - the count only sizes the progress bar
         return None
     return total

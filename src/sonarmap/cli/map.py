@@ -14,6 +14,7 @@ from sonarmap.cli._common import (
     STDOUT,
     VERBOSE_OPTION,
     check_choice,
+    count_pings,
     err_console,
     example,
     load_geometry_option,
@@ -24,20 +25,6 @@ from sonarmap.cli._common import (
 __all__ = ["register", "map_command"]
 
 _BATCH = 128
-
-
-def _count(inputs: list[Path]) -> int | None:
-    """Total pings (cheap, headers only), or None when a reader cannot count."""
-    from sonarmap.io import detect_format, format_module
-
-    total = 0
-    try:
-        for p in inputs:
-            fmt = "pngjson" if p.is_dir() else detect_format(p)
-            total += int(format_module(fmt).count_pings(p))
-    except Exception:  # noqa: BLE001 - only used for the progress bar
-        return None
-    return total
 
 
 def _cloud_to_stdout(cloud: Any, fmt: str, **kwargs: Any) -> None:
@@ -222,7 +209,7 @@ def map_command(
     fixed = SensorModel.fixed(0.8, 0.3) if fixed_model else None
 
     inputs = expand_inputs([str(p) for p in pings])
-    total = None if quiet else _count(inputs)
+    total = None if quiet else count_pings(inputs)
     clouds: list[PointCloud] = []
     stats = {"pings": 0, "skipped": 0, "returns": 0}
     batch: list[tuple[Any, Any]] = []  # (ping, products)
