@@ -11,7 +11,7 @@ import typer
 
 __all__ = [
     "GEOMETRY_OPTION", "OUTPUT_OPTION", "QUIET_OPTION", "STDOUT", "VERBOSE_OPTION", "PingProgress", "check_choice",
-    "console", "count_pings", "err_console", "example", "load_geometry_option", "open_output", "output_name", "ping_progress",
+    "console", "count_pings", "err_console", "example", "first_ping", "load_geometry_option", "open_output", "output_name", "ping_progress",
 ]
 
 GEOMETRY_OPTION: Any = typer.Option(
@@ -28,6 +28,34 @@ VERBOSE_OPTION: Any = typer.Option(False, "--verbose", "-v", help="One line per 
 
 #: The ``-o`` value that means standard output.
 STDOUT = "-"
+
+
+def first_ping(
+    pings: Iterator[Any], argument: str = "PINGS",
+    message: str = "no complete ping in the input (nothing written)",
+) -> tuple[Any, Iterator[Any]]:
+    """Read the first ping before any work, so that an unreadable input prints only its error.
+
+    Returns
+    -------
+    first : Ping
+        The first ping.
+    pings : iterator of Ping
+        All the pings, the first one included.
+
+    Raises
+    ------
+    InputError
+        ``"<argument>: <message>"`` when the input holds no ping.
+    """
+    import itertools
+
+    from sonarmap.errors import InputError
+
+    first = next(pings, None)
+    if first is None:
+        raise InputError(f"{argument}: {message}")
+    return first, itertools.chain([first], pings)
 
 
 def console() -> Any:

@@ -66,8 +66,8 @@ def register(app: typer.Typer) -> None:
 
         import numpy as np
 
-        from sonarmap.cli._common import count_pings, err_console, open_output, output_name, ping_progress
-        from sonarmap.errors import GeometryError, InputError
+        from sonarmap.cli._common import count_pings, err_console, first_ping, open_output, output_name, ping_progress
+        from sonarmap.errors import GeometryError
         from sonarmap.io import read_pings
         from sonarmap.preprocess.normalise import estimate_recording_background
 
@@ -75,15 +75,11 @@ def register(app: typer.Typer) -> None:
         check_choice(taper_estimator, ("mean", "nonzero-mean"), "--taper-estimator")
         geom_override = load_geometry_option(sonar)
         ping_iter = read_pings([str(p) for p in background], geometry=geom_override)
-        first = next(ping_iter, None)  # before the bar: an unreadable input prints only its error
-        if first is None:
-            raise InputError("recording: no pings")
-        pings = [first]
+        _, ping_iter = first_ping(ping_iter, "recording", "no pings")  # before the bar
+        pings = []
         with ping_progress("calibrate", None if quiet else count_pings(background), quiet=quiet,
                            verbose=verbose) as bar:
             bar.start()
-            bar.advance()
-            bar.log(f"read {first.source}")
             for ping in ping_iter:
                 pings.append(ping)
                 bar.advance()

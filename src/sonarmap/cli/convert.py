@@ -13,6 +13,7 @@ from sonarmap.cli._common import (
     VERBOSE_OPTION,
     check_choice,
     count_pings,
+    first_ping,
     example,
     load_geometry_option,
     ping_progress,
@@ -44,9 +45,7 @@ def convert(
     An existing output is extended with --append (zarr) or replaced with --overwrite; without
     either it is left alone and the command exits 1 before reading anything.
     """
-    import itertools
 
-    from sonarmap.errors import InputError
     from sonarmap.io import expand_inputs, read_pings
 
     if to is not None:
@@ -65,14 +64,12 @@ def convert(
     paths = expand_inputs([str(p) for p in inputs])
     read_kwargs: dict[str, Any] = {"topic": topic} if topic else {}
     ping_iter = read_pings(paths, geometry=geometry, **read_kwargs)
-    first = next(ping_iter, None)  # before the bar: an unreadable input prints only its error
-    if first is None:
-        raise InputError("INPUTS: no complete ping in the input (nothing written)")
+    _, ping_iter = first_ping(ping_iter, "INPUTS")  # before the bar: an unreadable input prints only its error
     with ping_progress("convert", None if no_bar else count_pings(paths), quiet=no_bar, verbose=verbose) as bar:
         bar.start()
 
         def pings() -> Any:
-            for ping in itertools.chain([first], ping_iter):
+            for ping in ping_iter:
                 yield ping
                 bar.advance()
                 bar.log(f"{ping.source}")

@@ -44,10 +44,8 @@ def register(app: typer.Typer) -> None:
         in the pipeline).  Give -o - to write the CSV to stdout; a file is replaced atomically.
         """
         import csv
-        import itertools
 
-        from sonarmap.cli._common import count_pings, err_console, open_output, output_name, ping_progress
-        from sonarmap.errors import InputError
+        from sonarmap.cli._common import count_pings, err_console, first_ping, open_output, output_name, ping_progress
         from sonarmap.io import read_pings
         from sonarmap.preprocess.pipeline import RECIPES
         from sonarmap.stats.components import FAMILIES
@@ -69,9 +67,7 @@ def register(app: typer.Typer) -> None:
             cfg = get_recipe(check_choice(recipe, RECIPES, "--recipe"))
         geom = load_geometry_option(sonar)
         ping_iter = read_pings([str(p) for p in pings], geometry=geom)
-        first = next(ping_iter, None)  # before the bar: an unreadable input prints only its error
-        if first is None:
-            raise InputError("PINGS: no complete ping in the input (nothing written)")
+        _, ping_iter = first_ping(ping_iter)  # before the bar: an unreadable input prints only its error
         bar = ping_progress("fit", None if quiet else count_pings(pings), quiet=quiet, verbose=verbose)
         with open_output(output, newline="") as fh, bar:
             bar.start()
@@ -81,7 +77,7 @@ def register(app: typer.Typer) -> None:
             from sonarmap.preprocess.normalise import estimate_background
             from sonarmap.stats.gates import fit_gates
 
-            for ping in itertools.chain([first], ping_iter):
+            for ping in ping_iter:
                 img = ping.image
                 normalised = None
                 if normalise and float(img.max()) > float(img.min()):

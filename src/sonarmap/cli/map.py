@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import itertools
 from pathlib import Path
 from typing import Any
 
@@ -15,6 +14,7 @@ from sonarmap.cli._common import (
     VERBOSE_OPTION,
     check_choice,
     count_pings,
+    first_ping,
     err_console,
     example,
     load_geometry_option,
@@ -245,9 +245,7 @@ def map_command(
     progress = ping_progress("map", total, quiet=quiet, verbose=verbose)
     # The first ping is read before any processing, so that input and pose errors come first.
     ping_iter = read_pings(inputs, geometry=geometry)
-    first = next(ping_iter, None)
-    if first is None:
-        raise InputError("PINGS: no complete ping in the input (nothing written)")
+    first, ping_iter = first_ping(ping_iter)
     georef = None
     use_nav = False
     if traj is None and first.pose is None and not static:
@@ -280,7 +278,7 @@ def map_command(
     with progress:
         progress.start()
         last_geom = None
-        for ping in itertools.chain([first], ping_iter):
+        for ping in ping_iter:
             if last_geom is not None and ping.geometry.shape != last_geom.shape:
                 flush()
             last_geom = ping.geometry

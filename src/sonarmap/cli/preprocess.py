@@ -46,10 +46,8 @@ def register(app: typer.Typer) -> None:
         pre-processed ping exceeds 1 (e.g. after the taper division), the PNG holds the image
         divided by intensity_scale and the JSON records intensity_scale.
         """
-        import itertools
 
-        from sonarmap.cli._common import count_pings, err_console, ping_progress
-        from sonarmap.errors import InputError
+        from sonarmap.cli._common import count_pings, err_console, first_ping, ping_progress
         from sonarmap.io import read_pings
         from sonarmap.preprocess.pipeline import RECIPES, load_config, recipe
 
@@ -60,14 +58,12 @@ def register(app: typer.Typer) -> None:
         cfg = load_config(config) if config is not None else recipe(recipe_name)
         geom = load_geometry_option(sonar)
         ping_iter = read_pings([str(p) for p in pings], geometry=geom)
-        first = next(ping_iter, None)  # before the bar: an unreadable input prints only its error
-        if first is None:
-            raise InputError("PINGS: no complete ping in the input (nothing written)")
+        _, ping_iter = first_ping(ping_iter)  # before the bar: an unreadable input prints only its error
         n = 0
         bar = ping_progress("preprocess", None if quiet else count_pings(pings), quiet=quiet, verbose=verbose)
         with bar:
             bar.start()
-            for ping in itertools.chain([first], ping_iter):
+            for ping in ping_iter:
                 _one(ping, n, cfg, output, figure)
                 n += 1
                 bar.advance()

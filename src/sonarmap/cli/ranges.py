@@ -263,9 +263,8 @@ def register(app: typer.Typer) -> None:
         replaced atomically when the command succeeds.
         """
         import csv
-        import itertools
 
-        from sonarmap.cli._common import count_pings, open_output, output_name, ping_progress
+        from sonarmap.cli._common import count_pings, first_ping, open_output, output_name, ping_progress
         from sonarmap.io import read_pings
         from sonarmap.pipeline import process_ping
 
@@ -280,13 +279,9 @@ def register(app: typer.Typer) -> None:
         with open_output(output, newline="") as fh, bar:
             w = csv.writer(fh)
             ping_iter = read_pings([str(p) for p in pings], geometry=geom)
-            first = next(ping_iter, None)  # before the bar: an unreadable input prints only its error
-            if first is None:
-                from sonarmap.errors import InputError
-
-                raise InputError("PINGS: no complete ping in the input (nothing written)")
+            _, ping_iter = first_ping(ping_iter)  # before the bar: an unreadable input prints only its error
             bar.start()
-            for ping in itertools.chain([first], ping_iter):
+            for ping in ping_iter:
                 prod = process_ping(ping, cfg, background=rec)
                 if n_pings == 0:
                     w.writerow(CSV_HEADER)  # after the first ping: an unreadable input writes nothing

@@ -78,24 +78,20 @@ def register(app: typer.Typer) -> None:
         class) and STEM_segment.png (raw | fixed threshold | MRF) into the output directory,
         which is created if needed; files in it are replaced atomically.
         """
-        import itertools
 
-        from sonarmap.cli._common import count_pings, err_console, ping_progress
-        from sonarmap.errors import InputError
+        from sonarmap.cli._common import count_pings, err_console, first_ping, ping_progress
         from sonarmap.io import read_pings
 
         cfg = pipeline_config_from_options(config, method, solver, beta)
         geom = load_geometry_option(sonar)
         ping_iter = read_pings([str(p) for p in pings], geometry=geom)
-        first = next(ping_iter, None)  # before the bar and the directory: input errors come first
-        if first is None:
-            raise InputError("PINGS: no complete ping in the input (nothing written)")
+        _, ping_iter = first_ping(ping_iter)  # before the bar and the directory: input errors come first
         output.mkdir(parents=True, exist_ok=True)
         n = 0
         bar = ping_progress("segment", None if quiet else count_pings(pings), quiet=quiet, verbose=verbose)
         with bar:
             bar.start()
-            for i, ping in enumerate(itertools.chain([first], ping_iter)):
+            for i, ping in enumerate(ping_iter):
                 _segment_one(ping, i, output, cfg, figure)
                 n += 1
                 bar.advance()
