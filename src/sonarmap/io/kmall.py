@@ -84,6 +84,8 @@ from sonarmap.io.kongsberg import (
     AMPLITUDE_DB_STEP,
     _open_buffer,
     _ping_geometry,
+    find_sibling,
+    pair_key,
     _kernels,
     _Series,
 )
@@ -1039,22 +1041,14 @@ def sibling_paths(path: str | os.PathLike[str]) -> tuple[Path | None, Path | Non
     a file with another extension is taken as the ``.kmall``.
     """
     p = Path(path)
-
-    def find(suffix: str) -> Path | None:
-        for s in (suffix, suffix.upper()):
-            q = p.with_suffix(s)
-            if q.exists() and not q.is_dir():
-                return q
-        return None
-
     if p.suffix.lower() == ".kmwcd":
-        return find(".kmall"), p
-    return p, find(".kmwcd")
+        return find_sibling(p, ".kmall"), p
+    return p, find_sibling(p, ".kmwcd")
 
 
 def recording_key(path: str | os.PathLike[str]) -> tuple[str, ...]:
     """The recording a file belongs to: its ``.kmall`` / ``.kmwcd`` pair (read once when both are given)."""
-    return tuple(str(q.resolve()) if q is not None else "" for q in sibling_paths(path))
+    return pair_key(sibling_paths(path))
 
 
 def count_pings(path: str | os.PathLike[str]) -> int:

@@ -78,8 +78,9 @@ from sonarmap.io._binary import (
     count_container_pings,
     header_errors,
     make_summary,
+    map_file,
 )
-from sonarmap.io._files import open_regular, require_regular_file
+from sonarmap.io._files import require_regular_file
 from sonarmap.ping import Ping
 
 __all__ = [
@@ -400,20 +401,23 @@ def sibling_paths(path: str | os.PathLike[str]) -> tuple[Path | None, Path | Non
     regular file, so that the reader refuses it (a FIFO) rather than silently ignoring it.
     """
     p = Path(path)
-    ext = p.suffix.lower()
+    if p.suffix.lower() == ".wcd":
+        return find_sibling(p, ".all"), p
+    return p, find_sibling(p, ".wcd")
 
-    def find(suffix: str) -> Path | None:
-        for s in (suffix, suffix.upper()):
-            q = p.with_suffix(s)
-            if q.exists() and not q.is_dir():
-                return q
-        return None
 
-    if ext == ".wcd":
-        return find(".all"), p
-    if ext == ".all":
-        return p, find(".wcd")
-    return p, find(".wcd")
+def find_sibling(path: Path, suffix: str) -> Path | None:
+    """The file beside ``path`` with its stem and ``suffix`` (lower or upper case) that is not a directory."""
+    for s in (suffix, suffix.upper()):
+        q = path.with_suffix(s)
+        if q.exists() and not q.is_dir():
+            return q
+    return None
+
+
+def pair_key(pair: tuple[Path | None, Path | None]) -> tuple[str, ...]:
+    """A recording's identity from its pair of files (resolved paths; ``""`` where one is absent)."""
+    return tuple(str(q.resolve()) if q is not None else "" for q in pair)
 
 
 @functools.lru_cache(maxsize=32)
@@ -490,15 +494,11 @@ class _Index:
 
 
 def _open_buffer(path: Path, what: str) -> NDArray[np.uint8]:
-    with open_regular(path, what) as fh:
-        size = os.fstat(fh.fileno()).st_size
-        if size == 0:
-            raise DataFormatError(f"{what} is empty", path, 0)
-        try:
-            mm = np.memmap(fh, dtype=np.uint8, mode="r", shape=(size,))
-        except (OSError, ValueError) as exc:
-            raise DataFormatError(f"cannot memory-map: {exc}", path) from None
-    return mm.view(np.ndarray)
+    """The file memory-mapped read-only (regular files only; an empty one is an error)."""
+    buf = map_file(path, what=what)
+    if buf.size == 0:
+        raise DataFormatError(f"{what} is empty", path, 0)
+    return buf.view(np.ndarray)
 
 
 def _scan(path: Path, what: str) -> _Index:
@@ -1410,8 +1410,7 @@ def iter_pings(
 
 def recording_key(path: str | os.PathLike[str]) -> tuple[str, ...]:
     """The recording a file belongs to: its ``.all`` / ``.wcd`` pair (read once when both are given)."""
-    pair = sibling_paths(path)
-    return tuple(str(q.resolve()) if q is not None else "" for q in pair)
+    return pair_key(sibling_paths(path))
 
 
 def count_pings(path: str | os.PathLike[str]) -> int:
