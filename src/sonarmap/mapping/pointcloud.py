@@ -523,7 +523,9 @@ def _read_sidecar(path: Path) -> dict[str, Any]:
     if not side.is_file():
         return {}
     try:
-        d = json.loads(side.read_text(encoding="utf-8"))
+        from sonarmap.io._files import MAX_SIDECAR_BYTES, read_bytes_bounded
+
+        d = json.loads(read_bytes_bounded(side, MAX_SIDECAR_BYTES, "CSV sidecar").decode("utf-8"))
     except (OSError, UnicodeDecodeError, ValueError) as exc:
         raise DataFormatError(f"cannot read the CSV's sidecar {side.name}: {exc}", path) from None
     if not isinstance(d, dict):
