@@ -45,10 +45,25 @@ __all__ = [
     "compose_transforms",
     "as_points",
     "polar_to_sensor",
+    "world_frame",
 ]
 
 #: Accepted world-frame names: ``"ned"`` (world NED, body FRD) and ``"enu"`` (ROS: ENU/FLU).
 WORLD_FRAMES = ("ned", "enu")
+
+
+def world_frame(frame: str) -> str:
+    """``frame`` in lower case, checked against :data:`WORLD_FRAMES`.
+
+    Raises
+    ------
+    InputError
+        If it names no world frame.
+    """
+    fr = str(frame).lower()
+    if fr not in WORLD_FRAMES:
+        raise InputError(f"frame: must be one of {WORLD_FRAMES}, got {frame!r}")
+    return fr
 
 #: ``p_ned = NED_FROM_ENU @ p_enu`` (swap x/y, negate z); its own inverse.
 NED_FROM_ENU: NDArray[np.float64] = np.array(

@@ -33,7 +33,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from sonarmap.errors import InputError
-from sonarmap.mapping.frames import WORLD_FRAMES, as_points, enu_to_ned
+from sonarmap.mapping.frames import as_points, enu_to_ned, world_frame
 
 if TYPE_CHECKING:  # pragma: no cover - typing only (pyproj is imported lazily)
     import pyproj
@@ -270,13 +270,13 @@ class GeoReference:
 
     # ------------------------------------------------------------------ conversions
     def _local_to_enu(self, points: ArrayLike, frame: str, name: str) -> NDArray[np.float64]:
-        fr = _frame(frame)
+        fr = world_frame(frame)
         p = as_points(points, name)
         _finite(p, name)
         return enu_to_ned(p) if fr == "ned" else p  # the permutation is its own inverse
 
     def _enu_to_local(self, enu: NDArray[np.float64], frame: str) -> NDArray[np.float64]:
-        return enu_to_ned(enu) if _frame(frame) == "ned" else enu
+        return enu_to_ned(enu) if world_frame(frame) == "ned" else enu
 
     def local_to_ecef(self, points_local: ArrayLike, frame: str = "ned") -> NDArray[np.float64]:
         """Geocentric WGS 84 coordinates (EPSG:4978) of local points, shape ``(..., 3)``."""
@@ -409,10 +409,3 @@ class GeoReference:
         """One line: origin, CRS, convergence and scale factor."""
         return (f"origin {self.lat0_deg:.7f}, {self.lon0_deg:.7f}, {self.height0_m:g} m -> {self.crs_name} "
                 f"(convergence {math.degrees(self.grid_convergence_rad):.4f} deg, scale {self.scale_factor:.6f})")
-
-
-def _frame(frame: str) -> str:
-    fr = str(frame).lower()
-    if fr not in WORLD_FRAMES:
-        raise InputError(f"frame: must be one of {WORLD_FRAMES}, got {frame!r}")
-    return fr

@@ -43,7 +43,7 @@ from numpy.typing import NDArray
 
 from sonarmap._atomic import atomic_write_bytes
 from sonarmap.errors import DataFormatError, InputError
-from sonarmap.mapping.frames import WORLD_FRAMES
+from sonarmap.mapping.frames import world_frame
 from sonarmap.mapping.occupancy import OccupancyArray, OccupancyMap
 
 __all__ = ["OcTreeFile", "OcTreeLeaves", "write_octomap_bt", "read_octomap_bt", "octomap_keys", "TREE_DEPTH"]
@@ -151,9 +151,7 @@ def octomap_keys(ijk: NDArray[np.int64], *, frame: str = "enu") -> NDArray[np.in
     InputError
         If a voxel is outside OctoMap's 16-bit key range.
     """
-    fr = str(frame).lower()
-    if fr not in WORLD_FRAMES:
-        raise InputError(f"frame: must be one of {WORLD_FRAMES}, got {frame!r}")
+    fr = world_frame(frame)
     v = np.asarray(ijk, dtype=np.int64).reshape(-1, 3)
     if fr == "enu":  # the NED cube [i, i+1) x [j, j+1) x [k, k+1) (N, E, D) is ENU [j, ..) x [i, ..) x [-k-1, -k)
         v = np.stack([v[:, 1], v[:, 0], -v[:, 2] - 1], axis=1)

@@ -57,6 +57,7 @@ from sonarmap.mapping.frames import (
     compose_transforms,
     pose_enu_flu_to_ned_frd,
     pose_ned_frd_to_enu_flu,
+    world_frame,
 )
 from sonarmap.ping import Pose
 
@@ -508,9 +509,7 @@ def write_trajectory_csv(
     trajectory: Trajectory, path: str | os.PathLike[str], *, frame: str = "ned"
 ) -> None:
     """Write a trajectory CSV (``time_ns,x,y,z,qx,qy,qz,qw``) atomically, in NED/FRD or ENU/FLU."""
-    fr = frame.lower()
-    if fr not in WORLD_FRAMES:
-        raise InputError(f"frame: must be one of {WORLD_FRAMES}, got {frame!r}")
+    fr = world_frame(frame)
     if fr == "enu":
         pos, quat = trajectory.to_enu()
         desc = "world ENU, body FLU (ROS REP-103)"

@@ -39,7 +39,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from sonarmap._atomic import atomic_path
 from sonarmap.errors import DataFormatError, InputError
-from sonarmap.mapping.frames import WORLD_FRAMES
+from sonarmap.mapping.frames import world_frame
 from sonarmap.mapping.georef import GeoReference
 from sonarmap.mapping.occupancy import OccupancyArray, OccupancyMap
 from sonarmap.mapping.register import PointCloud
@@ -168,11 +168,6 @@ class GeoRaster:
 
 
 # ---------------------------------------------------------------------------------- helpers
-def _frame(frame: str) -> str:
-    fr = str(frame).lower()
-    if fr not in WORLD_FRAMES:
-        raise InputError(f"frame: must be one of {WORLD_FRAMES}, got {frame!r}")
-    return fr
 
 
 def _positive(value: float, name: str) -> float:
@@ -253,7 +248,7 @@ def resample_local_grid(
     inverse projection uses the origin's height: over 1 km a 20 m height difference moves the
     local position by ~3 mm (the tilt of the vertical across the survey).
     """
-    fr = _frame(frame)
+    fr = world_frame(frame)
     g = np.asarray(grid, dtype=np.float64)
     if g.ndim == 2:
         g = g[None]
@@ -563,4 +558,3 @@ def read_geotiff(path: str | os.PathLike[str]) -> GeoRaster:
         raise DataFormatError(f"cannot read GeoTIFF: {' '.join(str(exc).split())[:200]}", p) from None
     return GeoRaster(data, (t.a, t.b, t.c, t.d, t.e, t.f), wkt, epsg, names,
                      tuple(tg.get("units", "") for tg in tags), tuple(tg.get("meaning", "") for tg in tags), nodata)
-

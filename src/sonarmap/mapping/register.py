@@ -144,11 +144,9 @@ class PointCloud:
 
     def to_frame(self, frame: str) -> PointCloud:
         """The same points with coordinates in ``"ned"`` or ``"enu"``."""
-        from sonarmap.mapping.frames import WORLD_FRAMES, enu_to_ned
+        from sonarmap.mapping.frames import enu_to_ned, world_frame
 
-        fr = frame.lower()
-        if fr not in WORLD_FRAMES:
-            raise InputError(f"frame: must be one of {WORLD_FRAMES}, got {frame!r}")
+        fr = world_frame(frame)
         if fr == self.frame:
             return self
         return dataclasses.replace(self, xyz_m=enu_to_ned(self.xyz_m), frame=fr)
