@@ -68,6 +68,7 @@ from numpy.typing import NDArray
 from sonarmap.errors import DataFormatError
 from sonarmap.geometry import SonarGeometry, as_geometry
 from sonarmap.io._binary import (
+    MAX_PLAUSIBLE_TIME_NS,
     PartialFrameWarning,
     check_sound_speed,
     check_time_ns,
@@ -1020,7 +1021,7 @@ def sniff(path: Path, head: bytes) -> bool:
         return False
     if int(h["time_nanosec"]) >= 1_000_000_000:
         return False
-    if int(h["time_sec"]) * 1_000_000_000 > 7_258_118_400 * 10**9:
+    if int(h["time_sec"]) * 1_000_000_000 > MAX_PLAUSIBLE_TIME_NS:
         return False
     if length <= len(head):
         return int.from_bytes(head[length - 4 : length], "little") == length
