@@ -36,7 +36,7 @@ def test_calibrate_aris_recording_and_use_it(data_dir, tmp_path, capsys):
 
     out = tmp_path / "aris.json"
     assert main(["calibrate", str(data_dir / "aris" / "sample.aris"), "-o", str(out)]) == 0
-    text = capsys.readouterr().out
+    text = capsys.readouterr().err
     assert "not thresholded" in text and "cannot estimate: only 6 pings" in text
     cal = json.loads(out.read_text())["calibration"]
     assert cal["kind"] == "normalised"
@@ -61,7 +61,7 @@ def test_calibrate_aris_recording_and_use_it(data_dir, tmp_path, capsys):
 def test_calibrate_three_ping_oculus_says_what_it_cannot_estimate(data_dir, tmp_path, capsys):
     out = tmp_path / "oc.json"
     assert main(["calibrate", str(data_dir / "oculus" / "three_pings_8bit.raw"), "-o", str(out)]) == 0
-    text = capsys.readouterr().out
+    text = capsys.readouterr().err
     assert "cannot estimate: only 3 pings" in text
     assert "window starts at 0 m" in text
     cal = json.loads(out.read_text())["calibration"]

@@ -199,8 +199,7 @@ def test_results_on_stdout_only_with_dash(cmd: str, two_pings: Path, tmp_path: P
     assert main(args) == 0
     to_file = capsys.readouterr()
     expected = out_file.read_text(encoding="utf-8")
-    if cmd != "calibrate":  # calibrate's summary stays on stdout next to a file
-        assert to_file.out == ""
+    assert to_file.out == ""
     args[args.index("-o") + 1] = "-"
     assert main(args) == 0
     cap = capsys.readouterr()
@@ -282,7 +281,7 @@ def test_report_quiet(two_pings: Path, tmp_path: Path, capsys: pytest.CaptureFix
     cap = capsys.readouterr()
     assert cap.out == "" and _lines(cap.err) == []
     assert main(["report", str(store), "-o", str(tmp_path / "r2.html"), "--examples", "0"]) == 0
-    assert "r2.html" in capsys.readouterr().out
+    assert "r2.html" in capsys.readouterr().err
 
 
 #: The overwrite policy: a result file (or the files in an output directory) is replaced

@@ -134,7 +134,7 @@ def test_cli_report(store: Path, tmp_path: Path) -> None:
     r = subprocess.run([sys.executable, "-m", "sonarmap", "report", str(store), "-o", str(out),
                         "--examples", "0"], capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stderr
-    assert out.exists() and str(out) in r.stdout
+    assert out.exists() and str(out) in r.stderr and r.stdout == ""
     r = subprocess.run([sys.executable, "-m", "sonarmap", "report", str(store), "-o", str(out)],
                        capture_output=True, text=True, timeout=120)
     assert r.returncode == 1 and "--overwrite" in r.stderr

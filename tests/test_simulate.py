@@ -246,7 +246,7 @@ def test_cli_simulate(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> Non
     out = tmp_path / "sim"
     assert main(["simulate", "--scene", "hull", "--seed", "0", "--count", "2", "--sonar", "didson-hf",
                  "-o", str(out)]) == 0
-    assert str(out) in capsys.readouterr().out
+    assert str(out) in capsys.readouterr().err
     assert len(list(out.glob("*_raw.png"))) == 2 and len(list(out.glob("*_truth.json"))) == 2
     assert main(["simulate", "--scene", "nope", "-o", str(out)]) == 2  # usage error
     assert "nope" in capsys.readouterr().err

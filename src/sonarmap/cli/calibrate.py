@@ -98,14 +98,9 @@ def register(app: typer.Typer) -> None:
                 fh.write(json.dumps(d, indent=1) + "\n")
         if quiet:
             return
-        # the summary is on stdout next to a file (what scripts of earlier versions read); on
-        # stderr when the JSON itself goes to stdout
-        to_stderr = output_name(output) == "stdout"
+        # the summary is a message: on stderr (the calibration itself is the file, or stdout)
         for line in [*lines, f"-> {output_name(output)}"]:
-            if to_stderr:
-                err_console().print(line, markup=False, soft_wrap=True)
-            else:
-                typer.echo(line)
+            err_console().print(line, markup=False, soft_wrap=True)
 
 
 def _calibrate_thresholded(pings: list, geom: object, method: str, taper_estimator: str) -> tuple[dict, list[str]]:  # type: ignore[type-arg]

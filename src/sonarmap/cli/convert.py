@@ -85,7 +85,7 @@ def convert(
             n = write_bag(pings(), output, version=1 if kind == "bag1" else 2,
                           topic=topic or "/sonar/image")
     if not quiet:  # -q silences the summary too; --no-progress only the bar
-        typer.echo(f"wrote {n} pings to {output}")
+        typer.echo(f"wrote {n} pings to {output}", err=True)
 
 
 def register(app: typer.Typer) -> None:

@@ -7,7 +7,7 @@ from typing import Any
 
 import typer
 
-from sonarmap.cli._common import GEOMETRY_OPTION, console, err_console, example
+from sonarmap.cli._common import GEOMETRY_OPTION, err_console, example
 
 __all__ = ["register", "process_command", "survey_progress"]
 
@@ -142,8 +142,8 @@ def process_command(
     if not quiet:
         from sonarmap.cli.ranges import flagged_summary
 
-        console().print(result.summary(), soft_wrap=True, markup=False)
-        console().print(flagged_summary(list(result.gates)), soft_wrap=True, markup=False)
+        err_console().print(result.summary(), soft_wrap=True, markup=False)
+        err_console().print(flagged_summary(list(result.gates)), soft_wrap=True, markup=False)
         if verbose:
             err_console().print(f"process: {result.n_pings} pings in {time.perf_counter() - t0:.2f} s",
                                 soft_wrap=True, markup=False)

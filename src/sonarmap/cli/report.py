@@ -6,7 +6,7 @@ from pathlib import Path
 
 import typer
 
-from sonarmap.cli._common import console, example
+from sonarmap.cli._common import err_console, example
 
 __all__ = ["register", "report_command"]
 
@@ -28,7 +28,7 @@ def report_command(
     path = build_report(store, output, config=ReportConfig(n_examples=examples, title=title),
                         overwrite=overwrite)
     if not quiet:
-        console().print(f"report: {path}", soft_wrap=True, markup=False)
+        err_console().print(f"report: {path}", soft_wrap=True, markup=False)
 
 
 def register(app: typer.Typer) -> None:

@@ -55,4 +55,4 @@ def register(app: typer.Typer) -> None:
             p = read_ping(ping, geometry=geom, index=index)
         fig = show_ping_figure(p, resolution_m=resolution, polar=polar, vmax=vmax)
         save_figure(fig, output)
-        typer.echo(f"wrote {output}")
+        typer.echo(f"wrote {output}", err=True)

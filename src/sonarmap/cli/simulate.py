@@ -58,4 +58,4 @@ def register(app: typer.Typer) -> None:
                 bar.advance()
                 bar.log(f"ping {i} (seed {seed + i}) -> {out}")
         if not quiet:
-            typer.echo(f"wrote {count} simulated '{scene}' ping(s) ({geom.name}) + truth to {out}")
+            typer.echo(f"wrote {count} simulated '{scene}' ping(s) ({geom.name}) + truth to {out}", err=True)

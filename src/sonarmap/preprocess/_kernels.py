@@ -33,9 +33,21 @@ def pooled_ratio(img, level, factor, pool_r, pool_c):  # pragma: no cover - numb
         inv = 1.0 / level[i]
         for j in range(m):
             z[i, j] = img[i, j] * inv / factor[i, j]
+    # along range for all beams at once, row by row (contiguous rows; a column-by-column pass
+    # strides through memory): per beam the same arithmetic as _running_mean, so the same bits
     tmp = np.empty((n, m), dtype=np.float32)
-    for j in range(m):
-        _running_mean(z[:, j], tmp[:, j], pool_r)
+    s = np.zeros(m)
+    h = pool_r // 2
+    for k in range(-h, pool_r - h):
+        r = min(max(k, 0), n - 1)
+        for j in range(m):
+            s[j] += z[r, j]
+    for i in range(n):
+        a = min(max(i - h + pool_r, 0), n - 1)
+        b = min(max(i - h, 0), n - 1)
+        for j in range(m):
+            tmp[i, j] = s[j] / pool_r
+            s[j] += z[a, j] - z[b, j]
     for i in range(n):
         _running_mean(tmp[i], z[i], pool_c)
     return z
