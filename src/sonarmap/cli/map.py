@@ -92,12 +92,17 @@ def map_command(
         None, "--extrinsics", "-e", help="Sonar mounting JSON (translation_m + rotation_xyzw|rotation_rpy_deg)."
     ),
     output: Path = typer.Option(
-        ..., "--output", "-o", help="Output point cloud (.ply, .las or .csv); - writes it to stdout (give --format)."
+        ..., "--output", "-o", help="Output point cloud (.ply, .las or .csv; .bag: ROS 1 PointCloud2 per ping); "
+        "- writes it to stdout (give --format)."
     ),
     grid: float | None = typer.Option(
         None, "--grid", min=1e-4, help="Build an occupancy map at this resolution (m) and write its occupied cells."
     ),
-    fmt: str | None = typer.Option(None, "--format", "-f", help="ply | las | csv (default: from the output suffix)."),
+    fmt: str | None = typer.Option(
+        None, "--format", "-f",
+        help="ply | las | csv, or bag1 | bag2 (ROS 1 / ROS 2 bag of sensor_msgs/PointCloud2, one per ping) "
+        "(default: from the output suffix).",
+    ),
     sonar: str | None = GEOMETRY_OPTION,
     config: Path | None = typer.Option(None, "--config", "-c", help="Pipeline configuration (TOML)."),
     dims: int = typer.Option(3, "--dims", min=2, max=3, help="Occupancy map: 3 = voxels, 2 = horizontal grid."),
@@ -178,12 +183,22 @@ def map_command(
         check_choice(poses_frame, ("ned", "enu"), "--poses-frame")
     if str(output) == STDOUT and fmt is None:
         raise typer.BadParameter("-o - needs --format ply, las or csv", param_hint="--format")
-    try:
-        out_fmt = (fmt or format_from_suffix(output)).lower()
-    except (ValueError, SonarmapError) as exc:
-        raise typer.BadParameter(str(exc), param_hint="--output") from None
-    if out_fmt not in CLOUD_FORMATS:
-        raise typer.BadParameter(f"must be one of {', '.join(CLOUD_FORMATS)}", param_hint="--format")
+    bag_kind = fmt.lower() if fmt is not None and fmt.lower() in ("bag1", "bag2") else (
+        "bag1" if fmt is None and output.suffix.lower() == ".bag" else None)
+    if bag_kind is not None:
+        if str(output) == STDOUT:
+            raise typer.BadParameter("a bag cannot be written to stdout; give a path", param_hint="--output")
+        if grid is not None:
+            raise typer.BadParameter("a bag holds the per-ping point clouds; occupancy maps (--grid) are "
+                                     "written as .ply, .las or .csv", param_hint="--grid")
+        out_fmt = bag_kind
+    else:
+        try:
+            out_fmt = (fmt or format_from_suffix(output)).lower()
+        except (ValueError, SonarmapError) as exc:
+            raise typer.BadParameter(str(exc), param_hint="--output") from None
+        if out_fmt not in CLOUD_FORMATS:
+            raise typer.BadParameter(f"must be one of {', '.join(CLOUD_FORMATS)}, bag1, bag2", param_hint="--format")
     for opt, path, suffixes in (("--geotiff", geotiff, (".tif", ".tiff")), ("--octomap", octomap, (".bt",)),
                                 ("--grid-array", grid_array, (".npz",))):
         if path is not None and path.suffix.lower() not in suffixes:
@@ -307,7 +322,18 @@ def map_command(
                     )
         kind = "occupancy" if occ is not None else "points"
         where = {"georef": georef} if georef is not None else {"frame": out_frame}
-        if str(output) == STDOUT:
+        if bag_kind is not None:
+            from sonarmap.io.rosbag_products import write_points_bag
+
+            if georef is not None:
+                from sonarmap.mapping.pointcloud import _georeferenced
+
+                bag_cloud = _georeferenced(out_cloud, None, georef)  # projected E, N, up: float64 needed
+            else:
+                bag_cloud = out_cloud.to_frame(out_frame)
+            write_points_bag([bag_cloud], output, version=1 if bag_kind == "bag1" else 2,
+                             xyz_dtype="float64" if georef is not None else "float32")
+        elif str(output) == STDOUT:
             _cloud_to_stdout(out_cloud, out_fmt, kind=kind, **where)
         else:
             write_point_cloud(out_cloud, output, format=out_fmt, kind=kind, **where)

@@ -246,6 +246,10 @@ def register(app: typer.Typer) -> None:
         config: Path | None = CONFIG_OPTION,
         strict: bool = STRICT_OPTION,
         calibration: Path | None = CALIBRATION_OPTION,
+        to: str | None = typer.Option(
+            None, "--to", help="Output kind: csv, bag1 (ROS 1 .bag) or bag2 (ROS 2 bag directory) of "
+            "marine_acoustic_msgs/SonarRanges (default: bag1 for *.bag, else csv)."
+        ),
         quiet: bool = QUIET_OPTION,
         verbose: bool = VERBOSE_OPTION,
     ) -> None:
@@ -260,14 +264,22 @@ def register(app: typer.Typer) -> None:
         p_detect: probability that a surface in the beam is detected and reported;
         time: ping time, ISO 8601 UTC with ns; time_ns: ping time, integer ns since the epoch.
         Give -o - to write the CSV to stdout (the summary stays on stderr).  The CSV file is
-        replaced atomically when the command succeeds.
+        replaced atomically when the command succeeds.  -o x.bag (or --to bag1/bag2) writes
+        one marine_acoustic_msgs/SonarRanges message per ping instead (docs/formats.md).
         """
+        import contextlib
         import csv
 
-        from sonarmap.cli._common import count_pings, first_ping, open_output, output_name, ping_progress
+        from sonarmap.cli._common import STDOUT, count_pings, first_ping, open_output, output_name, ping_progress
         from sonarmap.io import read_pings
         from sonarmap.pipeline import process_ping
 
+        if to is not None:
+            check_choice(to, ("csv", "bag1", "bag2"), "--to")
+        out_kind = to or ("bag1" if output.suffix == ".bag" else "csv")
+        if out_kind != "csv" and str(output) == STDOUT:
+            raise typer.BadParameter("a bag cannot be written to stdout; give a path", param_hint="--output")
+        bag_items: list[tuple[Any, Any]] = []
         cfg = pipeline_config_from_options(config, method, solver, beta)
         geom = load_geometry_option(sonar)
         rec, families = load_calibration(calibration)
@@ -276,22 +288,31 @@ def register(app: typer.Typer) -> None:
         n_pings = n_rows = n_ret = 0
         gated: list[tuple[str, ...]] = []
         bar = ping_progress("ranges", None if quiet else count_pings(pings), quiet=quiet, verbose=verbose)
-        with open_output(output, newline="") as fh, bar:
-            w = csv.writer(fh)
+        out_cm: Any = contextlib.nullcontext(None) if out_kind != "csv" else open_output(output, newline="")
+        with out_cm as fh, bar:
+            w = csv.writer(fh) if fh is not None else None
             ping_iter = read_pings([str(p) for p in pings], geometry=geom)
             _, ping_iter = first_ping(ping_iter)  # before the bar: an unreadable input prints only its error
             bar.start()
             for ping in ping_iter:
                 prod = process_ping(ping, cfg, background=rec)
-                if n_pings == 0:
-                    w.writerow(CSV_HEADER)  # after the first ping: an unreadable input writes nothing
-                n_rows += write_ranges_rows(w, ping.source, prod.ranges, ";".join(prod.gates), time_ns=ping.time_ns)
+                if w is None:
+                    bag_items.append((ping.geometry, prod.ranges))
+                    n_rows += prod.ranges.n_beams
+                else:
+                    if n_pings == 0:
+                        w.writerow(CSV_HEADER)  # after the first ping: an unreadable input writes nothing
+                    n_rows += write_ranges_rows(w, ping.source, prod.ranges, ";".join(prod.gates), time_ns=ping.time_ns)
                 n_ret += prod.ranges.n_returns
                 n_pings += 1
                 gated.append(prod.gates)
                 bar.advance()
                 bar.log(f"{ping.source}: {prod.ranges.n_returns} returns"
                         + (f" ({';'.join(prod.gates)})" if prod.gates else ""))
+        if out_kind != "csv":
+            from sonarmap.io.rosbag_products import write_ranges_bag
+
+            write_ranges_bag(bag_items, output, version=1 if out_kind == "bag1" else 2)
         if not quiet:
             _print_summary(n_pings, n_rows, n_ret, output_name(output), cfg, gated)
         if strict and flagged_any(gated):

@@ -1,4 +1,4 @@
-"""ROS 1 and ROS 2 bags with ``marine_acoustic_msgs/ProjectedSonarImage`` (read and write).
+"""ROS 1 and ROS 2 bags: ``marine_acoustic_msgs/ProjectedSonarImage`` (read and write) and other sonar messages.
 
 Reading and writing use the ``rosbags`` package (pure Python, no ROS installation).  The message
 definitions ship with sonarmap (``sonarmap/io/msgs``) and are registered in rosbags' typestores.
@@ -37,13 +37,19 @@ Conventions at the boundary
   the bag, the topic and the message index.
 * Header stamps must give a time of 0 (unknown) or in the years 1970-2200 (``nanosec`` < 1e9);
   ``sec * 10**9 + nanosec`` is computed in integers (no float on the way).
-* Topics read: ``ProjectedSonarImage`` (``marine_acoustic_msgs`` and the older ``acoustic_msgs``);
-  ``sensor_msgs/Image`` only with a ``geometry=`` (rows = the geometry's range bins, row 0 nearest,
-  columns = its beams in increasing azimuth; ``mono8``/``8UC1``, ``mono16``/``16UC1``, ``16SC1``,
-  ``32SC1``, ``32FC1``, ``64FC1``), and only when no ProjectedSonarImage topic exists or ``topic=``
-  names it.  A bag without such a topic is a :class:`~sonarmap.errors.DataFormatError` listing the
-  bag's topics and types (raw packets, ``RawSonarImage`` and ``acoustic_msgs/SonarImage`` are not
-  decoded).
+* Topics read, in order of precedence (the first kind a bag has is read; ``topic=`` reads one
+  topic of any kind): ``ProjectedSonarImage`` (``marine_acoustic_msgs`` and the older
+  ``acoustic_msgs``); ``marine_acoustic_msgs/RawSonarImage``; the legacy ``acoustic_msgs/SonarImage``;
+  ``apl_msgs/RawData`` holding Oculus ``SimplePingResult`` messages (the last three decoded by
+  :mod:`sonarmap.io.rosbag_sources`, whose notes give their mappings); ``sensor_msgs/Image`` only
+  with a ``geometry=`` (rows = the geometry's range bins, row 0 nearest, columns = its beams in
+  increasing azimuth; ``mono8``/``8UC1``, ``mono16``/``16UC1``, ``16SC1``, ``32SC1``, ``32FC1``,
+  ``64FC1``).  A topic of a read type whose definition in the bag lacks the upstream fields, or a
+  RawData topic without Oculus pings, is not readable.  A bag without a readable topic is a
+  :class:`~sonarmap.errors.DataFormatError` saying why and listing the bag's topics and types.
+* Written: :func:`write_bag` (ProjectedSonarImage); ranges (``SonarRanges``) and point clouds
+  (``PointCloud2``) by :mod:`sonarmap.io.rosbag_products`.  ``ping_info`` beam widths come from
+  :func:`beamwidths`.
 * Only regular files are opened: a FIFO or device named ``x.bag`` (or inside a ROS 2 bag
   directory) is refused instead of hanging or reading forever.
 * ``ranges`` are float32 in the message.  :func:`write_bag` therefore also writes, once per distinct
@@ -54,6 +60,7 @@ Conventions at the boundary
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import json
 import math
@@ -81,6 +88,9 @@ __all__ = [
     "MSGTYPE",
     "typestore",
     "write_bag",
+    "beamwidths",
+    "ping_info",
+    "bag_writer",
     "iter_bag_pings",
     "FLOAT_TOLERANCE",
     "sniff",
@@ -136,28 +146,148 @@ def typestore(ros_version: int = 2) -> Any:
         text = base.joinpath(f"{name}.msg").read_text(encoding="utf-8")
         types.update(get_types_from_msg(text, f"marine_acoustic_msgs/msg/{name}"))
     store.register(types)
+    from sonarmap.io import rosbag_msgs
+
+    rosbag_msgs.register(store)  # RawSonarImage, SonarRanges, DetectionFlag, acoustic_msgs, apl_msgs
     return store
 
 
+def beamwidths(geometry: SonarGeometry) -> tuple[np.ndarray, np.ndarray]:
+    """``PingInfo`` ``(tx_beamwidths, rx_beamwidths)`` (radians, float32) from a geometry.
+
+    ``PingInfo.msg``: "-3db beamwidths, may be empty if not reported"; the package conventions:
+    an empty array is "not reported", one value is constant across the ping, else one per beam.
+
+    * ``rx_beamwidths`` (the across-fan width of each receive beam): a single-beam geometry's
+      ``fov_rad`` (its beam's width); else, when the geometry has a beam pattern (``psf``, an
+      intensity pattern across beams), its full width at half maximum (-3 dB) in beams times the
+      local beam spacing - one value for an evenly spaced fan, one per beam otherwise; else empty
+      (a geometry without a pattern says nothing about the beams' widths).
+    * ``tx_beamwidths`` (the fan's vertical aperture): empty - a SonarGeometry does not hold it.
+
+    Examples
+    --------
+    >>> from sonarmap.geometry import preset
+    >>> tx, rx = beamwidths(preset("didson-hf"))  # a lens fan: not evenly spaced
+    >>> tx.size, rx.size
+    (0, 96)
+    """
+    empty = np.zeros(0, np.float32)
+    g = geometry
+    if g.n_beams == 1:
+        return empty, np.array([g.fov_rad], np.float32)
+    pattern = g.psf_raw if g.psf_raw is not None else g.psf
+    if pattern is None:
+        return empty, empty
+    w = _fwhm(np.asarray(pattern, dtype=np.float64))
+    if not w > 0:
+        return empty, empty
+    rx = w * np.gradient(np.asarray(g.azimuth_rad, dtype=np.float64))
+    if np.allclose(rx, rx[0], rtol=1e-6, atol=0.0):
+        rx = rx[:1]
+    return empty, rx.astype(np.float32)
+
+
+def _fwhm(p: np.ndarray) -> float:
+    """Full width at half maximum (in samples, linear interpolation) of a single-peaked pattern."""
+    if p.size == 0 or not np.all(np.isfinite(p)):
+        return 0.0
+    k = int(np.argmax(p))
+    half = 0.5 * float(p[k])
+    if half <= 0:
+        return 0.0
+    left = right = None
+    for j in range(k, 0, -1):
+        if p[j - 1] < half:
+            left = j - (p[j] - half) / (p[j] - p[j - 1])
+            break
+    for j in range(k, p.size - 1):
+        if p[j + 1] < half:
+            right = j + (p[j] - half) / (p[j] - p[j + 1])
+            break
+    if left is None or right is None:
+        return 0.0  # the pattern does not fall to half its peak inside the table
+    return float(right - left)
+
+
 # ---------------------------------------------------------------------- writing
-def _encode(ping: Ping, store: Any, ros_version: int, frame_id: str, dtype: str, seq: int) -> Any:
+def ping_info(geometry: SonarGeometry, store: Any) -> Any:
+    """``marine_acoustic_msgs/PingInfo`` of a geometry: frequency, sound speed, :func:`beamwidths`."""
+    tx, rx = beamwidths(geometry)
+    return store.types["marine_acoustic_msgs/msg/PingInfo"](
+        frequency=float(geometry.frequency_hz), sound_speed=float(geometry.sound_speed_m_s),
+        tx_beamwidths=tx, rx_beamwidths=rx,
+    )
+
+
+def header(store: Any, ros_version: int, time_ns: int, frame_id: str, seq: int) -> Any:
+    """``std_msgs/Header`` stamped ``time_ns`` (integer ns, split without a float)."""
     T = store.types
-    sec, nsec = divmod(int(ping.time_ns), 10**9)
+    sec, nsec = divmod(int(time_ns), 10**9)
     stamp = T["builtin_interfaces/msg/Time"](sec=sec, nanosec=nsec)
     if ros_version == 1:
-        header = T["std_msgs/msg/Header"](seq=seq, stamp=stamp, frame_id=frame_id)
-    else:
-        header = T["std_msgs/msg/Header"](stamp=stamp, frame_id=frame_id)
+        return T["std_msgs/msg/Header"](seq=seq, stamp=stamp, frame_id=frame_id)
+    return T["std_msgs/msg/Header"](stamp=stamp, frame_id=frame_id)
+
+
+def beam_vectors(azimuth_rad: np.ndarray, store: Any) -> list[Any]:
+    """Upstream ``beam_directions`` / ``beam_unit_vec``: ``(0, -sin a, cos a)`` (module notes)."""
+    v3 = store.types["geometry_msgs/msg/Vector3"]
+    return [v3(x=0.0, y=float(-math.sin(a)), z=float(math.cos(a))) for a in azimuth_rad]
+
+
+@contextlib.contextmanager
+def bag_writer(path: str | os.PathLike[str], version: int) -> Iterator[tuple[Any, Any, Any]]:
+    """An open rosbags Writer on a temporary path beside ``path``, renamed onto it on success.
+
+    Yields ``(writer, serialize, store)``: ``serialize(message, msgtype)`` gives the bytes
+    (ROS 1 or CDR) and ``store`` is :func:`typestore` of ``version``.
+
+    Raises
+    ------
+    InputError
+        ``version`` not 1 or 2.
+    """
+    if version not in (1, 2):
+        raise InputError(f"version: must be 1 or 2 (got {version!r})")
+    target = Path(path)
+    target.parent.mkdir(parents=True, exist_ok=True)
+    store = typestore(version)
+    tmpdir = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent))
+    tmp = tmpdir / target.name
+    try:
+        if version == 1:
+            from rosbags.rosbag1 import Writer as W1
+
+            writer: Any = W1(tmp)
+            raw_serialize = store.serialize_ros1
+        else:
+            from rosbags.rosbag2 import Writer as W2
+
+            writer = W2(tmp, version=9)
+            raw_serialize = store.serialize_cdr
+
+        def serialize(msg: Any, msgtype: str) -> bytes:
+            return bytes(raw_serialize(msg, msgtype))
+
+        with writer:
+            yield writer, serialize, store
+        if target.exists():
+            if target.is_dir():
+                shutil.rmtree(target)
+            else:
+                target.unlink()
+        os.replace(tmp, target)
+    finally:
+        shutil.rmtree(tmpdir, ignore_errors=True)
+
+
+def _encode(ping: Ping, store: Any, ros_version: int, frame_id: str, dtype: str, seq: int) -> Any:
+    T = store.types
     g = ping.geometry
-    info = T["marine_acoustic_msgs/msg/PingInfo"](
-        frequency=float(g.frequency_hz),
-        sound_speed=float(g.sound_speed_m_s),
-        tx_beamwidths=np.zeros(0, np.float32),
-        rx_beamwidths=np.zeros(0, np.float32),
-    )
-    v3 = T["geometry_msgs/msg/Vector3"]
+    info = ping_info(g, store)
     # upstream .msg: z forward, x up, azimuth = rotation about x -> (0, -sin a, cos a), y to port
-    dirs = [v3(x=0.0, y=float(-math.sin(a)), z=float(math.cos(a))) for a in g.azimuth_rad]
+    dirs = beam_vectors(g.azimuth_rad, store)
     if dtype == "float32":
         data = np.ascontiguousarray(ping.image, dtype="<f4")
     elif dtype == "float64":
@@ -175,7 +305,7 @@ def _encode(ping: Ping, store: Any, ros_version: int, frame_id: str, dtype: str,
         data=np.frombuffer(data.tobytes(), dtype=np.uint8),
     )
     return T[MSGTYPE](
-        header=header,
+        header=header(store, ros_version, ping.time_ns, frame_id, seq),
         ping_info=info,
         beam_directions=dirs,
         ranges=g.range_m.astype(np.float32),
@@ -226,48 +356,23 @@ def write_bag(
         raise InputError(f"version: must be 1 or 2 (got {version!r})")
     if dtype not in _DTYPE_CODES:
         raise InputError(f"dtype: choose from {', '.join(_DTYPE_CODES)} (got {dtype!r})")
-    target = Path(path)
-    target.parent.mkdir(parents=True, exist_ok=True)
-    store = typestore(version)
-    tmpdir = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent))
-    tmp = tmpdir / target.name
     n = 0
-    try:
-        if version == 1:
-            from rosbags.rosbag1 import Writer as W1
-
-            writer: Any = W1(tmp)
-            serialize = store.serialize_ros1
-        else:
-            from rosbags.rosbag2 import Writer as W2
-
-            writer = W2(tmp, version=9)
-            serialize = store.serialize_cdr
+    with bag_writer(path, version) as (writer, serialize, store):
         string_t = store.types["std_msgs/msg/String"]
-        with writer:
-            conn = writer.add_connection(topic, MSGTYPE, typestore=store)
-            gconn = writer.add_connection(topic.rstrip("/") + _GEOMETRY_SUFFIX, "std_msgs/msg/String",
-                                          typestore=store)
-            seen: set[str] = set()
-            for ping in pings:
-                key = ping.geometry.key + ping.geometry.name
-                if key not in seen:
-                    seen.add(key)
-                    d = ping.geometry.to_dict()
-                    d["azimuth_source"] = ping.geometry.azimuth_source
-                    writer.write(gconn, int(ping.time_ns),
-                                 bytes(serialize(string_t(data=json.dumps(d)), "std_msgs/msg/String")))
-                msg = _encode(ping, store, version, frame_id, dtype, n)
-                writer.write(conn, int(ping.time_ns), bytes(serialize(msg, MSGTYPE)))
-                n += 1
-        if target.exists():
-            if target.is_dir():
-                shutil.rmtree(target)
-            else:
-                target.unlink()
-        os.replace(tmp, target)
-    finally:
-        shutil.rmtree(tmpdir, ignore_errors=True)
+        conn = writer.add_connection(topic, MSGTYPE, typestore=store)
+        gconn = writer.add_connection(topic.rstrip("/") + _GEOMETRY_SUFFIX, "std_msgs/msg/String",
+                                      typestore=store)
+        seen: set[str] = set()
+        for ping in pings:
+            key = ping.geometry.key + ping.geometry.name
+            if key not in seen:
+                seen.add(key)
+                d = ping.geometry.to_dict()
+                d["azimuth_source"] = ping.geometry.azimuth_source
+                writer.write(gconn, int(ping.time_ns), serialize(string_t(data=json.dumps(d)), "std_msgs/msg/String"))
+            msg = _encode(ping, store, version, frame_id, dtype, n)
+            writer.write(conn, int(ping.time_ns), serialize(msg, MSGTYPE))
+            n += 1
     return n
 
 
@@ -481,43 +586,94 @@ def _describe_topics(reader: Any) -> str:
     return "the bag has " + ", ".join(f"{t} ({m})" for t, m in seen)
 
 
-def _select_connections(
-    reader: Any, path: Path, topic: str | None, has_geometry: bool
-) -> tuple[list[Any], list[Any]]:
-    """The sonar connections to read, as ``(projected, images)``.
+#: Kinds of sonar topics in order of precedence (the first kind a bag has is read), with their types.
+_KINDS: tuple[tuple[str, frozenset[str]], ...] = (
+    ("projected", frozenset(_SONAR_TYPES)),
+    ("raw_image", frozenset({"marine_acoustic_msgs/msg/RawSonarImage", "acoustic_msgs/msg/RawSonarImage"})),
+    ("legacy_image", frozenset({"acoustic_msgs/msg/SonarImage"})),
+    ("oculus_raw", frozenset({"apl_msgs/msg/RawData"})),
+)
+_READABLE = "ProjectedSonarImage, RawSonarImage, acoustic_msgs/SonarImage, apl_msgs/RawData with Oculus pings"
 
-    ``sensor_msgs/Image`` topics are read only with a user geometry, and only when no
-    ProjectedSonarImage topic exists or ``topic`` names one.
+
+def _field_names(reader: Any, msgtype: str) -> set[str]:
+    """Field names of ``msgtype`` as the opened bag defines it (empty if unknown)."""
+    try:
+        return {name for name, _desc in reader.typestore.fielddefs[msgtype][1]}
+    except (AttributeError, KeyError, TypeError, ValueError):
+        return set()
+
+
+def _unreadable(reader: Any, path: Path, conn: Any, counts: dict[str, int] | None = None) -> str | None:
+    """Why a connection of a readable type cannot be read (None if it can); the pings found on an
+    Oculus RawData topic are added to ``counts``."""
+    from sonarmap.io.rosbag_msgs import RAW_DATA, REQUIRED_FIELDS
+    from sonarmap.io.rosbag_sources import count_oculus
+
+    need = REQUIRED_FIELDS.get(conn.msgtype)
+    if need is not None:
+        missing = sorted(need - _field_names(reader, conn.msgtype))
+        if missing:
+            return f"{conn.topic}: its {conn.msgtype} definition has no {', '.join(missing)} (not the upstream one)"
+    if conn.msgtype == RAW_DATA:
+        n = count_oculus(reader, path, [conn])[conn.topic]
+        if counts is not None:
+            counts[conn.topic] = counts.get(conn.topic, 0) + n
+        if not n:
+            return f"{conn.topic}: its RawData hold no Oculus SimplePingResult"
+    return None
+
+
+def _select_connections(
+    reader: Any, path: Path, topic: str | None, has_geometry: bool, counts: dict[str, int] | None = None
+) -> tuple[str, list[Any]]:
+    """The kind of sonar topic to read and its connections.
+
+    Kinds, in order of precedence (:data:`_KINDS`): ``"projected"`` (ProjectedSonarImage),
+    ``"raw_image"`` (RawSonarImage), ``"legacy_image"`` (acoustic_msgs/SonarImage),
+    ``"oculus_raw"`` (apl_msgs/RawData holding Oculus pings); then ``"sensor_image"``
+    (``sensor_msgs/Image``, only with a user geometry).  With ``topic`` only that topic counts.
+    ``counts`` receives the pings per Oculus RawData topic (which are scanned to decide).
 
     Raises
     ------
     DataFormatError
-        No readable topic (listing the bag's topics and types), or ``topic`` is not readable.
+        No readable topic (listing the bag's topics and types, and why a topic of a readable
+        type could not be read), or ``topic`` is not readable.
     """
-    conns = list(reader.connections)
-    sonar = [c for c in conns if c.msgtype in _SONAR_TYPES and (topic is None or c.topic == topic)]
-    images = [c for c in conns if c.msgtype == IMAGE_TYPE and (topic is None or c.topic == topic)]
+    conns = [c for c in reader.connections if topic is None or c.topic == topic]
+    reasons: list[str] = []
+    for kind, types in _KINDS:
+        ok = []
+        for c in (c for c in conns if c.msgtype in types):
+            why = _unreadable(reader, path, c, counts)
+            if why is None:
+                ok.append(c)
+            else:
+                reasons.append(why)
+        if ok:
+            return kind, ok
+    images = [c for c in conns if c.msgtype == IMAGE_TYPE]
+    why = "".join(f"; {r}" for r in reasons)
     if topic is not None:
-        if sonar:
-            return sonar, []
         if images and has_geometry:
-            return [], images
+            return "sensor_image", images
         if images:
             raise DataFormatError(
                 f"topic {topic!r} is a sensor_msgs/Image: pass a geometry (geometry=, --geometry) "
                 "whose range bins and beams match its rows and columns", path
             )
-        raise DataFormatError(f"no ProjectedSonarImage messages on topic {topic!r}; {_describe_topics(reader)}", path)
-    if sonar:
-        return sonar, []
+        raise DataFormatError(
+            f"no ProjectedSonarImage messages on topic {topic!r}; {_describe_topics(reader)}{why}", path
+        )
     if images and has_geometry:
-        return [], images
+        return "sensor_image", images
     hint = ""
     if images:
         hint = "; its sensor_msgs/Image topics need a geometry (geometry=, --geometry)"
     raise DataFormatError(
-        f"no readable sonar topic (ProjectedSonarImage{', or sensor_msgs/Image with a geometry' if not images else ''}); "
-        f"{_describe_topics(reader)}{hint}", path
+        f"no readable sonar topic ({_READABLE}{', or sensor_msgs/Image with a geometry' if not images else ''})"
+        f"{why}; {_describe_topics(reader)}{hint}", path
     )
 
 
@@ -535,8 +691,9 @@ def iter_bag_pings(
     path : path-like
         ROS 1 ``.bag`` file, ROS 2 bag directory (or its ``metadata.yaml`` / storage file).
     topic : str, optional
-        Only this topic (default: every ProjectedSonarImage topic; the ``sensor_msgs/Image``
-        topics when there is none and ``geometry`` is given).
+        Only this topic (default: every topic of the first kind the bag has, in the order
+        ProjectedSonarImage, RawSonarImage, acoustic_msgs/SonarImage, Oculus RawData, then
+        ``sensor_msgs/Image`` when ``geometry`` is given; see the module notes).
     geometry : SonarGeometry, preset name or JSON path, optional
         Overrides the geometry of every ping; required for ``sensor_msgs/Image`` topics (rows =
         its range bins, row 0 nearest; columns = its beams).
@@ -575,10 +732,15 @@ def iter_bag_pings(
     except Exception as exc:  # noqa: BLE001 - rosbags raises various types on corrupt bags
         raise DataFormatError(f"cannot read bag: {type(exc).__name__}: {exc}", p) from None
     try:
-        conns, images = _select_connections(reader, p, topic, override is not None)
-        if images:
+        kind, conns = _select_connections(reader, p, topic, override is not None)
+        if kind == "sensor_image":
             assert override is not None
-            yield from _iter_sensor_images(reader, p, images, override)
+            yield from _iter_sensor_images(reader, p, conns, override)
+            return
+        if kind != "projected":
+            from sonarmap.io.rosbag_sources import iter_kind
+
+            yield from iter_kind(kind, reader, p, conns, override)
             return
         gtopics = {c.topic + _GEOMETRY_SUFFIX for c in conns} | {c.topic.rstrip("/") + _GEOMETRY_SUFFIX for c in conns}
         gconns = [c for c in reader.connections if c.topic in gtopics and c.msgtype == "std_msgs/msg/String"]
@@ -729,9 +891,10 @@ def iter_pings(
     yield from iter_bag_pings(path, topic=topic, geometry=geometry, handedness=handedness)
 
 
-def _sonar_connections(path: Path) -> tuple[Any, list[Any], bool]:
-    """Opened reader, the connections :func:`iter_bag_pings` would read given a geometry, and
-    whether they are ``sensor_msgs/Image`` ones (readable only with a geometry).
+def _sonar_connections(path: Path) -> tuple[Any, str, list[Any], dict[str, int]]:
+    """Opened reader, the kind and connections :func:`iter_bag_pings` would read given a
+    geometry, and their ping counts per topic (Oculus RawData topics are scanned; the others
+    counted from the bag's index).
 
     Raises
     ------
@@ -745,26 +908,34 @@ def _sonar_connections(path: Path) -> tuple[Any, list[Any], bool]:
     except Exception as exc:  # noqa: BLE001
         raise DataFormatError(f"cannot read bag: {type(exc).__name__}: {exc}", path) from None
     try:
-        sonar, images = _select_connections(reader, path, None, True)
+        scanned: dict[str, int] = {}
+        kind, conns = _select_connections(reader, path, None, True, scanned)
+        counts: dict[str, int] = {}
+        if kind == "oculus_raw":
+            counts = {c.topic: scanned.get(c.topic, 0) for c in conns}
+        else:
+            for c in conns:
+                counts[c.topic] = counts.get(c.topic, 0) + int(c.msgcount)
     except BaseException:
         reader.close()
         raise
-    return reader, sonar or images, not sonar
+    return reader, kind, conns, counts
 
 
 def count_pings(path: str | os.PathLike[str]) -> int:
-    """Number of sonar messages (from the bag's index): ProjectedSonarImage, else sensor_msgs/Image.
+    """Number of sonar messages of the kind :func:`iter_bag_pings` reads (module notes).
+
+    ProjectedSonarImage, RawSonarImage, acoustic_msgs/SonarImage and sensor_msgs/Image are counted
+    from the bag's index; Oculus RawData topics by scanning their messages for pings.
 
     Raises
     ------
     DataFormatError
         Unreadable bag, or no readable sonar topic (the message lists the bag's topics and types).
     """
-    reader, conns, _images = _sonar_connections(Path(path))
-    try:
-        return int(sum(c.msgcount for c in conns))
-    finally:
-        reader.close()
+    reader, _kind, _conns, counts = _sonar_connections(Path(path))
+    reader.close()
+    return int(sum(counts.values()))
 
 
 def summary(path: str | os.PathLike[str]) -> dict[str, Any]:
@@ -773,10 +944,10 @@ def summary(path: str | os.PathLike[str]) -> dict[str, Any]:
     A bag of ``sensor_msgs/Image`` sonar topics has no geometry of its own (``geometry`` None).
     """
     p = Path(path)
-    reader, conns, images = _sonar_connections(p)
+    reader, kind, conns, topics = _sonar_connections(p)
+    images = kind == "sensor_image"
     try:
-        n = int(sum(c.msgcount for c in conns))
-        topics = {c.topic: int(c.msgcount) for c in conns}
+        n = int(sum(topics.values()))
         t0 = int(reader.start_time) if n else None
         t1 = int(reader.end_time) - 1 if n else None  # rosbags reports an exclusive end
     except Exception as exc:  # noqa: BLE001
@@ -791,6 +962,6 @@ def summary(path: str | os.PathLike[str]) -> dict[str, Any]:
             first = next(iter_bag_pings(p), None)
     return make_summary(
         FORMAT, p, n_pings=n, geometry=first.geometry if first else None, time_start_ns=t0,
-        time_end_ns=t1, ros_version=ros, topics=topics,
+        time_end_ns=t1, ros_version=ros, topics=topics, message_kind=kind,
         time_source="bag record times (header stamps may differ slightly)",
     )

@@ -1,0 +1,202 @@
+"""sonarmap products as ROS 1 / ROS 2 bags: ranges as ``marine_acoustic_msgs/SonarRanges``, point
+clouds as ``sensor_msgs/PointCloud2``.
+
+Both writers emit one message per ping, stamped (header and bag record time) with the ping's time
+in integer nanoseconds, and replace the output atomically (like :func:`sonarmap.io.rosbag.write_bag`).
+
+``SonarRanges`` (one per ping, ``header.frame_id`` the sonar's frame)
+    ``ranges[j]`` is beam ``j``'s range (``BeamRanges.range_m``, float32); ``beam_unit_vec[j]`` is
+    ``(0, -sin a, cos a)`` for its azimuth ``a`` - the same convention as the
+    ``beam_directions`` that :func:`~sonarmap.io.rosbag.write_bag` writes (z forward, x up, y to
+    port; see :mod:`sonarmap.io.rosbag`); ``intensities[j]`` the image intensity at the return;
+    ``flags[j].flag`` ``DETECT_OK`` (0) for a beam with a return and ``DETECT_BAD_FILTER`` (2, "bad
+    by an automated filter applied during processing") for a beam without one, whose range and
+    intensity are NaN.  ``transmit_delays`` is empty (not reported); ``ping_info`` has the
+    geometry's frequency, sound speed and beam widths (:func:`~sonarmap.io.rosbag.beamwidths`).
+``PointCloud2`` (one per ping, ``height`` 1, little-endian, ``is_dense`` when every point is finite)
+    Fields ``x``, ``y``, ``z`` (float32, or float64 with ``xyz_dtype="float64"`` - projected
+    coordinates need it), ``intensity`` (float32), ``range`` (float32, m), ``beam`` (uint16) and
+    ``time`` (float32, seconds after ``header.stamp``: every point of a sonarmap ping has the ping's
+    time, so 0).  Coordinates are the cloud's own (``PointCloud.frame``); ``frame_id`` defaults to
+    ``map`` for ENU clouds and ``map_ned`` for NED ones (REP 103 / REP 105 naming).
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Iterable
+from typing import Any
+
+import numpy as np
+
+from sonarmap.errors import InputError
+from sonarmap.geometry import SonarGeometry
+from sonarmap.io.rosbag_msgs import DETECT_BAD_FILTER, DETECT_OK, DETECTION_FLAG, POINTCLOUD2, SONAR_RANGES
+
+__all__ = ["write_ranges_bag", "write_points_bag", "POINT_FIELDS"]
+
+#: PointField datatypes (sensor_msgs/PointField constants).
+_UINT16, _FLOAT32, _FLOAT64 = 4, 7, 8
+
+#: Fields of the written PointCloud2 after x, y, z: (name, PointField datatype, numpy dtype).
+POINT_FIELDS = (("intensity", _FLOAT32, "<f4"), ("range", _FLOAT32, "<f4"), ("beam", _UINT16, "<u2"),
+                ("time", _FLOAT32, "<f4"))
+
+
+def write_ranges_bag(
+    ranges: Iterable[tuple[SonarGeometry, Any]],
+    path: str | os.PathLike[str],
+    *,
+    version: int = 2,
+    topic: str = "/sonar/ranges",
+    frame_id: str = "sonar",
+) -> int:
+    """Write per-ping ranges as ``marine_acoustic_msgs/SonarRanges``; returns the message count.
+
+    Parameters
+    ----------
+    ranges : iterable of (SonarGeometry, BeamRanges)
+        Each ping's geometry and its ranges (``BeamRanges.time_ns`` is the stamp).
+    path : path-like
+        ROS 1: the ``.bag`` file; ROS 2: the bag directory.  Replaced atomically.
+    version : {1, 2}
+    topic, frame_id : str
+        Topic of the messages and their ``header.frame_id``.
+
+    Returns
+    -------
+    int
+        Number of SonarRanges messages (pings) written.
+
+    Raises
+    ------
+    InputError
+        Bad ``version``, or ranges whose beam count differs from their geometry's.
+
+    Notes
+    -----
+    Field mapping: see the module notes.
+
+    Examples
+    --------
+    >>> from sonarmap.pipeline import process_ping                      # doctest: +SKIP
+    >>> items = ((p.geometry, process_ping(p).ranges) for p in pings)   # doctest: +SKIP
+    >>> write_ranges_bag(items, "ranges.bag", version=1)                 # doctest: +SKIP
+    """
+    from sonarmap.io.rosbag import bag_writer, beam_vectors, header, ping_info
+
+    n = 0
+    with bag_writer(path, version) as (writer, serialize, store):
+        T = store.types
+        conn = writer.add_connection(topic, SONAR_RANGES, typestore=store)
+        flag_t = T[DETECTION_FLAG]
+        for geometry, r in ranges:
+            if r.n_beams != geometry.n_beams:
+                raise InputError(f"ranges: {r.n_beams} beams for a geometry of {geometry.n_beams} (ping {n})")
+            hit = np.asarray(r.bin) >= 0
+            rng = np.where(hit, np.asarray(r.range_m, dtype=np.float64), np.nan).astype(np.float32)
+            inten = np.where(hit, np.asarray(r.intensity, dtype=np.float64), np.nan).astype(np.float32)
+            t_ns = int(r.time_ns)
+            msg = T[SONAR_RANGES](
+                header=header(store, version, t_ns, frame_id, n),
+                ping_info=ping_info(geometry, store),
+                flags=[flag_t(flag=DETECT_OK if h else DETECT_BAD_FILTER) for h in hit],
+                transmit_delays=np.zeros(0, np.float32),
+                intensities=inten,
+                beam_unit_vec=beam_vectors(np.asarray(r.azimuth_rad, dtype=np.float64), store),
+                ranges=rng,
+            )
+            writer.write(conn, t_ns, serialize(msg, SONAR_RANGES))
+            n += 1
+    return n
+
+
+def _cloud_message(store: Any, version: int, cloud: Any, idx: np.ndarray, t_ns: int, frame_id: str,
+                   xyz_dtype: str, seq: int) -> Any:
+    """One PointCloud2 of the points ``idx`` of ``cloud`` (all of the ping at ``t_ns``)."""
+    from sonarmap.io.rosbag import header
+
+    T = store.types
+    xyz_np = "<f4" if xyz_dtype == "float32" else "<f8"
+    xyz_code = _FLOAT32 if xyz_dtype == "float32" else _FLOAT64
+    names = ["x", "y", "z"] + [f[0] for f in POINT_FIELDS]
+    formats = [xyz_np] * 3 + [f[2] for f in POINT_FIELDS]
+    dt = np.dtype({"names": names, "formats": formats})  # packed, no padding
+    rec = np.zeros(idx.size, dtype=dt)
+    xyz = cloud.xyz_m[idx]
+    rec["x"], rec["y"], rec["z"] = xyz[:, 0], xyz[:, 1], xyz[:, 2]
+    rec["intensity"] = cloud.intensity[idx]
+    rec["range"] = cloud.range_m[idx]
+    rec["beam"] = np.clip(cloud.beam[idx], 0, 65535)
+    rec["time"] = ((cloud.time_ns[idx] - t_ns) * 1e-9).astype(np.float32)
+    field_t = T["sensor_msgs/msg/PointField"]
+    fields = [field_t(name=nm, offset=int(dt.fields[nm][1]), datatype=code, count=1)
+              for nm, code in zip(names, [xyz_code] * 3 + [f[1] for f in POINT_FIELDS])]
+    finite = bool(np.all(np.isfinite(xyz))) if idx.size else True
+    return T[POINTCLOUD2](
+        header=header(store, version, t_ns, frame_id, seq),
+        height=1, width=int(idx.size), fields=fields, is_bigendian=False,
+        point_step=int(dt.itemsize), row_step=int(dt.itemsize * idx.size),
+        data=np.frombuffer(rec.tobytes(), dtype=np.uint8), is_dense=finite,
+    )
+
+
+def write_points_bag(
+    clouds: Iterable[Any],
+    path: str | os.PathLike[str],
+    *,
+    version: int = 2,
+    topic: str = "/sonarmap/points",
+    frame_id: str | None = None,
+    xyz_dtype: str = "float32",
+) -> int:
+    """Write registered points as ``sensor_msgs/PointCloud2``, one message per ping; returns the count.
+
+    Parameters
+    ----------
+    clouds : iterable of PointCloud
+        Registered points (:func:`sonarmap.mapping.register.register_ranges`); the points of one
+        ping share its ``time_ns``, and pings are written in the order they first appear.
+    path : path-like
+        ROS 1: the ``.bag`` file; ROS 2: the bag directory.  Replaced atomically.
+    version : {1, 2}
+    topic : str
+    frame_id : str, optional
+        ``header.frame_id``; default ``"map"`` for an ENU cloud, ``"map_ned"`` for a NED one.
+    xyz_dtype : {"float32", "float64"}
+        Type of ``x``, ``y``, ``z``; float64 keeps projected (UTM) coordinates exact.
+
+    Returns
+    -------
+    int
+        Number of PointCloud2 messages written.
+
+    Raises
+    ------
+    InputError
+        Bad ``version`` or ``xyz_dtype``.
+
+    Examples
+    --------
+    >>> write_points_bag([cloud], "points.bag", version=1)  # doctest: +SKIP
+    """
+    if xyz_dtype not in ("float32", "float64"):
+        raise InputError(f"xyz_dtype: choose from float32, float64 (got {xyz_dtype!r})")
+    from sonarmap.io.rosbag import bag_writer
+
+    n = 0
+    with bag_writer(path, version) as (writer, serialize, store):
+        conn = writer.add_connection(topic, POINTCLOUD2, typestore=store)
+        for cloud in clouds:
+            if len(cloud) == 0:
+                continue
+            fid = frame_id if frame_id is not None else ("map" if cloud.frame == "enu" else "map_ned")
+            times = np.asarray(cloud.time_ns, dtype=np.int64)
+            uniq, first = np.unique(times, return_index=True)
+            for t in uniq[np.argsort(first, kind="stable")]:
+                idx = np.flatnonzero(times == t)
+                msg = _cloud_message(store, version, cloud, idx, int(t), fid, xyz_dtype, n)
+                writer.write(conn, int(t), serialize(msg, POINTCLOUD2))
+                n += 1
+    return n
+

@@ -1,0 +1,272 @@
+"""Decoding the bag message types read besides ``ProjectedSonarImage`` (see :mod:`sonarmap.io.rosbag`).
+
+``marine_acoustic_msgs/RawSonarImage``
+    Rows are the message's samples (``samples_per_beam`` range bins, row 0 the first sample),
+    columns its beams.  Sample ``i`` lies at range ``(i + sample0) * sound_speed / (2 *
+    sample_rate)`` (the marine_acoustic_msgs README); ``ping_info.sound_speed`` 0 ("unavailable")
+    is taken as 1500 m/s (``Ping.meta["sound_speed_assumed"]``).  ``rx_angles`` are the beams'
+    azimuths: the receive steering angle, positive toward the frame's +Y, which the sibling
+    ``SonarDetections`` message documents as "+ to starboard", i.e. sonarmap's azimuth.
+    ``tx_angles`` and ``tx_delays`` are kept in ``Ping.meta``.  The image data are decoded like
+    ``ProjectedSonarImage``'s (``SonarImageData``, range-major).
+``acoustic_msgs/SonarImage`` (legacy)
+    ``azimuth_angles`` (positive to starboard) and ``ranges`` give the geometry directly;
+    ``data_size`` 1, 2 or 4 are unsigned 8/16/32-bit samples in ``is_bigendian`` byte order, indexed
+    ``intensities[(range * n_beams + beam) * data_size]`` - the order its reference consumer
+    (``sonar_image_proc``) and producer (the UW-APL Oculus driver) used, although the last revision
+    of the .msg comment calls it "azimuth-major".  ``azimuth_beamwidth``, ``elevation_beamwidth``
+    and non-empty ``elevation_angles`` go to ``Ping.meta``.
+``apl_msgs/RawData`` (Oculus network capture)
+    The UW-APL Oculus driver publishes each Oculus network message it receives as one RawData
+    (``direction`` ``DATA_IN``), its header stamped just after reception, and its replay node
+    decodes each RawData on its own; sonarmap does the same: a RawData whose ``data`` is one whole
+    ``SimplePingResult`` (16-byte header with id 0x4F53 and message 0x23, ``16 + payloadSize``
+    bytes) is a ping, decoded by :func:`sonarmap.io.oculus.decode_simple_ping`, at the RawData's
+    header stamp.  Outgoing data (``DATA_OUT``), other Oculus messages and bytes that are not a
+    message are skipped; a RawData that starts a SimplePingResult but does not hold exactly one is
+    skipped with a :class:`~sonarmap.errors.SonarmapWarning` (once per topic).
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+import warnings
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from sonarmap.errors import DataFormatError, GeometryError, SonarmapWarning
+from sonarmap.geometry import SonarGeometry
+from sonarmap.io.oculus import HEADER, MSG_SIMPLE_PING_RESULT, OCULUS_ID, decode_simple_ping
+from sonarmap.ping import Ping
+
+__all__ = ["ping_from_raw_sonar_image", "ping_from_legacy_image", "oculus_ping_chunk", "iter_kind", "count_oculus"]
+
+_LEGACY_DTYPES = {1: np.dtype("u1"), 2: np.dtype("u2"), 4: np.dtype("u4")}
+
+
+def _name(msg: Any, topic: str) -> str:
+    return (msg.header.frame_id or topic).strip("/").replace("/", "-") or "sonar"
+
+
+def _meta(kind: str, topic: str, idx: int, msg: Any) -> dict[str, Any]:
+    from sonarmap.io.rosbag import FORMAT
+
+    meta: dict[str, Any] = {"format": FORMAT, "msgtype": kind, "topic": topic, "message_index": idx}
+    if hasattr(msg.header, "seq"):
+        meta["seq"] = int(msg.header.seq)
+    return meta
+
+
+@functools.lru_cache(maxsize=64)
+def _sample_geometry(
+    az: bytes, n_samples: int, sample0: int, sound_speed: float, sample_rate: float, frequency: float, name: str
+) -> tuple[SonarGeometry, np.ndarray | None]:
+    """Geometry of a RawSonarImage (beams sorted by azimuth; the column order if re-sorted)."""
+    a = np.frombuffer(az, dtype=np.float64)
+    order = None
+    if a.size > 1 and np.any(np.diff(a) <= 0):
+        order = np.argsort(a, kind="stable")
+        a = a[order]
+    r = (np.arange(n_samples, dtype=np.float64) + sample0) * (sound_speed / (2.0 * sample_rate))
+    geom = SonarGeometry(
+        azimuth_rad=a, range_m=r, sound_speed_m_s=sound_speed, name=name,
+        frequency_hz=frequency if math.isfinite(frequency) and frequency > 0 else 1.8e6,
+    )
+    return geom, order
+
+
+def ping_from_raw_sonar_image(
+    msg: Any, path: Path, topic: str, idx: int, override: SonarGeometry | None
+) -> Ping:
+    """One ``marine_acoustic_msgs/RawSonarImage`` -> Ping (see the module notes).
+
+    Raises
+    ------
+    ValueError, GeometryError
+        Inconsistent sizes, a non-positive sample rate, an implausible sound speed or angles.
+    """
+    from sonarmap.io.rosbag import _decode_image, _stamp_ns
+
+    rx = np.asarray(msg.rx_angles, dtype=np.float64).reshape(-1)
+    n_samples = int(msg.samples_per_beam)
+    if rx.size < 1 or n_samples < 1:
+        raise ValueError(f"empty image ({n_samples} samples per beam, {rx.size} rx_angles)")
+    if not np.all(np.isfinite(rx)):
+        raise ValueError("rx_angles contain NaN/inf")
+    fs = float(msg.sample_rate)
+    if not (math.isfinite(fs) and fs > 0):
+        raise ValueError(f"sample_rate {fs} Hz is not a positive number")
+    c = float(msg.ping_info.sound_speed)
+    assumed = c == 0.0
+    if assumed:
+        c = 1500.0
+    elif not (math.isfinite(c) and 1300.0 <= c <= 1700.0):
+        raise ValueError(f"ping_info.sound_speed {c} m/s is outside 1300-1700 m/s (0 = unavailable)")
+    geom, order = _sample_geometry(
+        np.ascontiguousarray(rx).tobytes(), n_samples, int(msg.sample0), c, fs,
+        float(msg.ping_info.frequency), _name(msg, topic),
+    )
+    image = _decode_image(msg.image, n_samples, rx.size)
+    if order is not None:
+        image = np.ascontiguousarray(image[:, order])
+    meta = _meta("RawSonarImage", topic, idx, msg)
+    meta.update(sample_rate_hz=fs, sample0=int(msg.sample0))
+    if assumed:
+        meta["sound_speed_assumed"] = True
+    for field in ("tx_angles", "tx_delays"):
+        v = np.asarray(getattr(msg, field, ()), dtype=np.float64).reshape(-1)
+        if v.size:
+            meta[field] = v if order is None or v.size != rx.size else v[order]
+    return Ping(image=image, geometry=override or geom, time_ns=_stamp_ns(msg.header.stamp),
+                source=f"{path}#{topic}:{idx}", meta=meta)
+
+
+def ping_from_legacy_image(msg: Any, path: Path, topic: str, idx: int, override: SonarGeometry | None) -> Ping:
+    """One legacy ``acoustic_msgs/SonarImage`` -> Ping (see the module notes).
+
+    Raises
+    ------
+    ValueError, GeometryError
+        Inconsistent sizes, unknown ``data_size``, non-finite angles or ranges.
+    """
+    from sonarmap.io.rosbag import _message_geometry, _scale_pixels, _stamp_ns
+
+    az = np.asarray(msg.azimuth_angles, dtype=np.float64).reshape(-1)
+    ranges = np.asarray(msg.ranges, dtype=np.float32).reshape(-1)
+    if az.size < 1 or ranges.size < 1:
+        raise ValueError(f"empty geometry ({az.size} azimuth_angles, {ranges.size} ranges)")
+    if not (np.all(np.isfinite(az)) and np.all(np.isfinite(ranges))):
+        raise ValueError("azimuth_angles or ranges contain NaN/inf")
+    ds = int(msg.data_size)
+    dt = _LEGACY_DTYPES.get(ds)
+    if dt is None:
+        raise ValueError(f"data_size {ds} is not 1, 2 or 4 bytes per sample")
+    raw = np.asarray(msg.intensities, dtype=np.uint8).reshape(-1)
+    if raw.size != ranges.size * az.size * ds:
+        raise ValueError(
+            f"intensities have {raw.size} bytes, expected {ranges.size} ranges x {az.size} beams x {ds} bytes"
+        )
+    geom, order = _message_geometry(
+        np.ascontiguousarray(az).tobytes(), ranges.tobytes(), float(msg.frequency), float(msg.sound_speed),
+        _name(msg, topic),
+    )
+    dt = dt.newbyteorder(">" if msg.is_bigendian else "<")
+    image = _scale_pixels(raw.view(dt).reshape(ranges.size, az.size))
+    if order is not None:
+        image = np.ascontiguousarray(image[:, order])
+    meta = _meta("SonarImage", topic, idx, msg)
+    for field in ("azimuth_beamwidth", "elevation_beamwidth"):
+        v = float(getattr(msg, field, 0.0))
+        if math.isfinite(v) and v > 0:
+            meta[f"{field}_rad"] = v
+    el = np.asarray(getattr(msg, "elevation_angles", ()), dtype=np.float64).reshape(-1)
+    if el.size:
+        meta["elevation_angles_rad"] = el if order is None or el.size != az.size else el[order]
+    return Ping(image=image, geometry=override or geom, time_ns=_stamp_ns(msg.header.stamp),
+                source=f"{path}#{topic}:{idx}", meta=meta)
+
+
+def oculus_ping_chunk(msg: Any) -> tuple[bytes | None, bool]:
+    """The bytes of the SimplePingResult a RawData holds (None if none) and whether it was a
+    broken one (starts a SimplePingResult but is not exactly one message).
+
+    Incoming data only: ``direction`` is compared with the message's own ``DATA_IN`` constant
+    (the bag's definition); a definition without ``direction`` counts as incoming.
+    """
+    if hasattr(msg, "direction"):
+        data_in = getattr(msg, "DATA_IN", 1)
+        if int(msg.direction) != int(data_in):
+            return None, False
+    data = np.asarray(msg.data, dtype=np.uint8).reshape(-1)
+    if data.size < HEADER.size:
+        return None, False
+    oid, _s, _d, msg_id, _v, payload, _p = HEADER.unpack_from(data[: HEADER.size].tobytes(), 0)
+    if oid != OCULUS_ID or msg_id != MSG_SIMPLE_PING_RESULT:
+        return None, False
+    if HEADER.size + payload != data.size:
+        return None, True
+    return data.tobytes(), False
+
+
+def _iter_oculus(reader: Any, path: Path, conns: list[Any], override: SonarGeometry | None) -> Iterator[Ping]:
+    from sonarmap.io.rosbag import FORMAT, _guarded, _stamp_ns
+
+    idx: dict[str, int] = {}
+    warned: set[str] = set()
+    for conn, _t, raw in _guarded(path, reader.messages(connections=conns)):
+        i = idx.get(conn.topic, 0)
+        idx[conn.topic] = i + 1
+        try:
+            msg = reader.deserialize(raw, conn.msgtype)
+        except Exception as exc:  # noqa: BLE001
+            raise DataFormatError(f"corrupt message {i} on {conn.topic}: {type(exc).__name__}: {exc}", path) from None
+        data, broken = oculus_ping_chunk(msg)
+        if broken and conn.topic not in warned:
+            warned.add(conn.topic)
+            warnings.warn(
+                f"{path}: {conn.topic}: RawData message {i} starts an Oculus SimplePingResult but does not "
+                "hold exactly one (incomplete or merged); such messages are skipped",
+                SonarmapWarning, stacklevel=3,
+            )
+        if data is None:
+            continue
+        try:
+            t_ns = _stamp_ns(msg.header.stamp)
+        except ValueError as exc:
+            raise DataFormatError(f"message {i} on {conn.topic}: {exc}", path) from None
+        ping = decode_simple_ping(data, path=f"{path}#{conn.topic}:{i}", time_ns=t_ns, geometry=override,
+                                  source=f"{path}#{conn.topic}:{i}")
+        ping.meta.update(format=FORMAT, payload_format="oculus", msgtype="RawData", topic=conn.topic,
+                         message_index=i, time_source="header_stamp")
+        if hasattr(msg.header, "seq"):
+            ping.meta["seq"] = int(msg.header.seq)
+        yield ping
+
+
+def count_oculus(reader: Any, path: Path, conns: list[Any]) -> dict[str, int]:
+    """SimplePingResult pings per topic of RawData connections (scans the messages)."""
+    from sonarmap.io.rosbag import _guarded
+
+    out = {c.topic: 0 for c in conns}
+    for conn, _t, raw in _guarded(path, reader.messages(connections=conns)):
+        try:
+            msg = reader.deserialize(raw, conn.msgtype)
+        except Exception as exc:  # noqa: BLE001
+            raise DataFormatError(f"corrupt message on {conn.topic}: {type(exc).__name__}: {exc}", path) from None
+        if oculus_ping_chunk(msg)[0] is not None:
+            out[conn.topic] += 1
+    return out
+
+
+def iter_kind(
+    kind: str, reader: Any, path: Path, conns: list[Any], override: SonarGeometry | None
+) -> Iterator[Ping]:
+    """Pings of connections of one kind (``raw_image``, ``legacy_image`` or ``oculus_raw``), in time order.
+
+    Raises
+    ------
+    DataFormatError
+        A corrupt or inconsistent message (naming the topic and its message index).
+    """
+    from sonarmap.io.rosbag import _guarded
+
+    if kind == "oculus_raw":
+        yield from _iter_oculus(reader, path, conns, override)
+        return
+    decode = ping_from_raw_sonar_image if kind == "raw_image" else ping_from_legacy_image
+    idx: dict[str, int] = {}
+    for conn, _t, raw in _guarded(path, reader.messages(connections=conns)):
+        i = idx.get(conn.topic, 0)
+        idx[conn.topic] = i + 1
+        try:
+            msg = reader.deserialize(raw, conn.msgtype)
+        except Exception as exc:  # noqa: BLE001
+            raise DataFormatError(f"corrupt message {i} on {conn.topic}: {type(exc).__name__}: {exc}", path) from None
+        try:
+            yield decode(msg, path, conn.topic, i, override)
+        except (ValueError, GeometryError) as exc:
+            raise DataFormatError(f"message {i} on {conn.topic}: {exc}", path) from None
