@@ -7,7 +7,7 @@ Usage::
 
 Each ``benchmarks/bench_<name>.py`` defines ``run(quick: bool) -> list[dict]``; each row has
 ``benchmark``, ``case``, ``median_ms`` and optionally ``baseline``, ``baseline_ms`` (a reference
-implementation timed in the same process), ``target_ms`` (the issue's budget) and ``note``.
+implementation timed in the same process), ``target_ms`` (the budget) and ``note``; the exit status is 1 when any target is missed.
 The runner pins numerical libraries to one thread so numbers are single-threaded unless a
 benchmark says otherwise.
 """
@@ -102,7 +102,9 @@ def main(argv: list[str] | None = None) -> int:
             "" if bms is None else f"{bms / med:.1f}x", r.get("note", ""),
         )
     Console(width=200).print(table)
-    return 0
+    if failed:
+        print(f"{failed} of {sum(r.get('target_ms') is not None for r in rows)} targets missed", file=sys.stderr)
+    return 1 if failed else 0
 
 
 if __name__ == "__main__":

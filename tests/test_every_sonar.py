@@ -302,3 +302,21 @@ def test_capped_persistency_reduction_gives_the_same_minimiser(monkeypatch, aris
     full = [process_ping(p, keep_labels=True).labels for p in pings]
     for a, b in zip(capped, full):
         np.testing.assert_array_equal(a, b)
+
+
+def test_normalisation_keeps_a_bright_target_from_filling_the_top_level():
+    """A target ~100x a weak background over a third of the image would put ~30 % of the
+    normalised pixels at 1.0 (a clipped histogram no mixture describes); the gain is lowered until
+    1 % reach it, and a ping without such a target keeps the background's own gain."""
+    from sonarmap.preprocess.normalise import MAX_SATURATED
+
+    rng = np.random.default_rng(3)
+    img = rng.exponential(0.01, (600, 128)).astype(np.float32)
+    plain_bg, plain_u = estimate_background(img)
+    img[250:450] = rng.exponential(1.0, (200, 128)).astype(np.float32)
+    bg, u = estimate_background(img)
+    assert bg.applied and u is not None and plain_u is not None
+    assert float((u >= 1.0).mean()) <= MAX_SATURATED + 1e-3
+    assert float((u >= 1.0).mean()) > 0.5 * MAX_SATURATED  # lowered just enough, not to nothing
+    assert bg.gain < 0.5 * plain_bg.gain
+    assert float((plain_u >= 1.0).mean()) < MAX_SATURATED

@@ -186,3 +186,21 @@ def test_oculus_matches_three_pings(oculus_pings) -> None:
     whole = compare_recording(oculus_pings, scene="seafloor")
     assert whole.kld_real_sim < 0.25  # measured 0.118; the empty scene gives several nats
     assert whole.sim_percentiles[:, 2].max() > 0.4  # a bright seabed band, like the real 0.3-1.0
+
+
+def test_oculus_gain_assist_keeps_a_bright_hull_from_clipping() -> None:
+    """The real Oculus capture has the gain-assist fire flag (0x10) set; the Oculus profile lowers
+    its gain when more than 1 % of the pixels would clip, and leaves a seafloor scene alone."""
+    g = preset("oculus-m750d-like")
+    hull = simulate_ping(scene_from_name("hull", geometry=g), g, seed=0)
+    assert hull.ping.meta["gain_assist_db"] >= 3
+    assert float((hull.ping.image >= 1.0).mean()) <= 0.01
+    fixed = simulate_ping(scene_from_name("hull", geometry=g), g, seed=0,
+                          config=SimulationConfig(gain_assist_saturation=0.0))
+    assert float((fixed.ping.image >= 1.0).mean()) > 0.2  # without it the hull clips
+    assert "gain_assist_db" not in fixed.ping.meta
+    assert hull.config.rx_gain_db == pytest.approx(fixed.config.rx_gain_db - hull.ping.meta["gain_assist_db"])
+    sea = simulate_ping(scene_from_name("seafloor", geometry=g), g, seed=0)
+    assert "gain_assist_db" not in sea.ping.meta
+    with pytest.raises(InputError, match="gain_assist_saturation"):
+        SimulationConfig(gain_assist_saturation=1.0)

@@ -27,7 +27,9 @@ hardware:
    come from the lower half of each row, in the quarter of the rows with the lowest median -
    robust to surfaces on up to half the beams of a row and filling up to 3/4 of the rows - for an
    exponential tail of scale ``s`` above the median: ``q50 - q25 = s ln 1.5``,
-   ``t = q50 + s ln 5``, mean excess ``s``.
+   ``t = q50 + s ln 5``, mean excess ``s``.  Where that gain would put more than 1 % of the
+   pixels at the top level (targets tens of dB above a weak or coarsely quantised background),
+   ``g`` is lowered until 1 % reach it: a mixture cannot describe a clipped histogram.
 
 The result is a zero spike (the pixels under the threshold) plus the excess of the background
 over it - exponential for any background whose tail is (gamma, Rayleigh and K speckle all are) -
@@ -54,6 +56,8 @@ __all__ = ["BackgroundLevel", "RecordingBackground", "estimate_background", "est
 #: Mean of the background excess after normalisation (the DIDSON background's 1/lambda, Table I).
 BACKGROUND_MEAN = 1.0 / 44.6
 _ZERO = 0.5 / 255.0
+#: Largest fraction of the normalised pixels at the top level (1.0): above it the gain is lowered.
+MAX_SATURATED = 0.01
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -290,6 +294,14 @@ def _finish(img: NDArray[np.float32], level: NDArray[np.float32], factor: NDArra
     t = c50 + math.log(0.5 / (1.0 - floor_quantile)) * scale  # ln 5 at the 0.9 quantile
     g = BACKGROUND_MEAN / scale
     u = excess(z, np.float32(t), np.float32(g))
+    if np.count_nonzero(u >= 1.0) > MAX_SATURATED * u.size:
+        # targets far above a weak (or coarsely quantised) background would fill the top level:
+        # lower the gain until at most MAX_SATURATED of the pixels reach it (a receiver's gain
+        # assist); the background then spans fewer levels, but stays resolved
+        top = float(np.quantile(z, 1.0 - MAX_SATURATED))
+        if top > t:
+            g = min(g, 1.0 / (top - t))
+            u = excess(z, np.float32(t), np.float32(g))
     return BackgroundLevel(True, reason, zero_fraction, level.astype(np.float32), factor,
                            _range_dependence_db(level), t, g), u
 

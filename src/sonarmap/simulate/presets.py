@@ -108,6 +108,7 @@ OCULUS = SonarProfile(
         "beam_width_rad": math.radians(0.55),
         "ring_down_level": 0.14,
         "ring_down_m": 0.007,
+        "gain_assist_saturation": 0.01,
     },
     calibrated_on="oculus/three_pings_8bit.raw (Oculus M750d-like, 3 pings, 2 m range)",
 )

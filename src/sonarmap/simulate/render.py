@@ -197,6 +197,11 @@ class SimulationConfig:
         the halo of the neighbouring beams' nearer echoes in front of it.  ``None``: the
         geometry's own beam width (:func:`beam_width_for`: the ARIS beam-width tables, else one
         beam spacing); ``0``: no main-lobe spread (each direction only in its own beam).
+    gain_assist_saturation : float
+        Automatic gain ("gain assist", as the Oculus sonars apply by default): when more than this
+        fraction of the pixels would reach full scale, the receiver gain is lowered in whole-dB
+        steps until at most this fraction does (the reduction is in ``ping.meta["gain_assist_db"]``
+        and ``SimResult.config.rx_gain_db``).  0 (default): a fixed gain, bright targets saturate.
     range_resolution_m : float
         Deprecated (the centred range box of earlier versions): a value larger than
         ``pulse_length_m`` is used as the pulse length.  Default 0.
@@ -251,6 +256,7 @@ class SimulationConfig:
     beam_width_rad: float | None = None
     ring_down_level: float = 0.0
     ring_down_m: float = 0.005
+    gain_assist_saturation: float = 0.0
 
     def __post_init__(self) -> None:
         for f in dataclasses.fields(self):
@@ -258,6 +264,8 @@ class SimulationConfig:
             if isinstance(val, float | int) and not isinstance(val, bool):
                 if not math.isfinite(float(val)):
                     raise InputError(f"config.{f.name}: must be finite (got {val})")
+        if not 0.0 <= self.gain_assist_saturation < 1.0:
+            raise InputError(f"config.gain_assist_saturation: must lie in [0, 1) (got {self.gain_assist_saturation})")
         if not self.elevation_aperture_rad > 0:
             raise InputError(
                 f"config.elevation_aperture_rad: must be positive (got {self.elevation_aperture_rad})"
@@ -480,6 +488,20 @@ def transmission_loss_db(range_m: NDArray[np.float64] | float, config: Simulatio
     """
     r = np.maximum(np.asarray(range_m, dtype=np.float64), 0.01)
     return 20.0 * config.spreading_beta * np.log10(r) + 2.0 * config.alpha_db_per_m * r
+
+
+def _gain_assist_db(intensity: NDArray[np.float64], config: SimulationConfig) -> float:
+    """Whole-dB gain reduction that leaves at most ``config.gain_assist_saturation`` of the pixels
+    at full scale (0 when off or when the image does not saturate more than that)."""
+    f = config.gain_assist_saturation
+    if f <= 0:
+        return 0.0
+    top = float(np.quantile(intensity, 1.0 - f))
+    if config.receiver == "log":
+        over_db = 10.0 * math.log10(top) - config.threshold * config.dynamic_range_db if top > 0 else -math.inf
+    else:
+        over_db = 10.0 * math.log10(top / (1.0 + config.threshold)) if top > 0 else -math.inf
+    return float(max(math.ceil(over_db - 1e-9), 0))
 
 
 def _rx_gain(geometry: SonarGeometry, config: SimulationConfig) -> float:
@@ -1461,6 +1483,10 @@ def simulate_ping(
         for _ in range(config.looks - 1):
             intensity += _one_look(rng, shape, config, field, taper, m_bg, m_scatter, noise)
         intensity /= config.looks
+    assist_db = _gain_assist_db(intensity, config)
+    if assist_db > 0:
+        intensity *= 10.0 ** (-assist_db / 10.0)
+        config = config.replace(rx_gain_db=_rx_gain(geometry, config) - assist_db)
     if config.receiver == "log":
         with np.errstate(divide="ignore"):
             level = 1.0 + 10.0 * np.log10(intensity) / config.dynamic_range_db
@@ -1493,6 +1519,8 @@ def simulate_ping(
     surf, surfs = _surface_truth(smp, geometry, config, has, gap_m=length + 2.0 * geometry.range_resolution_m,
                                  lobe=lobe)
     meta: dict[str, Any] = {"simulated": scene.name or "scene"}
+    if assist_db > 0:
+        meta["gain_assist_db"] = assist_db
     if recording_meta:
         meta["pulse_width_us"] = 2e6 * length / geometry.sound_speed_m_s
         meta["sound_speed_m_s"] = geometry.sound_speed_m_s
