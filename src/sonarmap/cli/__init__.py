@@ -229,4 +229,7 @@ def _main(args: list[str], debug: bool) -> int:
 
 
 def run() -> None:  # pragma: no cover - console script
+    from sonarmap._threads import limit_blas_threads
+
+    limit_blas_threads()  # small per-ping products: one BLAS thread (see sonarmap._threads)
     sys.exit(main())
