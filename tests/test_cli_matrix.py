@@ -106,6 +106,7 @@ def _bad_value(cmd: str, pings: Path, out: Path) -> list[str]:
         "map": ["map", str(pings), "-o", str(out / "m.ply"), "--static", "--frame", "up"],
         "convert": ["convert", str(pings), "-o", str(out / "s.zarr"), "--to", "tar"],
         "process": ["process", str(pings), "-o", str(out / "s.zarr"), "--sonar", "no-such-preset"],
+        "live": ["live", str(pings), "--replay", "--queue", "0", "-o", str(out / "s.zarr")],
         "report": ["report", str(out / "s.zarr"), "-o", str(out / "r.html"), "--examples", "-1"],
         "demo": ["demo", "-o", str(out / "demo"), "--pings", "1"],
     }

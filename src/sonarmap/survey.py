@@ -102,6 +102,11 @@ __all__ = [
     "PRODUCT_VARIABLES",
     "INFORMATIONAL_FLAGS",
     "flagged_mask",
+    "product_record",
+    "product_schema",
+    "stack_product_records",
+    "create_product_store",
+    "ProductAppender",
 ]
 
 #: Marker directory inside the store (not part of the dataset).
@@ -728,6 +733,45 @@ def _create_store(path: Path, plan: SurveyPlan, schema: Mapping[str, tuple[tuple
         raise
 
 
+def _store_layout(geom: Any, cfg_dict: dict[str, Any], schema: Mapping[str, tuple[tuple[int, ...], str]], *,
+                  keep_labels: bool, chunk_size: int, n_pings: int, n_chunks: int, n_input_files: int,
+                  inputs: list[str], poses: str | None, fingerprint: str) -> tuple[list[Any], dict[str, Any]]:
+    """The static coordinate arrays and root attributes of a new product store.
+
+    The coordinate layout of every sonarmap store (:mod:`sonarmap.datamodel`); shared by
+    :func:`process_survey` and :func:`create_product_store` (live runs).
+    """
+    from sonarmap import __version__
+
+    coord_arrays = [
+        (DIM_RANGE, np.arange(geom.n_bins, dtype=np.int32), COORDINATES[DIM_RANGE],
+         dict(DATA_MODEL_ATTRS[DIM_RANGE])),
+        (DIM_BEAM, np.arange(geom.n_beams, dtype=np.int32), COORDINATES[DIM_BEAM],
+         dict(DATA_MODEL_ATTRS[DIM_BEAM])),
+        (COORD_AZIMUTH, np.asarray(geom.azimuth_rad, np.float64), COORDINATES[COORD_AZIMUTH],
+         dict(DATA_MODEL_ATTRS[COORD_AZIMUTH])),
+    ]
+    attrs = {
+        "sonarmap_format": SURVEY_FORMAT,
+        "sonarmap_version": __version__,
+        "title": "sonarmap survey products",
+        "Conventions": "CF-1.8",
+        "source_geometry": json.dumps(_jsonable(geom.to_dict())),
+        "pipeline_config": json.dumps(_jsonable(cfg_dict), sort_keys=True),
+        "keep_labels": bool(keep_labels),
+        "chunk_size": chunk_size,
+        "n_pings": n_pings,
+        "n_chunks": n_chunks,
+        "n_input_files": n_input_files,
+        "inputs": inputs,
+        "poses": poses,
+        "fingerprint": fingerprint,
+        "schema": {k: [list(s), d] for k, (s, d) in schema.items()},
+        "coordinates": f"{COORD_RANGE} {COORD_AZIMUTH}",
+    }
+    return coord_arrays, attrs
+
+
 def _write_echo_range(root: Any, store: Path, range_m: NDArray[np.float64], n: int, k: int) -> None:
     """``echo_range (ping_time, range_sample)`` of a product store: every ping's row is ``range_m``.
 
@@ -1262,33 +1306,12 @@ def process_survey(
                     # Start the first chunks now (products sent back) while the store is created.
                     pool.start(plan.chunks(), dataclasses.replace(task, schema=schema, reference=(
                         np.asarray(geom.azimuth_rad, np.float64), np.asarray(geom.range_m, np.float64))))
-                # The coordinate layout of every sonarmap store (sonarmap.datamodel).
-                coord_arrays = [
-                    (DIM_RANGE, np.arange(geom.n_bins, dtype=np.int32), COORDINATES[DIM_RANGE],
-                     dict(DATA_MODEL_ATTRS[DIM_RANGE])),
-                    (DIM_BEAM, np.arange(geom.n_beams, dtype=np.int32), COORDINATES[DIM_BEAM],
-                     dict(DATA_MODEL_ATTRS[DIM_BEAM])),
-                    (COORD_AZIMUTH, np.asarray(geom.azimuth_rad, np.float64), COORDINATES[COORD_AZIMUTH],
-                     dict(DATA_MODEL_ATTRS[COORD_AZIMUTH])),
-                ]
-                attrs = {
-                    "sonarmap_format": SURVEY_FORMAT,
-                    "sonarmap_version": __version__,
-                    "title": "sonarmap survey products",
-                    "Conventions": "CF-1.8",
-                    "source_geometry": json.dumps(_jsonable(geom.to_dict())),
-                    "pipeline_config": json.dumps(_jsonable(cfg_dict), sort_keys=True),
-                    "keep_labels": bool(keep_labels),
-                    "chunk_size": plan.chunk_size,
-                    "n_pings": plan.n_pings,
-                    "n_chunks": plan.n_chunks,
-                    "n_input_files": len(plan.files),
-                    "inputs": [p for p, _, _ in plan.files[:20]] + (["..."] if len(plan.files) > 20 else []),
-                    "poses": None if poses is None else os.path.abspath(poses),
-                    "fingerprint": fp,
-                    "schema": {k: [list(s), d] for k, (s, d) in schema.items()},
-                    "coordinates": f"{COORD_RANGE} {COORD_AZIMUTH}",
-                }
+                coord_arrays, attrs = _store_layout(
+                    geom, cfg_dict, schema, keep_labels=keep_labels, chunk_size=plan.chunk_size,
+                    n_pings=plan.n_pings, n_chunks=plan.n_chunks, n_input_files=len(plan.files),
+                    inputs=[p for p, _, _ in plan.files[:20]] + (["..."] if len(plan.files) > 20 else []),
+                    poses=None if poses is None else os.path.abspath(poses), fingerprint=fp,
+                )
                 _create_store(out, plan, schema, attrs, {"arrays": coord_arrays, "component_names": cnames,
                                                          "echo_range": geom.range_m})
             st, schema = _inspect_products(out)  # metadata checked: a damaged store is a clean error
@@ -1576,9 +1599,26 @@ def open_products(path: str | os.PathLike[str]) -> Any:
         message names the file or array).
     """
     p = Path(path)
-    st, _ = _inspect_products(p)
-    _check_chunk_files(st, DIM_PING, required=False)  # read when opened (an index): no FIFO, no /dev/zero
-    return _open_checked(st)
+    deadline = None
+    settled = False
+    while True:
+        try:
+            st, _ = _inspect_products(p)
+            _check_chunk_files(st, DIM_PING, required=False)  # read when opened (an index): no FIFO, no /dev/zero
+            return _open_checked(st)
+        except DataFormatError:
+            # A store written by a live run (root attribute ``live_status``) grows array by array
+            # for a few ms per flush: while it is "writing", and once more after it stopped, try
+            # again.  Other stores: the error as it is.
+            status = _live_status(p)
+            deadline = deadline if deadline is not None else time.monotonic() + LIVE_SETTLE_S
+            if status is None or time.monotonic() > deadline:
+                raise
+            if status != "writing":
+                if settled:
+                    raise
+                settled = True
+            time.sleep(0.005)
 
 
 def _open_checked(st: _Store, *, lazy: bool = True) -> Any:
@@ -1815,3 +1855,197 @@ def replicate_pings(
         os.symlink(img, d / f"{stem}_raw.png")
         os.symlink(side, d / f"{stem}.json")
     return d
+
+
+# ============================================================================ growing (live) stores
+#: How long :func:`open_products` keeps trying while a live run is publishing a flush (s).
+LIVE_SETTLE_S = 2.0
+
+
+def _live_status(path: Path) -> str | None:
+    """The root attribute ``live_status`` of a store written by a live run ("writing" while it
+    appends, "complete" after); None for other stores."""
+    attrs = _read_root_attrs(path)
+    v = None if attrs is None else attrs.get("live_status")
+    return v if isinstance(v, str) else None
+
+
+def product_record(products: Any, *, keep_labels: bool = False) -> dict[str, Any]:
+    """One ping's products as the row of every product variable (what a store holds per ping).
+
+    Parameters
+    ----------
+    products : PingProducts
+        The output of :func:`sonarmap.pipeline.process_ping`.
+    keep_labels : bool
+        Include the ``labels`` image.
+
+    Returns
+    -------
+    dict of str to ndarray or str
+    """
+    return _record(products, keep_labels=keep_labels)
+
+
+def product_schema(record: Mapping[str, Any]) -> dict[str, tuple[tuple[int, ...], str]]:
+    """Shapes (without the ping dimension) and dtypes of a :func:`product_record`."""
+    return _schema_of(record)
+
+
+def stack_product_records(records: Sequence[dict[str, Any]],
+                          schema: Mapping[str, tuple[tuple[int, ...], str]]) -> dict[str, np.ndarray]:
+    """Stack :func:`product_record` rows into one array per variable (leading dimension: pings).
+
+    Raises
+    ------
+    InputError
+        If a ping's products do not fit the schema (another sonar geometry).
+    """
+    return _stack(records, schema, [str(r.get("source", "")) for r in records])
+
+
+def create_product_store(path: str | os.PathLike[str], ping: Ping, products: Any, *, config: Any,
+                         chunk_size: int = DEFAULT_CHUNK_SIZE, keep_labels: bool = False,
+                         inputs: Sequence[str] = (), fingerprint: str = "") -> None:
+    """Create an empty product store (0 pings) for :class:`ProductAppender`, atomically.
+
+    The layout, attributes and codecs are those of :func:`process_survey`'s stores; the schema
+    and static coordinates come from the first ping and its products.  The root attribute
+    ``live_status`` is ``"writing"`` until the appender is closed.
+
+    Raises
+    ------
+    InputError
+        If ``chunk_size`` is not a positive integer.
+    """
+    import types
+
+    if isinstance(chunk_size, bool) or int(chunk_size) != chunk_size or chunk_size < 1:
+        raise InputError(f"chunk_size: must be a positive integer (got {chunk_size!r})")
+    out = Path(path)
+    rec = _record(products, keep_labels=keep_labels)
+    schema = _schema_of(rec)
+    _, _, cnames = _fit_arrays(products.fit)
+    geom = ping.geometry
+    coord_arrays, attrs = _store_layout(
+        geom, _config_dict(config), schema, keep_labels=keep_labels, chunk_size=int(chunk_size), n_pings=0,
+        n_chunks=0, n_input_files=len(inputs), inputs=list(inputs)[:20], poses=None, fingerprint=fingerprint,
+    )
+    attrs["live_status"] = "writing"
+    plan = types.SimpleNamespace(n_pings=0, chunk_size=int(chunk_size))
+    _create_store(out, plan, schema, attrs, {"arrays": coord_arrays, "component_names": cnames,  # type: ignore[arg-type]
+                                             "echo_range": geom.range_m})
+
+
+class ProductAppender:
+    """Append pings' products to a store made by :func:`create_product_store`; readers see prefixes.
+
+    Each :meth:`append` is one flush, published so that readers always see a consistent prefix
+    of the pings: (1) the chunk files of the new rows are written, each atomically (a partly
+    filled last chunk is rewritten with its earlier rows unchanged); (2) every per-ping array's
+    ``zarr.json`` gets the new length; (3) the root ``zarr.json`` - the ``n_pings`` / ``n_chunks``
+    attributes and the consolidated metadata - is replaced in one rename.  Readers of the
+    consolidated metadata (``xarray.open_zarr``) switch from one prefix to the next at (3);
+    :func:`open_products` retries for up to :data:`LIVE_SETTLE_S` while (2)-(3) are under way.
+    Full chunks get their completion marker; :meth:`close` marks the store complete.
+
+    Parameters
+    ----------
+    path : path-like
+        The store.
+    range_m : ndarray, shape (n_bins,), optional
+        Ranges of the sonar's bins (the ``echo_range`` row of every ping): pass the first ping's
+        ``geometry.range_m``; default: from the store's ``source_geometry`` attribute.
+
+    Raises
+    ------
+    DataFormatError
+        If ``path`` is not a product store this version writes.
+    """
+
+    def __init__(self, path: str | os.PathLike[str], *, range_m: Any = None) -> None:
+        from sonarmap._survey_store import ChunkWriter
+        from sonarmap.datamodel import _node_docs, _read_doc
+
+        self.path = Path(path)
+        st, schema = _inspect_products(self.path)
+        self.schema = schema
+        self.chunk_size = _int_attr(st.attrs, "chunk_size", self.path, low=1)
+        self.n_pings = _int_attr(st.attrs, "n_pings", self.path)
+        if self.n_pings:
+            raise DataFormatError("ProductAppender needs a new, empty store", self.path)
+        self._range_m = np.asarray(_store_geometry(st).range_m if range_m is None else range_m, np.float64)
+        if self._range_m.shape != (int(st.arrays[COORD_RANGE].shape[-1]),):
+            raise InputError(f"range_m: shape {self._range_m.shape}, the store has "
+                             f"{int(st.arrays[COORD_RANGE].shape[-1])} range bins")
+        self._names = [*schema, COORD_RANGE]
+        writer = ChunkWriter.open(self.path, self._names)
+        if writer is None:
+            raise DataFormatError("the store's arrays use codecs this version does not write", self.path)
+        self._writer = writer
+        self._root_doc = _read_doc(self.path / "zarr.json")
+        self._nodes = _node_docs(self.path)
+        self._tail: list[dict[str, Any]] = []
+        self.n_flagged = 0
+        self.closed = False
+
+    def append(self, records: Sequence[dict[str, Any]]) -> None:
+        """Write and publish the rows ``records`` (:func:`product_record`) after the stored pings."""
+        if self.closed:
+            raise SonarmapError(f"{self.path}: the store was closed")
+        if not records:
+            return
+        k = self.chunk_size
+        n0, n1 = self.n_pings, self.n_pings + len(records)
+        c0 = n0 // k
+        rows = [*self._tail, *records]
+        for c in range(c0, -(-n1 // k)):
+            part = rows[(c - c0) * k : (c - c0 + 1) * k]
+            data = stack_product_records(part, self.schema)
+            data[COORD_RANGE] = np.broadcast_to(self._range_m, (len(part), self._range_m.size))
+            self._writer.write(c, data)
+        self._tail = rows[(n1 // k - c0) * k :]
+        self.n_flagged += int(flagged_mask([r["flags"] for r in records]).sum())
+        for name in self._names:
+            doc = self._nodes[name]
+            doc["shape"] = [n1, *doc["shape"][1:]]
+            self._replace(self.path / name / "zarr.json", doc)
+        self._publish(n1)
+        for c in range(c0, n1 // k):
+            _write_marker(self.path, c, c * k, (c + 1) * k)
+        self.n_pings = n1
+
+    def close(self) -> None:
+        """Mark the store complete (last chunk's marker, ``live_status`` "complete", summary)."""
+        if self.closed:
+            return
+        k, n = self.chunk_size, self.n_pings
+        if n % k:
+            _write_marker(self.path, n // k, (n // k) * k, n)
+        self._publish(n, status="complete")
+        with contextlib.suppress(OSError):
+            os.rmdir(self.path / STATE_DIR / "tmp")
+        atomic_write_text(self.path / STATE_DIR / "complete",
+                          json.dumps({"n_pings": n, "n_flagged": self.n_flagged}) + "\n")
+        self.closed = True
+
+    def _publish(self, n: int, status: str = "writing") -> None:
+        doc = self._root_doc
+        attrs = doc.setdefault("attributes", {})
+        attrs.update(n_pings=n, n_chunks=-(-n // self.chunk_size), live_status=status)
+        doc["consolidated_metadata"] = {"kind": "inline", "must_understand": False,
+                                        "metadata": dict(sorted(self._nodes.items()))}
+        self._replace(self.path / "zarr.json", doc)
+
+    def _replace(self, target: Path, doc: dict[str, Any]) -> None:
+        """Replace one metadata document atomically (temporary file in the store, then rename)."""
+        import uuid
+
+        tmp = self.path / STATE_DIR / "tmp" / f"meta-{os.getpid()}-{uuid.uuid4().hex}"
+        try:
+            tmp.write_bytes(json.dumps(doc).encode("utf-8"))  # compact: the C encoder, ~10x faster
+            os.replace(tmp, target)
+        except OSError as exc:
+            with contextlib.suppress(OSError):
+                tmp.unlink()
+            raise write_error(exc, self.path, f"cannot write {target.relative_to(self.path)}") from None

@@ -40,6 +40,7 @@ COMMAND_MODULES = (
     "map",
     "convert",
     "process",
+    "live",
     "report",
     "demo",
 )

@@ -1,0 +1,328 @@
+"""The real-time loop: pings from a source -> :func:`sonarmap.pipeline.process_ping` -> sinks.
+
+A reader thread pulls pings from the source into a bounded queue; the calling thread takes them
+out and processes them.  When processing falls behind and the queue is full, the *oldest* queued
+ping is dropped (and counted) to make room for the new one: the products stay current and the
+latency bounded (about ``queue_size + 1`` processing times at worst) instead of growing without
+limit.  Latency is measured per ping from its arrival (the moment the source delivered it) to
+its products being ready (``process_ping`` returned).
+
+:func:`run_live` returns :class:`LiveStats`; a ``status`` callback gets a :class:`LiveSnapshot`
+about twice a second (:mod:`sonarmap.live.status` draws it as one line on stderr).
+"""
+
+from __future__ import annotations
+
+import collections
+import dataclasses
+import math
+import threading
+import time
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import numpy as np
+
+from sonarmap.errors import InputError
+from sonarmap.ping import Ping
+
+__all__ = ["LiveStats", "LiveSnapshot", "run_live", "warm_pipeline", "DEFAULT_QUEUE"]
+
+#: Default bound of the queue between the reader and the processing loop (pings).
+DEFAULT_QUEUE = 2
+#: Latencies kept for the live status (the final statistics use every ping).
+_RECENT = 256
+
+
+@dataclasses.dataclass(frozen=True)
+class LiveSnapshot:
+    """What the live status line shows (a moment of a running loop).
+
+    Attributes
+    ----------
+    elapsed_s : float
+        Since the loop started.
+    count, drops, flagged, malformed, reconnects : int
+        Pings processed; dropped (processing behind); with a flagged fit; damaged packets
+        skipped by the source; reconnections.
+    pings_per_s : float
+        Processing rate over the last ~2 s.
+    latency_p50_ms, latency_p99_ms : float
+        Over the last 256 pings (NaN before the first).
+    """
+
+    elapsed_s: float
+    count: int
+    drops: int
+    flagged: int
+    malformed: int
+    reconnects: int
+    pings_per_s: float
+    latency_p50_ms: float
+    latency_p99_ms: float
+
+
+@dataclasses.dataclass(frozen=True)
+class LiveStats:
+    """Statistics of a finished :func:`run_live` run.
+
+    Attributes
+    ----------
+    count : int
+        Pings processed.
+    received : int
+        Pings the source delivered (``count + drops + unprocessed``).
+    drops : int
+        Pings dropped because processing was behind (the oldest queued ping goes first).
+    unprocessed : int
+        Pings still queued when the run was stopped (``max_pings``, duration, interrupt).
+    flagged : int
+        Processed pings whose fit was flagged implausible (no returns; ``PingProducts.flagged``).
+    malformed : int
+        Damaged packets / messages the source skipped.
+    reconnects : int
+        Reconnections of the source.
+    latency_p50_ms, latency_p99_ms, latency_max_ms : float
+        Arrival -> products ready, over every processed ping (NaN without one).
+    process_p50_ms : float
+        Median time of ``process_ping`` alone.
+    elapsed_s : float
+        Wall time of the run.
+    stopped_by : str
+        ``"source"`` (it ended), ``"max_pings"``, ``"duration"`` or ``"interrupt"``.
+    """
+
+    count: int
+    received: int
+    drops: int
+    unprocessed: int
+    flagged: int
+    malformed: int
+    reconnects: int
+    latency_p50_ms: float
+    latency_p99_ms: float
+    latency_max_ms: float
+    process_p50_ms: float
+    elapsed_s: float
+    stopped_by: str
+
+    @property
+    def pings_per_s(self) -> float:
+        """Processed pings per second of wall time."""
+        return self.count / self.elapsed_s if self.elapsed_s > 0 else math.nan
+
+    def summary(self) -> str:
+        """One line: counts, rate, latency."""
+        lat = ("latency n/a" if math.isnan(self.latency_p50_ms) else
+               f"latency p50 {self.latency_p50_ms:.1f} ms / p99 {self.latency_p99_ms:.1f} ms")
+        return (f"{self.count} pings in {self.elapsed_s:.1f} s ({self.pings_per_s:.1f}/s), {lat}, "
+                f"{self.drops} dropped, {self.flagged} flagged, {self.malformed} malformed, "
+                f"{self.reconnects} reconnects (stopped by {self.stopped_by})")
+
+
+def _pct(values: Sequence[float] | np.ndarray, q: float) -> float:
+    return float(np.percentile(np.asarray(values, dtype=np.float64), q)) * 1e3 if len(values) else math.nan
+
+
+def warm_pipeline(config: Any = None, ping: Ping | None = None) -> None:
+    """Run the pipeline once before the stream starts, so the first real ping is not slowed by
+    loading the compiled kernels and lazily imported modules (~1 s).
+
+    Parameters
+    ----------
+    config : PipelineConfig, optional
+    ping : Ping, optional
+        A ping like those to come (e.g. the first of the recording); default synthetic
+        thresholded and speckle images.
+    """
+    import sonarmap._survey_warm  # noqa: F401 - warms the thresholded-image path on import
+    from sonarmap.geometry import preset
+    from sonarmap.pipeline import PipelineConfig, process_ping
+
+    cfg = config if config is not None else PipelineConfig()
+    if ping is None:
+        g = preset("oculus-m750d-like")
+        img = np.random.default_rng(0).exponential(0.1, g.shape).astype(np.float32)
+        img[g.n_bins // 2 : g.n_bins // 2 + 6] += 0.8
+        ping = Ping(np.clip(img, 0, 1), g)
+    try:
+        process_ping(ping, cfg)
+    except Exception:  # noqa: BLE001 - warming is an optimisation, never a requirement
+        pass
+
+
+def run_live(
+    source: Any,
+    *,
+    config: Any = None,
+    sinks: Sequence[Any] = (),
+    max_pings: int | None = None,
+    duration_s: float | None = None,
+    queue_size: int = DEFAULT_QUEUE,
+    status: Callable[[LiveSnapshot], None] | None = None,
+    status_interval_s: float = 0.5,
+    stop_event: threading.Event | None = None,
+    process: Callable[..., Any] | None = None,
+) -> LiveStats:
+    """Process a live source's pings as they arrive, dropping the oldest when behind.
+
+    Parameters
+    ----------
+    source : PingSource or iterable of Ping
+        Where pings come from (:mod:`sonarmap.live.sources`); its ``stop()`` is called at the end,
+        its ``malformed`` / ``reconnects`` counters are reported.
+    config : PipelineConfig, optional
+        Pipeline configuration (default ``PipelineConfig()``).
+    sinks : sequence
+        Objects with ``write(ping, products)`` (and optionally ``tick()``, called while idle, and
+        ``flush()``), e.g. :class:`~sonarmap.live.sinks.RangesSink`, :class:`~sonarmap.live.sinks.StoreSink`.
+        They are not closed here.
+    max_pings : int, optional
+        Stop after processing this many pings.
+    duration_s : float, optional
+        Stop after this long.
+    queue_size : int
+        Bound of the queue between the reader and the processing (>= 1).
+    status : callable, optional
+        Called with a :class:`LiveSnapshot` every ``status_interval_s``.
+    stop_event : threading.Event, optional
+        Set it (e.g. from a SIGINT handler) to stop after the current ping.
+    process : callable, optional
+        ``process(ping, config) -> PingProducts`` (default :func:`sonarmap.pipeline.process_ping`).
+
+    Returns
+    -------
+    LiveStats
+
+    Raises
+    ------
+    InputError
+        On invalid arguments.
+    SonarmapError, OSError
+        What the source raised (e.g. it cannot connect, the file is not readable) - after the
+        pings that arrived before were processed.
+
+    Examples
+    --------
+    >>> from sonarmap.live import ReplaySource, run_live
+    >>> stats = run_live(ReplaySource("sample.aris", rate_hz=10), max_pings=6)  # doctest: +SKIP
+    >>> stats.count, stats.drops                                                  # doctest: +SKIP
+    (6, 0)
+    """
+    from sonarmap.pipeline import PipelineConfig, process_ping
+
+    if isinstance(queue_size, bool) or not isinstance(queue_size, int) or queue_size < 1:
+        raise InputError(f"queue_size: must be a positive integer, got {queue_size!r}")
+    if max_pings is not None and (isinstance(max_pings, bool) or not isinstance(max_pings, int) or max_pings < 1):
+        raise InputError(f"max_pings: must be a positive integer, got {max_pings!r}")
+    if duration_s is not None and not (isinstance(duration_s, int | float) and duration_s > 0):
+        raise InputError(f"duration_s: must be a positive number of seconds, got {duration_s!r}")
+    cfg = config if config is not None else PipelineConfig()
+    fn = process or process_ping
+    stop = stop_event if stop_event is not None else threading.Event()
+
+    cond = threading.Condition()
+    queue: collections.deque[tuple[Ping, float]] = collections.deque()
+    state = {"received": 0, "drops": 0, "done": False}
+    failure: list[BaseException] = []
+
+    def reader() -> None:
+        try:
+            for ping in source:
+                t = time.perf_counter()
+                with cond:
+                    if len(queue) >= queue_size:
+                        queue.popleft()
+                        state["drops"] += 1
+                    queue.append((ping, t))
+                    state["received"] += 1
+                    cond.notify()
+                if stop.is_set():
+                    break
+        except BaseException as exc:  # noqa: BLE001 - handed to the processing thread
+            failure.append(exc)
+        finally:
+            with cond:
+                state["done"] = True
+                cond.notify()
+
+    latencies: list[float] = []
+    proc_times: list[float] = []
+    recent: collections.deque[float] = collections.deque(maxlen=_RECENT)
+    finished: collections.deque[float] = collections.deque(maxlen=512)
+    count = flagged = 0
+    stopped_by = "source"
+    t0 = time.perf_counter()
+    next_status = t0 + status_interval_s
+
+    def counter(name: str) -> int:
+        return int(getattr(source, name, 0) or 0)
+
+    def snapshot(now: float) -> LiveSnapshot:
+        while finished and now - finished[0] > 2.0:
+            finished.popleft()
+        window = min(2.0, now - t0)
+        return LiveSnapshot(now - t0, count, state["drops"], flagged, counter("malformed"), counter("reconnects"),
+                            len(finished) / window if window > 0 else 0.0, _pct(recent, 50), _pct(recent, 99))
+
+    thread = threading.Thread(target=reader, name="sonarmap-live-reader", daemon=True)
+    thread.start()
+    try:
+        while True:
+            with cond:
+                if not queue and not state["done"] and not stop.is_set():
+                    cond.wait(0.05)  # wake up now and then: status line, time-based flushes
+                now = time.perf_counter()
+                if stop.is_set():
+                    stopped_by = "interrupt"
+                    break
+                if duration_s is not None and now - t0 >= duration_s:
+                    stopped_by = "duration"
+                    break
+                item = queue.popleft() if queue else None
+                done = state["done"] and not queue
+            if item is None:
+                for sink in sinks:
+                    tick = getattr(sink, "tick", None)
+                    if tick is not None:
+                        tick()
+                if status is not None and now >= next_status:
+                    status(snapshot(now))
+                    next_status = now + status_interval_s
+                if done:
+                    break
+                continue
+            ping, t_arrival = item
+            t_start = time.perf_counter()
+            products = fn(ping, cfg)
+            t_ready = time.perf_counter()
+            latencies.append(t_ready - t_arrival)
+            recent.append(t_ready - t_arrival)
+            proc_times.append(t_ready - t_start)
+            finished.append(t_ready)
+            count += 1
+            flagged += int(bool(getattr(products, "flagged", False)))
+            for sink in sinks:
+                sink.write(ping, products)
+            if status is not None and t_ready >= next_status:
+                status(snapshot(t_ready))
+                next_status = t_ready + status_interval_s
+            if max_pings is not None and count >= max_pings:
+                stopped_by = "max_pings"
+                break
+    finally:
+        stop_source = getattr(source, "stop", None)
+        if stop_source is not None:
+            stop_source()
+        thread.join(5.0)
+    if failure and stopped_by == "source":
+        raise failure[0]
+    with cond:
+        unprocessed = len(queue)
+        queue.clear()
+    return LiveStats(
+        count=count, received=state["received"], drops=state["drops"], unprocessed=unprocessed, flagged=flagged,
+        malformed=counter("malformed"), reconnects=counter("reconnects"), latency_p50_ms=_pct(latencies, 50),
+        latency_p99_ms=_pct(latencies, 99), latency_max_ms=max(latencies) * 1e3 if latencies else math.nan,
+        process_p50_ms=_pct(proc_times, 50), elapsed_s=time.perf_counter() - t0, stopped_by=stopped_by,
+    )

@@ -1,0 +1,457 @@
+"""``sonarmap live``: sources, the real-time loop, the growing store, the CLI.
+
+Real data: the liboculus capture (``oculus/three_pings_8bit.raw``) served over loopback by the
+replay server, and ``aris/sample.aris`` written progressively into a temporary file.  Rates are
+chosen so that the default pipeline (~30-80 ms per 703 x 256 Oculus ping on the shared 2-CPU
+machine) keeps up where a test needs "no drops", and far beyond where it needs drops.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import math
+import os
+import signal
+import struct
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from sonarmap.errors import InputError
+from sonarmap.live import (
+    FollowSource,
+    MessageFramer,
+    OculusTcpSource,
+    ReplayServer,
+    ReplaySource,
+    SourceError,
+    StoreSink,
+    decode_fire_message,
+    encode_fire_message,
+    open_source,
+    run_live,
+    warm_pipeline,
+)
+from sonarmap.survey import load_products, open_products
+
+#: The replay server closes the connection after its last message: the client says so once.
+pytestmark = pytest.mark.filterwarnings("ignore:.*connection lost; reconnecting")
+
+
+@pytest.fixture(scope="module")
+def raw_capture(data_dir: Path) -> Path:
+    p = data_dir / "oculus" / "three_pings_8bit.raw"
+    assert p.is_file()
+    return p
+
+
+@pytest.fixture(scope="module")
+def aris_file(data_dir: Path) -> Path:
+    p = data_dir / "aris" / "sample.aris"
+    assert p.is_file()
+    return p
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _warm() -> None:
+    warm_pipeline()
+
+
+class Collect:
+    """A sink that remembers each ping's id, source and the time its products were ready."""
+
+    def __init__(self) -> None:
+        self.ids: list[int] = []
+        self.sources: list[str] = []
+        self.done_at: list[float] = []
+        self.n = 0
+
+    def write(self, ping: Any, products: Any) -> None:
+        self.ids.append(int(ping.meta.get("ping_id", -1)))
+        self.sources.append(ping.source)
+        self.done_at.append(time.monotonic())
+        self.n += 1
+
+
+# ---------------------------------------------------------------------------- protocol
+def test_fire_message_round_trip_and_layout() -> None:
+    msg = encode_fire_message()
+    assert len(msg) == 16 + 37 and msg[:2] == b"SO"
+    oid, _s, _d, msg_id, _v, payload, _sp = struct.unpack_from("<HHHHHIH", msg, 0)
+    assert (oid, msg_id, payload) == (0x4F53, 0x15, 37)
+    assert decode_fire_message(msg).range_m == 2.0
+
+
+def test_framer_resyncs_on_damage_at_any_split(raw_capture: Path) -> None:
+    from sonarmap.live.server import read_capture_messages
+
+    msgs = read_capture_messages(raw_capture)
+    bad = bytearray(msgs[1])
+    bad[:2] = b"XX"  # lost, one malformed event
+    stream = (b"\x00garbage SOx" + msgs[0] + bytes(bad) + msgs[2] + b"S" * 50 + msgs[0])
+    for step in (101, 977, 65536, len(stream)):
+        fr = MessageFramer()
+        out = []
+        for i in range(0, len(stream), step):
+            out += fr.feed(stream[i : i + step])
+        assert [m for _, m in out] == [msgs[0], msgs[2], msgs[0]], step
+        assert fr.malformed == 3, step  # leading garbage, the bad magic, the run of b"S"
+
+
+# ---------------------------------------------------------------------------- TCP source + loop
+def test_tcp_replay_every_ping_processed_without_drops(raw_capture: Path, tmp_path: Path) -> None:
+    n = 30
+    with ReplayServer(raw_capture, rate_hz=10, count=n) as srv:
+        col = Collect()
+        store = StoreSink(tmp_path / "s.zarr", config=None, flush_every=8)
+        stats = run_live(OculusTcpSource("127.0.0.1", srv.port), sinks=[col, store], max_pings=n, queue_size=64)
+        store.close()
+        assert srv.fire is not None and srv.fire.range_m == 2.0  # the client fired the sonar
+    assert stats.count == n and stats.drops == 0 and stats.malformed == 0, stats
+    assert col.ids == list(range(n))  # every ping, in order, once
+    assert stats.latency_p50_ms < 1000 and not math.isnan(stats.latency_p99_ms)
+    ds = load_products(tmp_path / "s.zarr")
+    assert ds.sizes["ping_time"] == n and list(ds["source"].values) == col.sources
+    assert ds.attrs["live_status"] == "complete"
+    t = ds["ping_time"].values.astype("int64")
+    assert np.all(np.diff(t) > 0)  # receive times
+
+
+def test_unsustainable_rate_drops_oldest_and_latency_stays_bounded(raw_capture: Path) -> None:
+    with ReplayServer(raw_capture, rate_hz=200) as srv:
+        col = Collect()
+        stats = run_live(OculusTcpSource("127.0.0.1", srv.port), sinks=[col], duration_s=1.5, queue_size=2)
+        sent = srv.sent_valid
+    assert stats.drops > 0 and stats.count > 0, stats
+    assert stats.received == stats.count + stats.drops + stats.unprocessed
+    assert stats.received <= sent
+    assert col.ids == sorted(col.ids)  # newest kept: ids only move forward
+    # Bounded: at most the queue (2) + the ping in work + scheduling slack, never the ~1.5 s an
+    # unbounded queue reaches after 1.5 s at 200 Hz.
+    assert stats.latency_p99_ms < 8 * stats.process_p50_ms + 100, stats
+
+
+def test_server_restart_reconnects_and_store_is_complete(raw_capture: Path, tmp_path: Path) -> None:
+    srv = ReplayServer(raw_capture, rate_hz=10).start()
+    col = Collect()
+    store = StoreSink(tmp_path / "r.zarr", config=None, flush_every=4)
+    src = OculusTcpSource("127.0.0.1", srv.port, backoff_s=0.05, max_backoff_s=0.2)
+    out: dict[str, Any] = {}
+    th = threading.Thread(target=lambda: out.update(stats=run_live(src, sinks=[col, store], max_pings=20,
+                                                                    queue_size=64)))
+    th.start()
+    try:
+        t0 = time.monotonic()
+        while col.n < 8 and time.monotonic() - t0 < 10:
+            time.sleep(0.02)
+        srv.stop()  # the sonar goes away ...
+        time.sleep(0.4)
+        srv.start()  # ... and comes back on the same port
+        th.join(20)
+    finally:
+        srv.stop()
+        src.stop()
+        th.join(5)
+        store.close()
+    stats = out["stats"]
+    assert stats.count == 20 and stats.reconnects >= 1, stats
+    assert col.ids == sorted(set(col.ids))  # increasing, no duplicates (some lost in the outage)
+    ds = load_products(tmp_path / "r.zarr")
+    assert ds.sizes["ping_time"] == 20 and list(ds["source"].values) == col.sources
+
+
+def test_corrupted_packets_are_counted_and_skipped(raw_capture: Path) -> None:
+    n = 25  # the last one intact: every damaged message arrives before the last ping
+    with ReplayServer(raw_capture, rate_hz=12, count=n, corrupt_every=4) as srv:
+        col = Collect()
+        src = OculusTcpSource("127.0.0.1", srv.port, max_retries=0, read_timeout_s=1.0)
+        with pytest.warns(UserWarning, match="damaged"):
+            stats = run_live(src, sinks=[col], max_pings=n - 4, queue_size=64, duration_s=8)
+        assert srv.corrupted == 6
+    # 6 damaged: 2 junk runs before intact pings, 2 broken magics, 2 broken image sizes (lost)
+    assert stats.malformed == 6, stats
+    assert stats.count == n - 4 and stats.drops == 0
+    lost = {i for i in range(n) if (i + 1) % 4 == 0 and ((i + 1) // 4 - 1) % 3 != 0}
+    assert col.ids == [i for i in range(n) if i not in lost]
+
+
+def test_cannot_connect_is_a_source_error() -> None:
+    import socket
+
+    s = socket.socket()
+    s.bind(("127.0.0.1", 0))
+    port = s.getsockname()[1]
+    s.close()  # nobody listens there
+    src = OculusTcpSource("127.0.0.1", port, max_retries=1, backoff_s=0.01)
+    with pytest.raises(SourceError, match="cannot connect after 2 attempts"):
+        run_live(src, max_pings=1)
+
+
+# ---------------------------------------------------------------------------- follow + batch equality
+def _write_progressively(src: Path, dst: Path, interval_s: float, written_at: list[float]) -> None:
+    from sonarmap.io.aris import FILE_HEADER_SIZE, ArisFile
+
+    with ArisFile(src) as f:
+        frame = f.frame_size
+        n = len(f)
+    data = src.read_bytes()
+    with open(dst, "wb") as fh:
+        fh.write(data[:FILE_HEADER_SIZE])
+        fh.flush()
+        for i in range(n):
+            time.sleep(interval_s)
+            a = FILE_HEADER_SIZE + i * frame
+            fh.write(data[a : a + frame // 2])  # half a frame: not yet readable
+            fh.flush()
+            time.sleep(0.02)
+            fh.write(data[a + frame // 2 : a + frame])
+            fh.flush()
+            written_at.append(time.monotonic())
+
+
+def test_follow_aris_processes_each_frame_within_a_ping_interval_and_equals_batch(
+        aris_file: Path, tmp_path: Path) -> None:
+    from sonarmap.survey import process_survey
+
+    growing = tmp_path / "growing.aris"
+    interval = 0.25
+    written_at: list[float] = []
+    writer = threading.Thread(target=_write_progressively, args=(aris_file, growing, interval, written_at))
+    writer.start()
+    col = Collect()
+    store = StoreSink(tmp_path / "live.zarr", config=None, flush_every=2)
+    try:
+        stats = run_live(FollowSource(growing, idle_timeout_s=0.6, poll_s=0.01), sinks=[col, store], queue_size=8)
+    finally:
+        writer.join()
+        store.close()
+    assert stats.count == 6 and stats.drops == 0 and stats.stopped_by == "source"
+    lag = np.asarray(col.done_at) - np.asarray(written_at)
+    assert np.all(lag > 0) and np.all(lag < interval), lag
+    # the live store equals the batch store of the same pings, variable by variable
+    process_survey([growing], tmp_path / "batch.zarr", workers=0)
+    live, batch = load_products(tmp_path / "live.zarr"), load_products(tmp_path / "batch.zarr")
+    assert set(live.variables) == set(batch.variables)
+    for name in batch.variables:
+        a, b = live[name].values, batch[name].values
+        assert a.shape == b.shape and a.dtype == b.dtype, name
+        if a.dtype.kind == "f":
+            assert np.array_equal(a, b, equal_nan=True), name
+        else:
+            assert np.array_equal(a, b), name
+
+
+def test_replay_source_keeps_recorded_times_and_rate(aris_file: Path) -> None:
+    from sonarmap.io import read_pings
+
+    col = Collect()
+    t0 = time.monotonic()
+    stats = run_live(ReplaySource(aris_file, rate_hz=20), sinks=[col], queue_size=8)
+    assert stats.count == 6 and time.monotonic() - t0 >= 5 / 20
+    assert col.sources == [p.source for p in read_pings(str(aris_file))]
+
+
+def test_open_source_forms(aris_file: Path) -> None:
+    assert isinstance(open_source("oculus://10.0.0.2"), OculusTcpSource)
+    assert open_source("tcp://[::1]:9000").port == 9000  # type: ignore[attr-defined]
+    assert isinstance(open_source(str(aris_file), follow=True), FollowSource)
+    with pytest.raises(InputError, match="--follow"):
+        open_source(str(aris_file))
+    with pytest.raises(InputError, match="port"):
+        open_source("tcp://host:99999")
+
+
+# ---------------------------------------------------------------------------- store readable while written
+def test_store_reads_as_a_consistent_prefix_while_written(oculus_pings: list, tmp_path: Path) -> None:
+    import xarray as xr
+
+    from sonarmap.pipeline import process_ping
+
+    prods = [process_ping(p) for p in oculus_pings]
+    path = tmp_path / "grow.zarr"
+    sink = StoreSink(path, config=None, flush_every=1)
+    seen: list[int] = []
+    errors: list[BaseException] = []
+    stop = threading.Event()
+
+    def reader() -> None:
+        while not stop.is_set():
+            if not (path / "zarr.json").exists():
+                time.sleep(0.01)
+                continue
+            try:
+                ds = open_products(path)
+                n = ds.sizes["ping_time"]
+                assert np.all(ds["ping_time"].values.astype("int64") > 0)  # no unwritten rows
+                assert ds["range"].shape[0] == n and ds["source"].shape[0] == n
+                dz = xr.open_zarr(path, zarr_format=3)
+                assert np.all(dz["ping_time"].values.astype("int64") > 0)
+                seen.append(n)
+            except BaseException as exc:  # noqa: BLE001
+                errors.append(exc)
+                return
+
+    th = threading.Thread(target=reader)
+    th.start()
+    try:
+        for i in range(300):  # crosses a 256-ping chunk boundary
+            p = oculus_pings[i % 3]
+            sink.write(p.replace(time_ns=p.time_ns + i), prods[i % 3])
+            time.sleep(0.003)
+            if i % 75 == 74:  # let the reader see this stage (it reads while the next ones are written)
+                k, t = len(seen), time.monotonic()
+                while len(seen) == k and not errors and time.monotonic() - t < 10:
+                    time.sleep(0.01)
+    finally:
+        sink.close()
+        stop.set()
+        th.join()
+    assert not errors, errors[0]
+    assert len(seen) >= 4 and seen == sorted(seen) and seen[-1] > seen[0]  # it grew while read
+    assert load_products(path).sizes["ping_time"] == 300
+
+
+# ---------------------------------------------------------------------------- CLI
+def test_cli_ranges_to_stdout_parse_with_pandas(aris_file: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    import pandas as pd
+
+    from sonarmap.cli import main
+    from sonarmap.cli.ranges import CSV_HEADER
+
+    assert main(["live", str(aris_file), "--replay", "--rate", "30", "--ranges", "-", "--queue", "8"]) == 0
+    cap = capsys.readouterr()
+    df = pd.read_csv(io.StringIO(cap.out), parse_dates=["time"])
+    assert tuple(df.columns) == CSV_HEADER and len(df) == 6 * 48
+    assert df["ping"].nunique() == 6 and "live: 6 pings" in cap.err
+    assert main(["live", str(aris_file), "--replay", "--rate", "30", "--ranges", "-", "--format", "jsonl",
+                 "--queue", "8", "-q"]) == 0
+    cap = capsys.readouterr()
+    js = pd.read_json(io.StringIO(cap.out), lines=True)
+    assert len(js) == 6 and len(js["range_m"][0]) == 48 and cap.err == ""
+    assert all(json.loads(line)["time_ns"] > 0 for line in cap.out.splitlines())
+
+
+@pytest.mark.parametrize("args", [
+    ["--replay", "--queue", "0"],
+    ["--replay", "--format", "xml"],
+    ["--follow", "--rate", "5"],
+    [],
+])
+def test_cli_bad_options_exit_2(args: list[str], aris_file: Path, tmp_path: Path,
+                                capsys: pytest.CaptureFixture[str]) -> None:
+    from sonarmap.cli import main
+
+    assert main(["live", str(aris_file), *args, "-o", str(tmp_path / "x.zarr")]) == 2
+    assert "Invalid value" in capsys.readouterr().err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_cli_existing_store_needs_overwrite(aris_file: Path, tmp_path: Path,
+                                            capsys: pytest.CaptureFixture[str]) -> None:
+    from sonarmap.cli import main
+
+    (tmp_path / "x.zarr").mkdir()
+    assert main(["live", str(aris_file), "--replay", "--rate", "50", "-o", str(tmp_path / "x.zarr"), "-q"]) == 1
+    assert "--overwrite" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_sigint_leaves_a_valid_store(raw_capture: Path, tmp_path: Path) -> None:
+    out = tmp_path / "int.zarr"
+    with ReplayServer(raw_capture, rate_hz=10) as srv:
+        env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+        proc = subprocess.Popen([sys.executable, "-m", "sonarmap", "live", srv.url, "-o", str(out),
+                                 "--flush-every", "3"], stderr=subprocess.PIPE, stdout=subprocess.PIPE,
+                                text=True, env=env)
+        try:
+            t0 = time.monotonic()
+            while time.monotonic() - t0 < 30:  # until the store holds a few pings
+                try:
+                    if open_products(out).sizes["ping_time"] >= 6:
+                        break
+                except Exception:  # noqa: BLE001 - not created yet
+                    pass
+                time.sleep(0.05)
+            proc.send_signal(signal.SIGINT)
+            _, err = proc.communicate(timeout=30)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+    assert proc.returncode == 0, err
+    line = next(ln for ln in err.splitlines() if ln.startswith("live: "))
+    n = int(line.split()[1])
+    assert "stopped by interrupt" in line and n >= 6
+    ds = load_products(out)
+    assert ds.sizes["ping_time"] == n and ds.attrs["live_status"] == "complete"
+
+
+@pytest.mark.parametrize("kind", ["raw", "log-v1"])
+def test_follow_oculus_recordings(kind: str, raw_capture: Path, tmp_path: Path) -> None:
+    from oculus_writer import write_log_v1
+
+    from sonarmap.live.server import read_capture_messages
+
+    msgs = read_capture_messages(raw_capture)
+    full = tmp_path / "full.bin"
+    if kind == "raw":
+        full.write_bytes(b"".join(msgs))
+    else:
+        write_log_v1(full, msgs, [1_700_000_000.0 + 0.1 * i for i in range(len(msgs))])
+    data = full.read_bytes()
+    growing = tmp_path / f"growing.{'raw' if kind == 'raw' else 'oculus'}"
+
+    def write() -> None:  # arbitrary pieces: messages / log items arrive in parts
+        with open(growing, "wb") as fh:
+            for a in range(0, len(data), 40_000):
+                fh.write(data[a : a + 40_000])
+                fh.flush()
+                time.sleep(0.02)
+
+    th = threading.Thread(target=write)
+    th.start()
+    col = Collect()
+    try:
+        stats = run_live(FollowSource(growing, idle_timeout_s=0.5), sinks=[col], queue_size=8)
+    finally:
+        th.join()
+    assert stats.count == 3 and stats.drops == 0
+    assert col.sources == [f"{growing}#{i}" for i in range(3)]
+
+
+@pytest.mark.slow
+def test_server_module_command_line(raw_capture: Path) -> None:
+    proc = subprocess.Popen([sys.executable, "-m", "sonarmap.live.server", str(raw_capture), "--rate", "20",
+                             "--port", "0", "--count", "5"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True)
+    try:
+        assert proc.stdout is not None
+        line = proc.stdout.readline()
+        assert line.startswith("listening on 127.0.0.1:"), line
+        col = Collect()
+        stats = run_live(OculusTcpSource("127.0.0.1", int(line.rsplit(":", 1)[1])), sinks=[col], max_pings=5,
+                         queue_size=8, duration_s=20)
+        _, err = proc.communicate(timeout=20)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert stats.count == 5 and col.ids == [0, 1, 2, 3, 4]
+    assert proc.returncode == 0 and "sent 5 messages" in err and "Warning" not in err, err
+
+
+def test_store_skips_pings_of_another_geometry(aris_pings: list, oculus_pings: list, tmp_path: Path) -> None:
+    from sonarmap.pipeline import process_ping
+
+    sink = StoreSink(tmp_path / "g.zarr", config=None)
+    sink.write(aris_pings[0], process_ping(aris_pings[0]))
+    with pytest.warns(UserWarning, match="geometry"):
+        sink.write(oculus_pings[0], process_ping(oculus_pings[0]))
+    sink.write(aris_pings[1], process_ping(aris_pings[1]))
+    sink.close()
+    assert sink.n_skipped == 1 and load_products(tmp_path / "g.zarr").sizes["ping_time"] == 2
