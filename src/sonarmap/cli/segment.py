@@ -18,6 +18,10 @@ from sonarmap.cli.ranges import BETA_OPTION, CONFIG_OPTION, METHOD_OPTION, SOLVE
 __all__ = ["register", "segment_figure"]
 
 
+#: The fixed threshold of the paper's Fig. 7 (its middle panel), on the pre-processed image.
+FIG7_THRESHOLD = 0.22
+
+
 def _stem(source: str, index: int) -> str:
     if not source:
         return f"ping{index:05d}"
@@ -29,7 +33,7 @@ def _stem(source: str, index: int) -> str:
 
 
 def segment_figure(raw: Any, threshold_labels: Any, labels: Any, ranges: Any, *, title: str = "",
-                   threshold: float = 0.3, method: str = "mrf") -> Any:
+                   threshold: float = FIG7_THRESHOLD, method: str = "mrf") -> Any:
     """Matplotlib figure: raw | fixed threshold | MRF labels with first returns overlaid."""
     import matplotlib
 
@@ -75,7 +79,8 @@ def register(app: typer.Typer) -> None:
         """Segment pings; write label images and Fig.-7-style figures.
 
         For every ping writes STEM_labels.png (0 background, 127 structure, 254 a second object
-        class) and STEM_segment.png (raw | fixed threshold | MRF) into the output directory,
+        class) and STEM_segment.png (raw | the fixed threshold 0.22 of the paper's Fig. 7 | the
+        chosen method, first returns overlaid) into the output directory,
         which is created if needed; files in it are replaced atomically.
         """
 
@@ -121,11 +126,12 @@ def _segment_one(ping: Any, i: int, output: Path, cfg: Any, figure: bool) -> Non
     if figure:
         import matplotlib.pyplot as plt
 
-        # the fixed threshold on the image the classifier saw (pre-processed or normalised)
+        # the fixed threshold of the paper's Fig. 7 on the image the classifier saw (pre-processed
+        # or normalised); --method threshold uses its own (PipelineConfig.threshold)
         img = prod.image if prod.image is not None else ping.image
-        thr = threshold_labels(np.clip(img, 0.0, 1.0), cfg.threshold)
+        thr = threshold_labels(np.clip(img, 0.0, 1.0), FIG7_THRESHOLD)
         fig = segment_figure(ping.image, thr, labels, prod.ranges, title=Path(ping.source).name,
-                             threshold=cfg.threshold, method=cfg.method)
+                             threshold=FIG7_THRESHOLD, method=cfg.method)
         with atomic_path(output / f"{stem}_segment.png") as tmp:
             fig.savefig(tmp, dpi=90, format="png")
         plt.close(fig)
