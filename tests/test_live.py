@@ -343,6 +343,8 @@ def test_cli_ranges_to_stdout_parse_with_pandas(aris_file: Path, capsys: pytest.
     ["--replay", "--format", "xml"],
     ["--follow", "--rate", "5"],
     [],
+    ["--replay", "--oculus-range", "5"],  # sonar settings go to a live Oculus, not to a file
+    ["--replay", "--oculus-frequency", "medium"],
 ])
 def test_cli_bad_options_exit_2(args: list[str], aris_file: Path, tmp_path: Path,
                                 capsys: pytest.CaptureFixture[str]) -> None:
@@ -455,3 +457,23 @@ def test_store_skips_pings_of_another_geometry(aris_pings: list, oculus_pings: l
     sink.write(aris_pings[1], process_ping(aris_pings[1]))
     sink.close()
     assert sink.n_skipped == 1 and load_products(tmp_path / "g.zarr").sizes["ping_time"] == 2
+
+
+def test_cli_sends_the_oculus_settings_in_the_fire_message(raw_capture: Path, tmp_path: Path) -> None:
+    """--oculus-range / --oculus-gain / --oculus-frequency / --oculus-ping-rate / --no-gain-assist
+    reach the sonar; by default gain assist is on (flags 0x19, as in the shared capture)."""
+    from sonarmap.cli import main
+    from sonarmap.live.protocol import FLAG_GAIN_ASSIST
+
+    with ReplayServer(raw_capture, rate_hz=20, count=4) as srv:
+        assert main(["live", srv.url, "--max-pings", "2", "-q", "--oculus-range", "5", "--oculus-gain", "30",
+                     "--oculus-frequency", "low", "--oculus-ping-rate", "normal", "--no-gain-assist"]) == 0
+        fire = srv.fire
+    assert fire is not None
+    assert (fire.range_m, fire.gain_percent, fire.master_mode, fire.ping_rate) == (5.0, 30.0, 1, 0)
+    assert not fire.flags & FLAG_GAIN_ASSIST
+    with ReplayServer(raw_capture, rate_hz=20, count=4) as srv:
+        assert main(["live", srv.url, "--max-pings", "2", "-q"]) == 0
+        assert srv.fire is not None and srv.fire.flags == 0x19 and srv.fire.range_m == 2.0
+    with ReplayServer(raw_capture, rate_hz=20, count=4) as srv:
+        assert main(["live", srv.url, "--max-pings", "2", "-q", "--oculus-gain", "150"]) == 2

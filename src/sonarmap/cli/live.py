@@ -26,6 +26,12 @@ from sonarmap.cli._common import QUIET_OPTION, VERBOSE_OPTION, check_choice, exa
 __all__ = ["register"]
 
 
+#: ``--oculus-frequency`` -> the fire message's ``masterMode``.
+_FREQUENCY_MODES = {"low": 1, "high": 2}
+#: ``--oculus-ping-rate`` -> the fire message's ``pingRate`` code.
+_PING_RATES = {"normal": 0, "high": 1, "highest": 2, "low": 3, "lowest": 4}
+
+
 def _positive(value: float | None, option: str, *, integer: bool = False) -> None:
     """A usage error (exit 2) unless ``value`` is None or positive."""
     if value is None:
@@ -111,6 +117,15 @@ def register(app: typer.Typer) -> None:
         idle_timeout: float = typer.Option(5.0, "--idle-timeout", help="--follow: stop after S seconds without "
                                                                       "growth (0: never)."),
         overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing output store."),
+        oculus_range: float = typer.Option(2.0, "--oculus-range", help="tcp://: the Oculus range window (m)."),
+        oculus_gain: float = typer.Option(50.0, "--oculus-gain", help="tcp://: the Oculus receiver gain (percent)."),
+        oculus_frequency: str = typer.Option("high", "--oculus-frequency",
+                                             help="tcp://: the Oculus frequency mode, high or low."),
+        oculus_ping_rate: str = typer.Option("highest", "--oculus-ping-rate",
+                                             help="tcp://: the Oculus ping rate: lowest (2 Hz), low (5), normal (10), "
+                                                  "high (15) or highest (40)."),
+        gain_assist: bool = typer.Option(True, "--gain-assist/--no-gain-assist",
+                                         help="tcp://: let the Oculus lower its gain on bright targets."),
         quiet: bool = QUIET_OPTION,
         verbose: bool = VERBOSE_OPTION,
     ) -> None:
@@ -141,22 +156,37 @@ def register(app: typer.Typer) -> None:
             raise typer.BadParameter("a file needs --follow (being written) or --replay", param_hint="SOURCE")
         if (rate is not None or speed != 1.0 or loop) and not replay:
             raise typer.BadParameter("--rate / --speed / --loop apply to --replay only", param_hint="--rate")
+        check_choice(oculus_frequency, tuple(_FREQUENCY_MODES), "--oculus-frequency")
+        check_choice(oculus_ping_rate, tuple(_PING_RATES), "--oculus-ping-rate")
+        tcp: dict[str, Any] = {}
         if is_tcp:
             from sonarmap.errors import InputError
+            from sonarmap.live.protocol import FLAG_GAIN_ASSIST, FLAG_RANGE_METERS, FLAG_SIMPLE, FireSettings
             from sonarmap.live.sources import parse_tcp_url
 
             try:
                 parse_tcp_url(source)
             except InputError as exc:
                 raise typer.BadParameter(str(exc), param_hint="SOURCE") from None
+            try:
+                tcp["fire"] = FireSettings(
+                    master_mode=_FREQUENCY_MODES[oculus_frequency], ping_rate=_PING_RATES[oculus_ping_rate],
+                    flags=FLAG_RANGE_METERS | FLAG_SIMPLE | (FLAG_GAIN_ASSIST if gain_assist else 0),
+                    range_m=oculus_range, gain_percent=oculus_gain)
+            except InputError as exc:
+                raise typer.BadParameter(str(exc), param_hint="--oculus-range / --oculus-gain") from None
+        elif (oculus_range, oculus_gain, oculus_frequency, oculus_ping_rate, gain_assist) != (
+                2.0, 50.0, "high", "highest", True):
+            raise typer.BadParameter("the --oculus-* and --gain-assist settings are sent to a live Oculus "
+                                     "(tcp://); a file is read as recorded", param_hint="--oculus-range")
 
         # ------------------------------------------------------------ set up (errors: exit 1)
+        from sonarmap.cli.ranges import pipeline_config_from_options
         from sonarmap.live import RangesSink, StatusLine, StoreSink, open_source, run_live, warm_pipeline
-        from sonarmap.pipeline import PipelineConfig
 
-        cfg = PipelineConfig.from_toml(config) if config is not None else PipelineConfig()
+        cfg = pipeline_config_from_options(config, None, None, None)  # the route every command takes
         src = open_source(source, follow=follow, replay=replay, rate_hz=rate, speed=speed, loop=loop,
-                          idle_timeout_s=idle_timeout)
+                          idle_timeout_s=idle_timeout, **tcp)
         status = StatusLine(quiet=quiet)
         sinks: list[Any] = []
         store: StoreSink | None = None

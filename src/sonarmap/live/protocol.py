@@ -58,11 +58,14 @@ _MAGIC = struct.pack("<H", OCULUS_ID)  # b"SO"
 #: ``flags`` bits of the fire message.
 FLAG_RANGE_METERS = 0x01
 FLAG_SIMPLE = 0x08
+#: The sonar adjusts its gain so that bright targets do not saturate (the shared capture has it set).
+FLAG_GAIN_ASSIST = 0x10
 
 
 @dataclasses.dataclass(frozen=True)
 class FireSettings:
-    """Settings sent to the sonar in the fire message (defaults: 2 m window, high frequency).
+    """Settings sent to the sonar in the fire message (defaults: 2 m window, high frequency, gain
+    assist on - the flags 0x19 of the shared capture).
 
     Parameters
     ----------
@@ -76,7 +79,8 @@ class FireSettings:
     gamma : int
         Gamma correction (0-255).
     flags : int
-        Bit 0 range in metres, bit 1 16-bit data, bit 2 row gains, bit 3 simple ping.
+        Bit 0 range in metres, bit 1 16-bit data, bit 2 row gains, bit 3 simple ping, bit 4 gain
+        assist.
     range_m : float
         Range window (metres when ``flags`` bit 0 is set, else percent).
     gain_percent : float
@@ -91,7 +95,7 @@ class FireSettings:
     ping_rate: int = 2
     network_speed: int = 255
     gamma: int = 127
-    flags: int = FLAG_RANGE_METERS | FLAG_SIMPLE
+    flags: int = FLAG_RANGE_METERS | FLAG_SIMPLE | FLAG_GAIN_ASSIST
     range_m: float = 2.0
     gain_percent: float = 50.0
     sound_speed_m_s: float = 0.0
