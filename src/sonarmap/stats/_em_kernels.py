@@ -589,7 +589,10 @@ def _mstep2(kind: int, par: np.ndarray, lo: np.ndarray, hi: np.ndarray, x: np.nd
         qc = q0
         c0 = p0
         c1 = p1
+        pred = g0 * d0 + g1 * d1  # first-order gain of the full step
         for _bt in range(40):
+            if step * pred <= 1e-13 * (abs(q0) + 1.0):
+                break  # a shorter step cannot gain more than the rounding of Q: stop halving
             c0 = min(max(p0 + step * d0, lo[0]), hi[0])
             c1 = min(max(p1 + step * d1, lo[1]), hi[1])
             if c0 == p0 and c1 == p1:
