@@ -16,7 +16,7 @@ from run import DATA, timeit
 def _problem(index: int):  # type: ignore[no-untyped-def]
     import numpy as np
 
-    from sonarmap.classify._kernels import gather_costs
+    from sonarmap._pipeline_kernels import gather_costs
     from sonarmap.io import read_pings
     from sonarmap.pipeline import PipelineConfig, _cost_lut, _fit
     from sonarmap.preprocess.pipeline import preprocess_image

@@ -44,7 +44,7 @@ from sonarmap.geometry import (
     uniform_azimuths,
 )
 from sonarmap.io import detect_format, expand_inputs, read_pings
-from sonarmap.io._files import MAX_SIDECAR_BYTES
+from sonarmap._files import MAX_SIDECAR_BYTES
 from sonarmap.io.pngjson import MAX_IMAGE_PIXELS, read_png_ping, write_png_ping
 from sonarmap.ping import Ping
 

@@ -323,7 +323,7 @@ def test_cli_ranges_to_stdout_parse_with_pandas(aris_file: Path, capsys: pytest.
     import pandas as pd
 
     from sonarmap.cli import main
-    from sonarmap.cli.ranges import CSV_HEADER
+    from sonarmap.ranges.csv_rows import CSV_HEADER
 
     assert main(["live", str(aris_file), "--replay", "--rate", "30", "--ranges", "-", "--queue", "8"]) == 0
     cap = capsys.readouterr()

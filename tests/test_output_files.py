@@ -40,7 +40,7 @@ def _unix_ns(iso: str) -> int:
 # ---------------------------------------------------------------------- ranges CSV
 def test_ranges_csv_reads_with_pandas_as_is(tmp_path: Path, test_ping_paths: list[Path]) -> None:
     from sonarmap.cli import main
-    from sonarmap.cli.ranges import CSV_HEADER
+    from sonarmap.ranges.csv_rows import CSV_HEADER
     from sonarmap.io import read_pings
 
     pings = [test_ping_paths[4], test_ping_paths[5]]
@@ -59,7 +59,7 @@ def test_ranges_csv_reads_with_pandas_as_is(tmp_path: Path, test_ping_paths: lis
 
 
 def test_ranges_time_column_format() -> None:
-    from sonarmap.cli.ranges import iso_time, write_ranges_rows
+    from sonarmap.ranges.csv_rows import iso_time, write_ranges_rows
     from sonarmap.ranges import BeamRanges
 
     assert iso_time(T_2016) == "2016-07-19T14:03:05.250000000Z"

@@ -187,7 +187,7 @@ def test_box_mean_kernel_is_scipy_uniform_filter_bit_for_bit():
     """The band-pooling box mean (numba) reproduces scipy.ndimage.uniform_filter exactly."""
     from scipy.ndimage import uniform_filter
 
-    from sonarmap.classify._kernels import box_mean_f32
+    from sonarmap._pipeline_kernels import box_mean_f32
 
     rng = np.random.default_rng(0)
     for t in range(150):
@@ -201,7 +201,7 @@ def test_box_mean_kernel_is_scipy_uniform_filter_bit_for_bit():
 
 
 def test_level_counts_is_bincount():
-    from sonarmap.classify._kernels import level_counts
+    from sonarmap._pipeline_kernels import level_counts
 
     rng = np.random.default_rng(1)
     for shape in ((1, 1), (3, 5), (512, 96), (7, 13)):
@@ -246,7 +246,7 @@ def test_component_pixel_rule_keeps_compact_targets_drops_fish_sized_blobs():
 
 
 def test_band_peak_kernel_matches_numpy_formulation():
-    from sonarmap.classify._kernels import band_peak_pixels
+    from sonarmap._pipeline_kernels import band_peak_pixels
 
     rng = np.random.default_rng(5)
     for _ in range(100):

@@ -145,7 +145,7 @@ def test_accepted_pixels_bypass_component_rule_and_refinement(geom):
 
 def test_fused_rule0_equals_wide_then_linked_components():
     """The one-kernel rule 0 equals wide_components followed by _link_components."""
-    from sonarmap.ranges import _link_components, _rule0, wide_components
+    from sonarmap.ranges import _link_components, rule0, wide_components
 
     rng = np.random.default_rng(3)
     for t in range(400):
@@ -157,4 +157,4 @@ def test_fused_rule0_equals_wide_then_linked_components():
         ref = wide_components(m, mb, min_bins=mn)
         if gap > 0:
             ref = _link_components(m, ref, gap)
-        assert np.array_equal(_rule0(m, mb, mn, gap), ref)
+        assert np.array_equal(rule0(m, mb, mn, gap), ref)

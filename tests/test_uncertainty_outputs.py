@@ -28,7 +28,7 @@ def _ranges(n: int = 5) -> BeamRanges:
 
 
 def test_csv_rows_carry_sigma_and_p_detect() -> None:
-    from sonarmap.cli.ranges import CSV_HEADER, write_ranges_rows
+    from sonarmap.ranges.csv_rows import CSV_HEADER, write_ranges_rows
 
     assert CSV_HEADER[:9] == ("ping", "beam", "azimuth_rad", "bin", "range_m", "intensity", "flags", "sigma_m",
                               "p_detect")

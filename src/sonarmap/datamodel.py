@@ -54,6 +54,8 @@ __all__ = [
     "consolidate",
     "invalidate_consolidated",
     "consolidated_status",
+    "read_metadata_doc",
+    "node_docs",
 ]
 
 DIM_PING = "ping_time"
@@ -111,7 +113,8 @@ _KEY = "consolidated_metadata"
 MAX_METADATA_BYTES = 16 * 1024 * 1024
 
 
-def _read_doc(path: Path) -> dict[str, Any]:
+def read_metadata_doc(path: Path) -> dict[str, Any]:
+    """A zarr metadata document (JSON object of at most ``MAX_METADATA_BYTES``), else a DataFormatError."""
     try:
         if os.stat(path).st_size > MAX_METADATA_BYTES:
             raise DataFormatError(f"group metadata is larger than {MAX_METADATA_BYTES} bytes", path)
@@ -130,7 +133,7 @@ def _write_doc(path: Path, doc: dict[str, Any]) -> None:
         raise write_error(exc, path.parent, "cannot write the group metadata") from None
 
 
-def _node_docs(root: Path) -> dict[str, dict[str, Any]]:
+def node_docs(root: Path) -> dict[str, dict[str, Any]]:
     """The ``zarr.json`` of every node below ``root`` (key: path relative to ``root``, ``/``-separated)."""
     out: dict[str, dict[str, Any]] = {}
     for dirpath, dirnames, filenames in os.walk(root):
@@ -142,7 +145,7 @@ def _node_docs(root: Path) -> dict[str, dict[str, Any]]:
         if _ROOT not in filenames:
             dirnames[:] = []
             continue
-        doc = _read_doc(Path(dirpath) / _ROOT)
+        doc = read_metadata_doc(Path(dirpath) / _ROOT)
         key = "/".join(Path(rel).parts)
         out[key] = doc
         if doc.get("node_type") != "group":
@@ -166,8 +169,8 @@ def consolidate(path: str | os.PathLike[str]) -> None:
     meta = root / _ROOT
     if not meta.is_file():
         return
-    doc = _read_doc(meta)
-    doc[_KEY] = {"kind": "inline", "must_understand": False, "metadata": _node_docs(root)}
+    doc = read_metadata_doc(meta)
+    doc[_KEY] = {"kind": "inline", "must_understand": False, "metadata": node_docs(root)}
     _write_doc(meta, doc)
 
 
@@ -182,7 +185,7 @@ def invalidate_consolidated(path: str | os.PathLike[str]) -> None:
     meta = Path(path) / _ROOT
     if not meta.is_file():
         return
-    doc = _read_doc(meta)
+    doc = read_metadata_doc(meta)
     if doc.get(_KEY) is None:
         return
     doc.pop(_KEY)
@@ -203,13 +206,13 @@ def consolidated_status(path: str | os.PathLike[str]) -> str:
     if not meta.is_file():
         return "absent"
     try:
-        cm = _read_doc(meta).get(_KEY)
+        cm = read_metadata_doc(meta).get(_KEY)
     except DataFormatError:
         return "absent"
     if not isinstance(cm, dict) or not isinstance(cm.get("metadata"), dict):
         return "absent"
     try:
-        nodes = _node_docs(root)
+        nodes = node_docs(root)
     except DataFormatError:
         return "stale"
     return "current" if cm["metadata"] == nodes else "stale"

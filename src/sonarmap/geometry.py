@@ -48,6 +48,8 @@ __all__ = [
     "load_geometry",
     "save_geometry",
     "geometry_from_dict",
+    "geometry_from_json_bytes",
+    "geometry_summary",
     "preset",
     "preset_names",
     "uniform_azimuths",
@@ -55,6 +57,7 @@ __all__ = [
     "MAX_BINS",
     "MAX_RANGE_M",
     "SINGLE_BEAM_WIDTH_RAD",
+    "ARIS_LENS",
 ]
 
 #: Largest beam count accepted, from files and in the constructor (imaging sonars have <= 1024).
@@ -667,7 +670,7 @@ def _parse_geometry_json(data: bytes, source: str, default_name: str) -> SonarGe
 _cached_geometry_json = functools.lru_cache(maxsize=64)(_parse_geometry_json)
 
 
-def _geometry_from_json_bytes(data: bytes, source: str, default_name: str) -> SonarGeometry:
+def geometry_from_json_bytes(data: bytes, source: str, default_name: str) -> SonarGeometry:
     """Parse and validate geometry JSON bytes; results of small files are cached by content.
 
     Raises
@@ -680,6 +683,33 @@ def _geometry_from_json_bytes(data: bytes, source: str, default_name: str) -> So
     if len(data) > _CACHE_MAX_BYTES:  # do not pin large files in the cache
         return _parse_geometry_json(data, source, default_name)
     return _cached_geometry_json(data, source, default_name)
+
+
+def geometry_summary(geometry: Any) -> dict[str, Any]:
+    """Plain-dict summary of a SonarGeometry (shared by ``sonarmap info`` and the formats' summaries)."""
+    az = np.rad2deg(geometry.azimuth_rad)
+    d = np.diff(az) if az.size > 1 else np.array([0.0])
+    uniform = bool(np.allclose(d, d.mean(), rtol=1e-3, atol=1e-6))
+    return {
+        "name": geometry.name,
+        "beams": geometry.n_beams,
+        "bins": geometry.n_bins,
+        "range_min_m": round(geometry.min_range_m, 6),
+        "range_max_m": round(geometry.max_range_m, 6),
+        "range_resolution_m": geometry.range_resolution_m,
+        "azimuth_min_deg": float(az[0]),
+        "azimuth_max_deg": float(az[-1]),
+        "fov_deg": float(np.rad2deg(geometry.fov_rad)),
+        "beam_spacing_deg": [float(d.min()), float(d.max())],
+        "azimuth_table": "uniform" if uniform else "non-uniform",
+        "azimuth_source": geometry.azimuth_source,
+        "frequency_hz": geometry.frequency_hz,
+        "sound_speed_m_s": geometry.sound_speed_m_s,
+        "rx_gain_db": geometry.rx_gain_db,
+        "noise_inv_snr": geometry.noise,
+        "psf": geometry.psf is not None,
+        "taper": geometry.taper is not None,
+    }
 
 
 def load_geometry(path: str | os.PathLike[str]) -> SonarGeometry:
@@ -695,11 +725,11 @@ def load_geometry(path: str | os.PathLike[str]) -> SonarGeometry:
     GeometryError
         If fields are missing or inconsistent.
     """
-    from sonarmap.io._files import MAX_SIDECAR_BYTES, read_bytes_bounded  # io imports geometry
+    from sonarmap._files import MAX_SIDECAR_BYTES, read_bytes_bounded
 
     p = Path(path)
     data = read_bytes_bounded(p, MAX_SIDECAR_BYTES, "geometry JSON")
-    return _geometry_from_json_bytes(data, str(p), p.stem)
+    return geometry_from_json_bytes(data, str(p), p.stem)
 
 
 def save_geometry(geometry: SonarGeometry, path: str | os.PathLike[str]) -> None:
@@ -709,7 +739,8 @@ def save_geometry(geometry: SonarGeometry, path: str | os.PathLike[str]) -> None
 
 # ---------------------------------------------------------------------- presets
 
-_ARIS_LENS = {
+#: ARIS lens tables of ``aris_beamwidths.json``: table name -> (preset name, frequency in Hz).
+ARIS_LENS = {
     "ARIS1800_1200_48": ("aris1800-48", 1.8e6),
     "ARIS1800_96": ("aris1800-96", 1.8e6),
     "ARIS3000_128": ("aris3000-128", 3.0e6),
@@ -729,7 +760,7 @@ def _presets() -> dict[str, SonarGeometry]:
     did = json.loads(_data_text("didson_hf.json"))
     out["didson-hf"] = geometry_from_dict(did, source="preset didson-hf")
     tables = json.loads(_data_text("aris_beamwidths.json"))["tables"]
-    for table, (name, freq) in _ARIS_LENS.items():
+    for table, (name, freq) in ARIS_LENS.items():
         t = tables[table]
         # Vendor order: beam 0 right-most with a negative angle (vendor angles positive to port).
         # Our azimuths are positive to starboard and increase with column, so

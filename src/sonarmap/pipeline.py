@@ -466,7 +466,7 @@ def _fit(levels: NDArray[Any], config: PipelineConfig) -> Any:
     from sonarmap.stats.mixture import fit_mixture
 
     if levels.ndim == 2 and levels.dtype.kind == "u":
-        from sonarmap.classify._kernels import level_counts
+        from sonarmap._pipeline_kernels import level_counts
 
         counts = level_counts(levels, int(config.n_levels))
     else:
@@ -581,7 +581,7 @@ def _mrf_labels(image: NDArray[np.float32], levels: NDArray[Any], cost: NDArray[
     if config.solver == "graphcut" and cost.shape[0] == 2 and not config.contrast:
         return mrf.graphcut_levels_labels(levels, cost, beta=beta, neighbourhood=config.neighbourhood,
                                           range_weight=config.range_weight)
-    from sonarmap.classify._kernels import gather_costs
+    from sonarmap._pipeline_kernels import gather_costs
 
     unary = gather_costs(np.ascontiguousarray(levels), cost)
     wt = mrf.pairwise_weights(image.shape, beta=beta, neighbourhood=config.neighbourhood,
@@ -594,8 +594,8 @@ def pooled_band_mask(image: NDArray[np.float32], level: float, *, pool_beams: in
                      min_beams: int = 40) -> NDArray[np.bool_] | None:
     """Band pooling as a mask: pixels of ``image`` averaged over ``pool_bins`` x ``2 pool_beams + 1``
     that reach ``level`` and belong to an 8-connected band spanning >= ``min_beams`` beams (None: none)."""
-    from sonarmap.classify._kernels import box_mean_f32
-    from sonarmap.ranges import _rule0
+    from sonarmap._pipeline_kernels import box_mean_f32
+    from sonarmap.ranges import rule0
 
     img = np.asarray(image, dtype=np.float32)
     if img.ndim != 2 or img.size == 0:
@@ -608,7 +608,7 @@ def pooled_band_mask(image: NDArray[np.float32], level: float, *, pool_beams: in
     band = pooled >= level
     if not band.any():
         return None
-    band = _rule0(band, min_beams, img.shape[0] + 1, 0)
+    band = rule0(band, min_beams, img.shape[0] + 1, 0)
     return band if band.any() else None
 
 
@@ -619,7 +619,7 @@ def pooled_band_pixels(image: NDArray[np.float32], level: float, *, pool_beams: 
     The bands of :func:`pooled_band_mask`; on each of their beams (only those with ``beams[j]``
     when given) the strongest pixel of the first run of band rows is returned.  None if no band.
     """
-    from sonarmap.classify._kernels import band_peak_pixels
+    from sonarmap._pipeline_kernels import band_peak_pixels
 
     band = pooled_band_mask(image, level, pool_beams=pool_beams, pool_bins=pool_bins, min_beams=min_beams)
     if band is None:
@@ -807,13 +807,13 @@ def measurement_image(ping: Ping, background: Any, config: PipelineConfig = Pipe
     ``max(ratio - 1, 0)``.  No multi-look: the leading edge keeps the raw range resolution.
     ``rows=(r0, r1)`` computes only those rows (zero elsewhere).
     """
-    from sonarmap.preprocess.normalise import _expand
-    from sonarmap.ranges._kernels import excess_ratio
+    from sonarmap._pipeline_kernels import excess_ratio
+    from sonarmap.preprocess.normalise import expand_grid
 
     raw = np.ascontiguousarray(ping.image, dtype=np.float32)
     level = np.ascontiguousarray(background.level_by_bin, dtype=np.float32)
     full = (np.ones(raw.shape, np.float32) if background.beam_factor is None
-            else np.ascontiguousarray(_expand(background.beam_factor, raw.shape), dtype=np.float32))
+            else np.ascontiguousarray(expand_grid(background.beam_factor, raw.shape), dtype=np.float32))
     d = _log_range_db(ping, config)
     r0, r1 = (0, raw.shape[0]) if rows is None else rows
     return excess_ratio(raw, level, full, float(d) if d is not None else 0.0, int(r0), int(r1))

@@ -62,7 +62,6 @@ from numpy.typing import NDArray
 from sonarmap._atomic import WriterLock, atomic_write_text, write_error
 from sonarmap.datamodel import COORDINATES, consolidate, consolidated_status, invalidate_consolidated
 from sonarmap.errors import DataFormatError, InputError, SonarmapError
-from sonarmap.io._files import MAX_SIDECAR_BYTES, read_bytes_bounded
 from sonarmap.io.dataset import ATTRS as DATA_MODEL_ATTRS
 from sonarmap.io.dataset import (
     COORD_AZIMUTH,
@@ -70,17 +69,32 @@ from sonarmap.io.dataset import (
     DIM_BEAM,
     DIM_PING,
     DIM_RANGE,
-    _check_chunk_files,
-    _check_times,
-    _inspect_store,
-    _kind_of,
-    _locate_error,
-    _read_array,
-    _Store,
-    _TIME_UNITS,
+    CheckedStore,
+    check_chunk_files,
+    check_times,
     check_values,
     checksum_codecs,
+    locate_error,
+    read_array,
     remove_stale_store_temporaries,
+)
+from sonarmap.io.products import (
+    INFORMATIONAL_FLAGS,
+    N_OTHER_RETURNS,
+    PRODUCT_VARIABLES,
+    STATE_DIR,
+    SURVEY_FORMAT,
+    TIME_UNITS,
+    done_chunks,
+    flagged_mask,
+    inspect_products,
+    int_attr,
+    is_product_store,
+    marker_dir,
+    product_summary,
+    read_root_attrs,
+    store_geometry,
+    survey_status,
 )
 from sonarmap.ping import Ping
 
@@ -107,79 +121,12 @@ __all__ = [
     "stack_product_records",
     "create_product_store",
     "ProductAppender",
+    "warm_pipeline_once",
 ]
 
-#: Marker directory inside the store (not part of the dataset).
-STATE_DIR = ".sonarmap"
-SURVEY_FORMAT = "sonarmap-survey/1"
 DEFAULT_CHUNK_SIZE = 256
-TIME_UNITS = "nanoseconds since 1970-01-01T00:00:00"
-#: Dimension of ``other_range``: the surfaces behind a beam's return that are stored.
-DIM_OTHER = "other_return"
-#: At most this many surfaces behind each return are stored (``other_range``).
-N_OTHER_RETURNS = 2
-
-#: Product variables: name -> (dims, attrs).  Dimension names follow the survey data model
-#: (echopype style: ``ping_time``, ``range_sample``, ``beam``); ``component`` and ``parameter``
-#: index the mixture model.
-PRODUCT_VARIABLES: dict[str, tuple[tuple[str, ...], dict[str, str]]] = {
-    DIM_PING: ((DIM_PING,), dict(DATA_MODEL_ATTRS[DIM_PING])),
-    "source": ((DIM_PING,), {"long_name": "Source file (and frame) of the ping"}),
-    "kld": ((DIM_PING,), {"long_name": "Kullback-Leibler divergence, data || mixture fit",
-                          "units": "nat"}),
-    "flags": ((DIM_PING,), {"long_name": "Fit quality flags, space separated (empty: none)"}),
-    "background_range_db": ((DIM_PING,), {
-        "long_name": "Range dependence of the estimated background level (90th / 10th percentile over "
-                     "range; NaN: image not normalised, e.g. thresholded)", "units": "dB"}),
-    "mixture_weight": ((DIM_PING, "component"), {"long_name": "Mixture component weight",
-                                                 "units": "1"}),
-    "mixture_param": ((DIM_PING, "component", "parameter"),
-                      {"long_name": "Mixture component parameters, scale last (NaN: unused)"}),
-    "pd": ((DIM_PING,), {"long_name": "Probability of detection at the chosen threshold",
-                         "units": "1"}),
-    "pfa": ((DIM_PING,), {"long_name": "Probability of false alarm at the chosen threshold",
-                          "units": "1"}),
-    "range": ((DIM_PING, DIM_BEAM), {"long_name": "Range to the first return per beam (NaN: none)",
-                                     "units": "m",
-                                     "description": "Leading edge of the return's echo along the beam: the "
-                                                    "first crossing of half its first peak, interpolated "
-                                                    "between range bins (the echo's peak in strongest mode)"}),
-    "range_bin": ((DIM_PING, DIM_BEAM), {"long_name": "Range-bin index of the return (-1: none)",
-                                         "units": "1"}),
-    "range_intensity": ((DIM_PING, DIM_BEAM), {"long_name": "Intensity at the return", "units": "1"}),
-    "range_confidence": ((DIM_PING, DIM_BEAM), {"long_name": "Confidence of the return",
-                                                "units": "1"}),
-    "range_sigma": ((DIM_PING, DIM_BEAM), {
-        "long_name": "One-sigma uncertainty of the return's range (NaN: no return or no estimate)",
-        "units": "m",
-        "description": "Standard deviation of the error of range, estimated per echo by the ranges "
-                       "stage (sonarmap.ranges.echoes)"}),
-    "p_detect": ((DIM_PING, DIM_BEAM), {
-        "long_name": "Probability that a surface in the beam is detected and reported (NaN: unknown)",
-        "units": "1",
-        "description": "The occupancy map's per-beam pD: P(the beam reports a return | a surface in "
-                       "the beam), for the hit and the free-space updates of that beam"}),
-    "other_range": ((DIM_PING, DIM_OTHER, DIM_BEAM), {
-        "long_name": "Ranges of further surfaces behind the return, nearest first (NaN: none)",
-        "units": "m",
-        "description": "Leading edges of the echoes of further surfaces on the beam behind the "
-                       f"reported return; at most {N_OTHER_RETURNS}, NaN-padded"}),
-    "labels": ((DIM_PING, DIM_RANGE, DIM_BEAM),
-               {"long_name": "Segmentation labels (1: object, 0: free space)", "units": "1"}),
-}
 
 PingFunction = Callable[..., Any]
-
-#: Flags that describe the scene rather than a doubtful fit (not counted as "flagged fits").
-INFORMATIONAL_FLAGS = frozenset({"no_returns", "no_object", "collapsed"})
-
-
-def flagged_mask(flags: Iterable[Any]) -> NDArray[np.bool_]:
-    """Which pings have a flagged fit: any flag other than :data:`INFORMATIONAL_FLAGS`.
-
-    ``flags`` holds one space-separated flag string per ping (the ``flags`` variable).
-    """
-    return np.array([bool(set(str(f).split()) - INFORMATIONAL_FLAGS) for f in flags], dtype=bool)
 
 
 class SurveyExistsError(SonarmapError, FileExistsError):
@@ -289,7 +236,7 @@ def plan_survey(
     DataFormatError
         If an input does not exist or is of an unknown format.
     """
-    from sonarmap.io import _is_store_dir, detect_format, expand_inputs, format_module
+    from sonarmap.io import detect_format, expand_inputs, format_module, is_store_dir
     from sonarmap.io.pngjson import find_png_pings
 
     if isinstance(chunk_size, bool) or int(chunk_size) != chunk_size or chunk_size < 1:
@@ -303,7 +250,7 @@ def plan_survey(
             pngs.clear()
 
     for p in expand_inputs(inputs):
-        fmt = "pngjson" if p.is_dir() and not _is_store_dir(p) else detect_format(p)
+        fmt = "pngjson" if p.is_dir() and not is_store_dir(p) else detect_format(p)
         if fmt == "pngjson":
             pngs.append(p)
             continue
@@ -624,64 +571,6 @@ def _function_name(fn: PingFunction | None) -> str:
 
 
 # ============================================================================ store
-def _marker_dir(store: Path) -> Path:
-    return store / STATE_DIR / "chunks"
-
-
-def _done_chunks(store: Path) -> set[int]:
-    d = _marker_dir(store)
-    if not d.is_dir():
-        return set()
-    out = set()
-    for name in os.listdir(d):
-        if name.endswith(".done"):
-            with contextlib.suppress(ValueError):
-                out.add(int(name[:-5]))
-    return out
-
-
-def _read_root_attrs(store: Path) -> dict[str, Any] | None:
-    """The root attributes of a store, or ``None`` if it has no readable root ``zarr.json``."""
-    meta = store / "zarr.json"
-    try:
-        d = json.loads(read_bytes_bounded(meta, MAX_SIDECAR_BYTES, "group metadata").decode("utf-8"))
-    except (OSError, ValueError, RecursionError):
-        return None
-    attrs = d.get("attributes", {}) if isinstance(d, dict) else None
-    return attrs if isinstance(attrs, dict) else None
-
-
-def _int_attr(attrs: Mapping[str, Any], key: str, store: Path, *, low: int = 0) -> int:
-    """Root attribute ``key``, an integer >= ``low`` (else a DataFormatError naming zarr.json)."""
-    v = attrs.get(key)
-    if isinstance(v, bool) or not isinstance(v, int) or v < low:
-        raise DataFormatError(f"root attribute {key} is {v!r:.40}, expected an integer >= {low}", store / "zarr.json")
-    return v
-
-
-def survey_status(store: str | os.PathLike[str]) -> dict[str, Any]:
-    """Progress of a survey store: ``n_chunks``, ``done`` (count), ``complete``, ``fingerprint``.
-
-    Raises
-    ------
-    DataFormatError
-        If ``store`` is not a sonarmap survey store.
-    """
-    p = Path(store)
-    attrs = _read_root_attrs(p)
-    if attrs is None or attrs.get("sonarmap_format") != SURVEY_FORMAT:
-        if (p / "zarr.json").is_file():
-            _inspect_store(p)  # a corrupt root zarr.json: say what is wrong with it
-        raise DataFormatError("not a sonarmap survey store", p)
-    return {
-        "n_chunks": _int_attr(attrs, "n_chunks", p),
-        "n_pings": _int_attr(attrs, "n_pings", p),
-        "done": len(_done_chunks(p)),
-        "complete": (p / STATE_DIR / "complete").exists(),
-        "fingerprint": attrs.get("fingerprint"),
-    }
-
-
 def _create_store(path: Path, plan: SurveyPlan, schema: Mapping[str, tuple[tuple[int, ...], str]],
                   attrs: dict[str, Any], coords: dict[str, Any]) -> None:
     """Create the empty store in a temporary directory, then rename it onto ``path``."""
@@ -799,7 +688,7 @@ def _write_echo_range(root: Any, store: Path, range_m: NDArray[np.float64], n: i
         arr[full * k :] = np.broadcast_to(range_m, (n - full * k, range_m.size))
 
 
-def _remove_store(path: Path) -> None:
+def remove_store(path: Path) -> None:
     """Delete an existing output by renaming it aside first (never half-deleted in place)."""
     if not path.exists() and not path.is_symlink():
         return
@@ -813,7 +702,7 @@ def _remove_store(path: Path) -> None:
 
 def _write_marker(store: Path, chunk_index: int, start: int, stop: int) -> None:
     """The chunk's completion marker, written atomically once its data files are in place."""
-    marker = _marker_dir(store) / f"{chunk_index:08d}.done"
+    marker = marker_dir(store) / f"{chunk_index:08d}.done"
     # No scan for stale temporaries per marker (that would be quadratic in the chunks): the run
     # clears the marker directory's leftovers once, at its start (_remove_marker_temporaries).
     atomic_write_text(marker, json.dumps({"start": start, "stop": stop}) + "\n", clean=False)
@@ -822,7 +711,7 @@ def _write_marker(store: Path, chunk_index: int, start: int, stop: int) -> None:
 def _remove_marker_temporaries(store: Path) -> None:
     """Remove what killed runs left among the markers: temporary files (``.<k>.done.*``) - call
     only while holding the store's lock (no other run writes markers then)."""
-    d = _marker_dir(store)
+    d = marker_dir(store)
     for name in os.listdir(d) if d.is_dir() else ():
         if name.startswith("."):
             with contextlib.suppress(OSError):
@@ -921,6 +810,15 @@ def _warm_worker(ping_function: PingFunction | None) -> int:  # pragma: no cover
     except Exception:  # noqa: BLE001 - warming must never fail a run
         pass
     return os.getpid()
+
+
+def warm_pipeline_once() -> bool:
+    """Warm this process's per-ping pipeline the way the worker pool's fork server is warmed
+    (:mod:`sonarmap._survey_warm`: the default pipeline runs once on a synthetic ping, on the first
+    call in a process only; any failure is swallowed).  ``True`` if the warm-up run worked."""
+    import sonarmap._survey_warm  # warms on (first) import
+
+    return bool(sonarmap._survey_warm.WARMED)
 
 
 _THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS")
@@ -1263,10 +1161,10 @@ def process_survey(
         remove_stale_store_temporaries(out)
         # ---------------------------------------------------------------- existing output?
         if out.exists() or out.is_symlink():
-            attrs = _read_root_attrs(out) if out.is_dir() else None
+            attrs = read_root_attrs(out) if out.is_dir() else None
             same = attrs is not None and attrs.get("sonarmap_format") == SURVEY_FORMAT and attrs.get("fingerprint") == fp
             if overwrite:
-                _remove_store(out)
+                remove_store(out)
             elif not same:
                 why = ("is not a sonarmap survey store" if not attrs or attrs.get("sonarmap_format") != SURVEY_FORMAT
                        else "was made from different inputs, configuration or options")
@@ -1314,10 +1212,10 @@ def process_survey(
                 )
                 _create_store(out, plan, schema, attrs, {"arrays": coord_arrays, "component_names": cnames,
                                                          "echo_range": geom.range_m})
-            st, schema = _inspect_products(out)  # metadata checked: a damaged store is a clean error
+            st, schema = inspect_products(out)  # metadata checked: a damaged store is a clean error
             _remove_marker_temporaries(out)
             root = _zarr_open(out)
-            reference = (np.asarray(_read_array(st, COORD_AZIMUTH)), _reference_range(st))
+            reference = (np.asarray(read_array(st, COORD_AZIMUTH)), _reference_range(st))
             task = dataclasses.replace(task, schema=schema, reference=reference)
             from sonarmap._survey_store import ChunkWriter
 
@@ -1326,7 +1224,7 @@ def process_survey(
                 writer.clean_tmp()  # temporary files of an interrupted run (no writer of ours runs yet)
             sink = _Sink(out, writer)
 
-            done = _done_chunks(out)
+            done = done_chunks(out)
             todo = [plan.chunk(i) for i in range(plan.n_chunks) if i not in done]
             n_done = sum(plan.chunk(i).n_pings for i in done if i < plan.n_chunks)
             if progress:
@@ -1362,7 +1260,7 @@ def process_survey(
                 own_client.close()
 
         # ---------------------------------------------------------------- finalise
-        all_flags = _read_array(st, "flags")
+        all_flags = read_array(st, "flags")
         n_flagged = int(flagged_mask(all_flags).sum())
         from sonarmap.stats.gates import REFUSING
 
@@ -1406,7 +1304,7 @@ def _maybe_config(config: Any) -> Any:
         return config
 
 
-def _register_points(root: Any, st: _Store, out: Path, poses: Any, points: Any,
+def _register_points(root: Any, st: CheckedStore, out: Path, poses: Any, points: Any,
                      extrinsics: Any) -> tuple[Path, int]:
     """Register the stored ranges with the trajectory into world points (stored + written to a file).
 
@@ -1424,15 +1322,15 @@ def _register_points(root: Any, st: _Store, out: Path, poses: Any, points: Any,
     )
 
     traj = read_trajectory_csv(poses)
-    t = np.asarray(_read_array(st, "ping_time"), dtype=np.int64)
-    _check_times(t, out)
+    t = np.asarray(read_array(st, "ping_time"), dtype=np.int64)
+    check_times(t, out)
     ext = load_extrinsics(extrinsics) if extrinsics is not None else None
     sp = sensor_poses(traj, t, extrinsics=ext, outside="skip")
     cloud = register_returns(
-        _read_array(st, "range"), _read_array(st, COORD_AZIMUTH), sp,
-        intensity=np.nan_to_num(_read_array(st, "range_intensity"), nan=0.0),
-        confidence=np.nan_to_num(_read_array(st, "range_confidence"), nan=0.0),
-        sigma_m=_read_array(st, "range_sigma") if "range_sigma" in st.arrays else None,
+        read_array(st, "range"), read_array(st, COORD_AZIMUTH), sp,
+        intensity=np.nan_to_num(read_array(st, "range_intensity"), nan=0.0),
+        confidence=np.nan_to_num(read_array(st, "range_confidence"), nan=0.0),
+        sigma_m=read_array(st, "range_sigma") if "range_sigma" in st.arrays else None,
     )
     n = len(cloud)
     block = max(1, min(n, 1 << 18))
@@ -1463,7 +1361,7 @@ def _register_points(root: Any, st: _Store, out: Path, poses: Any, points: Any,
 #: (keyword arguments of :func:`sonarmap.io.dataset.check_values`).  NaN is "none" / "unknown" /
 #: "not yet written" wherever a float variable has it as fill value.  ``range_bin`` is checked
 #: against the number of range bins, ``point_beam`` against the number of beams, the times by
-#: :func:`sonarmap.io.dataset._check_times`; ``labels`` (uint8) and the strings are not checked.
+#: :func:`sonarmap.io.dataset.check_times`; ``labels`` (uint8) and the strings are not checked.
 PRODUCT_RANGES: dict[str, dict[str, Any]] = {
     "kld": {"low": 0.0, "high": math.inf, "nan": True, "inf": True},  # inf: zero_mass fits
     "background_range_db": {"nan": True},
@@ -1485,106 +1383,14 @@ PRODUCT_RANGES: dict[str, dict[str, Any]] = {
 }
 
 
-def _inspect_products(p: Path) -> tuple[_Store, dict[str, tuple[tuple[int, ...], str]]]:
-    """Check a product store's metadata: every document parses, the schema's arrays exist with
-    the shapes, dimensions and dtypes it gives, the coordinates exist, the time units are ns.
-
-    Raises
-    ------
-    DataFormatError
-        Naming the store and the file or array at fault (``not a sonarmap survey store`` for a
-        directory that is not one).
-    """
-    if not (p / "zarr.json").is_file() and not (p / ".zgroup").exists():
-        raise DataFormatError("not a sonarmap survey store", p)
-    st = _inspect_store(p)
-    meta = st.meta_file()
-    if st.attrs.get("sonarmap_format") != SURVEY_FORMAT:
-        raise DataFormatError("not a sonarmap survey store", p)
-    n = _int_attr(st.attrs, "n_pings", p)
-    _int_attr(st.attrs, "n_chunks", p)
-    _int_attr(st.attrs, "chunk_size", p, low=1)
-    raw = st.attrs.get("schema")
-    schema: dict[str, tuple[tuple[int, ...], str]] = {}
-    try:
-        for name, (shape, dtype) in raw.items():  # type: ignore[union-attr]
-            if not isinstance(name, str) or not isinstance(dtype, str) or not all(
-                    isinstance(k, int) and not isinstance(k, bool) and k >= 0 for k in shape):
-                raise TypeError(name)
-            schema[name] = (tuple(shape), dtype)
-    except (AttributeError, TypeError, ValueError):
-        raise DataFormatError("root attribute schema is not {name: [shape, dtype]}", meta) from None
-    for name in (DIM_PING, "source", "flags", "kld", "range"):
-        if name not in schema:
-            raise DataFormatError(f"root attribute schema lacks the required variable {name}", meta)
-    for name, (shape, dtype) in schema.items():
-        if name not in PRODUCT_VARIABLES:
-            raise DataFormatError(f"root attribute schema names an unknown variable {name!r:.40}", meta)
-        arr = st.require(name, what="sonarmap survey store")
-        if tuple(arr.shape) != (n, *shape):
-            raise DataFormatError(f"array '{name}' has shape {tuple(arr.shape)}, the store's schema says "
-                                  f"{(n, *shape)}", st.meta_file(name))
-        dims = st.dims(name)
-        if dims != PRODUCT_VARIABLES[name][0]:
-            raise DataFormatError(f"array '{name}' has dimensions {dims}, expected {PRODUCT_VARIABLES[name][0]}",
-                                  st.meta_file(name))
-        ok = _kind_of(arr) == "T" if dtype == "str" else np.dtype(arr.dtype) == np.dtype(dtype)
-        if not ok:
-            raise DataFormatError(f"array '{name}' has data type {arr.dtype}, the store's schema says {dtype}",
-                                  st.meta_file(name))
-    sizes = {DIM_BEAM: schema["range"][0][0] if schema["range"][0] else None,
-             DIM_RANGE: schema["labels"][0][0] if "labels" in schema else _n_bins(st.attrs)}
-    for name, dim in ((COORD_AZIMUTH, DIM_BEAM), (COORD_RANGE, DIM_RANGE)):
-        arr = st.require(name, kinds="f", what="sonarmap survey store")
-        # echo_range is (ping_time, range_sample); stores of earlier versions hold (range_sample)
-        allowed = [(dim,)] + ([COORDINATES[COORD_RANGE]] if name == COORD_RANGE else [])
-        if st.dims(name) not in allowed or len(arr.shape) != len(st.dims(name)):
-            raise DataFormatError(f"array '{name}' has dimensions {st.dims(name)}, expected "
-                                  f"{' or '.join(str(a) for a in allowed)}", st.meta_file(name))
-        if len(arr.shape) == 2 and int(arr.shape[0]) != n:
-            raise DataFormatError(f"array '{name}' has {arr.shape[0]} along {DIM_PING}, the survey has {n}",
-                                  st.meta_file(name))
-        if sizes[dim] is not None and int(arr.shape[-1]) != sizes[dim]:
-            raise DataFormatError(f"array '{name}' has {arr.shape[-1]} along {dim}, the survey has {sizes[dim]}",
-                                  st.meta_file(name))
-    for name, dim in ((DIM_RANGE, DIM_RANGE), (DIM_BEAM, DIM_BEAM)):
-        if name in st.arrays:  # index coordinates (absent in stores of earlier versions)
-            arr = st.require(name, ndim=1, kinds="iu", what="sonarmap survey store")
-            if st.dims(name) != (dim,) or int(arr.shape[0]) != int(st.arrays[COORD_RANGE if dim == DIM_RANGE
-                                                                            else COORD_AZIMUTH].shape[-1]):
-                raise DataFormatError(f"array '{name}' has shape {tuple(arr.shape)} / dimensions {st.dims(name)}, "
-                                      "inconsistent with the coordinates", st.meta_file(name))
-    points = {name: arr for name, arr in st.arrays.items() if name.startswith("point_")}
-    for name, arr in points.items():
-        if not arr.shape or st.dims(name)[:1] != ("point",) or (
-                int(arr.shape[0]) != int(next(iter(points.values())).shape[0])) or (
-                name == "point_xyz" and tuple(arr.shape[1:]) != (3,)):
-            raise DataFormatError(f"array '{name}' has shape {tuple(arr.shape)} / dimensions {st.dims(name)}, "
-                                  "inconsistent with the other point arrays", st.meta_file(name))
-    units = st.arrays[DIM_PING].attrs.get("units")
-    if not isinstance(units, str) or not _TIME_UNITS.fullmatch(units):
-        raise DataFormatError(f"array '{DIM_PING}' has units {units!r:.60}, expected {TIME_UNITS!r}",
-                              st.meta_file(DIM_PING))
-    return st, schema
-
-
-def _reference_range(st: _Store) -> NDArray[np.float64]:
+def _reference_range(st: CheckedStore) -> NDArray[np.float64]:
     """The bin ranges of a product store's sonar: ``echo_range`` (its first row in this layout)."""
     arr = st.arrays[COORD_RANGE]
     if len(arr.shape) == 1:  # a store of an earlier version
-        return np.asarray(_read_array(st, COORD_RANGE), np.float64)
+        return np.asarray(read_array(st, COORD_RANGE), np.float64)
     if int(arr.shape[0]) == 0:
         return np.zeros(int(arr.shape[1]), np.float64)
-    return np.asarray(_read_array(st, COORD_RANGE, slice(0, 1))[0], np.float64)
-
-
-def _n_bins(attrs: Mapping[str, Any]) -> int | None:
-    """Range bins of the survey's sonar (``source_geometry`` attribute), if recorded."""
-    try:
-        n = json.loads(attrs.get("source_geometry", "{}")).get("num_bins")
-    except (TypeError, ValueError, AttributeError, RecursionError):
-        return None
-    return n if isinstance(n, int) and not isinstance(n, bool) else None
+    return np.asarray(read_array(st, COORD_RANGE, slice(0, 1))[0], np.float64)
 
 
 def open_products(path: str | os.PathLike[str]) -> Any:
@@ -1603,8 +1409,8 @@ def open_products(path: str | os.PathLike[str]) -> Any:
     settled = False
     while True:
         try:
-            st, _ = _inspect_products(p)
-            _check_chunk_files(st, DIM_PING, required=False)  # read when opened (an index): no FIFO, no /dev/zero
+            st, _ = inspect_products(p)
+            check_chunk_files(st, DIM_PING, required=False)  # read when opened (an index): no FIFO, no /dev/zero
             return _open_checked(st)
         except DataFormatError:
             # A store written by a live run (root attribute ``live_status``) grows array by array
@@ -1621,7 +1427,7 @@ def open_products(path: str | os.PathLike[str]) -> Any:
             time.sleep(0.005)
 
 
-def _open_checked(st: _Store, *, lazy: bool = True) -> Any:
+def _open_checked(st: CheckedStore, *, lazy: bool = True) -> Any:
     """``xarray.open_zarr`` of a checked store (dask-backed if ``lazy``); errors name the chunk."""
     import xarray as xr
 
@@ -1633,7 +1439,7 @@ def _open_checked(st: _Store, *, lazy: bool = True) -> Any:
     except SonarmapError:
         raise
     except Exception as exc:  # noqa: BLE001 - zarr/xarray raise many types on damaged stores
-        raise _locate_error(st, list(st.arrays), None, exc, "the survey") from None
+        raise locate_error(st, list(st.arrays), None, exc, "the survey") from None
 
 
 def load_products(path: str | os.PathLike[str]) -> Any:
@@ -1654,27 +1460,27 @@ def load_products(path: str | os.PathLike[str]) -> Any:
         outside its documented range).
     """
     p = Path(path)
-    st, schema = _inspect_products(p)
-    k = _int_attr(st.attrs, "chunk_size", p, low=1)
-    done = sorted(_done_chunks(p))
+    st, schema = inspect_products(p)
+    k = int_attr(st.attrs, "chunk_size", p, low=1)
+    done = sorted(done_chunks(p))
     for name in st.arrays:
         if name in schema:  # chunks of unfinished tasks are legitimately missing (fill values)
-            _check_chunk_files(st, name, required=False)
+            check_chunk_files(st, name, required=False)
             for c in done:
-                _check_chunk_files(st, name, slice(c * k, (c + 1) * k))
+                check_chunk_files(st, name, slice(c * k, (c + 1) * k))
         else:
-            _check_chunk_files(st, name)
+            check_chunk_files(st, name)
     ds = _open_checked(st, lazy=False)  # one read per array, not one dask task per chunk
     try:
         ds = ds.load()
     except SonarmapError:
         raise
     except Exception as exc:  # noqa: BLE001
-        raise _locate_error(st, list(st.arrays), None, exc, "the survey") from None
+        raise locate_error(st, list(st.arrays), None, exc, "the survey") from None
     n_bins, n_beams = int(ds[COORD_RANGE].shape[-1]), int(ds[COORD_AZIMUTH].shape[-1])
-    _check_times(ds[DIM_PING].values, p)
+    check_times(ds[DIM_PING].values, p)
     if "point_time" in ds:
-        _check_times(ds["point_time"].values, p, name="point_time", item="point")
+        check_times(ds["point_time"].values, p, name="point_time", item="point")
     for name, kw in PRODUCT_RANGES.items():
         if name in ds.variables:
             check_values(ds[name].values, name, p, **kw)
@@ -1686,79 +1492,6 @@ def load_products(path: str | os.PathLike[str]) -> Any:
 
 
 # ============================================================================ info / show
-def is_product_store(path: str | os.PathLike[str]) -> bool:
-    """Whether ``path`` is a product store written by :func:`process_survey` (root attributes only)."""
-    p = Path(path)
-    if not p.is_dir():
-        return False
-    attrs = _read_root_attrs(p)
-    return attrs is not None and attrs.get("sonarmap_format") == SURVEY_FORMAT
-
-
-def _store_geometry(st: _Store) -> Any:
-    """The sonar geometry of a product store (its ``source_geometry`` attribute)."""
-    from sonarmap.geometry import geometry_from_dict
-
-    try:
-        d = json.loads(st.attrs.get("source_geometry", ""))
-        return geometry_from_dict(d, source="source_geometry attribute")
-    except (TypeError, ValueError, RecursionError, AttributeError) as exc:
-        raise DataFormatError(f"root attribute source_geometry is not a geometry ({_short(exc)})",
-                              st.meta_file()) from None
-
-
-def _short(exc: BaseException) -> str:
-    msg = " ".join(str(exc).split()) or type(exc).__name__
-    return msg[:160]
-
-
-def product_summary(path: str | os.PathLike[str]) -> dict[str, Any]:
-    """What ``sonarmap info`` says about a product store: pings, time span, variables, flagged fits.
-
-    The metadata is checked (:func:`open_products`); only the times and flags of the completed
-    chunks are read (a run still in progress, or interrupted, is summarised as far as it got).
-
-    Returns
-    -------
-    dict
-        :func:`sonarmap.io._binary.make_summary` fields (``format`` is ``"zarr-products"``) plus
-        ``pings_done``, ``complete``, ``flagged``, ``variables``, ``keep_labels``, ``chunk_pings``,
-        ``consolidated`` (see :func:`sonarmap.datamodel.consolidated_status`).
-
-    Raises
-    ------
-    DataFormatError
-        If the store's metadata, times or flags are corrupt (naming the store, array and chunk).
-    """
-    from sonarmap.io._binary import make_summary
-
-    p = Path(path)
-    st, schema = _inspect_products(p)
-    status = survey_status(p)
-    k = _int_attr(st.attrs, "chunk_size", p, low=1)
-    n = _int_attr(st.attrs, "n_pings", p)
-    rows = np.zeros(n, bool)
-    for c in _done_chunks(p):
-        rows[c * k : (c + 1) * k] = True
-    times = np.asarray(_read_array(st, DIM_PING), np.int64)[rows] if rows.any() else np.zeros(0, np.int64)
-    _check_times(times, p)
-    flags = _read_array(st, "flags")[rows] if rows.any() else np.zeros(0, object)
-    geometry = _store_geometry(st)
-    return make_summary(
-        "zarr-products", p, n_pings=n, geometry=geometry,
-        time_start_ns=int(times.min()) if times.size else None,
-        time_end_ns=int(times.max()) if times.size else None,
-        pings_done=int(rows.sum()),
-        complete=bool(status["complete"]),
-        flagged=int(flagged_mask(flags).sum()),
-        variables=sorted(schema),
-        keep_labels=bool(st.attrs.get("keep_labels", False)),
-        chunk_pings=k,
-        consolidated=consolidated_status(p),
-        sonarmap_version=str(st.attrs.get("sonarmap_version", "")),
-    )
-
-
 def product_ping(path: str | os.PathLike[str], index: int = 0, *, image: str = "auto") -> Ping:
     """Ping ``index`` of a product store as a :class:`~sonarmap.ping.Ping` to draw.
 
@@ -1789,31 +1522,31 @@ def product_ping(path: str | os.PathLike[str], index: int = 0, *, image: str = "
     if image not in ("auto", "labels", "raw"):
         raise InputError(f"image must be 'auto', 'labels' or 'raw', got {image!r}")
     p = Path(path)
-    st, schema = _inspect_products(p)
-    n = _int_attr(st.attrs, "n_pings", p)
+    st, schema = inspect_products(p)
+    n = int_attr(st.attrs, "n_pings", p)
     if not 0 <= int(index) < n:
         raise InputError(f"{p}: index {index} is outside the store's {n} pings")
     i = int(index)
-    k = _int_attr(st.attrs, "chunk_size", p, low=1)
-    if i // k not in _done_chunks(p):
+    k = int_attr(st.attrs, "chunk_size", p, low=1)
+    if i // k not in done_chunks(p):
         raise DataFormatError(f"ping {i} is not processed yet (chunk {i // k} unfinished)", p)
     row = slice(i, i + 1)
-    t = int(np.asarray(_read_array(st, DIM_PING, row), np.int64)[0])
-    _check_times(np.asarray([t]), p, i)
-    source = str(_read_array(st, "source", row)[0])
+    t = int(np.asarray(read_array(st, DIM_PING, row), np.int64)[0])
+    check_times(np.asarray([t]), p, i)
+    source = str(read_array(st, "source", row)[0])
     if image == "labels" or (image == "auto" and "labels" in schema):
         if "labels" not in schema:
             raise DataFormatError("no labels stored (run sonarmap process with --keep-labels)", p)
-        labels = np.asarray(_read_array(st, "labels", row)[0])
+        labels = np.asarray(read_array(st, "labels", row)[0])
         check_values(labels, "labels", p, low=0, high=1, start=i)
-        return Ping(image=labels.astype(np.float32), geometry=_store_geometry(st), time_ns=t, source=source,
+        return Ping(image=labels.astype(np.float32), geometry=store_geometry(st), time_ns=t, source=source,
                     meta={"image": "labels"})
     from sonarmap.io import read_ping
 
     file = source.split("#", 1)[0]
     if not file or not os.path.exists(file):
         raise DataFormatError(f"ping {i}: its source {file!r:.200} is not available (and no labels are stored)", p)
-    sources = [str(x).split("#", 1)[0] for x in _read_array(st, "source", slice(0, i))]
+    sources = [str(x).split("#", 1)[0] for x in read_array(st, "source", slice(0, i))]
     raw = read_ping(file, index=sum(1 for x in sources if x == file))
     if raw.time_ns != t:
         raise DataFormatError(f"ping {i}: the ping read from {file} has another time than the stored one "
@@ -1865,7 +1598,7 @@ LIVE_SETTLE_S = 2.0
 def _live_status(path: Path) -> str | None:
     """The root attribute ``live_status`` of a store written by a live run ("writing" while it
     appends, "complete" after); None for other stores."""
-    attrs = _read_root_attrs(path)
+    attrs = read_root_attrs(path)
     v = None if attrs is None else attrs.get("live_status")
     return v if isinstance(v, str) else None
 
@@ -1965,16 +1698,16 @@ class ProductAppender:
 
     def __init__(self, path: str | os.PathLike[str], *, range_m: Any = None) -> None:
         from sonarmap._survey_store import ChunkWriter
-        from sonarmap.datamodel import _node_docs, _read_doc
+        from sonarmap.datamodel import node_docs, read_metadata_doc
 
         self.path = Path(path)
-        st, schema = _inspect_products(self.path)
+        st, schema = inspect_products(self.path)
         self.schema = schema
-        self.chunk_size = _int_attr(st.attrs, "chunk_size", self.path, low=1)
-        self.n_pings = _int_attr(st.attrs, "n_pings", self.path)
+        self.chunk_size = int_attr(st.attrs, "chunk_size", self.path, low=1)
+        self.n_pings = int_attr(st.attrs, "n_pings", self.path)
         if self.n_pings:
             raise DataFormatError("ProductAppender needs a new, empty store", self.path)
-        self._range_m = np.asarray(_store_geometry(st).range_m if range_m is None else range_m, np.float64)
+        self._range_m = np.asarray(store_geometry(st).range_m if range_m is None else range_m, np.float64)
         if self._range_m.shape != (int(st.arrays[COORD_RANGE].shape[-1]),):
             raise InputError(f"range_m: shape {self._range_m.shape}, the store has "
                              f"{int(st.arrays[COORD_RANGE].shape[-1])} range bins")
@@ -1983,8 +1716,8 @@ class ProductAppender:
         if writer is None:
             raise DataFormatError("the store's arrays use codecs this version does not write", self.path)
         self._writer = writer
-        self._root_doc = _read_doc(self.path / "zarr.json")
-        self._nodes = _node_docs(self.path)
+        self._root_doc = read_metadata_doc(self.path / "zarr.json")
+        self._nodes = node_docs(self.path)
         self._tail: list[dict[str, Any]] = []
         self.n_flagged = 0
         self.closed = False

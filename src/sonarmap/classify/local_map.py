@@ -17,7 +17,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from sonarmap.errors import InputError
-from sonarmap.stats.mixture import MixtureFit, _as_float_image, _kernel_args, _not_finite
+from sonarmap.stats.mixture import MixtureFit, quantize_lookup
 
 __all__ = ["map_lookup_table", "local_map_labels"]
 
@@ -107,12 +107,5 @@ def local_map_labels(
     The table is computed once per fit (cached on the immutable fit); quantisation and look-up
     are one fused pass over the pixels (numba), equal to ``map_lookup_table(fit)[quantize(image)]``.
     """
-    from sonarmap.stats._em_kernels import lookup_kernel
-
     lut = _lookup_table(fit, eta)
-    arr = _as_float_image(image)
-    flat, zero, one, scale, n, floor = _kernel_args(arr, fit.n_levels, fit.binning)
-    out = np.empty(arr.shape, dtype=np.uint8)
-    if not lookup_kernel(flat, zero, one, scale, n, floor, lut, out.reshape(-1)):
-        raise _not_finite()
-    return out
+    return quantize_lookup(image, lut, fit.n_levels, binning=fit.binning)  # type: ignore[arg-type]

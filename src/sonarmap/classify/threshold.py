@@ -8,7 +8,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from sonarmap.errors import InputError
-from sonarmap.stats.mixture import MixtureFit, _as_intensity_image
+from sonarmap.stats.mixture import MixtureFit, as_intensity_image
 
 __all__ = ["threshold_labels", "otsu_threshold", "neyman_pearson_threshold"]
 
@@ -27,7 +27,7 @@ def threshold_labels(image: ArrayLike, threshold: float) -> NDArray[np.uint8]:
     -------
     ndarray of uint8, same shape
     """
-    img = _as_intensity_image(image)
+    img = as_intensity_image(image)
     t = float(threshold)
     if not math.isfinite(t):
         raise InputError(f"threshold: must be finite, got {threshold!r}")
@@ -44,7 +44,7 @@ def otsu_threshold(image: ArrayLike, *, nbins: int = 256) -> float:
     """
     from skimage.filters import threshold_otsu
 
-    img = _as_intensity_image(image)
+    img = as_intensity_image(image)
     if float(img.min()) == float(img.max()):
         raise InputError("image: constant image, Otsu threshold is undefined")
     return float(threshold_otsu(img, nbins=nbins))

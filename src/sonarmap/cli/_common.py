@@ -309,7 +309,7 @@ def count_pings(inputs: list[Path] | list[str]) -> int | None:
     int or None
     """
     try:
-        from sonarmap.io import _is_store_dir, detect_format, expand_inputs, format_module, pngjson
+        from sonarmap.io import detect_format, expand_inputs, format_module, is_store_dir, pngjson
 
         import warnings
 
@@ -318,7 +318,7 @@ def count_pings(inputs: list[Path] | list[str]) -> int | None:
             warnings.simplefilter("ignore")
             for p in expand_inputs([str(x) for x in inputs]):
                 p = Path(p)
-                fmt = "pngjson" if p.is_dir() and not _is_store_dir(p) else detect_format(p)
+                fmt = "pngjson" if p.is_dir() and not is_store_dir(p) else detect_format(p)
                 mod = pngjson if fmt == "pngjson" else format_module(fmt)
                 total += int(mod.count_pings(p))
     except Exception:  # noqa: BLE001 - the count only sizes the progress bar

@@ -9,37 +9,9 @@ from typing import Any
 import typer
 
 from sonarmap.cli._common import GEOMETRY_OPTION, console, load_geometry_option
+from sonarmap.geometry import geometry_summary
 
 __all__ = ["register", "geometry_summary", "describe_path"]
-
-
-def geometry_summary(geometry: Any) -> dict[str, Any]:
-    """Plain-dict summary of a SonarGeometry (shared by ``info`` and the formats' summaries)."""
-    import numpy as np
-
-    az = np.rad2deg(geometry.azimuth_rad)
-    d = np.diff(az) if az.size > 1 else np.array([0.0])
-    uniform = bool(np.allclose(d, d.mean(), rtol=1e-3, atol=1e-6))
-    return {
-        "name": geometry.name,
-        "beams": geometry.n_beams,
-        "bins": geometry.n_bins,
-        "range_min_m": round(geometry.min_range_m, 6),
-        "range_max_m": round(geometry.max_range_m, 6),
-        "range_resolution_m": geometry.range_resolution_m,
-        "azimuth_min_deg": float(az[0]),
-        "azimuth_max_deg": float(az[-1]),
-        "fov_deg": float(np.rad2deg(geometry.fov_rad)),
-        "beam_spacing_deg": [float(d.min()), float(d.max())],
-        "azimuth_table": "uniform" if uniform else "non-uniform",
-        "azimuth_source": geometry.azimuth_source,
-        "frequency_hz": geometry.frequency_hz,
-        "sound_speed_m_s": geometry.sound_speed_m_s,
-        "rx_gain_db": geometry.rx_gain_db,
-        "noise_inv_snr": geometry.noise,
-        "psf": geometry.psf is not None,
-        "taper": geometry.taper is not None,
-    }
 
 
 def _is_geometry_json(p: Path) -> bool:
@@ -58,9 +30,9 @@ def describe_path(path: Path, geometry: Any = None) -> dict[str, Any]:
     if geometry is None and _is_geometry_json(path):
         g = load_geometry(path)
         return {"path": str(path), "kind": "geometry", **geometry_summary(g)}
-    from sonarmap.io import _is_store_dir
+    from sonarmap.io import is_store_dir
 
-    fmt = "pngjson" if path.is_dir() and not _is_store_dir(path) else detect_format(path)
+    fmt = "pngjson" if path.is_dir() and not is_store_dir(path) else detect_format(path)
     mod = format_module(fmt)
     if hasattr(mod, "summary") and geometry is None:
         out = {k: v for k, v in mod.summary(path).items() if not k.startswith("_")}

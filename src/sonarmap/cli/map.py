@@ -326,9 +326,9 @@ def map_command(
             from sonarmap.io.rosbag_products import write_points_bag
 
             if georef is not None:
-                from sonarmap.mapping.pointcloud import _georeferenced
+                from sonarmap.mapping.pointcloud import georeferenced_cloud
 
-                bag_cloud = _georeferenced(out_cloud, None, georef)  # projected E, N, up: float64 needed
+                bag_cloud = georeferenced_cloud(out_cloud, None, georef)  # projected E, N, up: float64 needed
             else:
                 bag_cloud = out_cloud.to_frame(out_frame)
             write_points_bag([bag_cloud], output, version=1 if bag_kind == "bag1" else 2,

@@ -2,7 +2,8 @@
 
 Writes exactly one row per (ping, beam) with the header
 ``ping,beam,azimuth_rad,bin,range_m,intensity,flags,sigma_m,p_detect,time,time_ns``
-(:data:`CSV_HEADER`; an empty cell is "none" / "unknown", never a number that looks like one).
+(:data:`sonarmap.ranges.csv_rows.CSV_HEADER`, written by :func:`sonarmap.ranges.csv_rows.write_ranges_rows`;
+an empty cell is "none" / "unknown", never a number that looks like one).
 ``-o -`` streams the CSV to stdout (the summary lines stay on stderr).
 
 * ``ping``: the ping's source file path (and frame);
@@ -48,14 +49,8 @@ from sonarmap.cli._common import (
 )
 
 __all__ = [
-    "register", "pipeline_config_from_options", "write_ranges_rows", "iso_time", "flagged_summary", "flagged_any",
-    "CSV_HEADER",
+    "register", "pipeline_config_from_options", "flagged_summary", "flagged_any",
 ]
-
-#: Columns of the ranges CSV, in order (their meaning: the module notes).
-CSV_HEADER = (
-    "ping", "beam", "azimuth_rad", "bin", "range_m", "intensity", "flags", "sigma_m", "p_detect", "time", "time_ns",
-)
 
 METHOD_OPTION: Any = typer.Option(
     None, "--method", "-m",
@@ -111,61 +106,6 @@ def pipeline_config_from_options(
         changes["beta"] = beta
     cfg = PipelineConfig.from_toml(config) if config is not None else PipelineConfig()
     return cfg.replace(**changes) if changes else cfg
-
-
-def _fmt(v: float, digits: int = 6) -> str:
-    return "" if v != v else f"{v:.{digits}g}"
-
-
-def iso_time(time_ns: int) -> str:
-    """ISO 8601 UTC with nanoseconds: ``1468936985250000000`` -> ``"2016-07-19T14:03:05.250000000Z"``.
-
-    Examples
-    --------
-    >>> iso_time(1468936985250000000)
-    '2016-07-19T14:03:05.250000000Z'
-    """
-    import numpy as np
-
-    return str(np.datetime_as_string(np.datetime64(int(time_ns), "ns"), unit="ns")) + "Z"
-
-
-def write_ranges_rows(
-    writer: Any, source: str, ranges: Any, flags: str = "", *, time_ns: int | None = None
-) -> int:
-    """Write one CSV row per beam of ``ranges``; returns the number of rows.
-
-    Parameters
-    ----------
-    writer : csv.writer
-    source : str
-        The ping's source (``ping`` column).
-    ranges : BeamRanges
-    flags : str
-        The ping's gates, ``;``-separated.
-    time_ns : int, optional
-        The ping's time (``time`` and ``time_ns`` columns; empty when None).
-    """
-    n = ranges.n_beams
-    sigma = getattr(ranges, "sigma_m", None)
-    p_det = getattr(ranges, "p_detect", None)
-    t_iso, t_ns = ("", "") if time_ns is None else (iso_time(time_ns), str(int(time_ns)))
-    for j in range(n):
-        b = int(ranges.bin[j])
-        writer.writerow([
-            source,
-            j,
-            f"{float(ranges.azimuth_rad[j]):.9g}",
-            "" if b < 0 else b,
-            "" if b < 0 else f"{float(ranges.range_m[j]):.6f}",
-            "" if b < 0 else _fmt(float(ranges.intensity[j])),
-            flags,
-            "" if b < 0 or sigma is None else _fmt(float(sigma[j])),
-            "" if p_det is None else _fmt(float(p_det[j])),
-            t_iso,
-            t_ns,
-        ])
-    return n
 
 
 def load_calibration(path: Path | None) -> tuple[Any, tuple[str, ...] | None]:
@@ -273,6 +213,7 @@ def register(app: typer.Typer) -> None:
         from sonarmap.cli._common import STDOUT, count_pings, first_ping, open_output, output_name, ping_progress
         from sonarmap.io import read_pings
         from sonarmap.pipeline import process_ping
+        from sonarmap.ranges.csv_rows import CSV_HEADER, write_ranges_rows
 
         if to is not None:
             check_choice(to, ("csv", "bag1", "bag2"), "--to")

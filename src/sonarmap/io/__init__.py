@@ -23,10 +23,12 @@ from typing import Any
 
 from sonarmap.errors import DataFormatError
 from sonarmap.geometry import SonarGeometry
-from sonarmap.io._files import open_regular, require_regular_file
+from sonarmap._files import open_regular, require_regular_file
+from sonarmap.io._binary import MAX_PING_BYTES, make_summary
 from sonarmap.ping import Ping
 
-__all__ = ["read_pings", "read_ping", "detect_format", "expand_inputs", "FORMAT_MODULES", "format_module"]
+__all__ = ["read_pings", "read_ping", "detect_format", "expand_inputs", "FORMAT_MODULES", "format_module",
+           "is_store_dir", "make_summary", "MAX_PING_BYTES"]
 
 #: Modules tried in order by :func:`detect_format` (those that exist).
 FORMAT_MODULES = ("zarrstore", "aris", "oculus", "ddf", "rosbag", "kongsberg", "kmall", "pngjson")
@@ -59,7 +61,7 @@ def detect_format(path: str | os.PathLike[str]) -> str:
 
     Directories (of PNG pings, zarr stores, ROS 2 bags) are recognised by their entries; any other
     path must be a regular file, whose first 4096 bytes are read through
-    :func:`~sonarmap.io._files.open_regular` (so a FIFO or device is refused at once, never read).
+    :func:`~sonarmap._files.open_regular` (so a FIFO or device is refused at once, never read).
 
     Raises
     ------
@@ -148,7 +150,7 @@ def read_pings(
 
     seen: set[object] = set()
     for p in paths:
-        fmt = "pngjson" if p.is_dir() and not _is_store_dir(p) else detect_format(p)
+        fmt = "pngjson" if p.is_dir() and not is_store_dir(p) else detect_format(p)
         if fmt == "pngjson":
             pngs.append(p)
             continue
@@ -165,7 +167,7 @@ def read_pings(
     yield from flush()
 
 
-def _is_store_dir(p: Path) -> bool:
+def is_store_dir(p: Path) -> bool:
     """A directory that is a dataset store (zarr) or a ROS 2 bag rather than a folder of PNG pings."""
     return (p / ".zgroup").exists() or (p / "zarr.json").exists() or (p / "metadata.yaml").exists()
 

@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 
 from sonarmap.errors import DataFormatError, GeometryError, InputError, SonarmapWarning
-from sonarmap.io._files import open_regular
+from sonarmap._files import open_regular
 
 __all__ = [
     "PartialFrameWarning",
@@ -47,7 +47,7 @@ class PartialFrameWarning(SonarmapWarning):
 def map_file(path: str | os.PathLike[str], *, min_size: int = 0, what: str = "file") -> np.memmap | np.ndarray:
     """Memory-map ``path`` read-only as a flat ``uint8`` array (empty files give an empty array).
 
-    The file is opened with :func:`~sonarmap.io._files.open_regular` and mapped through that
+    The file is opened with :func:`~sonarmap._files.open_regular` and mapped through that
     descriptor, so FIFOs, devices (a symlink to ``/dev/zero``), sockets and directories are refused
     before anything is read or mapped.
 
@@ -181,7 +181,7 @@ def make_summary(
     """The flat dict returned by every format module's ``summary(path)`` hook (for ``sonarmap info``).
 
     Keys: ``path``, ``format``, ``pings``, the geometry fields of
-    :func:`sonarmap.cli.info.geometry_summary` for the first ping (absent without pings),
+    :func:`sonarmap.geometry.geometry_summary` for the first ping (absent without pings),
     ``time_first_utc``/``time_last_utc`` (``"unknown"`` when the format has no clock),
     ``duration_s``, then the format-specific ``details``.  The first ping's
     :class:`~sonarmap.geometry.SonarGeometry` itself is under the private key ``_geometry``.
@@ -196,12 +196,9 @@ def make_summary(
 
     out: dict[str, Any] = {"path": str(path), "format": fmt, "pings": int(n_pings)}
     if geometry is not None:
-        try:
-            from sonarmap.cli.info import geometry_summary
-        except ImportError:  # pragma: no cover - CLI not installed
-            out["geometry"] = geometry.name
-        else:
-            out.update(geometry_summary(geometry))
+        from sonarmap.geometry import geometry_summary
+
+        out.update(geometry_summary(geometry))
     out["time_first_utc"] = iso(time_start_ns)
     out["time_last_utc"] = iso(time_end_ns)
     if time_start_ns is not None and time_end_ns is not None:

@@ -79,7 +79,7 @@ from sonarmap.datamodel import (
 )
 from sonarmap.errors import DataFormatError, InputError, SonarmapError
 from sonarmap.geometry import SonarGeometry, geometry_from_dict
-from sonarmap.io._files import MAX_SIDECAR_BYTES, read_bytes_bounded, require_regular_file
+from sonarmap._files import MAX_SIDECAR_BYTES, read_bytes_bounded, require_regular_file
 from sonarmap.ping import Ping, Pose
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -103,6 +103,14 @@ __all__ = [
     "add_ping_variable",
     "write_ping_variable",
     "survey_geometries",
+    "CheckedStore",
+    "TIME_UNITS_RE",
+    "inspect_store",
+    "kind_of",
+    "read_array",
+    "check_times",
+    "check_chunk_files",
+    "locate_error",
 ]
 
 VAR_GEOMETRY = "geometry_index"
@@ -731,7 +739,7 @@ def _azimuth_per_ping(path: Path, n: int, chunk_pings: int) -> None:
 
 
 def _check_append_compatible(path: Path, ds: xr.Dataset) -> None:
-    st = _inspect_store(path)
+    st = inspect_store(path)
     if VAR_INTENSITY in st.arrays:
         have = tuple(st.arrays[VAR_INTENSITY].shape[1:])
         want = tuple(ds[VAR_INTENSITY].shape[1:])
@@ -832,8 +840,8 @@ def _check_array_doc(doc: Mapping[str, Any], fmt: int, path: Path) -> None:
 
 
 @dataclasses.dataclass
-class _Store:
-    """A zarr store whose metadata documents were all parsed and checked (:func:`_inspect_store`).
+class CheckedStore:
+    """A zarr store whose metadata documents were all parsed and checked (:func:`inspect_store`).
 
     Attributes
     ----------
@@ -876,7 +884,7 @@ class _Store:
         if ndim is not None and len(arr.shape) != ndim:
             raise DataFormatError(f"array '{name}' has {len(arr.shape)} dimensions, expected {ndim}",
                                   self.meta_file(name))
-        if kinds is not None and _kind_of(arr) not in kinds:
+        if kinds is not None and kind_of(arr) not in kinds:
             raise DataFormatError(f"array '{name}' has data type {arr.dtype}, expected "
                                   f"{_KIND_NAMES.get(kinds, kinds)}", self.meta_file(name))
         return arr
@@ -898,7 +906,7 @@ _KIND_NAMES = {"f": "floating point", "i": "signed integer", "iu": "integer", "i
                "biuf": "numeric", "T": "string"}
 
 
-def _kind_of(arr: Any) -> str:
+def kind_of(arr: Any) -> str:
     """numpy dtype kind of a zarr array (``"T"`` for zarr's variable-length strings)."""
     try:
         k = np.dtype(arr.dtype).kind
@@ -919,7 +927,7 @@ def _dims(arr: Any) -> tuple[str, ...]:
     return tuple(dims)
 
 
-def _inspect_store(path: Path) -> _Store:
+def inspect_store(path: Path) -> CheckedStore:
     """Parse and check every metadata document of a zarr store and open each of its arrays.
 
     Every failure is one :class:`DataFormatError` naming the metadata file (``zarr.json``,
@@ -997,15 +1005,15 @@ def _inspect_store(path: Path) -> _Store:
             raise DataFormatError(f"array metadata: chunks of {n_chunk} elements are larger than sonarmap reads",
                                   meta)
         arrays[name] = arr
-    return _Store(path, fmt, group, attrs, arrays)
+    return CheckedStore(path, fmt, group, attrs, arrays)
 
 
 def _open_group(path: Path) -> Any:
-    """The root group of a store whose metadata was checked (:func:`_inspect_store`)."""
-    return _inspect_store(path).group
+    """The root group of a store whose metadata was checked (:func:`inspect_store`)."""
+    return inspect_store(path).group
 
 
-def _attr_json_list(st: _Store, key: str) -> list[str]:
+def _attr_json_list(st: CheckedStore, key: str) -> list[str]:
     """A root attribute holding a JSON list of strings (geometries, sources)."""
     v = st.attrs.get(key)
     if v is None:
@@ -1029,18 +1037,18 @@ _RAW_ARRAYS: dict[str, tuple[int, str, tuple[str, ...]]] = {
     VAR_ORIENTATION: (2, "f", (DIM_QUAT,)),
 }
 
-_TIME_UNITS = re.compile(r"nanoseconds since 1970-01-01(?:[ T]00:00(?::00(?:\.0+)?)?)?Z?")
+TIME_UNITS_RE = re.compile(r"nanoseconds since 1970-01-01(?:[ T]00:00(?::00(?:\.0+)?)?)?Z?")
 
 
-def _inspect_survey(path: Path) -> _Store:
-    """:func:`_inspect_store` plus the survey data model: required arrays, ranks, dtypes, attributes.
+def _inspect_survey(path: Path) -> CheckedStore:
+    """:func:`inspect_store` plus the survey data model: required arrays, ranks, dtypes, attributes.
 
     Raises
     ------
     DataFormatError
         Naming the store and the file or array at fault.
     """
-    st = _inspect_store(path)
+    st = inspect_store(path)
     if VAR_INTENSITY not in st.arrays:
         raise DataFormatError(f"zarr store has no '{VAR_INTENSITY}' variable (not a survey)", st.path)
     model = st.attrs.get(ATTR_MODEL)
@@ -1069,7 +1077,7 @@ def _inspect_survey(path: Path) -> _Store:
                 raise DataFormatError(f"array '{DIM_PING}' has data type {arr.dtype}, expected int64 nanoseconds",
                                       st.meta_file(name))
             units = arr.attrs.get("units")
-            if not isinstance(units, str) or not _TIME_UNITS.fullmatch(units):
+            if not isinstance(units, str) or not TIME_UNITS_RE.fullmatch(units):
                 raise DataFormatError(f"array '{DIM_PING}' has units {units!r:.60}, expected 'nanoseconds since "
                                       "1970-01-01'", st.meta_file(name))
     if not isinstance(st.attrs.get(ATTR_POSE_FRAME), str):
@@ -1081,7 +1089,7 @@ def _inspect_survey(path: Path) -> _Store:
             if kind not in ("int", "float", "bool"):
                 raise DataFormatError(f"array '{name}': sonarmap_kind {kind!r:.40} is not int, float or bool",
                                       st.meta_file(name))
-            if kind == "int" and _kind_of(arr) not in "iu":
+            if kind == "int" and kind_of(arr) not in "iu":
                 raise DataFormatError(f"array '{name}': sonarmap_kind int but data type {arr.dtype}",
                                       st.meta_file(name))
     return st
@@ -1116,13 +1124,13 @@ def _read_state(path: Path) -> _State:
                 state.extras[name] = var
     state.shape = tuple(st.arrays[VAR_INTENSITY].shape[1:])  # type: ignore[assignment]
     if COORD_AZIMUTH in st.arrays and st.dims(COORD_AZIMUTH) == (DIM_BEAM,):
-        state.azimuth = np.asarray(_read_array(st, COORD_AZIMUTH), dtype=np.float64)
+        state.azimuth = np.asarray(read_array(st, COORD_AZIMUTH), dtype=np.float64)
     else:  # a store of pings with different tables, or written before the common layout
         state.azimuth_per_ping = True
     return state
 
 
-def _ping_lengths(st: _Store) -> dict[str, int]:
+def _ping_lengths(st: CheckedStore) -> dict[str, int]:
     out = {}
     for name, arr in st.arrays.items():
         dims = st.dims(name)
@@ -1181,14 +1189,14 @@ def _chunk_limit(arr: Any) -> int:
     """Largest plausible size of one encoded chunk file of ``arr`` (zstd's worst case + checksum)."""
     n = int(np.prod([int(c) for c in arr.chunks], dtype=object)) if arr.chunks else 1
     try:
-        item = int(np.dtype(arr.dtype).itemsize) if _kind_of(arr) != "T" else _STRING_ITEM_BYTES
+        item = int(np.dtype(arr.dtype).itemsize) if kind_of(arr) != "T" else _STRING_ITEM_BYTES
     except TypeError:
         item = _STRING_ITEM_BYTES
     raw = n * max(item, 1)
     return raw + raw // 64 + 4096
 
 
-def _chunk_files(st: _Store, name: str) -> dict[str, int]:
+def _chunk_files(st: CheckedStore, name: str) -> dict[str, int]:
     """The chunk files of array ``name`` (key -> size), every one checked to be a regular file of
     plausible size - so zarr never opens a FIFO (hangs), a device such as ``/dev/zero`` (reads
     without end) or an absurdly large file.  Cached on ``st``.
@@ -1224,7 +1232,7 @@ def _chunk_files(st: _Store, name: str) -> dict[str, int]:
     return out
 
 
-def _check_chunk_files(st: _Store, name: str, rows: slice | None = None, *, required: bool | None = None) -> None:
+def check_chunk_files(st: CheckedStore, name: str, rows: slice | None = None, *, required: bool | None = None) -> None:
     """The chunk files of array ``name`` are regular files of plausible size (:func:`_chunk_files`)
     and - if ``required`` (default: the array is checksummed, i.e. written by this version, which
     writes every chunk) - every chunk covering ``rows`` exists.
@@ -1304,7 +1312,7 @@ def _crc_scan(path: Path, names: Iterable[str], rows: slice | None) -> DataForma
     return None
 
 
-def _locate_error(st: _Store, names: Iterable[str], rows: slice | None, exc: BaseException,
+def locate_error(st: CheckedStore, names: Iterable[str], rows: slice | None, exc: BaseException,
                   what: str | None = None) -> DataFormatError:
     """The :class:`DataFormatError` naming the array and chunk that made a read fail.
 
@@ -1323,7 +1331,7 @@ def _locate_error(st: _Store, names: Iterable[str], rows: slice | None, exc: Bas
         if arr is None:
             continue
         try:
-            _check_chunk_files(st, name, rows)
+            check_chunk_files(st, name, rows)
         except DataFormatError as missing:
             return DataFormatError(prefix + str(missing).removeprefix(f"{st.path}: "), st.path)
         for coords in _chunk_coords(arr, rows):
@@ -1336,16 +1344,16 @@ def _locate_error(st: _Store, names: Iterable[str], rows: slice | None, exc: Bas
     return DataFormatError(f"{prefix or 'cannot read: '}{type(exc).__name__}: {_one_line(exc)}", st.path)
 
 
-def _read_array(st: _Store, name: str, rows: slice | None = None) -> NDArray[Any]:
+def read_array(st: CheckedStore, name: str, rows: slice | None = None) -> NDArray[Any]:
     """Rows ``rows`` of array ``name`` (all if ``None``), chunks checked: errors name the chunk."""
     arr = st.arrays[name]
-    _check_chunk_files(st, name, rows)
+    check_chunk_files(st, name, rows)
     try:
         if not arr.shape:
             return np.asarray(arr[...])
         return np.asarray(arr[rows if rows is not None else slice(None)])
     except Exception as exc:  # noqa: BLE001
-        raise _locate_error(st, [name], rows, exc) from None
+        raise locate_error(st, [name], rows, exc) from None
 
 
 def check_values(
@@ -1420,7 +1428,7 @@ def check_values(
     raise DataFormatError(f"{name}: {item} {row}{at}: value {problem}", path)
 
 
-def _check_times(times: ArrayLike, path: str | os.PathLike[str] | None, start: int = 0, *,
+def check_times(times: ArrayLike, path: str | os.PathLike[str] | None, start: int = 0, *,
                  name: str = DIM_PING, item: str = "ping") -> None:
     """Times are int64 ns since 1970 in [0, TIME_MAX_NS] (NaT, i.e. int64 min, and negatives are not).
 
@@ -1486,16 +1494,16 @@ def open_survey(path: str | os.PathLike[str], *, repair: bool = False) -> xr.Dat
             consolidate(p)
         st = _inspect_survey(p)
     for name in st.arrays:
-        _check_chunk_files(st, name)
-    raw_times = _read_array(st, DIM_PING)
-    _check_times(raw_times, p)
+        check_chunk_files(st, name)
+    raw_times = read_array(st, DIM_PING)
+    check_times(raw_times, p)
     try:
         ds = xr.open_zarr(p, consolidated=False, chunks={})
         decoded = ds[DIM_PING].values
     except SonarmapError:
         raise
     except Exception as exc:  # noqa: BLE001
-        raise _locate_error(st, list(st.arrays), None, exc, "the survey") from None
+        raise locate_error(st, list(st.arrays), None, exc, "the survey") from None
     if decoded.dtype.kind != "M" or not np.array_equal(decoded.astype("datetime64[ns]").astype(np.int64), raw_times):
         raise DataFormatError(f"array '{DIM_PING}': decoded times differ from the stored nanoseconds "
                               f"(units {st.arrays[DIM_PING].attrs.get('units')!r})", st.meta_file(DIM_PING))
@@ -1586,7 +1594,7 @@ def dataset_to_pings(
     if times.dtype.kind != "M":
         raise DataFormatError(f"{DIM_PING}: not decoded as times (dtype {times.dtype})", path)
     times = times.astype("datetime64[ns]").astype(np.int64)
-    _check_times(times[start:stop], path, start)
+    check_times(times[start:stop], path, start)
     for i0 in range(start - start % chunk, stop, chunk):
         sl = slice(max(i0, start), min(i0 + chunk, stop))
         try:
@@ -1648,12 +1656,12 @@ def _block_error(ds: xr.Dataset, rows: slice, exc: BaseException) -> DataFormatE
     if found is not None:
         return DataFormatError(f"cannot read {what}: " + str(found).removeprefix(f"{path}: "), path)
     try:
-        st = _inspect_store(Path(path))
+        st = inspect_store(Path(path))
     except DataFormatError as e:
         return e
     names = [str(v) for v in ds.variables if str(v) in st.arrays]
     ping_names = [v for v in names if st.dims(v)[:1] == (DIM_PING,)]
-    return _locate_error(st, ping_names + [v for v in names if v not in ping_names], rows, exc, what)
+    return locate_error(st, ping_names + [v for v in names if v not in ping_names], rows, exc, what)
 
 
 # ---------------------------------------------------------------------- extra variables
@@ -1703,7 +1711,7 @@ def write_ping_variable(
     import xarray as xr
 
     p = Path(path)
-    st = _inspect_store(p)
+    st = inspect_store(p)
     if name not in st.arrays:
         raise InputError(f"{p}: no variable {name!r}; declare it with add_ping_variable first")
     arr = st.arrays[name]

@@ -76,7 +76,7 @@ from sonarmap.io._binary import (
     make_summary,
     warn_partial,
 )
-from sonarmap.io._files import require_regular_file
+from sonarmap._files import require_regular_file
 from sonarmap.io.kongsberg import (
     _AMP_LUT,
     _MAX_BINS,

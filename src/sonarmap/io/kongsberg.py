@@ -80,7 +80,7 @@ from sonarmap.io._binary import (
     make_summary,
     map_file,
 )
-from sonarmap.io._files import require_regular_file
+from sonarmap._files import require_regular_file
 from sonarmap.ping import Ping
 
 __all__ = [

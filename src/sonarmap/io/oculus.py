@@ -76,7 +76,7 @@ from sonarmap.io._binary import (
     map_file,
     warn_partial,
 )
-from sonarmap.io._files import decompress_bounded, open_regular, require_regular_file
+from sonarmap._files import decompress_bounded, open_regular, require_regular_file
 from sonarmap.ping import Ping
 
 __all__ = [

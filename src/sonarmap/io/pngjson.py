@@ -6,7 +6,7 @@ inferred from its digit count (10: s, 13: ms, 16: µs, 19: ns).  Images are 8-bi
 or 16-bit (0-65535 -> [0, 1]) greyscale; palettised images are converted through their palette.
 
 Inputs are untrusted: images and sidecars are opened only if they are regular files (a FIFO or a
-device named like a ping is refused, see :mod:`sonarmap.io._files`), sidecars are read up to
+device named like a ping is refused, see :mod:`sonarmap._files`), sidecars are read up to
 ``MAX_SIDECAR_BYTES`` and validated field by field, and an image's size is checked from its header
 against :data:`MAX_IMAGE_PIXELS` and the geometry before any pixel is decoded.  Every failure is a
 :class:`~sonarmap.errors.DataFormatError` (or a :class:`~sonarmap.errors.GeometryError` for a
@@ -31,8 +31,8 @@ from numpy.typing import NDArray
 
 from sonarmap._atomic import atomic_path, atomic_write_text
 from sonarmap.errors import DataFormatError, GeometryError
-from sonarmap.geometry import SonarGeometry, _geometry_from_json_bytes, as_geometry
-from sonarmap.io._files import MAX_SIDECAR_BYTES, open_regular, read_bytes_bounded, require_regular_file
+from sonarmap.geometry import SonarGeometry, geometry_from_json_bytes, as_geometry
+from sonarmap._files import MAX_SIDECAR_BYTES, open_regular, read_bytes_bounded, require_regular_file
 from sonarmap.ping import Ping
 
 __all__ = [
@@ -258,7 +258,7 @@ def read_png_ping(
                 f"no sidecar JSON ({side.name}); pass a geometry (preset or JSON file)", p
             )
         data = read_bytes_bounded(side, MAX_SIDECAR_BYTES, "sidecar JSON")
-        geom = _geometry_from_json_bytes(data, str(side), _base_stem(p))
+        geom = geometry_from_json_bytes(data, str(side), _base_stem(p))
         if b'"intensity_scale"' in data:
             scale = _intensity_scale(data, side)
     else:

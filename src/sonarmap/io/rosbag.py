@@ -78,7 +78,7 @@ import numpy as np
 from sonarmap.errors import DataFormatError, GeometryError, InputError, SonarmapWarning
 from sonarmap.geometry import SonarGeometry, as_geometry, geometry_from_dict
 from sonarmap.io._binary import U8_SCALE, check_time_ns, make_summary
-from sonarmap.io._files import open_regular, require_regular_file
+from sonarmap._files import open_regular, require_regular_file
 from sonarmap.ping import Ping
 
 __all__ = [

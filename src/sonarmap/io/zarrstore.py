@@ -3,7 +3,7 @@
 The data model itself (names, attributes, writing and reading) lives in :mod:`sonarmap.io.dataset`;
 this module only lets :func:`sonarmap.io.read_pings` and ``sonarmap info`` recognise a store.
 A product store of ``sonarmap process`` (:mod:`sonarmap.survey`) is recognised too: ``info``
-summarises it (:func:`sonarmap.survey.product_summary`); it holds products, not pings, so reading
+summarises it (:func:`sonarmap.io.products.product_summary`); it holds products, not pings, so reading
 pings from it is a clean error.
 """
 
@@ -19,14 +19,14 @@ import numpy as np
 from sonarmap.errors import DataFormatError
 from sonarmap.geometry import SonarGeometry, as_geometry
 from sonarmap.io._binary import make_summary
-from sonarmap.io._files import MAX_SIDECAR_BYTES, read_bytes_bounded
+from sonarmap._files import MAX_SIDECAR_BYTES, read_bytes_bounded
 from sonarmap.io.dataset import (
     ATTR_MODEL,
     DIM_PING,
     VAR_INTENSITY,
     VAR_GEOMETRY,
     _inspect_survey,
-    _read_array,
+    read_array,
     _is_store,
     _n_pings,
     dataset_to_pings,
@@ -71,7 +71,7 @@ def iter_pings(
     DataFormatError
         If ``path`` is a product store (``sonarmap process``): it holds no ping images.
     """
-    from sonarmap.survey import is_product_store
+    from sonarmap.io.products import is_product_store
 
     if is_product_store(path):
         raise DataFormatError("is a product store (sonarmap process): it holds products, not pings; read its "
@@ -83,7 +83,7 @@ def iter_pings(
 
 def count_pings(path: str | os.PathLike[str]) -> int:
     """Number of pings (array metadata only; a product store's ``n_pings``)."""
-    from sonarmap.survey import is_product_store, survey_status
+    from sonarmap.io.products import is_product_store, survey_status
 
     if is_product_store(path):
         return int(survey_status(path)["n_pings"])
@@ -99,7 +99,7 @@ def summary(path: str | os.PathLike[str]) -> dict[str, Any]:
         If the store's metadata, times or first geometry index are corrupt (naming the store).
     """
     from sonarmap.datamodel import consolidated_status
-    from sonarmap.survey import is_product_store, product_summary
+    from sonarmap.io.products import is_product_store, product_summary
 
     if is_product_store(path):
         return product_summary(path)
@@ -111,7 +111,7 @@ def summary(path: str | os.PathLike[str]) -> dict[str, Any]:
     g = st.group
     first = None
     if n and geoms:
-        gi = int(_read_array(st, VAR_GEOMETRY, slice(0, 1))[0])
+        gi = int(read_array(st, VAR_GEOMETRY, slice(0, 1))[0])
         if not 0 <= gi < len(geoms):
             raise DataFormatError(f"{VAR_GEOMETRY}: ping 0: value {gi} outside the {len(geoms)} stored geometries",
                                   path)

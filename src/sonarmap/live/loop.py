@@ -135,9 +135,11 @@ def warm_pipeline(config: Any = None, ping: Ping | None = None) -> None:
         A ping like those to come (e.g. the first of the recording); default synthetic
         thresholded and speckle images.
     """
-    import sonarmap._survey_warm  # noqa: F401 - warms the thresholded-image path on import
     from sonarmap.geometry import preset
     from sonarmap.pipeline import PipelineConfig, process_ping
+    from sonarmap.survey import warm_pipeline_once
+
+    warm_pipeline_once()  # the thresholded-image path
 
     cfg = config if config is not None else PipelineConfig()
     if ping is None:

@@ -24,7 +24,7 @@ import dataclasses
 import struct
 
 from sonarmap.errors import InputError
-from sonarmap.io._binary import MAX_PING_BYTES
+from sonarmap.io import MAX_PING_BYTES
 from sonarmap.io.oculus import (
     FIRE_V1,
     FIRE_V2_EXTRA,

@@ -1,7 +1,7 @@
 """Where a live run's products go: per-beam ranges as CSV / JSON lines, and a growing product store.
 
 :class:`RangesSink` writes the rows of ``sonarmap ranges`` (same columns, same writer:
-:func:`sonarmap.cli.ranges.write_ranges_rows`) or one JSON object per ping, flushed after every
+:func:`sonarmap.ranges.csv_rows.write_ranges_rows`) or one JSON object per ping, flushed after every
 ping so a pipe downstream sees each ping at once.
 
 :class:`StoreSink` appends products to a zarr product store (the layout ``sonarmap process``
@@ -65,7 +65,7 @@ class RangesSink:
         """Write the rows of one ping and flush."""
         flags = ";".join(products.gates)
         if self._csv is not None:
-            from sonarmap.cli.ranges import CSV_HEADER, write_ranges_rows
+            from sonarmap.ranges.csv_rows import CSV_HEADER, write_ranges_rows
 
             if not self._header:
                 self._csv.writerow(CSV_HEADER)
@@ -79,7 +79,7 @@ class RangesSink:
     @staticmethod
     def jsonl_row(ping: Ping, products: Any, flags: str) -> dict[str, Any]:
         """The JSON object of one ping (``null`` for "none" / "unknown")."""
-        from sonarmap.cli.ranges import iso_time
+        from sonarmap.ranges.csv_rows import iso_time
 
         r = products.ranges
         hit = [int(b) >= 0 for b in r.bin]
@@ -165,9 +165,9 @@ class StoreSink:
             if self.path.exists() or self.path.is_symlink():
                 if not overwrite:
                     raise SurveyExistsError(f"{self.path}: output exists; use --overwrite to replace it")
-                from sonarmap.survey import _remove_store
+                from sonarmap.survey import remove_store
 
-                _remove_store(self.path)
+                remove_store(self.path)
         except BaseException:
             self._lock.release()
             raise

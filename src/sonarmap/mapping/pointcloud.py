@@ -235,7 +235,7 @@ def _in_frame(cloud: PointCloud, frame: str | None) -> PointCloud:
     return cloud if frame is None else cloud.to_frame(frame)
 
 
-def _georeferenced(cloud: PointCloud, frame: str | None, georef: GeoReference) -> PointCloud:
+def georeferenced_cloud(cloud: PointCloud, frame: str | None, georef: GeoReference) -> PointCloud:
     """The cloud with ``xyz_m`` = projected ``(E, N, h)`` and ``frame="enu"`` (E, N, up axes)."""
     if frame is not None and str(frame).lower() != "enu":
         raise InputError(
@@ -283,7 +283,7 @@ def write_ply(
     from plyfile import PlyData, PlyElement
 
     knd = _resolve_kind(cloud, kind)
-    c = _in_frame(cloud, frame) if georef is None else _georeferenced(cloud, frame, georef)
+    c = _in_frame(cloud, frame) if georef is None else georeferenced_cloud(cloud, frame, georef)
     off = np.zeros(3) if offset_m is None else np.asarray(offset_m, dtype=np.float64)
     cdt = "<f4" if georef is None else "<f8"
     xyz = (c.xyz_m - off).astype(cdt)
@@ -399,7 +399,7 @@ def write_las(
     from laspy.header import GpsTimeType
 
     knd = _resolve_kind(cloud, kind)
-    c = _in_frame(cloud, frame) if georef is None else _georeferenced(cloud, frame, georef)
+    c = _in_frame(cloud, frame) if georef is None else georeferenced_cloud(cloud, frame, georef)
     if scale_m is None:
         scale_m = 1e-4 if georef is None else 1e-3
     if not scale_m > 0:
@@ -523,7 +523,7 @@ def _read_sidecar(path: Path) -> dict[str, Any]:
     if not side.is_file():
         return {}
     try:
-        from sonarmap.io._files import MAX_SIDECAR_BYTES, read_bytes_bounded
+        from sonarmap._files import MAX_SIDECAR_BYTES, read_bytes_bounded
 
         d = json.loads(read_bytes_bounded(side, MAX_SIDECAR_BYTES, "CSV sidecar").decode("utf-8"))
     except (OSError, UnicodeDecodeError, ValueError) as exc:
@@ -559,7 +559,7 @@ def write_csv(
         Schema (module notes); default :func:`cloud_kind`.
     """
     knd = _resolve_kind(cloud, kind)
-    c = _in_frame(cloud, frame) if georef is None else _georeferenced(cloud, frame, georef)
+    c = _in_frame(cloud, frame) if georef is None else georeferenced_cloud(cloud, frame, georef)
     cols = _CSV_OCC_COLS if knd == "occupancy" else _CSV_COLS
     meta: dict[str, Any] = {"sonarmap": "point cloud", "kind": knd, "frame": c.frame, "columns": list(cols)}
     if georef is not None:

@@ -51,7 +51,7 @@ from numpy.typing import NDArray
 from sonarmap.errors import InputError
 
 __all__ = ["BackgroundLevel", "RecordingBackground", "estimate_background", "estimate_recording_background",
-           "normalise_image", "BACKGROUND_MEAN"]
+           "normalise_image", "BACKGROUND_MEAN", "expand_grid"]
 
 #: Mean of the background excess after normalisation (the DIDSON background's 1/lambda, Table I).
 BACKGROUND_MEAN = 1.0 / 44.6
@@ -149,7 +149,7 @@ def _interp_matrix(n: int, nb: int) -> NDArray[np.float32]:
     return w
 
 
-def _expand(grid: NDArray[np.float32], shape: tuple[int, int]) -> NDArray[np.float32]:
+def expand_grid(grid: NDArray[np.float32], shape: tuple[int, int]) -> NDArray[np.float32]:
     """Bilinear interpolation of a block grid to the full lattice (block centres; edges held)."""
     nr, nc = grid.shape
     return (_interp_matrix(shape[0], nr) @ grid.astype(np.float32) @ _interp_matrix(shape[1], nc).T).astype(
@@ -273,7 +273,7 @@ def _finish(img: NDArray[np.float32], level: NDArray[np.float32], factor: NDArra
     from sonarmap.preprocess._kernels import excess, pooled_ratio
 
     n, m = img.shape
-    full = np.ones((n, m), np.float32) if factor is None else _expand(factor, (n, m))
+    full = np.ones((n, m), np.float32) if factor is None else expand_grid(factor, (n, m))
     z = pooled_ratio(np.ascontiguousarray(img, dtype=np.float32), np.ascontiguousarray(level, dtype=np.float32),
                      np.ascontiguousarray(full), int(min(max(pool[0], 1), n)), int(min(max(pool[1], 1), m)))
     # the background's threshold and scale from the lower half of each row (robust to surfaces
@@ -348,7 +348,7 @@ class RecordingBackground:
         """Per-beam gain implied by the beam factor (its mean over range, median 1): the taper."""
         if self.beam_factor is None or self.level_by_bin is None:
             return None
-        full = _expand(self.beam_factor, (self.level_by_bin.size, self.n_beams))
+        full = expand_grid(self.beam_factor, (self.level_by_bin.size, self.n_beams))
         taper = full.mean(axis=0)
         return (taper / float(np.median(taper))).astype(np.float32)
 

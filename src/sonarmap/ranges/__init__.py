@@ -49,7 +49,8 @@ if TYPE_CHECKING:
     from sonarmap.ranges.echoes import Echoes
     from sonarmap.ranges.tracking import Tracks
 
-__all__ = ["BeamRanges", "extract_ranges", "ranges_from_tracks", "no_returns", "first_return_bins", "wide_components"]
+__all__ = ["BeamRanges", "extract_ranges", "ranges_from_tracks", "no_returns", "first_return_bins", "wide_components",
+           "rule0"]
 
 Mode = Literal["first", "strongest"]
 
@@ -149,7 +150,7 @@ def no_returns(geometry: SonarGeometry, *, time_ns: int = 0, source: str = "", m
 
 def first_return_bins(mask: ArrayLike, *, min_run: int = 1) -> NDArray[np.int64]:
     """Per beam, the first bin starting a run of ``min_run`` true bins; -1 if none."""
-    from sonarmap.classify._kernels import first_runs
+    from sonarmap.ranges._kernels import first_runs
 
     m = np.asarray(mask, dtype=bool)
     if m.ndim != 2:
@@ -164,7 +165,7 @@ def wide_components(
 ) -> NDArray[np.bool_]:
     """Keep the 8-connected components of ``mask`` spanning >= ``min_beams`` beams or >= ``min_bins``
     bins (and, if ``seeds`` is given, containing at least one seed pixel: hysteresis growth)."""
-    from sonarmap.classify._kernels import wide_components as kernel
+    from sonarmap.ranges._kernels import wide_components as kernel
 
     m = np.ascontiguousarray(mask, dtype=bool)
     if m.ndim != 2:
@@ -193,11 +194,11 @@ class _IdxWork(threading.local):
 _IDX_WORK = _IdxWork()
 
 
-def _rule0(mask: NDArray[np.bool_], min_beams: int, min_bins: int | None, link_beams: int,
+def rule0(mask: NDArray[np.bool_], min_beams: int, min_bins: int | None, link_beams: int,
            min_pixels: int = 0) -> NDArray[np.bool_]:
     """Rule 0 (wide components, then linked pieces) in one kernel: same as :func:`wide_components`
     followed by :func:`_link_components`."""
-    from sonarmap.classify._kernels import linked_components
+    from sonarmap.ranges._kernels import linked_components
 
     m = np.ascontiguousarray(mask, dtype=bool)
     h, w = m.shape
@@ -209,7 +210,7 @@ def component_rule(mask: NDArray[np.bool_], min_component_beams: int = 1, min_co
                    link_beams: int = 0, min_component_pixels: int = 0) -> NDArray[np.bool_]:
     """Rule 0 of :func:`extract_ranges` with its parameters (the mask unchanged when it is off)."""
     if min_component_beams > 1 or min_component_pixels > 0:
-        return _rule0(mask, min_component_beams, min_component_bins, link_beams, min_component_pixels)
+        return rule0(mask, min_component_beams, min_component_bins, link_beams, min_component_pixels)
     return mask
 
 
@@ -259,7 +260,7 @@ def half_peak_edges(ranges: BeamRanges, image: ArrayLike, mask: ArrayLike, geome
     """
     if ranges.mode != "first" or ranges.n_returns == 0:
         return ranges
-    from sonarmap.classify._kernels import half_peak_edges as kernel
+    from sonarmap.ranges._kernels import half_peak_edges as kernel
 
     img = np.ascontiguousarray(image, dtype=np.float64)
     m = np.ascontiguousarray(mask, dtype=bool)
@@ -278,7 +279,7 @@ def half_peak_edges(ranges: BeamRanges, image: ArrayLike, mask: ArrayLike, geome
 
 def _link_components(mask: NDArray[np.bool_], kept: NDArray[np.bool_], gap: int, rounds: int = 4) -> NDArray[np.bool_]:
     """Add components of ``mask`` within ``gap`` beams and 1 bin of ``kept`` ones (chained)."""
-    from sonarmap.classify._kernels import near_mask
+    from sonarmap.ranges._kernels import near_mask
 
     for _ in range(rounds):
         rest = mask & ~kept
@@ -292,7 +293,7 @@ def _link_components(mask: NDArray[np.bool_], kept: NDArray[np.bool_], gap: int,
 def _support(bins: NDArray[np.int64], neighbour_beams: int, max_jump: int) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
     """(number of supporting neighbours, number of existing neighbours) per beam."""
     if bins.dtype == np.int64 and bins.ndim == 1:
-        from sonarmap.classify._kernels import support_counts
+        from sonarmap.ranges._kernels import support_counts
 
         return support_counts(bins, int(neighbour_beams), int(max_jump))
     n = bins.size
@@ -313,7 +314,7 @@ def _support(bins: NDArray[np.int64], neighbour_beams: int, max_jump: int) -> tu
 
 def _refine_leading_edge(img: NDArray[np.float32], bins: NDArray[np.int64], k_max: int, level: float) -> NDArray[np.int64]:
     """Move first returns up while the 3-bin x 3-beam box mean above them is >= ``level``."""
-    from sonarmap.classify._kernels import refine_leading_edge
+    from sonarmap.ranges._kernels import refine_leading_edge
 
     return refine_leading_edge(np.ascontiguousarray(img, dtype=np.float32), bins, int(k_max), float(level))
 

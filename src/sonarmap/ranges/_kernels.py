@@ -1,5 +1,5 @@
-"""Numba kernels of the range stage (private; see :mod:`sonarmap.ranges.echoes` and
-:mod:`sonarmap.ranges.tracking`).
+"""Numba kernels of the range stage (private; see :mod:`sonarmap.ranges` (components, first runs,
+leading edges), :mod:`sonarmap.ranges.echoes` and :mod:`sonarmap.ranges.tracking`).
 
 Images are ``(n_bins, n_beams)``; an echo is identified by its index in the flat per-echo arrays,
 sorted by beam and then by range.
@@ -180,23 +180,323 @@ def viterbi_surfaces(first, count, echo_beam, pos, lo_bin, hi_bin, unary, usable
     return chosen
 
 
+# ----------------------------------------------------------------------------- components and edges
+
+
 @njit(cache=True, nogil=True)
-def excess_ratio(raw, level, full, log_db, r0, r1):  # pragma: no cover - numba
-    """``max(ratio - 1, 0)`` with ``ratio = raw / b`` (``log_db <= 0``) or ``10^(log_db (raw - b) / 10)``,
-    ``b = level[i] * full[i, j]``, on rows ``r0 .. r1 - 1`` (zero elsewhere); float64."""
-    n, m = raw.shape
-    out = np.zeros((n, m))
-    k = log_db * np.log(10.0) / 10.0
-    for i in range(max(r0, 0), min(r1, n)):
-        for j in range(m):
-            b = level[i] * full[i, j]
-            if log_db > 0:
-                x = k * (raw[i, j] - b)
-                if x > 69.0:
-                    x = 69.0
-                v = np.exp(x) - 1.0
-            else:
-                v = raw[i, j] / max(b, 1e-12) - 1.0
-            if v > 0.0:
-                out[i, j] = v
+def _find(parent, a):  # pragma: no cover - numba
+    while parent[a] != a:
+        parent[a] = parent[parent[a]]
+        a = parent[a]
+    return a
+
+
+@njit(cache=True, nogil=True)
+def _union_back_neighbours(idx, parent, a, i, j, w):  # pragma: no cover - numba
+    """Union node ``a`` at ``(i, j)`` with its already-visited 8-neighbours in a raster scan,
+    ``(i, j-1)``, ``(i-1, j-1)``, ``(i-1, j)``, ``(i-1, j+1)`` (smaller root wins)."""
+    for di, dj in ((0, -1), (-1, -1), (-1, 0), (-1, 1)):
+        ii = i + di
+        jj = j + dj
+        if 0 <= ii and 0 <= jj < w:
+            b = idx[ii, jj]
+            if b >= 0:
+                ra = _find(parent, a)
+                rb = _find(parent, b)
+                if ra != rb:
+                    if ra < rb:
+                        parent[rb] = ra
+                    else:
+                        parent[ra] = rb
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _grow_box(r, i, j, imin, imax, jmin, jmax):  # pragma: no cover - numba
+    """Extend component ``r``'s bin (``i``) and beam (``j``) extent by pixel ``(i, j)``."""
+    if j < jmin[r]:
+        jmin[r] = j
+    if j > jmax[r]:
+        jmax[r] = j
+    if i < imin[r]:
+        imin[r] = i
+    if i > imax[r]:
+        imax[r] = i
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _is_wide(r, imin, imax, jmin, jmax, min_beams, min_bins):  # pragma: no cover - numba
+    """Component ``r`` spans >= ``min_beams`` beams, or >= ``min_bins`` bins (``min_bins <= 0``: off)."""
+    return jmax[r] - jmin[r] + 1 >= min_beams or (min_bins > 0 and imax[r] - imin[r] + 1 >= min_bins)
+
+
+@njit(cache=True, nogil=True)
+def wide_components(mask, seeds, min_beams, min_bins):  # pragma: no cover - numba
+    """Keep 8-connected components of ``mask`` that contain a ``seeds`` pixel and span
+    >= ``min_beams`` beams or >= ``min_bins`` bins.
+
+    Union-find over the true pixels (raster order, 4 already-visited neighbours), then the beam
+    and bin extent of every component.  ``min_bins <= 0`` disables the bin test; pass
+    ``seeds = mask`` to keep components regardless of seeds.
+    """
+    h, w = mask.shape
+    idx = np.full((h, w), -1, dtype=np.int32)
+    n = 0
+    for i in range(h):
+        for j in range(w):
+            if mask[i, j]:
+                idx[i, j] = n
+                n += 1
+    parent = np.arange(n, dtype=np.int32)
+    for i in range(h):
+        for j in range(w):
+            a = idx[i, j]
+            if a < 0:
+                continue
+            _union_back_neighbours(idx, parent, a, i, j, w)
+    jmin = np.full(n, w, dtype=np.int32)
+    jmax = np.full(n, -1, dtype=np.int32)
+    imin = np.full(n, h, dtype=np.int32)
+    imax = np.full(n, -1, dtype=np.int32)
+    seeded = np.zeros(n, dtype=np.bool_)
+    for i in range(h):
+        for j in range(w):
+            a = idx[i, j]
+            if a >= 0:
+                r = _find(parent, a)
+                if seeds[i, j]:
+                    seeded[r] = True
+                _grow_box(r, i, j, imin, imax, jmin, jmax)
+    out = np.zeros((h, w), dtype=np.bool_)
+    for i in range(h):
+        for j in range(w):
+            a = idx[i, j]
+            if a >= 0:
+                r = _find(parent, a)
+                if seeded[r] and _is_wide(r, imin, imax, jmin, jmax, min_beams, min_bins):
+                    out[i, j] = True
     return out
+
+
+@njit(cache=True, nogil=True)
+def first_runs(mask, min_run):  # pragma: no cover - numba
+    """Per column, the first row starting a run of ``min_run`` true pixels (-1 if none)."""
+    h, w = mask.shape
+    out = np.full(w, -1, dtype=np.int64)
+    for j in range(w):
+        run = 0
+        for i in range(h):
+            if mask[i, j]:
+                run += 1
+                if run >= min_run:
+                    out[j] = i - min_run + 1
+                    break
+            else:
+                run = 0
+    return out
+
+
+@njit(cache=True, nogil=True)
+def near_mask(kept, rest, gap):  # pragma: no cover - numba
+    """``rest`` pixels within ``gap`` beams and 1 bin of a ``kept`` pixel."""
+    h, w = kept.shape
+    out = np.zeros((h, w), dtype=np.bool_)
+    any_hit = False
+    for i in range(h):
+        for j in range(w):
+            if kept[i, j]:
+                for ii in range(max(i - 1, 0), min(i + 2, h)):
+                    for jj in range(max(j - gap, 0), min(j + gap + 1, w)):
+                        if rest[ii, jj]:
+                            out[ii, jj] = True
+                            any_hit = True
+    return out, any_hit
+
+
+@njit(cache=True, nogil=True)
+def refine_leading_edge(img, bins, k_max, level):  # pragma: no cover - numba
+    """Move each first return up while the 3 bin x 3 beam mean above it is >= ``level``."""
+    h, w = img.shape
+    out = bins.copy()
+    for j in range(w):
+        b = bins[j]
+        if b < 0:
+            continue
+        j0 = max(j - 1, 0)
+        j1 = min(j + 2, w)
+        for _ in range(k_max):
+            r = b - 1
+            if r < 0:
+                break
+            i0 = max(r - 1, 0)
+            i1 = min(r + 2, h)
+            s = 0.0
+            for ii in range(i0, i1):
+                for jj in range(j0, j1):
+                    s += img[ii, jj]
+            if s / ((i1 - i0) * (j1 - j0)) >= level:
+                b = r
+            else:
+                break
+        out[j] = b
+    return out
+
+
+@njit(cache=True, nogil=True)
+def linked_components(mask, min_beams, min_bins, gap, rounds, idx, min_pixels=0):  # pragma: no cover - numba
+    """Rule 0 of :func:`sonarmap.ranges.extract_ranges` in one kernel: the 8-connected components
+    of ``mask`` spanning >= ``min_beams`` beams or >= ``min_bins`` bins (``min_bins <= 0``: beams
+    only) or holding >= ``min_pixels`` pixels (``min_pixels <= 0``: off), then up to ``rounds``
+    rounds adding every other component with a pixel within ``gap`` beams and 1 bin of a pixel
+    kept at the start of the round (stopping at the first round that adds nothing).
+
+    Same result as :func:`wide_components` followed by ``_link_components`` (whose components of
+    ``mask & ~kept`` are exactly the components of ``mask`` not kept yet), but the lattice is
+    labelled once.  ``idx`` is a caller-owned int32 work array of ``mask``'s shape that must be
+    all -1 on entry; it is restored to -1 before returning.
+    """
+    h, w = mask.shape
+    n = 0
+    for i in range(h):
+        for j in range(w):
+            if mask[i, j]:
+                n += 1
+    pi = np.empty(n, dtype=np.int32)
+    pj = np.empty(n, dtype=np.int32)
+    n = 0
+    for i in range(h):
+        for j in range(w):
+            if mask[i, j]:
+                idx[i, j] = n
+                pi[n] = i
+                pj[n] = j
+                n += 1
+    parent = np.arange(n, dtype=np.int32)
+    for a in range(n):
+        i = pi[a]
+        j = pj[a]
+        _union_back_neighbours(idx, parent, a, i, j, w)
+    root = np.empty(n, dtype=np.int32)
+    jmin = np.full(n, w, dtype=np.int32)
+    jmax = np.full(n, -1, dtype=np.int32)
+    imin = np.full(n, h, dtype=np.int32)
+    imax = np.full(n, -1, dtype=np.int32)
+    npx = np.zeros(n, dtype=np.int32)
+    for a in range(n):
+        r = _find(parent, a)
+        root[a] = r
+        npx[r] += 1
+        i = pi[a]
+        j = pj[a]
+        # the extent, written out: pixels come in raster order, so a component's first pixel
+        # has its lowest bin and its last the highest (2x faster than the _grow_box helper here)
+        if imin[r] > i:
+            imin[r] = i
+        imax[r] = i
+        if j < jmin[r]:
+            jmin[r] = j
+        if j > jmax[r]:
+            jmax[r] = j
+    kept = np.zeros(n, dtype=np.bool_)      # per root
+    n_kept = 0
+    for a in range(n):
+        r = root[a]
+        if r == a and (_is_wide(r, imin, imax, jmin, jmax, min_beams, min_bins)
+                       or (min_pixels > 0 and npx[r] >= min_pixels)):
+            kept[r] = True
+    for a in range(n):
+        if kept[root[a]]:
+            n_kept += 1
+    add = np.zeros(n, dtype=np.bool_)
+    for _ in range(rounds):
+        if n_kept == 0 or n_kept == n:
+            break
+        # near pairs are symmetric: scan the windows of the smaller of the two pixel sets
+        from_kept = n_kept <= n - n_kept
+        hit = False
+        for a in range(n):
+            if kept[root[a]] != from_kept or (not from_kept and add[root[a]]):
+                continue
+            i = pi[a]
+            j = pj[a]
+            for ii in range(max(i - 1, 0), min(i + 2, h)):
+                for jj in range(max(j - gap, 0), min(j + gap + 1, w)):
+                    b = idx[ii, jj]
+                    if b >= 0 and kept[root[b]] != from_kept:
+                        hit = True
+                        if from_kept:
+                            add[root[b]] = True
+                        else:
+                            add[root[a]] = True
+                            break
+                if hit and not from_kept and add[root[a]]:
+                    break
+        if not hit:
+            break
+        for a in range(n):
+            r = root[a]
+            if add[r]:
+                if not kept[r]:
+                    kept[r] = True
+                add[r] = False
+        n_kept = 0
+        for a in range(n):
+            if kept[root[a]]:
+                n_kept += 1
+    out = np.zeros((h, w), dtype=np.bool_)
+    for a in range(n):
+        if kept[root[a]]:
+            out[pi[a], pj[a]] = True
+        idx[pi[a], pj[a]] = -1
+    return out
+
+
+@njit(cache=True, nogil=True)
+def support_counts(bins, neighbour_beams, max_jump):  # pragma: no cover - numba
+    """Per beam ``(number of supporting neighbours, number of existing neighbours)``: beam ``k``
+    with ``0 < |k - j| <= neighbour_beams`` exists if it lies in range and supports ``j`` if both
+    have a return (``bin >= 0``) within ``max_jump`` bins."""
+    n = bins.size
+    sup = np.zeros(n, dtype=np.int64)
+    cnt = np.zeros(n, dtype=np.int64)
+    for j in range(n):
+        bj = bins[j]
+        for k in range(max(j - neighbour_beams, 0), min(j + neighbour_beams + 1, n)):
+            if k == j:
+                continue
+            cnt[j] += 1
+            bk = bins[k]
+            if bj >= 0 and bk >= 0 and abs(bj - bk) <= max_jump:
+                sup[j] += 1
+    return sup, cnt
+
+
+@njit(cache=True, nogil=True)
+def half_peak_edges(img, mask, bins, fraction):  # pragma: no cover - numba
+    """Per beam with ``bins[j] >= 0``: the leading edge of the echo that starts there.
+
+    The peak is the first local maximum of ``img`` along the run of ``mask`` from ``bins[j]`` (at
+    least that bin); the edge is the first bin of the run reaching ``fraction`` x the peak.
+    Returns ``(edge_bin, frac)``: the crossing lies ``frac`` of a bin before ``edge_bin`` (0 when
+    it is exactly there or at the run's start).  See :func:`sonarmap.ranges.half_peak_edges`.
+    """
+    n, m = img.shape
+    out = bins.copy()
+    frac = np.zeros(m)
+    for j in range(m):
+        b = bins[j]
+        if b < 0:
+            continue
+        end = b
+        while end + 1 < n and mask[end + 1, j]:
+            end += 1
+        k = b
+        while k < end and img[k + 1, j] >= img[k, j]:
+            k += 1
+        level = fraction * img[k, j]
+        e = b
+        while e < k and img[e, j] < level:
+            e += 1
+        out[j] = e
+        if e > b and img[e, j] > img[e - 1, j]:
+            frac[j] = (img[e, j] - level) / (img[e, j] - img[e - 1, j])
+    return out, frac

@@ -1108,11 +1108,11 @@ def _aris_beam_widths() -> dict[str, NDArray[np.float64]]:
     """Preset name -> per-beam two-way beam widths (rad, column order) from the ARIS tables."""
     from importlib import resources
 
-    from sonarmap.geometry import _ARIS_LENS
+    from sonarmap.geometry import ARIS_LENS
 
     tables = json.loads(resources.files("sonarmap.data").joinpath("aris_beamwidths.json").read_text("utf-8"))
     out = {}
-    for table, (name, _freq) in _ARIS_LENS.items():
+    for table, (name, _freq) in ARIS_LENS.items():
         t = tables["tables"][table]
         width = np.abs(np.asarray(t["right_deg"], dtype=np.float64) - np.asarray(t["left_deg"], dtype=np.float64))
         arr = np.deg2rad(width[::-1])  # column j is vendor beam n - 1 - j (see sonarmap.geometry)

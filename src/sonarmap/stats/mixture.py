@@ -63,6 +63,8 @@ __all__ = [
     "fit_mixture",
     "histogram",
     "quantize",
+    "quantize_lookup",
+    "as_intensity_image",
     "as_counts",
     "kl_divergence",
     "FLAG_DESCRIPTIONS",
@@ -119,7 +121,8 @@ def _not_finite(name: str = "image") -> InputError:
     return InputError(f"{name}: contains NaN or infinite values")
 
 
-def _as_intensity_image(image: ArrayLike, name: str = "image") -> NDArray[np.floating[Any]]:
+def as_intensity_image(image: ArrayLike, name: str = "image") -> NDArray[np.floating[Any]]:
+    """``image`` as a float array, validated: float dtype, not empty, finite (else an InputError naming ``name``)."""
     arr = _as_float_image(image, name)
     if not np.isfinite(arr).all():
         raise _not_finite(name)
@@ -184,10 +187,41 @@ def quantize(
     """
     from sonarmap.stats._em_kernels import quantize_kernel
 
+    return _fused_levels(quantize_kernel, image, n_levels, binning)
+
+
+def quantize_lookup(
+    image: ArrayLike, lut: NDArray[np.uint8], n_levels: int = 256, *, binning: Binning = "round"
+) -> NDArray[np.uint8]:
+    """``lut[quantize(image, n_levels, binning=binning)]``: a per-level table applied to every pixel.
+
+    Parameters
+    ----------
+    image : ndarray of float, any shape
+        Intensities in ``[0, 1]`` (see :func:`quantize`).
+    lut : ndarray of uint8, shape (n_levels,)
+        The value of every level (e.g. :func:`sonarmap.classify.local_map.map_lookup_table`).
+    n_levels, binning
+        As for :func:`quantize`.
+
+    Returns
+    -------
+    ndarray of uint8, same shape as ``image``
+        One fused pass (numba) of quantisation and look-up; the errors (:class:`InputError`) are
+        those of :func:`quantize`.
+    """
+    from sonarmap.stats._em_kernels import lookup_kernel
+
+    return _fused_levels(lookup_kernel, image, n_levels, binning, lut, lookup=True)
+
+
+def _fused_levels(kernel: Any, image: ArrayLike, n_levels: int, binning: str, *tables: Any,
+                  lookup: bool = False) -> NDArray[Any]:
+    """Run a fused quantisation kernel (:mod:`sonarmap.stats._em_kernels`) into a new level image."""
     arr = _as_float_image(image)
     flat, zero, one, scale, n, floor = _kernel_args(arr, n_levels, binning)
-    out = np.empty(arr.shape, dtype=np.uint8 if n <= 256 else np.uint16)
-    if not quantize_kernel(flat, zero, one, scale, n, floor, out.reshape(-1)):
+    out = np.empty(arr.shape, dtype=np.uint8 if lookup or n <= 256 else np.uint16)
+    if not kernel(flat, zero, one, scale, n, floor, *tables, out.reshape(-1)):
         raise _not_finite()
     return out
 

@@ -1,0 +1,136 @@
+"""Numba kernels of the per-ping pipeline (private; see :mod:`sonarmap.pipeline`)."""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+
+@njit(cache=True, nogil=True)
+def gather_costs(levels, cost):  # pragma: no cover - numba
+    """``out[k, i, j] = cost[k, levels[i, j]]`` as float64."""
+    n = cost.shape[0]
+    h, w = levels.shape
+    out = np.empty((n, h, w))
+    for k in range(n):
+        for i in range(h):
+            for j in range(w):
+                out[k, i, j] = cost[k, levels[i, j]]
+    return out
+
+
+@njit(cache=True, nogil=True)
+def level_counts(levels, n_levels):  # pragma: no cover - numba
+    """``np.bincount(levels.ravel(), minlength=n_levels)`` as float64 (levels are non-negative)."""
+    h, w = levels.shape
+    top = n_levels
+    for i in range(h):
+        for j in range(w):
+            if levels[i, j] >= top:
+                top = levels[i, j] + 1
+    # four interleaved partial histograms: runs of one level (the zeros) do not serialise
+    part = np.zeros((4, top), dtype=np.int64)
+    n = h * w
+    flat = levels.ravel()
+    n4 = n - n % 4
+    for k in range(0, n4, 4):
+        part[0, flat[k]] += 1
+        part[1, flat[k + 1]] += 1
+        part[2, flat[k + 2]] += 1
+        part[3, flat[k + 3]] += 1
+    for k in range(n4, n):
+        part[0, flat[k]] += 1
+    out = np.empty(top)
+    for v in range(top):
+        out[v] = float(part[0, v] + part[1, v] + part[2, v] + part[3, v])
+    return out
+
+
+@njit(cache=True, nogil=True)
+def box_mean_f32(img, size0, size1):  # pragma: no cover - numba
+    """``scipy.ndimage.uniform_filter(img, size=(size0, size1), mode="constant")`` of a 2-D float32
+    image, bit for bit (scipy's arithmetic: axis 0 then axis 1, axes of size 1 skipped, each line
+    zero-padded by ``size // 2`` before, a double running sum ``+= new - old`` divided by the size
+    and rounded to float32; ``tests/test_pipeline.py`` checks the identity against scipy)."""
+    h, w = img.shape
+    mid = np.empty((h, w), dtype=np.float32)
+    if size0 > 1:
+        b0 = size0 // 2
+        buf = np.zeros(h + size0 - 1)
+        for j in range(w):
+            for i in range(h):
+                buf[b0 + i] = img[i, j]
+            tmp = 0.0
+            for k in range(size0):
+                tmp += buf[k]
+            mid[0, j] = tmp / size0
+            for k in range(1, h):
+                tmp += buf[k + size0 - 1] - buf[k - 1]
+                mid[k, j] = tmp / size0
+    else:
+        mid[:, :] = img
+    if size1 <= 1:
+        return mid
+    out = np.empty((h, w), dtype=np.float32)
+    b1 = size1 // 2
+    buf = np.zeros(w + size1 - 1)
+    for i in range(h):
+        for j in range(w):
+            buf[b1 + j] = mid[i, j]
+        tmp = 0.0
+        for k in range(size1):
+            tmp += buf[k]
+        out[i, 0] = tmp / size1
+        for k in range(1, w):
+            tmp += buf[k + size1 - 1] - buf[k - 1]
+            out[i, k] = tmp / size1
+    return out
+
+
+@njit(cache=True, nogil=True)
+def band_peak_pixels(band, img, cols):  # pragma: no cover - numba
+    """Band pooling's pick: on each beam ``j`` with ``cols[j]``, the strongest ``img`` pixel of
+    the first run of ``band`` rows (first maximum on ties); returns a boolean image with one pixel
+    per picked beam.  Same as the numpy formulation in :func:`sonarmap.pipeline.pooled_band_pixels`."""
+    h, w = band.shape
+    out = np.zeros((h, w), dtype=np.bool_)
+    for j in range(w):
+        if not cols[j]:
+            continue
+        i = 0
+        while i < h and not band[i, j]:
+            i += 1
+        if i == h:
+            continue
+        best = i
+        bv = img[i, j]
+        i += 1
+        while i < h and band[i, j]:
+            if img[i, j] > bv:
+                bv = img[i, j]
+                best = i
+            i += 1
+        out[best, j] = True
+    return out
+
+
+@njit(cache=True, nogil=True)
+def excess_ratio(raw, level, full, log_db, r0, r1):  # pragma: no cover - numba
+    """``max(ratio - 1, 0)`` with ``ratio = raw / b`` (``log_db <= 0``) or ``10^(log_db (raw - b) / 10)``,
+    ``b = level[i] * full[i, j]``, on rows ``r0 .. r1 - 1`` (zero elsewhere); float64."""
+    n, m = raw.shape
+    out = np.zeros((n, m))
+    k = log_db * np.log(10.0) / 10.0
+    for i in range(max(r0, 0), min(r1, n)):
+        for j in range(m):
+            b = level[i] * full[i, j]
+            if log_db > 0:
+                x = k * (raw[i, j] - b)
+                if x > 69.0:
+                    x = 69.0
+                v = np.exp(x) - 1.0
+            else:
+                v = raw[i, j] / max(b, 1e-12) - 1.0
+            if v > 0.0:
+                out[i, j] = v
+    return out
