@@ -43,17 +43,7 @@ def warm() -> bool:
         process_ping(Ping(img, g), PipelineConfig())
         WARMED = True
     except Exception:  # noqa: BLE001 - warming must never fail a run
-        import os
-
-WARMED = False
-#: The process that imported (and so warmed) this module: in a worker forked from the fork
-#: server it is the fork server's pid, i.e. the worker inherited a warm pipeline.
-IMPORTED_IN_PID = os.getpid()
-
-
-def status() -> tuple[bool, bool]:
-    """``(warmed, inherited)``: the pipeline ran here, and it ran before this process was forked."""
-    return WARMED, IMPORTED_IN_PID != os.getpid()
+        WARMED = False
     return WARMED
 
 
