@@ -415,7 +415,31 @@ def test_cli_ranges_and_map_to_bags(tmp_path: Path, test_ping_paths: list[Path])
 def test_cli_bag_outputs_checked_before_work(tmp_path: Path, test_ping_paths: list[Path]) -> None:
     one = str(test_ping_paths[0])
     assert main(["ranges", one, "-o", str(tmp_path / "x.csv"), "--to", "bag3"]) == 2
-    assert main(["map", one, "--static", "-o", str(tmp_path / "x.bag"), "--grid", "0.5"]) == 2
+    assert main(["map", one, "--static", "-o", str(tmp_path / "x.bag"), "--grid", "0.5", "--dims", "4"]) == 2
     assert main(["map", one, "--static", "-o", "-", "--format", "bag1"]) == 2
     assert not any(tmp_path.iterdir())
 
+
+
+def test_cli_occupancy_map_to_a_bag(tmp_path: Path, test_ping_paths: list[Path]) -> None:
+    """`map --grid -o x.bag`: one PointCloud2 of the occupied cells (x, y, z, p_occupied,
+    log_odds), stamped at the last ping, with the cells and probabilities of the PLY output."""
+    from sonarmap.mapping.pointcloud import read_point_cloud
+
+    inputs = [str(p) for p in test_ping_paths[4:6]]
+    pings = list(read_pings(inputs))
+    ply, bag = tmp_path / "occ.ply", tmp_path / "occ.bag"
+    assert main(["map", *inputs, "--static", "--grid", "0.25", "-o", str(ply), "-q"]) == 0
+    assert main(["map", *inputs, "--static", "--grid", "0.25", "-o", str(bag), "-q"]) == 0
+    msgs = _read(bag, 1)
+    assert len(msgs) == 1
+    _, t, m = msgs[0]
+    assert t == _stamp(m) == max(p.time_ns for p in pings)
+    assert [f.name for f in m.fields] == ["x", "y", "z", "p_occupied", "log_odds"]
+    d = _points(m)
+    ref = read_point_cloud(ply)
+    assert len(d["x"]) == len(ref) > 0
+    assert np.allclose(np.column_stack([d["x"], d["y"], d["z"]]), ref.xyz_m, atol=1e-4)
+    assert np.allclose(d["p_occupied"], ref.confidence, atol=1e-6)
+    assert np.all((d["p_occupied"] > 0.5) & (d["p_occupied"] < 1))
+    assert np.allclose(d["log_odds"], np.log(d["p_occupied"] / (1 - d["p_occupied"])), atol=1e-4)

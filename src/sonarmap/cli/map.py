@@ -92,7 +92,7 @@ def map_command(
         None, "--extrinsics", "-e", help="Sonar mounting JSON (translation_m + rotation_xyzw|rotation_rpy_deg)."
     ),
     output: Path = typer.Option(
-        ..., "--output", "-o", help="Output point cloud (.ply, .las or .csv; .bag: ROS 1 PointCloud2 per ping); "
+        ..., "--output", "-o", help="Output point cloud (.ply, .las or .csv; .bag: ROS 1 PointCloud2 per ping, or of the occupied cells with --grid); "
         "- writes it to stdout (give --format)."
     ),
     grid: float | None = typer.Option(
@@ -100,7 +100,7 @@ def map_command(
     ),
     fmt: str | None = typer.Option(
         None, "--format", "-f",
-        help="ply | las | csv, or bag1 | bag2 (ROS 1 / ROS 2 bag of sensor_msgs/PointCloud2, one per ping) "
+        help="ply | las | csv, or bag1 | bag2 (ROS 1 / ROS 2 bag of sensor_msgs/PointCloud2, one per ping; with --grid one of the occupied cells) "
         "(default: from the output suffix).",
     ),
     sonar: str | None = GEOMETRY_OPTION,
@@ -188,9 +188,6 @@ def map_command(
     if bag_kind is not None:
         if str(output) == STDOUT:
             raise typer.BadParameter("a bag cannot be written to stdout; give a path", param_hint="--output")
-        if grid is not None:
-            raise typer.BadParameter("a bag holds the per-ping point clouds; occupancy maps (--grid) are "
-                                     "written as .ply, .las or .csv", param_hint="--grid")
         out_fmt = bag_kind
     else:
         try:
@@ -290,10 +287,12 @@ def map_command(
             return ping.replace(pose=navigation_pose(ping, georef))
         return ping
 
+    last_time_ns = 0
     with progress:
         progress.start()
         last_geom = None
         for ping in ping_iter:
+            last_time_ns = max(last_time_ns, int(ping.time_ns))
             if last_geom is not None and ping.geometry.shape != last_geom.shape:
                 flush()
             last_geom = ping.geometry
@@ -331,8 +330,16 @@ def map_command(
                 bag_cloud = georeferenced_cloud(out_cloud, None, georef)  # projected E, N, up: float64 needed
             else:
                 bag_cloud = out_cloud.to_frame(out_frame)
-            write_points_bag([bag_cloud], output, version=1 if bag_kind == "bag1" else 2,
-                             xyz_dtype="float64" if georef is not None else "float32")
+            if occ is not None:  # the occupied cells, one message at the last ping's time
+                from sonarmap.io.rosbag_products import write_occupancy_bag
+                from sonarmap.mapping.pointcloud import occupancy_columns
+
+                write_occupancy_bag(bag_cloud.xyz_m, *occupancy_columns(bag_cloud), output, stamp_ns=last_time_ns,
+                                    frame=bag_cloud.frame, version=1 if bag_kind == "bag1" else 2,
+                                    xyz_dtype="float64" if georef is not None else "float32")
+            else:
+                write_points_bag([bag_cloud], output, version=1 if bag_kind == "bag1" else 2,
+                                 xyz_dtype="float64" if georef is not None else "float32")
         elif str(output) == STDOUT:
             _cloud_to_stdout(out_cloud, out_fmt, kind=kind, **where)
         else:

@@ -19,6 +19,10 @@ in integer nanoseconds, and replace the output atomically (like :func:`sonarmap.
     ``time`` (float32, seconds after ``header.stamp``: every point of a sonarmap ping has the ping's
     time, so 0).  Coordinates are the cloud's own (``PointCloud.frame``); ``frame_id`` defaults to
     ``map`` for ENU clouds and ``map_ned`` for NED ones (REP 103 / REP 105 naming).
+Occupancy maps (:func:`write_occupancy_bag`)
+    One ``PointCloud2`` of the occupied cell centres stamped with the last ping's time, fields
+    ``x``, ``y``, ``z``, ``p_occupied`` and ``log_odds`` (float32): the occupancy schema of the
+    PLY / CSV outputs.
 """
 
 from __future__ import annotations
@@ -33,7 +37,7 @@ from sonarmap.errors import InputError
 from sonarmap.geometry import SonarGeometry
 from sonarmap.io.rosbag_msgs import DETECT_BAD_FILTER, DETECT_OK, DETECTION_FLAG, POINTCLOUD2, SONAR_RANGES
 
-__all__ = ["write_ranges_bag", "write_points_bag", "POINT_FIELDS"]
+__all__ = ["write_ranges_bag", "write_points_bag", "write_occupancy_bag", "POINT_FIELDS", "OCCUPANCY_FIELDS"]
 
 #: PointField datatypes (sensor_msgs/PointField constants).
 _UINT16, _FLOAT32, _FLOAT64 = 4, 7, 8
@@ -111,34 +115,43 @@ def write_ranges_bag(
     return n
 
 
-def _cloud_message(store: Any, version: int, cloud: Any, idx: np.ndarray, t_ns: int, frame_id: str,
-                   xyz_dtype: str, seq: int) -> Any:
-    """One PointCloud2 of the points ``idx`` of ``cloud`` (all of the ping at ``t_ns``)."""
+def _pointcloud2(store: Any, version: int, xyz: np.ndarray, columns: Iterable[tuple[str, int, str, np.ndarray]],
+                 t_ns: int, frame_id: str, xyz_dtype: str, seq: int) -> Any:
+    """A PointCloud2 of the points ``xyz (n, 3)`` with further ``(name, PointField datatype,
+    numpy dtype, values)`` columns, packed without padding."""
     from sonarmap.io.rosbag import header
 
     T = store.types
+    cols = list(columns)
     xyz_np = "<f4" if xyz_dtype == "float32" else "<f8"
     xyz_code = _FLOAT32 if xyz_dtype == "float32" else _FLOAT64
-    names = ["x", "y", "z"] + [f[0] for f in POINT_FIELDS]
-    formats = [xyz_np] * 3 + [f[2] for f in POINT_FIELDS]
-    dt = np.dtype({"names": names, "formats": formats})  # packed, no padding
-    rec = np.zeros(idx.size, dtype=dt)
-    xyz = cloud.xyz_m[idx]
+    names = ["x", "y", "z"] + [c[0] for c in cols]
+    dt = np.dtype({"names": names, "formats": [xyz_np] * 3 + [c[2] for c in cols]})  # packed
+    n = int(xyz.shape[0])
+    rec = np.zeros(n, dtype=dt)
     rec["x"], rec["y"], rec["z"] = xyz[:, 0], xyz[:, 1], xyz[:, 2]
-    rec["intensity"] = cloud.intensity[idx]
-    rec["range"] = cloud.range_m[idx]
-    rec["beam"] = np.clip(cloud.beam[idx], 0, 65535)
-    rec["time"] = ((cloud.time_ns[idx] - t_ns) * 1e-9).astype(np.float32)
+    for name, _, _, values in cols:
+        rec[name] = values
     field_t = T["sensor_msgs/msg/PointField"]
     fields = [field_t(name=nm, offset=int(dt.fields[nm][1]), datatype=code, count=1)
-              for nm, code in zip(names, [xyz_code] * 3 + [f[1] for f in POINT_FIELDS])]
-    finite = bool(np.all(np.isfinite(xyz))) if idx.size else True
+              for nm, code in zip(names, [xyz_code] * 3 + [c[1] for c in cols])]
+    finite = bool(np.all(np.isfinite(xyz))) if n else True
     return T[POINTCLOUD2](
         header=header(store, version, t_ns, frame_id, seq),
-        height=1, width=int(idx.size), fields=fields, is_bigendian=False,
-        point_step=int(dt.itemsize), row_step=int(dt.itemsize * idx.size),
+        height=1, width=n, fields=fields, is_bigendian=False,
+        point_step=int(dt.itemsize), row_step=int(dt.itemsize * n),
         data=np.frombuffer(rec.tobytes(), dtype=np.uint8), is_dense=finite,
     )
+
+
+def _cloud_message(store: Any, version: int, cloud: Any, idx: np.ndarray, t_ns: int, frame_id: str,
+                   xyz_dtype: str, seq: int) -> Any:
+    """One PointCloud2 of the points ``idx`` of ``cloud`` (all of the ping at ``t_ns``)."""
+    values = {"intensity": cloud.intensity[idx], "range": cloud.range_m[idx],
+              "beam": np.clip(cloud.beam[idx], 0, 65535),
+              "time": ((cloud.time_ns[idx] - t_ns) * 1e-9).astype(np.float32)}
+    return _pointcloud2(store, version, cloud.xyz_m[idx], [(nm, code, np_t, values[nm]) for nm, code, np_t in POINT_FIELDS],
+                        t_ns, frame_id, xyz_dtype, seq)
 
 
 def write_points_bag(
@@ -199,4 +212,67 @@ def write_points_bag(
                 writer.write(conn, int(t), serialize(msg, POINTCLOUD2))
                 n += 1
     return n
+
+
+#: Fields of the occupancy PointCloud2 after x, y, z (the occupancy schema of PLY / CSV outputs).
+OCCUPANCY_FIELDS = (("p_occupied", _FLOAT32, "<f4"), ("log_odds", _FLOAT32, "<f4"))
+
+
+def write_occupancy_bag(
+    xyz_m: np.ndarray,
+    p_occupied: np.ndarray,
+    log_odds: np.ndarray,
+    path: str | os.PathLike[str],
+    *,
+    stamp_ns: int,
+    frame: str = "ned",
+    version: int = 2,
+    topic: str = "/sonarmap/occupancy",
+    frame_id: str | None = None,
+    xyz_dtype: str = "float32",
+) -> int:
+    """Write an occupancy map's occupied cells as one ``sensor_msgs/PointCloud2``; returns 1.
+
+    Parameters
+    ----------
+    xyz_m : ndarray, shape (n, 3)
+        Occupied cell centres (:meth:`~sonarmap.mapping.occupancy.OccupancyMap.to_point_cloud`).
+    p_occupied, log_odds : ndarray, shape (n,)
+        Each cell's occupancy probability and its log-odds
+        (:func:`sonarmap.mapping.pointcloud.occupancy_columns`).
+    path : path-like
+        ROS 1: the ``.bag`` file; ROS 2: the bag directory.  Replaced atomically.
+    stamp_ns : int
+        ``header.stamp`` and record time: the time of the last ping the map holds.
+    version : {1, 2}
+    topic : str
+    frame : {"ned", "enu"}
+        The frame of ``xyz_m``.
+    frame_id : str, optional
+        Default ``"map"`` for an ENU cloud, ``"map_ned"`` for a NED one.
+    xyz_dtype : {"float32", "float64"}
+
+    Notes
+    -----
+    Fields ``x``, ``y``, ``z`` (cell centres), ``p_occupied`` (float32) and ``log_odds``
+    (float32, ``log(p / (1 - p))``): RViz colours the cells by either.
+    """
+    if xyz_dtype not in ("float32", "float64"):
+        raise InputError(f"xyz_dtype: choose from float32, float64 (got {xyz_dtype!r})")
+    from sonarmap.io.rosbag import bag_writer
+
+    xyz = np.asarray(xyz_m, dtype=np.float64).reshape(-1, 3)
+    p = np.asarray(p_occupied, dtype=np.float32).ravel()
+    lo = np.asarray(log_odds, dtype=np.float32).ravel()
+    if p.size != xyz.shape[0] or lo.size != xyz.shape[0]:
+        raise InputError(f"p_occupied / log_odds: {p.size} / {lo.size} values for {xyz.shape[0]} cells")
+    fid = frame_id if frame_id is not None else ("map" if frame == "enu" else "map_ned")
+    with bag_writer(path, version) as (writer, serialize, store):
+        conn = writer.add_connection(topic, POINTCLOUD2, typestore=store)
+        msg = _pointcloud2(store, version, xyz, [
+            (OCCUPANCY_FIELDS[0][0], OCCUPANCY_FIELDS[0][1], OCCUPANCY_FIELDS[0][2], p),
+            (OCCUPANCY_FIELDS[1][0], OCCUPANCY_FIELDS[1][1], OCCUPANCY_FIELDS[1][2], lo)],
+            int(stamp_ns), fid, xyz_dtype, 0)
+        writer.write(conn, int(stamp_ns), serialize(msg, POINTCLOUD2))
+    return 1
 

@@ -100,6 +100,7 @@ __all__ = [
     "read_csv",
     "csv_sidecar",
     "cloud_kind",
+    "occupancy_columns",
     "format_from_suffix",
     "read_point_cloud_crs",
     "unix_ns_to_gps_adjusted",
@@ -213,7 +214,7 @@ def _resolve_kind(cloud: PointCloud, kind: str | None) -> str:
     return kind
 
 
-def _occupancy(cloud: PointCloud) -> tuple[np.ndarray, np.ndarray]:
+def occupancy_columns(cloud: PointCloud) -> tuple[np.ndarray, np.ndarray]:
     """``p_occupied`` and ``log_odds`` (float32) of an occupancy cloud (p = its confidence)."""
     p = np.asarray(cloud.confidence, dtype=np.float64)
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -290,7 +291,7 @@ def write_ply(
     if knd == "occupancy":
         dt = [("x", cdt), ("y", cdt), ("z", cdt), ("p_occupied", "<f4"), ("log_odds", "<f4")]
         v = np.empty(len(c), dtype=dt)
-        v["p_occupied"], v["log_odds"] = _occupancy(c)
+        v["p_occupied"], v["log_odds"] = occupancy_columns(c)
     else:
         dt = [
             ("x", cdt), ("y", cdt), ("z", cdt), ("time", "<f8"), ("time_residual_ns", "<i4"), ("beam", "<i4"),
@@ -446,7 +447,7 @@ def write_las(
     las.y = c.xyz_m[:, 1]
     las.z = c.xyz_m[:, 2]
     if knd == "occupancy":
-        prob, lo = _occupancy(c)
+        prob, lo = occupancy_columns(c)
         las.gps_time = np.zeros(len(c))
         las.intensity = np.rint(np.clip(prob, 0, 1) * 65535).astype(np.uint16)
         las.p_occupied = prob
@@ -571,7 +572,7 @@ def write_csv(
     if n:
         xyz = [np.array([repr(v) for v in c.xyz_m[:, k].tolist()]) for k in range(3)]
         if knd == "occupancy":
-            prob, lo = _occupancy(c)
+            prob, lo = occupancy_columns(c)
             fields = [*xyz, np.char.mod("%.9g", prob), np.char.mod("%.9g", lo)]
         else:
             fields = [
