@@ -320,3 +320,41 @@ def test_normalisation_keeps_a_bright_target_from_filling_the_top_level():
     assert float((u >= 1.0).mean()) > 0.5 * MAX_SATURATED  # lowered just enough, not to nothing
     assert bg.gain < 0.5 * plain_bg.gain
     assert float((plain_u >= 1.0).mean()) < MAX_SATURATED
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_sidelobe_suppression_and_input_gain_leave_8bit_images_alone(seed):
+    """Any 8-bit image (every DIDSON, ARIS and Oculus recording) passes both unchanged: its
+    smallest positive level lies 24.1 dB under full scale, inside the 25 dB sidelobe level, and
+    its levels are the sonar's own."""
+    from sonarmap.preprocess.normalise import input_gain, suppress_sidelobes
+
+    rng = np.random.default_rng(seed)
+    img = (rng.integers(0, 256, (300, 64)) * (rng.random((300, 64)) < 0.4)).astype(np.float32) / np.float32(255)
+    img[0, 0] = 1.0
+    assert np.array_equal(suppress_sidelobes(img), img)
+    dark = (rng.integers(0, 3, (300, 64)) / 255).astype(np.float32)  # 99.9th percentile below 4 levels
+    out, g = input_gain(dark)
+    assert g == 0.0 and np.array_equal(out, dark)
+
+
+def test_sidelobe_suppression_removes_a_nadir_arc_and_keeps_the_seabed():
+    """Water column in linear units: a nadir echo 50 dB over the noise leaks into every beam at its
+    range (-35 dB); the off-nadir seabed, at other ranges, is the strongest echo of its own rows."""
+    from sonarmap.preprocess.normalise import input_gain, suppress_sidelobes
+
+    rng = np.random.default_rng(1)
+    n, m = 400, 128
+    img = (rng.exponential(1e-7, (n, m)) + 1e-9).astype(np.float32)  # noise, ~-70 dB re full scale
+    nadir = 150
+    img[nadir, 60:68] = 1e-2  # the specular nadir echo
+    img[nadir, :60] = img[nadir, 68:] = 1e-2 * 10 ** -3.5  # its sidelobe arc, 35 dB under it
+    seabed = (nadir / np.cos(np.linspace(-1.0, 1.0, m))).astype(int).clip(0, n - 1)
+    img[seabed, np.arange(m)] = np.maximum(img[seabed, np.arange(m)], 3e-5)  # the off-nadir seabed
+    out = suppress_sidelobes(img)
+    assert np.all(out[nadir, :50] < 1e-6) and np.all(out[nadir, 60:68] == img[nadir, 60:68])
+    off = np.abs(np.arange(m) - 64) > 20
+    assert np.array_equal(out[seabed[off], np.arange(m)[off]], img[seabed[off], np.arange(m)[off]])
+    gained, g = input_gain(out)
+    assert g > 20 and gained.max() == 1.0
+    assert np.quantile(gained[gained > 0], 0.999) == pytest.approx(1.0, abs=0.05)

@@ -262,10 +262,14 @@ def test_cli_map_is_georeferenced_and_is_the_checked_registration(recording: Pat
 def test_pipeline_registration_does_not_regress(result: dict[str, Any]) -> None:
     rows = {r.name: r for r in result["pipeline"]}
     both = rows["both heads"]
-    assert both.n_points >= 1350 and both.median_m < 0.075 and both.p95_m < 1.15
+    # measured 2162 points, median 0.073 m, p95 0.240 m, max 0.68 m - inside the targets (median
+    # <= 0.10, p95 <= 0.30 m); before the sidelobe suppression and the input gain: 1378 points,
+    # 0.068 / 1.06 m, max 2.1 m (the sidelobe arc)
+    assert both.n_points >= 2100 and both.median_m < 0.08 and both.p95_m < 0.30
     passed = {r.name: r for r in result["pipeline_passed"]}["both heads"]
-    # the leading edge lies 3-4 cm before the sonar's detection point
-    assert passed.n_points >= 1100 and passed.median_m < 0.07 and passed.p95_m < 0.115
+    # the leading edge lies 3-4 cm before the sonar's detection point (measured 1880 points,
+    # 0.067 / 0.158 m: the passing returns now include the wide footprints beyond 45 deg)
+    assert passed.n_points >= 1850 and passed.median_m < 0.07 and passed.p95_m < 0.17
     assert -0.05 < passed.mean_range_diff_m < -0.02
 
 
@@ -273,11 +277,15 @@ def test_pipeline_detection_does_not_regress(result: dict[str, Any]) -> None:
     rows = {(d.serial, d.band): d for d in result["detection"]}
     total = rows[(-1, (0.0, 90.0))]
     assert total.n_beams == 2538
-    assert total.n_returns >= 1540 and total.sonarmap_fraction > 0.49
-    assert total.sonarmap_pass / total.n_returns > 0.81
+    # measured 2396 returns, 0.820 of the beams pass (before the sidelobe suppression and the input
+    # gain: 1560 returns, 0.506; the plain amplitude peak 0.834)
+    assert total.n_returns >= 2350 and total.sonarmap_fraction > 0.81
+    assert total.sonarmap_pass / total.n_returns > 0.86
     for serial in (2004, 2031):
-        assert rows[(serial, (0.0, 15.0))].sonarmap_fraction > 0.90
-    # the nadir sidelobe arc: most early returns lie at the ping's nadir range
-    assert total.sidelobe_arc > 0.6 * total.sonarmap_early
+        assert rows[(serial, (0.0, 15.0))].sonarmap_fraction > 0.97  # 0.989 over both heads
+    assert rows[(-1, (15.0, 30.0))].sonarmap_fraction > 0.88  # 0.898; the amplitude peak 0.844
+    assert rows[(-1, (45.0, 90.0))].n_returns > 200  # beyond 45 deg: none before
+    # no early return lies on the nadir sidelobe arc any more (before: 186 of the 274)
+    assert total.sidelobe_arc == 0
     # the plain amplitude-peak baseline: what the issue quotes (0.84)
     assert 0.82 < total.peak_fraction < 0.85

@@ -436,6 +436,10 @@ class PingProducts:
         has no returns.  Also part of ``flags``.
     image : ndarray of float32 or None
         The image the classifier saw (normalised or pre-processed; only with ``keep_labels=True``).
+    input_gain_db : float
+        The automatic input gain applied after the sidelobe suppression
+        (:func:`sonarmap.preprocess.normalise.input_gain` and ``suppress_sidelobes``); 0 for 8-bit
+        images.  The ranges' ``intensity`` is in the gained units.
     """
 
     time_ns: int
@@ -452,6 +456,7 @@ class PingProducts:
     background: Any = None
     gates: tuple[str, ...] = ()
     image: NDArray[np.float32] | None = None
+    input_gain_db: float = 0.0
 
     @property
     def flagged(self) -> bool:
@@ -659,7 +664,10 @@ def process_ping(ping: Ping, config: PipelineConfig = PipelineConfig(), *, keep_
         raise InputError(f"config: expected a PipelineConfig, got {type(config).__name__}")
     geom = ping.geometry
     pre = config.preprocess_config()
-    raw = ping.image
+    from sonarmap.preprocess.normalise import input_gain, suppress_sidelobes
+
+    # both leave 8-bit images (every DIDSON, ARIS and Oculus recording) unchanged
+    raw, gain_db = input_gain(suppress_sidelobes(ping.image))
     constant = float(raw.max()) == float(raw.min())
     reference = background
     background = None
@@ -686,7 +694,7 @@ def process_ping(ping: Ping, config: PipelineConfig = PipelineConfig(), *, keep_
             ranges=no_returns(geom, time_ns=ping.time_ns, source=ping.source, mode=config.range_mode),
             labels=np.zeros(image.shape, dtype=np.uint8) if keep_labels else None, pd=pd, pfa=pfa,
             method=config.method, pd_range=0.0, background=background, gates=gates,
-            image=image if keep_labels else None)
+            image=image if keep_labels else None, input_gain_db=gain_db)
 
     # a constant ping (all zero, saturated, a dead sensor) carries no range information
     if constant or not np.any(image > 0) or float(image.max()) == float(image.min()):
@@ -762,7 +770,7 @@ def process_ping(ping: Ping, config: PipelineConfig = PipelineConfig(), *, keep_
         kld=float(fit.kld) if fit is not None else math.nan, flags=tuple(sorted(flags)),
         ranges=ranges, labels=labels if keep_labels else None, pd=float(pd), pfa=float(pfa),
         method=config.method, pd_range=pd_range,
-        background=background, image=image if keep_labels else None,
+        background=background, image=image if keep_labels else None, input_gain_db=gain_db,
     )
 
 
