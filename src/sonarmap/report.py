@@ -406,8 +406,11 @@ def render_report(store: str | os.PathLike[str], *, config: ReportConfig | None 
     parts.append("<h2>Example pings</h2>")
     for e in examples:
         if e.get("missing"):
+            live = "://" in str(e["source"]).split("#", 1)[0]  # tcp:// / oculus://: a live stream
+            why = ("was received live and is not stored (the product store holds the products, not the "
+                   "images)" if live else "no longer exists")
             parts.append(f"<p class='muted'>{html.escape(e['label'])}: source {html.escape(e['source'])} "
-                         "no longer exists.</p>")
+                         f"{why}.</p>")
         else:
             parts.append(f"<h3>{html.escape(e['label'])}: <code>{html.escape(Path(e['source']).name)}</code></h3>")
             parts.append(_img(e["png"], e["label"]))
