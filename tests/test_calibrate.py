@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import pytest
+
 import csv
 import json
 
@@ -9,6 +11,7 @@ from sonarmap.cli import main
 from sonarmap.geometry import load_geometry
 
 
+@pytest.mark.slow
 def test_calibrate_round_trip(didson_dir, tmp_path):
     out = tmp_path / "sonar.json"
     assert main(["calibrate", str(didson_dir / "background"), "-o", str(out)]) == 0

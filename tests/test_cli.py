@@ -49,6 +49,7 @@ def test_debug_shows_traceback(data_dir: Path) -> None:
         main(["--debug", "info", str(data_dir / "mb2250" / "mb2250.json")])
 
 
+@pytest.mark.slow
 def test_show_writes_figure(tmp_path: Path, test_ping_paths: list[Path]) -> None:
     out = tmp_path / "fan.png"
     assert main(["show", str(test_ping_paths[7]), "-o", str(out), "--polar"]) == 0
@@ -58,6 +59,7 @@ def test_show_writes_figure(tmp_path: Path, test_ping_paths: list[Path]) -> None
         assert im.size[0] > 400 and im.size[1] > 300
 
 
+@pytest.mark.slow
 def test_console_script_subprocess(test_ping_paths: list[Path]) -> None:
     r = subprocess.run([sys.executable, "-m", "sonarmap", "info", str(test_ping_paths[0])],
                        capture_output=True, text=True, timeout=120)

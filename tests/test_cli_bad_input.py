@@ -140,6 +140,7 @@ def alarm() -> Iterator[None]:
 
 @pytest.mark.parametrize("kind", list(INPUTS))
 @pytest.mark.parametrize("cmd", COMMANDS)
+@pytest.mark.slow
 def test_bad_input_is_one_line_exit_1(cmd: str, kind: str, tmp_path: Path, data_dir: Path,
                                       capsys: pytest.CaptureFixture[str], alarm: None) -> None:
     d = tmp_path / "in"

@@ -163,6 +163,7 @@ PROGRESS_COMMANDS = ("simulate", "calibrate", "preprocess", "fit", "segment", "r
 
 
 @pytest.mark.parametrize("cmd", PROGRESS_COMMANDS)
+@pytest.mark.slow
 def test_progress_on_stderr_and_quiet_silences_it(cmd: str, two_pings: Path, tmp_path: Path,
                                                    capsys: pytest.CaptureFixture[str]) -> None:
     loud, quiet = tmp_path / "loud", tmp_path / "quiet"
@@ -275,6 +276,7 @@ def test_convert_refuses_an_existing_output_unless_overwrite_or_append(two_pings
     assert main(["convert", str(two_pings), "-o", str(out), "--overwrite", "--append"]) == 2
 
 
+@pytest.mark.slow
 def test_report_quiet(two_pings: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     store = tmp_path / "s.zarr"
     assert main(["process", str(two_pings), "-o", str(store), "--workers", "0", "-q"]) == 0

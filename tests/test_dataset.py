@@ -68,6 +68,7 @@ def test_convert_reopen_lossless(aris_pings: list[Ping], data_dir: Path, tmp_pat
     assert s["pings"] == 6 and s["image_shape"] == (2000, 48) and s["name"] == "aris-telephoto-48"
 
 
+@pytest.mark.slow
 def test_append_poses_and_atomic_failure(aris_pings: list[Ping], tmp_path: Path) -> None:
     store = tmp_path / "a.zarr"
     posed = [p.replace(pose=Pose(position_m=[i, 2, 3], orientation_xyzw=[0, 0, 0, 1])) for i, p in enumerate(aris_pings)]
@@ -123,6 +124,7 @@ def test_not_a_store(tmp_path: Path) -> None:
         open_survey(tmp_path)
 
 
+@pytest.mark.slow
 def test_cli_convert_and_info(data_dir: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     out = tmp_path / "survey.zarr"
     assert main(["convert", str(data_dir / "oculus" / "three_pings_8bit.raw"), "-o", str(out)]) == 0

@@ -22,6 +22,7 @@ def demo(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, subprocess.Com
     return out, r
 
 
+@pytest.mark.slow
 def test_demo_writes_and_lists_every_output(demo: tuple[Path, subprocess.CompletedProcess[str]]) -> None:
     out, r = demo
     for name in ("pings", "poses.csv", "survey.zarr", "map.ply", "report.html"):
@@ -42,6 +43,7 @@ def test_demo_writes_and_lists_every_output(demo: tuple[Path, subprocess.Complet
     assert "map accuracy" in r.stdout
 
 
+@pytest.mark.slow
 def test_demo_report_has_map_and_renders(demo: tuple[Path, subprocess.CompletedProcess[str]], tmp_path: Path) -> None:
     out, _ = demo
     html = (out / "report.html").read_text(encoding="utf-8")
@@ -50,6 +52,7 @@ def test_demo_report_has_map_and_renders(demo: tuple[Path, subprocess.CompletedP
     assert page_errors(log) == []
 
 
+@pytest.mark.slow
 def test_demo_refuses_to_overwrite(demo: tuple[Path, subprocess.CompletedProcess[str]]) -> None:
     out, _ = demo
     r = subprocess.run([sys.executable, "-m", "sonarmap", "demo", "-o", str(out), "--pings", "4"],

@@ -58,6 +58,7 @@ def shared_scores():
     return _scores("shared")
 
 
+@pytest.mark.slow
 def test_default_pipeline_beats_every_baseline_pipeline(peer_scores):
     """Pipeline against pipeline (fixed threshold, local MAP and every CFAR variant followed by the
     plain per-beam extraction; simulator with measured ghosts, scored on the sub-bin surface truth):
@@ -77,6 +78,7 @@ def test_default_pipeline_beats_every_baseline_pipeline(peer_scores):
             assert s.false_return_rate >= 0.05, name
 
 
+@pytest.mark.slow
 def test_classifier_ablation_under_shared_range_rules(shared_scores):
     """Only the classifier changes (the default's component rule and surface tracker for all): the
     MRF has the best pixel F1 and never more false returns; the tracker evens out the recall of the

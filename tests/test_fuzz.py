@@ -122,6 +122,7 @@ def _seed(name: str, data_dir: Path, root: Path) -> Seed:
 
 
 @pytest.mark.parametrize("reader", READERS)
+@pytest.mark.slow
 def test_fuzz_reader(reader: str, worker: Worker, data_dir: Path, tmp_path_factory: pytest.TempPathFactory,
                      request: pytest.FixtureRequest) -> None:
     n_cases = int(request.config.getoption("--fuzz-cases"))

@@ -384,6 +384,7 @@ def survey_map() -> OccupancyMap:
     return m
 
 
+@pytest.mark.slow
 def test_bt_round_trip_of_a_survey_map(survey_map: OccupancyMap, tmp_path) -> None:
     path = tmp_path / "survey.bt"
     info = write_octomap_bt(path, survey_map)
@@ -403,6 +404,7 @@ def test_bt_round_trip_of_a_survey_map(survey_map: OccupancyMap, tmp_path) -> No
     assert inside.sum() == 1 and leaves.occupied[inside][0]
 
 
+@pytest.mark.slow
 def test_bt_is_read_by_the_octomap_library(survey_map: OccupancyMap, tmp_path) -> None:
     octomap = pytest.importorskip("octomap", reason="octomap-python (the OctoMap C++ library's binding) not installed")
     path = tmp_path / "survey.bt"

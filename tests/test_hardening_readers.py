@@ -504,6 +504,7 @@ _SPECIAL_FILES_SCRIPT = textwrap.dedent(
 
 
 @pytest.mark.skipif(not hasattr(os, "mkfifo") or not os.path.exists("/dev/zero"), reason="needs FIFOs and /dev/zero")
+@pytest.mark.slow
 def test_fifos_and_device_symlinks_are_refused_without_hanging(tmp_path: Path) -> None:
     for ext in ("aris", "oculus", "ddf", "bag"):
         os.mkfifo(tmp_path / f"fifo.{ext}")

@@ -163,6 +163,7 @@ BAD_JSON: dict[str, tuple[str, Callable[[Path], None]]] = {
 
 
 @pytest.mark.parametrize("case", sorted(BAD_JSON))
+@pytest.mark.slow
 def test_bad_zarr_json_is_one_clean_error(case: str, seeds: dict[str, Path], tmp_path: Path) -> None:
     rel, mutate = BAD_JSON[case]
     store = _copy(seeds["raw"], tmp_path)
@@ -229,6 +230,7 @@ def test_report_on_corrupt_store_prints_one_line(case: str, seeds: dict[str, Pat
         assert "range_confidence: ping 1 at index (2,): value 5.0 is outside the documented range [0, 1]" in err
 
 
+@pytest.mark.slow
 def test_report_of_a_sound_store_still_works(seeds: dict[str, Path], tmp_path: Path,
                                              capsys: pytest.CaptureFixture[str]) -> None:
     from sonarmap.cli import main
@@ -366,6 +368,7 @@ def test_an_unfinished_product_store_still_loads(seeds: dict[str, Path], tmp_pat
 
 
 # ---------------------------------------------------------------------------- checksums
+@pytest.mark.slow
 def test_chunks_are_checksummed_and_old_stores_still_read(seeds: dict[str, Path], tmp_path: Path) -> None:
     """Every array of both writers has a crc32c codec; a store written without (before this
     change) reads as before - raw and product stores, the product one also resumes."""
@@ -420,6 +423,7 @@ def test_chunks_are_checksummed_and_old_stores_still_read(seeds: dict[str, Path]
             a[name].values, b[name].values, equal_nan=True), name
 
 
+@pytest.mark.slow
 def test_200_single_bit_flips_never_change_data_silently(seeds: dict[str, Path], tmp_path: Path) -> None:
     """Seeded: 170 flips in the chunk files of a raw store (read as pings) and 30 in a product
     store (read by load_products, what the report reads).  With checksums each flip is an
@@ -505,6 +509,7 @@ def _mutation(rng: np.random.Generator, store: Path) -> tuple[str, Path, bytes |
     return f"{kind} {m.relative_to(store)} [{k!r}]", m, json.dumps(doc).encode()
 
 
+@pytest.mark.slow
 def test_seeded_mini_fuzz_gives_clean_errors_or_the_same_data(seeds: dict[str, Path], tmp_path: Path) -> None:
     """200 seeded mutations (truncated / non-UTF-8 metadata, wrong types, deleted keys, deleted or
     truncated chunks) of a raw store (read as pings) and a product store (load_products): each
@@ -557,6 +562,7 @@ time.sleep(60)
 """
 
 
+@pytest.mark.slow
 def test_two_writers_on_one_store(seeds: dict[str, Path], tmp_path: Path,
                                   capsys: pytest.CaptureFixture[str]) -> None:
     from sonarmap.cli import main

@@ -78,6 +78,7 @@ def test_lsq_fits_k():
 
 
 @pytest.mark.parametrize("seed", range(3))
+@pytest.mark.slow
 def test_selection_k_vs_exponential(seed):
     # counts drawn from the discretised pmfs (as in test_selection): continuous exponential
     # samples are not an exponential pmf on the levels (point-evaluated densities), and K's

@@ -106,6 +106,7 @@ def test_framer_resyncs_on_damage_at_any_split(raw_capture: Path) -> None:
 
 
 # ---------------------------------------------------------------------------- TCP source + loop
+@pytest.mark.slow
 def test_tcp_replay_every_ping_processed_without_drops(raw_capture: Path, tmp_path: Path) -> None:
     n = 30
     with ReplayServer(raw_capture, rate_hz=10, count=n) as srv:
@@ -124,6 +125,7 @@ def test_tcp_replay_every_ping_processed_without_drops(raw_capture: Path, tmp_pa
     assert np.all(np.diff(t) > 0)  # receive times
 
 
+@pytest.mark.slow
 def test_unsustainable_rate_drops_oldest_and_latency_stays_bounded(raw_capture: Path) -> None:
     with ReplayServer(raw_capture, rate_hz=200) as srv:
         col = Collect()
@@ -138,6 +140,7 @@ def test_unsustainable_rate_drops_oldest_and_latency_stays_bounded(raw_capture: 
     assert stats.latency_p99_ms < 8 * stats.process_p50_ms + 100, stats
 
 
+@pytest.mark.slow
 def test_server_restart_reconnects_and_store_is_complete(raw_capture: Path, tmp_path: Path) -> None:
     srv = ReplayServer(raw_capture, rate_hz=10).start()
     col = Collect()
@@ -167,6 +170,7 @@ def test_server_restart_reconnects_and_store_is_complete(raw_capture: Path, tmp_
     assert ds.sizes["ping_time"] == 20 and list(ds["source"].values) == col.sources
 
 
+@pytest.mark.slow
 def test_corrupted_packets_are_counted_and_skipped(raw_capture: Path) -> None:
     n = 25  # the last one intact: every damaged message arrives before the last ping
     with ReplayServer(raw_capture, rate_hz=12, count=n, corrupt_every=4) as srv:
@@ -216,6 +220,7 @@ def _write_progressively(src: Path, dst: Path, interval_s: float, written_at: li
             written_at.append(time.monotonic())
 
 
+@pytest.mark.slow
 def test_follow_aris_processes_each_frame_within_a_ping_interval_and_equals_batch(
         aris_file: Path, tmp_path: Path) -> None:
     from sonarmap.survey import process_survey
@@ -269,6 +274,7 @@ def test_open_source_forms(aris_file: Path) -> None:
 
 
 # ---------------------------------------------------------------------------- store readable while written
+@pytest.mark.slow
 def test_store_reads_as_a_consistent_prefix_while_written(oculus_pings: list, tmp_path: Path) -> None:
     import xarray as xr
 

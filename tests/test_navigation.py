@@ -150,6 +150,7 @@ def _static_inputs(data_dir: Path, tmp_path: Path) -> dict[str, Path]:
     return out
 
 
+@pytest.mark.slow
 def test_static_works_on_every_format(data_dir: Path, tmp_path: Path) -> None:
     from plyfile import PlyData
 

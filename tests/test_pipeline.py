@@ -211,6 +211,7 @@ def test_level_counts_is_bincount():
         assert np.array_equal(level_counts(lev, 256), ref)
 
 
+@pytest.mark.slow
 def test_pool_fill_only_adds_returns_on_empty_beams():
     """pool_mode="fill": pooled band pixels are added only on beams the per-pixel route left
     empty; its own returns are unchanged."""

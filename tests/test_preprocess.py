@@ -111,6 +111,7 @@ def test_paper_background_recipe_on_real_data(didson_dir):
     assert frac == pytest.approx(0.312, abs=0.002)
 
 
+@pytest.mark.slow
 def test_cli_preprocess_writes_pings_and_figure(tmp_path, test_ping_paths):
     from sonarmap.cli import main
 

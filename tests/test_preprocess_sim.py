@@ -155,6 +155,7 @@ def test_expected_ghost_reduction_with_speckle(beam: int) -> None:
     assert np.abs(_leading_edge(dec, strong) - _leading_edge(raw, strong)).max() <= 1
 
 
+@pytest.mark.slow
 def test_expected_speckle_images_match_simulator() -> None:
     """The exact expectation used above agrees with the simulator's empirical mean (200 pings)."""
     cfg = SimulationConfig(threshold=0.0)
@@ -174,6 +175,7 @@ def test_expected_speckle_images_match_simulator() -> None:
     assert abs(dec.mean() - exp_dec) < 4 * dec.std() / math.sqrt(n)
 
 
+@pytest.mark.slow
 def test_ghost_reduction_limits_quantisation_and_saturation() -> None:
     """Where the >= 10 dB fails even in expectation (docs/preprocessing.md): ghosts within ~1-2
     8-bit quanta of the background (full_scale 182: ghost mean excess <= 1.7 quanta; floor
@@ -193,6 +195,7 @@ def empty_pings():
     return [simulate_ping(empty_scene(), GEOM, seed=s).ping for s in range(80)]
 
 
+@pytest.mark.slow
 def test_estimate_taper_recovers_simulator_taper(empty_pings) -> None:
     # Non-zero-mean estimator (threshold-free, de-quantised): max error 3.1 % (rms 1.0 %) on 80
     # pings; the old per-beam pixel mean is off by 73 %.
@@ -212,6 +215,7 @@ def _band_flatness(mu, count, gain, taper) -> float:
     return float(band.max() / band.min() - 1)
 
 
+@pytest.mark.slow
 def test_radial_gain_flattens_background_intensity(empty_pings) -> None:
     # "Mean background intensity" = the recovered speckle mean mu (background_intensity, per bin
     # and beam from the non-zero raw pixels of 80 pings), after dividing by the taper and applying

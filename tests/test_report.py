@@ -75,6 +75,7 @@ def report_html(store: Path) -> Path:
     return build_report(store, store.parent / "report.html", config=ReportConfig(n_examples=2, dpi=60))
 
 
+@pytest.mark.slow
 def test_report_is_self_contained(report_html: Path) -> None:
     text = report_html.read_text(encoding="utf-8")
     assert text.startswith("<!DOCTYPE html>")
@@ -100,6 +101,7 @@ def test_report_draws_example_fans(report_html: Path) -> None:
     assert "not drawn" not in text
 
 
+@pytest.mark.slow
 def test_report_renders_in_headless_chromium(report_html: Path, tmp_path: Path) -> None:
     from PIL import Image
 
@@ -121,6 +123,7 @@ def test_page_error_detection_works(tmp_path: Path) -> None:
     assert any("undefinedFunction" in e for e in page_errors(log))
 
 
+@pytest.mark.slow
 def test_report_refuses_to_overwrite(store: Path, report_html: Path) -> None:
     from sonarmap.errors import DataFormatError
 
@@ -129,6 +132,7 @@ def test_report_refuses_to_overwrite(store: Path, report_html: Path) -> None:
     assert render_report(store, config=ReportConfig(n_examples=0)).count("<img") >= 3
 
 
+@pytest.mark.slow
 def test_cli_report(store: Path, tmp_path: Path) -> None:
     out = tmp_path / "r.html"
     r = subprocess.run([sys.executable, "-m", "sonarmap", "report", str(store), "-o", str(out),

@@ -114,6 +114,7 @@ def small_bag(tmp_path_factory: pytest.TempPathFactory, data_dir: Path) -> bytes
 @settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(flips=st.lists(st.tuples(st.integers(0, 2**31), st.integers(0, 255)), min_size=1, max_size=6),
        cut=st.one_of(st.none(), st.integers(0, 2**31)))
+@pytest.mark.slow
 def test_fuzz_byte_flips(small_bag: bytes, tmp_path: Path, flips: list[tuple[int, int]], cut: int | None) -> None:
     data = bytearray(small_bag)
     for pos, val in flips:

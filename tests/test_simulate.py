@@ -142,6 +142,7 @@ def test_first_return_matches_class_mask(name: str) -> None:
 
 
 @pytest.mark.parametrize("name, changes", [("fish_over_hull", False), ("seafloor", True), ("propeller", True)])
+@pytest.mark.slow
 def test_structure_peak_snr_gives_the_class_mask_at_any_threshold(name: str, changes: bool) -> None:
     """A beam holds structure at truth threshold t exactly when its structure_peak_snr_db >= t:
     the same answer as rendering again with truth_snr_db = t (the evaluator relies on it)."""
@@ -169,6 +170,7 @@ def test_hull_band_is_continuous_and_fish_are_clutter() -> None:
     assert not empty.class_mask.any() and (empty.first_return_bin == -1).all()
 
 
+@pytest.mark.slow
 def test_all_named_scenes_render() -> None:
     assert {"hull", "curved_hull", "propeller", "rudder", "seafloor", "fish", "fish_over_hull",
             "empty"} <= set(SCENE_NAMES)
@@ -268,6 +270,7 @@ def _ghost_pair(ghosts: str, n: int = 400) -> tuple[np.ndarray, np.ndarray]:
     return main, ghost
 
 
+@pytest.mark.slow
 def test_coherent_ghosts_copy_their_source_and_keep_the_expected_image() -> None:
     """Coherent model: a lone target's ghost is a scaled copy of its own speckled echo (the same
     scatterers through the +-8-beam taps), so per ping ghost/main = psf ratio; the incoherent

@@ -94,6 +94,7 @@ def test_oculus_preset_matches_the_recording(oculus_pings) -> None:
 
 
 @pytest.mark.parametrize("name", PRESETS)
+@pytest.mark.slow
 def test_zero_fraction_and_8_bit_levels(renders, name) -> None:
     for sc in SCENES:
         img = renders[name][sc].ping.image
@@ -107,6 +108,7 @@ def test_zero_fraction_and_8_bit_levels(renders, name) -> None:
 
 
 @pytest.mark.parametrize("name", PRESETS)
+@pytest.mark.slow
 def test_background_level_and_trend_with_range(renders, name) -> None:
     img = renders[name]["empty"].ping.image.astype(np.float64)
     n = img.shape[0]
@@ -128,6 +130,7 @@ def test_background_level_and_trend_with_range(renders, name) -> None:
 
 @pytest.mark.parametrize("name", PRESETS)
 @pytest.mark.parametrize("scene", ("hull", "seafloor"))
+@pytest.mark.slow
 def test_structure_visible_above_background_not_blank_or_saturated(renders, name, scene) -> None:
     res = renders[name][scene]
     img = res.ping.image.astype(np.float64)
@@ -178,6 +181,7 @@ def test_aris_matches_sample_aris(aris_pings) -> None:
     assert bad.kld_real_sim > 1.0
 
 
+@pytest.mark.slow
 def test_oculus_matches_three_pings(oculus_pings) -> None:
     water = compare_recording(oculus_pings, max_range_m=OCULUS_WATER_COLUMN_M, n_bands=8)
     assert water.kld_real_sim < 0.12  # measured 0.055
@@ -188,6 +192,7 @@ def test_oculus_matches_three_pings(oculus_pings) -> None:
     assert whole.sim_percentiles[:, 2].max() > 0.4  # a bright seabed band, like the real 0.3-1.0
 
 
+@pytest.mark.slow
 def test_oculus_gain_assist_keeps_a_bright_hull_from_clipping() -> None:
     """The real Oculus capture has the gain-assist fire flag (0x10) set; the Oculus profile lowers
     its gain when more than 1 % of the pixels would clip, and leaves a seafloor scene alone."""

@@ -139,6 +139,7 @@ def _front(scene_name: str, width_spacings: float, ref: np.ndarray) -> float:
     return float(np.median(out))
 
 
+@pytest.mark.slow
 def test_main_lobe_puts_a_halo_in_front_of_a_sloped_surface() -> None:
     """On a sloped hull (4 bins/beam) the neighbouring beams, whose surface is nearer, light the
     ranges in front of a beam's own surface through the main lobe - the more, the wider the lobe;

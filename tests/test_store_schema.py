@@ -60,6 +60,7 @@ def _open_strict(store: Path) -> subprocess.CompletedProcess[str]:
 
 
 @pytest.mark.parametrize("kind", ["converted", "processed", "labels"])
+@pytest.mark.slow
 def test_xarray_opens_both_store_kinds_without_a_warning(stores: dict[str, Path], kind: str) -> None:
     r = _open_strict(stores[kind])
     assert r.returncode == 0, r.stderr[-2000:]
@@ -84,6 +85,7 @@ def test_both_store_kinds_have_the_same_coordinate_layout(stores: dict[str, Path
     assert b["range"].dims == (DIM_PING, DIM_BEAM) and COORD_AZIMUTH in b["range"].coords
 
 
+@pytest.mark.slow
 def test_beam_steered_pings_keep_an_azimuth_table_per_ping(test_pings: list, tmp_path: Path) -> None:  # noqa: ANN001
     from sonarmap.io.dataset import SurveyWriter, dataset_to_pings, open_survey
 
@@ -101,6 +103,7 @@ def test_beam_steered_pings_keep_an_azimuth_table_per_ping(test_pings: list, tmp
     assert consolidated_status(out) == "current" and _open_strict(out).returncode == 0
 
 
+@pytest.mark.slow
 def test_appends_keep_consolidated_metadata_in_step(stores: dict[str, Path], test_pings: list,
                                                     tmp_path: Path) -> None:  # noqa: ANN001
     from sonarmap.io.dataset import SurveyWriter, open_survey
@@ -119,6 +122,7 @@ def test_appends_keep_consolidated_metadata_in_step(stores: dict[str, Path], tes
     assert open_survey(out)[COORD_AZIMUTH].dims == (DIM_BEAM,)
 
 
+@pytest.mark.slow
 def test_added_product_variables_are_consolidated(stores: dict[str, Path], tmp_path: Path) -> None:
     from sonarmap.io.dataset import PingVariable, add_ping_variable, write_ping_variable
 
@@ -148,6 +152,7 @@ def test_stale_consolidated_metadata_does_not_mislead_sonarmap(stores: dict[str,
         assert ds.sizes[DIM_PING] == N and ds[var].shape[0] == N, kind
 
 
+@pytest.mark.slow
 def test_info_summarises_a_product_store(stores: dict[str, Path], capsys: pytest.CaptureFixture[str],
                                          test_pings: list) -> None:  # noqa: ANN001
     from sonarmap.survey import flagged_mask, load_products
@@ -167,6 +172,7 @@ def test_info_summarises_a_product_store(stores: dict[str, Path], capsys: pytest
     assert "zarr-products" in capsys.readouterr().out
 
 
+@pytest.mark.slow
 def test_show_renders_a_product_store(stores: dict[str, Path], tmp_path: Path,
                                       test_pings: list) -> None:  # noqa: ANN001
     from sonarmap.survey import load_products, product_ping
@@ -211,6 +217,7 @@ def _old_product_layout(store: Path) -> None:
     (store / "zarr.json").write_text(json.dumps(doc))
 
 
+@pytest.mark.slow
 def test_old_layout_product_store_reads_and_resumes(paths: list[str], stores: dict[str, Path],
                                                     tmp_path: Path) -> None:
     from sonarmap.survey import load_products, process_survey, survey_status
@@ -245,6 +252,7 @@ def test_old_layout_product_store_reads_and_resumes(paths: list[str], stores: di
     _cli(["info", str(out), "--json"])
 
 
+@pytest.mark.slow
 def test_old_layout_converted_store_reads_and_appends(stores: dict[str, Path], test_pings: list,
                                                       tmp_path: Path) -> None:  # noqa: ANN001
     import zarr

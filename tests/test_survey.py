@@ -124,6 +124,7 @@ def test_serial_store_holds_all_products(serial_store: Path, survey_dir: Path) -
     assert st["complete"] and st["done"] == st["n_chunks"] == 5
 
 
+@pytest.mark.slow
 def test_local_processes_match_serial(serial_store: Path, survey_dir: Path, tmp_path: Path) -> None:
     out = tmp_path / "p.zarr"
     res = process_survey([survey_dir], out, workers=2, chunk_size=8)
@@ -131,6 +132,7 @@ def test_local_processes_match_serial(serial_store: Path, survey_dir: Path, tmp_
     assert_same_dataset(serial_store, out)
 
 
+@pytest.mark.slow
 def test_dask_cluster_matches_serial(cluster, serial_store: Path, survey_dir: Path, tmp_path: Path) -> None:  # noqa: ANN001
     out = tmp_path / "d.zarr"
     res = process_survey([survey_dir], out, client=cluster, chunk_size=8)
@@ -142,6 +144,7 @@ def test_dask_cluster_matches_serial(cluster, serial_store: Path, survey_dir: Pa
     assert_same_dataset(serial_store, out2)
 
 
+@pytest.mark.slow
 def test_dask_worker_killed_mid_run_loses_no_ping(
     cluster, serial_store: Path, survey_dir: Path, tmp_path: Path,  # noqa: ANN001
 ) -> None:
@@ -180,6 +183,7 @@ def test_dask_worker_killed_mid_run_loses_no_ping(
     cluster.wait_for_workers(2, timeout=60)
 
 
+@pytest.mark.slow
 def test_interrupted_run_resumes_to_identical_output(
     serial_store: Path, survey_dir: Path, tmp_path: Path,
 ) -> None:
@@ -201,6 +205,7 @@ def test_interrupted_run_resumes_to_identical_output(
     assert_same_dataset(serial_store, out)
 
 
+@pytest.mark.slow
 def test_existing_output_is_never_overwritten_silently(
     serial_store: Path, survey_dir: Path, tmp_path: Path,
 ) -> None:
@@ -224,6 +229,7 @@ def test_existing_output_is_never_overwritten_silently(
     assert_same_dataset(serial_store, other)
 
 
+@pytest.mark.slow
 def test_labels_on_request_and_points_with_poses(
     serial_store: Path, survey_dir: Path, tmp_path: Path,
 ) -> None:
@@ -285,6 +291,7 @@ def kill_survey(tmp_path_factory: pytest.TempPathFactory, test_ping_paths: list[
 
 
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGKILL], ids=["SIGINT", "SIGKILL"])
+@pytest.mark.slow
 def test_cli_kill_and_rerun_gives_identical_dataset(
     sig: int, kill_survey: tuple[Path, Path], tmp_path: Path,
 ) -> None:
@@ -311,6 +318,7 @@ def test_cli_kill_and_rerun_gives_identical_dataset(
     assert_same_dataset(clean, out)
 
 
+@pytest.mark.slow
 def test_cli_summary_quiet_and_refusal(survey_dir: Path, tmp_path: Path) -> None:
     out = tmp_path / "c.zarr"
     r = subprocess.run(_cli("process", str(survey_dir), "-o", str(out), "-k", "16"),
@@ -331,6 +339,7 @@ def test_cli_summary_quiet_and_refusal(survey_dir: Path, tmp_path: Path) -> None
     assert not (tmp_path / "x.zarr").exists()
 
 
+@pytest.mark.slow
 def test_cli_scheduler_option_runs_on_the_cluster(
     cluster, serial_store: Path, survey_dir: Path, tmp_path: Path,  # noqa: ANN001
 ) -> None:
@@ -402,6 +411,7 @@ def test_chunk_writer_writes_the_bytes_zarr_writes(tmp_path: Path) -> None:
     assert not any(stores["direct"].iterdir())
 
 
+@pytest.mark.slow
 def test_local_workers_store_their_own_chunks(
     serial_store: Path, survey_dir: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
 ) -> None:
@@ -443,6 +453,7 @@ def test_local_workers_store_their_own_chunks(
     assert not (out / ".sonarmap" / "tmp").exists()
 
 
+@pytest.mark.slow
 def test_zarr_fallback_writer_gives_the_same_store(
     serial_store: Path, survey_dir: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
 ) -> None:
@@ -455,6 +466,7 @@ def test_zarr_fallback_writer_gives_the_same_store(
     assert_same_dataset(serial_store, out)
 
 
+@pytest.mark.slow
 def test_resume_removes_temporaries_of_the_interrupted_run(
     serial_store: Path, survey_dir: Path, tmp_path: Path,
 ) -> None:

@@ -75,6 +75,7 @@ def rendered():
     return s, evaluate_survey(s)
 
 
+@pytest.mark.slow
 def test_rendered_survey_pings_and_poses(rendered) -> None:
     s, _ = rendered
     assert len(s.pings) == 40
@@ -90,6 +91,7 @@ def test_rendered_survey_pings_and_poses(rendered) -> None:
     assert [p.time_ns for p in s.pings] == s.ping_times_ns.tolist()
 
 
+@pytest.mark.slow
 def test_acceptance_registration_within_2_bins_and_coverage(rendered) -> None:
     """Issue #6: the default pipeline's registered points lie within 2 range bins RMS of the true
     hull and cover >= 90 % of the visible surface (measured: 1.2-1.3 bins, ~99.9 %)."""
@@ -98,6 +100,7 @@ def test_acceptance_registration_within_2_bins_and_coverage(rendered) -> None:
     assert ev.accuracy.coverage >= 0.90, ev.accuracy
 
 
+@pytest.mark.slow
 def test_acceptance_registration_seafloor() -> None:
     from sonarmap.mapping.survey_sim import evaluate_survey
 
@@ -139,6 +142,7 @@ def test_range_measurement_pd_sees_dropped_pings() -> None:
     assert np.isnan(process_ping(clean.pings[0], dataclasses.replace(PipelineConfig(), method="cfar-ca")).pd_range)
 
 
+@pytest.mark.slow
 def test_evaluate_survey_rejects_unknown_models(rendered) -> None:
     from sonarmap.errors import InputError
     from sonarmap.mapping.survey_sim import evaluate_survey
@@ -183,6 +187,7 @@ def _assert_pd_pfa_wins(evaluations, margin: float) -> None:
         assert ev.iou[(res, "pd/pfa")] > ev.iou[(res, "pd/pfa per pixel")] + margin, ev.iou
 
 
+@pytest.mark.slow
 def test_acceptance_pd_pfa_occupancy_beats_fixed_constants_hull(dense_hull) -> None:
     """Hull, 30 % dropouts: each ping's pD/pFA (with per-return sigma and p_detect) beats fixed
     0.8/0.3 (with our clamps or OctoMap's) at both resolutions: measured 0.648 vs 0.620 / 0.620 at
@@ -191,6 +196,7 @@ def test_acceptance_pd_pfa_occupancy_beats_fixed_constants_hull(dense_hull) -> N
     _assert_pd_pfa_wins(dense_hull, 0.01)
 
 
+@pytest.mark.slow
 def test_acceptance_pd_pfa_occupancy_beats_fixed_constants_seafloor(dense_seafloor) -> None:
     """Seafloor, 30 % dropouts: measured 0.639 vs 0.623 / 0.623 at 0.05 m, 0.865 vs 0.842 / 0.842
     at 0.10 m; per-pixel pD 0.479 / 0.689.  Three rays: 0.709 vs 0.706, 0.887 vs 0.855."""

@@ -11,6 +11,8 @@ import pytest
 
 from sonarmap._threads import THREAD_ENV_VARS
 
+pytestmark = pytest.mark.slow  # every test spawns interpreters
+
 _PROBE = (
     "import json\n"
     "from sonarmap._threads import limit_blas_threads\n"
