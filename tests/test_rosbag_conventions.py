@@ -15,6 +15,8 @@ from typing import Any
 
 import numpy as np
 import pytest
+from bag_writer import bag_path as _bag_path
+from bag_writer import write_bag_items as _write
 
 from sonarmap.errors import DataFormatError, InputError
 from sonarmap.geometry import SonarGeometry
@@ -40,31 +42,6 @@ def _pings(n: int = 2, geometry: SonarGeometry | None = None) -> list[Ping]:
              geometry=g, time_ns=T0 + i)
         for i in range(n)
     ]
-
-
-def _bag_path(tmp_path: Path, version: int, name: str = "b") -> Path:
-    return tmp_path / (f"{name}.bag" if version == 1 else f"{name}_bag")
-
-
-def _write(path: Path, version: int, items: list[tuple[str, str, Any, int]], store: Any | None = None) -> None:
-    """Write ``(topic, msgtype, message, time_ns)`` items with rosbags' own Writer."""
-    store = store or typestore(version)
-    if version == 1:
-        from rosbags.rosbag1 import Writer as W1
-
-        writer: Any = W1(path)
-        serialize = store.serialize_ros1
-    else:
-        from rosbags.rosbag2 import Writer as W2
-
-        writer = W2(path, version=9)
-        serialize = store.serialize_cdr
-    with writer:
-        conns: dict[str, Any] = {}
-        for topic, msgtype, msg, t in items:
-            if topic not in conns:
-                conns[topic] = writer.add_connection(topic, msgtype, typestore=store)
-            writer.write(conns[topic], t, bytes(serialize(msg, msgtype)))
 
 
 def _sonar_msg(ping: Ping, version: int, dirs: np.ndarray, cols: np.ndarray | None = None) -> Any:

@@ -14,6 +14,8 @@ from typing import Any
 
 import numpy as np
 import pytest
+from bag_writer import bag_path as _bag
+from bag_writer import write_bag_items as _write
 
 from sonarmap.cli import main
 from sonarmap.errors import DataFormatError
@@ -64,29 +66,6 @@ def _store(version: int) -> Any:
     return store
 
 
-def _bag(tmp_path: Path, version: int, name: str = "b") -> Path:
-    return tmp_path / (f"{name}.bag" if version == 1 else f"{name}_bag")
-
-
-def _write(path: Path, version: int, store: Any, items: list[tuple[str, str, Any, int]]) -> None:
-    if version == 1:
-        from rosbags.rosbag1 import Writer as W1
-
-        writer: Any = W1(path)
-        ser = store.serialize_ros1
-    else:
-        from rosbags.rosbag2 import Writer as W2
-
-        writer = W2(path, version=9)
-        ser = store.serialize_cdr
-    with writer:
-        conns: dict[str, Any] = {}
-        for topic, typ, msg, t in items:
-            if topic not in conns:
-                conns[topic] = writer.add_connection(topic, typ, typestore=store)
-            writer.write(conns[topic], t, bytes(ser(msg, typ)))
-
-
 def _read(path: Path, version: int) -> list[tuple[str, int, Any]]:
     """``(topic, record time, message)`` of every message, deserialised with the upstream definitions."""
     from rosbags.highlevel import AnyReader
@@ -132,7 +111,7 @@ def test_raw_sonar_image(tmp_path: Path, version: int) -> None:
     rx = np.deg2rad(np.linspace(-30.0, 25.0, 8) + 0.5 * np.sin(np.arange(8))).astype(np.float32)
     counts = [rng.integers(0, 65536, (20, 8)) for _ in range(2)]
     path = _bag(tmp_path, version)
-    _write(path, version, store, [
+    _write(path, version, store=store, items=[
         ("/sonar/raw", "marine_acoustic_msgs/msg/RawSonarImage", _raw_sonar_image(store, version, T0 + i, rx, counts[i]), T0 + i)
         for i in range(2)
     ])
@@ -154,7 +133,7 @@ def test_raw_sonar_image_reversed_beams_are_sorted(tmp_path: Path) -> None:
     rx = np.deg2rad(np.linspace(20.0, -20.0, 6)).astype(np.float32)
     counts = np.arange(6 * 4).reshape(4, 6) * 100
     path = _bag(tmp_path, 2)
-    _write(path, 2, store, [("/raw", "marine_acoustic_msgs/msg/RawSonarImage",
+    _write(path, 2, store=store, items=[("/raw", "marine_acoustic_msgs/msg/RawSonarImage",
                              _raw_sonar_image(store, 2, T0, rx, counts, sample0=0), T0)])
     (p,) = read_pings(path)
     assert np.allclose(p.geometry.azimuth_rad, rx[::-1].astype(np.float64))
@@ -181,7 +160,7 @@ def test_legacy_sonar_image(tmp_path: Path, version: int, ds: int, big: bool) ->
     top = 2 ** (8 * ds) - 1
     counts = np.random.default_rng(ds).integers(0, top, (30, 12), endpoint=True, dtype=np.uint64)
     path = _bag(tmp_path, version)
-    _write(path, version, store, [("/sonar/image", "acoustic_msgs/msg/SonarImage",
+    _write(path, version, store=store, items=[("/sonar/image", "acoustic_msgs/msg/SonarImage",
                                    _legacy(store, version, T0 + 7, az, r, counts, ds, big), T0 + 7)])
     (p,) = read_pings(path)
     assert p.time_ns == T0 + 7
@@ -223,7 +202,7 @@ def test_oculus_raw_data(tmp_path: Path, version: int, data_dir: Path) -> None:
         items.append(("/oculus/raw_data", "apl_msgs/msg/RawData", rd(t, m), t))
         stamps.append(t)
     path = _bag(tmp_path, version)
-    _write(path, version, store, items)
+    _write(path, version, store=store, items=items)
     pings = list(read_pings(path))
     assert len(pings) == len(ref) == 3 == rosbag.count_pings(path)
     for p, q, t in zip(pings, ref, stamps):
@@ -245,7 +224,7 @@ def test_oculus_raw_data_broken_message_is_skipped_with_a_warning(tmp_path: Path
                                         data=np.frombuffer(m, np.uint8)), T0 + i)
              for i, m in enumerate([msgs[0][:-10], msgs[0]])]
     path = _bag(tmp_path, 2)
-    _write(path, 2, store, items)
+    _write(path, 2, store=store, items=items)
     with pytest.warns(UserWarning, match="does not hold exactly one"):
         pings = list(read_pings(path))
     assert [p.time_ns for p in pings] == [T0 + 1]
@@ -273,7 +252,7 @@ def test_projected_image_takes_precedence_and_topic_selects(tmp_path: Path) -> N
     items.append(("/sonar/raw", "marine_acoustic_msgs/msg/RawSonarImage",
                   _raw_sonar_image(store, 1, T0 + 1, rx, np.zeros((6, 4), int)), T0 + 1))
     both = tmp_path / "both.bag"
-    _write(both, 1, store, items)
+    _write(both, 1, store=store, items=items)
     (p,) = read_pings(both)
     assert p.geometry.shape == g.shape and rosbag.count_pings(both) == 1
     (q,) = read_pings(both, topic="/sonar/raw")
@@ -284,7 +263,7 @@ def test_unreadable_listing_names_the_new_types(tmp_path: Path) -> None:
     store = _store(2)
     T = store.types
     path = _bag(tmp_path, 2)
-    _write(path, 2, store, [("/oculus/raw_data", "apl_msgs/msg/RawData",
+    _write(path, 2, store=store, items=[("/oculus/raw_data", "apl_msgs/msg/RawData",
                              T["apl_msgs/msg/RawData"](header=_header(store, 2, T0), direction=1,
                                                        data=np.arange(20, dtype=np.uint8)), T0)])
     with pytest.raises(DataFormatError, match=r"RawSonarImage, acoustic_msgs/SonarImage, apl_msgs/RawData with "

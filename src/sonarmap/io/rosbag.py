@@ -426,19 +426,22 @@ def _message_geometry(
     az_bytes: bytes, ranges: bytes, frequency: float, sound_speed: float, name: str
 ) -> tuple[SonarGeometry, np.ndarray | None]:
     """Geometry from per-beam azimuths (message order) and ranges; the column order if re-sorted."""
-    az = np.frombuffer(az_bytes, dtype=np.float64)
+    return sorted_beam_geometry(np.frombuffer(az_bytes, dtype=np.float64),
+                                np.frombuffer(ranges, dtype=np.float32).astype(np.float64), frequency, sound_speed, name)
+
+
+def sorted_beam_geometry(
+    az: np.ndarray, range_m: np.ndarray, frequency: float, sound_speed: float, name: str
+) -> tuple[SonarGeometry, np.ndarray | None]:
+    """Geometry of a message's beams, sorted by azimuth (with the column order if it re-sorted them);
+    an unknown frequency reads as 1.8 MHz, a sound speed outside 1300-1700 m/s as 1500 m/s."""
     order = None
     if az.size > 1 and np.any(np.diff(az) <= 0):
         order = np.argsort(az, kind="stable")
         az = az[order]
-    r = np.frombuffer(ranges, dtype=np.float32).astype(np.float64)
     c = sound_speed if 1300.0 <= sound_speed <= 1700.0 else 1500.0
-    kw: dict[str, Any] = {
-        "frequency_hz": frequency if math.isfinite(frequency) and frequency > 0 else 1.8e6,
-        "sound_speed_m_s": c,
-        "name": name,
-    }
-    geom = SonarGeometry(azimuth_rad=az, range_m=r, **kw)
+    geom = SonarGeometry(azimuth_rad=az, range_m=range_m, sound_speed_m_s=c, name=name,
+                         frequency_hz=frequency if math.isfinite(frequency) and frequency > 0 else 1.8e6)
     return geom, order
 
 

@@ -66,17 +66,10 @@ def _sample_geometry(
     az: bytes, n_samples: int, sample0: int, sound_speed: float, sample_rate: float, frequency: float, name: str
 ) -> tuple[SonarGeometry, np.ndarray | None]:
     """Geometry of a RawSonarImage (beams sorted by azimuth; the column order if re-sorted)."""
-    a = np.frombuffer(az, dtype=np.float64)
-    order = None
-    if a.size > 1 and np.any(np.diff(a) <= 0):
-        order = np.argsort(a, kind="stable")
-        a = a[order]
+    from sonarmap.io.rosbag import sorted_beam_geometry
+
     r = (np.arange(n_samples, dtype=np.float64) + sample0) * (sound_speed / (2.0 * sample_rate))
-    geom = SonarGeometry(
-        azimuth_rad=a, range_m=r, sound_speed_m_s=sound_speed, name=name,
-        frequency_hz=frequency if math.isfinite(frequency) and frequency > 0 else 1.8e6,
-    )
-    return geom, order
+    return sorted_beam_geometry(np.frombuffer(az, dtype=np.float64), r, frequency, sound_speed, name)
 
 
 def ping_from_raw_sonar_image(
@@ -192,11 +185,12 @@ def oculus_ping_chunk(msg: Any) -> tuple[bytes | None, bool]:
     return data.tobytes(), False
 
 
-def _iter_oculus(reader: Any, path: Path, conns: list[Any], override: SonarGeometry | None) -> Iterator[Ping]:
-    from sonarmap.io.rosbag import FORMAT, _guarded, _stamp_ns
+def _topic_messages(reader: Any, path: Path, conns: list[Any]) -> Iterator[tuple[Any, int, Any]]:
+    """``(connection, index of the message on its topic, deserialized message)`` in time order;
+    a message that does not deserialize is a DataFormatError naming its topic and index."""
+    from sonarmap.io.rosbag import _guarded
 
     idx: dict[str, int] = {}
-    warned: set[str] = set()
     for conn, _t, raw in _guarded(path, reader.messages(connections=conns)):
         i = idx.get(conn.topic, 0)
         idx[conn.topic] = i + 1
@@ -204,6 +198,14 @@ def _iter_oculus(reader: Any, path: Path, conns: list[Any], override: SonarGeome
             msg = reader.deserialize(raw, conn.msgtype)
         except Exception as exc:  # noqa: BLE001
             raise DataFormatError(f"corrupt message {i} on {conn.topic}: {type(exc).__name__}: {exc}", path) from None
+        yield conn, i, msg
+
+
+def _iter_oculus(reader: Any, path: Path, conns: list[Any], override: SonarGeometry | None) -> Iterator[Ping]:
+    from sonarmap.io.rosbag import FORMAT, _stamp_ns
+
+    warned: set[str] = set()
+    for conn, i, msg in _topic_messages(reader, path, conns):
         data, broken = oculus_ping_chunk(msg)
         if broken and conn.topic not in warned:
             warned.add(conn.topic)
@@ -229,14 +231,8 @@ def _iter_oculus(reader: Any, path: Path, conns: list[Any], override: SonarGeome
 
 def count_oculus(reader: Any, path: Path, conns: list[Any]) -> dict[str, int]:
     """SimplePingResult pings per topic of RawData connections (scans the messages)."""
-    from sonarmap.io.rosbag import _guarded
-
     out = {c.topic: 0 for c in conns}
-    for conn, _t, raw in _guarded(path, reader.messages(connections=conns)):
-        try:
-            msg = reader.deserialize(raw, conn.msgtype)
-        except Exception as exc:  # noqa: BLE001
-            raise DataFormatError(f"corrupt message on {conn.topic}: {type(exc).__name__}: {exc}", path) from None
+    for conn, _i, msg in _topic_messages(reader, path, conns):
         if oculus_ping_chunk(msg)[0] is not None:
             out[conn.topic] += 1
     return out
@@ -252,20 +248,11 @@ def iter_kind(
     DataFormatError
         A corrupt or inconsistent message (naming the topic and its message index).
     """
-    from sonarmap.io.rosbag import _guarded
-
     if kind == "oculus_raw":
         yield from _iter_oculus(reader, path, conns, override)
         return
     decode = ping_from_raw_sonar_image if kind == "raw_image" else ping_from_legacy_image
-    idx: dict[str, int] = {}
-    for conn, _t, raw in _guarded(path, reader.messages(connections=conns)):
-        i = idx.get(conn.topic, 0)
-        idx[conn.topic] = i + 1
-        try:
-            msg = reader.deserialize(raw, conn.msgtype)
-        except Exception as exc:  # noqa: BLE001
-            raise DataFormatError(f"corrupt message {i} on {conn.topic}: {type(exc).__name__}: {exc}", path) from None
+    for conn, i, msg in _topic_messages(reader, path, conns):
         try:
             yield decode(msg, path, conn.topic, i, override)
         except (ValueError, GeometryError) as exc:
