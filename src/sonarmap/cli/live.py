@@ -158,27 +158,27 @@ def register(app: typer.Typer) -> None:
             raise typer.BadParameter("--rate / --speed / --loop apply to --replay only", param_hint="--rate")
         check_choice(oculus_frequency, tuple(_FREQUENCY_MODES), "--oculus-frequency")
         check_choice(oculus_ping_rate, tuple(_PING_RATES), "--oculus-ping-rate")
-        tcp: dict[str, Any] = {}
+        from sonarmap.errors import InputError
+        from sonarmap.live.protocol import FLAG_GAIN_ASSIST, FLAG_RANGE_METERS, FLAG_SIMPLE, FireSettings
+
         if is_tcp:
-            from sonarmap.errors import InputError
-            from sonarmap.live.protocol import FLAG_GAIN_ASSIST, FLAG_RANGE_METERS, FLAG_SIMPLE, FireSettings
             from sonarmap.live.sources import parse_tcp_url
 
             try:
                 parse_tcp_url(source)
             except InputError as exc:
                 raise typer.BadParameter(str(exc), param_hint="SOURCE") from None
-            try:
-                tcp["fire"] = FireSettings(
-                    master_mode=_FREQUENCY_MODES[oculus_frequency], ping_rate=_PING_RATES[oculus_ping_rate],
-                    flags=FLAG_RANGE_METERS | FLAG_SIMPLE | (FLAG_GAIN_ASSIST if gain_assist else 0),
-                    range_m=oculus_range, gain_percent=oculus_gain)
-            except InputError as exc:
-                raise typer.BadParameter(str(exc), param_hint="--oculus-range / --oculus-gain") from None
-        elif (oculus_range, oculus_gain, oculus_frequency, oculus_ping_rate, gain_assist) != (
-                2.0, 50.0, "high", "highest", True):
+        try:
+            fire = FireSettings(
+                master_mode=_FREQUENCY_MODES[oculus_frequency], ping_rate=_PING_RATES[oculus_ping_rate],
+                flags=FLAG_RANGE_METERS | FLAG_SIMPLE | (FLAG_GAIN_ASSIST if gain_assist else 0),
+                range_m=oculus_range, gain_percent=oculus_gain)
+        except InputError as exc:
+            raise typer.BadParameter(str(exc), param_hint="--oculus-range / --oculus-gain") from None
+        if not is_tcp and fire != FireSettings():
             raise typer.BadParameter("the --oculus-* and --gain-assist settings are sent to a live Oculus "
                                      "(tcp://); a file is read as recorded", param_hint="--oculus-range")
+        tcp: dict[str, Any] = {"fire": fire} if is_tcp else {}
 
         # ------------------------------------------------------------ set up (errors: exit 1)
         from sonarmap.cli.ranges import pipeline_config_from_options

@@ -150,7 +150,7 @@ def _cloud_message(store: Any, version: int, cloud: Any, idx: np.ndarray, t_ns: 
     values = {"intensity": cloud.intensity[idx], "range": cloud.range_m[idx],
               "beam": np.clip(cloud.beam[idx], 0, 65535),
               "time": ((cloud.time_ns[idx] - t_ns) * 1e-9).astype(np.float32)}
-    return _pointcloud2(store, version, cloud.xyz_m[idx], [(nm, code, np_t, values[nm]) for nm, code, np_t in POINT_FIELDS],
+    return _pointcloud2(store, version, cloud.xyz_m[idx], [(*field, values[field[0]]) for field in POINT_FIELDS],
                         t_ns, frame_id, xyz_dtype, seq)
 
 
@@ -269,10 +269,8 @@ def write_occupancy_bag(
     fid = frame_id if frame_id is not None else ("map" if frame == "enu" else "map_ned")
     with bag_writer(path, version) as (writer, serialize, store):
         conn = writer.add_connection(topic, POINTCLOUD2, typestore=store)
-        msg = _pointcloud2(store, version, xyz, [
-            (OCCUPANCY_FIELDS[0][0], OCCUPANCY_FIELDS[0][1], OCCUPANCY_FIELDS[0][2], p),
-            (OCCUPANCY_FIELDS[1][0], OCCUPANCY_FIELDS[1][1], OCCUPANCY_FIELDS[1][2], lo)],
-            int(stamp_ns), fid, xyz_dtype, 0)
+        columns = [(*field, values) for field, values in zip(OCCUPANCY_FIELDS, (p, lo), strict=True)]
+        msg = _pointcloud2(store, version, xyz, columns, int(stamp_ns), fid, xyz_dtype, 0)
         writer.write(conn, int(stamp_ns), serialize(msg, POINTCLOUD2))
     return 1
 
