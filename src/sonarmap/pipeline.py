@@ -664,10 +664,11 @@ def process_ping(ping: Ping, config: PipelineConfig = PipelineConfig(), *, keep_
         raise InputError(f"config: expected a PipelineConfig, got {type(config).__name__}")
     geom = ping.geometry
     pre = config.preprocess_config()
-    from sonarmap.preprocess.normalise import input_gain, suppress_sidelobes
+    from sonarmap.preprocess.normalise import condition_image
 
-    # both leave 8-bit images (every DIDSON, ARIS and Oculus recording) unchanged
-    raw, gain_db = input_gain(suppress_sidelobes(ping.image))
+    # sidelobe suppression and input gain; 8-bit images (every DIDSON, ARIS and Oculus recording)
+    # pass unchanged
+    raw, gain_db = condition_image(ping.image)
     constant = float(raw.max()) == float(raw.min())
     reference = background
     background = None

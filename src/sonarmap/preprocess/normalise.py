@@ -51,7 +51,7 @@ from numpy.typing import NDArray
 from sonarmap.errors import InputError
 
 __all__ = ["BackgroundLevel", "RecordingBackground", "estimate_background", "estimate_recording_background",
-           "normalise_image", "BACKGROUND_MEAN", "expand_grid", "input_gain", "suppress_sidelobes",
+           "normalise_image", "BACKGROUND_MEAN", "expand_grid", "input_gain", "suppress_sidelobes", "condition_image",
            "SIDELOBE_LEVEL_DB", "INPUT_GAIN_QUANTILE", "INPUT_GAIN_BELOW"]
 
 #: Mean of the background excess after normalisation (the DIDSON background's 1/lambda, Table I).
@@ -152,6 +152,11 @@ def suppress_sidelobes(image: NDArray[np.floating], level_db: float = SIDELOBE_L
     img = np.asarray(image, dtype=np.float32)
     if img.ndim != 2 or img.size == 0 or not level_db > 0 or _on_8bit_grid(img):
         return img  # (8-bit data holds no value 25 dB under its row's maximum anyway)
+    return _suppress_sidelobes(img, level_db)
+
+
+def _suppress_sidelobes(img: NDArray[np.float32], level_db: float) -> NDArray[np.float32]:
+    """:func:`suppress_sidelobes` of a non-empty 2-D float32 image that is not 8-bit data."""
     rowmax = img.max(axis=1, keepdims=True)
     floor = rowmax * np.float32(10.0 ** (-level_db / 10.0))
     leak = (img > 0) & (img < floor)
@@ -190,6 +195,11 @@ def input_gain(image: NDArray[np.floating]) -> tuple[NDArray[np.float32], float]
     img = np.asarray(image, dtype=np.float32)
     if img.size == 0 or _on_8bit_grid(img):
         return img, 0.0  # 8-bit data: its levels are the sonar's own, keep them
+    return _input_gain(img)
+
+
+def _input_gain(img: NDArray[np.float32]) -> tuple[NDArray[np.float32], float]:
+    """:func:`input_gain` of a non-empty float32 image that is not 8-bit data."""
     sample = img.ravel()[:: max(img.size // 65536, 1)]
     pos = sample[sample > 0]
     if pos.size == 0:
@@ -200,6 +210,15 @@ def input_gain(image: NDArray[np.floating]) -> tuple[NDArray[np.float32], float]
         return img, 0.0
     g = 1.0 / top
     return np.minimum(img * np.float32(g), np.float32(1.0)).astype(np.float32), float(10.0 * math.log10(g))
+
+
+def condition_image(image: NDArray[np.floating]) -> tuple[NDArray[np.float32], float]:
+    """:func:`suppress_sidelobes` then :func:`input_gain` with the 8-bit test made once (the
+    per-ping pipeline's first step); returns the image and the gain in dB."""
+    img = np.asarray(image, dtype=np.float32)
+    if img.ndim != 2 or img.size == 0 or _on_8bit_grid(img):
+        return img, 0.0
+    return _input_gain(_suppress_sidelobes(img, SIDELOBE_LEVEL_DB))
 
 
 def _zero_fraction(img: NDArray[np.float32]) -> float:
