@@ -172,12 +172,26 @@ class PipelineConfig:
         ``"back"`` (walk from the first peak towards the sonar to the first bin below the level;
         better on the simulated ARIS pings) or ``"forward"`` (the first bin from in front of the
         echo that reaches the level).
+    edge_pool_beams : int
+        Leading edges of a tracked surface are measured on the mean of the edge-aligned profiles
+        of the ``edge_pool_beams`` beams on either side of each beam on the same surface
+        (:func:`sonarmap.ranges.echoes.pooled_edges`: a multi-look along the surface; a single
+        beam's speckled echo moves its half-peak crossing by bins).  0 = every beam on its own.
     sigma_scale : float
-        Calibration of the speckle-jitter term of each return's sigma
-        (:func:`sonarmap.ranges.echoes.range_sigma_m`), fitted on the simulator: with 1.5, 73 %
-        of the errors of returns on their surface (within 3 bins) lie within +-sigma over the four
-        sonar presets (DIDSON 63 %, ARIS 76-77 %, Oculus 89 %).  A return on the wrong echo is
-        not covered by its sigma.
+        Calibration of the speckle-jitter term of the sigma of a return measured on its own beam
+        (``edge_pool_beams=0``, or a surface of fewer than 3 beams;
+        :func:`sonarmap.ranges.echoes.range_sigma_m`), fitted on the simulator with the per-beam
+        edges: with 1.5, 73 % of the errors of returns on their surface (within 3 bins) lay
+        within +-sigma over the four sonar presets.  A return on the wrong echo is not covered by
+        its sigma.
+    sigma_pool_scale, sigma_rise_scale : float
+        Sigma of a pooled leading edge (:func:`sonarmap.ranges.echoes.edge_sigma_m`): the mean
+        profile's standard error at the crossing over its rise per bin, times
+        ``sigma_pool_scale`` (neighbouring beams share speckle through the main lobe and their
+        windows overlap), and ``sigma_rise_scale`` x the bins from the crossing to the profile's
+        peak (where in a slow rise the surface lies is uncertain by a share of the rise), in
+        quadrature.  Fitted on the simulator so that 68 % of the errors lie within +-sigma
+        (``docs/segmentation.md``).
     log_dynamic_range_db : float, optional
         The raw samples are log-compressed, ``dynamic range`` dB per unit of pixel value (ARIS):
         echoes of normalised images are measured in linear intensity.  Default: the ping's
@@ -235,7 +249,10 @@ class PipelineConfig:
     track: Any = None
     pulse_length_m: float | None = None
     edge_scan: str = "back"
+    edge_pool_beams: int = 3
     sigma_scale: float = 1.5
+    sigma_pool_scale: float = 5.0
+    sigma_rise_scale: float = 0.15
     log_dynamic_range_db: float | None = None
     max_object_weight: float = 0.5
     min_separation: float = 1.9
@@ -286,7 +303,7 @@ class PipelineConfig:
         for key in ("beta", "fit_tol", "threshold", "cfar_pfa", "object_prior_min", "grow_prior_min",
                     "grow_beta", "speckle_eps", "edge_factor", "range_weight", "pool_factor",
                     "min_component_extent_m", "max_kld", "max_object_weight", "min_separation",
-                    "edge_fraction", "sigma_scale"):
+                    "edge_fraction", "sigma_scale", "sigma_pool_scale", "sigma_rise_scale"):
             v = getattr(self, key)
             if not is_finite_number(v):
                 raise bad(key, "must be a finite number")
@@ -298,6 +315,9 @@ class PipelineConfig:
                 raise bad(key, "must lie in [0, 0.5)")
         if self.pool_factor < 0:
             raise bad("pool_factor", "must be >= 0")
+        for key in ("sigma_scale", "sigma_pool_scale", "sigma_rise_scale"):
+            if getattr(self, key) < 0:
+                raise bad(key, "must be >= 0")
         if not 0 <= self.edge_fraction < 1:
             raise bad("edge_fraction", "must lie in [0, 1)")
         if self.min_component_extent_m < 0:
@@ -316,7 +336,7 @@ class PipelineConfig:
                         ("min_component_bins", 1), ("min_component_pixels", 0),
                         ("normalised_component_beams", 1), ("normalised_component_bins", 1),
                         ("normalised_component_pixels", 0), ("refine_bins", 0), ("link_beams", 0),
-                        ("pool_beams", 0), ("pool_bins", 1), ("pool_min_beams", 1)):
+                        ("pool_beams", 0), ("pool_bins", 1), ("pool_min_beams", 1), ("edge_pool_beams", 0)):
             v = getattr(self, key)
             if isinstance(v, bool) or not isinstance(v, int) or v < lo:
                 raise bad(key, f"must be an integer >= {lo}")
@@ -834,7 +854,7 @@ def _surface_ranges(ping: Ping, image: NDArray[np.float32], levels: NDArray[Any]
     """Echoes of the candidate structure (``mask`` plus pooled bands), tracked across beams; also
     the number of bins each return's echo spans (0 where no return)."""
     from sonarmap.ranges import ranges_from_tracks
-    from sonarmap.ranges.echoes import find_echoes, level_llr
+    from sonarmap.ranges.echoes import find_echoes, level_llr, pooled_edges
     from sonarmap.ranges.tracking import track_surfaces
 
     geom = ping.geometry
@@ -871,6 +891,14 @@ def _surface_ranges(ping: Ping, image: NDArray[np.float32], levels: NDArray[Any]
                          background=bg, scan=config.edge_scan, sigma_scale=config.sigma_scale)
     tracks = track_surfaces(echoes, config.track)
     sel = tracks.first
+    if config.edge_pool_beams > 0 and config.range_mode == "first":
+        # the pooled profile is smoothed over at least 3 bins along range in all (a single-look
+        # profile's maximum is otherwise a speckle spike)
+        echoes = pooled_edges(echoes, sel, meas, geom, pulse_bins=pb, half_beams=config.edge_pool_beams,
+                              smooth_bins=3 if pb < 3 else 1,
+                              fraction=config.edge_fraction if config.edge_fraction > 0 else 0.5, background=bg,
+                              touch_bins=config.track.touch_bins, sigma_scale=config.sigma_pool_scale,
+                              rise_scale=config.sigma_rise_scale)
     thickness = np.where(sel >= 0, (echoes.stop_bin - echoes.start_bin)[np.maximum(sel, 0)] if echoes.size else 0, 0)
     return (ranges_from_tracks(echoes, tracks, geom, image, mode=config.range_mode,  # type: ignore[arg-type]
                                time_ns=ping.time_ns, source=ping.source), thickness.astype(np.int64))

@@ -500,3 +500,167 @@ def half_peak_edges(img, mask, bins, fraction):  # pragma: no cover - numba
         if e > b and img[e, j] > img[e - 1, j]:
             frac[j] = (img[e, j] - level) / (img[e, j] - img[e - 1, j])
     return out, frac
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _interp_column(img, j, x):  # pragma: no cover - numba
+    """``img[:, j]`` linearly interpolated at fractional row ``x`` (clamped to the column)."""
+    n = img.shape[0]
+    if x <= 0.0:
+        return img[0, j]
+    if x >= n - 1:
+        return img[n - 1, j]
+    i = int(x)
+    f = x - i
+    return img[i, j] * (1.0 - f) + img[i + 1, j] * f
+
+
+@njit(cache=True, nogil=True)
+def surface_runs(edge, lo, hi, touch):  # pragma: no cover - numba
+    """Run labels of consecutive beams whose echo intervals ``[lo, hi]`` touch (-1: no return)."""
+    m = edge.size
+    run = np.full(m, -1, np.int64)
+    r = -1
+    prev = False
+    for j in range(m):
+        if not np.isfinite(edge[j]):
+            prev = False
+            continue
+        if not (prev and lo[j] <= hi[j - 1] + touch and lo[j - 1] <= hi[j] + touch):
+            r += 1
+        run[j] = r
+        prev = True
+    return run
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _median(x, c):  # pragma: no cover - numba
+    s = np.sort(x[:c])
+    return s[c // 2] if c % 2 == 1 else 0.5 * (s[c // 2 - 1] + s[c // 2])
+
+
+@njit(cache=True, nogil=True)
+def pooled_edges(img, edge, stop, run, half_beams, front_bins, max_bins, smooth_bins, fraction, n_iter):  # pragma: no cover - numba
+    """Leading edges measured on the surface-aligned mean profile of neighbouring beams
+    (see :func:`sonarmap.ranges.echoes.pooled_edges`).
+
+    ``edge`` (fractional bins, NaN: no return) and ``stop`` (one past the echo's last structure
+    bin) per beam; ``run`` labels the runs of beams that are one surface (-1: none).  Returns per
+    beam the new edge, the pooled profile's value and rise per bin at the crossing, the bins from
+    the crossing to the profile's peak, the number of beams pooled (0 where the beam keeps its
+    own edge) and the standard error of the pooled profile at the crossing.
+    """
+    m = edge.size
+    cur = edge.copy()
+    value = np.full(m, np.nan)
+    rise = np.full(m, np.nan)
+    to_peak = np.full(m, np.nan)
+    used = np.zeros(m, np.int64)
+    noise = np.full(m, np.nan)
+    h = smooth_bins // 2
+    win = np.empty(2 * half_beams + 1)
+    align = np.empty(m)
+    depth = np.zeros(m, np.int64)
+    count = np.zeros(m, np.int64)
+    for _ in range(n_iter):
+        # the alignment: running median of the current edges within each run
+        for j in range(m):
+            align[j] = cur[j]
+            count[j] = 0
+            if run[j] < 0:
+                continue
+            c = 0
+            for jj in range(max(0, j - half_beams), min(m, j + half_beams + 1)):
+                if run[jj] == run[j]:
+                    win[c] = cur[jj]
+                    c += 1
+            count[j] = c
+            if c >= 3:
+                align[j] = _median(win, c)
+        # the window's echo depth behind the alignment (median, 3 .. max_bins bins)
+        kmax = 0
+        for j in range(m):
+            if count[j] < 3:
+                continue
+            c = 0
+            for jj in range(max(0, j - half_beams), min(m, j + half_beams + 1)):
+                if run[jj] == run[j]:
+                    win[c] = stop[jj] - align[jj]
+                    c += 1
+            depth[j] = int(min(max(_median(win, c), 3.0), max_bins))
+            kmax = max(kmax, depth[j])
+        width = front_bins + kmax + 1 + 2 * h
+        # every beam's own profile at offsets -front_bins - h .. kmax + h from its alignment, and
+        # their running sum over beams (a run is a contiguous block of beams: a window's sum is
+        # a difference of two rows)
+        prof = np.zeros((m, width))
+        csum = np.zeros((m + 1, width))
+        for jj in range(m):
+            if run[jj] >= 0:
+                for k in range(width):
+                    prof[jj, k] = _interp_column(img, jj, align[jj] + (k - h - front_bins))
+            for k in range(width):
+                csum[jj + 1, k] = csum[jj, k] + prof[jj, k]
+        new = cur.copy()
+        mean = np.empty(width)
+        sm = np.empty(width)
+        for j in range(m):
+            c = count[j]
+            if c < 3:
+                continue
+            lo = max(0, j - half_beams)
+            while run[lo] != run[j]:
+                lo += 1
+            hi = lo + c
+            nk = front_bins + depth[j] + 1
+            for k in range(nk + 2 * h):
+                mean[k] = (csum[hi, k] - csum[lo, k]) / c
+            # smoothed along range over smooth_bins (the profile extends h bins either side), only
+            # where the echo is deep enough (>= 6 smoothing half-widths) for the box not to widen
+            # it: a one-bin echo smoothed over 3 bins would have its crossing a bin early
+            hj = h if depth[j] >= 6 * h else 0
+            for k in range(nk):
+                acc = 0.0
+                for d in range(h - hj, h + hj + 1):
+                    acc += mean[k + d]
+                sm[k] = acc / (2 * hj + 1)
+            p = 0
+            for k in range(1, nk):
+                if sm[k] > sm[p]:
+                    p = k
+            if not sm[p] > 0:
+                continue
+            lv = fraction * sm[p]
+            i = p
+            while i > 0 and sm[i - 1] >= lv:
+                i -= 1
+            if i == 0:
+                x = 0.0
+                slope = sm[1] - sm[0] if nk > 1 else 0.0
+            else:
+                slope = sm[i] - sm[i - 1]
+                x = i - 1 + (lv - sm[i - 1]) / max(slope, 1e-12)
+            new[j] = align[j] + x - front_bins
+            value[j] = lv
+            rise[j] = slope
+            to_peak[j] = p - x
+            used[j] = c
+            # the mean profile's own noise at the crossing: the spread of the pooled beams'
+            # smoothed values there, over sqrt(beams) - speckle and misalignment alike
+            i0 = int(x)
+            f = x - i0
+            s1 = 0.0
+            s2 = 0.0
+            for jj in range(lo, hi):
+                v0 = 0.0
+                v1 = 0.0
+                for d in range(h - hj, h + hj + 1):
+                    v0 += prof[jj, i0 + d]
+                    v1 += prof[jj, min(i0 + 1, nk - 1) + d]
+                v = ((1.0 - f) * v0 + f * v1) / (2 * hj + 1)
+                s1 += v
+                s2 += v * v
+            var = max(s2 / c - (s1 / c) ** 2, 0.0) * c / (c - 1)
+            noise[j] = np.sqrt(var / c)
+        cur = new
+    return cur, value, rise, to_peak, used, noise

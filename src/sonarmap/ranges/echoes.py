@@ -17,6 +17,14 @@ convention"):
   and ``sigma_v`` the fluctuation of the smoothed image there (speckle of the echo at the
   crossing level plus background), added in quadrature with a pulse term.
 
+A single beam's echo is a few speckled samples: its first peak is a speckle spike as often as
+the echo's own level, and the leading edge then moves by several bins (single-look DIDSON
+samples put the half-peak crossing of a hull 2 bins late on the median).  The echoes of a
+tracked surface are therefore measured together (:func:`pooled_edges`): per beam, the profiles
+of the neighbouring beams of the same surface, aligned on their edges, are averaged (a
+multi-look along the surface) and the leading edge is the half-peak crossing of that mean
+profile.  The same convention, measured on more looks.
+
 Every return the pipeline reports is one echo's leading edge (or peak with
 ``range_mode="strongest"``).
 """
@@ -32,7 +40,7 @@ from numpy.typing import ArrayLike, NDArray
 from sonarmap.errors import InputError
 from sonarmap.geometry import SonarGeometry
 
-__all__ = ["Echoes", "find_echoes", "range_sigma_m", "smooth_along_range", "level_llr"]
+__all__ = ["Echoes", "find_echoes", "pooled_edges", "surface_runs", "range_sigma_m", "edge_sigma_m", "smooth_along_range", "level_llr"]
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -113,7 +121,7 @@ def level_llr(fit: object, *, clip: float = 4.0) -> NDArray[np.float64]:
     return np.clip(np.nan_to_num(lut, nan=0.0, posinf=clip, neginf=-clip), -clip, clip)
 
 
-def range_sigma_m(edge_value: ArrayLike, slope: ArrayLike, bin_m: float, *, looks: float = 1.0,
+def range_sigma_m(edge_value: ArrayLike, slope: ArrayLike, bin_m: float, *, looks: ArrayLike = 1.0,
                   background: float = 0.0, pulse_m: float = 0.0, scale: float = 1.0) -> NDArray[np.float64]:
     """One-sigma uncertainty of a leading-edge range (metres).
 
@@ -132,18 +140,36 @@ def range_sigma_m(edge_value: ArrayLike, slope: ArrayLike, bin_m: float, *, look
         Rise of the image per bin at the crossing (> 0).
     bin_m : float
         Range bin spacing.
-    looks : float
-        Effective independent looks of the smoothed image (1: single-look speckle).
+    looks : float or array_like
+        Effective independent looks of the smoothed image (1: single-look speckle), per value or
+        one for all.
     background : float
         Mean background level of the image.
     pulse_m : float
         Pulse length along range.
     """
     v = np.asarray(edge_value, dtype=np.float64)
+    n_looks = np.maximum(np.asarray(looks, dtype=np.float64), 1.0)
+    sig_v = math.sqrt(2.0) * (np.abs(v) + max(float(background), 0.0)) / np.sqrt(n_looks)
+    return edge_sigma_m(sig_v, slope, bin_m, pulse_m=pulse_m, scale=scale)
+
+
+def edge_sigma_m(noise: ArrayLike, slope: ArrayLike, bin_m: float, *, pulse_m: float = 0.0,
+                 scale: float = 1.0, rise_bins: ArrayLike = 0.0, rise_scale: float = 0.0) -> NDArray[np.float64]:
+    """One-sigma uncertainty of a crossing (metres) from the image's noise at it.
+
+    ``sigma^2 = bin^2 / 12 + (scale bin noise / slope)^2 + (pulse / sqrt(12))^2``: the timing
+    jitter of a crossing is the noise of the profile there over its rise per bin (at most 8
+    bins), plus the bin grid's and the pulse's uniform spreads (:func:`range_sigma_m` models
+    ``noise`` from speckle looks; :func:`pooled_edges` measures it across the pooled beams).
+    """
     s = np.maximum(np.asarray(slope, dtype=np.float64), 1e-12)
-    sig_v = math.sqrt(2.0) * (np.abs(v) + max(float(background), 0.0)) / math.sqrt(max(float(looks), 1.0))
-    jitter = np.minimum(float(scale) * sig_v / s, 8.0) * bin_m  # never more than ~8 bins uncertain
-    return np.sqrt(bin_m**2 / 12.0 + jitter**2 + (pulse_m**2) / 12.0)
+    nz = np.asarray(noise, dtype=np.float64)
+    # never more than ~8 bins uncertain (also where the noise is unknown)
+    jitter = np.minimum(np.where(np.isnan(nz), np.inf, float(scale) * nz / s), 8.0) * bin_m
+    rb = np.asarray(rise_bins, dtype=np.float64)
+    soft = float(rise_scale) * np.abs(np.where(np.isfinite(rb), rb, 0.0)) * bin_m
+    return np.sqrt(bin_m**2 / 12.0 + jitter**2 + soft**2 + (pulse_m**2) / 12.0)
 
 
 def find_echoes(
@@ -243,3 +269,132 @@ def find_echoes(
     return Echoes(beam=beam, start_bin=start, stop_bin=stop, peak_bin=peak, peak_value=pval, edge_bin=edge,
                   edge_range_m=edge_r, peak_range_m=r[peak], slope=slope,
                   evidence=evid, n_pixels=npx, sigma_m=sigma, n_beams=int(m.shape[1]))
+
+
+def surface_runs(echoes: Echoes, first: ArrayLike, touch_bins: float = 1.0) -> NDArray[np.int64]:
+    """Label the runs of consecutive beams whose returns are one surface (-1 where no return).
+
+    Beams ``j`` and ``j + 1`` belong to one run when both have a return and the bin intervals of
+    their echoes (leading edge to last structure bin) lie within ``touch_bins`` of each other -
+    the contiguity rule of :func:`sonarmap.ranges.tracking.track_surfaces`.
+    """
+    from sonarmap.ranges import _kernels
+
+    sel = np.asarray(first, dtype=np.int64)
+    if sel.shape != (echoes.n_beams,):
+        raise InputError(f"first: expected shape ({echoes.n_beams},), got {sel.shape}")
+    edge, lo, hi, _stop = _first_intervals(echoes, sel)
+    return _kernels.surface_runs(edge, lo, hi, float(touch_bins))
+
+
+def _first_intervals(echoes: Echoes, sel: NDArray[np.int64]) -> tuple[NDArray[np.float64], ...]:
+    """Per beam the edge (NaN: none), bin interval and stop of the echo ``sel`` picks."""
+    ok = sel >= 0
+    if echoes.size == 0:
+        ok = np.zeros(sel.shape, dtype=bool)
+        z = np.zeros(sel.shape)
+        return np.full(sel.shape, np.nan), z, z, z
+    s = np.maximum(sel, 0)
+    edge = np.where(ok, echoes.edge_bin[s], np.nan)
+    stop = echoes.stop_bin[s].astype(np.float64)
+    lo = np.minimum(echoes.start_bin[s], np.floor(echoes.edge_bin[s]))
+    return edge, lo, stop - 1.0, stop
+
+
+def pooled_edges(
+    echoes: Echoes,
+    first: ArrayLike,
+    image: ArrayLike,
+    geometry: SonarGeometry,
+    *,
+    pulse_bins: int = 1,
+    half_beams: int = 3,
+    front_bins: int = 6,
+    max_bins: int = 200,
+    smooth_bins: int = 3,
+    fraction: float = 0.5,
+    n_iter: int = 2,
+    touch_bins: float = 1.0,
+    looks: float = 1.0,
+    background: float = 0.0,
+    sigma_scale: float = 1.0,
+    rise_scale: float = 0.0,
+) -> Echoes:
+    """Leading edges of a tracked surface measured on a multi-look along the surface.
+
+    For every beam ``j`` with a return (``first[j]``, an echo index), the beams ``j - half_beams
+    .. j + half_beams`` of the same surface (:func:`surface_runs`) are aligned on their edges -
+    the running median of the current edges over that window, which follows a slope exactly -
+    and their columns of the image (smoothed along range over ``pulse_bins``, as in
+    :func:`find_echoes`) are averaged at offsets ``-front_bins`` to the window's median echo
+    depth (last structure bin, at least 3 and at most ``max_bins`` bins).  That mean profile,
+    smoothed over ``smooth_bins``, has its peak at the echo's own peak; the leading edge is the
+    first crossing of ``fraction`` x that peak walking from it towards the sonar, interpolated
+    to sub-bin (the range convention of :func:`find_echoes`).  ``n_iter`` rounds re-align on the
+    new edges.  Runs of fewer than 3 beams keep their own edges.
+
+    Parameters
+    ----------
+    echoes : Echoes
+        The ping's echoes (:func:`find_echoes`).
+    first : array_like of int, shape (n_beams,)
+        Per beam the echo index of its return (-1 none): ``Tracks.first``.
+    image : ndarray, shape (n_bins, n_beams)
+        The image the echoes were measured on.
+    geometry : SonarGeometry
+    pulse_bins, fraction, looks, background, sigma_scale
+        As in :func:`find_echoes`; ``looks`` per sample, multiplied by the pooled beams and
+        ``smooth_bins`` for the sigma of :func:`range_sigma_m`.
+    half_beams, front_bins, max_bins, smooth_bins, n_iter, touch_bins
+        The pooling window (see above).
+
+    Returns
+    -------
+    Echoes
+        ``echoes`` with the returns' ``edge_bin``, ``edge_range_m``, ``slope`` and ``sigma_m``
+        replaced (the other echoes unchanged).
+    """
+    from sonarmap.ranges import _kernels
+
+    sel = np.asarray(first, dtype=np.int64)
+    for key, v, lo in (("half_beams", half_beams, 0), ("front_bins", front_bins, 0), ("max_bins", max_bins, 3),
+                       ("smooth_bins", smooth_bins, 1), ("n_iter", n_iter, 1)):
+        if isinstance(v, bool) or int(v) != v or v < lo:
+            raise InputError(f"{key}: must be an integer >= {lo} (got {v!r})")
+    if not 0 < fraction < 1:
+        raise InputError(f"fraction: must lie in (0, 1) (got {fraction})")
+    if sel.shape != (echoes.n_beams,):
+        raise InputError(f"first: expected shape ({echoes.n_beams},), got {sel.shape}")
+    edge, lo, hi, stop = _first_intervals(echoes, sel)
+    run = _kernels.surface_runs(edge, lo, hi, float(touch_bins))
+    if half_beams == 0 or run.max(initial=-1) < 0:
+        return echoes
+    img = smooth_along_range(image, pulse_bins) if pulse_bins >= 2 else np.ascontiguousarray(image)
+    geometry.check_image(img, "image")
+    ok = sel >= 0
+    s = np.maximum(sel, 0)
+    new, value, rise, to_peak, used, noise = _kernels.pooled_edges(
+        img, edge, stop, run, int(half_beams), int(front_bins), int(max_bins), int(smooth_bins) | 1,
+        float(fraction), int(n_iter))
+    # the leading edge belongs to the beam's own echo: within the walk of find_echoes in front of
+    # its first structure bin and before its last one (else a neighbouring surface pulled it)
+    start = echoes.start_bin[s].astype(np.float64)
+    own = (new >= start - (int(pulse_bins) + 2)) & (new <= stop)
+    done = ok & (used > 0) & own
+    if not done.any():
+        return echoes
+    idx = s[done]
+    n_bins = img.shape[0]
+    eb = echoes.edge_bin.copy()
+    eb[idx] = np.clip(new[done], 0.0, n_bins - 1.0)
+    r = np.asarray(geometry.range_m, dtype=np.float64)
+    er = echoes.edge_range_m.copy()
+    er[idx] = np.interp(eb[idx], np.arange(r.size, dtype=np.float64), r)
+    sl = echoes.slope.copy()
+    sl[idx] = rise[done]
+    bin_m = abs(geometry.range_resolution_m)
+    pulse_m = int(pulse_bins) * bin_m if pulse_bins >= 2 else 0.0
+    sig = echoes.sigma_m.copy()
+    sig[idx] = edge_sigma_m(noise[done], rise[done], bin_m, pulse_m=pulse_m, scale=sigma_scale,
+                            rise_bins=to_peak[done], rise_scale=rise_scale)
+    return dataclasses.replace(echoes, edge_bin=eb, edge_range_m=er, slope=sl, sigma_m=sig)
