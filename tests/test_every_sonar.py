@@ -73,9 +73,22 @@ def test_real_aris_returns_on_the_target_and_none_in_the_water_column(aris_pings
         assert r.n_returns >= 20, p.source
         assert rm.min() > 15.4, p.source  # nothing in the water column (3.3-15.4 m)
         on_target = (rm >= 15.4) & (rm <= 17.6)
-        assert on_target.sum() >= 28, p.source  # measured 33-43 of 48
+        assert on_target.sum() >= 28, p.source  # measured 39-42 of 48
         # the target runs from beam 0 (17.2 m) to beam ~42 (15.5 m)
         assert np.all(np.nonzero(r.valid)[0][on_target] <= 44)
+
+
+def test_real_aris_faint_end_of_the_target_is_followed(aris_pings):
+    """In frames 0 and 1 the target's near end (beams 28-39, 15.4-16.0 m) is too faint for the
+    classifier's components, and the returns there lay on the lines behind it (17.2-20.4 m); the
+    surface continuation follows the target along its slope where the pixels' likelihood ratio says
+    structure (measured 11 and 12 of those 12 beams; 0 and 0 without it; frames 2-5: 8-12)."""
+    for k, p in enumerate(aris_pings):
+        near_end = process_ping(p).ranges.range_m[28:40]
+        assert np.count_nonzero((near_end > 15.3) & (near_end < 16.0)) >= (10 if k < 2 else 7), (k, near_end)
+    for p in aris_pings[:2]:
+        near_end = process_ping(p, PipelineConfig(continue_evidence=0)).ranges.range_m[28:40]
+        assert np.count_nonzero((near_end > 15.3) & (near_end < 16.0)) <= 1
 
 
 def test_real_oculus_seabed_and_nothing_in_front(oculus_pings):

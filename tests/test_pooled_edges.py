@@ -140,3 +140,45 @@ def test_pooled_edges_rejects_bad_arguments():
         PipelineConfig(edge_pool_beams=-1)
     with pytest.raises(InputError, match="sigma_pool_scale"):
         PipelineConfig(sigma_pool_scale=-1.0)
+
+
+def _continuation_case(seed: int, faint_llr: float) -> tuple[np.ndarray, object, np.ndarray, np.ndarray]:
+    """A surface sloped 2 bins per beam: beams 0-19 strong (classifier structure), beams 20-31 a
+    faint stretch whose pixels carry ``faint_llr`` nats each over 6 bins, noise (-1 +- 1) elsewhere."""
+    from sonarmap.ranges.tracking import TrackConfig, track_surfaces
+
+    g = _geom(n_bins=200, n_beams=32)
+    rng = np.random.default_rng(seed)
+    truth = 60.0 + 2.0 * np.arange(32)
+    llr = np.round(rng.normal(-1.0, 1.0, g.shape), 1)
+    img = np.zeros(g.shape)
+    mask = np.zeros(g.shape, dtype=bool)
+    for j, t in enumerate(truth.astype(int)):
+        if j < 20:
+            img[t:t + 6, j] = [0.5, 1.0, 1.0, 1.0, 0.8, 0.4]
+            mask[t:t + 6, j] = True
+            llr[t:t + 6, j] = 3.0
+        else:
+            llr[t:t + 6, j] = np.round(faint_llr + rng.normal(0, 0.5, 6), 1)
+    e = find_echoes(mask, img, g)
+    first = track_surfaces(e, TrackConfig(segment_cost=10.0)).first
+    # the kernel takes quantised levels and the evidence per level: here one level per 0.1 nat
+    values = np.unique(llr)
+    return truth, e, first, (np.searchsorted(values, llr), values)
+
+
+def test_continuation_follows_a_faint_stretch_along_the_slope_and_not_noise():
+    from sonarmap.ranges.tracking import continuation_mask
+
+    truth, e, first, llr = _continuation_case(0, 2.5)
+    assert (first[:20] >= 0).all() and (first[20:] < 0).all()
+    add = continuation_mask(e, first, *llr, min_evidence=10.0)
+    assert not add[:, :20].any()
+    for j in range(20, 32):
+        rows = np.flatnonzero(add[:, j])
+        assert rows.size and abs(rows[0] - truth[j]) <= 3, (j, rows)
+    # no faint stretch: only noise beyond the surface's end - nothing reaches 10 nats
+    truth, e, first, llr = _continuation_case(1, -1.0)
+    assert not continuation_mask(e, first, *llr, min_evidence=10.0).any()
+    with pytest.raises(InputError, match="levels"):
+        continuation_mask(e, first, llr[0][:, :3], llr[1])

@@ -177,6 +177,12 @@ class PipelineConfig:
         of the ``edge_pool_beams`` beams on either side of each beam on the same surface
         (:func:`sonarmap.ranges.echoes.pooled_edges`: a multi-look along the surface; a single
         beam's speckled echo moves its half-peak crossing by bins).  0 = every beam on its own.
+    continue_evidence : float
+        Surface continuation (:func:`sonarmap.ranges.tracking.continuation_mask`): a tracked
+        surface of >= 5 beams is followed beyond its ends along its slope where, in a window of its
+        echo thickness, the pixels' log-likelihood ratio under the ping's fit sums to at least this
+        many nats (a faint stretch the component rule left without candidates); those pixels
+        become candidates and the surfaces are tracked again.  0 = off.
     sigma_scale : float
         Calibration of the speckle-jitter term of the sigma of a return measured on its own beam
         (``edge_pool_beams=0``, or a surface of fewer than 3 beams;
@@ -250,6 +256,7 @@ class PipelineConfig:
     pulse_length_m: float | None = None
     edge_scan: str = "back"
     edge_pool_beams: int = 3
+    continue_evidence: float = 10.0
     sigma_scale: float = 1.5
     sigma_pool_scale: float = 5.0
     sigma_rise_scale: float = 0.15
@@ -303,7 +310,7 @@ class PipelineConfig:
         for key in ("beta", "fit_tol", "threshold", "cfar_pfa", "object_prior_min", "grow_prior_min",
                     "grow_beta", "speckle_eps", "edge_factor", "range_weight", "pool_factor",
                     "min_component_extent_m", "max_kld", "max_object_weight", "min_separation",
-                    "edge_fraction", "sigma_scale", "sigma_pool_scale", "sigma_rise_scale"):
+                    "edge_fraction", "sigma_scale", "sigma_pool_scale", "sigma_rise_scale", "continue_evidence"):
             v = getattr(self, key)
             if not is_finite_number(v):
                 raise bad(key, "must be a finite number")
@@ -315,7 +322,7 @@ class PipelineConfig:
                 raise bad(key, "must lie in [0, 0.5)")
         if self.pool_factor < 0:
             raise bad("pool_factor", "must be >= 0")
-        for key in ("sigma_scale", "sigma_pool_scale", "sigma_rise_scale"):
+        for key in ("sigma_scale", "sigma_pool_scale", "sigma_rise_scale", "continue_evidence"):
             if getattr(self, key) < 0:
                 raise bad(key, "must be >= 0")
         if not 0 <= self.edge_fraction < 1:
@@ -855,7 +862,7 @@ def _surface_ranges(ping: Ping, image: NDArray[np.float32], levels: NDArray[Any]
     the number of bins each return's echo spans (0 where no return)."""
     from sonarmap.ranges import ranges_from_tracks
     from sonarmap.ranges.echoes import find_echoes, level_llr, pooled_edges
-    from sonarmap.ranges.tracking import track_surfaces
+    from sonarmap.ranges.tracking import continuation_mask, track_surfaces
 
     geom = ping.geometry
     cand = mask
@@ -876,20 +883,36 @@ def _surface_ranges(ping: Ping, image: NDArray[np.float32], levels: NDArray[Any]
     else:
         lut = np.ones(int(levels.max()) + 1)
     pb = pulse_bins(ping, config)
-    meas, bg = image, bg_mean or 0.0
-    if normalised and background is not None and getattr(background, "level_by_bin", None) is not None:
-        # echo intensity above the background, in background units (its mean is 1)
-        occupied = np.flatnonzero(cand.any(axis=1))
-        pad = pb + 4
-        meas = measurement_image(ping, background, config,
-                                 rows=(int(occupied[0]) - pad, int(occupied[-1]) + 1 + pad))
-        bg = 1.0
-    # a pooled band pixel passed a >= pool_factor x background test over the whole box: one nat
-    # at least, whatever its own (single-look, speckled) value says
-    echoes = find_echoes(cand, meas, geom, levels=levels, level_evidence=lut, boost=band, boost_min=1.0,
-                         pulse_bins=pb, fraction=config.edge_fraction if config.edge_fraction > 0 else 0.5,
-                         background=bg, scan=config.edge_scan, sigma_scale=config.sigma_scale)
-    tracks = track_surfaces(echoes, config.track)
+    measured = normalised and background is not None and getattr(background, "level_by_bin", None) is not None
+
+    done: list[Any] = []  # the measurement image and its rows, once computed
+
+    def measure(cand: NDArray[np.bool_]) -> tuple[Any, float, Any, Any]:
+        meas, bg = image, bg_mean or 0.0
+        if measured:
+            # echo intensity above the background, in background units (its mean is 1)
+            occupied = np.flatnonzero(cand.any(axis=1))
+            pad = pb + 4
+            rows = (int(occupied[0]) - pad, int(occupied[-1]) + 1 + pad)
+            if not done or rows[0] < done[1][0] or rows[1] > done[1][1]:
+                done[:] = [measurement_image(ping, background, config, rows=rows), rows]
+            meas, bg = done[0], 1.0
+        # a pooled band pixel passed a >= pool_factor x background test over the whole box: one
+        # nat at least, whatever its own (single-look, speckled) value says
+        echoes = find_echoes(cand, meas, geom, levels=levels, level_evidence=lut, boost=band, boost_min=1.0,
+                             pulse_bins=pb, fraction=config.edge_fraction if config.edge_fraction > 0 else 0.5,
+                             background=bg, scan=config.edge_scan, sigma_scale=config.sigma_scale)
+        return meas, bg, echoes, track_surfaces(echoes, config.track)
+
+    meas, bg, echoes, tracks = measure(cand)
+    if config.continue_evidence > 0 and fit is not None and len(fit.class_names) >= 2:
+        # a surface's faint stretch that the component rule left without candidates: pixels along
+        # its extrapolation where their likelihood ratio says structure, for the tracker to judge
+        extra = continuation_mask(echoes, tracks.first, levels, level_llr(fit), min_evidence=config.continue_evidence,
+                                  touch_bins=config.track.touch_bins) & ~cand
+        if extra.any():
+            cand = cand | extra
+            meas, bg, echoes, tracks = measure(cand)
     sel = tracks.first
     if config.edge_pool_beams > 0 and config.range_mode == "first":
         # the pooled profile is smoothed over at least 3 bins along range in all (a single-look

@@ -664,3 +664,87 @@ def pooled_edges(img, edge, stop, run, half_beams, front_bins, max_bins, smooth_
             noise[j] = np.sqrt(var / c)
         cur = new
     return cur, value, rise, to_peak, used, noise
+
+
+@njit(cache=True, nogil=True)
+def _window_llr(levels, lut, j, t, thick):  # pragma: no cover - numba
+    acc = 0.0
+    for i in range(t, t + thick):
+        acc += lut[levels[i, j]]
+    return acc
+
+
+@njit(cache=True, nogil=True)
+def continuation_mask(levels, lut, edge, stop, run, min_run, max_beams, window_bins, min_evidence, max_misses):  # pragma: no cover - numba
+    """Continuation pixels of tracked surfaces (see :func:`sonarmap.ranges.tracking.continuation_mask`);
+    ``lut[levels]`` is the per-pixel log-likelihood ratio."""
+    n, m = levels.shape
+    out = np.zeros((n, m), np.bool_)
+    n_runs = run.max() + 1
+    tail = np.empty(10, np.int64)
+    slopes = np.empty(45)
+    depth = np.empty(m)
+    for r in range(n_runs):
+        b0 = -1
+        b1 = -1
+        for j in range(m):
+            if run[j] == r:
+                if b0 < 0:
+                    b0 = j
+                b1 = j
+        if b0 < 0 or b1 - b0 + 1 < min_run:
+            continue
+        c = 0
+        for j in range(b0, b1 + 1):
+            depth[c] = stop[j] - edge[j]
+            c += 1
+        s = np.sort(depth[:c])
+        med = s[c // 2] if c % 2 == 1 else 0.5 * (s[c // 2 - 1] + s[c // 2])
+        thick = int(min(max(med, 2.0), 16.0))
+        for direction in (-1, 1):
+            nt = min(10, b1 - b0 + 1)
+            for q in range(nt):
+                tail[q] = b1 - q if direction > 0 else b0 + q
+            # Theil-Sen slope of the edge over the run's last beams, per beam in the walk's direction
+            c = 0
+            for a in range(nt):
+                for b in range(a + 1, nt):
+                    slopes[c] = (edge[tail[b]] - edge[tail[a]]) / (tail[b] - tail[a])
+                    c += 1
+            s = np.sort(slopes[:c])
+            d = (s[c // 2] if c % 2 == 1 else 0.5 * (s[c // 2 - 1] + s[c // 2])) * direction
+            j0 = tail[0]
+            e0 = edge[j0]
+            j = j0
+            misses = 0
+            for _ in range(max_beams):
+                j += direction
+                if j < 0 or j >= m:
+                    break
+                steps = abs(j - j0)
+                pred = e0 + d * steps
+                w = max(window_bins, 0.5 * thick) + steps
+                if np.isfinite(edge[j]) and abs(edge[j] - pred) <= w + thick:
+                    break  # the tracker links an existing return
+                a = int(max(np.floor(pred - w), 0.0))
+                b = int(min(np.ceil(pred + w), n - thick))
+                if b < a:
+                    break
+                best = -np.inf
+                t_best = a
+                for t in range(a, b + 1):
+                    v = _window_llr(levels, lut, j, t, thick)
+                    if v > best:
+                        best = v
+                        t_best = t
+                if best >= min_evidence:
+                    for i in range(t_best, t_best + thick):
+                        out[i, j] = True
+                    e0 = float(t_best)
+                    j0 = j
+                    misses = 0
+                    continue
+                misses += 1
+                if misses > max_misses:
+                    break
+    return out

@@ -32,7 +32,7 @@ from sonarmap._config import is_finite_number
 from sonarmap.errors import InputError
 from sonarmap.ranges.echoes import Echoes
 
-__all__ = ["TrackConfig", "Tracks", "track_surfaces"]
+__all__ = ["TrackConfig", "Tracks", "track_surfaces", "continuation_mask"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -114,3 +114,55 @@ def track_surfaces(echoes: Echoes, config: TrackConfig = TrackConfig()) -> Track
     stack = np.take_along_axis(stack, order, axis=0)
     out[: stack.shape[0]] = stack
     return Tracks(echo=out)
+
+
+def continuation_mask(echoes: Echoes, first: NDArray[np.int64], levels: NDArray[np.integer],
+                      level_evidence: NDArray[np.float64], *, min_run: int = 5, max_beams: int = 16,
+                      window_bins: float = 3.0, min_evidence: float = 10.0, max_misses: int = 2,
+                      touch_bins: float = 1.0) -> NDArray[np.bool_]:
+    """Pixels that continue a tracked surface beyond its ends where the classifier left it.
+
+    A surface's faint part (its far end, a stretch under a weaker echo) may have no classifier
+    structure pixel that survives the component rule, although its pixels are more likely
+    structure than background.  From each end of a run of at least ``min_run`` tracked beams
+    (:func:`sonarmap.ranges.echoes.surface_runs`), the leading edge is extrapolated beam by beam
+    along the run's slope (Theil-Sen over its last 10 beams); in each beam the window of the
+    run's echo thickness (2-16 bins) whose summed per-pixel log-likelihood ratio
+    (``level_evidence[levels]``, nats) is largest within ``max(window_bins, thickness / 2)`` (+ a
+    bin per beam of extrapolation) of the prediction is a continuation when that sum reaches
+    ``min_evidence``: its pixels are returned, and the prediction restarts from it.  The walk
+    stops at ``max_misses`` beams in a row without one, at another return near the prediction,
+    or after ``max_beams`` beams.  The pixels are candidates only: the tracker decides whether
+    they are part of the surface.
+
+    Parameters
+    ----------
+    echoes : Echoes
+    first : ndarray of int, shape (n_beams,)
+        The tracked return's echo per beam (``Tracks.first``).
+    levels : ndarray of int, shape (n_bins, n_beams)
+        The quantised image the classifier saw.
+    level_evidence : ndarray of float
+        Log-likelihood ratio structure : background per level
+        (:func:`sonarmap.ranges.echoes.level_llr`).
+
+    Returns
+    -------
+    ndarray of bool, shape (n_bins, n_beams)
+    """
+    from sonarmap.ranges import _kernels
+    from sonarmap.ranges.echoes import _first_intervals
+
+    code = np.ascontiguousarray(levels)
+    lut = np.ascontiguousarray(level_evidence, dtype=np.float64)
+    if code.ndim != 2 or code.shape[1] != echoes.n_beams:
+        raise InputError(f"levels: expected shape (n_bins, {echoes.n_beams}), got {code.shape}")
+    if code.size and (int(code.min()) < 0 or int(code.max()) >= lut.size):
+        raise InputError(f"levels: values must lie in [0, {lut.size})")
+    sel = np.asarray(first, dtype=np.int64)
+    if echoes.size == 0 or not (sel >= 0).any():
+        return np.zeros(code.shape, dtype=bool)
+    edge, lo, hi, stop = _first_intervals(echoes, sel)
+    run = _kernels.surface_runs(edge, lo, hi, float(touch_bins))
+    return _kernels.continuation_mask(code, lut, edge, stop, run, int(min_run), int(max_beams), float(window_bins),
+                                      float(min_evidence), int(max_misses))
