@@ -910,6 +910,12 @@ def _surface_ranges(ping: Ping, image: NDArray[np.float32], levels: NDArray[Any]
         # its extrapolation where their likelihood ratio says structure, for the tracker to judge
         extra = continuation_mask(echoes, tracks.first, levels, level_llr(fit), min_evidence=config.continue_evidence,
                                   touch_bins=config.track.touch_bins) & ~cand
+        if extra.any() and echoes.size:
+            # only where it could become the return: a beam without one, or whose return lies behind
+            first = tracks.first
+            current = np.where(first >= 0, echoes.edge_bin[np.maximum(first, 0)], np.inf)
+            top = np.where(extra.any(axis=0), np.argmax(extra, axis=0), extra.shape[0])
+            extra &= (top < current)[None, :]
         if extra.any():
             cand = cand | extra
             meas, bg, echoes, tracks = measure(cand)
