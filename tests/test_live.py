@@ -344,6 +344,32 @@ def test_cli_ranges_to_stdout_parse_with_pandas(aris_file: Path, capsys: pytest.
     assert all(json.loads(line)["time_ns"] > 0 for line in cap.out.splitlines())
 
 
+def test_cli_ranges_to_a_bag_replay_with_the_pings_stamps(aris_file: Path, tmp_path: Path,
+                                                          capsys: pytest.CaptureFixture[str]) -> None:
+    import pandas as pd
+    from rosbags.highlevel import AnyReader
+
+    from sonarmap.cli import main
+
+    for name in ("r.bag", "r2"):  # ROS 1 file, ROS 2 directory
+        bag = tmp_path / name
+        csv_path = tmp_path / f"{name}.csv"
+        assert main(["live", str(aris_file), "--replay", "--rate", "30", "--queue", "8", "--bag", str(bag),
+                     "--ranges", str(csv_path), "-q"]) == 0
+        df = pd.read_csv(csv_path)
+        with AnyReader([bag]) as reader:
+            msgs = [(t, reader.deserialize(raw, c.msgtype)) for c, t, raw in reader.messages()]
+            assert {c.msgtype for c in reader.connections} == {"marine_acoustic_msgs/msg/SonarRanges"}
+        assert len(msgs) == 6 == df["ping"].nunique()
+        for (t, m), (_, rows) in zip(msgs, df.groupby("ping", sort=False)):
+            assert t == int(rows["time_ns"].iloc[0]) == m.header.stamp.sec * 10**9 + m.header.stamp.nanosec
+            assert np.allclose(m.ranges, rows["range_m"].to_numpy(np.float32), equal_nan=True)
+        # an existing bag is replaced only with --overwrite
+        assert main(["live", str(aris_file), "--replay", "--rate", "50", "--bag", str(bag), "-q"]) == 1
+        assert "--overwrite" in capsys.readouterr().err
+        assert main(["live", str(aris_file), "--replay", "--rate", "50", "--bag", str(bag), "-q", "--overwrite"]) == 0
+
+
 @pytest.mark.parametrize("args", [
     ["--replay", "--queue", "0"],
     ["--replay", "--format", "xml"],
@@ -376,8 +402,8 @@ def test_sigint_leaves_a_valid_store(raw_capture: Path, tmp_path: Path) -> None:
     with ReplayServer(raw_capture, rate_hz=10) as srv:
         env = {**os.environ, "PYTHONUNBUFFERED": "1"}
         proc = subprocess.Popen([sys.executable, "-m", "sonarmap", "live", srv.url, "-o", str(out),
-                                 "--flush-every", "3"], stderr=subprocess.PIPE, stdout=subprocess.PIPE,
-                                text=True, env=env)
+                                 "--flush-every", "3", "--bag", str(tmp_path / "int.bag")],
+                                stderr=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env=env)
         try:
             t0 = time.monotonic()
             while time.monotonic() - t0 < 30:  # until the store holds a few pings
@@ -398,6 +424,11 @@ def test_sigint_leaves_a_valid_store(raw_capture: Path, tmp_path: Path) -> None:
     assert "stopped by interrupt" in line and n >= 6
     ds = load_products(out)
     assert ds.sizes["ping_time"] == n and ds.attrs["live_status"] == "complete"
+    # the bag is finished on Ctrl-C too: one SonarRanges per processed ping
+    from rosbags.highlevel import AnyReader
+
+    with AnyReader([tmp_path / "int.bag"]) as reader:
+        assert sum(1 for _ in reader.messages()) == n
 
 
 @pytest.mark.parametrize("kind", ["raw", "log-v1"])

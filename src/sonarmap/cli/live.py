@@ -107,6 +107,8 @@ def register(app: typer.Typer) -> None:
         loop: bool = typer.Option(False, "--loop", help="Replay: start again after the last ping."),
         output: Path | None = typer.Option(None, "--output", "-o", help="Product store (zarr) appended as pings arrive."),
         ranges: str | None = typer.Option(None, "--ranges", help="Per-beam ranges: - for stdout, or a file."),
+        bag: Path | None = typer.Option(None, "--bag", help="Ranges as marine_acoustic_msgs/SonarRanges: a ROS 1 "
+                                        "*.bag file, else a ROS 2 bag directory (moved into place when the run ends)."),
         fmt: str = typer.Option("csv", "--format", help="Ranges format: csv or jsonl."),
         config: Path | None = typer.Option(None, "--config", "-c", help="Pipeline configuration TOML."),
         max_pings: int | None = typer.Option(None, "--max-pings", help="Stop after this many pings."),
@@ -116,7 +118,7 @@ def register(app: typer.Typer) -> None:
         flush_seconds: float = typer.Option(1.0, "--flush-seconds", help="... or every S seconds."),
         idle_timeout: float = typer.Option(5.0, "--idle-timeout", help="--follow: stop after S seconds without "
                                                                       "growth (0: never)."),
-        overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing output store."),
+        overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing output store or bag."),
         oculus_range: float = typer.Option(2.0, "--oculus-range", help="tcp://: the Oculus range window (m)."),
         oculus_gain: float = typer.Option(50.0, "--oculus-gain", help="tcp://: the Oculus receiver gain (percent)."),
         oculus_frequency: str = typer.Option("high", "--oculus-frequency",
@@ -182,7 +184,7 @@ def register(app: typer.Typer) -> None:
 
         # ------------------------------------------------------------ set up (errors: exit 1)
         from sonarmap.cli.ranges import pipeline_config_from_options
-        from sonarmap.live import RangesSink, StatusLine, StoreSink, open_source, run_live, warm_pipeline
+        from sonarmap.live import BagSink, RangesSink, StatusLine, StoreSink, open_source, run_live, warm_pipeline
 
         cfg = pipeline_config_from_options(config, None, None, None)  # the route every command takes
         src = open_source(source, follow=follow, replay=replay, rate_hz=rate, speed=speed, loop=loop,
@@ -197,7 +199,11 @@ def register(app: typer.Typer) -> None:
             sinks.append(store)
         stats = None
         stop = threading.Event()
+        bag_sink: BagSink | None = None
         try:
+            if bag is not None:
+                bag_sink = BagSink(bag, overwrite=overwrite)
+                sinks.append(bag_sink)
             if ranges is not None:
                 if ranges == "-":
                     ranges_fh = sys.stdout
@@ -218,8 +224,12 @@ def register(app: typer.Typer) -> None:
         finally:
             status.clear()
             try:
-                if store is not None:
-                    store.close()
+                try:
+                    if store is not None:
+                        store.close()
+                finally:
+                    if bag_sink is not None:
+                        bag_sink.close()
             finally:
                 if ranges_fh is not None and ranges_fh is not sys.stdout:
                     ranges_fh.close()
@@ -229,4 +239,6 @@ def register(app: typer.Typer) -> None:
         extra = ""
         if store is not None:
             extra = f" -> {output} ({store.n_written} pings)" if store.n_written else f"; no pings, {output} not written"
+        if bag_sink is not None:
+            extra += f" -> {bag} ({bag_sink.n_written} SonarRanges)"
         status.finish(stats, extra)

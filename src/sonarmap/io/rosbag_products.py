@@ -37,7 +37,7 @@ from sonarmap.errors import InputError
 from sonarmap.geometry import SonarGeometry
 from sonarmap.io.rosbag_msgs import DETECT_BAD_FILTER, DETECT_OK, DETECTION_FLAG, POINTCLOUD2, SONAR_RANGES
 
-__all__ = ["write_ranges_bag", "write_points_bag", "write_occupancy_bag", "POINT_FIELDS", "OCCUPANCY_FIELDS"]
+__all__ = ["write_ranges_bag", "RangesBagWriter", "write_points_bag", "write_occupancy_bag", "POINT_FIELDS", "OCCUPANCY_FIELDS"]
 
 #: PointField datatypes (sensor_msgs/PointField constants).
 _UINT16, _FLOAT32, _FLOAT64 = 4, 7, 8
@@ -87,32 +87,81 @@ def write_ranges_bag(
     >>> items = ((p.geometry, process_ping(p).ranges) for p in pings)   # doctest: +SKIP
     >>> write_ranges_bag(items, "ranges.bag", version=1)                 # doctest: +SKIP
     """
-    from sonarmap.io.rosbag import bag_writer, beam_vectors, header, ping_info
-
-    n = 0
-    with bag_writer(path, version) as (writer, serialize, store):
-        T = store.types
-        conn = writer.add_connection(topic, SONAR_RANGES, typestore=store)
-        flag_t = T[DETECTION_FLAG]
+    with RangesBagWriter(path, version=version, topic=topic, frame_id=frame_id) as out:
         for geometry, r in ranges:
-            if r.n_beams != geometry.n_beams:
-                raise InputError(f"ranges: {r.n_beams} beams for a geometry of {geometry.n_beams} (ping {n})")
-            hit = np.asarray(r.bin) >= 0
-            rng = np.where(hit, np.asarray(r.range_m, dtype=np.float64), np.nan).astype(np.float32)
-            inten = np.where(hit, np.asarray(r.intensity, dtype=np.float64), np.nan).astype(np.float32)
-            t_ns = int(r.time_ns)
-            msg = T[SONAR_RANGES](
-                header=header(store, version, t_ns, frame_id, n),
-                ping_info=ping_info(geometry, store),
-                flags=[flag_t(flag=DETECT_OK if h else DETECT_BAD_FILTER) for h in hit],
-                transmit_delays=np.zeros(0, np.float32),
-                intensities=inten,
-                beam_unit_vec=beam_vectors(np.asarray(r.azimuth_rad, dtype=np.float64), store),
-                ranges=rng,
-            )
-            writer.write(conn, t_ns, serialize(msg, SONAR_RANGES))
-            n += 1
-    return n
+            out.write(geometry, r)
+        return out.n_written
+
+
+class RangesBagWriter:
+    """Write ``SonarRanges`` one ping at a time (what :func:`write_ranges_bag` and the live bag
+    sink use); the bag appears at ``path`` when :meth:`close` succeeds (written beside it until
+    then), and an exception inside a ``with`` block leaves nothing at ``path``.
+
+    Parameters
+    ----------
+    path : path-like
+        ROS 1: the ``.bag`` file; ROS 2: the bag directory.
+    version : {1, 2}
+    topic, frame_id : str
+        Topic of the messages and their ``header.frame_id``.
+    """
+
+    def __init__(self, path: str | os.PathLike[str], *, version: int = 2, topic: str = "/sonar/ranges",
+                 frame_id: str = "sonar") -> None:
+        from sonarmap.io.rosbag import bag_writer
+
+        self.version = version
+        self.frame_id = frame_id
+        self.n_written = 0
+        self._cm = bag_writer(path, version)
+        self._writer, self._serialize, self._store = self._cm.__enter__()
+        try:
+            self._conn = self._writer.add_connection(topic, SONAR_RANGES, typestore=self._store)
+        except BaseException as exc:
+            self._cm.__exit__(type(exc), exc, exc.__traceback__)
+            raise
+        self._open = True
+
+    def write(self, geometry: SonarGeometry, r: Any) -> None:
+        """Append one ping's ranges (stamped with ``r.time_ns``)."""
+        from sonarmap.io.rosbag import beam_vectors, header, ping_info
+
+        if r.n_beams != geometry.n_beams:
+            raise InputError(f"ranges: {r.n_beams} beams for a geometry of {geometry.n_beams} (ping {self.n_written})")
+        store, T = self._store, self._store.types
+        hit = np.asarray(r.bin) >= 0
+        rng = np.where(hit, np.asarray(r.range_m, dtype=np.float64), np.nan).astype(np.float32)
+        inten = np.where(hit, np.asarray(r.intensity, dtype=np.float64), np.nan).astype(np.float32)
+        t_ns = int(r.time_ns)
+        flag_t = T[DETECTION_FLAG]
+        msg = T[SONAR_RANGES](
+            header=header(store, self.version, t_ns, self.frame_id, self.n_written),
+            ping_info=ping_info(geometry, store),
+            flags=[flag_t(flag=DETECT_OK if h else DETECT_BAD_FILTER) for h in hit],
+            transmit_delays=np.zeros(0, np.float32),
+            intensities=inten,
+            beam_unit_vec=beam_vectors(np.asarray(r.azimuth_rad, dtype=np.float64), store),
+            ranges=rng,
+        )
+        self._writer.write(self._conn, t_ns, self._serialize(msg, SONAR_RANGES))
+        self.n_written += 1
+
+    def close(self, error: BaseException | None = None) -> None:
+        """Finish the bag and move it onto ``path`` (with ``error``: discard it)."""
+        if not self._open:
+            return
+        self._open = False
+        if error is None:
+            self._cm.__exit__(None, None, None)
+        else:
+            self._cm.__exit__(type(error), error, error.__traceback__)
+
+    def __enter__(self) -> RangesBagWriter:
+        return self
+
+    def __exit__(self, exc_type: Any, exc: BaseException | None, tb: Any) -> None:
+        self.close(exc)
 
 
 def _pointcloud2(store: Any, version: int, xyz: np.ndarray, columns: Iterable[tuple[str, int, str, np.ndarray]],

@@ -25,7 +25,7 @@ from __future__ import annotations
 
 from sonarmap.live.loop import DEFAULT_QUEUE, LiveSnapshot, LiveStats, run_live, warm_pipeline
 from sonarmap.live.protocol import FireSettings, MessageFramer, decode_fire_message, encode_fire_message
-from sonarmap.live.sinks import RANGES_FORMATS, RangesSink, StoreSink
+from sonarmap.live.sinks import RANGES_FORMATS, BagSink, RangesSink, StoreSink
 from sonarmap.live.sources import (
     FollowSource,
     LiveWarning,
@@ -51,7 +51,7 @@ def __getattr__(name: str) -> object:
 __all__ = [
     "DEFAULT_QUEUE", "LiveSnapshot", "LiveStats", "run_live", "warm_pipeline",
     "FireSettings", "MessageFramer", "decode_fire_message", "encode_fire_message",
-    "ReplayServer", "RANGES_FORMATS", "RangesSink", "StoreSink",
+    "ReplayServer", "RANGES_FORMATS", "BagSink", "RangesSink", "StoreSink",
     "FollowSource", "LiveWarning", "OculusTcpSource", "PingSource", "ReplaySource", "SourceError", "open_source",
     "parse_tcp_url", "StatusLine", "format_snapshot",
 ]

@@ -4,6 +4,11 @@
 :func:`sonarmap.ranges.csv_rows.write_ranges_rows`) or one JSON object per ping, flushed after every
 ping so a pipe downstream sees each ping at once.
 
+:class:`BagSink` writes each ping's ranges as a ``marine_acoustic_msgs/SonarRanges`` message into
+a ROS 1 or ROS 2 bag (:class:`sonarmap.io.rosbag_products.RangesBagWriter`), stamped with the
+ping's time; the bag is written beside its path and moved there when the run ends (also on
+Ctrl-C), so a replay tool never sees half a bag.
+
 :class:`StoreSink` appends products to a zarr product store (the layout ``sonarmap process``
 writes; :class:`sonarmap.survey.ProductAppender`): rows are buffered and flushed every
 ``flush_every`` pings or ``flush_s`` seconds, whichever comes first; each flush is published
@@ -28,7 +33,7 @@ import numpy as np
 from sonarmap.errors import InputError
 from sonarmap.ping import Ping
 
-__all__ = ["RangesSink", "StoreSink", "RANGES_FORMATS"]
+__all__ = ["RangesSink", "StoreSink", "BagSink", "RANGES_FORMATS"]
 
 #: Formats of :class:`RangesSink`.
 RANGES_FORMATS = ("csv", "jsonl")
@@ -106,6 +111,43 @@ class RangesSink:
             self.stream.flush()
         except (OSError, ValueError):
             pass
+
+
+class BagSink:
+    """Each processed ping's ranges as a ``SonarRanges`` message in a bag, finished on :meth:`close`.
+
+    Parameters
+    ----------
+    path : path-like
+        ``*.bag``: a ROS 1 bag file; anything else: a ROS 2 bag directory.
+    overwrite : bool
+        Replace an existing bag (else an existing path is an error before any ping).
+    topic, frame_id : str
+        Topic and ``header.frame_id`` of the messages.
+    """
+
+    def __init__(self, path: str | os.PathLike[str], *, overwrite: bool = False, topic: str = "/sonar/ranges",
+                 frame_id: str = "sonar") -> None:
+        from sonarmap.io.rosbag_products import RangesBagWriter
+
+        self.path = Path(path)
+        if self.path.exists() and not overwrite:
+            raise InputError(f"{self.path}: exists; pass --overwrite to replace it")
+        self.version = 1 if self.path.suffix.lower() == ".bag" else 2
+        self._out = RangesBagWriter(self.path, version=self.version, topic=topic, frame_id=frame_id)
+
+    @property
+    def n_written(self) -> int:
+        """Messages written so far."""
+        return self._out.n_written
+
+    def write(self, ping: Ping, products: Any) -> None:
+        """Append the ping's ranges."""
+        self._out.write(ping.geometry, products.ranges)
+
+    def close(self) -> None:
+        """Finish the bag and move it onto its path (an empty run writes an empty bag)."""
+        self._out.close()
 
 
 class StoreSink:
