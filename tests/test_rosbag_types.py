@@ -203,7 +203,8 @@ def test_oculus_raw_data(tmp_path: Path, version: int, data_dir: Path) -> None:
         stamps.append(t)
     path = _bag(tmp_path, version)
     _write(path, version, store=store, items=items)
-    pings = list(read_pings(path))
+    with pytest.warns(UserWarning, match="1 run.s. of bytes that are not an Oculus message skipped"):  # the resync byte
+        pings = list(read_pings(path))
     assert len(pings) == len(ref) == 3 == rosbag.count_pings(path)
     for p, q, t in zip(pings, ref, stamps):
         assert p.time_ns == t
@@ -225,9 +226,41 @@ def test_oculus_raw_data_broken_message_is_skipped_with_a_warning(tmp_path: Path
              for i, m in enumerate([msgs[0][:-10], msgs[0]])]
     path = _bag(tmp_path, 2)
     _write(path, 2, store=store, items=items)
-    with pytest.warns(UserWarning, match="does not hold exactly one"):
+    with pytest.warns(UserWarning, match="1 incomplete message"):
         pings = list(read_pings(path))
     assert [p.time_ns for p in pings] == [T0 + 1]
+
+
+@pytest.mark.parametrize("pieces", [2, 3, 7])
+def test_oculus_raw_data_split_and_merged_messages_are_reassembled(tmp_path: Path, data_dir: Path,
+                                                                   pieces: int) -> None:
+    """A driver may record what one network read returned: a message split over several RawData,
+    or several messages in one.  Each ping is read once, at the stamp of the RawData that
+    completed it, with the image of the capture."""
+    raw_file = data_dir / "oculus" / "three_pings_8bit.raw"
+    msgs = _oculus_messages(raw_file)
+    ref = list(read_pings(raw_file))
+    store = _store(2)
+    T = store.types
+    chunks: list[bytes] = []
+    done_at: list[int] = []  # index of the chunk completing each ping
+    # ping 0 split into `pieces`, pings 1 and 2 merged into one RawData with 5 garbage bytes between
+    cuts = np.linspace(0, len(msgs[0]), pieces + 1).astype(int)
+    chunks += [msgs[0][a:b] for a, b in zip(cuts[:-1], cuts[1:])]
+    done_at.append(len(chunks) - 1)
+    chunks.append(msgs[1] + b"\x00\x01\x02SO" + msgs[2])
+    done_at += [len(chunks) - 1] * 2
+    items = [("/raw", "apl_msgs/msg/RawData", T["apl_msgs/msg/RawData"](
+        header=_header(store, 2, T0 + k), direction=1, data=np.frombuffer(c, np.uint8)), T0 + k)
+        for k, c in enumerate(chunks)]
+    path = _bag(tmp_path, 2)
+    _write(path, 2, store=store, items=items)
+    with pytest.warns(UserWarning, match="not an Oculus message skipped"):
+        pings = list(read_pings(path))
+    assert [p.time_ns for p in pings] == [T0 + k for k in done_at]
+    for p, q in zip(pings, ref, strict=True):
+        assert np.array_equal(p.image, q.image)
+    assert rosbag.count_pings(path) == 3
 
 
 # ---------------------------------------------------------------------- precedence

@@ -17,14 +17,17 @@
     of the .msg comment calls it "azimuth-major".  ``azimuth_beamwidth``, ``elevation_beamwidth``
     and non-empty ``elevation_angles`` go to ``Ping.meta``.
 ``apl_msgs/RawData`` (Oculus network capture)
-    The UW-APL Oculus driver publishes each Oculus network message it receives as one RawData
-    (``direction`` ``DATA_IN``), its header stamped just after reception, and its replay node
-    decodes each RawData on its own; sonarmap does the same: a RawData whose ``data`` is one whole
-    ``SimplePingResult`` (16-byte header with id 0x4F53 and message 0x23, ``16 + payloadSize``
-    bytes) is a ping, decoded by :func:`sonarmap.io.oculus.decode_simple_ping`, at the RawData's
-    header stamp.  Outgoing data (``DATA_OUT``), other Oculus messages and bytes that are not a
-    message are skipped; a RawData that starts a SimplePingResult but does not hold exactly one is
-    skipped with a :class:`~sonarmap.errors.SonarmapWarning` (once per topic).
+    The UW-APL Oculus driver publishes what it receives from the sonar as RawData (``direction``
+    ``DATA_IN``), each header stamped just after reception - usually one whole Oculus network
+    message per RawData.  sonarmap reads a topic's incoming RawData as the byte stream they are
+    pieces of (:class:`sonarmap.io.oculus_stream.MessageFramer`): a message split over several
+    RawData is reassembled, several messages in one RawData are all read, and every
+    ``SimplePingResult`` is a ping, decoded by :func:`sonarmap.io.oculus.decode_simple_ping`, at
+    the stamp of the RawData that completed it (its last byte's reception).  A RawData that
+    starts with a plausible message header while a message is still incomplete means the rest of
+    that message was lost: the incomplete one is dropped.  Outgoing data (``DATA_OUT``), other
+    Oculus messages and bytes that are not a message are skipped; dropped, undecodable or
+    skipped data give one :class:`~sonarmap.errors.SonarmapWarning` per topic.
 """
 
 from __future__ import annotations
@@ -40,10 +43,10 @@ import numpy as np
 
 from sonarmap.errors import DataFormatError, GeometryError, SonarmapWarning
 from sonarmap.geometry import SonarGeometry
-from sonarmap.io.oculus import HEADER, MSG_SIMPLE_PING_RESULT, OCULUS_ID, decode_simple_ping
+from sonarmap.io.oculus import MSG_SIMPLE_PING_RESULT, decode_simple_ping
 from sonarmap.ping import Ping
 
-__all__ = ["ping_from_raw_sonar_image", "ping_from_legacy_image", "oculus_ping_chunk", "iter_kind", "count_oculus"]
+__all__ = ["ping_from_raw_sonar_image", "ping_from_legacy_image", "incoming_bytes", "iter_kind", "count_oculus"]
 
 _LEGACY_DTYPES = {1: np.dtype("u1"), 2: np.dtype("u2"), 4: np.dtype("u4")}
 
@@ -163,26 +166,44 @@ def ping_from_legacy_image(msg: Any, path: Path, topic: str, idx: int, override:
                 source=f"{path}#{topic}:{idx}", meta=meta)
 
 
-def oculus_ping_chunk(msg: Any) -> tuple[bytes | None, bool]:
-    """The bytes of the SimplePingResult a RawData holds (None if none) and whether it was a
-    broken one (starts a SimplePingResult but is not exactly one message).
+def incoming_bytes(msg: Any) -> bytes | None:
+    """The bytes of an incoming RawData (None for outgoing data).
 
-    Incoming data only: ``direction`` is compared with the message's own ``DATA_IN`` constant
-    (the bag's definition); a definition without ``direction`` counts as incoming.
+    ``direction`` is compared with the message's own ``DATA_IN`` constant (the bag's definition);
+    a definition without ``direction`` counts as incoming.
     """
     if hasattr(msg, "direction"):
         data_in = getattr(msg, "DATA_IN", 1)
         if int(msg.direction) != int(data_in):
-            return None, False
-    data = np.asarray(msg.data, dtype=np.uint8).reshape(-1)
-    if data.size < HEADER.size:
-        return None, False
-    oid, _s, _d, msg_id, _v, payload, _p = HEADER.unpack_from(data[: HEADER.size].tobytes(), 0)
-    if oid != OCULUS_ID or msg_id != MSG_SIMPLE_PING_RESULT:
-        return None, False
-    if HEADER.size + payload != data.size:
-        return None, True
-    return data.tobytes(), False
+            return None
+    return np.asarray(msg.data, dtype=np.uint8).reshape(-1).tobytes()
+
+
+def _oculus_messages(reader: Any, path: Path, conns: list[Any]) -> Iterator[tuple[Any, int, Any, bytes]]:
+    """``(connection, RawData index, RawData, SimplePingResult bytes)`` for every ping message the
+    topics' incoming byte streams hold, in time order; one warning per topic for lost or skipped
+    data (see the module notes)."""
+    from sonarmap.io.oculus_stream import MessageFramer
+
+    framers: dict[str, MessageFramer] = {}
+    for conn, i, msg in _topic_messages(reader, path, conns):
+        data = incoming_bytes(msg)
+        if not data:
+            continue
+        framer = framers.setdefault(conn.topic, MessageFramer())
+        for msg_id, whole in framer.feed(data, boundary=True):
+            if msg_id == MSG_SIMPLE_PING_RESULT:
+                yield conn, i, msg, whole
+    for topic, framer in framers.items():
+        lost = []
+        if framer.dropped:
+            lost.append(f"{framer.dropped} incomplete message(s) dropped (their rest was never recorded)")
+        if framer.malformed:
+            lost.append(f"{framer.malformed} run(s) of bytes that are not an Oculus message skipped")
+        if framer.buffered:
+            lost.append(f"{framer.buffered} bytes of an unfinished last message")
+        if lost:
+            warnings.warn(f"{path}: {topic}: " + "; ".join(lost), SonarmapWarning, stacklevel=3)
 
 
 def _topic_messages(reader: Any, path: Path, conns: list[Any]) -> Iterator[tuple[Any, int, Any]]:
@@ -204,24 +225,21 @@ def _topic_messages(reader: Any, path: Path, conns: list[Any]) -> Iterator[tuple
 def _iter_oculus(reader: Any, path: Path, conns: list[Any], override: SonarGeometry | None) -> Iterator[Ping]:
     from sonarmap.io.rosbag import FORMAT, _stamp_ns
 
-    warned: set[str] = set()
-    for conn, i, msg in _topic_messages(reader, path, conns):
-        data, broken = oculus_ping_chunk(msg)
-        if broken and conn.topic not in warned:
-            warned.add(conn.topic)
-            warnings.warn(
-                f"{path}: {conn.topic}: RawData message {i} starts an Oculus SimplePingResult but does not "
-                "hold exactly one (incomplete or merged); such messages are skipped",
-                SonarmapWarning, stacklevel=3,
-            )
-        if data is None:
-            continue
+    bad: set[str] = set()
+    for conn, i, msg, data in _oculus_messages(reader, path, conns):
         try:
             t_ns = _stamp_ns(msg.header.stamp)
         except ValueError as exc:
             raise DataFormatError(f"message {i} on {conn.topic}: {exc}", path) from None
-        ping = decode_simple_ping(data, path=f"{path}#{conn.topic}:{i}", time_ns=t_ns, geometry=override,
-                                  source=f"{path}#{conn.topic}:{i}")
+        try:
+            ping = decode_simple_ping(data, path=f"{path}#{conn.topic}:{i}", time_ns=t_ns, geometry=override,
+                                      source=f"{path}#{conn.topic}:{i}")
+        except DataFormatError as exc:
+            if conn.topic not in bad:
+                bad.add(conn.topic)
+                warnings.warn(f"{path}: {conn.topic}: an Oculus SimplePingResult ending in RawData message {i} "
+                              f"does not decode ({exc}); such pings are skipped", SonarmapWarning, stacklevel=3)
+            continue
         ping.meta.update(format=FORMAT, payload_format="oculus", msgtype="RawData", topic=conn.topic,
                          message_index=i, time_source="header_stamp")
         if hasattr(msg.header, "seq"):
@@ -230,10 +248,11 @@ def _iter_oculus(reader: Any, path: Path, conns: list[Any], override: SonarGeome
 
 
 def count_oculus(reader: Any, path: Path, conns: list[Any]) -> dict[str, int]:
-    """SimplePingResult pings per topic of RawData connections (scans the messages)."""
+    """SimplePingResult messages per topic of RawData connections (scans and frames the messages)."""
     out = {c.topic: 0 for c in conns}
-    for conn, _i, msg in _topic_messages(reader, path, conns):
-        if oculus_ping_chunk(msg)[0] is not None:
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", SonarmapWarning)  # reading the pings warns
+        for conn, _i, _msg, _data in _oculus_messages(reader, path, conns):
             out[conn.topic] += 1
     return out
 

@@ -12,8 +12,8 @@ header) and a spare ``uint16``.  A client starts the sonar by sending an
 (``msgId`` 0x23, decoded by :func:`sonarmap.io.oculus.decode_simple_ping`) among status
 messages, which a client skips.
 
-:class:`MessageFramer` cuts a byte stream into messages and resynchronises after damage: a
-header without the magic, with an absurd ``payloadSize`` or an implausible ``msgId`` /
+:class:`MessageFramer` (:mod:`sonarmap.io.oculus_stream`, re-exported here) cuts a byte stream
+into messages and resynchronises after damage: a header without the magic, with an absurd ``payloadSize`` or an implausible ``msgId`` /
 ``msgVersion``, or a ``SimplePingResult`` whose image does not fit in its payload, is skipped up
 to the next ``b"SO"``; each such run of bad bytes counts as one malformed event.
 """
@@ -21,21 +21,10 @@ to the next ``b"SO"``; each such run of bad bytes counts as one malformed event.
 from __future__ import annotations
 
 import dataclasses
-import struct
 
 from sonarmap.errors import InputError
-from sonarmap.io import MAX_PING_BYTES
-from sonarmap.io.oculus import (
-    FIRE_V1,
-    FIRE_V2_EXTRA,
-    HEADER,
-    MSG_SIMPLE_PING_RESULT,
-    OCULUS_ID,
-    PING_V1,
-    PING_V2,
-    SIZE_V1,
-    SIZE_V2,
-)
+from sonarmap.io.oculus import FIRE_V1, HEADER, MSG_SIMPLE_PING_RESULT, OCULUS_ID
+from sonarmap.io.oculus_stream import MessageFramer
 
 __all__ = [
     "DEFAULT_PORT",
@@ -51,9 +40,6 @@ __all__ = [
 DEFAULT_PORT = 52100
 #: ``msgId`` of ``OculusSimpleFireMessage``.
 MSG_SIMPLE_FIRE = 0x15
-#: Largest payload accepted for messages other than pings (status, configuration: a few hundred bytes).
-_MAX_OTHER_PAYLOAD = 1 << 16
-_MAGIC = struct.pack("<H", OCULUS_ID)  # b"SO"
 
 #: ``flags`` bits of the fire message.
 FLAG_RANGE_METERS = 0x01
@@ -144,99 +130,3 @@ def decode_fire_message(msg: bytes) -> FireSettings:
         raise InputError(f"fire message: id 0x{oid:04X} / message 0x{msg_id:02X} is not a simple fire message")
     f = FIRE_V1.unpack_from(msg, HEADER.size)
     return FireSettings(*f[:5], *f[5:])
-
-
-class MessageFramer:
-    """Cut a byte stream into Oculus messages, resynchronising on damage.
-
-    Feed received bytes with :meth:`feed`; it returns the complete messages ``(msg_id, bytes)``
-    found so far.  Bytes that cannot start a message are skipped up to the next ``b"SO"``;
-    :attr:`malformed` counts such events (one per run of bad bytes).
-
-    Parameters
-    ----------
-    max_payload : int
-        Largest plausible ``payloadSize`` (default 64 MiB, as the file reader's limit).
-    """
-
-    def __init__(self, max_payload: int = MAX_PING_BYTES) -> None:
-        self.max_payload = int(max_payload)
-        self.malformed = 0
-        self.skipped_bytes = 0
-        self._buf = bytearray()
-        self._in_garbage = False
-
-    @property
-    def buffered(self) -> int:
-        """Bytes received but not yet part of a complete message."""
-        return len(self._buf)
-
-    def reset(self) -> None:
-        """Drop buffered bytes (after a reconnect: a partial message never completes)."""
-        self._buf.clear()
-        self._in_garbage = False
-
-    def _plausible(self, at: int) -> bool | None:
-        """Whether a message can start at ``at`` (None: cannot tell yet, wait for more bytes).
-
-        The header must have a small ``msgId`` / ``msgVersion`` and a ``payloadSize`` within
-        bounds; a ``SimplePingResult`` must also have an image that fits in its payload (checked
-        as soon as its ping fields have arrived), so a ``b"SO"`` inside image data is not taken
-        for a message.
-        """
-        buf = self._buf
-        _oid, _s, _d, msg_id, version, payload, _sp = HEADER.unpack_from(buf, at)
-        if msg_id >= 0x100 or version >= 16 or payload > self.max_payload:
-            return False
-        if msg_id != MSG_SIMPLE_PING_RESULT:
-            return payload <= _MAX_OTHER_PAYLOAD
-        v2 = version == 2
-        need = SIZE_V2 if v2 else SIZE_V1
-        if payload + HEADER.size < need:
-            return False
-        if len(buf) - at < need:
-            return None
-        if v2:
-            f = PING_V2.unpack_from(buf, at + HEADER.size + FIRE_V1.size + FIRE_V2_EXTRA.size)
-            dsize, n_ranges, n_beams, img_off, img_size = f[10], f[12], f[13], f[18], f[19]
-        else:
-            f = PING_V1.unpack_from(buf, at + HEADER.size + FIRE_V1.size)
-            dsize, n_ranges, n_beams, img_off, img_size = f[7], f[9], f[10], f[11], f[12]
-        return (dsize <= 3 and 0 < n_ranges and 0 < n_beams and img_size >= n_ranges * n_beams
-                and need + 2 * n_beams <= img_off and img_off + img_size <= HEADER.size + payload)
-
-    def feed(self, data: bytes | bytearray | memoryview) -> list[tuple[int, bytes]]:
-        """Add received bytes; return the messages completed by them, in order."""
-        buf = self._buf
-        buf += data
-        out: list[tuple[int, bytes]] = []
-        pos = 0
-        n = len(buf)
-        while n - pos >= HEADER.size:
-            ok = buf[pos : pos + 2] == _MAGIC and self._plausible(pos)
-            if ok is None:
-                break
-            if not ok:
-                if not self._in_garbage:
-                    self.malformed += 1
-                    self._in_garbage = True
-                nxt = buf.find(_MAGIC, pos + 1)
-                new = nxt if nxt >= 0 else max(pos + 1, n - 1)  # keep a trailing b"S"
-                self.skipped_bytes += new - pos
-                pos = new
-                continue
-            payload = HEADER.unpack_from(buf, pos)[5]
-            end = pos + HEADER.size + payload
-            if end > n:
-                break
-            self._in_garbage = False
-            msg_id = HEADER.unpack_from(buf, pos)[3]
-            out.append((msg_id, bytes(buf[pos:end])))
-            pos = end
-        if pos:
-            del buf[:pos]
-        return out
-
-    def count_malformed(self) -> None:
-        """Count one malformed message found after framing (e.g. a ping that does not decode)."""
-        self.malformed += 1
