@@ -12,7 +12,8 @@ an empty cell is "none" / "unknown", never a number that looks like one).
 * ``bin``: 0-based range bin of the return (the bin at or after ``range_m``); empty where the
   beam has no return;
 * ``range_m``: range of the return in metres, the leading edge of its echo: the first crossing
-  of half the echo's first peak along the beam, interpolated between bins (sub-bin; the echo's
+  of half the echo's peak along the beam, interpolated between bins (sub-bin), measured on the
+  edge-aligned mean profile of up to 3 beams on either side on the same surface (the echo's
   peak with ``range_mode = "strongest"``); empty where the beam has no return;
 * ``intensity``: image intensity at the return; empty where the beam has no return;
 * ``flags``: the ping's fit gates, ``;``-separated, empty when the ping's fit is plausible;
@@ -198,7 +199,8 @@ def register(app: typer.Typer) -> None:
         Columns (an empty cell: no return, no estimate or unknown):
         ping: source file; beam: 0-based beam index; azimuth_rad: beam azimuth;
         bin: 0-based range bin of the return;
-        range_m: echo's leading edge (first crossing of half its first peak, sub-bin);
+        range_m: echo's leading edge (first crossing of half its peak, sub-bin, on the
+        edge-aligned mean of up to 7 neighbouring beams of the same surface);
         intensity: image intensity at the return; flags: the ping's fit gates;
         sigma_m: one-sigma uncertainty of range_m (m);
         p_detect: probability that a surface in the beam is detected and reported;

@@ -92,8 +92,10 @@ PRODUCT_VARIABLES: dict[str, tuple[tuple[str, ...], dict[str, str]]] = {
     "range": ((DIM_PING, DIM_BEAM), {"long_name": "Range to the first return per beam (NaN: none)",
                                      "units": "m",
                                      "description": "Leading edge of the return's echo along the beam: the "
-                                                    "first crossing of half its first peak, interpolated "
-                                                    "between range bins (the echo's peak in strongest mode)"}),
+                                                    "first crossing of half its peak, interpolated "
+                                                    "between range bins, on the edge-aligned mean profile "
+                                                    "of up to 7 neighbouring beams of the same surface "
+                                                    "(the echo's peak in strongest mode)"}),
     "range_bin": ((DIM_PING, DIM_BEAM), {"long_name": "Range-bin index of the return (-1: none)",
                                          "units": "1"}),
     "range_intensity": ((DIM_PING, DIM_BEAM), {"long_name": "Intensity at the return", "units": "1"}),
