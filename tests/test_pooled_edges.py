@@ -112,16 +112,14 @@ def test_pooled_sigma_is_finite_and_grows_with_the_speckle():
         img, mask = _speckled_surface(5, truth, floor=floor)
         e = find_echoes(mask, img, g)
         first = _first(e)
-        p = pooled_edges(e, first, img, g, sigma_scale=5.0, rise_scale=0.15)
+        p = pooled_edges(e, first, img, g, sigma_scale=5.0)
         s = p.sigma_m[first[first >= 0]]
         assert np.all(np.isfinite(s)) and np.all(s > 0)
         sig.append(float(np.median(s)))
     assert sig[1] > sig[0]
-    # the quadrature terms: bin grid, noise over rise (capped at 8 bins), a share of the rise
+    # the quadrature terms: bin grid, noise over rise (capped at 8 bins)
     assert edge_sigma_m([0.0], [1.0], 0.02)[0] == pytest.approx(0.02 / np.sqrt(12))
     assert edge_sigma_m([np.nan], [1.0], 0.02)[0] == pytest.approx(np.sqrt(0.02**2 / 12 + (8 * 0.02) ** 2))
-    assert edge_sigma_m([0.0], [1.0], 0.02, rise_bins=[10.0], rise_scale=0.1)[0] == pytest.approx(
-        np.sqrt(0.02**2 / 12 + 0.02**2))
 
 
 def test_pooled_edges_rejects_bad_arguments():
@@ -182,3 +180,23 @@ def test_continuation_follows_a_faint_stretch_along_the_slope_and_not_noise():
     assert not continuation_mask(e, first, *llr, min_evidence=10.0).any()
     with pytest.raises(InputError, match="levels"):
         continuation_mask(e, first, llr[0][:, :3], llr[1])
+
+
+def test_a_clipped_echo_carries_the_clipping_in_its_sigma():
+    """Half of a clipped peak is only a lower bound: the true crossing lies between the measured
+    one and the first sample at full scale, so that interval's spread joins the sigma."""
+    from sonarmap.pipeline import CLIP_LEVEL, _clipped_echo_sigma
+
+    g = _geom(n_bins=100, n_beams=2)
+    img = np.zeros(g.shape)
+    img[40:50, 0] = [0.1, 0.3, 0.6, 0.9, 1.0, 1.0, 1.0, 1.0, 0.8, 0.4]  # clipped from bin 44
+    img[40:50, 1] = [0.1, 0.3, 0.6, 0.9, 0.95, 0.9, 0.8, 0.6, 0.4, 0.2]  # not clipped
+    e = find_echoes(img > 0.2, img, g)
+    first = _first(e)
+    out = _clipped_echo_sigma(e, first, img, g)
+    bin_m = 0.02
+    spread = (44 - e.edge_bin[first[0]]) * bin_m
+    assert spread > 0 and img[44, 0] >= CLIP_LEVEL
+    assert out.sigma_m[first[0]] == pytest.approx(np.hypot(e.sigma_m[first[0]], spread / np.sqrt(12)))
+    assert out.sigma_m[first[1]] == e.sigma_m[first[1]]
+    assert np.array_equal(out.edge_bin, e.edge_bin)  # the range is not moved

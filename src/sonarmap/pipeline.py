@@ -190,14 +190,13 @@ class PipelineConfig:
         edges: with 1.5, 73 % of the errors of returns on their surface (within 3 bins) lay
         within +-sigma over the four sonar presets.  A return on the wrong echo is not covered by
         its sigma.
-    sigma_pool_scale, sigma_rise_scale : float
+    sigma_pool_scale : float
         Sigma of a pooled leading edge (:func:`sonarmap.ranges.echoes.edge_sigma_m`): the mean
-        profile's standard error at the crossing over its rise per bin, times
-        ``sigma_pool_scale`` (neighbouring beams share speckle through the main lobe and their
-        windows overlap), and ``sigma_rise_scale`` x the bins from the crossing to the profile's
-        peak (where in a slow rise the surface lies is uncertain by a share of the rise), in
-        quadrature.  Fitted on the simulator so that 68 % of the errors lie within +-sigma
-        (``docs/segmentation.md``).
+        profile's standard error at the crossing over its rise per bin, times this factor
+        (neighbouring beams share speckle through the main lobe and their windows overlap),
+        fitted on the simulator so that 68 % of the errors lie within +-sigma
+        (``docs/segmentation.md``).  Every return's sigma also covers the clipping of its echo
+        (:data:`CLIP_LEVEL`: the interval from the crossing to the first sample at full scale).
     log_dynamic_range_db : float, optional
         The raw samples are log-compressed, ``dynamic range`` dB per unit of pixel value (ARIS):
         echoes of normalised images are measured in linear intensity.  Default: the ping's
@@ -259,7 +258,6 @@ class PipelineConfig:
     continue_evidence: float = 10.0
     sigma_scale: float = 1.5
     sigma_pool_scale: float = 5.0
-    sigma_rise_scale: float = 0.15
     log_dynamic_range_db: float | None = None
     max_object_weight: float = 0.5
     min_separation: float = 1.9
@@ -310,7 +308,7 @@ class PipelineConfig:
         for key in ("beta", "fit_tol", "threshold", "cfar_pfa", "object_prior_min", "grow_prior_min",
                     "grow_beta", "speckle_eps", "edge_factor", "range_weight", "pool_factor",
                     "min_component_extent_m", "max_kld", "max_object_weight", "min_separation",
-                    "edge_fraction", "sigma_scale", "sigma_pool_scale", "sigma_rise_scale", "continue_evidence"):
+                    "edge_fraction", "sigma_scale", "sigma_pool_scale", "continue_evidence"):
             v = getattr(self, key)
             if not is_finite_number(v):
                 raise bad(key, "must be a finite number")
@@ -322,7 +320,7 @@ class PipelineConfig:
                 raise bad(key, "must lie in [0, 0.5)")
         if self.pool_factor < 0:
             raise bad("pool_factor", "must be >= 0")
-        for key in ("sigma_scale", "sigma_pool_scale", "sigma_rise_scale", "continue_evidence"):
+        for key in ("sigma_scale", "sigma_pool_scale", "continue_evidence"):
             if getattr(self, key) < 0:
                 raise bad(key, "must be >= 0")
         if not 0 <= self.edge_fraction < 1:
@@ -926,11 +924,42 @@ def _surface_ranges(ping: Ping, image: NDArray[np.float32], levels: NDArray[Any]
         echoes = pooled_edges(echoes, sel, meas, geom, pulse_bins=pb, half_beams=config.edge_pool_beams,
                               smooth_bins=3 if pb < 3 else 1,
                               fraction=config.edge_fraction if config.edge_fraction > 0 else 0.5, background=bg,
-                              touch_bins=config.track.touch_bins, sigma_scale=config.sigma_pool_scale,
-                              rise_scale=config.sigma_rise_scale)
+                              touch_bins=config.track.touch_bins, sigma_scale=config.sigma_pool_scale)
+    if echoes.size and (sel >= 0).any():
+        echoes = _clipped_echo_sigma(echoes, sel, ping.image, geom)
     thickness = np.where(sel >= 0, (echoes.stop_bin - echoes.start_bin)[np.maximum(sel, 0)] if echoes.size else 0, 0)
     return (ranges_from_tracks(echoes, tracks, geom, image, mode=config.range_mode,  # type: ignore[arg-type]
                                time_ns=ping.time_ns, source=ping.source), thickness.astype(np.int64))
+
+
+#: A raw sample at or above this is at the receiver's full scale (8-bit images: level 255).
+CLIP_LEVEL = 254.5 / 255.0
+
+
+def _clipped_echo_sigma(echoes: Any, sel: NDArray[np.int64], raw: NDArray[Any], geom: Any) -> Any:
+    """Widen the sigma of returns whose echo reaches the receiver's full scale.
+
+    A clipped echo's peak is only a lower bound: the half-peak crossing of the true echo lies
+    somewhere between the crossing measured (half the clipped level) and the echo's first
+    clipped sample.  That interval's uniform spread, ``length / sqrt 12``, is added in
+    quadrature to the return's sigma; the range itself is not moved.
+    """
+    img = np.asarray(raw)
+    idx = np.flatnonzero(sel >= 0)
+    e = sel[idx]
+    lo = np.clip(np.ceil(echoes.edge_bin[e]).astype(np.int64), 0, img.shape[0] - 1)
+    hi = np.clip(echoes.stop_bin[e], 0, img.shape[0])
+    bin_m = abs(geom.range_resolution_m)
+    sigma = echoes.sigma_m.copy()
+    changed = False
+    for j, k, a, b in zip(idx, e, lo, hi):
+        hit = np.flatnonzero(img[a:b, j] >= CLIP_LEVEL)
+        if hit.size:
+            spread = (a + hit[0] - echoes.edge_bin[k]) * bin_m
+            if spread > 0:
+                sigma[k] = math.hypot(sigma[k], spread / math.sqrt(12.0))
+                changed = True
+    return dataclasses.replace(echoes, sigma_m=sigma) if changed else echoes
 
 
 def _p_detect(pd: float, pd_range: float, ranges: BeamRanges, thickness: NDArray[np.int64]) -> NDArray[np.float32]:

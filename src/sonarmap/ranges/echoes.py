@@ -155,7 +155,7 @@ def range_sigma_m(edge_value: ArrayLike, slope: ArrayLike, bin_m: float, *, look
 
 
 def edge_sigma_m(noise: ArrayLike, slope: ArrayLike, bin_m: float, *, pulse_m: float = 0.0,
-                 scale: float = 1.0, rise_bins: ArrayLike = 0.0, rise_scale: float = 0.0) -> NDArray[np.float64]:
+                 scale: float = 1.0) -> NDArray[np.float64]:
     """One-sigma uncertainty of a crossing (metres) from the image's noise at it.
 
     ``sigma^2 = bin^2 / 12 + (scale bin noise / slope)^2 + (pulse / sqrt(12))^2``: the timing
@@ -167,9 +167,7 @@ def edge_sigma_m(noise: ArrayLike, slope: ArrayLike, bin_m: float, *, pulse_m: f
     nz = np.asarray(noise, dtype=np.float64)
     # never more than ~8 bins uncertain (also where the noise is unknown)
     jitter = np.minimum(np.where(np.isnan(nz), np.inf, float(scale) * nz / s), 8.0) * bin_m
-    rb = np.asarray(rise_bins, dtype=np.float64)
-    soft = float(rise_scale) * np.abs(np.where(np.isfinite(rb), rb, 0.0)) * bin_m
-    return np.sqrt(bin_m**2 / 12.0 + jitter**2 + soft**2 + (pulse_m**2) / 12.0)
+    return np.sqrt(bin_m**2 / 12.0 + jitter**2 + (pulse_m**2) / 12.0)
 
 
 def find_echoes(
@@ -318,7 +316,6 @@ def pooled_edges(
     looks: float = 1.0,
     background: float = 0.0,
     sigma_scale: float = 1.0,
-    rise_scale: float = 0.0,
 ) -> Echoes:
     """Leading edges of a tracked surface measured on a multi-look along the surface.
 
@@ -373,7 +370,7 @@ def pooled_edges(
     geometry.check_image(img, "image")
     ok = sel >= 0
     s = np.maximum(sel, 0)
-    new, value, rise, to_peak, used, noise = _kernels.pooled_edges(
+    new, value, rise, _to_peak, used, noise = _kernels.pooled_edges(
         img, edge, stop, run, int(half_beams), int(front_bins), int(max_bins), int(smooth_bins) | 1,
         float(fraction), int(n_iter))
     # the leading edge belongs to the beam's own echo: within the walk of find_echoes in front of
@@ -395,6 +392,5 @@ def pooled_edges(
     bin_m = abs(geometry.range_resolution_m)
     pulse_m = int(pulse_bins) * bin_m if pulse_bins >= 2 else 0.0
     sig = echoes.sigma_m.copy()
-    sig[idx] = edge_sigma_m(noise[done], rise[done], bin_m, pulse_m=pulse_m, scale=sigma_scale,
-                            rise_bins=to_peak[done], rise_scale=rise_scale)
+    sig[idx] = edge_sigma_m(noise[done], rise[done], bin_m, pulse_m=pulse_m, scale=sigma_scale)
     return dataclasses.replace(echoes, edge_bin=eb, edge_range_m=er, slope=sl, sigma_m=sig)
