@@ -190,3 +190,22 @@ def test_ranges_report_runs_on_a_small_scene_set():
     assert "sloped (2-8 bins/beam) recall within 3 bins" in text and "hull reported under fish" in text
     assert "| didson-hf |" in text and "hull_slope4" not in text.split("\n\n")[0]
     assert "| didson-hf | hull_slope4 |" in rep.table(per_scene=True)
+
+
+@pytest.mark.slow
+def test_ranges_sigma_is_calibrated_and_pooled_edges_hold_their_recall():
+    """The ranges acceptance on two presets (docs/segmentation.md, 1 seed): 68 +- 5 % of all the
+    returns on beams with structure lie within +-sigma of the sub-bin truth (measured DIDSON 0.663,
+    ARIS telephoto 0.645), and the recall within 3 bins that the pooled leading edges reached
+    (0.775 / 0.841; with per-beam edges 0.702 / 0.776) does not regress."""
+    from sonarmap.evaluate import evaluate_ranges
+    from sonarmap.pipeline import PipelineConfig
+
+    rows = {r.method: r for r in evaluate_ranges(presets=("didson-hf", "aris-telephoto-48"), seeds=(0,)).rows}
+    for name, recall in (("didson-hf", 0.76), ("aris-telephoto-48", 0.82)):
+        assert 0.63 <= rows[name].sigma_coverage <= 0.73, (name, rows[name].sigma_coverage)
+        assert rows[name].recall >= recall, (name, rows[name].recall)
+        assert rows[name].false_return_rate <= 0.01
+    per_beam = {r.method: r for r in evaluate_ranges(PipelineConfig(edge_pool_beams=0), presets=("didson-hf",),
+                                                     seeds=(0,)).rows}
+    assert rows["didson-hf"].recall > per_beam["didson-hf"].recall + 0.05
