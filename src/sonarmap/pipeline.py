@@ -923,7 +923,7 @@ def _surface_ranges(ping: Ping, image: NDArray[np.float32], levels: NDArray[Any]
         # profile's maximum is otherwise a speckle spike)
         echoes = pooled_edges(echoes, sel, meas, geom, pulse_bins=pb, half_beams=config.edge_pool_beams,
                               smooth_bins=3 if pb < 3 else 1,
-                              fraction=config.edge_fraction if config.edge_fraction > 0 else 0.5, background=bg,
+                              fraction=config.edge_fraction if config.edge_fraction > 0 else 0.5,
                               touch_bins=config.track.touch_bins, sigma_scale=config.sigma_pool_scale)
     if echoes.size and (sel >= 0).any():
         echoes = _clipped_echo_sigma(echoes, sel, ping.image, geom)

@@ -313,8 +313,6 @@ def pooled_edges(
     fraction: float = 0.5,
     n_iter: int = 2,
     touch_bins: float = 1.0,
-    looks: float = 1.0,
-    background: float = 0.0,
     sigma_scale: float = 1.0,
 ) -> Echoes:
     """Leading edges of a tracked surface measured on a multi-look along the surface.
@@ -339,9 +337,11 @@ def pooled_edges(
     image : ndarray, shape (n_bins, n_beams)
         The image the echoes were measured on.
     geometry : SonarGeometry
-    pulse_bins, fraction, looks, background, sigma_scale
-        As in :func:`find_echoes`; ``looks`` per sample, multiplied by the pooled beams and
-        ``smooth_bins`` for the sigma of :func:`range_sigma_m`.
+    pulse_bins, fraction : int, float
+        As in :func:`find_echoes`.
+    sigma_scale : float
+        Calibration of the jitter term of :func:`edge_sigma_m` (the pipeline's
+        ``sigma_pool_scale``).
     half_beams, front_bins, max_bins, smooth_bins, n_iter, touch_bins
         The pooling window (see above).
 
