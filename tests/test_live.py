@@ -514,3 +514,73 @@ def test_cli_sends_the_oculus_settings_in_the_fire_message(raw_capture: Path, tm
         assert srv.fire is not None and srv.fire.flags == 0x19 and srv.fire.range_m == 2.0
     with ReplayServer(raw_capture, rate_hz=20, count=4) as srv:
         assert main(["live", srv.url, "--max-pings", "2", "-q", "--oculus-gain", "150"]) == 2
+
+
+def _grow_sqlite_bag(src_db: Path, dst_dir: Path, delay_s: float, start_s: float = 0.1) -> threading.Thread:
+    """Copy a finished ROS 2 bag's storage into ``dst_dir`` row by row, as a recorder writes it
+    (the schema and topics first, then one committed message every ``delay_s``; no metadata.yaml)."""
+    import sqlite3
+
+    def run() -> None:
+        s = sqlite3.connect(src_db)
+        time.sleep(start_s)
+        d = sqlite3.connect(dst_dir / "rec_0.db3")
+        for (sql,) in s.execute("SELECT sql FROM sqlite_master WHERE sql IS NOT NULL"):
+            d.execute(sql)
+        for row in s.execute("SELECT * FROM topics"):
+            d.execute(f"INSERT INTO topics VALUES ({','.join('?' * len(row))})", row)
+        d.commit()
+        for row in s.execute("SELECT id, topic_id, timestamp, data FROM messages ORDER BY id"):
+            d.execute("INSERT INTO messages VALUES (?, ?, ?, ?)", row)
+            d.commit()
+            time.sleep(delay_s)
+        d.close()
+        s.close()
+
+    th = threading.Thread(target=run, daemon=True)
+    th.start()
+    return th
+
+
+def test_follow_a_ros2_bag_while_it_is_recorded(aris_pings: list, tmp_path: Path) -> None:
+    from sonarmap.io import read_pings
+    from sonarmap.io.rosbag import write_bag
+    from sonarmap.live.sources import FollowSource
+
+    full = tmp_path / "full"
+    write_bag(aris_pings, full, version=2)
+    rec = tmp_path / "rec"
+    rec.mkdir()
+    th = _grow_sqlite_bag(next(full.glob("*.db3")), rec, delay_s=0.15)
+    src = FollowSource(rec, idle_timeout_s=1.0, poll_s=0.01)
+    got, arrival = [], []
+    t0 = time.monotonic()
+    for ping in src:
+        got.append(ping)
+        arrival.append(time.monotonic() - t0)
+    th.join()
+    ref = list(read_pings(full))
+    assert len(got) == len(ref) == 6 and src.format == "rosbag2-sqlite3"
+    for a, b in zip(got, ref):
+        assert np.array_equal(a.image, b.image) and a.time_ns == b.time_ns
+        assert np.array_equal(a.geometry.range_m, b.geometry.range_m)  # the exact-geometry side channel
+    # each ping is yielded as its row is committed (0.15 s apart), not at the end
+    assert np.all(np.diff(arrival) > 0.08) and arrival[-1] - arrival[0] > 0.6
+
+
+def test_follow_a_bag_without_a_sonar_topic_is_an_error(tmp_path: Path) -> None:
+    import sqlite3
+
+    from sonarmap.errors import DataFormatError
+    from sonarmap.live.sources import FollowSource
+
+    rec = tmp_path / "rec"
+    rec.mkdir()
+    d = sqlite3.connect(rec / "rec_0.db3")
+    d.execute("CREATE TABLE topics(id INTEGER PRIMARY KEY, name TEXT, type TEXT, serialization_format TEXT)")
+    d.execute("CREATE TABLE messages(id INTEGER PRIMARY KEY, topic_id INTEGER, timestamp INTEGER, data BLOB)")
+    d.execute("INSERT INTO topics VALUES (1, '/imu', 'sensor_msgs/msg/Imu', 'cdr')")
+    d.commit()
+    d.close()
+    with pytest.raises(DataFormatError, match=r"no sonar topic to follow.*/imu \(sensor_msgs/msg/Imu\)"):
+        list(FollowSource(rec, idle_timeout_s=0.2, wait_s=0.3))

@@ -750,14 +750,10 @@ def iter_bag_pings(
         exact: dict[bytes, SonarGeometry] = {}
         for conn, _t, raw in _guarded(p, reader.messages(connections=gconns)) if gconns else ():
             try:
-                d = json.loads(reader.deserialize(raw, conn.msgtype).data)
-                src = d.pop("azimuth_source", "table")
-                g = geometry_from_dict(d, source=f"{p} geometry")
-                if g.azimuth_source != src:
-                    g = g.replace(azimuth_source=src)
-                exact[_geometry_key(g.range_m, g.azimuth_rad)] = g
+                text = reader.deserialize(raw, conn.msgtype).data
             except Exception:  # noqa: BLE001,S112 - damaged side channel: use the message fields
                 continue
+            add_exact_geometry(exact, text, p)
         warned: set[str] = set()
         idx = 0
         for conn, _t, raw in _guarded(p, reader.messages(connections=conns)) if conns else ():
@@ -785,6 +781,21 @@ def iter_bag_pings(
             reader.close()
         except Exception:  # noqa: BLE001,S110 - closing a corrupt bag must not mask the real error
             pass
+
+
+def add_exact_geometry(exact: dict[bytes, SonarGeometry], text: str, path: Path) -> None:
+    """Parse one message of the exact-geometry side channel sonarmap writes beside a
+    ProjectedSonarImage topic into ``exact`` (keyed by its float32 ranges and azimuths); a
+    damaged one is ignored (the image messages' own fields are used)."""
+    try:
+        d = json.loads(text)
+        src = d.pop("azimuth_source", "table")
+        g = geometry_from_dict(d, source=f"{path} geometry")
+        if g.azimuth_source != src:
+            g = g.replace(azimuth_source=src)
+        exact[_geometry_key(g.range_m, g.azimuth_rad)] = g
+    except Exception:  # noqa: BLE001 - damaged side channel
+        return
 
 
 def _iter_sensor_images(reader: Any, path: Path, conns: list[Any], geometry: SonarGeometry) -> Iterator[Ping]:

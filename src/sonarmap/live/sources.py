@@ -293,7 +293,9 @@ class FollowSource(PingSource):
 
     The file size is polled every ``poll_s``; when it grew, the frames that are now complete are
     read (a frame being written is read once it is whole).  Supported: ARIS ``.aris``, ViewPoint
-    ``.oculus`` v1 logs and raw Oculus captures (:data:`FOLLOW_FORMATS`).
+    ``.oculus`` v1 logs and raw Oculus captures (:data:`FOLLOW_FORMATS`), and a ROS 2 bag being
+    recorded with the sqlite3 storage - its directory or its ``.db3`` file - whose new messages
+    are polled from the storage file (:func:`sonarmap.io.rosbag_follow.follow_sqlite_bag`).
 
     Parameters
     ----------
@@ -358,7 +360,18 @@ class FollowSource(PingSource):
             self._start_ns = time.time_ns()
         return True
 
+    def _is_bag(self) -> bool:
+        return self.path.is_dir() or self.path.suffix == ".db3"
+
     def __iter__(self) -> Iterator[Ping]:
+        if self._is_bag():
+            from sonarmap.io.rosbag_follow import follow_sqlite_bag
+
+            self.format = "rosbag2-sqlite3"
+            yield from follow_sqlite_bag(self.path, stopped=lambda: self.stopped, sleep=self._sleep,
+                                         poll_s=self.poll_s, idle_timeout_s=self.idle_timeout_s, wait_s=self.wait_s,
+                                         geometry=self.geometry)
+            return
         t0 = time.monotonic()
         while not self._detect():
             if self.stopped:
