@@ -564,8 +564,9 @@ def test_follow_a_ros2_bag_while_it_is_recorded(aris_pings: list, tmp_path: Path
     for a, b in zip(got, ref):
         assert np.array_equal(a.image, b.image) and a.time_ns == b.time_ns
         assert np.array_equal(a.geometry.range_m, b.geometry.range_m)  # the exact-geometry side channel
-    # each ping is yielded as its row is committed (0.15 s apart), not at the end
-    assert np.all(np.diff(arrival) > 0.08) and arrival[-1] - arrival[0] > 0.6
+    # each ping is yielded as its row is committed (0.15 s apart), not at the end (the median gap:
+    # a busy machine may delay one poll past two commits)
+    assert np.median(np.diff(arrival)) > 0.08 and arrival[-1] - arrival[0] > 0.5
 
 
 def test_follow_a_bag_without_a_sonar_topic_is_an_error(tmp_path: Path) -> None:
