@@ -134,3 +134,17 @@ def excess_ratio(raw, level, full, log_db, r0, r1):  # pragma: no cover - numba
             if v > 0.0:
                 out[i, j] = v
     return out
+
+
+@njit(cache=True, nogil=True)
+def first_clipped_rows(img, cols, lo, hi, level):  # pragma: no cover - numba
+    """Per ``k``, the first row in ``lo[k] .. hi[k] - 1`` of column ``cols[k]`` of ``img`` that
+    reaches ``level`` (-1 if none)."""
+    out = np.full(cols.size, -1, dtype=np.int64)
+    for k in range(cols.size):
+        j = cols[k]
+        for i in range(lo[k], hi[k]):
+            if img[i, j] >= level:
+                out[k] = i
+                break
+    return out

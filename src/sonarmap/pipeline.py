@@ -876,10 +876,9 @@ def _surface_ranges(ping: Ping, image: NDArray[np.float32], levels: NDArray[Any]
     if not cand.any():
         return (no_returns(geom, time_ns=ping.time_ns, source=ping.source, mode=config.range_mode),
                 np.zeros(geom.n_beams, dtype=np.int64))
-    if fit is not None and len(fit.class_names) >= 2:
-        lut = np.maximum(level_llr(fit), 0.0)
-    else:
-        lut = np.ones(int(levels.max()) + 1)
+    llr_lut = level_llr(fit) if fit is not None and len(fit.class_names) >= 2 else None
+    lut = np.maximum(llr_lut, 0.0) if llr_lut is not None else np.ones(int(levels.max()) + 1)
+    fraction = config.edge_fraction if config.edge_fraction > 0 else 0.5
     pb = pulse_bins(ping, config)
     measured = normalised and background is not None and getattr(background, "level_by_bin", None) is not None
 
@@ -898,15 +897,15 @@ def _surface_ranges(ping: Ping, image: NDArray[np.float32], levels: NDArray[Any]
         # a pooled band pixel passed a >= pool_factor x background test over the whole box: one
         # nat at least, whatever its own (single-look, speckled) value says
         echoes = find_echoes(cand, meas, geom, levels=levels, level_evidence=lut, boost=band, boost_min=1.0,
-                             pulse_bins=pb, fraction=config.edge_fraction if config.edge_fraction > 0 else 0.5,
-                             background=bg, scan=config.edge_scan, sigma_scale=config.sigma_scale)
+                             pulse_bins=pb, fraction=fraction, background=bg, scan=config.edge_scan,
+                             sigma_scale=config.sigma_scale)
         return meas, bg, echoes, track_surfaces(echoes, config.track)
 
     meas, bg, echoes, tracks = measure(cand)
-    if config.continue_evidence > 0 and fit is not None and len(fit.class_names) >= 2:
+    if config.continue_evidence > 0 and llr_lut is not None:
         # a surface's faint stretch that the component rule left without candidates: pixels along
         # its extrapolation where their likelihood ratio says structure, for the tracker to judge
-        extra = continuation_mask(echoes, tracks.first, levels, level_llr(fit), min_evidence=config.continue_evidence,
+        extra = continuation_mask(echoes, tracks.first, levels, llr_lut, min_evidence=config.continue_evidence,
                                   touch_bins=config.track.touch_bins) & ~cand
         if extra.any() and echoes.size:
             # only where it could become the return: a beam without one, or whose return lies behind
@@ -922,8 +921,7 @@ def _surface_ranges(ping: Ping, image: NDArray[np.float32], levels: NDArray[Any]
         # the pooled profile is smoothed over at least 3 bins along range in all (a single-look
         # profile's maximum is otherwise a speckle spike)
         echoes = pooled_edges(echoes, sel, meas, geom, pulse_bins=pb, half_beams=config.edge_pool_beams,
-                              smooth_bins=3 if pb < 3 else 1,
-                              fraction=config.edge_fraction if config.edge_fraction > 0 else 0.5,
+                              smooth_bins=3 if pb < 3 else 1, fraction=fraction,
                               touch_bins=config.track.touch_bins, sigma_scale=config.sigma_pool_scale)
     if echoes.size and (sel >= 0).any():
         echoes = _clipped_echo_sigma(echoes, sel, ping.image, geom)
@@ -944,22 +942,21 @@ def _clipped_echo_sigma(echoes: Any, sel: NDArray[np.int64], raw: NDArray[Any], 
     clipped sample.  That interval's uniform spread, ``length / sqrt 12``, is added in
     quadrature to the return's sigma; the range itself is not moved.
     """
-    img = np.asarray(raw)
+    from sonarmap._pipeline_kernels import first_clipped_rows
+
+    img = np.ascontiguousarray(raw)
     idx = np.flatnonzero(sel >= 0)
     e = sel[idx]
     lo = np.clip(np.ceil(echoes.edge_bin[e]).astype(np.int64), 0, img.shape[0] - 1)
     hi = np.clip(echoes.stop_bin[e], 0, img.shape[0])
-    bin_m = abs(geom.range_resolution_m)
+    first = first_clipped_rows(img, idx, lo, hi, CLIP_LEVEL)  # per return: its echo's first clipped row
+    spread = (first - echoes.edge_bin[e]) * abs(geom.range_resolution_m)
+    hit = (first >= 0) & (spread > 0)
+    if not hit.any():
+        return echoes
     sigma = echoes.sigma_m.copy()
-    changed = False
-    for j, k, a, b in zip(idx, e, lo, hi):
-        hit = np.flatnonzero(img[a:b, j] >= CLIP_LEVEL)
-        if hit.size:
-            spread = (a + hit[0] - echoes.edge_bin[k]) * bin_m
-            if spread > 0:
-                sigma[k] = math.hypot(sigma[k], spread / math.sqrt(12.0))
-                changed = True
-    return dataclasses.replace(echoes, sigma_m=sigma) if changed else echoes
+    sigma[e[hit]] = np.hypot(sigma[e[hit]], spread[hit] / math.sqrt(12.0))
+    return dataclasses.replace(echoes, sigma_m=sigma)
 
 
 def _p_detect(pd: float, pd_range: float, ranges: BeamRanges, thickness: NDArray[np.int64]) -> NDArray[np.float32]:
