@@ -55,36 +55,34 @@ def box_mean_f32(img, size0, size1):  # pragma: no cover - numba
     h, w = img.shape
     mid = np.empty((h, w), dtype=np.float32)
     if size0 > 1:
-        b0 = size0 // 2
         buf = np.zeros(h + size0 - 1)
         for j in range(w):
-            for i in range(h):
-                buf[b0 + i] = img[i, j]
-            tmp = 0.0
-            for k in range(size0):
-                tmp += buf[k]
-            mid[0, j] = tmp / size0
-            for k in range(1, h):
-                tmp += buf[k + size0 - 1] - buf[k - 1]
-                mid[k, j] = tmp / size0
+            _box_line(img[:, j], buf, size0, mid[:, j])
     else:
         mid[:, :] = img
     if size1 <= 1:
         return mid
     out = np.empty((h, w), dtype=np.float32)
-    b1 = size1 // 2
     buf = np.zeros(w + size1 - 1)
     for i in range(h):
-        for j in range(w):
-            buf[b1 + j] = mid[i, j]
-        tmp = 0.0
-        for k in range(size1):
-            tmp += buf[k]
-        out[i, 0] = tmp / size1
-        for k in range(1, w):
-            tmp += buf[k + size1 - 1] - buf[k - 1]
-            out[i, k] = tmp / size1
+        _box_line(mid[i, :], buf, size1, out[i, :])
     return out
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _box_line(line, buf, size, out):  # pragma: no cover - numba
+    """One line of :func:`box_mean_f32`: ``line`` copied into the zero-padded ``buf`` (``size // 2``
+    zeros before it), then the running sum ``+= new - old`` over ``size`` samples into ``out``."""
+    b = size // 2
+    for i in range(line.size):
+        buf[b + i] = line[i]
+    tmp = 0.0
+    for k in range(size):
+        tmp += buf[k]
+    out[0] = tmp / size
+    for k in range(1, line.size):
+        tmp += buf[k + size - 1] - buf[k - 1]
+        out[k] = tmp / size
 
 
 @njit(cache=True, nogil=True)
