@@ -767,13 +767,7 @@ def iter_bag_pings(
                 raise DataFormatError(f"message {idx} on {conn.topic}: {exc}", p) from None
             if guessed and conn.topic not in warned:
                 warned.add(conn.topic)
-                warnings.warn(
-                    f"{p}: {conn.topic}: beam_directions do not increase in azimuth with beam index, "
-                    "so y to port (upstream) and y to starboard cannot be told apart; read as upstream "
-                    "(azimuth = atan2(-y, forward)); pass handedness='mirrored' if the producer's y "
-                    "points to starboard, or handedness='upstream' to confirm",
-                    BagConventionWarning, stacklevel=2,
-                )
+                warn_guessed_handedness(p, conn.topic)
             idx += 1
             yield ping
     finally:
@@ -781,6 +775,17 @@ def iter_bag_pings(
             reader.close()
         except Exception:  # noqa: BLE001,S110 - closing a corrupt bag must not mask the real error
             pass
+
+
+def warn_guessed_handedness(path: Path, topic: str) -> None:
+    """The :class:`BagConventionWarning` for a topic whose handedness had to be guessed."""
+    warnings.warn(
+        f"{path}: {topic}: beam_directions do not increase in azimuth with beam index, "
+        "so y to port (upstream) and y to starboard cannot be told apart; read as upstream "
+        "(azimuth = atan2(-y, forward)); pass handedness='mirrored' if the producer's y "
+        "points to starboard, or handedness='upstream' to confirm",
+        BagConventionWarning, stacklevel=3,
+    )
 
 
 def add_exact_geometry(exact: dict[bytes, SonarGeometry], text: str, path: Path) -> None:

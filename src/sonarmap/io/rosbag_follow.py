@@ -16,12 +16,11 @@ from __future__ import annotations
 import os
 import sqlite3
 import time
-import warnings
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
-from sonarmap.errors import DataFormatError, GeometryError, InputError, SonarmapWarning
+from sonarmap.errors import DataFormatError, GeometryError, InputError
 from sonarmap.geometry import SonarGeometry, as_geometry
 from sonarmap.ping import Ping
 
@@ -102,10 +101,8 @@ def follow_sqlite_bag(
     DataFormatError
         No storage file or no sonar topic within ``wait_s``, or a message that does not decode.
     """
-    from sonarmap.io.oculus import MSG_SIMPLE_PING_RESULT, decode_simple_ping
-    from sonarmap.io.oculus_stream import MessageFramer
-    from sonarmap.io.rosbag import HANDEDNESS, _ping_from_msg, _stamp_ns, add_exact_geometry, typestore
-    from sonarmap.io.rosbag_sources import incoming_bytes, ping_from_legacy_image, ping_from_raw_sonar_image
+    from sonarmap.io.rosbag import HANDEDNESS, _ping_from_msg, add_exact_geometry, typestore, warn_guessed_handedness
+    from sonarmap.io.rosbag_sources import OculusRawStreams, ping_from_legacy_image, ping_from_raw_sonar_image
 
     if handedness not in HANDEDNESS:
         raise InputError(f"handedness: choose from {', '.join(HANDEDNESS)} (got {handedness!r})")
@@ -125,7 +122,7 @@ def follow_sqlite_bag(
     kind, topics = "", {}
     last_id = 0
     index: dict[str, int] = {}
-    framers: dict[str, MessageFramer] = {}
+    streams = OculusRawStreams(root, override)
     warned: set[str] = set()
     exact: dict[bytes, SonarGeometry] = {}
     last_new = time.monotonic()
@@ -159,7 +156,7 @@ def follow_sqlite_bag(
                 raise DataFormatError(f"cannot read the bag's storage: {exc}", db) from None
             if not batch:
                 if idle_timeout_s and time.monotonic() - last_new > idle_timeout_s:
-                    return
+                    break
                 sleep(poll_s)
                 continue
             last_new = time.monotonic()
@@ -181,26 +178,18 @@ def follow_sqlite_bag(
                         ping, guessed = _ping_from_msg(msg, root, name, i, override, exact, handedness)
                         if guessed and name not in warned:
                             warned.add(name)
-                            warnings.warn(f"{root}: {name}: beam_directions do not tell the handedness; read as "
-                                          "upstream (see sonarmap.io.rosbag)", SonarmapWarning, stacklevel=2)
+                            warn_guessed_handedness(root, name)
                         yield ping
                     elif kind in ("raw_image", "legacy_image"):
                         decode = ping_from_raw_sonar_image if kind == "raw_image" else ping_from_legacy_image
                         yield decode(msg, root, name, i, override)
                     else:  # Oculus RawData: the topic's incoming byte stream
-                        raw = incoming_bytes(msg)
-                        if not raw:
-                            continue
-                        framer = framers.setdefault(name, MessageFramer())
-                        for msg_id, whole in framer.feed(raw, boundary=True):
-                            if msg_id != MSG_SIMPLE_PING_RESULT:
-                                continue
-                            yield decode_simple_ping(whole, path=f"{root}#{name}:{i}", time_ns=_stamp_ns(msg.header.stamp),
-                                                     geometry=override, source=f"{root}#{name}:{i}")
+                        yield from streams.pings(name, i, msg)
                 except (ValueError, GeometryError) as exc:
                     raise DataFormatError(f"message {i} on {name}: {exc}", db) from None
                 if stopped():
-                    return
+                    break
+        streams.finish()
     finally:
         if con is not None:
             con.close()

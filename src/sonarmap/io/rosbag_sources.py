@@ -46,7 +46,7 @@ from sonarmap.geometry import SonarGeometry
 from sonarmap.io.oculus import MSG_SIMPLE_PING_RESULT, decode_simple_ping
 from sonarmap.ping import Ping
 
-__all__ = ["ping_from_raw_sonar_image", "ping_from_legacy_image", "incoming_bytes", "iter_kind", "count_oculus"]
+__all__ = ["ping_from_raw_sonar_image", "ping_from_legacy_image", "incoming_bytes", "OculusRawStreams", "iter_kind", "count_oculus"]
 
 _LEGACY_DTYPES = {1: np.dtype("u1"), 2: np.dtype("u2"), 4: np.dtype("u4")}
 
@@ -179,33 +179,6 @@ def incoming_bytes(msg: Any) -> bytes | None:
     return np.asarray(msg.data, dtype=np.uint8).reshape(-1).tobytes()
 
 
-def _oculus_messages(reader: Any, path: Path, conns: list[Any]) -> Iterator[tuple[Any, int, Any, bytes]]:
-    """``(connection, RawData index, RawData, SimplePingResult bytes)`` for every ping message the
-    topics' incoming byte streams hold, in time order; one warning per topic for lost or skipped
-    data (see the module notes)."""
-    from sonarmap.io.oculus_stream import MessageFramer
-
-    framers: dict[str, MessageFramer] = {}
-    for conn, i, msg in _topic_messages(reader, path, conns):
-        data = incoming_bytes(msg)
-        if not data:
-            continue
-        framer = framers.setdefault(conn.topic, MessageFramer())
-        for msg_id, whole in framer.feed(data, boundary=True):
-            if msg_id == MSG_SIMPLE_PING_RESULT:
-                yield conn, i, msg, whole
-    for topic, framer in framers.items():
-        lost = []
-        if framer.dropped:
-            lost.append(f"{framer.dropped} incomplete message(s) dropped (their rest was never recorded)")
-        if framer.malformed:
-            lost.append(f"{framer.malformed} run(s) of bytes that are not an Oculus message skipped")
-        if framer.buffered:
-            lost.append(f"{framer.buffered} bytes of an unfinished last message")
-        if lost:
-            warnings.warn(f"{path}: {topic}: " + "; ".join(lost), SonarmapWarning, stacklevel=3)
-
-
 def _topic_messages(reader: Any, path: Path, conns: list[Any]) -> Iterator[tuple[Any, int, Any]]:
     """``(connection, index of the message on its topic, deserialized message)`` in time order;
     a message that does not deserialize is a DataFormatError naming its topic and index."""
@@ -222,38 +195,91 @@ def _topic_messages(reader: Any, path: Path, conns: list[Any]) -> Iterator[tuple
         yield conn, i, msg
 
 
-def _iter_oculus(reader: Any, path: Path, conns: list[Any], override: SonarGeometry | None) -> Iterator[Ping]:
-    from sonarmap.io.rosbag import FORMAT, _stamp_ns
+class OculusRawStreams:
+    """The Oculus byte streams of RawData topics (module notes): per topic a
+    :class:`~sonarmap.io.oculus_stream.MessageFramer`, the pings decoded from it, and one warning
+    per topic for undecodable pings (at once) and for lost or skipped data (:meth:`finish`).
+    Used by the bag reader and by :mod:`sonarmap.io.rosbag_follow` alike.
 
-    bad: set[str] = set()
-    for conn, i, msg, data in _oculus_messages(reader, path, conns):
+    Parameters
+    ----------
+    path : Path
+        The bag (for sources and messages).
+    override : SonarGeometry, optional
+        Geometry override for the decoded pings.
+    """
+
+    def __init__(self, path: Path, override: SonarGeometry | None = None) -> None:
+        self.path = path
+        self.override = override
+        self._framers: dict[str, Any] = {}
+        self._bad: set[str] = set()
+
+    def messages(self, topic: str, msg: Any) -> list[bytes]:
+        """The SimplePingResult messages that RawData ``msg`` of ``topic`` completes."""
+        from sonarmap.io.oculus_stream import MessageFramer
+
+        data = incoming_bytes(msg)
+        if not data:
+            return []
+        framer = self._framers.setdefault(topic, MessageFramer())
+        return [whole for msg_id, whole in framer.feed(data, boundary=True) if msg_id == MSG_SIMPLE_PING_RESULT]
+
+    def pings(self, topic: str, index: int, msg: Any) -> Iterator[Ping]:
+        """The pings RawData ``msg`` (message ``index`` of ``topic``) completes, at its stamp."""
+        from sonarmap.io.rosbag import FORMAT, _stamp_ns
+
+        wholes = self.messages(topic, msg)
+        if not wholes:
+            return
         try:
             t_ns = _stamp_ns(msg.header.stamp)
         except ValueError as exc:
-            raise DataFormatError(f"message {i} on {conn.topic}: {exc}", path) from None
-        try:
-            ping = decode_simple_ping(data, path=f"{path}#{conn.topic}:{i}", time_ns=t_ns, geometry=override,
-                                      source=f"{path}#{conn.topic}:{i}")
-        except DataFormatError as exc:
-            if conn.topic not in bad:
-                bad.add(conn.topic)
-                warnings.warn(f"{path}: {conn.topic}: an Oculus SimplePingResult ending in RawData message {i} "
-                              f"does not decode ({exc}); such pings are skipped", SonarmapWarning, stacklevel=3)
-            continue
-        ping.meta.update(format=FORMAT, payload_format="oculus", msgtype="RawData", topic=conn.topic,
-                         message_index=i, time_source="header_stamp")
-        if hasattr(msg.header, "seq"):
-            ping.meta["seq"] = int(msg.header.seq)
-        yield ping
+            raise DataFormatError(f"message {index} on {topic}: {exc}", self.path) from None
+        where = f"{self.path}#{topic}:{index}"
+        for data in wholes:
+            try:
+                ping = decode_simple_ping(data, path=where, time_ns=t_ns, geometry=self.override, source=where)
+            except DataFormatError as exc:
+                if topic not in self._bad:
+                    self._bad.add(topic)
+                    warnings.warn(f"{self.path}: {topic}: an Oculus SimplePingResult ending in RawData message "
+                                  f"{index} does not decode ({exc}); such pings are skipped", SonarmapWarning,
+                                  stacklevel=3)
+                continue
+            ping.meta.update(format=FORMAT, payload_format="oculus", msgtype="RawData", topic=topic,
+                             message_index=index, time_source="header_stamp")
+            if hasattr(msg.header, "seq"):
+                ping.meta["seq"] = int(msg.header.seq)
+            yield ping
+
+    def finish(self) -> None:
+        """Warn once per topic about data dropped or skipped while framing."""
+        for topic, framer in self._framers.items():
+            lost = []
+            if framer.dropped:
+                lost.append(f"{framer.dropped} incomplete message(s) dropped (their rest was never recorded)")
+            if framer.malformed:
+                lost.append(f"{framer.malformed} run(s) of bytes that are not an Oculus message skipped")
+            if framer.buffered:
+                lost.append(f"{framer.buffered} bytes of an unfinished last message")
+            if lost:
+                warnings.warn(f"{self.path}: {topic}: " + "; ".join(lost), SonarmapWarning, stacklevel=3)
+
+
+def _iter_oculus(reader: Any, path: Path, conns: list[Any], override: SonarGeometry | None) -> Iterator[Ping]:
+    streams = OculusRawStreams(path, override)
+    for conn, i, msg in _topic_messages(reader, path, conns):
+        yield from streams.pings(conn.topic, i, msg)
+    streams.finish()
 
 
 def count_oculus(reader: Any, path: Path, conns: list[Any]) -> dict[str, int]:
     """SimplePingResult messages per topic of RawData connections (scans and frames the messages)."""
     out = {c.topic: 0 for c in conns}
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", SonarmapWarning)  # reading the pings warns
-        for conn, _i, _msg, _data in _oculus_messages(reader, path, conns):
-            out[conn.topic] += 1
+    streams = OculusRawStreams(path)
+    for conn, _i, msg in _topic_messages(reader, path, conns):
+        out[conn.topic] += len(streams.messages(conn.topic, msg))
     return out
 
 
