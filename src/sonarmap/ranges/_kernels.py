@@ -546,15 +546,14 @@ def pooled_edges(img, edge, stop, run, half_beams, front_bins, max_bins, smooth_
 
     ``edge`` (fractional bins, NaN: no return) and ``stop`` (one past the echo's last structure
     bin) per beam; ``run`` labels the runs of beams that are one surface (-1: none).  Returns per
-    beam the new edge, the pooled profile's value and rise per bin at the crossing, the bins from
-    the crossing to the profile's peak, the number of beams pooled (0 where the beam keeps its
-    own edge) and the standard error of the pooled profile at the crossing.
+    beam the new edge, the pooled profile's value and rise per bin at the crossing, the number of
+    beams pooled (0 where the beam keeps its own edge) and the standard error of the pooled
+    profile at the crossing.
     """
     m = edge.size
     cur = edge.copy()
     value = np.full(m, np.nan)
     rise = np.full(m, np.nan)
-    to_peak = np.full(m, np.nan)
     used = np.zeros(m, np.int64)
     noise = np.full(m, np.nan)
     h = smooth_bins // 2
@@ -643,7 +642,6 @@ def pooled_edges(img, edge, stop, run, half_beams, front_bins, max_bins, smooth_
             new[j] = align[j] + x - front_bins
             value[j] = lv
             rise[j] = slope
-            to_peak[j] = p - x
             used[j] = c
             # the mean profile's own noise at the crossing: the spread of the pooled beams'
             # smoothed values there, over sqrt(beams) - speckle and misalignment alike
@@ -663,7 +661,7 @@ def pooled_edges(img, edge, stop, run, half_beams, front_bins, max_bins, smooth_
             var = max(s2 / c - (s1 / c) ** 2, 0.0) * c / (c - 1)
             noise[j] = np.sqrt(var / c)
         cur = new
-    return cur, value, rise, to_peak, used, noise
+    return cur, value, rise, used, noise
 
 
 @njit(cache=True, nogil=True)

@@ -93,6 +93,11 @@ class Echoes:
         """Number of echoes."""
         return int(self.beam.size)
 
+    def intervals(self) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+        """``(lo, hi)``: each echo's bin interval, from its leading edge (or first structure bin,
+        whichever is nearer) to its last structure bin - what surfaces touch across beams by."""
+        return np.minimum(self.start_bin, np.floor(self.edge_bin).astype(np.int64)), self.stop_bin - 1
+
     def per_beam(self) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
         """``(first, count)``: the echoes of beam ``j`` are ``first[j] : first[j] + count[j]``."""
         count = np.bincount(self.beam, minlength=self.n_beams).astype(np.int64)
@@ -287,16 +292,13 @@ def surface_runs(echoes: Echoes, first: ArrayLike, touch_bins: float = 1.0) -> N
 
 def _first_intervals(echoes: Echoes, sel: NDArray[np.int64]) -> tuple[NDArray[np.float64], ...]:
     """Per beam the edge (NaN: none), bin interval and stop of the echo ``sel`` picks."""
-    ok = sel >= 0
     if echoes.size == 0:
-        ok = np.zeros(sel.shape, dtype=bool)
         z = np.zeros(sel.shape)
         return np.full(sel.shape, np.nan), z, z, z
     s = np.maximum(sel, 0)
-    edge = np.where(ok, echoes.edge_bin[s], np.nan)
-    stop = echoes.stop_bin[s].astype(np.float64)
-    lo = np.minimum(echoes.start_bin[s], np.floor(echoes.edge_bin[s]))
-    return edge, lo, stop - 1.0, stop
+    lo, hi = echoes.intervals()
+    return (np.where(sel >= 0, echoes.edge_bin[s], np.nan), lo[s].astype(np.float64), hi[s].astype(np.float64),
+            echoes.stop_bin[s].astype(np.float64))
 
 
 def pooled_edges(
@@ -370,7 +372,7 @@ def pooled_edges(
     geometry.check_image(img, "image")
     ok = sel >= 0
     s = np.maximum(sel, 0)
-    new, value, rise, _to_peak, used, noise = _kernels.pooled_edges(
+    new, value, rise, used, noise = _kernels.pooled_edges(
         img, edge, stop, run, int(half_beams), int(front_bins), int(max_bins), int(smooth_bins) | 1,
         float(fraction), int(n_iter))
     # the leading edge belongs to the beam's own echo: within the walk of find_echoes in front of

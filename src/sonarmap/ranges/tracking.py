@@ -94,8 +94,7 @@ def track_surfaces(echoes: Echoes, config: TrackConfig = TrackConfig()) -> Track
     first, count = echoes.per_beam()
     unary = config.beam_cost - echoes.evidence
     usable = np.ones(echoes.size, dtype=bool)
-    lo = np.minimum(echoes.start_bin, np.floor(echoes.edge_bin).astype(np.int64))
-    hi = echoes.stop_bin - 1
+    lo, hi = echoes.intervals()
     picks = []
     for _ in range(config.n_surfaces):
         chosen = _kernels.viterbi_surfaces(
