@@ -204,6 +204,17 @@ class PipelineConfig:
     max_kld, max_object_weight, min_separation : float
         Fit gates (:func:`sonarmap.stats.gates.fit_gates`): a ping whose fit fails one yields no
         returns and carries the gate's name in its flags.
+    max_floor_levels : int
+        The quantisation floor.  An 8-bit ping whose fit fails the KL-divergence gate is modelled
+        again with its lowest ``n = 1, 2, ..`` levels merged into the zero level (the image
+        shifted down by ``n`` levels, clamped at 0), up to this many; the first ``n`` whose fit
+        passes every gate is used and reported as :attr:`PingProducts.floor_levels`.  A background
+        whose bulk lies on the bottom two or three levels of the 8-bit grid (the dark water column
+        of an Oculus after its automatic gain has lowered the gain for a bright hull) has no shape
+        the grid resolves - its histogram falls by 5-30x per level, an exponential of less than
+        one level - and the mixture's zero spike then takes it as it takes a thresholded
+        receiver's zeros.  Pings whose first fit passes (every DIDSON, ARIS, Oculus and Kongsberg
+        recording) are unchanged.  0 = off.
     """
 
     preprocess: Any = "paper-table1"
@@ -249,6 +260,7 @@ class PipelineConfig:
     pool_min_beams: int = 40
     pool_mode: str = "fill"
     max_kld: float = 0.05
+    max_floor_levels: int = 4
     edge_fraction: float = 0.5
     tracker: str = "surface"
     track: Any = None
@@ -341,7 +353,8 @@ class PipelineConfig:
                         ("min_component_bins", 1), ("min_component_pixels", 0),
                         ("normalised_component_beams", 1), ("normalised_component_bins", 1),
                         ("normalised_component_pixels", 0), ("refine_bins", 0), ("link_beams", 0),
-                        ("pool_beams", 0), ("pool_bins", 1), ("pool_min_beams", 1), ("edge_pool_beams", 0)):
+                        ("pool_beams", 0), ("pool_bins", 1), ("pool_min_beams", 1), ("edge_pool_beams", 0),
+                        ("max_floor_levels", 0)):
             v = getattr(self, key)
             if isinstance(v, bool) or not isinstance(v, int) or v < lo:
                 raise bad(key, f"must be an integer >= {lo}")
@@ -461,6 +474,9 @@ class PingProducts:
         has no returns.  Also part of ``flags``.
     image : ndarray of float32 or None
         The image the classifier saw (normalised or pre-processed; only with ``keep_labels=True``).
+    floor_levels : int
+        8-bit levels the image was shifted down by before it was modelled (the quantisation
+        floor, :attr:`PipelineConfig.max_floor_levels`); 0 for an image modelled as recorded.
     input_gain_db : float
         The automatic input gain applied after the sidelobe suppression
         (:func:`sonarmap.preprocess.normalise.input_gain` and ``suppress_sidelobes``); 0 for 8-bit
@@ -482,6 +498,7 @@ class PingProducts:
     gates: tuple[str, ...] = ()
     image: NDArray[np.float32] | None = None
     input_gain_db: float = 0.0
+    floor_levels: int = 0
 
     @property
     def flagged(self) -> bool:
@@ -552,12 +569,25 @@ def classify_image(image: NDArray[np.float32], config: PipelineConfig = Pipeline
     ``"no_object"`` / ``"all_zero"`` / ``"degenerate"`` is all background for the fit-based
     methods.
     """
-    labels, fit, pd, pfa, _ = _classify(image, config)
+    labels, fit, pd, pfa, _, _ = _classify(image, config)
     return labels, fit, pd, pfa
 
 
-def _classify(image: NDArray[np.float32], config: PipelineConfig) -> tuple[NDArray[np.uint8], Any, float, float, NDArray[Any]]:
-    """:func:`classify_image` plus the quantised levels it classified."""
+def _gates(fit: Any, config: PipelineConfig) -> frozenset[str]:
+    """The fit gates ``fit`` fails under ``config`` (none for CFAR or without a fit)."""
+    if fit is None or config.method.startswith("cfar-"):
+        return frozenset()
+    from sonarmap.stats.gates import fit_gates
+
+    return fit_gates(fit, max_kld=config.max_kld, max_object_weight=config.max_object_weight,
+                     min_separation=config.min_separation)
+
+
+def _classify(image: NDArray[np.float32], config: PipelineConfig, gate: bool = False
+              ) -> tuple[NDArray[np.uint8], Any, float, float, NDArray[Any], frozenset[str]]:
+    """:func:`classify_image` plus the quantised levels it classified and the fit gates the fit
+    fails (:func:`_gates`; only with ``gate=True``, which also skips the labelling of a gated
+    ping: its labels are all background)."""
     from sonarmap.stats.mixture import quantize
 
     method = config.method
@@ -568,9 +598,10 @@ def _classify(image: NDArray[np.float32], config: PipelineConfig) -> tuple[NDArr
                          pfa=config.cfar_pfa, two_d=config.cfar_two_d)
         res = cfar(image, config=cfg)
         levels = quantize(image, config.n_levels)
-        return res.labels, _fit(levels, config), math.nan, config.cfar_pfa, levels
+        return res.labels, _fit(levels, config), math.nan, config.cfar_pfa, levels, frozenset()
     levels = quantize(image, config.n_levels)
     fit = _fit(levels, config)
+    gates = _gates(fit, config) if gate else frozenset()
     if method == "threshold":
         from sonarmap.classify.threshold import threshold_labels
 
@@ -580,20 +611,22 @@ def _classify(image: NDArray[np.float32], config: PipelineConfig) -> tuple[NDArr
             from sonarmap.stats.roc import pd_pfa_at_threshold
 
             pd, pfa = pd_pfa_at_threshold(fit, config.threshold)
-        return labels, fit, pd, pfa, levels
+        return labels, fit, pd, pfa, levels, gates
     if fit is None or fit.flags & {"all_zero", "degenerate"} or len(fit.class_names) < 2:
-        return np.zeros(image.shape, dtype=np.uint8), fit, 0.0, 0.0, levels
+        return np.zeros(image.shape, dtype=np.uint8), fit, 0.0, 0.0, levels, gates
     from sonarmap.classify.local_map import map_lookup_table
 
     lut = map_lookup_table(fit)
     pd, pfa = _model_pd_pfa(fit, lut)
     if method == "map":
-        return lut[levels], fit, pd, pfa, levels
+        return lut[levels], fit, pd, pfa, levels, gates
     cost = _cost_lut(fit, config.object_prior_min, config.speckle_eps)
     # the per-pixel decision of the MRF's own unary (object prior raised to object_prior_min):
     # the fitted prior alone can be so small (a thin surface, 0.001-0.02) that the local MAP rule
     # detects nothing while the MRF reports the surface
     pd, pfa = _model_pd_pfa(fit, np.argmin(cost, axis=0))
+    if gates:
+        return np.zeros(image.shape, dtype=np.uint8), fit, pd, pfa, levels, gates
     labels = _mrf_labels(image, levels, cost, config.beta, config)
     if config.grow_prior_min > 0:
         from sonarmap.ranges import wide_components
@@ -601,7 +634,7 @@ def _classify(image: NDArray[np.float32], config: PipelineConfig) -> tuple[NDArr
         weak = _mrf_labels(image, levels, _cost_lut(fit, config.grow_prior_min, config.speckle_eps), config.grow_beta, config)
         grown = wide_components((weak >= 1) | (labels >= 1), 1, seeds=labels >= 1)
         labels = np.where(grown & (labels == 0), np.uint8(1), labels).astype(np.uint8)
-    return labels, fit, pd, pfa, levels
+    return labels, fit, pd, pfa, levels, gates
 
 
 def _mrf_labels(image: NDArray[np.float32], levels: NDArray[Any], cost: NDArray[np.float64], beta: float,
@@ -689,29 +722,51 @@ def process_ping(ping: Ping, config: PipelineConfig = PipelineConfig(), *, keep_
         raise InputError(f"config: expected a PipelineConfig, got {type(config).__name__}")
     geom = ping.geometry
     pre = config.preprocess_config()
-    from sonarmap.preprocess.normalise import condition_image
+    from sonarmap.preprocess.normalise import on_8bit_grid, condition_image
 
     # sidelobe suppression and input gain; 8-bit images (every DIDSON, ARIS and Oculus recording)
     # pass unchanged
     raw, gain_db = condition_image(ping.image)
-    constant = float(raw.max()) == float(raw.min())
     reference = background
-    background = None
-    normalised = None
-    if config.normalise == "auto" and not constant:
-        from sonarmap.preprocess.normalise import RecordingBackground, estimate_background
+    if reference is not None and config.normalise == "auto":
+        from sonarmap.preprocess.normalise import RecordingBackground
 
-        if reference is not None and not isinstance(reference, RecordingBackground):
+        if not isinstance(reference, RecordingBackground):
             raise InputError(f"background: expected a RecordingBackground, got {type(reference).__name__}")
-        background, normalised = estimate_background(raw, reference=reference)
-    if normalised is not None:
-        image = normalised
-    elif pre is None or constant:
-        image = raw
-    else:
-        from sonarmap.preprocess.pipeline import preprocess_image
 
-        image = preprocess_image(raw, geom, pre)
+    def front(raw: NDArray[np.float32]) -> tuple[Any, ...]:
+        """Image the classifier sees, its normalisation and its classification (gated)."""
+        constant = float(raw.max()) == float(raw.min())
+        background = None
+        normalised = None
+        if config.normalise == "auto" and not constant:
+            from sonarmap.preprocess.normalise import estimate_background
+
+            background, normalised = estimate_background(raw, reference=reference)
+        if normalised is not None:
+            image = normalised
+        elif pre is None or constant:
+            image = raw
+        else:
+            from sonarmap.preprocess.pipeline import preprocess_image
+
+            image = preprocess_image(raw, geom, pre)
+        if constant or not np.any(image > 0) or float(image.max()) == float(image.min()):
+            return image, normalised, background, None
+        return image, normalised, background, _classify(image, config, gate=True)
+
+    image, normalised, background, classified = front(raw)
+    floor = 0
+    if classified is not None and "kld" in classified[5] and config.max_floor_levels > 0 and on_8bit_grid(raw):
+        # a background on the bottom levels of the 8-bit grid: merge them into the zero level
+        for n in range(1, config.max_floor_levels + 1):
+            shifted = np.maximum(raw - np.float32(n / 255.0), np.float32(0.0))
+            attempt = front(shifted)
+            if attempt[3] is not None and not attempt[3][5]:
+                image, normalised, background, classified = attempt
+                floor = n
+                break
+
     def no_return_products(fit: Any, flags: set[str], pd: float, pfa: float,
                            gates: tuple[str, ...] = ()) -> PingProducts:
         return PingProducts(
@@ -723,15 +778,9 @@ def process_ping(ping: Ping, config: PipelineConfig = PipelineConfig(), *, keep_
             image=image if keep_labels else None, input_gain_db=gain_db)
 
     # a constant ping (all zero, saturated, a dead sensor) carries no range information
-    if constant or not np.any(image > 0) or float(image.max()) == float(image.min()):
+    if classified is None:
         return no_return_products(None, {"constant_image"}, 0.0, 0.0)
-    labels, fit, pd, pfa, levels = _classify(image, config)
-    gates: frozenset[str] = frozenset()
-    if fit is not None and not config.method.startswith("cfar-"):
-        from sonarmap.stats.gates import fit_gates
-
-        gates = fit_gates(fit, max_kld=config.max_kld, max_object_weight=config.max_object_weight,
-                          min_separation=config.min_separation)
+    labels, fit, pd, pfa, levels, gates = classified
     if gates:
         # an implausible fit never becomes confident output: no returns, the reasons as flags
         return no_return_products(fit, set(fit.flags) | gates, float(pd), float(pfa), tuple(sorted(gates)))
@@ -756,7 +805,7 @@ def process_ping(ping: Ping, config: PipelineConfig = PipelineConfig(), *, keep_
     thickness = None
     if config.tracker == "surface":
         ranges, thickness = _surface_ranges(ping, image, levels, mask, fit, config, normalised is not None, bg_mean,
-                                            background)
+                                            background, floor)
     else:
         def _ranges(accepted: NDArray[np.bool_] | None) -> BeamRanges:
             return extract_ranges(
@@ -796,7 +845,7 @@ def process_ping(ping: Ping, config: PipelineConfig = PipelineConfig(), *, keep_
         kld=float(fit.kld) if fit is not None else math.nan, flags=tuple(sorted(flags)),
         ranges=ranges, labels=labels if keep_labels else None, pd=float(pd), pfa=float(pfa),
         method=config.method, pd_range=pd_range,
-        background=background, image=image if keep_labels else None, input_gain_db=gain_db,
+        background=background, image=image if keep_labels else None, input_gain_db=gain_db, floor_levels=floor,
     )
 
 
@@ -855,9 +904,11 @@ def measurement_image(ping: Ping, background: Any, config: PipelineConfig = Pipe
 
 def _surface_ranges(ping: Ping, image: NDArray[np.float32], levels: NDArray[Any], mask: NDArray[np.bool_],
                     fit: Any, config: PipelineConfig, normalised: bool,
-                    bg_mean: float | None, background: Any = None) -> tuple[BeamRanges, NDArray[np.int64]]:
+                    bg_mean: float | None, background: Any = None, floor: int = 0) -> tuple[BeamRanges, NDArray[np.int64]]:
     """Echoes of the candidate structure (``mask`` plus pooled bands), tracked across beams; also
-    the number of bins each return's echo spans (0 where no return)."""
+    the number of bins each return's echo spans (0 where no return).  ``floor``: the levels the
+    ping's image was shifted down by (:attr:`PingProducts.floor_levels`); the echoes are measured
+    on the shifted image, the clipping test on the recorded one."""
     from sonarmap.ranges import ranges_from_tracks
     from sonarmap.ranges.echoes import find_echoes, level_llr, pooled_edges
     from sonarmap.ranges.tracking import continuation_mask, track_surfaces
@@ -892,7 +943,9 @@ def _surface_ranges(ping: Ping, image: NDArray[np.float32], levels: NDArray[Any]
             pad = pb + 4
             rows = (int(occupied[0]) - pad, int(occupied[-1]) + 1 + pad)
             if not done or rows[0] < done[1][0] or rows[1] > done[1][1]:
-                done[:] = [measurement_image(ping, background, config, rows=rows), rows]
+                mping = ping if not floor else dataclasses.replace(
+                    ping, image=np.maximum(np.asarray(ping.image, np.float32) - np.float32(floor / 255.0), np.float32(0.0)))
+                done[:] = [measurement_image(mping, background, config, rows=rows), rows]
             meas, bg = done[0], 1.0
         # a pooled band pixel passed a >= pool_factor x background test over the whole box: one
         # nat at least, whatever its own (single-look, speckled) value says

@@ -50,13 +50,22 @@ from numpy.typing import NDArray
 
 from sonarmap.errors import InputError
 
-__all__ = ["BackgroundLevel", "RecordingBackground", "estimate_background", "estimate_recording_background",
+__all__ = ["BackgroundLevel", "on_8bit_grid", "RecordingBackground", "estimate_background", "estimate_recording_background",
            "normalise_image", "BACKGROUND_MEAN", "expand_grid", "input_gain", "suppress_sidelobes", "condition_image",
-           "SIDELOBE_LEVEL_DB", "INPUT_GAIN_QUANTILE", "INPUT_GAIN_BELOW"]
+           "SIDELOBE_LEVEL_DB", "INPUT_GAIN_QUANTILE", "INPUT_GAIN_BELOW", "MIN_LEVEL_COUNTS"]
 
 #: Mean of the background excess after normalisation (the DIDSON background's 1/lambda, Table I).
 BACKGROUND_MEAN = 1.0 / 44.6
 _ZERO = 0.5 / 255.0
+#: Smallest background level (in 8-bit levels, the median over range of the estimated level) that
+#: is normalised.  The level is an order statistic of each row: below 4 levels it moves in steps of
+#: 25 % or more between rows, and dividing by it draws bands across the fan that the classifier
+#: takes for surfaces (dark Rayleigh speckle of 2 levels gave a "surface" on every beam).  Such an
+#: image is left as recorded - its background is the zero spike and the lowest levels of the
+#: mixture (``PipelineConfig.max_floor_levels``).  The real recordings' levels: ARIS 75-77, Oculus
+#: 11-12 levels.
+MIN_LEVEL_COUNTS = 4.0
+
 #: Largest fraction of the normalised pixels at the top level (1.0): above it the gain is lowered.
 MAX_SATURATED = 0.01
 
@@ -71,7 +80,9 @@ class BackgroundLevel:
         Whether the image is normalised (False for thresholded images and degenerate ones).
     reason : str
         ``"estimated"`` (normalised), ``"thresholded"`` (already has a zero spike: left alone),
-        ``"degenerate"`` (the background level is zero or not finite in most rows: no estimate).
+        ``"degenerate"`` (the background level is zero or not finite in most rows: no estimate),
+        ``"quantised"`` (8-bit data whose background level is below :data:`MIN_LEVEL_COUNTS`
+        levels: the grid does not resolve it, left alone like a thresholded image).
     zero_fraction : float
         Fraction of pixels at the zero level of the raw image.
     level_by_bin : ndarray, shape (n_bins,), float32, or None
@@ -111,7 +122,7 @@ INPUT_GAIN_QUANTILE = 0.999
 INPUT_GAIN_BELOW = 4.0 / 256.0
 
 
-def _on_8bit_grid(img: NDArray[np.float32]) -> bool:
+def on_8bit_grid(img: NDArray[np.float32]) -> bool:
     """True when a sample of the image's positive values are all multiples of 1/255 (8-bit data:
     nothing below can change it, so the per-ping cost is one small sample)."""
     flat = img.ravel()
@@ -150,7 +161,7 @@ def suppress_sidelobes(image: NDArray[np.floating], level_db: float = SIDELOBE_L
         The image, unchanged where nothing lies ``level_db`` under its row's maximum.
     """
     img = np.asarray(image, dtype=np.float32)
-    if img.ndim != 2 or img.size == 0 or not level_db > 0 or _on_8bit_grid(img):
+    if img.ndim != 2 or img.size == 0 or not level_db > 0 or on_8bit_grid(img):
         return img  # (8-bit data holds no value 25 dB under its row's maximum anyway)
     return _suppress_sidelobes(img, level_db)
 
@@ -193,7 +204,7 @@ def input_gain(image: NDArray[np.floating]) -> tuple[NDArray[np.float32], float]
         The image and the gain applied, in dB (0 when unchanged).
     """
     img = np.asarray(image, dtype=np.float32)
-    if img.size == 0 or _on_8bit_grid(img):
+    if img.size == 0 or on_8bit_grid(img):
         return img, 0.0  # 8-bit data: its levels are the sonar's own, keep them
     return _input_gain(img)
 
@@ -216,7 +227,7 @@ def condition_image(image: NDArray[np.floating]) -> tuple[NDArray[np.float32], f
     """:func:`suppress_sidelobes` then :func:`input_gain` with the 8-bit test made once (the
     per-ping pipeline's first step); returns the image and the gain in dB."""
     img = np.asarray(image, dtype=np.float32)
-    if img.ndim != 2 or img.size == 0 or _on_8bit_grid(img):
+    if img.ndim != 2 or img.size == 0 or on_8bit_grid(img):
         return img, 0.0
     return _input_gain(_suppress_sidelobes(img, SIDELOBE_LEVEL_DB))
 
@@ -334,6 +345,8 @@ def estimate_background(
     level = _row_level(img, max_rise)
     if level is None:
         return BackgroundLevel(False, "degenerate", zero_fraction), None
+    if float(np.median(level)) * 255.0 < MIN_LEVEL_COUNTS and on_8bit_grid(img):
+        return BackgroundLevel(False, "quantised", zero_fraction, level), None
     z = img / level[:, None]
     factor = _block_factor(z)
     return _finish(img, level, factor, zero_fraction, floor_quantile, pool, "estimated")
