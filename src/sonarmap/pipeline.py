@@ -720,80 +720,129 @@ def process_ping(ping: Ping, config: PipelineConfig = PipelineConfig(), *, keep_
         raise InputError(f"ping: expected a Ping, got {type(ping).__name__}")
     if not isinstance(config, PipelineConfig):
         raise InputError(f"config: expected a PipelineConfig, got {type(config).__name__}")
-    geom = ping.geometry
-    pre = config.preprocess_config()
-    from sonarmap.preprocess.normalise import on_8bit_grid, condition_image
+    if background is not None and config.normalise == "auto":
+        from sonarmap.preprocess.normalise import RecordingBackground
 
+        if not isinstance(background, RecordingBackground):
+            raise InputError(f"background: expected a RecordingBackground, got {type(background).__name__}")
+    from sonarmap.preprocess.normalise import condition_image
+
+    geom = ping.geometry
     # sidelobe suppression and input gain; 8-bit images (every DIDSON, ARIS and Oculus recording)
     # pass unchanged
     raw, gain_db = condition_image(ping.image)
-    reference = background
-    if reference is not None and config.normalise == "auto":
-        from sonarmap.preprocess.normalise import RecordingBackground
+    # background normalisation or pre-processing (sec. III-IV), mixture fit (eq. 8-11) and its
+    # gates, classification (eq. 12-18)
+    m = _model_ping(raw, geom, config, background)
 
-        if not isinstance(reference, RecordingBackground):
-            raise InputError(f"background: expected a RecordingBackground, got {type(reference).__name__}")
-
-    def front(raw: NDArray[np.float32]) -> tuple[Any, ...]:
-        """Image the classifier sees, its normalisation and its classification (gated)."""
-        constant = float(raw.max()) == float(raw.min())
-        background = None
-        normalised = None
-        if config.normalise == "auto" and not constant:
-            from sonarmap.preprocess.normalise import estimate_background
-
-            background, normalised = estimate_background(raw, reference=reference)
-        if normalised is not None:
-            image = normalised
-        elif pre is None or constant:
-            image = raw
-        else:
-            from sonarmap.preprocess.pipeline import preprocess_image
-
-            image = preprocess_image(raw, geom, pre)
-        if constant or not np.any(image > 0) or float(image.max()) == float(image.min()):
-            return image, normalised, background, None
-        return image, normalised, background, _classify(image, config, gate=True)
-
-    image, normalised, background, classified = front(raw)
-    floor = 0
-    if classified is not None and "kld" in classified[5] and config.max_floor_levels > 0 and on_8bit_grid(raw):
-        # a background on the bottom levels of the 8-bit grid: merge them into the zero level
-        for n in range(1, config.max_floor_levels + 1):
-            shifted = np.maximum(raw - np.float32(n / 255.0), np.float32(0.0))
-            attempt = front(shifted)
-            if attempt[3] is not None and not attempt[3][5]:
-                image, normalised, background, classified = attempt
-                floor = n
-                break
-
-    def no_return_products(fit: Any, flags: set[str], pd: float, pfa: float,
-                           gates: tuple[str, ...] = ()) -> PingProducts:
+    def products(ranges: BeamRanges, flags: set[str], labels: NDArray[np.uint8] | None, pd: float, pfa: float,
+                 pd_range: float, gates: tuple[str, ...] = ()) -> PingProducts:
+        fit = m.classified[1] if m.classified is not None else None
         return PingProducts(
             time_ns=ping.time_ns, source=ping.source, fit=fit,
-            kld=float(fit.kld) if fit is not None else math.nan, flags=tuple(sorted(flags | {"no_returns"})),
-            ranges=no_returns(geom, time_ns=ping.time_ns, source=ping.source, mode=config.range_mode),
-            labels=np.zeros(image.shape, dtype=np.uint8) if keep_labels else None, pd=pd, pfa=pfa,
-            method=config.method, pd_range=0.0, background=background, gates=gates,
-            image=image if keep_labels else None, input_gain_db=gain_db)
+            kld=float(fit.kld) if fit is not None else math.nan, flags=tuple(sorted(flags)),
+            ranges=ranges, labels=labels if keep_labels else None, pd=float(pd), pfa=float(pfa),
+            method=config.method, pd_range=pd_range, background=m.background, gates=gates,
+            image=m.image if keep_labels else None, input_gain_db=gain_db, floor_levels=m.floor)
 
-    # a constant ping (all zero, saturated, a dead sensor) carries no range information
-    if classified is None:
-        return no_return_products(None, {"constant_image"}, 0.0, 0.0)
-    labels, fit, pd, pfa, levels, gates = classified
+    def no_return_products(flags: set[str], pd: float, pfa: float, gates: tuple[str, ...] = ()) -> PingProducts:
+        return products(no_returns(geom, time_ns=ping.time_ns, source=ping.source, mode=config.range_mode),
+                        flags | {"no_returns"}, np.zeros(m.image.shape, dtype=np.uint8), pd, pfa, 0.0, gates)
+
+    if m.classified is None:
+        # a constant ping (all zero, saturated, a dead sensor) carries no range information
+        return no_return_products({"constant_image"}, 0.0, 0.0)
+    labels, fit, pd, pfa, levels, gates = m.classified
     if gates:
         # an implausible fit never becomes confident output: no returns, the reasons as flags
-        return no_return_products(fit, set(fit.flags) | gates, float(pd), float(pfa), tuple(sorted(gates)))
-    edge = None
-    bg_mean = None
-    usable = fit is not None and len(fit.class_names) >= 2 and not fit.flags & {"all_zero", "degenerate"}
-    if usable or (config.refine_bins > 0 and fit is not None):
-        bg = float(np.asarray(fit.class_pmf())[0] @ np.asarray(fit.levels))  # background class mean
-        bg_mean = bg if usable else None
-        edge = config.edge_factor * bg if config.refine_bins > 0 else None
+        return no_return_products(set(fit.flags) | gates, float(pd), float(pfa), tuple(sorted(gates)))
+    # per-beam ranges (sec. V): candidate structure, then echoes tracked across beams
+    bg_mean, edge = _background_mean(fit, config)
+    mask = _candidate_mask(labels, geom, config, m.normalised is not None)
+    thickness = None
+    if config.tracker == "surface":
+        ranges, thickness = _surface_ranges(ping, m.image, levels, mask, fit, config, m.normalised is not None,
+                                            bg_mean, m.background, m.floor)
+    else:
+        ranges = _rule_ranges(ping, m.image, labels, mask, config, m.normalised is not None, bg_mean, edge)
+    flags = set(fit.flags) if fit is not None else {"no_fit"}
+    if ranges.n_returns == 0:
+        flags.add("no_returns")
+    pd_range = _pd_range(float(pd), labels, ranges, flags)
+    if thickness is not None:
+        ranges = dataclasses.replace(ranges, p_detect=_p_detect(float(pd), pd_range, ranges, thickness))
+    return products(ranges, flags, labels, pd, pfa, pd_range)
 
-    # rule 0 (components) once; both extraction passes below start from its mask
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class _Modelled:
+    """What :func:`_model_ping` made of a ping: the image the classifier saw, the normalised image
+    (None when not normalised), the background estimate, ``(labels, fit, pd, pfa, levels, gates)``
+    of :func:`_classify` (None for a constant image) and the quantisation floor used."""
+
+    image: NDArray[np.float32]
+    normalised: NDArray[np.float32] | None
+    background: Any
+    classified: tuple[Any, ...] | None
+    floor: int
+
+
+def _model_ping(raw: NDArray[np.float32], geom: Any, config: PipelineConfig, reference: Any) -> _Modelled:
+    """The modelling stage: normalise (or pre-process) the conditioned image, fit, gate, classify.
+
+    An 8-bit ping whose fit fails the ``kld`` gate is modelled again with its lowest levels merged
+    into the zero level (:attr:`PipelineConfig.max_floor_levels`); the first floor whose fit passes
+    every gate is kept, else the ping as recorded.
+    """
+    from sonarmap.preprocess.normalise import on_8bit_grid
+
+    m = _model_image(raw, geom, config, reference)
+    if m.classified is not None and "kld" in m.classified[5] and config.max_floor_levels > 0 and on_8bit_grid(raw):
+        # a background on the bottom levels of the 8-bit grid: merge them into the zero level
+        for n in range(1, config.max_floor_levels + 1):
+            attempt = _model_image(np.maximum(raw - np.float32(n / 255.0), np.float32(0.0)), geom, config, reference)
+            if attempt.classified is not None and not attempt.classified[5]:
+                return dataclasses.replace(attempt, floor=n)
+    return m
+
+
+def _model_image(raw: NDArray[np.float32], geom: Any, config: PipelineConfig, reference: Any) -> _Modelled:
+    """:func:`_model_ping` of one image, without the quantisation floor."""
+    constant = float(raw.max()) == float(raw.min())
+    background = None
+    normalised = None
+    if config.normalise == "auto" and not constant:
+        from sonarmap.preprocess.normalise import estimate_background
+
+        background, normalised = estimate_background(raw, reference=reference)
+    pre = config.preprocess_config()
     if normalised is not None:
+        image = normalised
+    elif pre is None or constant:
+        image = raw
+    else:
+        from sonarmap.preprocess.pipeline import preprocess_image
+
+        image = preprocess_image(raw, geom, pre)
+    if constant or not np.any(image > 0) or float(image.max()) == float(image.min()):
+        return _Modelled(image, normalised, background, None, 0)
+    return _Modelled(image, normalised, background, _classify(image, config, gate=True), 0)
+
+
+def _background_mean(fit: Any, config: PipelineConfig) -> tuple[float | None, float | None]:
+    """The fitted background class's mean intensity (None when the fit has no usable classes) and
+    the leading-edge level of the rules tracker (``edge_factor`` x that mean; None when off)."""
+    usable = fit is not None and len(fit.class_names) >= 2 and not fit.flags & {"all_zero", "degenerate"}
+    if not (usable or (config.refine_bins > 0 and fit is not None)):
+        return None, None
+    bg = float(np.asarray(fit.class_pmf())[0] @ np.asarray(fit.levels))
+    return (bg if usable else None), (config.edge_factor * bg if config.refine_bins > 0 else None)
+
+
+def _candidate_mask(labels: NDArray[np.uint8], geom: Any, config: PipelineConfig, normalised: bool) -> NDArray[np.bool_]:
+    """Structure pixels in components large enough to be surfaces (rule 0), without the ones
+    smaller than ``min_component_extent_m`` both ways."""
+    if normalised:
         rule = (config.normalised_component_beams, config.normalised_component_bins,
                 config.normalised_component_pixels)
     else:
@@ -801,52 +850,43 @@ def process_ping(ping: Ping, config: PipelineConfig = PipelineConfig(), *, keep_
     mask = component_rule(labels >= 1, rule[0], rule[1], config.link_beams, rule[2])
     if config.min_component_extent_m > 0:
         mask = drop_small_components(mask, geom, config.min_component_extent_m)
+    return mask
 
-    thickness = None
-    if config.tracker == "surface":
-        ranges, thickness = _surface_ranges(ping, image, levels, mask, fit, config, normalised is not None, bg_mean,
-                                            background, floor)
-    else:
-        def _ranges(accepted: NDArray[np.bool_] | None) -> BeamRanges:
-            return extract_ranges(
-                mask, image, geom, mode=config.range_mode,  # type: ignore[arg-type]
-                min_run=config.min_run, reject_isolated=config.reject_isolated,
-                neighbour_beams=config.neighbour_beams, max_jump_bins=config.max_jump_bins,
-                min_segment_beams=config.min_segment_beams,
-                refine_bins=config.refine_bins if normalised is None else 0, edge_level=edge, accepted=accepted,
-                time_ns=ping.time_ns,
-                source=ping.source,
-            )
 
-        ranges = _ranges(None)
-        # band pooling: "fallback" only when the per-pixel route found less than one wide surface,
-        # "fill" on the beams it left without a return
-        fallback = ranges.n_returns < config.pool_min_beams
-        n_beams = ranges.bin.size
-        # band pooling multi-looks single-look speckle; a normalised image is multi-looked already
-        if (config.pool_factor > 0 and bg_mean is not None and bg_mean > 0 and normalised is None
-                and (fallback or (config.pool_mode == "fill" and ranges.n_returns < n_beams))):
-            accepted = pooled_band_pixels(image, config.pool_factor * bg_mean, pool_beams=config.pool_beams,
-                                          pool_bins=config.pool_bins, min_beams=config.pool_min_beams,
-                                          beams=None if fallback else ranges.bin < 0)
-            if accepted is not None:
-                ranges = _ranges(accepted)
-        if normalised is not None and config.edge_fraction > 0:
-            # the range convention: the leading edge of the echo (a fraction of its first peak)
-            ranges = half_peak_edges(ranges, image, labels >= 1, geom, fraction=config.edge_fraction)
-    flags = set(fit.flags) if fit is not None else {"no_fit"}
-    if ranges.n_returns == 0:
-        flags.add("no_returns")
-    pd_range = _pd_range(float(pd), labels, ranges, flags)
-    if thickness is not None:
-        ranges = dataclasses.replace(ranges, p_detect=_p_detect(float(pd), pd_range, ranges, thickness))
-    return PingProducts(
-        time_ns=ping.time_ns, source=ping.source, fit=fit,
-        kld=float(fit.kld) if fit is not None else math.nan, flags=tuple(sorted(flags)),
-        ranges=ranges, labels=labels if keep_labels else None, pd=float(pd), pfa=float(pfa),
-        method=config.method, pd_range=pd_range,
-        background=background, image=image if keep_labels else None, input_gain_db=gain_db, floor_levels=floor,
-    )
+def _rule_ranges(ping: Ping, image: NDArray[np.float32], labels: NDArray[np.uint8], mask: NDArray[np.bool_],
+                 config: PipelineConfig, normalised: bool, bg_mean: float | None, edge: float | None) -> BeamRanges:
+    """The per-beam rules (``tracker="rules"``): first runs, the isolated-return rule, leading-edge
+    refinement, band pooling; half-peak edges on normalised images."""
+    geom = ping.geometry
+
+    def _ranges(accepted: NDArray[np.bool_] | None) -> BeamRanges:
+        return extract_ranges(
+            mask, image, geom, mode=config.range_mode,  # type: ignore[arg-type]
+            min_run=config.min_run, reject_isolated=config.reject_isolated,
+            neighbour_beams=config.neighbour_beams, max_jump_bins=config.max_jump_bins,
+            min_segment_beams=config.min_segment_beams,
+            refine_bins=config.refine_bins if not normalised else 0, edge_level=edge, accepted=accepted,
+            time_ns=ping.time_ns,
+            source=ping.source,
+        )
+
+    ranges = _ranges(None)
+    # band pooling: "fallback" only when the per-pixel route found less than one wide surface,
+    # "fill" on the beams it left without a return
+    fallback = ranges.n_returns < config.pool_min_beams
+    n_beams = ranges.bin.size
+    # band pooling multi-looks single-look speckle; a normalised image is multi-looked already
+    if (config.pool_factor > 0 and bg_mean is not None and bg_mean > 0 and not normalised
+            and (fallback or (config.pool_mode == "fill" and ranges.n_returns < n_beams))):
+        accepted = pooled_band_pixels(image, config.pool_factor * bg_mean, pool_beams=config.pool_beams,
+                                      pool_bins=config.pool_bins, min_beams=config.pool_min_beams,
+                                      beams=None if fallback else ranges.bin < 0)
+        if accepted is not None:
+            ranges = _ranges(accepted)
+    if normalised and config.edge_fraction > 0:
+        # the range convention: the leading edge of the echo (a fraction of its first peak)
+        ranges = half_peak_edges(ranges, image, labels >= 1, geom, fraction=config.edge_fraction)
+    return ranges
 
 
 def _meta_number(ping: Ping, key: str, default: float | None = None) -> float | None:
