@@ -332,6 +332,7 @@ def _record(products: Any, *, keep_labels: bool) -> dict[str, Any]:
         "kld": np.float64(np.nan if products.kld is None else products.kld),
         "flags": " ".join(str(f) for f in (products.flags or ())),
         "background_range_db": np.float64(_background_db(products)),
+        "floor_levels": np.int16(getattr(products, "floor_levels", 0)),
         "mixture_weight": weights,
         "mixture_param": params,
         "pd": np.float64(np.nan if getattr(products, "pd", None) is None else products.pd),
@@ -377,7 +378,7 @@ def _background_db(products: Any) -> float:
 
 
 _FILL: dict[str, Any] = {
-    "background_range_db": np.nan, "kld": np.nan, "pd": np.nan, "pfa": np.nan, "mixture_weight": np.nan, "mixture_param": np.nan,
+    "background_range_db": np.nan, "floor_levels": 0, "kld": np.nan, "pd": np.nan, "pfa": np.nan, "mixture_weight": np.nan, "mixture_param": np.nan,
     "range": np.nan, "range_bin": -1, "range_intensity": np.nan, "range_confidence": np.nan,
     "range_sigma": np.nan, "p_detect": np.nan, "other_range": np.nan,
     "labels": 0, "ping_time": 0, "source": "", "flags": "",
@@ -1365,6 +1366,7 @@ def _register_points(root: Any, st: CheckedStore, out: Path, poses: Any, points:
 PRODUCT_RANGES: dict[str, dict[str, Any]] = {
     "kld": {"low": 0.0, "high": math.inf, "nan": True, "inf": True},  # inf: zero_mass fits
     "background_range_db": {"nan": True},
+    "floor_levels": {"low": 0},
     "mixture_weight": {"low": 0.0, "high": 1.0, "nan": True},
     "mixture_param": {"nan": True},
     "pd": {"low": 0.0, "high": 1.0, "nan": True},
