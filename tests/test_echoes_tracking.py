@@ -137,6 +137,44 @@ def test_faint_gaps_are_bridged_and_a_front_surface_is_reported_first():
     assert np.all(np.isnan(behind[[15, 16]]))
 
 
+def test_a_surface_is_bridged_across_beams_a_stronger_echo_behind_took():
+    # the near surface spans every beam; a short, strong echo behind it on beams 18-20 wins those
+    # beams in the first pass, and the 3 near echoes left over cannot pay for a piece of their own
+    g = _geom(n_beams=40)
+    img = np.zeros(g.shape)
+    llr = np.zeros(g.shape)
+    img[100:102, :] = 1.0
+    llr[100:102, :] = 3.0
+    img[150:153, 18:21] = 1.0
+    llr[150:153, 18:21] = 20.0
+    e = find_echoes(img > 0, img, g, llr=llr)
+    plain = ranges_from_tracks(e, track_surfaces(e, TrackConfig(segment_cost=30.0, bridge_beams=0)), g, img)
+    assert np.all(plain.bin[18:21] == 150)
+    br = ranges_from_tracks(e, track_surfaces(e, TrackConfig(segment_cost=30.0)), g, img)
+    assert np.all(br.bin == 100)
+    # the echo behind stays a further surface
+    assert np.allclose(br.other_range_m[0][18:21], g.range_m[150] - 0.005, atol=1e-9)
+    assert np.all(np.isnan(br.other_range_m[0][:18]))
+    # a bridge longer than bridge_beams is not made
+    short = ranges_from_tracks(e, track_surfaces(e, TrackConfig(segment_cost=30.0, bridge_beams=2)), g, img)
+    assert np.all(short.bin[18:21] == 150)
+
+
+def test_no_bridge_without_the_surface_on_the_other_side():
+    # the near surface ends where the echo behind starts: nothing to bridge to
+    g = _geom(n_beams=40)
+    img = np.zeros(g.shape)
+    llr = np.zeros(g.shape)
+    img[100:102, :21] = 1.0
+    llr[100:102, :21] = 3.0
+    img[150:153, 18:40] = 1.0
+    llr[150:153, 18:40] = 20.0
+    e = find_echoes(img > 0, img, g, llr=llr)
+    a = ranges_from_tracks(e, track_surfaces(e, TrackConfig(segment_cost=30.0, bridge_beams=0)), g, img)
+    b = ranges_from_tracks(e, track_surfaces(e, TrackConfig(segment_cost=30.0)), g, img)
+    np.testing.assert_array_equal(a.bin, b.bin)
+
+
 def test_viterbi_is_exact_on_small_problems():
     from sonarmap.ranges import _kernels
 

@@ -180,6 +180,99 @@ def viterbi_surfaces(first, count, echo_beam, pos, lo_bin, hi_bin, unary, usable
     return chosen
 
 
+@njit(cache=True, nogil=True)
+def _touches(a, b, pos, lo_bin, hi_bin, jump_bins, touch_bins):  # pragma: no cover - numba
+    """Echoes on adjacent beams are neighbours under the tracker's rules."""
+    if abs(pos[a] - pos[b]) > jump_bins:
+        return False
+    return max(lo_bin[a] - hi_bin[b], lo_bin[b] - hi_bin[a]) <= touch_bins
+
+
+@njit(cache=True, nogil=True)
+def bridge_surfaces(first, count, pos, lo_bin, hi_bin, unary, tracked, slope_bins, slope_cost, jump_bins,
+                    touch_bins, max_beams):  # pragma: no cover - numba
+    """Untracked echoes that bridge a tracked surface across beams another surface took (see
+    :func:`sonarmap.ranges.tracking.track_surfaces`); returns the new ``tracked`` (bool per echo).
+
+    Candidates: untracked echoes in front of every tracked echo of their beam, each a neighbour of
+    a tracked or candidate echo on an adjacent beam whose step pays for itself (``unary + slope_cost
+    * |d| / slope_bins < 0``), grown by forward and backward sweeps until none joins.  A chain of
+    candidates on at most ``max_beams`` consecutive beams is kept when it is a neighbour of an
+    echo tracked before at both ends; every other candidate is dropped.
+    """
+    m = first.size
+    cand = np.zeros(tracked.size, np.bool_)
+    changed = True
+    while changed:
+        changed = False
+        for sweep in range(2):
+            for t in range(m):
+                j = t if sweep == 0 else m - 1 - t
+                for a in range(first[j], first[j] + count[j]):
+                    if tracked[a] or cand[a]:
+                        continue
+                    front = True
+                    for q in range(first[j], first[j] + count[j]):
+                        if (tracked[q] or cand[q]) and pos[q] <= pos[a]:
+                            front = False
+                            break
+                    if not front:
+                        continue
+                    join = False
+                    for jb in (j - 1, j + 1):
+                        if jb < 0 or jb >= m:
+                            continue
+                        for b in range(first[jb], first[jb] + count[jb]):
+                            if (tracked[b] or cand[b]) and _touches(a, b, pos, lo_bin, hi_bin, jump_bins, touch_bins) \
+                                    and unary[a] + slope_cost * abs(pos[a] - pos[b]) / slope_bins < 0.0:
+                                join = True
+                                break
+                        if join:
+                            break
+                    if join:
+                        cand[a] = True
+                        changed = True
+    out = tracked.copy()
+    chain = np.empty(max_beams + 1, np.int64)
+    for j in range(1, m):
+        for a in range(first[j], first[j] + count[j]):
+            if not cand[a]:
+                continue
+            left = False
+            for b in range(first[j - 1], first[j - 1] + count[j - 1]):
+                if tracked[b] and _touches(a, b, pos, lo_bin, hi_bin, jump_bins, touch_bins):
+                    left = True
+                    break
+            if not left:
+                continue
+            n = 1
+            chain[0] = a
+            cur = a
+            k = j
+            while n <= max_beams and k + 1 < m:
+                right = False
+                for b in range(first[k + 1], first[k + 1] + count[k + 1]):
+                    if tracked[b] and _touches(cur, b, pos, lo_bin, hi_bin, jump_bins, touch_bins):
+                        right = True
+                        break
+                if right:
+                    for q in range(n):
+                        out[chain[q]] = True
+                    break
+                nxt = -1
+                for b in range(first[k + 1], first[k + 1] + count[k + 1]):
+                    if cand[b] and _touches(cur, b, pos, lo_bin, hi_bin, jump_bins, touch_bins):
+                        nxt = b
+                        break
+                if nxt < 0 or n == max_beams:
+                    break
+                chain[n] = nxt
+                n += 1
+                cur = nxt
+                k += 1
+    return out
+
+
 # ----------------------------------------------------------------------------- components and edges
 
 

@@ -19,6 +19,14 @@ return".  A *surface piece* is a sequence of echoes on increasing beams; its cos
 beams, ``O(n_beams x max_gap x K^2)`` for ``K`` echoes per beam), removes their echoes and repeats
 for the surfaces behind (``n_surfaces`` passes).  Per beam the nearest tracked echo is the
 return; the others are kept as further surfaces.
+
+Each pass gives a beam to one surface only, so where a long, strong surface behind takes a few
+beams, the surface in front loses them and its echoes there are left over: no later pass can
+start a piece on them alone (``segment_cost``).  A *bridge* restores them: untracked echoes in
+front of every tracked echo of their beam that continue a tracked surface beam by beam (each step
+a neighbour under the rules above whose evidence pays for its slope) and, within ``bridge_beams``
+beams, reach a tracked echo again on the other side, become the beams' returns (a faint stretch
+of the slanted target on the real ARIS frames, where the lines behind it took three beams).
 """
 
 from __future__ import annotations
@@ -48,6 +56,7 @@ class TrackConfig:
     jump_bins: float = 20.0
     touch_bins: float = 1.0
     n_surfaces: int = 3
+    bridge_beams: int = 4
 
     def __post_init__(self) -> None:
         for key in ("segment_cost", "beam_cost", "slope_cost", "slope_bins", "gap_cost", "jump_bins", "touch_bins"):
@@ -57,7 +66,7 @@ class TrackConfig:
             object.__setattr__(self, key, float(v))
         if self.slope_bins <= 0:
             raise InputError(f"track config: slope_bins: must be > 0 (got {self.slope_bins})")
-        for key, lo in (("max_gap", 0), ("n_surfaces", 1)):
+        for key, lo in (("max_gap", 0), ("n_surfaces", 1), ("bridge_beams", 0)):
             v = getattr(self, key)
             if isinstance(v, bool) or not isinstance(v, int) or v < lo:
                 raise InputError(f"track config: {key}: must be an integer >= {lo} (got {v!r})")
@@ -108,9 +117,21 @@ def track_surfaces(echoes: Echoes, config: TrackConfig = TrackConfig()) -> Track
     if not picks:
         return Tracks(echo=out)
     stack = np.stack(picks)
+    if config.bridge_beams > 0:
+        tracked = np.zeros(echoes.size, dtype=bool)
+        tracked[stack[stack >= 0]] = True
+        bridged = _kernels.bridge_surfaces(first, count, np.ascontiguousarray(echoes.edge_bin), lo, hi, unary, tracked,
+                                           config.slope_bins, config.slope_cost, config.jump_bins, config.touch_bins,
+                                           int(config.bridge_beams))
+        new = np.flatnonzero(bridged & ~tracked)
+        if new.size:
+            # a bridging echo is the nearest of its beam: it goes in front, the farthest drops out
+            row = np.full((1, m), -1, dtype=np.int64)
+            row[0, echoes.beam[new]] = new
+            stack = np.concatenate([row, stack])
     key = np.where(stack >= 0, echoes.edge_bin[np.maximum(stack, 0)], np.inf)
     order = np.argsort(key, axis=0, kind="stable")
-    stack = np.take_along_axis(stack, order, axis=0)
+    stack = np.take_along_axis(stack, order, axis=0)[: config.n_surfaces]
     out[: stack.shape[0]] = stack
     return Tracks(echo=out)
 
