@@ -206,9 +206,11 @@ class PipelineConfig:
         returns and carries the gate's name in its flags.
     max_floor_levels : int
         The quantisation floor.  An 8-bit ping whose fit fails the KL-divergence gate is modelled
-        again with its lowest ``n = 1, 2, ..`` levels merged into the zero level (the image
-        shifted down by ``n`` levels, clamped at 0), up to this many; the first ``n`` whose fit
-        passes every gate is used and reported as :attr:`PingProducts.floor_levels`.  A background
+        again with the lowest ``n = 1, 2, ..`` levels of the image the classifier sees merged into
+        the zero level (its level histogram shifted down by ``n`` and refitted; the image shifted
+        by ``n`` levels, clamped at 0), up to this many; the first ``n`` whose fit passes every
+        gate is used and reported as :attr:`PingProducts.floor_levels`.  A ping that no floor
+        explains costs ``max_floor_levels`` further histogram fits.  A background
         whose bulk lies on the bottom two or three levels of the 8-bit grid (the dark water column
         of an Oculus after its automatic gain has lowered the gain for a bright hull) has no shape
         the grid resolves - its histogram falls by 5-30x per level, an exponential of less than
@@ -475,8 +477,9 @@ class PingProducts:
     image : ndarray of float32 or None
         The image the classifier saw (normalised or pre-processed; only with ``keep_labels=True``).
     floor_levels : int
-        8-bit levels the image was shifted down by before it was modelled (the quantisation
-        floor, :attr:`PipelineConfig.max_floor_levels`); 0 for an image modelled as recorded.
+        Levels of the classifier's image merged into its zero level before it was modelled (the
+        quantisation floor, :attr:`PipelineConfig.max_floor_levels`); 0 for an image modelled as
+        it came.
     input_gain_db : float
         The automatic input gain applied after the sidelobe suppression
         (:func:`sonarmap.preprocess.normalise.input_gain` and ``suppress_sidelobes``); 0 for 8-bit
@@ -510,14 +513,19 @@ class PingProducts:
 
 
 def _fit(levels: NDArray[Any], config: PipelineConfig) -> Any:
-    from sonarmap.stats.mixture import fit_mixture
-
     if levels.ndim == 2 and levels.dtype.kind == "u":
         from sonarmap._pipeline_kernels import level_counts
 
         counts = level_counts(levels, int(config.n_levels))
     else:
         counts = np.bincount(levels.ravel(), minlength=config.n_levels).astype(np.float64)
+    return _fit_counts(counts, config)
+
+
+def _fit_counts(counts: NDArray[np.float64], config: PipelineConfig) -> Any:
+    """The per-ping mixture fit of a level histogram (None when it cannot be computed)."""
+    from sonarmap.stats.mixture import fit_mixture
+
     try:
         return fit_mixture(counts, families=config.families, method=config.fit_method,  # type: ignore[arg-type]
                            n_levels=config.n_levels, tol=config.fit_tol)
@@ -583,11 +591,13 @@ def _gates(fit: Any, config: PipelineConfig) -> frozenset[str]:
                      min_separation=config.min_separation)
 
 
-def _classify(image: NDArray[np.float32], config: PipelineConfig, gate: bool = False
+def _classify(image: NDArray[np.float32], config: PipelineConfig, gate: bool = False, *,
+              levels: NDArray[Any] | None = None, fit: Any = None
               ) -> tuple[NDArray[np.uint8], Any, float, float, NDArray[Any], frozenset[str]]:
     """:func:`classify_image` plus the quantised levels it classified and the fit gates the fit
     fails (:func:`_gates`; only with ``gate=True``, which also skips the labelling of a gated
-    ping: its labels are all background)."""
+    ping: its labels are all background).  ``levels`` and ``fit``, when given, are the image's
+    levels and their fit (not recomputed)."""
     from sonarmap.stats.mixture import quantize
 
     method = config.method
@@ -599,8 +609,9 @@ def _classify(image: NDArray[np.float32], config: PipelineConfig, gate: bool = F
         res = cfar(image, config=cfg)
         levels = quantize(image, config.n_levels)
         return res.labels, _fit(levels, config), math.nan, config.cfar_pfa, levels, frozenset()
-    levels = quantize(image, config.n_levels)
-    fit = _fit(levels, config)
+    if levels is None or fit is None:
+        levels = quantize(image, config.n_levels)
+        fit = _fit(levels, config)
     gates = _gates(fit, config) if gate else frozenset()
     if method == "threshold":
         from sonarmap.classify.threshold import threshold_labels
@@ -762,7 +773,7 @@ def process_ping(ping: Ping, config: PipelineConfig = PipelineConfig(), *, keep_
     thickness = None
     if config.tracker == "surface":
         ranges, thickness = _surface_ranges(ping, m.image, levels, mask, fit, config, m.normalised is not None,
-                                            bg_mean, m.background, m.floor)
+                                            bg_mean, m.background)
     else:
         ranges = _rule_ranges(ping, m.image, labels, mask, config, m.normalised is not None, bg_mean, edge)
     flags = set(fit.flags) if fit is not None else {"no_fit"}
@@ -797,12 +808,24 @@ def _model_ping(raw: NDArray[np.float32], geom: Any, config: PipelineConfig, ref
     from sonarmap.preprocess.normalise import on_8bit_grid
 
     m = _model_image(raw, geom, config, reference)
-    if m.classified is not None and "kld" in m.classified[5] and config.max_floor_levels > 0 and on_8bit_grid(raw):
-        # a background on the bottom levels of the 8-bit grid: merge them into the zero level
-        for n in range(1, config.max_floor_levels + 1):
-            attempt = _model_image(np.maximum(raw - np.float32(n / 255.0), np.float32(0.0)), geom, config, reference)
-            if attempt.classified is not None and not attempt.classified[5]:
-                return dataclasses.replace(attempt, floor=n)
+    if not (m.classified is not None and "kld" in m.classified[5] and config.max_floor_levels > 0
+            and config.n_levels == 256 and on_8bit_grid(raw)):
+        return m
+    # a background on the bottom levels of the 8-bit grid: merge them into the zero level - a
+    # shift of the level histogram, refitted (no pass over the image until one passes)
+    levels = m.classified[4]
+    counts = np.bincount(levels.ravel(), minlength=config.n_levels).astype(np.float64)
+    for n in range(1, config.max_floor_levels + 1):
+        merged = np.zeros_like(counts)
+        merged[0] = counts[: n + 1].sum()
+        merged[1:counts.size - n] = counts[n + 1:]
+        fit = _fit_counts(merged, config)
+        if fit is None or _gates(fit, config):
+            continue
+        image = np.maximum(m.image - np.float32(n / (config.n_levels - 1)), np.float32(0.0))
+        shifted = np.maximum(levels.astype(np.int16) - n, 0).astype(levels.dtype)
+        return dataclasses.replace(m, image=image, floor=n,
+                                   classified=_classify(image, config, gate=True, levels=shifted, fit=fit))
     return m
 
 
@@ -944,11 +967,9 @@ def measurement_image(ping: Ping, background: Any, config: PipelineConfig = Pipe
 
 def _surface_ranges(ping: Ping, image: NDArray[np.float32], levels: NDArray[Any], mask: NDArray[np.bool_],
                     fit: Any, config: PipelineConfig, normalised: bool,
-                    bg_mean: float | None, background: Any = None, floor: int = 0) -> tuple[BeamRanges, NDArray[np.int64]]:
+                    bg_mean: float | None, background: Any = None) -> tuple[BeamRanges, NDArray[np.int64]]:
     """Echoes of the candidate structure (``mask`` plus pooled bands), tracked across beams; also
-    the number of bins each return's echo spans (0 where no return).  ``floor``: the levels the
-    ping's image was shifted down by (:attr:`PingProducts.floor_levels`); the echoes are measured
-    on the shifted image, the clipping test on the recorded one."""
+    the number of bins each return's echo spans (0 where no return)."""
     from sonarmap.ranges import ranges_from_tracks
     from sonarmap.ranges.echoes import find_echoes, level_llr, pooled_edges
     from sonarmap.ranges.tracking import continuation_mask, track_surfaces
@@ -983,9 +1004,7 @@ def _surface_ranges(ping: Ping, image: NDArray[np.float32], levels: NDArray[Any]
             pad = pb + 4
             rows = (int(occupied[0]) - pad, int(occupied[-1]) + 1 + pad)
             if not done or rows[0] < done[1][0] or rows[1] > done[1][1]:
-                mping = ping if not floor else dataclasses.replace(
-                    ping, image=np.maximum(np.asarray(ping.image, np.float32) - np.float32(floor / 255.0), np.float32(0.0)))
-                done[:] = [measurement_image(mping, background, config, rows=rows), rows]
+                done[:] = [measurement_image(ping, background, config, rows=rows), rows]
             meas, bg = done[0], 1.0
         # a pooled band pixel passed a >= pool_factor x background test over the whole box: one
         # nat at least, whatever its own (single-look, speckled) value says

@@ -82,8 +82,8 @@ PRODUCT_VARIABLES: dict[str, tuple[tuple[str, ...], dict[str, str]]] = {
         "long_name": "Range dependence of the estimated background level (90th / 10th percentile over "
                      "range; NaN: image not normalised, e.g. thresholded)", "units": "dB"}),
     "floor_levels": ((DIM_PING,), {
-        "long_name": "8-bit levels merged into the zero level before the ping was modelled (the quantisation "
-                     "floor; 0: modelled as recorded)", "units": "1"}),
+        "long_name": "Levels of the classified image merged into its zero level before the ping was modelled "
+                     "(the quantisation floor; 0: none)", "units": "1"}),
     "mixture_weight": ((DIM_PING, "component"), {"long_name": "Mixture component weight",
                                                  "units": "1"}),
     "mixture_param": ((DIM_PING, "component", "parameter"),
