@@ -24,9 +24,6 @@ from sonarmap.cli._common import (
 
 __all__ = ["register", "map_command"]
 
-_BATCH = 128
-
-
 def _cloud_to_stdout(cloud: Any, fmt: str, **kwargs: Any) -> None:
     """Write ``cloud`` in ``fmt`` to standard output (through a temporary file: the writers take paths).
 
@@ -160,22 +157,95 @@ def map_command(
     """
     import numpy as np
 
-    from sonarmap.errors import InputError, SonarmapError
+    from sonarmap.errors import InputError
     from sonarmap.io import expand_inputs, read_pings
-    from sonarmap.mapping.occupancy import OccupancyConfig, OccupancyMap, SensorModel
-    from sonarmap.mapping.pointcloud import CLOUD_FORMATS, format_from_suffix, write_point_cloud
+    from sonarmap.mapping.build import MapConfig, map_from_pings
     from sonarmap.mapping.poses import load_extrinsics, read_trajectory_csv
-    from sonarmap.mapping.register import PointCloud, RegistrationConfig, register_ranges
-    from sonarmap.mapping.georef import GeoReference
-    from sonarmap.mapping.navigation import (
-        missing_navigation,
-        navigation_origin,
-        navigation_pose,
-        ping_sensor_poses,
-        placed_ranges,
-        static_pose,
-    )
-    from sonarmap.pipeline import PipelineConfig, process_ping
+    from sonarmap.pipeline import PipelineConfig
+
+    out_fmt, bag_kind = _check_options(output, fmt, outside, out_frame, poses_frame, geotiff, octomap, grid_array,
+                                       grid, min_confidence)
+    bounds = None if clamp is None else _clamp_bounds(clamp)
+    if static and poses is not None:
+        raise typer.BadParameter("a fixed sonar needs no trajectory; give --static or --poses", param_hint="--static")
+    if octomap is not None and (grid is None or dims != 3):
+        raise typer.BadParameter("needs a 3-D occupancy map (--grid RES, --dims 3)", param_hint="--octomap")
+    origin_ll = None if origin is None else _lat_lon(origin)
+
+    geometry = load_geometry_option(sonar)
+    pcfg = PipelineConfig.from_toml(config) if config is not None else PipelineConfig()
+    mcfg = MapConfig(
+        trajectory=read_trajectory_csv(poses, frame=poses_frame) if poses is not None else None,
+        extrinsics=load_extrinsics(extrinsics) if extrinsics is not None else None,
+        static=static, outside=outside, n_elevation=spread, min_confidence=min_confidence, grid_m=grid, dims=dims,
+        clamp=bounds, fixed_model=fixed_model, origin_lat_lon=origin_ll, crs=crs)
+    inputs = expand_inputs([str(p) for p in pings])
+    total = None if quiet else count_pings(inputs)
+    progress = ping_progress("map", total, quiet=quiet, verbose=verbose)
+
+    def checks(georef: Any) -> None:
+        # before any processing: the outputs that need a georeference
+        if crs is not None and georef is None:
+            raise typer.BadParameter("needs a geodetic origin: navigation in the pings, or --origin LAT,LON",
+                                     param_hint="--crs")
+        if geotiff is not None and georef is None:
+            raise InputError("--geotiff: needs a georeferenced map (navigation in the pings, or --origin LAT,LON)")
+        if georef is not None and out_frame != "ned":
+            raise typer.BadParameter("georeferenced outputs are in the projected CRS (E, N, up)", param_hint="--frame")
+        shown.enter_context(progress)
+        progress.start()
+
+    def advance(ping: Any, prod: Any) -> None:
+        progress.advance()
+        progress.log(f"{ping.source}: {prod.ranges.n_returns} returns")
+
+    # the first ping is read before any processing, so that input and pose errors come first
+    ping_iter = read_pings(inputs, geometry=geometry)
+    first, ping_iter = first_ping(ping_iter)
+    import contextlib
+
+    with contextlib.ExitStack() as shown:  # the progress display, from the first processed ping on
+        res = map_from_pings(ping_iter, mcfg, pcfg, on_start=checks, on_ping=advance)
+        georef, occ = res.georef, res.occupancy
+        if occ is None:
+            out_cloud = res.cloud
+        else:
+            out_cloud = occ.to_point_cloud()
+            if grid_array is not None:
+                from sonarmap._atomic import atomic_path
+
+                arr = occ.to_array()
+                with atomic_path(grid_array, suffix=".npz") as tmp, open(tmp, "wb") as fh:
+                    np.savez_compressed(
+                        fh, logodds=arr.logodds, observed=arr.observed, origin_m=arr.origin_m,
+                        resolution_m=np.float64(arr.resolution_m), frame=np.str_("ned"),
+                    )
+        _write_outputs(out_cloud, occ, georef, output, out_fmt, bag_kind, out_frame, res.last_time_ns)
+        if geotiff is not None:
+            from sonarmap.mapping.raster import height_raster, occupancy_raster, write_geotiff
+
+            if occ is not None:
+                write_geotiff(geotiff, occupancy_raster(occ, georef=georef))
+            else:
+                write_geotiff(geotiff, height_raster(out_cloud, georef=georef, resolution_m=raster_resolution))
+        if octomap is not None and occ is not None:
+            from sonarmap.mapping.octomap import write_octomap_bt
+
+            write_octomap_bt(octomap, occ)
+    if not quiet:
+        what = f"{len(out_cloud)} occupied cells" if occ is not None else f"{len(out_cloud)} points"
+        skipped = f", {res.n_skipped} skipped outside the trajectory" if res.n_skipped else ""
+        err_console().print(f"{res.n_pings} pings, {res.n_returns} returns{skipped} -> {what} in {output_name(output)}",
+                            markup=False)
+
+
+def _check_options(output: Path, fmt: str | None, outside: str, out_frame: str, poses_frame: str | None,
+                   geotiff: Path | None, octomap: Path | None, grid_array: Path | None, grid: float | None,
+                   min_confidence: float) -> tuple[str, str | None]:
+    """Usage errors of ``sonarmap map``'s output options, before any work; returns the output
+    format and the bag kind (``bag1`` / ``bag2`` / None)."""
+    from sonarmap.errors import SonarmapError
+    from sonarmap.mapping.pointcloud import CLOUD_FORMATS, format_from_suffix
 
     check_choice(outside, ("error", "skip"), "--outside")
     check_choice(out_frame, ("ned", "enu"), "--frame")
@@ -204,162 +274,39 @@ def map_command(
         # a dropped return would leave its beam empty, and the map would carve it free to the maximum range
         raise typer.BadParameter("applies to point clouds; the occupancy map keeps every return",
                                  param_hint="--min-confidence")
-    bounds = {} if clamp is None else _clamp_bounds(clamp)
-    if static and poses is not None:
-        raise typer.BadParameter("a fixed sonar needs no trajectory; give --static or --poses", param_hint="--static")
-    if octomap is not None and (grid is None or dims != 3):
-        raise typer.BadParameter("needs a 3-D occupancy map (--grid RES, --dims 3)", param_hint="--octomap")
-    origin_ll = None if origin is None else _lat_lon(origin)
+    return out_fmt, bag_kind
 
-    geometry = load_geometry_option(sonar)
-    pcfg = PipelineConfig.from_toml(config) if config is not None else PipelineConfig()
-    traj = read_trajectory_csv(poses, frame=poses_frame) if poses is not None else None
-    ext = load_extrinsics(extrinsics) if extrinsics is not None else None
-    rcfg = RegistrationConfig(n_elevation=spread, min_confidence=min_confidence)
-    occ = (OccupancyMap(OccupancyConfig(resolution_m=grid, dims=dims, n_elevation=spread, **bounds))
-           if grid is not None else None)
-    fixed = SensorModel.fixed(0.8, 0.3) if fixed_model else None
 
-    inputs = expand_inputs([str(p) for p in pings])
-    total = None if quiet else count_pings(inputs)
-    clouds: list[PointCloud] = []
-    stats = {"pings": 0, "skipped": 0, "returns": 0}
-    batch: list[tuple[Any, Any]] = []  # (ping, products)
+def _write_outputs(out_cloud: Any, occ: Any, georef: Any, output: Path, out_fmt: str, bag_kind: str | None,
+                   out_frame: str, last_time_ns: int) -> None:
+    """The map's main output: a bag, the cloud on stdout, or a point-cloud file."""
+    from sonarmap.mapping.pointcloud import write_point_cloud
 
-    def flush() -> None:
-        if not batch:
-            return
-        times = np.array([p.time_ns for p, _ in batch], dtype=np.int64)
-        if traj is not None:
-            sp = traj.interpolate(times, outside=outside)  # type: ignore[arg-type]
+    kind = "occupancy" if occ is not None else "points"
+    where = {"georef": georef} if georef is not None else {"frame": out_frame}
+    if bag_kind is not None:
+        from sonarmap.io.rosbag_products import write_points_bag
+
+        if georef is not None:
+            from sonarmap.mapping.pointcloud import georeferenced_cloud
+
+            bag_cloud = georeferenced_cloud(out_cloud, None, georef)  # projected E, N, up: float64 needed
         else:
-            sp = ping_sensor_poses([p for p, _ in batch])
-        sp = sp.with_extrinsics(ext)
-        stats["skipped"] += sp.n_skipped
-        # poses from the pings' own navigation come with their ranges' placement (Kongsberg EM:
-        # the bistatic range correction of the head's sensor frame)
-        ranges = [placed_ranges(p, prod.ranges) if use_nav else prod.ranges for p, prod in batch]
-        if occ is None:
-            cloud = register_ranges(ranges, sp, config=rcfg)
-            clouds.append(cloud)
-            stats["returns"] += len(cloud) // rcfg.n_elevation
+            bag_cloud = out_cloud.to_frame(out_frame)
+        if occ is not None:  # the occupied cells, one message at the last ping's time
+            from sonarmap.io.rosbag_products import write_occupancy_bag
+            from sonarmap.mapping.pointcloud import occupancy_columns
+
+            write_occupancy_bag(bag_cloud.xyz_m, *occupancy_columns(bag_cloud), output, stamp_ns=last_time_ns,
+                                frame=bag_cloud.frame, version=1 if bag_kind == "bag1" else 2,
+                                xyz_dtype="float64" if georef is not None else "float32")
         else:
-            g = batch[0][0].geometry
-            pd = None if fixed else np.array([float(prod.pd_range) for _, prod in batch])
-            pfa = None if fixed else np.array([float(prod.pfa) for _, prod in batch])
-            occ.integrate_ranges(
-                ranges, sp, min_range_m=g.min_range_m, max_range_m=g.max_range_m, pd=pd, pfa=pfa, model=fixed,
-                range_resolution_m=None if fixed else g.range_resolution_m,
-            )
-            stats["returns"] += int(sum(r.n_returns for r in ranges))
-        batch.clear()
-
-    progress = ping_progress("map", total, quiet=quiet, verbose=verbose)
-    # The first ping is read before any processing, so that input and pose errors come first.
-    ping_iter = read_pings(inputs, geometry=geometry)
-    first, ping_iter = first_ping(ping_iter)
-    georef = None
-    use_nav = False
-    if traj is None and first.pose is None and not static:
-        why = missing_navigation(first)
-        if why is not None:
-            raise InputError(
-                f"no pose for ping {first.source}: no --poses trajectory, the ping carries no pose and {why}; "
-                "give --poses TRAJECTORY.csv, or --static for a fixed sonar"
-            )
-        use_nav = True
-        if origin_ll is None:
-            georef = navigation_origin(first, crs=crs)
-    if origin_ll is not None:
-        georef = GeoReference.from_origin(origin_ll[0], origin_ll[1], 0.0, crs=crs)
-    elif crs is not None and georef is None:
-        raise typer.BadParameter("needs a geodetic origin: navigation in the pings, or --origin LAT,LON",
-                                 param_hint="--crs")
-    if geotiff is not None and georef is None:
-        raise InputError("--geotiff: needs a georeferenced map (navigation in the pings, or --origin LAT,LON)")
-    if georef is not None and out_frame != "ned":
-        raise typer.BadParameter("georeferenced outputs are in the projected CRS (E, N, up)", param_hint="--frame")
-
-    def placed(ping: Any) -> Any:
-        if static:
-            return ping.replace(pose=static_pose())
-        if use_nav:
-            return ping.replace(pose=navigation_pose(ping, georef))
-        return ping
-
-    last_time_ns = 0
-    with progress:
-        progress.start()
-        last_geom = None
-        for ping in ping_iter:
-            last_time_ns = max(last_time_ns, int(ping.time_ns))
-            if last_geom is not None and ping.geometry.shape != last_geom.shape:
-                flush()
-            last_geom = ping.geometry
-            ping = placed(ping)
-            prod = process_ping(ping, pcfg)
-            batch.append((ping, prod))
-            stats["pings"] += 1
-            if len(batch) >= _BATCH:
-                flush()
-            progress.advance()
-            progress.log(f"{ping.source}: {prod.ranges.n_returns} returns")
-        flush()
-
-        if occ is None:
-            out_cloud = PointCloud.concat(clouds)
-        else:
-            out_cloud = occ.to_point_cloud()
-            if grid_array is not None:
-                from sonarmap._atomic import atomic_path
-
-                arr = occ.to_array()
-                with atomic_path(grid_array, suffix=".npz") as tmp, open(tmp, "wb") as fh:
-                    np.savez_compressed(
-                        fh, logodds=arr.logodds, observed=arr.observed, origin_m=arr.origin_m,
-                        resolution_m=np.float64(arr.resolution_m), frame=np.str_("ned"),
-                    )
-        kind = "occupancy" if occ is not None else "points"
-        where = {"georef": georef} if georef is not None else {"frame": out_frame}
-        if bag_kind is not None:
-            from sonarmap.io.rosbag_products import write_points_bag
-
-            if georef is not None:
-                from sonarmap.mapping.pointcloud import georeferenced_cloud
-
-                bag_cloud = georeferenced_cloud(out_cloud, None, georef)  # projected E, N, up: float64 needed
-            else:
-                bag_cloud = out_cloud.to_frame(out_frame)
-            if occ is not None:  # the occupied cells, one message at the last ping's time
-                from sonarmap.io.rosbag_products import write_occupancy_bag
-                from sonarmap.mapping.pointcloud import occupancy_columns
-
-                write_occupancy_bag(bag_cloud.xyz_m, *occupancy_columns(bag_cloud), output, stamp_ns=last_time_ns,
-                                    frame=bag_cloud.frame, version=1 if bag_kind == "bag1" else 2,
-                                    xyz_dtype="float64" if georef is not None else "float32")
-            else:
-                write_points_bag([bag_cloud], output, version=1 if bag_kind == "bag1" else 2,
-                                 xyz_dtype="float64" if georef is not None else "float32")
-        elif str(output) == STDOUT:
-            _cloud_to_stdout(out_cloud, out_fmt, kind=kind, **where)
-        else:
-            write_point_cloud(out_cloud, output, format=out_fmt, kind=kind, **where)
-        if geotiff is not None:
-            from sonarmap.mapping.raster import height_raster, occupancy_raster, write_geotiff
-
-            if occ is not None:
-                write_geotiff(geotiff, occupancy_raster(occ, georef=georef))
-            else:
-                write_geotiff(geotiff, height_raster(out_cloud, georef=georef, resolution_m=raster_resolution))
-        if octomap is not None and occ is not None:
-            from sonarmap.mapping.octomap import write_octomap_bt
-
-            write_octomap_bt(octomap, occ)
-    if not quiet:
-        what = f"{len(out_cloud)} occupied cells" if occ is not None else f"{len(out_cloud)} points"
-        skipped = f", {stats['skipped']} skipped outside the trajectory" if stats["skipped"] else ""
-        err_console().print(f"{stats['pings']} pings, {stats['returns']} returns{skipped} -> {what} in {output_name(output)}",
-                            markup=False)
+            write_points_bag([bag_cloud], output, version=1 if bag_kind == "bag1" else 2,
+                             xyz_dtype="float64" if georef is not None else "float32")
+    elif str(output) == STDOUT:
+        _cloud_to_stdout(out_cloud, out_fmt, kind=kind, **where)
+    else:
+        write_point_cloud(out_cloud, output, format=out_fmt, kind=kind, **where)
 
 
 def register(app: typer.Typer) -> None:

@@ -7,6 +7,7 @@ converted at the boundary.  :class:`GeoReference` ties the local frame to a proj
 
 from __future__ import annotations
 
+from sonarmap.mapping.build import MapConfig, MapResult, map_from_pings
 from sonarmap.mapping.georef import GeoReference, utm_epsg
 from sonarmap.mapping.occupancy import (
     OccupancyArray,
@@ -35,6 +36,8 @@ __all__ = [
     "Extrinsics",
     "GeoRaster",
     "GeoReference",
+    "MapConfig",
+    "MapResult",
     "OcTreeFile",
     "OcTreeLeaves",
     "OccupancyArray",
@@ -47,6 +50,7 @@ __all__ = [
     "Trajectory",
     "height_raster",
     "load_extrinsics",
+    "map_from_pings",
     "occupancy_raster",
     "read_geotiff",
     "read_octomap_bt",
