@@ -1160,16 +1160,7 @@ def process_survey(
     # lock of a killed run is taken over, and what that run left beside the store is removed.
     with WriterLock(out):
         remove_stale_store_temporaries(out)
-        # ---------------------------------------------------------------- existing output?
-        if out.exists() or out.is_symlink():
-            attrs = read_root_attrs(out) if out.is_dir() else None
-            same = attrs is not None and attrs.get("sonarmap_format") == SURVEY_FORMAT and attrs.get("fingerprint") == fp
-            if overwrite:
-                remove_store(out)
-            elif not same:
-                why = ("is not a sonarmap survey store" if not attrs or attrs.get("sonarmap_format") != SURVEY_FORMAT
-                       else "was made from different inputs, configuration or options")
-                raise SurveyExistsError(f"{out}: output exists and {why}; use --overwrite to replace it")
+        _check_existing(out, fp, overwrite)
 
         task = _Task(cfg, bool(keep_labels), {}, ping_function)
         own_client = None
@@ -1188,31 +1179,7 @@ def process_survey(
                 n_workers = max(1, min(n_workers, plan.n_chunks))
                 pool = _ProcessPool(n_workers, ping_function)
             if not out.exists():
-                # Probe the first ping(s) in this process: product shapes and static coordinates.
-                fn = ping_function or _default_ping_function()
-                first: Ping | None = None
-                for ping in _iter_chunk_pings(plan.chunk(0)):
-                    prod = fn(ping, cfg, keep_labels=keep_labels)
-                    first = first or ping
-                    if prod.fit is not None:  # a ping with a mixture fit gives the mixture's shape
-                        break
-                assert first is not None
-                rec = _record(prod, keep_labels=keep_labels)
-                schema = _schema_of(rec)
-                _, _, cnames = _fit_arrays(prod.fit)
-                geom = first.geometry
-                if pool is not None:
-                    # Start the first chunks now (products sent back) while the store is created.
-                    pool.start(plan.chunks(), dataclasses.replace(task, schema=schema, reference=(
-                        np.asarray(geom.azimuth_rad, np.float64), np.asarray(geom.range_m, np.float64))))
-                coord_arrays, attrs = _store_layout(
-                    geom, cfg_dict, schema, keep_labels=keep_labels, chunk_size=plan.chunk_size,
-                    n_pings=plan.n_pings, n_chunks=plan.n_chunks, n_input_files=len(plan.files),
-                    inputs=[p for p, _, _ in plan.files[:20]] + (["..."] if len(plan.files) > 20 else []),
-                    poses=None if poses is None else os.path.abspath(poses), fingerprint=fp,
-                )
-                _create_store(out, plan, schema, attrs, {"arrays": coord_arrays, "component_names": cnames,
-                                                         "echo_range": geom.range_m})
+                _probe_and_create(out, plan, task, cfg_dict, pool, poses=poses, fingerprint=fp)
             st, schema = inspect_products(out)  # metadata checked: a damaged store is a clean error
             _remove_marker_temporaries(out)
             root = _zarr_open(out)
@@ -1260,34 +1227,87 @@ def process_survey(
             if own_client is not None:
                 own_client.close()
 
-        # ---------------------------------------------------------------- finalise
-        all_flags = read_array(st, "flags")
-        n_flagged = int(flagged_mask(all_flags).sum())
-        from sonarmap.stats.gates import REFUSING
-
-        gates = tuple(tuple(sorted(set(str(f).split()) & REFUSING)) for f in all_flags)
-        points_path: Path | None = None
-        n_points = 0
-        complete = out / STATE_DIR / "complete"
-        if poses is not None:
-            target = Path(points) if points is not None else out.with_suffix(".ply")
-            if complete.exists() and "point_xyz" in root and target.exists():
-                points_path, n_points = target, int(root["point_xyz"].shape[0])
-            else:
-                invalidate_consolidated(out)  # arrays change: no stale consolidated metadata meanwhile
-                points_path, n_points = _register_points(root, st, out, poses, target, extrinsics)
-        with contextlib.suppress(OSError):
-            os.rmdir(out / STATE_DIR / "tmp")  # empty once every chunk is stored
-        if consolidated_status(out) != "current":  # new points, or a store of an older version
-            consolidate(out)
-        if not complete.exists():
-            atomic_write_text(complete, json.dumps({"n_pings": plan.n_pings, "n_flagged": n_flagged}) + "\n")
+        n_flagged, gates, points_path, n_points = _finalise(out, st, root, plan, poses=poses, points=points,
+                                                            extrinsics=extrinsics)
         return SurveyResult(
             output=out, n_pings=plan.n_pings, n_flagged=n_flagged, n_chunks=plan.n_chunks,
             chunks_run=len(todo), chunks_skipped=plan.n_chunks - len(todo),
             elapsed_s=time.perf_counter() - t0, executor=executor, points_path=points_path,
             n_points=n_points, gates=gates,
         )
+
+
+def _check_existing(out: Path, fingerprint: str, overwrite: bool) -> None:
+    """An existing output is resumed when it is a survey store of the same command (same
+    fingerprint), replaced with ``overwrite``, else refused (:class:`SurveyExistsError`)."""
+    if not (out.exists() or out.is_symlink()):
+        return
+    attrs = read_root_attrs(out) if out.is_dir() else None
+    same = attrs is not None and attrs.get("sonarmap_format") == SURVEY_FORMAT and attrs.get("fingerprint") == fingerprint
+    if overwrite:
+        remove_store(out)
+    elif not same:
+        why = ("is not a sonarmap survey store" if not attrs or attrs.get("sonarmap_format") != SURVEY_FORMAT
+               else "was made from different inputs, configuration or options")
+        raise SurveyExistsError(f"{out}: output exists and {why}; use --overwrite to replace it")
+
+
+def _probe_and_create(out: Path, plan: SurveyPlan, task: Any, cfg_dict: dict[str, Any], pool: Any, *,
+                      poses: Any, fingerprint: str) -> None:
+    """Probe the first ping(s) in this process - product shapes and static coordinates - and
+    create the empty store; a local pool starts its first chunks meanwhile."""
+    fn = task.ping_function or _default_ping_function()
+    first: Ping | None = None
+    for ping in _iter_chunk_pings(plan.chunk(0)):
+        prod = fn(ping, task.config, keep_labels=task.keep_labels)
+        first = first or ping
+        if prod.fit is not None:  # a ping with a mixture fit gives the mixture's shape
+            break
+    assert first is not None
+    rec = _record(prod, keep_labels=task.keep_labels)
+    schema = _schema_of(rec)
+    _, _, cnames = _fit_arrays(prod.fit)
+    geom = first.geometry
+    if pool is not None:
+        # Start the first chunks now (products sent back) while the store is created.
+        pool.start(plan.chunks(), dataclasses.replace(task, schema=schema, reference=(
+            np.asarray(geom.azimuth_rad, np.float64), np.asarray(geom.range_m, np.float64))))
+    coord_arrays, attrs = _store_layout(
+        geom, cfg_dict, schema, keep_labels=task.keep_labels, chunk_size=plan.chunk_size,
+        n_pings=plan.n_pings, n_chunks=plan.n_chunks, n_input_files=len(plan.files),
+        inputs=[p for p, _, _ in plan.files[:20]] + (["..."] if len(plan.files) > 20 else []),
+        poses=None if poses is None else os.path.abspath(poses), fingerprint=fingerprint,
+    )
+    _create_store(out, plan, schema, attrs, {"arrays": coord_arrays, "component_names": cnames,
+                                             "echo_range": geom.range_m})
+
+
+def _finalise(out: Path, st: Any, root: Any, plan: SurveyPlan, *, poses: Any, points: Any,
+              extrinsics: Any) -> tuple[int, tuple[tuple[str, ...], ...], Path | None, int]:
+    """Flag counts, the registered points (with ``poses``), consolidated metadata and the
+    completion marker of a stored survey; returns ``(n_flagged, gates, points_path, n_points)``."""
+    from sonarmap.stats.gates import REFUSING
+
+    all_flags = read_array(st, "flags")
+    n_flagged = int(flagged_mask(all_flags).sum())
+    gates = tuple(tuple(sorted(set(str(f).split()) & REFUSING)) for f in all_flags)
+    points_path: Path | None = None
+    n_points = 0
+    complete = out / STATE_DIR / "complete"
+    if poses is not None:
+        target = Path(points) if points is not None else out.with_suffix(".ply")
+        if complete.exists() and "point_xyz" in root and target.exists():
+            points_path, n_points = target, int(root["point_xyz"].shape[0])
+        else:
+            invalidate_consolidated(out)  # arrays change: no stale consolidated metadata meanwhile
+            points_path, n_points = _register_points(root, st, out, poses, target, extrinsics)
+    with contextlib.suppress(OSError):
+        os.rmdir(out / STATE_DIR / "tmp")  # empty once every chunk is stored
+    if consolidated_status(out) != "current":  # new points, or a store of an older version
+        consolidate(out)
+    if not complete.exists():
+        atomic_write_text(complete, json.dumps({"n_pings": plan.n_pings, "n_flagged": n_flagged}) + "\n")
+    return n_flagged, gates, points_path, n_points
 
 
 def _zarr_open(path: Path) -> Any:
