@@ -1180,46 +1180,7 @@ def process_survey(
                 pool = _ProcessPool(n_workers, ping_function)
             if not out.exists():
                 _probe_and_create(out, plan, task, cfg_dict, pool, poses=poses, fingerprint=fp)
-            st, schema = inspect_products(out)  # metadata checked: a damaged store is a clean error
-            _remove_marker_temporaries(out)
-            root = _zarr_open(out)
-            reference = (np.asarray(read_array(st, COORD_AZIMUTH)), _reference_range(st))
-            task = dataclasses.replace(task, schema=schema, reference=reference)
-            from sonarmap._survey_store import ChunkWriter
-
-            writer = ChunkWriter.open(out, list(schema))
-            if writer is not None:
-                writer.clean_tmp()  # temporary files of an interrupted run (no writer of ours runs yet)
-            sink = _Sink(out, writer)
-
-            done = done_chunks(out)
-            todo = [plan.chunk(i) for i in range(plan.n_chunks) if i not in done]
-            n_done = sum(plan.chunk(i).n_pings for i in done if i < plan.n_chunks)
-            if progress:
-                progress(n_done, plan.n_pings)
-            if not todo:
-                stream: Iterator[Any] = iter(())
-                executor = "none"
-            elif client is not None:
-                stream = _run_dask(todo, task, client)
-                executor = f"dask:{client.scheduler.address}"
-            elif pool is None:
-                stream = _run_serial(todo, task)
-                executor = "serial"
-            else:
-                # Local workers share the file system: each writes its own chunk files (distinct
-                # files, so concurrent writers are safe) and reports back; this process only writes
-                # the completion markers.  (Dask workers may be on other machines: they return the
-                # products and this process writes them.)  The last chunks run in parts whose
-                # products come back to be stored here, to balance the tail.
-                stream = pool.run(todo, task if writer is None else dataclasses.replace(task, writer=writer),
-                                  part_task=task)
-                executor = f"processes:{pool.workers}"
-            for chunk, result in stream:
-                sink.put(chunk, result)
-                n_done += chunk.n_pings
-                if progress:
-                    progress(n_done, plan.n_pings)
+            todo, executor, st, root = _store_chunks(out, plan, task, client=client, pool=pool, progress=progress)
             ok = True
         finally:
             if pool is not None:
@@ -1235,6 +1196,53 @@ def process_survey(
             elapsed_s=time.perf_counter() - t0, executor=executor, points_path=points_path,
             n_points=n_points, gates=gates,
         )
+
+
+def _store_chunks(out: Path, plan: SurveyPlan, task: Any, *, client: Any, pool: Any,
+                  progress: Callable[[int, int], None] | None) -> tuple[list[Any], str, Any, Any]:
+    """Run the chunks the store does not hold yet - on a dask client, the local pool, or serially
+    in this process - and store their products; returns ``(chunks run, executor, products, root)``."""
+    st, schema = inspect_products(out)  # metadata checked: a damaged store is a clean error
+    _remove_marker_temporaries(out)
+    root = _zarr_open(out)
+    reference = (np.asarray(read_array(st, COORD_AZIMUTH)), _reference_range(st))
+    task = dataclasses.replace(task, schema=schema, reference=reference)
+    from sonarmap._survey_store import ChunkWriter
+
+    writer = ChunkWriter.open(out, list(schema))
+    if writer is not None:
+        writer.clean_tmp()  # temporary files of an interrupted run (no writer of ours runs yet)
+    sink = _Sink(out, writer)
+
+    done = done_chunks(out)
+    todo = [plan.chunk(i) for i in range(plan.n_chunks) if i not in done]
+    n_done = sum(plan.chunk(i).n_pings for i in done if i < plan.n_chunks)
+    if progress:
+        progress(n_done, plan.n_pings)
+    if not todo:
+        stream: Iterator[Any] = iter(())
+        executor = "none"
+    elif client is not None:
+        stream = _run_dask(todo, task, client)
+        executor = f"dask:{client.scheduler.address}"
+    elif pool is None:
+        stream = _run_serial(todo, task)
+        executor = "serial"
+    else:
+        # Local workers share the file system: each writes its own chunk files (distinct
+        # files, so concurrent writers are safe) and reports back; this process only writes
+        # the completion markers.  (Dask workers may be on other machines: they return the
+        # products and this process writes them.)  The last chunks run in parts whose
+        # products come back to be stored here, to balance the tail.
+        stream = pool.run(todo, task if writer is None else dataclasses.replace(task, writer=writer),
+                          part_task=task)
+        executor = f"processes:{pool.workers}"
+    for chunk, result in stream:
+        sink.put(chunk, result)
+        n_done += chunk.n_pings
+        if progress:
+            progress(n_done, plan.n_pings)
+    return todo, executor, st, root
 
 
 def _check_existing(out: Path, fingerprint: str, overwrite: bool) -> None:
