@@ -997,6 +997,80 @@ def _paper_start(spec: _Spec) -> tuple[NDArray[np.float64], list[tuple[float, ..
     return np.array([0.67, 0.32, 0.01]), [(), (0.03,), (0.2,)]
 
 
+def _class_layout(names: tuple[str, ...], zero_spike: bool, class_names: Sequence[str] | None
+                  ) -> tuple[tuple[int, ...], tuple[str, ...]]:
+    """The class of every component (the spike and the first family are the background, each
+    further family an object class) and the class names (default ``background``, ``object`` or
+    ``object1``, ``object2``, ...)."""
+    n_classes = len(names) - (1 if zero_spike else 0)
+    classes = tuple(0 if (n == "zero" or i == (1 if zero_spike else 0)) else i - (1 if zero_spike else 0)
+                    for i, n in enumerate(names))
+    if class_names is None:
+        cnames: tuple[str, ...] = ("background",) + (
+            ("object",) if n_classes == 2 else tuple(f"object{j}" for j in range(1, n_classes))
+        )
+    else:
+        cnames = tuple(str(c) for c in class_names)
+        if len(cnames) != n_classes:
+            raise InputError(f"class_names: need {n_classes} names, got {len(cnames)}")
+    return classes, cnames
+
+
+def _input_flags(counts: NDArray[np.float64], n_clipped: int, zero_spike: bool) -> set[str]:
+    """Flags of the histogram itself: ``few_samples``, ``clipped``, ``degenerate``, ``all_zero``."""
+    flags: set[str] = set()
+    N = float(counts.sum())
+    if N < 100:
+        flags.add("few_samples")
+    if n_clipped > 0.01 * N:
+        flags.add("clipped")
+    if int(np.count_nonzero(counts)) < 3:
+        flags.add("degenerate")
+    if zero_spike and counts[0] == N:
+        flags.add("all_zero")
+    return flags
+
+
+def _lsq_fit(spec: _Spec, counts: NDArray[np.float64], starts: list[Any], loss: str, min_weight: float, *,
+             warm: bool) -> tuple[NDArray[np.float64], list[tuple[float, ...]], int, bool]:
+    """The least-squares fit (eq. 10); with ``warm`` (no caller's init) it starts from a short EM
+    fit, and from the paper's p0 only when that result looks unsound."""
+    lsq_starts = list(starts)
+    if warm:
+        em_out = _em_best(spec, counts, starts, 200, 1e-9, min_weight)
+        lsq_starts = [(em_out[0], em_out[1])]
+        ps = _paper_start(spec)
+        if ps is not None:
+            lsq_starts.append(ps)
+    return _lsq(spec, counts, lsq_starts, loss, min_weight, lazy=warm)
+
+
+def _result_flags(flags: set[str], names: tuple[str, ...], classes: tuple[int, ...], w: NDArray[np.float64],
+                  params: list[tuple[float, ...]], *, n_families: int, min_weight: float, step: float,
+                  scale_max: float) -> list[tuple[float, ...]]:
+    """Add the flags of a fitted result to ``flags`` (``no_object``, ``collapsed_scale``,
+    ``scale_at_bound``, ``collapsed_components``); returns the parameters, an unidentified object
+    scale reported at its bound."""
+    obj_w = float(w[np.asarray(classes) != 0].sum())
+    if n_families > 1 and obj_w < min_weight:
+        flags.add("no_object")
+    if "no_object" in flags:
+        # an object scale with (almost) no weight is not identified: report it at its bound,
+        # the convention of the paper's Table I (image 6: sigma = 1.000)
+        params = [p if (cls == 0 or not p) else tuple(p[:-1]) + (float(scale_max),)
+                  for p, cls in zip(params, classes)]
+    for c, (name, p) in enumerate(zip(names, params)):
+        if name == "zero" or w[c] < min_weight:
+            continue
+        if p[-1] <= 1.5 * step:
+            flags.add("collapsed_scale")
+        if p[-1] >= scale_max * (1 - 1e-6):
+            flags.add("scale_at_bound")
+    if "no_object" not in flags and _collapsed_pair(names, params):
+        flags.add("collapsed_components")
+    return list(params)
+
+
 def fit_mixture(
     data: ArrayLike,
     *,
@@ -1100,29 +1174,9 @@ def fit_mixture(
     if not min_scale_ratio >= 1.0:
         raise InputError(f"min_scale_ratio: must be >= 1, got {min_scale_ratio}")
     spec = _Spec(names, zero_spike, levels, step, float(scale_max), float(min_scale_ratio), discretization)
-    n_classes = 1 + len(fams) - 1
-    classes = tuple(0 if (n == "zero" or i == (1 if zero_spike else 0)) else i - (1 if zero_spike else 0)
-                    for i, n in enumerate(names))
-    if class_names is None:
-        cnames: tuple[str, ...] = ("background",) + (
-            ("object",) if n_classes == 2 else tuple(f"object{j}" for j in range(1, n_classes))
-        )
-    else:
-        cnames = tuple(str(c) for c in class_names)
-        if len(cnames) != n_classes:
-            raise InputError(f"class_names: need {n_classes} names, got {len(cnames)}")
+    classes, cnames = _class_layout(names, zero_spike, class_names)
 
-    flags: set[str] = set()
-    occupied = int(np.count_nonzero(counts))
-    if N < 100:
-        flags.add("few_samples")
-    if n_clipped > 0.01 * N:
-        flags.add("clipped")
-    if occupied < 3:
-        flags.add("degenerate")
-    if zero_spike and counts[0] == N:
-        flags.add("all_zero")
-
+    flags = _input_flags(counts, n_clipped, zero_spike)
     if init is not None:
         w_init = np.asarray(init[0], dtype=np.float64)
         p_init = [tuple(float(v) for v in p) for p in init[1]]
@@ -1141,15 +1195,7 @@ def fit_mixture(
     elif method == "em":
         w, params, n_iter, conv, trace = _em_best(spec, counts, starts, max_iter, tol, min_weight)
     else:
-        lsq_starts = list(starts)
-        if init is None:
-            # warm start from the EM fit; the paper's p0 only when that result looks unsound
-            em_out = _em_best(spec, counts, starts, 200, 1e-9, min_weight)
-            lsq_starts = [(em_out[0], em_out[1])]
-            ps = _paper_start(spec)
-            if ps is not None:
-                lsq_starts.append(ps)
-        w, params, n_iter, conv = _lsq(spec, counts, lsq_starts, loss, min_weight, lazy=init is None)
+        w, params, n_iter, conv = _lsq_fit(spec, counts, starts, loss, min_weight, warm=init is None)
 
     w = np.clip(np.asarray(w, dtype=np.float64), 0.0, None)
     w = w / w.sum()
@@ -1165,23 +1211,8 @@ def fit_mixture(
         flags.add("zero_mass")
     if not conv:
         flags.add("not_converged")
-    obj_w = float(w[np.asarray(classes) != 0].sum())
-    if len(fams) > 1 and obj_w < min_weight:
-        flags.add("no_object")
-    if "no_object" in flags:
-        # an object scale with (almost) no weight is not identified: report it at its bound,
-        # the convention of the paper's Table I (image 6: sigma = 1.000)
-        params = [p if (cls == 0 or not p) else tuple(p[:-1]) + (float(scale_max),)
-                  for p, cls in zip(params, classes)]
-    for c, (name, p) in enumerate(zip(names, params)):
-        if name == "zero" or w[c] < min_weight:
-            continue
-        if p[-1] <= 1.5 * step:
-            flags.add("collapsed_scale")
-        if p[-1] >= scale_max * (1 - 1e-6):
-            flags.add("scale_at_bound")
-    if "no_object" not in flags and _collapsed_pair(names, params):
-        flags.add("collapsed_components")
+    params = _result_flags(flags, names, classes, w, params, n_families=len(fams), min_weight=min_weight,
+                           step=step, scale_max=float(scale_max))
     w.setflags(write=False)
     levels.setflags(write=False)
     counts.setflags(write=False)
