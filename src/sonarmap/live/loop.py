@@ -222,74 +222,25 @@ def run_live(
     cfg = config if config is not None else PipelineConfig()
     fn = process or process_ping
     stop = stop_event if stop_event is not None else threading.Event()
-
-    cond = threading.Condition()
-    queue: collections.deque[tuple[Ping, float]] = collections.deque()
-    state = {"received": 0, "drops": 0, "done": False}
-    failure: list[BaseException] = []
-
-    def reader() -> None:
-        try:
-            for ping in source:
-                t = time.perf_counter()
-                with cond:
-                    if len(queue) >= queue_size:
-                        queue.popleft()
-                        state["drops"] += 1
-                    queue.append((ping, t))
-                    state["received"] += 1
-                    cond.notify()
-                if stop.is_set():
-                    break
-        except BaseException as exc:  # noqa: BLE001 - handed to the processing thread
-            failure.append(exc)
-        finally:
-            with cond:
-                state["done"] = True
-                cond.notify()
-
-    latencies: list[float] = []
-    proc_times: list[float] = []
-    recent: collections.deque[float] = collections.deque(maxlen=_RECENT)
-    finished: collections.deque[float] = collections.deque(maxlen=512)
-    count = flagged = 0
+    arrivals = _Arrivals(source, queue_size, stop)
+    timing = _Timing(source)
     stopped_by = "source"
-    t0 = time.perf_counter()
-    next_status = t0 + status_interval_s
-
-    def counter(name: str) -> int:
-        return int(getattr(source, name, 0) or 0)
-
-    def snapshot(now: float) -> LiveSnapshot:
-        while finished and now - finished[0] > 2.0:
-            finished.popleft()
-        window = min(2.0, now - t0)
-        return LiveSnapshot(now - t0, count, state["drops"], flagged, counter("malformed"), counter("reconnects"),
-                            len(finished) / window if window > 0 else 0.0, _pct(recent, 50), _pct(recent, 99))
-
-    thread = threading.Thread(target=reader, name="sonarmap-live-reader", daemon=True)
-    thread.start()
+    next_status = timing.t0 + status_interval_s
+    arrivals.start()
     try:
         while True:
-            with cond:
-                if not queue and not state["done"] and not stop.is_set():
-                    cond.wait(0.05)  # wake up now and then: status line, time-based flushes
-                now = time.perf_counter()
-                if stop.is_set():
-                    stopped_by = "interrupt"
-                    break
-                if duration_s is not None and now - t0 >= duration_s:
-                    stopped_by = "duration"
-                    break
-                item = queue.popleft() if queue else None
-                done = state["done"] and not queue
+            item, done, why = arrivals.take(stop, duration_s, timing.t0)
+            if why is not None:
+                stopped_by = why
+                break
             if item is None:
                 for sink in sinks:
                     tick = getattr(sink, "tick", None)
                     if tick is not None:
                         tick()
+                now = time.perf_counter()
                 if status is not None and now >= next_status:
-                    status(snapshot(now))
+                    status(timing.snapshot(now, arrivals.drops))
                     next_status = now + status_interval_s
                 if done:
                     break
@@ -298,33 +249,123 @@ def run_live(
             t_start = time.perf_counter()
             products = fn(ping, cfg)
             t_ready = time.perf_counter()
-            latencies.append(t_ready - t_arrival)
-            recent.append(t_ready - t_arrival)
-            proc_times.append(t_ready - t_start)
-            finished.append(t_ready)
-            count += 1
-            flagged += int(bool(getattr(products, "flagged", False)))
+            timing.record(t_arrival, t_start, t_ready, bool(getattr(products, "flagged", False)))
             for sink in sinks:
                 sink.write(ping, products)
             if status is not None and t_ready >= next_status:
-                status(snapshot(t_ready))
+                status(timing.snapshot(t_ready, arrivals.drops))
                 next_status = t_ready + status_interval_s
-            if max_pings is not None and count >= max_pings:
+            if max_pings is not None and timing.count >= max_pings:
                 stopped_by = "max_pings"
                 break
     finally:
         stop_source = getattr(source, "stop", None)
         if stop_source is not None:
             stop_source()
-        thread.join(5.0)
-    if failure and stopped_by == "source":
-        raise failure[0]
-    with cond:
-        unprocessed = len(queue)
-        queue.clear()
-    return LiveStats(
-        count=count, received=state["received"], drops=state["drops"], unprocessed=unprocessed, flagged=flagged,
-        malformed=counter("malformed"), reconnects=counter("reconnects"), latency_p50_ms=_pct(latencies, 50),
-        latency_p99_ms=_pct(latencies, 99), latency_max_ms=max(latencies) * 1e3 if latencies else math.nan,
-        process_p50_ms=_pct(proc_times, 50), elapsed_s=time.perf_counter() - t0, stopped_by=stopped_by,
-    )
+        arrivals.thread.join(5.0)
+    if arrivals.failure and stopped_by == "source":
+        raise arrivals.failure[0]
+    return timing.stats(arrivals, stopped_by)
+
+
+class _Arrivals:
+    """The reader thread: the source's pings, with their arrival times, into a queue of at most
+    ``queue_size`` (when processing falls behind, the oldest waiting ping is dropped and counted)."""
+
+    def __init__(self, source: Any, queue_size: int, stop: threading.Event) -> None:
+        self.cond = threading.Condition()
+        self.queue: collections.deque[tuple[Ping, float]] = collections.deque()
+        self.received = 0
+        self.drops = 0
+        self.done = False
+        self.failure: list[BaseException] = []
+        self.thread = threading.Thread(target=self._read, args=(source, queue_size, stop),
+                                       name="sonarmap-live-reader", daemon=True)
+
+    def start(self) -> None:
+        self.thread.start()
+
+    def _read(self, source: Any, queue_size: int, stop: threading.Event) -> None:
+        try:
+            for ping in source:
+                t = time.perf_counter()
+                with self.cond:
+                    if len(self.queue) >= queue_size:
+                        self.queue.popleft()
+                        self.drops += 1
+                    self.queue.append((ping, t))
+                    self.received += 1
+                    self.cond.notify()
+                if stop.is_set():
+                    break
+        except BaseException as exc:  # noqa: BLE001 - handed to the processing thread
+            self.failure.append(exc)
+        finally:
+            with self.cond:
+                self.done = True
+                self.cond.notify()
+
+    def take(self, stop: threading.Event, duration_s: float | None, t0: float
+             ) -> tuple[tuple[Ping, float] | None, bool, str | None]:
+        """The next waiting ping (None after a short wait without one), whether the source is
+        finished and drained, and why the loop must stop now (``interrupt``, ``duration``)."""
+        with self.cond:
+            if not self.queue and not self.done and not stop.is_set():
+                self.cond.wait(0.05)  # wake up now and then: status line, time-based flushes
+            now = time.perf_counter()
+            if stop.is_set():
+                return None, False, "interrupt"
+            if duration_s is not None and now - t0 >= duration_s:
+                return None, False, "duration"
+            item = self.queue.popleft() if self.queue else None
+            return item, self.done and not self.queue, None
+
+    def drain(self) -> int:
+        """Drop the pings still waiting; returns how many."""
+        with self.cond:
+            n = len(self.queue)
+            self.queue.clear()
+        return n
+
+
+class _Timing:
+    """Latencies, processing times and the throughput of the loop."""
+
+    def __init__(self, source: Any) -> None:
+        self.source = source
+        self.latencies: list[float] = []
+        self.proc_times: list[float] = []
+        self.recent: collections.deque[float] = collections.deque(maxlen=_RECENT)
+        self.finished: collections.deque[float] = collections.deque(maxlen=512)
+        self.count = 0
+        self.flagged = 0
+        self.t0 = time.perf_counter()
+
+    def counter(self, name: str) -> int:
+        return int(getattr(self.source, name, 0) or 0)
+
+    def record(self, t_arrival: float, t_start: float, t_ready: float, flagged: bool) -> None:
+        self.latencies.append(t_ready - t_arrival)
+        self.recent.append(t_ready - t_arrival)
+        self.proc_times.append(t_ready - t_start)
+        self.finished.append(t_ready)
+        self.count += 1
+        self.flagged += int(flagged)
+
+    def snapshot(self, now: float, drops: int) -> LiveSnapshot:
+        while self.finished and now - self.finished[0] > 2.0:
+            self.finished.popleft()
+        window = min(2.0, now - self.t0)
+        return LiveSnapshot(now - self.t0, self.count, drops, self.flagged, self.counter("malformed"),
+                            self.counter("reconnects"), len(self.finished) / window if window > 0 else 0.0,
+                            _pct(self.recent, 50), _pct(self.recent, 99))
+
+    def stats(self, arrivals: _Arrivals, stopped_by: str) -> LiveStats:
+        lat = self.latencies
+        return LiveStats(
+            count=self.count, received=arrivals.received, drops=arrivals.drops, unprocessed=arrivals.drain(),
+            flagged=self.flagged, malformed=self.counter("malformed"), reconnects=self.counter("reconnects"),
+            latency_p50_ms=_pct(lat, 50), latency_p99_ms=_pct(lat, 99),
+            latency_max_ms=max(lat) * 1e3 if lat else math.nan, process_p50_ms=_pct(self.proc_times, 50),
+            elapsed_s=time.perf_counter() - self.t0, stopped_by=stopped_by,
+        )
