@@ -126,6 +126,8 @@ def track_surfaces(echoes: Echoes, config: TrackConfig = TrackConfig()) -> Track
         new = np.flatnonzero(bridged & ~tracked)
         if new.size:
             # a bridging echo is the nearest of its beam: it goes in front, the farthest drops out
+            # (of two bridges over one beam the nearer is kept: written last)
+            new = new[np.argsort(-echoes.edge_bin[new], kind="stable")]
             row = np.full((1, m), -1, dtype=np.int64)
             row[0, echoes.beam[new]] = new
             stack = np.concatenate([row, stack])
