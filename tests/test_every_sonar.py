@@ -91,6 +91,17 @@ def test_real_aris_faint_end_of_the_target_is_followed(aris_pings):
         assert np.count_nonzero((near_end > 15.3) & (near_end < 16.0)) <= 1
 
 
+def test_real_aris_target_is_bridged_where_a_line_behind_took_beams(aris_pings):
+    """In frame 4 the line behind the target (17.1-17.2 m) wins beams 30-32 in the tracker's first
+    pass; the target's echoes there (15.65-15.70 m) are left over until the bridge gives them back
+    (TrackConfig.bridge_beams); without it those beams report the line."""
+    p = aris_pings[4]
+    bridged = process_ping(p).ranges.range_m[30:33]
+    assert np.all((bridged > 15.5) & (bridged < 15.9)), bridged
+    plain = process_ping(p, PipelineConfig(track={"bridge_beams": 0})).ranges.range_m[30:33]
+    assert np.all(plain > 17.0), plain
+
+
 def test_real_oculus_seabed_and_nothing_in_front(oculus_pings):
     """The seabed's first echoes lie at 0.50-1.0 m (thin arcs, then the bright main-lobe
     boundary); in front of them only water column, fish and interference dashes (before: ring-down
