@@ -79,3 +79,15 @@ def test_max_floor_levels_is_validated():
 
     with pytest.raises(InputError, match="max_floor_levels"):
         PipelineConfig(max_floor_levels=-1)
+
+
+def test_report_summarises_the_floor():
+    import xarray as xr
+
+    from sonarmap.report import _floor_summary
+
+    assert _floor_summary(xr.Dataset({"floor_levels": ("ping_time", np.array([0, 1, 1, 0]))})) == \
+        "2 of 4 pings with their lowest 1 level merged into the zero level"
+    assert "1-3 levels" in _floor_summary(xr.Dataset({"floor_levels": ("ping_time", np.array([1, 3]))}))
+    assert _floor_summary(xr.Dataset({"floor_levels": ("ping_time", np.zeros(3, int))})).startswith("none")
+    assert _floor_summary(xr.Dataset({"kld": ("ping_time", np.zeros(3))})).startswith("not recorded")

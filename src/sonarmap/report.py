@@ -309,6 +309,19 @@ def _row(k: str, v: Any) -> str:
     return f"<tr><th>{html.escape(k)}</th><td>{html.escape(str(v))}</td></tr>"
 
 
+def _floor_summary(ds: Any) -> str:
+    """How many pings were modelled with a quantisation floor (``floor_levels``), and how deep."""
+    if "floor_levels" not in ds:
+        return "not recorded (a store of an older version)"
+    fl = np.asarray(ds["floor_levels"].values, dtype=np.int64)
+    used = fl > 0
+    if not used.any():
+        return "none (every ping modelled as it came)"
+    lo, hi = int(fl[used].min()), int(fl[used].max())
+    depth = f"{lo} level" + ("" if lo == 1 else "s") if lo == hi else f"{lo}-{hi} levels"
+    return f"{int(used.sum())} of {fl.size} pings with their lowest {depth} merged into the zero level"
+
+
 def render_report(store: str | os.PathLike[str], *, config: ReportConfig | None = None) -> str:
     """The report of survey ``store`` as an HTML string (self-contained).
 
@@ -352,6 +365,7 @@ def render_report(store: str | os.PathLike[str], *, config: ReportConfig | None 
         ("KLD median / 95th percentile", f"{np.nanmedian(kld):.4g} / {np.nanpercentile(kld, 95):.4g}"
          if np.isfinite(kld).any() else "-"),
         ("beams with a return", f"{100 * hit.mean():.1f} %"),
+        ("quantisation floor", _floor_summary(ds)),
         ("sonar", f"{geom.get('name', '?')}: {geom.get('num_beams', '?')} beams x {geom.get('num_bins', '?')} bins, "
          f"{_metres(geom.get('min_range'))}-{_metres(geom.get('max_range'))} m"),
         ("input files", attrs.get("n_input_files", "?")),
