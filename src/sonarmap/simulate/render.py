@@ -1389,6 +1389,40 @@ def _validate(scene: Any, geometry: Any, config: Any) -> None:
         raise InputError(f"config: expected a SimulationConfig, got {type(config).__name__}")
 
 
+def _receive(intensity: NDArray[np.float64], config: SimulationConfig) -> NDArray[np.float32]:
+    """The receiver: linear with threshold, or log over ``dynamic_range_db``; then 8-bit
+    quantisation to the float32 values the PNG reader produces (``k * float32(1/255)``, so round
+    trips are exact)."""
+    if config.receiver == "log":
+        with np.errstate(divide="ignore"):
+            level = 1.0 + 10.0 * np.log10(intensity) / config.dynamic_range_db
+        p = np.clip(level - config.threshold, 0.0, 1.0)
+    else:
+        p = np.clip(intensity - config.threshold, 0.0, 1.0)
+    if config.quantization == "floor":
+        q = np.floor(p * 255.0 + 1e-9)
+    else:
+        q = np.rint(p * 255.0)
+    return q.astype(np.float32) * np.float32(1.0 / 255.0)
+
+
+def _class_truth(s_int: NDArray[np.float64], c_int: NDArray[np.float64], m_bg: Any, config: SimulationConfig
+                 ) -> tuple[NDArray[np.uint8], NDArray[np.float64]]:
+    """The class mask from the unblurred structure and clutter intensities (a class where it is
+    ``truth_snr_db`` over the background mean; the larger wins), and per beam the highest
+    structure-to-background ratio (dB) of a pixel where clutter does not outshine structure."""
+    floor_ = m_bg * 10.0 ** (config.truth_snr_db / 10.0)
+    is_s = s_int >= floor_
+    is_c = c_int >= floor_
+    mask = np.zeros(s_int.shape, np.uint8)
+    mask[is_s] = STRUCTURE
+    mask[is_c & (~is_s | (c_int > s_int))] = CLUTTER
+    # a pixel is structure at threshold t iff s_int >= floor_t and clutter does not exceed it
+    with np.errstate(divide="ignore", invalid="ignore"):
+        peak_db = 10.0 * np.log10(np.where(s_int >= c_int, s_int / m_bg, 0.0).max(axis=0))
+    return mask, peak_db
+
+
 def simulate_ping(
     scene: Scene,
     geometry: SonarGeometry,
@@ -1487,33 +1521,12 @@ def simulate_ping(
     if assist_db > 0:
         intensity *= 10.0 ** (-assist_db / 10.0)
         config = config.replace(rx_gain_db=_rx_gain(geometry, config) - assist_db)
-    if config.receiver == "log":
-        with np.errstate(divide="ignore"):
-            level = 1.0 + 10.0 * np.log10(intensity) / config.dynamic_range_db
-        p = np.clip(level - config.threshold, 0.0, 1.0)
-    else:
-        p = np.clip(intensity - config.threshold, 0.0, 1.0)
-    if config.quantization == "floor":
-        q = np.floor(p * 255.0 + 1e-9)
-    else:
-        q = np.rint(p * 255.0)
-    # Same float32 values as the PNG reader produces (k * float32(1/255)), so round trips are exact.
-    image = q.astype(np.float32) * np.float32(1.0 / 255.0)
+    image = _receive(intensity, config)
     # Truth from the unblurred scene.
     scale = taper * gain_r
-    s_int = e_struct * scale
-    c_int = e_clutter * scale
-    floor_ = m_bg * 10.0 ** (config.truth_snr_db / 10.0)
-    is_s = s_int >= floor_
-    is_c = c_int >= floor_
-    mask = np.zeros(shape, np.uint8)
-    mask[is_s] = STRUCTURE
-    mask[is_c & (~is_s | (c_int > s_int))] = CLUTTER
+    mask, peak_db = _class_truth(e_struct * scale, e_clutter * scale, m_bg, config)
     struct = mask == STRUCTURE
     has = struct.any(axis=0)
-    # a pixel is structure at threshold t iff s_int >= floor_t and clutter does not exceed it
-    with np.errstate(divide="ignore", invalid="ignore"):
-        peak_db = 10.0 * np.log10(np.where(s_int >= c_int, s_int / m_bg, 0.0).max(axis=0))
     first = np.where(has, struct.argmax(axis=0), -1).astype(np.int64)
     first_r = np.where(has, geometry.range_m[np.maximum(first, 0)], np.nan)
     surf, surfs = _surface_truth(smp, geometry, config, has, gap_m=length + 2.0 * geometry.range_resolution_m,
