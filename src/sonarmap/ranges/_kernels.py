@@ -107,6 +107,16 @@ def find_echoes(mask, img, code, lut, boost, boost_min, max_gap, fraction, peak_
             edge[:k].copy(), slope[:k].copy(), evidence[:k].copy(), n_pix[:k].copy())
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _neighbours(a, b, g, pos, lo_bin, hi_bin, jump_bins, touch_bins):  # pragma: no cover - numba
+    """The tracker's neighbour rule for echoes ``a`` and ``b`` ``g`` beams apart: their edges
+    differ by at most ``jump_bins`` per beam and their bin intervals lie at most ``touch_bins`` per
+    beam apart (a surface is contiguous across beams)."""
+    if abs(pos[a] - pos[b]) / g > jump_bins:
+        return False
+    return max(lo_bin[a] - hi_bin[b], lo_bin[b] - hi_bin[a]) <= touch_bins * g
+
+
 @njit(cache=True, nogil=True)
 def viterbi_surfaces(first, count, echo_beam, pos, lo_bin, hi_bin, unary, usable, max_gap, slope_bins, slope_cost,
                      jump_bins, touch_bins, segment_cost, gap_cost):  # pragma: no cover - numba
@@ -143,13 +153,9 @@ def viterbi_surfaces(first, count, echo_beam, pos, lo_bin, hi_bin, unary, usable
                 for b in range(first[jb], first[jb] + count[jb]):
                     if not usable[b] or best[b] == np.inf:
                         continue
+                    if not _neighbours(a, b, g, pos, lo_bin, hi_bin, jump_bins, touch_bins):
+                        continue
                     d = abs(pos[a] - pos[b]) / g
-                    if d > jump_bins:
-                        continue
-                    # contiguity: the two echoes' bin intervals lie within touch_bins per beam
-                    sep = max(lo_bin[a] - hi_bin[b], lo_bin[b] - hi_bin[a])
-                    if sep > touch_bins * g:
-                        continue
                     t = best[b] + slope_cost * d / slope_bins + gap_cost * (g - 1)
                     if t < c:
                         c = t
@@ -178,14 +184,6 @@ def viterbi_surfaces(first, count, echo_beam, pos, lo_bin, hi_bin, unary, usable
             cur = prev[cur]
         j = echo_beam[cur]
     return chosen
-
-
-@njit(cache=True, nogil=True)
-def _touches(a, b, pos, lo_bin, hi_bin, jump_bins, touch_bins):  # pragma: no cover - numba
-    """Echoes on adjacent beams are neighbours under the tracker's rules."""
-    if abs(pos[a] - pos[b]) > jump_bins:
-        return False
-    return max(lo_bin[a] - hi_bin[b], lo_bin[b] - hi_bin[a]) <= touch_bins
 
 
 @njit(cache=True, nogil=True)
@@ -223,7 +221,7 @@ def bridge_surfaces(first, count, pos, lo_bin, hi_bin, unary, tracked, slope_bin
                         if jb < 0 or jb >= m:
                             continue
                         for b in range(first[jb], first[jb] + count[jb]):
-                            if (tracked[b] or cand[b]) and _touches(a, b, pos, lo_bin, hi_bin, jump_bins, touch_bins) \
+                            if (tracked[b] or cand[b]) and _neighbours(a, b, 1, pos, lo_bin, hi_bin, jump_bins, touch_bins) \
                                     and unary[a] + slope_cost * abs(pos[a] - pos[b]) / slope_bins < 0.0:
                                 join = True
                                 break
@@ -240,7 +238,7 @@ def bridge_surfaces(first, count, pos, lo_bin, hi_bin, unary, tracked, slope_bin
                 continue
             left = False
             for b in range(first[j - 1], first[j - 1] + count[j - 1]):
-                if tracked[b] and _touches(a, b, pos, lo_bin, hi_bin, jump_bins, touch_bins):
+                if tracked[b] and _neighbours(a, b, 1, pos, lo_bin, hi_bin, jump_bins, touch_bins):
                     left = True
                     break
             if not left:
@@ -252,7 +250,7 @@ def bridge_surfaces(first, count, pos, lo_bin, hi_bin, unary, tracked, slope_bin
             while n <= max_beams and k + 1 < m:
                 right = False
                 for b in range(first[k + 1], first[k + 1] + count[k + 1]):
-                    if tracked[b] and _touches(cur, b, pos, lo_bin, hi_bin, jump_bins, touch_bins):
+                    if tracked[b] and _neighbours(cur, b, 1, pos, lo_bin, hi_bin, jump_bins, touch_bins):
                         right = True
                         break
                 if right:
@@ -261,7 +259,7 @@ def bridge_surfaces(first, count, pos, lo_bin, hi_bin, unary, tracked, slope_bin
                     break
                 nxt = -1
                 for b in range(first[k + 1], first[k + 1] + count[k + 1]):
-                    if cand[b] and _touches(cur, b, pos, lo_bin, hi_bin, jump_bins, touch_bins):
+                    if cand[b] and _neighbours(cur, b, 1, pos, lo_bin, hi_bin, jump_bins, touch_bins):
                         nxt = b
                         break
                 if nxt < 0 or n == max_beams:
