@@ -814,7 +814,7 @@ def _model_ping(raw: NDArray[np.float32], geom: Any, config: PipelineConfig, ref
     # a background on the bottom levels of the 8-bit grid: merge them into the zero level - a
     # shift of the level histogram, refitted (no pass over the image until one passes)
     levels = m.classified[4]
-    counts = np.bincount(levels.ravel(), minlength=config.n_levels).astype(np.float64)
+    counts = np.asarray(m.classified[1].counts, dtype=np.float64)  # the refused fit's level histogram
     for n in range(1, config.max_floor_levels + 1):
         merged = np.zeros_like(counts)
         merged[0] = counts[: n + 1].sum()

@@ -201,7 +201,7 @@ def map_command(
 
     # the first ping is read before any processing, so that input and pose errors come first
     ping_iter = read_pings(inputs, geometry=geometry)
-    first, ping_iter = first_ping(ping_iter)
+    _, ping_iter = first_ping(ping_iter)
     import contextlib
 
     with contextlib.ExitStack() as shown:  # the progress display, from the first processed ping on

@@ -18,6 +18,7 @@ Examples
 from __future__ import annotations
 
 import dataclasses
+import itertools
 from collections.abc import Callable, Iterable
 from typing import Any
 
@@ -182,7 +183,7 @@ def map_from_pings(pings: Iterable[Any], config: MapConfig = MapConfig(), pipeli
     last_time_ns = 0
     last_shape = None
     n_pings = 0
-    for ping in _chain(first, it):
+    for ping in itertools.chain([first], it):
         last_time_ns = max(last_time_ns, int(ping.time_ns))
         if last_shape is not None and ping.geometry.shape != last_shape:
             acc.flush()
@@ -197,11 +198,6 @@ def map_from_pings(pings: Iterable[Any], config: MapConfig = MapConfig(), pipeli
     cloud = PointCloud.concat(acc.clouds) if occ is None else None
     return MapResult(cloud=cloud, occupancy=occ, georef=georef, n_pings=n_pings, n_returns=acc.n_returns,
                      n_skipped=acc.n_skipped, last_time_ns=last_time_ns)
-
-
-def _chain(first: Any, rest: Any) -> Any:
-    yield first
-    yield from rest
 
 
 def _placement(static: bool, use_nav: bool, georef: Any) -> Callable[[Any], Any]:
