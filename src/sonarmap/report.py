@@ -322,21 +322,8 @@ def _floor_summary(ds: Any) -> str:
     return f"{int(used.sum())} of {fl.size} pings with their lowest {depth} merged into the zero level"
 
 
-def render_report(store: str | os.PathLike[str], *, config: ReportConfig | None = None) -> str:
-    """The report of survey ``store`` as an HTML string (self-contained).
-
-    Raises
-    ------
-    DataFormatError
-        If ``store`` is not a survey store, or is damaged: corrupt or missing metadata, arrays or
-        chunks, or values outside their documented ranges (:func:`sonarmap.survey.load_products`).
-    """
-    from sonarmap.survey import load_products, survey_status
-
-    cfg = config or ReportConfig()
-    ds = load_products(store)  # metadata, chunks and values checked: a damaged store is one clean error
-    status = survey_status(store)
-    attrs = dict(ds.attrs)
+def _stored_pipeline_config(attrs: dict[str, Any], store: str | os.PathLike[str]) -> dict[str, Any]:
+    """The store's ``pipeline_config`` root attribute as a dict; a clean error if it is not one."""
     try:
         pipeline_config = json.loads(attrs.get("pipeline_config", "{}"))
         if not isinstance(pipeline_config, dict):
@@ -344,24 +331,26 @@ def render_report(store: str | os.PathLike[str], *, config: ReportConfig | None 
     except (TypeError, ValueError, RecursionError) as exc:
         raise DataFormatError(f"root attribute pipeline_config is not a JSON object ({exc})",
                               Path(store) / "zarr.json") from None
+    return pipeline_config
+
+
+def _summary_rows(ds: Any, attrs: dict[str, Any], status: dict[str, Any], t: np.ndarray,
+                  n_flagged: int) -> list[tuple[str, Any]]:
+    """The (label, value) rows of the report's summary table."""
     n = int(ds.sizes["ping_time"])
-    t = _times(ds)
     written = t.astype(np.int64) != 0
-    flags = [str(f) for f in ds["flags"].values]
-    flagged = np.flatnonzero(flagged_mask(flags)).tolist()
     kld = ds["kld"].values
     hit = np.isfinite(ds["range"].values)
-    title = cfg.title or f"Survey report: {Path(store).name}"
     try:
         geom = json.loads(attrs.get("source_geometry", "{}"))
     except ValueError:
         geom = {}
     span = (t[written][-1] - t[written][0]).astype("timedelta64[ms]").astype(float) / 1e3 if written.any() else 0.0
-    summary = [
+    return [
         ("pings", f"{n}" + ("" if status["complete"] else f" (incomplete: {status['done']}/{status['n_chunks']} chunks)")),
         ("time span", f"{np.datetime_as_string(t[written][0], unit='s')} to "
          f"{np.datetime_as_string(t[written][-1], unit='s')} UTC ({span:.1f} s)" if written.any() else "-"),
-        ("flagged fits", f"{len(flagged)} ({100 * len(flagged) / max(n, 1):.1f} %)"),
+        ("flagged fits", f"{n_flagged} ({100 * n_flagged / max(n, 1):.1f} %)"),
         ("KLD median / 95th percentile", f"{np.nanmedian(kld):.4g} / {np.nanpercentile(kld, 95):.4g}"
          if np.isfinite(kld).any() else "-"),
         ("beams with a return", f"{100 * hit.mean():.1f} %"),
@@ -373,18 +362,10 @@ def render_report(store: str | os.PathLike[str], *, config: ReportConfig | None 
         ("sonarmap version", attrs.get("sonarmap_version", "?")),
         ("fingerprint", attrs.get("fingerprint", "?")),
     ]
-    parts = [
-        "<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'>",
-        f"<title>{html.escape(title)}</title><style>{_CSS}</style></head><body>",
-        f"<h1>{html.escape(title)}</h1>",
-        f"<p class='muted'>{html.escape(str(Path(store).resolve()))}</p>",
-        "<h2>Summary</h2><table>", *(_row(k, v) for k, v in summary), "</table>",
-        "<details><summary>Pipeline configuration</summary><pre>",
-        html.escape(json.dumps(pipeline_config, indent=1)),
-        "</pre></details>",
-        "<h2>Mixture parameters and fit quality</h2>", _img(_fig_timeseries(ds, cfg.dpi), "time series"),
-        "<h2>Ranges</h2>", _img(_fig_ranges(ds, cfg.dpi), "ranges over time"),
-    ]
+
+
+def _draw_examples(ds: Any, attrs: dict[str, Any], cfg: ReportConfig) -> tuple[list[dict[str, Any]], list[str]]:
+    """Re-process the example pings; returns the drawn examples and a note for each one not drawn."""
     examples: list[dict[str, Any]] = []
     notes: list[str] = []
     picks = _pick_examples(ds, cfg.n_examples)
@@ -400,10 +381,13 @@ def render_report(store: str | os.PathLike[str], *, config: ReportConfig | None 
                     examples.append(_example(ds, i, pcfg, cfg.dpi))
                 except Exception as exc:  # noqa: BLE001 - keep the rest of the report
                     notes.append(f"ping {i}: not drawn ({type(exc).__name__}: {exc})")
-    roc = _fig_roc(ds, examples, cfg.dpi)
-    parts.append("<h2>ROC curves</h2>")
-    parts.append(_img(roc, "ROC curves") if roc else "<p class='muted'>No detection statistics stored.</p>")
-    parts.append(f"<h2>Flagged pings ({len(flagged)})</h2>")
+    return examples, notes
+
+
+def _flagged_section(ds: Any, flagged: list[int], flags: list[str], t: np.ndarray, cfg: ReportConfig) -> list[str]:
+    """HTML of the flagged-pings section: a table of at most ``cfg.max_flagged_rows`` rows."""
+    kld = ds["kld"].values
+    parts = [f"<h2>Flagged pings ({len(flagged)})</h2>"]
     if flagged:
         parts.append("<table><tr><th>#</th><th>time (UTC)</th><th>flags</th><th>KLD</th><th>source</th></tr>")
         for i in flagged[: cfg.max_flagged_rows]:
@@ -417,7 +401,12 @@ def render_report(store: str | os.PathLike[str], *, config: ReportConfig | None 
             parts.append(f"<p class='muted'>... and {len(flagged) - cfg.max_flagged_rows} more.</p>")
     else:
         parts.append("<p>No fit was flagged.</p>")
-    parts.append("<h2>Example pings</h2>")
+    return parts
+
+
+def _examples_section(examples: list[dict[str, Any]], notes: list[str]) -> list[str]:
+    """HTML of the example-pings section, with a line for each example whose source is gone."""
+    parts = ["<h2>Example pings</h2>"]
     for e in examples:
         if e.get("missing"):
             live = "://" in str(e["source"]).split("#", 1)[0]  # tcp:// / oculus://: a live stream
@@ -430,6 +419,48 @@ def render_report(store: str | os.PathLike[str], *, config: ReportConfig | None 
             parts.append(_img(e["png"], e["label"]))
     for note in notes:
         parts.append(f"<p class='muted'>{html.escape(note)}</p>")
+    return parts
+
+
+def render_report(store: str | os.PathLike[str], *, config: ReportConfig | None = None) -> str:
+    """The report of survey ``store`` as an HTML string (self-contained).
+
+    Raises
+    ------
+    DataFormatError
+        If ``store`` is not a survey store, or is damaged: corrupt or missing metadata, arrays or
+        chunks, or values outside their documented ranges (:func:`sonarmap.survey.load_products`).
+    """
+    from sonarmap.survey import load_products, survey_status
+
+    cfg = config or ReportConfig()
+    ds = load_products(store)  # metadata, chunks and values checked: a damaged store is one clean error
+    status = survey_status(store)
+    attrs = dict(ds.attrs)
+    pipeline_config = _stored_pipeline_config(attrs, store)
+    t = _times(ds)
+    flags = [str(f) for f in ds["flags"].values]
+    flagged = np.flatnonzero(flagged_mask(flags)).tolist()
+    title = cfg.title or f"Survey report: {Path(store).name}"
+    summary = _summary_rows(ds, attrs, status, t, len(flagged))
+    parts = [
+        "<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'>",
+        f"<title>{html.escape(title)}</title><style>{_CSS}</style></head><body>",
+        f"<h1>{html.escape(title)}</h1>",
+        f"<p class='muted'>{html.escape(str(Path(store).resolve()))}</p>",
+        "<h2>Summary</h2><table>", *(_row(k, v) for k, v in summary), "</table>",
+        "<details><summary>Pipeline configuration</summary><pre>",
+        html.escape(json.dumps(pipeline_config, indent=1)),
+        "</pre></details>",
+        "<h2>Mixture parameters and fit quality</h2>", _img(_fig_timeseries(ds, cfg.dpi), "time series"),
+        "<h2>Ranges</h2>", _img(_fig_ranges(ds, cfg.dpi), "ranges over time"),
+    ]
+    examples, notes = _draw_examples(ds, attrs, cfg)
+    roc = _fig_roc(ds, examples, cfg.dpi)
+    parts.append("<h2>ROC curves</h2>")
+    parts.append(_img(roc, "ROC curves") if roc else "<p class='muted'>No detection statistics stored.</p>")
+    parts += _flagged_section(ds, flagged, flags, t, cfg)
+    parts += _examples_section(examples, notes)
     mp = _fig_map(ds, cfg.max_map_points, cfg.dpi)
     if mp is not None:
         parts.append("<h2>Map preview</h2>")
