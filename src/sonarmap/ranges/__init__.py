@@ -417,30 +417,9 @@ def extract_ranges(
         geometry.check_image(acc, "accepted")
         acc_only = acc & ~mask
         mask = mask | acc
-    if mode == "first":
-        bins = first_return_bins(mask, min_run=min_run)
-    else:
-        masked = np.where(mask, img, -np.inf)
-        bins = masked.argmax(axis=0).astype(np.int64)
-        bins[~mask.any(axis=0)] = -1
+    bins = _pick_bins(mask, img, mode, min_run)
     if reject_isolated:
-        # a rejected first return falls back to the beam's next return (up to 3 times)
-        for attempt in range(4 if mode == "first" else 1):
-            sup, _ = _support(bins, neighbour_beams, max_jump_bins)
-            bad = (bins >= 0) & (sup == 0)
-            if not bad.any():
-                break
-            if mode != "first" or attempt == 3:
-                bins = np.where(bad, -1, bins)
-                break
-            mask = mask.copy() if attempt == 0 else mask
-            for j in np.flatnonzero(bad):
-                b = int(bins[j])
-                end = b
-                while end < mask.shape[0] and mask[end, j]:
-                    end += 1
-                mask[:end, j] = False
-            bins = np.where(bad, first_return_bins(np.ascontiguousarray(mask[:, bad]), min_run=min_run)[np.cumsum(bad) - 1], bins)
+        bins = _reject_isolated(bins, mask, mode, min_run, neighbour_beams, max_jump_bins)
     if min_segment_beams > 1:
         bins = np.where(_segments_short(bins, max_jump_bins, min_segment_beams), -1, bins)
     if refine_bins > 0 and edge_level is not None and mode == "first":
@@ -450,6 +429,48 @@ def extract_ranges(
             keep = (bins >= 0) & acc_only[np.maximum(bins, 0), np.arange(bins.size)]
             refined = np.where(keep, bins, refined)
         bins = refined
+    return _beam_ranges(bins, img, geometry, mode, neighbour_beams, max_jump_bins, time_ns, source)
+
+
+def _pick_bins(mask: np.ndarray, img: np.ndarray, mode: Mode, min_run: int) -> np.ndarray:
+    """Per-beam bin of the first run of ``min_run`` structure bins, or of the strongest one (-1: none)."""
+    if mode == "first":
+        return first_return_bins(mask, min_run=min_run)
+    masked = np.where(mask, img, -np.inf)
+    bins = masked.argmax(axis=0).astype(np.int64)
+    bins[~mask.any(axis=0)] = -1
+    return bins
+
+
+def _reject_isolated(bins: np.ndarray, mask: np.ndarray, mode: Mode, min_run: int,
+                     neighbour_beams: int, max_jump_bins: int) -> np.ndarray:
+    """Rule 2: drop returns without support from neighbouring beams.
+
+    A rejected first return falls back to the beam's next return (up to 3 times); ``mask`` is
+    not modified.
+    """
+    for attempt in range(4 if mode == "first" else 1):
+        sup, _ = _support(bins, neighbour_beams, max_jump_bins)
+        bad = (bins >= 0) & (sup == 0)
+        if not bad.any():
+            break
+        if mode != "first" or attempt == 3:
+            bins = np.where(bad, -1, bins)
+            break
+        mask = mask.copy() if attempt == 0 else mask
+        for j in np.flatnonzero(bad):
+            b = int(bins[j])
+            end = b
+            while end < mask.shape[0] and mask[end, j]:
+                end += 1
+            mask[:end, j] = False
+        bins = np.where(bad, first_return_bins(np.ascontiguousarray(mask[:, bad]), min_run=min_run)[np.cumsum(bad) - 1], bins)
+    return bins
+
+
+def _beam_ranges(bins: np.ndarray, img: np.ndarray, geometry: SonarGeometry, mode: Mode, neighbour_beams: int,
+                 max_jump_bins: int, time_ns: int, source: str) -> BeamRanges:
+    """The :class:`BeamRanges` of per-beam bins ``bins`` (-1: no return), with neighbour-support confidence."""
     valid = bins >= 0
     sup, cnt = _support(bins, neighbour_beams, max_jump_bins)
     conf = np.where(valid, sup / np.maximum(cnt, 1), 0.0).astype(np.float32)
