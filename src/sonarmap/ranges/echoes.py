@@ -175,6 +175,36 @@ def edge_sigma_m(noise: ArrayLike, slope: ArrayLike, bin_m: float, *, pulse_m: f
     return np.sqrt(bin_m**2 / 12.0 + jitter**2 + (pulse_m**2) / 12.0)
 
 
+def _check_edge_options(fraction: float, peak_rel: float, scan: str) -> None:
+    """The leading-edge options of :func:`find_echoes` are in range."""
+    if not 0 < fraction < 1:
+        raise InputError(f"fraction: must lie in (0, 1) (got {fraction})")
+    if scan not in ("back", "forward"):
+        raise InputError(f"scan: must be 'back' or 'forward' (got {scan!r})")
+    if not 0 < peak_rel <= 1:
+        raise InputError(f"peak_rel: must lie in (0, 1] (got {peak_rel})")
+
+
+def _evidence_table(m: np.ndarray, llr: ArrayLike | None, levels: ArrayLike | None,
+                    level_evidence: ArrayLike | None) -> tuple[np.ndarray, np.ndarray]:
+    """Per-pixel codes and the evidence table they index, from ``levels`` + ``level_evidence`` or ``llr``.
+
+    With ``llr`` (default: 1 per pixel) every pixel is its own code.
+    """
+    if levels is not None and level_evidence is not None:
+        code = np.ascontiguousarray(levels)
+        lut = np.ascontiguousarray(level_evidence, dtype=np.float64)
+        if code.shape != m.shape:
+            raise InputError(f"levels: shape {code.shape} does not match mask {m.shape}")
+        if code.size and (int(code.min()) < 0 or int(code.max()) >= lut.size):
+            raise InputError(f"levels: values must lie in [0, {lut.size})")
+        return code, lut
+    ev = np.ones(m.shape) if llr is None else np.asarray(llr, dtype=np.float64)
+    if ev.shape != m.shape:
+        raise InputError(f"llr: shape {ev.shape} does not match mask {m.shape}")
+    return np.arange(ev.size, dtype=np.int64).reshape(ev.shape), np.ascontiguousarray(ev.ravel())
+
+
 def find_echoes(
     mask: ArrayLike,
     image: ArrayLike,
@@ -236,25 +266,8 @@ def find_echoes(
     geometry.check_image(m, "mask")
     img = smooth_along_range(image, pulse_bins)
     geometry.check_image(img, "image")
-    if not 0 < fraction < 1:
-        raise InputError(f"fraction: must lie in (0, 1) (got {fraction})")
-    if scan not in ("back", "forward"):
-        raise InputError(f"scan: must be 'back' or 'forward' (got {scan!r})")
-    if not 0 < peak_rel <= 1:
-        raise InputError(f"peak_rel: must lie in (0, 1] (got {peak_rel})")
-    if levels is not None and level_evidence is not None:
-        code = np.ascontiguousarray(levels)
-        lut = np.ascontiguousarray(level_evidence, dtype=np.float64)
-        if code.shape != m.shape:
-            raise InputError(f"levels: shape {code.shape} does not match mask {m.shape}")
-        if code.size and (int(code.min()) < 0 or int(code.max()) >= lut.size):
-            raise InputError(f"levels: values must lie in [0, {lut.size})")
-    else:
-        ev = np.ones(m.shape) if llr is None else np.asarray(llr, dtype=np.float64)
-        if ev.shape != m.shape:
-            raise InputError(f"llr: shape {ev.shape} does not match mask {m.shape}")
-        code = np.arange(ev.size, dtype=np.int64).reshape(ev.shape)
-        lut = np.ascontiguousarray(ev.ravel())
+    _check_edge_options(fraction, peak_rel, scan)
+    code, lut = _evidence_table(m, llr, levels, level_evidence)
     bst = np.zeros((1, 1), dtype=bool) if boost is None else np.ascontiguousarray(boost, dtype=bool)
     if boost is not None and bst.shape != m.shape:
         raise InputError(f"boost: shape {bst.shape} does not match mask {m.shape}")
@@ -356,10 +369,8 @@ def pooled_edges(
     from sonarmap.ranges import _kernels
 
     sel = np.asarray(first, dtype=np.int64)
-    for key, v, lo in (("half_beams", half_beams, 0), ("front_bins", front_bins, 0), ("max_bins", max_bins, 3),
-                       ("smooth_bins", smooth_bins, 1), ("n_iter", n_iter, 1)):
-        if isinstance(v, bool) or int(v) != v or v < lo:
-            raise InputError(f"{key}: must be an integer >= {lo} (got {v!r})")
+    _check_pool_window(half_beams=half_beams, front_bins=front_bins, max_bins=max_bins, smooth_bins=smooth_bins,
+                       n_iter=n_iter)
     if not 0 < fraction < 1:
         raise InputError(f"fraction: must lie in (0, 1) (got {fraction})")
     if sel.shape != (echoes.n_beams,):
@@ -382,17 +393,30 @@ def pooled_edges(
     done = ok & (used > 0) & own
     if not done.any():
         return echoes
-    idx = s[done]
-    n_bins = img.shape[0]
+    return _with_edges(echoes, s[done], new[done], rise[done], noise[done], geometry, pulse_bins, sigma_scale)
+
+
+def _check_pool_window(**window: int) -> None:
+    """Each pooling-window option is an integer of at least its minimum (:func:`pooled_edges`)."""
+    minimum = {"half_beams": 0, "front_bins": 0, "max_bins": 3, "smooth_bins": 1, "n_iter": 1}
+    for key, v in window.items():
+        lo = minimum[key]
+        if isinstance(v, bool) or int(v) != v or v < lo:
+            raise InputError(f"{key}: must be an integer >= {lo} (got {v!r})")
+
+
+def _with_edges(echoes: Echoes, idx: np.ndarray, edge: np.ndarray, rise: np.ndarray, noise: np.ndarray,
+                geometry: SonarGeometry, pulse_bins: int, sigma_scale: float) -> Echoes:
+    """``echoes`` with echoes ``idx`` given new leading edges ``edge`` (bins), slopes and sigmas."""
     eb = echoes.edge_bin.copy()
-    eb[idx] = np.clip(new[done], 0.0, n_bins - 1.0)
+    eb[idx] = np.clip(edge, 0.0, geometry.n_bins - 1.0)
     r = np.asarray(geometry.range_m, dtype=np.float64)
     er = echoes.edge_range_m.copy()
     er[idx] = np.interp(eb[idx], np.arange(r.size, dtype=np.float64), r)
     sl = echoes.slope.copy()
-    sl[idx] = rise[done]
+    sl[idx] = rise
     bin_m = abs(geometry.range_resolution_m)
     pulse_m = int(pulse_bins) * bin_m if pulse_bins >= 2 else 0.0
     sig = echoes.sigma_m.copy()
-    sig[idx] = edge_sigma_m(noise[done], rise[done], bin_m, pulse_m=pulse_m, scale=sigma_scale)
+    sig[idx] = edge_sigma_m(noise, rise, bin_m, pulse_m=pulse_m, scale=sigma_scale)
     return dataclasses.replace(echoes, edge_bin=eb, edge_range_m=er, slope=sl, sigma_m=sig)
