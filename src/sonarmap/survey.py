@@ -1076,6 +1076,58 @@ class SurveyResult:
         )
 
 
+def _plan_run(inputs: Any, config: Any, *, chunk_size: int, geometry: Any, keep_labels: bool, poses: Any,
+              extrinsics: Any, ping_function: PingFunction | None) -> tuple[Any, SurveyPlan, dict[str, Any], str]:
+    """The run's configuration, plan, configuration dict and fingerprint (inputs checked first)."""
+    from sonarmap import __version__
+
+    cfg = _resolve_config(config) if ping_function is None else _maybe_config(config)
+    plan = plan_survey(inputs, chunk_size=chunk_size, geometry=geometry)
+    if poses is not None and not Path(poses).is_file():
+        raise DataFormatError("poses file not found", poses)
+    cfg_dict = _config_dict(cfg)
+    fp = _fingerprint(plan, cfg_dict, keep_labels=keep_labels, poses=poses, extrinsics=extrinsics,
+                      version=__version__,
+                      ping_function=_function_name(ping_function))
+    return cfg, plan, cfg_dict, fp
+
+
+def _create_and_run(out: Path, plan: SurveyPlan, task: "_Task", cfg_dict: dict[str, Any], fp: str, *,
+                    poses: Any, client: Any, scheduler: str | None, workers: int | None,
+                    progress: Callable[[int, int], None] | None) -> tuple[list[Any], str, Any, Any]:
+    """Create the store if needed and run the chunks still to do, serially, on local workers or on dask.
+
+    Returns what :func:`_store_chunks` returns.  The local pool (and a client this call opened)
+    is closed however the run ends.
+    """
+    ping_function = task.ping_function
+    own_client = None
+    pool: _ProcessPool | None = None
+    if client is None and scheduler is not None:
+        from distributed import Client
+
+        client = own_client = Client(scheduler, timeout="30s")
+    n_workers = int(workers if workers is not None else (os.cpu_count() or 1))
+    serial = client is None and (workers == 0 or (workers is None and n_workers == 1))
+    finished_before = (out / STATE_DIR / "complete").exists()
+    ok = False
+    try:
+        if client is None and not serial and not finished_before:
+            # Start (and warm) the workers now: they load the pipeline while this process probes.
+            n_workers = max(1, min(n_workers, plan.n_chunks))
+            pool = _ProcessPool(n_workers, ping_function)
+        if not out.exists():
+            _probe_and_create(out, plan, task, cfg_dict, pool, poses=poses, fingerprint=fp)
+        todo, executor, st, root = _store_chunks(out, plan, task, client=client, pool=pool, progress=progress)
+        ok = True
+    finally:
+        if pool is not None:
+            pool.close(ok)
+        if own_client is not None:
+            own_client.close()
+    return todo, executor, st, root
+
+
 def process_survey(
     inputs: str | os.PathLike[str] | Iterable[str | os.PathLike[str]],
     output: str | os.PathLike[str],
@@ -1141,20 +1193,13 @@ def process_survey(
         ``output`` exists and was made by a different command (inputs, configuration, options)
         or is not a survey store, and ``overwrite`` is false.
     """
-    from sonarmap import __version__
-
     t0 = time.perf_counter()
     out = Path(output)
     if workers is not None and (isinstance(workers, bool) or int(workers) != workers or workers < 0):
         raise InputError(f"workers: must be a non-negative integer (got {workers!r})")
-    cfg = _resolve_config(config) if ping_function is None else _maybe_config(config)
-    plan = plan_survey(inputs, chunk_size=chunk_size, geometry=geometry)
-    if poses is not None and not Path(poses).is_file():
-        raise DataFormatError("poses file not found", poses)
-    cfg_dict = _config_dict(cfg)
-    fp = _fingerprint(plan, cfg_dict, keep_labels=keep_labels, poses=poses, extrinsics=extrinsics,
-                      version=__version__,
-                      ping_function=_function_name(ping_function))
+    cfg, plan, cfg_dict, fp = _plan_run(inputs, config, chunk_size=chunk_size, geometry=geometry,
+                                        keep_labels=keep_labels, poses=poses, extrinsics=extrinsics,
+                                        ping_function=ping_function)
 
     # One writer per output: a second run on it fails at once (naming the first's pid); the
     # lock of a killed run is taken over, and what that run left beside the store is removed.
@@ -1163,30 +1208,8 @@ def process_survey(
         _check_existing(out, fp, overwrite)
 
         task = _Task(cfg, bool(keep_labels), {}, ping_function)
-        own_client = None
-        pool: _ProcessPool | None = None
-        if client is None and scheduler is not None:
-            from distributed import Client
-
-            client = own_client = Client(scheduler, timeout="30s")
-        n_workers = int(workers if workers is not None else (os.cpu_count() or 1))
-        serial = client is None and (workers == 0 or (workers is None and n_workers == 1))
-        finished_before = (out / STATE_DIR / "complete").exists()
-        ok = False
-        try:
-            if client is None and not serial and not finished_before:
-                # Start (and warm) the workers now: they load the pipeline while this process probes.
-                n_workers = max(1, min(n_workers, plan.n_chunks))
-                pool = _ProcessPool(n_workers, ping_function)
-            if not out.exists():
-                _probe_and_create(out, plan, task, cfg_dict, pool, poses=poses, fingerprint=fp)
-            todo, executor, st, root = _store_chunks(out, plan, task, client=client, pool=pool, progress=progress)
-            ok = True
-        finally:
-            if pool is not None:
-                pool.close(ok)
-            if own_client is not None:
-                own_client.close()
+        todo, executor, st, root = _create_and_run(out, plan, task, cfg_dict, fp, poses=poses, client=client,
+                                                   scheduler=scheduler, workers=workers, progress=progress)
 
         n_flagged, gates, points_path, n_points = _finalise(out, st, root, plan, poses=poses, points=points,
                                                             extrinsics=extrinsics)
