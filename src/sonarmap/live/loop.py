@@ -213,51 +213,16 @@ def run_live(
     """
     from sonarmap.pipeline import PipelineConfig, process_ping
 
-    if isinstance(queue_size, bool) or not isinstance(queue_size, int) or queue_size < 1:
-        raise InputError(f"queue_size: must be a positive integer, got {queue_size!r}")
-    if max_pings is not None and (isinstance(max_pings, bool) or not isinstance(max_pings, int) or max_pings < 1):
-        raise InputError(f"max_pings: must be a positive integer, got {max_pings!r}")
-    if duration_s is not None and not (isinstance(duration_s, int | float) and duration_s > 0):
-        raise InputError(f"duration_s: must be a positive number of seconds, got {duration_s!r}")
+    _check_limits(queue_size, max_pings, duration_s)
     cfg = config if config is not None else PipelineConfig()
     fn = process or process_ping
     stop = stop_event if stop_event is not None else threading.Event()
     arrivals = _Arrivals(source, queue_size, stop)
     timing = _Timing(source)
-    stopped_by = "source"
-    next_status = timing.t0 + status_interval_s
     arrivals.start()
     try:
-        while True:
-            item, done, why = arrivals.take(stop, duration_s, timing.t0)
-            if why is not None:
-                stopped_by = why
-                break
-            if item is None:
-                for sink in sinks:
-                    tick = getattr(sink, "tick", None)
-                    if tick is not None:
-                        tick()
-                now = time.perf_counter()
-                if status is not None and now >= next_status:
-                    status(timing.snapshot(now, arrivals.drops))
-                    next_status = now + status_interval_s
-                if done:
-                    break
-                continue
-            ping, t_arrival = item
-            t_start = time.perf_counter()
-            products = fn(ping, cfg)
-            t_ready = time.perf_counter()
-            timing.record(t_arrival, t_start, t_ready, bool(getattr(products, "flagged", False)))
-            for sink in sinks:
-                sink.write(ping, products)
-            if status is not None and t_ready >= next_status:
-                status(timing.snapshot(t_ready, arrivals.drops))
-                next_status = t_ready + status_interval_s
-            if max_pings is not None and timing.count >= max_pings:
-                stopped_by = "max_pings"
-                break
+        stopped_by = _serve(arrivals, timing, sinks, fn, cfg, stop=stop, duration_s=duration_s, max_pings=max_pings,
+                            status=status, status_interval_s=status_interval_s)
     finally:
         stop_source = getattr(source, "stop", None)
         if stop_source is not None:
@@ -266,6 +231,56 @@ def run_live(
     if arrivals.failure and stopped_by == "source":
         raise arrivals.failure[0]
     return timing.stats(arrivals, stopped_by)
+
+
+def _check_limits(queue_size: Any, max_pings: Any, duration_s: Any) -> None:
+    """The queue bound and the stop limits of :func:`run_live` are valid."""
+    if isinstance(queue_size, bool) or not isinstance(queue_size, int) or queue_size < 1:
+        raise InputError(f"queue_size: must be a positive integer, got {queue_size!r}")
+    if max_pings is not None and (isinstance(max_pings, bool) or not isinstance(max_pings, int) or max_pings < 1):
+        raise InputError(f"max_pings: must be a positive integer, got {max_pings!r}")
+    if duration_s is not None and not (isinstance(duration_s, int | float) and duration_s > 0):
+        raise InputError(f"duration_s: must be a positive number of seconds, got {duration_s!r}")
+
+
+def _tick(sinks: Sequence[Any]) -> None:
+    """Let each sink that has ``tick()`` do its idle work (e.g. a timed flush)."""
+    for sink in sinks:
+        tick = getattr(sink, "tick", None)
+        if tick is not None:
+            tick()
+
+
+def _serve(arrivals: _Arrivals, timing: _Timing, sinks: Sequence[Any], fn: Callable[..., Any], cfg: Any, *,
+           stop: threading.Event, duration_s: float | None, max_pings: int | None,
+           status: Callable[[LiveSnapshot], None] | None, status_interval_s: float) -> str:
+    """Process arrivals until the source ends, a limit is reached or ``stop`` is set; returns why it stopped."""
+    next_status = timing.t0 + status_interval_s
+    while True:
+        item, done, why = arrivals.take(stop, duration_s, timing.t0)
+        if why is not None:
+            return why
+        if item is None:
+            _tick(sinks)
+            now = time.perf_counter()
+            if status is not None and now >= next_status:
+                status(timing.snapshot(now, arrivals.drops))
+                next_status = now + status_interval_s
+            if done:
+                return "source"
+            continue
+        ping, t_arrival = item
+        t_start = time.perf_counter()
+        products = fn(ping, cfg)
+        t_ready = time.perf_counter()
+        timing.record(t_arrival, t_start, t_ready, bool(getattr(products, "flagged", False)))
+        for sink in sinks:
+            sink.write(ping, products)
+        if status is not None and t_ready >= next_status:
+            status(timing.snapshot(t_ready, arrivals.drops))
+            next_status = t_ready + status_interval_s
+        if max_pings is not None and timing.count >= max_pings:
+            return "max_pings"
 
 
 class _Arrivals:
