@@ -277,19 +277,27 @@ class PipelineConfig:
     min_separation: float = 1.9
 
     def __post_init__(self) -> None:
-        from sonarmap.preprocess.pipeline import PreprocessConfig
+        self._coerce_stage_configs()
+        self._check_choices()
+        self._check_reals()
+        self._check_integers()
 
-        def bad(key: str, what: str) -> InputError:
-            return InputError(f"pipeline config: {key}: {what} (got {getattr(self, key)!r})")
+    def _bad(self, key: str, what: str) -> InputError:
+        """The error for option ``key`` holding an invalid value."""
+        return InputError(f"pipeline config: {key}: {what} (got {getattr(self, key)!r})")
+
+    def _coerce_stage_configs(self) -> None:
+        """``preprocess`` and ``track``: a recipe name or a stage config (tables become configs)."""
+        from sonarmap.preprocess.pipeline import PreprocessConfig
 
         pre = self.preprocess
         if isinstance(pre, dict):
             object.__setattr__(self, "preprocess", PreprocessConfig.from_dict(pre))
         elif isinstance(pre, str):
             if pre not in _PREPROCESS_RECIPES:
-                raise bad("preprocess", f"must be one of {', '.join(_PREPROCESS_RECIPES)} or a table")
+                raise self._bad("preprocess", f"must be one of {', '.join(_PREPROCESS_RECIPES)} or a table")
         elif not isinstance(pre, PreprocessConfig):
-            raise bad("preprocess", "must be a recipe name or a preprocess table")
+            raise self._bad("preprocess", "must be a recipe name or a preprocess table")
         from sonarmap.ranges.tracking import TrackConfig
 
         if self.track is None:
@@ -301,54 +309,63 @@ class PipelineConfig:
                     raise InputError(f"pipeline config: track: unknown key '{key}' (valid: {', '.join(sorted(known))})")
             object.__setattr__(self, "track", TrackConfig(**self.track))
         elif not isinstance(self.track, TrackConfig):
-            raise bad("track", "must be a track table")
+            raise self._bad("track", "must be a track table")
+
+    def _check_choices(self) -> None:
+        """The named choices (tracker, edge scan, normalisation, method, solver) and optional lengths."""
         if self.tracker not in ("surface", "rules"):
-            raise bad("tracker", "must be 'surface' or 'rules'")
+            raise self._bad("tracker", "must be 'surface' or 'rules'")
         if self.edge_scan not in ("forward", "back"):
-            raise bad("edge_scan", "must be 'forward' or 'back'")
+            raise self._bad("edge_scan", "must be 'forward' or 'back'")
         for key, positive in (("log_dynamic_range_db", True), ("pulse_length_m", False)):
             v = getattr(self, key)
             if v is None:
                 continue
             if not is_finite_number(v) or (v <= 0 if positive else v < 0):
-                raise bad(key, "must be a finite number > 0" if positive else "must be a finite number >= 0")
+                raise self._bad(key, "must be a finite number > 0" if positive else "must be a finite number >= 0")
             object.__setattr__(self, key, float(v))
         if self.normalise not in ("auto", "off"):
-            raise bad("normalise", "must be 'auto' or 'off'")
+            raise self._bad("normalise", "must be 'auto' or 'off'")
         if self.method not in METHODS:
-            raise bad("method", f"must be one of {', '.join(METHODS)}")
+            raise self._bad("method", f"must be one of {', '.join(METHODS)}")
         if self.solver not in SOLVER_NAMES:
-            raise bad("solver", f"must be one of {', '.join(SOLVER_NAMES)}")
+            raise self._bad("solver", f"must be one of {', '.join(SOLVER_NAMES)}")
+
+    def _check_reals(self) -> None:
+        """The real-valued options: finite (stored as float) and within their ranges."""
         for key in ("beta", "fit_tol", "threshold", "cfar_pfa", "object_prior_min", "grow_prior_min",
                     "grow_beta", "speckle_eps", "edge_factor", "range_weight", "pool_factor",
                     "min_component_extent_m", "max_kld", "max_object_weight", "min_separation",
                     "edge_fraction", "sigma_scale", "sigma_pool_scale", "continue_evidence"):
             v = getattr(self, key)
             if not is_finite_number(v):
-                raise bad(key, "must be a finite number")
+                raise self._bad(key, "must be a finite number")
             object.__setattr__(self, key, float(v))
         if self.beta < 0:
-            raise bad("beta", "must be >= 0")
+            raise self._bad("beta", "must be >= 0")
         for key in ("object_prior_min", "grow_prior_min", "speckle_eps"):
             if not 0 <= getattr(self, key) < 0.5:
-                raise bad(key, "must lie in [0, 0.5)")
+                raise self._bad(key, "must lie in [0, 0.5)")
         if self.pool_factor < 0:
-            raise bad("pool_factor", "must be >= 0")
+            raise self._bad("pool_factor", "must be >= 0")
         for key in ("sigma_scale", "sigma_pool_scale", "continue_evidence"):
             if getattr(self, key) < 0:
-                raise bad(key, "must be >= 0")
+                raise self._bad(key, "must be >= 0")
         if not 0 <= self.edge_fraction < 1:
-            raise bad("edge_fraction", "must lie in [0, 1)")
+            raise self._bad("edge_fraction", "must lie in [0, 1)")
         if self.min_component_extent_m < 0:
-            raise bad("min_component_extent_m", "must be >= 0")
+            raise self._bad("min_component_extent_m", "must be >= 0")
         if self.grow_beta < 0:
-            raise bad("grow_beta", "must be >= 0")
+            raise self._bad("grow_beta", "must be >= 0")
         if not 0 <= self.range_weight <= 1:
-            raise bad("range_weight", "must lie in [0, 1]")
+            raise self._bad("range_weight", "must lie in [0, 1]")
         if self.fit_tol <= 0:
-            raise bad("fit_tol", "must be > 0")
+            raise self._bad("fit_tol", "must be > 0")
         if not 0 < self.cfar_pfa < 1:
-            raise bad("cfar_pfa", "must lie in (0, 1)")
+            raise self._bad("cfar_pfa", "must lie in (0, 1)")
+
+    def _check_integers(self) -> None:
+        """The integer and boolean options, the remaining choices and the families."""
         for key, lo in (("neighbourhood", 4), ("n_levels", 2), ("cfar_train", 2), ("cfar_guard", 0),
                         ("min_run", 1), ("neighbour_beams", 1), ("max_jump_bins", 0),
                         ("min_segment_beams", 1), ("min_component_beams", 1),
@@ -359,23 +376,23 @@ class PipelineConfig:
                         ("max_floor_levels", 0)):
             v = getattr(self, key)
             if isinstance(v, bool) or not isinstance(v, int) or v < lo:
-                raise bad(key, f"must be an integer >= {lo}")
+                raise self._bad(key, f"must be an integer >= {lo}")
         if self.neighbourhood not in (4, 8):
-            raise bad("neighbourhood", "must be 4 or 8")
+            raise self._bad("neighbourhood", "must be 4 or 8")
         if self.cfar_train % 2 or self.cfar_guard % 2:
-            raise bad("cfar_train" if self.cfar_train % 2 else "cfar_guard", "must be even")
+            raise self._bad("cfar_train" if self.cfar_train % 2 else "cfar_guard", "must be even")
         for key in ("contrast", "cfar_two_d", "reject_isolated"):
             if not isinstance(getattr(self, key), bool):
-                raise bad(key, "must be true or false")
+                raise self._bad(key, "must be true or false")
         if self.pool_mode not in ("fallback", "fill"):
-            raise bad("pool_mode", "must be 'fallback' or 'fill'")
+            raise self._bad("pool_mode", "must be 'fallback' or 'fill'")
         if self.fit_method not in ("em", "lsq"):
-            raise bad("fit_method", "must be 'em' or 'lsq'")
+            raise self._bad("fit_method", "must be 'em' or 'lsq'")
         if self.range_mode not in ("first", "strongest"):
-            raise bad("range_mode", "must be 'first' or 'strongest'")
+            raise self._bad("range_mode", "must be 'first' or 'strongest'")
         fams = self.families
         if isinstance(fams, str) or not isinstance(fams, list | tuple) or len(fams) < 2:
-            raise bad("families", "must be a list of at least two family names")
+            raise self._bad("families", "must be a list of at least two family names")
         object.__setattr__(self, "families", tuple(str(f) for f in fams))
 
     # ------------------------------------------------------------------ (de)serialisation
