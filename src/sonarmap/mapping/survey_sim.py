@@ -23,6 +23,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import os
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, Literal
 
@@ -400,6 +401,27 @@ def truth_ranges(
     return out
 
 
+def _plane_samples(pts: np.ndarray, xs: np.ndarray, R_ws: np.ndarray, t_ws: np.ndarray, *, r_cut: float,
+                   tan_el: float, h: float) -> tuple[np.ndarray, np.ndarray]:
+    """Surface samples a ping can see: sensor-frame points and their indices into ``pts``.
+
+    The samples within the vertical aperture (``tan_el``, plus one sample spacing ``h``) of the
+    ping's imaging plane (normal = sensor z), in front of the sonar and within ``r_cut``; searched
+    in the slab of x (``xs``, increasing) that the plane, nearly across track, can reach.
+    """
+    n = R_ws[:, 2]
+    d_max = r_cut * tan_el + h
+    nx = abs(float(n[0]))
+    half = (d_max + r_cut * math.sqrt(max(0.0, 1.0 - nx * nx))) / max(nx, 1e-3)
+    lo, hi = np.searchsorted(xs, [t_ws[0] - half, t_ws[0] + half])
+    dist = pts[lo:hi] @ n - float(n @ t_ws)
+    near = lo + np.flatnonzero(np.abs(dist) <= d_max)
+    ps = (pts[near] - t_ws) @ R_ws  # world -> sensor: R_ws^T (p - t)
+    rho = np.hypot(ps[:, 0], ps[:, 1])
+    keep = (np.abs(ps[:, 2]) <= rho * tan_el + h) & (np.hypot(rho, ps[:, 2]) <= r_cut) & (ps[:, 0] > 0)
+    return ps[keep], near[keep]
+
+
 def simulate_survey(
     config: SurveyConfig | None = None,
     *,
@@ -453,22 +475,10 @@ def simulate_survey(
         xs = pts[:, 0]  # samples are generated in increasing x (u-major grid)
 
         for i in range(cfg.n_pings):
-            R_ws, t_ws = poses.rotation[i], poses.translation_m[i]
-            # samples within the vertical aperture of this ping's imaging plane (normal = sensor z),
-            # searched in the slab of x that the plane (nearly across track) can reach
-            n = R_ws[:, 2]
-            d_max = r_cut * tan_el + h
-            nx = abs(float(n[0]))
-            half = (d_max + r_cut * math.sqrt(max(0.0, 1.0 - nx * nx))) / max(nx, 1e-3)
-            lo, hi = np.searchsorted(xs, [t_ws[0] - half, t_ws[0] + half])
-            dist = pts[lo:hi] @ n - float(n @ t_ws)
-            near = lo + np.flatnonzero(np.abs(dist) <= d_max)
-            ps = (pts[near] - t_ws) @ R_ws  # world -> sensor: R_ws^T (p - t)
-            rho = np.hypot(ps[:, 0], ps[:, 1])
-            keep = (np.abs(ps[:, 2]) <= rho * tan_el + h) & (np.hypot(rho, ps[:, 2]) <= r_cut) & (ps[:, 0] > 0)
-            sel = near[keep]
+            R_ws = poses.rotation[i]
+            ps, sel = _plane_samples(pts, xs, R_ws, poses.translation_m[i], r_cut=r_cut, tan_el=tan_el, h=h)
             scene = Scene(
-                points_m=ps[keep],
+                points_m=ps,
                 normals=normals[sel] @ R_ws,
                 reflectivity=np.full(sel.size, 10.0 ** ((cfg.reflectivity_db - loss_db[i]) / 10.0)),
                 labels=np.ones(sel.size, dtype=np.uint8),
@@ -570,6 +580,26 @@ SURVEY_MODELS = (
 )
 
 
+def _model_setups(pd: np.ndarray, pd_range: np.ndarray, pfa: np.ndarray, ranges: Sequence[Any],
+                  range_resolution_m: float) -> dict[str, tuple[NDArray[np.bool_], dict[str, Any], dict[str, float]]]:
+    """Per sensor model of :func:`evaluate_survey`: the pings integrated, the ``integrate()``
+    keywords and the :class:`OccupancyConfig` overrides."""
+    from sonarmap.mapping.occupancy import OCTOMAP_CLAMP_LOGODDS, SensorModel
+
+    fixed = SensorModel.fixed(0.8, 0.3)
+    every = np.ones(len(ranges), dtype=bool)
+    with_returns = np.array([r.n_returns > 0 for r in ranges])
+    octomap = dict(zip(("l_min", "l_max"), OCTOMAP_CLAMP_LOGODDS, strict=True))
+    return {
+        "pd/pfa": (every, {"pd": pd_range, "pfa": pfa, "range_resolution_m": range_resolution_m}, {}),
+        "fixed 0.8/0.3": (every, {"model": fixed}, {}),
+        "fixed 0.8/0.3, OctoMap clamps": (every, {"model": fixed}, octomap),
+        "pd/pfa per pixel": (every, {"pd": pd, "pfa": pfa, "range_resolution_m": range_resolution_m,
+                                     "use_p_detect": False}, {}),
+        "fixed, pings with returns": (with_returns, {"model": fixed}, {}),
+    }
+
+
 def evaluate_survey(
     survey: SimSurvey,
     *,
@@ -602,13 +632,7 @@ def evaluate_survey(
     * ``"fixed, pings with returns"``: the constants, skipping pings without any return
       (a heuristic guard, ablation).
     """
-    from sonarmap.mapping.occupancy import (
-        OCTOMAP_CLAMP_LOGODDS,
-        OccupancyConfig,
-        OccupancyMap,
-        SensorModel,
-        voxel_iou,
-    )
+    from sonarmap.mapping.occupancy import OccupancyConfig, OccupancyMap, voxel_iou
     from sonarmap.mapping.register import register_ranges
 
     unknown = set(models) - set(SURVEY_MODELS)
@@ -622,24 +646,12 @@ def evaluate_survey(
     ranges = [p.ranges for p in products]
     cloud = register_ranges(ranges, survey.poses)
     acc = registration_accuracy(survey, cloud.xyz_m)
-    pd = np.array([float(p.pd) for p in products])
     pd_range = np.array([float(p.pd_range) for p in products])
     pfa = np.array([float(p.pfa) for p in products])
     g = survey.geometry
     aperture = survey.sim_truth[0].config.elevation_aperture_rad if survey.sim_truth else math.radians(1.0)
-    fixed = SensorModel.fixed(0.8, 0.3)
-    every = np.ones(len(ranges), dtype=bool)
-    with_returns = np.array([r.n_returns > 0 for r in ranges])
-    octomap = dict(zip(("l_min", "l_max"), OCTOMAP_CLAMP_LOGODDS, strict=True))
-    # (pings integrated, integrate() keywords, OccupancyConfig overrides) per model
-    setups: dict[str, tuple[NDArray[np.bool_], dict[str, Any], dict[str, float]]] = {
-        "pd/pfa": (every, {"pd": pd_range, "pfa": pfa, "range_resolution_m": g.range_resolution_m}, {}),
-        "fixed 0.8/0.3": (every, {"model": fixed}, {}),
-        "fixed 0.8/0.3, OctoMap clamps": (every, {"model": fixed}, octomap),
-        "pd/pfa per pixel": (every, {"pd": pd, "pfa": pfa, "range_resolution_m": g.range_resolution_m,
-                                     "use_p_detect": False}, {}),
-        "fixed, pings with returns": (with_returns, {"model": fixed}, {}),
-    }
+    pd = np.array([float(p.pd) for p in products])
+    setups = _model_setups(pd, pd_range, pfa, ranges, g.range_resolution_m)
     iou: dict[tuple[float, str], float] = {}
     for res in resolutions_m:
         truth = truth_voxels(survey, res)
