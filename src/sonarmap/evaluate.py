@@ -160,6 +160,60 @@ def _fractional_bins(range_m: NDArray[np.float64], bin_range_m: NDArray[np.float
     return np.where(np.isfinite(range_m), out, np.nan)
 
 
+def _pixel_counts(labels: ArrayLike | None, cm: np.ndarray) -> tuple[int, int, int]:
+    """True-positive, false-positive and false-negative structure pixels (zeros without labels)."""
+    if labels is None:
+        return 0, 0, 0
+    lab = np.asarray(labels)
+    if lab.shape != cm.shape:
+        raise InputError(f"labels: shape {lab.shape} does not match truth {cm.shape}")
+    pred = lab >= 1
+    truth = cm == 1
+    return int((pred & truth).sum()), int((pred & ~truth).sum()), int((~pred & truth).sum())
+
+
+def _positions(rb: np.ndarray, rm: np.ndarray, tb: np.ndarray, truth_range_m: ArrayLike,
+               surface_range_m: ArrayLike | None,
+               bin_range_m: ArrayLike | None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Scored beams, truth ranges and the truth and reported positions in (fractional) bins.
+
+    Against the sub-bin ``surface_range_m`` when given, else against the integer truth bins.
+    """
+    has = tb >= 0
+    if surface_range_m is None:
+        return has, np.asarray(truth_range_m, dtype=np.float64), tb.astype(np.float64), rb.astype(np.float64)
+    if bin_range_m is None:
+        raise InputError("bin_range_m: required with surface_range_m (the geometry's range_m)")
+    grid = np.asarray(bin_range_m, dtype=np.float64)
+    truth_m = np.asarray(surface_range_m, dtype=np.float64)
+    if truth_m.shape != tb.shape:
+        raise InputError(f"surface_range_m: shape {truth_m.shape} does not match truth {tb.shape}")
+    has = has & np.isfinite(truth_m)
+    tpos = _fractional_bins(truth_m, grid)
+    rpos = np.where(np.isfinite(rm), _fractional_bins(rm, grid), rb.astype(np.float64))
+    return has, truth_m, tpos, rpos
+
+
+def _sigma_counts(sigma_m: ArrayLike | None, both: np.ndarray, err_m: np.ndarray,
+                  shape: tuple[int, ...]) -> tuple[int, int]:
+    """Beams scored for sigma coverage and those whose error is within their one sigma."""
+    if sigma_m is None:
+        return 0, 0
+    sg = np.asarray(sigma_m, dtype=np.float64)
+    if sg.shape != shape:
+        raise InputError(f"sigma_m: shape {sg.shape} does not match truth {shape}")
+    scored = both & np.isfinite(sg) & np.isfinite(err_m)
+    return int(scored.sum()), int((scored & (err_m <= sg)).sum())
+
+
+def _fish_beams(cm: np.ndarray, tb: np.ndarray, has: np.ndarray) -> np.ndarray:
+    """Beams whose structure has clutter (fish) in front of it in the truth mask."""
+    if cm.ndim == 2 and cm.shape[1] == tb.size:
+        rows = np.arange(cm.shape[0])[:, None]
+        return has & ((cm == 2) & (rows < np.where(tb >= 0, tb, 0)[None, :])).any(axis=0)
+    return np.zeros(tb.shape, dtype=bool)
+
+
 def score_ping(
     labels: ArrayLike | None,
     range_bins: ArrayLike,
@@ -215,31 +269,8 @@ def score_ping(
     if rb.shape != tb.shape or rm.shape != tb.shape:
         raise InputError(f"range_bins: shape {rb.shape} does not match truth {tb.shape}")
     cm = np.asarray(class_mask)
-    tp = fp = fn = 0
-    if labels is not None:
-        lab = np.asarray(labels)
-        if lab.shape != cm.shape:
-            raise InputError(f"labels: shape {lab.shape} does not match truth {cm.shape}")
-        pred = lab >= 1
-        truth = cm == 1
-        tp = int((pred & truth).sum())
-        fp = int((pred & ~truth).sum())
-        fn = int((~pred & truth).sum())
-    has = tb >= 0
-    if surface_range_m is not None:
-        if bin_range_m is None:
-            raise InputError("bin_range_m: required with surface_range_m (the geometry's range_m)")
-        grid = np.asarray(bin_range_m, dtype=np.float64)
-        truth_m = np.asarray(surface_range_m, dtype=np.float64)
-        if truth_m.shape != tb.shape:
-            raise InputError(f"surface_range_m: shape {truth_m.shape} does not match truth {tb.shape}")
-        has = has & np.isfinite(truth_m)
-        tpos = _fractional_bins(truth_m, grid)
-        rpos = np.where(np.isfinite(rm), _fractional_bins(rm, grid), rb.astype(np.float64))
-    else:
-        truth_m = np.asarray(truth_range_m, dtype=np.float64)
-        tpos = tb.astype(np.float64)
-        rpos = rb.astype(np.float64)
+    tp, fp, fn = _pixel_counts(labels, cm)
+    has, truth_m, tpos, rpos = _positions(rb, rm, tb, truth_range_m, surface_range_m, bin_range_m)
     empty = ~(tb >= 0) if empty_beams is None else (np.asarray(empty_beams, dtype=bool) & ~(tb >= 0))
     rep = rb >= 0
     both = has & rep
@@ -247,20 +278,8 @@ def score_ping(
     hit = both & (np.abs(err_bins) <= tol_bins)
     hit1 = both & (np.abs(err_bins) <= 1.0)
     err_m = np.abs(rm - truth_m)
-    n_sigma = n_within = 0
-    if sigma_m is not None:
-        sg = np.asarray(sigma_m, dtype=np.float64)
-        if sg.shape != tb.shape:
-            raise InputError(f"sigma_m: shape {sg.shape} does not match truth {tb.shape}")
-        scored = both & np.isfinite(sg) & np.isfinite(err_m)
-        n_sigma = int(scored.sum())
-        n_within = int((scored & (err_m <= sg)).sum())
-    # beams whose structure has clutter (fish) in front of it in the truth mask
-    if cm.ndim == 2 and cm.shape[1] == tb.size:
-        rows = np.arange(cm.shape[0])[:, None]
-        fish = has & ((cm == 2) & (rows < np.where(tb >= 0, tb, 0)[None, :])).any(axis=0)
-    else:
-        fish = np.zeros(tb.shape, dtype=bool)
+    n_sigma, n_within = _sigma_counts(sigma_m, both, err_m, tb.shape)
+    fish = _fish_beams(cm, tb, has)
     return PingScore(tp=tp, fp=fp, fn=fn, n_struct_beams=int(has.sum()), n_hit_beams=int(hit.sum()),
                      n_empty_beams=int(empty.sum()), n_false_beams=int((empty & rep).sum()),
                      errors_m=tuple(float(e) for e in err_m[both]), n_hit1_beams=int(hit1.sum()),
