@@ -150,7 +150,7 @@ def test_segment_cli_writes_labels_and_figure(tmp_path, test_ping_paths):
 def test_band_pooling_recovers_speckled_survey_band():
     """A thin single-look-speckle band that the per-pixel route leaves in fragments (0-5 labelled
     pixels per beam, every component dropped) is found by band pooling, near the true range."""
-    from sonarmap.mapping.survey_sim import simulate_survey
+    from sonarmap.simulate.survey import simulate_survey
     from sonarmap.pipeline import PipelineConfig, pooled_band_pixels, process_ping
 
     from sonarmap.simulate import SimulationConfig
@@ -215,7 +215,7 @@ def test_level_counts_is_bincount():
 def test_pool_fill_only_adds_returns_on_empty_beams():
     """pool_mode="fill": pooled band pixels are added only on beams the per-pixel route left
     empty; its own returns are unchanged."""
-    from sonarmap.mapping.survey_sim import simulate_survey
+    from sonarmap.simulate.survey import simulate_survey
     from sonarmap.pipeline import PipelineConfig, process_ping
 
     s = simulate_survey(n_pings=6, seed=3, kind="seafloor")

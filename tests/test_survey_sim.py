@@ -1,4 +1,4 @@
-"""Simulated surveys and map accuracy against their truth (sonarmap.mapping.survey_sim)."""
+"""Simulated surveys and map accuracy against their truth (sonarmap.simulate.survey, sonarmap.evaluate.mapping)."""
 
 from __future__ import annotations
 
@@ -10,14 +10,9 @@ import pytest
 from sonarmap.mapping.occupancy import OccupancyConfig, OccupancyMap, SensorModel, voxel_iou
 from sonarmap.mapping.poses import load_extrinsics, read_trajectory_csv, sensor_poses
 from sonarmap.mapping.register import register_returns
+from sonarmap.evaluate.mapping import registration_accuracy, truth_voxels
 from sonarmap.pipeline import PipelineConfig
-from sonarmap.mapping.survey_sim import (
-    HullSurface,
-    registration_accuracy,
-    simulate_survey,
-    surface_distance,
-    truth_voxels,
-)
+from sonarmap.simulate.survey import HullSurface, simulate_survey, surface_distance
 
 
 @pytest.mark.parametrize("kind", ["hull", "seafloor"])
@@ -69,7 +64,7 @@ def test_occupancy_of_truth_ranges_matches_true_voxels() -> None:
 
 @pytest.fixture(scope="module")
 def rendered():
-    from sonarmap.mapping.survey_sim import evaluate_survey
+    from sonarmap.evaluate.mapping import evaluate_survey
 
     s = simulate_survey(n_pings=40, seed=1)
     return s, evaluate_survey(s)
@@ -102,7 +97,7 @@ def test_acceptance_registration_within_2_bins_and_coverage(rendered) -> None:
 
 @pytest.mark.slow
 def test_acceptance_registration_seafloor() -> None:
-    from sonarmap.mapping.survey_sim import evaluate_survey
+    from sonarmap.evaluate.mapping import evaluate_survey
 
     s = simulate_survey(n_pings=24, seed=2, kind="seafloor")
     ev = evaluate_survey(s, resolutions_m=(0.1,))
@@ -112,7 +107,7 @@ def test_acceptance_registration_seafloor() -> None:
 
 def test_dropouts_are_seeded_and_validated() -> None:
     from sonarmap.errors import InputError
-    from sonarmap.mapping.survey_sim import SurveyConfig, dropout_losses_db
+    from sonarmap.simulate.survey import SurveyConfig, dropout_losses_db
 
     cfg = SurveyConfig(n_pings=2000, dropout_fraction=0.3, dropout_db=(6.0, 15.0), seed=3)
     loss = dropout_losses_db(cfg)
@@ -145,7 +140,7 @@ def test_range_measurement_pd_sees_dropped_pings() -> None:
 @pytest.mark.slow
 def test_evaluate_survey_rejects_unknown_models(rendered) -> None:
     from sonarmap.errors import InputError
-    from sonarmap.mapping.survey_sim import evaluate_survey
+    from sonarmap.evaluate.mapping import evaluate_survey
 
     s, _ = rendered
     with pytest.raises(InputError, match="models"):
@@ -156,7 +151,7 @@ def _dense(kind: str):
     """A dense survey (0.25 m/s at 10 Hz: 2.5 cm between pings, each 5 cm cell seen by 2-4 pings)
     with 30 % of the pings attenuated 6-15 dB (aeration), evaluated with every sensor model for
     rays in the imaging plane and for three rays over the vertical aperture."""
-    from sonarmap.mapping.survey_sim import SURVEY_MODELS, evaluate_survey
+    from sonarmap.evaluate.mapping import SURVEY_MODELS, evaluate_survey
     from sonarmap.pipeline import process_ping
 
     s = simulate_survey(kind=kind, n_pings=80, seed=1, speed_m_s=0.25, ping_rate_hz=10, dropout_fraction=0.3)

@@ -33,13 +33,14 @@ def run_demo(
     """Simulate a short hull survey with poses, process it, register the map and write the report.
 
     Returns a dict of output paths and numbers (``pings``, ``survey``, ``points``, ``report``,
-    ``poses``, ``accuracy`` (:class:`~sonarmap.mapping.survey_sim.RegistrationAccuracy`), ``seconds``).
+    ``poses``, ``accuracy`` (:class:`~sonarmap.evaluate.mapping.RegistrationAccuracy`), ``seconds``).
     """
     from sonarmap._atomic import atomic_write_text
     from sonarmap.cli.process import survey_progress
     from sonarmap.errors import DataFormatError
-    from sonarmap.mapping.survey_sim import SurveyConfig, registration_accuracy, simulate_survey
+    from sonarmap.evaluate.mapping import registration_accuracy
     from sonarmap.report import ReportConfig, build_report
+    from sonarmap.simulate.survey import SurveyConfig, simulate_survey
     from sonarmap.survey import process_survey
 
     t0 = time.perf_counter()

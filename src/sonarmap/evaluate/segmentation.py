@@ -663,6 +663,3 @@ def format_table(scores: Sequence[MethodScore]) -> str:
         )
     return "\n".join(lines)
 
-
-if __name__ == "__main__":  # pragma: no cover
-    raise SystemExit(main())

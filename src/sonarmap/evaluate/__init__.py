@@ -1,0 +1,14 @@
+"""Scoring sonarmap against simulator truth.
+
+* :mod:`sonarmap.evaluate.segmentation` - labels and per-beam ranges of simulated pings, per
+  sonar preset and scene (``python -m sonarmap.evaluate`` prints its tables);
+* :mod:`sonarmap.evaluate.mapping` - registration accuracy, coverage and occupancy IoU of a
+  simulated survey (:mod:`sonarmap.simulate.survey`).
+"""
+
+from sonarmap.evaluate.mapping import *  # noqa: F403
+from sonarmap.evaluate.mapping import __all__ as _mapping_all
+from sonarmap.evaluate.segmentation import *  # noqa: F403
+from sonarmap.evaluate.segmentation import __all__ as _segmentation_all
+
+__all__ = [*_segmentation_all, *_mapping_all]
