@@ -20,7 +20,7 @@ from __future__ import annotations
 import dataclasses
 import itertools
 from collections.abc import Callable, Iterable
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -142,8 +142,6 @@ def map_from_pings(pings: Iterable[Any], config: MapConfig = MapConfig(), pipeli
         No pose can be had for the first ping (no trajectory, no pose, no navigation, not static),
         before anything is processed; an empty input.
     """
-    from sonarmap.mapping.georef import GeoReference
-    from sonarmap.mapping.navigation import missing_navigation, navigation_origin
     from sonarmap.mapping.occupancy import OccupancyConfig, OccupancyMap, SensorModel
     from sonarmap.mapping.register import PointCloud, RegistrationConfig
     from sonarmap.pipeline import PipelineConfig
@@ -153,20 +151,7 @@ def map_from_pings(pings: Iterable[Any], config: MapConfig = MapConfig(), pipeli
     first = next(it, None)
     if first is None:
         raise InputError("pings: no pings to map")
-    georef = None
-    use_nav = False
-    if config.trajectory is None and first.pose is None and not config.static:
-        why = missing_navigation(first)
-        if why is not None:
-            raise InputError(
-                f"no pose for ping {first.source}: no --poses trajectory, the ping carries no pose and {why}; "
-                "give --poses TRAJECTORY.csv, or --static for a fixed sonar"
-            )
-        use_nav = True
-        if config.origin_lat_lon is None:
-            georef = navigation_origin(first, crs=config.crs)
-    if config.origin_lat_lon is not None:
-        georef = GeoReference.from_origin(config.origin_lat_lon[0], config.origin_lat_lon[1], 0.0, crs=config.crs)
+    georef, use_nav = _map_frame(first, config)
     if on_start is not None:
         on_start(georef)
     if config.crs is not None and georef is None:
@@ -198,6 +183,38 @@ def map_from_pings(pings: Iterable[Any], config: MapConfig = MapConfig(), pipeli
     cloud = PointCloud.concat(acc.clouds) if occ is None else None
     return MapResult(cloud=cloud, occupancy=occ, georef=georef, n_pings=n_pings, n_returns=acc.n_returns,
                      n_skipped=acc.n_skipped, last_time_ns=last_time_ns)
+
+
+class _MapFrame(NamedTuple):
+    """Where the map's local frame is, and whether the pings are placed by their navigation."""
+
+    georef: Any
+    """The local frame's GeoReference, or None (not georeferenced)."""
+    use_nav: bool
+    """Each ping's pose from its own navigation (no trajectory, no pose, not static)."""
+
+
+def _map_frame(first: Any, config: MapConfig) -> _MapFrame:
+    """The georeference and the placement of a map whose first ping is ``first``; raises
+    :class:`InputError` if that ping can have no pose at all."""
+    from sonarmap.mapping.georef import GeoReference
+    from sonarmap.mapping.navigation import missing_navigation, navigation_origin
+
+    georef = None
+    use_nav = False
+    if config.trajectory is None and first.pose is None and not config.static:
+        why = missing_navigation(first)
+        if why is not None:
+            raise InputError(
+                f"no pose for ping {first.source}: no --poses trajectory, the ping carries no pose and {why}; "
+                "give --poses TRAJECTORY.csv, or --static for a fixed sonar"
+            )
+        use_nav = True
+        if config.origin_lat_lon is None:
+            georef = navigation_origin(first, crs=config.crs)
+    if config.origin_lat_lon is not None:
+        georef = GeoReference.from_origin(config.origin_lat_lon[0], config.origin_lat_lon[1], 0.0, crs=config.crs)
+    return _MapFrame(georef, use_nav)
 
 
 def _placement(static: bool, use_nav: bool, georef: Any) -> Callable[[Any], Any]:

@@ -33,7 +33,7 @@ import dataclasses
 import math
 import warnings
 from collections.abc import Mapping, Sequence
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -42,6 +42,7 @@ from sonarmap.errors import InputError, SonarmapWarning
 from sonarmap.ping import Ping, Pose
 
 if TYPE_CHECKING:
+    from sonarmap.geometry import SonarGeometry
     from sonarmap.mapping.poses import SensorPoses
     from sonarmap.ranges import BeamRanges
 
@@ -264,6 +265,134 @@ def _unit(v: NDArray[np.float64], what: str) -> NDArray[np.float64]:
     return v / n
 
 
+@dataclasses.dataclass(frozen=True, eq=False)
+class _KongsbergInstallation:
+    """A Kongsberg EM head's installation parameters (``I`` datagram), in the heading frame.
+
+    Attributes
+    ----------
+    origin_m : ndarray, shape (3,)
+        The sensor origin ``(x_TX, y_RX, z_RX)`` re the reference point, rotated by roll and pitch.
+    midpoint_m : ndarray, shape (3,)
+        The midpoint of the TX and RX transducers, rotated likewise.
+    antenna_m : ndarray, shape (3,)
+        The active positioning system's antenna (rotated unless the positions are motion-corrected).
+    tx_mounting_deg : ndarray, shape (3,)
+        The TX array's mounting angles (roll, pitch, heading).
+    reference_depth_m : float
+        Depth of the reference point below the water level: ``-WLZ + heave``.
+    assumed : tuple of str
+        The parameters the recording lacks (taken as 0), for the warning.
+    """
+
+    origin_m: NDArray[np.float64]
+    midpoint_m: NDArray[np.float64]
+    antenna_m: NDArray[np.float64]
+    tx_mounting_deg: NDArray[np.float64]
+    reference_depth_m: float
+    assumed: tuple[str, ...]
+
+
+def _kongsberg_installation(meta: Mapping[str, Any], att: NDArray[np.float64]) -> _KongsbergInstallation:
+    """The lever arms, TX mounting, water line and heave of a Kongsberg EM ping's ``meta``, the
+    arms rotated by the vessel attitude ``att``; what is missing is taken as 0 and named."""
+    assumed: list[str] = []
+    tx = _vector(meta, "tx_lever_arm_m")
+    rx = _vector(meta, "rx_lever_arm_m")
+    if tx is None and rx is None:
+        assumed.append("transducer lever arms")
+        tx = rx = np.zeros(3)
+    tx = rx if tx is None else tx
+    rx = tx if rx is None else rx
+    mount = _vector(meta, "tx_mounting_deg")
+    if mount is None:
+        assumed.append("TX mounting angles")
+        mount = np.zeros(3)
+    wlz = _number(meta, "waterline_z_m")
+    if wlz is None:
+        assumed.append("waterline (WLZ)")
+        wlz = 0.0
+    heave = _number(meta, "tx_time_heave_m")
+    if heave is None:
+        heave = _number(meta, "heave_m") or 0.0
+    antenna, missing = _position_antenna(meta, att)
+    if missing is not None:
+        assumed.append(missing)
+    return _KongsbergInstallation(
+        origin_m=att @ np.array([tx[0], rx[1], rx[2]]),
+        midpoint_m=att @ (0.5 * (tx + rx)),
+        antenna_m=antenna,
+        tx_mounting_deg=mount,
+        reference_depth_m=-wlz + heave,
+        assumed=tuple(assumed),
+    )
+
+
+def _position_antenna(meta: Mapping[str, Any], att: NDArray[np.float64]) -> tuple[NDArray[np.float64], str | None]:
+    """The active positioning system's antenna re the reference point (rotated by ``att`` unless
+    the installation says the positions are motion-corrected), and what is missing of its offsets."""
+    inst = meta.get("installation")
+    inst = inst if isinstance(inst, Mapping) else {}
+    system = int(_number(meta, "position_system") or 0) & 0x03 or 1
+    offsets = [_number(inst, f"P{system}{a}") for a in "XYZ"]
+    missing = None
+    if any(v is None for v in offsets):
+        missing = f"positioning system {system} offsets (P{system}X/Y/Z)"
+    ant = np.array([v or 0.0 for v in offsets])
+    motion_corrected = _number(inst, f"P{system}M") == 1.0
+    return (ant if motion_corrected else att @ ant), missing
+
+
+class _KongsbergFan(NamedTuple):
+    """The sensor's imaging plane of a Kongsberg EM ping (see :class:`KongsbergPlacement`)."""
+
+    rotation: NDArray[np.float64]
+    """Sensor -> heading frame: boresight, in-fan starboard axis, their cross product."""
+    tx_axis: NDArray[np.float64]
+    """The TX array's axis in the heading frame."""
+    tilt_deg: float
+    """The transmit tilt re the TX array."""
+    plane_tilt_rad: float
+    """The imaging plane's tilt from the plane perpendicular to the TX array."""
+    azimuth_rad: NDArray[np.float64]
+    """The beams' azimuths in the imaging plane."""
+
+
+def _kongsberg_fan(att: NDArray[np.float64], mount: NDArray[np.float64], meta: Mapping[str, Any],
+                   geometry: SonarGeometry) -> _KongsbergFan:
+    """The imaging plane closest to the transmit cone of the TX array mounted at ``mount`` (roll,
+    pitch, heading) on a vessel of attitude ``att``, over the beams of ``geometry``."""
+    u = att @ _rotation(float(mount[2]), float(mount[1]), float(mount[0]))[:, 0]
+    down = np.array([0.0, 0.0, 1.0])
+    v = _unit(down - (down @ u) * u, "the fan's vertical")
+    across = _unit(np.cross(u, v), "the fan's starboard axis")
+    if across[1] < 0:
+        across = -across
+    tilt = _transmit_tilt_deg(meta, geometry.n_beams)
+    # the plane closest to the transmit cone over the ping's beams: boresight tilted by t with
+    # sin t = sin(tau) <cos a> / <cos^2 a> (least squares of the cone's u-component, sin tau, by
+    # the plane's, cos(a) sin t); t = tau would be the cone's tangent plane at the vertical
+    az = np.asarray(geometry.azimuth_rad, dtype=np.float64)
+    c = np.cos(az)
+    sin_t = math.sin(math.radians(tilt)) * float(c.mean() / (c * c).mean())
+    t = math.asin(min(1.0, max(-1.0, sin_t)))
+    boresight = math.cos(t) * v + math.sin(t) * u
+    rotation = np.column_stack([boresight, across, np.cross(boresight, across)])
+    return _KongsbergFan(rotation, u, tilt, t, az)
+
+
+def _transmit_tilt_deg(meta: Mapping[str, Any], n_beams: int) -> float:
+    """The transmit tilt re the TX array: the mean of the beams' sector tilts (of all sectors when
+    the beams' sectors are unknown; 0 without finite tilts)."""
+    tilts = np.asarray(meta.get("tx_sector_tilt_deg", [0.0]), dtype=np.float64).reshape(-1)
+    sectors = np.asarray(meta.get("beam_tx_sector", np.zeros(n_beams, np.int64))).reshape(-1)
+    if tilts.size == 0 or not np.all(np.isfinite(tilts)):
+        return 0.0
+    if sectors.size and sectors.min() >= 0 and sectors.max() < tilts.size:
+        return float(np.mean(tilts[sectors]))
+    return float(np.mean(tilts))
+
+
 def kongsberg_placement(ping: Ping) -> KongsbergPlacement:
     """The geometry of a Kongsberg EM ping's returns in the vessel's heading frame.
 
@@ -322,83 +451,22 @@ def kongsberg_placement(ping: Ping) -> KongsbergPlacement:
     ...     ping.geometry.azimuth_rad)              # the sonar's detections, heading frame  # doctest: +SKIP
     """
     m = ping.meta
-    src = str(ping.source or "ping").split("#", 1)[0]
-    assumed: list[str] = []
-    roll = _number(m, "roll_deg") or 0.0
-    pitch = _number(m, "pitch_deg") or 0.0
     heading = _number(m, "heading_deg")
     if heading is None:
         raise InputError(f"{ping.source or 'ping'}: no navigation (its header has no heading)")
-    att = _rotation(0.0, pitch, roll)
-
-    tx = _vector(m, "tx_lever_arm_m")
-    rx = _vector(m, "rx_lever_arm_m")
-    if tx is None and rx is None:
-        assumed.append("transducer lever arms")
-        tx = rx = np.zeros(3)
-    tx = rx if tx is None else tx
-    rx = tx if rx is None else rx
-    mount = _vector(m, "tx_mounting_deg")
-    if mount is None:
-        assumed.append("TX mounting angles")
-        mount = np.zeros(3)
-    wlz = _number(m, "waterline_z_m")
-    if wlz is None:
-        assumed.append("waterline (WLZ)")
-        wlz = 0.0
-    heave = _number(m, "tx_time_heave_m")
-    if heave is None:
-        heave = _number(m, "heave_m") or 0.0
-    inst = m.get("installation")
-    inst = inst if isinstance(inst, Mapping) else {}
-    system = int(_number(m, "position_system") or 0) & 0x03 or 1
-    offsets = [_number(inst, f"P{system}{a}") for a in "XYZ"]
-    if any(v is None for v in offsets):
-        assumed.append(f"positioning system {system} offsets (P{system}X/Y/Z)")
-    ant = np.array([v or 0.0 for v in offsets])
-    motion_corrected = _number(inst, f"P{system}M") == 1.0
-    if assumed:
-        warnings.warn(NavigationWarning(f"{src}: Kongsberg placement without {', '.join(assumed)} (assumed 0)"),
+    att = _rotation(0.0, _number(m, "pitch_deg") or 0.0, _number(m, "roll_deg") or 0.0)
+    inst = _kongsberg_installation(m, att)
+    if inst.assumed:
+        src = str(ping.source or "ping").split("#", 1)[0]
+        warnings.warn(NavigationWarning(f"{src}: Kongsberg placement without {', '.join(inst.assumed)} (assumed 0)"),
                       stacklevel=2)
-
-    u = att @ _rotation(float(mount[2]), float(mount[1]), float(mount[0]))[:, 0]
-    down = np.array([0.0, 0.0, 1.0])
-    v = _unit(down - (down @ u) * u, "the fan's vertical")
-    across = _unit(np.cross(u, v), "the fan's starboard axis")
-    if across[1] < 0:
-        across = -across
-    tilts = np.asarray(m.get("tx_sector_tilt_deg", [0.0]), dtype=np.float64).reshape(-1)
-    sectors = np.asarray(m.get("beam_tx_sector", np.zeros(ping.geometry.n_beams, np.int64))).reshape(-1)
-    if tilts.size == 0 or not np.all(np.isfinite(tilts)):
-        tilt = 0.0
-    elif sectors.size and sectors.min() >= 0 and sectors.max() < tilts.size:
-        tilt = float(np.mean(tilts[sectors]))
-    else:
-        tilt = float(np.mean(tilts))
-    # the plane closest to the transmit cone over the ping's beams: boresight tilted by t with
-    # sin t = sin(tau) <cos a> / <cos^2 a> (least squares of the cone's u-component, sin tau, by
-    # the plane's, cos(a) sin t); t = tau would be the cone's tangent plane at the vertical
-    az = np.asarray(ping.geometry.azimuth_rad, dtype=np.float64)
-    c = np.cos(az)
-    sin_t = math.sin(math.radians(tilt)) * float(c.mean() / (c * c).mean())
-    t = math.asin(min(1.0, max(-1.0, sin_t)))
-    boresight = math.cos(t) * v + math.sin(t) * u
-    rotation = np.column_stack([boresight, across, np.cross(boresight, across)])
-
-    origin = att @ np.array([tx[0], rx[1], rx[2]])
-    mid = att @ (0.5 * (tx + rx))
+    fan = _kongsberg_fan(att, inst.tx_mounting_deg, m, ping.geometry)
     placement = KongsbergPlacement(
-        rotation=rotation,
-        origin_m=origin,
-        antenna_m=ant if motion_corrected else att @ ant,
-        reference_depth_m=-wlz + heave,
-        heading_deg=heading,
-        range_offset_m=np.zeros(0),
-        tx_axis=u,
-        tilt_deg=tilt,
-        plane_tilt_deg=math.degrees(t),
+        rotation=fan.rotation, origin_m=inst.origin_m, antenna_m=inst.antenna_m,
+        reference_depth_m=inst.reference_depth_m, heading_deg=heading, range_offset_m=np.zeros(0),
+        tx_axis=fan.tx_axis, tilt_deg=fan.tilt_deg, plane_tilt_deg=math.degrees(fan.plane_tilt_rad),
     )
-    offset = placement.directions(az) @ (mid - origin)
+    offset = placement.directions(fan.azimuth_rad) @ (inst.midpoint_m - inst.origin_m)
     return dataclasses.replace(placement, range_offset_m=offset)
 
 

@@ -52,7 +52,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Sequence
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -322,6 +322,23 @@ def voxel_iou(a_ijk: ArrayLike, b_ijk: ArrayLike) -> float:
     return float(np.intersect1d(a, b, assume_unique=True).size / union) if union else 1.0
 
 
+class _Rays(NamedTuple):
+    """The rays of a batch of pings as :func:`sonarmap.mapping._kernels.integrate_rays` takes them."""
+
+    starts: NDArray[np.float64]
+    """Ray starts (n_rays, 3), in cells (z = 0 for the 2-D grid)."""
+    ends: NDArray[np.float64]
+    """Ray ends (n_rays, 3): the return, or the maximum range; in cells."""
+    hits: NDArray[np.bool_]
+    """Whether each ray ends at a return."""
+    offsets: NDArray[np.int64]
+    """Rays of ping ``i``: ``offsets[i]:offsets[i + 1]``."""
+    l_hit: NDArray[np.float32]
+    """Per ray, the log-odds increment of its return's cell."""
+    l_miss: NDArray[np.float32]
+    """Per ray, the log-odds increment of the cells it crosses."""
+
+
 class OccupancyMap:
     """Sparse log-odds occupancy map (2-D grid or 3-D voxels) with hashed chunk storage.
 
@@ -457,12 +474,39 @@ class OccupancyMap:
         int
             Number of pings integrated.
         """
-        cfg = self.config
         r = range_matrix(range_m, poses)
         P, B = r.shape
         az = np.broadcast_to(np.asarray(azimuth_rad, dtype=np.float64), (P, B))
         rmin = np.broadcast_to(np.asarray(min_range_m, dtype=np.float64), (P,))
         rmax = np.broadcast_to(np.asarray(max_range_m, dtype=np.float64), (P,))
+        l_hit, l_miss, informative = self._beam_increments(r, pd, pfa, model, range_resolution_m, sigma_m, p_detect)
+        ping_informative = informative.any(axis=1)
+        self.n_uninformative += int((~ping_informative & poses.valid).sum())
+        ok = poses.valid & np.isfinite(rmin) & np.isfinite(rmax) & ping_informative
+        if not ok.any():
+            return 0
+        sel = np.flatnonzero(ok)
+        rays = self._rays(r[sel], az[sel], rmin[sel], rmax[sel], poses.rotation[sel], poses.translation_m[sel],
+                          l_hit[sel], l_miss[sel], informative[sel])
+        ids = np.arange(self._next_id, self._next_id + sel.size, dtype=np.int32)
+        self._run(rays.starts, rays.ends, rays.hits, rays.offsets, rays.l_hit, rays.l_miss, ids)
+        self._next_id += sel.size
+        self.n_pings += sel.size
+        return sel.size
+
+    def _beam_increments(
+        self,
+        r: NDArray[np.float64],
+        pd: float | ArrayLike | None,
+        pfa: float | ArrayLike | None,
+        model: SensorModel | None,
+        range_resolution_m: float | None,
+        sigma_m: ArrayLike | None,
+        p_detect: ArrayLike | None,
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_]]:
+        """Per-beam ``(l_hit, l_miss, informative)``, each (n_pings, n_beams), of :meth:`integrate`:
+        the pD/pFA model (``model`` the fallback of its uninformative beams), or ``model`` alone."""
+        P, B = r.shape
         if pd is not None or pfa is not None:
             if pd is None or pfa is None:
                 raise InputError("pd/pfa: give both, or a fixed model")
@@ -479,16 +523,24 @@ class OccupancyMap:
             informative = np.ones((P, B), dtype=bool)
         else:
             raise InputError("pd/pfa: give each ping's pD and pFA, or a fixed SensorModel")
-        ping_informative = informative.any(axis=1)
-        self.n_uninformative += int((~ping_informative & poses.valid).sum())
-        ok = poses.valid & np.isfinite(rmin) & np.isfinite(rmax) & ping_informative
-        if not ok.any():
-            return 0
-        sel = np.flatnonzero(ok)
-        r, az, rmin, rmax = r[sel], az[sel], rmin[sel], rmax[sel]
-        R, t = poses.rotation[sel], poses.translation_m[sel]
-        l_hit, l_miss, informative = l_hit[sel], l_miss[sel], informative[sel]
-        P = sel.size
+        return l_hit, l_miss, informative
+
+    def _rays(
+        self,
+        r: NDArray[np.float64],
+        az: NDArray[np.float64],
+        rmin: NDArray[np.float64],
+        rmax: NDArray[np.float64],
+        R: NDArray[np.float64],
+        t: NDArray[np.float64],
+        l_hit: NDArray[np.float64],
+        l_miss: NDArray[np.float64],
+        informative: NDArray[np.bool_],
+    ) -> _Rays:
+        """The rays of pings with ranges ``r`` (n_pings, n_beams) seen from the sensor poses ``R``,
+        ``t``, in cell units, for :meth:`_run` (one per beam and elevation sample that updates the map)."""
+        cfg = self.config
+        P, B = r.shape
         elev = elevation_samples(cfg.n_elevation, cfg.vertical_aperture_rad)
         E = elev.size
         hit = np.isfinite(r) & (r > 0)
@@ -519,11 +571,7 @@ class OccupancyMap:
             ends[:, 2] = 0.0
         offsets = np.zeros(P + 1, dtype=np.int64)
         np.cumsum(counts, out=offsets[1:])
-        ids = np.arange(self._next_id, self._next_id + P, dtype=np.int32)
-        self._run(starts, ends, hits, offsets, ray_hit, ray_miss, ids)
-        self._next_id += P
-        self.n_pings += P
-        return P
+        return _Rays(starts, ends, hits, offsets, ray_hit, ray_miss)
 
     def _increments(
         self,

@@ -37,6 +37,7 @@ import dataclasses
 import math
 import os
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -298,6 +299,43 @@ def read_octomap_bt(path: str | os.PathLike[str]) -> OcTreeLeaves:
         raise DataFormatError(f"cannot read: {exc.strerror or exc}", p) from None
     if not raw.startswith(_HEADER):
         raise DataFormatError("not an OctoMap binary tree (first line is not '# Octomap OcTree binary file')", p)
+    pos, size, res = _read_bt_header(raw, p)
+    data = raw[pos:]
+    if size == 0:
+        if data:
+            raise DataFormatError("size 0 but data follows the header", p)
+        z = np.zeros((0, 3), np.int64)
+        return OcTreeLeaves(z, np.zeros(0, np.int64), np.zeros(0, bool), res, 0)
+    if len(data) % 2:
+        raise DataFormatError("odd number of bytes in the node stream", p, pos + len(data) - 1)
+    leaves = _read_bt_nodes(np.frombuffer(data, dtype="<u2"), p, pos)
+    if leaves.n_nodes != size:
+        raise DataFormatError(f"the tree has {leaves.n_nodes} nodes, the header says {size}", p)
+    codes = np.array(leaves.code, dtype=np.uint64)
+    depths = np.array(leaves.depth, dtype=np.int64)
+    key_min = np.zeros((codes.size, 3), np.int64)
+    for d in np.unique(depths):
+        sel = depths == d
+        key_min[sel] = _unmorton(codes[sel], int(d)) << (TREE_DEPTH - int(d))
+    return OcTreeLeaves(key_min, (1 << (TREE_DEPTH - depths)).astype(np.int64), np.array(leaves.occupied, dtype=bool),
+                        res, leaves.n_nodes)
+
+
+class _BtHeader(NamedTuple):
+    """The text header of a ``.bt`` file."""
+
+    data_offset: int
+    """Byte offset of the node stream (after the ``data`` line)."""
+    size: int
+    """The header's ``size``: nodes in the tree, root included."""
+    resolution_m: float
+    """The header's ``res``."""
+
+
+def _read_bt_header(raw: bytes, p: Path) -> _BtHeader:
+    """The header of ``raw`` (the bytes of the ``.bt`` file ``p``), read after its first line up to
+    ``data``; raises :class:`DataFormatError` without a ``data`` line or with a bad ``id``, ``size``
+    or ``res``."""
     pos, tree_id, size, res = len(_HEADER), None, None, None
     while True:
         end = raw.find(b"\n", pos)
@@ -323,15 +361,26 @@ def read_octomap_bt(path: str | os.PathLike[str]) -> OcTreeLeaves:
         raise DataFormatError(f"tree id {tree_id!r} is not 'OcTree'", p)
     if size is None or size < 0 or res is None or not (math.isfinite(res) and res > 0):
         raise DataFormatError(f"header needs size >= 0 and res > 0 (got {size}, {res})", p)
-    data = raw[pos:]
-    if size == 0:
-        if data:
-            raise DataFormatError("size 0 but data follows the header", p)
-        z = np.zeros((0, 3), np.int64)
-        return OcTreeLeaves(z, np.zeros(0, np.int64), np.zeros(0, bool), res, 0)
-    if len(data) % 2:
-        raise DataFormatError("odd number of bytes in the node stream", p, pos + len(data) - 1)
-    masks = np.frombuffer(data, dtype="<u2")
+    return _BtHeader(pos, size, res)
+
+
+class _BtLeaves(NamedTuple):
+    """The leaves of a ``.bt`` node stream, in the stream's (depth-first) order."""
+
+    code: list[int]
+    """Each leaf's Morton code (3 bits per level below the root)."""
+    depth: list[int]
+    """Each leaf's depth (1 = a child of the root)."""
+    occupied: list[bool]
+    """Each leaf's state."""
+    n_nodes: int
+    """Nodes in the tree, root included."""
+
+
+def _read_bt_nodes(masks: NDArray[np.uint16], p: Path, pos: int) -> _BtLeaves:
+    """Walk the 16-bit child masks of a ``.bt`` node stream (at byte ``pos`` of file ``p``) from the
+    root; raises :class:`DataFormatError` if the stream ends inside the tree, has an inner node at
+    the deepest level, or has bytes after the tree."""
     leaf_code: list[int] = []
     leaf_depth: list[int] = []
     leaf_occ: list[bool] = []
@@ -361,13 +410,4 @@ def read_octomap_bt(path: str | os.PathLike[str]) -> OcTreeLeaves:
         stack.extend(reversed(inner))
     if cursor != masks.size:
         raise DataFormatError(f"{2 * (masks.size - cursor)} bytes after the tree", p, pos + 2 * cursor)
-    if n_nodes != size:
-        raise DataFormatError(f"the tree has {n_nodes} nodes, the header says {size}", p)
-    codes = np.array(leaf_code, dtype=np.uint64)
-    depths = np.array(leaf_depth, dtype=np.int64)
-    key_min = np.zeros((codes.size, 3), np.int64)
-    for d in np.unique(depths):
-        sel = depths == d
-        key_min[sel] = _unmorton(codes[sel], int(d)) << (TREE_DEPTH - int(d))
-    return OcTreeLeaves(key_min, (1 << (TREE_DEPTH - depths)).astype(np.int64), np.array(leaf_occ, dtype=bool),
-                        res, n_nodes)
+    return _BtLeaves(leaf_code, leaf_depth, leaf_occ, n_nodes)

@@ -81,7 +81,8 @@ from sonarmap._atomic import atomic_path, atomic_write_text
 from sonarmap.errors import DataFormatError, InputError
 from sonarmap.mapping.register import PointCloud
 
-if TYPE_CHECKING:  # pragma: no cover - typing only (pyproj is imported lazily)
+if TYPE_CHECKING:  # pragma: no cover - typing only (laspy and pyproj are imported lazily)
+    import laspy
     import pyproj
 
     from sonarmap.mapping.georef import GeoReference
@@ -397,7 +398,6 @@ def write_las(
         If the cloud's extent does not fit the 32-bit scaled integers at ``scale_m``.
     """
     import laspy
-    from laspy.header import GpsTimeType
 
     knd = _resolve_kind(cloud, kind)
     c = _in_frame(cloud, frame) if georef is None else georeferenced_cloud(cloud, frame, georef)
@@ -405,6 +405,39 @@ def write_las(
         scale_m = 1e-4 if georef is None else 1e-3
     if not scale_m > 0:
         raise InputError(f"scale_m: must be positive, got {scale_m}")
+    las = laspy.LasData(_las_header(c, knd, scale_m, georef))
+    las.x = c.xyz_m[:, 0]
+    las.y = c.xyz_m[:, 1]
+    las.z = c.xyz_m[:, 2]
+    _set_las_attributes(las, c, knd)
+    with atomic_path(path) as tmp:
+        las.write(str(tmp))
+
+
+#: The extra bytes of each LAS schema: (name, type, description).
+_LAS_EXTRA_DIMS: dict[str, tuple[tuple[str, type, str], ...]] = {
+    "occupancy": (
+        ("p_occupied", np.float32, "occupancy probability"),
+        ("log_odds", np.float32, "occupancy log-odds"),
+    ),
+    "points": (
+        ("range_m", np.float32, "measured range (m)"),
+        ("confidence", np.float32, "return confidence"),
+        ("elevation_rad", np.float32, "assumed elevation"),
+        ("intensity_f", np.float32, "intensity (float)"),
+        ("beam_index", np.int32, "beam index"),
+        ("time_ns", np.int64, "ping time (Unix ns)"),
+        ("sigma_m", np.float32, "range 1-sigma (m)"),
+    ),
+}
+
+
+def _las_header(c: PointCloud, knd: str, scale_m: float, georef: GeoReference | None) -> laspy.LasHeader:
+    """The LAS 1.4 point-format-6 header of cloud ``c`` (written as is) in schema ``knd``; raises
+    :class:`InputError` if the cloud's extent does not fit the 32-bit scaled integers at ``scale_m``."""
+    import laspy
+    from laspy.header import GpsTimeType
+
     header = laspy.LasHeader(point_format=6, version="1.4")
     header.scales = np.array([scale_m] * 3)
     header.offsets = np.floor(c.xyz_m.min(axis=0)) if len(c) else np.zeros(3)
@@ -418,23 +451,8 @@ def write_las(
     header.system_identifier = f"sonarmap frame={c.frame}"[:32]
     header.generating_software = "sonarmap" if knd == "points" else "sonarmap occupancy"
     header.global_encoding.gps_time_type = GpsTimeType.STANDARD
-    if knd == "occupancy":
-        header.add_extra_dims([
-            laspy.ExtraBytesParams(name="p_occupied", type=np.float32, description="occupancy probability"),
-            laspy.ExtraBytesParams(name="log_odds", type=np.float32, description="occupancy log-odds"),
-        ])
-    else:
-        header.add_extra_dims(
-            [
-                laspy.ExtraBytesParams(name="range_m", type=np.float32, description="measured range (m)"),
-                laspy.ExtraBytesParams(name="confidence", type=np.float32, description="return confidence"),
-                laspy.ExtraBytesParams(name="elevation_rad", type=np.float32, description="assumed elevation"),
-                laspy.ExtraBytesParams(name="intensity_f", type=np.float32, description="intensity (float)"),
-                laspy.ExtraBytesParams(name="beam_index", type=np.int32, description="beam index"),
-                laspy.ExtraBytesParams(name="time_ns", type=np.int64, description="ping time (Unix ns)"),
-                laspy.ExtraBytesParams(name="sigma_m", type=np.float32, description="range 1-sigma (m)"),
-            ]
-        )
+    header.add_extra_dims([laspy.ExtraBytesParams(name=name, type=typ, description=description)
+                           for name, typ, description in _LAS_EXTRA_DIMS[knd]])
     if georef is not None:
         from laspy.vlrs.known import WktCoordinateSystemVlr
 
@@ -442,10 +460,11 @@ def write_las(
 
         header.vlrs.append(WktCoordinateSystemVlr(file_wkt(georef.crs)))
         header.global_encoding.wkt = True
-    las = laspy.LasData(header)
-    las.x = c.xyz_m[:, 0]
-    las.y = c.xyz_m[:, 1]
-    las.z = c.xyz_m[:, 2]
+    return header
+
+
+def _set_las_attributes(las: laspy.LasData, c: PointCloud, knd: str) -> None:
+    """Fill the time, intensity, point source and extra bytes of ``las`` from cloud ``c`` in schema ``knd``."""
     if knd == "occupancy":
         prob, lo = occupancy_columns(c)
         las.gps_time = np.zeros(len(c))
@@ -463,8 +482,6 @@ def write_las(
         las.beam_index = c.beam
         las.time_ns = c.time_ns
         las.sigma_m = c.sigma_m
-    with atomic_path(path) as tmp:
-        las.write(str(tmp))
 
 
 def read_las(path: str | os.PathLike[str]) -> PointCloud:

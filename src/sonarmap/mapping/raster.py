@@ -32,7 +32,7 @@ import dataclasses
 import math
 import os
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Literal
+from typing import TYPE_CHECKING, Any, Literal, NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -260,31 +260,62 @@ def resample_local_grid(
     if o.size not in (2, 3) or not np.isfinite(o).all():
         raise InputError(f"origin_m: need 2 finite local coordinates, got {np.asarray(origin_m).tolist()}")
     nb, nx, ny = g.shape
+    pixels = _outline_pixels(georef, fr, o, nx, ny, res, out_res)
+    _check_cells(pixels.rows, pixels.cols, nb)
+    out = _sample_local_grid(g, georef, fr, o, res, pixels)
+    names = band_names or (("value",) if nb == 1 else tuple(f"band{k + 1}" for k in range(nb)))
+    return _raster(out, pixels.west, pixels.north, out_res, georef, names, band_units or ("",) * nb,
+                   band_meanings or ("",) * nb, nodata)
+
+
+class _PixelGrid(NamedTuple):
+    """A north-up pixel grid of the projected CRS."""
+
+    west: float
+    """Easting of the west edge."""
+    north: float
+    """Northing of the north edge."""
+    rows: int
+    cols: int
+    resolution_m: float
+    """Pixel size."""
+
+
+def _outline_pixels(georef: GeoReference, frame: str, origin_m: NDArray[np.float64], nx: int, ny: int,
+                    res: float, out_res: float) -> _PixelGrid:
+    """The pixels of size ``out_res`` covering the projected outline of the local ``nx`` x ``ny``
+    grid of cell size ``res`` whose cell ``[0, 0]`` has its minimum corner at ``origin_m``."""
     # the local grid's outline (33 points per edge), projected, gives the output's extent
     s = np.linspace(0.0, 1.0, 33)
-    u = np.concatenate([s * nx, np.full_like(s, nx), s[::-1] * nx, np.zeros_like(s)]) * res + o[0]
-    v = np.concatenate([np.zeros_like(s), s * ny, np.full_like(s, ny), s[::-1] * ny]) * res + o[1]
-    outline = georef.to_projected(np.stack([u, v, np.zeros_like(u)], axis=1), fr)
+    u = np.concatenate([s * nx, np.full_like(s, nx), s[::-1] * nx, np.zeros_like(s)]) * res + origin_m[0]
+    v = np.concatenate([np.zeros_like(s), s * ny, np.full_like(s, ny), s[::-1] * ny]) * res + origin_m[1]
+    outline = georef.to_projected(np.stack([u, v, np.zeros_like(u)], axis=1), frame)
     west, north, rows, cols = _snap_grid(outline[:, 0].min(), outline[:, 0].max(),
                                          outline[:, 1].min(), outline[:, 1].max(), out_res)
-    _check_cells(rows, cols, nb)
+    return _PixelGrid(west, north, rows, cols, out_res)
+
+
+def _sample_local_grid(g: NDArray[np.float64], georef: GeoReference, frame: str, origin_m: NDArray[np.float64],
+                       res: float, pixels: _PixelGrid) -> NDArray[np.float32]:
+    """``(n_bands, rows, cols)``: per pixel, the bands of the local cell (of ``g``, cell size ``res``)
+    under its centre, NaN where there is none; located by the inverse projection at the origin's height."""
+    nb, nx, ny = g.shape
+    rows, cols, out_res, north = pixels.rows, pixels.cols, pixels.resolution_m, pixels.north
     out = np.full((nb, rows, cols), np.nan, dtype=np.float32)
-    e = west + (np.arange(cols) + 0.5) * out_res
+    e = pixels.west + (np.arange(cols) + 0.5) * out_res
     for r0 in range(0, rows, max(1, 2_000_000 // cols)):  # bounded memory: ~2 M pixels a block
         r1 = min(rows, r0 + max(1, 2_000_000 // cols))
         n = north - (np.arange(r0, r1) + 0.5) * out_res
         E, N = np.meshgrid(e, n)
         pts = np.stack([E.ravel(), N.ravel(), np.full(E.size, georef.height0_m)], axis=1)
-        loc = georef.from_projected(pts, fr)
-        i = np.floor((loc[:, 0] - o[0]) / res).astype(np.int64)
-        j = np.floor((loc[:, 1] - o[1]) / res).astype(np.int64)
+        loc = georef.from_projected(pts, frame)
+        i = np.floor((loc[:, 0] - origin_m[0]) / res).astype(np.int64)
+        j = np.floor((loc[:, 1] - origin_m[1]) / res).astype(np.int64)
         inside = (i >= 0) & (i < nx) & (j >= 0) & (j < ny)
         block = np.full((nb, E.size), np.nan, dtype=np.float32)
         block[:, inside] = g[:, i[inside], j[inside]]
         out[:, r0:r1, :] = block.reshape(nb, r1 - r0, cols)
-    names = band_names or (("value",) if nb == 1 else tuple(f"band{k + 1}" for k in range(nb)))
-    return _raster(out, west, north, out_res, georef, names, band_units or ("",) * nb,
-                   band_meanings or ("",) * nb, nodata)
+    return out
 
 
 def _raster(

@@ -234,33 +234,14 @@ def register_returns(
     keep = np.isfinite(r) & (r > 0) & poses.valid[:, None]
     if cfg.min_confidence > 0:
         keep &= conf >= cfg.min_confidence
-    R = poses.rotation
-    t = poses.translation_m
     elev = elevation_samples(cfg.n_elevation, cfg.vertical_aperture_rad)
     E = elev.size
-    # Work in the dense (ping, beam) layout with per-ping rotation columns broadcast (no gathers),
-    # then keep the valid returns.
     a_in = np.asarray(azimuth_rad, dtype=np.float64)
     a_small = a_in if a_in.ndim == 1 else az  # cos/sin per beam when the table is shared
-    with np.errstate(invalid="ignore"):
-        xs = r * np.cos(a_small)
-        ys = r * np.sin(a_small)
-    flat = keep.ravel()
-    n_keep = int(flat.sum())
-    if E == 1:
-        xyz = np.empty((n_keep, 3))
-        for k in range(3):
-            xyz[:, k] = (R[:, k, 0, None] * xs + R[:, k, 1, None] * ys + t[:, k, None]).ravel()[flat]
-    else:
-        ce, se = np.cos(elev), np.sin(elev)
-        xyz = np.empty((n_keep, E, 3))
-        for k in range(3):
-            base = (R[:, k, 0, None] * xs + R[:, k, 1, None] * ys).ravel()[flat]
-            zterm = (R[:, k, 2, None] * r).ravel()[flat]
-            xyz[:, :, k] = base[:, None] * ce + zterm[:, None] * se + np.repeat(t[:, k], keep.sum(axis=1))[:, None]
-        xyz = xyz.reshape(-1, 3)
+    xyz = _world_points(r, a_small, keep, poses, elev)
     bi = np.broadcast_to(np.arange(B, dtype=np.int32), (P, B))[keep]
     rr = r[keep]
+    n_keep = rr.size
 
     def rep(v: NDArray[Any]) -> NDArray[Any]:
         return np.repeat(v, E) if E > 1 else v
@@ -275,6 +256,34 @@ def register_returns(
         np.tile(elev.astype(np.float32), n_keep) if E > 1 else np.zeros(n_keep, np.float32),
         sigma_m=rep(sig[keep]),
     )
+
+
+def _world_points(r: NDArray[np.float64], azimuth_rad: NDArray[np.float64], keep: NDArray[np.bool_],
+                  poses: SensorPoses, elev: NDArray[np.float64]) -> NDArray[np.float64]:
+    """World points ``(n_keep * n_elevation, 3)`` of the kept returns of ranges ``r`` (n_pings, n_beams)
+    at azimuths ``azimuth_rad`` (per beam, or per ping and beam), ordered by ping, beam, elevation."""
+    R = poses.rotation
+    t = poses.translation_m
+    E = elev.size
+    # Work in the dense (ping, beam) layout with per-ping rotation columns broadcast (no gathers),
+    # then keep the valid returns.
+    with np.errstate(invalid="ignore"):
+        xs = r * np.cos(azimuth_rad)
+        ys = r * np.sin(azimuth_rad)
+    flat = keep.ravel()
+    n_keep = int(flat.sum())
+    if E == 1:
+        xyz = np.empty((n_keep, 3))
+        for k in range(3):
+            xyz[:, k] = (R[:, k, 0, None] * xs + R[:, k, 1, None] * ys + t[:, k, None]).ravel()[flat]
+        return xyz
+    ce, se = np.cos(elev), np.sin(elev)
+    xyz = np.empty((n_keep, E, 3))
+    for k in range(3):
+        base = (R[:, k, 0, None] * xs + R[:, k, 1, None] * ys).ravel()[flat]
+        zterm = (R[:, k, 2, None] * r).ravel()[flat]
+        xyz[:, :, k] = base[:, None] * ce + zterm[:, None] * se + np.repeat(t[:, k], keep.sum(axis=1))[:, None]
+    return xyz.reshape(-1, 3)
 
 
 def _stack_field(ranges: Sequence[Any], name: str) -> NDArray[np.float64] | None:
