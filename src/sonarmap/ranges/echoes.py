@@ -369,8 +369,10 @@ def pooled_edges(
     from sonarmap.ranges import _kernels
 
     sel = np.asarray(first, dtype=np.int64)
-    _check_pool_window(half_beams=half_beams, front_bins=front_bins, max_bins=max_bins, smooth_bins=smooth_bins,
-                       n_iter=n_iter)
+    for key, v, lo in (("half_beams", half_beams, 0), ("front_bins", front_bins, 0), ("max_bins", max_bins, 3),
+                       ("smooth_bins", smooth_bins, 1), ("n_iter", n_iter, 1)):
+        if isinstance(v, bool) or int(v) != v or v < lo:
+            raise InputError(f"{key}: must be an integer >= {lo} (got {v!r})")
     if not 0 < fraction < 1:
         raise InputError(f"fraction: must lie in (0, 1) (got {fraction})")
     if sel.shape != (echoes.n_beams,):
@@ -394,15 +396,6 @@ def pooled_edges(
     if not done.any():
         return echoes
     return _with_edges(echoes, s[done], new[done], rise[done], noise[done], geometry, pulse_bins, sigma_scale)
-
-
-def _check_pool_window(**window: int) -> None:
-    """Each pooling-window option is an integer of at least its minimum (:func:`pooled_edges`)."""
-    minimum = {"half_beams": 0, "front_bins": 0, "max_bins": 3, "smooth_bins": 1, "n_iter": 1}
-    for key, v in window.items():
-        lo = minimum[key]
-        if isinstance(v, bool) or int(v) != v or v < lo:
-            raise InputError(f"{key}: must be an integer >= {lo} (got {v!r})")
 
 
 def _with_edges(echoes: Echoes, idx: np.ndarray, edge: np.ndarray, rise: np.ndarray, noise: np.ndarray,
