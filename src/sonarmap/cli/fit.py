@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import typer
 
@@ -15,6 +16,13 @@ from sonarmap.cli._common import (
     example,
     load_geometry_option,
 )
+
+if TYPE_CHECKING:
+    from numpy.typing import NDArray
+
+    from sonarmap.ping import Ping
+    from sonarmap.preprocess.pipeline import PreprocessConfig
+    from sonarmap.stats.mixture import MixtureFit
 
 
 def register(app: typer.Typer) -> None:
@@ -47,24 +55,12 @@ def register(app: typer.Typer) -> None:
 
         from sonarmap.cli._common import count_pings, err_console, first_ping, open_output, output_name, ping_progress
         from sonarmap.io import read_pings
-        from sonarmap.preprocess.pipeline import RECIPES
-        from sonarmap.stats.components import FAMILIES
         from sonarmap.stats.mixture import fit_mixture
 
         check_choice(method, ("lsq", "em"), "--method")
         check_choice(binning, ("round", "floor"), "--binning")
-        fams = tuple(f.strip() for f in families.split(",") if f.strip())
-        for f in fams:
-            if f.lower() not in FAMILIES:
-                raise typer.BadParameter(f"unknown family {f!r}; choose from {', '.join(sorted(FAMILIES))}",
-                                         param_hint="--families")
-        if not fams:
-            raise typer.BadParameter("give at least one family", param_hint="--families")
-        cfg = None
-        if recipe is not None:
-            from sonarmap.preprocess.pipeline import recipe as get_recipe
-
-            cfg = get_recipe(check_choice(recipe, RECIPES, "--recipe"))
+        fams = _family_names(families)
+        cfg = None if recipe is None else _recipe_config(recipe)
         geom = load_geometry_option(sonar)
         ping_iter = read_pings([str(p) for p in pings], geometry=geom)
         _, ping_iter = first_ping(ping_iter)  # before the bar: an unreadable input prints only its error
@@ -74,32 +70,67 @@ def register(app: typer.Typer) -> None:
             w = csv.writer(fh)
             w.writerow(["ping", "family", "weights", "scales", "kld", "flags", "gates"])
             n = 0
-            from sonarmap.preprocess.normalise import estimate_background
-            from sonarmap.stats.gates import fit_gates
-
             for ping in ping_iter:
-                img = ping.image
-                normalised = None
-                if normalise and float(img.max()) > float(img.min()):
-                    normalised = estimate_background(img)[1]
-                if normalised is not None:
-                    img = normalised
-                elif cfg is not None:
-                    from sonarmap.preprocess.pipeline import preprocess_image
-
-                    img = preprocess_image(img, ping.geometry, cfg)
+                img = _image_to_fit(ping, normalise=normalise, recipe_config=cfg)
                 f = fit_mixture(img, families=fams, method=method, binning=binning)  # type: ignore[arg-type]
-                w.writerow([
-                    Path(ping.source).name or n,
-                    "+".join(f.component_names),
-                    ";".join(f"{v:.6g}" for v in f.weights),
-                    ";".join("" if s != s else f"{s:.6g}" for s in f.scales),
-                    f"{f.kld:.6g}",
-                    ";".join(sorted(f.flags)),
-                    ";".join(sorted(fit_gates(f))),
-                ])
+                w.writerow(_fit_row(f, Path(ping.source).name or n))
                 n += 1
                 bar.advance()
                 bar.log(f"{ping.source}: KLD {f.kld:.3g}" + (f" ({';'.join(sorted(f.flags))})" if f.flags else ""))
         if not quiet:
             err_console().print(f"fitted {n} pings -> {output_name(output)}", markup=False)
+
+
+def _family_names(families: str) -> tuple[str, ...]:
+    """The ``--families`` names, or a usage error for an unknown name or an empty list."""
+    from sonarmap.stats.components import FAMILIES
+
+    fams = tuple(f.strip() for f in families.split(",") if f.strip())
+    for f in fams:
+        if f.lower() not in FAMILIES:
+            raise typer.BadParameter(f"unknown family {f!r}; choose from {', '.join(sorted(FAMILIES))}",
+                                     param_hint="--families")
+    if not fams:
+        raise typer.BadParameter("give at least one family", param_hint="--families")
+    return fams
+
+
+def _recipe_config(name: str) -> PreprocessConfig:
+    """The pre-processing config of the ``--recipe`` ``name`` (an unknown name is a usage error)."""
+    from sonarmap.preprocess.pipeline import RECIPES
+    from sonarmap.preprocess.pipeline import recipe as get_recipe
+
+    return get_recipe(check_choice(name, RECIPES, "--recipe"))
+
+
+def _image_to_fit(ping: Ping, *, normalise: bool, recipe_config: PreprocessConfig | None) -> NDArray[Any]:
+    """The image whose histogram is fitted: normalised by its background level (``--normalise`` and
+    not constant), else pre-processed with the ``--recipe`` config if given, else the ping's image."""
+    from sonarmap.preprocess.normalise import estimate_background
+
+    img = ping.image
+    normalised = None
+    if normalise and float(img.max()) > float(img.min()):
+        normalised = estimate_background(img)[1]
+    if normalised is not None:
+        img = normalised
+    elif recipe_config is not None:
+        from sonarmap.preprocess.pipeline import preprocess_image
+
+        img = preprocess_image(img, ping.geometry, recipe_config)
+    return img
+
+
+def _fit_row(f: MixtureFit, name: str | int) -> list[str | int]:
+    """The CSV row of one ping's fit ``f``: ``name``, family, weights, scales, kld, flags, gates."""
+    from sonarmap.stats.gates import fit_gates
+
+    return [
+        name,
+        "+".join(f.component_names),
+        ";".join(f"{v:.6g}" for v in f.weights),
+        ";".join("" if s != s else f"{s:.6g}" for s in f.scales),
+        f"{f.kld:.6g}",
+        ";".join(sorted(f.flags)),
+        ";".join(sorted(fit_gates(f))),
+    ]

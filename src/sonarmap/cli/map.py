@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import typer
 
@@ -21,6 +21,9 @@ from sonarmap.cli._common import (
     output_name,
     ping_progress,
 )
+
+if TYPE_CHECKING:
+    from sonarmap.mapping import MapResult, OccupancyMap, PointCloud
 
 __all__ = ["register", "map_command"]
 
@@ -79,75 +82,99 @@ def _lat_lon(text: str) -> tuple[float, float]:
     return lat, lon
 
 
+_PINGS_ARGUMENT: Any = typer.Argument(..., help="Ping files, directories or globs (any supported format).")
+_POSES_OPTION: Any = typer.Option(
+    None, "--poses", "-p",
+    help="Trajectory CSV: time_ns|time_s,x,y,z,qx,qy,qz,qw (see docs/mapping.md); default: the pings' own poses.",
+)
+_EXTRINSICS_OPTION: Any = typer.Option(
+    None, "--extrinsics", "-e", help="Sonar mounting JSON (translation_m + rotation_xyzw|rotation_rpy_deg)."
+)
+_OUTPUT_OPTION: Any = typer.Option(
+    ..., "--output", "-o", help="Output point cloud (.ply, .las or .csv; .bag: ROS 1 PointCloud2 per ping, or of the occupied cells with --grid); "
+    "- writes it to stdout (give --format)."
+)
+_GRID_OPTION: Any = typer.Option(
+    None, "--grid", min=1e-4, help="Build an occupancy map at this resolution (m) and write its occupied cells."
+)
+_FORMAT_OPTION: Any = typer.Option(
+    None, "--format", "-f",
+    help="ply | las | csv, or bag1 | bag2 (ROS 1 / ROS 2 bag of sensor_msgs/PointCloud2, one per ping; with --grid one of the occupied cells) "
+    "(default: from the output suffix).",
+)
+_CONFIG_OPTION: Any = typer.Option(None, "--config", "-c", help="Pipeline configuration (TOML).")
+_DIMS_OPTION: Any = typer.Option(3, "--dims", min=2, max=3, help="Occupancy map: 3 = voxels, 2 = horizontal grid.")
+_GRID_ARRAY_OPTION: Any = typer.Option(
+    None, "--grid-array", help="Also save the occupancy grid as a dense array (.npz: logodds, observed, origin_m)."
+)
+_SPREAD_OPTION: Any = typer.Option(
+    1, "--spread", min=1,
+    help="Points per return across the vertical aperture (with --grid: rays per beam in the occupancy map).",
+)
+_MIN_CONFIDENCE_OPTION: Any = typer.Option(
+    0.0, "--min-confidence", min=0.0, max=1.0, help="Drop weaker returns from the point cloud (not with --grid)."
+)
+_POSES_FRAME_OPTION: Any = typer.Option(None, "--poses-frame", help="Override the CSV's frame: ned | enu.")
+_FRAME_OPTION: Any = typer.Option("ned", "--frame", help="Output coordinates: ned (default) | enu (z up, for viewers).")
+_OUTSIDE_OPTION: Any = typer.Option(
+    "error", "--outside", help="Pings outside the trajectory's time span: error | skip (counted)."
+)
+_FIXED_MODEL_OPTION: Any = typer.Option(
+    False, "--fixed-model", help="Use fixed 0.8/0.3 hit/miss probabilities instead of each ping's pD/pFA."
+)
+_CLAMP_OPTION: Any = typer.Option(
+    None, "--clamp",
+    help="Occupancy clamping probabilities PMIN,PMAX (default 0.001,0.999 for static scenes; "
+    "OctoMap's 0.1192,0.971 forget faster, for scenes that change).",
+)
+_STATIC_OPTION: Any = typer.Option(
+    False, "--static",
+    help="Fixed sonar (tripod, pier, tank): every ping at the origin, placed by --extrinsics if given.",
+)
+_CRS_OPTION: Any = typer.Option(
+    None, "--crs",
+    help="Projected CRS of the outputs, e.g. EPSG:32631 (default with navigation: the data's UTM zone).",
+)
+_ORIGIN_OPTION: Any = typer.Option(
+    None, "--origin", help="LAT,LON (WGS 84 degrees) of the local frame's origin, to georeference "
+    "--poses or --static maps.",
+)
+_GEOTIFF_OPTION: Any = typer.Option(
+    None, "--geotiff",
+    help="Also write a GeoTIFF: occupancy probability with --grid, else a bathymetry grid of the points.",
+)
+_RASTER_RESOLUTION_OPTION: Any = typer.Option(
+    0.5, "--raster-resolution", min=1e-3, help="Pixel size (m) of the bathymetry GeoTIFF."
+)
+_OCTOMAP_OPTION: Any = typer.Option(
+    None, "--octomap", help="Also write the 3-D occupancy map (--grid, --dims 3) as an OctoMap .bt."
+)
+
+
 def map_command(
-    pings: list[Path] = typer.Argument(..., help="Ping files, directories or globs (any supported format)."),
-    poses: Path | None = typer.Option(
-        None, "--poses", "-p",
-        help="Trajectory CSV: time_ns|time_s,x,y,z,qx,qy,qz,qw (see docs/mapping.md); default: the pings' own poses.",
-    ),
-    extrinsics: Path | None = typer.Option(
-        None, "--extrinsics", "-e", help="Sonar mounting JSON (translation_m + rotation_xyzw|rotation_rpy_deg)."
-    ),
-    output: Path = typer.Option(
-        ..., "--output", "-o", help="Output point cloud (.ply, .las or .csv; .bag: ROS 1 PointCloud2 per ping, or of the occupied cells with --grid); "
-        "- writes it to stdout (give --format)."
-    ),
-    grid: float | None = typer.Option(
-        None, "--grid", min=1e-4, help="Build an occupancy map at this resolution (m) and write its occupied cells."
-    ),
-    fmt: str | None = typer.Option(
-        None, "--format", "-f",
-        help="ply | las | csv, or bag1 | bag2 (ROS 1 / ROS 2 bag of sensor_msgs/PointCloud2, one per ping; with --grid one of the occupied cells) "
-        "(default: from the output suffix).",
-    ),
+    pings: list[Path] = _PINGS_ARGUMENT,
+    poses: Path | None = _POSES_OPTION,
+    extrinsics: Path | None = _EXTRINSICS_OPTION,
+    output: Path = _OUTPUT_OPTION,
+    grid: float | None = _GRID_OPTION,
+    fmt: str | None = _FORMAT_OPTION,
     sonar: str | None = GEOMETRY_OPTION,
-    config: Path | None = typer.Option(None, "--config", "-c", help="Pipeline configuration (TOML)."),
-    dims: int = typer.Option(3, "--dims", min=2, max=3, help="Occupancy map: 3 = voxels, 2 = horizontal grid."),
-    grid_array: Path | None = typer.Option(
-        None, "--grid-array", help="Also save the occupancy grid as a dense array (.npz: logodds, observed, origin_m)."
-    ),
-    spread: int = typer.Option(
-        1, "--spread", min=1,
-        help="Points per return across the vertical aperture (with --grid: rays per beam in the occupancy map).",
-    ),
-    min_confidence: float = typer.Option(
-        0.0, "--min-confidence", min=0.0, max=1.0, help="Drop weaker returns from the point cloud (not with --grid)."
-    ),
-    poses_frame: str | None = typer.Option(None, "--poses-frame", help="Override the CSV's frame: ned | enu."),
-    out_frame: str = typer.Option("ned", "--frame", help="Output coordinates: ned (default) | enu (z up, for viewers)."),
-    outside: str = typer.Option(
-        "error", "--outside", help="Pings outside the trajectory's time span: error | skip (counted)."
-    ),
-    fixed_model: bool = typer.Option(
-        False, "--fixed-model", help="Use fixed 0.8/0.3 hit/miss probabilities instead of each ping's pD/pFA."
-    ),
-    clamp: str | None = typer.Option(
-        None, "--clamp",
-        help="Occupancy clamping probabilities PMIN,PMAX (default 0.001,0.999 for static scenes; "
-        "OctoMap's 0.1192,0.971 forget faster, for scenes that change).",
-    ),
-    static: bool = typer.Option(
-        False, "--static",
-        help="Fixed sonar (tripod, pier, tank): every ping at the origin, placed by --extrinsics if given.",
-    ),
-    crs: str | None = typer.Option(
-        None, "--crs",
-        help="Projected CRS of the outputs, e.g. EPSG:32631 (default with navigation: the data's UTM zone).",
-    ),
-    origin: str | None = typer.Option(
-        None, "--origin", help="LAT,LON (WGS 84 degrees) of the local frame's origin, to georeference "
-        "--poses or --static maps.",
-    ),
-    geotiff: Path | None = typer.Option(
-        None, "--geotiff",
-        help="Also write a GeoTIFF: occupancy probability with --grid, else a bathymetry grid of the points.",
-    ),
-    raster_resolution: float = typer.Option(
-        0.5, "--raster-resolution", min=1e-3, help="Pixel size (m) of the bathymetry GeoTIFF."
-    ),
-    octomap: Path | None = typer.Option(
-        None, "--octomap", help="Also write the 3-D occupancy map (--grid, --dims 3) as an OctoMap .bt."
-    ),
+    config: Path | None = _CONFIG_OPTION,
+    dims: int = _DIMS_OPTION,
+    grid_array: Path | None = _GRID_ARRAY_OPTION,
+    spread: int = _SPREAD_OPTION,
+    min_confidence: float = _MIN_CONFIDENCE_OPTION,
+    poses_frame: str | None = _POSES_FRAME_OPTION,
+    out_frame: str = _FRAME_OPTION,
+    outside: str = _OUTSIDE_OPTION,
+    fixed_model: bool = _FIXED_MODEL_OPTION,
+    clamp: str | None = _CLAMP_OPTION,
+    static: bool = _STATIC_OPTION,
+    crs: str | None = _CRS_OPTION,
+    origin: str | None = _ORIGIN_OPTION,
+    geotiff: Path | None = _GEOTIFF_OPTION,
+    raster_resolution: float = _RASTER_RESOLUTION_OPTION,
+    octomap: Path | None = _OCTOMAP_OPTION,
     quiet: bool = QUIET_OPTION,
     verbose: bool = VERBOSE_OPTION,
 ) -> None:
@@ -155,9 +182,8 @@ def map_command(
 
     Output files are replaced atomically when the command succeeds.
     """
-    import numpy as np
+    import contextlib
 
-    from sonarmap.errors import InputError
     from sonarmap.io import expand_inputs, read_pings
     from sonarmap.mapping.build import MapConfig, map_from_pings
     from sonarmap.mapping.poses import load_extrinsics, read_trajectory_csv
@@ -166,10 +192,7 @@ def map_command(
     out_fmt, bag_kind = _check_options(output, fmt, outside, out_frame, poses_frame, geotiff, octomap, grid_array,
                                        grid, min_confidence)
     bounds = None if clamp is None else _clamp_bounds(clamp)
-    if static and poses is not None:
-        raise typer.BadParameter("a fixed sonar needs no trajectory; give --static or --poses", param_hint="--static")
-    if octomap is not None and (grid is None or dims != 3):
-        raise typer.BadParameter("needs a 3-D occupancy map (--grid RES, --dims 3)", param_hint="--octomap")
+    _check_static_and_octomap(static, poses, octomap, grid, dims)
     origin_ll = None if origin is None else _lat_lon(origin)
 
     geometry = load_geometry_option(sonar)
@@ -185,13 +208,7 @@ def map_command(
 
     def checks(georef: Any) -> None:
         # before any processing: the outputs that need a georeference
-        if crs is not None and georef is None:
-            raise typer.BadParameter("needs a geodetic origin: navigation in the pings, or --origin LAT,LON",
-                                     param_hint="--crs")
-        if geotiff is not None and georef is None:
-            raise InputError("--geotiff: needs a georeferenced map (navigation in the pings, or --origin LAT,LON)")
-        if georef is not None and out_frame != "ned":
-            raise typer.BadParameter("georeferenced outputs are in the projected CRS (E, N, up)", param_hint="--frame")
+        _check_georeferenced_outputs(georef, crs, geotiff, out_frame)
         shown.enter_context(progress)
         progress.start()
 
@@ -202,41 +219,84 @@ def map_command(
     # the first ping is read before any processing, so that input and pose errors come first
     ping_iter = read_pings(inputs, geometry=geometry)
     _, ping_iter = first_ping(ping_iter)
-    import contextlib
-
     with contextlib.ExitStack() as shown:  # the progress display, from the first processed ping on
         res = map_from_pings(ping_iter, mcfg, pcfg, on_start=checks, on_ping=advance)
-        georef, occ = res.georef, res.occupancy
-        if occ is None:
-            out_cloud = res.cloud
-        else:
-            out_cloud = occ.to_point_cloud()
-            if grid_array is not None:
-                from sonarmap._atomic import atomic_path
-
-                arr = occ.to_array()
-                with atomic_path(grid_array, suffix=".npz") as tmp, open(tmp, "wb") as fh:
-                    np.savez_compressed(
-                        fh, logodds=arr.logodds, observed=arr.observed, origin_m=arr.origin_m,
-                        resolution_m=np.float64(arr.resolution_m), frame=np.str_("ned"),
-                    )
-        _write_outputs(out_cloud, occ, georef, output, out_fmt, bag_kind, out_frame, res.last_time_ns)
-        if geotiff is not None:
-            from sonarmap.mapping.raster import height_raster, occupancy_raster, write_geotiff
-
-            if occ is not None:
-                write_geotiff(geotiff, occupancy_raster(occ, georef=georef))
-            else:
-                write_geotiff(geotiff, height_raster(out_cloud, georef=georef, resolution_m=raster_resolution))
-        if octomap is not None and occ is not None:
-            from sonarmap.mapping.octomap import write_octomap_bt
-
-            write_octomap_bt(octomap, occ)
+        out_cloud = _write_results(res, output, out_fmt, bag_kind, out_frame, grid_array=grid_array, geotiff=geotiff,
+                                   octomap=octomap, raster_resolution=raster_resolution)
     if not quiet:
-        what = f"{len(out_cloud)} occupied cells" if occ is not None else f"{len(out_cloud)} points"
-        skipped = f", {res.n_skipped} skipped outside the trajectory" if res.n_skipped else ""
-        err_console().print(f"{res.n_pings} pings, {res.n_returns} returns{skipped} -> {what} in {output_name(output)}",
-                            markup=False)
+        _print_summary(res, out_cloud, output)
+
+
+def _check_static_and_octomap(static: bool, poses: Path | None, octomap: Path | None, grid: float | None,
+                              dims: int) -> None:
+    """Usage errors: ``--static`` with ``--poses``, and ``--octomap`` without a 3-D occupancy map."""
+    if static and poses is not None:
+        raise typer.BadParameter("a fixed sonar needs no trajectory; give --static or --poses", param_hint="--static")
+    if octomap is not None and (grid is None or dims != 3):
+        raise typer.BadParameter("needs a 3-D occupancy map (--grid RES, --dims 3)", param_hint="--octomap")
+
+
+def _check_georeferenced_outputs(georef: Any, crs: str | None, geotiff: Path | None, out_frame: str) -> None:
+    """Errors of the outputs that need (or exclude) a georeference, once the map's georeference
+    (None without navigation or ``--origin``) is known."""
+    from sonarmap.errors import InputError
+
+    if crs is not None and georef is None:
+        raise typer.BadParameter("needs a geodetic origin: navigation in the pings, or --origin LAT,LON",
+                                 param_hint="--crs")
+    if geotiff is not None and georef is None:
+        raise InputError("--geotiff: needs a georeferenced map (navigation in the pings, or --origin LAT,LON)")
+    if georef is not None and out_frame != "ned":
+        raise typer.BadParameter("georeferenced outputs are in the projected CRS (E, N, up)", param_hint="--frame")
+
+
+def _write_results(res: MapResult, output: Path, out_fmt: str, bag_kind: str | None, out_frame: str, *,
+                   grid_array: Path | None, geotiff: Path | None, octomap: Path | None,
+                   raster_resolution: float) -> PointCloud:
+    """Write the map, in this order: the grid array, the main output, the GeoTIFF and the OctoMap
+    (those asked for); returns the cloud written (the points, or the occupied cells with ``--grid``)."""
+    georef, occ = res.georef, res.occupancy
+    if occ is None:
+        out_cloud = res.cloud
+    else:
+        out_cloud = occ.to_point_cloud()
+        if grid_array is not None:
+            _save_grid_array(grid_array, occ)
+    _write_outputs(out_cloud, occ, georef, output, out_fmt, bag_kind, out_frame, res.last_time_ns)
+    if geotiff is not None:
+        from sonarmap.mapping.raster import height_raster, occupancy_raster, write_geotiff
+
+        if occ is not None:
+            write_geotiff(geotiff, occupancy_raster(occ, georef=georef))
+        else:
+            write_geotiff(geotiff, height_raster(out_cloud, georef=georef, resolution_m=raster_resolution))
+    if octomap is not None and occ is not None:
+        from sonarmap.mapping.octomap import write_octomap_bt
+
+        write_octomap_bt(octomap, occ)
+    return out_cloud
+
+
+def _save_grid_array(path: Path, occ: OccupancyMap) -> None:
+    """Save the occupancy grid as a dense array (``--grid-array``, ``.npz``), replaced atomically."""
+    import numpy as np
+
+    from sonarmap._atomic import atomic_path
+
+    arr = occ.to_array()
+    with atomic_path(path, suffix=".npz") as tmp, open(tmp, "wb") as fh:
+        np.savez_compressed(
+            fh, logodds=arr.logodds, observed=arr.observed, origin_m=arr.origin_m,
+            resolution_m=np.float64(arr.resolution_m), frame=np.str_("ned"),
+        )
+
+
+def _print_summary(res: MapResult, out_cloud: PointCloud, output: Path) -> None:
+    """The summary line of ``map`` on stderr: pings, returns, skipped pings and what was written where."""
+    what = f"{len(out_cloud)} occupied cells" if res.occupancy is not None else f"{len(out_cloud)} points"
+    skipped = f", {res.n_skipped} skipped outside the trajectory" if res.n_skipped else ""
+    err_console().print(f"{res.n_pings} pings, {res.n_returns} returns{skipped} -> {what} in {output_name(output)}",
+                        markup=False)
 
 
 def _check_options(output: Path, fmt: str | None, outside: str, out_frame: str, poses_frame: str | None,

@@ -35,7 +35,7 @@ exact graph-cut MRF, consistency-filtered first returns).
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import typer
 
@@ -66,6 +66,14 @@ CALIBRATION_OPTION: Any = typer.Option(
 )
 STRICT_OPTION: Any = typer.Option(False, "--strict", help="Exit 1 when the model could not explain some ping (a flagged fit).")
 CONFIG_OPTION: Any = typer.Option(None, "--config", "-c", help="Pipeline configuration TOML (keys at top level or in a \\[pipeline] table).")
+_TO_OPTION: Any = typer.Option(
+    None, "--to", help="Output kind: csv, bag1 (ROS 1 .bag) or bag2 (ROS 2 bag directory) of "
+    "marine_acoustic_msgs/SonarRanges (default: bag1 for *.bag, else csv)."
+)
+
+if TYPE_CHECKING:
+    from sonarmap.ping import Ping
+    from sonarmap.pipeline import PingProducts
 
 
 def pipeline_config_from_options(
@@ -187,10 +195,7 @@ def register(app: typer.Typer) -> None:
         config: Path | None = CONFIG_OPTION,
         strict: bool = STRICT_OPTION,
         calibration: Path | None = CALIBRATION_OPTION,
-        to: str | None = typer.Option(
-            None, "--to", help="Output kind: csv, bag1 (ROS 1 .bag) or bag2 (ROS 2 bag directory) of "
-            "marine_acoustic_msgs/SonarRanges (default: bag1 for *.bag, else csv)."
-        ),
+        to: str | None = _TO_OPTION,
         quiet: bool = QUIET_OPTION,
         verbose: bool = VERBOSE_OPTION,
     ) -> None:
@@ -212,16 +217,11 @@ def register(app: typer.Typer) -> None:
         import contextlib
         import csv
 
-        from sonarmap.cli._common import STDOUT, count_pings, first_ping, open_output, output_name, ping_progress
+        from sonarmap.cli._common import count_pings, first_ping, open_output, output_name, ping_progress
         from sonarmap.io import read_pings
         from sonarmap.pipeline import process_ping
-        from sonarmap.ranges.csv_rows import CSV_HEADER, write_ranges_rows
 
-        if to is not None:
-            check_choice(to, ("csv", "bag1", "bag2"), "--to")
-        out_kind = to or ("bag1" if output.suffix == ".bag" else "csv")
-        if out_kind != "csv" and str(output) == STDOUT:
-            raise typer.BadParameter("a bag cannot be written to stdout; give a path", param_hint="--output")
+        out_kind = _output_kind(to, output)
         bag_items: list[tuple[Any, Any]] = []
         cfg = pipeline_config_from_options(config, method, solver, beta)
         geom = load_geometry_option(sonar)
@@ -239,13 +239,7 @@ def register(app: typer.Typer) -> None:
             bar.start()
             for ping in ping_iter:
                 prod = process_ping(ping, cfg, background=rec)
-                if w is None:
-                    bag_items.append((ping.geometry, prod.ranges))
-                    n_rows += prod.ranges.n_beams
-                else:
-                    if n_pings == 0:
-                        w.writerow(CSV_HEADER)  # after the first ping: an unreadable input writes nothing
-                    n_rows += write_ranges_rows(w, ping.source, prod.ranges, ";".join(prod.gates), time_ns=ping.time_ns)
+                n_rows += _record_ranges(w, bag_items, ping, prod, first=n_pings == 0)
                 n_ret += prod.ranges.n_returns
                 n_pings += 1
                 gated.append(prod.gates)
@@ -260,6 +254,32 @@ def register(app: typer.Typer) -> None:
             _print_summary(n_pings, n_rows, n_ret, output_name(output), cfg, gated)
         if strict and flagged_any(gated):
             raise typer.Exit(1)
+
+
+def _output_kind(to: str | None, output: Path) -> str:
+    """``csv``, ``bag1`` or ``bag2``: ``--to``, else from the suffix of ``-o``; a usage error for an
+    unknown kind or a bag to stdout."""
+    from sonarmap.cli._common import STDOUT
+
+    if to is not None:
+        check_choice(to, ("csv", "bag1", "bag2"), "--to")
+    out_kind = to or ("bag1" if output.suffix == ".bag" else "csv")
+    if out_kind != "csv" and str(output) == STDOUT:
+        raise typer.BadParameter("a bag cannot be written to stdout; give a path", param_hint="--output")
+    return out_kind
+
+
+def _record_ranges(w: Any, bag_items: list[tuple[Any, Any]], ping: Ping, prod: PingProducts, *, first: bool) -> int:
+    """Write one ping's ranges as CSV rows with the writer ``w`` (the header before the first ping's rows),
+    or without a writer (``w`` None) keep them for the bag in ``bag_items``; returns the number of rows."""
+    if w is None:
+        bag_items.append((ping.geometry, prod.ranges))
+        return prod.ranges.n_beams
+    from sonarmap.ranges.csv_rows import CSV_HEADER, write_ranges_rows
+
+    if first:
+        w.writerow(CSV_HEADER)  # after the first ping: an unreadable input writes nothing
+    return write_ranges_rows(w, ping.source, prod.ranges, ";".join(prod.gates), time_ns=ping.time_ns)
 
 
 def _print_summary(n_pings: int, n_rows: int, n_ret: int, where: str, cfg: Any,
