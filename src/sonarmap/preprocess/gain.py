@@ -12,7 +12,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Callable, Iterable, Iterator
-from typing import Any, Literal
+from typing import Any, Literal, NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -385,17 +385,118 @@ class TaperEstimate:
         }
 
 
+def _checked_estimator(estimator: Any) -> str:
+    """``estimator`` with underscores as hyphens, checked to be ``"nonzero-mean"`` or ``"mean"``."""
+    est = estimator.replace("_", "-") if isinstance(estimator, str) else estimator
+    if est not in ("nonzero-mean", "mean"):
+        raise InputError(f"estimator: must be 'nonzero-mean' or 'mean', got {estimator!r}")
+    return est  # type: ignore[no-any-return]
+
+
+def _checked_taper_options(est: str, statistic: str | None, trim: float, normalisation: str) -> str:
+    """The statistic of :func:`estimate_taper` (its default depends on the estimator ``est``);
+    ``statistic``, ``trim`` and ``normalisation`` checked."""
+    if statistic is None:
+        statistic = "trimmed-mean" if est == "nonzero-mean" else "median"
+    if statistic not in ("median", "trimmed-mean"):
+        raise InputError(f"statistic: must be 'median' or 'trimmed-mean', got {statistic!r}")
+    if not 0 <= trim < 0.5:
+        raise InputError(f"trim: must be in [0, 0.5), got {trim}")
+    if normalisation not in ("max", "mean", "none"):
+        raise InputError(f"normalisation: must be 'max', 'mean' or 'none', got {normalisation!r}")
+    return statistic
+
+
+def _level_combiner(statistic: str, trim: float) -> Callable[[NDArray[np.float64]], NDArray[np.float64]]:
+    """Per-beam combination of level samples ``(n, n_beams)`` over axis 0: the median or the mean
+    trimmed by ``trim`` at each end."""
+
+    def combine(lv: NDArray[np.float64]) -> NDArray[np.float64]:
+        if statistic == "median":
+            return np.median(lv, axis=0)
+        from scipy import stats
+
+        return np.asarray(stats.trim_mean(lv, trim, axis=0), dtype=np.float64)
+
+    return combine
+
+
+class _BeamLevels(NamedTuple):
+    """Per-beam levels of :func:`estimate_taper` before normalisation."""
+
+    level: NDArray[np.float64]
+    #: The samples combined into ``level``: per-ping levels (``mean``) or per-block ratios.
+    samples: NDArray[np.float64]
+    n_images: int
+    quantum: float
+    excluded: float
+
+
+def _ping_beam_levels(images: Iterable[ArrayLike] | Iterable[Ping], rows: slice | None,
+                      combine: Callable[[NDArray[np.float64]], NDArray[np.float64]]) -> _BeamLevels:
+    """``estimator="mean"``: per ping the mean level of each beam over the range bins ``rows``,
+    combined across pings."""
+    sl = slice(None) if rows is None else rows
+    levels = []
+    for img, _geom, label in _iter_images(images, "images"):
+        sub = img[sl]
+        if sub.shape[0] == 0:
+            raise InputError(f"rows: selects no range bins of {label}")
+        levels.append(sub.mean(axis=0, dtype=np.float64))
+    lv = np.vstack(levels)  # (n_images, n_beams)
+    n_images = lv.shape[0]
+    return _BeamLevels(combine(lv), lv, n_images, math.nan, 0.0)
+
+
+def _block_beam_levels(images: Iterable[ArrayLike] | Iterable[Ping], *, rows: slice | None, block_rows: int,
+                       outlier_sigma: float | None, quantum: float | Literal["auto"],
+                       combine: Callable[[NDArray[np.float64]], NDArray[np.float64]]) -> _BeamLevels:
+    """``estimator="nonzero-mean"``: the recovered intensity of every range block relative to its
+    mean over the beams, combined across blocks (:func:`_block_taper`)."""
+    cells = _background_cells(images, rows=rows, block_rows=block_rows,
+                              outlier_sigma=outlier_sigma, quantum=quantum, per_bin=False)
+    level, lv = _block_taper(cells, combine)
+    return _BeamLevels(level, lv, cells.n_images, cells.quantum, cells.excluded)
+
+
+def _taper_estimate(beams: _BeamLevels, *, normalisation: str, statistic: str, estimator: str) -> TaperEstimate:
+    """The normalised taper and its per-beam spread (MAD / median of the samples); a FitError if a
+    beam has no positive level."""
+    level, lv = beams.level, beams.samples
+    med = np.median(lv, axis=0)
+    mad = np.median(np.abs(lv - med), axis=0) * 1.4826
+    with np.errstate(divide="ignore", invalid="ignore"):
+        spread = np.where(med > 0, mad / med, np.inf)
+    if np.any(~(level > 0)):
+        bad = np.flatnonzero(~(level > 0))
+        raise FitError(f"images: beams {bad.tolist()[:10]} have zero level; taper undefined")
+    if normalisation == "max":
+        scale = float(level.max())
+    elif normalisation == "mean":
+        scale = float(level.mean())
+    else:
+        scale = 1.0
+    taper = level / scale
+    taper.setflags(write=False)
+    spread.setflags(write=False)
+    return TaperEstimate(
+        taper=taper,
+        normalisation=normalisation,
+        n_images=beams.n_images,
+        statistic=statistic,
+        spread=spread,
+        scale=scale,
+        estimator=estimator,
+        quantum=beams.quantum,
+        excluded=beams.excluded,
+    )
+
+
 def estimate_taper(
-    images: Iterable[ArrayLike] | Iterable[Ping],
-    *,
-    estimator: Literal["nonzero-mean", "mean"] = "nonzero-mean",
-    statistic: Literal["median", "trimmed-mean"] | None = None,
-    trim: float = 0.2,
-    normalisation: Literal["max", "mean", "none"] = "max",
-    rows: slice | None = None,
-    block_rows: int = 32,
-    outlier_sigma: float | None = 5.0,
-    quantum: float | Literal["auto"] = "auto",
+    images: Iterable[ArrayLike] | Iterable[Ping], *, estimator: Literal["nonzero-mean", "mean"] = "nonzero-mean",
+    statistic: Literal["median", "trimmed-mean"] | None = None, trim: float = 0.2,
+    normalisation: Literal["max", "mean", "none"] = "max", rows: slice | None = None, block_rows: int = 32,
+    outlier_sigma: float | None = 5.0, quantum: float | Literal["auto"] = "auto",
 ) -> TaperEstimate:
     """Estimate the per-beam taper ``k(theta)`` from a set of open-water (background) pings.
 
@@ -457,70 +558,15 @@ def estimate_taper(
     Eq. 5 of Teixeira et al. (2018) (``y = k(theta) x``): under a background that is statistically
     the same in every beam, the mean intensity of beam ``j`` is proportional to ``k(theta_j)``.
     """
-    est = estimator.replace("_", "-") if isinstance(estimator, str) else estimator
-    if est not in ("nonzero-mean", "mean"):
-        raise InputError(f"estimator: must be 'nonzero-mean' or 'mean', got {estimator!r}")
-    if statistic is None:
-        statistic = "trimmed-mean" if est == "nonzero-mean" else "median"
-    if statistic not in ("median", "trimmed-mean"):
-        raise InputError(f"statistic: must be 'median' or 'trimmed-mean', got {statistic!r}")
-    if not 0 <= trim < 0.5:
-        raise InputError(f"trim: must be in [0, 0.5), got {trim}")
-    if normalisation not in ("max", "mean", "none"):
-        raise InputError(f"normalisation: must be 'max', 'mean' or 'none', got {normalisation!r}")
-
-    def combine(lv: NDArray[np.float64]) -> NDArray[np.float64]:
-        if statistic == "median":
-            return np.median(lv, axis=0)
-        from scipy import stats
-
-        return np.asarray(stats.trim_mean(lv, trim, axis=0), dtype=np.float64)
-
-    q_used = math.nan
-    excluded = 0.0
+    est = _checked_estimator(estimator)
+    statistic = _checked_taper_options(est, statistic, trim, normalisation)
+    combine = _level_combiner(statistic, trim)
     if est == "mean":
-        sl = slice(None) if rows is None else rows
-        levels = []
-        for img, _geom, label in _iter_images(images, "images"):
-            sub = img[sl]
-            if sub.shape[0] == 0:
-                raise InputError(f"rows: selects no range bins of {label}")
-            levels.append(sub.mean(axis=0, dtype=np.float64))
-        lv = np.vstack(levels)  # (n_images, n_beams)
-        n_images = lv.shape[0]
-        level = combine(lv)
+        beams = _ping_beam_levels(images, rows, combine)
     else:
-        cells = _background_cells(images, rows=rows, block_rows=block_rows,
-                                  outlier_sigma=outlier_sigma, quantum=quantum, per_bin=False)
-        level, lv = _block_taper(cells, combine)
-        n_images, q_used, excluded = cells.n_images, cells.quantum, cells.excluded
-    med = np.median(lv, axis=0)
-    mad = np.median(np.abs(lv - med), axis=0) * 1.4826
-    with np.errstate(divide="ignore", invalid="ignore"):
-        spread = np.where(med > 0, mad / med, np.inf)
-    if np.any(~(level > 0)):
-        bad = np.flatnonzero(~(level > 0))
-        raise FitError(f"images: beams {bad.tolist()[:10]} have zero level; taper undefined")
-    if normalisation == "max":
-        scale = float(level.max())
-    elif normalisation == "mean":
-        scale = float(level.mean())
-    else:
-        scale = 1.0
-    taper = level / scale
-    taper.setflags(write=False)
-    spread.setflags(write=False)
-    return TaperEstimate(
-        taper=taper,
-        normalisation=normalisation,
-        n_images=n_images,
-        statistic=statistic,
-        spread=spread,
-        scale=scale,
-        estimator=est,
-        quantum=q_used,
-        excluded=excluded,
-    )
+        beams = _block_beam_levels(images, rows=rows, block_rows=block_rows, outlier_sigma=outlier_sigma,
+                                   quantum=quantum, combine=combine)
+    return _taper_estimate(beams, normalisation=normalisation, statistic=statistic, estimator=est)
 
 
 # ---------------------------------------------------------------------- radial gain (eq. 6-7)
@@ -712,21 +758,63 @@ def range_profile(
     return level, count.astype(np.int64), geom
 
 
+def _beam_gains(cells: _Cells, taper: ArrayLike | SonarGeometry | TaperEstimate | None) -> NDArray[np.float64]:
+    """The per-beam gain ``k_j`` the pings carry: the caller's ``taper``, or estimated from the
+    cells as :func:`estimate_taper` does (up to scale); a FitError if a beam has no level."""
+    assert cells.bin_sum is not None
+    n_beams = cells.bin_sum.shape[1]
+    if taper is None:  # as estimate_taper (trimmed mean over blocks); the scale is irrelevant
+        from scipy import stats
+
+        k, _ = _block_taper(cells, lambda lv: np.asarray(stats.trim_mean(lv, 0.2, axis=0)))
+    else:
+        tv = taper.taper if isinstance(taper, TaperEstimate) else taper
+        t = _check_taper(tv, n_beams)
+        if t is None:
+            raise InputError("taper: the geometry has no taper")
+        k = t.astype(np.float64)
+    if np.any(~(k > 0)):
+        raise FitError("images: a beam has zero level; taper undefined")
+    return k
+
+
+def _intensity_profile(
+    images: Iterable[ArrayLike] | Iterable[Ping], taper: ArrayLike | SonarGeometry | TaperEstimate | None,
+    block_rows: int, outlier_sigma: float | None, quantum: float | Literal["auto"],
+) -> tuple[NDArray[np.float64], NDArray[np.int64], SonarGeometry | None]:
+    """``estimator="nonzero-mean"`` of :func:`estimate_radial_gain`: per range bin the recovered
+    intensity over the taper, averaged over the beams weighted by their non-zero counts; returns
+    ``(level, count, geometry)`` as :func:`range_profile` does."""
+    cells = _background_cells(images, rows=None, block_rows=block_rows,
+                              outlier_sigma=outlier_sigma, quantum=quantum, per_bin=True)
+    assert cells.bin_sum is not None and cells.bin_count is not None
+    k = _beam_gains(cells, taper)
+    mu = _cell_mu(cells.bin_sum, cells.bin_count, cells.quantum)  # (n_bins, n_beams)
+    n = cells.bin_count
+    count = n.sum(axis=1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        level = np.where(n > 0, mu / k, 0.0)
+        level = np.where(count > 0, (n * level).sum(axis=1) / np.where(count > 0, count, 1), np.nan)
+    return level, count.astype(np.int64), cells.geometry
+
+
+def _range_or_geometry(range_m: ArrayLike | SonarGeometry | None, geom: SonarGeometry | None
+                       ) -> ArrayLike | SonarGeometry:
+    """``range_m``, or the pings' geometry when it is not given (an InputError for bare arrays)."""
+    if range_m is None:
+        if geom is None:
+            raise InputError("range_m: required when images are bare arrays (not Pings)")
+        return geom
+    return range_m
+
+
 def estimate_radial_gain(
-    images: Iterable[ArrayLike] | Iterable[Ping],
-    range_m: ArrayLike | SonarGeometry | None = None,
-    *,
+    images: Iterable[ArrayLike] | Iterable[Ping], range_m: ArrayLike | SonarGeometry | None = None, *,
     estimator: Literal["nonzero-mean", "mean"] = "nonzero-mean",
-    taper: ArrayLike | SonarGeometry | TaperEstimate | None = None,
-    nonzero: bool = True,
-    statistic: Literal["mean", "trimmed-mean", "median"] = "mean",
-    fix_k1: float | None = None,
-    fix_k2: float | None = None,
-    min_count: int = 10,
-    scale: Scale = "power",
-    block_rows: int = 32,
-    outlier_sigma: float | None = 5.0,
-    quantum: float | Literal["auto"] = "auto",
+    taper: ArrayLike | SonarGeometry | TaperEstimate | None = None, nonzero: bool = True,
+    statistic: Literal["mean", "trimmed-mean", "median"] = "mean", fix_k1: float | None = None,
+    fix_k2: float | None = None, min_count: int = 10, scale: Scale = "power", block_rows: int = 32,
+    outlier_sigma: float | None = 5.0, quantum: float | Literal["auto"] = "auto",
 ) -> RadialGain:
     """Fit ``k1, k2, k3`` of eq. 7 so that the background level is flat in range after the gain.
 
@@ -788,40 +876,12 @@ def estimate_radial_gain(
     -----
     Eq. 6-7 of Teixeira et al. (2018).
     """
-    est = estimator.replace("_", "-") if isinstance(estimator, str) else estimator
-    if est not in ("nonzero-mean", "mean"):
-        raise InputError(f"estimator: must be 'nonzero-mean' or 'mean', got {estimator!r}")
+    est = _checked_estimator(estimator)
     if est == "mean":
         level, count, geom = range_profile(images, nonzero=nonzero, statistic=statistic)
     else:
-        cells = _background_cells(images, rows=None, block_rows=block_rows,
-                                  outlier_sigma=outlier_sigma, quantum=quantum, per_bin=True)
-        geom = cells.geometry
-        assert cells.bin_sum is not None and cells.bin_count is not None
-        n_beams = cells.bin_sum.shape[1]
-        if taper is None:  # as estimate_taper (trimmed mean over blocks); the scale is irrelevant
-            from scipy import stats
-
-            k, _ = _block_taper(cells, lambda lv: np.asarray(stats.trim_mean(lv, 0.2, axis=0)))
-        else:
-            tv = taper.taper if isinstance(taper, TaperEstimate) else taper
-            t = _check_taper(tv, n_beams)
-            if t is None:
-                raise InputError("taper: the geometry has no taper")
-            k = t.astype(np.float64)
-        if np.any(~(k > 0)):
-            raise FitError("images: a beam has zero level; taper undefined")
-        mu = _cell_mu(cells.bin_sum, cells.bin_count, cells.quantum)  # (n_bins, n_beams)
-        n = cells.bin_count
-        count = n.sum(axis=1)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            level = np.where(n > 0, mu / k, 0.0)
-            level = np.where(count > 0, (n * level).sum(axis=1) / np.where(count > 0, count, 1), np.nan)
-        count = count.astype(np.int64)
-    if range_m is None:
-        if geom is None:
-            raise InputError("range_m: required when images are bare arrays (not Pings)")
-        range_m = geom
+        level, count, geom = _intensity_profile(images, taper, block_rows, outlier_sigma, quantum)
+    range_m = _range_or_geometry(range_m, geom)
     ok = (count >= min_count) & np.isfinite(level) & (level > 0)
     return fit_range_profile(level, range_m, usable=ok, scale=scale, fix_k1=fix_k1, fix_k2=fix_k2,
                              what=f"range bins have >= {min_count} non-zero samples")

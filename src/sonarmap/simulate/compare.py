@@ -16,9 +16,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from sonarmap.errors import InputError
+from sonarmap.geometry import SonarGeometry
 from sonarmap.ping import Ping
 from sonarmap.simulate.render import SimulationConfig, simulate_ping
-from sonarmap.simulate.scene import empty_scene, scene_from_name
+from sonarmap.simulate.scene import Scene, empty_scene, scene_from_name
 
 __all__ = [
     "BackgroundStats",
@@ -214,17 +215,41 @@ def _band_stats(stack: NDArray[np.float64], edges: NDArray[np.int64]) -> tuple[N
     return pct, mean
 
 
+def _one_geometry(real: Iterable[Ping]) -> list[Ping]:
+    """The pings of ``real``, checked to be at least one and all of one image shape."""
+    pings = list(real)
+    if not pings:
+        raise InputError("real: no pings given")
+    geom = pings[0].geometry
+    if any(p.image.shape != geom.shape for p in pings):
+        raise InputError("real: pings of different shapes; compare one geometry at a time")
+    return pings
+
+
+def _row_window(geom: SonarGeometry, min_range_m: float | None, max_range_m: float | None, n_bands: int
+                ) -> tuple[int, int]:
+    """First and one-past-last row of the range window, checked to hold at least ``n_bands`` rows."""
+    r = geom.range_m
+    lo = 0 if min_range_m is None else int(np.searchsorted(r, min_range_m))
+    hi = geom.n_bins if max_range_m is None else int(np.searchsorted(r, max_range_m))
+    if hi - lo < n_bands or n_bands < 1:
+        raise InputError(f"min_range_m/max_range_m: window holds {hi - lo} rows, need >= n_bands={n_bands}")
+    return lo, hi
+
+
+def _simulated_rows(scene: Scene, geom: SonarGeometry, config: SimulationConfig, base: int, n: int, lo: int,
+                    hi: int) -> NDArray[np.float64]:
+    """Rows ``lo:hi`` of ``n`` simulated pings of ``scene`` (seeds ``base + i``), stacked."""
+    return np.stack([
+        np.asarray(simulate_ping(scene, geom, config=config, seed=base + i).ping.image, dtype=np.float64)[lo:hi]
+        for i in range(n)
+    ])
+
+
 def compare_recording(
-    real: Iterable[Ping],
-    *,
-    scene: str = "empty",
-    config: SimulationConfig = SimulationConfig(),
-    n_sim: int | None = None,
-    seed: int = 0,
-    min_range_m: float | None = None,
-    max_range_m: float | None = None,
-    n_bands: int = 10,
-    label: str | None = None,
+    real: Iterable[Ping], *, scene: str = "empty", config: SimulationConfig = SimulationConfig(),
+    n_sim: int | None = None, seed: int = 0, min_range_m: float | None = None, max_range_m: float | None = None,
+    n_bands: int = 10, label: str | None = None,
 ) -> RecordingComparison:
     """Simulate ``scene`` with the recording's geometry and compare pixel statistics.
 
@@ -264,33 +289,19 @@ def compare_recording(
     >>> round(c.kld_real_sim, 3)  # doctest: +SKIP
     0.005
     """
-    pings = list(real)
-    if not pings:
-        raise InputError("real: no pings given")
+    pings = _one_geometry(real)
     geom = pings[0].geometry
-    if any(p.image.shape != geom.shape for p in pings):
-        raise InputError("real: pings of different shapes; compare one geometry at a time")
-    r = geom.range_m
-    lo = 0 if min_range_m is None else int(np.searchsorted(r, min_range_m))
-    hi = geom.n_bins if max_range_m is None else int(np.searchsorted(r, max_range_m))
-    if hi - lo < n_bands or n_bands < 1:
-        raise InputError(f"min_range_m/max_range_m: window holds {hi - lo} rows, need >= n_bands={n_bands}")
+    lo, hi = _row_window(geom, min_range_m, max_range_m, n_bands)
     n = len(pings) if n_sim is None else int(n_sim)
     built = scene_from_name(scene, seed, geometry=geom)
     real_stack = np.stack([np.asarray(p.image, dtype=np.float64)[lo:hi] for p in pings])
-
-    def sims(base: int) -> NDArray[np.float64]:
-        return np.stack([
-            np.asarray(simulate_ping(built, geom, config=config, seed=base + i).ping.image, dtype=np.float64)[lo:hi]
-            for i in range(n)
-        ])
-
-    sim_stack = sims(seed)
-    sim2 = sims(10_000 + seed)
+    sim_stack = _simulated_rows(built, geom, config, seed, n, lo, hi)
+    sim2 = _simulated_rows(built, geom, config, 10_000 + seed, n, lo, hi)
     rs, ss = background_stats(real_stack), background_stats(sim_stack)
     edges = np.linspace(0, hi - lo, n_bands + 1).round().astype(np.int64)
     rp, rm = _band_stats(real_stack, edges)
     sp, sm = _band_stats(sim_stack, edges)
+    r = geom.range_m
     centres = np.array([r[lo + (a + b - 1) // 2] for a, b in zip(edges[:-1], edges[1:], strict=True)])
     return RecordingComparison(
         label=label or f"{geom.name} vs simulated '{scene}'",

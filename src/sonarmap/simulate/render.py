@@ -42,7 +42,7 @@ import json
 import math
 import os
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, Literal, NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -980,6 +980,150 @@ def _footprint_pairs(
     return out
 
 
+def _lobe_reach(lobe: _MainLobe | None) -> int:
+    """Beams on either side a main lobe reaches (0 without one)."""
+    return lobe.half_reach if lobe is not None else 0
+
+
+def _near_beams(beams: NDArray[np.bool_], lobe: _MainLobe | None) -> NDArray[np.bool_]:
+    """Beams within the lobe's reach of a selected beam."""
+    reach = _lobe_reach(lobe)
+    out = beams.copy()
+    for d in range(1, reach + 1):
+        out[d:] |= beams[:-d]
+        out[:-d] |= beams[d:]
+    return out
+
+
+class _BeamWeights(NamedTuple):
+    """(sample index, beam, two-way weight) triples of samples in beams' footprints."""
+
+    sample: NDArray[np.int64]
+    beam: NDArray[np.int64]
+    weight: NDArray[np.float64]
+
+
+def _beam_weights(st: _Samples, sel: NDArray[np.bool_], lobe: _MainLobe | None, nbeam: int) -> _BeamWeights:
+    """(sample index, beam, two-way weight) of the selected samples, zero weights dropped."""
+    idx = np.flatnonzero(sel)
+    ii, bb, ww = [], [], []
+    for beam, wt in _footprint_pairs(st.r[idx], st.az[idx], st.beam[idx], st.weight_el[idx], lobe, nbeam):
+        ok = (beam >= 0) & (wt > 0)
+        ii.append(idx[ok])
+        bb.append(beam[ok])
+        ww.append(wt[ok])
+    return _BeamWeights(np.concatenate(ii), np.concatenate(bb), np.concatenate(ww))
+
+
+class _Footprints(NamedTuple):
+    """The structure samples in each beam's footprint and the weight threshold of every beam."""
+
+    sample: NDArray[np.int64]
+    beam: NDArray[np.int64]
+    threshold: NDArray[np.float64]
+
+
+def _footprints(st: _Samples, lobe: _MainLobe | None, nbeam: int) -> _Footprints:
+    """(sample, beam) pairs whose two-way weight passes the beam's threshold: 0.5, or half the
+    beam's largest weight when no sample reaches 0.5."""
+    # beams whose footprint reaches 0.5 are settled by the samples at w_el >= 0.5; the others
+    # (faint skirts) take half their largest weight over all their samples
+    w = st.weight_el
+    ii, bb, ww = _beam_weights(st, w >= 0.5, lobe, nbeam)
+    wmax = np.zeros(nbeam)
+    np.maximum.at(wmax, bb, ww)
+    weak = wmax < 0.5
+    if weak.any():
+        ii2, bb2, ww2 = _beam_weights(st, (w < 0.5) & _near_beams(weak, lobe)[st.beam], lobe, nbeam)
+        keep = weak[bb2]
+        ii, bb, ww = np.concatenate([ii, ii2[keep]]), np.concatenate([bb, bb2[keep]]), np.concatenate([ww, ww2[keep]])
+        np.maximum.at(wmax, bb2[keep], ww2[keep])
+    thr = np.where(wmax >= 0.5, 0.5, 0.5 * wmax) * (1.0 - 1e-12)
+    ok = ww >= thr[bb]
+    return _Footprints(ii[ok], bb[ok], thr)
+
+
+class _SurfaceStarts(NamedTuple):
+    """The near edge of every surface a beam's footprint holds, surfaces ranked by range per beam."""
+
+    beam: NDArray[np.int64]
+    range_m: NDArray[np.float64]
+    rank: NDArray[np.int64]
+
+
+def _surface_starts(rp: NDArray[np.float64], bp: NDArray[np.int64], gap_m: float) -> _SurfaceStarts:
+    """Split each beam's footprint ranges ``rp`` (beams ``bp``) into surfaces at gaps over ``gap_m``."""
+    order = np.lexsort((rp, bp))
+    rp, bp = rp[order], bp[order]
+    new = np.ones(rp.size, dtype=bool)
+    new[1:] = (bp[1:] != bp[:-1]) | (np.diff(rp) > gap_m)
+    starts = np.flatnonzero(new)
+    sb, sr = bp[starts], rp[starts]
+    rank = np.arange(starts.size) - np.searchsorted(sb, sb, side="left")
+    return _SurfaceStarts(sb, sr, rank)
+
+
+def _edge_patches(st: _Samples, first: NDArray[np.float64], thr: NDArray[np.float64], config: SimulationConfig,
+                  lobe: _MainLobe | None, nbeam: int) -> NDArray[np.bool_]:
+    """Patches that can hold a footprint's near edge: within a patch of the first surface of a
+    beam they may reach, with a weight within the elevation margin of its threshold."""
+    r, bj, w, size = st.r, st.beam, st.weight_el, st.size
+    reach = _lobe_reach(lobe)
+    if config.elevation_pattern == "uniform":
+        margin = np.ones(r.size)
+    else:  # the largest change of the Gaussian elevation weight across a patch
+        margin = 1.43 * 0.75 * size / (r * config.elevation_aperture_rad) + 0.02
+    # a patch can move beam b's edge when it lies within a patch of b's nearest footprint sample
+    cand = np.zeros(r.size, dtype=bool)
+    for d in range(-reach - 1, reach + 2):
+        b = np.clip(bj + d, 0, nbeam - 1)
+        fb = first[b]
+        with np.errstate(invalid="ignore"):
+            cand |= (r >= fb - 2.0 * size) & (r <= fb + size) & (w >= thr[b] - margin)
+    cand &= size > 0
+    return cand
+
+
+def _subsampled_first(st: _Samples, cand: NDArray[np.bool_], first: NDArray[np.float64], thr: NDArray[np.float64],
+                      geometry: SonarGeometry, config: SimulationConfig, lobe: _MainLobe | None, gap_m: float
+                      ) -> NDArray[np.float64]:
+    """Per beam the nearest passing sub-sample of the ``cand`` patches (``_TRUTH_SUBSAMPLES`` per
+    side) on its first surface; ``inf`` where none."""
+    nbeam = geometry.n_beams
+    r_edges = _edges(geometry.range_m)
+    a_edges = _edges(geometry.azimuth_rad)
+    pts = st.points[cand]
+    offs = _tangent_offsets(st.normals[cand], st.size[cand], _TRUTH_SUBSAMPLES)
+    sub = (pts[:, None, :] + offs).reshape(-1, 3)
+    rho = np.hypot(sub[:, 0], sub[:, 1])
+    rs = np.hypot(rho, sub[:, 2])
+    azs = np.arctan2(sub[:, 1], sub[:, 0])
+    js = np.searchsorted(a_edges, azs, side="right") - 1
+    ws = _elevation_weight(np.arctan2(sub[:, 2], rho), config)
+    inb = (js >= 0) & (js < nbeam) & (rs >= r_edges[0]) & (rs < r_edges[-1])
+    js, rs, ws, azs = js[inb], rs[inb], ws[inb], azs[inb]
+    refined = np.full(nbeam, np.inf)
+    for beam, wt in _footprint_pairs(rs, azs, js, ws, lobe, nbeam):
+        ok = (beam >= 0) & (wt > 0)
+        ok[ok] = (wt[ok] >= thr[beam[ok]]) & np.isfinite(first[beam[ok]])
+        # only within the first surface (not a further one reached through a gap)
+        ok[ok] = rs[ok] <= first[beam[ok]] + gap_m
+        np.minimum.at(refined, beam[ok], rs[ok])
+    return refined
+
+
+def _further_surfaces(starts: _SurfaceStarts, nbeam: int) -> NDArray[np.float64]:
+    """``surface_ranges_m`` (k, n_beams): the near edges of up to :data:`MAX_FURTHER_SURFACES`
+    surfaces behind the first."""
+    rank = starts.rank
+    k = int(min(MAX_FURTHER_SURFACES, rank.max())) if rank.size else 0
+    others = np.full((k, nbeam), np.nan)
+    for i in range(1, k + 1):
+        sel = rank == i
+        others[i - 1, starts.beam[sel]] = starts.range_m[sel]
+    return others
+
+
 def _surface_truth(
     smp: _Samples, geometry: SonarGeometry, config: SimulationConfig, has: NDArray[np.bool_], gap_m: float,
     lobe: _MainLobe | None = None,
@@ -995,93 +1139,21 @@ def _surface_truth(
     """
     nbeam = geometry.n_beams
     r_edges = _edges(geometry.range_m)
-    a_edges = _edges(geometry.azimuth_rad)
     m = (smp.labels == STRUCTURE) & (smp.r >= r_edges[0]) & (smp.r < r_edges[-1])
-    r, bj, w, az, size = smp.r[m], smp.beam[m], smp.weight_el[m], smp.az[m], smp.size[m]
+    st = _Samples(*(getattr(smp, f.name)[m] for f in dataclasses.fields(_Samples)))
     first = np.full(nbeam, np.nan)
-    if r.size == 0:
+    if st.r.size == 0:
         return first, np.full((0, nbeam), np.nan)
-    reach = lobe.half_reach if lobe is not None else 0
-
-    def near_beams(beams: NDArray[np.bool_]) -> NDArray[np.bool_]:
-        """Beams within the lobe's reach of a selected beam."""
-        out = beams.copy()
-        for d in range(1, reach + 1):
-            out[d:] |= beams[:-d]
-            out[:-d] |= beams[d:]
-        return out
-
-    def weights(sel: NDArray[np.bool_]) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.float64]]:
-        """(sample index, beam, two-way weight) of the selected samples, zero weights dropped."""
-        idx = np.flatnonzero(sel)
-        ii, bb, ww = [], [], []
-        for beam, wt in _footprint_pairs(r[idx], az[idx], bj[idx], w[idx], lobe, nbeam):
-            ok = (beam >= 0) & (wt > 0)
-            ii.append(idx[ok])
-            bb.append(beam[ok])
-            ww.append(wt[ok])
-        return np.concatenate(ii), np.concatenate(bb), np.concatenate(ww)
-
-    # beams whose footprint reaches 0.5 are settled by the samples at w_el >= 0.5; the others
-    # (faint skirts) take half their largest weight over all their samples
-    ii, bb, ww = weights(w >= 0.5)
-    wmax = np.zeros(nbeam)
-    np.maximum.at(wmax, bb, ww)
-    weak = wmax < 0.5
-    if weak.any():
-        ii2, bb2, ww2 = weights((w < 0.5) & near_beams(weak)[bj])
-        keep = weak[bb2]
-        ii, bb, ww = np.concatenate([ii, ii2[keep]]), np.concatenate([bb, bb2[keep]]), np.concatenate([ww, ww2[keep]])
-        np.maximum.at(wmax, bb2[keep], ww2[keep])
-    thr = np.where(wmax >= 0.5, 0.5, 0.5 * wmax) * (1.0 - 1e-12)
-    ok = ww >= thr[bb]
-    rp, bp = r[ii[ok]], bb[ok]
-    order = np.lexsort((rp, bp))
-    rp, bp = rp[order], bp[order]
-    new = np.ones(rp.size, dtype=bool)
-    new[1:] = (bp[1:] != bp[:-1]) | (np.diff(rp) > gap_m)
-    starts = np.flatnonzero(new)
-    sb, sr = bp[starts], rp[starts]
-    rank = np.arange(starts.size) - np.searchsorted(sb, sb, side="left")
-    first[sb[rank == 0]] = sr[rank == 0]
+    fp = _footprints(st, lobe, nbeam)
+    starts = _surface_starts(st.r[fp.sample], fp.beam, gap_m)
+    first[starts.beam[starts.rank == 0]] = starts.range_m[starts.rank == 0]
     # refine the first surface: sub-sample the patches that can hold a footprint's near edge
-    if config.elevation_pattern == "uniform":
-        margin = np.ones(r.size)
-    else:  # the largest change of the Gaussian elevation weight across a patch
-        margin = 1.43 * 0.75 * size / (r * config.elevation_aperture_rad) + 0.02
-    # a patch can move beam b's edge when it lies within a patch of b's nearest footprint sample
-    cand = np.zeros(r.size, dtype=bool)
-    for d in range(-reach - 1, reach + 2):
-        b = np.clip(bj + d, 0, nbeam - 1)
-        fb = first[b]
-        with np.errstate(invalid="ignore"):
-            cand |= (r >= fb - 2.0 * size) & (r <= fb + size) & (w >= thr[b] - margin)
-    cand &= size > 0
+    cand = _edge_patches(st, first, fp.threshold, config, lobe, nbeam)
     if cand.any():
-        pts = smp.points[m][cand]
-        offs = _tangent_offsets(smp.normals[m][cand], size[cand], _TRUTH_SUBSAMPLES)
-        sub = (pts[:, None, :] + offs).reshape(-1, 3)
-        rho = np.hypot(sub[:, 0], sub[:, 1])
-        rs = np.hypot(rho, sub[:, 2])
-        azs = np.arctan2(sub[:, 1], sub[:, 0])
-        js = np.searchsorted(a_edges, azs, side="right") - 1
-        ws = _elevation_weight(np.arctan2(sub[:, 2], rho), config)
-        inb = (js >= 0) & (js < nbeam) & (rs >= r_edges[0]) & (rs < r_edges[-1])
-        js, rs, ws, azs = js[inb], rs[inb], ws[inb], azs[inb]
-        refined = np.full(nbeam, np.inf)
-        for beam, wt in _footprint_pairs(rs, azs, js, ws, lobe, nbeam):
-            ok = (beam >= 0) & (wt > 0)
-            ok[ok] = (wt[ok] >= thr[beam[ok]]) & np.isfinite(first[beam[ok]])
-            # only within the first surface (not a further one reached through a gap)
-            ok[ok] = rs[ok] <= first[beam[ok]] + gap_m
-            np.minimum.at(refined, beam[ok], rs[ok])
+        refined = _subsampled_first(st, cand, first, fp.threshold, geometry, config, lobe, gap_m)
         better = np.isfinite(refined) & np.isfinite(first)
         first[better] = refined[better]
-    k = int(min(MAX_FURTHER_SURFACES, rank.max())) if rank.size else 0
-    others = np.full((k, nbeam), np.nan)
-    for i in range(1, k + 1):
-        sel = rank == i
-        others[i - 1, sb[sel]] = sr[sel]
+    others = _further_surfaces(starts, nbeam)
     first[~has] = np.nan
     others[:, ~has] = np.nan
     return first, others
@@ -1423,14 +1495,163 @@ def _class_truth(s_int: NDArray[np.float64], c_int: NDArray[np.float64], m_bg: A
     return mask, peak_db
 
 
+@dataclasses.dataclass(frozen=True, eq=False)
+class _MeanEcho:
+    """The expected received intensities of one ping (full-scale units), before speckle.
+
+    Attributes
+    ----------
+    lobe : _MainLobe or None
+        The main lobe the echoes were received through.
+    pulse_length_m : float
+        Transmit pulse length rendered.
+    cells : ndarray (n_bins, n_beams)
+        Echo energy of every azimuth cell (each sample in its own cell, no main lobe).
+    gain_r : ndarray (n_bins, 1)
+        Channel gain per range bin.
+    taper : ndarray (1, n_beams)
+        Per-beam gain.
+    m_echo : ndarray (n_bins, n_beams)
+        Mean echo intensity: ghost taps, taper and channel applied.
+    m_bg : ndarray
+        Mean background (volume reverberation and noise).
+    noise : float
+        Receiver noise power.
+    m_scatter : ndarray (n_bins, n_beams)
+        Mean intensity of the speckled part (echo and reverberation).
+    field : _CoherentField or None
+        The complex echo field for coherent ghosts and main-lobe overlap.
+    """
+
+    lobe: _MainLobe | None
+    pulse_length_m: float
+    cells: NDArray[np.float64]
+    gain_r: NDArray[np.float64]
+    taper: NDArray[np.float64]
+    m_echo: NDArray[np.float64]
+    m_bg: NDArray[np.float64]
+    noise: float
+    m_scatter: NDArray[np.float64]
+    field: _CoherentField | None
+
+
+def _coherent_field(total: NDArray[np.float64], cells: NDArray[np.float64], gain_r: NDArray[np.float64],
+                    taps: NDArray[np.float64] | None, ghosts: NDArray[np.float64] | None) -> _CoherentField:
+    """The field of the azimuth-cell sources ``cells`` scaled per pixel to the sub-beam expected
+    intensity ``total``; pixels no source reaches get an independent (orphan) field."""
+    e_tap = _beam_pattern(cells, taps)
+    sub = total * gain_r
+    with np.errstate(divide="ignore", invalid="ignore"):
+        reached = e_tap > 1e-12 * max(float(e_tap.max()), 1e-300)
+        scale = np.where(reached, np.sqrt(total / np.where(reached, e_tap, 1.0)), 0.0)
+    return _CoherentField(a=np.sqrt(cells * gain_r), taps=taps, scale=scale,
+                          orphan=np.sqrt(np.where(reached, 0.0, sub)), ghosts=ghosts)
+
+
+def _mean_echo(smp: _Samples, geometry: SonarGeometry, config: SimulationConfig) -> _MeanEcho:
+    """Render the samples' echoes through pulse, main lobe, ghost taps, taper and channel, and
+    the background they are received over."""
+    length, rise = config.pulse
+    lobe = _MainLobe.of(geometry, config)
+    # the image: every sample's echo spread over the bins its patch and pulse envelope overlap,
+    # received by every beam through its main lobe; and in its own azimuth cell
+    total, cells = _render_energy(smp, geometry, length, rise, lobe)
+    gain_r = channel_gain(geometry, config)[:, None]
+    taper = _taper(geometry)[None, :]
+    ghosts = ghost_psf(geometry, config)
+    taps = main_lobe_taps(geometry, config) if lobe is not None else None
+    m_echo = _beam_pattern(total, ghosts) * taper * gain_r
+    m_bg = _background_mean(geometry, config)
+    noise = _noise_power(geometry, config)
+    m_scatter = m_echo + (m_bg - noise)
+    field = None
+    if config.speckle and config.ghosts == "coherent" and (ghosts is not None or taps is not None):
+        field = _coherent_field(total, cells, gain_r, taps, ghosts)
+    return _MeanEcho(lobe=lobe, pulse_length_m=length, cells=cells, gain_r=gain_r, taper=taper, m_echo=m_echo,
+                     m_bg=m_bg, noise=noise, m_scatter=m_scatter, field=field)
+
+
+def _speckled_intensity(rng: np.random.Generator, shape: tuple[int, int], config: SimulationConfig,
+                        echo: _MeanEcho) -> NDArray[np.float64]:
+    """The received intensity: :func:`_one_look` averaged over ``config.looks`` looks."""
+    look_args = (rng, shape, config, echo.field, echo.taper, echo.m_bg, echo.m_scatter, echo.noise)
+    intensity = _one_look(*look_args)
+    if config.looks > 1:
+        for _ in range(config.looks - 1):
+            intensity += _one_look(*look_args)
+        intensity /= config.looks
+    return intensity
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class _PingTruth:
+    """The truth of one ping (see the fields of :class:`SimResult` of the same names)."""
+
+    class_mask: NDArray[np.uint8]
+    first_return_bin: NDArray[np.int64]
+    first_return_range_m: NDArray[np.float64]
+    unblurred: NDArray[np.float32]
+    structure_peak_snr_db: NDArray[np.float64]
+    surface_range_m: NDArray[np.float64]
+    surface_ranges_m: NDArray[np.float64]
+
+
+def _ping_truth(smp: _Samples, geometry: SonarGeometry, config: SimulationConfig, echo: _MeanEcho,
+                e_struct: NDArray[np.float64], e_clutter: NDArray[np.float64]) -> _PingTruth:
+    """Class mask, first returns and surfaces from the unblurred structure and clutter energies
+    (every sample in its nearest bin) through the same taper and channel as the echoes."""
+    scale = echo.taper * echo.gain_r
+    mask, peak_db = _class_truth(e_struct * scale, e_clutter * scale, echo.m_bg, config)
+    struct = mask == STRUCTURE
+    has = struct.any(axis=0)
+    first = np.where(has, struct.argmax(axis=0), -1).astype(np.int64)
+    first_r = np.where(has, geometry.range_m[np.maximum(first, 0)], np.nan)
+    surf, surfs = _surface_truth(smp, geometry, config, has,
+                                 gap_m=echo.pulse_length_m + 2.0 * geometry.range_resolution_m, lobe=echo.lobe)
+    return _PingTruth(class_mask=mask, first_return_bin=first, first_return_range_m=first_r,
+                      unblurred=np.clip(echo.cells * scale, 0.0, 1.0).astype(np.float32),
+                      structure_peak_snr_db=peak_db.astype(np.float64), surface_range_m=surf,
+                      surface_ranges_m=surfs)
+
+
+def _ping_meta(scene: Scene, geometry: SonarGeometry, config: SimulationConfig, assist_db: float,
+               pulse_length_m: float, *, recording_meta: bool) -> dict[str, Any]:
+    """``ping.meta`` of a simulated ping: the scene, any gain assist and, with ``recording_meta``,
+    what a recording's header would declare."""
+    meta: dict[str, Any] = {"simulated": scene.name or "scene"}
+    if assist_db > 0:
+        meta["gain_assist_db"] = assist_db
+    if recording_meta:
+        meta["pulse_width_us"] = 2e6 * pulse_length_m / geometry.sound_speed_m_s
+        meta["sound_speed_m_s"] = geometry.sound_speed_m_s
+        if config.receiver == "log":
+            meta["log_dynamic_range_db"] = config.dynamic_range_db
+    return meta
+
+
+def _sim_result(ping: Ping, scene: Scene, seed: int | np.random.Generator, config: SimulationConfig,
+                echo: _MeanEcho, truth: _PingTruth) -> SimResult:
+    """The :class:`SimResult` of a rendered ping, its truth and the configuration rendered."""
+    int_seed = int(seed) if isinstance(seed, int | np.integer) else None
+    return SimResult(
+        ping=ping,
+        clean=np.clip(echo.m_echo, 0.0, 1.0).astype(np.float32),
+        class_mask=truth.class_mask,
+        first_return_bin=truth.first_return_bin,
+        first_return_range_m=truth.first_return_range_m,
+        config=config,
+        scene_name=scene.name,
+        seed=int_seed,
+        unblurred=truth.unblurred,
+        structure_peak_snr_db=truth.structure_peak_snr_db,
+        surface_range_m=truth.surface_range_m,
+        surface_ranges_m=truth.surface_ranges_m,
+    )
+
+
 def simulate_ping(
-    scene: Scene,
-    geometry: SonarGeometry,
-    *,
-    config: SimulationConfig = SimulationConfig(),
-    seed: int | np.random.Generator,
-    time_ns: int = 0,
-    recording_meta: bool = False,
+    scene: Scene, geometry: SonarGeometry, *, config: SimulationConfig = SimulationConfig(),
+    seed: int | np.random.Generator, time_ns: int = 0, recording_meta: bool = False,
 ) -> SimResult:
     """Render one ping of ``scene`` seen by ``geometry`` through the active sonar equation.
 
@@ -1489,78 +1710,18 @@ def simulate_ping(
     smp = _samples(scene, geometry, config)
     # truth: every sample in its nearest bin (no pulse, no beam pattern)
     e_struct, e_clutter = _accumulate(smp, geometry)
-    length, rise = config.pulse
-    lobe = _MainLobe.of(geometry, config)
-    # the image: every sample's echo spread over the bins its patch and pulse envelope overlap,
-    # received by every beam through its main lobe; and in its own azimuth cell
-    total, cells = _render_energy(smp, geometry, length, rise, lobe)
-    gain_r = channel_gain(geometry, config)[:, None]
-    taper = _taper(geometry)[None, :]
-    ghosts = ghost_psf(geometry, config)
-    taps = main_lobe_taps(geometry, config) if lobe is not None else None
-    m_echo = _beam_pattern(total, ghosts) * taper * gain_r
-    m_bg = _background_mean(geometry, config)
-    noise = _noise_power(geometry, config)
-    shape = geometry.shape
-    m_scatter = m_echo + (m_bg - noise)
-    field = None
-    if config.speckle and config.ghosts == "coherent" and (ghosts is not None or taps is not None):
-        e_tap = _beam_pattern(cells, taps)
-        sub = total * gain_r
-        with np.errstate(divide="ignore", invalid="ignore"):
-            reached = e_tap > 1e-12 * max(float(e_tap.max()), 1e-300)
-            scale = np.where(reached, np.sqrt(total / np.where(reached, e_tap, 1.0)), 0.0)
-        field = _CoherentField(a=np.sqrt(cells * gain_r), taps=taps, scale=scale,
-                               orphan=np.sqrt(np.where(reached, 0.0, sub)), ghosts=ghosts)
-    intensity = _one_look(rng, shape, config, field, taper, m_bg, m_scatter, noise)
-    if config.looks > 1:
-        for _ in range(config.looks - 1):
-            intensity += _one_look(rng, shape, config, field, taper, m_bg, m_scatter, noise)
-        intensity /= config.looks
+    echo = _mean_echo(smp, geometry, config)
+    intensity = _speckled_intensity(rng, geometry.shape, config, echo)
     assist_db = _gain_assist_db(intensity, config)
     if assist_db > 0:
         intensity *= 10.0 ** (-assist_db / 10.0)
         config = config.replace(rx_gain_db=_rx_gain(geometry, config) - assist_db)
     image = _receive(intensity, config)
     # Truth from the unblurred scene.
-    scale = taper * gain_r
-    mask, peak_db = _class_truth(e_struct * scale, e_clutter * scale, m_bg, config)
-    struct = mask == STRUCTURE
-    has = struct.any(axis=0)
-    first = np.where(has, struct.argmax(axis=0), -1).astype(np.int64)
-    first_r = np.where(has, geometry.range_m[np.maximum(first, 0)], np.nan)
-    surf, surfs = _surface_truth(smp, geometry, config, has, gap_m=length + 2.0 * geometry.range_resolution_m,
-                                 lobe=lobe)
-    meta: dict[str, Any] = {"simulated": scene.name or "scene"}
-    if assist_db > 0:
-        meta["gain_assist_db"] = assist_db
-    if recording_meta:
-        meta["pulse_width_us"] = 2e6 * length / geometry.sound_speed_m_s
-        meta["sound_speed_m_s"] = geometry.sound_speed_m_s
-        if config.receiver == "log":
-            meta["log_dynamic_range_db"] = config.dynamic_range_db
-    ping = Ping(
-        image=image,
-        geometry=geometry,
-        time_ns=time_ns,
-        source="",
-        meta=meta,
-    )
-    int_seed = int(seed) if isinstance(seed, int | np.integer) else None
-    return SimResult(
-        ping=ping,
-        clean=np.clip(m_echo, 0.0, 1.0).astype(np.float32),
-        class_mask=mask,
-        first_return_bin=first,
-        first_return_range_m=first_r,
-        config=config,
-        scene_name=scene.name,
-        seed=int_seed,
-        unblurred=np.clip(cells * scale, 0.0, 1.0).astype(np.float32),
-        structure_peak_snr_db=peak_db.astype(np.float64),
-        surface_range_m=surf,
-        surface_ranges_m=surfs,
-    )
+    truth = _ping_truth(smp, geometry, config, echo, e_struct, e_clutter)
+    meta = _ping_meta(scene, geometry, config, assist_db, echo.pulse_length_m, recording_meta=recording_meta)
+    ping = Ping(image=image, geometry=geometry, time_ns=time_ns, source="", meta=meta)
+    return _sim_result(ping, scene, seed, config, echo, truth)
 
 
 # ---------------------------------------------------------------------- measuring leading edges
@@ -1677,19 +1838,55 @@ def _smooth_edge_positions(pos: NDArray[np.float64], align: str, degree: int, ma
     return out
 
 
+class _ColumnEdges(NamedTuple):
+    """Per beam of one image, the background level in front of the window and the edge position."""
+
+    background: NDArray[np.float64]
+    #: Fractional bin of each beam's 50 % crossing (NaN without an edge).
+    position: NDArray[np.float64]
+
+
+def _column_edges(img: NDArray[np.float64], smoothed: NDArray[np.float64], lo: int, hi: int, *,
+                  background_bins: int, min_snr: float) -> _ColumnEdges:
+    """Background (median of the ``background_bins`` rows before row ``lo``) and, in rows
+    ``lo:hi`` of the 3 x 3 ``smoothed`` image, the 50 % crossing of every beam's first peak
+    that clears the background by ``min_snr`` robust standard deviations."""
+    _, m = img.shape
+    b0 = max(0, lo - background_bins)
+    bg = np.median(img[b0:lo], axis=0) if lo > b0 else np.zeros(m)
+    sm = smoothed
+    if lo > b0:
+        spread = 1.4826 * np.median(np.abs(sm[b0:lo] - np.median(sm[b0:lo], axis=0)), axis=0)
+    else:
+        spread = np.zeros(m)
+    pos = np.full(m, np.nan)
+    for j in range(m):
+        y = sm[lo:hi, j] - bg[j]
+        if y.size < 3 or y.max() <= min_snr * max(spread[j], 1e-6):
+            continue
+        c = first_peak_crossing(y)
+        pos[j] = lo + c
+    return _ColumnEdges(bg, pos)
+
+
+def _edge_profiles(img: NDArray[np.float64], background: NDArray[np.float64], positions: dict[int, float],
+                   offs: NDArray[np.float64]) -> list[NDArray[np.float64]]:
+    """The intensity of every beam of ``positions`` (beam -> edge position) at the offsets ``offs``
+    from its edge, less the beam's ``background`` (beams whose offsets leave the image skipped)."""
+    n = img.shape[0]
+    out = []
+    for j, mv in positions.items():
+        x = mv + offs
+        if x[0] < 0 or x[-1] > n - 1:
+            continue
+        out.append(np.interp(x, np.arange(n), img[:, j]) - background[j])
+    return out
+
+
 def measure_edge_rise(
-    images: Any,
-    geometry: SonarGeometry,
-    *,
-    min_range_m: float,
-    max_range_m: float,
-    config: SimulationConfig | None = None,
-    half_bins: int = 25,
-    background_bins: int = 40,
-    min_snr: float = 4.0,
-    max_jump_bins: float = 3.0,
-    floor_bins: int = 0,
-    align: Literal["median", "poly"] = "median",
+    images: Any, geometry: SonarGeometry, *, min_range_m: float, max_range_m: float,
+    config: SimulationConfig | None = None, half_bins: int = 25, background_bins: int = 40, min_snr: float = 4.0,
+    max_jump_bins: float = 3.0, floor_bins: int = 0, align: Literal["median", "poly"] = "median",
     poly_degree: int = 3,
 ) -> EdgeRise:
     """10-90 % rise (bins) of the first surface echo in a range window: real and simulated alike.
@@ -1750,26 +1947,10 @@ def measure_edge_rise(
     acc: list[NDArray[np.float64]] = []
     for item in images:
         img = _linear_intensity(np.asarray(getattr(item, "image", item), dtype=np.float64), config)
-        n, m = img.shape
-        b0 = max(0, lo - background_bins)
-        bg = np.median(img[b0:lo], axis=0) if lo > b0 else np.zeros(m)
-        sm = uniform_filter(img, size=3, mode="nearest")
-        if lo > b0:
-            spread = 1.4826 * np.median(np.abs(sm[b0:lo] - np.median(sm[b0:lo], axis=0)), axis=0)
-        else:
-            spread = np.zeros(m)
-        pos = np.full(m, np.nan)
-        for j in range(m):
-            y = sm[lo:hi, j] - bg[j]
-            if y.size < 3 or y.max() <= min_snr * max(spread[j], 1e-6):
-                continue
-            c = first_peak_crossing(y)
-            pos[j] = lo + c
-        for j, mv in _smooth_edge_positions(pos, align, poly_degree, max_jump_bins).items():
-            x = mv + offs
-            if x[0] < 0 or x[-1] > n - 1:
-                continue
-            acc.append(np.interp(x, np.arange(n), img[:, j]) - bg[j])
+        edges = _column_edges(img, uniform_filter(img, size=3, mode="nearest"), lo, hi,
+                              background_bins=background_bins, min_snr=min_snr)
+        kept = _smooth_edge_positions(edges.position, align, poly_degree, max_jump_bins)
+        acc += _edge_profiles(img, edges.background, kept, offs)
     if not acc:
         raise InputError("images: no beam holds a leading edge in the window")
     prof = np.mean(acc, axis=0)

@@ -50,7 +50,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Sequence
-from typing import Any, Literal
+from typing import Any, Literal, NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -890,6 +890,81 @@ def _lsq_jacobian_factory(
     return jac
 
 
+@dataclasses.dataclass(frozen=True, eq=False)
+class _LsqLayout:
+    """The least-squares parameter vector ``theta``: ``nv`` stick-breaking weight fractions, then
+    every family's parameters, each object scale as a ratio (>= ``min_ratio``) to the background's.
+
+    Attributes
+    ----------
+    spec : _Spec
+    nv : int
+        Number of stick-breaking fractions (``theta[:nv]``).
+    bg : int
+        Component index of the background family (the first continuous one).
+    n_par : tuple of int
+        Number of parameters of every component (0 for the spike).
+    lo, hi : ndarray
+        Box bounds of ``theta``.
+    """
+
+    spec: _Spec
+    nv: int
+    bg: int
+    n_par: tuple[int, ...]
+    lo: NDArray[np.float64]
+    hi: NDArray[np.float64]
+
+    @classmethod
+    def of(cls, spec: _Spec, w0: NDArray[np.float64]) -> _LsqLayout:
+        """The layout of ``spec``'s mixture, with ``w0`` giving the number of weight fractions."""
+        lo: list[float] = []
+        hi: list[float] = []
+        nv = len(_weights_to_stick(w0, spec.spike))
+        lo += [0.0] * nv
+        hi += [1.0] * nv
+        bg = spec.free[0]
+        ratio_max = spec.smax / spec.smin
+        for i in spec.free:
+            for b in _bounds(spec, spec.names[i])[:-1]:
+                lo.append(b[0])
+                hi.append(b[1])
+            # object scales are parametrised as a ratio >= 1 to the background scale (ordering)
+            lo.append(spec.smin if i == bg else spec.min_ratio)
+            hi.append(spec.smax if i == bg else ratio_max)
+        n_par = tuple(family(name).n_params for name in spec.names)
+        return cls(spec, nv, bg, n_par, np.array(lo), np.array(hi))
+
+    def unpack(self, theta: NDArray[np.float64]) -> tuple[NDArray[np.float64], list[tuple[float, ...]]]:
+        """Weights and parameter tuples of ``theta`` (object scales capped at ``smax``)."""
+        spec = self.spec
+        n = len(spec.names)
+        w = _stick_to_weights(theta[: self.nv], spec.spike, n)
+        params: list[tuple[float, ...]] = []
+        k = self.nv
+        s_bg = float(theta[self.nv + self.n_par[self.bg] - 1])
+        for i in range(n):
+            m = self.n_par[i]
+            vals = [float(t) for t in theta[k : k + m]]
+            if m and i != self.bg:
+                vals[-1] = min(vals[-1] * s_bg, spec.smax)
+            params.append(tuple(vals))
+            k += m
+        return w, params
+
+    def start(self, w0: NDArray[np.float64], p0: list[tuple[float, ...]]) -> NDArray[np.float64]:
+        """``theta`` of a start ``(w0, p0)``, strictly inside the bounds."""
+        bg, lo_a, hi_a = self.bg, self.lo, self.hi
+        s_bg0 = p0[bg][-1]
+        p0r = [p if (not p or i == bg) else tuple(p[:-1]) + (max(p[-1] / s_bg0, self.spec.min_ratio),)
+               for i, p in enumerate(p0)]
+        theta0 = np.concatenate([_weights_to_stick(w0, self.spec.spike)] + [np.array(p, float) for p in p0r])
+        theta0 = np.clip(theta0, lo_a, hi_a)
+        # keep starts strictly inside the box (trust-region reflective requirement)
+        span = hi_a - lo_a
+        return np.clip(theta0, lo_a + 1e-9 * span, hi_a - 1e-9 * span)
+
+
 def _lsq(
     spec: _Spec,
     counts: NDArray[np.float64],
@@ -903,48 +978,14 @@ def _lsq(
     from scipy.optimize import least_squares
 
     p_hat = counts / counts.sum()
-    n = len(spec.names)
-    free = spec.free
-    lo: list[float] = []
-    hi: list[float] = []
-    nv = len(_weights_to_stick(starts[0][0], spec.spike))
-    lo += [0.0] * nv
-    hi += [1.0] * nv
-    bg = free[0]
-    ratio_max = spec.smax / spec.smin
-    for i in free:
-        for b in _bounds(spec, spec.names[i])[:-1]:
-            lo.append(b[0])
-            hi.append(b[1])
-        # object scales are parametrised as a ratio >= 1 to the background scale (ordering)
-        lo.append(spec.smin if i == bg else spec.min_ratio)
-        hi.append(spec.smax if i == bg else ratio_max)
-    lo_a = np.array(lo)
-    hi_a = np.array(hi)
-    n_par = [family(name).n_params for name in spec.names]
-    bg_scale_idx = nv + n_par[bg] - 1
-
-    def unpack(theta: NDArray[np.float64]) -> tuple[NDArray[np.float64], list[tuple[float, ...]]]:
-        w = _stick_to_weights(theta[:nv], spec.spike, n)
-        params: list[tuple[float, ...]] = []
-        k = nv
-        s_bg = float(theta[bg_scale_idx])
-        for i in range(n):
-            m = n_par[i]
-            vals = [float(t) for t in theta[k : k + m]]
-            if m and i != bg:
-                vals[-1] = min(vals[-1] * s_bg, spec.smax)
-            params.append(tuple(vals))
-            k += m
-        return w, params
-
-    analytic = _lsq_jacobian_factory(spec, nv, bg)
+    layout = _LsqLayout.of(spec, starts[0][0])
+    analytic = _lsq_jacobian_factory(spec, layout.nv, layout.bg)
     cache: dict[str, Any] = {}
 
     def model(theta: NDArray[np.float64]) -> tuple[NDArray[np.float64], list[tuple[float, ...]], NDArray[np.float64]]:
         key = theta.tobytes()
         if cache.get("key") != key:
-            w, params = unpack(theta)
+            w, params = layout.unpack(theta)
             cache.update(key=key, val=(w, params, _pmfs(spec, params)))
         return cache["val"]  # type: ignore[no-any-return]
 
@@ -959,24 +1000,16 @@ def _lsq(
     best = None
     nfev = 0
     for w0, p0 in starts:
-        s_bg0 = p0[bg][-1]
-        p0r = [p if (not p or i == bg) else tuple(p[:-1]) + (max(p[-1] / s_bg0, spec.min_ratio),)
-               for i, p in enumerate(p0)]
-        theta0 = np.concatenate([_weights_to_stick(w0, spec.spike)] + [np.array(p, float) for p in p0r])
-        theta0 = np.clip(theta0, lo_a, hi_a)
-        # keep starts strictly inside the box (trust-region reflective requirement)
-        span = hi_a - lo_a
-        theta0 = np.clip(theta0, lo_a + 1e-9 * span, hi_a - 1e-9 * span)
-        res = least_squares(resid, theta0, jac=jac if analytic is not None else "2-point",
-                            bounds=(lo_a, hi_a), method="trf", loss=loss,
+        res = least_squares(resid, layout.start(w0, p0), jac=jac if analytic is not None else "2-point",
+                            bounds=(layout.lo, layout.hi), method="trf", loss=loss,
                             x_scale="jac", xtol=1e-12, ftol=1e-12, gtol=1e-12, max_nfev=2000)
         nfev += int(res.nfev)
         if best is None or res.cost < best.cost:
             best = res
-        if lazy and not _lsq_suspicious(spec, res, unpack, min_weight):
+        if lazy and not _lsq_suspicious(spec, res, layout.unpack, min_weight):
             break
     assert best is not None
-    w, params = unpack(best.x)
+    w, params = layout.unpack(best.x)
     return w, params, nfev, bool(best.status > 0)
 
 
@@ -1071,22 +1104,150 @@ def _result_flags(flags: set[str], names: tuple[str, ...], classes: tuple[int, .
     return list(params)
 
 
+@dataclasses.dataclass(frozen=True, eq=False)
+class _FitProblem:
+    """What :func:`fit_mixture` fits: the histogram, the model and its class layout."""
+
+    spec: _Spec
+    counts: NDArray[np.float64]
+    n_clipped: int
+    n_families: int
+    classes: tuple[int, ...]
+    class_names: tuple[str, ...]
+
+
+def _fit_problem(data: ArrayLike, families: Sequence[str], *, method: str, zero_spike: bool, n_levels: int,
+                 binning: Binning, class_names: Sequence[str] | None, min_weight: float, scale_max: float,
+                 min_scale_ratio: float, discretization: str) -> _FitProblem:
+    """Check :func:`fit_mixture`'s options (in its documented order of errors) and build the
+    histogram of ``data``, the model spec and the class layout."""
+    if method not in ("lsq", "em"):
+        raise InputError(f"method: must be 'lsq' or 'em', got {method!r}")
+    fams = tuple(family(f).name for f in families)
+    if not fams or "zero" in fams:
+        raise InputError("families: need at least one continuous family (the spike is zero_spike)")
+    counts, n_clipped = as_counts(data, n_levels, binning=binning)
+    L = counts.size
+    levels = quantization_levels(L, binning=binning)
+    N = float(counts.sum())
+    if N <= 0:
+        raise FitError("data: histogram is empty (no pixels)")
+    if not 0 <= min_weight < 1:
+        raise InputError(f"min_weight: must be in [0, 1), got {min_weight}")
+    step = float(levels[1])
+    if not step < scale_max:
+        raise InputError(f"scale_max: must exceed one level step ({step:.3g}), got {scale_max}")
+    names = (("zero",) if zero_spike else ()) + fams
+    if discretization not in ("exact", "paper"):
+        raise InputError(f"discretization: must be 'exact' or 'paper', got {discretization!r}")
+    if discretization == "paper" and (method != "lsq" or binning != "floor"):
+        raise InputError("discretization: 'paper' needs method='lsq' and binning='floor'")
+    if not min_scale_ratio >= 1.0:
+        raise InputError(f"min_scale_ratio: must be >= 1, got {min_scale_ratio}")
+    spec = _Spec(names, zero_spike, levels, step, float(scale_max), float(min_scale_ratio), discretization)
+    classes, cnames = _class_layout(names, zero_spike, class_names)
+    return _FitProblem(spec, counts, n_clipped, len(fams), classes, cnames)
+
+
+def _starting_points(spec: _Spec, counts: NDArray[np.float64],
+                     init: tuple[ArrayLike, Sequence[tuple[float, ...]]] | None
+                     ) -> list[tuple[NDArray[np.float64], list[tuple[float, ...]]]]:
+    """The caller's ``init`` (checked, weights normalised) as the one start, else the initial
+    guesses of :func:`_initial_guesses`."""
+    if init is None:
+        return _initial_guesses(spec, counts)
+    names = spec.names
+    w_init = np.asarray(init[0], dtype=np.float64)
+    p_init = [tuple(float(v) for v in p) for p in init[1]]
+    if w_init.shape != (len(names),) or len(p_init) != len(names):
+        raise InputError(f"init: need {len(names)} weights and parameter tuples")
+    return [(w_init / w_init.sum(), p_init)]
+
+
+class _RawFit(NamedTuple):
+    """A fitter's result before normalisation and flagging."""
+
+    weights: NDArray[np.float64]
+    params: list[tuple[float, ...]]
+    n_iter: int
+    converged: bool
+    loglik_trace: NDArray[np.float64]
+
+
+def _run_fitter(problem: _FitProblem, flags: set[str], init: tuple[ArrayLike, Sequence[tuple[float, ...]]] | None,
+                *, method: str, loss: str, max_iter: int, tol: float, min_weight: float) -> _RawFit:
+    """Fit with ``method`` from ``init`` or the initial guesses (least squares without ``init``
+    starts from a short EM fit); an all-zero histogram is the spike alone, without fitting."""
+    spec, counts = problem.spec, problem.counts
+    starts = _starting_points(spec, counts, init)
+    trace = np.zeros(0)
+    if "all_zero" in flags:
+        w = np.zeros(len(spec.names))
+        w[0] = 1.0
+        params = starts[0][1]
+        n_iter, conv = 0, True
+    elif method == "em":
+        w, params, n_iter, conv, trace = _em_best(spec, counts, starts, max_iter, tol, min_weight)
+    else:
+        w, params, n_iter, conv = _lsq_fit(spec, counts, starts, loss, min_weight, warm=init is None)
+    return _RawFit(w, params, n_iter, conv, trace)
+
+
+def _model_kld(counts: NDArray[np.float64], q: NDArray[np.float64], discretization: str) -> float:
+    """``D(p_hat || q)`` (eq. 11); with the paper's discretisation against the unnormalised model,
+    as the authors computed it."""
+    if discretization == "paper":
+        from scipy.special import rel_entr
+
+        return float(np.sum(rel_entr(counts / float(counts.sum()), q)))
+    return kl_divergence(counts, q)
+
+
+def _finished_fit(problem: _FitProblem, raw: _RawFit, flags: set[str], *, method: Method, binning: Binning,
+                  min_weight: float) -> MixtureFit:
+    """The :class:`MixtureFit` of a fitter's result: weights renormalised, KLD and
+    log-likelihood of the model, the result's flags added to ``flags``."""
+    spec, counts = problem.spec, problem.counts
+    w = np.clip(np.asarray(raw.weights, dtype=np.float64), 0.0, None)
+    w = w / w.sum()
+    q = w @ _pmfs(spec, raw.params)
+    kld = _model_kld(counts, q, spec.discretization)
+    ll = _loglik(counts, q)
+    if not math.isfinite(kld):
+        flags.add("zero_mass")
+    if not raw.converged:
+        flags.add("not_converged")
+    params = _result_flags(flags, spec.names, problem.classes, w, raw.params, n_families=problem.n_families,
+                           min_weight=min_weight, step=spec.smin, scale_max=spec.smax)
+    w.setflags(write=False)
+    spec.levels.setflags(write=False)
+    counts.setflags(write=False)
+    return MixtureFit(
+        weights=w,
+        params=tuple(tuple(float(v) for v in p) for p in params),
+        component_names=spec.names,
+        component_classes=problem.classes,
+        class_names=problem.class_names,
+        kld=kld,
+        loglik=ll,
+        n_iter=int(raw.n_iter),
+        converged=bool(raw.converged),
+        flags=frozenset(flags),
+        levels=spec.levels,
+        counts=counts,
+        method=method,
+        binning=binning,
+        loglik_trace=raw.loglik_trace,
+        discretization=spec.discretization,
+    )
+
+
 def fit_mixture(
-    data: ArrayLike,
-    *,
-    families: Sequence[str] = ("exponential", "rayleigh"),
-    method: Method = "lsq",
-    zero_spike: bool = True,
-    n_levels: int = 256,
-    binning: Binning = "round",
-    class_names: Sequence[str] | None = None,
-    min_weight: float = 2e-3,
-    scale_max: float = 1.0,
-    loss: str = "linear",
-    max_iter: int = 1000,
-    tol: float = 1e-11,
-    init: tuple[ArrayLike, Sequence[tuple[float, ...]]] | None = None,
-    min_scale_ratio: float = 2.0,
+    data: ArrayLike, *, families: Sequence[str] = ("exponential", "rayleigh"), method: Method = "lsq",
+    zero_spike: bool = True, n_levels: int = 256, binning: Binning = "round",
+    class_names: Sequence[str] | None = None, min_weight: float = 2e-3, scale_max: float = 1.0,
+    loss: str = "linear", max_iter: int = 1000, tol: float = 1e-11,
+    init: tuple[ArrayLike, Sequence[tuple[float, ...]]] | None = None, min_scale_ratio: float = 2.0,
     discretization: Literal["exact", "paper"] = "exact",
 ) -> MixtureFit:
     """Fit a zero-spike mixture of discrete pmfs to one ping's intensity histogram.
@@ -1150,87 +1311,10 @@ def fit_mixture(
     constant, tiny images; a vanishing object component as in Table I image 6) give a result
     carrying :attr:`MixtureFit.flags`, never a silently wrong one.
     """
-    if method not in ("lsq", "em"):
-        raise InputError(f"method: must be 'lsq' or 'em', got {method!r}")
-    fams = tuple(family(f).name for f in families)
-    if not fams or "zero" in fams:
-        raise InputError("families: need at least one continuous family (the spike is zero_spike)")
-    counts, n_clipped = as_counts(data, n_levels, binning=binning)
-    L = counts.size
-    levels = quantization_levels(L, binning=binning)
-    N = float(counts.sum())
-    if N <= 0:
-        raise FitError("data: histogram is empty (no pixels)")
-    if not 0 <= min_weight < 1:
-        raise InputError(f"min_weight: must be in [0, 1), got {min_weight}")
-    step = float(levels[1])
-    if not step < scale_max:
-        raise InputError(f"scale_max: must exceed one level step ({step:.3g}), got {scale_max}")
-    names = (("zero",) if zero_spike else ()) + fams
-    if discretization not in ("exact", "paper"):
-        raise InputError(f"discretization: must be 'exact' or 'paper', got {discretization!r}")
-    if discretization == "paper" and (method != "lsq" or binning != "floor"):
-        raise InputError("discretization: 'paper' needs method='lsq' and binning='floor'")
-    if not min_scale_ratio >= 1.0:
-        raise InputError(f"min_scale_ratio: must be >= 1, got {min_scale_ratio}")
-    spec = _Spec(names, zero_spike, levels, step, float(scale_max), float(min_scale_ratio), discretization)
-    classes, cnames = _class_layout(names, zero_spike, class_names)
-
-    flags = _input_flags(counts, n_clipped, zero_spike)
-    if init is not None:
-        w_init = np.asarray(init[0], dtype=np.float64)
-        p_init = [tuple(float(v) for v in p) for p in init[1]]
-        if w_init.shape != (len(names),) or len(p_init) != len(names):
-            raise InputError(f"init: need {len(names)} weights and parameter tuples")
-        starts = [(w_init / w_init.sum(), p_init)]
-    else:
-        starts = _initial_guesses(spec, counts)
-
-    trace = np.zeros(0)
-    if "all_zero" in flags:
-        w = np.zeros(len(names))
-        w[0] = 1.0
-        params = starts[0][1]
-        n_iter, conv = 0, True
-    elif method == "em":
-        w, params, n_iter, conv, trace = _em_best(spec, counts, starts, max_iter, tol, min_weight)
-    else:
-        w, params, n_iter, conv = _lsq_fit(spec, counts, starts, loss, min_weight, warm=init is None)
-
-    w = np.clip(np.asarray(w, dtype=np.float64), 0.0, None)
-    w = w / w.sum()
-    q = w @ _pmfs(spec, params)
-    if discretization == "paper":
-        from scipy.special import rel_entr
-
-        kld = float(np.sum(rel_entr(counts / N, q)))
-    else:
-        kld = kl_divergence(counts, q)
-    ll = _loglik(counts, q)
-    if not math.isfinite(kld):
-        flags.add("zero_mass")
-    if not conv:
-        flags.add("not_converged")
-    params = _result_flags(flags, names, classes, w, params, n_families=len(fams), min_weight=min_weight,
-                           step=step, scale_max=float(scale_max))
-    w.setflags(write=False)
-    levels.setflags(write=False)
-    counts.setflags(write=False)
-    return MixtureFit(
-        weights=w,
-        params=tuple(tuple(float(v) for v in p) for p in params),
-        component_names=names,
-        component_classes=classes,
-        class_names=cnames,
-        kld=kld,
-        loglik=ll,
-        n_iter=int(n_iter),
-        converged=bool(conv),
-        flags=frozenset(flags),
-        levels=levels,
-        counts=counts,
-        method=method,
-        binning=binning,
-        loglik_trace=trace,
-        discretization=discretization,
-    )
+    problem = _fit_problem(data, families, method=method, zero_spike=zero_spike, n_levels=n_levels,
+                           binning=binning, class_names=class_names, min_weight=min_weight,
+                           scale_max=scale_max, min_scale_ratio=min_scale_ratio, discretization=discretization)
+    flags = _input_flags(problem.counts, problem.n_clipped, zero_spike)
+    raw = _run_fitter(problem, flags, init, method=method, loss=loss, max_iter=max_iter, tol=tol,
+                      min_weight=min_weight)
+    return _finished_fit(problem, raw, flags, method=method, binning=binning, min_weight=min_weight)
