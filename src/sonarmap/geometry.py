@@ -211,6 +211,46 @@ def uniform_azimuths(n_beams: int, fov_rad: float) -> NDArray[np.float64]:
     return -fov / 2 + (np.arange(n) + 0.5) * step
 
 
+def _checked_axes(
+    azimuth_rad: ArrayLike, range_m: ArrayLike
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Frozen float64 copies of a geometry's azimuth and range tables, checked (non-empty, strictly
+    increasing, azimuths in (-pi, pi), ranges in ``[0, MAX_RANGE_M]``)."""
+    az = _frozen_array(azimuth_rad, "azimuth_rad", max_size=MAX_BEAMS)
+    rng = _frozen_array(range_m, "range_m", max_size=MAX_BINS)
+    if az.size < 1:
+        raise GeometryError("azimuth_rad: at least one beam is required")
+    if rng.size < 1:
+        raise GeometryError("range_m: at least one range bin is required")
+    if az.size > 1 and np.any(np.diff(az) <= 0):
+        raise GeometryError("azimuth_rad: beam azimuths must be strictly increasing")
+    if np.any(np.abs(az) >= math.pi):
+        raise GeometryError("azimuth_rad: azimuths must lie in (-pi, pi)")
+    if rng.size > 1 and np.any(np.diff(rng) <= 0):
+        raise GeometryError("range_m: range bins must be strictly increasing")
+    if rng[0] < 0:
+        raise GeometryError(f"range_m: ranges must be non-negative (first is {rng[0]})")
+    if rng[-1] > MAX_RANGE_M:
+        raise GeometryError(f"range_m: ranges must be at most {MAX_RANGE_M:g} m (last is {rng[-1]:g})")
+    return az, rng
+
+
+def _checked_window(window: Any) -> tuple[float, float]:
+    """A ``(min_range, max_range)`` window as floats with ``0 <= min < max <= MAX_RANGE_M``."""
+    try:
+        lo_v, hi_v = window
+    except (TypeError, ValueError):
+        raise GeometryError(
+            f"window: must be a (min_range, max_range) pair, got {_describe(window)}"
+        ) from None
+    lo, hi = _real(lo_v, "window min_range"), _real(hi_v, "window max_range")
+    if not 0 <= lo < hi <= MAX_RANGE_M:
+        raise GeometryError(
+            f"window: need 0 <= min_range < max_range <= {MAX_RANGE_M:g} m, got ({lo}, {hi})"
+        )
+    return lo, hi
+
+
 @dataclasses.dataclass(frozen=True, eq=False)
 class SonarGeometry:
     """Geometry and acoustic constants of a multibeam imaging sonar.
@@ -264,25 +304,27 @@ class SonarGeometry:
     psf_raw: NDArray[np.float64] | None = dataclasses.field(default=None, repr=False)
 
     def __post_init__(self) -> None:
-        az = _frozen_array(self.azimuth_rad, "azimuth_rad", max_size=MAX_BEAMS)
-        rng = _frozen_array(self.range_m, "range_m", max_size=MAX_BINS)
-        if az.size < 1:
-            raise GeometryError("azimuth_rad: at least one beam is required")
-        if rng.size < 1:
-            raise GeometryError("range_m: at least one range bin is required")
-        if az.size > 1 and np.any(np.diff(az) <= 0):
-            raise GeometryError("azimuth_rad: beam azimuths must be strictly increasing")
-        if np.any(np.abs(az) >= math.pi):
-            raise GeometryError("azimuth_rad: azimuths must lie in (-pi, pi)")
-        if rng.size > 1 and np.any(np.diff(rng) <= 0):
-            raise GeometryError("range_m: range bins must be strictly increasing")
-        if rng[0] < 0:
-            raise GeometryError(f"range_m: ranges must be non-negative (first is {rng[0]})")
-        if rng[-1] > MAX_RANGE_M:
-            raise GeometryError(f"range_m: ranges must be at most {MAX_RANGE_M:g} m (last is {rng[-1]:g})")
+        az, rng = _checked_axes(self.azimuth_rad, self.range_m)
         object.__setattr__(self, "azimuth_rad", az)
         object.__setattr__(self, "range_m", rng)
-        n = az.size
+        self._set_beam_tables(az.size)
+        for field in ("noise", "frequency_hz", "sound_speed_m_s", "rx_gain_db"):
+            object.__setattr__(self, field, _real(getattr(self, field), field))
+        if self.noise < 0:
+            raise GeometryError(f"noise: 1/SNR must be >= 0 (got {self.noise})")
+        if self.frequency_hz <= 0:
+            raise GeometryError(f"frequency_hz: must be positive (got {self.frequency_hz})")
+        if not 1300.0 <= self.sound_speed_m_s <= 1700.0:
+            raise GeometryError(
+                f"sound_speed_m_s: {self.sound_speed_m_s} is outside 1300-1700 m/s (water)"
+            )
+        object.__setattr__(self, "fov_rad", self._checked_fov(az))
+        if self.window is not None:
+            object.__setattr__(self, "window", _checked_window(self.window))
+
+    def _set_beam_tables(self, n: int) -> None:
+        """Freeze ``psf``, ``taper`` and ``psf_raw`` (one entry per beam of ``n``), keep the raw beam
+        pattern and normalise ``psf`` to unit sum; ``taper`` gains must be positive."""
         for field in ("psf", "taper", "psf_raw"):
             val = getattr(self, field)
             if val is None:
@@ -304,47 +346,27 @@ class SonarGeometry:
                 object.__setattr__(self, "psf", _frozen_array(self.psf / total, "psf"))
         if self.taper is not None and np.any(self.taper <= 0):
             raise GeometryError("taper: per-beam gains must be positive")
-        for field in ("noise", "frequency_hz", "sound_speed_m_s", "rx_gain_db"):
-            object.__setattr__(self, field, _real(getattr(self, field), field))
-        if self.noise < 0:
-            raise GeometryError(f"noise: 1/SNR must be >= 0 (got {self.noise})")
-        if self.frequency_hz <= 0:
-            raise GeometryError(f"frequency_hz: must be positive (got {self.frequency_hz})")
-        if not 1300.0 <= self.sound_speed_m_s <= 1700.0:
-            raise GeometryError(
-                f"sound_speed_m_s: {self.sound_speed_m_s} is outside 1300-1700 m/s (water)"
-            )
-        if self.fov_rad is None:
-            if n > 1:
-                fov = float(az[-1] - az[0] + np.mean(np.diff(az)))
-            else:
-                # one azimuth says nothing about the beam's width; never write an fov of 0
-                warnings.warn(
-                    f"geometry '{self.name}': a single beam without fov_rad; assuming a "
-                    f"{math.degrees(SINGLE_BEAM_WIDTH_RAD):g} deg beam width",
-                    GeometryWarning,
-                    stacklevel=3,
-                )
-                fov = SINGLE_BEAM_WIDTH_RAD
-            object.__setattr__(self, "fov_rad", min(fov, _TWO_PI))
-        else:
+
+    def _checked_fov(self, az: NDArray[np.float64]) -> float:
+        """``fov_rad`` checked to lie in (0, 2 pi]; when None, the azimuth span plus one mean beam
+        spacing (capped at 2 pi), or :data:`SINGLE_BEAM_WIDTH_RAD` with a warning for one beam."""
+        if self.fov_rad is not None:
             fov = _real(self.fov_rad, "fov_rad")
             if not 0 < fov <= _TWO_PI:
                 raise GeometryError(f"fov_rad: must be in (0, 2 pi] (got {fov})")
-            object.__setattr__(self, "fov_rad", fov)
-        if self.window is not None:
-            try:
-                lo_v, hi_v = self.window
-            except (TypeError, ValueError):
-                raise GeometryError(
-                    f"window: must be a (min_range, max_range) pair, got {_describe(self.window)}"
-                ) from None
-            lo, hi = _real(lo_v, "window min_range"), _real(hi_v, "window max_range")
-            if not 0 <= lo < hi <= MAX_RANGE_M:
-                raise GeometryError(
-                    f"window: need 0 <= min_range < max_range <= {MAX_RANGE_M:g} m, got ({lo}, {hi})"
-                )
-            object.__setattr__(self, "window", (lo, hi))
+            return fov
+        if az.size > 1:
+            fov = float(az[-1] - az[0] + np.mean(np.diff(az)))
+        else:
+            # one azimuth says nothing about the beam's width; never write an fov of 0
+            warnings.warn(
+                f"geometry '{self.name}': a single beam without fov_rad; assuming a "
+                f"{math.degrees(SINGLE_BEAM_WIDTH_RAD):g} deg beam width",
+                GeometryWarning,
+                stacklevel=4,  # past this method, __post_init__ and __init__: the constructor's caller
+            )
+            fov = SINGLE_BEAM_WIDTH_RAD
+        return min(fov, _TWO_PI)
 
     # ------------------------------------------------------------------ construction helpers
     @classmethod
@@ -527,6 +549,83 @@ _KNOWN_KEYS = {
 _MAX_NAME_CHARS = 256
 
 
+def _field(d: Mapping[str, Any], key: str, source: str) -> Any:
+    """``d[key]``; a :class:`GeometryError` naming ``source`` if the field is missing."""
+    if key not in d:
+        raise GeometryError(f"{source}: missing field '{key}'")
+    return d[key]
+
+
+def _number_field(d: Mapping[str, Any], key: str, source: str, default: float | None = None) -> float:
+    """Field ``key`` as a finite float: required without a ``default``, else ``default`` if absent."""
+    val = _field(d, key, source) if default is None else d.get(key, default)
+    return _real(val, f"field '{key}'")
+
+
+def _list_field(d: Mapping[str, Any], key: str, max_len: int) -> NDArray[np.float64] | None:
+    """Optional field ``key`` as a list of 1 to ``max_len`` finite numbers (None if absent or null)."""
+    val = d.get(key)
+    return None if val is None else _real_list(val, f"field '{key}'", max_len)
+
+
+def _optional_count(d: Mapping[str, Any], key: str, maximum: int) -> int | None:
+    """Optional field ``key`` as an integer count in ``1..maximum`` (None if absent or null)."""
+    return None if d.get(key) is None else _count(d[key], f"field '{key}'", maximum)
+
+
+def _checked_name(name: object) -> str:
+    """``name`` if it is a printable string of at most ``_MAX_NAME_CHARS`` characters."""
+    if not isinstance(name, str) or len(name) > _MAX_NAME_CHARS or not name.isprintable():
+        raise GeometryError(
+            f"field 'name' must be a printable string of at most {_MAX_NAME_CHARS} characters, "
+            f"got {_describe(name)}"
+        )
+    return name
+
+
+def _optional_fov(d: Mapping[str, Any], source: str) -> float | None:
+    """Optional field ``fov`` in (0, 2 pi] rad (None if absent or null)."""
+    if d.get("fov") is None:
+        return None
+    fov = _number_field(d, "fov", source)
+    if not 0.0 < fov <= _TWO_PI:
+        raise GeometryError(f"field 'fov' must be in (0, 2 pi] rad, got {fov!r}")
+    return fov
+
+
+def _geometry_kwargs(d: Mapping[str, Any], source: str, name: str) -> dict[str, Any]:
+    """The :class:`SonarGeometry` arguments of the acoustic constants, beam pattern and taper fields
+    (defaults for the absent ones) and ``name``."""
+    return {
+        "noise": _number_field(d, "noise", source, 1e-2),
+        "rx_gain_db": _number_field(d, "rx_gain", source, 0.0),
+        "frequency_hz": _number_field(d, "frequency", source, 1.8e6),
+        "sound_speed_m_s": _number_field(d, "sound_speed", source, 1500.0),
+        "psf": _list_field(d, "psf", MAX_BEAMS),
+        "taper": _list_field(d, "taper", MAX_BEAMS),
+        "name": name,
+    }
+
+
+def _default_azimuths(
+    n_beams: int | None, fov: float | None, source: str
+) -> tuple[NDArray[np.float64], str]:
+    """Azimuths and their ``azimuth_source`` for a dict without ``azimuths``: those of the preset with
+    this beam count and fov, else uniform over ``fov`` with a :class:`GeometryWarning`."""
+    if n_beams is None or fov is None:
+        raise GeometryError("need 'azimuths', or 'num_beams' and 'fov'")
+    match = _matching_preset(n_beams, fov)
+    if match is not None:
+        return match.azimuth_rad, f"preset:{match.name}"
+    warnings.warn(
+        f"{source}: no azimuth table; assuming {n_beams} beams uniform "
+        f"over fov={fov:.4f} rad",
+        GeometryWarning,
+        stacklevel=4,  # past this helper, geometry_from_dict and its caller (e.g. load_geometry)
+    )
+    return uniform_azimuths(n_beams, fov), "uniform"
+
+
 def geometry_from_dict(
     d: Mapping[str, Any], *, source: str = "<dict>", default_name: str = "sonar"
 ) -> SonarGeometry:
@@ -565,76 +664,28 @@ def geometry_from_dict(
     """
     if not isinstance(d, Mapping):
         raise GeometryError(f"{source}: geometry JSON must be an object, got {type(d).__name__}")
-
-    def need(key: str) -> Any:
-        if key not in d:
-            raise GeometryError(f"{source}: missing field '{key}'")
-        return d[key]
-
-    def opt(key: str) -> Any:
-        return d.get(key)
-
-    def num(key: str, default: float | None = None) -> float:
-        val = need(key) if default is None else d.get(key, default)
-        return _real(val, f"field '{key}'")
-
-    def table(key: str, max_len: int) -> NDArray[np.float64] | None:
-        val = opt(key)
-        return None if val is None else _real_list(val, f"field '{key}'", max_len)
-
     try:
-        name = d.get("name", default_name)
-        if not isinstance(name, str) or len(name) > _MAX_NAME_CHARS or not name.isprintable():
-            raise GeometryError(
-                f"field 'name' must be a printable string of at most {_MAX_NAME_CHARS} characters, "
-                f"got {_describe(name)}"
-            )
-        fov = None
-        if opt("fov") is not None:
-            fov = num("fov")
-            if not 0.0 < fov <= _TWO_PI:
-                raise GeometryError(f"field 'fov' must be in (0, 2 pi] rad, got {fov!r}")
-        n_beams = None if opt("num_beams") is None else _count(d["num_beams"], "field 'num_beams'", MAX_BEAMS)
-        n_bins = None if opt("num_bins") is None else _count(d["num_bins"], "field 'num_bins'", MAX_BINS)
-        azimuths = table("azimuths", MAX_BEAMS)
+        name = _checked_name(d.get("name", default_name))
+        fov = _optional_fov(d, source)
+        n_beams = _optional_count(d, "num_beams", MAX_BEAMS)
+        n_bins = _optional_count(d, "num_bins", MAX_BINS)
+        azimuths = _list_field(d, "azimuths", MAX_BEAMS)
         if azimuths is not None and n_beams is not None and azimuths.size != n_beams:
             raise GeometryError(f"'azimuths' has {azimuths.size} entries but num_beams is {n_beams}")
-        kwargs: dict[str, Any] = {
-            "noise": num("noise", 1e-2),
-            "rx_gain_db": num("rx_gain", 0.0),
-            "frequency_hz": num("frequency", 1.8e6),
-            "sound_speed_m_s": num("sound_speed", 1500.0),
-            "psf": table("psf", MAX_BEAMS),
-            "taper": table("taper", MAX_BEAMS),
-            "name": name,
-        }
+        kwargs = _geometry_kwargs(d, source, name)
         if azimuths is None:
-            if n_beams is None or fov is None:
-                raise GeometryError("need 'azimuths', or 'num_beams' and 'fov'")
-            match = _matching_preset(n_beams, fov)
-            if match is not None:
-                azimuths = match.azimuth_rad
-                kwargs["azimuth_source"] = f"preset:{match.name}"
-            else:
-                warnings.warn(
-                    f"{source}: no azimuth table; assuming {n_beams} beams uniform "
-                    f"over fov={fov:.4f} rad",
-                    GeometryWarning,
-                    stacklevel=3,
-                )
-                azimuths = uniform_azimuths(n_beams, fov)
-                kwargs["azimuth_source"] = "uniform"
-        ranges = table("ranges", MAX_BINS)
+            azimuths, kwargs["azimuth_source"] = _default_azimuths(n_beams, fov, source)
+        ranges = _list_field(d, "ranges", MAX_BINS)
         if ranges is not None:
             if n_bins is not None and ranges.size != n_bins:
                 raise GeometryError(f"'ranges' has {ranges.size} entries but num_bins is {n_bins}")
             return SonarGeometry(azimuth_rad=azimuths, range_m=ranges, fov_rad=fov, **kwargs)
         if n_bins is None:
-            need("num_bins")
+            _field(d, "num_bins", source)
             raise GeometryError("field 'num_bins' must be an integer, got null")
         return SonarGeometry.from_window(
-            min_range_m=num("min_range"),
-            max_range_m=num("max_range"),
+            min_range_m=_number_field(d, "min_range", source),
+            max_range_m=_number_field(d, "max_range", source),
             n_bins=n_bins,
             azimuth_rad=azimuths,
             fov_rad=fov,

@@ -284,13 +284,49 @@ def pings_to_dataset(
     state = _state if _state is not None else _State()
     shape = state.shape or plist[0].shape
     state.shape = shape
+    _check_shapes(plist, shape)
+    _record_layout(state, plist)
     n = len(plist)
+    arrays = _stack_pings(plist, shape, state)
+    data_vars: dict[str, Any] = {
+        VAR_INTENSITY: ((DIM_PING, DIM_RANGE, DIM_BEAM), arrays.intensity, ATTRS[VAR_INTENSITY]),
+        VAR_GEOMETRY: ((DIM_PING,), arrays.geometry_index, ATTRS[VAR_GEOMETRY]),
+        VAR_SOURCE: ((DIM_PING,), arrays.source_index, ATTRS[VAR_SOURCE]),
+        VAR_POSITION: ((DIM_PING, DIM_XYZ), arrays.position, ATTRS[VAR_POSITION]),
+        VAR_ORIENTATION: ((DIM_PING, DIM_QUAT), arrays.orientation, ATTRS[VAR_ORIENTATION]),
+    }
+    for key, kind in state.meta.items():
+        data_vars[f"{META_PREFIX}{key}"] = _meta_variable(plist, key, kind)
+    extras = extras or {}
+    for var in extra_variables:
+        state.extras[var.name] = var
+        data_vars[var.name] = _extra_variable(var, extras.get(var.name), n, shape)
+    coords = {
+        DIM_PING: (DIM_PING, arrays.time_ns.astype("datetime64[ns]"), ATTRS[DIM_PING]),
+        DIM_RANGE: (DIM_RANGE, np.arange(shape[0], dtype=np.int32), ATTRS[DIM_RANGE]),
+        DIM_BEAM: (DIM_BEAM, np.arange(shape[1], dtype=np.int32), ATTRS[DIM_BEAM]),
+        COORD_RANGE: ((DIM_PING, DIM_RANGE), arrays.range_m, ATTRS[COORD_RANGE]),
+        COORD_AZIMUTH: (azimuth_dims(state.azimuth_per_ping),
+                        arrays.azimuth if state.azimuth_per_ping else state.azimuth, ATTRS[COORD_AZIMUTH]),
+    }
+    ds = xr.Dataset(data_vars=data_vars, coords=coords)
+    ds.attrs.update(_global_attrs(state))
+    return ds
+
+
+def _check_shapes(plist: Sequence[Ping], shape: tuple[int, int]) -> None:
+    """Raise :class:`InputError` naming the first ping whose image shape is not the survey's ``shape``."""
     for p in plist:
         if p.shape != shape:
             raise InputError(
                 f"{p.source or 'ping'}: image shape {p.shape} differs from the survey's {shape}; "
                 "write pings of different shapes to separate stores"
             )
+
+
+def _record_layout(state: _State, plist: Sequence[Ping]) -> None:
+    """Record in ``state`` what the first pings written fix: the meta variables and their kinds, the
+    azimuth table and its layout (per ping once the tables differ) and the pose frame."""
     if not state.meta:
         for p in plist:
             for k, v in p.meta.items():
@@ -304,6 +340,26 @@ def pings_to_dataset(
     frames = {p.pose.frame for p in plist if p.pose is not None}
     if frames:
         state.pose_frame = state.pose_frame or sorted(frames)[0]
+
+
+@dataclasses.dataclass(frozen=True)
+class _PingArrays:
+    """The per-ping arrays of a batch of pings, stacked along ``ping_time``."""
+
+    intensity: NDArray[np.float32]
+    range_m: NDArray[np.float64]
+    azimuth: NDArray[np.float64]
+    geometry_index: NDArray[np.int32]
+    source_index: NDArray[np.int32]
+    time_ns: NDArray[np.int64]
+    position: NDArray[np.float64]
+    orientation: NDArray[np.float64]
+
+
+def _stack_pings(plist: Sequence[Ping], shape: tuple[int, int], state: _State) -> _PingArrays:
+    """Stack the images, range and azimuth tables, times and poses (NaN if none) of ``plist``;
+    new geometries and sources are appended to ``state``'s tables."""
+    n = len(plist)
     intensity = np.empty((n, *shape), dtype=np.float32)
     rng = np.empty((n, shape[0]), dtype=np.float64)
     az = np.empty((n, shape[1]), dtype=np.float64)
@@ -323,53 +379,44 @@ def pings_to_dataset(
         if p.pose is not None:
             pos[i] = p.pose.position_m
             quat[i] = p.pose.orientation_xyzw
-    data_vars: dict[str, Any] = {
-        VAR_INTENSITY: ((DIM_PING, DIM_RANGE, DIM_BEAM), intensity, ATTRS[VAR_INTENSITY]),
-        VAR_GEOMETRY: ((DIM_PING,), gidx, ATTRS[VAR_GEOMETRY]),
-        VAR_SOURCE: ((DIM_PING,), sidx, ATTRS[VAR_SOURCE]),
-        VAR_POSITION: ((DIM_PING, DIM_XYZ), pos, ATTRS[VAR_POSITION]),
-        VAR_ORIENTATION: ((DIM_PING, DIM_QUAT), quat, ATTRS[VAR_ORIENTATION]),
-    }
-    for key, kind in state.meta.items():
-        if kind == "int":
-            arr = np.full(n, INT_MISSING, dtype=np.int64)
-        else:
-            arr = np.full(n, np.nan, dtype=np.float64)
-        for i, p in enumerate(plist):
-            v = p.meta.get(key)
-            if v is not None and _meta_kind(v) is not None:
-                if kind == "int":
-                    if _meta_kind(v) == "int":
-                        arr[i] = int(v)
-                else:
-                    arr[i] = float(v)
-        attrs = {"long_name": f"Ping.meta['{key}']", "units": _meta_units(key), "sonarmap_kind": kind}
-        if kind == "int":
-            attrs["sonarmap_missing"] = str(INT_MISSING)
-        data_vars[f"{META_PREFIX}{key}"] = ((DIM_PING,), arr, attrs)
-    extras = extras or {}
-    for var in extra_variables:
-        state.extras[var.name] = var
-        vals = extras.get(var.name)
-        if vals is None:
-            arr = np.full((n, *_extra_shape(var, shape)), var.fill_value, dtype=var.dtype)
-        else:
-            arr = np.asarray(list(vals), dtype=var.dtype)
-            want = (n, *_extra_shape(var, shape))
-            if arr.shape != want:
-                raise InputError(f"extra variable {var.name}: shape {arr.shape}, expected {want}")
-        data_vars[var.name] = ((DIM_PING, *var.dims), arr, var.attrs())
-    coords = {
-        DIM_PING: (DIM_PING, times.astype("datetime64[ns]"), ATTRS[DIM_PING]),
-        DIM_RANGE: (DIM_RANGE, np.arange(shape[0], dtype=np.int32), ATTRS[DIM_RANGE]),
-        DIM_BEAM: (DIM_BEAM, np.arange(shape[1], dtype=np.int32), ATTRS[DIM_BEAM]),
-        COORD_RANGE: ((DIM_PING, DIM_RANGE), rng, ATTRS[COORD_RANGE]),
-        COORD_AZIMUTH: (azimuth_dims(state.azimuth_per_ping), az if state.azimuth_per_ping else state.azimuth,
-                        ATTRS[COORD_AZIMUTH]),
-    }
-    ds = xr.Dataset(data_vars=data_vars, coords=coords)
-    ds.attrs.update(_global_attrs(state))
-    return ds
+    return _PingArrays(intensity, rng, az, gidx, sidx, times, pos, quat)
+
+
+def _meta_variable(
+    plist: Sequence[Ping], key: str, kind: str
+) -> tuple[tuple[str, ...], NDArray[Any], dict[str, str]]:
+    """The ``meta_<key>`` variable of ``plist``: int64 with :data:`INT_MISSING`, or float64 with NaN,
+    for the pings without a (fitting) value."""
+    if kind == "int":
+        arr = np.full(len(plist), INT_MISSING, dtype=np.int64)
+    else:
+        arr = np.full(len(plist), np.nan, dtype=np.float64)
+    for i, p in enumerate(plist):
+        v = p.meta.get(key)
+        if v is not None and _meta_kind(v) is not None:
+            if kind == "int":
+                if _meta_kind(v) == "int":
+                    arr[i] = int(v)
+            else:
+                arr[i] = float(v)
+    attrs = {"long_name": f"Ping.meta['{key}']", "units": _meta_units(key), "sonarmap_kind": kind}
+    if kind == "int":
+        attrs["sonarmap_missing"] = str(INT_MISSING)
+    return (DIM_PING,), arr, attrs
+
+
+def _extra_variable(
+    var: PingVariable, vals: Sequence[ArrayLike] | None, n: int, shape: tuple[int, int]
+) -> tuple[tuple[str, ...], NDArray[Any], dict[str, str]]:
+    """The declared extra variable ``var`` of ``n`` pings: ``vals`` (checked to fit), or its fill value."""
+    if vals is None:
+        arr = np.full((n, *_extra_shape(var, shape)), var.fill_value, dtype=var.dtype)
+    else:
+        arr = np.asarray(list(vals), dtype=var.dtype)
+        want = (n, *_extra_shape(var, shape))
+        if arr.shape != want:
+            raise InputError(f"extra variable {var.name}: shape {arr.shape}, expected {want}")
+    return (DIM_PING, *var.dims), arr, var.attrs()
 
 
 def _extra_shape(var: PingVariable, shape: tuple[int, int]) -> tuple[int, ...]:
@@ -1585,24 +1632,13 @@ def dataset_to_pings(
     n = int(ds.sizes.get(DIM_PING, 0))
     stop = n if stop is None else min(int(stop), n)
     start = max(0, int(start))
-    chunk = 16
-    enc_chunks = ds[VAR_INTENSITY].encoding.get("chunks") or ds[VAR_INTENSITY].encoding.get("preferred_chunks")
-    if isinstance(enc_chunks, tuple | list) and enc_chunks:
-        chunk = max(1, int(enc_chunks[0]))
+    chunk = _ping_chunk(ds)
     meta_vars = [v for v in ds.data_vars if str(v).startswith(META_PREFIX)]
-    times = ds[DIM_PING].values
-    if times.dtype.kind != "M":
-        raise DataFormatError(f"{DIM_PING}: not decoded as times (dtype {times.dtype})", path)
-    times = times.astype("datetime64[ns]").astype(np.int64)
+    times = _ping_times_ns(ds, path)
     check_times(times[start:stop], path, start)
     for i0 in range(start - start % chunk, stop, chunk):
         sl = slice(max(i0, start), min(i0 + chunk, stop))
-        try:
-            # One pass for all variables, in this thread: a block is one chunk of each, so threads
-            # would only add their overhead (~30 ms per block for small pings).
-            block = ds.isel({DIM_PING: sl}).compute(scheduler="synchronous")
-        except Exception as exc:  # noqa: BLE001 - codecs/zarr raise many types on corrupt chunks
-            raise _block_error(ds, sl, exc) from None
+        block = _read_block(ds, sl)
         img = np.asarray(block[VAR_INTENSITY].values, dtype=np.float32)
         check_values(img, VAR_INTENSITY, path, low=0.0, high=1.0, start=sl.start)
         gi = block[VAR_GEOMETRY].values
@@ -1613,27 +1649,69 @@ def dataset_to_pings(
             check_values(gi, VAR_GEOMETRY, path, low=0, high=len(geoms) - 1, start=sl.start)
         if source is None:
             check_values(si, VAR_SOURCE, path, low=0, high=len(sources) - 1, start=sl.start)
-        metas = {v: (block[v].values, block[v].attrs.get("sonarmap_kind")) for v in meta_vars}
-        for v, (vals, kind) in metas.items():
-            if kind not in ("int", "float", "bool"):
-                raise DataFormatError(f"{v}: sonarmap_kind attribute {kind!r:.40} is not int, float or bool", path)
-            if kind == "bool":
-                check_values(vals, str(v), path, low=0, high=1, nan=True, start=sl.start)
+        metas = _block_metas(block, meta_vars, path, sl.start)
         for k in range(img.shape[0]):
             i = sl.start + k
-            meta: dict[str, Any] = {}
-            for v, (vals, kind) in metas.items():
-                x = vals[k]
-                key = str(v)[len(META_PREFIX):]
-                if kind == "int":
-                    if int(x) != INT_MISSING:
-                        meta[key] = int(x)
-                elif np.isfinite(x):
-                    meta[key] = bool(x) if kind == "bool" else float(x)
+            meta = _ping_meta(metas, k)
             pose = _pose(pos[k], quat[k], frame, i, path)
             g = geometry if geometry is not None else geoms[int(gi[k])]
             src = source if source is not None else sources[int(si[k])]
             yield Ping(image=img[k], geometry=g, time_ns=int(times[i]), pose=pose, source=src, meta=meta)
+
+
+def _ping_chunk(ds: xr.Dataset) -> int:
+    """Pings per block read by :func:`dataset_to_pings`: the store's ``ping_time`` chunk (else 16)."""
+    chunk = 16
+    enc_chunks = ds[VAR_INTENSITY].encoding.get("chunks") or ds[VAR_INTENSITY].encoding.get("preferred_chunks")
+    if isinstance(enc_chunks, tuple | list) and enc_chunks:
+        chunk = max(1, int(enc_chunks[0]))
+    return chunk
+
+
+def _ping_times_ns(ds: xr.Dataset, path: Any) -> NDArray[np.int64]:
+    """The ``ping_time`` coordinate as int64 ns; DataFormatError if it was not decoded as times."""
+    times = ds[DIM_PING].values
+    if times.dtype.kind != "M":
+        raise DataFormatError(f"{DIM_PING}: not decoded as times (dtype {times.dtype})", path)
+    return times.astype("datetime64[ns]").astype(np.int64)
+
+
+def _read_block(ds: xr.Dataset, rows: slice) -> xr.Dataset:
+    """Pings ``rows`` of ``ds`` loaded into memory; a failed read is a DataFormatError naming the chunk."""
+    try:
+        # One pass for all variables, in this thread: a block is one chunk of each, so threads
+        # would only add their overhead (~30 ms per block for small pings).
+        return ds.isel({DIM_PING: rows}).compute(scheduler="synchronous")
+    except Exception as exc:  # noqa: BLE001 - codecs/zarr raise many types on corrupt chunks
+        raise _block_error(ds, rows, exc) from None
+
+
+def _block_metas(
+    block: xr.Dataset, meta_vars: Sequence[Any], path: Any, start: int
+) -> dict[Any, tuple[NDArray[Any], Any]]:
+    """``{variable: (values, sonarmap_kind)}`` of the ``meta_*`` variables of a block, their kinds
+    checked (int, float or bool) and bool values checked to be 0, 1 or NaN."""
+    metas = {v: (block[v].values, block[v].attrs.get("sonarmap_kind")) for v in meta_vars}
+    for v, (vals, kind) in metas.items():
+        if kind not in ("int", "float", "bool"):
+            raise DataFormatError(f"{v}: sonarmap_kind attribute {kind!r:.40} is not int, float or bool", path)
+        if kind == "bool":
+            check_values(vals, str(v), path, low=0, high=1, nan=True, start=start)
+    return metas
+
+
+def _ping_meta(metas: Mapping[Any, tuple[NDArray[Any], Any]], k: int) -> dict[str, Any]:
+    """``Ping.meta`` of ping ``k`` of a block: its stored values, without the missing ones."""
+    meta: dict[str, Any] = {}
+    for v, (vals, kind) in metas.items():
+        x = vals[k]
+        key = str(v)[len(META_PREFIX):]
+        if kind == "int":
+            if int(x) != INT_MISSING:
+                meta[key] = int(x)
+        elif np.isfinite(x):
+            meta[key] = bool(x) if kind == "bool" else float(x)
+    return meta
 
 
 def _pose(pos: NDArray[Any], quat: NDArray[Any], frame: str, i: int, path: Any) -> Pose | None:

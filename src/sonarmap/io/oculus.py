@@ -216,6 +216,93 @@ def _geometry(
     )
 
 
+def _checked_header(mv: memoryview, path: str | os.PathLike[str], offset: int) -> tuple[int, ...]:
+    """The unpacked 16-byte ``OculusMessageHeader`` of ``mv``, which must be a ``SimplePingResult``.
+
+    Raises :class:`DataFormatError` for a short message, a bad ``oculusId`` or another ``msgId``.
+    """
+    n = len(mv)
+    if n < HEADER.size:
+        raise DataFormatError(f"message of {n} bytes is shorter than its 16-byte header", path, offset)
+    header = HEADER.unpack_from(mv, 0)
+    oid, msg_id = header[0], header[3]
+    if oid != OCULUS_ID:
+        raise DataFormatError(f"bad Oculus message id 0x{oid:04X} (expected 0x4F53)", path, offset)
+    if msg_id != MSG_SIMPLE_PING_RESULT:
+        raise DataFormatError(f"message 0x{msg_id:02X} is not a SimplePingResult", path, offset)
+    return header
+
+
+def _checked_row_stride(
+    n: int, need: int, payload: int, dsize: int, n_ranges: int, n_beams: int, gain: bool, img_off: int,
+    img_size: int,
+) -> int:
+    """Bytes per image row (``n_beams`` samples, plus a 4-byte gain if ``gain``), after checking that
+    the message's sizes agree; raises ValueError (under :func:`header_errors`) if they do not."""
+    if HEADER.size + payload != n:
+        raise ValueError(f"payloadSize {payload} + 16 != message length {n}")
+    if dsize not in _BYTES_PER_SAMPLE:
+        raise ValueError(f"dataSize {dsize} is not 0-3 (8/16/24/32 bit)")
+    if n_beams < 1 or n_ranges < 1:
+        raise ValueError(f"empty image ({n_ranges} ranges x {n_beams} beams)")
+    bps = _BYTES_PER_SAMPLE[dsize]
+    stride = n_beams * bps + (4 if gain else 0)
+    if img_size != n_ranges * stride:
+        raise ValueError(
+            f"imageSize {img_size} != nRanges {n_ranges} x ({n_beams} beams x {bps} bytes"
+            f"{' + 4 gain bytes' if gain else ''})"
+        )
+    if img_off < need + 2 * n_beams or img_off + img_size > n:
+        raise ValueError(
+            f"image [{img_off}, {img_off + img_size}) does not fit after the bearings in a "
+            f"{n}-byte message"
+        )
+    return stride
+
+
+def _check_range_window(res: float, n_ranges: int) -> None:
+    """Raise ValueError unless ``rangeResolution`` is in (0, 10) m and the window within ``MAX_WINDOW_M``."""
+    if not (math.isfinite(res) and 0 < res < 10):
+        raise ValueError(f"rangeResolution {res} m is not a positive number below 10 m")
+    if n_ranges * res > MAX_WINDOW_M:
+        raise ValueError(
+            f"range window {n_ranges} x {res:.6g} m = {n_ranges * res:.6g} m is beyond "
+            f"{MAX_WINDOW_M:g} m"
+        )
+
+
+def _checked_sound_speed(c_used: float, meta: dict[str, Any]) -> float:
+    """``speedOfSoundUsed`` checked; 0 (unset) gives 1500 m/s and keeps the reported value in ``meta``."""
+    checked_c = check_sound_speed(c_used, "speedOfSoundUsed", unset_ok=True)
+    c = 1500.0 if checked_c is None else checked_c
+    if checked_c is None:
+        meta["sound_speed_reported"] = c_used
+    return c
+
+
+def _image_from_samples(
+    mv: memoryview, img_off: int, img_size: int, n_ranges: int, n_beams: int, stride: int, dsize: int,
+    gain: bool, meta: dict[str, Any],
+) -> np.ndarray:
+    """The range-major image of 8/16/24/32-bit samples scaled to float32 [0, 1]; the per-row gains
+    (when ``gain``) go to ``meta["row_gain"]``."""
+    raw = np.frombuffer(mv, dtype=np.uint8, count=img_size, offset=img_off).reshape(n_ranges, stride)
+    if gain:
+        meta["row_gain"] = raw[:, :4].copy().view("<f4").reshape(-1)
+        raw = raw[:, 4:]
+    bps = _BYTES_PER_SAMPLE[dsize]
+    if bps == 1:
+        return np.multiply(raw, U8_SCALE, dtype=np.float32)
+    if bps == 2:
+        return np.ascontiguousarray(raw).view("<u2").astype(np.float32) / np.float32(65535.0)
+    if bps == 3:
+        r = raw.reshape(n_ranges, n_beams, 3).astype(np.uint32)
+        v = r[..., 0] | (r[..., 1] << 8) | (r[..., 2] << 16)
+        return (v.astype(np.float64) / float(2**24 - 1)).astype(np.float32)
+    v = np.ascontiguousarray(raw).view("<u4")
+    return (v.astype(np.float64) / float(2**32 - 1)).astype(np.float32)
+
+
 def decode_simple_ping(
     msg: bytes | memoryview,
     *,
@@ -243,13 +330,7 @@ def decode_simple_ping(
     """
     mv = memoryview(msg).cast("B") if not isinstance(msg, bytes) else memoryview(msg)
     n = len(mv)
-    if n < HEADER.size:
-        raise DataFormatError(f"message of {n} bytes is shorter than its 16-byte header", path, offset)
-    oid, _src, _dst, msg_id, version, payload, part = HEADER.unpack_from(mv, 0)
-    if oid != OCULUS_ID:
-        raise DataFormatError(f"bad Oculus message id 0x{oid:04X} (expected 0x4F53)", path, offset)
-    if msg_id != MSG_SIMPLE_PING_RESULT:
-        raise DataFormatError(f"message 0x{msg_id:02X} is not a SimplePingResult", path, offset)
+    _oid, _src, _dst, _msg_id, version, payload, part = _checked_header(mv, path, offset)
     v2 = version == 2
     need = SIZE_V2 if v2 else SIZE_V1
     if n < need:
@@ -279,37 +360,11 @@ def decode_simple_ping(
         ping_id=ping_id, status=status, temperature_c=temp, pressure_bar=pressure,
         ping_start_time=start,
     )
+    gain = bool(flags & FLAG_SEND_GAIN)
     with header_errors(path, offset, "SimplePingResult"):
-        if HEADER.size + payload != n:
-            raise ValueError(f"payloadSize {payload} + 16 != message length {n}")
-        if dsize not in _BYTES_PER_SAMPLE:
-            raise ValueError(f"dataSize {dsize} is not 0-3 (8/16/24/32 bit)")
-        if n_beams < 1 or n_ranges < 1:
-            raise ValueError(f"empty image ({n_ranges} ranges x {n_beams} beams)")
-        bps = _BYTES_PER_SAMPLE[dsize]
-        gain = bool(flags & FLAG_SEND_GAIN)
-        stride = n_beams * bps + (4 if gain else 0)
-        if img_size != n_ranges * stride:
-            raise ValueError(
-                f"imageSize {img_size} != nRanges {n_ranges} x ({n_beams} beams x {bps} bytes"
-                f"{' + 4 gain bytes' if gain else ''})"
-            )
-        if img_off < need + 2 * n_beams or img_off + img_size > n:
-            raise ValueError(
-                f"image [{img_off}, {img_off + img_size}) does not fit after the bearings in a "
-                f"{n}-byte message"
-            )
-        if not (math.isfinite(res) and 0 < res < 10):
-            raise ValueError(f"rangeResolution {res} m is not a positive number below 10 m")
-        if n_ranges * res > MAX_WINDOW_M:
-            raise ValueError(
-                f"range window {n_ranges} x {res:.6g} m = {n_ranges * res:.6g} m is beyond "
-                f"{MAX_WINDOW_M:g} m"
-            )
-        checked_c = check_sound_speed(c_used, "speedOfSoundUsed", unset_ok=True)
-        c = 1500.0 if checked_c is None else checked_c
-        if checked_c is None:
-            meta["sound_speed_reported"] = c_used
+        stride = _checked_row_stride(n, need, payload, dsize, n_ranges, n_beams, gain, img_off, img_size)
+        _check_range_window(res, n_ranges)
+        c = _checked_sound_speed(c_used, meta)
         f_hz = 1.2e6 if freq == 0 else check_plausible(freq, 1e4, 1e7, "frequency", "Hz")
         if not (math.isfinite(start) and start >= 0):
             raise ValueError(f"pingStartTime {start} s is not a finite non-negative time")
@@ -319,21 +374,7 @@ def decode_simple_ping(
         )
         if msg_size not in (0, n):
             meta["message_size_reported"] = msg_size
-    raw = np.frombuffer(mv, dtype=np.uint8, count=img_size, offset=img_off).reshape(n_ranges, stride)
-    if gain:
-        meta["row_gain"] = raw[:, :4].copy().view("<f4").reshape(-1)
-        raw = raw[:, 4:]
-    if bps == 1:
-        image = np.multiply(raw, U8_SCALE, dtype=np.float32)
-    elif bps == 2:
-        image = np.ascontiguousarray(raw).view("<u2").astype(np.float32) / np.float32(65535.0)
-    elif bps == 3:
-        r = raw.reshape(n_ranges, n_beams, 3).astype(np.uint32)
-        v = r[..., 0] | (r[..., 1] << 8) | (r[..., 2] << 16)
-        image = (v.astype(np.float64) / float(2**24 - 1)).astype(np.float32)
-    else:
-        v = np.ascontiguousarray(raw).view("<u4")
-        image = (v.astype(np.float64) / float(2**32 - 1)).astype(np.float32)
+    image = _image_from_samples(mv, img_off, img_size, n_ranges, n_beams, stride, dsize, gain, meta)
     with header_errors(path, offset, "SimplePingResult"):
         return Ping(image=image, geometry=geom, time_ns=time_ns, source=source, meta=meta)
 

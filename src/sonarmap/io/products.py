@@ -215,10 +215,22 @@ def inspect_products(p: Path) -> tuple[CheckedStore, dict[str, tuple[tuple[int, 
     n = int_attr(st.attrs, "n_pings", p)
     int_attr(st.attrs, "n_chunks", p)
     int_attr(st.attrs, "chunk_size", p, low=1)
-    raw = st.attrs.get("schema")
+    schema = _parse_schema(st.attrs.get("schema"), meta)
+    _check_schema_arrays(st, schema, n)
+    _check_coordinates(st, schema, n)
+    _check_point_arrays(st)
+    units = st.arrays[DIM_PING].attrs.get("units")
+    if not isinstance(units, str) or not TIME_UNITS_RE.fullmatch(units):
+        raise DataFormatError(f"array '{DIM_PING}' has units {units!r:.60}, expected {TIME_UNITS!r}",
+                              st.meta_file(DIM_PING))
+    return st, schema
+
+
+def _parse_schema(raw: Any, meta: Path) -> dict[str, tuple[tuple[int, ...], str]]:
+    """The root attribute ``schema`` as ``{name: (shape, dtype)}``; it must name the required variables."""
     schema: dict[str, tuple[tuple[int, ...], str]] = {}
     try:
-        for name, (shape, dtype) in raw.items():  # type: ignore[union-attr]
+        for name, (shape, dtype) in raw.items():
             if not isinstance(name, str) or not isinstance(dtype, str) or not all(
                     isinstance(k, int) and not isinstance(k, bool) and k >= 0 for k in shape):
                 raise TypeError(name)
@@ -228,6 +240,13 @@ def inspect_products(p: Path) -> tuple[CheckedStore, dict[str, tuple[tuple[int, 
     for name in (DIM_PING, "source", "flags", "kld", "range"):
         if name not in schema:
             raise DataFormatError(f"root attribute schema lacks the required variable {name}", meta)
+    return schema
+
+
+def _check_schema_arrays(st: CheckedStore, schema: Mapping[str, tuple[tuple[int, ...], str]], n: int) -> None:
+    """Each variable of the schema is a known product, stored as an array of ``n`` pings with the
+    schema's shape and dtype and the product's dimensions."""
+    meta = st.meta_file()
     for name, (shape, dtype) in schema.items():
         if name not in PRODUCT_VARIABLES:
             raise DataFormatError(f"root attribute schema names an unknown variable {name!r:.40}", meta)
@@ -243,6 +262,11 @@ def inspect_products(p: Path) -> tuple[CheckedStore, dict[str, tuple[tuple[int, 
         if not ok:
             raise DataFormatError(f"array '{name}' has data type {arr.dtype}, the store's schema says {dtype}",
                                   st.meta_file(name))
+
+
+def _check_coordinates(st: CheckedStore, schema: Mapping[str, tuple[tuple[int, ...], str]], n: int) -> None:
+    """The azimuth and range coordinates exist with the survey's beam and bin counts, and the index
+    coordinates (when present) match them."""
     sizes = {DIM_BEAM: schema["range"][0][0] if schema["range"][0] else None,
              DIM_RANGE: schema["labels"][0][0] if "labels" in schema else _n_bins(st.attrs)}
     for name, dim in ((COORD_AZIMUTH, DIM_BEAM), (COORD_RANGE, DIM_RANGE)):
@@ -265,6 +289,10 @@ def inspect_products(p: Path) -> tuple[CheckedStore, dict[str, tuple[tuple[int, 
                                                                             else COORD_AZIMUTH].shape[-1]):
                 raise DataFormatError(f"array '{name}' has shape {tuple(arr.shape)} / dimensions {st.dims(name)}, "
                                       "inconsistent with the coordinates", st.meta_file(name))
+
+
+def _check_point_arrays(st: CheckedStore) -> None:
+    """The ``point_*`` arrays (when present) are ``(point, ...)`` of one length; ``point_xyz`` is (point, 3)."""
     points = {name: arr for name, arr in st.arrays.items() if name.startswith("point_")}
     for name, arr in points.items():
         if not arr.shape or st.dims(name)[:1] != ("point",) or (
@@ -272,11 +300,6 @@ def inspect_products(p: Path) -> tuple[CheckedStore, dict[str, tuple[tuple[int, 
                 name == "point_xyz" and tuple(arr.shape[1:]) != (3,)):
             raise DataFormatError(f"array '{name}' has shape {tuple(arr.shape)} / dimensions {st.dims(name)}, "
                                   "inconsistent with the other point arrays", st.meta_file(name))
-    units = st.arrays[DIM_PING].attrs.get("units")
-    if not isinstance(units, str) or not TIME_UNITS_RE.fullmatch(units):
-        raise DataFormatError(f"array '{DIM_PING}' has units {units!r:.60}, expected {TIME_UNITS!r}",
-                              st.meta_file(DIM_PING))
-    return st, schema
 
 
 def _n_bins(attrs: Mapping[str, Any]) -> int | None:

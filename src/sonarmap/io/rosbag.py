@@ -728,12 +728,7 @@ def iter_bag_pings(
         raise InputError(f"handedness: choose from {', '.join(HANDEDNESS)} (got {handedness!r})")
     p = Path(path)
     override = None if geometry is None else as_geometry(geometry)
-    try:
-        reader = _reader(p)
-    except DataFormatError:
-        raise
-    except Exception as exc:  # noqa: BLE001 - rosbags raises various types on corrupt bags
-        raise DataFormatError(f"cannot read bag: {type(exc).__name__}: {exc}", p) from None
+    reader = _open_reader(p)
     try:
         kind, conns = _select_connections(reader, p, topic, override is not None)
         if kind == "sensor_image":
@@ -745,36 +740,68 @@ def iter_bag_pings(
 
             yield from iter_kind(kind, reader, p, conns, override)
             return
-        gtopics = {c.topic + _GEOMETRY_SUFFIX for c in conns} | {c.topic.rstrip("/") + _GEOMETRY_SUFFIX for c in conns}
-        gconns = [c for c in reader.connections if c.topic in gtopics and c.msgtype == "std_msgs/msg/String"]
-        exact: dict[bytes, SonarGeometry] = {}
-        for conn, _t, raw in _guarded(p, reader.messages(connections=gconns)) if gconns else ():
-            try:
-                text = reader.deserialize(raw, conn.msgtype).data
-            except Exception:  # noqa: BLE001,S112 - damaged side channel: use the message fields
-                continue
-            add_exact_geometry(exact, text, p)
+        exact = _exact_geometries(reader, p, conns)
         warned: set[str] = set()
         idx = 0
         for conn, _t, raw in _guarded(p, reader.messages(connections=conns)) if conns else ():
-            try:
-                msg = reader.deserialize(raw, conn.msgtype)
-            except Exception as exc:  # noqa: BLE001
-                raise DataFormatError(f"corrupt message {idx}: {type(exc).__name__}: {exc}", p) from None
-            try:
-                ping, guessed = _ping_from_msg(msg, p, conn.topic, idx, override, exact, handedness)
-            except (ValueError, GeometryError) as exc:
-                raise DataFormatError(f"message {idx} on {conn.topic}: {exc}", p) from None
+            ping, guessed = _projected_ping(reader, conn, raw, p, idx, override, exact, handedness)
+            # warned here, not in a helper: the warning's stacklevel points at our caller
             if guessed and conn.topic not in warned:
                 warned.add(conn.topic)
                 warn_guessed_handedness(p, conn.topic)
             idx += 1
             yield ping
     finally:
+        _close_quietly(reader)
+
+
+def _open_reader(path: Path) -> Any:
+    """An open rosbags reader of the bag at ``path``; its failures are DataFormatErrors."""
+    try:
+        return _reader(path)
+    except DataFormatError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - rosbags raises various types on corrupt bags
+        raise DataFormatError(f"cannot read bag: {type(exc).__name__}: {exc}", path) from None
+
+
+def _close_quietly(reader: Any) -> None:
+    """Close ``reader``, ignoring any error that raises."""
+    try:
+        reader.close()
+    except Exception:  # noqa: BLE001,S110 - closing a corrupt bag must not mask the real error
+        pass
+
+
+def _exact_geometries(reader: Any, path: Path, conns: list[Any]) -> dict[bytes, SonarGeometry]:
+    """The geometries of the exact-geometry side channels of the ProjectedSonarImage topics
+    ``conns`` (see :func:`add_exact_geometry`); damaged messages are skipped."""
+    gtopics = {c.topic + _GEOMETRY_SUFFIX for c in conns} | {c.topic.rstrip("/") + _GEOMETRY_SUFFIX for c in conns}
+    gconns = [c for c in reader.connections if c.topic in gtopics and c.msgtype == "std_msgs/msg/String"]
+    exact: dict[bytes, SonarGeometry] = {}
+    for conn, _t, raw in _guarded(path, reader.messages(connections=gconns)) if gconns else ():
         try:
-            reader.close()
-        except Exception:  # noqa: BLE001,S110 - closing a corrupt bag must not mask the real error
-            pass
+            text = reader.deserialize(raw, conn.msgtype).data
+        except Exception:  # noqa: BLE001,S112 - damaged side channel: use the message fields
+            continue
+        add_exact_geometry(exact, text, path)
+    return exact
+
+
+def _projected_ping(
+    reader: Any, conn: Any, raw: bytes, path: Path, idx: int, override: SonarGeometry | None,
+    exact: dict[bytes, SonarGeometry], handedness: str,
+) -> tuple[Ping, bool]:
+    """Message ``idx`` (a ProjectedSonarImage on ``conn``) -> (Ping, whether the handedness was a
+    guess); a message that does not deserialise or decode is a DataFormatError."""
+    try:
+        msg = reader.deserialize(raw, conn.msgtype)
+    except Exception as exc:  # noqa: BLE001
+        raise DataFormatError(f"corrupt message {idx}: {type(exc).__name__}: {exc}", path) from None
+    try:
+        return _ping_from_msg(msg, path, conn.topic, idx, override, exact, handedness)
+    except (ValueError, GeometryError) as exc:
+        raise DataFormatError(f"message {idx} on {conn.topic}: {exc}", path) from None
 
 
 def warn_guessed_handedness(path: Path, topic: str) -> None:

@@ -13,10 +13,11 @@ releases) is not followed: an MCAP file being written has no index to poll.
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import sqlite3
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -101,95 +102,166 @@ def follow_sqlite_bag(
     DataFormatError
         No storage file or no sonar topic within ``wait_s``, or a message that does not decode.
     """
-    from sonarmap.io.rosbag import HANDEDNESS, _ping_from_msg, add_exact_geometry, typestore, warn_guessed_handedness
-    from sonarmap.io.rosbag_sources import OculusRawStreams, ping_from_legacy_image, ping_from_raw_sonar_image
+    from sonarmap.io.rosbag import HANDEDNESS, _ping_from_msg, warn_guessed_handedness
 
     if handedness not in HANDEDNESS:
         raise InputError(f"handedness: choose from {', '.join(HANDEDNESS)} (got {handedness!r})")
     override = None if geometry is None else as_geometry(geometry)
     root = Path(path)
     t0 = time.monotonic()
-    db = sqlite_storage(root)
-    while db is None:
-        if stopped():
-            return
-        if time.monotonic() - t0 > wait_s:
-            raise DataFormatError("no ROS 2 sqlite3 storage file (*.db3) appeared", root)
-        sleep(poll_s)
-        db = sqlite_storage(root)
-    store = typestore(2)
-    con: sqlite3.Connection | None = None
-    kind, topics = "", {}
-    last_id = 0
-    index: dict[str, int] = {}
-    streams = OculusRawStreams(root, override)
+    db = _wait_for_storage(root, t0, wait_s, stopped, sleep, poll_s)
+    if db is None:
+        return
+    follower = _Follower(db, root, t0, wait_s, topic, override)
     warned: set[str] = set()
-    exact: dict[bytes, SonarGeometry] = {}
-    last_new = time.monotonic()
+    # The rows are decoded here, not in a helper generator, so that the warnings of
+    # warn_guessed_handedness and of the Oculus byte streams (stacklevel=3) point at our caller.
     try:
-        while not stopped():
-            try:
-                if con is None:
-                    con = _connect(db)
-                if not topics:
-                    rows = con.execute("SELECT id, name, type FROM topics").fetchall()
-                    kind, topics = _pick_topics([(int(i), str(n), str(t)) for i, n, t in rows], topic)
-                    if not topics:
-                        if time.monotonic() - t0 > wait_s:
-                            seen = ", ".join(f"{n} ({t})" for _i, n, t in rows) or "no topics"
-                            raise DataFormatError(f"no sonar topic to follow (the bag has {seen})", db)
-                        sleep(poll_s)
-                        continue
-                marks = ",".join("?" * len(topics))
-                batch = con.execute(
-                    f"SELECT id, topic_id, data FROM messages WHERE id > ? AND topic_id IN ({marks}) "  # noqa: S608
-                    "ORDER BY id LIMIT ?", (last_id, *topics, _BATCH)).fetchall()
-            except sqlite3.OperationalError as exc:  # locked by the recorder, or not created yet
-                if "no such table" in str(exc) and time.monotonic() - t0 > wait_s:
-                    raise DataFormatError(f"not a ROS 2 sqlite3 bag: {exc}", db) from None
-                if con is not None and "no such table" in str(exc):
-                    con.close()
-                    con = None
-                sleep(poll_s)
-                continue
-            except sqlite3.DatabaseError as exc:
-                raise DataFormatError(f"cannot read the bag's storage: {exc}", db) from None
-            if not batch:
-                if idle_timeout_s and time.monotonic() - last_new > idle_timeout_s:
-                    break
-                sleep(poll_s)
-                continue
-            last_new = time.monotonic()
+        for batch in follower.batches(stopped, sleep, poll_s, idle_timeout_s):
             for row_id, topic_id, data in batch:
-                last_id = int(row_id)
-                name, msgtype = topics[int(topic_id)]
-                i = index.get(name, 0)
-                index[name] = i + 1
+                name, i, msg = follower.message(row_id, topic_id, data)
+                if msg is None:  # a geometry side channel, recorded
+                    continue
                 try:
-                    msg = store.deserialize_cdr(bytes(data), msgtype)
-                except Exception as exc:  # noqa: BLE001
-                    raise DataFormatError(f"corrupt message {i} on {name}: {type(exc).__name__}: {exc}", db) from None
-                try:
-                    if msgtype == "std_msgs/msg/String":  # a geometry side channel
-                        index[name] = i
-                        add_exact_geometry(exact, msg.data, root)
-                        continue
-                    if kind == "projected":
-                        ping, guessed = _ping_from_msg(msg, root, name, i, override, exact, handedness)
+                    if follower.kind == "projected":
+                        ping, guessed = _ping_from_msg(msg, root, name, i, override, follower.exact, handedness)
                         if guessed and name not in warned:
                             warned.add(name)
                             warn_guessed_handedness(root, name)
                         yield ping
-                    elif kind in ("raw_image", "legacy_image"):
-                        decode = ping_from_raw_sonar_image if kind == "raw_image" else ping_from_legacy_image
-                        yield decode(msg, root, name, i, override)
-                    else:  # Oculus RawData: the topic's incoming byte stream
-                        yield from streams.pings(name, i, msg)
+                    else:
+                        yield from follower.other_pings(msg, name, i)
                 except (ValueError, GeometryError) as exc:
                     raise DataFormatError(f"message {i} on {name}: {exc}", db) from None
                 if stopped():
                     break
-        streams.finish()
+        follower.streams.finish()
     finally:
-        if con is not None:
-            con.close()
+        follower.close()
+
+
+def _wait_for_storage(
+    root: Path, t0: float, wait_s: float, stopped: Callable[[], bool], sleep: Callable[[float], Any],
+    poll_s: float,
+) -> Path | None:
+    """The storage file of the bag ``root`` once it exists (None if ``stopped()`` first); a
+    DataFormatError if none appeared ``wait_s`` after ``t0``."""
+    db = sqlite_storage(root)
+    while db is None:
+        if stopped():
+            return None
+        if time.monotonic() - t0 > wait_s:
+            raise DataFormatError("no ROS 2 sqlite3 storage file (*.db3) appeared", root)
+        sleep(poll_s)
+        db = sqlite_storage(root)
+    return db
+
+
+@dataclasses.dataclass
+class _Follower:
+    """A bag's storage file being followed: its connection, the sonar topics chosen, the last row
+    read and the decoding state (message indices, exact geometries, Oculus byte streams)."""
+
+    db: Path
+    root: Path
+    t0: float
+    wait_s: float
+    topic: str | None
+    override: SonarGeometry | None
+    store: Any = dataclasses.field(init=False)
+    con: sqlite3.Connection | None = None
+    kind: str = ""
+    topics: dict[int, tuple[str, str]] = dataclasses.field(default_factory=dict)
+    last_id: int = 0
+    index: dict[str, int] = dataclasses.field(default_factory=dict)
+    streams: Any = dataclasses.field(init=False)
+    exact: dict[bytes, SonarGeometry] = dataclasses.field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        from sonarmap.io.rosbag import typestore
+        from sonarmap.io.rosbag_sources import OculusRawStreams
+
+        self.store = typestore(2)
+        self.streams = OculusRawStreams(self.root, self.override)
+
+    def batches(
+        self, stopped: Callable[[], bool], sleep: Callable[[float], Any], poll_s: float, idle_timeout_s: float
+    ) -> Iterator[list[tuple[Any, Any, Any]]]:
+        """The batches of new rows, polled every ``poll_s`` until ``stopped()`` or until
+        ``idle_timeout_s`` (0: never) pass without one."""
+        last_new = time.monotonic()
+        while not stopped():
+            batch = self._poll(sleep, poll_s)
+            if batch is None:  # waited for the storage or a sonar topic
+                continue
+            if not batch:
+                if idle_timeout_s and time.monotonic() - last_new > idle_timeout_s:
+                    return
+                sleep(poll_s)
+                continue
+            last_new = time.monotonic()
+            yield batch
+
+    def _poll(self, sleep: Callable[[float], Any], poll_s: float) -> list[tuple[Any, Any, Any]] | None:
+        """The next rows ``(id, topic_id, data)`` of the sonar topics (``[]``: none yet), or None
+        after a ``sleep(poll_s)`` while the storage is locked or has no tables or sonar topic yet."""
+        try:
+            if self.con is None:
+                self.con = _connect(self.db)
+            if not self.topics:
+                rows = self.con.execute("SELECT id, name, type FROM topics").fetchall()
+                self.kind, self.topics = _pick_topics([(int(i), str(n), str(t)) for i, n, t in rows], self.topic)
+                if not self.topics:
+                    if time.monotonic() - self.t0 > self.wait_s:
+                        seen = ", ".join(f"{n} ({t})" for _i, n, t in rows) or "no topics"
+                        raise DataFormatError(f"no sonar topic to follow (the bag has {seen})", self.db)
+                    sleep(poll_s)
+                    return None
+            marks = ",".join("?" * len(self.topics))
+            return self.con.execute(
+                f"SELECT id, topic_id, data FROM messages WHERE id > ? AND topic_id IN ({marks}) "  # noqa: S608
+                "ORDER BY id LIMIT ?", (self.last_id, *self.topics, _BATCH)).fetchall()
+        except sqlite3.OperationalError as exc:  # locked by the recorder, or not created yet
+            if "no such table" in str(exc) and time.monotonic() - self.t0 > self.wait_s:
+                raise DataFormatError(f"not a ROS 2 sqlite3 bag: {exc}", self.db) from None
+            if self.con is not None and "no such table" in str(exc):
+                self.con.close()
+                self.con = None
+            sleep(poll_s)
+            return None
+        except sqlite3.DatabaseError as exc:
+            raise DataFormatError(f"cannot read the bag's storage: {exc}", self.db) from None
+
+    def message(self, row_id: Any, topic_id: Any, data: Any) -> tuple[str, int, Any]:
+        """``(topic, message index on it, message)`` of a row, deserialised; a geometry side-channel
+        message is added to the exact geometries instead and given as None."""
+        from sonarmap.io.rosbag import add_exact_geometry
+
+        self.last_id = int(row_id)
+        name, msgtype = self.topics[int(topic_id)]
+        i = self.index.get(name, 0)
+        self.index[name] = i + 1
+        try:
+            msg = self.store.deserialize_cdr(bytes(data), msgtype)
+        except Exception as exc:  # noqa: BLE001
+            raise DataFormatError(f"corrupt message {i} on {name}: {type(exc).__name__}: {exc}", self.db) from None
+        if msgtype == "std_msgs/msg/String":  # a geometry side channel
+            self.index[name] = i
+            add_exact_geometry(self.exact, msg.data, self.root)
+            return name, i, None
+        return name, i, msg
+
+    def other_pings(self, msg: Any, name: str, i: int) -> Iterable[Ping]:
+        """The ping of a RawSonarImage or acoustic_msgs/SonarImage message, or (lazily) those an Oculus
+        RawData message completes in its topic's byte stream."""
+        from sonarmap.io.rosbag_sources import ping_from_legacy_image, ping_from_raw_sonar_image
+
+        if self.kind in ("raw_image", "legacy_image"):
+            decode = ping_from_raw_sonar_image if self.kind == "raw_image" else ping_from_legacy_image
+            return (decode(msg, self.root, name, i, self.override),)
+        return self.streams.pings(name, i, msg)  # Oculus RawData: the topic's incoming byte stream
+
+    def close(self) -> None:
+        """Close the connection to the storage file, if open."""
+        if self.con is not None:
+            self.con.close()
