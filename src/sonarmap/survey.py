@@ -1158,20 +1158,15 @@ def process_survey(
         Pipeline configuration (validated); defaults to ``PipelineConfig()``.
     workers : int, optional
         Local worker processes (default: CPU count); ``0`` runs in the calling process.
-    scheduler : str, optional
-        Address of a dask.distributed scheduler (``tcp://host:port``); chunks run there.
-    client : distributed.Client, optional
-        An existing dask client (takes precedence over ``scheduler``).
+    scheduler, client : str, distributed.Client, optional
+        Run the chunks on a dask.distributed scheduler (``tcp://host:port``) or client (first).
     chunk_size : int
         Pings per task and per zarr chunk (hundreds keep overheads negligible).
     keep_labels : bool
         Also store per-pixel labels ``(ping_time, range_sample, beam)``.
-    poses : path-like, optional
-        Vehicle poses (CSV); the ranges are then registered into a world point cloud stored in
-        the survey (``point_*`` variables) and, if ``points`` is given, written to that file.
-    points : path-like, optional
-        Point-cloud file (``.ply``/``.las``) written when ``poses`` is given; default
-        ``<output stem>.ply`` beside the store.
+    poses, points : path-like, optional
+        Vehicle poses (CSV): the ranges are registered into a world point cloud, stored (``point_*``
+        variables) and written to ``points`` (``.ply``/``.las``, default ``<output stem>.ply``).
     extrinsics : path-like, optional
         Sensor mounting (extrinsics JSON, see :mod:`sonarmap.mapping.poses`) used with ``poses``.
     geometry : SonarGeometry, preset name or JSON path, optional
@@ -1193,32 +1188,26 @@ def process_survey(
         ``output`` exists and was made by a different command (inputs, configuration, options)
         or is not a survey store, and ``overwrite`` is false.
     """
-    t0 = time.perf_counter()
-    out = Path(output)
+    t0, out = time.perf_counter(), Path(output)
     if workers is not None and (isinstance(workers, bool) or int(workers) != workers or workers < 0):
         raise InputError(f"workers: must be a non-negative integer (got {workers!r})")
     cfg, plan, cfg_dict, fp = _plan_run(inputs, config, chunk_size=chunk_size, geometry=geometry,
                                         keep_labels=keep_labels, poses=poses, extrinsics=extrinsics,
                                         ping_function=ping_function)
 
-    # One writer per output: a second run on it fails at once (naming the first's pid); the
-    # lock of a killed run is taken over, and what that run left beside the store is removed.
+    # one writer per output (a killed run's lock is taken over and its leftovers removed)
     with WriterLock(out):
         remove_stale_store_temporaries(out)
         _check_existing(out, fp, overwrite)
-
         task = _Task(cfg, bool(keep_labels), {}, ping_function)
         todo, executor, st, root = _create_and_run(out, plan, task, cfg_dict, fp, poses=poses, client=client,
                                                    scheduler=scheduler, workers=workers, progress=progress)
-
         n_flagged, gates, points_path, n_points = _finalise(out, st, root, plan, poses=poses, points=points,
                                                             extrinsics=extrinsics)
-        return SurveyResult(
-            output=out, n_pings=plan.n_pings, n_flagged=n_flagged, n_chunks=plan.n_chunks,
-            chunks_run=len(todo), chunks_skipped=plan.n_chunks - len(todo),
-            elapsed_s=time.perf_counter() - t0, executor=executor, points_path=points_path,
-            n_points=n_points, gates=gates,
-        )
+        return SurveyResult(output=out, n_pings=plan.n_pings, n_flagged=n_flagged, n_chunks=plan.n_chunks,
+                            chunks_run=len(todo), chunks_skipped=plan.n_chunks - len(todo),
+                            elapsed_s=time.perf_counter() - t0, executor=executor, points_path=points_path,
+                            n_points=n_points, gates=gates)
 
 
 def _store_chunks(out: Path, plan: SurveyPlan, task: Any, *, client: Any, pool: Any,

@@ -377,8 +377,7 @@ def extract_ranges(
     reject_isolated, neighbour_beams, max_jump_bins, min_segment_beams
         Consistency rules 2-3.
     min_component_beams, min_component_bins : int
-        Rule 0: a component is kept if it spans at least ``min_component_beams`` beams or at
-        least ``min_component_bins`` bins (default: beams only).
+        Rule 0: keep a component spanning >= this many beams, or bins (default: beams only).
     min_component_pixels : int
         Rule 0 also keeps a component of at least this many pixels (0: off) - a compact solid
         target (a propeller blade seen edge-on) narrower than a surface but denser than a fish.
@@ -391,18 +390,16 @@ def extract_ranges(
         above stays >= ``edge_level`` - the leading edge of a speckled surface band, where
         the segmentation's first pixel is often a few bins late.
     accepted : ndarray of bool, shape (n_bins, n_beams), optional
-        Structure pixels accepted without rule 0 (added after it), e.g. the pipeline's pooled
-        band detections, which were already validated as wide components.  A first return on
-        such a pixel is not moved by rule 4.
+        Structure pixels accepted without rule 0 (added after it; e.g. pooled band detections,
+        already validated as wide components); a first return on one is not moved by rule 4.
     time_ns, source
-        Copied into the result.
+        Copied into the result.  The rules leave a beam without a return as -1 / NaN.
 
     Returns
     -------
     BeamRanges
     """
-    lab = np.asarray(labels_or_mask)
-    img = np.asarray(image, dtype=np.float32)
+    lab, img = np.asarray(labels_or_mask), np.asarray(image, dtype=np.float32)
     geometry.check_image(lab, "labels_or_mask")
     geometry.check_image(img, "image")
     if mode not in ("first", "strongest"):
@@ -411,25 +408,38 @@ def extract_ranges(
         raise InputError("min_run, neighbour_beams, min_segment_beams must be >= 1; max_jump_bins >= 0")
     mask = lab if lab.dtype == np.bool_ else (lab == structure_label)
     mask = component_rule(mask, min_component_beams, min_component_bins, link_beams, min_component_pixels)
-    acc_only = None
-    if accepted is not None:
-        acc = np.asarray(accepted, dtype=bool)
-        geometry.check_image(acc, "accepted")
-        acc_only = acc & ~mask
-        mask = mask | acc
+    mask, acc_only = _with_accepted(mask, accepted, geometry)
     bins = _pick_bins(mask, img, mode, min_run)
     if reject_isolated:
         bins = _reject_isolated(bins, mask, mode, min_run, neighbour_beams, max_jump_bins)
     if min_segment_beams > 1:
         bins = np.where(_segments_short(bins, max_jump_bins, min_segment_beams), -1, bins)
     if refine_bins > 0 and edge_level is not None and mode == "first":
-        refined = _refine_leading_edge(img, bins, refine_bins, float(edge_level))
-        if acc_only is not None:
-            # accepted (pooled) picks are the band's peak: not moved by the leading-edge rule
-            keep = (bins >= 0) & acc_only[np.maximum(bins, 0), np.arange(bins.size)]
-            refined = np.where(keep, bins, refined)
-        bins = refined
+        bins = _refined_unless_accepted(img, bins, refine_bins, float(edge_level), acc_only)
     return _beam_ranges(bins, img, geometry, mode, neighbour_beams, max_jump_bins, time_ns, source)
+
+
+def _with_accepted(
+    mask: np.ndarray, accepted: ArrayLike | None, geometry: SonarGeometry
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """``mask`` plus the ``accepted`` pixels, and the accepted pixels that rule 0 did not keep."""
+    if accepted is None:
+        return mask, None
+    acc = np.asarray(accepted, dtype=bool)
+    geometry.check_image(acc, "accepted")
+    return mask | acc, acc & ~mask
+
+
+def _refined_unless_accepted(
+    img: np.ndarray, bins: np.ndarray, refine_bins: int, edge_level: float, acc_only: np.ndarray | None
+) -> np.ndarray:
+    """Rule 4 on every first return except those on accepted-only pixels."""
+    refined = _refine_leading_edge(img, bins, refine_bins, edge_level)
+    if acc_only is None:
+        return refined
+    # accepted (pooled) picks are the band's peak: not moved by the leading-edge rule
+    keep = (bins >= 0) & acc_only[np.maximum(bins, 0), np.arange(bins.size)]
+    return np.where(keep, bins, refined)
 
 
 def _pick_bins(mask: np.ndarray, img: np.ndarray, mode: Mode, min_run: int) -> np.ndarray:

@@ -355,16 +355,14 @@ def pooled_edges(
     pulse_bins, fraction : int, float
         As in :func:`find_echoes`.
     sigma_scale : float
-        Calibration of the jitter term of :func:`edge_sigma_m` (the pipeline's
-        ``sigma_pool_scale``).
+        Calibration of :func:`edge_sigma_m`'s jitter term (``PipelineConfig.sigma_pool_scale``).
     half_beams, front_bins, max_bins, smooth_bins, n_iter, touch_bins
         The pooling window (see above).
 
     Returns
     -------
     Echoes
-        ``echoes`` with the returns' ``edge_bin``, ``edge_range_m``, ``slope`` and ``sigma_m``
-        replaced (the other echoes unchanged).
+        ``echoes`` with the returns' ``edge_bin``, ``edge_range_m``, ``slope``, ``sigma_m`` replaced.
     """
     from sonarmap.ranges import _kernels
 
