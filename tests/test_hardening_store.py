@@ -372,7 +372,7 @@ def test_an_unfinished_product_store_still_loads(seeds: dict[str, Path], tmp_pat
 def test_chunks_are_checksummed_and_old_stores_still_read(seeds: dict[str, Path], tmp_path: Path) -> None:
     """Every array of both writers has a crc32c codec; a store written without (before this
     change) reads as before - raw and product stores, the product one also resumes."""
-    import sonarmap._survey_store as ss
+    import sonarmap.survey._chunk_writer as ss
     from sonarmap.io.dataset import _encoding, pings_to_dataset
     from sonarmap.survey import load_products, process_survey
 

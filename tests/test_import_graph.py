@@ -51,7 +51,7 @@ STAGES: dict[str, int] = {
 SHARED = frozenset({"_atomic", "_config", "_threads", "_files"})
 
 #: Top-level private modules that belong to a package (its private helpers).
-OWNER = {"_survey_store": "survey", "_survey_warm": "survey", "_pipeline_kernels": "pipeline"}
+OWNER = {"_pipeline_kernels": "pipeline"}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -77,7 +77,7 @@ def group_of(module: str) -> str:
 
 
 def stage_of(module: str) -> int:
-    """The stage of a module (by its own top-level name: ``_survey_warm`` is on survey's stage)."""
+    """The stage of a module (by its own top-level name: ``_pipeline_kernels`` is on pipeline's stage)."""
     parts = module.split(".")
     top = parts[1] if len(parts) > 1 else ""
     key = top if top in STAGES else OWNER.get(top, top)
@@ -154,7 +154,7 @@ def test_the_checker_finds_each_kind_of_bad_import() -> None:
         ("sonarmap.geometry", False, "from .io import read_pings\n"),
         ("sonarmap.mapping.fake", False, "from ..io._binary import MAX_PING_BYTES\n"),
         # a package's top-level private helper, from another package
-        ("sonarmap.live.fake", False, "import sonarmap._survey_warm\n"),
+        ("sonarmap.live.fake", False, "import sonarmap.survey._warm\n"),
     ])
     assert [(v.module, v.line, v.rule) for v in bad] == [
         ("sonarmap.io.fake", 1, "against the data flow"),
@@ -177,7 +177,7 @@ def test_the_checker_allows_what_design_allows() -> None:
                                          "from sonarmap.io import read_pings\n"),
         # private modules and names inside one package, relative or absolute
         ("sonarmap.io.fake", False, "from sonarmap.io._binary import map_file\nfrom ._binary import _x\n"),
-        ("sonarmap.survey", False, "from sonarmap._survey_store import ChunkWriter\n"),
+        ("sonarmap.survey.run", False, "from sonarmap.survey._chunk_writer import ChunkWriter\n"),
         ("sonarmap.pipeline", False, "from sonarmap._pipeline_kernels import level_counts\n"),
         # the same stage
         ("sonarmap.simulate.fake", False, "from sonarmap.mapping.poses import Pose\n"),

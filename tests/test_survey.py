@@ -361,7 +361,7 @@ def test_chunk_writer_writes_the_bytes_zarr_writes(tmp_path: Path) -> None:
     chunks, numeric and string variables, NaN fills) and read back through zarr unchanged."""
     import zarr
 
-    from sonarmap._survey_store import ChunkWriter, array_codec_kwargs
+    from sonarmap.survey._chunk_writer import ChunkWriter, array_codec_kwargs
 
     rng = np.random.default_rng(1)
     n, k = 10, 4
@@ -402,7 +402,7 @@ def test_chunk_writer_writes_the_bytes_zarr_writes(tmp_path: Path) -> None:
             assert back.tolist() == values[name].tolist(), name
     assert not any((stores["direct"] / ".sonarmap" / "tmp").iterdir())  # temporaries all moved
     # A writer never writes into a store that was replaced after it was made.
-    from sonarmap._survey_store import StoreReplacedError
+    from sonarmap.survey._chunk_writer import StoreReplacedError
 
     os.replace(stores["direct"], tmp_path / "aside.zarr")
     stores["direct"].mkdir()
@@ -417,7 +417,7 @@ def test_local_workers_store_their_own_chunks(
 ) -> None:
     """Local workers write their chunk files themselves: the parent receives only a receipt per
     chunk (no products) and writes the marker; the dataset is the serial run's."""
-    import sonarmap.survey as sv
+    import sonarmap.survey.store as sv
 
     got: list[object] = []
     put = sv._Sink.put
@@ -458,7 +458,7 @@ def test_zarr_fallback_writer_gives_the_same_store(
     serial_store: Path, survey_dir: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
 ) -> None:
     """Stores whose arrays the direct writer does not recognise are written through zarr."""
-    from sonarmap._survey_store import ChunkWriter
+    from sonarmap.survey._chunk_writer import ChunkWriter
 
     monkeypatch.setattr(ChunkWriter, "open", classmethod(lambda cls, store, names: None))
     out = tmp_path / "z.zarr"
@@ -487,8 +487,8 @@ def test_resume_removes_temporaries_of_the_interrupted_run(
 
 def test_pool_workers_start_with_a_warm_pipeline() -> None:
     """The fork server preloads and runs the pipeline once; workers inherit it warm."""
-    from sonarmap._survey_warm import status
-    from sonarmap.survey import _ProcessPool
+    from sonarmap.survey._warm import status
+    from sonarmap.survey.executors import _ProcessPool
 
     pool = _ProcessPool(2, None)
     try:
@@ -499,7 +499,9 @@ def test_pool_workers_start_with_a_warm_pipeline() -> None:
 
 
 def test_tail_parts_cover_the_last_chunks_and_give_their_products(survey_dir: Path) -> None:
-    from sonarmap.survey import _concat_parts, _resolve_config, _sub_chunk, _tail_parts, run_chunk
+    from sonarmap.survey import run_chunk
+    from sonarmap.survey.plan import _resolve_config, _sub_chunk, _tail_parts
+    from sonarmap.survey.records import _concat_parts
 
     plan = plan_survey([survey_dir], chunk_size=12)  # chunks of 12, 12, 12, 4
     chunks = plan.chunks()

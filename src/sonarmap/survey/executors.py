@@ -1,0 +1,209 @@
+"""Executors of survey chunks: serial, a warm local process pool, dask.distributed."""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import time
+import warnings
+from collections.abc import Callable, Iterator, Sequence
+from typing import Any
+
+import numpy as np
+
+from sonarmap.errors import SonarmapError
+from sonarmap.ping import Ping
+from sonarmap.survey.plan import ChunkSpec, PingFunction, _default_ping_function, _resolve_config, _tail_parts
+from sonarmap.survey.records import _concat_parts
+
+__all__ = ["warm_pipeline_once"]
+
+
+# ============================================================================ executors
+def _pool_initializer(parent_pid: int) -> None:  # pragma: no cover - runs in workers
+    import signal
+    import threading
+
+    # Ctrl-C is handled by the parent, which stops the pool; workers must not die half-way.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    # warnings raised while a worker reads its chunk print as one line, as the CLI prints its own
+    from sonarmap.errors import show_warning_one_line
+
+    warnings.showwarning = show_warning_one_line
+
+    def watch() -> None:
+        # A parent killed with SIGKILL cannot stop its pool: leave instead of idling forever.
+        while True:
+            time.sleep(0.5)
+            try:
+                os.kill(parent_pid, 0)
+            except ProcessLookupError:
+                os._exit(1)
+            except OSError:
+                pass
+
+    threading.Thread(target=watch, name="sonarmap-parent-watch", daemon=True).start()
+
+
+def _run_serial(chunks, task):  # type: ignore[no-untyped-def]
+    for c in chunks:
+        yield c, task(c)
+
+
+def _warm_worker(ping_function: PingFunction | None) -> int:  # pragma: no cover - in workers
+    """Import the pipeline and run it once on a synthetic ping (numba kernels, scipy imports), so
+    the first real chunk does not pay for it; runs while the parent probes the survey."""
+    try:
+        from sonarmap.geometry import preset
+
+        g = preset("didson-hf")
+        img = np.random.default_rng(0).random(g.shape, dtype=np.float32) * 0.3
+        img[g.n_bins // 2 : g.n_bins // 2 + 8] = 0.9
+        fn = ping_function or _default_ping_function()
+        fn(Ping(img, g), _resolve_config(None) if ping_function is None else None)
+    except Exception:  # noqa: BLE001 - warming must never fail a run
+        pass
+    return os.getpid()
+
+
+def warm_pipeline_once() -> bool:
+    """Warm this process's per-ping pipeline the way the worker pool's fork server is warmed
+    (:mod:`sonarmap.survey._warm`: the default pipeline runs once on a synthetic ping, on the first
+    call in a process only; any failure is swallowed).  ``True`` if the warm-up run worked."""
+    import sonarmap.survey._warm  # warms on (first) import
+
+    return bool(sonarmap.survey._warm.WARMED)
+
+
+_THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS")
+
+class _ProcessPool:
+    """Local worker processes (forkserver: safe with the parent's threads), warmed at creation."""
+
+    def __init__(self, workers: int, ping_function: PingFunction | None) -> None:
+        import concurrent.futures as cf
+        import multiprocessing
+
+        ctx = multiprocessing.get_context("forkserver")
+        with contextlib.suppress(Exception):
+            ctx.set_forkserver_preload(["sonarmap.survey", "sonarmap.pipeline", "sonarmap.survey._warm"])
+        self.workers = workers
+        self.ex = cf.ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_pool_initializer,
+                                         initargs=(os.getpid(),))
+        # Parallelism is across processes: each worker's numerical libraries get one thread
+        # (set before the fork server - and so the workers - import numpy; restored after).
+        saved = {v: os.environ.get(v) for v in _THREAD_VARS}
+        os.environ.update({v: "1" for v, old in saved.items() if old is None})
+        try:
+            for _ in range(workers):
+                self.ex.submit(_warm_worker, ping_function)
+        finally:
+            for v, old in saved.items():
+                if old is None:
+                    os.environ.pop(v, None)
+
+    def start(self, chunks: Sequence[ChunkSpec], part_task: Callable[[ChunkSpec], Any],
+              task: Callable[[ChunkSpec], Any] | None = None) -> None:
+        """Plan the jobs of ``chunks`` and submit the first ones now, with ``task``.
+
+        Without ``task``, whole chunks also run ``part_task``, which returns the products instead
+        of storing them: the workers can start before the store exists - the first chunks of a
+        new survey run while this process creates the store (their products are stored here).
+        """
+        jobs: list[tuple[ChunkSpec, ChunkSpec | None]] = [(c, None) for c in chunks]
+        if self.workers > 1:
+            jobs = _tail_parts(list(chunks), self.workers)
+        self._chunks = [c.index for c in chunks]
+        self._part_task = part_task
+        self._pending = jobs[::-1]
+        self._inflight: dict[Any, tuple[ChunkSpec, ChunkSpec | None]] = {}
+        self._fill(task or part_task)
+
+    def _fill(self, task: Callable[[ChunkSpec], Any]) -> None:
+        while self._pending and len(self._inflight) < 2 * self.workers:
+            c, part = self._pending.pop()
+            fut = self.ex.submit(task, c) if part is None else self.ex.submit(self._part_task, part)
+            self._inflight[fut] = (c, part)
+
+    def run(self, chunks: Sequence[ChunkSpec], task: Callable[[ChunkSpec], Any],
+            part_task: Callable[[ChunkSpec], Any]) -> Iterator[tuple[ChunkSpec, Any]]:
+        """Yield ``(chunk, result)`` as chunks finish (at most 2 per worker in flight).
+
+        Whole chunks run ``task``.  With several workers the last chunks are cut into parts run
+        with ``part_task`` (returns the products of the part), so the workers finish together
+        instead of one worker running the last whole chunk alone (:func:`_tail_parts`); a split
+        chunk is yielded once all its parts are back, with its parts' products concatenated.
+        Continues what :meth:`start` began, if it was called with the same chunks.
+        """
+        import concurrent.futures as cf
+
+        if getattr(self, "_chunks", None) != [c.index for c in chunks]:
+            if getattr(self, "_inflight", None):
+                raise SonarmapError("internal: the pool was started on other chunks")
+            self.start(chunks, part_task, task)
+        pending, inflight = self._pending, self._inflight
+        n_parts: dict[int, int] = {}
+        for c, part in [*pending, *inflight.values()]:
+            if part is not None:
+                n_parts[c.index] = n_parts.get(c.index, 0) + 1
+        got: dict[int, list[tuple[int, Any]]] = {}
+        while pending or inflight:
+            self._fill(task)
+            done, _ = cf.wait(inflight, return_when=cf.FIRST_COMPLETED)
+            for fut in sorted(done, key=lambda f: (inflight[f][0].index, inflight[f][1] is not None)):
+                c, part = inflight.pop(fut)
+                if part is None:
+                    yield c, fut.result()
+                    continue
+                parts = got.setdefault(c.index, [])
+                parts.append((part.start, fut.result()))
+                if len(parts) == n_parts[c.index]:
+                    del got[c.index]
+                    yield c, _concat_parts([data for _, data in sorted(parts, key=lambda p: p[0])])
+
+    def close(self, ok: bool) -> None:
+        """Shut down; on failure or interrupt, terminate the workers at once."""
+        if ok:
+            self.ex.shutdown(wait=True)
+            return
+        procs = list((getattr(self.ex, "_processes", None) or {}).values())
+        self.ex.shutdown(wait=False, cancel_futures=True)
+        for p in procs:
+            with contextlib.suppress(Exception):
+                p.terminate()
+        for p in procs:
+            with contextlib.suppress(Exception):
+                p.join(timeout=5)
+
+
+def _run_dask(chunks, task, client):  # type: ignore[no-untyped-def]
+    """Yield ``(chunk, products)`` from a dask.distributed cluster (bounded number in flight)."""
+    import uuid
+
+    from distributed import as_completed
+
+    run_id = uuid.uuid4().hex[:12]
+    nthreads = max(1, sum(client.nthreads().values()))
+    pending = list(chunks)[::-1]
+    futures: dict[Any, ChunkSpec] = {}
+    ac = as_completed()
+
+    def submit() -> None:
+        c = pending.pop()
+        f = client.submit(task, c, key=f"sonarmap-chunk-{c.index}-{run_id}", pure=False, retries=3)
+        futures[f] = c
+        ac.add(f)
+
+    try:
+        while pending and len(futures) < 2 * nthreads + 1:
+            submit()
+        for f in ac:
+            c = futures.pop(f)
+            result = f.result()
+            f.release()
+            if pending:
+                submit()
+            yield c, result
+    finally:
+        if futures:
+            client.cancel(list(futures))
