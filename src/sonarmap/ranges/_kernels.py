@@ -302,6 +302,14 @@ def _union_back_neighbours(idx, parent, a, i, j, w):  # pragma: no cover - numba
 
 
 @njit(cache=True, nogil=True, inline="always")
+def _empty_extents(n, h, w):  # pragma: no cover - numba
+    """``(imin, imax, jmin, jmax)`` of ``n`` components on an ``(h, w)`` lattice before any pixel
+    (:func:`_grow_box` extends them)."""
+    return (np.full(n, h, dtype=np.int32), np.full(n, -1, dtype=np.int32), np.full(n, w, dtype=np.int32),
+            np.full(n, -1, dtype=np.int32))
+
+
+@njit(cache=True, nogil=True, inline="always")
 def _grow_box(r, i, j, imin, imax, jmin, jmax):  # pragma: no cover - numba
     """Extend component ``r``'s bin (``i``) and beam (``j``) extent by pixel ``(i, j)``."""
     if j < jmin[r]:
@@ -344,10 +352,7 @@ def wide_components(mask, seeds, min_beams, min_bins):  # pragma: no cover - num
             if a < 0:
                 continue
             _union_back_neighbours(idx, parent, a, i, j, w)
-    jmin = np.full(n, w, dtype=np.int32)
-    jmax = np.full(n, -1, dtype=np.int32)
-    imin = np.full(n, h, dtype=np.int32)
-    imax = np.full(n, -1, dtype=np.int32)
+    imin, imax, jmin, jmax = _empty_extents(n, h, w)
     seeded = np.zeros(n, dtype=np.bool_)
     for i in range(h):
         for j in range(w):
@@ -467,10 +472,7 @@ def linked_components(mask, min_beams, min_bins, gap, rounds, idx, min_pixels=0)
         j = pj[a]
         _union_back_neighbours(idx, parent, a, i, j, w)
     root = np.empty(n, dtype=np.int32)
-    jmin = np.full(n, w, dtype=np.int32)
-    jmax = np.full(n, -1, dtype=np.int32)
-    imin = np.full(n, h, dtype=np.int32)
-    imax = np.full(n, -1, dtype=np.int32)
+    imin, imax, jmin, jmax = _empty_extents(n, h, w)
     npx = np.zeros(n, dtype=np.int32)
     for a in range(n):
         r = _find(parent, a)

@@ -194,26 +194,9 @@ def solve_eta_kind(kind: int, x: np.ndarray, target: float, eta0: float, lo: flo
 
 
 @njit(cache=True, nogil=True)
-def em_kernel(
-    counts: np.ndarray,
-    x: np.ndarray,
-    kind: np.ndarray,
-    eta: np.ndarray,
-    w: np.ndarray,
-    eta_lo: np.ndarray,
-    eta_hi: np.ndarray,
-    max_iter: int,
-    tol: float,
-    ll_trace: np.ndarray,
-) -> tuple[int, bool]:
-    """Run EM in place on ``eta`` and ``w``; returns ``(n_iter, converged)``.
-
-    ``ll_trace[i]`` receives the log-likelihood at the parameters *entering* iteration ``i``;
-    ``ll_trace[n_iter]`` that of the returned parameters.  Stops when the log-likelihood gain is
-    at most ``tol * (|ll| + 1)``.
-    """
-    C = kind.shape[0]
-    L = x.shape[0]
+def _occupied(counts: np.ndarray) -> tuple[np.ndarray, float]:
+    """Indices of the levels with a positive count, and the total count."""
+    L = counts.shape[0]
     n_occ = 0
     N = 0.0
     for k in range(L):
@@ -226,14 +209,98 @@ def em_kernel(
         if counts[k] > 0:
             occ[j] = k
             j += 1
-    P = np.zeros((C, L))
-    u = np.empty(L)
+    return occ, N
+
+
+@njit(cache=True, nogil=True)
+def _eta_mean_bounds(kind: np.ndarray, x: np.ndarray, lo: np.ndarray, hi: np.ndarray,
+                     u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``E[T]`` at the ``eta`` bounds ``lo``, ``hi`` of the kind 1-2 components (0 for the others)."""
+    C = kind.shape[0]
     m_lo = np.zeros(C)
     m_hi = np.zeros(C)
     for c in range(C):
-        if kind[c] != 0:
-            m_lo[c] = _mean(kind[c], x, eta_lo[c], u)
-            m_hi[c] = _mean(kind[c], x, eta_hi[c], u)
+        if kind[c] == 1 or kind[c] == 2:
+            m_lo[c] = _mean(kind[c], x, lo[c], u)
+            m_hi[c] = _mean(kind[c], x, hi[c], u)
+    return m_lo, m_hi
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _eta_pmf(kind: int, x: np.ndarray, eta: float, u: np.ndarray, P: np.ndarray, c: int) -> None:
+    """Row ``c`` of ``P``: the normalised pmf of a kind 1-2 component (``u`` is scratch)."""
+    z, _, _ = _eval(kind, x, eta, u)
+    inv = 1.0 / z
+    for k in range(x.shape[0]):
+        P[c, k] = u[k] * inv
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _responsibilities(counts: np.ndarray, x: np.ndarray, kind: np.ndarray, w: np.ndarray, occ: np.ndarray,
+                      P: np.ndarray, Rsp: np.ndarray, Nc: np.ndarray, tbar: np.ndarray, pk: np.ndarray,
+                      keep: bool) -> float:
+    """E-step over the occupied levels ``occ`` given the component pmfs ``P``: the sums ``Nc`` of
+    the responsibilities and the sums ``tbar`` of ``r T`` (kinds 1-2), and with ``keep`` the
+    responsibilities themselves in ``Rsp`` (untouched otherwise); returns the log-likelihood."""
+    C = kind.shape[0]
+    ll = 0.0
+    for c in range(C):
+        Nc[c] = 0.0
+        tbar[c] = 0.0
+    for jj in range(occ.shape[0]):
+        k = occ[jj]
+        n = counts[k]
+        s = 0.0
+        for c in range(C):
+            v = w[c] * P[c, k]
+            pk[c] = v
+            s += v
+        if s <= 0:
+            ll = -np.inf
+            if keep:
+                for c in range(C):
+                    Rsp[c, k] = 0.0
+            continue
+        ll += n * np.log(s)
+        f = n / s
+        xk = x[k]
+        for c in range(C):
+            rr = pk[c] * f
+            if keep:
+                Rsp[c, k] = rr
+            Nc[c] += rr
+            if kind[c] == 1:
+                tbar[c] += rr * xk
+            elif kind[c] == 2:
+                tbar[c] += rr * xk * xk
+    return ll
+
+
+@njit(cache=True, nogil=True)
+def em_kernel(
+    counts: np.ndarray,
+    x: np.ndarray,
+    kind: np.ndarray,
+    eta: np.ndarray,
+    w: np.ndarray,
+    eta_lo: np.ndarray,
+    eta_hi: np.ndarray,
+    max_iter: int,
+    tol: float,
+    ll_trace: np.ndarray,
+) -> tuple[int, bool]:
+    """Run EM (kinds 0-2) in place on ``eta`` and ``w``; returns ``(n_iter, converged)``.
+
+    ``ll_trace[i]`` receives the log-likelihood at the parameters *entering* iteration ``i``;
+    ``ll_trace[n_iter]`` that of the returned parameters.  Stops when the log-likelihood gain is
+    at most ``tol * (|ll| + 1)``.
+    """
+    C = kind.shape[0]
+    L = x.shape[0]
+    occ, N = _occupied(counts)
+    P = np.zeros((C, L))
+    u = np.empty(L)
+    m_lo, m_hi = _eta_mean_bounds(kind, x, eta_lo, eta_hi, u)
     Nc = np.empty(C)
     tbar = np.empty(C)
     pk = np.empty(C)
@@ -241,41 +308,13 @@ def em_kernel(
     it = 0
     ll_prev = -np.inf
     while True:
-        # component pmfs at the current parameters
+        # component pmfs at the current parameters, then the E-step
         for c in range(C):
             if kind[c] == 0:
                 P[c, 0] = 1.0
-                continue
-            z, _, _ = _eval(kind[c], x, eta[c], u)
-            inv = 1.0 / z
-            for k in range(L):
-                P[c, k] = u[k] * inv
-        # E-step over the occupied levels
-        ll = 0.0
-        for c in range(C):
-            Nc[c] = 0.0
-            tbar[c] = 0.0
-        for jj in range(n_occ):
-            k = occ[jj]
-            n = counts[k]
-            s = 0.0
-            for c in range(C):
-                v = w[c] * P[c, k]
-                pk[c] = v
-                s += v
-            if s <= 0:
-                ll = -np.inf
-                continue
-            ll += n * np.log(s)
-            f = n / s
-            xk = x[k]
-            for c in range(C):
-                r = pk[c] * f
-                Nc[c] += r
-                if kind[c] == 1:
-                    tbar[c] += r * xk
-                elif kind[c] == 2:
-                    tbar[c] += r * xk * xk
+            else:
+                _eta_pmf(kind[c], x, eta[c], u, P, c)
+        ll = _responsibilities(counts, x, kind, w, occ, P, P, Nc, tbar, pk, False)
         ll_trace[it] = ll
         if it > 0 and ll - ll_prev <= tol * (abs(ll) + 1.0):
             converged = True
@@ -626,10 +665,7 @@ def _estep_general(counts, x, xe, lx, kind, par, w, occ, P, Rsp, Nc, tbar, pk, u
         if kc == 0:
             P[c, 0] = 1.0
         elif kc <= 2:
-            z, _, _ = _eval(kc, x, par[c, 0], u)
-            inv = 1.0 / z
-            for k in range(L):
-                P[c, k] = u[k] * inv
+            _eta_pmf(kc, x, par[c, 0], u, P, c)
         else:
             top = _logdens2(kc, par[c, 0], par[c, 1], x, xe, lx, g, gr, hs, False)
             z = 0.0
@@ -640,35 +676,7 @@ def _estep_general(counts, x, xe, lx, kind, par, w, occ, P, Rsp, Nc, tbar, pk, u
             inv = 1.0 / z
             for k in range(L):
                 P[c, k] *= inv
-    ll = 0.0
-    for c in range(C):
-        Nc[c] = 0.0
-        tbar[c] = 0.0
-    for jj in range(occ.shape[0]):
-        k = occ[jj]
-        n = counts[k]
-        s = 0.0
-        for c in range(C):
-            v = w[c] * P[c, k]
-            pk[c] = v
-            s += v
-        if s <= 0:
-            ll = -np.inf
-            for c in range(C):
-                Rsp[c, k] = 0.0
-            continue
-        ll += n * np.log(s)
-        f = n / s
-        xk = x[k]
-        for c in range(C):
-            rr = pk[c] * f
-            Rsp[c, k] = rr
-            Nc[c] += rr
-            if kind[c] == 1:
-                tbar[c] += rr * xk
-            elif kind[c] == 2:
-                tbar[c] += rr * xk * xk
-    return ll
+    return _responsibilities(counts, x, kind, w, occ, P, Rsp, Nc, tbar, pk, True)
 
 
 @njit(cache=True, nogil=True)
@@ -715,30 +723,14 @@ def em_general_kernel(
     xe = x.copy()
     xe[0] = 0.5 * h
     lx = np.log(xe)
-    N = 0.0
-    n_occ = 0
-    for k in range(L):
-        if counts[k] > 0:
-            n_occ += 1
-            N += counts[k]
-    occ = np.empty(n_occ, dtype=np.int64)
-    j = 0
-    for k in range(L):
-        if counts[k] > 0:
-            occ[j] = k
-            j += 1
+    occ, N = _occupied(counts)
     P = np.zeros((C, L))
     Rsp = np.zeros((C, L))
     u = np.empty(L)
     g = np.empty(L)
     gr = np.empty((L, 2))
     hs = np.empty((L, 3))
-    m_lo = np.zeros(C)
-    m_hi = np.zeros(C)
-    for c in range(C):
-        if kind[c] == 1 or kind[c] == 2:
-            m_lo[c] = _mean(kind[c], x, lo[c, 0], u)
-            m_hi[c] = _mean(kind[c], x, hi[c, 0], u)
+    m_lo, m_hi = _eta_mean_bounds(kind, x, lo[:, 0], hi[:, 0], u)
     Nc = np.empty(C)
     tbar = np.empty(C)
     pk = np.empty(C)

@@ -593,6 +593,9 @@ def _bounds(spec: _Spec, name: str) -> list[tuple[float, float]]:
     return [(lo, hi), scale_b]
 
 
+_KernelArgs = tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]
+
+
 def _em(
     spec: _Spec,
     counts: NDArray[np.float64],
@@ -601,9 +604,22 @@ def _em(
     max_iter: int,
     tol: float,
 ) -> tuple[NDArray[np.float64], list[tuple[float, ...]], int, bool, NDArray[np.float64]]:
-    if all(n in ("zero", "exponential", "rayleigh") for n in spec.names):
-        return _em_fast(spec, counts, w0, params0, max_iter, tol)
-    return _em_general(spec, counts, w0, params0, max_iter, tol)
+    """EM entirely in one numba kernel: :func:`em_kernel` for spike + exponential + Rayleigh
+    components (:func:`_fast_coords`), else :func:`em_general_kernel` (:func:`_general_coords`)."""
+    from sonarmap.stats._em_kernels import em_general_kernel, em_kernel
+
+    w = np.array(w0, dtype=np.float64)
+    trace = np.empty(max_iter + 1)
+    if all(n in _KIND for n in spec.names):
+        kind, eta, lo, hi = _fast_coords(spec, params0)
+        n_iter, conv = em_kernel(counts, spec.levels, kind, eta, w, lo, hi, int(max_iter), float(tol), trace)
+        params = [() if n == "zero" else (_scale_of(n, float(eta[c])),) for c, n in enumerate(spec.names)]
+    else:
+        kind, par, lo, hi = _general_coords(spec, params0)
+        n_iter, conv = em_general_kernel(counts, spec.levels, kind, par, w, lo, hi, int(max_iter),
+                                         float(tol), 3, trace)
+        params = [_from_coords(n, float(par[c, 0]), float(par[c, 1])) for c, n in enumerate(spec.names)]
+    return w, params, int(n_iter), bool(conv), trace[: n_iter + 1].copy()
 
 
 def _eta_of(name: str, scale: float) -> float:
@@ -617,17 +633,9 @@ def _scale_of(name: str, eta: float) -> float:
 _KIND = {"zero": 0, "exponential": 1, "rayleigh": 2}
 
 
-def _em_fast(
-    spec: _Spec,
-    counts: NDArray[np.float64],
-    w0: NDArray[np.float64],
-    params0: list[tuple[float, ...]],
-    max_iter: int,
-    tol: float,
-) -> tuple[NDArray[np.float64], list[tuple[float, ...]], int, bool, NDArray[np.float64]]:
-    """EM for spike + exponential + Rayleigh components, entirely in one numba kernel."""
-    from sonarmap.stats._em_kernels import em_kernel
-
+def _fast_coords(spec: _Spec, params0: list[tuple[float, ...]]) -> _KernelArgs:
+    """``(kind, eta, lo, hi)`` of :func:`em_kernel` for spike + exponential + Rayleigh components
+    (exact M-step, see :mod:`sonarmap.stats._em_kernels`)."""
     C = len(spec.names)
     kind = np.empty(C, dtype=np.int64)
     eta = np.zeros(C)
@@ -639,11 +647,7 @@ def _em_fast(
             eta[c] = _eta_of(name, params0[c][0])
             lo[c] = _eta_of(name, spec.smin)
             hi[c] = _eta_of(name, spec.smax)
-    w = np.array(w0, dtype=np.float64)
-    trace = np.empty(max_iter + 1)
-    n_iter, conv = em_kernel(counts, spec.levels, kind, eta, w, lo, hi, int(max_iter), float(tol), trace)
-    params = [() if n == "zero" else (_scale_of(n, float(eta[c])),) for c, n in enumerate(spec.names)]
-    return w, params, int(n_iter), bool(conv), trace[: n_iter + 1].copy()
+    return kind, eta, lo, hi
 
 
 _KIND_GENERAL = {"zero": 0, "exponential": 1, "rayleigh": 2, "gamma": 3, "weibull": 4, "rice": 5,
@@ -675,15 +679,8 @@ def _from_coords(name: str, c0: float, c1: float) -> tuple[float, ...]:
     return ()
 
 
-def _em_general(
-    spec: _Spec,
-    counts: NDArray[np.float64],
-    w0: NDArray[np.float64],
-    params0: list[tuple[float, ...]],
-    max_iter: int,
-    tol: float,
-) -> tuple[NDArray[np.float64], list[tuple[float, ...]], int, bool, NDArray[np.float64]]:
-    """Generalised EM for any families, entirely in one numba kernel (:func:`em_general_kernel`).
+def _general_coords(spec: _Spec, params0: list[tuple[float, ...]]) -> _KernelArgs:
+    """``(kind, par, lo, hi)`` of :func:`em_general_kernel`, the generalised EM for any families.
 
     Exact E-step; exact M-step for the exponential and Rayleigh components; for gamma (in its
     natural parameters, where the expected log-likelihood is concave), Weibull, Rice and K
@@ -691,8 +688,6 @@ def _em_general(
     damped Newton steps with analytic gradient and Hessian, each accepted only if it increases
     that component's expected log-likelihood - so the log-likelihood never decreases.
     """
-    from sonarmap.stats._em_kernels import em_general_kernel
-
     C = len(spec.names)
     kind = np.empty(C, dtype=np.int64)
     par = np.zeros((C, 2))
@@ -715,12 +710,7 @@ def _em_general(
         if len(p) == 2:
             p = (min(max(p[0], b_lo), b_hi), min(max(p[1], spec.smin), spec.smax))
         par[c] = _to_coords(name, p)
-    w = np.array(w0, dtype=np.float64)
-    trace = np.empty(max_iter + 1)
-    n_iter, conv = em_general_kernel(counts, spec.levels, kind, par, w, lo, hi, int(max_iter),
-                                     float(tol), 3, trace)
-    params = [_from_coords(n, float(par[c, 0]), float(par[c, 1])) for c, n in enumerate(spec.names)]
-    return w, params, int(n_iter), bool(conv), trace[: n_iter + 1].copy()
+    return kind, par, lo, hi
 
 
 def _em_best(
