@@ -39,7 +39,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from sonarmap._config import is_finite_number
+from sonarmap._config import config_table, is_finite_number
 from sonarmap.errors import FitError, InputError
 from sonarmap.ping import Ping
 from sonarmap.ranges import BeamRanges, component_rule, drop_small_components, extract_ranges, half_peak_edges, no_returns
@@ -303,11 +303,8 @@ class PipelineConfig:
         if self.track is None:
             object.__setattr__(self, "track", TrackConfig())
         elif isinstance(self.track, dict):
-            known = {f.name for f in dataclasses.fields(TrackConfig)}
-            for key in self.track:
-                if key not in known:
-                    raise InputError(f"pipeline config: track: unknown key '{key}' (valid: {', '.join(sorted(known))})")
-            object.__setattr__(self, "track", TrackConfig(**self.track))
+            object.__setattr__(self, "track", TrackConfig(**config_table(self.track, TrackConfig,
+                                                                         "pipeline config: track")))
         elif not isinstance(self.track, TrackConfig):
             raise self._bad("track", "must be a track table")
 
@@ -414,15 +411,7 @@ class PipelineConfig:
 
         A nested ``{"pipeline": {...}}`` table (TOML) is accepted.
         """
-        if not isinstance(d, dict):
-            raise InputError(f"pipeline config: expected a table, got {type(d).__name__}")
-        if set(d) == {"pipeline"} and isinstance(d["pipeline"], dict):
-            d = d["pipeline"]
-        known = {f.name for f in dataclasses.fields(cls)}
-        for key in d:
-            if key not in known:
-                raise InputError(f"pipeline config: unknown key '{key}' (valid: {', '.join(sorted(known))})")
-        return cls(**d)
+        return cls(**config_table(d, cls, "pipeline config", section="pipeline"))
 
     @classmethod
     def from_toml(cls, path: str | os.PathLike[str]) -> PipelineConfig:

@@ -17,6 +17,7 @@ from typing import Any, Literal, NamedTuple
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from sonarmap._config import check_field_names
 from sonarmap.errors import FitError, GeometryError, InputError
 from sonarmap.geometry import SonarGeometry
 from sonarmap.ping import Ping, as_image
@@ -647,10 +648,7 @@ class RadialGain:
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> RadialGain:
         """Inverse of :meth:`to_dict` (unknown keys are an error naming the key)."""
-        known = {f.name for f in dataclasses.fields(cls)}
-        for key in d:
-            if key not in known:
-                raise InputError(f"radial_gain.{key}: unknown key (expected {sorted(known)})")
+        check_field_names(d, cls, "radial_gain")
         kw = dict(d)
         if kw.get("rms_db") is None:
             kw.pop("rms_db", None)

@@ -48,6 +48,7 @@ import math
 import numpy as np
 from numpy.typing import NDArray
 
+from sonarmap._config import check_field_names
 from sonarmap.errors import InputError
 
 __all__ = ["BackgroundLevel", "on_8bit_grid", "RecordingBackground", "estimate_background", "estimate_recording_background",
@@ -502,10 +503,7 @@ class RecordingBackground:
         """Inverse of :meth:`to_dict`; a bad field raises :class:`InputError` naming it."""
         if not isinstance(d, dict):
             raise InputError(f"{name}: expected a table, got {type(d).__name__}")
-        known = {f.name for f in dataclasses.fields(cls)}
-        for key in d:
-            if key not in known:
-                raise InputError(f"{name}.{key}: unknown key (expected {sorted(known)})")
+        check_field_names(d, cls, name)
         try:
             n_pings = int(d["n_pings"])  # type: ignore[call-overload]
             n_beams = int(d["n_beams"])  # type: ignore[call-overload]

@@ -35,6 +35,7 @@ from typing import Any, Literal
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from sonarmap._config import config_table
 from sonarmap.errors import InputError
 from sonarmap.geometry import SonarGeometry
 from sonarmap.ping import Ping, as_image
@@ -188,15 +189,7 @@ class PreprocessConfig:
 
         A nested ``{"preprocess": {...}}`` table (as in a TOML file) is accepted.
         """
-        if not isinstance(d, dict):
-            raise InputError(f"preprocess config: expected a table/object, got {type(d).__name__}")
-        if set(d) == {"preprocess"} and isinstance(d["preprocess"], dict):
-            d = d["preprocess"]
-        known = {f.name for f in dataclasses.fields(cls)}
-        for key in d:
-            if key not in known:
-                raise InputError(f"preprocess config: unknown key '{key}' (valid: {', '.join(sorted(known))})")
-        kw = dict(d)
+        kw = dict(config_table(d, cls, "preprocess config", section="preprocess", expected="a table/object"))
         if "recipe" in kw:  # pragma: no cover - reserved
             raise InputError("preprocess config: unknown key 'recipe'")
         rg = kw.get("radial_gain")
