@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import queue
 import time
 import warnings
 from collections.abc import Callable, Iterator, Sequence
@@ -88,6 +89,11 @@ class _ProcessPool:
         with contextlib.suppress(Exception):
             ctx.set_forkserver_preload(["sonarmap.survey", "sonarmap.pipeline", "sonarmap.survey._warm"])
         self.workers = workers
+        # Finished futures arrive here (their done-callbacks): the parent blocks on this queue,
+        # not on concurrent.futures.wait, which takes every future's lock at once - a Ctrl-C
+        # landing between those acquisitions leaves a lock held, and the executor's own thread
+        # then deadlocks the interpreter's exit on it.
+        self._done: queue.SimpleQueue[Any] = queue.SimpleQueue()
         self.ex = cf.ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_pool_initializer,
                                          initargs=(os.getpid(),))
         # Parallelism is across processes: each worker's numerical libraries get one thread
@@ -124,6 +130,7 @@ class _ProcessPool:
             c, part = self._pending.pop()
             fut = self.ex.submit(task, c) if part is None else self.ex.submit(self._part_task, part)
             self._inflight[fut] = (c, part)
+            fut.add_done_callback(self._done.put)
 
     def run(self, chunks: Sequence[ChunkSpec], task: Callable[[ChunkSpec], Any],
             part_task: Callable[[ChunkSpec], Any]) -> Iterator[tuple[ChunkSpec, Any]]:
@@ -135,8 +142,6 @@ class _ProcessPool:
         chunk is yielded once all its parts are back, with its parts' products concatenated.
         Continues what :meth:`start` began, if it was called with the same chunks.
         """
-        import concurrent.futures as cf
-
         if getattr(self, "_chunks", None) != [c.index for c in chunks]:
             if getattr(self, "_inflight", None):
                 raise SonarmapError("internal: the pool was started on other chunks")
@@ -149,7 +154,10 @@ class _ProcessPool:
         got: dict[int, list[tuple[int, Any]]] = {}
         while pending or inflight:
             self._fill(task)
-            done, _ = cf.wait(inflight, return_when=cf.FIRST_COMPLETED)
+            done = {self._done.get()}
+            with contextlib.suppress(queue.Empty):
+                while True:
+                    done.add(self._done.get_nowait())
             for fut in sorted(done, key=lambda f: (inflight[f][0].index, inflight[f][1] is not None)):
                 c, part = inflight.pop(fut)
                 if part is None:
