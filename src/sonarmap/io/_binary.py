@@ -1,8 +1,9 @@
 """Shared helpers of the binary sonar-file readers (ARIS, DIDSON, Oculus).
 
-One place for: the partial-frame warning, memory-mapping a regular file read-only, the plausibility
-limits every reader applies to header fields (times, sound speed, range window, ping size), and
-turning any inconsistency found while decoding headers into a
+One place for: the partial-frame warning, memory-mapping a regular file read-only, the frames of a
+file of fixed-size frames and the fixed-size headers of a datagram stream, the plausibility
+limits every reader applies to header fields (times, sound speed, range window, ping size),
+checking a ping index, and turning any inconsistency found while decoding headers into a
 :class:`~sonarmap.errors.DataFormatError` that names the file and the byte offset.
 """
 
@@ -17,6 +18,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from sonarmap.errors import DataFormatError, GeometryError, InputError, SonarmapWarning
 from sonarmap._files import open_regular
@@ -24,6 +26,9 @@ from sonarmap._files import open_regular
 __all__ = [
     "PartialFrameWarning",
     "map_file",
+    "map_frames",
+    "records_at",
+    "check_index",
     "header_errors",
     "warn_partial",
     "finite_or",
@@ -74,6 +79,58 @@ def map_file(path: str | os.PathLike[str], *, min_size: int = 0, what: str = "fi
             raise DataFormatError(f"cannot memory-map: {exc}", p) from None
 
 
+def map_frames(
+    mm: NDArray[np.uint8], path: str | os.PathLike[str], offset: int, header_dtype: np.dtype,
+    n_samples: int, n_beams: int,
+) -> tuple[np.ndarray, int]:
+    """The complete frames after the first ``offset`` bytes of ``mm``, as a structured view.
+
+    A frame is a ``header_dtype`` header and ``n_samples x n_beams`` uint8 samples stored
+    ``[sample][beam]`` (fields ``"header"`` and ``"samples"``); an incomplete trailing frame is
+    left out with a :class:`PartialFrameWarning`.
+
+    Returns
+    -------
+    frames : ndarray
+        ``(n,)`` records viewing ``mm`` (no copy).
+    n : int
+        Number of complete frames.
+    """
+    frame_size = header_dtype.itemsize + n_beams * n_samples
+    n, rem = divmod(int(mm.size) - offset, frame_size)
+    if rem:
+        warn_partial(path, offset + n * frame_size, rem, frame_size, "frame", stacklevel=4)
+    frame_dtype = np.dtype([("header", header_dtype), ("samples", np.uint8, (n_samples, n_beams))])
+    return np.ndarray(shape=(n,), dtype=frame_dtype, buffer=mm, offset=offset), n
+
+
+def records_at(buf: NDArray[np.uint8], offsets: NDArray[np.int64], dtype: np.dtype) -> NDArray[Any]:
+    """The ``dtype`` records that start at ``offsets`` in ``buf`` (a copy; empty for no offsets).
+
+    The headers of a datagram stream, whose datagrams start at the offsets found by a walk.
+    """
+    if not offsets.size:
+        return np.zeros(0, dtype=dtype)
+    idx = offsets[:, None] + np.arange(dtype.itemsize, dtype=np.int64)
+    return np.ascontiguousarray(buf[idx]).view(dtype).reshape(-1)
+
+
+def check_index(index: int, n: int, what: str = "ping") -> int:
+    """``index`` (negative counts from the end) as a position in ``range(n)``.
+
+    Raises
+    ------
+    IndexError
+        If it is outside ``-n .. n - 1`` (message: ``"<what> index ... out of range for n <what>s"``).
+    """
+    i = int(index)
+    if i < 0:
+        i += n
+    if not 0 <= i < n:
+        raise IndexError(f"{what} index {index} out of range for {n} {what}s")
+    return i
+
+
 @contextlib.contextmanager
 def header_errors(path: str | os.PathLike[str], offset: int | None, what: str) -> Iterator[None]:
     """Re-raise geometry/validation errors raised while decoding a header as DataFormatError."""
@@ -85,12 +142,18 @@ def header_errors(path: str | os.PathLike[str], offset: int | None, what: str) -
         raise DataFormatError(f"inconsistent {what}: {exc}", path, offset) from None
 
 
-def warn_partial(path: str | os.PathLike[str], offset: int, have: int, need: int, what: str) -> None:
-    """Warn (PartialFrameWarning) that the trailing ``what`` at ``offset`` is incomplete."""
+def warn_partial(
+    path: str | os.PathLike[str], offset: int, have: int, need: int | str, what: str, *, stacklevel: int = 3
+) -> None:
+    """Warn (PartialFrameWarning) that the trailing ``what`` at ``offset`` is incomplete.
+
+    ``stacklevel`` as in :func:`warnings.warn`, counted from this function (default: the caller
+    of its caller).
+    """
     warnings.warn(
         f"{path}: at byte {offset}: last {what} is incomplete ({have} of {need} bytes); skipped",
         PartialFrameWarning,
-        stacklevel=3,
+        stacklevel=stacklevel,
     )
 
 
@@ -173,9 +236,9 @@ def make_summary(
     path: str | os.PathLike[str],
     *,
     n_pings: int,
-    geometry: Any,
-    time_start_ns: int | None,
-    time_end_ns: int | None,
+    geometry: Any = None,
+    time_start_ns: int | None = None,
+    time_end_ns: int | None = None,
     **details: Any,
 ) -> dict[str, Any]:
     """The flat dict returned by every format module's ``summary(path)`` hook (for ``sonarmap info``).
@@ -185,6 +248,7 @@ def make_summary(
     ``time_first_utc``/``time_last_utc`` (``"unknown"`` when the format has no clock),
     ``duration_s``, then the format-specific ``details``.  The first ping's
     :class:`~sonarmap.geometry.SonarGeometry` itself is under the private key ``_geometry``.
+    A file without pings needs neither ``geometry`` nor times (``make_summary(fmt, path, n_pings=0)``).
     """
 
     def iso(t: int | None) -> str:

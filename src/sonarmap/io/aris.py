@@ -47,6 +47,7 @@ from sonarmap.geometry import SonarGeometry, as_geometry, preset
 from sonarmap.io._binary import (
     MAX_WINDOW_M,
     U8_SCALE,
+    check_index,
     check_plausible,
     check_sound_speed,
     check_time_ns,
@@ -56,6 +57,7 @@ from sonarmap.io._binary import (
     iter_container_pings,
     make_summary,
     map_file,
+    map_frames,
     warn_partial,
 )
 from sonarmap.ping import Ping, Pose
@@ -320,17 +322,9 @@ class ArisFile:
             self.n_samples = int(h0["SamplesPerBeam"])
             if not 0 < self.n_samples <= _MAX_SAMPLES:
                 raise ValueError(f"SamplesPerBeam {self.n_samples} is outside 1-{_MAX_SAMPLES}")
-        self.frame_size = FRAME_HEADER_SIZE + self.n_beams * self.n_samples
-        self._n, rem = divmod(body, self.frame_size)
-        if rem:
-            warn_partial(self.path, FILE_HEADER_SIZE + self._n * self.frame_size, rem,
-                         self.frame_size, "frame")
-        frame_dtype = np.dtype(
-            [("header", FRAME_HEADER_DTYPE), ("samples", np.uint8, (self.n_samples, self.n_beams))]
-        )
-        self._frames = np.ndarray(
-            shape=(self._n,), dtype=frame_dtype, buffer=mm, offset=FILE_HEADER_SIZE
-        )
+        self._frames, self._n = map_frames(mm, self.path, FILE_HEADER_SIZE, FRAME_HEADER_DTYPE,
+                                           self.n_samples, self.n_beams)
+        self.frame_size = self._frames.dtype.itemsize
         if int(h0["ReorderedSamples"]) == 0:
             warnings.warn(
                 f"{self.path}: ReorderedSamples is 0 (live-stream order); reading the samples in "
@@ -415,12 +409,7 @@ class ArisFile:
         return self._frames
 
     def _index(self, index: int) -> int:
-        i = int(index)
-        if i < 0:
-            i += self._n
-        if not 0 <= i < self._n:
-            raise IndexError(f"frame index {index} out of range for {self._n} frames")
-        return i
+        return check_index(index, self._n, "frame")
 
     def _header(self, i: int) -> np.void:
         return self._require()[i]["header"]
@@ -574,8 +563,7 @@ def summary(path: str | os.PathLike[str]) -> dict[str, Any]:
     with ArisFile(path) as f:
         n = len(f)
         if n == 0:
-            return make_summary(FORMAT, path, n_pings=0, geometry=None, time_start_ns=None,
-                                time_end_ns=None)
+            return make_summary(FORMAT, path, n_pings=0)
         h0 = f.frame_header(0)
         geom = f.geometry(0)
         t0 = f._times(0, f._header(0))[0]

@@ -51,6 +51,7 @@ from sonarmap.errors import DataFormatError
 from sonarmap.geometry import GeometryWarning, SonarGeometry, as_geometry, preset, uniform_azimuths
 from sonarmap.io._binary import (
     U8_SCALE,
+    check_index,
     check_plausible,
     check_time_ns,
     count_container_pings,
@@ -59,7 +60,7 @@ from sonarmap.io._binary import (
     iter_container_pings,
     make_summary,
     map_file,
-    warn_partial,
+    map_frames,
 )
 from sonarmap.ping import Ping
 
@@ -232,16 +233,9 @@ class DdfFile:
         self.reverse = bool(fh["reverse"])
         self.serial_number = int(fh["serialnumber"])
         self.header_size = fdt.itemsize
-        self.frame_size = hdt.itemsize + self.n_beams * self.n_samples
-        body = int(mm.size) - self.header_size
-        self._n, rem = divmod(body, self.frame_size)
-        if rem:
-            warn_partial(self.path, self.header_size + self._n * self.frame_size, rem,
-                         self.frame_size, "frame")
-        frame_dt = np.dtype([("header", hdt), ("samples", np.uint8, (self.n_samples, self.n_beams))])
-        self._frames: np.ndarray | None = np.ndarray(
-            shape=(self._n,), dtype=frame_dt, buffer=mm, offset=self.header_size
-        )
+        frames, self._n = map_frames(mm, self.path, self.header_size, hdt, self.n_samples, self.n_beams)
+        self.frame_size = frames.dtype.itemsize
+        self._frames: np.ndarray | None = frames
 
     def __len__(self) -> int:
         return self._n
@@ -262,12 +256,7 @@ class DdfFile:
         self._mm = None  # type: ignore[assignment]
 
     def _index(self, index: int) -> int:
-        i = int(index)
-        if i < 0:
-            i += self._n
-        if not 0 <= i < self._n:
-            raise IndexError(f"frame index {index} out of range for {self._n} frames")
-        return i
+        return check_index(index, self._n, "frame")
 
     def _rec(self, i: int) -> np.void:
         if self._frames is None:
@@ -389,8 +378,7 @@ def summary(path: str | os.PathLike[str]) -> dict[str, Any]:
             "date": fh["date"].rstrip(b"\0").decode("latin-1", "replace"),
         }
         if n == 0:
-            return make_summary(FORMAT, path, n_pings=0, geometry=None, time_start_ns=None,
-                                time_end_ns=None, **details)
+            return make_summary(FORMAT, path, n_pings=0, **details)
         g = f.geometry(0)
         return make_summary(
             FORMAT, path, n_pings=n, geometry=g,

@@ -70,21 +70,23 @@ from sonarmap.geometry import SonarGeometry, as_geometry
 from sonarmap.io._binary import (
     MAX_PLAUSIBLE_TIME_NS,
     PartialFrameWarning,
+    check_index,
     check_sound_speed,
     check_time_ns,
     header_errors,
     make_summary,
+    records_at,
     warn_partial,
 )
 from sonarmap._files import require_regular_file
 from sonarmap.io.kongsberg import (
     _AMP_LUT,
-    _MAX_BINS,
-    _MAX_IMAGE_CELLS,
+    _beam_layout,
     AMPLITUDE_DB_FULL_SCALE,
     AMPLITUDE_DB_STEP,
     _open_buffer,
     _ping_geometry,
+    _walk_error,
     find_sibling,
     pair_key,
     _kernels,
@@ -301,34 +303,27 @@ class _Index:
         return {t.decode("latin-1"): int(c) for t, c in zip(types.tolist(), n.tolist())}
 
 
+#: Message of each corrupt-datagram status of the walk kernel (as :data:`kongsberg._WALK_ERRORS`).
+_WALK_ERRORS = {
+    2: "datagram type does not start with '#' but 0x{value:02X}: corrupt file or not a KMALL datagram "
+       "stream",
+    3: "datagram length field {value} is shorter than a datagram header",
+    4: "datagram length field {value} is absurd (more than {max_bytes} bytes)",
+    5: "datagram's trailing length {value} does not repeat its length field: corrupt length",
+    6: "datagram length field runs past the end of the file although a complete datagram starts at "
+       "byte {value}: corrupt length",
+}
+
+
 def _scan(path: Path) -> _Index:
     buf = _open_buffer(path, "KMALL file")
     offs, status, err_off, err_val = _walk()(buf, MAX_DATAGRAM_BYTES)
     offs = np.asarray(offs, dtype=np.int64)
     if status == 1:
         warn_partial(path, err_off, buf.size - err_off, err_val if err_val > 0 else 24, "datagram")
-    elif status == 2:
-        raise DataFormatError(f"datagram type does not start with '#' but 0x{err_val:02X}: corrupt "
-                              "file or not a KMALL datagram stream", path, err_off)
-    elif status == 3:
-        raise DataFormatError(f"datagram length field {err_val} is shorter than a datagram header",
-                              path, err_off)
-    elif status == 4:
-        raise DataFormatError(f"datagram length field {err_val} is absurd (more than "
-                              f"{MAX_DATAGRAM_BYTES} bytes)", path, err_off)
-    elif status == 5:
-        raise DataFormatError(f"datagram's trailing length {err_val} does not repeat its length "
-                              "field: corrupt length", path, err_off)
-    elif status == 6:
-        raise DataFormatError(f"datagram length field runs past the end of the file although a "
-                              f"complete datagram starts at byte {err_val}: corrupt length",
-                              path, err_off)
-    if offs.size:
-        idx = offs[:, None] + np.arange(_HEADER, dtype=np.int64)
-        headers = np.ascontiguousarray(buf[idx]).view(HEADER_DTYPE).reshape(-1)
-    else:
-        headers = np.zeros(0, dtype=HEADER_DTYPE)
-    return _Index(path, buf, offs, headers)
+    elif status:
+        raise _walk_error(path, buf, status, err_off, err_val, _WALK_ERRORS, MAX_DATAGRAM_BYTES)
+    return _Index(path, buf, offs, records_at(buf, offs, HEADER_DTYPE))
 
 
 # ---------------------------------------------------------------------- multibeam datagrams
@@ -684,12 +679,7 @@ class KmallFile:
         return len(self.records)
 
     def __getitem__(self, index: int) -> Ping:
-        i = int(index)
-        n = len(self.records)
-        if i < 0:
-            i += n
-        if not 0 <= i < n:
-            raise IndexError(f"ping index {index} out of range for {n} pings")
+        i = check_index(index, len(self.records))
         try:
             return self._ping(self.records[i])
         except _Incomplete as exc:
@@ -826,15 +816,7 @@ class KmallFile:
                                   "whole beam before the missing partition; skipped")
             if n == 0:
                 raise ValueError("no beams")
-            azimuth = -np.deg2rad(w.angle_deg)
-            order = np.argsort(azimuth, kind="stable")
-            s0 = int(w.start.min())
-            n_bins = int((w.start - s0 + w.n_samples).max())
-            if n_bins < 1:
-                raise ValueError("every beam has 0 samples")
-            if n_bins > _MAX_BINS or n_bins * n > _MAX_IMAGE_CELLS:
-                raise ValueError(f"{n_bins} range samples x {n} beams is implausibly large "
-                                 "(start range sample numbers corrupt?)")
+            azimuth, order, s0, n_bins = _beam_layout(w.angle_deg, w.start, w.n_samples)
             freq = float(np.mean(w.frequency_hz))
             if not (math.isfinite(freq) and freq > 0):
                 freq = 0.0

@@ -75,10 +75,13 @@ from sonarmap.geometry import SonarGeometry, as_geometry
 from sonarmap.io._binary import (
     MAX_TIME_NS,
     PartialFrameWarning,
+    check_index,
     count_container_pings,
     header_errors,
     make_summary,
     map_file,
+    records_at,
+    warn_partial,
 )
 from sonarmap._files import require_regular_file
 from sonarmap.ping import Ping
@@ -387,6 +390,44 @@ def _time_ns(date: int, time_ms: int) -> int:
     return t
 
 
+def _beam_layout(
+    angle_deg: NDArray[np.floating[Any]], start: NDArray[np.integer[Any]], n_samples: NDArray[np.integer[Any]],
+) -> tuple[NDArray[np.floating[Any]], NDArray[np.intp], int, int]:
+    """The columns and rows of a water-column ping image, from its beams (``.all`` and ``.kmall``).
+
+    Parameters
+    ----------
+    angle_deg, start, n_samples : ndarray, shape (n_beams,)
+        Pointing angle re vertical (degrees, positive to port), start range sample and sample
+        count of every beam.
+
+    Returns
+    -------
+    azimuth : ndarray
+        ``-angle`` in radians (positive to starboard), in beam order.
+    order : ndarray of intp
+        The beams by increasing azimuth (the image columns).
+    s0, n_bins : int
+        Sample of row 0 (the smallest start sample) and the rows up to the last sample of any beam.
+
+    Raises
+    ------
+    ValueError
+        If every beam has 0 samples, or the image would be implausibly large.
+    """
+    n = angle_deg.size
+    azimuth = -np.deg2rad(angle_deg)
+    order = np.argsort(azimuth, kind="stable")
+    s0 = int(start.min())
+    n_bins = int((start - s0 + n_samples).max())
+    if n_bins < 1:
+        raise ValueError("every beam has 0 samples")
+    if n_bins > _MAX_BINS or n_bins * n > _MAX_IMAGE_CELLS:
+        raise ValueError(f"{n_bins} range samples x {n} beams is implausibly large "
+                         "(start range sample numbers corrupt?)")
+    return azimuth, order, s0, n_bins
+
+
 def _u16(buf: Any, p: int) -> int:
     return int(buf[p]) | (int(buf[p + 1]) << 8)
 
@@ -501,42 +542,38 @@ def _open_buffer(path: Path, what: str) -> NDArray[np.uint8]:
     return buf.view(np.ndarray)
 
 
+#: Message of each corrupt-datagram status of the walk kernel (``{value}`` its ``err_val``,
+#: ``{length}`` the length field at the offset, ``{max_bytes}`` the largest datagram accepted).
+_WALK_ERRORS = {
+    2: "datagram does not start with STX (0x02) but 0x{value:02X}: corrupt file or not a Kongsberg EM "
+       "datagram stream",
+    3: "datagram length field {value} is shorter than a datagram header",
+    4: "datagram length field {value} is absurd (more than {max_bytes} bytes)",
+    5: "datagram of {value} bytes does not end with ETX (0x03) where its length field says: corrupt length",
+    6: "datagram length field {length} runs past the end of the file although a complete datagram starts "
+       "at byte {value}: corrupt length",
+}
+
+
+def _walk_error(path: Path, buf: NDArray[np.uint8], status: int, err_off: int, err_val: int,
+                messages: dict[int, str], max_bytes: int) -> DataFormatError:
+    """The error of a datagram walk that stopped at a corrupt datagram (status > 1 of the walk
+    kernels of this module and :mod:`sonarmap.io.kmall`), worded by ``messages[status]``."""
+    length = int.from_bytes(bytes(buf[err_off : err_off + 4]), "little")
+    text = messages[status].format(value=err_val, length=length, max_bytes=max_bytes)
+    return DataFormatError(text, path, err_off)
+
+
 def _scan(path: Path, what: str) -> _Index:
     buf = _open_buffer(path, what)
     offs, status, err_off, err_val, _ = _kernels().walk(buf, MAX_DATAGRAM_BYTES, _KNOWN)
     offs = np.asarray(offs, dtype=np.int64)
     if status == 1:
-        have = buf.size - err_off
         need = f"{err_val + 4}" if err_val >= 0 else "at least 23"
-        warnings.warn(
-            f"{path}: at byte {err_off}: last datagram is incomplete ({have} of {need} bytes); skipped",
-            PartialFrameWarning,
-            stacklevel=4,
-        )
-    elif status == 2:
-        raise DataFormatError(
-            f"datagram does not start with STX (0x02) but 0x{err_val:02X}: corrupt file or not a "
-            "Kongsberg EM datagram stream", path, err_off)
-    elif status == 3:
-        raise DataFormatError(f"datagram length field {err_val} is shorter than a datagram header",
-                              path, err_off)
-    elif status == 4:
-        raise DataFormatError(f"datagram length field {err_val} is absurd (more than "
-                              f"{MAX_DATAGRAM_BYTES} bytes)", path, err_off)
-    elif status == 5:
-        raise DataFormatError(f"datagram of {err_val} bytes does not end with ETX (0x03) where its "
-                              "length field says: corrupt length", path, err_off)
-    elif status == 6:
-        raise DataFormatError(
-            f"datagram length field {int.from_bytes(bytes(buf[err_off:err_off + 4]), 'little')} runs "
-            f"past the end of the file although a complete datagram starts at byte {err_val}: "
-            "corrupt length", path, err_off)
-    if offs.size:
-        idx = offs[:, None] + np.arange(_HEADER, dtype=np.int64)
-        headers = np.ascontiguousarray(buf[idx]).view(HEADER_DTYPE).reshape(-1)
-    else:
-        headers = np.zeros(0, dtype=HEADER_DTYPE)
-    return _Index(path, buf, offs, headers)
+        warn_partial(path, err_off, buf.size - err_off, need, "datagram", stacklevel=5)
+    elif status:
+        raise _walk_error(path, buf, status, err_off, err_val, _WALK_ERRORS, MAX_DATAGRAM_BYTES)
+    return _Index(path, buf, offs, records_at(buf, offs, HEADER_DTYPE))
 
 
 def _verify(index: _Index, rows: NDArray[np.intp], mode: Checksum, what: str) -> NDArray[np.intp]:
@@ -1149,13 +1186,7 @@ class KongsbergFile:
 
     # ------------------------------------------------------------------ internals
     def _index(self, index: int) -> int:
-        i = int(index)
-        n = len(self.records)
-        if i < 0:
-            i += n
-        if not 0 <= i < n:
-            raise IndexError(f"ping index {index} out of range for {n} pings")
-        return i
+        return check_index(index, len(self.records))
 
     @staticmethod
     def _wc_header(rec: _PingRecord) -> tuple[np.void, NDArray[Any]]:
@@ -1171,15 +1202,7 @@ class KongsbergFile:
                 raise ValueError("no beams")
             if np.any(beams.sector >= int(wc["ntx"])):
                 raise ValueError(f"a beam's transmit sector is >= the {int(wc['ntx'])} sectors")
-            azimuth = -np.deg2rad(beams.angle_cdeg / 100.0)
-            order = np.argsort(azimuth, kind="stable")
-            s0 = int(beams.start.min())
-            n_bins = int((beams.start - s0 + beams.n_samples).max())
-            if n_bins < 1:
-                raise ValueError("every beam has 0 samples")
-            if n_bins > _MAX_BINS or n_bins * n > _MAX_IMAGE_CELLS:
-                raise ValueError(f"{n_bins} range samples x {n} beams is implausibly large "
-                                 "(start range sample numbers corrupt?)")
+            azimuth, order, s0, n_bins = _beam_layout(beams.angle_cdeg / 100.0, beams.start, beams.n_samples)
             sample_rate = int(wc["sample_rate"]) / 100.0
             if sample_rate <= 0:
                 raise ValueError("sample rate is 0")

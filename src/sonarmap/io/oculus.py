@@ -67,6 +67,7 @@ from sonarmap.io._binary import (
     MAX_PLAUSIBLE_TIME_NS,
     MAX_WINDOW_M,
     U8_SCALE,
+    check_index,
     check_plausible,
     check_sound_speed,
     check_time_ns,
@@ -611,11 +612,7 @@ class OculusFile:
         return len(self._records)
 
     def __getitem__(self, index: int) -> Ping:
-        i = int(index)
-        if i < 0:
-            i += len(self._records)
-        if not 0 <= i < len(self._records):
-            raise IndexError(f"ping index {index} out of range for {len(self._records)} pings")
+        i = check_index(index, len(self._records))
         rec = self._records[i]
         ping = decode_simple_ping(
             self._message(rec),
@@ -762,8 +759,7 @@ def summary(path: str | os.PathLike[str]) -> dict[str, Any]:
     with OculusFile(path) as f:
         n = len(f)
         if n == 0:
-            return make_summary(FORMAT, path, n_pings=0, geometry=None, time_start_ns=None,
-                                time_end_ns=None, container=f.kind)
+            return make_summary(FORMAT, path, n_pings=0, container=f.kind)
         first = f[0]
         g = first.geometry
         has_clock = f._records[0].time_ns > 0

@@ -724,10 +724,8 @@ def iter_bag_pings(
     --------
     >>> pings = iter_bag_pings("survey.bag", handedness="mirrored")  # doctest: +SKIP
     """
-    if handedness not in HANDEDNESS:
-        raise InputError(f"handedness: choose from {', '.join(HANDEDNESS)} (got {handedness!r})")
+    override = _reading_options(geometry, handedness)
     p = Path(path)
-    override = None if geometry is None else as_geometry(geometry)
     reader = _open_reader(p)
     try:
         kind, conns = _select_connections(reader, p, topic, override is not None)
@@ -753,6 +751,20 @@ def iter_bag_pings(
             yield ping
     finally:
         _close_quietly(reader)
+
+
+def _reading_options(geometry: SonarGeometry | str | os.PathLike[str] | None, handedness: str) -> SonarGeometry | None:
+    """The geometry override of a bag reader (None without one), once ``handedness`` is checked;
+    shared by :func:`iter_bag_pings` and :func:`sonarmap.io.rosbag_follow.follow_sqlite_bag`.
+
+    Raises
+    ------
+    InputError
+        If ``handedness`` is not one of :data:`HANDEDNESS`.
+    """
+    if handedness not in HANDEDNESS:
+        raise InputError(f"handedness: choose from {', '.join(HANDEDNESS)} (got {handedness!r})")
+    return None if geometry is None else as_geometry(geometry)
 
 
 def _open_reader(path: Path) -> Any:

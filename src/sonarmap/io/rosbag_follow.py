@@ -21,8 +21,8 @@ from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 from typing import Any
 
-from sonarmap.errors import DataFormatError, GeometryError, InputError
-from sonarmap.geometry import SonarGeometry, as_geometry
+from sonarmap.errors import DataFormatError, GeometryError
+from sonarmap.geometry import SonarGeometry
 from sonarmap.ping import Ping
 
 __all__ = ["follow_sqlite_bag", "sqlite_storage"]
@@ -102,11 +102,9 @@ def follow_sqlite_bag(
     DataFormatError
         No storage file or no sonar topic within ``wait_s``, or a message that does not decode.
     """
-    from sonarmap.io.rosbag import HANDEDNESS, _ping_from_msg, warn_guessed_handedness
+    from sonarmap.io.rosbag import _ping_from_msg, _reading_options, warn_guessed_handedness
 
-    if handedness not in HANDEDNESS:
-        raise InputError(f"handedness: choose from {', '.join(HANDEDNESS)} (got {handedness!r})")
-    override = None if geometry is None else as_geometry(geometry)
+    override = _reading_options(geometry, handedness)
     root = Path(path)
     t0 = time.monotonic()
     db = _wait_for_storage(root, t0, wait_s, stopped, sleep, poll_s)
