@@ -20,18 +20,11 @@ from sonarmap.errors import (
 from sonarmap.geometry import SonarGeometry, load_geometry, preset, preset_names, save_geometry
 from sonarmap.ping import Ping
 
+#: Re-exported, by origin: the exception hierarchy of :mod:`sonarmap.errors` (not its warning
+#: display helper), the geometry of :mod:`sonarmap.geometry` and the :class:`Ping`.
 __all__ = [
     "__version__",
-    "SonarmapError",
-    "InputError",
-    "GeometryError",
-    "DataFormatError",
-    "FitError",
-    "SonarmapWarning",
-    "SonarGeometry",
-    "load_geometry",
-    "save_geometry",
-    "preset",
-    "preset_names",
+    "SonarmapError", "InputError", "GeometryError", "DataFormatError", "FitError", "SonarmapWarning",
+    "SonarGeometry", "load_geometry", "save_geometry", "preset", "preset_names",
     "Ping",
 ]

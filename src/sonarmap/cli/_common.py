@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from typing import IO, Any
@@ -10,9 +10,13 @@ from typing import IO, Any
 import typer
 
 __all__ = [
-    "GEOMETRY_OPTION", "OUTPUT_OPTION", "QUIET_OPTION", "STDOUT", "VERBOSE_OPTION", "PingProgress", "check_choice",
-    "console", "count_pings", "err_console", "example", "first_ping", "load_geometry_option", "open_output", "output_name", "ping_progress",
+    "GEOMETRY_OPTION", "OUTPUT_DIR_OPTION", "OUTPUT_OPTION", "PINGS_ARGUMENT", "QUIET_OPTION", "STDOUT", "VERBOSE_OPTION",
+    "PingProgress", "check_choice", "console", "count_pings", "err_console", "example", "first_ping", "input_progress",
+    "load_geometry_option", "open_output", "output_name", "ping_progress", "read_input_pings", "run_pings",
 ]
+
+#: The ``PINGS...`` argument of the commands that read pings.
+PINGS_ARGUMENT: Any = typer.Argument(..., help="Ping files, directories or globs.")
 
 GEOMETRY_OPTION: Any = typer.Option(
     None,
@@ -23,6 +27,8 @@ GEOMETRY_OPTION: Any = typer.Option(
     "overrides the pings' sidecar JSON.",
 )
 OUTPUT_OPTION: Any = typer.Option(..., "--output", "-o", help="Output path.")
+#: ``-o`` of the commands that write a directory of files.
+OUTPUT_DIR_OPTION: Any = typer.Option(..., "--output", "-o", help="Output directory.")
 QUIET_OPTION: Any = typer.Option(False, "--quiet", "-q", help="No progress bar and no summary.")
 VERBOSE_OPTION: Any = typer.Option(False, "--verbose", "-v", help="One line per ping and the total time on stderr.")
 
@@ -56,6 +62,39 @@ def first_ping(
     if first is None:
         raise InputError(f"{argument}: {message}")
     return first, itertools.chain([first], pings)
+
+
+def read_input_pings(
+    inputs: list[Path], geometry: Any, argument: str = "PINGS",
+    message: str = "no complete ping in the input (nothing written)",
+) -> Iterator[Any]:
+    """The pings of ``inputs`` (:func:`sonarmap.io.read_pings`), the first one already read.
+
+    Reading the first ping before any work (:func:`first_ping`) makes an unreadable input print
+    only its error.
+
+    Parameters
+    ----------
+    inputs : list of Path
+        Ping files, directories or globs.
+    geometry : SonarGeometry, optional
+        Overrides the pings' own geometry (``--sonar``).
+    argument, message : str
+        As for :func:`first_ping`.
+
+    Returns
+    -------
+    iterator of Ping
+        All the pings, the first one included.
+
+    Raises
+    ------
+    InputError
+        ``"<argument>: <message>"`` when the input holds no ping.
+    """
+    from sonarmap.io import read_pings
+
+    return first_ping(read_pings([str(p) for p in inputs], geometry=geometry), argument, message)[1]
 
 
 def console() -> Any:
@@ -294,6 +333,41 @@ def ping_progress(description: str, total: int | None = None, *, quiet: bool = F
     3
     """
     return PingProgress(description, total, quiet=quiet, verbose=verbose)
+
+
+def input_progress(description: str, inputs: list[Path], *, quiet: bool = False,
+                   verbose: bool = False) -> PingProgress:
+    """A :func:`ping_progress` over the pings of ``inputs``, sized by :func:`count_pings` (not
+    counted with ``quiet``)."""
+    return ping_progress(description, None if quiet else count_pings(inputs), quiet=quiet, verbose=verbose)
+
+
+def run_pings(bar: PingProgress, pings: Iterable[Any], work: Callable[[Any, int], str]) -> int:
+    """Start ``bar`` and do ``work(ping, index)`` for every ping, one step of the bar each.
+
+    Parameters
+    ----------
+    bar : PingProgress
+        The progress bar (not started yet).
+    pings : iterable of Ping
+        The pings, in order.
+    work : callable
+        ``work(ping, index)`` processes one ping and returns its ``--verbose`` line.
+
+    Returns
+    -------
+    int
+        The number of pings done.
+    """
+    n = 0
+    with bar:
+        bar.start()
+        for ping in pings:
+            line = work(ping, n)
+            n += 1
+            bar.advance()
+            bar.log(line)
+    return n
 
 
 def count_pings(inputs: list[Path] | list[str]) -> int | None:

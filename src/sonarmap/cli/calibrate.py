@@ -22,13 +22,8 @@ from pathlib import Path
 import typer
 
 from sonarmap.cli._common import (
-    GEOMETRY_OPTION,
-    OUTPUT_OPTION,
-    QUIET_OPTION,
-    VERBOSE_OPTION,
-    check_choice,
-    example,
-    load_geometry_option,
+    GEOMETRY_OPTION, OUTPUT_OPTION, QUIET_OPTION, VERBOSE_OPTION, check_choice, err_console, example,
+    input_progress, load_geometry_option, open_output, output_name, read_input_pings,
 )
 
 
@@ -66,19 +61,14 @@ def register(app: typer.Typer) -> None:
 
         import numpy as np
 
-        from sonarmap.cli._common import count_pings, err_console, first_ping, open_output, output_name, ping_progress
         from sonarmap.errors import GeometryError
-        from sonarmap.io import read_pings
         from sonarmap.preprocess.normalise import estimate_recording_background
 
         check_choice(method, ("lsq", "em"), "--method")
         check_choice(taper_estimator, ("mean", "nonzero-mean"), "--taper-estimator")
-        geom_override = load_geometry_option(sonar)
-        ping_iter = read_pings([str(p) for p in background], geometry=geom_override)
-        _, ping_iter = first_ping(ping_iter, "recording", "no pings")  # before the bar
+        ping_iter = read_input_pings(background, load_geometry_option(sonar), "recording", "no pings")  # before the bar
         pings = []
-        with ping_progress("calibrate", None if quiet else count_pings(background), quiet=quiet,
-                           verbose=verbose) as bar:
+        with input_progress("calibrate", background, quiet=quiet, verbose=verbose) as bar:
             bar.start()
             for ping in ping_iter:
                 pings.append(ping)

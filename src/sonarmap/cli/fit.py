@@ -8,13 +8,8 @@ from typing import TYPE_CHECKING, Any
 import typer
 
 from sonarmap.cli._common import (
-    GEOMETRY_OPTION,
-    OUTPUT_OPTION,
-    QUIET_OPTION,
-    VERBOSE_OPTION,
-    check_choice,
-    example,
-    load_geometry_option,
+    GEOMETRY_OPTION, OUTPUT_OPTION, PINGS_ARGUMENT, QUIET_OPTION, VERBOSE_OPTION, check_choice, err_console,
+    example, input_progress, load_geometry_option, open_output, output_name, read_input_pings,
 )
 
 if TYPE_CHECKING:
@@ -30,7 +25,7 @@ def register(app: typer.Typer) -> None:
 
     @app.command("fit", epilog=example("fit pings/ -o fits.csv -m em", "fit recording.aris -o - -q"))
     def fit_cmd(
-        pings: list[Path] = typer.Argument(..., help="Ping files, directories or globs."),
+        pings: list[Path] = PINGS_ARGUMENT,
         output: Path = OUTPUT_OPTION,
         sonar: str | None = GEOMETRY_OPTION,
         method: str = typer.Option("lsq", "--method", "-m", help="lsq (paper) or em."),
@@ -53,18 +48,14 @@ def register(app: typer.Typer) -> None:
         """
         import csv
 
-        from sonarmap.cli._common import count_pings, err_console, first_ping, open_output, output_name, ping_progress
-        from sonarmap.io import read_pings
         from sonarmap.stats.mixture import fit_mixture
 
         check_choice(method, ("lsq", "em"), "--method")
         check_choice(binning, ("round", "floor"), "--binning")
         fams = _family_names(families)
         cfg = None if recipe is None else _recipe_config(recipe)
-        geom = load_geometry_option(sonar)
-        ping_iter = read_pings([str(p) for p in pings], geometry=geom)
-        _, ping_iter = first_ping(ping_iter)  # before the bar: an unreadable input prints only its error
-        bar = ping_progress("fit", None if quiet else count_pings(pings), quiet=quiet, verbose=verbose)
+        ping_iter = read_input_pings(pings, load_geometry_option(sonar))  # before the bar
+        bar = input_progress("fit", pings, quiet=quiet, verbose=verbose)
         with open_output(output, newline="") as fh, bar:
             bar.start()
             w = csv.writer(fh)

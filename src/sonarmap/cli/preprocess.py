@@ -8,12 +8,8 @@ from typing import Any
 import typer
 
 from sonarmap.cli._common import (
-    GEOMETRY_OPTION,
-    QUIET_OPTION,
-    VERBOSE_OPTION,
-    check_choice,
-    example,
-    load_geometry_option,
+    GEOMETRY_OPTION, OUTPUT_DIR_OPTION, PINGS_ARGUMENT, QUIET_OPTION, VERBOSE_OPTION, check_choice, err_console,
+    example, input_progress, load_geometry_option, read_input_pings, run_pings,
 )
 
 __all__ = ["register"]
@@ -24,8 +20,8 @@ def register(app: typer.Typer) -> None:
 
     @app.command("preprocess", epilog=example("preprocess pings/ -o clean/ --recipe paper-table1 --figure fig1.png"))
     def preprocess_cmd(
-        pings: list[Path] = typer.Argument(..., help="Ping files, directories or globs."),
-        output: Path = typer.Option(..., "--output", "-o", help="Output directory."),
+        pings: list[Path] = PINGS_ARGUMENT,
+        output: Path = OUTPUT_DIR_OPTION,
         recipe_name: str = typer.Option(
             "default", "--recipe", "-r",
             help="default | paper-table1 | paper-background (ignored with --config).",
@@ -46,9 +42,6 @@ def register(app: typer.Typer) -> None:
         pre-processed ping exceeds 1 (e.g. after the taper division), the PNG holds the image
         divided by intensity_scale and the JSON records intensity_scale.
         """
-
-        from sonarmap.cli._common import count_pings, err_console, first_ping, ping_progress
-        from sonarmap.io import read_pings
         from sonarmap.preprocess.pipeline import RECIPES, load_config, recipe
 
         if config is None:
@@ -56,24 +49,16 @@ def register(app: typer.Typer) -> None:
         if figure is not None and figure.suffix.lower() not in (".png", ".pdf", ".svg"):
             raise typer.BadParameter(f"{figure}: expected a .png, .pdf or .svg file", param_hint="--figure")
         cfg = load_config(config) if config is not None else recipe(recipe_name)
-        geom = load_geometry_option(sonar)
-        ping_iter = read_pings([str(p) for p in pings], geometry=geom)
-        _, ping_iter = first_ping(ping_iter)  # before the bar: an unreadable input prints only its error
-        n = 0
-        bar = ping_progress("preprocess", None if quiet else count_pings(pings), quiet=quiet, verbose=verbose)
-        with bar:
-            bar.start()
-            for ping in ping_iter:
-                _one(ping, n, cfg, output, figure)
-                n += 1
-                bar.advance()
-                bar.log(f"{ping.source} -> {output}")
+        ping_iter = read_input_pings(pings, load_geometry_option(sonar))  # before the bar
+        bar = input_progress("preprocess", pings, quiet=quiet, verbose=verbose)
+        n = run_pings(bar, ping_iter, lambda ping, i: _one(ping, i, cfg, output, figure))
         if not quiet:
             err_console().print(f"preprocessed {n} ping(s) with recipe '{cfg.name}' -> {output}", markup=False)
 
 
-def _one(ping: Any, n: int, cfg: Any, output: Path, figure: Path | None) -> None:
-    """Pre-process one ping and write it into ``output`` (and, for the first, the figure)."""
+def _one(ping: Any, n: int, cfg: Any, output: Path, figure: Path | None) -> str:
+    """Pre-process one ping and write it into ``output`` (and, for the first, the figure); returns
+    the ``--verbose`` line."""
     from sonarmap.io.pngjson import write_png_ping
     from sonarmap.preprocess.pipeline import preprocess
 
@@ -92,3 +77,4 @@ def _one(ping: Any, n: int, cfg: Any, output: Path, figure: Path | None) -> None
         from sonarmap.plots import fan_comparison, save_figure
 
         save_figure(fan_comparison(ping, out), figure)
+    return f"{ping.source} -> {output}"

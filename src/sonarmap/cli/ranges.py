@@ -40,13 +40,8 @@ from typing import TYPE_CHECKING, Any
 import typer
 
 from sonarmap.cli._common import (
-    GEOMETRY_OPTION,
-    OUTPUT_OPTION,
-    QUIET_OPTION,
-    VERBOSE_OPTION,
-    check_choice,
-    example,
-    load_geometry_option,
+    GEOMETRY_OPTION, OUTPUT_OPTION, PINGS_ARGUMENT, QUIET_OPTION, STDOUT, VERBOSE_OPTION, check_choice,
+    err_console, example, input_progress, load_geometry_option, open_output, output_name, read_input_pings,
 )
 
 __all__ = [
@@ -186,7 +181,7 @@ def register(app: typer.Typer) -> None:
 
     @app.command("ranges", epilog=example("ranges pings/ -o ranges.csv", "ranges recording.aris -o - --method threshold"))
     def ranges_cmd(
-        pings: list[Path] = typer.Argument(..., help="Ping files, directories or globs."),
+        pings: list[Path] = PINGS_ARGUMENT,
         output: Path = OUTPUT_OPTION,
         sonar: str | None = GEOMETRY_OPTION,
         method: str | None = METHOD_OPTION,
@@ -217,8 +212,6 @@ def register(app: typer.Typer) -> None:
         import contextlib
         import csv
 
-        from sonarmap.cli._common import count_pings, first_ping, open_output, output_name, ping_progress
-        from sonarmap.io import read_pings
         from sonarmap.pipeline import process_ping
 
         out_kind = _output_kind(to, output)
@@ -230,12 +223,11 @@ def register(app: typer.Typer) -> None:
             cfg = cfg.replace(families=families)  # the recording's model (chosen by calibrate)
         n_pings = n_rows = n_ret = 0
         gated: list[tuple[str, ...]] = []
-        bar = ping_progress("ranges", None if quiet else count_pings(pings), quiet=quiet, verbose=verbose)
+        bar = input_progress("ranges", pings, quiet=quiet, verbose=verbose)
         out_cm: Any = contextlib.nullcontext(None) if out_kind != "csv" else open_output(output, newline="")
         with out_cm as fh, bar:
             w = csv.writer(fh) if fh is not None else None
-            ping_iter = read_pings([str(p) for p in pings], geometry=geom)
-            _, ping_iter = first_ping(ping_iter)  # before the bar: an unreadable input prints only its error
+            ping_iter = read_input_pings(pings, geom)  # before the bar: an unreadable input prints only its error
             bar.start()
             for ping in ping_iter:
                 prod = process_ping(ping, cfg, background=rec)
@@ -259,8 +251,6 @@ def register(app: typer.Typer) -> None:
 def _output_kind(to: str | None, output: Path) -> str:
     """``csv``, ``bag1`` or ``bag2``: ``--to``, else from the suffix of ``-o``; a usage error for an
     unknown kind or a bag to stdout."""
-    from sonarmap.cli._common import STDOUT
-
     if to is not None:
         check_choice(to, ("csv", "bag1", "bag2"), "--to")
     out_kind = to or ("bag1" if output.suffix == ".bag" else "csv")
@@ -285,8 +275,6 @@ def _record_ranges(w: Any, bag_items: list[tuple[Any, Any]], ping: Ping, prod: P
 def _print_summary(n_pings: int, n_rows: int, n_ret: int, where: str, cfg: Any,
                    gated: list[tuple[str, ...]]) -> None:
     """The two summary lines of ``ranges`` on stderr."""
-    from sonarmap.cli._common import err_console
-
     console = err_console()
     console.print(
         f"{n_pings} pings, {n_rows} rows ({n_ret} returns) -> {where} (method={cfg.method}"

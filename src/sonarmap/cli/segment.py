@@ -12,7 +12,10 @@ from typing import Any
 
 import typer
 
-from sonarmap.cli._common import GEOMETRY_OPTION, QUIET_OPTION, VERBOSE_OPTION, example, load_geometry_option
+from sonarmap.cli._common import (
+    GEOMETRY_OPTION, OUTPUT_DIR_OPTION, PINGS_ARGUMENT, QUIET_OPTION, VERBOSE_OPTION, err_console, example,
+    input_progress, load_geometry_option, read_input_pings, run_pings,
+)
 from sonarmap.cli.ranges import BETA_OPTION, CONFIG_OPTION, METHOD_OPTION, SOLVER_OPTION, pipeline_config_from_options
 
 __all__ = ["register", "segment_figure"]
@@ -65,8 +68,8 @@ def register(app: typer.Typer) -> None:
 
     @app.command("segment", epilog=example("segment pings/ -o labels/", "segment recording.aris -o labels/ --no-figure -q"))
     def segment_cmd(
-        pings: list[Path] = typer.Argument(..., help="Ping files, directories or globs."),
-        output: Path = typer.Option(..., "--output", "-o", help="Output directory."),
+        pings: list[Path] = PINGS_ARGUMENT,
+        output: Path = OUTPUT_DIR_OPTION,
         sonar: str | None = GEOMETRY_OPTION,
         method: str | None = METHOD_OPTION,
         solver: str | None = SOLVER_OPTION,
@@ -84,29 +87,18 @@ def register(app: typer.Typer) -> None:
         which is created if needed; files in it are replaced atomically.
         """
 
-        from sonarmap.cli._common import count_pings, err_console, first_ping, ping_progress
-        from sonarmap.io import read_pings
-
         cfg = pipeline_config_from_options(config, method, solver, beta)
-        geom = load_geometry_option(sonar)
-        ping_iter = read_pings([str(p) for p in pings], geometry=geom)
-        _, ping_iter = first_ping(ping_iter)  # before the bar and the directory: input errors come first
+        ping_iter = read_input_pings(pings, load_geometry_option(sonar))  # before the bar and the directory
         output.mkdir(parents=True, exist_ok=True)
-        n = 0
-        bar = ping_progress("segment", None if quiet else count_pings(pings), quiet=quiet, verbose=verbose)
-        with bar:
-            bar.start()
-            for i, ping in enumerate(ping_iter):
-                _segment_one(ping, i, output, cfg, figure)
-                n += 1
-                bar.advance()
-                bar.log(f"{ping.source} -> {output / _stem(ping.source, i)}_labels.png")
+        bar = input_progress("segment", pings, quiet=quiet, verbose=verbose)
+        n = run_pings(bar, ping_iter, lambda ping, i: _segment_one(ping, i, output, cfg, figure))
         if not quiet:
             err_console().print(f"segmented {n} pings -> {output}", markup=False)
 
 
-def _segment_one(ping: Any, i: int, output: Path, cfg: Any, figure: bool) -> None:
-    """Segment one ping and write its label image (and figure) into ``output``."""
+def _segment_one(ping: Any, i: int, output: Path, cfg: Any, figure: bool) -> str:
+    """Segment one ping and write its label image (and figure) into ``output``; returns the
+    ``--verbose`` line."""
     import io
 
     import numpy as np
@@ -135,3 +127,4 @@ def _segment_one(ping: Any, i: int, output: Path, cfg: Any, figure: bool) -> Non
         with atomic_path(output / f"{stem}_segment.png") as tmp:
             fig.savefig(tmp, dpi=90, format="png")
         plt.close(fig)
+    return f"{ping.source} -> {output / stem}_labels.png"

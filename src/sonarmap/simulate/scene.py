@@ -62,6 +62,9 @@ CLUTTER = 2
 
 _DEFAULT_SPACING_M = 0.012
 
+#: The per-sample arrays of a :class:`Scene` (one row per sample), in field order.
+_SAMPLE_FIELDS = ("points_m", "normals", "reflectivity", "labels", "patch_area_m2")
+
 
 def _db(x_db: float) -> float:
     return float(10.0 ** (x_db / 10.0))
@@ -182,11 +185,7 @@ class Scene:
             if not isinstance(s, Scene):
                 raise InputError(f"scenes[{i}]: expected Scene, got {type(s).__name__}")
         return cls(
-            points_m=np.concatenate([s.points_m for s in scenes]),
-            normals=np.concatenate([s.normals for s in scenes]),
-            reflectivity=np.concatenate([s.reflectivity for s in scenes]),
-            labels=np.concatenate([s.labels for s in scenes]),
-            patch_area_m2=np.concatenate([s.patch_area_m2 for s in scenes]),
+            **{f: np.concatenate([getattr(s, f) for s in scenes]) for f in _SAMPLE_FIELDS},
             name=name if name is not None else "+".join(s.name for s in scenes if s.name),
         )
 
@@ -209,14 +208,7 @@ class Scene:
             raise InputError("rotation_matrix: not a proper rotation (R R^T != I or det < 0)")
         if t.shape != (3,) or not np.all(np.isfinite(t)):
             raise InputError(f"translation: expected a finite 3-vector, got shape {t.shape}")
-        return Scene(
-            points_m=self.points_m @ rot.T + t,
-            normals=self.normals @ rot.T,
-            reflectivity=self.reflectivity,
-            labels=self.labels,
-            patch_area_m2=self.patch_area_m2,
-            name=self.name,
-        )
+        return dataclasses.replace(self, points_m=self.points_m @ rot.T + t, normals=self.normals @ rot.T)
 
     def cropped(self, view: View = View()) -> Scene:
         """Only the samples inside ``view`` (see :class:`View`)."""
@@ -246,25 +238,11 @@ class Scene:
         f = float(factor)
         if not (math.isfinite(f) and f > 0):
             raise InputError(f"factor: must be a positive finite number (got {factor})")
-        return Scene(
-            points_m=self.points_m * f,
-            normals=self.normals,
-            reflectivity=self.reflectivity,
-            labels=self.labels,
-            patch_area_m2=self.patch_area_m2 * (f * f),
-            name=self.name,
-        )
+        return dataclasses.replace(self, points_m=self.points_m * f, patch_area_m2=self.patch_area_m2 * (f * f))
 
     def subset(self, mask: NDArray[np.bool_]) -> Scene:
         """The samples selected by a boolean mask or index array."""
-        return Scene(
-            points_m=self.points_m[mask],
-            normals=self.normals[mask],
-            reflectivity=self.reflectivity[mask],
-            labels=self.labels[mask],
-            patch_area_m2=self.patch_area_m2[mask],
-            name=self.name,
-        )
+        return dataclasses.replace(self, **{f: getattr(self, f)[mask] for f in _SAMPLE_FIELDS})
 
 
 # ---------------------------------------------------------------------- generic samplers
@@ -280,6 +258,41 @@ def empty_scene(name: str = "empty") -> Scene:
 def _unit(v: ArrayLike) -> NDArray[np.float64]:
     a = np.asarray(v, dtype=np.float64)
     return a / np.linalg.norm(a)
+
+
+def _uniform_scene(
+    points_m: NDArray[np.float64],
+    normals: ArrayLike,
+    *,
+    reflectivity: float,
+    label: int,
+    patch_area_m2: float,
+    name: str,
+) -> Scene:
+    """Samples at ``points_m`` that share one linear ``reflectivity``, ``label`` and patch area.
+
+    ``normals`` is one normal for all (shape (3,)) or one per sample (shape (N, 3)).
+    """
+    m = points_m.shape[0]
+    return Scene(
+        points_m=points_m,
+        normals=np.broadcast_to(normals, (m, 3)),
+        reflectivity=np.full(m, reflectivity),
+        labels=np.full(m, label, np.uint8),
+        patch_area_m2=np.full(m, patch_area_m2),
+        name=name,
+    )
+
+
+def _half_span_m(view: View) -> float:
+    """Half the across-fan extent a surface needs to fill ``view`` at its maximum range (with margin)."""
+    return 1.3 * view.max_range_m * math.tan(view.half_azimuth_rad)
+
+
+def _half_height_m(range_m: float, incidence_rad: float, view: View) -> float:
+    """Half the extent, along its tilt, of a plate at ``range_m`` and incidence that fills the
+    vertical aperture of ``view`` (with margin)."""
+    return 2.0 * range_m * math.tan(view.half_elevation_rad) / max(math.cos(incidence_rad), 0.05) + 0.2
 
 
 def _rot_y(angle: float) -> NDArray[np.float64]:
@@ -327,15 +340,8 @@ def plane_patch(
     vs = np.arange(v_extent_m[0] + spacing_m / 2, v_extent_m[1], spacing_m)
     uu, vv = np.meshgrid(us, vs, indexing="ij")
     pts = o + uu.reshape(-1, 1) * u + vv.reshape(-1, 1) * v
-    m = pts.shape[0]
-    scene = Scene(
-        points_m=pts,
-        normals=np.broadcast_to(n, (m, 3)),
-        reflectivity=np.full(m, _db(reflectivity_db)),
-        labels=np.full(m, label, np.uint8),
-        patch_area_m2=np.full(m, spacing_m**2),
-        name=name,
-    )
+    scene = _uniform_scene(pts, n, reflectivity=_db(reflectivity_db), label=label,
+                           patch_area_m2=spacing_m**2, name=name)
     return scene.cropped(view) if view is not None else scene
 
 
@@ -364,8 +370,8 @@ def planar_hull(
     v = np.cross(normal, u)
     rot = _rot_z(math.radians(yaw_deg))
     origin = np.array([range_m, 0.0, 0.0])
-    half_u = 1.3 * view.max_range_m * math.tan(view.half_azimuth_rad) + 0.5
-    half_v = 2.0 * range_m * math.tan(view.half_elevation_rad) / max(math.cos(inc), 0.05) + 0.2
+    half_u = _half_span_m(view) + 0.5
+    half_v = _half_height_m(range_m, inc, view)
     s = plane_patch(
         origin,
         rot @ u,
@@ -397,10 +403,10 @@ def curved_hull(
     away in range.
     """
     inc = math.radians(incidence_deg)
-    half_psi = min(math.pi / 2, 1.3 * view.max_range_m * math.tan(view.half_azimuth_rad) / radius_m)
+    half_psi = min(math.pi / 2, _half_span_m(view) / radius_m)
     dpsi = spacing_m / radius_m
     psi = np.arange(-half_psi + dpsi / 2, half_psi, dpsi)
-    half_t = 2.0 * range_m * math.tan(view.half_elevation_rad) / max(math.cos(inc), 0.05) + 0.2
+    half_t = _half_height_m(range_m, inc, view)
     t = np.arange(-half_t + spacing_m / 2, half_t, spacing_m)
     pp, tt = np.meshgrid(psi, t, indexing="ij")
     pp = pp.reshape(-1)
@@ -414,15 +420,8 @@ def curved_hull(
     pivot = np.array([range_m, 0.0, 0.0])
     pts = (pts0 - pivot) @ rot.T + pivot
     nrm = normal0 @ rot.T
-    m = pts.shape[0]
-    s = Scene(
-        points_m=pts,
-        normals=nrm,
-        reflectivity=np.full(m, _db(reflectivity_db)),
-        labels=np.full(m, STRUCTURE, np.uint8),
-        patch_area_m2=np.full(m, spacing_m * (dpsi * radius_m)),
-        name="curved_hull",
-    )
+    s = _uniform_scene(pts, nrm, reflectivity=_db(reflectivity_db), label=STRUCTURE,
+                       patch_area_m2=spacing_m * (dpsi * radius_m), name="curved_hull")
     return s.cropped(view)
 
 
@@ -447,7 +446,7 @@ def seafloor(
     r0 = height_m / math.sin(p)
     u = np.array([0.0, 1.0, 0.0])
     v = np.cross(normal, u)
-    half_u = 1.3 * view.max_range_m * math.tan(view.half_azimuth_rad) + 0.5
+    half_u = _half_span_m(view) + 0.5
     # Along-look extent: elevation +-e maps to ranges h / sin(p +- e) on the floor.
     e = view.half_elevation_rad
     near = height_m / math.tan(min(p + e, math.radians(89.0)))
@@ -536,9 +535,8 @@ def propeller(
     nrm = np.stack([np.zeros(pp.size), np.cos(pp).ravel(), np.sin(pp).ravel()], axis=1)
     pts = np.stack([range_m + xx.ravel(), np.zeros(pp.size), np.zeros(pp.size)], axis=1)
     pts += hub_radius_m * nrm
-    m = pts.shape[0]
-    parts.append(Scene(pts, nrm, np.full(m, refl), np.full(m, STRUCTURE, np.uint8),
-                       np.full(m, spacing_m * dpsi * hub_radius_m), name="propeller"))
+    parts.append(_uniform_scene(pts, nrm, reflectivity=refl, label=STRUCTURE,
+                                patch_area_m2=spacing_m * dpsi * hub_radius_m, name="propeller"))
     # Blades.
     spans = np.arange(hub_radius_m + spacing_m / 2, radius_m, spacing_m)
     for k in range(n_blades):
@@ -556,11 +554,8 @@ def propeller(
             pts_b.append(
                 np.array([range_m + 0.3, 0.0, 0.0]) + s_ * span_dir + cs[:, None] * chord_dir
             )
-        pb = np.concatenate(pts_b)
-        mb = pb.shape[0]
-        parts.append(Scene(pb, np.broadcast_to(normal, (mb, 3)), np.full(mb, refl),
-                           np.full(mb, STRUCTURE, np.uint8), np.full(mb, spacing_m**2),
-                           name="propeller"))
+        parts.append(_uniform_scene(np.concatenate(pts_b), normal, reflectivity=refl, label=STRUCTURE,
+                                    patch_area_m2=spacing_m**2, name="propeller"))
     return Scene.concat(*parts, name="propeller").cropped(view)
 
 
@@ -638,6 +633,15 @@ SCENE_REFERENCE_RANGE_M = 6.75
 SLOPED_HULL_INCIDENCE_DEG = 30.0
 
 
+def _default_geometry(geometry: Any) -> Any:
+    """``geometry``, or the ``didson-hf`` preset for None (the sloped hulls' default sonar)."""
+    if geometry is None:
+        from sonarmap.geometry import preset
+
+        geometry = preset("didson-hf")
+    return geometry
+
+
 def sloped_hull_yaw_deg(bins_per_beam: float, geometry: Any = None, *, range_m: float | None = None) -> float:
     """Yaw of :func:`planar_hull` whose band changes range by ``bins_per_beam`` bins per beam.
 
@@ -665,10 +669,7 @@ def sloped_hull_yaw_deg(bins_per_beam: float, geometry: Any = None, *, range_m: 
     >>> round(sloped_hull_yaw_deg(4.0), 1)
     58.2
     """
-    if geometry is None:
-        from sonarmap.geometry import preset
-
-        geometry = preset("didson-hf")
+    geometry = _default_geometry(geometry)
     if not (math.isfinite(bins_per_beam) and bins_per_beam >= 0):
         raise InputError(f"bins_per_beam: must be a finite number >= 0 (got {bins_per_beam})")
     r = SCENE_REFERENCE_RANGE_M * scene_scale_for(geometry) if range_m is None else float(range_m)
@@ -695,10 +696,7 @@ def sloped_hull(
     the flat ``hull`` (60 deg incidence, -12 dB): ``-12 + 10 log10(cos^2 60 / (cos incidence cos
     yaw)^2)`` dB.  The result is *not* scaled (:func:`scene_from_name` does that).
     """
-    if geometry is None:
-        from sonarmap.geometry import preset
-
-        geometry = preset("didson-hf")
+    geometry = _default_geometry(geometry)
     f = scene_scale_for(geometry) if scale is None else float(scale)
     yaw = sloped_hull_yaw_deg(bins_per_beam, geometry, range_m=range_m * f)
     cos_total = math.cos(math.radians(incidence_deg)) * math.cos(math.radians(yaw))
