@@ -56,9 +56,25 @@ from sonarmap.io.products import (
     product_summary,
     survey_status,
 )
-from sonarmap.survey.plan import ChunkSpec, DEFAULT_CHUNK_SIZE, PingFunction, SurveyExistsError, SurveyPlan, plan_survey
+from sonarmap.survey.plan import (
+    ChunkSpec,
+    DEFAULT_CHUNK_SIZE,
+    PingFunction,
+    SurveyExistsError,
+    SurveyPlan,
+    plan_survey,
+)
 from sonarmap.survey.records import product_record, product_schema, stack_product_records
-from sonarmap.survey.store import LIVE_SETTLE_S, PRODUCT_RANGES, ProductAppender, create_product_store, load_products, open_products, product_ping, remove_store
+from sonarmap.survey.store import (
+    LIVE_SETTLE_S,
+    PRODUCT_RANGES,
+    ProductAppender,
+    create_product_store,
+    load_products,
+    open_products,
+    product_ping,
+    remove_store,
+)
 from sonarmap.survey.executors import warm_pipeline_once
 from sonarmap.survey.run import SurveyResult, process_survey, replicate_pings, run_chunk
 

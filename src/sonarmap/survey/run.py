@@ -35,9 +35,32 @@ from sonarmap.io.products import (
     read_root_attrs,
 )
 from sonarmap.ping import Ping
-from sonarmap.survey.plan import ChunkSpec, DEFAULT_CHUNK_SIZE, PingFunction, SurveyExistsError, SurveyPlan, _config_dict, _default_ping_function, _fingerprint, _function_name, _iter_chunk_pings, _maybe_config, _resolve_config, plan_survey
+from sonarmap.survey.plan import (
+    ChunkSpec,
+    DEFAULT_CHUNK_SIZE,
+    PingFunction,
+    SurveyExistsError,
+    SurveyPlan,
+    _config_dict,
+    _default_ping_function,
+    _fingerprint,
+    _function_name,
+    _iter_chunk_pings,
+    _maybe_config,
+    _resolve_config,
+    plan_survey,
+)
 from sonarmap.survey.records import _fit_arrays, _record, _schema_of, _stack
-from sonarmap.survey.store import _Sink, _Stored, _create_store, _reference_range, _remove_marker_temporaries, _store_layout, _zarr_open, remove_store
+from sonarmap.survey.store import (
+    _Sink,
+    _Stored,
+    _create_store,
+    _reference_range,
+    _remove_marker_temporaries,
+    _store_layout,
+    _zarr_open,
+    remove_store,
+)
 from sonarmap.survey.executors import _ProcessPool, _run_dask, _run_serial
 
 __all__ = ["run_chunk", "SurveyResult", "process_survey", "replicate_pings"]
