@@ -72,5 +72,5 @@ def oculus_pings(data_dir: Path) -> list:
 def pytest_addoption(parser: pytest.Parser) -> None:
     parser.addoption(
         "--fuzz-cases", type=int, default=200,
-        help="cases per reader in tests/test_fuzz.py (default 200; 1000+ for the long run)",
+        help="cases per reader in tests/io/test_fuzz.py (default 200; 1000+ for the long run)",
     )

@@ -2,9 +2,7 @@
 
 from __future__ import annotations
 
-import os
 import re
-import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -12,53 +10,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from browser import page_errors, screenshot
 from sonarmap.report import ReportConfig, build_report, render_report
 from sonarmap.survey import process_survey, replicate_pings
-
-CHROMIUM_NAMES = ("chromium", "chromium-browser", "google-chrome", "google-chrome-stable")
-
-
-def find_chromium() -> str | None:
-    """Path of a Chromium binary, installing Debian's ``chromium`` package if possible."""
-    for name in CHROMIUM_NAMES:
-        path = shutil.which(name)
-        if path:
-            return path
-    if shutil.which("apt-get") and hasattr(os, "geteuid") and os.geteuid() == 0:
-        env = dict(os.environ, DEBIAN_FRONTEND="noninteractive")
-        for cmd in (["apt-get", "install", "-y", "--no-install-recommends", "chromium"],
-                    ["apt-get", "update"],
-                    ["apt-get", "install", "-y", "--no-install-recommends", "chromium"]):
-            try:
-                subprocess.run(cmd, env=env, capture_output=True, timeout=900, check=False)
-            except (OSError, subprocess.TimeoutExpired):
-                break
-            path = shutil.which("chromium")
-            if path:
-                return path
-    return None
-
-
-def screenshot(html_path: Path, png_path: Path, *, width: int = 1280, height: int = 2000) -> str:
-    """Render ``html_path`` in headless Chromium to ``png_path``; returns Chromium's log (stderr)."""
-    exe = find_chromium()
-    if exe is None:
-        pytest.skip("chromium not found and could not be installed (apt-get install -y chromium)")
-    profile = png_path.parent / "chromium-profile"
-    cmd = [
-        exe, "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-        "--disable-background-networking", "--disable-component-update", "--disable-sync",
-        f"--user-data-dir={profile}", f"--screenshot={png_path}", f"--window-size={width},{height}",
-        "--enable-logging=stderr", "--v=0", html_path.resolve().as_uri(),
-    ]
-    r = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
-    assert png_path.exists(), f"chromium wrote no screenshot (exit {r.returncode}): {r.stderr[-2000:]}"
-    return r.stderr
-
-
-def page_errors(log: str) -> list[str]:
-    """Console messages and uncaught exceptions in a Chromium log (the page has no scripts)."""
-    return [ln for ln in log.splitlines() if "CONSOLE" in ln or "Uncaught" in ln]
 
 
 @pytest.fixture(scope="module")

@@ -31,7 +31,7 @@ little-endian)::
   (0.3 degree spacing x 96 or 0.6 degree x 48) with a :class:`~sonarmap.geometry.GeometryWarning`.
 
 No public DDF sample exists; the reader is tested against files made by a test-only writer that
-follows this layout (``tests/ddf_writer.py``).
+follows this layout (``tests/support/ddf_writer.py``).
 """
 
 from __future__ import annotations

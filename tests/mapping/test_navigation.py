@@ -145,7 +145,7 @@ def _static_inputs(data_dir: Path, tmp_path: Path) -> dict[str, Path]:
     k = data_dir / "kongsberg" / "0077_20221109_123655_Belgica.all"
     from sonarmap.io import FORMAT_MODULES
 
-    if "kongsberg" in FORMAT_MODULES and (Path(__file__).parents[1] / "src/sonarmap/io/kongsberg.py").exists():
+    if "kongsberg" in FORMAT_MODULES and (Path(__file__).parents[2] / "src/sonarmap/io/kongsberg.py").exists():
         out["kongsberg"] = k
     return out
 

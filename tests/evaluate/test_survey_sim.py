@@ -7,7 +7,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from sonarmap.mapping.occupancy import OccupancyConfig, OccupancyMap, SensorModel, voxel_iou
+from sonarmap.mapping.occupancy import OccupancyConfig, OccupancyMap, voxel_iou
 from sonarmap.mapping.poses import load_extrinsics, read_trajectory_csv, sensor_poses
 from sonarmap.mapping.register import register_returns
 from sonarmap.evaluate.mapping import registration_accuracy, truth_voxels

@@ -38,7 +38,7 @@ GEOMETRY_P95_M = 0.22
 
 
 def _load_checks() -> Any:
-    path = Path(__file__).resolve().parents[1] / "benchmarks" / "kongsberg_checks.py"
+    path = Path(__file__).resolve().parents[2] / "benchmarks" / "kongsberg_checks.py"
     spec = importlib.util.spec_from_file_location("kongsberg_checks", path)
     assert spec is not None and spec.loader is not None
     mod = importlib.util.module_from_spec(spec)

@@ -8,7 +8,7 @@ prints the outcome table and one example per defect.
 The default run reads ``--fuzz-cases`` (200) cases per reader; ``--fuzz-cases 1000`` (or more) is
 the long run::
 
-    python -m pytest -q tests/test_fuzz.py --fuzz-cases 1000 -s
+    python -m pytest -q tests/io/test_fuzz.py --fuzz-cases 1000 -s
 """
 
 from __future__ import annotations

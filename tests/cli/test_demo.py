@@ -9,8 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from test_report import page_errors, screenshot  # noqa: E402
+from browser import page_errors, screenshot
 
 
 @pytest.fixture(scope="module")
