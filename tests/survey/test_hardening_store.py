@@ -372,7 +372,7 @@ def test_an_unfinished_product_store_still_loads(seeds: dict[str, Path], tmp_pat
 def test_chunks_are_checksummed_and_old_stores_still_read(seeds: dict[str, Path], tmp_path: Path) -> None:
     """Every array of both writers has a crc32c codec; a store written without (before this
     change) reads as before - raw and product stores, the product one also resumes."""
-    import sonarmap.survey._chunk_writer as ss
+    import sonarmap.survey.store as ss
     from sonarmap.io.dataset import _encoding, pings_to_dataset
     from sonarmap.survey import load_products, process_survey
 
@@ -397,7 +397,7 @@ def test_chunks_are_checksummed_and_old_stores_still_read(seeds: dict[str, Path]
     ds.to_zarr(v2, mode="w", encoding=enc, consolidated=False, zarr_format=2)
     assert (v2 / ".zgroup").exists() and _same_pings(_read_all(v2), _read_all(seeds["raw"]))
     assert zarrstore.summary(v2)["zarr_format"] == 2
-    # An old product store: no crc32c codec (the direct chunk writer still recognises the layout).
+    # An old product store: no crc32c codec (chunks are written in the layout the store has).
     from zarr.codecs import ZstdCodec
 
     def old_kwargs() -> dict[str, Any]:

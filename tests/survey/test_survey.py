@@ -357,7 +357,7 @@ def test_cli_scheduler_option_runs_on_the_cluster(
 
 # ---------------------------------------------------------------------------- direct chunk writes
 def test_chunk_writer_writes_the_bytes_zarr_writes(tmp_path: Path) -> None:
-    """Chunk files encoded by the survey's writer are byte-identical to zarr's own (full and edge
+    """Chunk files encoded by the live appender's writer are byte-identical to zarr's own (full and edge
     chunks, numeric and string variables, NaN fills) and read back through zarr unchanged."""
     import zarr
 
@@ -453,17 +453,29 @@ def test_local_workers_store_their_own_chunks(
     assert not (out / ".sonarmap" / "tmp").exists()
 
 
-@pytest.mark.slow
-def test_zarr_fallback_writer_gives_the_same_store(
-    serial_store: Path, survey_dir: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
-) -> None:
-    """Stores whose arrays the direct writer does not recognise are written through zarr."""
-    from sonarmap.survey._chunk_writer import ChunkWriter
+def test_chunk_rows_never_write_into_a_replaced_store(serial_store: Path, tmp_path: Path) -> None:
+    """A worker's chunk writer checks the store directory's identity before every chunk: a store
+    removed or re-created since the run started (``--overwrite`` while a killed run's worker is
+    still busy) is left alone."""
+    from sonarmap.survey._chunk_writer import StoreReplacedError
+    from sonarmap.survey.plan import ChunkSpec
+    from sonarmap.survey.store import ChunkRows
 
-    monkeypatch.setattr(ChunkWriter, "open", classmethod(lambda cls, store, names: None))
-    out = tmp_path / "z.zarr"
-    process_survey([survey_dir], out, workers=0, chunk_size=8)
-    assert_same_dataset(serial_store, out)
+    out = tmp_path / "c.zarr"
+    shutil.copytree(serial_store, out)
+    writer = ChunkRows.open(out)
+    rows = {"kld": np.full(8, 0.5)}
+    chunk = ChunkSpec(index=1, start=8, stop=16, items=())
+    writer.write(chunk, rows)
+    import zarr
+
+    np.testing.assert_array_equal(zarr.open_group(str(out), mode="r")["kld"][8:16], rows["kld"])
+    os.replace(out, tmp_path / "aside.zarr")
+    shutil.copytree(serial_store, out)
+    before = sorted(p.read_bytes() for p in (out / "kld").rglob("*") if p.is_file())
+    with pytest.raises(StoreReplacedError):
+        writer.write(chunk, rows)
+    assert sorted(p.read_bytes() for p in (out / "kld").rglob("*") if p.is_file()) == before
 
 
 @pytest.mark.slow
@@ -478,7 +490,8 @@ def test_resume_removes_temporaries_of_the_interrupted_run(
 
     with pytest.raises(KeyboardInterrupt):
         process_survey([survey_dir], out, workers=0, chunk_size=8, progress=stop)
-    leftover = out / ".sonarmap" / "tmp" / "12345-deadbeef"  # as a worker killed mid-write leaves
+    leftover = out / ".sonarmap" / "tmp" / "12345-deadbeef"  # as a writer killed mid-write leaves
+    leftover.parent.mkdir(exist_ok=True)
     leftover.write_bytes(b"partial")
     process_survey([survey_dir], out, workers=0, chunk_size=8)
     assert not leftover.exists() and not leftover.parent.exists()
@@ -486,16 +499,15 @@ def test_resume_removes_temporaries_of_the_interrupted_run(
 
 
 def test_pool_workers_start_with_a_warm_pipeline() -> None:
-    """The fork server preloads and runs the pipeline once; workers inherit it warm."""
-    from sonarmap.survey._warm import status
-    from sonarmap.survey.executors import _ProcessPool
+    """Every worker runs the pipeline once when it starts, before its first task."""
+    from sonarmap.survey.executors import _is_warm, _ProcessPool
 
     pool = _ProcessPool(2, None)
     try:
-        states = {pool.ex.submit(status).result(timeout=120) for _ in range(4)}
+        states = {pool.ex.submit(_is_warm).result(timeout=120) for _ in range(4)}
     finally:
         pool.close(True)
-    assert states == {(True, True)}
+    assert states == {True}
 
 
 def test_tail_parts_cover_the_last_chunks_and_give_their_products(survey_dir: Path) -> None:

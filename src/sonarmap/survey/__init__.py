@@ -5,15 +5,15 @@ chunks of ``chunk_size`` consecutive pings.  Each chunk is one task: a worker re
 from disk (tasks carry file names, never images), runs the fused per-ping pipeline
 (:func:`sonarmap.pipeline.process_ping`: pre-process -> mixture fit -> segment -> ranges) and stores
 chunk ``k`` in zarr chunk ``k`` of every product variable.  Who writes the chunk files depends on
-the executor: local worker processes (same file system) write their own chunk's files directly
-(:class:`sonarmap.survey._chunk_writer.ChunkWriter`: whole chunk files encoded exactly as zarr would,
-each moved into place atomically; distinct chunks are distinct files, so concurrent writers are
-safe) and report success; dask workers, possibly on other machines, send back the products (a few
-kB per ping) and the calling process writes them with the same encoder.  Either way the calling
-process alone writes a chunk's completion marker, atomically, and only *after* the chunk's data is
-in place.  Because the per-ping path is a pure function of (ping, configuration), every chunk has
-a fixed place in the store and the chunk files are the same bytes whoever encodes them, the output
-is identical whether chunks ran serially, in local worker processes or on a dask cluster, in any
+the executor: local worker processes (same file system) write their own chunk through zarr's API
+(:class:`sonarmap.survey.store.ChunkRows`; distinct chunks are distinct files, so concurrent
+writers are safe) and report success; dask workers, possibly on other machines, send back the
+products (a few kB per ping) and the calling process writes them the same way.  Either way the
+calling process alone writes a chunk's completion marker, atomically, and only *after* the chunk's
+data is in place (a chunk without its marker is recomputed by a resumed run).  Because the
+per-ping path is a pure function of (ping, configuration), every chunk has a fixed place in the
+store and the chunk files are the same bytes whoever writes them, the output is identical whether
+chunks ran serially, in local worker processes or on a dask cluster, in any
 order, with retries, or across an interruption and a resumed run.
 
 Layout of the output store (zarr v3, readable with :func:`open_products` / ``xarray.open_zarr``;

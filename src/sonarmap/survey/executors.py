@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import functools
 import os
 import queue
 import time
@@ -21,7 +22,7 @@ __all__ = ["warm_pipeline_once"]
 
 
 # ============================================================================ executors
-def _pool_initializer(parent_pid: int) -> None:  # pragma: no cover - runs in workers
+def _pool_initializer(parent_pid: int, ping_function: PingFunction | None) -> None:  # pragma: no cover - runs in workers
     import signal
     import threading
 
@@ -44,6 +45,11 @@ def _pool_initializer(parent_pid: int) -> None:  # pragma: no cover - runs in wo
                 pass
 
     threading.Thread(target=watch, name="sonarmap-parent-watch", daemon=True).start()
+    # every worker starts warm, before it takes its first chunk
+    if ping_function is None:
+        warm_pipeline_once()
+    else:
+        _warm(ping_function)
 
 
 def _run_serial(chunks, task):  # type: ignore[no-untyped-def]
@@ -51,9 +57,10 @@ def _run_serial(chunks, task):  # type: ignore[no-untyped-def]
         yield c, task(c)
 
 
-def _warm_worker(ping_function: PingFunction | None) -> int:  # pragma: no cover - in workers
-    """Import the pipeline and run it once on a synthetic ping (numba kernels, scipy imports), so
-    the first real chunk does not pay for it; runs while the parent probes the survey."""
+def _warm(ping_function: PingFunction | None) -> bool:
+    """Run ``ping_function`` (default: the default pipeline) once on a synthetic DIDSON ping, so
+    the numba kernels are loaded and the lazy imports done; ``True`` if it worked (a failure is
+    swallowed: warming is an optimisation, never a requirement)."""
     try:
         from sonarmap.geometry import preset
 
@@ -63,50 +70,52 @@ def _warm_worker(ping_function: PingFunction | None) -> int:  # pragma: no cover
         fn = ping_function or _default_ping_function()
         fn(Ping(img, g), _resolve_config(None) if ping_function is None else None)
     except Exception:  # noqa: BLE001 - warming must never fail a run
-        pass
-    return os.getpid()
+        return False
+    return True
 
 
+@functools.cache
 def warm_pipeline_once() -> bool:
-    """Warm this process's per-ping pipeline the way the worker pool's fork server is warmed
-    (:mod:`sonarmap.survey._warm`: the default pipeline runs once on a synthetic ping, on the first
-    call in a process only; any failure is swallowed).  ``True`` if the warm-up run worked."""
-    import sonarmap.survey._warm  # warms on (first) import
+    """Warm this process's default per-ping pipeline (first call only; the pool's workers do it
+    when they start).  ``True`` if the warm-up run worked."""
+    return _warm(None)
 
-    return bool(sonarmap.survey._warm.WARMED)
+
+def _is_warm() -> bool:  # pragma: no cover - runs in workers
+    """Whether this process has warmed the default pipeline (the pool's workers: at start)."""
+    return warm_pipeline_once.cache_info().currsize > 0
 
 
 _THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS")
 
 class _ProcessPool:
-    """Local worker processes (forkserver: safe with the parent's threads), warmed at creation."""
+    """Local worker processes, started warm.
+
+    Workers are spawned (a fresh interpreter: safe with the parent's threads, unlike fork) with
+    their numerical libraries on one thread each, since parallelism is across processes; each
+    runs the pipeline once before its first chunk (:func:`warm_pipeline_once`) and leaves if the
+    parent dies.
+    """
 
     def __init__(self, workers: int, ping_function: PingFunction | None) -> None:
         import concurrent.futures as cf
         import multiprocessing
 
-        ctx = multiprocessing.get_context("forkserver")
-        with contextlib.suppress(Exception):
-            ctx.set_forkserver_preload(["sonarmap.survey", "sonarmap.pipeline", "sonarmap.survey._warm"])
         self.workers = workers
         # Finished futures arrive here (their done-callbacks): the parent blocks on this queue,
         # not on concurrent.futures.wait, which takes every future's lock at once - a Ctrl-C
         # landing between those acquisitions leaves a lock held, and the executor's own thread
         # then deadlocks the interpreter's exit on it.
         self._done: queue.SimpleQueue[Any] = queue.SimpleQueue()
-        self.ex = cf.ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_pool_initializer,
-                                         initargs=(os.getpid(),))
-        # Parallelism is across processes: each worker's numerical libraries get one thread
-        # (set before the fork server - and so the workers - import numpy; restored after).
-        saved = {v: os.environ.get(v) for v in _THREAD_VARS}
-        os.environ.update({v: "1" for v, old in saved.items() if old is None})
-        try:
-            for _ in range(workers):
-                self.ex.submit(_warm_worker, ping_function)
-        finally:
-            for v, old in saved.items():
-                if old is None:
-                    os.environ.pop(v, None)
+        self._others = {p.pid for p in multiprocessing.active_children()}
+        # A spawned worker reads these when it imports numpy; they stay set while the pool runs,
+        # since the executor may start a worker at any submit (restored by close()).
+        self._saved_env = {v: os.environ.get(v) for v in _THREAD_VARS}
+        os.environ.update({v: "1" for v, old in self._saved_env.items() if old is None})
+        self.ex = cf.ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
+                                         initializer=_pool_initializer, initargs=(os.getpid(), ping_function))
+        for _ in range(workers):  # start the workers now: they warm up while the parent plans
+            self.ex.submit(os.getpid)
 
     def start(self, chunks: Sequence[ChunkSpec], part_task: Callable[[ChunkSpec], Any],
               task: Callable[[ChunkSpec], Any] | None = None) -> None:
@@ -171,17 +180,25 @@ class _ProcessPool:
 
     def close(self, ok: bool) -> None:
         """Shut down; on failure or interrupt, terminate the workers at once."""
-        if ok:
-            self.ex.shutdown(wait=True)
-            return
-        procs = list((getattr(self.ex, "_processes", None) or {}).values())
-        self.ex.shutdown(wait=False, cancel_futures=True)
-        for p in procs:
-            with contextlib.suppress(Exception):
-                p.terminate()
-        for p in procs:
-            with contextlib.suppress(Exception):
-                p.join(timeout=5)
+        import multiprocessing
+
+        try:
+            if ok:
+                self.ex.shutdown(wait=True)
+                return
+            # the pool's workers: this process's children that were not there before the pool
+            procs = [p for p in multiprocessing.active_children() if p.pid not in self._others]
+            self.ex.shutdown(wait=False, cancel_futures=True)
+            for p in procs:
+                with contextlib.suppress(Exception):
+                    p.terminate()
+            for p in procs:
+                with contextlib.suppress(Exception):
+                    p.join(timeout=5)
+        finally:
+            for v, old in self._saved_env.items():
+                if old is None:
+                    os.environ.pop(v, None)
 
 
 def _run_dask(chunks, task, client):  # type: ignore[no-untyped-def]

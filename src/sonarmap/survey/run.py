@@ -52,11 +52,13 @@ from sonarmap.survey.plan import (
 )
 from sonarmap.survey.records import _fit_arrays, _record, _schema_of, _stack
 from sonarmap.survey.store import (
+    ChunkRows,
     _Sink,
     _Stored,
     _create_store,
     _reference_range,
     _remove_marker_temporaries,
+    _remove_temporaries,
     _store_layout,
     _zarr_open,
     remove_store,
@@ -130,15 +132,15 @@ class _Task:
     schema: Mapping[str, tuple[tuple[int, ...], str]]
     ping_function: PingFunction | None
     reference: tuple[np.ndarray, np.ndarray] | None = None
-    #: If set, the task writes its chunk files itself and returns a :class:`_Stored`.
-    writer: Any = None
+    #: If set, the task writes its chunk itself and returns a :class:`_Stored`.
+    writer: ChunkRows | None = None
 
     def __call__(self, chunk: ChunkSpec) -> dict[str, np.ndarray] | _Stored:
         data = run_chunk(chunk, self.config, keep_labels=self.keep_labels, schema=self.schema,
                          ping_function=self.ping_function, reference=self.reference)
         if self.writer is None:
             return data
-        self.writer.write(chunk.index, data)
+        self.writer.write(chunk, data)
         return _Stored(chunk.index, chunk.n_pings)
 
 
@@ -339,11 +341,8 @@ def _store_chunks(out: Path, plan: SurveyPlan, task: Any, *, client: Any, pool: 
     root = _zarr_open(out)
     reference = (np.asarray(read_array(st, COORD_AZIMUTH)), _reference_range(st))
     task = dataclasses.replace(task, schema=schema, reference=reference)
-    from sonarmap.survey._chunk_writer import ChunkWriter
-
-    writer = ChunkWriter.open(out, list(schema))
-    if writer is not None:
-        writer.clean_tmp()  # temporary files of an interrupted run (no writer of ours runs yet)
+    _remove_temporaries(out)  # temporary files of an interrupted run (no writer of ours runs yet)
+    writer = ChunkRows.open(out)
     sink = _Sink(out, writer)
 
     done = done_chunks(out)
@@ -366,8 +365,7 @@ def _store_chunks(out: Path, plan: SurveyPlan, task: Any, *, client: Any, pool: 
         # the completion markers.  (Dask workers may be on other machines: they return the
         # products and this process writes them.)  The last chunks run in parts whose
         # products come back to be stored here, to balance the tail.
-        stream = pool.run(todo, task if writer is None else dataclasses.replace(task, writer=writer),
-                          part_task=task)
+        stream = pool.run(todo, dataclasses.replace(task, writer=writer), part_task=task)
         executor = f"processes:{pool.workers}"
     for chunk, result in stream:
         sink.put(chunk, result)

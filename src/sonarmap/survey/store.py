@@ -52,8 +52,9 @@ from sonarmap.io.products import (
 from sonarmap.ping import Ping
 from sonarmap.survey.plan import ChunkSpec, DEFAULT_CHUNK_SIZE, SurveyPlan, _config_dict, _jsonable
 from sonarmap.survey.records import _FILL, _fit_arrays, _record, _schema_of, stack_product_records
+from sonarmap.survey._chunk_writer import StoreReplacedError, array_codec_kwargs
 
-__all__ = ["remove_store", "PRODUCT_RANGES", "open_products", "load_products", "product_ping", "LIVE_SETTLE_S", "create_product_store", "ProductAppender"]
+__all__ = ["ChunkRows", "remove_store", "PRODUCT_RANGES", "open_products", "load_products", "product_ping", "LIVE_SETTLE_S", "create_product_store", "ProductAppender"]
 
 
 # ============================================================================ store
@@ -62,7 +63,6 @@ def _create_store(path: Path, plan: SurveyPlan, schema: Mapping[str, tuple[tuple
     """Create the empty store in a temporary directory, then rename it onto ``path``."""
     import zarr
 
-    from sonarmap.survey._chunk_writer import array_codec_kwargs
 
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent))
@@ -194,6 +194,15 @@ def _write_marker(store: Path, chunk_index: int, start: int, stop: int) -> None:
     atomic_write_text(marker, json.dumps({"start": start, "stop": stop}) + "\n", clean=False)
 
 
+def _remove_temporaries(store: Path) -> None:
+    """Remove the temporary files an interrupted writer left in ``.sonarmap/tmp`` (call before
+    any writer of this run starts)."""
+    d = store / STATE_DIR / "tmp"
+    for f in d.iterdir() if d.is_dir() else ():
+        with contextlib.suppress(OSError):
+            f.unlink()
+
+
 def _remove_marker_temporaries(store: Path) -> None:
     """Remove what killed runs left among the markers: temporary files (``.<k>.done.*``) - call
     only while holding the store's lock (no other run writes markers then)."""
@@ -212,42 +221,73 @@ class _Stored:
     n_pings: int
 
 
-class _Sink:
-    """The parent's side of storing chunks: data (unless a worker already wrote it), then marker.
+@dataclasses.dataclass(frozen=True)
+class ChunkRows:
+    """Writes one chunk's rows of every product variable through zarr's own API (picklable).
 
-    With a :class:`~sonarmap.survey._chunk_writer.ChunkWriter` (stores this module creates) chunk files
-    are encoded and written directly; otherwise (an unrecognised array layout) through zarr, with
-    the group and arrays opened once.
+    A local worker process writes its own chunk into the shared store (distinct chunks are
+    distinct files: safe for concurrent writers) and only reports success to the parent, which
+    then writes the completion marker; the parent writes what comes back from dask workers and
+    split chunks.  Every chunk is written, even one equal to the fill value: a checksummed store
+    has all its chunks, so a missing one is recognised as damage when read.
+
+    ``identity`` is the ``(st_dev, st_ino)`` of the store directory when the writer was made: a
+    write into a store that has since been replaced (e.g. a worker left over from a killed run
+    while the output is re-created with ``--overwrite``) raises :class:`StoreReplacedError`
+    instead of writing.
     """
 
-    def __init__(self, store: Path, writer: Any) -> None:
+    store: str
+    identity: tuple[int, int]
+
+    @classmethod
+    def open(cls, store: str | os.PathLike[str]) -> ChunkRows:
+        """A writer for the product store ``store`` (which must exist)."""
+        try:
+            st = os.stat(store)
+        except OSError as exc:
+            raise write_error(exc, Path(store), "cannot prepare the store for writing") from None
+        return cls(os.fspath(store), (st.st_dev, st.st_ino))
+
+    def write(self, chunk: ChunkSpec, data: Mapping[str, Any]) -> None:
+        """Write rows ``chunk.start:chunk.stop`` of every variable in ``data`` (name -> rows)."""
+        import zarr
+
+        try:
+            st = os.stat(self.store)
+        except FileNotFoundError:
+            st = None
+        if st is None or (st.st_dev, st.st_ino) != self.identity:
+            raise StoreReplacedError(f"{self.store}: the store was removed or replaced; not writing chunk {chunk.index}")
+        root = _open_roots.get((self.store, self.identity))
+        with warnings.catch_warnings(), zarr.config.set({"array.write_empty_chunks": True}):
+            warnings.simplefilter("ignore")
+            try:
+                if root is None:
+                    root = _open_roots[(self.store, self.identity)] = _zarr_open(Path(self.store))
+                for name, values in data.items():
+                    root[name][chunk.start : chunk.stop] = values
+            except OSError as exc:
+                raise write_error(exc, Path(self.store), f"cannot write chunk {chunk.index}") from None
+
+
+#: The writable root group of each store this process writes chunks into (opened once).
+_open_roots: dict[tuple[str, tuple[int, int]], Any] = {}
+
+
+class _Sink:
+    """The parent's side of storing chunks: data (unless a worker already wrote it), then marker."""
+
+    def __init__(self, store: Path, writer: ChunkRows) -> None:
         self.store = store
         self.writer = writer
-        self._arrays: dict[str, Any] = {}
 
     def put(self, chunk: ChunkSpec, result: Any) -> None:
         if isinstance(result, _Stored):
             if result.index != chunk.index or result.n_pings != chunk.n_pings:
                 raise SonarmapError(f"chunk {chunk.index}: worker reported {result}")
-        elif self.writer is not None:
-            self.writer.write(chunk.index, result)
         else:
-            import zarr
-
-            # Every chunk is written, even one equal to the fill value: a checksummed store has
-            # all its chunks, so a missing one is recognised as damage when read.
-            with warnings.catch_warnings(), zarr.config.set({"array.write_empty_chunks": True}):
-                warnings.simplefilter("ignore")
-                try:
-                    for name, values in result.items():
-                        arr = self._arrays.get(name)
-                        if arr is None:
-                            if not self._arrays:
-                                self._root = _zarr_open(self.store)
-                            arr = self._arrays[name] = self._root[name]
-                        arr[chunk.start : chunk.stop] = values
-                except OSError as exc:
-                    raise write_error(exc, self.store, f"cannot write chunk {chunk.index}") from None
+            self.writer.write(chunk, result)
         _write_marker(self.store, chunk.index, chunk.start, chunk.stop)
 
 
