@@ -146,6 +146,21 @@ def test_sparse_storage_grows_and_export_matches_lookup() -> None:
     small = OccupancyMap(OccupancyConfig(resolution_m=0.05, chunk_size=8, max_chunks=70))
     with pytest.raises(InputError, match="max_chunks"):
         small.integrate(r, np.linspace(-0.25, 0.25, B), _poses(R, t), min_range_m=2.0, max_range_m=10.0, pd=0.9, pfa=0.05)
+    # a limit below the initial pool holds too: the map stops at 3 chunks, not at the pool's 64
+    tiny = OccupancyMap(OccupancyConfig(resolution_m=0.05, chunk_size=8, max_chunks=3))
+    with pytest.raises(InputError, match="more than 3 chunks"):
+        tiny.integrate(r, np.linspace(-0.25, 0.25, B), _poses(R, t), min_range_m=2.0, max_range_m=10.0, pd=0.9, pfa=0.05)
+    assert tiny.n_chunks <= 3
+
+
+def test_pd_without_pfa_names_the_missing_one_even_with_a_model() -> None:
+    from sonarmap.mapping.occupancy import SensorModel
+
+    m = OccupancyMap(OccupancyConfig(resolution_m=0.1))
+    with pytest.raises(InputError, match="^pfa: pd and pfa go together"):
+        m.integrate([2.03], [0.0], ID, min_range_m=1.0, max_range_m=3.0, pd=0.9, model=SensorModel(0.85, -0.4))
+    with pytest.raises(InputError, match="^pd: pd and pfa go together"):
+        m.integrate([2.03], [0.0], ID, min_range_m=1.0, max_range_m=3.0, pfa=0.05)
 
 
 def test_dense_array_values_and_iou() -> None:

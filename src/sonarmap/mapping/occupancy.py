@@ -363,7 +363,8 @@ class OccupancyMap:
         self._shifts = np.array([b, b, b if self.config.dims == 3 else 0], dtype=np.int64)
         self._vol = 1 << int(self._shifts.sum())
         self._k = k
-        self._alloc(64, 256)
+        mx = self.config.max_chunks
+        self._alloc(64 if mx is None else min(64, mx), 256)  # the pool never exceeds max_chunks
         self._next_id = 1
         #: Pings integrated.
         self.n_pings = 0
@@ -509,7 +510,9 @@ class OccupancyMap:
         P, B = r.shape
         if pd is not None or pfa is not None:
             if pd is None or pfa is None:
-                raise InputError("pd/pfa: give both, or a fixed model")
+                missing = "pfa" if pfa is None else "pd"
+                raise InputError(f"{missing}: pd and pfa go together (a model is only the fallback of beams "
+                                 "whose pD/pFA are missing); give both, or the model alone")
             l_hit, l_miss, informative = self._increments(
                 r, _per_ping(pd, P, "pd"), _per_ping(pfa, P, "pfa"), range_resolution_m,
                 _per_beam(sigma_m, (P, B), "sigma_m"), _per_beam(p_detect, (P, B), "p_detect"))
