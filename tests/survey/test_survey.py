@@ -535,3 +535,16 @@ def test_tail_parts_cover_the_last_chunks_and_give_their_products(survey_dir: Pa
         else:
             assert whole[name].tolist() == halves[name].tolist(), name
     assert [it[0] for it in _sub_chunk(c, 5, 12).items] == [it[0] for it in c.items[5:12]]
+
+
+def test_water_column_with_per_ping_geometry_is_refused_before_any_work(data_dir: Path, tmp_path: Path) -> None:
+    """A Kongsberg water-column recording (range window and beam angles change every ping) is
+    refused when planned, with what to use instead - no store, no worker started."""
+    import warnings
+
+    out = tmp_path / "k.zarr"
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # the shared file's truncated last ping
+        with pytest.raises(InputError, match="kongsberg water column .* `sonarmap ranges`"):
+            process_survey([data_dir / "kongsberg" / "0077_20221109_123655_Belgica.all"], out, workers=2)
+    assert not out.exists()

@@ -205,6 +205,7 @@ def _plan_run(inputs: Any, config: Any, *, chunk_size: int, geometry: Any, keep_
 
     cfg = _resolve_config(config) if ping_function is None else _maybe_config(config)
     plan = plan_survey(inputs, chunk_size=chunk_size, geometry=geometry)
+    _check_fixed_geometry(plan)
     if poses is not None and not Path(poses).is_file():
         raise DataFormatError("poses file not found", poses)
     cfg_dict = _config_dict(cfg)
@@ -212,6 +213,21 @@ def _plan_run(inputs: Any, config: Any, *, chunk_size: int, geometry: Any, keep_
                       version=__version__,
                       ping_function=_function_name(ping_function))
     return cfg, plan, cfg_dict, fp
+
+
+#: Formats whose pings change geometry from ping to ping (the range window and the beam pointing
+#: angles of a multibeam's water column), which a product store of one sonar geometry cannot hold.
+_PER_PING_GEOMETRY_FORMATS = ("kongsberg", "kmall")
+
+
+def _check_fixed_geometry(plan: SurveyPlan) -> None:
+    """Refuse, before any work, inputs whose sonar geometry changes with every ping."""
+    for path, fmt, _ in plan.files:
+        if fmt in _PER_PING_GEOMETRY_FORMATS:
+            raise InputError(
+                f"{path}: {fmt} water column changes its range window and beam angles with every ping, "
+                "which a survey store (one sonar geometry) cannot hold yet; use `sonarmap ranges` "
+                "(per-ping ranges) or `sonarmap map` (points and maps) on this recording")
 
 
 def _create_and_run(out: Path, plan: SurveyPlan, task: "_Task", cfg_dict: dict[str, Any], fp: str, *,
