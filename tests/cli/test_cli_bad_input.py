@@ -193,3 +193,16 @@ def test_lost_dask_scheduler_is_one_line(tmp_path: Path, data_dir: Path, capfd: 
     err = [ln for ln in capfd.readouterr().err.splitlines() if ln.strip()]
     assert rc == 1
     assert len(err) == 1 and err[0].startswith("sonarmap: error: dask: FutureCancelledError"), err
+
+
+@pytest.mark.parametrize("cmd", ["process", "convert"])
+def test_water_column_to_a_store_is_refused_with_what_to_use(cmd: str, tmp_path: Path, data_dir: Path,
+                                                              capsys: pytest.CaptureFixture[str]) -> None:
+    """Kongsberg water column changes its range window every ping: `process` and `convert` (zarr)
+    refuse it before any work, in one line that names the commands that do handle it."""
+    out = tmp_path / "k.zarr"
+    rc = main([cmd, str(data_dir / "kongsberg" / "0077_20221109_123655_Belgica.all"), "-o", str(out), "-q"])
+    err = capsys.readouterr().err
+    assert rc == 1 and not out.exists()
+    msg = [ln for ln in err.splitlines() if "error" in ln]
+    assert len(msg) == 1 and "every ping" in msg[0] and "sonarmap ranges" in msg[0], err

@@ -62,6 +62,8 @@ def convert(
     no_bar = quiet or not progress
     geometry = load_geometry_option(sonar)
     paths = expand_inputs([str(p) for p in inputs])
+    if kind == "zarr":
+        _refuse_per_ping_geometry(paths)
     read_kwargs: dict[str, Any] = {"topic": topic} if topic else {}
     ping_iter = read_pings(paths, geometry=geometry, **read_kwargs)
     _, ping_iter = first_ping(ping_iter, "INPUTS")  # before the bar: an unreadable input prints only its error
@@ -92,3 +94,16 @@ def register(app: typer.Typer) -> None:
     """Add the ``convert`` command to ``app``."""
     app.command("convert", epilog=example("convert recording.aris -o survey.zarr",
                                           "convert survey.zarr -o survey.bag --no-progress"))(convert)
+
+
+def _refuse_per_ping_geometry(paths: list[Path]) -> None:
+    """A zarr survey holds one range window: refuse water column whose window changes every ping."""
+    from sonarmap.errors import InputError
+    from sonarmap.io import detect_format, is_store_dir
+
+    for p in paths:
+        if not is_store_dir(p) and p.is_file() and detect_format(p) in ("kongsberg", "kmall"):
+            raise InputError(f"{p}: Kongsberg water column changes its range window with every ping, which a "
+                             "zarr survey (one range window) cannot hold yet; convert it to a ROS bag "
+                             "(--to bag2) or process it with `sonarmap ranges` / `sonarmap map`")
+
