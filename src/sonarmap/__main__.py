@@ -2,7 +2,7 @@
 
 from sonarmap.cli import run
 
-# Guarded: multiprocessing (forkserver/spawn workers of `sonarmap process`) re-imports the main
+# Guarded: multiprocessing (the spawned workers of `sonarmap process`) re-imports the main
 # module in its child processes, which must not run the CLI again.
 if __name__ == "__main__":
     run()
