@@ -383,7 +383,7 @@ def count_pings(inputs: list[Path] | list[str]) -> int | None:
     int or None
     """
     try:
-        from sonarmap.io import detect_format, expand_inputs, format_module, is_store_dir, pngjson
+        from sonarmap.io import expand_inputs, reader_for
 
         import warnings
 
@@ -392,9 +392,7 @@ def count_pings(inputs: list[Path] | list[str]) -> int | None:
             warnings.simplefilter("ignore")
             for p in expand_inputs([str(x) for x in inputs]):
                 p = Path(p)
-                fmt = "pngjson" if p.is_dir() and not is_store_dir(p) else detect_format(p)
-                mod = pngjson if fmt == "pngjson" else format_module(fmt)
-                total += int(mod.count_pings(p))
+                total += int(reader_for(p).count_pings(p))
     except Exception:  # noqa: BLE001 - the count only sizes the progress bar
         return None
     return total

@@ -25,15 +25,13 @@ def _is_geometry_json(p: Path) -> bool:
 def describe_path(path: Path, geometry: Any = None) -> dict[str, Any]:
     """Summary of a geometry JSON or any readable ping source."""
     from sonarmap.geometry import load_geometry
-    from sonarmap.io import detect_format, format_module
+    from sonarmap.io import reader_for
 
     if geometry is None and _is_geometry_json(path):
         g = load_geometry(path)
         return {"path": str(path), "kind": "geometry", **geometry_summary(g)}
-    from sonarmap.io import is_store_dir
-
-    fmt = "pngjson" if path.is_dir() and not is_store_dir(path) else detect_format(path)
-    mod = format_module(fmt)
+    mod = reader_for(path)
+    fmt = mod.FORMAT
     if hasattr(mod, "summary") and geometry is None:
         out = {k: v for k, v in mod.summary(path).items() if not k.startswith("_")}
         out.setdefault("path", str(path))

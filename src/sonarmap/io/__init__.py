@@ -1,59 +1,39 @@
 """Ping readers and writers; :func:`read_pings` is the single entry point.
 
 Formats are detected by content (magic bytes), not only by extension.  Each format module in
-:data:`FORMAT_MODULES` that exists provides::
+:data:`FORMAT_MODULES` is a :class:`~sonarmap.io.reader.Reader`::
 
     FORMAT: str                                     # short name, e.g. "aris"
     def sniff(path: Path, head: bytes) -> bool      # does this file look like our format?
-    def iter_pings(path, *, geometry=None) -> Iterator[Ping]   # lazy, bounded memory
     def count_pings(path) -> int                    # cheap (headers only)
+    def iter_pings(path, *, geometry=None, start=0, stop=None, **options) -> Iterator[Ping]
+                                                    # pings start:stop, lazy, bounded memory
 
-Directories and globs of PNG/BMP+JSON pings are handled by :mod:`sonarmap.io.pngjson`.
+:func:`~sonarmap.io.reader.reader_for` gives the reader of a path or format name.  Directories
+and globs of PNG/BMP+JSON pings are handled by :mod:`sonarmap.io.pngjson`.
 """
 
 from __future__ import annotations
 
 import glob
-import importlib
 import os
 from collections.abc import Iterable, Iterator
 from pathlib import Path
-from types import ModuleType
 from typing import Any
 
 from sonarmap.errors import DataFormatError
 from sonarmap.geometry import SonarGeometry
 from sonarmap._files import open_regular, require_regular_file
 from sonarmap.io._binary import MAX_PING_BYTES, make_summary
+from sonarmap.io.reader import FORMAT_MODULES, Reader, format_module, reader_for, reader_modules
 from sonarmap.ping import Ping
 
 __all__ = ["read_pings", "read_ping", "detect_format", "expand_inputs", "FORMAT_MODULES", "format_module",
-           "is_store_dir", "make_summary", "MAX_PING_BYTES"]
-
-#: Modules tried in order by :func:`detect_format` (those that exist).
-FORMAT_MODULES = ("zarrstore", "aris", "oculus", "ddf", "rosbag", "kongsberg", "kmall", "pngjson")
+           "is_store_dir", "make_summary", "MAX_PING_BYTES", "Reader", "reader_for", "reader_modules"]
 
 GeometrySpec = SonarGeometry | str | os.PathLike[str] | None
 
-
-def _modules() -> list[ModuleType]:
-    mods = []
-    for name in FORMAT_MODULES:
-        modname = f"sonarmap.io.{name}"
-        try:
-            mods.append(importlib.import_module(modname))
-        except ModuleNotFoundError as exc:
-            if exc.name != modname:
-                raise
-    return mods
-
-
-def format_module(name: str) -> ModuleType:
-    """The reader module for format ``name``."""
-    for mod in _modules():
-        if getattr(mod, "FORMAT", mod.__name__.rsplit(".", 1)[-1]) == name:
-            return mod
-    raise DataFormatError(f"unknown format '{name}'")
+_modules = reader_modules  # the name the fuzz harness imports
 
 
 def detect_format(path: str | os.PathLike[str]) -> str:
@@ -150,20 +130,19 @@ def read_pings(
 
     seen: set[object] = set()
     for p in paths:
-        fmt = "pngjson" if p.is_dir() and not is_store_dir(p) else detect_format(p)
-        if fmt == "pngjson":
+        reader = reader_for(p)
+        if reader.FORMAT == "pngjson":
             pngs.append(p)
             continue
-        mod = format_module(fmt)
         # a recording split over several files (Kongsberg .all + .wcd) is read once, from any of them
-        key_of = getattr(mod, "recording_key", None)
+        key_of = getattr(reader, "recording_key", None)
         if key_of is not None:
             key = key_of(p)
             if key in seen:
                 continue
             seen.add(key)
         yield from flush()
-        yield from mod.iter_pings(p, geometry=geometry, **kwargs)
+        yield from reader.iter_pings(p, geometry=geometry, **kwargs)
     yield from flush()
 
 
@@ -173,8 +152,24 @@ def is_store_dir(p: Path) -> bool:
 
 
 def read_ping(path: str | os.PathLike[str], *, geometry: GeometrySpec = None, index: int = 0) -> Ping:
-    """Read the ``index``-th ping of a file (the only ping of a PNG+JSON file)."""
-    for i, ping in enumerate(read_pings(path, geometry=geometry)):
-        if i == index:
+    """Read the ``index``-th ping of a file (the only ping of a PNG+JSON file).
+
+    A single file or directory is read through its reader's ``start``/``stop`` (the pings before
+    ``index`` are not decoded where the format has an index); a glob or several recordings are
+    read in :func:`read_pings` order.
+
+    Raises
+    ------
+    DataFormatError
+        If the input has no ping ``index`` (a negative ``index`` never matches), or cannot be read.
+    """
+    paths = expand_inputs(path)
+    if len(paths) == 1 and int(index) >= 0:
+        k = int(index)
+        for ping in reader_for(paths[0]).iter_pings(paths[0], geometry=geometry, start=k, stop=k + 1):
             return ping
+    else:
+        for i, ping in enumerate(read_pings(paths, geometry=geometry)):
+            if i == index:
+                return ping
     raise DataFormatError(f"has no ping with index {index}", path)

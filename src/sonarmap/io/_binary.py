@@ -22,6 +22,7 @@ from numpy.typing import NDArray
 
 from sonarmap.errors import DataFormatError, GeometryError, InputError, SonarmapWarning
 from sonarmap._files import open_regular
+from sonarmap.io.reader import check_ping_range
 
 __all__ = [
     "PartialFrameWarning",
@@ -29,6 +30,9 @@ __all__ = [
     "map_frames",
     "records_at",
     "check_index",
+    "iter_container_pings",
+    "iter_indexed",
+    "count_container_pings",
     "header_errors",
     "warn_partial",
     "finite_or",
@@ -272,14 +276,33 @@ def make_summary(
     return out
 
 
-def iter_container_pings(opener: Any, path: str | os.PathLike[str], geometry: Any = None) -> Iterator[Any]:
-    """Registry hook body shared by the file readers: open, yield every ping lazily, close.
+def iter_container_pings(opener: Any, path: str | os.PathLike[str], geometry: Any = None, start: int = 0,
+                         stop: int | None = None) -> Iterator[Any]:
+    """Registry hook body shared by the file readers: open, yield pings ``start:stop`` lazily, close.
 
-    ``opener`` is a reader class (``ArisFile``, ``DdfFile``, ``OculusFile``) usable as a context
-    manager that iterates over its pings.
+    ``opener`` is a reader class (``ArisFile``, ``DdfFile``, ``KongsbergFile``, ...) usable as a
+    context manager that iterates over its pings and indexes them (``f[i]``); see
+    :func:`iter_indexed`.
     """
     with opener(path, geometry=geometry) as f:
+        yield from iter_indexed(f, start, stop)
+
+
+def iter_indexed(f: Any, start: int = 0, stop: int | None = None) -> Iterator[Any]:
+    """Pings ``start:stop`` of an open reader ``f``: all of them through ``iter(f)``, else ``f[i]``
+    for the positions in range only (the others are not decoded).
+
+    Raises
+    ------
+    InputError
+        If ``start`` or ``stop`` is negative or not an integer.
+    """
+    start, stop = check_ping_range(start, stop)
+    if start == 0 and stop is None:
         yield from f
+        return
+    for i in range(*slice(start, stop).indices(len(f))):
+        yield f[i]
 
 
 def count_container_pings(opener: Any, path: str | os.PathLike[str]) -> int:

@@ -547,10 +547,21 @@ def iter_pings(
     path: str | os.PathLike[str],
     *,
     geometry: SonarGeometry | str | os.PathLike[str] | None = None,
+    start: int = 0,
+    stop: int | None = None,
     **_: Any,
 ) -> Iterator[Ping]:
-    """Lazily yield the frames of an ARIS file (memory-mapped; one image in memory at a time)."""
-    yield from iter_container_pings(ArisFile, path, geometry)
+    """Lazily yield frames ``start:stop`` of an ARIS file (memory-mapped; one image in memory at a
+    time; the frames before ``start`` are not read).
+
+    Raises
+    ------
+    InputError
+        If ``start`` or ``stop`` is not a non-negative integer.
+    DataFormatError
+        See :class:`ArisFile`.
+    """
+    yield from iter_container_pings(ArisFile, path, geometry, start, stop)
 
 
 def count_pings(path: str | os.PathLike[str]) -> int:

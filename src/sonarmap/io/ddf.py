@@ -352,10 +352,21 @@ def iter_pings(
     path: str | os.PathLike[str],
     *,
     geometry: SonarGeometry | str | os.PathLike[str] | None = None,
+    start: int = 0,
+    stop: int | None = None,
     **_: Any,
 ) -> Iterator[Ping]:
-    """Lazily yield the frames of a DDF file (memory-mapped)."""
-    yield from iter_container_pings(DdfFile, path, geometry)
+    """Lazily yield frames ``start:stop`` of a DDF file (memory-mapped; the frames before
+    ``start`` are not read).
+
+    Raises
+    ------
+    InputError
+        If ``start`` or ``stop`` is not a non-negative integer.
+    DataFormatError
+        See :class:`DdfFile`.
+    """
+    yield from iter_container_pings(DdfFile, path, geometry, start, stop)
 
 
 def count_pings(path: str | os.PathLike[str]) -> int:

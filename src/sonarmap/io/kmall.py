@@ -92,6 +92,7 @@ from sonarmap.io.kongsberg import (
     _kernels,
     _Series,
 )
+from sonarmap.io.reader import check_ping_range
 from sonarmap.ping import Ping
 
 __all__ = [
@@ -694,6 +695,35 @@ class KmallFile:
                 continue
             yield ping
 
+    def pings(self, start: int = 0, stop: int | None = None) -> Iterator[Ping]:
+        """Pings ``start:stop`` of ``iter(self)``, without decoding the complete pings before ``start``.
+
+        Iteration skips an incomplete ping that has no whole beam (with a warning), so positions
+        are those of ``list(self)``; an incomplete ping before ``start`` is decoded to learn
+        whether it counts.
+
+        Raises
+        ------
+        InputError
+            If ``start`` or ``stop`` is not a non-negative integer.
+        """
+        start, stop = check_ping_range(start, stop)
+        pos = 0
+        for rec in self.records:
+            if stop is not None and pos >= stop:
+                return
+            if pos < start and rec.mwc.complete:  # a complete ping always yields a Ping
+                pos += 1
+                continue
+            try:
+                ping = self._ping(rec)
+            except _Incomplete as exc:
+                warnings.warn(str(exc), PartialFrameWarning, stacklevel=2)
+                continue
+            if pos >= start:
+                yield ping
+            pos += 1
+
     def __enter__(self) -> KmallFile:
         return self
 
@@ -1011,10 +1041,24 @@ def sniff(path: Path, head: bytes) -> bool:
 
 
 def iter_pings(path: str | os.PathLike[str], *,
-               geometry: SonarGeometry | str | os.PathLike[str] | None = None, **_: Any) -> Iterator[Ping]:
-    """Lazily yield the water-column pings (one per ping counter and RX fan); see :class:`KmallFile`."""
+               geometry: SonarGeometry | str | os.PathLike[str] | None = None, start: int = 0,
+               stop: int | None = None, **_: Any) -> Iterator[Ping]:
+    """Lazily yield water-column pings ``start:stop`` (one per ping counter and RX fan); see
+    :class:`KmallFile` and :meth:`KmallFile.pings` (the pings before ``start`` are not decoded).
+
+    Raises
+    ------
+    InputError
+        If ``start`` or ``stop`` is not a non-negative integer.
+    DataFormatError
+        See :class:`KmallFile`.
+    """
+    start, stop = check_ping_range(start, stop)
     with KmallFile(path, geometry=geometry) as f:
-        yield from f
+        if start == 0 and stop is None:
+            yield from f
+        else:
+            yield from f.pings(start, stop)
 
 
 def sibling_paths(path: str | os.PathLike[str]) -> tuple[Path | None, Path | None]:

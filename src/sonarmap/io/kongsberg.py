@@ -77,6 +77,7 @@ from sonarmap.io._binary import (
     PartialFrameWarning,
     check_index,
     count_container_pings,
+    iter_indexed,
     header_errors,
     make_summary,
     map_file,
@@ -1419,16 +1420,26 @@ def iter_pings(
     path: str | os.PathLike[str],
     *,
     geometry: SonarGeometry | str | os.PathLike[str] | None = None,
+    start: int = 0,
+    stop: int | None = None,
     checksum: Checksum = "error",
     **_: Any,
 ) -> Iterator[Ping]:
-    """Lazily yield the water-column pings of a recording (one per ping counter and head).
+    """Lazily yield water-column pings ``start:stop`` of a recording (one per ping counter and head).
 
     Pings are in time order (ties: head serial).  Given the ``.all`` or the ``.wcd``, both files
-    of the recording are used; see :class:`KongsbergFile`.
+    of the recording are used; see :class:`KongsbergFile`.  The pings before ``start`` are not
+    decoded (the datagram index locates every ping).
+
+    Raises
+    ------
+    InputError
+        If ``start`` or ``stop`` is not a non-negative integer.
+    DataFormatError
+        See :class:`KongsbergFile`.
     """
     with KongsbergFile(path, geometry=geometry, checksum=checksum) as f:
-        yield from f
+        yield from iter_indexed(f, start, stop)
 
 
 def recording_key(path: str | os.PathLike[str]) -> tuple[str, ...]:

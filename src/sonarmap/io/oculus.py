@@ -72,6 +72,7 @@ from sonarmap.io._binary import (
     check_sound_speed,
     check_time_ns,
     count_container_pings,
+    iter_indexed,
     header_errors,
     make_summary,
     map_file,
@@ -726,18 +727,30 @@ def iter_pings(
     path: str | os.PathLike[str],
     *,
     geometry: SonarGeometry | str | os.PathLike[str] | None = None,
+    start: int = 0,
+    stop: int | None = None,
     start_time_ns: int | None = None,
     rate_hz: float | None = None,
     **_: Any,
 ) -> Iterator[Ping]:
-    """Lazily yield the pings of an Oculus stream or ViewPoint log.
+    """Lazily yield pings ``start:stop`` of an Oculus stream or ViewPoint log.
 
     Parameters
     ----------
     path : path-like
     geometry : SonarGeometry, preset name or JSON path, optional
+    start, stop : int
+        Ping positions ``[start, stop)`` (``stop`` None: to the end); the messages before
+        ``start`` are not decoded (their offsets come from the file's message index).
     start_time_ns, rate_hz : optional
         Clock of a raw network capture (see :class:`OculusFile`); ``read_pings`` passes them on.
+
+    Raises
+    ------
+    InputError
+        If ``start`` or ``stop`` is not a non-negative integer, or the clock arguments are invalid.
+    DataFormatError
+        See :class:`OculusFile`.
 
     Examples
     --------
@@ -746,7 +759,7 @@ def iter_pings(
     (66666667, 'start_time_ns+rate_hz')
     """
     with OculusFile(path, geometry=geometry, start_time_ns=start_time_ns, rate_hz=rate_hz) as f:
-        yield from f
+        yield from iter_indexed(f, start, stop)
 
 
 def count_pings(path: str | os.PathLike[str]) -> int:

@@ -397,11 +397,36 @@ def sniff(path: Path, head: bytes) -> bool:
     return False
 
 
-def iter_pings(path: Path, *, geometry: Any = None, **_: Any) -> Iterator[Ping]:
-    """Registry hook: pings of a PNG/BMP file or directory."""
-    yield from iter_png_pings(path, geometry=geometry)
+def iter_pings(
+    path: str | os.PathLike[str],
+    *,
+    geometry: SonarGeometry | str | os.PathLike[str] | None = None,
+    start: int = 0,
+    stop: int | None = None,
+    **_: Any,
+) -> Iterator[Ping]:
+    """Pings ``start:stop`` of a PNG/BMP file, directory or glob, in time-stamp order.
+
+    The file list is sorted first (:func:`find_png_pings`); only the files in range are read.  A
+    single file (not a directory or glob) is its only ping, read by :func:`read_png_ping`, which
+    reports a missing file.
+
+    Raises
+    ------
+    InputError
+        If ``start`` or ``stop`` is not a non-negative integer.
+    DataFormatError
+        See :func:`find_png_pings` and :func:`read_png_ping`.
+    """
+    from sonarmap.io.reader import check_ping_range
+
+    start, stop = check_ping_range(start, stop)
+    p = Path(path)
+    single = not p.is_dir() and not any(ch in str(p) for ch in "*?[")
+    for f in ([p] if single else find_png_pings(p))[start:stop]:
+        yield read_png_ping(f, geometry=geometry)
 
 
-def count_pings(path: Path) -> int:
-    """Registry hook: number of image files (no decoding)."""
+def count_pings(path: str | os.PathLike[str]) -> int:
+    """Number of image files of a file, directory or glob (no decoding)."""
     return len(find_png_pings(path))

@@ -62,6 +62,7 @@ from __future__ import annotations
 
 import contextlib
 import functools
+import itertools
 import json
 import math
 import os
@@ -686,6 +687,8 @@ def iter_bag_pings(
     topic: str | None = None,
     geometry: SonarGeometry | str | os.PathLike[str] | None = None,
     handedness: str = "auto",
+    start: int = 0,
+    stop: int | None = None,
 ) -> Iterator[Ping]:
     """Lazily yield the sonar pings of a ROS 1 or ROS 2 bag, in time order.
 
@@ -705,6 +708,10 @@ def iter_bag_pings(
         frame, ``y`` to port), ``"mirrored"`` ``atan2(y, forward)`` (``y`` to starboard), ``"auto"``
         decides from the data and warns (:class:`BagConventionWarning`) when it had to guess; see
         the module notes.
+    start, stop : int
+        Ping positions ``[start, stop)`` (``stop`` None: to the end).  ProjectedSonarImage and
+        ``sensor_msgs/Image`` messages before ``start`` are not deserialized (one message is one
+        ping); the other kinds are decoded and dropped (a raw Oculus message may hold no ping).
 
     Yields
     ------
@@ -724,24 +731,32 @@ def iter_bag_pings(
     --------
     >>> pings = iter_bag_pings("survey.bag", handedness="mirrored")  # doctest: +SKIP
     """
+    from sonarmap.io.reader import check_ping_range
+
     override = _reading_options(geometry, handedness)
+    start, stop = check_ping_range(start, stop)
     p = Path(path)
     reader = _open_reader(p)
     try:
         kind, conns = _select_connections(reader, p, topic, override is not None)
         if kind == "sensor_image":
             assert override is not None
-            yield from _iter_sensor_images(reader, p, conns, override)
+            yield from _iter_sensor_images(reader, p, conns, override, start, stop)
             return
         if kind != "projected":
             from sonarmap.io.rosbag_sources import iter_kind
 
-            yield from iter_kind(kind, reader, p, conns, override)
+            yield from itertools.islice(iter_kind(kind, reader, p, conns, override), start, stop)
             return
         exact = _exact_geometries(reader, p, conns)
         warned: set[str] = set()
         idx = 0
         for conn, _t, raw in _guarded(p, reader.messages(connections=conns)) if conns else ():
+            if stop is not None and idx >= stop:
+                return
+            if idx < start:
+                idx += 1
+                continue
             ping, guessed = _projected_ping(reader, conn, raw, p, idx, override, exact, handedness)
             # warned here, not in a helper: the warning's stacklevel points at our caller
             if guessed and conn.topic not in warned:
@@ -842,10 +857,17 @@ def add_exact_geometry(exact: dict[bytes, SonarGeometry], text: str, path: Path)
         return
 
 
-def _iter_sensor_images(reader: Any, path: Path, conns: list[Any], geometry: SonarGeometry) -> Iterator[Ping]:
-    """Pings of ``sensor_msgs/Image`` topics with a user geometry (see :func:`iter_bag_pings`)."""
+def _iter_sensor_images(reader: Any, path: Path, conns: list[Any], geometry: SonarGeometry, start: int = 0,
+                        stop: int | None = None) -> Iterator[Ping]:
+    """Pings ``start:stop`` of ``sensor_msgs/Image`` topics with a user geometry (see
+    :func:`iter_bag_pings`); the messages before ``start`` are not deserialized."""
     idx = 0
     for conn, _t, raw in _guarded(path, reader.messages(connections=conns)):
+        if stop is not None and idx >= stop:
+            return
+        if idx < start:
+            idx += 1
+            continue
         try:
             msg = reader.deserialize(raw, conn.msgtype)
         except Exception as exc:  # noqa: BLE001
@@ -943,10 +965,12 @@ def iter_pings(
     geometry: SonarGeometry | str | os.PathLike[str] | None = None,
     topic: str | None = None,
     handedness: str = "auto",
+    start: int = 0,
+    stop: int | None = None,
     **_: Any,
 ) -> Iterator[Ping]:
     """Registry hook: :func:`iter_bag_pings` (``read_pings(..., handedness=...)`` reaches it)."""
-    yield from iter_bag_pings(path, topic=topic, geometry=geometry, handedness=handedness)
+    yield from iter_bag_pings(path, topic=topic, geometry=geometry, handedness=handedness, start=start, stop=stop)
 
 
 def _sonar_connections(path: Path) -> tuple[Any, str, list[Any], dict[str, int]]:

@@ -62,15 +62,26 @@ def iter_pings(
     path: str | os.PathLike[str],
     *,
     geometry: SonarGeometry | str | os.PathLike[str] | None = None,
+    start: int = 0,
+    stop: int | None = None,
     **_: Any,
 ) -> Iterator[Ping]:
-    """Lazily yield the pings of a survey store (one ``ping_time`` chunk in memory).
+    """Lazily yield pings ``start:stop`` of a survey store (one ``ping_time`` chunk in memory; the
+    chunks before ``start`` are not read).
+
+    Messages about a bad value or chunk give the store's ping and chunk numbers, whatever
+    ``start`` is.
 
     Raises
     ------
+    InputError
+        If ``start`` or ``stop`` is not a non-negative integer.
     DataFormatError
         If ``path`` is a product store (``sonarmap process``): it holds no ping images.
     """
+    from sonarmap.io.reader import check_ping_range
+
+    start, stop = check_ping_range(start, stop)
     from sonarmap.io.products import is_product_store
 
     if is_product_store(path):
@@ -78,7 +89,7 @@ def iter_pings(
                               "inputs, or use sonarmap info / sonarmap show on it", path)
     ds = open_survey(path)
     g = None if geometry is None else as_geometry(geometry)
-    yield from dataset_to_pings(ds, geometry=g)
+    yield from dataset_to_pings(ds, geometry=g, start=start, stop=stop)
 
 
 def count_pings(path: str | os.PathLike[str]) -> int:

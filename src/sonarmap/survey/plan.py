@@ -132,7 +132,7 @@ def plan_survey(
     DataFormatError
         If an input does not exist or is of an unknown format.
     """
-    from sonarmap.io import detect_format, expand_inputs, format_module, is_store_dir
+    from sonarmap.io import expand_inputs, reader_for
     from sonarmap.io.pngjson import find_png_pings
 
     if isinstance(chunk_size, bool) or int(chunk_size) != chunk_size or chunk_size < 1:
@@ -146,14 +146,14 @@ def plan_survey(
             pngs.clear()
 
     for p in expand_inputs(inputs):
-        fmt = "pngjson" if p.is_dir() and not is_store_dir(p) else detect_format(p)
-        if fmt == "pngjson":
+        reader = reader_for(p)
+        if reader.FORMAT == "pngjson":
             pngs.append(p)
             continue
         flush()
-        n = int(format_module(fmt).count_pings(p))
+        n = int(reader.count_pings(p))
         if n:
-            files.append((os.path.abspath(p), fmt, n))
+            files.append((os.path.abspath(p), reader.FORMAT, n))
     flush()
     if not files:
         raise InputError("inputs: no pings found")
@@ -166,29 +166,14 @@ def plan_survey(
 
 # ============================================================================ per-chunk work
 def _iter_chunk_pings(chunk: ChunkSpec) -> Iterator[Ping]:
-    import itertools
-
-    from sonarmap.io import format_module
-    from sonarmap.io.pngjson import read_png_ping
+    """The pings of one chunk: for each ``(path, format, first, count)`` item, pings
+    ``first:first+count`` of the file through its reader's ``start``/``stop`` (the pings before
+    ``first`` are not decoded; a survey store reads only the chunks that hold them)."""
+    from sonarmap.io import reader_for
 
     for path, fmt, first, count in chunk.items:
-        if fmt == "pngjson":
-            yield read_png_ping(path, geometry=chunk.geometry)
-            continue
-        if fmt in ("zarr", "zarrstore"):  # a converted survey: read only this chunk's pings
-            from sonarmap.geometry import as_geometry
-            from sonarmap.io.dataset import dataset_to_pings
-            from sonarmap.io.dataset import open_survey as open_dataset
-
-            # Pings first:first+count of the whole store (not of a subset): messages about a bad
-            # value or chunk give the store's ping and chunk numbers.
-            g = None if chunk.geometry is None else as_geometry(chunk.geometry)
-            it: Iterator[Ping] = dataset_to_pings(open_dataset(path), geometry=g, start=first, stop=first + count)
-            first = 0
-        else:
-            it = format_module(fmt).iter_pings(Path(path), geometry=chunk.geometry)
         got = 0
-        for ping in itertools.islice(it, first, first + count):
+        for ping in reader_for(fmt).iter_pings(Path(path), geometry=chunk.geometry, start=first, stop=first + count):
             got += 1
             yield ping
         if got != count:
