@@ -22,16 +22,14 @@ from pathlib import Path
 from typing import Any
 
 from sonarmap.errors import DataFormatError
-from sonarmap.geometry import SonarGeometry
 from sonarmap._files import open_regular, require_regular_file
 from sonarmap.io._binary import MAX_PING_BYTES, make_summary
-from sonarmap.io.reader import FORMAT_MODULES, Reader, format_module, reader_for, reader_modules
+from sonarmap.io.reader import FORMAT_MODULES, GeometrySpec, Reader, format_module, reader_for, reader_modules
 from sonarmap.ping import Ping
 
 __all__ = ["read_pings", "read_ping", "detect_format", "expand_inputs", "FORMAT_MODULES", "format_module",
            "is_store_dir", "make_summary", "MAX_PING_BYTES", "Reader", "reader_for", "reader_modules"]
 
-GeometrySpec = SonarGeometry | str | os.PathLike[str] | None
 
 _modules = reader_modules  # the name the fuzz harness imports
 

@@ -60,6 +60,7 @@ from sonarmap.io._binary import (
     map_frames,
     warn_partial,
 )
+from sonarmap.io.reader import GeometrySpec
 from sonarmap.ping import Ping, Pose
 
 __all__ = [
@@ -543,24 +544,11 @@ def sniff(path: Path, head: bytes) -> bool:
     return head[:4] == MAGIC
 
 
-def iter_pings(
-    path: str | os.PathLike[str],
-    *,
-    geometry: SonarGeometry | str | os.PathLike[str] | None = None,
-    start: int = 0,
-    stop: int | None = None,
-    **_: Any,
-) -> Iterator[Ping]:
-    """Lazily yield frames ``start:stop`` of an ARIS file (memory-mapped; one image in memory at a
-    time; the frames before ``start`` are not read).
-
-    Raises
-    ------
-    InputError
-        If ``start`` or ``stop`` is not a non-negative integer.
-    DataFormatError
-        See :class:`ArisFile`.
-    """
+def iter_pings(path: str | os.PathLike[str], *, geometry: GeometrySpec = None, start: int = 0,
+               stop: int | None = None, **_: Any) -> Iterator[Ping]:
+    """:meth:`Reader.iter_pings <sonarmap.io.reader.Reader.iter_pings>` of ARIS files: frames
+    ``start:stop``, memory-mapped, one image in memory at a time; the frames before ``start`` are
+    not read.  File errors: see :class:`ArisFile`."""
     yield from iter_container_pings(ArisFile, path, geometry, start, stop)
 
 

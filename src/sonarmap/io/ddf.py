@@ -62,6 +62,7 @@ from sonarmap.io._binary import (
     map_file,
     map_frames,
 )
+from sonarmap.io.reader import GeometrySpec
 from sonarmap.ping import Ping
 
 __all__ = [
@@ -348,24 +349,11 @@ def sniff(path: Path, head: bytes) -> bool:
     return head[:3] == b"DDF" and len(head) >= 4 and head[3] in (3, 4)
 
 
-def iter_pings(
-    path: str | os.PathLike[str],
-    *,
-    geometry: SonarGeometry | str | os.PathLike[str] | None = None,
-    start: int = 0,
-    stop: int | None = None,
-    **_: Any,
-) -> Iterator[Ping]:
-    """Lazily yield frames ``start:stop`` of a DDF file (memory-mapped; the frames before
-    ``start`` are not read).
-
-    Raises
-    ------
-    InputError
-        If ``start`` or ``stop`` is not a non-negative integer.
-    DataFormatError
-        See :class:`DdfFile`.
-    """
+def iter_pings(path: str | os.PathLike[str], *, geometry: GeometrySpec = None, start: int = 0,
+               stop: int | None = None, **_: Any) -> Iterator[Ping]:
+    """:meth:`Reader.iter_pings <sonarmap.io.reader.Reader.iter_pings>` of DIDSON files: frames
+    ``start:stop``, memory-mapped; the frames before ``start`` are not read.  File errors: see
+    :class:`DdfFile`."""
     yield from iter_container_pings(DdfFile, path, geometry, start, stop)
 
 

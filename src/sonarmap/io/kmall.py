@@ -92,7 +92,7 @@ from sonarmap.io.kongsberg import (
     _kernels,
     _Series,
 )
-from sonarmap.io.reader import check_ping_range
+from sonarmap.io.reader import GeometrySpec, check_ping_range
 from sonarmap.ping import Ping
 
 __all__ = [
@@ -1040,19 +1040,11 @@ def sniff(path: Path, head: bytes) -> bool:
     return True
 
 
-def iter_pings(path: str | os.PathLike[str], *,
-               geometry: SonarGeometry | str | os.PathLike[str] | None = None, start: int = 0,
+def iter_pings(path: str | os.PathLike[str], *, geometry: GeometrySpec = None, start: int = 0,
                stop: int | None = None, **_: Any) -> Iterator[Ping]:
-    """Lazily yield water-column pings ``start:stop`` (one per ping counter and RX fan); see
-    :class:`KmallFile` and :meth:`KmallFile.pings` (the pings before ``start`` are not decoded).
-
-    Raises
-    ------
-    InputError
-        If ``start`` or ``stop`` is not a non-negative integer.
-    DataFormatError
-        See :class:`KmallFile`.
-    """
+    """:meth:`Reader.iter_pings <sonarmap.io.reader.Reader.iter_pings>` of KMALL recordings:
+    water-column pings ``start:stop`` (one per ping counter and RX fan); the pings before ``start``
+    are not decoded (:meth:`KmallFile.pings`).  File errors: see :class:`KmallFile`."""
     start, stop = check_ping_range(start, stop)
     with KmallFile(path, geometry=geometry) as f:
         if start == 0 and stop is None:

@@ -32,6 +32,7 @@ from numpy.typing import NDArray
 from sonarmap._atomic import atomic_path, atomic_write_text
 from sonarmap.errors import DataFormatError, GeometryError
 from sonarmap.geometry import SonarGeometry, geometry_from_json_bytes, as_geometry
+from sonarmap.io.reader import GeometrySpec
 from sonarmap._files import MAX_SIDECAR_BYTES, open_regular, read_bytes_bounded, require_regular_file
 from sonarmap.ping import Ping
 
@@ -397,26 +398,14 @@ def sniff(path: Path, head: bytes) -> bool:
     return False
 
 
-def iter_pings(
-    path: str | os.PathLike[str],
-    *,
-    geometry: SonarGeometry | str | os.PathLike[str] | None = None,
-    start: int = 0,
-    stop: int | None = None,
-    **_: Any,
-) -> Iterator[Ping]:
-    """Pings ``start:stop`` of a PNG/BMP file, directory or glob, in time-stamp order.
+def iter_pings(path: str | os.PathLike[str], *, geometry: GeometrySpec = None, start: int = 0,
+               stop: int | None = None, **_: Any) -> Iterator[Ping]:
+    """Pings ``start:stop`` of a PNG/BMP file, directory or glob, in time-stamp order (the reader protocol).
 
     The file list is sorted first (:func:`find_png_pings`); only the files in range are read.  A
     single file (not a directory or glob) is its only ping, read by :func:`read_png_ping`, which
-    reports a missing file.
-
-    Raises
-    ------
-    InputError
-        If ``start`` or ``stop`` is not a non-negative integer.
-    DataFormatError
-        See :func:`find_png_pings` and :func:`read_png_ping`.
+    reports a missing file.  Errors: as :meth:`Reader.iter_pings <sonarmap.io.reader.Reader.iter_pings>`;
+    file errors: see :func:`find_png_pings` and :func:`read_png_ping`.
     """
     from sonarmap.io.reader import check_ping_range
 

@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from sonarmap.errors import DataFormatError
-from sonarmap.geometry import SonarGeometry, as_geometry
+from sonarmap.geometry import as_geometry
 from sonarmap.io._binary import make_summary
 from sonarmap._files import MAX_SIDECAR_BYTES, read_bytes_bounded
 from sonarmap.io.dataset import (
@@ -33,6 +33,7 @@ from sonarmap.io.dataset import (
     open_survey,
     survey_geometries,
 )
+from sonarmap.io.reader import GeometrySpec
 from sonarmap.ping import Ping
 
 __all__ = ["FORMAT", "sniff", "iter_pings", "count_pings", "summary"]
@@ -58,26 +59,14 @@ def sniff(path: Path, head: bytes) -> bool:
     return False
 
 
-def iter_pings(
-    path: str | os.PathLike[str],
-    *,
-    geometry: SonarGeometry | str | os.PathLike[str] | None = None,
-    start: int = 0,
-    stop: int | None = None,
-    **_: Any,
-) -> Iterator[Ping]:
-    """Lazily yield pings ``start:stop`` of a survey store (one ``ping_time`` chunk in memory; the
-    chunks before ``start`` are not read).
+def iter_pings(path: str | os.PathLike[str], *, geometry: GeometrySpec = None, start: int = 0,
+               stop: int | None = None, **_: Any) -> Iterator[Ping]:
+    """:meth:`Reader.iter_pings <sonarmap.io.reader.Reader.iter_pings>` of survey stores: pings
+    ``start:stop``, one ``ping_time`` chunk in memory; the chunks before ``start`` are not read.
 
     Messages about a bad value or chunk give the store's ping and chunk numbers, whatever
-    ``start`` is.
-
-    Raises
-    ------
-    InputError
-        If ``start`` or ``stop`` is not a non-negative integer.
-    DataFormatError
-        If ``path`` is a product store (``sonarmap process``): it holds no ping images.
+    ``start`` is.  A product store (``sonarmap process``) holds no ping images and is refused
+    with a ``DataFormatError``.
     """
     from sonarmap.io.reader import check_ping_range
 
