@@ -25,8 +25,8 @@ def _problem(index: int):  # type: ignore[no-untyped-def]
     cfg = PipelineConfig()
     ping = list(read_pings(Path(DATA) / "didson" / "test"))[index]
     img = preprocess_image(ping.image, ping.geometry, cfg.preprocess_config())
-    levels = np.ascontiguousarray(quantize(img, cfg.n_levels))
-    cost = _cost_lut(_fit(levels, cfg), cfg.object_prior_min, cfg.speckle_eps)
+    levels = np.ascontiguousarray(quantize(img, cfg.fit.n_levels))
+    cost = _cost_lut(_fit(levels, cfg), cfg.classify.object_prior_min, cfg.classify.speckle_eps)
     return cfg, levels, cost, gather_costs(levels, cost)
 
 
@@ -37,9 +37,9 @@ def run(quick: bool) -> list[dict]:
     rep = 10 if quick else 50
     for index, name in ((4, "hull (test 4)"), (7, "propeller (test 7)")):
         cfg, levels, cost, unary = _problem(index)
-        lv = {"beta": cfg.beta, "neighbourhood": cfg.neighbourhood, "range_weight": cfg.range_weight}
-        wt = mrf.pairwise_weights(levels.shape, beta=cfg.beta, neighbourhood=cfg.neighbourhood,
-                                  range_weight=cfg.range_weight)
+        lv = {"beta": cfg.classify.beta, "neighbourhood": cfg.classify.neighbourhood, "range_weight": cfg.classify.range_weight}
+        wt = mrf.pairwise_weights(levels.shape, beta=cfg.classify.beta, neighbourhood=cfg.classify.neighbourhood,
+                                  range_weight=cfg.classify.range_weight)
         r = mrf.solve_graphcut_levels(levels, cost, **lv)
         full_ms = timeit(lambda: mrf.solve_graphcut(unary, weights=wt, reduce=False), repeat=max(3, rep // 5))
         t = timeit(lambda: mrf.solve_graphcut_levels(levels, cost, **lv), repeat=rep)

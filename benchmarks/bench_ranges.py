@@ -30,19 +30,19 @@ def run(quick: bool) -> list[dict]:
             pr = process_ping(p, keep_labels=True)
             if pr.fit is None or pr.gates:
                 continue
-            mask = component_rule(pr.labels >= 1, c.min_component_beams, c.min_component_bins, c.link_beams,
-                                  c.min_component_pixels)
-            cases.append((mask, pr.image, p.geometry, quantize(pr.image, c.n_levels), np.maximum(level_llr(pr.fit), 0.0)))
+            mask = component_rule(pr.labels >= 1, c.candidates.min_component_beams, c.candidates.min_component_bins, c.candidates.link_beams,
+                                  c.candidates.min_component_pixels)
+            cases.append((mask, pr.image, p.geometry, quantize(pr.image, c.fit.n_levels), np.maximum(level_llr(pr.fit), 0.0)))
         it = itertools.cycle(cases)
 
         def stage() -> None:
             mask, img, geom, levels, lut = next(it)
-            track_surfaces(find_echoes(mask, img, geom, levels=levels, level_evidence=lut), c.track)
+            track_surfaces(find_echoes(mask, img, geom, levels=levels, level_evidence=lut), c.ranges.track)
 
         rows.append({"benchmark": "ranges", "case": f"find_echoes + track_surfaces, {name}",
                      "median_ms": timeit(stage, repeat=rep), "target_ms": 0.3 if name.startswith("DIDSON") else None})
         # the whole default against the previous per-beam rules, interleaved ping by ping
-        rules = PipelineConfig(tracker="rules")
+        rules = PipelineConfig().replace(tracker="rules")
         cfg = PipelineConfig()
         t_new, t_old = interleaved(lambda p: process_ping(p, cfg), lambda p: process_ping(p, rules), pings,
                                    rounds=max(rep // len(pings), 3))

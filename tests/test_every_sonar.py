@@ -87,7 +87,7 @@ def test_real_aris_faint_end_of_the_target_is_followed(aris_pings):
         near_end = process_ping(p).ranges.range_m[28:40]
         assert np.count_nonzero((near_end > 15.3) & (near_end < 16.0)) >= (10 if k < 2 else 7), (k, near_end)
     for p in aris_pings[:2]:
-        near_end = process_ping(p, PipelineConfig(continue_evidence=0)).ranges.range_m[28:40]
+        near_end = process_ping(p, PipelineConfig().replace(continue_evidence=0)).ranges.range_m[28:40]
         assert np.count_nonzero((near_end > 15.3) & (near_end < 16.0)) <= 1
 
 
@@ -98,7 +98,7 @@ def test_real_aris_target_is_bridged_where_a_line_behind_took_beams(aris_pings):
     p = aris_pings[4]
     bridged = process_ping(p).ranges.range_m[30:33]
     assert np.all((bridged > 15.5) & (bridged < 15.9)), bridged
-    plain = process_ping(p, PipelineConfig(track={"bridge_beams": 0})).ranges.range_m[30:33]
+    plain = process_ping(p, PipelineConfig().replace(track={"bridge_beams": 0})).ranges.range_m[30:33]
     assert np.all(plain > 17.0), plain
 
 

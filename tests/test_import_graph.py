@@ -38,7 +38,7 @@ STAGES: dict[str, int] = {
     "stats": 3,
     "classify": 4,
     "ranges": 5,
-    "pipeline": 6,
+    "pipeline": 6, "config": 6,
     "mapping": 7, "simulate": 7,
     "plots": 8, "survey": 8,
     "report": 9, "live": 9,

@@ -22,18 +22,18 @@ def test_config_validation_names_key(tmp_path):
     with pytest.raises(InputError, match="unknown key 'betta'"):
         PipelineConfig.from_dict({"betta": 1.0})
     with pytest.raises(InputError, match="beta"):
-        PipelineConfig(beta=-1.0)
+        PipelineConfig().replace(beta=-1.0)
     with pytest.raises(InputError, match="method"):
-        PipelineConfig(method="magic")
+        PipelineConfig().replace(method="magic")
     with pytest.raises(InputError, match="neighbourhood"):
-        PipelineConfig(neighbourhood=6)
+        PipelineConfig().replace(neighbourhood=6)
     with pytest.raises(InputError, match="cfar_train"):
-        PipelineConfig(cfar_train=41)
-    cfg = PipelineConfig(method="cfar-os", beta=0.5, families=["exponential", "rayleigh", "rayleigh"])
+        PipelineConfig().replace(cfar_train=41)
+    cfg = PipelineConfig().replace(method="cfar-os", beta=0.5, families=["exponential", "rayleigh", "rayleigh"])
     assert PipelineConfig.from_dict(cfg.to_dict()) == cfg
     toml = tmp_path / "p.toml"
     toml.write_text('[pipeline]\nmethod = "map"\nmin_run = 3\n')
-    assert PipelineConfig.from_toml(toml) == PipelineConfig(method="map", min_run=3)
+    assert PipelineConfig.from_toml(toml) == PipelineConfig().replace(method="map", min_run=3)
     toml.write_text('[pipeline]\nmin_run = "x"\n')
     with pytest.raises(InputError, match="min_run"):
         PipelineConfig.from_toml(toml)
@@ -74,7 +74,7 @@ def test_pipeline_is_pure(test_pings):
 def test_constant_pings_give_no_returns(test_pings, value):
     p = test_pings[0].replace(image=np.full(test_pings[0].shape, value, np.float32))
     for method in ("mrf", "map", "threshold", "cfar-so"):
-        prod = process_ping(p, PipelineConfig(method=method))
+        prod = process_ping(p, PipelineConfig().replace(method=method))
         assert prod.ranges.n_returns == 0
         assert "no_returns" in prod.flags
 
@@ -82,10 +82,10 @@ def test_constant_pings_give_no_returns(test_pings, value):
 def test_other_methods_and_solvers_run(test_pings):
     p = test_pings[8]
     ref = process_ping(p, PipelineConfig()).ranges
-    icm = process_ping(p, PipelineConfig(solver="icm")).ranges
+    icm = process_ping(p, PipelineConfig().replace(solver="icm")).ranges
     assert np.mean(np.abs(icm.bin[ref.valid & icm.valid] - ref.bin[ref.valid & icm.valid]) <= 3) > 0.9
     for m in ("map", "threshold", "cfar-ca", "cfar-go", "cfar-os"):
-        prod = process_ping(p, PipelineConfig(method=m))
+        prod = process_ping(p, PipelineConfig().replace(method=m))
         assert prod.ranges.n_beams == 96
 
 
@@ -158,8 +158,8 @@ def test_band_pooling_recovers_speckled_survey_band():
     # the stated DIDSON PSF with independent speckle per beam: a diffuse, fragmented band
     s = simulate_survey(n_pings=3, seed=1, kind="hull", sim_config=SimulationConfig(ghosts="incoherent"))
     p = s.pings[2]
-    assert process_ping(p, PipelineConfig(pool_factor=0.0)).ranges.n_returns == 0
-    r = process_ping(p, PipelineConfig(pool_factor=6.0, pool_beams=4, pool_mode="fallback")).ranges
+    assert process_ping(p, PipelineConfig().replace(pool_factor=0.0)).ranges.n_returns == 0
+    r = process_ping(p, PipelineConfig().replace(pool_factor=6.0, pool_beams=4, pool_mode="fallback")).ranges
     assert r.n_returns >= 40
     truth = s.sim_truth[2].first_return_bin
     err = np.abs(r.bin[r.valid] - truth[r.valid])
@@ -179,7 +179,7 @@ def test_pool_config_validation():
 
     for bad in (dict(pool_factor=-1.0), dict(pool_beams=-1), dict(pool_bins=0), dict(pool_min_beams=0)):
         with pytest.raises(InputError):
-            PipelineConfig(**bad)
+            PipelineConfig().replace(**bad)
     assert PipelineConfig.from_dict(PipelineConfig().to_dict()) == PipelineConfig()
 
 
@@ -221,13 +221,13 @@ def test_pool_fill_only_adds_returns_on_empty_beams():
     s = simulate_survey(n_pings=6, seed=3, kind="seafloor")
     added = 0
     for p in s.pings:
-        a = process_ping(p, PipelineConfig(pool_factor=0.0, tracker="rules")).ranges
-        b = process_ping(p, PipelineConfig(tracker="rules")).ranges
+        a = process_ping(p, PipelineConfig().replace(pool_factor=0.0, tracker="rules")).ranges
+        b = process_ping(p, PipelineConfig().replace(tracker="rules")).ranges
         assert np.array_equal(b.bin[a.valid], a.bin[a.valid])
         added += int(b.n_returns - a.n_returns)
     assert added > 0
     with pytest.raises(Exception, match="pool_mode"):
-        PipelineConfig(pool_mode="always")
+        PipelineConfig().replace(pool_mode="always")
 
 
 def test_component_pixel_rule_keeps_compact_targets_drops_fish_sized_blobs():

@@ -28,7 +28,7 @@ def test_the_dark_background_sits_on_the_bottom_levels(dark_hull):
 
 
 def test_without_the_floor_the_ping_is_refused(dark_hull):
-    out = process_ping(dark_hull.ping, PipelineConfig(max_floor_levels=0))
+    out = process_ping(dark_hull.ping, PipelineConfig().replace(max_floor_levels=0))
     assert "kld" in out.gates and out.ranges.n_returns == 0 and out.floor_levels == 0
 
 
@@ -51,7 +51,7 @@ def test_a_ping_whose_fit_passes_is_modelled_as_recorded():
     g = preset("oculus-m750d-like")
     sim = simulate_ping(scene_from_name("propeller", geometry=g), g, config=preset_sim_configs(g)[0], seed=0)
     a = process_ping(sim.ping, PipelineConfig())
-    b = process_ping(sim.ping, PipelineConfig(max_floor_levels=0))
+    b = process_ping(sim.ping, PipelineConfig().replace(max_floor_levels=0))
     assert a.floor_levels == 0
     np.testing.assert_array_equal(a.ranges.range_m, b.ranges.range_m)
 
@@ -78,7 +78,7 @@ def test_max_floor_levels_is_validated():
     from sonarmap.errors import InputError
 
     with pytest.raises(InputError, match="max_floor_levels"):
-        PipelineConfig(max_floor_levels=-1)
+        PipelineConfig().replace(max_floor_levels=-1)
 
 
 def test_report_summarises_the_floor():

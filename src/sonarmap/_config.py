@@ -9,7 +9,8 @@ from typing import Any
 
 from sonarmap.errors import InputError
 
-__all__ = ["is_finite_number", "config_table", "check_field_names"]
+__all__ = ["is_finite_number", "config_table", "check_field_names", "config_error", "coerce_reals", "check_integers",
+           "check_booleans", "check_choice"]
 
 
 def is_finite_number(v: Any) -> bool:
@@ -55,3 +56,60 @@ def check_field_names(d: Mapping[str, Any], cls: type, name: str) -> None:
     for key in d:
         if key not in known:
             raise InputError(f"{name}.{key}: unknown key (expected {sorted(known)})")
+
+
+def config_error(where: str, key: str, what: str, value: Any) -> InputError:
+    """``InputError("<where><key>: <what> (got <value>)")``: the one message form of a bad option.
+
+    ``where`` names the configuration and ends with its separator (``"track config: "``,
+    ``"pipeline config: classify."``).
+    """
+    return InputError(f"{where}{key}: {what} (got {value!r})")
+
+
+def coerce_reals(obj: Any, keys: tuple[str, ...], where: str, *, minimum: float | None = None) -> None:
+    """Check that the fields ``keys`` of the frozen dataclass ``obj`` are finite numbers (and
+    ``>= minimum`` when given) and store them as ``float``.
+
+    Raises
+    ------
+    InputError
+        Naming the first bad field (:func:`config_error`).
+    """
+    for key in keys:
+        v = getattr(obj, key)
+        if not is_finite_number(v) or (minimum is not None and v < minimum):
+            what = "must be a finite number" + ("" if minimum is None else f" >= {minimum:g}")
+            raise config_error(where, key, what, v)
+        object.__setattr__(obj, key, float(v))
+
+
+def check_integers(obj: Any, table: tuple[tuple[str, int], ...], where: str) -> None:
+    """Check that every field ``key`` of ``(key, lo)`` in ``table`` is an integer (not a bool) >= ``lo``.
+
+    Raises
+    ------
+    InputError
+        "``<where><key>``: must be an integer >= lo (got ...)".
+    """
+    for key, lo in table:
+        v = getattr(obj, key)
+        if isinstance(v, bool) or not isinstance(v, int) or v < lo:
+            raise config_error(where, key, f"must be an integer >= {lo}", v)
+
+
+def check_booleans(obj: Any, keys: tuple[str, ...], where: str) -> None:
+    """Check that the fields ``keys`` are ``True`` or ``False``."""
+    for key in keys:
+        v = getattr(obj, key)
+        if not isinstance(v, bool):
+            raise config_error(where, key, "must be true or false", v)
+
+
+def check_choice(obj: Any, key: str, choices: tuple[str, ...], where: str) -> None:
+    """Check that field ``key`` is one of ``choices`` ("must be 'a' or 'b'" / "must be one of a, b, c")."""
+    v = getattr(obj, key)
+    if v not in choices:
+        what = (f"must be '{choices[0]}' or '{choices[1]}'" if len(choices) == 2
+                else f"must be one of {', '.join(choices)}")
+        raise config_error(where, key, what, v)

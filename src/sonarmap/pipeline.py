@@ -31,414 +31,19 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import os
-import tomllib
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from sonarmap._config import config_table, is_finite_number
+from sonarmap._config import is_finite_number
+from sonarmap.config import METHODS, SOLVER_NAMES, PipelineConfig
 from sonarmap.errors import FitError, InputError
 from sonarmap.ping import Ping
 from sonarmap.ranges import BeamRanges, component_rule, drop_small_components, extract_ranges, half_peak_edges, no_returns
 
 __all__ = ["PipelineConfig", "PingProducts", "process_ping", "classify_image", "pooled_band_pixels", "pooled_band_mask", "pulse_bins", "measurement_image", "METHODS", "SOLVER_NAMES"]
 
-METHODS = ("mrf", "map", "threshold", "cfar-ca", "cfar-so", "cfar-go", "cfar-os")
-SOLVER_NAMES = ("graphcut", "icm", "anneal", "expansion")
-_PREPROCESS_RECIPES = ("paper-table1", "default", "paper-background", "none")
-
-
-@dataclasses.dataclass(frozen=True)
-class PipelineConfig:
-    """Validated configuration of :func:`process_ping` (defaults = the most accurate pipeline).
-
-    Parameters
-    ----------
-    preprocess : str or PreprocessConfig
-        A recipe name (``"paper-table1"``, ``"default"``, ``"paper-background"``, ``"none"``) or an
-        explicit :class:`sonarmap.preprocess.pipeline.PreprocessConfig`; applied to images that
-        are not normalised (thresholded images such as DIDSON's).
-    normalise : str
-        ``"auto"``: images without a zero spike (ARIS, Oculus, water column) are normalised by
-        their own background level (:mod:`sonarmap.preprocess.normalise`) instead of being
-        pre-processed; ``"off"``: always the ``preprocess`` recipe.
-    method : str
-        ``"mrf"``, ``"map"`` (local MAP), ``"threshold"`` (fixed), or ``"cfar-ca|so|go|os"``.
-    solver : str
-        MRF solver: ``"graphcut"`` (exact; alpha-expansion for > 2 classes), ``"icm"``,
-        ``"anneal"`` (the paper's), ``"expansion"``.
-    beta : float
-        Potts weight of eq. 22.
-    neighbourhood : int
-        4 or 8.
-    contrast : bool
-        Contrast-sensitive pairwise weights.
-    range_weight : float
-        Factor on the Potts weight along range (anisotropic prior): surfaces are thin in range and
-        long across beams; 0.25 keeps 1-3-bin surfaces intact while smoothing across beams.
-    object_prior_min : float
-        Lower bound on each object class's prior in the MRF unary.  The fitted object weight of
-        a ping with a thin, faint surface can be ~0.001 (Table I image 6), which makes the
-        posterior reject the surface however clearly it stands out; the Potts prior (not the
-        class prior) is then what should suppress speckle.
-    speckle_eps : float
-        Speckle-robust object likelihood ``(1 - eps) p(y|object) + eps p(y|background)`` in the
-        MRF unary (0: the paper's model, where a zero pixel can never be structure).
-    grow_prior_min, grow_beta : float
-        Hysteresis growth (MRF only; off when ``grow_prior_min`` is 0): a second, more permissive
-        cut (object prior raised to ``grow_prior_min``, Potts weight ``grow_beta``) labels faint
-        structure, which is kept only where it is 8-connected to the first cut's structure -
-        faint low-incidence continuations of a surface are recovered, isolated faint blobs are not.
-    families : tuple of str
-        Mixture families after the zero spike (background first).
-    fit_method : str
-        ``"em"`` or ``"lsq"``.
-    fit_tol : float
-        EM relative log-likelihood tolerance.
-    n_levels : int
-        Quantisation levels of the histogram.
-    threshold : float
-        Intensity threshold of ``method="threshold"`` (eq. 14), on the pre-processed image.
-    cfar_train, cfar_guard : int
-        CFAR training / guard cells along range (total, even); sonar-SLAM: 40 / 10.
-    cfar_pfa : float
-        CFAR design false-alarm probability (sonar-SLAM: 0.1).
-    cfar_two_d : bool
-        2-D CFAR window (range x beams).
-    range_mode : str
-        ``"first"`` or ``"strongest"``.
-    min_run : int
-        First return: minimum run of consecutive structure bins.
-    reject_isolated : bool
-        Drop returns without support in neighbouring beams.
-    neighbour_beams, max_jump_bins : int
-        Support window and range tolerance of the consistency rules.
-    min_segment_beams : int
-        Drop runs of consistent returns narrower than this many consecutive beams.
-    refine_bins, edge_factor : int, float
-        Leading-edge refinement of first returns (0 = off): up to ``refine_bins`` bins towards
-        the sonar while the local mean intensity is >= ``edge_factor`` x the fitted background
-        class's mean intensity.
-    min_component_beams, min_component_bins, min_component_pixels : int
-        Drop 8-connected structure components spanning fewer than ``min_component_beams`` beams
-        *and* fewer than ``min_component_bins`` range bins *and* holding fewer than
-        ``min_component_pixels`` pixels (fish, speckle: on the real fish-only pings 1-3 every
-        component has <= 25 pixels; a simulated propeller blade seen edge-on, 13-14 beams wide,
-        has 55-64).
-    link_beams : int
-        Keep rejected components within this many beams (and 1 bin) of kept ones.
-    normalised_component_beams, normalised_component_bins, normalised_component_pixels : int
-        The same three component thresholds for normalised images, whose multi-look box
-        correlates neighbouring pixels: i.i.d. exponential speckle of 512 x 96, 2000 x 48 and
-        703 x 256 pixels, normalised and segmented, leaves components of at most 65 pixels,
-        17 beams and 13 bins (8 seeds each; ``docs/segmentation.md``).
-    min_component_extent_m : float
-        Drop structure components smaller than this in both cross-range (arc length at their far
-        edge) and range extent: fish, particles and interference dashes, whatever the beam count
-        (0 = off).
-    pool_mode : str
-        ``"fill"``: band pooling adds returns on the beams the per-pixel route left empty (its
-        returns are kept as they are); ``"fallback"``: only when the per-pixel route found fewer
-        than ``pool_min_beams`` returns, on every beam.
-    pool_factor, pool_beams, pool_bins, pool_min_beams : float, int, int, int
-        Band pooling (off when ``pool_factor`` is 0): the pre-processed image is averaged over a
-        box of ``pool_bins`` range bins x ``2 pool_beams + 1`` beams (multi-look across beams),
-        thresholded at ``pool_factor`` x the fitted background class's mean intensity, and its
-        8-connected components spanning >= ``pool_min_beams`` beams are surfaces; on each of
-        their beams the strongest pixel of the component's first run is a structure pixel that
-        bypasses the component rule (no leading-edge refinement).  Recovers thin surface bands
-        of single-look speckle that the per-pixel model leaves in fragments of 0-5 pixels per
-        beam; fish schools and speckle do not span ``pool_min_beams`` beams.  Not applied to
-        normalised images, which are multi-looked already.
-    edge_fraction : float
-        The range convention: a return's range is the first crossing of this fraction of its
-        echo's first peak (:mod:`sonarmap.ranges.echoes`).  With ``tracker="rules"`` it applies to
-        normalised images only (0 = the first structure pixel).
-    tracker : str
-        ``"surface"``: per-beam echoes of the candidate structure, tracked across beams by the
-        surface model (:mod:`sonarmap.ranges.tracking`); every return is an echo's leading edge
-        with a sigma.  ``"rules"``: the previous per-beam rules (isolated-return rule,
-        leading-edge refinement, band pooling at the band's peak), kept for comparison.
-    track : TrackConfig or dict, optional
-        Costs of the surface model (default :class:`sonarmap.ranges.tracking.TrackConfig`).
-    pulse_length_m : float, optional
-        Transmit pulse length along range (``c tau / 2``); echoes are measured on the image
-        smoothed over it.  Default: from the ping (``meta["pulse_width_us"]``, ARIS), else none.
-    edge_scan : str
-        How the leading-edge crossing is found (:func:`sonarmap.ranges.echoes.find_echoes`):
-        ``"back"`` (walk from the first peak towards the sonar to the first bin below the level;
-        better on the simulated ARIS pings) or ``"forward"`` (the first bin from in front of the
-        echo that reaches the level).
-    edge_pool_beams : int
-        Leading edges of a tracked surface are measured on the mean of the edge-aligned profiles
-        of the ``edge_pool_beams`` beams on either side of each beam on the same surface
-        (:func:`sonarmap.ranges.echoes.pooled_edges`: a multi-look along the surface; a single
-        beam's speckled echo moves its half-peak crossing by bins).  0 = every beam on its own.
-    continue_evidence : float
-        Surface continuation (:func:`sonarmap.ranges.tracking.continuation_mask`): a tracked
-        surface of >= 5 beams is followed beyond its ends along its slope where, in a window of its
-        echo thickness, the pixels' log-likelihood ratio under the ping's fit sums to at least this
-        many nats (a faint stretch the component rule left without candidates); those pixels
-        become candidates and the surfaces are tracked again.  0 = off.
-    sigma_scale : float
-        Calibration of the speckle-jitter term of the sigma of a return measured on its own beam
-        (``edge_pool_beams=0``, or a surface of fewer than 3 beams;
-        :func:`sonarmap.ranges.echoes.range_sigma_m`), fitted on the simulator with the per-beam
-        edges: with 1.5, 73 % of the errors of returns on their surface (within 3 bins) lay
-        within +-sigma over the four sonar presets.  A return on the wrong echo is not covered by
-        its sigma.
-    sigma_pool_scale : float
-        Sigma of a pooled leading edge (:func:`sonarmap.ranges.echoes.edge_sigma_m`): the mean
-        profile's standard error at the crossing over its rise per bin, times this factor
-        (neighbouring beams share speckle through the main lobe and their windows overlap),
-        fitted on the simulator so that 68 % of the errors lie within +-sigma
-        (``docs/segmentation.md``).  Every return's sigma also covers the clipping of its echo
-        (:data:`CLIP_LEVEL`: the interval from the crossing to the first sample at full scale).
-    log_dynamic_range_db : float, optional
-        The raw samples are log-compressed, ``dynamic range`` dB per unit of pixel value (ARIS):
-        echoes of normalised images are measured in linear intensity.  Default: the ping's
-        ``meta["log_dynamic_range_db"]``, else linear samples.
-    max_kld, max_object_weight, min_separation : float
-        Fit gates (:func:`sonarmap.stats.gates.fit_gates`): a ping whose fit fails one yields no
-        returns and carries the gate's name in its flags.
-    max_floor_levels : int
-        The quantisation floor.  An 8-bit ping whose fit fails the KL-divergence gate is modelled
-        again with the lowest ``n = 1, 2, ..`` levels of the image the classifier sees merged into
-        the zero level (its level histogram shifted down by ``n`` and refitted; the image shifted
-        by ``n`` levels, clamped at 0), up to this many; the first ``n`` whose fit passes every
-        gate is used and reported as :attr:`PingProducts.floor_levels`.  A ping that no floor
-        explains costs ``max_floor_levels`` further histogram fits.  A background
-        whose bulk lies on the bottom two or three levels of the 8-bit grid (the dark water column
-        of an Oculus after its automatic gain has lowered the gain for a bright hull) has no shape
-        the grid resolves - its histogram falls by 5-30x per level, an exponential of less than
-        one level - and the mixture's zero spike then takes it as it takes a thresholded
-        receiver's zeros.  Pings whose first fit passes (every DIDSON, ARIS, Oculus and Kongsberg
-        recording) are unchanged.  0 = off.
-    """
-
-    preprocess: Any = "paper-table1"
-    normalise: str = "auto"
-    method: str = "mrf"
-    solver: str = "graphcut"
-    beta: float = 2.0
-    neighbourhood: int = 4
-    contrast: bool = False
-    range_weight: float = 0.25
-    object_prior_min: float = 0.2
-    speckle_eps: float = 0.0
-    grow_prior_min: float = 0.0
-    grow_beta: float = 1.0
-    families: tuple[str, ...] = ("exponential", "rayleigh")
-    fit_method: str = "em"
-    fit_tol: float = 1e-6
-    n_levels: int = 256
-    threshold: float = 0.3
-    cfar_train: int = 40
-    cfar_guard: int = 10
-    cfar_pfa: float = 0.1
-    cfar_two_d: bool = False
-    range_mode: str = "first"
-    min_run: int = 1
-    reject_isolated: bool = True
-    neighbour_beams: int = 2
-    max_jump_bins: int = 20
-    min_segment_beams: int = 1
-    min_component_beams: int = 16
-    min_component_bins: int = 16
-    link_beams: int = 4
-    min_component_pixels: int = 40
-    normalised_component_beams: int = 24
-    normalised_component_bins: int = 24
-    normalised_component_pixels: int = 100
-    min_component_extent_m: float = 0.02
-    refine_bins: int = 8
-    edge_factor: float = 4.0
-    pool_factor: float = 4.0
-    pool_beams: int = 2
-    pool_bins: int = 3
-    pool_min_beams: int = 40
-    pool_mode: str = "fill"
-    max_kld: float = 0.05
-    max_floor_levels: int = 4
-    edge_fraction: float = 0.5
-    tracker: str = "surface"
-    track: Any = None
-    pulse_length_m: float | None = None
-    edge_scan: str = "back"
-    edge_pool_beams: int = 3
-    continue_evidence: float = 10.0
-    sigma_scale: float = 1.5
-    sigma_pool_scale: float = 5.0
-    log_dynamic_range_db: float | None = None
-    max_object_weight: float = 0.5
-    min_separation: float = 1.9
-
-    def __post_init__(self) -> None:
-        self._coerce_stage_configs()
-        self._check_choices()
-        self._check_reals()
-        self._check_integers()
-
-    def _bad(self, key: str, what: str) -> InputError:
-        """The error for option ``key`` holding an invalid value."""
-        return InputError(f"pipeline config: {key}: {what} (got {getattr(self, key)!r})")
-
-    def _coerce_stage_configs(self) -> None:
-        """``preprocess`` and ``track``: a recipe name or a stage config (tables become configs)."""
-        from sonarmap.preprocess.pipeline import PreprocessConfig
-
-        pre = self.preprocess
-        if isinstance(pre, dict):
-            object.__setattr__(self, "preprocess", PreprocessConfig.from_dict(pre))
-        elif isinstance(pre, str):
-            if pre not in _PREPROCESS_RECIPES:
-                raise self._bad("preprocess", f"must be one of {', '.join(_PREPROCESS_RECIPES)} or a table")
-        elif not isinstance(pre, PreprocessConfig):
-            raise self._bad("preprocess", "must be a recipe name or a preprocess table")
-        from sonarmap.ranges.tracking import TrackConfig
-
-        if self.track is None:
-            object.__setattr__(self, "track", TrackConfig())
-        elif isinstance(self.track, dict):
-            object.__setattr__(self, "track", TrackConfig(**config_table(self.track, TrackConfig,
-                                                                         "pipeline config: track")))
-        elif not isinstance(self.track, TrackConfig):
-            raise self._bad("track", "must be a track table")
-
-    def _check_choices(self) -> None:
-        """The named choices (tracker, edge scan, normalisation, method, solver) and optional lengths."""
-        if self.tracker not in ("surface", "rules"):
-            raise self._bad("tracker", "must be 'surface' or 'rules'")
-        if self.edge_scan not in ("forward", "back"):
-            raise self._bad("edge_scan", "must be 'forward' or 'back'")
-        for key, positive in (("log_dynamic_range_db", True), ("pulse_length_m", False)):
-            v = getattr(self, key)
-            if v is None:
-                continue
-            if not is_finite_number(v) or (v <= 0 if positive else v < 0):
-                raise self._bad(key, "must be a finite number > 0" if positive else "must be a finite number >= 0")
-            object.__setattr__(self, key, float(v))
-        if self.normalise not in ("auto", "off"):
-            raise self._bad("normalise", "must be 'auto' or 'off'")
-        if self.method not in METHODS:
-            raise self._bad("method", f"must be one of {', '.join(METHODS)}")
-        if self.solver not in SOLVER_NAMES:
-            raise self._bad("solver", f"must be one of {', '.join(SOLVER_NAMES)}")
-
-    def _check_reals(self) -> None:
-        """The real-valued options: finite (stored as float) and within their ranges."""
-        for key in ("beta", "fit_tol", "threshold", "cfar_pfa", "object_prior_min", "grow_prior_min",
-                    "grow_beta", "speckle_eps", "edge_factor", "range_weight", "pool_factor",
-                    "min_component_extent_m", "max_kld", "max_object_weight", "min_separation",
-                    "edge_fraction", "sigma_scale", "sigma_pool_scale", "continue_evidence"):
-            v = getattr(self, key)
-            if not is_finite_number(v):
-                raise self._bad(key, "must be a finite number")
-            object.__setattr__(self, key, float(v))
-        if self.beta < 0:
-            raise self._bad("beta", "must be >= 0")
-        for key in ("object_prior_min", "grow_prior_min", "speckle_eps"):
-            if not 0 <= getattr(self, key) < 0.5:
-                raise self._bad(key, "must lie in [0, 0.5)")
-        if self.pool_factor < 0:
-            raise self._bad("pool_factor", "must be >= 0")
-        for key in ("sigma_scale", "sigma_pool_scale", "continue_evidence"):
-            if getattr(self, key) < 0:
-                raise self._bad(key, "must be >= 0")
-        if not 0 <= self.edge_fraction < 1:
-            raise self._bad("edge_fraction", "must lie in [0, 1)")
-        if self.min_component_extent_m < 0:
-            raise self._bad("min_component_extent_m", "must be >= 0")
-        if self.grow_beta < 0:
-            raise self._bad("grow_beta", "must be >= 0")
-        if not 0 <= self.range_weight <= 1:
-            raise self._bad("range_weight", "must lie in [0, 1]")
-        if self.fit_tol <= 0:
-            raise self._bad("fit_tol", "must be > 0")
-        if not 0 < self.cfar_pfa < 1:
-            raise self._bad("cfar_pfa", "must lie in (0, 1)")
-
-    def _check_integers(self) -> None:
-        """The integer and boolean options, the remaining choices and the families."""
-        for key, lo in (("neighbourhood", 4), ("n_levels", 2), ("cfar_train", 2), ("cfar_guard", 0),
-                        ("min_run", 1), ("neighbour_beams", 1), ("max_jump_bins", 0),
-                        ("min_segment_beams", 1), ("min_component_beams", 1),
-                        ("min_component_bins", 1), ("min_component_pixels", 0),
-                        ("normalised_component_beams", 1), ("normalised_component_bins", 1),
-                        ("normalised_component_pixels", 0), ("refine_bins", 0), ("link_beams", 0),
-                        ("pool_beams", 0), ("pool_bins", 1), ("pool_min_beams", 1), ("edge_pool_beams", 0),
-                        ("max_floor_levels", 0)):
-            v = getattr(self, key)
-            if isinstance(v, bool) or not isinstance(v, int) or v < lo:
-                raise self._bad(key, f"must be an integer >= {lo}")
-        if self.neighbourhood not in (4, 8):
-            raise self._bad("neighbourhood", "must be 4 or 8")
-        if self.cfar_train % 2 or self.cfar_guard % 2:
-            raise self._bad("cfar_train" if self.cfar_train % 2 else "cfar_guard", "must be even")
-        for key in ("contrast", "cfar_two_d", "reject_isolated"):
-            if not isinstance(getattr(self, key), bool):
-                raise self._bad(key, "must be true or false")
-        if self.pool_mode not in ("fallback", "fill"):
-            raise self._bad("pool_mode", "must be 'fallback' or 'fill'")
-        if self.fit_method not in ("em", "lsq"):
-            raise self._bad("fit_method", "must be 'em' or 'lsq'")
-        if self.range_mode not in ("first", "strongest"):
-            raise self._bad("range_mode", "must be 'first' or 'strongest'")
-        fams = self.families
-        if isinstance(fams, str) or not isinstance(fams, list | tuple) or len(fams) < 2:
-            raise self._bad("families", "must be a list of at least two family names")
-        object.__setattr__(self, "families", tuple(str(f) for f in fams))
-
-    # ------------------------------------------------------------------ (de)serialisation
-    def to_dict(self) -> dict[str, Any]:
-        """JSON/TOML-compatible dict; :meth:`from_dict` reads it back."""
-        d = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
-        d["families"] = list(self.families)
-        if not isinstance(self.preprocess, str):
-            d["preprocess"] = self.preprocess.to_dict()
-        d["track"] = dataclasses.asdict(self.track)
-        for key in ("pulse_length_m", "log_dynamic_range_db"):
-            if d[key] is None:
-                del d[key]
-        return d
-
-    @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> PipelineConfig:
-        """Build from a dict; unknown keys or bad values raise :class:`InputError` naming the key.
-
-        A nested ``{"pipeline": {...}}`` table (TOML) is accepted.
-        """
-        return cls(**config_table(d, cls, "pipeline config", section="pipeline"))
-
-    @classmethod
-    def from_toml(cls, path: str | os.PathLike[str]) -> PipelineConfig:
-        """Read a TOML file (top-level keys or a ``[pipeline]`` table)."""
-        p = Path(path)
-        try:
-            d = tomllib.loads(p.read_text(encoding="utf-8"))
-        except OSError as exc:
-            raise InputError(f"{p}: cannot read pipeline config ({exc.strerror or exc})") from None
-        except tomllib.TOMLDecodeError as exc:
-            raise InputError(f"{p}: invalid TOML ({exc})") from None
-        try:
-            return cls.from_dict(d)
-        except InputError as exc:
-            raise InputError(f"{p}: {exc}") from None
-
-    def replace(self, **changes: Any) -> PipelineConfig:
-        """Copy with fields replaced (validated)."""
-        return dataclasses.replace(self, **changes)
-
-    def preprocess_config(self) -> Any:
-        """The :class:`PreprocessConfig` used, or None for ``"none"``."""
-        from sonarmap.preprocess.pipeline import PreprocessConfig, recipe
-
-        if isinstance(self.preprocess, PreprocessConfig):
-            return self.preprocess
-        return None if self.preprocess == "none" else recipe(self.preprocess)
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -484,7 +89,7 @@ class PingProducts:
         The image the classifier saw (normalised or pre-processed; only with ``keep_labels=True``).
     floor_levels : int
         Levels of the classifier's image merged into its zero level before it was modelled (the
-        quantisation floor, :attr:`PipelineConfig.max_floor_levels`); 0 for an image modelled as
+        quantisation floor, :attr:`PipelineConfig.fit.max_floor_levels`); 0 for an image modelled as
         it came.
     input_gain_db : float
         The automatic input gain applied after the sidelobe suppression
@@ -522,9 +127,9 @@ def _fit(levels: NDArray[Any], config: PipelineConfig) -> Any:
     if levels.ndim == 2 and levels.dtype.kind == "u":
         from sonarmap._pipeline_kernels import level_counts
 
-        counts = level_counts(levels, int(config.n_levels))
+        counts = level_counts(levels, int(config.fit.n_levels))
     else:
-        counts = np.bincount(levels.ravel(), minlength=config.n_levels).astype(np.float64)
+        counts = np.bincount(levels.ravel(), minlength=config.fit.n_levels).astype(np.float64)
     return _fit_counts(counts, config)
 
 
@@ -533,8 +138,8 @@ def _fit_counts(counts: NDArray[np.float64], config: PipelineConfig) -> Any:
     from sonarmap.stats.mixture import fit_mixture
 
     try:
-        return fit_mixture(counts, families=config.families, method=config.fit_method,  # type: ignore[arg-type]
-                           n_levels=config.n_levels, tol=config.fit_tol)
+        return fit_mixture(counts, families=config.fit.families, method=config.fit.fit_method,  # type: ignore[arg-type]
+                           n_levels=config.fit.n_levels, tol=config.fit.fit_tol)
     except FitError:
         return None
 
@@ -589,12 +194,12 @@ def classify_image(image: NDArray[np.float32], config: PipelineConfig = Pipeline
 
 def _gates(fit: Any, config: PipelineConfig) -> frozenset[str]:
     """The fit gates ``fit`` fails under ``config`` (none for CFAR or without a fit)."""
-    if fit is None or config.method.startswith("cfar-"):
+    if fit is None or config.classify.method.startswith("cfar-"):
         return frozenset()
     from sonarmap.stats.gates import fit_gates
 
-    return fit_gates(fit, max_kld=config.max_kld, max_object_weight=config.max_object_weight,
-                     min_separation=config.min_separation)
+    return fit_gates(fit, max_kld=config.fit.max_kld, max_object_weight=config.fit.max_object_weight,
+                     min_separation=config.fit.min_separation)
 
 
 def _classify(image: NDArray[np.float32], config: PipelineConfig, gate: bool = False, *,
@@ -606,28 +211,28 @@ def _classify(image: NDArray[np.float32], config: PipelineConfig, gate: bool = F
     levels and their fit (not recomputed)."""
     from sonarmap.stats.mixture import quantize
 
-    method = config.method
+    method = config.classify.method
     if method.startswith("cfar-"):
         from sonarmap.classify.cfar import CFARConfig, cfar
 
-        cfg = CFARConfig(method=method[5:], n_train=config.cfar_train, n_guard=config.cfar_guard,  # type: ignore[arg-type]
-                         pfa=config.cfar_pfa, two_d=config.cfar_two_d)
+        cfg = CFARConfig(method=method[5:], n_train=config.classify.cfar_train, n_guard=config.classify.cfar_guard,  # type: ignore[arg-type]
+                         pfa=config.classify.cfar_pfa, two_d=config.classify.cfar_two_d)
         res = cfar(image, config=cfg)
-        levels = quantize(image, config.n_levels)
-        return res.labels, _fit(levels, config), math.nan, config.cfar_pfa, levels, frozenset()
+        levels = quantize(image, config.fit.n_levels)
+        return res.labels, _fit(levels, config), math.nan, config.classify.cfar_pfa, levels, frozenset()
     if levels is None or fit is None:
-        levels = quantize(image, config.n_levels)
+        levels = quantize(image, config.fit.n_levels)
         fit = _fit(levels, config)
     gates = _gates(fit, config) if gate else frozenset()
     if method == "threshold":
         from sonarmap.classify.threshold import threshold_labels
 
-        labels = threshold_labels(image, config.threshold)
+        labels = threshold_labels(image, config.classify.threshold)
         pd, pfa = math.nan, math.nan
         if fit is not None:
             from sonarmap.stats.roc import pd_pfa_at_threshold
 
-            pd, pfa = pd_pfa_at_threshold(fit, config.threshold)
+            pd, pfa = pd_pfa_at_threshold(fit, config.classify.threshold)
         return labels, fit, pd, pfa, levels, gates
     if fit is None or fit.flags & {"all_zero", "degenerate"} or len(fit.class_names) < 2:
         return np.zeros(image.shape, dtype=np.uint8), fit, 0.0, 0.0, levels, gates
@@ -637,18 +242,18 @@ def _classify(image: NDArray[np.float32], config: PipelineConfig, gate: bool = F
     pd, pfa = _model_pd_pfa(fit, lut)
     if method == "map":
         return lut[levels], fit, pd, pfa, levels, gates
-    cost = _cost_lut(fit, config.object_prior_min, config.speckle_eps)
+    cost = _cost_lut(fit, config.classify.object_prior_min, config.classify.speckle_eps)
     # the per-pixel decision of the MRF's own unary (object prior raised to object_prior_min):
     # the fitted prior alone can be so small (a thin surface, 0.001-0.02) that the local MAP rule
     # detects nothing while the MRF reports the surface
     pd, pfa = _model_pd_pfa(fit, np.argmin(cost, axis=0))
     if gates:
         return np.zeros(image.shape, dtype=np.uint8), fit, pd, pfa, levels, gates
-    labels = _mrf_labels(image, levels, cost, config.beta, config)
-    if config.grow_prior_min > 0:
+    labels = _mrf_labels(image, levels, cost, config.classify.beta, config)
+    if config.classify.grow_prior_min > 0:
         from sonarmap.ranges import wide_components
 
-        weak = _mrf_labels(image, levels, _cost_lut(fit, config.grow_prior_min, config.speckle_eps), config.grow_beta, config)
+        weak = _mrf_labels(image, levels, _cost_lut(fit, config.classify.grow_prior_min, config.classify.speckle_eps), config.classify.grow_beta, config)
         grown = wide_components((weak >= 1) | (labels >= 1), 1, seeds=labels >= 1)
         labels = np.where(grown & (labels == 0), np.uint8(1), labels).astype(np.uint8)
     return labels, fit, pd, pfa, levels, gates
@@ -658,16 +263,16 @@ def _mrf_labels(image: NDArray[np.float32], levels: NDArray[Any], cost: NDArray[
                 config: PipelineConfig) -> NDArray[np.uint8]:
     from sonarmap.classify import mrf
 
-    if config.solver == "graphcut" and cost.shape[0] == 2 and not config.contrast:
-        return mrf.graphcut_levels_labels(levels, cost, beta=beta, neighbourhood=config.neighbourhood,
-                                          range_weight=config.range_weight)
+    if config.classify.solver == "graphcut" and cost.shape[0] == 2 and not config.classify.contrast:
+        return mrf.graphcut_levels_labels(levels, cost, beta=beta, neighbourhood=config.classify.neighbourhood,
+                                          range_weight=config.classify.range_weight)
     from sonarmap._pipeline_kernels import gather_costs
 
     unary = gather_costs(np.ascontiguousarray(levels), cost)
-    wt = mrf.pairwise_weights(image.shape, beta=beta, neighbourhood=config.neighbourhood,
-                              image=image, contrast=config.contrast, range_weight=config.range_weight)
-    return mrf.solve(unary, solver=config.solver, beta=beta,  # type: ignore[arg-type]
-                     neighbourhood=config.neighbourhood, weights=wt).labels
+    wt = mrf.pairwise_weights(image.shape, beta=beta, neighbourhood=config.classify.neighbourhood,
+                              image=image, contrast=config.classify.contrast, range_weight=config.classify.range_weight)
+    return mrf.solve(unary, solver=config.classify.solver, beta=beta,  # type: ignore[arg-type]
+                     neighbourhood=config.classify.neighbourhood, weights=wt).labels
 
 
 def pooled_band_mask(image: NDArray[np.float32], level: float, *, pool_beams: int = 4, pool_bins: int = 3,
@@ -759,11 +364,11 @@ def process_ping(ping: Ping, config: PipelineConfig = PipelineConfig(), *, keep_
             time_ns=ping.time_ns, source=ping.source, fit=fit,
             kld=float(fit.kld) if fit is not None else math.nan, flags=tuple(sorted(flags)),
             ranges=ranges, labels=labels if keep_labels else None, pd=float(pd), pfa=float(pfa),
-            method=config.method, pd_range=pd_range, background=m.background, gates=gates,
+            method=config.classify.method, pd_range=pd_range, background=m.background, gates=gates,
             image=m.image if keep_labels else None, input_gain_db=gain_db, floor_levels=m.floor)
 
     def no_return_products(flags: set[str], pd: float, pfa: float, gates: tuple[str, ...] = ()) -> PingProducts:
-        return products(no_returns(geom, time_ns=ping.time_ns, source=ping.source, mode=config.range_mode),
+        return products(no_returns(geom, time_ns=ping.time_ns, source=ping.source, mode=config.ranges.range_mode),
                         flags | {"no_returns"}, np.zeros(m.image.shape, dtype=np.uint8), pd, pfa, 0.0, gates)
 
     if m.classified is None:
@@ -777,7 +382,7 @@ def process_ping(ping: Ping, config: PipelineConfig = PipelineConfig(), *, keep_
     bg_mean, edge = _background_mean(fit, config)
     mask = _candidate_mask(labels, geom, config, m.normalised is not None)
     thickness = None
-    if config.tracker == "surface":
+    if config.ranges.tracker == "surface":
         ranges, thickness = _surface_ranges(ping, m.image, levels, mask, fit, config, m.normalised is not None,
                                             bg_mean, m.background)
     else:
@@ -808,27 +413,27 @@ def _model_ping(raw: NDArray[np.float32], geom: Any, config: PipelineConfig, ref
     """The modelling stage: normalise (or pre-process) the conditioned image, fit, gate, classify.
 
     An 8-bit ping whose fit fails the ``kld`` gate is modelled again with its lowest levels merged
-    into the zero level (:attr:`PipelineConfig.max_floor_levels`); the first floor whose fit passes
+    into the zero level (:attr:`PipelineConfig.fit.max_floor_levels`); the first floor whose fit passes
     every gate is kept, else the ping as recorded.
     """
     from sonarmap.preprocess.normalise import on_8bit_grid
 
     m = _model_image(raw, geom, config, reference)
-    if not (m.classified is not None and "kld" in m.classified[5] and config.max_floor_levels > 0
-            and config.n_levels == 256 and on_8bit_grid(raw)):
+    if not (m.classified is not None and "kld" in m.classified[5] and config.fit.max_floor_levels > 0
+            and config.fit.n_levels == 256 and on_8bit_grid(raw)):
         return m
     # a background on the bottom levels of the 8-bit grid: merge them into the zero level - a
     # shift of the level histogram, refitted (no pass over the image until one passes)
     levels = m.classified[4]
     counts = np.asarray(m.classified[1].counts, dtype=np.float64)  # the refused fit's level histogram
-    for n in range(1, config.max_floor_levels + 1):
+    for n in range(1, config.fit.max_floor_levels + 1):
         merged = np.zeros_like(counts)
         merged[0] = counts[: n + 1].sum()
         merged[1:counts.size - n] = counts[n + 1:]
         fit = _fit_counts(merged, config)
         if fit is None or _gates(fit, config):
             continue
-        image = np.maximum(m.image - np.float32(n / (config.n_levels - 1)), np.float32(0.0))
+        image = np.maximum(m.image - np.float32(n / (config.fit.n_levels - 1)), np.float32(0.0))
         shifted = np.maximum(levels.astype(np.int16) - n, 0).astype(levels.dtype)
         return dataclasses.replace(m, image=image, floor=n,
                                    classified=_classify(image, config, gate=True, levels=shifted, fit=fit))
@@ -862,23 +467,23 @@ def _background_mean(fit: Any, config: PipelineConfig) -> tuple[float | None, fl
     """The fitted background class's mean intensity (None when the fit has no usable classes) and
     the leading-edge level of the rules tracker (``edge_factor`` x that mean; None when off)."""
     usable = fit is not None and len(fit.class_names) >= 2 and not fit.flags & {"all_zero", "degenerate"}
-    if not (usable or (config.refine_bins > 0 and fit is not None)):
+    if not (usable or (config.ranges.refine_bins > 0 and fit is not None)):
         return None, None
     bg = float(np.asarray(fit.class_pmf())[0] @ np.asarray(fit.levels))
-    return (bg if usable else None), (config.edge_factor * bg if config.refine_bins > 0 else None)
+    return (bg if usable else None), (config.ranges.edge_factor * bg if config.ranges.refine_bins > 0 else None)
 
 
 def _candidate_mask(labels: NDArray[np.uint8], geom: Any, config: PipelineConfig, normalised: bool) -> NDArray[np.bool_]:
     """Structure pixels in components large enough to be surfaces (rule 0), without the ones
     smaller than ``min_component_extent_m`` both ways."""
     if normalised:
-        rule = (config.normalised_component_beams, config.normalised_component_bins,
-                config.normalised_component_pixels)
+        rule = (config.candidates.normalised_component_beams, config.candidates.normalised_component_bins,
+                config.candidates.normalised_component_pixels)
     else:
-        rule = (config.min_component_beams, config.min_component_bins, config.min_component_pixels)
-    mask = component_rule(labels >= 1, rule[0], rule[1], config.link_beams, rule[2])
-    if config.min_component_extent_m > 0:
-        mask = drop_small_components(mask, geom, config.min_component_extent_m)
+        rule = (config.candidates.min_component_beams, config.candidates.min_component_bins, config.candidates.min_component_pixels)
+    mask = component_rule(labels >= 1, rule[0], rule[1], config.candidates.link_beams, rule[2])
+    if config.candidates.min_component_extent_m > 0:
+        mask = drop_small_components(mask, geom, config.candidates.min_component_extent_m)
     return mask
 
 
@@ -890,11 +495,11 @@ def _rule_ranges(ping: Ping, image: NDArray[np.float32], labels: NDArray[np.uint
 
     def _ranges(accepted: NDArray[np.bool_] | None) -> BeamRanges:
         return extract_ranges(
-            mask, image, geom, mode=config.range_mode,  # type: ignore[arg-type]
-            min_run=config.min_run, reject_isolated=config.reject_isolated,
-            neighbour_beams=config.neighbour_beams, max_jump_bins=config.max_jump_bins,
-            min_segment_beams=config.min_segment_beams,
-            refine_bins=config.refine_bins if not normalised else 0, edge_level=edge, accepted=accepted,
+            mask, image, geom, mode=config.ranges.range_mode,  # type: ignore[arg-type]
+            min_run=config.ranges.min_run, reject_isolated=config.ranges.reject_isolated,
+            neighbour_beams=config.ranges.neighbour_beams, max_jump_bins=config.ranges.max_jump_bins,
+            min_segment_beams=config.ranges.min_segment_beams,
+            refine_bins=config.ranges.refine_bins if not normalised else 0, edge_level=edge, accepted=accepted,
             time_ns=ping.time_ns,
             source=ping.source,
         )
@@ -902,19 +507,19 @@ def _rule_ranges(ping: Ping, image: NDArray[np.float32], labels: NDArray[np.uint
     ranges = _ranges(None)
     # band pooling: "fallback" only when the per-pixel route found less than one wide surface,
     # "fill" on the beams it left without a return
-    fallback = ranges.n_returns < config.pool_min_beams
+    fallback = ranges.n_returns < config.candidates.pool_min_beams
     n_beams = ranges.bin.size
     # band pooling multi-looks single-look speckle; a normalised image is multi-looked already
-    if (config.pool_factor > 0 and bg_mean is not None and bg_mean > 0 and not normalised
-            and (fallback or (config.pool_mode == "fill" and ranges.n_returns < n_beams))):
-        accepted = pooled_band_pixels(image, config.pool_factor * bg_mean, pool_beams=config.pool_beams,
-                                      pool_bins=config.pool_bins, min_beams=config.pool_min_beams,
+    if (config.candidates.pool_factor > 0 and bg_mean is not None and bg_mean > 0 and not normalised
+            and (fallback or (config.candidates.pool_mode == "fill" and ranges.n_returns < n_beams))):
+        accepted = pooled_band_pixels(image, config.candidates.pool_factor * bg_mean, pool_beams=config.candidates.pool_beams,
+                                      pool_bins=config.candidates.pool_bins, min_beams=config.candidates.pool_min_beams,
                                       beams=None if fallback else ranges.bin < 0)
         if accepted is not None:
             ranges = _ranges(accepted)
-    if normalised and config.edge_fraction > 0:
+    if normalised and config.ranges.edge_fraction > 0:
         # the range convention: the leading edge of the echo (a fraction of its first peak)
-        ranges = half_peak_edges(ranges, image, labels >= 1, geom, fraction=config.edge_fraction)
+        ranges = half_peak_edges(ranges, image, labels >= 1, geom, fraction=config.ranges.edge_fraction)
     return ranges
 
 
@@ -928,9 +533,9 @@ def _meta_number(ping: Ping, key: str, default: float | None = None) -> float | 
 
 
 def pulse_bins(ping: Ping, config: PipelineConfig) -> int:
-    """The pulse length in range bins (>= 1): ``config.pulse_length_m``, else the ping's
+    """The pulse length in range bins (>= 1): ``config.ranges.pulse_length_m``, else the ping's
     ``meta["pulse_width_us"]`` at its sound speed (``meta["sound_speed_m_s"]``, default 1500 m/s)."""
-    length = config.pulse_length_m
+    length = config.ranges.pulse_length_m
     if length is None:
         us = _meta_number(ping, "pulse_width_us")
         c = _meta_number(ping, "sound_speed_m_s", 1500.0)
@@ -942,8 +547,8 @@ def pulse_bins(ping: Ping, config: PipelineConfig) -> int:
 
 def _log_range_db(ping: Ping, config: PipelineConfig) -> float | None:
     """dB per unit of raw pixel value of log-compressed samples (None: linear samples)."""
-    if config.log_dynamic_range_db is not None:
-        return config.log_dynamic_range_db
+    if config.ranges.log_dynamic_range_db is not None:
+        return config.ranges.log_dynamic_range_db
     v = _meta_number(ping, "log_dynamic_range_db")
     return v if v is not None and 0 < v < 1000 else None
 
@@ -954,7 +559,7 @@ def measurement_image(ping: Ping, background: Any, config: PipelineConfig = Pipe
     in units of the background level, linear in intensity.
 
     ``ratio = raw / b`` for linear samples, ``10^(D (raw - b) / 10)`` for log-compressed ones
-    (``D`` dB per unit, :attr:`PipelineConfig.log_dynamic_range_db`), with ``b`` the estimated
+    (``D`` dB per unit, :attr:`PipelineConfig.ranges.log_dynamic_range_db`), with ``b`` the estimated
     background level x beam factor (:mod:`sonarmap.preprocess.normalise`); then
     ``max(ratio - 1, 0)``.  No multi-look: the leading edge keeps the raw range resolution.
     ``rows=(r0, r1)`` computes only those rows (zero elsewhere).
@@ -985,18 +590,18 @@ def _surface_ranges(ping: Ping, image: NDArray[np.float32], levels: NDArray[Any]
     band = None
     # band pooling recovers thin single-look surface bands the per-pixel route leaves in pieces;
     # only needed where some beam has no candidate at all
-    if (config.pool_factor > 0 and bg_mean is not None and bg_mean > 0 and not normalised
-            and config.method in ("mrf", "map", "threshold") and not mask.any(axis=0).all()):
-        band = pooled_band_mask(image, config.pool_factor * bg_mean, pool_beams=config.pool_beams,
-                                pool_bins=config.pool_bins, min_beams=config.pool_min_beams)
+    if (config.candidates.pool_factor > 0 and bg_mean is not None and bg_mean > 0 and not normalised
+            and config.classify.method in ("mrf", "map", "threshold") and not mask.any(axis=0).all()):
+        band = pooled_band_mask(image, config.candidates.pool_factor * bg_mean, pool_beams=config.candidates.pool_beams,
+                                pool_bins=config.candidates.pool_bins, min_beams=config.candidates.pool_min_beams)
         if band is not None:
             cand = cand | band
     if not cand.any():
-        return (no_returns(geom, time_ns=ping.time_ns, source=ping.source, mode=config.range_mode),
+        return (no_returns(geom, time_ns=ping.time_ns, source=ping.source, mode=config.ranges.range_mode),
                 np.zeros(geom.n_beams, dtype=np.int64))
     llr_lut = level_llr(fit) if fit is not None and len(fit.class_names) >= 2 else None
     lut = np.maximum(llr_lut, 0.0) if llr_lut is not None else np.ones(int(levels.max()) + 1)
-    fraction = config.edge_fraction if config.edge_fraction > 0 else 0.5
+    fraction = config.ranges.edge_fraction if config.ranges.edge_fraction > 0 else 0.5
     pb = pulse_bins(ping, config)
     measured = normalised and background is not None and getattr(background, "level_by_bin", None) is not None
 
@@ -1015,16 +620,16 @@ def _surface_ranges(ping: Ping, image: NDArray[np.float32], levels: NDArray[Any]
         # a pooled band pixel passed a >= pool_factor x background test over the whole box: one
         # nat at least, whatever its own (single-look, speckled) value says
         echoes = find_echoes(cand, meas, geom, levels=levels, level_evidence=lut, boost=band, boost_min=1.0,
-                             pulse_bins=pb, fraction=fraction, background=bg, scan=config.edge_scan,
-                             sigma_scale=config.sigma_scale)
-        return meas, bg, echoes, track_surfaces(echoes, config.track)
+                             pulse_bins=pb, fraction=fraction, background=bg, scan=config.ranges.edge_scan,
+                             sigma_scale=config.ranges.sigma_scale)
+        return meas, bg, echoes, track_surfaces(echoes, config.ranges.track)
 
     meas, bg, echoes, tracks = measure(cand)
-    if config.continue_evidence > 0 and llr_lut is not None:
+    if config.ranges.continue_evidence > 0 and llr_lut is not None:
         # a surface's faint stretch that the component rule left without candidates: pixels along
         # its extrapolation where their likelihood ratio says structure, for the tracker to judge
-        extra = continuation_mask(echoes, tracks.first, levels, llr_lut, min_evidence=config.continue_evidence,
-                                  touch_bins=config.track.touch_bins) & ~cand
+        extra = continuation_mask(echoes, tracks.first, levels, llr_lut, min_evidence=config.ranges.continue_evidence,
+                                  touch_bins=config.ranges.track.touch_bins) & ~cand
         if extra.any() and echoes.size:
             # only where it could become the return: a beam without one, or whose return lies behind
             first = tracks.first
@@ -1035,16 +640,16 @@ def _surface_ranges(ping: Ping, image: NDArray[np.float32], levels: NDArray[Any]
             cand = cand | extra
             meas, bg, echoes, tracks = measure(cand)
     sel = tracks.first
-    if config.edge_pool_beams > 0 and config.range_mode == "first":
+    if config.ranges.edge_pool_beams > 0 and config.ranges.range_mode == "first":
         # the pooled profile is smoothed over at least 3 bins along range in all (a single-look
         # profile's maximum is otherwise a speckle spike)
-        echoes = pooled_edges(echoes, sel, meas, geom, pulse_bins=pb, half_beams=config.edge_pool_beams,
+        echoes = pooled_edges(echoes, sel, meas, geom, pulse_bins=pb, half_beams=config.ranges.edge_pool_beams,
                               smooth_bins=3 if pb < 3 else 1, fraction=fraction,
-                              touch_bins=config.track.touch_bins, sigma_scale=config.sigma_pool_scale)
+                              touch_bins=config.ranges.track.touch_bins, sigma_scale=config.ranges.sigma_pool_scale)
     if echoes.size and (sel >= 0).any():
         echoes = _clipped_echo_sigma(echoes, sel, ping.image, geom)
     thickness = np.where(sel >= 0, (echoes.stop_bin - echoes.start_bin)[np.maximum(sel, 0)] if echoes.size else 0, 0)
-    return (ranges_from_tracks(echoes, tracks, geom, image, mode=config.range_mode,  # type: ignore[arg-type]
+    return (ranges_from_tracks(echoes, tracks, geom, image, mode=config.ranges.range_mode,  # type: ignore[arg-type]
                                time_ns=ping.time_ns, source=ping.source), thickness.astype(np.int64))
 
 

@@ -102,8 +102,8 @@ def test_baseline_protocols():
 
     peer = baseline_configs()["local MAP"]
     shared = baseline_configs(protocol="shared")["local MAP"]
-    assert all(getattr(peer, k) == v for k, v in PEER_RANGE_RULES.items())
-    assert shared.pool_factor > 0 and shared.min_component_beams > 1
+    assert all(peer.option(k) == v for k, v in PEER_RANGE_RULES.items())
+    assert shared.candidates.pool_factor > 0 and shared.candidates.min_component_beams > 1
     with pytest.raises(InputError, match="protocol"):
         baseline_configs(protocol="mine")
 
@@ -206,6 +206,6 @@ def test_ranges_sigma_is_calibrated_and_pooled_edges_hold_their_recall():
         assert 0.63 <= rows[name].sigma_coverage <= 0.73, (name, rows[name].sigma_coverage)
         assert rows[name].recall >= recall, (name, rows[name].recall)
         assert rows[name].false_return_rate <= 0.01
-    per_beam = {r.method: r for r in evaluate_ranges(PipelineConfig(edge_pool_beams=0), presets=("didson-hf",),
+    per_beam = {r.method: r for r in evaluate_ranges(PipelineConfig().replace(edge_pool_beams=0), presets=("didson-hf",),
                                                      seeds=(0,)).rows}
     assert rows["didson-hf"].recall > per_beam["didson-hf"].recall + 0.05

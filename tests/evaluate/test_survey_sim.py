@@ -134,7 +134,7 @@ def test_range_measurement_pd_sees_dropped_pings() -> None:
     for p in dropped.pings:
         pr = process_ping(p)
         assert pr.ranges.n_returns == 0 and pr.pd_range == 0.0
-    assert np.isnan(process_ping(clean.pings[0], dataclasses.replace(PipelineConfig(), method="cfar-ca")).pd_range)
+    assert np.isnan(process_ping(clean.pings[0], PipelineConfig().replace(method="cfar-ca")).pd_range)
 
 
 @pytest.mark.slow

@@ -244,17 +244,17 @@ def test_pipeline_config_track_table_round_trip():
 
     from sonarmap.pipeline import PipelineConfig
 
-    c = PipelineConfig(track={"segment_cost": 80.0}, pulse_length_m=0.01, edge_scan="forward")
-    assert c.track == TrackConfig(segment_cost=80.0)
+    c = PipelineConfig().replace(track={"segment_cost": 80.0}, pulse_length_m=0.01, edge_scan="forward")
+    assert c.ranges.track == TrackConfig(segment_cost=80.0)
     assert PipelineConfig.from_dict(c.to_dict()) == c
     t = tomllib.loads('[pipeline]\ntracker = "surface"\n[pipeline.track]\nsegment_cost = 90\n')
-    assert PipelineConfig.from_dict(t).track.segment_cost == 90.0
+    assert PipelineConfig.from_dict(t).ranges.track.segment_cost == 90.0
     with pytest.raises(InputError, match="track: unknown key 'bogus'"):
-        PipelineConfig(track={"bogus": 1})
+        PipelineConfig().replace(track={"bogus": 1})
     with pytest.raises(InputError, match="tracker"):
-        PipelineConfig(tracker="viterbi")
+        PipelineConfig().replace(tracker="viterbi")
     with pytest.raises(InputError, match="pulse_length_m"):
-        PipelineConfig(pulse_length_m=-1.0)
+        PipelineConfig().replace(pulse_length_m=-1.0)
 
 
 def test_real_pings_leading_edges_sigma_and_p_detect(test_pings, aris_pings):
@@ -266,7 +266,7 @@ def test_real_pings_leading_edges_sigma_and_p_detect(test_pings, aris_pings):
     for k, min_shift in ((0, 5.0), (5, 2.0)):
         p = test_pings[k]
         new = process_ping(p).ranges
-        old = process_ping(p, PipelineConfig(tracker="rules")).ranges
+        old = process_ping(p, PipelineConfig().replace(tracker="rules")).ranges
         both = new.valid & old.valid
         assert both.sum() >= 25
         shift = np.median(new.range_m[both] - old.range_m[both]) / p.geometry.range_resolution_m

@@ -135,9 +135,9 @@ def test_pooled_edges_rejects_bad_arguments():
     with pytest.raises(InputError, match="first"):
         pooled_edges(e, first[:2], img, g)
     with pytest.raises(InputError, match="edge_pool_beams"):
-        PipelineConfig(edge_pool_beams=-1)
+        PipelineConfig().replace(edge_pool_beams=-1)
     with pytest.raises(InputError, match="sigma_pool_scale"):
-        PipelineConfig(sigma_pool_scale=-1.0)
+        PipelineConfig().replace(sigma_pool_scale=-1.0)
 
 
 def _continuation_case(seed: int, faint_llr: float) -> tuple[np.ndarray, object, np.ndarray, np.ndarray]:

@@ -17,8 +17,24 @@ __all__ = ["register", "demo_command", "run_demo", "DEMO_CONFIG"]
 #: with RMS 3.9 range bins and 52 % coverage (``preprocess = "none"``: 5.7 bins, 28 %).
 DEMO_CONFIG = """\
 # sonarmap pipeline configuration used by `sonarmap demo` (see `sonarmap process --config`).
-# Empty table = the default pipeline; see sonarmap.pipeline.PipelineConfig for the keys.
+# Empty tables = the default pipeline. Uncomment an option to change it; every option and its
+# meaning: sonarmap.config.PipelineConfig (docs/segmentation.md, "Changing the configuration").
 [pipeline]
+# normalise = "auto"
+
+[pipeline.fit]
+# max_kld = 0.05
+
+[pipeline.classify]
+# method = "mrf"
+# beta = 2.0
+
+[pipeline.candidates]
+# min_component_beams = 16
+
+[pipeline.ranges]
+# range_mode = "first"
+# edge_fraction = 0.5
 """
 
 

@@ -60,7 +60,7 @@ CALIBRATION_OPTION: Any = typer.Option(
     "background level instead of its own.",
 )
 STRICT_OPTION: Any = typer.Option(False, "--strict", help="Exit 1 when the model could not explain some ping (a flagged fit).")
-CONFIG_OPTION: Any = typer.Option(None, "--config", "-c", help="Pipeline configuration TOML (keys at top level or in a \\[pipeline] table).")
+CONFIG_OPTION: Any = typer.Option(None, "--config", "-c", help="Pipeline configuration TOML: a \\[pipeline] table and its stage tables (\\[pipeline.fit], \\[pipeline.classify], \\[pipeline.candidates], \\[pipeline.ranges]).")
 _TO_OPTION: Any = typer.Option(
     None, "--to", help="Output kind: csv, bag1 (ROS 1 .bag) or bag2 (ROS 2 bag directory) of "
     "marine_acoustic_msgs/SonarRanges (default: bag1 for *.bag, else csv)."
@@ -104,7 +104,7 @@ def pipeline_config_from_options(
         changes["solver"] = check_choice(solver, SOLVER_NAMES, "--solver")
     if beta is not None:
         try:
-            PipelineConfig(beta=beta)
+            PipelineConfig().replace(beta=beta)
         except (SonarmapError, ValueError) as exc:
             raise typer.BadParameter(str(exc), param_hint="--beta") from None
         changes["beta"] = beta
@@ -219,7 +219,7 @@ def register(app: typer.Typer) -> None:
         cfg = pipeline_config_from_options(config, method, solver, beta)
         geom = load_geometry_option(sonar)
         rec, families = load_calibration(calibration)
-        if families is not None and cfg.families != families:
+        if families is not None and cfg.fit.families != families:
             cfg = cfg.replace(families=families)  # the recording's model (chosen by calibrate)
         n_pings = n_rows = n_ret = 0
         gated: list[tuple[str, ...]] = []
@@ -277,7 +277,7 @@ def _print_summary(n_pings: int, n_rows: int, n_ret: int, where: str, cfg: Any,
     """The two summary lines of ``ranges`` on stderr."""
     console = err_console()
     console.print(
-        f"{n_pings} pings, {n_rows} rows ({n_ret} returns) -> {where} (method={cfg.method}"
-        + (f", solver={cfg.solver}" if cfg.method == "mrf" else "") + ")", markup=False
+        f"{n_pings} pings, {n_rows} rows ({n_ret} returns) -> {where} (method={cfg.classify.method}"
+        + (f", solver={cfg.classify.solver}" if cfg.classify.method == "mrf" else "") + ")", markup=False
     )
     console.print(flagged_summary(gated), markup=False)

@@ -119,11 +119,11 @@ def _segment_one(ping: Any, i: int, output: Path, cfg: Any, figure: bool) -> str
         import matplotlib.pyplot as plt
 
         # the fixed threshold of the paper's Fig. 7 on the image the classifier saw (pre-processed
-        # or normalised); --method threshold uses its own (PipelineConfig.threshold)
+        # or normalised); --method threshold uses its own (PipelineConfig.classify.threshold)
         img = prod.image if prod.image is not None else ping.image
         thr = threshold_labels(np.clip(img, 0.0, 1.0), FIG7_THRESHOLD)
         fig = segment_figure(ping.image, thr, labels, prod.ranges, title=Path(ping.source).name,
-                             threshold=FIG7_THRESHOLD, method=cfg.method)
+                             threshold=FIG7_THRESHOLD, method=cfg.classify.method)
         with atomic_path(output / f"{stem}_segment.png") as tmp:
             fig.savefig(tmp, dpi=90, format="png")
         plt.close(fig)

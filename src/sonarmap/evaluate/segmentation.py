@@ -351,7 +351,7 @@ def baseline_configs(default: Any = None, *, protocol: str = "peer") -> dict[str
         "mrf icm": d.replace(solver="icm"),
         "mrf anneal (paper)": d.replace(solver="anneal"),
         "local MAP": b.replace(method="map"),
-        f"fixed threshold {d.threshold:g}": b.replace(method="threshold"),
+        f"fixed threshold {d.classify.threshold:g}": b.replace(method="threshold"),
     }
     for m in ("ca", "so", "go", "os"):
         out[f"cfar-{m} pfa 1e-3"] = b.replace(method=f"cfar-{m}", cfar_pfa=1e-3)

@@ -491,7 +491,7 @@ def _meta(h: np.void, i: int, sonar_time_ns: int) -> dict[str, Any]:
         # ARIS samples are log-compressed: their speckle spread is the same at every level
         # (~0.05 of full scale on sample.aris).  37 dB over the 8-bit range is the compression at
         # which the simulator's 6-look speckle reproduces that spread (simulate/presets.py) - an
-        # estimate, not a vendor figure; PipelineConfig.log_dynamic_range_db overrides it.
+        # estimate, not a vendor figure; PipelineConfig.ranges.log_dynamic_range_db overrides it.
         "log_dynamic_range_db": ARIS_LOG_DYNAMIC_RANGE_DB,
     }
     floats = {

@@ -63,7 +63,7 @@ _ZERO = 0.5 / 255.0
 #: 25 % or more between rows, and dividing by it draws bands across the fan that the classifier
 #: takes for surfaces (dark Rayleigh speckle of 2 levels gave a "surface" on every beam).  Such an
 #: image is left as recorded - its background is the zero spike and the lowest levels of the
-#: mixture (``PipelineConfig.max_floor_levels``).  The real recordings' levels: ARIS 75-77, Oculus
+#: mixture (``PipelineConfig.fit.max_floor_levels``).  The real recordings' levels: ARIS 75-77, Oculus
 #: 11-12 levels.
 MIN_LEVEL_COUNTS = 4.0
 

@@ -355,7 +355,7 @@ def pooled_edges(
     pulse_bins, fraction : int, float
         As in :func:`find_echoes`.
     sigma_scale : float
-        Calibration of :func:`edge_sigma_m`'s jitter term (``PipelineConfig.sigma_pool_scale``).
+        Calibration of :func:`edge_sigma_m`'s jitter term (``PipelineConfig.ranges.sigma_pool_scale``).
     half_beams, front_bins, max_bins, smooth_bins, n_iter, touch_bins
         The pooling window (see above).
 

@@ -36,7 +36,7 @@ import dataclasses
 import numpy as np
 from numpy.typing import NDArray
 
-from sonarmap._config import is_finite_number
+from sonarmap._config import check_integers, coerce_reals, config_error
 from sonarmap.errors import InputError
 from sonarmap.ranges.echoes import Echoes
 
@@ -59,17 +59,12 @@ class TrackConfig:
     bridge_beams: int = 4
 
     def __post_init__(self) -> None:
-        for key in ("segment_cost", "beam_cost", "slope_cost", "slope_bins", "gap_cost", "jump_bins", "touch_bins"):
-            v = getattr(self, key)
-            if not is_finite_number(v) or v < 0:
-                raise InputError(f"track config: {key}: must be a finite number >= 0 (got {v!r})")
-            object.__setattr__(self, key, float(v))
+        where = "track config: "
+        coerce_reals(self, ("segment_cost", "beam_cost", "slope_cost", "slope_bins", "gap_cost", "jump_bins",
+                            "touch_bins"), where, minimum=0)
         if self.slope_bins <= 0:
-            raise InputError(f"track config: slope_bins: must be > 0 (got {self.slope_bins})")
-        for key, lo in (("max_gap", 0), ("n_surfaces", 1), ("bridge_beams", 0)):
-            v = getattr(self, key)
-            if isinstance(v, bool) or not isinstance(v, int) or v < lo:
-                raise InputError(f"track config: {key}: must be an integer >= {lo} (got {v!r})")
+            raise config_error(where, "slope_bins", "must be > 0", self.slope_bins)
+        check_integers(self, (("max_gap", 0), ("n_surfaces", 1), ("bridge_beams", 0)), where)
 
 
 @dataclasses.dataclass(frozen=True, eq=False)

@@ -246,7 +246,7 @@ def _fingerprint(plan: SurveyPlan, config: dict[str, Any], *, keep_labels: bool,
     head = {
         "format": SURVEY_FORMAT,
         "version": version,
-        "config": _jsonable(config),
+        "config": _jsonable(_options_by_name(config)),
         "keep_labels": bool(keep_labels),
         "chunk_size": plan.chunk_size,
         "geometry": _geometry_token(plan.geometry),
@@ -258,6 +258,19 @@ def _fingerprint(plan: SurveyPlan, config: dict[str, Any], *, keep_labels: bool,
     for (path, fmt, n), (size, mtime) in zip(plan.files, plan.stamps, strict=True):
         h.update(f"{path}\0{fmt}\0{n}\0{size}\0{mtime}\n".encode())
     return h.hexdigest()
+
+
+def _options_by_name(config: dict[str, Any]) -> dict[str, Any]:
+    """A pipeline configuration dict with its section tables merged into the top level: the
+    options by name, as the fingerprint hashed them before the configuration had sections (so
+    stores made then still resume).  Other dicts pass unchanged."""
+    from sonarmap.config import SECTIONS
+
+    out = {k: v for k, v in config.items() if not (k in SECTIONS and isinstance(v, dict))}
+    for name in SECTIONS:
+        if isinstance(config.get(name), dict):
+            out.update(config[name])
+    return out
 
 
 def _file_token(path: Any) -> Any:
