@@ -5,12 +5,12 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Mapping
-from typing import Any
+from typing import Any, ClassVar
 
 from sonarmap.errors import InputError
 
 __all__ = ["is_finite_number", "config_table", "check_field_names", "config_error", "coerce_reals", "check_integers",
-           "check_booleans", "check_choice"]
+           "check_booleans", "check_choice", "ConfigSection"]
 
 
 def is_finite_number(v: Any) -> bool:
@@ -113,3 +113,23 @@ def check_choice(obj: Any, key: str, choices: tuple[str, ...], where: str) -> No
         what = (f"must be '{choices[0]}' or '{choices[1]}'" if len(choices) == 2
                 else f"must be one of {', '.join(choices)}")
         raise config_error(where, key, what, v)
+
+
+class ConfigSection:
+    """Base of the frozen dataclasses that are the sections of :class:`sonarmap.config.PipelineConfig`
+    (one per stage): the section's name, its message prefix and its (de)serialisation."""
+
+    SECTION: ClassVar[str] = ""
+
+    @property
+    def _where(self) -> str:
+        return f"pipeline config: {self.SECTION}."
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON/TOML-compatible dict of the section's options."""
+        return {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}  # type: ignore[arg-type]
+
+    @classmethod
+    def from_dict(cls, d: Any) -> Any:
+        """Build from a table; unknown keys or bad values raise :class:`InputError` naming the key."""
+        return cls(**config_table(d, cls, f"pipeline config: {cls.SECTION}"))

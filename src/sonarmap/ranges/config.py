@@ -1,0 +1,216 @@
+"""Configuration of the candidate and range stages (sections of :class:`sonarmap.config.PipelineConfig`)."""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any, ClassVar
+
+from sonarmap._config import (
+    ConfigSection,
+    check_booleans,
+    check_choice,
+    check_integers,
+    coerce_reals,
+    config_error,
+    config_table,
+    is_finite_number,
+)
+
+__all__ = ["CandidateConfig", "RangeConfig"]
+
+
+@dataclasses.dataclass(frozen=True)
+class CandidateConfig(ConfigSection):
+    """Which structure pixels can carry a return: the component rule (rule 0) and band pooling.
+
+    Parameters
+    ----------
+    min_component_beams, min_component_bins, min_component_pixels : int
+        Drop 8-connected structure components spanning fewer than ``min_component_beams`` beams
+        *and* fewer than ``min_component_bins`` range bins *and* holding fewer than
+        ``min_component_pixels`` pixels (fish, speckle: on the real fish-only pings 1-3 every
+        component has <= 25 pixels; a simulated propeller blade seen edge-on, 13-14 beams wide,
+        has 55-64).
+    link_beams : int
+        Keep rejected components within this many beams (and 1 bin) of kept ones.
+    normalised_component_beams, normalised_component_bins, normalised_component_pixels : int
+        The same three component thresholds for normalised images, whose multi-look box
+        correlates neighbouring pixels: i.i.d. exponential speckle of 512 x 96, 2000 x 48 and
+        703 x 256 pixels, normalised and segmented, leaves components of at most 65 pixels,
+        17 beams and 13 bins (8 seeds each; ``docs/segmentation.md``).
+    min_component_extent_m : float
+        Drop structure components smaller than this in both cross-range (arc length at their far
+        edge) and range extent: fish, particles and interference dashes, whatever the beam count
+        (0 = off).
+    pool_factor, pool_beams, pool_bins, pool_min_beams : float, int, int, int
+        Band pooling (off when ``pool_factor`` is 0): the pre-processed image is averaged over a
+        box of ``pool_bins`` range bins x ``2 pool_beams + 1`` beams (multi-look across beams),
+        thresholded at ``pool_factor`` x the fitted background class's mean intensity, and its
+        8-connected components spanning >= ``pool_min_beams`` beams are surfaces.  Recovers thin
+        surface bands of single-look speckle that the per-pixel model leaves in fragments of 0-5
+        pixels per beam; fish schools and speckle do not span ``pool_min_beams`` beams.  Not
+        applied to normalised images, which are multi-looked already.
+    pool_mode : str
+        ``"fill"``: band pooling adds candidates on the beams the per-pixel route left empty;
+        ``"fallback"``: only when the per-pixel route found fewer than ``pool_min_beams``
+        returns, on every beam (``tracker="rules"``; there the strongest pixel of each band
+        beam's first run bypasses the component rule).
+    """
+
+    SECTION: ClassVar[str] = "candidates"
+
+    min_component_beams: int = 16
+    min_component_bins: int = 16
+    link_beams: int = 4
+    min_component_pixels: int = 40
+    normalised_component_beams: int = 24
+    normalised_component_bins: int = 24
+    normalised_component_pixels: int = 100
+    min_component_extent_m: float = 0.02
+    pool_factor: float = 4.0
+    pool_beams: int = 2
+    pool_bins: int = 3
+    pool_min_beams: int = 40
+    pool_mode: str = "fill"
+
+    def __post_init__(self) -> None:
+        w = self._where
+        coerce_reals(self, ("pool_factor", "min_component_extent_m"), w, minimum=0)
+        check_integers(self, (("min_component_beams", 1), ("min_component_bins", 1), ("min_component_pixels", 0),
+                              ("normalised_component_beams", 1), ("normalised_component_bins", 1),
+                              ("normalised_component_pixels", 0), ("link_beams", 0), ("pool_beams", 0),
+                              ("pool_bins", 1), ("pool_min_beams", 1)), w)
+        check_choice(self, "pool_mode", ("fallback", "fill"), w)
+
+
+@dataclasses.dataclass(frozen=True)
+class RangeConfig(ConfigSection):
+    """Per-beam returns (sec. V and the range convention): echoes, their leading edges and sigma,
+    surface tracking across beams.
+
+    Parameters
+    ----------
+    range_mode : str
+        ``"first"`` or ``"strongest"``.
+    tracker : str
+        ``"surface"``: per-beam echoes of the candidate structure, tracked across beams by the
+        surface model (:mod:`sonarmap.ranges.tracking`); every return is an echo's leading edge
+        with a sigma.  ``"rules"``: the previous per-beam rules (isolated-return rule,
+        leading-edge refinement, band pooling at the band's peak), kept for comparison.
+    track : TrackConfig or dict, optional
+        Costs of the surface model (default :class:`sonarmap.ranges.tracking.TrackConfig`).
+    edge_fraction : float
+        The range convention: a return's range is the first crossing of this fraction of its
+        echo's first peak (:mod:`sonarmap.ranges.echoes`).  With ``tracker="rules"`` it applies to
+        normalised images only (0 = the first structure pixel).
+    edge_scan : str
+        How the leading-edge crossing is found (:func:`sonarmap.ranges.echoes.find_echoes`):
+        ``"back"`` (walk from the first peak towards the sonar to the first bin below the level;
+        better on the simulated ARIS pings) or ``"forward"`` (the first bin from in front of the
+        echo that reaches the level).
+    edge_pool_beams : int
+        Leading edges of a tracked surface are measured on the mean of the edge-aligned profiles
+        of the ``edge_pool_beams`` beams on either side of each beam on the same surface
+        (:func:`sonarmap.ranges.echoes.pooled_edges`: a multi-look along the surface; a single
+        beam's speckled echo moves its half-peak crossing by bins).  0 = every beam on its own.
+    pulse_length_m : float, optional
+        Transmit pulse length along range (``c tau / 2``); echoes are measured on the image
+        smoothed over it.  Default: from the ping (``meta["pulse_width_us"]``, ARIS), else none.
+    continue_evidence : float
+        Surface continuation (:func:`sonarmap.ranges.tracking.continuation_mask`): a tracked
+        surface of >= 5 beams is followed beyond its ends along its slope where, in a window of its
+        echo thickness, the pixels' log-likelihood ratio under the ping's fit sums to at least this
+        many nats (a faint stretch the component rule left without candidates); those pixels
+        become candidates and the surfaces are tracked again.  0 = off.
+    sigma_scale : float
+        Calibration of the speckle-jitter term of the sigma of a return measured on its own beam
+        (``edge_pool_beams=0``, or a surface of fewer than 3 beams;
+        :func:`sonarmap.ranges.echoes.range_sigma_m`), fitted on the simulator with the per-beam
+        edges: with 1.5, 73 % of the errors of returns on their surface (within 3 bins) lay
+        within +-sigma over the four sonar presets.  A return on the wrong echo is not covered by
+        its sigma.
+    sigma_pool_scale : float
+        Sigma of a pooled leading edge (:func:`sonarmap.ranges.echoes.edge_sigma_m`): the mean
+        profile's standard error at the crossing over its rise per bin, times this factor
+        (neighbouring beams share speckle through the main lobe and their windows overlap),
+        fitted on the simulator so that 68 % of the errors lie within +-sigma
+        (``docs/segmentation.md``).  Every return's sigma also covers the clipping of its echo
+        (:data:`CLIP_LEVEL`: the interval from the crossing to the first sample at full scale).
+    log_dynamic_range_db : float, optional
+        The raw samples are log-compressed, ``dynamic range`` dB per unit of pixel value (ARIS):
+        echoes of normalised images are measured in linear intensity.  Default: the ping's
+        ``meta["log_dynamic_range_db"]``, else linear samples.
+    min_run : int
+        ``tracker="rules"``, first return: minimum run of consecutive structure bins.
+    reject_isolated : bool
+        ``tracker="rules"``: drop returns without support in neighbouring beams.
+    neighbour_beams, max_jump_bins : int
+        ``tracker="rules"``: support window and range tolerance of the consistency rules.
+    min_segment_beams : int
+        ``tracker="rules"``: drop runs of consistent returns narrower than this many consecutive
+        beams.
+    refine_bins, edge_factor : int, float
+        ``tracker="rules"``: leading-edge refinement of first returns (0 = off): up to
+        ``refine_bins`` bins towards the sonar while the local mean intensity is >=
+        ``edge_factor`` x the fitted background class's mean intensity.
+    """
+
+    SECTION: ClassVar[str] = "ranges"
+
+    range_mode: str = "first"
+    tracker: str = "surface"
+    track: Any = None
+    edge_fraction: float = 0.5
+    edge_scan: str = "back"
+    edge_pool_beams: int = 3
+    pulse_length_m: float | None = None
+    continue_evidence: float = 10.0
+    sigma_scale: float = 1.5
+    sigma_pool_scale: float = 5.0
+    log_dynamic_range_db: float | None = None
+    min_run: int = 1
+    reject_isolated: bool = True
+    neighbour_beams: int = 2
+    max_jump_bins: int = 20
+    min_segment_beams: int = 1
+    refine_bins: int = 8
+    edge_factor: float = 4.0
+
+    def __post_init__(self) -> None:
+        from sonarmap.ranges.tracking import TrackConfig
+
+        w = self._where
+        if self.track is None:
+            object.__setattr__(self, "track", TrackConfig())
+        elif isinstance(self.track, dict):
+            object.__setattr__(self, "track", TrackConfig(**config_table(self.track, TrackConfig,
+                                                                         "pipeline config: ranges.track")))
+        elif not isinstance(self.track, TrackConfig):
+            raise config_error(w, "track", "must be a track table", self.track)
+        check_choice(self, "tracker", ("surface", "rules"), w)
+        check_choice(self, "edge_scan", ("forward", "back"), w)
+        check_choice(self, "range_mode", ("first", "strongest"), w)
+        for key, positive in (("log_dynamic_range_db", True), ("pulse_length_m", False)):
+            v = getattr(self, key)
+            if v is None:
+                continue
+            if not is_finite_number(v) or (v <= 0 if positive else v < 0):
+                raise config_error(w, key, "must be a finite number > 0" if positive
+                                   else "must be a finite number >= 0", v)
+            object.__setattr__(self, key, float(v))
+        coerce_reals(self, ("edge_factor",), w)
+        coerce_reals(self, ("sigma_scale", "sigma_pool_scale", "continue_evidence"), w, minimum=0)
+        coerce_reals(self, ("edge_fraction",), w)
+        if not 0 <= self.edge_fraction < 1:
+            raise config_error(w, "edge_fraction", "must lie in [0, 1)", self.edge_fraction)
+        check_integers(self, (("min_run", 1), ("neighbour_beams", 1), ("max_jump_bins", 0),
+                              ("min_segment_beams", 1), ("refine_bins", 0), ("edge_pool_beams", 0)), w)
+        check_booleans(self, ("reject_isolated",), w)
+
+    def to_dict(self) -> dict[str, Any]:
+        d = super().to_dict()
+        d["track"] = dataclasses.asdict(self.track)
+        for key in ("pulse_length_m", "log_dynamic_range_db"):
+            if d[key] is None:
+                del d[key]
+        return d
