@@ -16,18 +16,20 @@ from run import DATA, timeit
 def _problem(index: int):  # type: ignore[no-untyped-def]
     import numpy as np
 
-    from sonarmap._pipeline_kernels import gather_costs
     from sonarmap.io import read_pings
-    from sonarmap.pipeline import PipelineConfig, _cost_lut, _fit
+    from sonarmap.classify.segment import class_costs
+    from sonarmap.pipeline import PipelineConfig
     from sonarmap.preprocess.pipeline import preprocess_image
     from sonarmap.stats.mixture import quantize
+    from sonarmap.stats.model import fit_levels
 
     cfg = PipelineConfig()
     ping = list(read_pings(Path(DATA) / "didson" / "test"))[index]
     img = preprocess_image(ping.image, ping.geometry, cfg.preprocess_config())
     levels = np.ascontiguousarray(quantize(img, cfg.fit.n_levels))
-    cost = _cost_lut(_fit(levels, cfg), cfg.classify.object_prior_min, cfg.classify.speckle_eps)
-    return cfg, levels, cost, gather_costs(levels, cost)
+    cost = class_costs(fit_levels(levels, cfg.fit), object_prior_min=cfg.classify.object_prior_min,
+                       speckle_eps=cfg.classify.speckle_eps)
+    return cfg, levels, cost, np.ascontiguousarray(cost[:, levels])
 
 
 def run(quick: bool) -> list[dict]:

@@ -200,17 +200,6 @@ def test_box_mean_kernel_is_scipy_uniform_filter_bit_for_bit():
         assert np.array_equal(ref.view(np.uint32), box_mean_f32(img, s0, s1).view(np.uint32))
 
 
-def test_level_counts_is_bincount():
-    from sonarmap._pipeline_kernels import level_counts
-
-    rng = np.random.default_rng(1)
-    for shape in ((1, 1), (3, 5), (512, 96), (7, 13)):
-        lev = rng.integers(0, 256, shape).astype(np.uint8)
-        lev[rng.random(shape) < 0.6] = 0
-        ref = np.bincount(lev.ravel(), minlength=256).astype(np.float64)
-        assert np.array_equal(level_counts(lev, 256), ref)
-
-
 @pytest.mark.slow
 def test_pool_fill_only_adds_returns_on_empty_beams():
     """pool_mode="fill": pooled band pixels are added only on beams the per-pixel route left

@@ -7,46 +7,6 @@ from numba import njit
 
 
 @njit(cache=True, nogil=True)
-def gather_costs(levels, cost):  # pragma: no cover - numba
-    """``out[k, i, j] = cost[k, levels[i, j]]`` as float64."""
-    n = cost.shape[0]
-    h, w = levels.shape
-    out = np.empty((n, h, w))
-    for k in range(n):
-        for i in range(h):
-            for j in range(w):
-                out[k, i, j] = cost[k, levels[i, j]]
-    return out
-
-
-@njit(cache=True, nogil=True)
-def level_counts(levels, n_levels):  # pragma: no cover - numba
-    """``np.bincount(levels.ravel(), minlength=n_levels)`` as float64 (levels are non-negative)."""
-    h, w = levels.shape
-    top = n_levels
-    for i in range(h):
-        for j in range(w):
-            if levels[i, j] >= top:
-                top = levels[i, j] + 1
-    # four interleaved partial histograms: runs of one level (the zeros) do not serialise
-    part = np.zeros((4, top), dtype=np.int64)
-    n = h * w
-    flat = levels.ravel()
-    n4 = n - n % 4
-    for k in range(0, n4, 4):
-        part[0, flat[k]] += 1
-        part[1, flat[k + 1]] += 1
-        part[2, flat[k + 2]] += 1
-        part[3, flat[k + 3]] += 1
-    for k in range(n4, n):
-        part[0, flat[k]] += 1
-    out = np.empty(top)
-    for v in range(top):
-        out[v] = float(part[0, v] + part[1, v] + part[2, v] + part[3, v])
-    return out
-
-
-@njit(cache=True, nogil=True)
 def box_mean_f32(img, size0, size1):  # pragma: no cover - numba
     """``scipy.ndimage.uniform_filter(img, size=(size0, size1), mode="constant")`` of a 2-D float32
     image, bit for bit (scipy's arithmetic: axis 0 then axis 1, axes of size 1 skipped, each line

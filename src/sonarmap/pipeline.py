@@ -38,7 +38,7 @@ from numpy.typing import NDArray
 
 from sonarmap._config import is_finite_number
 from sonarmap.config import METHODS, SOLVER_NAMES, PipelineConfig
-from sonarmap.errors import FitError, InputError
+from sonarmap.errors import InputError
 from sonarmap.ping import Ping
 from sonarmap.ranges import BeamRanges, component_rule, drop_small_components, extract_ranges, half_peak_edges, no_returns
 
@@ -123,64 +123,6 @@ class PingProducts:
         return bool(set(self.gates) & IMPLAUSIBLE)
 
 
-def _fit(levels: NDArray[Any], config: PipelineConfig) -> Any:
-    if levels.ndim == 2 and levels.dtype.kind == "u":
-        from sonarmap._pipeline_kernels import level_counts
-
-        counts = level_counts(levels, int(config.fit.n_levels))
-    else:
-        counts = np.bincount(levels.ravel(), minlength=config.fit.n_levels).astype(np.float64)
-    return _fit_counts(counts, config)
-
-
-def _fit_counts(counts: NDArray[np.float64], config: PipelineConfig) -> Any:
-    """The per-ping mixture fit of a level histogram (None when it cannot be computed)."""
-    from sonarmap.stats.mixture import fit_mixture
-
-    try:
-        return fit_mixture(counts, families=config.fit.families, method=config.fit.fit_method,  # type: ignore[arg-type]
-                           n_levels=config.fit.n_levels, tol=config.fit.fit_tol)
-    except FitError:
-        return None
-
-
-def _class_prior(fit: Any, prior_min: float) -> NDArray[np.float64]:
-    """Fitted class priors with every object class raised to at least ``prior_min``."""
-    prior = np.asarray(fit.class_prior(), dtype=np.float64).copy()
-    if prior_min > 0 and prior.size > 1:
-        prior[1:] = np.maximum(prior[1:], prior_min)
-        prior[0] = max(1.0 - prior[1:].sum(), 1e-12)
-    return prior
-
-
-def _cost_lut(fit: Any, prior_min: float = 0.0, speckle_eps: float = 0.0, floor: float = -50.0) -> NDArray[np.float64]:
-    """``-log p(level|k) - log pi_k`` per class and level (eq. 17-18), clipped, min-shifted.
-
-    With ``speckle_eps > 0`` every object class's pmf is replaced by
-    ``(1 - eps) p(y|k) + eps p(y|background)``: a structure pixel may fade into the background's
-    range (speckle, the receiver threshold's zeros), so a dark pixel costs structure at most
-    ``-log eps`` instead of an unbounded amount.
-    """
-    lp = np.asarray(fit.class_log_pmf(), dtype=np.float64)
-    if speckle_eps > 0 and lp.shape[0] > 1:
-        with np.errstate(divide="ignore"):
-            lp[1:] = np.logaddexp(np.log1p(-speckle_eps) + lp[1:], math.log(speckle_eps) + lp[0])
-    with np.errstate(divide="ignore"):
-        lp = lp + np.log(_class_prior(fit, prior_min))[:, None]
-    lp = np.nan_to_num(lp, nan=floor, neginf=floor, posinf=0.0)
-    cost = -np.maximum(lp, floor)
-    return cost - cost.min(axis=0, keepdims=True)
-
-
-def _model_pd_pfa(fit: Any, lut: NDArray[Any]) -> tuple[float, float]:
-    pmf = np.asarray(fit.class_pmf())
-    det = np.asarray(lut) != 0
-    pfa = float(pmf[0][det].sum())
-    pd = float((pmf[1:][:, det].sum(axis=1) * np.asarray(fit.class_prior())[1:]).sum()
-               / max(float(np.asarray(fit.class_prior())[1:].sum()), 1e-300))
-    return min(pd, 1.0), min(pfa, 1.0)
-
-
 def classify_image(image: NDArray[np.float32], config: PipelineConfig = PipelineConfig()) -> tuple[NDArray[np.uint8], Any, float, float]:
     """Label a pre-processed image: returns ``(labels, fit, pd, pfa)`` (see :class:`PingProducts`).
 
@@ -194,12 +136,11 @@ def classify_image(image: NDArray[np.float32], config: PipelineConfig = Pipeline
 
 def _gates(fit: Any, config: PipelineConfig) -> frozenset[str]:
     """The fit gates ``fit`` fails under ``config`` (none for CFAR or without a fit)."""
-    if fit is None or config.classify.method.startswith("cfar-"):
+    if config.classify.method.startswith("cfar-"):
         return frozenset()
-    from sonarmap.stats.gates import fit_gates
+    from sonarmap.stats.model import failed_gates
 
-    return fit_gates(fit, max_kld=config.fit.max_kld, max_object_weight=config.fit.max_object_weight,
-                     min_separation=config.fit.min_separation)
+    return failed_gates(fit, config.fit)
 
 
 def _classify(image: NDArray[np.float32], config: PipelineConfig, gate: bool = False, *,
@@ -209,70 +150,21 @@ def _classify(image: NDArray[np.float32], config: PipelineConfig, gate: bool = F
     fails (:func:`_gates`; only with ``gate=True``, which also skips the labelling of a gated
     ping: its labels are all background).  ``levels`` and ``fit``, when given, are the image's
     levels and their fit (not recomputed)."""
+    from sonarmap.classify.segment import decision_rates, segment
     from sonarmap.stats.mixture import quantize
+    from sonarmap.stats.model import fit_levels
 
-    method = config.classify.method
-    if method.startswith("cfar-"):
-        from sonarmap.classify.cfar import CFARConfig, cfar
-
-        cfg = CFARConfig(method=method[5:], n_train=config.classify.cfar_train, n_guard=config.classify.cfar_guard,  # type: ignore[arg-type]
-                         pfa=config.classify.cfar_pfa, two_d=config.classify.cfar_two_d)
-        res = cfar(image, config=cfg)
-        levels = quantize(image, config.fit.n_levels)
-        return res.labels, _fit(levels, config), math.nan, config.classify.cfar_pfa, levels, frozenset()
     if levels is None or fit is None:
+        # the intensity model (eq. 8-11): quantised levels and their mixture fit
         levels = quantize(image, config.fit.n_levels)
-        fit = _fit(levels, config)
+        fit = fit_levels(levels, config.fit)
     gates = _gates(fit, config) if gate else frozenset()
-    if method == "threshold":
-        from sonarmap.classify.threshold import threshold_labels
-
-        labels = threshold_labels(image, config.classify.threshold)
-        pd, pfa = math.nan, math.nan
-        if fit is not None:
-            from sonarmap.stats.roc import pd_pfa_at_threshold
-
-            pd, pfa = pd_pfa_at_threshold(fit, config.classify.threshold)
-        return labels, fit, pd, pfa, levels, gates
-    if fit is None or fit.flags & {"all_zero", "degenerate"} or len(fit.class_names) < 2:
-        return np.zeros(image.shape, dtype=np.uint8), fit, 0.0, 0.0, levels, gates
-    from sonarmap.classify.local_map import map_lookup_table
-
-    lut = map_lookup_table(fit)
-    pd, pfa = _model_pd_pfa(fit, lut)
-    if method == "map":
-        return lut[levels], fit, pd, pfa, levels, gates
-    cost = _cost_lut(fit, config.classify.object_prior_min, config.classify.speckle_eps)
-    # the per-pixel decision of the MRF's own unary (object prior raised to object_prior_min):
-    # the fitted prior alone can be so small (a thin surface, 0.001-0.02) that the local MAP rule
-    # detects nothing while the MRF reports the surface
-    pd, pfa = _model_pd_pfa(fit, np.argmin(cost, axis=0))
     if gates:
+        pd, pfa = decision_rates(fit, config.classify)
         return np.zeros(image.shape, dtype=np.uint8), fit, pd, pfa, levels, gates
-    labels = _mrf_labels(image, levels, cost, config.classify.beta, config)
-    if config.classify.grow_prior_min > 0:
-        from sonarmap.ranges import wide_components
-
-        weak = _mrf_labels(image, levels, _cost_lut(fit, config.classify.grow_prior_min, config.classify.speckle_eps), config.classify.grow_beta, config)
-        grown = wide_components((weak >= 1) | (labels >= 1), 1, seeds=labels >= 1)
-        labels = np.where(grown & (labels == 0), np.uint8(1), labels).astype(np.uint8)
-    return labels, fit, pd, pfa, levels, gates
-
-
-def _mrf_labels(image: NDArray[np.float32], levels: NDArray[Any], cost: NDArray[np.float64], beta: float,
-                config: PipelineConfig) -> NDArray[np.uint8]:
-    from sonarmap.classify import mrf
-
-    if config.classify.solver == "graphcut" and cost.shape[0] == 2 and not config.classify.contrast:
-        return mrf.graphcut_levels_labels(levels, cost, beta=beta, neighbourhood=config.classify.neighbourhood,
-                                          range_weight=config.classify.range_weight)
-    from sonarmap._pipeline_kernels import gather_costs
-
-    unary = gather_costs(np.ascontiguousarray(levels), cost)
-    wt = mrf.pairwise_weights(image.shape, beta=beta, neighbourhood=config.classify.neighbourhood,
-                              image=image, contrast=config.classify.contrast, range_weight=config.classify.range_weight)
-    return mrf.solve(unary, solver=config.classify.solver, beta=beta,  # type: ignore[arg-type]
-                     neighbourhood=config.classify.neighbourhood, weights=wt).labels
+    # classification (eq. 12-18, 22)
+    seg = segment(image, fit, config.classify, levels=levels, n_levels=config.fit.n_levels)
+    return seg.labels, fit, seg.pd, seg.pfa, levels, gates
 
 
 def pooled_band_mask(image: NDArray[np.float32], level: float, *, pool_beams: int = 4, pool_bins: int = 3,
@@ -417,6 +309,7 @@ def _model_ping(raw: NDArray[np.float32], geom: Any, config: PipelineConfig, ref
     every gate is kept, else the ping as recorded.
     """
     from sonarmap.preprocess.normalise import on_8bit_grid
+    from sonarmap.stats.model import fit_counts
 
     m = _model_image(raw, geom, config, reference)
     if not (m.classified is not None and "kld" in m.classified[5] and config.fit.max_floor_levels > 0
@@ -430,7 +323,7 @@ def _model_ping(raw: NDArray[np.float32], geom: Any, config: PipelineConfig, ref
         merged = np.zeros_like(counts)
         merged[0] = counts[: n + 1].sum()
         merged[1:counts.size - n] = counts[n + 1:]
-        fit = _fit_counts(merged, config)
+        fit = fit_counts(merged, config.fit)
         if fit is None or _gates(fit, config):
             continue
         image = np.maximum(m.image - np.float32(n / (config.fit.n_levels - 1)), np.float32(0.0))

@@ -351,22 +351,14 @@ def unary_from_log_likelihood(
     ndarray of float32, shape (n_classes, n_bins, n_beams)
         Costs shifted so the smallest label cost of each level is zero.
     """
-    lp = np.asarray(class_log_pmf, dtype=np.float64)
-    if lp.ndim != 2 or lp.shape[0] < 2:
-        raise InputError(f"class_log_pmf: expected (n_classes >= 2, n_levels), got {lp.shape}")
-    if class_log_prior is not None:
-        pr = np.asarray(class_log_prior, dtype=np.float64).reshape(-1)
-        if pr.size != lp.shape[0]:
-            raise InputError(f"class_log_prior: {pr.size} entries for {lp.shape[0]} classes")
-        lp = lp + pr[:, None]
-    lp = np.nan_to_num(lp, nan=floor, neginf=floor, posinf=0.0)
-    cost = -np.maximum(lp, floor)
-    cost -= cost.min(axis=0, keepdims=True)
+    from sonarmap.classify.segment import level_costs
+
+    cost = level_costs(class_log_pmf, class_log_prior, floor=floor)
     lev = np.asarray(levels)
     if lev.dtype.kind not in "iu":
         raise InputError(f"levels: expected integer level indices, got {lev.dtype}")
-    if lev.size and (lev.min() < 0 or lev.max() >= lp.shape[1]):
-        raise InputError(f"levels: values must lie in [0, {lp.shape[1] - 1}]")
+    if lev.size and (lev.min() < 0 or lev.max() >= cost.shape[1]):
+        raise InputError(f"levels: values must lie in [0, {cost.shape[1] - 1}]")
     return np.ascontiguousarray(cost.astype(np.float32)[:, lev])
 
 
@@ -749,14 +741,22 @@ def segment_mrf(
     image: ArrayLike,
     fit: Any,
     *,
-    beta: float = 1.0,
+    beta: float = 2.0,
     neighbourhood: int = 4,
     contrast: bool = False,
     solver: Solver = "graphcut",
     n_levels: int = 256,
+    range_weight: float = 0.25,
+    object_prior_min: float = 0.2,
+    speckle_eps: float = 0.0,
     **kwargs: Any,
 ) -> MRFResult:
     """MRF segmentation of a (pre-processed) image under a fitted mixture (eq. 17-18, 22).
+
+    The defaults are the default pipeline's (:class:`sonarmap.classify.config.ClassifyConfig`):
+    with them the labels are those of :func:`sonarmap.classify.segment.segment` (the pipeline's
+    stage, which solves the same problem on a level lookup table); this function also returns the
+    energy and accepts every solver's options.
 
     Parameters
     ----------
@@ -764,10 +764,20 @@ def segment_mrf(
         Pre-processed intensities in [0, 1].
     fit : MixtureFit
         Fitted mixture giving ``class_log_pmf()`` and ``class_prior()``.
-    beta, neighbourhood, contrast, solver
-        Model and solver options (see :func:`pairwise_weights`, :func:`solve`).
+    beta, neighbourhood, contrast, range_weight
+        Pairwise model (see :func:`pairwise_weights`).
+    object_prior_min, speckle_eps
+        Unary model (see :func:`sonarmap.classify.segment.class_costs`).
+    solver, **kwargs
+        See :func:`solve`.
     """
+    from sonarmap.classify.segment import class_costs
+    from sonarmap.stats.mixture import quantize
+
     img = np.asarray(image, dtype=np.float32)
-    u = unary_from_fit(img, fit, n_levels=n_levels)
-    wt = pairwise_weights(img.shape, beta=beta, neighbourhood=neighbourhood, image=img, contrast=contrast)
+    levels = quantize(img, n_levels=n_levels)
+    cost = class_costs(fit, object_prior_min=object_prior_min, speckle_eps=speckle_eps)
+    u = np.ascontiguousarray(cost[:, levels])
+    wt = pairwise_weights(img.shape, beta=beta, neighbourhood=neighbourhood, image=img, contrast=contrast,
+                          range_weight=range_weight)
     return solve(u, solver=solver, beta=beta, neighbourhood=neighbourhood, weights=wt, **kwargs)

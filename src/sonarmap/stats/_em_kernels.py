@@ -23,6 +23,33 @@ from numba import njit
 # ---------------------------------------------------------------------------- histogram
 
 
+@njit(cache=True, nogil=True)
+def level_counts(levels, n_levels):  # pragma: no cover - numba
+    """``np.bincount(levels.ravel(), minlength=n_levels)`` as float64 (levels are non-negative)."""
+    h, w = levels.shape
+    top = n_levels
+    for i in range(h):
+        for j in range(w):
+            if levels[i, j] >= top:
+                top = levels[i, j] + 1
+    # four interleaved partial histograms: runs of one level (the zeros) do not serialise
+    part = np.zeros((4, top), dtype=np.int64)
+    n = h * w
+    flat = levels.ravel()
+    n4 = n - n % 4
+    for k in range(0, n4, 4):
+        part[0, flat[k]] += 1
+        part[1, flat[k + 1]] += 1
+        part[2, flat[k + 2]] += 1
+        part[3, flat[k + 3]] += 1
+    for k in range(n4, n):
+        part[0, flat[k]] += 1
+    out = np.empty(top)
+    for v in range(top):
+        out[v] = float(part[0, v] + part[1, v] + part[2, v] + part[3, v])
+    return out
+
+
 @njit(cache=True, nogil=True, inline="always")
 def _level(y, zero, one, scale, n: int, floor: bool) -> int:
     # clip in the image's dtype (NaN propagates into v and is caught by the caller's check)
