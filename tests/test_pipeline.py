@@ -183,23 +183,6 @@ def test_pool_config_validation():
     assert PipelineConfig.from_dict(PipelineConfig().to_dict()) == PipelineConfig()
 
 
-def test_box_mean_kernel_is_scipy_uniform_filter_bit_for_bit():
-    """The band-pooling box mean (numba) reproduces scipy.ndimage.uniform_filter exactly."""
-    from scipy.ndimage import uniform_filter
-
-    from sonarmap._pipeline_kernels import box_mean_f32
-
-    rng = np.random.default_rng(0)
-    for t in range(150):
-        h, w = int(rng.integers(1, 70)), int(rng.integers(1, 70))
-        img = (rng.random((h, w)) ** rng.uniform(1, 8)).astype(np.float32)
-        if t % 3 == 0:
-            img[rng.random((h, w)) < 0.6] = 0
-        s0, s1 = int(rng.integers(1, 6)), int(rng.integers(1, 12))
-        ref = uniform_filter(img, size=(s0, s1), mode="constant")
-        assert np.array_equal(ref.view(np.uint32), box_mean_f32(img, s0, s1).view(np.uint32))
-
-
 @pytest.mark.slow
 def test_pool_fill_only_adds_returns_on_empty_beams():
     """pool_mode="fill": pooled band pixels are added only on beams the per-pixel route left
@@ -233,23 +216,3 @@ def test_component_pixel_rule_keeps_compact_targets_drops_fish_sized_blobs():
     assert r0.n_returns == 0
     r = extract_ranges(lab, img, g, min_component_pixels=40, **kw)
     assert r.n_returns == 12 and (r.bin[10:22] == 100).all() and (r.bin[60:66] == -1).all()
-
-
-def test_band_peak_kernel_matches_numpy_formulation():
-    from sonarmap._pipeline_kernels import band_peak_pixels
-
-    rng = np.random.default_rng(5)
-    for _ in range(100):
-        h, w = int(rng.integers(1, 40)), int(rng.integers(1, 30))
-        band = rng.random((h, w)) < rng.uniform(0.05, 0.9)
-        img = np.floor(rng.random((h, w)) * 6).astype(np.float32)  # ties are common
-        cols = band.any(axis=0) & (rng.random(w) < 0.8)
-        first = band.argmax(axis=0)
-        rows = np.arange(h)[:, None]
-        below = rows >= first[None, :]
-        run = np.logical_and.accumulate(band | ~below, axis=0) & below & cols[None, :]
-        pick = np.where(run, img, -np.inf).argmax(axis=0)
-        ref = np.zeros((h, w), bool)
-        j = np.flatnonzero(cols)
-        ref[pick[j], j] = True
-        assert np.array_equal(band_peak_pixels(band, img, cols), ref)

@@ -40,7 +40,8 @@ from sonarmap._config import is_finite_number
 from sonarmap.config import METHODS, SOLVER_NAMES, PipelineConfig
 from sonarmap.errors import InputError
 from sonarmap.ping import Ping
-from sonarmap.ranges import BeamRanges, component_rule, drop_small_components, extract_ranges, half_peak_edges, no_returns
+from sonarmap.ranges import BeamRanges, extract_ranges, half_peak_edges, no_returns
+from sonarmap.ranges.candidates import candidate_mask, pooled_band_mask, pooled_band_pixels
 
 __all__ = ["PipelineConfig", "PingProducts", "process_ping", "classify_image", "pooled_band_pixels", "pooled_band_mask", "pulse_bins", "measurement_image", "METHODS", "SOLVER_NAMES"]
 
@@ -167,48 +168,6 @@ def _classify(image: NDArray[np.float32], config: PipelineConfig, gate: bool = F
     return seg.labels, fit, seg.pd, seg.pfa, levels, gates
 
 
-def pooled_band_mask(image: NDArray[np.float32], level: float, *, pool_beams: int = 4, pool_bins: int = 3,
-                     min_beams: int = 40) -> NDArray[np.bool_] | None:
-    """Band pooling as a mask: pixels of ``image`` averaged over ``pool_bins`` x ``2 pool_beams + 1``
-    that reach ``level`` and belong to an 8-connected band spanning >= ``min_beams`` beams (None: none)."""
-    from sonarmap._pipeline_kernels import box_mean_f32
-    from sonarmap.ranges import rule0
-
-    img = np.asarray(image, dtype=np.float32)
-    if img.ndim != 2 or img.size == 0:
-        from scipy.ndimage import uniform_filter
-
-        pooled = uniform_filter(img, size=(pool_bins, 2 * pool_beams + 1), mode="constant")
-    else:
-        # = scipy.ndimage.uniform_filter(img, size=(pool_bins, 2 pool_beams + 1), mode="constant")
-        pooled = box_mean_f32(np.ascontiguousarray(img), int(pool_bins), 2 * int(pool_beams) + 1)
-    band = pooled >= level
-    if not band.any():
-        return None
-    band = rule0(band, min_beams, img.shape[0] + 1, 0)
-    return band if band.any() else None
-
-
-def pooled_band_pixels(image: NDArray[np.float32], level: float, *, pool_beams: int = 4, pool_bins: int = 3,
-                       min_beams: int = 40, beams: NDArray[np.bool_] | None = None) -> NDArray[np.bool_] | None:
-    """Band pooling (see :class:`PipelineConfig`): one structure pixel per beam of every wide band.
-
-    The bands of :func:`pooled_band_mask`; on each of their beams (only those with ``beams[j]``
-    when given) the strongest pixel of the first run of band rows is returned.  None if no band.
-    """
-    from sonarmap._pipeline_kernels import band_peak_pixels
-
-    band = pooled_band_mask(image, level, pool_beams=pool_beams, pool_bins=pool_bins, min_beams=min_beams)
-    if band is None:
-        return None
-    cols = band.any(axis=0)
-    if beams is not None:
-        cols &= np.asarray(beams, dtype=bool)
-    if not cols.any():
-        return None
-    return band_peak_pixels(band, np.ascontiguousarray(image, dtype=np.float32), cols)
-
-
 def process_ping(ping: Ping, config: PipelineConfig = PipelineConfig(), *, keep_labels: bool = False,
                  background: Any = None) -> PingProducts:
     """Run the per-ping pipeline (pure function of ``ping``, ``config`` and ``background``).
@@ -272,7 +231,7 @@ def process_ping(ping: Ping, config: PipelineConfig = PipelineConfig(), *, keep_
         return no_return_products(set(fit.flags) | gates, float(pd), float(pfa), tuple(sorted(gates)))
     # per-beam ranges (sec. V): candidate structure, then echoes tracked across beams
     bg_mean, edge = _background_mean(fit, config)
-    mask = _candidate_mask(labels, geom, config, m.normalised is not None)
+    mask = candidate_mask(labels, geom, config.candidates, normalised=m.normalised is not None)
     thickness = None
     if config.ranges.tracker == "surface":
         ranges, thickness = _surface_ranges(ping, m.image, levels, mask, fit, config, m.normalised is not None,
@@ -364,20 +323,6 @@ def _background_mean(fit: Any, config: PipelineConfig) -> tuple[float | None, fl
         return None, None
     bg = float(np.asarray(fit.class_pmf())[0] @ np.asarray(fit.levels))
     return (bg if usable else None), (config.ranges.edge_factor * bg if config.ranges.refine_bins > 0 else None)
-
-
-def _candidate_mask(labels: NDArray[np.uint8], geom: Any, config: PipelineConfig, normalised: bool) -> NDArray[np.bool_]:
-    """Structure pixels in components large enough to be surfaces (rule 0), without the ones
-    smaller than ``min_component_extent_m`` both ways."""
-    if normalised:
-        rule = (config.candidates.normalised_component_beams, config.candidates.normalised_component_bins,
-                config.candidates.normalised_component_pixels)
-    else:
-        rule = (config.candidates.min_component_beams, config.candidates.min_component_bins, config.candidates.min_component_pixels)
-    mask = component_rule(labels >= 1, rule[0], rule[1], config.candidates.link_beams, rule[2])
-    if config.candidates.min_component_extent_m > 0:
-        mask = drop_small_components(mask, geom, config.candidates.min_component_extent_m)
-    return mask
 
 
 def _rule_ranges(ping: Ping, image: NDArray[np.float32], labels: NDArray[np.uint8], mask: NDArray[np.bool_],

@@ -1,0 +1,95 @@
+"""The candidate stage of the per-ping pipeline: which structure pixels can carry a return.
+
+:func:`candidate_mask` keeps the structure components large enough to be surfaces (rule 0) and
+drops the ones smaller than ``min_component_extent_m`` both ways; band pooling
+(:func:`pooled_band_mask`, :func:`pooled_band_pixels`) recovers thin single-look-speckle surface
+bands the per-pixel labels leave in pieces.  Called alone with the default
+:class:`~sonarmap.ranges.config.CandidateConfig` they give what
+:func:`sonarmap.pipeline.process_ping` uses.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+
+from sonarmap.errors import InputError
+from sonarmap.geometry import SonarGeometry
+from sonarmap.ranges import component_rule, drop_small_components, rule0
+from sonarmap.ranges.config import CandidateConfig
+
+__all__ = ["candidate_mask", "pooled_band_mask", "pooled_band_pixels"]
+
+
+def candidate_mask(labels: NDArray[np.uint8], geometry: SonarGeometry, config: CandidateConfig = CandidateConfig(),
+                   *, normalised: bool = False) -> NDArray[np.bool_]:
+    """Structure pixels (``labels >= 1``) in components large enough to be surfaces (rule 0),
+    without the ones smaller than ``min_component_extent_m`` both ways.
+
+    Parameters
+    ----------
+    labels : ndarray of uint8, shape (n_bins, n_beams)
+        The classification stage's labels (:func:`sonarmap.classify.segment.segment`).
+    geometry : SonarGeometry
+        For the components' metric extent.
+    config : CandidateConfig
+    normalised : bool
+        The labels are of a normalised image (ARIS, Oculus, water column): the
+        ``normalised_component_*`` thresholds apply (its multi-looked pixels are correlated).
+
+    Returns
+    -------
+    ndarray of bool, shape (n_bins, n_beams)
+    """
+    if not isinstance(config, CandidateConfig):
+        raise InputError(f"config: expected a CandidateConfig, got {type(config).__name__}")
+    c = config
+    if normalised:
+        rule = (c.normalised_component_beams, c.normalised_component_bins, c.normalised_component_pixels)
+    else:
+        rule = (c.min_component_beams, c.min_component_bins, c.min_component_pixels)
+    mask = component_rule(np.asarray(labels) >= 1, rule[0], rule[1], c.link_beams, rule[2])
+    if c.min_component_extent_m > 0:
+        mask = drop_small_components(mask, geometry, c.min_component_extent_m)
+    return mask
+
+
+def pooled_band_mask(image: NDArray[np.float32], level: float, *, pool_beams: int = 4, pool_bins: int = 3,
+                     min_beams: int = 40) -> NDArray[np.bool_] | None:
+    """Band pooling as a mask: pixels of ``image`` averaged over ``pool_bins`` x ``2 pool_beams + 1``
+    that reach ``level`` and belong to an 8-connected band spanning >= ``min_beams`` beams (None: none)."""
+    from sonarmap.ranges._kernels import box_mean_f32
+
+    img = np.asarray(image, dtype=np.float32)
+    if img.ndim != 2 or img.size == 0:
+        from scipy.ndimage import uniform_filter
+
+        pooled = uniform_filter(img, size=(pool_bins, 2 * pool_beams + 1), mode="constant")
+    else:
+        # = scipy.ndimage.uniform_filter(img, size=(pool_bins, 2 pool_beams + 1), mode="constant")
+        pooled = box_mean_f32(np.ascontiguousarray(img), int(pool_bins), 2 * int(pool_beams) + 1)
+    band = pooled >= level
+    if not band.any():
+        return None
+    band = rule0(band, min_beams, img.shape[0] + 1, 0)
+    return band if band.any() else None
+
+
+def pooled_band_pixels(image: NDArray[np.float32], level: float, *, pool_beams: int = 4, pool_bins: int = 3,
+                       min_beams: int = 40, beams: NDArray[np.bool_] | None = None) -> NDArray[np.bool_] | None:
+    """Band pooling (see :class:`~sonarmap.ranges.config.CandidateConfig`): one structure pixel per beam of every wide band.
+
+    The bands of :func:`pooled_band_mask`; on each of their beams (only those with ``beams[j]``
+    when given) the strongest pixel of the first run of band rows is returned.  None if no band.
+    """
+    from sonarmap.ranges._kernels import band_peak_pixels
+
+    band = pooled_band_mask(image, level, pool_beams=pool_beams, pool_bins=pool_bins, min_beams=min_beams)
+    if band is None:
+        return None
+    cols = band.any(axis=0)
+    if beams is not None:
+        cols &= np.asarray(beams, dtype=bool)
+    if not cols.any():
+        return None
+    return band_peak_pixels(band, np.ascontiguousarray(image, dtype=np.float32), cols)
