@@ -16,7 +16,7 @@ Rows:
   and the median of the pairs' ratios are in the note.
 * Peak memory: the resident set of the parent plus all worker processes, sampled every 0.25 s
   (psutil), is given in the notes.
-* CPU accounting: the CPU time of the run (parent, fork server, workers) and the mean number of
+* CPU accounting: the CPU time of the run (parent and workers) and the mean number of
   CPUs that *other* work used meanwhile (other processes, hypervisor steal) - the machine is
   shared, and a run overlapping someone else's job is visible as "other load" > 0.
 
@@ -46,8 +46,8 @@ class _PeakRSS:
     """Peak of the summed RSS of this process and all its descendants (sampled in a thread).
 
     Also accounts CPU time: ``own_cpu_s`` is the CPU used by this process and its descendants
-    during the block (user + system, including reaped children - the pool's workers are reaped by
-    the fork server, a child of this process), ``other_cpu_s`` the CPU the rest of the machine
+    during the block (user + system, including reaped children - the pool's spawned workers are
+    children of this process), ``other_cpu_s`` the CPU the rest of the machine
     used meanwhile (system-wide busy time minus ours) and ``steal_s`` the time the hypervisor gave
     to other guests.  On a shared machine, ``other_cpu_s`` tells whether a timing was disturbed.
     """
@@ -111,7 +111,7 @@ class _PeakRSS:
     def __exit__(self, *exc: object) -> None:
         self._stop.set()
         self._thread.join()
-        time.sleep(0.05)  # let the fork server reap the last workers (their time joins its children's)
+        time.sleep(0.05)  # let the last workers be reaped (their time joins our children's)
         cpu1 = self._tree_cpu()
         busy1, steal1 = self._machine()
         self.own_cpu_s = sum(v - self._cpu0.get(pid, 0.0) for pid, v in cpu1.items())
