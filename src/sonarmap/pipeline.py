@@ -36,14 +36,13 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from sonarmap._config import is_finite_number
 from sonarmap.config import METHODS, SOLVER_NAMES, PipelineConfig
 from sonarmap.errors import InputError
 from sonarmap.ping import Ping
-from sonarmap.ranges import BeamRanges, extract_ranges, half_peak_edges, no_returns
+from sonarmap.ranges import BeamRanges, no_returns
 from sonarmap.ranges.candidates import candidate_mask, pooled_band_mask, pooled_band_pixels
 
-__all__ = ["PipelineConfig", "PingProducts", "process_ping", "classify_image", "pooled_band_pixels", "pooled_band_mask", "pulse_bins", "measurement_image", "METHODS", "SOLVER_NAMES"]
+__all__ = ["PipelineConfig", "PingProducts", "process_ping", "classify_image", "pooled_band_pixels", "pooled_band_mask", "METHODS", "SOLVER_NAMES"]
 
 
 
@@ -230,14 +229,19 @@ def process_ping(ping: Ping, config: PipelineConfig = PipelineConfig(), *, keep_
         # an implausible fit never becomes confident output: no returns, the reasons as flags
         return no_return_products(set(fit.flags) | gates, float(pd), float(pfa), tuple(sorted(gates)))
     # per-beam ranges (sec. V): candidate structure, then echoes tracked across beams
-    bg_mean, edge = _background_mean(fit, config)
-    mask = candidate_mask(labels, geom, config.candidates, normalised=m.normalised is not None)
+    from sonarmap.ranges.measure import background_mean, rule_ranges, surface_ranges
+
+    bg_mean, edge = background_mean(fit, config.ranges)
+    normalised = m.normalised is not None
+    mask = candidate_mask(labels, geom, config.candidates, normalised=normalised)
     thickness = None
     if config.ranges.tracker == "surface":
-        ranges, thickness = _surface_ranges(ping, m.image, levels, mask, fit, config, m.normalised is not None,
-                                            bg_mean, m.background)
+        ranges, thickness = surface_ranges(
+            ping, m.image, levels, mask, fit, config.ranges, config.candidates, normalised=normalised,
+            bg_mean=bg_mean, background=m.background, pool_bands=config.classify.method in ("mrf", "map", "threshold"))
     else:
-        ranges = _rule_ranges(ping, m.image, labels, mask, config, m.normalised is not None, bg_mean, edge)
+        ranges = rule_ranges(ping, m.image, labels, mask, config.ranges, config.candidates, normalised=normalised,
+                             bg_mean=bg_mean, edge=edge)
     flags = set(fit.flags) if fit is not None else {"no_fit"}
     if ranges.n_returns == 0:
         flags.add("no_returns")
@@ -313,211 +317,6 @@ def _model_image(raw: NDArray[np.float32], geom: Any, config: PipelineConfig, re
     if constant or not np.any(image > 0) or float(image.max()) == float(image.min()):
         return _Modelled(image, normalised, background, None, 0)
     return _Modelled(image, normalised, background, _classify(image, config, gate=True), 0)
-
-
-def _background_mean(fit: Any, config: PipelineConfig) -> tuple[float | None, float | None]:
-    """The fitted background class's mean intensity (None when the fit has no usable classes) and
-    the leading-edge level of the rules tracker (``edge_factor`` x that mean; None when off)."""
-    usable = fit is not None and len(fit.class_names) >= 2 and not fit.flags & {"all_zero", "degenerate"}
-    if not (usable or (config.ranges.refine_bins > 0 and fit is not None)):
-        return None, None
-    bg = float(np.asarray(fit.class_pmf())[0] @ np.asarray(fit.levels))
-    return (bg if usable else None), (config.ranges.edge_factor * bg if config.ranges.refine_bins > 0 else None)
-
-
-def _rule_ranges(ping: Ping, image: NDArray[np.float32], labels: NDArray[np.uint8], mask: NDArray[np.bool_],
-                 config: PipelineConfig, normalised: bool, bg_mean: float | None, edge: float | None) -> BeamRanges:
-    """The per-beam rules (``tracker="rules"``): first runs, the isolated-return rule, leading-edge
-    refinement, band pooling; half-peak edges on normalised images."""
-    geom = ping.geometry
-
-    def _ranges(accepted: NDArray[np.bool_] | None) -> BeamRanges:
-        return extract_ranges(
-            mask, image, geom, mode=config.ranges.range_mode,  # type: ignore[arg-type]
-            min_run=config.ranges.min_run, reject_isolated=config.ranges.reject_isolated,
-            neighbour_beams=config.ranges.neighbour_beams, max_jump_bins=config.ranges.max_jump_bins,
-            min_segment_beams=config.ranges.min_segment_beams,
-            refine_bins=config.ranges.refine_bins if not normalised else 0, edge_level=edge, accepted=accepted,
-            time_ns=ping.time_ns,
-            source=ping.source,
-        )
-
-    ranges = _ranges(None)
-    # band pooling: "fallback" only when the per-pixel route found less than one wide surface,
-    # "fill" on the beams it left without a return
-    fallback = ranges.n_returns < config.candidates.pool_min_beams
-    n_beams = ranges.bin.size
-    # band pooling multi-looks single-look speckle; a normalised image is multi-looked already
-    if (config.candidates.pool_factor > 0 and bg_mean is not None and bg_mean > 0 and not normalised
-            and (fallback or (config.candidates.pool_mode == "fill" and ranges.n_returns < n_beams))):
-        accepted = pooled_band_pixels(image, config.candidates.pool_factor * bg_mean, pool_beams=config.candidates.pool_beams,
-                                      pool_bins=config.candidates.pool_bins, min_beams=config.candidates.pool_min_beams,
-                                      beams=None if fallback else ranges.bin < 0)
-        if accepted is not None:
-            ranges = _ranges(accepted)
-    if normalised and config.ranges.edge_fraction > 0:
-        # the range convention: the leading edge of the echo (a fraction of its first peak)
-        ranges = half_peak_edges(ranges, image, labels >= 1, geom, fraction=config.ranges.edge_fraction)
-    return ranges
-
-
-def _meta_number(ping: Ping, key: str, default: float | None = None) -> float | None:
-    """``ping.meta[key]`` as a float: ``default`` when absent, None when it is not a finite number."""
-    meta = ping.meta if isinstance(ping.meta, dict) else {}
-    if key not in meta:
-        return default
-    v = meta[key]
-    return float(v) if is_finite_number(v) else None
-
-
-def pulse_bins(ping: Ping, config: PipelineConfig) -> int:
-    """The pulse length in range bins (>= 1): ``config.ranges.pulse_length_m``, else the ping's
-    ``meta["pulse_width_us"]`` at its sound speed (``meta["sound_speed_m_s"]``, default 1500 m/s)."""
-    length = config.ranges.pulse_length_m
-    if length is None:
-        us = _meta_number(ping, "pulse_width_us")
-        c = _meta_number(ping, "sound_speed_m_s", 1500.0)
-        ok = us is not None and 0 < us < 1e5 and c is not None and 1300 <= c <= 1700
-        length = us * 1e-6 * c / 2.0 if ok else 0.0  # type: ignore[operator]
-    dr = abs(ping.geometry.range_resolution_m)
-    return max(1, int(round(length / dr))) if dr > 0 else 1
-
-
-def _log_range_db(ping: Ping, config: PipelineConfig) -> float | None:
-    """dB per unit of raw pixel value of log-compressed samples (None: linear samples)."""
-    if config.ranges.log_dynamic_range_db is not None:
-        return config.ranges.log_dynamic_range_db
-    v = _meta_number(ping, "log_dynamic_range_db")
-    return v if v is not None and 0 < v < 1000 else None
-
-
-def measurement_image(ping: Ping, background: Any, config: PipelineConfig = PipelineConfig(), *,
-                      rows: tuple[int, int] | None = None) -> NDArray[np.float64]:
-    """The image a normalised ping's echoes are measured on: echo intensity above the background,
-    in units of the background level, linear in intensity.
-
-    ``ratio = raw / b`` for linear samples, ``10^(D (raw - b) / 10)`` for log-compressed ones
-    (``D`` dB per unit, :attr:`PipelineConfig.ranges.log_dynamic_range_db`), with ``b`` the estimated
-    background level x beam factor (:mod:`sonarmap.preprocess.normalise`); then
-    ``max(ratio - 1, 0)``.  No multi-look: the leading edge keeps the raw range resolution.
-    ``rows=(r0, r1)`` computes only those rows (zero elsewhere).
-    """
-    from sonarmap._pipeline_kernels import excess_ratio
-    from sonarmap.preprocess.normalise import expand_grid
-
-    raw = np.ascontiguousarray(ping.image, dtype=np.float32)
-    level = np.ascontiguousarray(background.level_by_bin, dtype=np.float32)
-    full = (np.ones(raw.shape, np.float32) if background.beam_factor is None
-            else np.ascontiguousarray(expand_grid(background.beam_factor, raw.shape), dtype=np.float32))
-    d = _log_range_db(ping, config)
-    r0, r1 = (0, raw.shape[0]) if rows is None else rows
-    return excess_ratio(raw, level, full, float(d) if d is not None else 0.0, int(r0), int(r1))
-
-
-def _surface_ranges(ping: Ping, image: NDArray[np.float32], levels: NDArray[Any], mask: NDArray[np.bool_],
-                    fit: Any, config: PipelineConfig, normalised: bool,
-                    bg_mean: float | None, background: Any = None) -> tuple[BeamRanges, NDArray[np.int64]]:
-    """Echoes of the candidate structure (``mask`` plus pooled bands), tracked across beams; also
-    the number of bins each return's echo spans (0 where no return)."""
-    from sonarmap.ranges import ranges_from_tracks
-    from sonarmap.ranges.echoes import find_echoes, level_llr, pooled_edges
-    from sonarmap.ranges.tracking import continuation_mask, track_surfaces
-
-    geom = ping.geometry
-    cand = mask
-    band = None
-    # band pooling recovers thin single-look surface bands the per-pixel route leaves in pieces;
-    # only needed where some beam has no candidate at all
-    if (config.candidates.pool_factor > 0 and bg_mean is not None and bg_mean > 0 and not normalised
-            and config.classify.method in ("mrf", "map", "threshold") and not mask.any(axis=0).all()):
-        band = pooled_band_mask(image, config.candidates.pool_factor * bg_mean, pool_beams=config.candidates.pool_beams,
-                                pool_bins=config.candidates.pool_bins, min_beams=config.candidates.pool_min_beams)
-        if band is not None:
-            cand = cand | band
-    if not cand.any():
-        return (no_returns(geom, time_ns=ping.time_ns, source=ping.source, mode=config.ranges.range_mode),
-                np.zeros(geom.n_beams, dtype=np.int64))
-    llr_lut = level_llr(fit) if fit is not None and len(fit.class_names) >= 2 else None
-    lut = np.maximum(llr_lut, 0.0) if llr_lut is not None else np.ones(int(levels.max()) + 1)
-    fraction = config.ranges.edge_fraction if config.ranges.edge_fraction > 0 else 0.5
-    pb = pulse_bins(ping, config)
-    measured = normalised and background is not None and getattr(background, "level_by_bin", None) is not None
-
-    done: list[Any] = []  # the measurement image and its rows, once computed
-
-    def measure(cand: NDArray[np.bool_]) -> tuple[Any, float, Any, Any]:
-        meas, bg = image, bg_mean or 0.0
-        if measured:
-            # echo intensity above the background, in background units (its mean is 1)
-            occupied = np.flatnonzero(cand.any(axis=1))
-            pad = pb + 4
-            rows = (int(occupied[0]) - pad, int(occupied[-1]) + 1 + pad)
-            if not done or rows[0] < done[1][0] or rows[1] > done[1][1]:
-                done[:] = [measurement_image(ping, background, config, rows=rows), rows]
-            meas, bg = done[0], 1.0
-        # a pooled band pixel passed a >= pool_factor x background test over the whole box: one
-        # nat at least, whatever its own (single-look, speckled) value says
-        echoes = find_echoes(cand, meas, geom, levels=levels, level_evidence=lut, boost=band, boost_min=1.0,
-                             pulse_bins=pb, fraction=fraction, background=bg, scan=config.ranges.edge_scan,
-                             sigma_scale=config.ranges.sigma_scale)
-        return meas, bg, echoes, track_surfaces(echoes, config.ranges.track)
-
-    meas, bg, echoes, tracks = measure(cand)
-    if config.ranges.continue_evidence > 0 and llr_lut is not None:
-        # a surface's faint stretch that the component rule left without candidates: pixels along
-        # its extrapolation where their likelihood ratio says structure, for the tracker to judge
-        extra = continuation_mask(echoes, tracks.first, levels, llr_lut, min_evidence=config.ranges.continue_evidence,
-                                  touch_bins=config.ranges.track.touch_bins) & ~cand
-        if extra.any() and echoes.size:
-            # only where it could become the return: a beam without one, or whose return lies behind
-            first = tracks.first
-            current = np.where(first >= 0, echoes.edge_bin[np.maximum(first, 0)], np.inf)
-            top = np.where(extra.any(axis=0), np.argmax(extra, axis=0), extra.shape[0])
-            extra &= (top < current)[None, :]
-        if extra.any():
-            cand = cand | extra
-            meas, bg, echoes, tracks = measure(cand)
-    sel = tracks.first
-    if config.ranges.edge_pool_beams > 0 and config.ranges.range_mode == "first":
-        # the pooled profile is smoothed over at least 3 bins along range in all (a single-look
-        # profile's maximum is otherwise a speckle spike)
-        echoes = pooled_edges(echoes, sel, meas, geom, pulse_bins=pb, half_beams=config.ranges.edge_pool_beams,
-                              smooth_bins=3 if pb < 3 else 1, fraction=fraction,
-                              touch_bins=config.ranges.track.touch_bins, sigma_scale=config.ranges.sigma_pool_scale)
-    if echoes.size and (sel >= 0).any():
-        echoes = _clipped_echo_sigma(echoes, sel, ping.image, geom)
-    thickness = np.where(sel >= 0, (echoes.stop_bin - echoes.start_bin)[np.maximum(sel, 0)] if echoes.size else 0, 0)
-    return (ranges_from_tracks(echoes, tracks, geom, image, mode=config.ranges.range_mode,  # type: ignore[arg-type]
-                               time_ns=ping.time_ns, source=ping.source), thickness.astype(np.int64))
-
-
-#: A raw sample at or above this is at the receiver's full scale (8-bit images: level 255).
-CLIP_LEVEL = 254.5 / 255.0
-
-
-def _clipped_echo_sigma(echoes: Any, sel: NDArray[np.int64], raw: NDArray[Any], geom: Any) -> Any:
-    """Widen the sigma of returns whose echo reaches the receiver's full scale.
-
-    A clipped echo's peak is only a lower bound: the half-peak crossing of the true echo lies
-    somewhere between the crossing measured (half the clipped level) and the echo's first
-    clipped sample.  That interval's uniform spread, ``length / sqrt 12``, is added in
-    quadrature to the return's sigma; the range itself is not moved.
-    """
-    from sonarmap._pipeline_kernels import first_clipped_rows
-
-    img = np.ascontiguousarray(raw)
-    idx = np.flatnonzero(sel >= 0)
-    e = sel[idx]
-    lo = np.clip(np.ceil(echoes.edge_bin[e]).astype(np.int64), 0, img.shape[0] - 1)
-    hi = np.clip(echoes.stop_bin[e], 0, img.shape[0])
-    first = first_clipped_rows(img, idx, lo, hi, CLIP_LEVEL)  # per return: its echo's first clipped row
-    spread = (first - echoes.edge_bin[e]) * abs(geom.range_resolution_m)
-    hit = (first >= 0) & (spread > 0)
-    if not hit.any():
-        return echoes
-    sigma = echoes.sigma_m.copy()
-    sigma[e[hit]] = np.hypot(sigma[e[hit]], spread[hit] / math.sqrt(12.0))
-    return dataclasses.replace(echoes, sigma_m=sigma)
 
 
 def _p_detect(pd: float, pd_range: float, ranges: BeamRanges, thickness: NDArray[np.int64]) -> NDArray[np.float32]:

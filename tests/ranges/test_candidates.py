@@ -71,3 +71,28 @@ def test_band_peak_kernel_matches_numpy_formulation():
         j = np.flatnonzero(cols)
         ref[pick[j], j] = True
         assert np.array_equal(band_peak_pixels(band, img, cols), ref)
+
+
+def test_the_range_stages_alone_give_the_pipeline_ranges(test_pings, aris_pings, oculus_pings):
+    """candidate_mask then surface_ranges on the classifier's image, labels and fit give exactly the
+    returns process_ping reports, on every real DIDSON, ARIS and Oculus ping."""
+    from sonarmap.pipeline import PipelineConfig, process_ping
+    from sonarmap.ranges.measure import background_mean, surface_ranges
+    from sonarmap.stats.mixture import quantize
+
+    cfg = PipelineConfig()
+    n = 0
+    for p in [*test_pings, *aris_pings, *oculus_pings]:
+        pr = process_ping(p, cfg, keep_labels=True)
+        if pr.fit is None or pr.gates:
+            continue
+        normalised = bool(pr.background is not None and pr.background.applied)
+        mask = candidate_mask(pr.labels, p.geometry, cfg.candidates, normalised=normalised)
+        bg_mean, _ = background_mean(pr.fit, cfg.ranges)
+        r, _ = surface_ranges(p, pr.image, quantize(pr.image), mask, pr.fit, cfg.ranges, cfg.candidates,
+                              normalised=normalised, bg_mean=bg_mean, background=pr.background)
+        np.testing.assert_array_equal(r.bin, pr.ranges.bin)
+        np.testing.assert_array_equal(r.range_m, pr.ranges.range_m)
+        np.testing.assert_array_equal(r.sigma_m, pr.ranges.sigma_m)
+        n += 1
+    assert n == 10 + 6 + 3  # every real ping passes the gates

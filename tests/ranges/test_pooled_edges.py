@@ -185,7 +185,7 @@ def test_continuation_follows_a_faint_stretch_along_the_slope_and_not_noise():
 def test_a_clipped_echo_carries_the_clipping_in_its_sigma():
     """Half of a clipped peak is only a lower bound: the true crossing lies between the measured
     one and the first sample at full scale, so that interval's spread joins the sigma."""
-    from sonarmap.pipeline import CLIP_LEVEL, _clipped_echo_sigma
+    from sonarmap.ranges.measure import CLIP_LEVEL, clipped_echo_sigma
 
     g = _geom(n_bins=100, n_beams=2)
     img = np.zeros(g.shape)
@@ -193,7 +193,7 @@ def test_a_clipped_echo_carries_the_clipping_in_its_sigma():
     img[40:50, 1] = [0.1, 0.3, 0.6, 0.9, 0.95, 0.9, 0.8, 0.6, 0.4, 0.2]  # not clipped
     e = find_echoes(img > 0.2, img, g)
     first = _first(e)
-    out = _clipped_echo_sigma(e, first, img, g)
+    out = clipped_echo_sigma(e, first, img, g)
     bin_m = 0.02
     spread = (44 - e.edge_bin[first[0]]) * bin_m
     assert spread > 0 and img[44, 0] >= CLIP_LEVEL

@@ -1,0 +1,239 @@
+"""The measurement stage of the per-ping pipeline: per-beam returns of the candidate structure.
+
+The range convention (``DESIGN.md``): a return's range is the leading edge of its echo - the first
+crossing of ``edge_fraction`` of the echo's first peak after smoothing along range over the pulse
+length - with a sigma.  :func:`surface_ranges` (``tracker="surface"``, the default) finds the
+echoes of the candidate pixels (:mod:`sonarmap.ranges.candidates`) on every beam, tracks surfaces
+across beams (:mod:`sonarmap.ranges.tracking`) and measures their leading edges on pooled
+profiles (:func:`sonarmap.ranges.echoes.pooled_edges`); :func:`rule_ranges` is the previous
+per-beam rules tracker.  Normalised pings are measured on :func:`measurement_image` (echo above
+the background, linear in intensity).  Called alone with the default
+:class:`~sonarmap.ranges.config.RangeConfig` and
+:class:`~sonarmap.ranges.config.CandidateConfig` they give what
+:func:`sonarmap.pipeline.process_ping` reports.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from sonarmap._config import is_finite_number
+from sonarmap.ping import Ping
+from sonarmap.ranges import BeamRanges, extract_ranges, half_peak_edges, no_returns
+from sonarmap.ranges.candidates import pooled_band_mask, pooled_band_pixels
+from sonarmap.ranges.config import CandidateConfig, RangeConfig
+
+__all__ = ["surface_ranges", "rule_ranges", "measurement_image", "pulse_bins", "background_mean",
+           "clipped_echo_sigma", "CLIP_LEVEL"]
+
+
+def background_mean(fit: Any, config: RangeConfig = RangeConfig()) -> tuple[float | None, float | None]:
+    """The fitted background class's mean intensity (None when the fit has no usable classes) and
+    the leading-edge level of the rules tracker (``edge_factor`` x that mean; None when off)."""
+    usable = fit is not None and len(fit.class_names) >= 2 and not fit.flags & {"all_zero", "degenerate"}
+    if not (usable or (config.refine_bins > 0 and fit is not None)):
+        return None, None
+    bg = float(np.asarray(fit.class_pmf())[0] @ np.asarray(fit.levels))
+    return (bg if usable else None), (config.edge_factor * bg if config.refine_bins > 0 else None)
+
+
+def rule_ranges(ping: Ping, image: NDArray[np.float32], labels: NDArray[np.uint8], mask: NDArray[np.bool_],
+                config: RangeConfig = RangeConfig(), candidates: CandidateConfig = CandidateConfig(), *,
+                normalised: bool = False, bg_mean: float | None = None, edge: float | None = None) -> BeamRanges:
+    """The per-beam rules (``tracker="rules"``): first runs, the isolated-return rule, leading-edge
+    refinement, band pooling; half-peak edges on normalised images."""
+    geom = ping.geometry
+
+    def _ranges(accepted: NDArray[np.bool_] | None) -> BeamRanges:
+        return extract_ranges(
+            mask, image, geom, mode=config.range_mode,  # type: ignore[arg-type]
+            min_run=config.min_run, reject_isolated=config.reject_isolated,
+            neighbour_beams=config.neighbour_beams, max_jump_bins=config.max_jump_bins,
+            min_segment_beams=config.min_segment_beams,
+            refine_bins=config.refine_bins if not normalised else 0, edge_level=edge, accepted=accepted,
+            time_ns=ping.time_ns,
+            source=ping.source,
+        )
+
+    ranges = _ranges(None)
+    # band pooling: "fallback" only when the per-pixel route found less than one wide surface,
+    # "fill" on the beams it left without a return
+    fallback = ranges.n_returns < candidates.pool_min_beams
+    n_beams = ranges.bin.size
+    # band pooling multi-looks single-look speckle; a normalised image is multi-looked already
+    if (candidates.pool_factor > 0 and bg_mean is not None and bg_mean > 0 and not normalised
+            and (fallback or (candidates.pool_mode == "fill" and ranges.n_returns < n_beams))):
+        accepted = pooled_band_pixels(image, candidates.pool_factor * bg_mean, pool_beams=candidates.pool_beams,
+                                      pool_bins=candidates.pool_bins, min_beams=candidates.pool_min_beams,
+                                      beams=None if fallback else ranges.bin < 0)
+        if accepted is not None:
+            ranges = _ranges(accepted)
+    if normalised and config.edge_fraction > 0:
+        # the range convention: the leading edge of the echo (a fraction of its first peak)
+        ranges = half_peak_edges(ranges, image, labels >= 1, geom, fraction=config.edge_fraction)
+    return ranges
+
+
+def _meta_number(ping: Ping, key: str, default: float | None = None) -> float | None:
+    """``ping.meta[key]`` as a float: ``default`` when absent, None when it is not a finite number."""
+    meta = ping.meta if isinstance(ping.meta, dict) else {}
+    if key not in meta:
+        return default
+    v = meta[key]
+    return float(v) if is_finite_number(v) else None
+
+
+def pulse_bins(ping: Ping, config: RangeConfig = RangeConfig()) -> int:
+    """The pulse length in range bins (>= 1): ``config.pulse_length_m``, else the ping's
+    ``meta["pulse_width_us"]`` at its sound speed (``meta["sound_speed_m_s"]``, default 1500 m/s)."""
+    length = config.pulse_length_m
+    if length is None:
+        us = _meta_number(ping, "pulse_width_us")
+        c = _meta_number(ping, "sound_speed_m_s", 1500.0)
+        ok = us is not None and 0 < us < 1e5 and c is not None and 1300 <= c <= 1700
+        length = us * 1e-6 * c / 2.0 if ok else 0.0  # type: ignore[operator]
+    dr = abs(ping.geometry.range_resolution_m)
+    return max(1, int(round(length / dr))) if dr > 0 else 1
+
+
+def _log_range_db(ping: Ping, config: RangeConfig) -> float | None:
+    """dB per unit of raw pixel value of log-compressed samples (None: linear samples)."""
+    if config.log_dynamic_range_db is not None:
+        return config.log_dynamic_range_db
+    v = _meta_number(ping, "log_dynamic_range_db")
+    return v if v is not None and 0 < v < 1000 else None
+
+
+def measurement_image(ping: Ping, background: Any, config: RangeConfig = RangeConfig(), *,
+                      rows: tuple[int, int] | None = None) -> NDArray[np.float64]:
+    """The image a normalised ping's echoes are measured on: echo intensity above the background,
+    in units of the background level, linear in intensity.
+
+    ``ratio = raw / b`` for linear samples, ``10^(D (raw - b) / 10)`` for log-compressed ones
+    (``D`` dB per unit, :attr:`RangeConfig.log_dynamic_range_db`), with ``b`` the estimated
+    background level x beam factor (:mod:`sonarmap.preprocess.normalise`); then
+    ``max(ratio - 1, 0)``.  No multi-look: the leading edge keeps the raw range resolution.
+    ``rows=(r0, r1)`` computes only those rows (zero elsewhere).
+    """
+    from sonarmap.ranges._kernels import excess_ratio
+    from sonarmap.preprocess.normalise import expand_grid
+
+    raw = np.ascontiguousarray(ping.image, dtype=np.float32)
+    level = np.ascontiguousarray(background.level_by_bin, dtype=np.float32)
+    full = (np.ones(raw.shape, np.float32) if background.beam_factor is None
+            else np.ascontiguousarray(expand_grid(background.beam_factor, raw.shape), dtype=np.float32))
+    d = _log_range_db(ping, config)
+    r0, r1 = (0, raw.shape[0]) if rows is None else rows
+    return excess_ratio(raw, level, full, float(d) if d is not None else 0.0, int(r0), int(r1))
+
+
+def surface_ranges(ping: Ping, image: NDArray[np.float32], levels: NDArray[Any], mask: NDArray[np.bool_],
+                   fit: Any, config: RangeConfig = RangeConfig(), candidates: CandidateConfig = CandidateConfig(), *,
+                   normalised: bool = False, bg_mean: float | None = None, background: Any = None,
+                   pool_bands: bool = True) -> tuple[BeamRanges, NDArray[np.int64]]:
+    """Echoes of the candidate structure (``mask`` plus pooled bands), tracked across beams; also
+    the number of bins each return's echo spans (0 where no return)."""
+    from sonarmap.ranges import ranges_from_tracks
+    from sonarmap.ranges.echoes import find_echoes, level_llr, pooled_edges
+    from sonarmap.ranges.tracking import continuation_mask, track_surfaces
+
+    geom = ping.geometry
+    cand = mask
+    band = None
+    # band pooling recovers thin single-look surface bands the per-pixel route leaves in pieces;
+    # only needed where some beam has no candidate at all
+    if (candidates.pool_factor > 0 and bg_mean is not None and bg_mean > 0 and not normalised
+            and pool_bands and not mask.any(axis=0).all()):
+        band = pooled_band_mask(image, candidates.pool_factor * bg_mean, pool_beams=candidates.pool_beams,
+                                pool_bins=candidates.pool_bins, min_beams=candidates.pool_min_beams)
+        if band is not None:
+            cand = cand | band
+    if not cand.any():
+        return (no_returns(geom, time_ns=ping.time_ns, source=ping.source, mode=config.range_mode),
+                np.zeros(geom.n_beams, dtype=np.int64))
+    llr_lut = level_llr(fit) if fit is not None and len(fit.class_names) >= 2 else None
+    lut = np.maximum(llr_lut, 0.0) if llr_lut is not None else np.ones(int(levels.max()) + 1)
+    fraction = config.edge_fraction if config.edge_fraction > 0 else 0.5
+    pb = pulse_bins(ping, config)
+    measured = normalised and background is not None and getattr(background, "level_by_bin", None) is not None
+
+    done: list[Any] = []  # the measurement image and its rows, once computed
+
+    def measure(cand: NDArray[np.bool_]) -> tuple[Any, float, Any, Any]:
+        meas, bg = image, bg_mean or 0.0
+        if measured:
+            # echo intensity above the background, in background units (its mean is 1)
+            occupied = np.flatnonzero(cand.any(axis=1))
+            pad = pb + 4
+            rows = (int(occupied[0]) - pad, int(occupied[-1]) + 1 + pad)
+            if not done or rows[0] < done[1][0] or rows[1] > done[1][1]:
+                done[:] = [measurement_image(ping, background, config, rows=rows), rows]
+            meas, bg = done[0], 1.0
+        # a pooled band pixel passed a >= pool_factor x background test over the whole box: one
+        # nat at least, whatever its own (single-look, speckled) value says
+        echoes = find_echoes(cand, meas, geom, levels=levels, level_evidence=lut, boost=band, boost_min=1.0,
+                             pulse_bins=pb, fraction=fraction, background=bg, scan=config.edge_scan,
+                             sigma_scale=config.sigma_scale)
+        return meas, bg, echoes, track_surfaces(echoes, config.track)
+
+    meas, bg, echoes, tracks = measure(cand)
+    if config.continue_evidence > 0 and llr_lut is not None:
+        # a surface's faint stretch that the component rule left without candidates: pixels along
+        # its extrapolation where their likelihood ratio says structure, for the tracker to judge
+        extra = continuation_mask(echoes, tracks.first, levels, llr_lut, min_evidence=config.continue_evidence,
+                                  touch_bins=config.track.touch_bins) & ~cand
+        if extra.any() and echoes.size:
+            # only where it could become the return: a beam without one, or whose return lies behind
+            first = tracks.first
+            current = np.where(first >= 0, echoes.edge_bin[np.maximum(first, 0)], np.inf)
+            top = np.where(extra.any(axis=0), np.argmax(extra, axis=0), extra.shape[0])
+            extra &= (top < current)[None, :]
+        if extra.any():
+            cand = cand | extra
+            meas, bg, echoes, tracks = measure(cand)
+    sel = tracks.first
+    if config.edge_pool_beams > 0 and config.range_mode == "first":
+        # the pooled profile is smoothed over at least 3 bins along range in all (a single-look
+        # profile's maximum is otherwise a speckle spike)
+        echoes = pooled_edges(echoes, sel, meas, geom, pulse_bins=pb, half_beams=config.edge_pool_beams,
+                              smooth_bins=3 if pb < 3 else 1, fraction=fraction,
+                              touch_bins=config.track.touch_bins, sigma_scale=config.sigma_pool_scale)
+    if echoes.size and (sel >= 0).any():
+        echoes = clipped_echo_sigma(echoes, sel, ping.image, geom)
+    thickness = np.where(sel >= 0, (echoes.stop_bin - echoes.start_bin)[np.maximum(sel, 0)] if echoes.size else 0, 0)
+    return (ranges_from_tracks(echoes, tracks, geom, image, mode=config.range_mode,  # type: ignore[arg-type]
+                               time_ns=ping.time_ns, source=ping.source), thickness.astype(np.int64))
+
+
+#: A raw sample at or above this is at the receiver's full scale (8-bit images: level 255).
+CLIP_LEVEL = 254.5 / 255.0
+
+
+def clipped_echo_sigma(echoes: Any, sel: NDArray[np.int64], raw: NDArray[Any], geom: Any) -> Any:
+    """Widen the sigma of returns whose echo reaches the receiver's full scale.
+
+    A clipped echo's peak is only a lower bound: the half-peak crossing of the true echo lies
+    somewhere between the crossing measured (half the clipped level) and the echo's first
+    clipped sample.  That interval's uniform spread, ``length / sqrt 12``, is added in
+    quadrature to the return's sigma; the range itself is not moved.
+    """
+    from sonarmap.ranges._kernels import first_clipped_rows
+
+    img = np.ascontiguousarray(raw)
+    idx = np.flatnonzero(sel >= 0)
+    e = sel[idx]
+    lo = np.clip(np.ceil(echoes.edge_bin[e]).astype(np.int64), 0, img.shape[0] - 1)
+    hi = np.clip(echoes.stop_bin[e], 0, img.shape[0])
+    first = first_clipped_rows(img, idx, lo, hi, CLIP_LEVEL)  # per return: its echo's first clipped row
+    spread = (first - echoes.edge_bin[e]) * abs(geom.range_resolution_m)
+    hit = (first >= 0) & (spread > 0)
+    if not hit.any():
+        return echoes
+    sigma = echoes.sigma_m.copy()
+    sigma[e[hit]] = np.hypot(sigma[e[hit]], spread[hit] / math.sqrt(12.0))
+    return dataclasses.replace(echoes, sigma_m=sigma)
