@@ -48,11 +48,14 @@ def segment_figure(raw: Any, threshold_labels: Any, labels: Any, ranges: Any, *,
     axs[0].imshow(np.sqrt(np.clip(raw, 0, None)), cmap="gray", aspect="auto", interpolation="nearest")
     axs[0].set_title("raw")
     axs[1].imshow(threshold_labels, cmap="gray", aspect="auto", interpolation="nearest", vmin=0, vmax=1)
-    axs[1].set_title(f"fixed threshold {threshold:g}")
+    n_px = int(np.count_nonzero(threshold_labels))
+    # the paper's Fig. 7 threshold on the image the classifier saw: a threshold tuned on DIDSON can
+    # select nothing on a normalised sonar (ARIS), and the panel must say so rather than look broken
+    axs[1].set_title(f"fixed threshold {threshold:g}" + ("\n(no pixel reaches it)" if n_px == 0 else f"\n({n_px} px)"))
     axs[2].imshow(labels, cmap="gray", aspect="auto", interpolation="nearest", vmin=0, vmax=max(1, int(labels.max())))
     v = np.flatnonzero(ranges.valid)
     axs[2].plot(v, ranges.bin[v], ".", color="tab:red", ms=3, label="first return")
-    axs[2].set_title(method.upper())
+    axs[2].set_title(f"{method.upper()}\n({int(np.count_nonzero(labels))} px, {v.size} returns)")
     axs[2].legend(loc="lower right", fontsize=7)
     axs[0].set_ylabel("range bin")
     for ax in axs:
