@@ -374,9 +374,15 @@ def iter_png_pings(
     source: str | os.PathLike[str] | Iterable[str | os.PathLike[str]],
     *,
     geometry: SonarGeometry | str | os.PathLike[str] | None = None,
+    start: int = 0,
+    stop: int | None = None,
 ) -> Iterator[Ping]:
-    """Lazily yield pings in time-stamp order (one image in memory at a time)."""
-    for p in find_png_pings(source):
+    """Lazily yield pings ``start:stop`` in time-stamp order (one image in memory at a time; the
+    file list is sorted first and only the files in range are read)."""
+    from sonarmap.io.reader import check_ping_range
+
+    start, stop = check_ping_range(start, stop)
+    for p in find_png_pings(source)[start:stop]:
         yield read_png_ping(p, geometry=geometry)
 
 
@@ -400,20 +406,9 @@ def sniff(path: Path, head: bytes) -> bool:
 
 def iter_pings(path: str | os.PathLike[str], *, geometry: GeometrySpec = None, start: int = 0,
                stop: int | None = None, **_: Any) -> Iterator[Ping]:
-    """Pings ``start:stop`` of a PNG/BMP file, directory or glob, in time-stamp order (the reader protocol).
-
-    The file list is sorted first (:func:`find_png_pings`); only the files in range are read.  A
-    single file (not a directory or glob) is its only ping, read by :func:`read_png_ping`, which
-    reports a missing file.  Errors: as :meth:`Reader.iter_pings <sonarmap.io.reader.Reader.iter_pings>`;
-    file errors: see :func:`find_png_pings` and :func:`read_png_ping`.
-    """
-    from sonarmap.io.reader import check_ping_range
-
-    start, stop = check_ping_range(start, stop)
-    p = Path(path)
-    single = not p.is_dir() and not any(ch in str(p) for ch in "*?[")
-    for f in ([p] if single else find_png_pings(p))[start:stop]:
-        yield read_png_ping(f, geometry=geometry)
+    """Pings ``start:stop`` of a PNG/BMP file, directory or glob (the reader protocol):
+    :func:`iter_png_pings`."""
+    yield from iter_png_pings(path, geometry=geometry, start=start, stop=stop)
 
 
 def count_pings(path: str | os.PathLike[str]) -> int:

@@ -187,13 +187,8 @@ def reader_for(path_or_format: str | os.PathLike[str]) -> Reader:
     >>> reader_for("aris").FORMAT
     'aris'
     """
-    if isinstance(path_or_format, str):
-        names = {n: n for n in FORMAT_MODULES} | {"zarr": "zarrstore"}
-        if path_or_format in names:
-            modname = names[path_or_format]
-            for mod in reader_modules():
-                if mod.__name__.rsplit(".", 1)[-1] == modname:
-                    return mod  # type: ignore[return-value]
+    if isinstance(path_or_format, str) and (path_or_format in FORMAT_MODULES or path_or_format == "zarr"):
+        return _by_name("zarr" if path_or_format == "zarrstore" else path_or_format)
     from sonarmap.io import detect_format, is_store_dir
 
     p = Path(path_or_format)

@@ -750,19 +750,14 @@ def iter_bag_pings(
             return
         exact = _exact_geometries(reader, p, conns)
         warned: set[str] = set()
-        idx = 0
-        for conn, _t, raw in _guarded(p, reader.messages(connections=conns)) if conns else ():
-            if stop is not None and idx >= stop:
-                return
-            if idx < start:
-                idx += 1
-                continue
+        # one message is one ping: the messages before start are skipped undecoded
+        messages = _guarded(p, reader.messages(connections=conns)) if conns else iter(())
+        for idx, (conn, _t, raw) in itertools.islice(enumerate(messages), start, stop):
             ping, guessed = _projected_ping(reader, conn, raw, p, idx, override, exact, handedness)
             # warned here, not in a helper: the warning's stacklevel points at our caller
             if guessed and conn.topic not in warned:
                 warned.add(conn.topic)
                 warn_guessed_handedness(p, conn.topic)
-            idx += 1
             yield ping
     finally:
         _close_quietly(reader)
@@ -861,13 +856,8 @@ def _iter_sensor_images(reader: Any, path: Path, conns: list[Any], geometry: Son
                         stop: int | None = None) -> Iterator[Ping]:
     """Pings ``start:stop`` of ``sensor_msgs/Image`` topics with a user geometry (see
     :func:`iter_bag_pings`); the messages before ``start`` are not deserialized."""
-    idx = 0
-    for conn, _t, raw in _guarded(path, reader.messages(connections=conns)):
-        if stop is not None and idx >= stop:
-            return
-        if idx < start:
-            idx += 1
-            continue
+    for idx, (conn, _t, raw) in itertools.islice(enumerate(_guarded(path, reader.messages(connections=conns))),
+                                                 start, stop):
         try:
             msg = reader.deserialize(raw, conn.msgtype)
         except Exception as exc:  # noqa: BLE001
@@ -881,7 +871,6 @@ def _iter_sensor_images(reader: Any, path: Path, conns: list[Any], geometry: Son
         if hasattr(msg.header, "seq"):
             meta["seq"] = int(msg.header.seq)
         yield Ping(image=image, geometry=geometry, time_ns=t_ns, source=f"{path}#{conn.topic}:{idx}", meta=meta)
-        idx += 1
 
 
 def _stamp_ns(stamp: Any) -> int:
