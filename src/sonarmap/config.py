@@ -143,21 +143,19 @@ class PipelineConfig:
         sections: dict[str, dict[str, Any]] = {name: {} for name in SECTIONS}
         for key, value in d.items():
             if key in SECTIONS:
-                table = config_table(value, SECTIONS[key], f"pipeline config: {key}")
-                for k, v in table.items():
-                    if k in sections[key]:
-                        raise InputError(f"pipeline config: {key}.{k}: given twice (at the top and in [{key}])")
-                    sections[key][k] = v
+                options = [(key, k, v) for k, v in config_table(value, SECTIONS[key], f"pipeline config: {key}").items()]
+            elif key in _OPTION_SECTION:
+                options = [(_OPTION_SECTION[key], key, value)]
             elif key in top:
                 kwargs[key] = value
-            elif key in _OPTION_SECTION:
-                name = _OPTION_SECTION[key]
-                if key in sections[name]:
-                    raise InputError(f"pipeline config: {name}.{key}: given twice (at the top and in [{name}])")
-                sections[name][key] = value
+                continue
             else:
                 valid = sorted(top | set(_OPTION_SECTION))
                 raise InputError(f"pipeline config: unknown key '{key}' (valid: {', '.join(valid)})")
+            for name, k, v in options:
+                if k in sections[name]:
+                    raise InputError(f"pipeline config: {name}.{k}: given twice (at the top and in [{name}])")
+                sections[name][k] = v
         for name, table in sections.items():
             kwargs[name] = SECTIONS[name](**table)
         return cls(**kwargs)

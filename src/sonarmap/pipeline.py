@@ -45,7 +45,6 @@ from sonarmap.ranges.candidates import candidate_mask, pooled_band_mask, pooled_
 __all__ = ["PipelineConfig", "PingProducts", "process_ping", "classify_image", "pooled_band_pixels", "pooled_band_mask", "METHODS", "SOLVER_NAMES"]
 
 
-
 @dataclasses.dataclass(frozen=True, eq=False)
 class PingProducts:
     """Everything the per-ping pipeline produces.

@@ -128,7 +128,22 @@ def decision_pd_pfa(fit: Any, decision: ArrayLike) -> tuple[float, float]:
 
 
 def _usable(fit: Any) -> bool:
-    return fit is not None and not fit.flags & {"all_zero", "degenerate"} and len(fit.class_names) >= 2
+    return fit is not None and fit.classifiable
+
+
+def _decision_table(fit: Any, config: ClassifyConfig) -> NDArray[Any]:
+    """The per-level table of a model-based method: the MAP lookup (``"map"``) or the MRF unary
+    (:func:`class_costs`, ``"mrf"``) - computed once per ping for both its rates and its labels."""
+    if config.method == "map":
+        from sonarmap.classify.local_map import map_lookup_table
+
+        return map_lookup_table(fit)
+    return class_costs(fit, object_prior_min=config.object_prior_min, speckle_eps=config.speckle_eps)
+
+
+def _table_rates(fit: Any, method: str, table: NDArray[Any]) -> tuple[float, float]:
+    """pD / pFA of the decision a :func:`_decision_table` makes (the MRF's: its unary's argmin)."""
+    return decision_pd_pfa(fit, table if method == "map" else np.argmin(table, axis=0))
 
 
 def decision_rates(fit: Any, config: ClassifyConfig = ClassifyConfig()) -> tuple[float, float]:
@@ -151,12 +166,7 @@ def decision_rates(fit: Any, config: ClassifyConfig = ClassifyConfig()) -> tuple
         return pd_pfa_at_threshold(fit, config.threshold)
     if not _usable(fit):
         return 0.0, 0.0
-    if method == "map":
-        from sonarmap.classify.local_map import map_lookup_table
-
-        return decision_pd_pfa(fit, map_lookup_table(fit))
-    cost = class_costs(fit, object_prior_min=config.object_prior_min, speckle_eps=config.speckle_eps)
-    return decision_pd_pfa(fit, np.argmin(cost, axis=0))
+    return _table_rates(fit, method, _decision_table(fit, config))
 
 
 def segment(image: ArrayLike, fit: Any, config: ClassifyConfig = ClassifyConfig(), *,
@@ -203,7 +213,9 @@ def segment(image: ArrayLike, fit: Any, config: ClassifyConfig = ClassifyConfig(
     if img.ndim != 2:
         raise InputError(f"image: expected (n_bins, n_beams), got shape {img.shape}")
     method = config.method
-    pd, pfa = decision_rates(fit, config)
+    model_based = not (method.startswith("cfar-") or method == "threshold")
+    if not model_based or not _usable(fit):
+        pd, pfa = decision_rates(fit, config)
     if method.startswith("cfar-"):
         from sonarmap.classify.cfar import CFARConfig, cfar
 
@@ -223,12 +235,11 @@ def segment(image: ArrayLike, fit: Any, config: ClassifyConfig = ClassifyConfig(
     lev = np.asarray(levels)
     if lev.shape != img.shape:
         raise InputError(f"levels: shape {lev.shape} does not match image {img.shape}")
+    table = _decision_table(fit, config)
+    pd, pfa = _table_rates(fit, method, table)
     if method == "map":
-        from sonarmap.classify.local_map import map_lookup_table
-
-        return Segmentation(map_lookup_table(fit)[lev], pd, pfa, method)
-    cost = class_costs(fit, object_prior_min=config.object_prior_min, speckle_eps=config.speckle_eps)
-    labels = _mrf_labels(img, lev, cost, config.beta, config)
+        return Segmentation(table[lev], pd, pfa, method)
+    labels = _mrf_labels(img, lev, table, config.beta, config)
     if config.grow_prior_min > 0:
         weak = _mrf_labels(img, lev, class_costs(fit, object_prior_min=config.grow_prior_min,
                                                  speckle_eps=config.speckle_eps), config.grow_beta, config)

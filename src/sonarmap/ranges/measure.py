@@ -35,7 +35,7 @@ __all__ = ["surface_ranges", "rule_ranges", "measurement_image", "pulse_bins", "
 def background_mean(fit: Any, config: RangeConfig = RangeConfig()) -> tuple[float | None, float | None]:
     """The fitted background class's mean intensity (None when the fit has no usable classes) and
     the leading-edge level of the rules tracker (``edge_factor`` x that mean; None when off)."""
-    usable = fit is not None and len(fit.class_names) >= 2 and not fit.flags & {"all_zero", "degenerate"}
+    usable = fit is not None and fit.classifiable
     if not (usable or (config.refine_bins > 0 and fit is not None)):
         return None, None
     bg = float(np.asarray(fit.class_pmf())[0] @ np.asarray(fit.levels))

@@ -389,6 +389,12 @@ class MixtureFit:
         """True when no flag other than ``no_object`` was raised."""
         return not (self.flags - {"no_object"})
 
+    @property
+    def classifiable(self) -> bool:
+        """True when the fit can label pixels: a background and at least one object class, and
+        not flagged ``all_zero`` or ``degenerate``."""
+        return len(self.class_names) >= 2 and not self.flags & {"all_zero", "degenerate"}
+
     def component_pmfs(self) -> NDArray[np.float64]:
         """``p_c(k)`` per component, shape ``(n_components, L)``, each summing to 1."""
         return component_pmf_matrix(self.component_names, self.params, self.levels, self.discretization)
