@@ -1,4 +1,4 @@
-"""Reproduction of Teixeira et al. (IROS 2018): Table I, background model (eq. 19), Figs. 5, 6, 8.
+"""Reproduction of Teixeira et al. (IROS 2018): Table I, background model (eq. 19), Figs. 2, 3, 5, 6, 8.
 
 Recipes (found by matching the paper's numbers on the shared DIDSON data, see docs/statistics.md):
 
@@ -11,6 +11,12 @@ Recipes (found by matching the paper's numbers on the shared DIDSON data, see do
   *with* the per-ping taper division (1/SNR from the files = 0.01, circular, clipped, rescaled to
   the input maximum), floor binning, zero spike + exponential by least squares, exact
   normalisation.
+* **Fig. 2** (sonar model, eq. 2-5): the beam pattern ``h`` of the test pings' files, its transfer
+  function ``H`` with the Wiener filter ``G`` of their 1/SNR, and the taper ``k(theta)`` of the
+  files beside the one estimated from the background pings.
+* **Fig. 3** (channel model and pre-processing, eq. 2-7): a hull test ping raw, deconvolved, and
+  deconvolved with taper and radial gain, above the background intensity against range with the
+  fitted ``k(r) = k1 log10 r + k2 r + k3``.
 """
 
 from __future__ import annotations
@@ -39,6 +45,8 @@ __all__ = [
     "background_fit",
     "background_counts",
     "write_paper_outputs",
+    "PAPER_OUTPUTS",
+    "FIG3_IMAGE",
 ]
 
 #: Paper Table I: image -> (pi1, lambda, pi2, sigma, KLD).
@@ -161,8 +169,14 @@ def _fmt(v: float) -> str:
     return f"{v:.6g}"
 
 
+#: Files written by :func:`write_paper_outputs`.
+PAPER_OUTPUTS = ("table1.csv", "background.csv", "fig2.png", "fig3.png", "fig5.png", "fig6.png", "fig8.png")
+#: Test image (index in Table I) shown pre-processed in Fig. 3: a hull.
+FIG3_IMAGE = 4
+
+
 def write_paper_outputs(data_dir: str | os.PathLike[str], out_dir: str | os.PathLike[str]) -> dict[str, Any]:
-    """Write ``table1.csv``, ``background.csv``, ``fig5.png``, ``fig6.png``, ``fig8.png``.
+    """Write :data:`PAPER_OUTPUTS`: Table I and the background fit as CSV, Figs. 2, 3, 5, 6 and 8.
 
     Returns a summary dict (the rows and the background fit).
     """
@@ -193,6 +207,7 @@ def write_paper_outputs(data_dir: str | os.PathLike[str], out_dir: str | os.Path
             w.writerow([f.method, _fmt(f.weights[1]), _fmt(1 / f.params[1][0]), _fmt(f.kld),
                         *PAPER_BACKGROUND, int(f.n_samples), ";".join(sorted(f.flags))])
     _figures(data_dir, out, rows, bfit)
+    _sonar_model_figures(data_dir, out)
     return {"rows": rows, "background": bfit, "background_em": bem}
 
 
@@ -262,3 +277,108 @@ def _figures(data_dir: str | os.PathLike[str], out: Path, rows: list[Table1Row],
         with atomic_path(out / name) as tmp:
             fig.savefig(tmp, dpi=110, format="png")
         plt.close(fig)
+
+
+def _sonar_model_figures(data_dir: str | os.PathLike[str], out: Path) -> None:
+    """Figs. 2 and 3: the sonar model (eq. 2-5) and the channel model with pre-processing (eq. 6-7)."""
+    from sonarmap.io.pngjson import iter_png_pings
+    from sonarmap.plots import save_figure
+
+    tests = list(iter_png_pings(sorted((Path(data_dir) / "test").glob("*_raw.png"))))
+    background = list(iter_png_pings(Path(data_dir) / "background"))
+    if not tests or not background:
+        raise InputError(f"data: {data_dir} has no test or background pings for Figs. 2 and 3")
+    from sonarmap.preprocess.gain import estimate_radial_gain, estimate_taper, intensity_profile
+
+    taper = estimate_taper(background)
+    gain = estimate_radial_gain(background, taper=taper)
+    level, count, _ = intensity_profile(background, taper)
+    pixel_mean = estimate_taper(background, estimator="mean")
+    save_figure(_fig2(tests[0].geometry, taper, pixel_mean), out / "fig2.png", dpi=110)
+    save_figure(_fig3(tests[min(FIG3_IMAGE, len(tests) - 1)], gain, level, count), out / "fig3.png", dpi=110)
+
+
+def _fig2(geometry: Any, taper: Any, pixel_mean: Any) -> Any:
+    """Fig. 2: beam pattern ``h`` (eq. 2), ``|H|`` and the Wiener ``|G|`` (eq. 3-4), taper (eq. 5):
+    the files' taper, the non-zero-mean estimate (``taper``, the one calibration uses) and the
+    pixel-mean estimate (``pixel_mean``, which reproduces the files')."""
+    from sonarmap.plots import new_figure
+    from sonarmap.preprocess.deconvolution import fft_length, wiener_filter
+
+    g = geometry
+    fig, (ax_h, ax_f, ax_k) = new_figure(1, 3, figsize=(15.0, 4.0))
+    if g.psf_raw is None:
+        raise InputError(f"geometry '{g.name}': no beam pattern (psf) for Fig. 2")
+    h = np.asarray(g.psf_raw, dtype=np.float64)
+    offset = np.arange(h.size) - h.size // 2
+    ax_h.stem(offset, h / h.max(), basefmt=" ")
+    ax_h.set_xlabel("beam offset from the beam's own centre")
+    ax_h.set_ylabel("h (peak = 1)")
+    ax_h.set_title("beam pattern across beams (eq. 2)", fontsize=9)
+    n_fft = fft_length(h.size, edge="pad")
+    freq = np.fft.rfftfreq(n_fft)
+    H = np.abs(np.fft.rfft(h / h.sum(), n_fft))
+    G = np.abs(wiener_filter(h, noise=g.noise, edge="pad", n_fft=n_fft))
+    ax_f.semilogy(freq, H, label="|H| beam pattern")
+    ax_f.semilogy(freq, G, label=f"|G| Wiener, 1/SNR = {g.noise:g}")
+    ax_f.semilogy(freq, H * G, label="|G H| restored")
+    ax_f.set_xlabel("spatial frequency across beams (cycles per beam)")
+    ax_f.set_ylabel("gain")
+    ax_f.set_title("transfer functions (eq. 3-4)", fontsize=9)
+    ax_f.set_ylim(0.03, 300.0)  # room for the legend above the curves
+    ax_f.legend(fontsize=7, loc="upper center", ncols=2)
+    az = np.rad2deg(g.azimuth_rad)
+    if g.taper is not None:
+        ax_k.plot(az, g.taper / g.taper.max(), label="k(theta) of the ping files")
+    est = taper.taper / taper.taper.max()
+    ax_k.plot(az, est, label=f"non-zero mean of {taper.n_images} background pings")
+    ax_k.fill_between(az, est * (1 - taper.spread), est * (1 + taper.spread), alpha=0.25,
+                      label="its spread over range blocks")
+    ax_k.plot(az, pixel_mean.taper / pixel_mean.taper.max(), "--",
+              label=f"pixel mean of {pixel_mean.n_images} background pings")
+    ax_k.set_xlabel("beam azimuth (deg, positive to starboard)")
+    ax_k.set_ylabel("k(theta) (max = 1)")
+    ax_k.set_ylim(0.0, 1.6)
+    ax_k.set_title("taper: angle-varying gain (eq. 5)", fontsize=9)
+    ax_k.legend(fontsize=7, loc="upper center", ncols=2)
+    for ax in (ax_h, ax_f, ax_k):
+        ax.grid(alpha=0.3)
+    fig.suptitle(f"Fig. 2 - sonar model of the DIDSON test pings ({g.n_beams} beams)", fontsize=10)
+    return fig
+
+
+def _fig3(ping: Any, gain: Any, level: NDArray[np.float64], count: NDArray[np.int64]) -> Any:
+    """Fig. 3: a test ping raw, deconvolved, deconvolved + taper + radial gain (eq. 2-7), and the
+    background intensity against range with the fitted channel model (eq. 6-7)."""
+    from sonarmap.plots import draw_fan, new_figure
+    from sonarmap.preprocess.gain import radial_gain_db
+    from sonarmap.preprocess.pipeline import PreprocessConfig
+
+    g = ping.geometry
+    fig, axes = new_figure(2, 3, figsize=(15.0, 9.0), height_ratios=(3, 2))
+    steps = (
+        ("raw", ping.image),
+        ("deconvolved (eq. 3-4)", _preprocessed(ping, PreprocessConfig(taper=False))),
+        ("deconvolved, taper and radial gain (eq. 3-7)", _preprocessed(ping, PreprocessConfig(radial_gain=gain))),
+    )
+    for ax, (title, img) in zip(axes[0], steps, strict=True):
+        draw_fan(ax, img, g, title=title, colorbar=False)
+    for ax in axes[1, 1:]:
+        ax.remove()
+    ax = fig.add_subplot(axes[1, 0].get_gridspec()[1, :])
+    axes[1, 0].remove()
+    r = g.range_m
+    ok = (count > 0) & np.isfinite(level) & (level > 0)
+    ax.plot(r[ok], 10 * np.log10(level[ok]), ".", ms=3, label="background intensity (116 pings)")
+    c = float(np.mean(10 * np.log10(level[ok]) + radial_gain_db(r[ok], gain)))
+    ax.plot(r, c - radial_gain_db(r, gain), "-",
+            label=(f"channel model: k1 = {gain.k1:.2f} dB/decade, k2 = {gain.k2:.3f} dB/m, "
+                   f"rms {gain.rms_db:.2f} dB"))
+    ax.set_xlabel("range (m)")
+    ax.set_ylabel("intensity (dB)")
+    ax.set_title("background level against range; k(r) = k1 log10 r + k2 r + k3 flattens it (eq. 6-7)",
+                 fontsize=9)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.suptitle(f"Fig. 3 - pre-processing of test image {FIG3_IMAGE} ({Path(ping.source).name})", fontsize=10)
+    return fig

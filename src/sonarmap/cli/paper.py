@@ -1,4 +1,4 @@
-"""``sonarmap paper --data DIDSON -o OUT/``: reproduce Table I, the background model, Figs. 5/6/8."""
+"""``sonarmap paper --data DIDSON -o OUT/``: reproduce Table I, the background model, Figs. 2/3/5/6/8."""
 
 from __future__ import annotations
 
@@ -18,7 +18,11 @@ def register(app: typer.Typer) -> None:
         output: Path = OUTPUT_OPTION,
         quiet: bool = QUIET_OPTION,
     ) -> None:
-        """Write table1.csv, background.csv, fig5.png, fig6.png, fig8.png and print Table I.
+        """Write table1.csv, background.csv, fig2-fig8 PNGs and print Table I.
+
+        Fig. 2 is the sonar model (beam pattern, Wiener filter, taper), Fig. 3 the pre-processing of
+        a hull ping and the channel model, Fig. 5 the background histograms, Fig. 6 the ROC curves,
+        Fig. 8 the per-image mixture fits (docs/statistics.md says what each panel shows).
 
         Table I (this implementation, the paper's values and EM) is the result, on stdout; the
         output directory is created if needed and its files are replaced.
@@ -29,7 +33,7 @@ def register(app: typer.Typer) -> None:
         import contextlib
 
         from sonarmap.cli._common import err_console
-        from sonarmap.paper import PAPER_BACKGROUND, PAPER_TABLE1, Table1Row, write_paper_outputs
+        from sonarmap.paper import PAPER_BACKGROUND, PAPER_OUTPUTS, PAPER_TABLE1, Table1Row, write_paper_outputs
 
         # a spinner on a terminal (the library reports no per-ping progress); nothing on a pipe
         status = contextlib.nullcontext() if quiet else err_console().status("paper: Table I, background, figures")
@@ -50,4 +54,4 @@ def register(app: typer.Typer) -> None:
         typer.echo(f"background: pi_B={b.weights[1]:.4f} lambda={1 / b.params[1][0]:.2f} KLD={b.kld:.3g} "
                    f"(paper {PAPER_BACKGROUND[0]}, {PAPER_BACKGROUND[1]}, {PAPER_BACKGROUND[2]:.3g})")
         if not quiet:
-            typer.echo(f"wrote {output}/table1.csv, background.csv, fig5.png, fig6.png, fig8.png", err=True)
+            typer.echo(f"wrote {output}/{', '.join(PAPER_OUTPUTS)}", err=True)

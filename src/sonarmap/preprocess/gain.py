@@ -32,6 +32,7 @@ __all__ = [
     "apply_radial_gain",
     "estimate_radial_gain",
     "fit_range_profile",
+    "intensity_profile",
     "range_profile",
     "background_intensity",
     "intensity_from_nonzero_mean",
@@ -776,13 +777,38 @@ def _beam_gains(cells: _Cells, taper: ArrayLike | SonarGeometry | TaperEstimate 
     return k
 
 
-def _intensity_profile(
-    images: Iterable[ArrayLike] | Iterable[Ping], taper: ArrayLike | SonarGeometry | TaperEstimate | None,
-    block_rows: int, outlier_sigma: float | None, quantum: float | Literal["auto"],
+def intensity_profile(
+    images: Iterable[ArrayLike] | Iterable[Ping], taper: ArrayLike | SonarGeometry | TaperEstimate | None = None,
+    *, block_rows: int = 32, outlier_sigma: float | None = 5.0, quantum: float | Literal["auto"] = "auto",
 ) -> tuple[NDArray[np.float64], NDArray[np.int64], SonarGeometry | None]:
-    """``estimator="nonzero-mean"`` of :func:`estimate_radial_gain`: per range bin the recovered
-    intensity over the taper, averaged over the beams weighted by their non-zero counts; returns
-    ``(level, count, geometry)`` as :func:`range_profile` does."""
+    """Background intensity per range bin: the profile :func:`estimate_radial_gain` regresses.
+
+    Per range bin, the recovered speckle intensity of each beam (:func:`intensity_from_nonzero_mean`
+    of the mean of its non-zero pixels over the pings) divided by the beam's taper, averaged over
+    the beams with their non-zero counts as weights (``estimator="nonzero-mean"``).
+
+    Parameters
+    ----------
+    images : iterable of array_like or Ping
+        Background (open-water) pings of one geometry, raw (quantised).
+    taper : array_like (n_beams,), SonarGeometry or TaperEstimate, optional
+        Per-beam gain the pings carry; ``None`` estimates it with :func:`estimate_taper`.
+    block_rows, outlier_sigma, quantum
+        See :func:`background_intensity`.
+
+    Returns
+    -------
+    level : ndarray (n_bins,)
+        Background intensity (NaN where a bin has no non-zero pixel).
+    count : ndarray of int64 (n_bins,)
+        Non-zero pixels behind each bin's level.
+    geometry : SonarGeometry or None
+        The pings' geometry (None for bare arrays).
+
+    Notes
+    -----
+    The level ``p(r)`` of eq. 6-7 of Teixeira et al. (2018).
+    """
     cells = _background_cells(images, rows=None, block_rows=block_rows,
                               outlier_sigma=outlier_sigma, quantum=quantum, per_bin=True)
     assert cells.bin_sum is not None and cells.bin_count is not None
@@ -878,7 +904,8 @@ def estimate_radial_gain(
     if est == "mean":
         level, count, geom = range_profile(images, nonzero=nonzero, statistic=statistic)
     else:
-        level, count, geom = _intensity_profile(images, taper, block_rows, outlier_sigma, quantum)
+        level, count, geom = intensity_profile(images, taper, block_rows=block_rows, outlier_sigma=outlier_sigma,
+                                              quantum=quantum)
     range_m = _range_or_geometry(range_m, geom)
     ok = (count >= min_count) & np.isfinite(level) & (level > 0)
     return fit_range_profile(level, range_m, usable=ok, scale=scale, fix_k1=fix_k1, fix_k2=fix_k2,
