@@ -73,8 +73,24 @@ def test_json_round_trip_lossless(tmp_path: Path, didson_dir: Path) -> None:
         for f in ("azimuth_rad", "range_m", "psf", "taper", "psf_raw"):
             a, b = getattr(src, f), getattr(back, f)
             assert (a is None and b is None) or np.array_equal(a, b), f
-        for f in ("noise", "fov_rad", "frequency_hz", "sound_speed_m_s", "rx_gain_db", "window", "name"):
+        for f in ("noise", "fov_rad", "frequency_hz", "sound_speed_m_s", "rx_gain_db", "window", "name",
+                  "elevation_beamwidth_rad"):
             assert getattr(src, f) == getattr(back, f), f
+
+
+def test_elevation_beamwidth_field(tmp_path: Path) -> None:
+    std, tele = preset("aris1800-96"), preset("aris-telephoto-48")
+    assert std.elevation_beamwidth_rad == pytest.approx(np.deg2rad(14.0))
+    assert tele.elevation_beamwidth_rad is None and preset("didson-hf").elevation_beamwidth_rad is None
+    assert "elevation_beamwidth" in std.to_dict() and "elevation_beamwidth" not in tele.to_dict()
+    narrow = std.replace(elevation_beamwidth_rad=np.deg2rad(3.0))
+    assert narrow != std and narrow.key != std.key  # a different sonar, never merged in a store
+    d = std.to_dict()
+    for bad, msg in ((0.0, r"\(0, pi\]"), (4.0, r"\(0, pi\]"), ("wide", "elevation_beamwidth"),
+                     (float("nan"), "elevation_beamwidth")):
+        with pytest.raises(GeometryError, match=msg):
+            geometry_from_dict({**d, "elevation_beamwidth": bad}, source="g.json")
+    assert geometry_from_dict({**d, "elevation_beamwidth": None}).elevation_beamwidth_rad is None
 
 
 def test_explicit_nonuniform_range_table_round_trip(tmp_path: Path) -> None:

@@ -280,6 +280,11 @@ class SonarGeometry:
         Where the azimuth table came from: ``"table"``, ``"preset:<name>"`` or ``"uniform"``.
     window : tuple of float, optional
         ``(min_range, max_range)`` window the bins were derived from, kept for lossless JSON output.
+    elevation_beamwidth_rad : float, optional
+        Full -3 dB width of the beams across the fan's plane (the vertical aperture of an imaging
+        sonar, the along-track transmit beamwidth of a swath multibeam), in ``(0, pi]``; ``None``
+        when the recording and the sonar model do not say it.  Written to ROS ``PingInfo``
+        ``tx_beamwidths``; not used by the per-ping processing.
 
     Raises
     ------
@@ -302,6 +307,7 @@ class SonarGeometry:
     azimuth_source: str = "table"
     window: tuple[float, float] | None = None
     psf_raw: NDArray[np.float64] | None = dataclasses.field(default=None, repr=False)
+    elevation_beamwidth_rad: float | None = None
 
     def __post_init__(self) -> None:
         az, rng = _checked_axes(self.azimuth_rad, self.range_m)
@@ -319,6 +325,9 @@ class SonarGeometry:
                 f"sound_speed_m_s: {self.sound_speed_m_s} is outside 1300-1700 m/s (water)"
             )
         object.__setattr__(self, "fov_rad", self._checked_fov(az))
+        if self.elevation_beamwidth_rad is not None:
+            object.__setattr__(self, "elevation_beamwidth_rad",
+                               _checked_elevation_beamwidth(self.elevation_beamwidth_rad))
         if self.window is not None:
             object.__setattr__(self, "window", _checked_window(self.window))
 
@@ -478,6 +487,8 @@ class SonarGeometry:
                 (self.noise, self.fov_rad, self.frequency_hz, self.sound_speed_m_s, self.rx_gain_db)
             ).encode()
         )
+        if self.elevation_beamwidth_rad is not None:  # keys of geometries without it stay as they were
+            h.update(repr(self.elevation_beamwidth_rad).encode())
         return h.hexdigest()
 
     def __eq__(self, other: object) -> bool:
@@ -536,6 +547,8 @@ class SonarGeometry:
             d["psf"] = self.psf_raw.tolist()
         if self.taper is not None:
             d["taper"] = self.taper.tolist()
+        if self.elevation_beamwidth_rad is not None:
+            d["elevation_beamwidth"] = self.elevation_beamwidth_rad
         return d
 
 
@@ -543,7 +556,7 @@ class SonarGeometry:
 
 _KNOWN_KEYS = {
     "name", "fov", "num_beams", "num_bins", "min_range", "max_range", "noise", "rx_gain",
-    "frequency", "sound_speed", "azimuths", "ranges", "psf", "taper",
+    "frequency", "sound_speed", "azimuths", "ranges", "psf", "taper", "elevation_beamwidth",
 }  # fmt: skip
 
 _MAX_NAME_CHARS = 256
@@ -583,6 +596,14 @@ def _checked_name(name: object) -> str:
     return name
 
 
+def _checked_elevation_beamwidth(value: object) -> float:
+    """``value`` as a beamwidth in (0, pi] rad."""
+    bw = _real(value, "elevation_beamwidth_rad")
+    if not 0.0 < bw <= math.pi:
+        raise GeometryError(f"elevation_beamwidth_rad: must be in (0, pi] rad (got {bw})")
+    return bw
+
+
 def _optional_fov(d: Mapping[str, Any], source: str) -> float | None:
     """Optional field ``fov`` in (0, 2 pi] rad (None if absent or null)."""
     if d.get("fov") is None:
@@ -603,6 +624,8 @@ def _geometry_kwargs(d: Mapping[str, Any], source: str, name: str) -> dict[str, 
         "sound_speed_m_s": _number_field(d, "sound_speed", source, 1500.0),
         "psf": _list_field(d, "psf", MAX_BEAMS),
         "taper": _list_field(d, "taper", MAX_BEAMS),
+        "elevation_beamwidth_rad": (None if d.get("elevation_beamwidth") is None
+                                    else _number_field(d, "elevation_beamwidth", source)),
         "name": name,
     }
 
@@ -638,7 +661,7 @@ def geometry_from_dict(
     Every field is checked before anything is allocated: numbers must be finite numbers (not
     bools or strings), ``num_beams`` an integer in ``1..MAX_BEAMS``, ``num_bins`` an integer in
     ``1..MAX_BINS``, ``0 <= min_range < max_range <= MAX_RANGE_M``, ``fov`` in ``(0, 2 pi]``,
-    ``azimuths`` / ``psf`` / ``taper`` lists of one finite number per beam, ``ranges`` a list of
+    ``elevation_beamwidth`` in ``(0, pi]`` rad, ``azimuths`` / ``psf`` / ``taper`` lists of one finite number per beam, ``ranges`` a list of
     ``num_bins`` finite numbers, ``noise >= 0``, ``name`` a short printable string.  Unknown keys
     are ignored; ``null`` counts as absent for the optional fields.
 
@@ -760,6 +783,8 @@ def geometry_summary(geometry: Any) -> dict[str, Any]:
         "noise_inv_snr": geometry.noise,
         "psf": geometry.psf is not None,
         "taper": geometry.taper is not None,
+        "elevation_beamwidth_deg": (None if geometry.elevation_beamwidth_rad is None
+                                    else float(np.rad2deg(geometry.elevation_beamwidth_rad))),
     }
 
 
@@ -799,6 +824,9 @@ ARIS_LENS = {
     "ARIS_Telephoto_48": ("aris-telephoto-48", 1.8e6),
     "ARIS_Telephoto_96": ("aris-telephoto-96", 1.8e6),
 }
+#: Vertical -3 dB beamwidth of the ARIS standard lenses (SoundMetrics: 14 deg on the 1200, 1800
+#: and 3000); the telephoto lens's is not in the vendor tables, so those presets leave it unknown.
+ARIS_STANDARD_ELEVATION_BEAMWIDTH_RAD = math.radians(14.0)
 
 
 def _data_text(name: str) -> str:
@@ -829,6 +857,7 @@ def _presets() -> dict[str, SonarGeometry]:
             frequency_hz=freq,
             name=name,
             azimuth_source=f"preset:{name}",
+            elevation_beamwidth_rad=None if "telephoto" in name else ARIS_STANDARD_ELEVATION_BEAMWIDTH_RAD,
         )
     ocu = json.loads(_data_text("oculus_m750d_like.json"))
     az = np.deg2rad(np.asarray(ocu["bearings_centideg"], dtype=np.float64) / 100.0)

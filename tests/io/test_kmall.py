@@ -91,6 +91,8 @@ def test_detection_and_soundings_in_meta(synthetic: tuple[Path, kw.KmallSpec]) -
     assert m["pulse_width_us"] == pytest.approx(200.0)
     np.testing.assert_allclose(m["tx_sector_tilt_deg"], [kw.TILT])
     np.testing.assert_allclose(m["tx_sector_frequency_hz"], [kw.FREQUENCY])
+    np.testing.assert_allclose(m["tx_sector_beamwidth_along_deg"], [1.0])  # the writer's sector
+    assert p.geometry.elevation_beamwidth_rad == pytest.approx(np.deg2rad(1.0))
     assert (m["tvg_function"], m["tvg_offset_db"], m["phase_flag"]) == (30, 40.0, 0)
 
 

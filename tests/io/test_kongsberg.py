@@ -203,6 +203,9 @@ def test_xyz_position_attitude_installation(pings: list) -> None:
         np.testing.assert_allclose(m["rx_lever_arm_m"], rx[0])
         np.testing.assert_allclose(m["rx_mounting_deg"], rx[1])
         assert m["runtime_absorption_db_km"] == pytest.approx(77.65)
+        # the EM2040's along-track transmit beamwidth (runtime 0.5 deg) is the width across the swath fan
+        assert m["runtime_tx_beamwidth_deg"] == pytest.approx(0.5)
+        assert p.geometry.elevation_beamwidth_rad == pytest.approx(np.deg2rad(0.5))
     # positions move with the ship (1.6 m/s) once inside the fixes' span
     lats = [p.meta["latitude_deg"] for p in pings]
     assert lats[-1] > lats[0]

@@ -320,6 +320,46 @@ def test_projected_image_beamwidths_follow_the_geometry(tmp_path: Path) -> None:
     assert np.allclose(beamwidths(one)[1], [0.05]) and beamwidths(_geometry())[1].size == 0
 
 
+@pytest.mark.parametrize("version", [1, 2])
+def test_tx_beamwidth_is_the_elevation_beamwidth_and_reads_back(tmp_path: Path, version: int) -> None:
+    g = preset("aris3000-128")  # standard ARIS lens: 14 deg across the fan
+    assert g.elevation_beamwidth_rad == pytest.approx(np.deg2rad(14.0))
+    tx, _ = beamwidths(g)
+    assert tx.dtype == np.float32 and tx.size == 1 and tx[0] == np.float32(np.deg2rad(14.0))
+    path = _bag(tmp_path, version)
+    write_bag([Ping(image=np.zeros(g.shape, np.float32), geometry=g, time_ns=T0)], path, version=version)
+    ((_, _, msg),) = [m for m in _read(path, version) if m[0] == "/sonar/image"]
+    assert np.array_equal(msg.ping_info.tx_beamwidths, tx)  # what a ROS consumer sees
+    (back,) = read_pings(path)
+    assert back.geometry.elevation_beamwidth_rad == g.elevation_beamwidth_rad  # exact (geometry side channel)
+    assert rosbag.elevation_from_ping_info(msg.ping_info) == pytest.approx(float(tx[0]), rel=0, abs=0)
+
+
+def test_elevation_from_ping_info_needs_one_plausible_width() -> None:
+    T = _store(2).types
+
+    def info(tx: list[float]) -> Any:
+        return T["marine_acoustic_msgs/msg/PingInfo"](frequency=1e6, sound_speed=1500.0,
+                                                     tx_beamwidths=np.asarray(tx, np.float32),
+                                                     rx_beamwidths=np.zeros(0, np.float32))
+
+    assert rosbag.elevation_from_ping_info(info([])) is None  # not reported
+    assert rosbag.elevation_from_ping_info(info([0.2, 0.2, 0.2])) == pytest.approx(0.2)  # one per beam, equal
+    for bad in ([0.2, 0.3], [0.0], [-0.1], [4.0], [float("nan")]):
+        assert rosbag.elevation_from_ping_info(info(bad)) is None, bad
+
+
+def test_raw_sonar_image_tx_beamwidth_sets_the_elevation_beamwidth(tmp_path: Path) -> None:
+    store = _store(2)
+    rx = np.deg2rad(np.linspace(-30.0, 30.0, 8)).astype(np.float32)
+    msg = _raw_sonar_image(store, 2, T0, rx, np.ones((20, 8), np.int64))
+    msg.ping_info.tx_beamwidths = np.array([0.2], np.float32)
+    path = _bag(tmp_path, 2)
+    _write(path, 2, store=store, items=[("/sonar/raw", "marine_acoustic_msgs/msg/RawSonarImage", msg, T0)])
+    (p,) = read_pings(path)
+    assert p.geometry.elevation_beamwidth_rad == pytest.approx(float(np.float32(0.2)), rel=0)
+
+
 # ---------------------------------------------------------------------- SonarRanges
 def _beam_ranges(g: SonarGeometry, t: int, hits: dict[int, float]) -> BeamRanges:
     n = g.n_beams

@@ -262,6 +262,7 @@ def _frame_geometry(
         rx_gain_db=rx_gain_db,
         name=name,
         azimuth_source=f"preset:{name}",
+        elevation_beamwidth_rad=base.elevation_beamwidth_rad,
     )
 
 

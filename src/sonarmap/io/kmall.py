@@ -850,9 +850,11 @@ class KmallFile:
             freq = float(np.mean(w.frequency_hz))
             if not (math.isfinite(freq) and freq > 0):
                 freq = 0.0
+            along = w.beamwidth_along_deg[np.isfinite(w.beamwidth_along_deg)]
             geom = _ping_geometry(np.ascontiguousarray(azimuth[order]).tobytes(), s0, n_bins,
                                   w.sound_speed_m_s, w.sample_rate_hz, freq,
-                                  f"em{m.sounder}-{m.system}-rx{m.cmn[7]}")
+                                  f"em{m.sounder}-{m.system}-rx{m.cmn[7]}",
+                                  float(along.max()) if along.size else None)
         if self._override is not None:
             geom = self._override
         by_beam = np.empty((n, n_bins), dtype=np.float32)

@@ -790,8 +790,13 @@ def _decode_beams(index: _Index, rec: _PingRecord) -> _Beams:
 
 @functools.lru_cache(maxsize=256)
 def _ping_geometry(azimuth: bytes, s0: int, n_bins: int, sound_speed: float, sample_rate: float,
-                   frequency: float, name: str) -> SonarGeometry:
+                   frequency: float, name: str, tx_beamwidth_deg: float | None = None) -> SonarGeometry:
+    """One head's geometry of one ping (cached: consecutive pings usually share it).
+    ``tx_beamwidth_deg`` (the along-track transmit beamwidth the runtime parameters record)
+    becomes ``elevation_beamwidth_rad`` when it is a plausible positive width."""
     step = sound_speed / (2.0 * sample_rate)
+    elevation = (math.radians(tx_beamwidth_deg)
+                 if tx_beamwidth_deg is not None and 0.0 < tx_beamwidth_deg <= 180.0 else None)
     return SonarGeometry.from_window(
         min_range_m=s0 * step,
         max_range_m=(s0 + n_bins) * step,
@@ -801,6 +806,7 @@ def _ping_geometry(azimuth: bytes, s0: int, n_bins: int, sound_speed: float, sam
         sound_speed_m_s=sound_speed,
         name=name,
         azimuth_source="table",
+        elevation_beamwidth_rad=elevation,
     )
 
 
@@ -1208,9 +1214,11 @@ class KongsbergFile:
             if sample_rate <= 0:
                 raise ValueError("sample rate is 0")
             freq = float(np.mean(tx["frequency"])) * 10.0
+            run = self.ancillary.runtime_at(rec.serial, rec.time_ns)
             geom = _ping_geometry(
                 np.ascontiguousarray(azimuth[order]).tobytes(), s0, n_bins,
-                int(wc["sound_speed"]) / 10.0, sample_rate, freq, f"em{rec.model}-{rec.serial}")
+                int(wc["sound_speed"]) / 10.0, sample_rate, freq, f"em{rec.model}-{rec.serial}",
+                None if run is None else run["runtime_tx_beamwidth_deg"])
         return geom, order, s0, n_bins
 
     def _ping(self, rec: _PingRecord) -> Ping:

@@ -164,7 +164,9 @@ def beamwidths(geometry: SonarGeometry) -> tuple[np.ndarray, np.ndarray]:
       intensity pattern across beams), its full width at half maximum (-3 dB) in beams times the
       local beam spacing - one value for an evenly spaced fan, one per beam otherwise; else empty
       (a geometry without a pattern says nothing about the beams' widths).
-    * ``tx_beamwidths`` (the fan's vertical aperture): empty - a SonarGeometry does not hold it.
+    * ``tx_beamwidths`` (the width across the fan: an imaging sonar's vertical aperture, a swath
+      multibeam's along-track transmit beamwidth): the geometry's ``elevation_beamwidth_rad`` as
+      one value, else empty (not reported).  Read back by :func:`elevation_from_ping_info`.
 
     Examples
     --------
@@ -172,21 +174,41 @@ def beamwidths(geometry: SonarGeometry) -> tuple[np.ndarray, np.ndarray]:
     >>> tx, rx = beamwidths(preset("didson-hf"))  # a lens fan: not evenly spaced
     >>> tx.size, rx.size
     (0, 96)
+    >>> tx, rx = beamwidths(preset("aris3000-128"))  # a standard ARIS lens: 14 deg vertical
+    >>> round(float(np.rad2deg(tx[0])), 3), rx.size
+    (14.0, 0)
     """
-    empty = np.zeros(0, np.float32)
     g = geometry
+    tx = (np.zeros(0, np.float32) if g.elevation_beamwidth_rad is None
+          else np.array([g.elevation_beamwidth_rad], np.float32))
+    return tx, _rx_beamwidths(g)
+
+
+def _rx_beamwidths(g: SonarGeometry) -> np.ndarray:
+    """The ``rx_beamwidths`` of :func:`beamwidths`."""
+    empty = np.zeros(0, np.float32)
     if g.n_beams == 1:
-        return empty, np.array([g.fov_rad], np.float32)
+        return np.array([g.fov_rad], np.float32)
     pattern = g.psf_raw if g.psf_raw is not None else g.psf
     if pattern is None:
-        return empty, empty
+        return empty
     w = _fwhm(np.asarray(pattern, dtype=np.float64))
     if not w > 0:
-        return empty, empty
+        return empty
     rx = w * np.gradient(np.asarray(g.azimuth_rad, dtype=np.float64))
     if np.allclose(rx, rx[0], rtol=1e-6, atol=0.0):
         rx = rx[:1]
-    return empty, rx.astype(np.float32)
+    return rx.astype(np.float32)
+
+
+def elevation_from_ping_info(info: Any) -> float | None:
+    """The width across the fan a ``PingInfo`` reports: its ``tx_beamwidths`` when they hold one
+    finite width in (0, pi] rad (one value, or the same value for every beam), else None."""
+    tx = np.asarray(getattr(info, "tx_beamwidths", ()), dtype=np.float64).reshape(-1)
+    if tx.size == 0 or not np.all(np.isfinite(tx)) or not np.allclose(tx, tx[0], rtol=1e-6, atol=0.0):
+        return None
+    v = float(tx[0])
+    return v if 0.0 < v <= math.pi else None
 
 
 def _fwhm(p: np.ndarray) -> float:
@@ -347,7 +369,7 @@ def write_bag(
     -----
     ``beam_directions`` follow the upstream .msg (z forward, x up): ``(0, -sin a, cos a)`` for
     azimuth ``a``, beams in increasing azimuth, so ``sonar_image_proc``'s ``atan2(-y, z)`` gives
-    ``a`` back (see the module notes).  ``ping_info`` beam widths are left empty.
+    ``a`` back (see the module notes).  ``ping_info`` beam widths are those of :func:`beamwidths`.
 
     Examples
     --------
@@ -424,25 +446,30 @@ def _fan_azimuths(dirs: bytes) -> tuple[np.ndarray, str]:
 
 @functools.lru_cache(maxsize=64)
 def _message_geometry(
-    az_bytes: bytes, ranges: bytes, frequency: float, sound_speed: float, name: str
+    az_bytes: bytes, ranges: bytes, frequency: float, sound_speed: float, name: str,
+    elevation_beamwidth_rad: float | None = None,
 ) -> tuple[SonarGeometry, np.ndarray | None]:
     """Geometry from per-beam azimuths (message order) and ranges; the column order if re-sorted."""
     return sorted_beam_geometry(np.frombuffer(az_bytes, dtype=np.float64),
-                                np.frombuffer(ranges, dtype=np.float32).astype(np.float64), frequency, sound_speed, name)
+                                np.frombuffer(ranges, dtype=np.float32).astype(np.float64), frequency, sound_speed, name,
+                                elevation_beamwidth_rad=elevation_beamwidth_rad)
 
 
 def sorted_beam_geometry(
-    az: np.ndarray, range_m: np.ndarray, frequency: float, sound_speed: float, name: str
+    az: np.ndarray, range_m: np.ndarray, frequency: float, sound_speed: float, name: str, *,
+    elevation_beamwidth_rad: float | None = None,
 ) -> tuple[SonarGeometry, np.ndarray | None]:
     """Geometry of a message's beams, sorted by azimuth (with the column order if it re-sorted them);
-    an unknown frequency reads as 1.8 MHz, a sound speed outside 1300-1700 m/s as 1500 m/s."""
+    an unknown frequency reads as 1.8 MHz, a sound speed outside 1300-1700 m/s as 1500 m/s; the
+    width across the fan the message reports (see :func:`elevation_from_ping_info`), if any."""
     order = None
     if az.size > 1 and np.any(np.diff(az) <= 0):
         order = np.argsort(az, kind="stable")
         az = az[order]
     c = sound_speed if 1300.0 <= sound_speed <= 1700.0 else 1500.0
     geom = SonarGeometry(azimuth_rad=az, range_m=range_m, sound_speed_m_s=c, name=name,
-                         frequency_hz=frequency if math.isfinite(frequency) and frequency > 0 else 1.8e6)
+                         frequency_hz=frequency if math.isfinite(frequency) and frequency > 0 else 1.8e6,
+                         elevation_beamwidth_rad=elevation_beamwidth_rad)
     return geom, order
 
 
@@ -912,7 +939,7 @@ def _ping_from_msg(
     az = az_up if sign > 0 else -az_up
     geom, order = _message_geometry(
         np.ascontiguousarray(az).tobytes(), ranges.tobytes(), float(msg.ping_info.frequency),
-        float(msg.ping_info.sound_speed), name,
+        float(msg.ping_info.sound_speed), name, elevation_from_ping_info(msg.ping_info),
     )
     image = _decode_image(msg.image, ranges.size, dirs.shape[0])
     if order is not None:

@@ -66,13 +66,15 @@ def _meta(kind: str, topic: str, idx: int, msg: Any) -> dict[str, Any]:
 
 @functools.lru_cache(maxsize=64)
 def _sample_geometry(
-    az: bytes, n_samples: int, sample0: int, sound_speed: float, sample_rate: float, frequency: float, name: str
+    az: bytes, n_samples: int, sample0: int, sound_speed: float, sample_rate: float, frequency: float, name: str,
+    elevation_beamwidth_rad: float | None = None,
 ) -> tuple[SonarGeometry, np.ndarray | None]:
     """Geometry of a RawSonarImage (beams sorted by azimuth; the column order if re-sorted)."""
     from sonarmap.io.rosbag import sorted_beam_geometry
 
     r = (np.arange(n_samples, dtype=np.float64) + sample0) * (sound_speed / (2.0 * sample_rate))
-    return sorted_beam_geometry(np.frombuffer(az, dtype=np.float64), r, frequency, sound_speed, name)
+    return sorted_beam_geometry(np.frombuffer(az, dtype=np.float64), r, frequency, sound_speed, name,
+                                elevation_beamwidth_rad=elevation_beamwidth_rad)
 
 
 def ping_from_raw_sonar_image(
@@ -85,7 +87,7 @@ def ping_from_raw_sonar_image(
     ValueError, GeometryError
         Inconsistent sizes, a non-positive sample rate, an implausible sound speed or angles.
     """
-    from sonarmap.io.rosbag import _decode_image, _stamp_ns
+    from sonarmap.io.rosbag import _decode_image, _stamp_ns, elevation_from_ping_info
 
     rx = np.asarray(msg.rx_angles, dtype=np.float64).reshape(-1)
     n_samples = int(msg.samples_per_beam)
@@ -104,7 +106,7 @@ def ping_from_raw_sonar_image(
         raise ValueError(f"ping_info.sound_speed {c} m/s is outside 1300-1700 m/s (0 = unavailable)")
     geom, order = _sample_geometry(
         np.ascontiguousarray(rx).tobytes(), n_samples, int(msg.sample0), c, fs,
-        float(msg.ping_info.frequency), _name(msg, topic),
+        float(msg.ping_info.frequency), _name(msg, topic), elevation_from_ping_info(msg.ping_info),
     )
     image = _decode_image(msg.image, n_samples, rx.size)
     if order is not None:
@@ -146,9 +148,10 @@ def ping_from_legacy_image(msg: Any, path: Path, topic: str, idx: int, override:
         raise ValueError(
             f"intensities have {raw.size} bytes, expected {ranges.size} ranges x {az.size} beams x {ds} bytes"
         )
+    elevation = float(getattr(msg, "elevation_beamwidth", 0.0))
     geom, order = _message_geometry(
         np.ascontiguousarray(az).tobytes(), ranges.tobytes(), float(msg.frequency), float(msg.sound_speed),
-        _name(msg, topic),
+        _name(msg, topic), elevation if math.isfinite(elevation) and 0.0 < elevation <= math.pi else None,
     )
     dt = dt.newbyteorder(">" if msg.is_bigendian else "<")
     image = _scale_pixels(raw.view(dt).reshape(ranges.size, az.size))
