@@ -18,7 +18,7 @@ def register(app: typer.Typer) -> None:
         output: Path = OUTPUT_OPTION,
         quiet: bool = QUIET_OPTION,
     ) -> None:
-        """Write table1.csv, background.csv, fig2-fig8 PNGs and print Table I.
+        """Write table1.csv, background.csv, fig2, fig3, fig5, fig6 and fig8 (PNG), and print Table I.
 
         Fig. 2 is the sonar model (beam pattern, Wiener filter, taper), Fig. 3 the pre-processing of
         a hull ping and the channel model, Fig. 5 the background histograms, Fig. 6 the ROC curves,
