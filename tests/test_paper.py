@@ -60,7 +60,7 @@ def test_fig3_profile_is_the_one_the_radial_gain_regresses(background_paths):
         estimate_radial_gain, estimate_taper, fit_range_profile, intensity_profile, radial_gain_db,
     )
 
-    pings = list(iter_png_pings(background_paths[:40]))
+    pings = list(iter_png_pings(background_paths[:20]))
     taper = estimate_taper(pings)
     gain = estimate_radial_gain(pings, taper=taper)
     level, count, geom = intensity_profile(pings, taper)
