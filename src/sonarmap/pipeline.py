@@ -187,15 +187,7 @@ def process_ping(ping: Ping, config: PipelineConfig = PipelineConfig(), *, keep_
     -------
     PingProducts
     """
-    if not isinstance(ping, Ping):
-        raise InputError(f"ping: expected a Ping, got {type(ping).__name__}")
-    if not isinstance(config, PipelineConfig):
-        raise InputError(f"config: expected a PipelineConfig, got {type(config).__name__}")
-    if background is not None and config.normalise == "auto":
-        from sonarmap.preprocess.normalise import RecordingBackground
-
-        if not isinstance(background, RecordingBackground):
-            raise InputError(f"background: expected a RecordingBackground, got {type(background).__name__}")
+    _check_arguments(ping, config, background)
     from sonarmap.preprocess.normalise import condition_image
 
     geom = ping.geometry
@@ -248,6 +240,19 @@ def process_ping(ping: Ping, config: PipelineConfig = PipelineConfig(), *, keep_
     if thickness is not None:
         ranges = dataclasses.replace(ranges, p_detect=_p_detect(float(pd), pd_range, ranges, thickness))
     return products(ranges, flags, labels, pd, pfa, pd_range)
+
+
+def _check_arguments(ping: Any, config: Any, background: Any) -> None:
+    """The types :func:`process_ping` takes (an :class:`InputError` naming the argument)."""
+    if not isinstance(ping, Ping):
+        raise InputError(f"ping: expected a Ping, got {type(ping).__name__}")
+    if not isinstance(config, PipelineConfig):
+        raise InputError(f"config: expected a PipelineConfig, got {type(config).__name__}")
+    if background is not None and config.normalise == "auto":
+        from sonarmap.preprocess.normalise import RecordingBackground
+
+        if not isinstance(background, RecordingBackground):
+            raise InputError(f"background: expected a RecordingBackground, got {type(background).__name__}")
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
