@@ -61,6 +61,40 @@ def test_calibrate_aris_recording_and_use_it(data_dir, tmp_path, capsys):
     assert main(["ranges", str(data_dir / "aris" / "sample.aris"), "-o", str(csv_out), "--calibration", str(oc)]) == 1
 
 
+@pytest.mark.slow
+def test_map_and_segment_take_the_calibration(data_dir, tmp_path):
+    """``map`` and ``segment`` run the pipeline ``ranges --calibration`` runs: the same returns."""
+    import numpy as np
+    import pandas as pd
+    from PIL import Image
+
+    rec = data_dir / "aris" / "sample.aris"
+    cal = tmp_path / "aris.json"
+    assert main(["calibrate", str(rec), "-o", str(cal), "-q"]) == 0
+    assert main(["ranges", str(rec), "-o", str(tmp_path / "r.csv"), "--calibration", str(cal), "-q"]) == 0
+    assert main(["ranges", str(rec), "-o", str(tmp_path / "self.csv"), "-q"]) == 0
+    assert main(["map", str(rec), "--static", "-o", str(tmp_path / "m.csv"), "--calibration", str(cal), "-q"]) == 0
+    ranges = pd.read_csv(tmp_path / "r.csv").dropna(subset=["range_m"])
+    own = pd.read_csv(tmp_path / "self.csv").dropna(subset=["range_m"])
+    points = pd.read_csv(tmp_path / "m.csv")
+    key = ["time_ns", "beam"]
+    joined = ranges.merge(points, on=key, suffixes=("", "_map"), validate="one_to_one")
+    assert len(joined) == len(ranges) == len(points)
+    np.testing.assert_allclose(joined["range_m_map"], joined["range_m"], atol=1e-5)  # the CSV's 6 digits
+    # the calibration changes the result (it is used): another set of returns than self-normalised
+    assert not own.set_index(key)["range_m"].equals(ranges.set_index(key)["range_m"])
+    assert main(["segment", str(rec), "-o", str(tmp_path / "seg"), "--calibration", str(cal), "--no-figure",
+                 "-q"]) == 0
+    assert len(list((tmp_path / "seg").glob("*_labels.png"))) == 6
+    with Image.open(next(iter(sorted((tmp_path / "seg").glob("*_labels.png"))))) as im:
+        assert im.size == (48, 2000)
+    # a calibration that is not one is refused in one line, before any processing
+    bad = tmp_path / "bad.json"
+    bad.write_text("{}")
+    assert main(["map", str(rec), "--static", "-o", str(tmp_path / "x.csv"), "--calibration", str(bad)]) == 1
+    assert not (tmp_path / "x.csv").exists()
+
+
 def test_calibrate_three_ping_oculus_says_what_it_cannot_estimate(data_dir, tmp_path, capsys):
     out = tmp_path / "oc.json"
     assert main(["calibrate", str(data_dir / "oculus" / "three_pings_8bit.raw"), "-o", str(out)]) == 0

@@ -10,9 +10,11 @@ from typing import IO, Any
 import typer
 
 __all__ = [
-    "GEOMETRY_OPTION", "OUTPUT_DIR_OPTION", "OUTPUT_OPTION", "PINGS_ARGUMENT", "QUIET_OPTION", "STDOUT", "VERBOSE_OPTION",
-    "PingProgress", "check_choice", "console", "count_pings", "err_console", "example", "first_ping", "input_progress",
-    "load_geometry_option", "open_output", "output_name", "ping_progress", "read_input_pings", "run_pings",
+    "CALIBRATION_OPTION", "GEOMETRY_OPTION", "OUTPUT_DIR_OPTION", "OUTPUT_OPTION", "PINGS_ARGUMENT", "QUIET_OPTION",
+    "STDOUT", "VERBOSE_OPTION",
+    "PingProgress", "apply_calibration", "check_choice", "console", "count_pings", "err_console", "example",
+    "first_ping", "input_progress", "load_calibration", "load_geometry_option", "open_output", "output_name",
+    "ping_progress", "read_input_pings", "run_pings",
 ]
 
 #: The ``PINGS...`` argument of the commands that read pings.
@@ -31,6 +33,13 @@ OUTPUT_OPTION: Any = typer.Option(..., "--output", "-o", help="Output path.")
 OUTPUT_DIR_OPTION: Any = typer.Option(..., "--output", "-o", help="Output directory.")
 QUIET_OPTION: Any = typer.Option(False, "--quiet", "-q", help="No progress bar and no summary.")
 VERBOSE_OPTION: Any = typer.Option(False, "--verbose", "-v", help="One line per ping and the total time on stderr.")
+
+#: ``--calibration`` of the commands that run the per-ping pipeline (ranges, map, segment).
+CALIBRATION_OPTION: Any = typer.Option(
+    None, "--calibration",
+    help="Output of sonarmap calibrate on this recording: normalise every ping by the recording's "
+    "background level instead of its own, and fit the intensity model it chose.",
+)
 
 #: The ``-o`` value that means standard output.
 STDOUT = "-"
@@ -190,6 +199,51 @@ def load_geometry_option(value: str | Path | None) -> Any:
             param_hint="--sonar",
         )
     return as_geometry(value)
+
+
+def load_calibration(path: Path | None) -> tuple[Any, tuple[str, ...] | None]:
+    """The recording background and model families of a ``sonarmap calibrate`` output.
+
+    ``(None, None)`` without a path; the background is None for a thresholded recording, whose
+    calibration is its geometry (pass it with ``--sonar``).
+    """
+    if path is None:
+        return None, None
+    import json
+
+    from sonarmap.errors import InputError
+    from sonarmap.preprocess.normalise import RecordingBackground
+
+    try:
+        d = json.loads(Path(path).read_text(encoding="utf-8"))
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read calibration ({exc.strerror or exc})") from None
+    except (ValueError, UnicodeDecodeError) as exc:
+        raise InputError(f"{path}: not a JSON calibration ({exc})") from None
+    cal = d.get("calibration") if isinstance(d, dict) else None
+    if not isinstance(cal, dict) or "background_level" not in cal:
+        raise InputError(f"{path}: no calibration.background_level table (write it with `sonarmap calibrate`)")
+    try:
+        rec = RecordingBackground.from_dict(cal["background_level"], name="calibration.background_level")
+    except InputError as exc:
+        raise InputError(f"{path}: {exc}") from None
+    if rec.thresholded:
+        return None, None
+    model = cal.get("model") or {}
+    fams = model.get("families") if isinstance(model, dict) else None
+    if fams is not None and (not isinstance(fams, list) or len(fams) < 2 or not all(isinstance(f, str) for f in fams)):
+        raise InputError(f"{path}: calibration.model.families must be a list of at least two family names")
+    return rec, (tuple(fams) if fams else None)
+
+
+def apply_calibration(config: Any, path: Path | None) -> tuple[Any, Any]:
+    """``(PipelineConfig, RecordingBackground or None)`` for ``--calibration``: the recording's
+    background level for ``process_ping(..., background=)``, and ``config`` with the intensity
+    model families that calibration chose (unchanged without a path or without a model)."""
+    rec, families = load_calibration(path)
+    if families is not None and config.fit.families != families:
+        config = config.replace(families=families)  # the recording's model (chosen by calibrate)
+    return config, rec
 
 
 def output_name(path: str | Path) -> str:

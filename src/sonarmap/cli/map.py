@@ -8,10 +8,12 @@ from typing import TYPE_CHECKING, Any
 import typer
 
 from sonarmap.cli._common import (
+    CALIBRATION_OPTION,
     GEOMETRY_OPTION,
     QUIET_OPTION,
     STDOUT,
     VERBOSE_OPTION,
+    apply_calibration,
     check_choice,
     count_pings,
     first_ping,
@@ -160,6 +162,7 @@ def map_command(
     fmt: str | None = _FORMAT_OPTION,
     sonar: str | None = GEOMETRY_OPTION,
     config: Path | None = _CONFIG_OPTION,
+    calibration: Path | None = CALIBRATION_OPTION,
     dims: int = _DIMS_OPTION,
     grid_array: Path | None = _GRID_ARRAY_OPTION,
     spread: int = _SPREAD_OPTION,
@@ -196,7 +199,8 @@ def map_command(
     origin_ll = None if origin is None else _lat_lon(origin)
 
     geometry = load_geometry_option(sonar)
-    pcfg = PipelineConfig.from_toml(config) if config is not None else PipelineConfig()
+    pcfg, background = apply_calibration(PipelineConfig.from_toml(config) if config is not None else PipelineConfig(),
+                                         calibration)
     mcfg = MapConfig(
         trajectory=read_trajectory_csv(poses, frame=poses_frame) if poses is not None else None,
         extrinsics=load_extrinsics(extrinsics) if extrinsics is not None else None,
@@ -220,7 +224,7 @@ def map_command(
     ping_iter = read_pings(inputs, geometry=geometry)
     _, ping_iter = first_ping(ping_iter)
     with contextlib.ExitStack() as shown:  # the progress display, from the first processed ping on
-        res = map_from_pings(ping_iter, mcfg, pcfg, on_start=checks, on_ping=advance)
+        res = map_from_pings(ping_iter, mcfg, pcfg, background=background, on_start=checks, on_ping=advance)
         out_cloud = _write_results(res, output, out_fmt, bag_kind, out_frame, grid_array=grid_array, geotiff=geotiff,
                                    octomap=octomap, raster_resolution=raster_resolution)
     if not quiet:

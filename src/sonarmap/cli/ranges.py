@@ -40,8 +40,9 @@ from typing import TYPE_CHECKING, Any
 import typer
 
 from sonarmap.cli._common import (
-    GEOMETRY_OPTION, OUTPUT_OPTION, PINGS_ARGUMENT, QUIET_OPTION, STDOUT, VERBOSE_OPTION, check_choice,
-    err_console, example, input_progress, load_geometry_option, open_output, output_name, read_input_pings,
+    CALIBRATION_OPTION, GEOMETRY_OPTION, OUTPUT_OPTION, PINGS_ARGUMENT, QUIET_OPTION, STDOUT, VERBOSE_OPTION, check_choice,
+    apply_calibration, err_console, example, input_progress, load_geometry_option, open_output, output_name,
+    read_input_pings,
 )
 
 __all__ = [
@@ -54,11 +55,6 @@ METHOD_OPTION: Any = typer.Option(
 )
 SOLVER_OPTION: Any = typer.Option(None, "--solver", help="MRF solver: graphcut (exact, default), icm, anneal, expansion.")
 BETA_OPTION: Any = typer.Option(None, "--beta", help="Potts weight of the MRF (eq. 22).")
-CALIBRATION_OPTION: Any = typer.Option(
-    None, "--calibration",
-    help="Output of sonarmap calibrate on this recording: normalise every ping by the recording's "
-    "background level instead of its own.",
-)
 STRICT_OPTION: Any = typer.Option(False, "--strict", help="Exit 1 when the model could not explain some ping (a flagged fit).")
 CONFIG_OPTION: Any = typer.Option(None, "--config", "-c", help="Pipeline configuration TOML: a \\[pipeline] table and its stage tables (\\[pipeline.fit], \\[pipeline.classify], \\[pipeline.candidates], \\[pipeline.ranges]).")
 _TO_OPTION: Any = typer.Option(
@@ -110,41 +106,6 @@ def pipeline_config_from_options(
         changes["beta"] = beta
     cfg = PipelineConfig.from_toml(config) if config is not None else PipelineConfig()
     return cfg.replace(**changes) if changes else cfg
-
-
-def load_calibration(path: Path | None) -> tuple[Any, tuple[str, ...] | None]:
-    """The recording background and model families of a ``sonarmap calibrate`` output.
-
-    ``(None, None)`` without a path; the background is None for a thresholded recording, whose
-    calibration is its geometry (pass it with ``--sonar``).
-    """
-    if path is None:
-        return None, None
-    import json
-
-    from sonarmap.errors import InputError
-    from sonarmap.preprocess.normalise import RecordingBackground
-
-    try:
-        d = json.loads(Path(path).read_text(encoding="utf-8"))
-    except OSError as exc:
-        raise InputError(f"{path}: cannot read calibration ({exc.strerror or exc})") from None
-    except (ValueError, UnicodeDecodeError) as exc:
-        raise InputError(f"{path}: not a JSON calibration ({exc})") from None
-    cal = d.get("calibration") if isinstance(d, dict) else None
-    if not isinstance(cal, dict) or "background_level" not in cal:
-        raise InputError(f"{path}: no calibration.background_level table (write it with `sonarmap calibrate`)")
-    try:
-        rec = RecordingBackground.from_dict(cal["background_level"], name="calibration.background_level")
-    except InputError as exc:
-        raise InputError(f"{path}: {exc}") from None
-    if rec.thresholded:
-        return None, None
-    model = cal.get("model") or {}
-    fams = model.get("families") if isinstance(model, dict) else None
-    if fams is not None and (not isinstance(fams, list) or len(fams) < 2 or not all(isinstance(f, str) for f in fams)):
-        raise InputError(f"{path}: calibration.model.families must be a list of at least two family names")
-    return rec, (tuple(fams) if fams else None)
 
 
 def flagged_summary(gates: list[tuple[str, ...]]) -> str:
@@ -218,9 +179,7 @@ def register(app: typer.Typer) -> None:
         bag_items: list[tuple[Any, Any]] = []
         cfg = pipeline_config_from_options(config, method, solver, beta)
         geom = load_geometry_option(sonar)
-        rec, families = load_calibration(calibration)
-        if families is not None and cfg.fit.families != families:
-            cfg = cfg.replace(families=families)  # the recording's model (chosen by calibrate)
+        cfg, rec = apply_calibration(cfg, calibration)
         n_pings = n_rows = n_ret = 0
         gated: list[tuple[str, ...]] = []
         bar = input_progress("ranges", pings, quiet=quiet, verbose=verbose)

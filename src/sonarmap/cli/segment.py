@@ -13,8 +13,8 @@ from typing import Any
 import typer
 
 from sonarmap.cli._common import (
-    GEOMETRY_OPTION, OUTPUT_DIR_OPTION, PINGS_ARGUMENT, QUIET_OPTION, VERBOSE_OPTION, err_console, example,
-    input_progress, load_geometry_option, read_input_pings, run_pings,
+    CALIBRATION_OPTION, GEOMETRY_OPTION, OUTPUT_DIR_OPTION, PINGS_ARGUMENT, QUIET_OPTION, VERBOSE_OPTION,
+    apply_calibration, err_console, example, input_progress, load_geometry_option, read_input_pings, run_pings,
 )
 from sonarmap.cli.ranges import BETA_OPTION, CONFIG_OPTION, METHOD_OPTION, SOLVER_OPTION, pipeline_config_from_options
 
@@ -78,6 +78,7 @@ def register(app: typer.Typer) -> None:
         solver: str | None = SOLVER_OPTION,
         beta: float | None = BETA_OPTION,
         config: Path | None = CONFIG_OPTION,
+        calibration: Path | None = CALIBRATION_OPTION,
         figure: bool = typer.Option(True, "--figure/--no-figure", help="Write the raw | threshold | MRF figure."),
         quiet: bool = QUIET_OPTION,
         verbose: bool = VERBOSE_OPTION,
@@ -90,18 +91,18 @@ def register(app: typer.Typer) -> None:
         which is created if needed; files in it are replaced atomically.
         """
 
-        cfg = pipeline_config_from_options(config, method, solver, beta)
+        cfg, background = apply_calibration(pipeline_config_from_options(config, method, solver, beta), calibration)
         ping_iter = read_input_pings(pings, load_geometry_option(sonar))  # before the bar and the directory
         output.mkdir(parents=True, exist_ok=True)
         bar = input_progress("segment", pings, quiet=quiet, verbose=verbose)
-        n = run_pings(bar, ping_iter, lambda ping, i: _segment_one(ping, i, output, cfg, figure))
+        n = run_pings(bar, ping_iter, lambda ping, i: _segment_one(ping, i, output, cfg, figure, background))
         if not quiet:
             err_console().print(f"segmented {n} pings -> {output}", markup=False)
 
 
-def _segment_one(ping: Any, i: int, output: Path, cfg: Any, figure: bool) -> str:
-    """Segment one ping and write its label image (and figure) into ``output``; returns the
-    ``--verbose`` line."""
+def _segment_one(ping: Any, i: int, output: Path, cfg: Any, figure: bool, background: Any = None) -> str:
+    """Segment one ping (normalised by the recording's ``background`` if given) and write its label
+    image (and figure) into ``output``; returns the ``--verbose`` line."""
     import io
 
     import numpy as np
@@ -111,7 +112,7 @@ def _segment_one(ping: Any, i: int, output: Path, cfg: Any, figure: bool) -> str
     from sonarmap.classify.threshold import threshold_labels
     from sonarmap.pipeline import process_ping
 
-    prod = process_ping(ping, cfg, keep_labels=True)
+    prod = process_ping(ping, cfg, keep_labels=True, background=background)
     labels = prod.labels
     assert labels is not None
     stem = _stem(ping.source, i)

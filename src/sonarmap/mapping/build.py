@@ -116,7 +116,7 @@ class MapResult:
 
 
 def map_from_pings(pings: Iterable[Any], config: MapConfig = MapConfig(), pipeline: Any = None, *,
-                   on_start: Callable[[Any], None] | None = None,
+                   background: Any = None, on_start: Callable[[Any], None] | None = None,
                    on_ping: Callable[[Any, Any], None] | None = None) -> MapResult:
     """Process, place and register (or integrate) every ping of ``pings``.
 
@@ -126,6 +126,9 @@ def map_from_pings(pings: Iterable[Any], config: MapConfig = MapConfig(), pipeli
     config : MapConfig
     pipeline : PipelineConfig, optional
         The per-ping pipeline (default ``PipelineConfig()``).
+    background : RecordingBackground, optional
+        The recording's background level (``sonarmap calibrate``), passed to every
+        :func:`~sonarmap.pipeline.process_ping`; without it each ping is normalised by its own.
     on_start : callable, optional
         Called with the georeference (or None) once the first ping has been read and placed, before
         any processing (a caller's own checks of its outputs go there).
@@ -174,7 +177,7 @@ def map_from_pings(pings: Iterable[Any], config: MapConfig = MapConfig(), pipeli
             acc.flush()
         last_shape = ping.geometry.shape
         ping = place(ping)
-        prod = process_ping(ping, pcfg)
+        prod = process_ping(ping, pcfg, background=background)
         acc.add(ping, prod)
         n_pings += 1
         if on_ping is not None:
