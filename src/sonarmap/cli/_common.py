@@ -10,10 +10,10 @@ from typing import IO, Any
 import typer
 
 __all__ = [
-    "CALIBRATION_OPTION", "GEOMETRY_OPTION", "OUTPUT_DIR_OPTION", "OUTPUT_OPTION", "PINGS_ARGUMENT", "QUIET_OPTION",
-    "STDOUT", "VERBOSE_OPTION",
+    "CALIBRATION_OPTION", "GEOMETRY_OPTION", "OUTPUT_DIR_OPTION", "OUTPUT_OPTION", "PINGS_ARGUMENT", "PING_RATE_OPTION",
+    "QUIET_OPTION", "START_TIME_OPTION", "STDOUT", "VERBOSE_OPTION",
     "PingProgress", "apply_calibration", "check_choice", "console", "count_pings", "err_console", "example",
-    "first_ping", "input_progress", "load_calibration", "load_geometry_option", "open_output", "output_name",
+    "check_clock_used", "clock_options", "first_ping", "input_progress", "load_calibration", "load_geometry_option", "open_output", "output_name",
     "ping_progress", "read_input_pings", "run_pings",
 ]
 
@@ -39,6 +39,18 @@ CALIBRATION_OPTION: Any = typer.Option(
     None, "--calibration",
     help="Output of sonarmap calibrate on this recording: normalise every ping by the recording's "
     "background level instead of its own, and fit the intensity model it chose.",
+)
+
+#: ``--start-time`` / ``--ping-rate``: the clock of a recording that has none (Oculus network captures).
+START_TIME_OPTION: Any = typer.Option(
+    None, "--start-time", metavar="TIME",
+    help="Recordings without a clock (Oculus network captures): time of the first ping, ISO 8601 "
+    "(UTC unless an offset is given, e.g. 2024-05-01T10:20:30.5Z) or integer ns since 1970; "
+    "default: the file's modification time.",
+)
+PING_RATE_OPTION: Any = typer.Option(
+    None, "--ping-rate", metavar="HZ",
+    help="Recordings without a clock: pings per second (default 10); ping i is at start + i / rate.",
 )
 
 #: The ``-o`` value that means standard output.
@@ -73,9 +85,66 @@ def first_ping(
     return first, itertools.chain([first], pings)
 
 
+def clock_options(start_time: str | None, ping_rate: float | None) -> dict[str, Any]:
+    """The readers' ``start_time_ns`` / ``rate_hz`` arguments from ``--start-time`` / ``--ping-rate``.
+
+    ``--start-time`` is integer ns since the Unix epoch, or an ISO 8601 time (UTC unless it gives
+    an offset; to the nanosecond).  A value that is neither, or a rate that is not a positive
+    number, is a usage error (exit 2).
+
+    Examples
+    --------
+    >>> clock_options("2024-05-01T10:20:30.5Z", 15.0)
+    {'start_time_ns': 1714558830500000000, 'rate_hz': 15.0}
+    >>> clock_options(None, None)
+    {}
+    """
+    import math
+
+    out: dict[str, Any] = {}
+    if start_time is not None:
+        out["start_time_ns"] = _parse_time_ns(start_time)
+    if ping_rate is not None:
+        if not (math.isfinite(ping_rate) and 0.0 < ping_rate <= 1e6):
+            raise typer.BadParameter(f"{ping_rate!r}: must be a number of pings per second in (0, 1e6]",
+                                     param_hint="--ping-rate")
+        out["rate_hz"] = float(ping_rate)
+    return out
+
+
+def _parse_time_ns(text: str) -> int:
+    """``--start-time``: integer ns since 1970, or ISO 8601 (UTC without an offset) to the ns."""
+    import numpy as np
+
+    t = text.strip()
+    if t.isdigit():
+        if int(t) < 10**16:  # before 1970-04-26: a year or seconds, not nanoseconds
+            raise typer.BadParameter(f"{text!r}: integer times are nanoseconds since 1970 (e.g. 1714558830500000000); "
+                                     "or give ISO 8601 (2024-05-01T10:20:30.5Z)", param_hint="--start-time")
+        return int(t)
+    import re
+
+    offset_ns = 0
+    m = re.fullmatch(r"(.*?)(Z|[+-]\d\d:?\d\d)?", t)
+    body, zone = (m.group(1), m.group(2)) if m else (t, None)
+    if zone and zone != "Z":
+        sign = -1 if zone[0] == "+" else 1  # local time + offset -> UTC
+        digits = zone[1:].replace(":", "")
+        offset_ns = sign * (int(digits[:2]) * 3600 + int(digits[2:]) * 60) * 10**9
+    try:
+        value = np.datetime64(body, "ns")
+    except ValueError:
+        value = np.datetime64("NaT")
+    if np.isnat(value) or "T" not in body and len(body) < 10:
+        raise typer.BadParameter(
+            f"{text!r}: give an ISO 8601 time (e.g. 2024-05-01T10:20:30.5Z) or integer ns since 1970",
+            param_hint="--start-time")
+    return int(value.astype(np.int64)) + offset_ns
+
+
 def read_input_pings(
     inputs: list[Path], geometry: Any, argument: str = "PINGS",
-    message: str = "no complete ping in the input (nothing written)",
+    message: str = "no complete ping in the input (nothing written)", *, clock: dict[str, Any] | None = None,
 ) -> Iterator[Any]:
     """The pings of ``inputs`` (:func:`sonarmap.io.read_pings`), the first one already read.
 
@@ -90,6 +159,8 @@ def read_input_pings(
         Overrides the pings' own geometry (``--sonar``).
     argument, message : str
         As for :func:`first_ping`.
+    clock : dict, optional
+        :func:`clock_options` (the times of recordings without a clock).
 
     Returns
     -------
@@ -103,7 +174,27 @@ def read_input_pings(
     """
     from sonarmap.io import read_pings
 
-    return first_ping(read_pings([str(p) for p in inputs], geometry=geometry), argument, message)[1]
+    first, pings = first_ping(read_pings([str(p) for p in inputs], geometry=geometry, **(clock or {})),
+                              argument, message)
+    check_clock_used(first, clock)
+    return pings
+
+
+#: ``Ping.meta["time_source"]`` of pings timed by ``--start-time`` / ``--ping-rate``.
+_CLOCKED_SOURCES = ("file_mtime+rate_hz", "start_time_ns+order", "start_time_ns+rate_hz")
+
+
+def check_clock_used(first: Any, clock: dict[str, Any] | None) -> None:
+    """Warn (one line) when ``--start-time`` / ``--ping-rate`` were given for a recording that has
+    its own clock, where they change nothing."""
+    if clock and first.meta.get("time_source") not in _CLOCKED_SOURCES:
+        import warnings
+
+        from sonarmap.errors import SonarmapWarning
+
+        warnings.warn(f"{first.source}: has its own ping times; --start-time / --ping-rate ignored "
+                      "(they set the times of recordings without a clock, such as Oculus network captures)",
+                      SonarmapWarning, stacklevel=2)
 
 
 def console() -> Any:

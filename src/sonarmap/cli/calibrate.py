@@ -22,6 +22,7 @@ from pathlib import Path
 import typer
 
 from sonarmap.cli._common import (
+    PING_RATE_OPTION, START_TIME_OPTION, clock_options,
     GEOMETRY_OPTION, OUTPUT_OPTION, QUIET_OPTION, VERBOSE_OPTION, check_choice, err_console, example,
     input_progress, load_geometry_option, open_output, output_name, read_input_pings,
 )
@@ -36,6 +37,8 @@ def register(app: typer.Typer) -> None:
         background: list[Path] = typer.Argument(..., help="Recording(s): ping files, directories or globs (any format)."),
         output: Path = OUTPUT_OPTION,
         sonar: str | None = GEOMETRY_OPTION,
+        start_time: str | None = START_TIME_OPTION,
+        ping_rate: float | None = PING_RATE_OPTION,
         method: str = typer.Option("lsq", "--method", "-m", help="Background fit: lsq (paper) or em."),
         taper_estimator: str = typer.Option(
             "mean",
@@ -66,7 +69,9 @@ def register(app: typer.Typer) -> None:
 
         check_choice(method, ("lsq", "em"), "--method")
         check_choice(taper_estimator, ("mean", "nonzero-mean"), "--taper-estimator")
-        ping_iter = read_input_pings(background, load_geometry_option(sonar), "recording", "no pings")  # before the bar
+        clock = clock_options(start_time, ping_rate)
+        # before the bar
+        ping_iter = read_input_pings(background, load_geometry_option(sonar), "recording", "no pings", clock=clock)
         pings = []
         with input_progress("calibrate", background, quiet=quiet, verbose=verbose) as bar:
             bar.start()

@@ -9,9 +9,13 @@ import typer
 
 from sonarmap.cli._common import (
     GEOMETRY_OPTION,
+    PING_RATE_OPTION,
     QUIET_OPTION,
+    START_TIME_OPTION,
     VERBOSE_OPTION,
     check_choice,
+    check_clock_used,
+    clock_options,
     count_pings,
     first_ping,
     example,
@@ -29,6 +33,8 @@ def convert(
     ),
     output: Path = typer.Option(..., "--output", "-o", help="Output: a .zarr survey store, or a .bag (ROS 1) / --to bag2 directory."),
     sonar: str | None = GEOMETRY_OPTION,
+    start_time: str | None = START_TIME_OPTION,
+    ping_rate: float | None = PING_RATE_OPTION,
     to: str | None = typer.Option(
         None, "--to", help="Output kind: zarr, bag1 or bag2 (default: bag1 for *.bag, else zarr)."
     ),
@@ -50,6 +56,7 @@ def convert(
 
     if to is not None:
         check_choice(to, ("zarr", "bag1", "bag2"), "--to")
+    clock = clock_options(start_time, ping_rate)
     kind = to or ("bag1" if output.suffix == ".bag" else "zarr")
     if append and kind != "zarr":
         raise typer.BadParameter("only zarr surveys can be appended to", param_hint="--append")
@@ -65,8 +72,9 @@ def convert(
     if kind == "zarr":
         _refuse_per_ping_geometry(paths)
     read_kwargs: dict[str, Any] = {"topic": topic} if topic else {}
-    ping_iter = read_pings(paths, geometry=geometry, **read_kwargs)
-    _, ping_iter = first_ping(ping_iter, "INPUTS")  # before the bar: an unreadable input prints only its error
+    ping_iter = read_pings(paths, geometry=geometry, **read_kwargs, **clock)
+    first, ping_iter = first_ping(ping_iter, "INPUTS")
+    check_clock_used(first, clock)  # before the bar: an unreadable input prints only its error
     with ping_progress("convert", None if no_bar else count_pings(paths), quiet=no_bar, verbose=verbose) as bar:
         bar.start()
 

@@ -8,6 +8,7 @@ from typing import TYPE_CHECKING, Any
 import typer
 
 from sonarmap.cli._common import (
+    PING_RATE_OPTION, START_TIME_OPTION, clock_options,
     GEOMETRY_OPTION, OUTPUT_OPTION, PINGS_ARGUMENT, QUIET_OPTION, VERBOSE_OPTION, check_choice, err_console,
     example, input_progress, load_geometry_option, open_output, output_name, read_input_pings,
 )
@@ -28,6 +29,8 @@ def register(app: typer.Typer) -> None:
         pings: list[Path] = PINGS_ARGUMENT,
         output: Path = OUTPUT_OPTION,
         sonar: str | None = GEOMETRY_OPTION,
+        start_time: str | None = START_TIME_OPTION,
+        ping_rate: float | None = PING_RATE_OPTION,
         method: str = typer.Option("lsq", "--method", "-m", help="lsq (paper) or em."),
         families: str = typer.Option("exponential,rayleigh", "--families",
                                      help="Comma-separated families after the zero spike."),
@@ -54,7 +57,8 @@ def register(app: typer.Typer) -> None:
         check_choice(binning, ("round", "floor"), "--binning")
         fams = _family_names(families)
         cfg = None if recipe is None else _recipe_config(recipe)
-        ping_iter = read_input_pings(pings, load_geometry_option(sonar))  # before the bar
+        clock = clock_options(start_time, ping_rate)
+        ping_iter = read_input_pings(pings, load_geometry_option(sonar), clock=clock)  # before the bar
         bar = input_progress("fit", pings, quiet=quiet, verbose=verbose)
         with open_output(output, newline="") as fh, bar:
             bar.start()

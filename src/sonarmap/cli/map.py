@@ -10,11 +10,15 @@ import typer
 from sonarmap.cli._common import (
     CALIBRATION_OPTION,
     GEOMETRY_OPTION,
+    PING_RATE_OPTION,
     QUIET_OPTION,
+    START_TIME_OPTION,
     STDOUT,
     VERBOSE_OPTION,
     apply_calibration,
     check_choice,
+    check_clock_used,
+    clock_options,
     count_pings,
     first_ping,
     err_console,
@@ -161,6 +165,8 @@ def map_command(
     grid: float | None = _GRID_OPTION,
     fmt: str | None = _FORMAT_OPTION,
     sonar: str | None = GEOMETRY_OPTION,
+    start_time: str | None = START_TIME_OPTION,
+    ping_rate: float | None = PING_RATE_OPTION,
     config: Path | None = _CONFIG_OPTION,
     calibration: Path | None = CALIBRATION_OPTION,
     dims: int = _DIMS_OPTION,
@@ -199,6 +205,7 @@ def map_command(
     origin_ll = None if origin is None else _lat_lon(origin)
 
     geometry = load_geometry_option(sonar)
+    clock = clock_options(start_time, ping_rate)
     pcfg, background = apply_calibration(PipelineConfig.from_toml(config) if config is not None else PipelineConfig(),
                                          calibration)
     mcfg = MapConfig(
@@ -221,8 +228,9 @@ def map_command(
         progress.log(f"{ping.source}: {prod.ranges.n_returns} returns")
 
     # the first ping is read before any processing, so that input and pose errors come first
-    ping_iter = read_pings(inputs, geometry=geometry)
-    _, ping_iter = first_ping(ping_iter)
+    ping_iter = read_pings(inputs, geometry=geometry, **clock)
+    first, ping_iter = first_ping(ping_iter)
+    check_clock_used(first, clock)
     with contextlib.ExitStack() as shown:  # the progress display, from the first processed ping on
         res = map_from_pings(ping_iter, mcfg, pcfg, background=background, on_start=checks, on_ping=advance)
         out_cloud = _write_results(res, output, out_fmt, bag_kind, out_frame, grid_array=grid_array, geotiff=geotiff,

@@ -8,6 +8,7 @@ from typing import Any
 import typer
 
 from sonarmap.cli._common import (
+    PING_RATE_OPTION, START_TIME_OPTION, clock_options,
     GEOMETRY_OPTION, OUTPUT_DIR_OPTION, PINGS_ARGUMENT, QUIET_OPTION, VERBOSE_OPTION, check_choice, err_console,
     example, input_progress, load_geometry_option, read_input_pings, run_pings,
 )
@@ -33,6 +34,8 @@ def register(app: typer.Typer) -> None:
             None, "--figure", help="Write a before/after fan figure of the first ping (Fig. 1 style)."
         ),
         sonar: str | None = GEOMETRY_OPTION,
+        start_time: str | None = START_TIME_OPTION,
+        ping_rate: float | None = PING_RATE_OPTION,
         quiet: bool = QUIET_OPTION,
         verbose: bool = VERBOSE_OPTION,
     ) -> None:
@@ -49,7 +52,8 @@ def register(app: typer.Typer) -> None:
         if figure is not None and figure.suffix.lower() not in (".png", ".pdf", ".svg"):
             raise typer.BadParameter(f"{figure}: expected a .png, .pdf or .svg file", param_hint="--figure")
         cfg = load_config(config) if config is not None else recipe(recipe_name)
-        ping_iter = read_input_pings(pings, load_geometry_option(sonar))  # before the bar
+        clock = clock_options(start_time, ping_rate)
+        ping_iter = read_input_pings(pings, load_geometry_option(sonar), clock=clock)  # before the bar
         bar = input_progress("preprocess", pings, quiet=quiet, verbose=verbose)
         n = run_pings(bar, ping_iter, lambda ping, i: _one(ping, i, cfg, output, figure))
         if not quiet:

@@ -40,6 +40,7 @@ from typing import TYPE_CHECKING, Any
 import typer
 
 from sonarmap.cli._common import (
+    PING_RATE_OPTION, START_TIME_OPTION, clock_options,
     CALIBRATION_OPTION, GEOMETRY_OPTION, OUTPUT_OPTION, PINGS_ARGUMENT, QUIET_OPTION, STDOUT, VERBOSE_OPTION, check_choice,
     apply_calibration, err_console, example, input_progress, load_geometry_option, open_output, output_name,
     read_input_pings,
@@ -145,6 +146,8 @@ def register(app: typer.Typer) -> None:
         pings: list[Path] = PINGS_ARGUMENT,
         output: Path = OUTPUT_OPTION,
         sonar: str | None = GEOMETRY_OPTION,
+        start_time: str | None = START_TIME_OPTION,
+        ping_rate: float | None = PING_RATE_OPTION,
         method: str | None = METHOD_OPTION,
         solver: str | None = SOLVER_OPTION,
         beta: float | None = BETA_OPTION,
@@ -179,6 +182,7 @@ def register(app: typer.Typer) -> None:
         bag_items: list[tuple[Any, Any]] = []
         cfg = pipeline_config_from_options(config, method, solver, beta)
         geom = load_geometry_option(sonar)
+        clock = clock_options(start_time, ping_rate)
         cfg, rec = apply_calibration(cfg, calibration)
         n_pings = n_rows = n_ret = 0
         gated: list[tuple[str, ...]] = []
@@ -186,7 +190,8 @@ def register(app: typer.Typer) -> None:
         out_cm: Any = contextlib.nullcontext(None) if out_kind != "csv" else open_output(output, newline="")
         with out_cm as fh, bar:
             w = csv.writer(fh) if fh is not None else None
-            ping_iter = read_input_pings(pings, geom)  # before the bar: an unreadable input prints only its error
+            # before the bar: an unreadable input prints only its error
+            ping_iter = read_input_pings(pings, geom, clock=clock)
             bar.start()
             for ping in ping_iter:
                 prod = process_ping(ping, cfg, background=rec)

@@ -13,6 +13,7 @@ from typing import Any
 import typer
 
 from sonarmap.cli._common import (
+    PING_RATE_OPTION, START_TIME_OPTION, clock_options,
     CALIBRATION_OPTION, GEOMETRY_OPTION, OUTPUT_DIR_OPTION, PINGS_ARGUMENT, QUIET_OPTION, VERBOSE_OPTION,
     apply_calibration, err_console, example, input_progress, load_geometry_option, read_input_pings, run_pings,
 )
@@ -74,6 +75,8 @@ def register(app: typer.Typer) -> None:
         pings: list[Path] = PINGS_ARGUMENT,
         output: Path = OUTPUT_DIR_OPTION,
         sonar: str | None = GEOMETRY_OPTION,
+        start_time: str | None = START_TIME_OPTION,
+        ping_rate: float | None = PING_RATE_OPTION,
         method: str | None = METHOD_OPTION,
         solver: str | None = SOLVER_OPTION,
         beta: float | None = BETA_OPTION,
@@ -92,7 +95,9 @@ def register(app: typer.Typer) -> None:
         """
 
         cfg, background = apply_calibration(pipeline_config_from_options(config, method, solver, beta), calibration)
-        ping_iter = read_input_pings(pings, load_geometry_option(sonar))  # before the bar and the directory
+        clock = clock_options(start_time, ping_rate)
+        # before the bar and the directory
+        ping_iter = read_input_pings(pings, load_geometry_option(sonar), clock=clock)
         output.mkdir(parents=True, exist_ok=True)
         bar = input_progress("segment", pings, quiet=quiet, verbose=verbose)
         n = run_pings(bar, ping_iter, lambda ping, i: _segment_one(ping, i, output, cfg, figure, background))
