@@ -488,10 +488,16 @@ def log_bessel_k(v: float, z: float, derivs: bool, out: np.ndarray) -> float:
 
 @njit(cache=True, nogil=True)
 def _logdens2(kind: int, p0: float, p1: float, x: np.ndarray, xe: np.ndarray, lx: np.ndarray,
-              g: np.ndarray, gr: np.ndarray, hs: np.ndarray, derivs: bool) -> float:
-    """Unnormalised log-density ``g`` (``-inf`` off the support) and, with ``derivs``, its
-    gradient ``gr (L, 2)`` and Hessian ``hs (L, 3)`` (``h00, h01, h11``) in the kernel's
-    coordinates; returns ``max g``."""
+              g: np.ndarray, aux: np.ndarray, gr: np.ndarray, hs: np.ndarray, derivs: bool) -> float:
+    """Unnormalised log-density ``g`` (``-inf`` off the support) in the kernel's coordinates;
+    returns ``max g``.
+
+    For kinds 3-5 ``aux`` keeps what :func:`_grad2` needs beside the parameters (Weibull
+    ``exp(c l)``, Rice ``I1/I0``), so gradient and Hessian are computed only when needed, without
+    a second pass over the Bessel function.  The K distribution's derivatives come out of the
+    same quadrature: with ``derivs`` they go into ``gr (L, 2)`` and ``hs (L, 3)`` (``h00, h01,
+    h11``) at once.
+    """
     L = x.shape[0]
     top = -np.inf
     fk = np.empty(5)
@@ -521,36 +527,18 @@ def _logdens2(kind: int, p0: float, p1: float, x: np.ndarray, xe: np.ndarray, lx
             continue
         if kind == 3:
             v = (p0 - 1.0) * lx[k] - p1 * xe[k]
-            if derivs:
-                gr[k, 0] = lx[k]
-                gr[k, 1] = -xe[k]
-                hs[k, 0] = 0.0
-                hs[k, 1] = 0.0
-                hs[k, 2] = 0.0
         elif kind == 4:
             l = lx[k] - p1
             zc = np.exp(p0 * l)
+            aux[k] = zc
             v = (p0 - 1.0) * l - zc
-            if derivs:
-                gr[k, 0] = l * (1.0 - zc)
-                gr[k, 1] = -(p0 - 1.0) + p0 * zc
-                hs[k, 0] = -l * l * zc
-                hs[k, 1] = -1.0 + zc * (1.0 + p0 * l)
-                hs[k, 2] = -p0 * p0 * zc
         else:
             xk = x[k]
             z = xk * p0 * p1
             e0, a = bessel_i0e_ratio(z)
+            aux[k] = a
             d = xk - p0
             v = lx[k] - 0.5 * d * d * p1 + np.log(e0)
-            if derivs:
-                dd = a - 1.0
-                dp = 0.5 if z < 1e-6 else 1.0 - a / z - a * a
-                gr[k, 0] = d * p1 + xk * p1 * dd
-                gr[k, 1] = -0.5 * d * d + xk * p0 * dd
-                hs[k, 0] = -p1 + (xk * p1) ** 2 * dp
-                hs[k, 1] = d + xk * dd + xk * p1 * xk * p0 * dp
-                hs[k, 2] = (xk * p0) ** 2 * dp
         if v != v:
             v = -np.inf
         g[k] = v
@@ -560,74 +548,182 @@ def _logdens2(kind: int, p0: float, p1: float, x: np.ndarray, xe: np.ndarray, lx
 
 
 @njit(cache=True, nogil=True)
-def _q2(kind: int, p0: float, p1: float, x: np.ndarray, xe: np.ndarray, lx: np.ndarray,
-        r: np.ndarray, R: float, g: np.ndarray, gr: np.ndarray, hs: np.ndarray, derivs: bool,
-        out: np.ndarray) -> float:
-    """Expected complete-data log-likelihood ``Q = sum_k r_k log p(k)`` of one component; with
-    ``derivs``, ``out = (dQ0, dQ1, H00, H01, H11)``."""
-    L = x.shape[0]
-    top = _logdens2(kind, p0, p1, x, xe, lx, g, gr, hs, derivs)
+def _grad2(kind: int, p0: float, p1: float, x: np.ndarray, xe: np.ndarray, lx: np.ndarray,
+           g: np.ndarray, aux: np.ndarray, gr: np.ndarray, hs: np.ndarray) -> None:
+    """Gradient ``gr (L, 2)`` and Hessian ``hs (L, 3)`` (``h00, h01, h11``) of ``g`` for kinds
+    3-5 at the levels on the support, from :func:`_logdens2`'s ``g`` and ``aux``."""
+    for k in range(x.shape[0]):
+        if not g[k] > -np.inf:
+            continue
+        if kind == 3:
+            gr[k, 0] = lx[k]
+            gr[k, 1] = -xe[k]
+            hs[k, 0] = 0.0
+            hs[k, 1] = 0.0
+            hs[k, 2] = 0.0
+        elif kind == 4:
+            l = lx[k] - p1
+            zc = aux[k]
+            gr[k, 0] = l * (1.0 - zc)
+            gr[k, 1] = -(p0 - 1.0) + p0 * zc
+            hs[k, 0] = -l * l * zc
+            hs[k, 1] = -1.0 + zc * (1.0 + p0 * l)
+            hs[k, 2] = -p0 * p0 * zc
+        else:
+            xk = x[k]
+            z = xk * p0 * p1
+            a = aux[k]
+            d = xk - p0
+            dd = a - 1.0
+            dp = 0.5 if z < 1e-6 else 1.0 - a / z - a * a
+            gr[k, 0] = d * p1 + xk * p1 * dd
+            gr[k, 1] = -0.5 * d * d + xk * p0 * dd
+            hs[k, 0] = -p1 + (xk * p1) ** 2 * dp
+            hs[k, 1] = d + xk * dd + xk * p1 * xk * p0 * dp
+            hs[k, 2] = (xk * p0) ** 2 * dp
+
+
+# Evaluations of a two-parameter component are cached in "slots" (two per component: the current
+# point and a trial point), keyed by the parameters they were computed at.  One EM iteration
+# evaluates each component's log-density once per Newton trial point; the E-step reuses the
+# accepted point's ``exp(g - top)``, and gradient and Hessian are computed only at accepted points
+# (from the density pass's ``aux``).  Every cached number is computed by the same expression, in
+# the same order, as a fresh evaluation, so the iterates are bit-identical to evaluating afresh.
+#
+# A slot is ``V (4, L)``: rows g, e = exp(g - top) (0 off the support), p = exp(g - log Z), aux
+# (see _logdens2); ``gr (L, 2)``, ``hs (L, 3)``; and ``sc``: p0, p1, top, z = sum e, log Z, the
+# model means m0, m1 of gr, state (0: g, e, aux; 1: also gr, hs; 2: also p, m0, m1).
+
+_SC_SIZE = 8
+
+
+@njit(cache=True, nogil=True)
+def _eval_slot(kind: int, p0: float, p1: float, x: np.ndarray, xe: np.ndarray, lx: np.ndarray,
+               V: np.ndarray, gr: np.ndarray, hs: np.ndarray, sc: np.ndarray) -> None:
+    """Log-density at ``(p0, p1)``, ``e``, ``z`` and ``log Z`` into one slot (state 0)."""
+    g = V[0]
+    e = V[1]
+    top = _logdens2(kind, p0, p1, x, xe, lx, g, V[3], gr, hs, False)
+    z = 0.0
+    for k in range(x.shape[0]):
+        if g[k] > -np.inf:
+            v = np.exp(g[k] - top)
+            e[k] = v
+            z += v
+        else:
+            e[k] = 0.0
+    sc[0] = p0
+    sc[1] = p1
+    sc[2] = top
+    sc[3] = z
+    sc[4] = top + np.log(z)
+    sc[7] = 0.0
+
+
+@njit(cache=True, nogil=True)
+def _q_slot(g: np.ndarray, sc: np.ndarray, r: np.ndarray, R: float) -> float:
+    """Expected complete-data log-likelihood ``Q = sum_k r_k log p(k)`` of one component from its
+    slot (``-inf`` if some ``r_k > 0`` is off the support)."""
+    top = sc[2]
     if not top > -np.inf or top != top:
         return -np.inf
-    z = 0.0
-    for k in range(L):
-        if g[k] > -np.inf:
-            z += np.exp(g[k] - top)
-    logz = top + np.log(z)
     q = 0.0
-    for k in range(L):
+    for k in range(g.shape[0]):
         if r[k] > 0:
             if not g[k] > -np.inf:
                 return -np.inf
             q += r[k] * g[k]
-    q -= R * logz
-    if derivs:
-        m0 = 0.0
-        m1 = 0.0
-        for k in range(L):
-            if g[k] > -np.inf:
-                p = np.exp(g[k] - logz)
-                m0 += p * gr[k, 0]
-                m1 += p * gr[k, 1]
-        g0 = 0.0
-        g1 = 0.0
-        h00 = 0.0
-        h01 = 0.0
-        h11 = 0.0
-        for k in range(L):
-            if g[k] > -np.inf:
-                p = np.exp(g[k] - logz)
-                d0 = gr[k, 0] - m0
-                d1 = gr[k, 1] - m1
-                h00 -= R * p * (hs[k, 0] + d0 * d0)
-                h01 -= R * p * (hs[k, 1] + d0 * d1)
-                h11 -= R * p * (hs[k, 2] + d1 * d1)
-                if r[k] > 0:
-                    g0 += r[k] * d0
-                    g1 += r[k] * d1
-                    h00 += r[k] * hs[k, 0]
-                    h01 += r[k] * hs[k, 1]
-                    h11 += r[k] * hs[k, 2]
-        out[0] = g0
-        out[1] = g1
-        out[2] = h00
-        out[3] = h01
-        out[4] = h11
+    q -= R * sc[4]
     return q
 
 
 @njit(cache=True, nogil=True)
+def _dq_slot(kind: int, x: np.ndarray, xe: np.ndarray, lx: np.ndarray, V: np.ndarray,
+             gr: np.ndarray, hs: np.ndarray, sc: np.ndarray, r: np.ndarray, R: float,
+             out: np.ndarray) -> None:
+    """Gradient and Hessian of ``Q`` into ``out = (dQ0, dQ1, H00, H01, H11)`` from a slot
+    (completing it to state 2 first if needed)."""
+    L = x.shape[0]
+    g = V[0]
+    p = V[2]
+    if sc[7] < 1.0:
+        if kind == 6:
+            _logdens2(kind, sc[0], sc[1], x, xe, lx, g, V[3], gr, hs, True)  # the same g
+        else:
+            _grad2(kind, sc[0], sc[1], x, xe, lx, g, V[3], gr, hs)
+        sc[7] = 1.0
+    logz = sc[4]
+    if sc[7] < 2.0:
+        m0 = 0.0
+        m1 = 0.0
+        for k in range(L):
+            if g[k] > -np.inf:
+                pk = np.exp(g[k] - logz)
+                p[k] = pk
+                m0 += pk * gr[k, 0]
+                m1 += pk * gr[k, 1]
+        sc[5] = m0
+        sc[6] = m1
+        sc[7] = 2.0
+    m0 = sc[5]
+    m1 = sc[6]
+    g0 = 0.0
+    g1 = 0.0
+    h00 = 0.0
+    h01 = 0.0
+    h11 = 0.0
+    for k in range(L):
+        if g[k] > -np.inf:
+            pk = p[k]
+            d0 = gr[k, 0] - m0
+            d1 = gr[k, 1] - m1
+            h00 -= R * pk * (hs[k, 0] + d0 * d0)
+            h01 -= R * pk * (hs[k, 1] + d0 * d1)
+            h11 -= R * pk * (hs[k, 2] + d1 * d1)
+            if r[k] > 0:
+                g0 += r[k] * d0
+                g1 += r[k] * d1
+                h00 += r[k] * hs[k, 0]
+                h01 += r[k] * hs[k, 1]
+                h11 += r[k] * hs[k, 2]
+    out[0] = g0
+    out[1] = g1
+    out[2] = h00
+    out[3] = h01
+    out[4] = h11
+
+
+@njit(cache=True, nogil=True)
+def _slot_at(kind: int, p0: float, p1: float, x: np.ndarray, xe: np.ndarray, lx: np.ndarray,
+             V: np.ndarray, GR: np.ndarray, HS: np.ndarray, SC: np.ndarray, cur: int) -> int:
+    """The slot (of the two of one component) that holds ``(p0, p1)``, evaluating into ``cur`` if
+    neither does."""
+    if SC[cur, 0] == p0 and SC[cur, 1] == p1:
+        return cur
+    o = 1 - cur
+    if SC[o, 0] == p0 and SC[o, 1] == p1:
+        return o
+    _eval_slot(kind, p0, p1, x, xe, lx, V[cur], GR[cur], HS[cur], SC[cur])
+    return cur
+
+
+@njit(cache=True, nogil=True)
 def _mstep2(kind: int, par: np.ndarray, lo: np.ndarray, hi: np.ndarray, x: np.ndarray,
-            xe: np.ndarray, lx: np.ndarray, r: np.ndarray, R: float, g: np.ndarray,
-            gr: np.ndarray, hs: np.ndarray, max_newton: int) -> None:
+            xe: np.ndarray, lx: np.ndarray, r: np.ndarray, R: float, V: np.ndarray, GR: np.ndarray,
+            HS: np.ndarray, SC: np.ndarray, cur: int, max_newton: int) -> int:
     """Damped Newton on ``Q`` of one two-parameter component, in place on ``par`` (2,), inside
-    the box ``[lo, hi]``; a step is taken only if it increases ``Q`` (so EM stays monotone)."""
+    the box ``[lo, hi]``; a step is taken only if it increases ``Q`` (so EM stays monotone).
+
+    ``V, GR, HS, SC`` are the component's two slots; returns the one that holds the final ``par``.
+    """
     out = np.empty(5)
     p0 = par[0]
     p1 = par[1]
-    q0 = _q2(kind, p0, p1, x, xe, lx, r, R, g, gr, hs, True, out)
+    s = _slot_at(kind, p0, p1, x, xe, lx, V, GR, HS, SC, cur)
+    q0 = _q_slot(V[s, 0], SC[s], r, R)
     if not q0 > -np.inf:
-        return
+        return s
+    _dq_slot(kind, x, xe, lx, V[s], GR[s], HS[s], SC[s], r, R, out)
     for _ in range(max_newton):
         # ascent direction: solve (-H + mu I) d = grad with -H + mu I positive definite
         a00 = -out[2]
@@ -647,7 +743,7 @@ def _mstep2(kind: int, par: np.ndarray, lo: np.ndarray, hi: np.ndarray, x: np.nd
         b11 = a11 + mu
         det = b00 * b11 - a01 * a01
         if not det > 0 or det != det:
-            return
+            return s  # par stays where this M-step started (its slot is looked up again)
         d0 = (b11 * g0 - a01 * g1) / det
         d1 = (b00 * g1 - a01 * g0) / det
         step = 1.0
@@ -655,6 +751,7 @@ def _mstep2(kind: int, par: np.ndarray, lo: np.ndarray, hi: np.ndarray, x: np.nd
         qc = q0
         c0 = p0
         c1 = p1
+        t = 1 - s
         pred = g0 * d0 + g1 * d1  # first-order gain of the full step
         for _bt in range(40):
             if step * pred <= 1e-13 * (abs(q0) + 1.0):
@@ -663,7 +760,8 @@ def _mstep2(kind: int, par: np.ndarray, lo: np.ndarray, hi: np.ndarray, x: np.nd
             c1 = min(max(p1 + step * d1, lo[1]), hi[1])
             if c0 == p0 and c1 == p1:
                 break
-            qc = _q2(kind, c0, c1, x, xe, lx, r, R, g, gr, hs, False, out)
+            _eval_slot(kind, c0, c1, x, xe, lx, V[t], GR[t], HS[t], SC[t])
+            qc = _q_slot(V[t, 0], SC[t], r, R)
             if qc > q0:
                 accepted = True
                 break
@@ -674,17 +772,20 @@ def _mstep2(kind: int, par: np.ndarray, lo: np.ndarray, hi: np.ndarray, x: np.nd
         p0 = c0
         p1 = c1
         q0 = qc
+        s = t
         if gain <= 1e-13 * (abs(q0) + 1.0):
             break
-        q0 = _q2(kind, p0, p1, x, xe, lx, r, R, g, gr, hs, True, out)
+        _dq_slot(kind, x, xe, lx, V[s], GR[s], HS[s], SC[s], r, R, out)
     par[0] = p0
     par[1] = p1
+    return s
 
 
 @njit(cache=True, nogil=True)
-def _estep_general(counts, x, xe, lx, kind, par, w, occ, P, Rsp, Nc, tbar, pk, u, g, gr, hs) -> float:
-    """Component pmfs at ``(par, w)``, responsibilities ``Rsp``, ``Nc``, ``tbar``; returns the
-    log-likelihood."""
+def _estep_general(counts, x, xe, lx, kind, par, w, occ, P, Rsp, Nc, tbar, pk, u, V, GR, HS, SC,
+                   cur) -> float:
+    """Component pmfs at ``(par, w)`` (two-parameter ones from their slots), responsibilities
+    ``Rsp``, ``Nc``, ``tbar``; returns the log-likelihood."""
     C = kind.shape[0]
     L = x.shape[0]
     for c in range(C):
@@ -694,21 +795,18 @@ def _estep_general(counts, x, xe, lx, kind, par, w, occ, P, Rsp, Nc, tbar, pk, u
         elif kc <= 2:
             _eta_pmf(kc, x, par[c, 0], u, P, c)
         else:
-            top = _logdens2(kc, par[c, 0], par[c, 1], x, xe, lx, g, gr, hs, False)
-            z = 0.0
+            s = _slot_at(kc, par[c, 0], par[c, 1], x, xe, lx, V[c], GR[c], HS[c], SC[c], cur[c])
+            cur[c] = s
+            e = V[c, s, 1]
+            inv = 1.0 / SC[c, s, 3]
             for k in range(L):
-                e = np.exp(g[k] - top) if g[k] > -np.inf else 0.0
-                P[c, k] = e
-                z += e
-            inv = 1.0 / z
-            for k in range(L):
-                P[c, k] *= inv
+                P[c, k] = e[k] * inv
     return _responsibilities(counts, x, kind, w, occ, P, Rsp, Nc, tbar, pk, True)
 
 
 @njit(cache=True, nogil=True)
-def _mstep_general(x, xe, lx, kind, par, w, lo, hi, N, Rsp, Nc, tbar, m_lo, m_hi, u, g, gr, hs,
-                   max_newton) -> None:
+def _mstep_general(x, xe, lx, kind, par, w, lo, hi, N, Rsp, Nc, tbar, m_lo, m_hi, u, V, GR, HS, SC,
+                   cur, max_newton) -> None:
     C = kind.shape[0]
     for c in range(C):
         w[c] = Nc[c] / N
@@ -719,7 +817,8 @@ def _mstep_general(x, xe, lx, kind, par, w, lo, hi, N, Rsp, Nc, tbar, m_lo, m_hi
             par[c, 0] = _solve(kc, x, tbar[c] / Nc[c], par[c, 0], lo[c, 0], hi[c, 0],
                                m_lo[c], m_hi[c], u)
         else:
-            _mstep2(kc, par[c], lo[c], hi[c], x, xe, lx, Rsp[c], Nc[c], g, gr, hs, max_newton)
+            cur[c] = _mstep2(kc, par[c], lo[c], hi[c], x, xe, lx, Rsp[c], Nc[c], V[c], GR[c],
+                             HS[c], SC[c], cur[c], max_newton)
 
 
 @njit(cache=True, nogil=True)
@@ -754,23 +853,27 @@ def em_general_kernel(
     P = np.zeros((C, L))
     Rsp = np.zeros((C, L))
     u = np.empty(L)
-    g = np.empty(L)
-    gr = np.empty((L, 2))
-    hs = np.empty((L, 3))
+    # two evaluation slots per component (see _eval_slot); sc NaN = empty
+    V = np.empty((C, 2, 4, L))
+    GR = np.empty((C, 2, L, 2))
+    HS = np.empty((C, 2, L, 3))
+    SC = np.full((C, 2, _SC_SIZE), np.nan)
+    cur = np.zeros(C, dtype=np.int64)
     m_lo, m_hi = _eta_mean_bounds(kind, x, lo[:, 0], hi[:, 0], u)
     Nc = np.empty(C)
     tbar = np.empty(C)
     pk = np.empty(C)
     converged = False
     it = 0
-    ll = _estep_general(counts, x, xe, lx, kind, par, w, occ, P, Rsp, Nc, tbar, pk, u, g, gr, hs)
+    ll = _estep_general(counts, x, xe, lx, kind, par, w, occ, P, Rsp, Nc, tbar, pk, u, V, GR, HS, SC, cur)
     ll_trace[0] = ll
     while it < max_iter:
         ll_prev = ll
-        _mstep_general(x, xe, lx, kind, par, w, lo, hi, N, Rsp, Nc, tbar, m_lo, m_hi, u, g, gr,
-                       hs, max_newton)
+        _mstep_general(x, xe, lx, kind, par, w, lo, hi, N, Rsp, Nc, tbar, m_lo, m_hi, u, V, GR, HS,
+                       SC, cur, max_newton)
         it += 1
-        ll = _estep_general(counts, x, xe, lx, kind, par, w, occ, P, Rsp, Nc, tbar, pk, u, g, gr, hs)
+        ll = _estep_general(counts, x, xe, lx, kind, par, w, occ, P, Rsp, Nc, tbar, pk, u, V, GR, HS,
+                            SC, cur)
         ll_trace[it] = ll
         if ll - ll_prev <= tol * (abs(ll) + 1.0):
             converged = True
