@@ -87,3 +87,18 @@ def test_default_candidates_and_errors():
         select_model(_counts("rayleigh", 0), criterion="mdl")  # type: ignore[arg-type]
     with pytest.raises(InputError):
         select_model(_counts("rayleigh", 0), candidates=[])
+    for bad in (0, 1.5, True):
+        with pytest.raises(InputError, match="workers"):
+            select_model(_counts("rayleigh", 0), workers=bad)  # type: ignore[arg-type]
+
+
+def test_threads_do_not_change_the_fits():
+    counts = _counts("rice", 3)
+    cands = ONE + [("exponential", "rice", "gamma"), ("exponential", "weibull", "weibull")]
+    one = select_model(counts, candidates=cands)
+    two = select_model(counts, candidates=cands, workers=2)
+    assert two.candidates == one.candidates and two.best_index == one.best_index
+    assert two.scores == one.scores
+    for a, b in zip(one.fits, two.fits):
+        assert a.params == b.params and np.array_equal(a.weights, b.weights)
+        assert a.n_iter == b.n_iter and a.flags == b.flags

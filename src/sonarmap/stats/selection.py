@@ -82,6 +82,7 @@ def select_model(
     n_levels: int = 256,
     binning: Binning = "round",
     max_iter: int = 2000,
+    workers: int = 1,
 ) -> ModelSelection:
     """Fit every candidate model and choose by BIC, AIC or KLD (eq. 11).
 
@@ -103,6 +104,9 @@ def select_model(
     max_iter : int
         EM iteration limit per candidate (a fit that hits it is flagged ``not_converged`` and
         not chosen).
+    workers : int
+        Threads fitting candidates at once (the EM kernels release the GIL).  The fits do not
+        depend on it: each candidate is fitted alone, exactly as with one thread.
     """
     if criterion not in ("bic", "aic", "kld"):
         raise InputError(f"criterion: must be 'bic', 'aic' or 'kld', got {criterion!r}")
@@ -110,12 +114,22 @@ def select_model(
     cands = [tuple(c) for c in (candidates if candidates is not None else default_candidates())]
     if not cands:
         raise InputError("candidates: empty")
-    fits = []
+    if isinstance(workers, bool) or int(workers) != workers or workers < 1:
+        raise InputError(f"workers: must be a positive integer, got {workers!r}")
+
+    def fit(c: tuple[str, ...]) -> MixtureFit:
+        return fit_mixture(counts, families=c, method=method, binning=binning, max_iter=max_iter)
+
+    if workers > 1 and len(cands) > 1:
+        from concurrent.futures import ThreadPoolExecutor
+
+        with ThreadPoolExecutor(max_workers=min(int(workers), len(cands))) as pool:
+            fits = list(pool.map(fit, cands))
+    else:
+        fits = [fit(c) for c in cands]
     scores = []
     bad = {"not_converged", "collapsed_scale", "zero_mass", "degenerate"}
-    for c in cands:
-        f = fit_mixture(counts, families=c, method=method, binning=binning, max_iter=max_iter)
-        fits.append(f)
+    for f in fits:
         s = {"bic": f.bic, "aic": f.aic, "kld": f.kld}[criterion]
         scores.append(math.inf if (f.flags & bad) or not math.isfinite(s) else float(s))
     best = int(np.argmin(scores))
