@@ -17,7 +17,7 @@ from run import DATA, timeit
 
 from sonarmap.io import read_pings
 from sonarmap.io.aris import FILE_HEADER_SIZE, ArisFile
-from sonarmap.io.dataset import open_survey, dataset_to_pings, write_survey
+from sonarmap.store import open_survey, dataset_to_pings, write_survey
 
 TARGET_MB_S = 200.0
 

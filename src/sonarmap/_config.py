@@ -7,10 +7,12 @@ import math
 from collections.abc import Mapping
 from typing import Any, ClassVar
 
+import numpy as np
+
 from sonarmap.errors import InputError
 
 __all__ = ["is_finite_number", "config_table", "check_field_names", "config_error", "coerce_reals", "check_integers",
-           "check_booleans", "check_choice", "ConfigSection"]
+           "check_booleans", "check_choice", "ConfigSection", "config_dict", "jsonable"]
 
 
 def is_finite_number(v: Any) -> bool:
@@ -133,3 +135,32 @@ class ConfigSection:
     def from_dict(cls, d: Any) -> Any:
         """Build from a table; unknown keys or bad values raise :class:`InputError` naming the key."""
         return cls(**config_table(d, cls, f"pipeline config: {cls.SECTION}"))
+
+
+def config_dict(config: Any) -> dict[str, Any]:
+    """A configuration as a plain dict: its ``to_dict()``, a dataclass's fields, a mapping's items, else ``{"repr": ...}``."""
+    if hasattr(config, "to_dict"):
+        return dict(config.to_dict())
+    if dataclasses.is_dataclass(config):
+        return dataclasses.asdict(config)  # type: ignore[arg-type]
+    if isinstance(config, Mapping):
+        return dict(config)
+    return {"repr": repr(config)}
+
+
+def jsonable(obj: Any) -> Any:
+    """``obj`` with every value JSON can hold: numpy arrays and scalars as lists and numbers, non-finite
+    floats and other objects as their ``repr``, mapping keys as strings."""
+    if isinstance(obj, Mapping):
+        return {str(k): jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, list | tuple):
+        return [jsonable(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return repr(obj)
+    if isinstance(obj, str | int | float | bool) or obj is None:
+        return obj
+    return repr(obj)

@@ -1,7 +1,7 @@
 """The data model of sonarmap's zarr stores, in one place: dimensions, coordinates, CF attributes.
 
 Both kinds of store share one coordinate layout - the raw-ping store that ``sonarmap convert``
-writes (:mod:`sonarmap.io.dataset`) and the product store that ``sonarmap process`` writes
+writes (:mod:`sonarmap.store.pings`) and the product store that ``sonarmap process`` writes
 (:mod:`sonarmap.survey`)::
 
     dimensions    ping_time, range_sample, beam

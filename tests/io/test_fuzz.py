@@ -98,7 +98,7 @@ def _seed(name: str, data_dir: Path, root: Path) -> Seed:
         write_bag(_small_pings(2), p, version=version)
         return Seed(name, p, header_bytes=4096)
     if name == "zarr":
-        from sonarmap.io.dataset import write_survey
+        from sonarmap.store import write_survey
 
         p = d / "s.zarr"
         write_survey(_small_pings(3), p, chunk_pings=2)

@@ -12,7 +12,7 @@ from ddf_writer import write_ddf
 
 from sonarmap.errors import DataFormatError
 from sonarmap.io import detect_format, format_module, read_pings
-from sonarmap.io.dataset import write_survey
+from sonarmap.store import write_survey
 from sonarmap.io.rosbag import write_bag
 
 

@@ -13,7 +13,7 @@ from kmall_writer import write_kmall
 from sonarmap.errors import DataFormatError, InputError
 from sonarmap.io import Reader, read_ping, read_pings, reader_for, reader_modules
 from sonarmap.io import aris as aris_mod
-from sonarmap.io.dataset import write_survey
+from sonarmap.store import write_survey
 from sonarmap.io.reader import FORMAT_MODULES, check_ping_range
 from sonarmap.io.rosbag import write_bag
 

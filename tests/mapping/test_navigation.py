@@ -117,7 +117,7 @@ def _static_inputs(data_dir: Path, tmp_path: Path) -> dict[str, Path]:
     from ddf_writer import write_ddf
 
     from sonarmap.io import read_pings
-    from sonarmap.io.dataset import write_survey
+    from sonarmap.store import write_survey
     from sonarmap.io.rosbag import write_bag
 
     aris = list(read_pings(data_dir / "aris" / "sample.aris"))[:2]

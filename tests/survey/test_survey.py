@@ -355,69 +355,13 @@ def test_cli_scheduler_option_runs_on_the_cluster(
     assert r.returncode == 2 and "--workers" in r.stderr
 
 
-# ---------------------------------------------------------------------------- direct chunk writes
-def test_chunk_writer_writes_the_bytes_zarr_writes(tmp_path: Path) -> None:
-    """Chunk files encoded by the live appender's writer are byte-identical to zarr's own (full and edge
-    chunks, numeric and string variables, NaN fills) and read back through zarr unchanged."""
-    import zarr
-
-    from sonarmap.survey._chunk_writer import ChunkWriter, array_codec_kwargs
-
-    rng = np.random.default_rng(1)
-    n, k = 10, 4
-    values = {
-        "f": rng.random((n, 3)).astype(np.float32),
-        "d": np.where(rng.random(n) < 0.3, np.nan, rng.random(n)),
-        "i": rng.integers(-1, 500, (n, 5)).astype(np.int32),
-        "u": rng.integers(0, 2, (n, 2, 3)).astype(np.uint8),
-        "t": np.arange(n, dtype=np.int64) * 10**9,
-        "s": np.array([f"ping-{i}-é" if i % 3 else "" for i in range(n)], dtype=object),
-    }
-    fills = {"f": np.nan, "d": np.nan, "i": -1, "u": 0, "t": 0, "s": ""}
-    stores = {}
-    for which in ("zarr", "direct"):
-        root = zarr.open_group(str(tmp_path / f"{which}.zarr"), mode="w", zarr_format=3)
-        for name, v in values.items():
-            root.create_array(name, shape=v.shape, chunks=(k, *v.shape[1:]),
-                              dtype=str if name == "s" else v.dtype, fill_value=fills[name],
-                              **array_codec_kwargs())
-        stores[which] = tmp_path / f"{which}.zarr"
-    zroot = zarr.open_group(str(stores["zarr"]), mode="r+")
-    writer = ChunkWriter.open(stores["direct"], list(values))
-    assert writer is not None
-    for c in range(3):  # chunks of 4, 4 and 2 (edge) rows
-        sl = slice(c * k, min(n, (c + 1) * k))
-        for name, v in values.items():
-            zroot[name][sl] = v[sl]
-        writer.write(c, {name: v[sl] for name, v in values.items()})
-    for name in values:
-        files = sorted(p.relative_to(stores["zarr"]) for p in (stores["zarr"] / name / "c").rglob("*") if p.is_file())
-        assert len(files) == 3, name
-        for f in files:
-            assert (stores["direct"] / f).read_bytes() == (stores["zarr"] / f).read_bytes(), f
-        back = zarr.open_group(str(stores["direct"]), mode="r")[name][:]
-        if back.dtype.kind == "f":
-            np.testing.assert_array_equal(back, values[name])
-        else:
-            assert back.tolist() == values[name].tolist(), name
-    assert not any((stores["direct"] / ".sonarmap" / "tmp").iterdir())  # temporaries all moved
-    # A writer never writes into a store that was replaced after it was made.
-    from sonarmap.survey._chunk_writer import StoreReplacedError
-
-    os.replace(stores["direct"], tmp_path / "aside.zarr")
-    stores["direct"].mkdir()
-    with pytest.raises(StoreReplacedError):
-        writer.write(0, {name: v[:k] for name, v in values.items()})
-    assert not any(stores["direct"].iterdir())
-
-
 @pytest.mark.slow
 def test_local_workers_store_their_own_chunks(
     serial_store: Path, survey_dir: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
 ) -> None:
     """Local workers write their chunk files themselves: the parent receives only a receipt per
     chunk (no products) and writes the marker; the dataset is the serial run's."""
-    import sonarmap.survey.store as sv
+    import sonarmap.survey.run as sv
 
     got: list[object] = []
     put = sv._Sink.put
@@ -451,31 +395,6 @@ def test_local_workers_store_their_own_chunks(
     assert sorted(r.index for r in got if isinstance(r, sv._Stored)) == list(range(10))
     assert_same_products(serial_store, out4)
     assert not (out / ".sonarmap" / "tmp").exists()
-
-
-def test_chunk_rows_never_write_into_a_replaced_store(serial_store: Path, tmp_path: Path) -> None:
-    """A worker's chunk writer checks the store directory's identity before every chunk: a store
-    removed or re-created since the run started (``--overwrite`` while a killed run's worker is
-    still busy) is left alone."""
-    from sonarmap.survey._chunk_writer import StoreReplacedError
-    from sonarmap.survey.plan import ChunkSpec
-    from sonarmap.survey.store import ChunkRows
-
-    out = tmp_path / "c.zarr"
-    shutil.copytree(serial_store, out)
-    writer = ChunkRows.open(out)
-    rows = {"kld": np.full(8, 0.5)}
-    chunk = ChunkSpec(index=1, start=8, stop=16, items=())
-    writer.write(chunk, rows)
-    import zarr
-
-    np.testing.assert_array_equal(zarr.open_group(str(out), mode="r")["kld"][8:16], rows["kld"])
-    os.replace(out, tmp_path / "aside.zarr")
-    shutil.copytree(serial_store, out)
-    before = sorted(p.read_bytes() for p in (out / "kld").rglob("*") if p.is_file())
-    with pytest.raises(StoreReplacedError):
-        writer.write(chunk, rows)
-    assert sorted(p.read_bytes() for p in (out / "kld").rglob("*") if p.is_file()) == before
 
 
 @pytest.mark.slow
@@ -513,7 +432,7 @@ def test_pool_workers_start_with_a_warm_pipeline() -> None:
 def test_tail_parts_cover_the_last_chunks_and_give_their_products(survey_dir: Path) -> None:
     from sonarmap.survey import run_chunk
     from sonarmap.survey.plan import _resolve_config, _sub_chunk, _tail_parts
-    from sonarmap.survey.records import _concat_parts
+    from sonarmap.survey.executors import _concat_parts
 
     plan = plan_survey([survey_dir], chunk_size=12)  # chunks of 12, 12, 12, 4
     chunks = plan.chunks()

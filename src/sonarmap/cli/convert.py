@@ -85,7 +85,7 @@ def convert(
                 bar.log(f"{ping.source}")
 
         if kind == "zarr":
-            from sonarmap.io.dataset import SurveyWriter
+            from sonarmap.store import SurveyWriter
 
             with SurveyWriter(output, mode="a" if append else "w", chunk_pings=chunk_pings) as w:
                 n = w.write(pings())

@@ -1,9 +1,9 @@
-"""Registry hooks for zarr survey stores written by :mod:`sonarmap.io.dataset`.
+"""Registry hooks for zarr stores (:mod:`sonarmap.store`).
 
-The data model itself (names, attributes, writing and reading) lives in :mod:`sonarmap.io.dataset`;
+The store itself (data model, writing, checking and reading) lives in :mod:`sonarmap.store`;
 this module only lets :func:`sonarmap.io.read_pings` and ``sonarmap info`` recognise a store.
 A product store of ``sonarmap process`` (:mod:`sonarmap.survey`) is recognised too: ``info``
-summarises it (:func:`sonarmap.io.products.product_summary`); it holds products, not pings, so reading
+summarises it (:func:`sonarmap.store.product_summary`); it holds products, not pings, so reading
 pings from it is a clean error.
 """
 
@@ -20,21 +20,24 @@ from sonarmap.errors import DataFormatError
 from sonarmap.geometry import as_geometry
 from sonarmap.io._binary import make_summary
 from sonarmap._files import MAX_SIDECAR_BYTES, read_bytes_bounded
-from sonarmap.io.dataset import (
-    ATTR_MODEL,
-    DIM_PING,
-    VAR_INTENSITY,
-    VAR_GEOMETRY,
-    _inspect_survey,
-    read_array,
-    _is_store,
-    _n_pings,
-    dataset_to_pings,
-    open_survey,
-    survey_geometries,
-)
 from sonarmap.io.reader import GeometrySpec
 from sonarmap.ping import Ping
+from sonarmap.store import (
+    ATTR_MODEL,
+    DIM_PING,
+    VAR_GEOMETRY,
+    VAR_INTENSITY,
+    dataset_to_pings,
+    inspect_survey,
+    is_product_store,
+    is_zarr_store,
+    open_survey,
+    product_summary,
+    read_array,
+    survey_geometries,
+    survey_length,
+    survey_status,
+)
 
 __all__ = ["FORMAT", "sniff", "iter_pings", "count_pings", "summary"]
 
@@ -45,7 +48,7 @@ def sniff(path: Path, head: bytes) -> bool:
     """A zarr store directory (v2 ``.zgroup`` or v3 ``zarr.json``) holding an intensity array, or
     whose root metadata names the sonarmap data model (so a store that lost its intensity array
     is reported as a damaged survey, not as an unknown format)."""
-    if not _is_store(path):
+    if not is_zarr_store(path):
         return False
     if (path / VAR_INTENSITY).is_dir():
         return True
@@ -71,8 +74,6 @@ def iter_pings(path: str | os.PathLike[str], *, geometry: GeometrySpec = None, s
     from sonarmap.io.reader import check_ping_range
 
     start, stop = check_ping_range(start, stop)
-    from sonarmap.io.products import is_product_store
-
     if is_product_store(path):
         raise DataFormatError("is a product store (sonarmap process): it holds products, not pings; read its "
                               "inputs, or use sonarmap info / sonarmap show on it", path)
@@ -83,11 +84,9 @@ def iter_pings(path: str | os.PathLike[str], *, geometry: GeometrySpec = None, s
 
 def count_pings(path: str | os.PathLike[str]) -> int:
     """Number of pings (array metadata only; a product store's ``n_pings``)."""
-    from sonarmap.io.products import is_product_store, survey_status
-
     if is_product_store(path):
         return int(survey_status(path)["n_pings"])
-    return _n_pings(Path(path))
+    return survey_length(Path(path))
 
 
 def summary(path: str | os.PathLike[str]) -> dict[str, Any]:
@@ -99,7 +98,6 @@ def summary(path: str | os.PathLike[str]) -> dict[str, Any]:
         If the store's metadata, times or first geometry index are corrupt (naming the store).
     """
     from sonarmap.datamodel import consolidated_status
-    from sonarmap.io.products import is_product_store, product_summary
 
     if is_product_store(path):
         return product_summary(path)
@@ -107,7 +105,7 @@ def summary(path: str | os.PathLike[str]) -> dict[str, Any]:
     n = int(ds.sizes.get(DIM_PING, 0))
     geoms = survey_geometries(ds)
     t = ds[DIM_PING].values.astype("datetime64[ns]").astype(np.int64) if n else np.zeros(0, np.int64)
-    st = _inspect_survey(Path(path))
+    st = inspect_survey(Path(path))
     g = st.group
     first = None
     if n and geoms:

@@ -8,7 +8,7 @@ import os
 import queue
 import time
 import warnings
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -16,12 +16,16 @@ import numpy as np
 from sonarmap.errors import SonarmapError
 from sonarmap.ping import Ping
 from sonarmap.survey.plan import ChunkSpec, PingFunction, _default_ping_function, _resolve_config, _tail_parts
-from sonarmap.survey.records import _concat_parts
 
 __all__ = ["warm_pipeline_once"]
 
 
 # ============================================================================ executors
+def _concat_parts(parts: Sequence[Mapping[str, np.ndarray]]) -> dict[str, np.ndarray]:
+    """One chunk's products from its parts' (in ping order)."""
+    return {name: np.concatenate([p[name] for p in parts], axis=0) for name in parts[0]}
+
+
 def _pool_initializer(parent_pid: int, ping_function: PingFunction | None) -> None:  # pragma: no cover - runs in workers
     import signal
     import threading

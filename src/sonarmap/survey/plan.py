@@ -14,14 +14,14 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from sonarmap._config import jsonable
 from sonarmap.errors import DataFormatError, InputError, SonarmapError
-from sonarmap.io.products import SURVEY_FORMAT
+from sonarmap.store import DEFAULT_CHUNK_SIZE, SURVEY_FORMAT
 from sonarmap.ping import Ping
 
 __all__ = ["DEFAULT_CHUNK_SIZE", "PingFunction", "SurveyExistsError", "ChunkSpec", "SurveyPlan", "plan_survey"]
 
 
-DEFAULT_CHUNK_SIZE = 256
 
 PingFunction = Callable[..., Any]
 
@@ -201,32 +201,6 @@ def _resolve_config(config: Any) -> Any:
     raise InputError(f"config: expected PipelineConfig, mapping or TOML path, got {type(config).__name__}")
 
 
-def _config_dict(config: Any) -> dict[str, Any]:
-    if hasattr(config, "to_dict"):
-        return dict(config.to_dict())
-    if dataclasses.is_dataclass(config):
-        return dataclasses.asdict(config)  # type: ignore[arg-type]
-    if isinstance(config, Mapping):
-        return dict(config)
-    return {"repr": repr(config)}
-
-
-def _jsonable(obj: Any) -> Any:
-    if isinstance(obj, Mapping):
-        return {str(k): _jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, list | tuple):
-        return [_jsonable(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return obj.tolist()
-    if isinstance(obj, np.generic):
-        return obj.item()
-    if isinstance(obj, float) and not math.isfinite(obj):
-        return repr(obj)
-    if isinstance(obj, str | int | float | bool) or obj is None:
-        return obj
-    return repr(obj)
-
-
 def _geometry_token(geometry: Any) -> Any:
     if geometry is None:
         return None
@@ -246,7 +220,7 @@ def _fingerprint(plan: SurveyPlan, config: dict[str, Any], *, keep_labels: bool,
     head = {
         "format": SURVEY_FORMAT,
         "version": version,
-        "config": _jsonable(_options_by_name(config)),
+        "config": jsonable(_options_by_name(config)),
         "keep_labels": bool(keep_labels),
         "chunk_size": plan.chunk_size,
         "geometry": _geometry_token(plan.geometry),

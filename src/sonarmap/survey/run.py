@@ -16,32 +16,43 @@ import numpy as np
 
 from sonarmap._atomic import WriterLock, atomic_write_text
 from sonarmap.datamodel import consolidate, consolidated_status, invalidate_consolidated
-from sonarmap.errors import DataFormatError, InputError
-from sonarmap.io.dataset import (
+from sonarmap._config import config_dict
+from sonarmap.errors import DataFormatError, InputError, SonarmapError
+from sonarmap.ping import Ping
+from sonarmap.store import (
     COORD_AZIMUTH,
-    CheckedStore,
-    check_times,
-    checksum_codecs,
-    read_array,
-    remove_stale_store_temporaries,
-)
-from sonarmap.io.products import (
     STATE_DIR,
     SURVEY_FORMAT,
     TIME_UNITS,
+    CheckedStore,
+    ChunkRows,
+    check_times,
+    checksum_codecs,
+    create_store,
     done_chunks,
     flagged_mask,
     inspect_products,
+    mixture_arrays,
+    open_writable,
+    product_record,
+    product_schema,
+    read_array,
     read_root_attrs,
+    reference_range,
+    remove_marker_temporaries,
+    remove_stale_store_temporaries,
+    remove_store,
+    remove_tmp,
+    stack_product_records,
+    store_layout,
+    write_marker,
 )
-from sonarmap.ping import Ping
 from sonarmap.survey.plan import (
     ChunkSpec,
     DEFAULT_CHUNK_SIZE,
     PingFunction,
     SurveyExistsError,
     SurveyPlan,
-    _config_dict,
     _default_ping_function,
     _fingerprint,
     _function_name,
@@ -49,19 +60,6 @@ from sonarmap.survey.plan import (
     _maybe_config,
     _resolve_config,
     plan_survey,
-)
-from sonarmap.survey.records import _fit_arrays, _record, _schema_of, _stack
-from sonarmap.survey.store import (
-    ChunkRows,
-    _Sink,
-    _Stored,
-    _create_store,
-    _reference_range,
-    _remove_marker_temporaries,
-    _remove_temporaries,
-    _store_layout,
-    _zarr_open,
-    remove_store,
 )
 from sonarmap.survey.executors import _ProcessPool, _run_dask, _run_serial
 
@@ -116,11 +114,36 @@ def run_chunk(
                 "the survey's first ping; process each sonar configuration into its own store"
             )
         prod = fn(ping, config, keep_labels=keep_labels)
-        records.append(_record(prod, keep_labels=keep_labels))
+        records.append(product_record(prod, keep_labels=keep_labels))
         sources.append(ping.source)
     if len(records) != chunk.n_pings:
         raise DataFormatError(f"chunk {chunk.index}: read {len(records)} pings, planned {chunk.n_pings}")
-    return _stack(records, schema or _schema_of(records[0]), sources)
+    return stack_product_records(records, schema or product_schema(records[0]), sources)
+
+
+@dataclasses.dataclass(frozen=True)
+class _Stored:
+    """What a task that wrote its own chunk returns instead of the products."""
+
+    index: int
+    n_pings: int
+
+
+class _Sink:
+    """The parent's side of storing chunks: data (unless a worker already wrote it), then marker."""
+
+    def __init__(self, store: Path, writer: ChunkRows) -> None:
+        self.store = store
+        self.writer = writer
+
+    def put(self, chunk: ChunkSpec, result: Any) -> None:
+        """Store ``result`` of ``chunk`` (unless a worker did) and write the chunk's marker."""
+        if isinstance(result, _Stored):
+            if result.index != chunk.index or result.n_pings != chunk.n_pings:
+                raise SonarmapError(f"chunk {chunk.index}: worker reported {result}")
+        else:
+            self.writer.write(chunk, result)
+        write_marker(self.store, chunk.index, chunk.start, chunk.stop)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -208,7 +231,7 @@ def _plan_run(inputs: Any, config: Any, *, chunk_size: int, geometry: Any, keep_
     _check_fixed_geometry(plan)
     if poses is not None and not Path(poses).is_file():
         raise DataFormatError("poses file not found", poses)
-    cfg_dict = _config_dict(cfg)
+    cfg_dict = config_dict(cfg)
     fp = _fingerprint(plan, cfg_dict, keep_labels=keep_labels, poses=poses, extrinsics=extrinsics,
                       version=__version__,
                       ping_function=_function_name(ping_function))
@@ -353,11 +376,11 @@ def _store_chunks(out: Path, plan: SurveyPlan, task: Any, *, client: Any, pool: 
     """Run the chunks the store does not hold yet - on a dask client, the local pool, or serially
     in this process - and store their products; returns ``(chunks run, executor, products, root)``."""
     st, schema = inspect_products(out)  # metadata checked: a damaged store is a clean error
-    _remove_marker_temporaries(out)
-    root = _zarr_open(out)
-    reference = (np.asarray(read_array(st, COORD_AZIMUTH)), _reference_range(st))
+    remove_marker_temporaries(out)
+    root = open_writable(out)
+    reference = (np.asarray(read_array(st, COORD_AZIMUTH)), reference_range(st))
     task = dataclasses.replace(task, schema=schema, reference=reference)
-    _remove_temporaries(out)  # temporary files of an interrupted run (no writer of ours runs yet)
+    remove_tmp(out)  # temporary files of an interrupted run (no writer of ours runs yet)
     writer = ChunkRows.open(out)
     sink = _Sink(out, writer)
 
@@ -418,22 +441,22 @@ def _probe_and_create(out: Path, plan: SurveyPlan, task: Any, cfg_dict: dict[str
         if prod.fit is not None:  # a ping with a mixture fit gives the mixture's shape
             break
     assert first is not None
-    rec = _record(prod, keep_labels=task.keep_labels)
-    schema = _schema_of(rec)
-    _, _, cnames = _fit_arrays(prod.fit)
+    rec = product_record(prod, keep_labels=task.keep_labels)
+    schema = product_schema(rec)
+    _, _, cnames = mixture_arrays(prod.fit)
     geom = first.geometry
     if pool is not None:
         # Start the first chunks now (products sent back) while the store is created.
         pool.start(plan.chunks(), dataclasses.replace(task, schema=schema, reference=(
             np.asarray(geom.azimuth_rad, np.float64), np.asarray(geom.range_m, np.float64))))
-    coord_arrays, attrs = _store_layout(
+    coord_arrays, attrs = store_layout(
         geom, cfg_dict, schema, keep_labels=task.keep_labels, chunk_size=plan.chunk_size,
         n_pings=plan.n_pings, n_chunks=plan.n_chunks, n_input_files=len(plan.files),
         inputs=[p for p, _, _ in plan.files[:20]] + (["..."] if len(plan.files) > 20 else []),
         poses=None if poses is None else os.path.abspath(poses), fingerprint=fingerprint,
     )
-    _create_store(out, plan, schema, attrs, {"arrays": coord_arrays, "component_names": cnames,
-                                             "echo_range": geom.range_m})
+    create_store(out, plan.n_pings, plan.chunk_size, schema, attrs, {"arrays": coord_arrays, "component_names": cnames,
+                                                                     "echo_range": geom.range_m})
 
 
 def _finalise(out: Path, st: Any, root: Any, plan: SurveyPlan, *, poses: Any, points: Any,

@@ -29,7 +29,7 @@ import pytest
 from sonarmap.errors import DataFormatError, InputError, SonarmapError
 from sonarmap.geometry import SonarGeometry
 from sonarmap.io import read_pings, zarrstore
-from sonarmap.io.dataset import SurveyWriter, dataset_to_pings, open_survey, write_survey
+from sonarmap.store import SurveyWriter, dataset_to_pings, open_survey, write_survey
 from sonarmap.ping import Ping, Pose
 
 T0 = 1_600_000_000_000_000_000
@@ -372,8 +372,9 @@ def test_an_unfinished_product_store_still_loads(seeds: dict[str, Path], tmp_pat
 def test_chunks_are_checksummed_and_old_stores_still_read(seeds: dict[str, Path], tmp_path: Path) -> None:
     """Every array of both writers has a crc32c codec; a store written without (before this
     change) reads as before - raw and product stores, the product one also resumes."""
-    import sonarmap.survey.store as ss
-    from sonarmap.io.dataset import _encoding, pings_to_dataset
+    import sonarmap.store.products as ss
+    from sonarmap.store import pings_to_dataset
+    from sonarmap.store.writer import _encoding
     from sonarmap.survey import load_products, process_survey
 
     for store in (seeds["raw"], seeds["prod"]):

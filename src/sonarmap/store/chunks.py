@@ -1,42 +1,64 @@
-"""Direct, cheap writes of whole zarr chunks of a product store, for the live appender.
+"""Chunk files of a zarr store: the codecs every array is written with, and the two chunk writers.
 
-:class:`sonarmap.survey.store.ProductAppender` (the store ``sonarmap live`` writes while pings
-arrive) rewrites the open tail chunk of every product variable at each flush.  :class:`ChunkWriter`
-encodes those chunk files itself, exactly as zarr would (the codecs the product store is created
-with: ``bytes`` little endian or ``vlen-utf8``, then ``zstd``, then - in stores made by this
-version - ``crc32c``, the 4-byte little-endian CRC32C of the compressed bytes appended; edge chunks
-padded with the fill value; default chunk keys ``c/<k>/0/...``), and writes each one atomically
-(temporary file in ``.sonarmap/tmp``, then ``os.replace``), so a reader of the growing store never
-sees a torn chunk.  A flush of the 21 product variables costs ~4 ms of CPU this way against ~29 ms
-through ``zarr.Array.__setitem__`` (event-loop round trips, metadata reads, all holding the GIL
-that the live processing loop needs; measured on one flush of 16 pings).  Batch runs
-(:func:`sonarmap.survey.process_survey`) write through zarr's API instead: there the difference is
-within the noise of the survey's throughput.
+Every array sonarmap writes is encoded ``bytes`` (or ``vlen-utf8``) -> ``zstd`` -> ``crc32c``
+(:func:`checksum_codecs`): the 4-byte little-endian CRC32C of the compressed chunk is appended, so a
+corrupt chunk file is an error when read, never wrong values.  Every chunk is written, even one
+equal to the fill value, so a missing chunk file is recognised as damage.
 
-Arrays whose metadata uses anything else (e.g. written by another tool) are not handled:
-:meth:`ChunkWriter.open` returns ``None``.
+Two writers put whole chunks of a product store along ``ping_time``:
+
+* :class:`ChunkRows` writes through zarr's own API (batch runs: a worker process writes its own
+  chunk into the shared store; distinct chunks are distinct files, safe for concurrent writers).
+* :class:`ChunkWriter` encodes the chunk files itself, exactly as zarr would (edge chunks padded
+  with the fill value, default chunk keys ``c/<k>/0/...``), and writes each one atomically
+  (temporary file in ``.sonarmap/tmp``, then ``os.replace``), so a reader of a growing store never
+  sees a torn chunk.  A flush of the 21 product variables costs ~4 ms of CPU this way against
+  ~29 ms through ``zarr.Array.__setitem__`` (event-loop round trips, metadata reads, all holding
+  the GIL that the live processing loop needs; measured on one flush of 16 pings), which is why
+  the live appender (:class:`sonarmap.store.ProductAppender`) uses it.  Arrays whose metadata uses
+  anything else (e.g. written by another tool) are not handled: :meth:`ChunkWriter.open` returns
+  ``None``.
+
+Both check before every chunk that the store directory is still the one they were made for
+(``(st_dev, st_ino)``): a store removed or re-created since (``--overwrite`` while a killed run's
+worker is still busy) raises :class:`StoreReplacedError` instead of being written into.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import struct
 import uuid
+import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
 from sonarmap._atomic import write_error
 from sonarmap.errors import SonarmapError
 
-__all__ = ["ChunkWriter", "StoreReplacedError", "ZSTD_LEVEL", "array_codec_kwargs", "crc32c_suffix"]
+__all__ = ["ChunkRange", "ChunkRows", "ChunkWriter", "StoreReplacedError", "ZSTD_LEVEL", "array_codec_kwargs",
+           "checksum_codecs", "crc32c_suffix", "open_writable"]
 
 #: zstd level of every product variable (zarr's default; level 0 = zstd's default, 3).
 ZSTD_LEVEL = 0
+
+
+def checksum_codecs() -> dict[str, Any]:
+    """Bytes-to-bytes codecs of every array this version writes: zstd, then a CRC32C checksum.
+
+    The ``crc32c`` codec appends the 4-byte little-endian CRC32C of the compressed chunk, so any
+    corruption of a chunk file (a flipped bit, a truncated or overwritten file) is detected when
+    the chunk is read instead of decoding to wrong values.
+    """
+    from zarr.codecs import Crc32cCodec, ZstdCodec
+
+    return {"compressors": (ZstdCodec(level=0, checksum=False), Crc32cCodec())}
 
 
 def array_codec_kwargs() -> dict[str, Any]:
@@ -260,3 +282,72 @@ def _fill_value(v: Any, dt: np.dtype) -> Any:
     if isinstance(v, bool):
         return dt.type(v)
     return dt.type(0 if v is None else v)
+
+
+class ChunkRange(Protocol):
+    """Which rows a chunk covers (:class:`sonarmap.survey.ChunkSpec` is one)."""
+
+    index: int
+    start: int
+    stop: int
+
+
+@dataclasses.dataclass(frozen=True)
+class ChunkRows:
+    """Writes one chunk's rows of every product variable through zarr's own API (picklable).
+
+    A local worker process writes its own chunk into the shared store (distinct chunks are
+    distinct files: safe for concurrent writers) and only reports success to the parent, which
+    then writes the completion marker; the parent writes what comes back from dask workers and
+    split chunks.  Every chunk is written, even one equal to the fill value: a checksummed store
+    has all its chunks, so a missing one is recognised as damage when read.
+
+    ``identity`` is the ``(st_dev, st_ino)`` of the store directory when the writer was made: a
+    write into a store that has since been replaced (e.g. a worker left over from a killed run
+    while the output is re-created with ``--overwrite``) raises :class:`StoreReplacedError`
+    instead of writing.
+    """
+
+    store: str
+    identity: tuple[int, int]
+
+    @classmethod
+    def open(cls, store: str | os.PathLike[str]) -> ChunkRows:
+        """A writer for the product store ``store`` (which must exist)."""
+        try:
+            st = os.stat(store)
+        except OSError as exc:
+            raise write_error(exc, Path(store), "cannot prepare the store for writing") from None
+        return cls(os.fspath(store), (st.st_dev, st.st_ino))
+
+    def write(self, chunk: ChunkRange, data: Mapping[str, Any]) -> None:
+        """Write rows ``chunk.start:chunk.stop`` of every variable in ``data`` (name -> rows)."""
+        import zarr
+
+        try:
+            st = os.stat(self.store)
+        except FileNotFoundError:
+            st = None
+        if st is None or (st.st_dev, st.st_ino) != self.identity:
+            raise StoreReplacedError(f"{self.store}: the store was removed or replaced; not writing chunk {chunk.index}")
+        root = _open_roots.get((self.store, self.identity))
+        with warnings.catch_warnings(), zarr.config.set({"array.write_empty_chunks": True}):
+            warnings.simplefilter("ignore")
+            try:
+                if root is None:
+                    root = _open_roots[(self.store, self.identity)] = open_writable(Path(self.store))
+                for name, values in data.items():
+                    root[name][chunk.start : chunk.stop] = values
+            except OSError as exc:
+                raise write_error(exc, Path(self.store), f"cannot write chunk {chunk.index}") from None
+
+
+#: The writable root group of each store this process writes chunks into (opened once).
+_open_roots: dict[tuple[str, tuple[int, int]], Any] = {}
+
+
+def open_writable(path: Path) -> Any:
+    """The store's root zarr group, writable."""
+    import zarr
+
+    return zarr.open_group(str(path), mode="r+", zarr_format=3, use_consolidated=False)

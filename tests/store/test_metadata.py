@@ -87,7 +87,7 @@ def test_both_store_kinds_have_the_same_coordinate_layout(stores: dict[str, Path
 
 @pytest.mark.slow
 def test_beam_steered_pings_keep_an_azimuth_table_per_ping(test_pings: list, tmp_path: Path) -> None:  # noqa: ANN001
-    from sonarmap.io.dataset import SurveyWriter, dataset_to_pings, open_survey
+    from sonarmap.store import SurveyWriter, dataset_to_pings, open_survey
 
     g = test_pings[0].geometry
     steered = g.replace(azimuth_rad=g.azimuth_rad * 0.9)
@@ -106,7 +106,7 @@ def test_beam_steered_pings_keep_an_azimuth_table_per_ping(test_pings: list, tmp
 @pytest.mark.slow
 def test_appends_keep_consolidated_metadata_in_step(stores: dict[str, Path], test_pings: list,
                                                     tmp_path: Path) -> None:  # noqa: ANN001
-    from sonarmap.io.dataset import SurveyWriter, open_survey
+    from sonarmap.store import SurveyWriter, open_survey
 
     out = tmp_path / "a.zarr"
     shutil.copytree(stores["converted"], out)
@@ -124,7 +124,7 @@ def test_appends_keep_consolidated_metadata_in_step(stores: dict[str, Path], tes
 
 @pytest.mark.slow
 def test_added_product_variables_are_consolidated(stores: dict[str, Path], tmp_path: Path) -> None:
-    from sonarmap.io.dataset import PingVariable, add_ping_variable, write_ping_variable
+    from sonarmap.store import PingVariable, add_ping_variable, write_ping_variable
 
     out = tmp_path / "v.zarr"
     shutil.copytree(stores["converted"], out)
@@ -138,7 +138,7 @@ def test_added_product_variables_are_consolidated(stores: dict[str, Path], tmp_p
 
 
 def test_stale_consolidated_metadata_does_not_mislead_sonarmap(stores: dict[str, Path], tmp_path: Path) -> None:
-    from sonarmap.io.dataset import open_survey
+    from sonarmap.store import open_survey
     from sonarmap.survey import load_products
 
     for kind, var in (("converted", "intensity"), ("processed", "kld")):
@@ -200,7 +200,7 @@ def _old_product_layout(store: Path) -> None:
     index coordinates, no consolidated metadata or ``coordinates`` attribute."""
     import zarr
 
-    from sonarmap.io.dataset import checksum_codecs
+    from sonarmap.store import checksum_codecs
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -257,7 +257,7 @@ def test_old_layout_converted_store_reads_and_appends(stores: dict[str, Path], t
                                                       tmp_path: Path) -> None:  # noqa: ANN001
     import zarr
 
-    from sonarmap.io.dataset import SurveyWriter, checksum_codecs, dataset_to_pings, open_survey
+    from sonarmap.store import SurveyWriter, checksum_codecs, dataset_to_pings, open_survey
 
     out = tmp_path / "oldc.zarr"
     shutil.copytree(stores["converted"], out)

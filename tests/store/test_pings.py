@@ -11,7 +11,7 @@ import pytest
 from sonarmap.cli import main
 from sonarmap.errors import DataFormatError, InputError
 from sonarmap.io import detect_format, read_pings, zarrstore
-from sonarmap.io.dataset import (
+from sonarmap.store import (
     COORD_AZIMUTH,
     COORD_RANGE,
     DIM_BEAM,

@@ -1,4 +1,4 @@
-"""Per-ping products as flat records (one row per ping) and their stacking into chunk arrays."""
+"""Per-ping products as the rows of a product store (one record per ping) and their stacking into chunks."""
 
 from __future__ import annotations
 
@@ -10,12 +10,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from sonarmap.errors import InputError, SonarmapError
-from sonarmap.io.products import N_OTHER_RETURNS
+from sonarmap.store.products import _FILL, N_OTHER_RETURNS
 
-__all__ = ["product_record", "product_schema", "stack_product_records"]
+__all__ = ["mixture_arrays", "product_record", "product_schema", "stack_product_records"]
 
 
-def _fit_arrays(fit: Any) -> tuple[NDArray[np.float64], NDArray[np.float64], tuple[str, ...]]:
+def mixture_arrays(fit: Any) -> tuple[NDArray[np.float64], NDArray[np.float64], tuple[str, ...]]:
     """``(weights (K,), params (K, P), component names)`` of a mixture fit.
 
     Accepts :class:`sonarmap.stats.mixture.MixtureFit` or a mapping with ``weights`` and
@@ -35,12 +35,24 @@ def _fit_arrays(fit: Any) -> tuple[NDArray[np.float64], NDArray[np.float64], tup
     return weights, arr, names
 
 
-def _record(products: Any, *, keep_labels: bool) -> dict[str, Any]:
-    """One ping's products as plain arrays (the row of every product variable)."""
+def product_record(products: Any, *, keep_labels: bool = False) -> dict[str, Any]:
+    """One ping's products as the row of every product variable (what a store holds per ping).
+
+    Parameters
+    ----------
+    products : PingProducts
+        The output of :func:`sonarmap.pipeline.process_ping`.
+    keep_labels : bool
+        Include the ``labels`` image.
+
+    Returns
+    -------
+    dict of str to ndarray or str
+    """
     if products.fit is None:  # no fit (e.g. a constant image): the mixture rows stay NaN
         weights, params = np.zeros(0), np.zeros((0, 0))
     else:
-        weights, params, _ = _fit_arrays(products.fit)
+        weights, params, _ = mixture_arrays(products.fit)
     r = products.ranges
     rec: dict[str, Any] = {
         "ping_time": np.int64(products.time_ns),
@@ -93,15 +105,19 @@ def _background_db(products: Any) -> float:
     return float(bg.range_dependence_db) if bg is not None and bg.applied else math.nan
 
 
-_FILL: dict[str, Any] = {
-    "background_range_db": np.nan, "floor_levels": 0, "kld": np.nan, "pd": np.nan, "pfa": np.nan, "mixture_weight": np.nan, "mixture_param": np.nan,
-    "range": np.nan, "range_bin": -1, "range_intensity": np.nan, "range_confidence": np.nan,
-    "range_sigma": np.nan, "p_detect": np.nan, "other_range": np.nan,
-    "labels": 0, "ping_time": 0, "source": "", "flags": "",
-}
+def stack_product_records(records: Sequence[dict[str, Any]], schema: Mapping[str, tuple[tuple[int, ...], str]],
+                          sources: Sequence[str] | None = None) -> dict[str, np.ndarray]:
+    """Stack :func:`product_record` rows into one array per variable (leading dimension: pings).
 
-def _stack(records: Sequence[dict[str, Any]], schema: Mapping[str, tuple[tuple[int, ...], str]],
-           sources: Sequence[str]) -> dict[str, np.ndarray]:
+    ``sources`` names the pings in messages (default: the records' ``source``).
+
+    Raises
+    ------
+    InputError
+        If a ping's products do not fit the schema (another sonar geometry).
+    """
+    if sources is None:
+        sources = [str(r.get("source", "")) for r in records]
     out: dict[str, np.ndarray] = {}
     n = len(records)
     for name, (shape, dtype) in schema.items():
@@ -127,7 +143,8 @@ def _stack(records: Sequence[dict[str, Any]], schema: Mapping[str, tuple[tuple[i
     return out
 
 
-def _schema_of(record: Mapping[str, Any]) -> dict[str, tuple[tuple[int, ...], str]]:
+def product_schema(record: Mapping[str, Any]) -> dict[str, tuple[tuple[int, ...], str]]:
+    """Shapes (without the ping dimension) and dtypes of a :func:`product_record`."""
     schema: dict[str, tuple[tuple[int, ...], str]] = {}
     for name, val in record.items():
         if isinstance(val, str):
@@ -136,42 +153,3 @@ def _schema_of(record: Mapping[str, Any]) -> dict[str, tuple[tuple[int, ...], st
             a = np.asarray(val)
             schema[name] = (tuple(a.shape), a.dtype.str)
     return schema
-
-
-def _concat_parts(parts: Sequence[Mapping[str, np.ndarray]]) -> dict[str, np.ndarray]:
-    """One chunk's products from its parts' (in ping order)."""
-    return {name: np.concatenate([p[name] for p in parts], axis=0) for name in parts[0]}
-
-
-def product_record(products: Any, *, keep_labels: bool = False) -> dict[str, Any]:
-    """One ping's products as the row of every product variable (what a store holds per ping).
-
-    Parameters
-    ----------
-    products : PingProducts
-        The output of :func:`sonarmap.pipeline.process_ping`.
-    keep_labels : bool
-        Include the ``labels`` image.
-
-    Returns
-    -------
-    dict of str to ndarray or str
-    """
-    return _record(products, keep_labels=keep_labels)
-
-
-def product_schema(record: Mapping[str, Any]) -> dict[str, tuple[tuple[int, ...], str]]:
-    """Shapes (without the ping dimension) and dtypes of a :func:`product_record`."""
-    return _schema_of(record)
-
-
-def stack_product_records(records: Sequence[dict[str, Any]],
-                          schema: Mapping[str, tuple[tuple[int, ...], str]]) -> dict[str, np.ndarray]:
-    """Stack :func:`product_record` rows into one array per variable (leading dimension: pings).
-
-    Raises
-    ------
-    InputError
-        If a ping's products do not fit the schema (another sonar geometry).
-    """
-    return _stack(records, schema, [str(r.get("source", "")) for r in records])

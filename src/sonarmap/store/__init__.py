@@ -1,0 +1,141 @@
+"""The one zarr store of sonarmap: raw pings (``sonarmap convert``) and per-ping products
+(``sonarmap process`` / ``sonarmap live``), written, checked and read in one place.
+
+Both kinds of store share the data model of :mod:`sonarmap.datamodel` (dimensions, coordinates,
+CF attributes), the codecs (every chunk ``zstd`` + ``crc32c``, every chunk written), consolidated
+metadata kept in step with the arrays, atomic creation (built beside the target, renamed into
+place) and one exclusive writer at a time (:class:`sonarmap._atomic.WriterLock`).  sonarmap's
+readers never trust a store: every metadata document is parsed and checked first, every chunk file
+is checked before zarr opens it, and every value against its documented range; a failure is one
+:class:`~sonarmap.errors.DataFormatError` naming the store and the file, array, chunk or ping.
+
+Modules
+-------
+:mod:`~sonarmap.store.check`
+    Metadata inspection (:class:`CheckedStore`), chunk files and checksums, value checks.
+:mod:`~sonarmap.store.chunks`
+    The codecs, and the two chunk writers of product stores (zarr's API; direct and atomic).
+:mod:`~sonarmap.store.pings`
+    The raw-ping store: pings <-> xarray Dataset, opening and reading it back.
+:mod:`~sonarmap.store.writer`
+    Writing raw-ping stores (:class:`SurveyWriter`), extra per-ping variables.
+:mod:`~sonarmap.store.records`
+    Per-ping products as the rows of a product store.
+:mod:`~sonarmap.store.products`
+    The product store: schema, creation, resume markers, progress, checked opening and loading.
+:mod:`~sonarmap.store.appender`
+    Growing product stores of live runs (:class:`ProductAppender`).
+
+Examples
+--------
+>>> from sonarmap.store import dataset_to_pings, open_survey, write_survey  # doctest: +SKIP
+>>> write_survey(pings, "survey.zarr")  # doctest: +SKIP
+>>> back = list(dataset_to_pings(open_survey("survey.zarr")))  # doctest: +SKIP
+"""
+
+from __future__ import annotations
+
+from sonarmap.datamodel import (
+    COORD_AZIMUTH,
+    COORD_RANGE,
+    DIM_BEAM,
+    DIM_PING,
+    DIM_RANGE,
+    VAR_INTENSITY,
+)
+from sonarmap.store.appender import ProductAppender, create_product_store
+from sonarmap.store.check import (
+    TIME_UNITS_RE,
+    CheckedStore,
+    check_chunk_files,
+    check_times,
+    check_values,
+    inspect_store,
+    is_zarr_store,
+    kind_of,
+    locate_error,
+    read_array,
+)
+from sonarmap.store.chunks import (
+    ChunkRows,
+    ChunkWriter,
+    StoreReplacedError,
+    array_codec_kwargs,
+    checksum_codecs,
+    open_writable,
+)
+from sonarmap.store.pings import (
+    ATTR_MODEL,
+    ATTRS,
+    DATA_MODEL_VERSION,
+    INT_MISSING,
+    VAR_GEOMETRY,
+    PingVariable,
+    dataset_to_pings,
+    inspect_survey,
+    open_survey,
+    pings_to_dataset,
+    survey_geometries,
+    survey_length,
+)
+from sonarmap.store.products import (
+    DEFAULT_CHUNK_SIZE,
+    DIM_OTHER,
+    INFORMATIONAL_FLAGS,
+    LIVE_SETTLE_S,
+    N_OTHER_RETURNS,
+    PRODUCT_RANGES,
+    PRODUCT_VARIABLES,
+    STATE_DIR,
+    SURVEY_FORMAT,
+    TIME_UNITS,
+    create_store,
+    done_chunks,
+    flagged_mask,
+    inspect_products,
+    int_attr,
+    is_product_store,
+    load_products,
+    marker_dir,
+    open_products,
+    product_ping,
+    product_summary,
+    read_root_attrs,
+    reference_range,
+    remove_marker_temporaries,
+    remove_store,
+    remove_tmp,
+    store_geometry,
+    store_layout,
+    survey_status,
+    write_marker,
+)
+from sonarmap.store.records import mixture_arrays, product_record, product_schema, stack_product_records
+from sonarmap.store.writer import (
+    SurveyWriter,
+    add_ping_variable,
+    remove_stale_store_temporaries,
+    write_ping_variable,
+    write_survey,
+)
+
+__all__ = [
+    # the data model's names, for convenience
+    "DIM_PING", "DIM_RANGE", "DIM_BEAM", "VAR_INTENSITY", "COORD_RANGE", "COORD_AZIMUTH",
+    # raw-ping stores
+    "ATTR_MODEL", "ATTRS", "DATA_MODEL_VERSION", "INT_MISSING", "VAR_GEOMETRY", "PingVariable", "SurveyWriter",
+    "write_survey", "pings_to_dataset", "open_survey", "inspect_survey", "survey_length", "dataset_to_pings",
+    "survey_geometries", "add_ping_variable", "write_ping_variable", "remove_stale_store_temporaries",
+    # product stores
+    "DEFAULT_CHUNK_SIZE", "DIM_OTHER", "N_OTHER_RETURNS", "PRODUCT_VARIABLES", "PRODUCT_RANGES",
+    "INFORMATIONAL_FLAGS", "LIVE_SETTLE_S", "STATE_DIR", "SURVEY_FORMAT", "TIME_UNITS", "flagged_mask",
+    "product_record", "product_schema", "stack_product_records", "mixture_arrays", "create_store",
+    "store_layout", "create_product_store", "ProductAppender", "marker_dir", "done_chunks", "write_marker",
+    "remove_tmp", "remove_marker_temporaries", "remove_store", "read_root_attrs", "int_attr", "survey_status",
+    "inspect_products", "is_product_store", "store_geometry", "reference_range", "product_summary",
+    "open_products", "load_products", "product_ping",
+    # checking and chunks
+    "CheckedStore", "TIME_UNITS_RE", "inspect_store", "is_zarr_store", "kind_of", "read_array", "check_times",
+    "check_values", "check_chunk_files", "locate_error", "checksum_codecs", "array_codec_kwargs", "ChunkRows",
+    "ChunkWriter", "StoreReplacedError", "open_writable",
+]

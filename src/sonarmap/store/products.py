@@ -1,0 +1,804 @@
+"""The product store of ``sonarmap process`` / ``sonarmap live``: schema, creation, resume markers,
+progress, checked opening and loading, summary.
+
+Layout (zarr v3, readable with :func:`open_products` / ``xarray.open_zarr``; dimensions and
+coordinates those of every sonarmap store, :mod:`sonarmap.datamodel`)::
+
+    survey.zarr/
+      zarr.json                 root attributes: provenance (sonarmap version, configuration,
+                                inputs, fingerprint), written once when the store is created;
+                                consolidated metadata (re-written whenever arrays change)
+      range_sample, beam, echo_range (ping_time, range_sample), beam_azimuth (beam)  coordinates
+      ping_time, source, kld, flags, mixture_weight, mixture_param, range, range_bin, ... arrays
+      point_xyz, point_ping ... when poses were given (written after the last chunk)
+      .sonarmap/chunks/<k>.done completion markers (data first, marker second)
+      .sonarmap/tmp/            chunk files being written (moved into place; cleared on resume)
+      .sonarmap/complete        the run finished (summary in JSON)
+
+The store is created in a temporary directory and renamed into place, so it either exists with
+complete metadata or not at all.  Every chunk carries a CRC32C checksum; :func:`load_products`
+(what ``sonarmap report`` reads) checks the metadata, the chunks and every value against the
+documented ranges of the variables (:data:`PRODUCT_RANGES`).  Chunk ``k`` of every variable holds
+pings ``k * chunk_size ...``; the survey stage (:mod:`sonarmap.survey`) fills them, the live
+appender (:mod:`sonarmap.store.appender`) grows a store as pings arrive.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import math
+import os
+import shutil
+import tempfile
+import time
+import warnings
+from collections.abc import Iterable, Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from sonarmap._atomic import atomic_write_text, write_error
+from sonarmap._config import jsonable
+from sonarmap._files import MAX_SIDECAR_BYTES, read_bytes_bounded
+from sonarmap.datamodel import (
+    COORD_AZIMUTH,
+    COORD_RANGE,
+    COORDINATES,
+    DIM_BEAM,
+    DIM_PING,
+    DIM_RANGE,
+    consolidate,
+    consolidated_status,
+)
+from sonarmap.errors import DataFormatError, InputError, SonarmapError
+from sonarmap.ping import Ping
+from sonarmap.store.check import (
+    TIME_UNITS_RE,
+    CheckedStore,
+    _one_line,
+    check_chunk_files,
+    check_times,
+    check_values,
+    inspect_store,
+    kind_of,
+    locate_error,
+    read_array,
+)
+from sonarmap.store.chunks import array_codec_kwargs, checksum_codecs
+from sonarmap.store.pings import ATTRS as DATA_MODEL_ATTRS
+
+__all__ = [
+    "DEFAULT_CHUNK_SIZE",
+    "DIM_OTHER",
+    "INFORMATIONAL_FLAGS",
+    "LIVE_SETTLE_S",
+    "N_OTHER_RETURNS",
+    "PRODUCT_RANGES",
+    "PRODUCT_VARIABLES",
+    "STATE_DIR",
+    "SURVEY_FORMAT",
+    "TIME_UNITS",
+    "create_store",
+    "done_chunks",
+    "flagged_mask",
+    "inspect_products",
+    "int_attr",
+    "is_product_store",
+    "load_products",
+    "marker_dir",
+    "open_products",
+    "product_ping",
+    "product_summary",
+    "read_root_attrs",
+    "reference_range",
+    "remove_marker_temporaries",
+    "remove_store",
+    "remove_tmp",
+    "store_geometry",
+    "store_layout",
+    "survey_status",
+    "write_marker",
+]
+
+#: Pings per task of ``sonarmap process`` and per zarr chunk of its store (hundreds keep overheads
+#: negligible).
+DEFAULT_CHUNK_SIZE = 256
+#: Marker directory inside the store (not part of the dataset).
+STATE_DIR = ".sonarmap"
+#: The ``sonarmap_format`` root attribute of a product store.
+SURVEY_FORMAT = "sonarmap-survey/1"
+#: The CF units of the stored ping times.
+TIME_UNITS = "nanoseconds since 1970-01-01T00:00:00"
+#: Dimension of ``other_range``: the surfaces behind a beam's return that are stored.
+DIM_OTHER = "other_return"
+#: At most this many surfaces behind each return are stored (``other_range``).
+N_OTHER_RETURNS = 2
+
+#: Product variables: name -> (dims, attrs).  Dimension names follow the survey data model
+#: (echopype style: ``ping_time``, ``range_sample``, ``beam``); ``component`` and ``parameter``
+#: index the mixture model.
+PRODUCT_VARIABLES: dict[str, tuple[tuple[str, ...], dict[str, str]]] = {
+    DIM_PING: ((DIM_PING,), dict(DATA_MODEL_ATTRS[DIM_PING])),
+    "source": ((DIM_PING,), {"long_name": "Source file (and frame) of the ping"}),
+    "kld": ((DIM_PING,), {"long_name": "Kullback-Leibler divergence, data || mixture fit",
+                          "units": "nat"}),
+    "flags": ((DIM_PING,), {"long_name": "Fit quality flags, space separated (empty: none)"}),
+    "background_range_db": ((DIM_PING,), {
+        "long_name": "Range dependence of the estimated background level (90th / 10th percentile over "
+                     "range; NaN: image not normalised, e.g. thresholded)", "units": "dB"}),
+    "floor_levels": ((DIM_PING,), {
+        "long_name": "Levels of the classified image merged into its zero level before the ping was modelled "
+                     "(the quantisation floor; 0: none)", "units": "1"}),
+    "mixture_weight": ((DIM_PING, "component"), {"long_name": "Mixture component weight",
+                                                 "units": "1"}),
+    "mixture_param": ((DIM_PING, "component", "parameter"),
+                      {"long_name": "Mixture component parameters, scale last (NaN: unused)"}),
+    "pd": ((DIM_PING,), {"long_name": "Probability of detection at the chosen threshold",
+                         "units": "1"}),
+    "pfa": ((DIM_PING,), {"long_name": "Probability of false alarm at the chosen threshold",
+                          "units": "1"}),
+    "range": ((DIM_PING, DIM_BEAM), {"long_name": "Range to the first return per beam (NaN: none)",
+                                     "units": "m",
+                                     "description": "Leading edge of the return's echo along the beam: the "
+                                                    "first crossing of half its peak, interpolated "
+                                                    "between range bins, on the edge-aligned mean profile "
+                                                    "of up to 7 neighbouring beams of the same surface "
+                                                    "(the echo's peak in strongest mode)"}),
+    "range_bin": ((DIM_PING, DIM_BEAM), {"long_name": "Range-bin index of the return (-1: none)",
+                                         "units": "1"}),
+    "range_intensity": ((DIM_PING, DIM_BEAM), {"long_name": "Intensity at the return", "units": "1"}),
+    "range_confidence": ((DIM_PING, DIM_BEAM), {"long_name": "Confidence of the return",
+                                                "units": "1"}),
+    "range_sigma": ((DIM_PING, DIM_BEAM), {
+        "long_name": "One-sigma uncertainty of the return's range (NaN: no return or no estimate)",
+        "units": "m",
+        "description": "Standard deviation of the error of range, estimated per echo by the ranges "
+                       "stage (sonarmap.ranges.echoes)"}),
+    "p_detect": ((DIM_PING, DIM_BEAM), {
+        "long_name": "Probability that a surface in the beam is detected and reported (NaN: unknown)",
+        "units": "1",
+        "description": "The occupancy map's per-beam pD: P(the beam reports a return | a surface in "
+                       "the beam), for the hit and the free-space updates of that beam"}),
+    "other_range": ((DIM_PING, DIM_OTHER, DIM_BEAM), {
+        "long_name": "Ranges of further surfaces behind the return, nearest first (NaN: none)",
+        "units": "m",
+        "description": "Leading edges of the echoes of further surfaces on the beam behind the "
+                       f"reported return; at most {N_OTHER_RETURNS}, NaN-padded"}),
+    "labels": ((DIM_PING, DIM_RANGE, DIM_BEAM),
+               {"long_name": "Segmentation labels (1: object, 0: free space)", "units": "1"}),
+}
+
+
+#: Fill value of each product variable (its value in pings not written yet).
+_FILL: dict[str, Any] = {
+    "background_range_db": np.nan, "floor_levels": 0, "kld": np.nan, "pd": np.nan, "pfa": np.nan, "mixture_weight": np.nan, "mixture_param": np.nan,
+    "range": np.nan, "range_bin": -1, "range_intensity": np.nan, "range_confidence": np.nan,
+    "range_sigma": np.nan, "p_detect": np.nan, "other_range": np.nan,
+    "labels": 0, "ping_time": 0, "source": "", "flags": "",
+}
+
+
+#: Flags that describe the scene rather than a doubtful fit (not counted as "flagged fits").
+INFORMATIONAL_FLAGS = frozenset({"no_returns", "no_object", "collapsed"})
+
+
+def flagged_mask(flags: Iterable[Any]) -> NDArray[np.bool_]:
+    """Which pings have a flagged fit: any flag other than :data:`INFORMATIONAL_FLAGS`.
+
+    ``flags`` holds one space-separated flag string per ping (the ``flags`` variable).
+    """
+    return np.array([bool(set(str(f).split()) - INFORMATIONAL_FLAGS) for f in flags], dtype=bool)
+
+
+# ---------------------------------------------------------------------- markers and progress
+def marker_dir(store: Path) -> Path:
+    """The directory of the per-chunk completion markers of a store."""
+    return store / STATE_DIR / "chunks"
+
+
+def done_chunks(store: Path) -> set[int]:
+    """The chunks of a store marked complete."""
+    d = marker_dir(store)
+    if not d.is_dir():
+        return set()
+    out = set()
+    for name in os.listdir(d):
+        if name.endswith(".done"):
+            with contextlib.suppress(ValueError):
+                out.add(int(name[:-5]))
+    return out
+
+
+def write_marker(store: Path, chunk_index: int, start: int, stop: int) -> None:
+    """The chunk's completion marker, written atomically once its data files are in place."""
+    marker = marker_dir(store) / f"{chunk_index:08d}.done"
+    # No scan for stale temporaries per marker (that would be quadratic in the chunks): the run
+    # clears the marker directory's leftovers once, at its start (:func:`remove_marker_temporaries`).
+    atomic_write_text(marker, json.dumps({"start": start, "stop": stop}) + "\n", clean=False)
+
+
+def remove_tmp(store: Path) -> None:
+    """Remove the temporary files an interrupted writer left in ``.sonarmap/tmp`` (call before
+    any writer of this run starts)."""
+    d = store / STATE_DIR / "tmp"
+    for f in d.iterdir() if d.is_dir() else ():
+        with contextlib.suppress(OSError):
+            f.unlink()
+
+
+def remove_marker_temporaries(store: Path) -> None:
+    """Remove what killed runs left among the markers: temporary files (``.<k>.done.*``) - call
+    only while holding the store's lock (no other run writes markers then)."""
+    d = marker_dir(store)
+    for name in os.listdir(d) if d.is_dir() else ():
+        if name.startswith("."):
+            with contextlib.suppress(OSError):
+                os.unlink(d / name)
+
+
+def read_root_attrs(store: Path) -> dict[str, Any] | None:
+    """The root attributes of a store, or ``None`` if it has no readable root ``zarr.json``."""
+    meta = store / "zarr.json"
+    try:
+        d = json.loads(read_bytes_bounded(meta, MAX_SIDECAR_BYTES, "group metadata").decode("utf-8"))
+    except (OSError, ValueError, RecursionError):
+        return None
+    attrs = d.get("attributes", {}) if isinstance(d, dict) else None
+    return attrs if isinstance(attrs, dict) else None
+
+
+def int_attr(attrs: Mapping[str, Any], key: str, store: Path, *, low: int = 0) -> int:
+    """Root attribute ``key``, an integer >= ``low`` (else a DataFormatError naming zarr.json)."""
+    v = attrs.get(key)
+    if isinstance(v, bool) or not isinstance(v, int) or v < low:
+        raise DataFormatError(f"root attribute {key} is {v!r:.40}, expected an integer >= {low}", store / "zarr.json")
+    return v
+
+
+def survey_status(store: str | os.PathLike[str]) -> dict[str, Any]:
+    """Progress of a survey store: ``n_chunks``, ``done`` (count), ``complete``, ``fingerprint``.
+
+    Raises
+    ------
+    DataFormatError
+        If ``store`` is not a sonarmap survey store.
+    """
+    p = Path(store)
+    attrs = read_root_attrs(p)
+    if attrs is None or attrs.get("sonarmap_format") != SURVEY_FORMAT:
+        if (p / "zarr.json").is_file():
+            inspect_store(p)  # a corrupt root zarr.json: say what is wrong with it
+        raise DataFormatError("not a sonarmap survey store", p)
+    return {
+        "n_chunks": int_attr(attrs, "n_chunks", p),
+        "n_pings": int_attr(attrs, "n_pings", p),
+        "done": len(done_chunks(p)),
+        "complete": (p / STATE_DIR / "complete").exists(),
+        "fingerprint": attrs.get("fingerprint"),
+    }
+
+
+# ---------------------------------------------------------------------- creation
+def create_store(path: Path, n_pings: int, chunk_size: int, schema: Mapping[str, tuple[tuple[int, ...], str]],
+                  attrs: dict[str, Any], coords: dict[str, Any]) -> None:
+    """Create the empty store in a temporary directory, then rename it onto ``path``."""
+    import zarr
+
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent))
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            root = zarr.open_group(str(tmp), mode="w", zarr_format=3, attributes=attrs)
+            n, k = n_pings, chunk_size
+            for name, (shape, dtype) in schema.items():
+                dims, vattrs = PRODUCT_VARIABLES[name]
+                vattrs = dict(vattrs)
+                if name == "ping_time":
+                    vattrs.update(units=TIME_UNITS, calendar="proleptic_gregorian")
+                if DIM_BEAM in dims:
+                    vattrs["coordinates"] = COORD_AZIMUTH
+                if name.startswith("mixture_") and coords.get("component_names"):
+                    vattrs["components"] = " ".join(coords["component_names"])
+                if dtype == "str":
+                    dt: Any = str
+                    fill: Any = ""
+                else:
+                    dt = np.dtype(dtype)
+                    fill = _FILL[name]
+                root.create_array(
+                    name, shape=(n, *shape), chunks=(k, *shape), dtype=dt, fill_value=fill,
+                    dimension_names=dims, attributes=vattrs, **array_codec_kwargs(),
+                )
+            # Static coordinates along beam / range_sample.
+            for name, values, dims, vattrs in coords.get("arrays", ()):
+                arr = root.create_array(name, shape=values.shape, dtype=values.dtype,
+                                        dimension_names=dims, attributes=vattrs, **checksum_codecs(),
+                                        config={"write_empty_chunks": True})
+                arr[...] = values
+            if coords.get("echo_range") is not None:
+                _write_echo_range(root, tmp, np.asarray(coords["echo_range"], np.float64), n, k)
+        (tmp / STATE_DIR / "chunks").mkdir(parents=True)
+        consolidate(tmp)
+        os.replace(tmp, path)
+    except BaseException as exc:
+        shutil.rmtree(tmp, ignore_errors=True)
+        if isinstance(exc, OSError) and not isinstance(exc, SonarmapError):
+            raise write_error(exc, path, "cannot create the store") from None
+        raise
+
+
+def store_layout(geom: Any, cfg_dict: dict[str, Any], schema: Mapping[str, tuple[tuple[int, ...], str]], *,
+                  keep_labels: bool, chunk_size: int, n_pings: int, n_chunks: int, n_input_files: int,
+                  inputs: list[str], poses: str | None, fingerprint: str) -> tuple[list[Any], dict[str, Any]]:
+    """The static coordinate arrays and root attributes of a new product store.
+
+    The coordinate layout of every sonarmap store (:mod:`sonarmap.datamodel`); shared by
+    :func:`process_survey` and :func:`create_product_store` (live runs).
+    """
+    from sonarmap import __version__
+
+    coord_arrays = [
+        (DIM_RANGE, np.arange(geom.n_bins, dtype=np.int32), COORDINATES[DIM_RANGE],
+         dict(DATA_MODEL_ATTRS[DIM_RANGE])),
+        (DIM_BEAM, np.arange(geom.n_beams, dtype=np.int32), COORDINATES[DIM_BEAM],
+         dict(DATA_MODEL_ATTRS[DIM_BEAM])),
+        (COORD_AZIMUTH, np.asarray(geom.azimuth_rad, np.float64), COORDINATES[COORD_AZIMUTH],
+         dict(DATA_MODEL_ATTRS[COORD_AZIMUTH])),
+    ]
+    attrs = {
+        "sonarmap_format": SURVEY_FORMAT,
+        "sonarmap_version": __version__,
+        "title": "sonarmap survey products",
+        "Conventions": "CF-1.8",
+        "source_geometry": json.dumps(jsonable(geom.to_dict())),
+        "pipeline_config": json.dumps(jsonable(cfg_dict), sort_keys=True),
+        "keep_labels": bool(keep_labels),
+        "chunk_size": chunk_size,
+        "n_pings": n_pings,
+        "n_chunks": n_chunks,
+        "n_input_files": n_input_files,
+        "inputs": inputs,
+        "poses": poses,
+        "fingerprint": fingerprint,
+        "schema": {k: [list(s), d] for k, (s, d) in schema.items()},
+        "coordinates": f"{COORD_RANGE} {COORD_AZIMUTH}",
+    }
+    return coord_arrays, attrs
+
+
+def _write_echo_range(root: Any, store: Path, range_m: NDArray[np.float64], n: int, k: int) -> None:
+    """``echo_range (ping_time, range_sample)`` of a product store: every ping's row is ``range_m``.
+
+    One product store holds one sonar geometry (:func:`run_chunk` refuses pings of another), so
+    the coordinate is known when the store is created.  Every full chunk holds the same values,
+    hence the same bytes: the first is encoded by zarr and copied to the others' files.
+    """
+    attrs = dict(DATA_MODEL_ATTRS[COORD_RANGE])
+    arr = root.create_array(COORD_RANGE, shape=(n, range_m.size), chunks=(k, range_m.size), dtype=np.float64,
+                            fill_value=np.nan, dimension_names=COORDINATES[COORD_RANGE], attributes=attrs,
+                            **checksum_codecs(), config={"write_empty_chunks": True})
+    if n == 0:
+        return
+    full = n // k
+    rows = np.broadcast_to(range_m, (min(n, k), range_m.size))
+    arr[: rows.shape[0]] = rows
+    if full > 1:
+        first = store / COORD_RANGE / "c" / "0" / "0"
+        data = first.read_bytes()
+        for i in range(1, full):
+            d = store / COORD_RANGE / "c" / str(i)
+            d.mkdir(parents=True, exist_ok=True)
+            (d / "0").write_bytes(data)
+    if n % k and full:
+        arr[full * k :] = np.broadcast_to(range_m, (n - full * k, range_m.size))
+
+
+def remove_store(path: Path) -> None:
+    """Delete an existing output by renaming it aside first (never half-deleted in place)."""
+    if not path.exists() and not path.is_symlink():
+        return
+    if path.is_dir() and not path.is_symlink():
+        trash = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".old", dir=path.parent))
+        os.replace(path, trash / "old")
+        shutil.rmtree(trash, ignore_errors=True)
+    else:
+        path.unlink()
+
+
+# ---------------------------------------------------------------------- checking
+def inspect_products(p: Path) -> tuple[CheckedStore, dict[str, tuple[tuple[int, ...], str]]]:
+    """Check a product store's metadata: every document parses, the schema's arrays exist with
+    the shapes, dimensions and dtypes it gives, the coordinates exist, the time units are ns.
+
+    Raises
+    ------
+    DataFormatError
+        Naming the store and the file or array at fault (``not a sonarmap survey store`` for a
+        directory that is not one).
+    """
+    if not (p / "zarr.json").is_file() and not (p / ".zgroup").exists():
+        raise DataFormatError("not a sonarmap survey store", p)
+    st = inspect_store(p)
+    meta = st.meta_file()
+    if st.attrs.get("sonarmap_format") != SURVEY_FORMAT:
+        raise DataFormatError("not a sonarmap survey store", p)
+    n = int_attr(st.attrs, "n_pings", p)
+    int_attr(st.attrs, "n_chunks", p)
+    int_attr(st.attrs, "chunk_size", p, low=1)
+    schema = _parse_schema(st.attrs.get("schema"), meta)
+    _check_schema_arrays(st, schema, n)
+    _check_coordinates(st, schema, n)
+    _check_point_arrays(st)
+    units = st.arrays[DIM_PING].attrs.get("units")
+    if not isinstance(units, str) or not TIME_UNITS_RE.fullmatch(units):
+        raise DataFormatError(f"array '{DIM_PING}' has units {units!r:.60}, expected {TIME_UNITS!r}",
+                              st.meta_file(DIM_PING))
+    return st, schema
+
+
+def _parse_schema(raw: Any, meta: Path) -> dict[str, tuple[tuple[int, ...], str]]:
+    """The root attribute ``schema`` as ``{name: (shape, dtype)}``; it must name the required variables."""
+    schema: dict[str, tuple[tuple[int, ...], str]] = {}
+    try:
+        for name, (shape, dtype) in raw.items():
+            if not isinstance(name, str) or not isinstance(dtype, str) or not all(
+                    isinstance(k, int) and not isinstance(k, bool) and k >= 0 for k in shape):
+                raise TypeError(name)
+            schema[name] = (tuple(shape), dtype)
+    except (AttributeError, TypeError, ValueError):
+        raise DataFormatError("root attribute schema is not {name: [shape, dtype]}", meta) from None
+    for name in (DIM_PING, "source", "flags", "kld", "range"):
+        if name not in schema:
+            raise DataFormatError(f"root attribute schema lacks the required variable {name}", meta)
+    return schema
+
+
+def _check_schema_arrays(st: CheckedStore, schema: Mapping[str, tuple[tuple[int, ...], str]], n: int) -> None:
+    """Each variable of the schema is a known product, stored as an array of ``n`` pings with the
+    schema's shape and dtype and the product's dimensions."""
+    meta = st.meta_file()
+    for name, (shape, dtype) in schema.items():
+        if name not in PRODUCT_VARIABLES:
+            raise DataFormatError(f"root attribute schema names an unknown variable {name!r:.40}", meta)
+        arr = st.require(name, what="sonarmap survey store")
+        if tuple(arr.shape) != (n, *shape):
+            raise DataFormatError(f"array '{name}' has shape {tuple(arr.shape)}, the store's schema says "
+                                  f"{(n, *shape)}", st.meta_file(name))
+        dims = st.dims(name)
+        if dims != PRODUCT_VARIABLES[name][0]:
+            raise DataFormatError(f"array '{name}' has dimensions {dims}, expected {PRODUCT_VARIABLES[name][0]}",
+                                  st.meta_file(name))
+        ok = kind_of(arr) == "T" if dtype == "str" else np.dtype(arr.dtype) == np.dtype(dtype)
+        if not ok:
+            raise DataFormatError(f"array '{name}' has data type {arr.dtype}, the store's schema says {dtype}",
+                                  st.meta_file(name))
+
+
+def _check_coordinates(st: CheckedStore, schema: Mapping[str, tuple[tuple[int, ...], str]], n: int) -> None:
+    """The azimuth and range coordinates exist with the survey's beam and bin counts, and the index
+    coordinates (when present) match them."""
+    sizes = {DIM_BEAM: schema["range"][0][0] if schema["range"][0] else None,
+             DIM_RANGE: schema["labels"][0][0] if "labels" in schema else _n_bins(st.attrs)}
+    for name, dim in ((COORD_AZIMUTH, DIM_BEAM), (COORD_RANGE, DIM_RANGE)):
+        arr = st.require(name, kinds="f", what="sonarmap survey store")
+        # echo_range is (ping_time, range_sample); stores of earlier versions hold (range_sample)
+        allowed = [(dim,)] + ([COORDINATES[COORD_RANGE]] if name == COORD_RANGE else [])
+        if st.dims(name) not in allowed or len(arr.shape) != len(st.dims(name)):
+            raise DataFormatError(f"array '{name}' has dimensions {st.dims(name)}, expected "
+                                  f"{' or '.join(str(a) for a in allowed)}", st.meta_file(name))
+        if len(arr.shape) == 2 and int(arr.shape[0]) != n:
+            raise DataFormatError(f"array '{name}' has {arr.shape[0]} along {DIM_PING}, the survey has {n}",
+                                  st.meta_file(name))
+        if sizes[dim] is not None and int(arr.shape[-1]) != sizes[dim]:
+            raise DataFormatError(f"array '{name}' has {arr.shape[-1]} along {dim}, the survey has {sizes[dim]}",
+                                  st.meta_file(name))
+    for name, dim in ((DIM_RANGE, DIM_RANGE), (DIM_BEAM, DIM_BEAM)):
+        if name in st.arrays:  # index coordinates (absent in stores of earlier versions)
+            arr = st.require(name, ndim=1, kinds="iu", what="sonarmap survey store")
+            if st.dims(name) != (dim,) or int(arr.shape[0]) != int(st.arrays[COORD_RANGE if dim == DIM_RANGE
+                                                                            else COORD_AZIMUTH].shape[-1]):
+                raise DataFormatError(f"array '{name}' has shape {tuple(arr.shape)} / dimensions {st.dims(name)}, "
+                                      "inconsistent with the coordinates", st.meta_file(name))
+
+
+def _check_point_arrays(st: CheckedStore) -> None:
+    """The ``point_*`` arrays (when present) are ``(point, ...)`` of one length; ``point_xyz`` is (point, 3)."""
+    points = {name: arr for name, arr in st.arrays.items() if name.startswith("point_")}
+    for name, arr in points.items():
+        if not arr.shape or st.dims(name)[:1] != ("point",) or (
+                int(arr.shape[0]) != int(next(iter(points.values())).shape[0])) or (
+                name == "point_xyz" and tuple(arr.shape[1:]) != (3,)):
+            raise DataFormatError(f"array '{name}' has shape {tuple(arr.shape)} / dimensions {st.dims(name)}, "
+                                  "inconsistent with the other point arrays", st.meta_file(name))
+
+
+def _n_bins(attrs: Mapping[str, Any]) -> int | None:
+    """Range bins of the survey's sonar (``source_geometry`` attribute), if recorded."""
+    try:
+        n = json.loads(attrs.get("source_geometry", "{}")).get("num_bins")
+    except (TypeError, ValueError, AttributeError, RecursionError):
+        return None
+    return n if isinstance(n, int) and not isinstance(n, bool) else None
+
+
+def is_product_store(path: str | os.PathLike[str]) -> bool:
+    """Whether ``path`` is a product store written by :func:`sonarmap.survey.process_survey` (root attributes only)."""
+    p = Path(path)
+    if not p.is_dir():
+        return False
+    attrs = read_root_attrs(p)
+    return attrs is not None and attrs.get("sonarmap_format") == SURVEY_FORMAT
+
+
+def store_geometry(st: CheckedStore) -> Any:
+    """The sonar geometry of a product store (its ``source_geometry`` attribute)."""
+    from sonarmap.geometry import geometry_from_dict
+
+    try:
+        d = json.loads(st.attrs.get("source_geometry", ""))
+        return geometry_from_dict(d, source="source_geometry attribute")
+    except (TypeError, ValueError, RecursionError, AttributeError) as exc:
+        raise DataFormatError(f"root attribute source_geometry is not a geometry ({_one_line(exc, 160)})",
+                              st.meta_file()) from None
+
+
+def product_summary(path: str | os.PathLike[str]) -> dict[str, Any]:
+    """What ``sonarmap info`` says about a product store: pings, time span, variables, flagged fits.
+
+    The metadata is checked (:func:`inspect_products`); only the times and flags of the completed
+    chunks are read (a run still in progress, or interrupted, is summarised as far as it got).
+
+    Returns
+    -------
+    dict
+        :func:`sonarmap.io.make_summary` fields (``format`` is ``"zarr-products"``) plus
+        ``pings_done``, ``complete``, ``flagged``, ``variables``, ``keep_labels``, ``chunk_pings``,
+        ``consolidated`` (see :func:`sonarmap.datamodel.consolidated_status`).
+
+    Raises
+    ------
+    DataFormatError
+        If the store's metadata, times or flags are corrupt (naming the store, array and chunk).
+    """
+    from sonarmap.io import make_summary
+
+    p = Path(path)
+    st, schema = inspect_products(p)
+    status = survey_status(p)
+    k = int_attr(st.attrs, "chunk_size", p, low=1)
+    n = int_attr(st.attrs, "n_pings", p)
+    rows = np.zeros(n, bool)
+    for c in done_chunks(p):
+        rows[c * k : (c + 1) * k] = True
+    times = np.asarray(read_array(st, DIM_PING), np.int64)[rows] if rows.any() else np.zeros(0, np.int64)
+    check_times(times, p)
+    flags = read_array(st, "flags")[rows] if rows.any() else np.zeros(0, object)
+    geometry = store_geometry(st)
+    return make_summary(
+        "zarr-products", p, n_pings=n, geometry=geometry,
+        time_start_ns=int(times.min()) if times.size else None,
+        time_end_ns=int(times.max()) if times.size else None,
+        pings_done=int(rows.sum()),
+        complete=bool(status["complete"]),
+        flagged=int(flagged_mask(flags).sum()),
+        variables=sorted(schema),
+        keep_labels=bool(st.attrs.get("keep_labels", False)),
+        chunk_pings=k,
+        consolidated=consolidated_status(p),
+        sonarmap_version=str(st.attrs.get("sonarmap_version", "")),
+    )
+
+
+# ---------------------------------------------------------------------- reading
+#: Documented value range of each product variable, checked by :func:`load_products`
+#: (keyword arguments of :func:`sonarmap.store.check.check_values`).  NaN is "none" / "unknown" /
+#: "not yet written" wherever a float variable has it as fill value.  ``range_bin`` is checked
+#: against the number of range bins, ``point_beam`` against the number of beams, the times by
+#: :func:`sonarmap.store.check.check_times`; ``labels`` (uint8) and the strings are not checked.
+PRODUCT_RANGES: dict[str, dict[str, Any]] = {
+    "kld": {"low": 0.0, "high": math.inf, "nan": True, "inf": True},  # inf: zero_mass fits
+    "background_range_db": {"nan": True},
+    "floor_levels": {"low": 0},
+    "mixture_weight": {"low": 0.0, "high": 1.0, "nan": True},
+    "mixture_param": {"nan": True},
+    "pd": {"low": 0.0, "high": 1.0, "nan": True},
+    "pfa": {"low": 0.0, "high": 1.0, "nan": True},
+    "range": {"low": 0.0, "nan": True},
+    "range_intensity": {"nan": True},
+    "range_confidence": {"low": 0.0, "high": 1.0, "nan": True},
+    "range_sigma": {"low": 0.0, "nan": True},
+    "p_detect": {"low": 0.0, "high": 1.0, "nan": True},
+    "other_range": {"low": 0.0, "nan": True},
+    "point_xyz": {"nan": True, "item": "point"},
+    "point_intensity": {"nan": True, "item": "point"},
+    "point_range_sigma": {"low": 0.0, "nan": True, "item": "point"},
+    COORD_AZIMUTH: {"low": -math.pi, "high": math.pi, "item": "beam"},
+    COORD_RANGE: {"low": 0.0, "item": "range bin"},
+}
+
+
+def reference_range(st: CheckedStore) -> NDArray[np.float64]:
+    """The bin ranges of a product store's sonar: ``echo_range`` (its first row in this layout)."""
+    arr = st.arrays[COORD_RANGE]
+    if len(arr.shape) == 1:  # a store of an earlier version
+        return np.asarray(read_array(st, COORD_RANGE), np.float64)
+    if int(arr.shape[0]) == 0:
+        return np.zeros(int(arr.shape[1]), np.float64)
+    return np.asarray(read_array(st, COORD_RANGE, slice(0, 1))[0], np.float64)
+
+
+#: How long :func:`open_products` keeps trying while a live run is publishing a flush (s).
+LIVE_SETTLE_S = 2.0
+
+
+def _live_status(path: Path) -> str | None:
+    """The root attribute ``live_status`` of a store written by a live run ("writing" while it
+    appends, "complete" after); None for other stores."""
+    attrs = read_root_attrs(path)
+    v = None if attrs is None else attrs.get("live_status")
+    return v if isinstance(v, str) else None
+
+
+def open_products(path: str | os.PathLike[str]) -> Any:
+    """Open a survey store as an ``xarray.Dataset`` (lazy, decoded times).
+
+    The metadata is checked first (:func:`load_products` also checks the chunks and values).
+
+    Raises
+    ------
+    DataFormatError
+        If ``path`` is not a sonarmap survey store, or its metadata is corrupt or incomplete (the
+        message names the file or array).
+    """
+    p = Path(path)
+    deadline = None
+    settled = False
+    while True:
+        try:
+            st, _ = inspect_products(p)
+            check_chunk_files(st, DIM_PING, required=False)  # read when opened (an index): no FIFO, no /dev/zero
+            return _open_checked(st)
+        except DataFormatError:
+            # A store written by a live run (root attribute ``live_status``) grows array by array
+            # for a few ms per flush: while it is "writing", and once more after it stopped, try
+            # again.  Other stores: the error as it is.
+            status = _live_status(p)
+            deadline = deadline if deadline is not None else time.monotonic() + LIVE_SETTLE_S
+            if status is None or time.monotonic() > deadline:
+                raise
+            if status != "writing":
+                if settled:
+                    raise
+                settled = True
+            time.sleep(0.005)
+
+
+def _open_checked(st: CheckedStore, *, lazy: bool = True) -> Any:
+    """``xarray.open_zarr`` of a checked store (dask-backed if ``lazy``); errors name the chunk."""
+    import xarray as xr
+
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            kw: dict[str, Any] = {} if lazy else {"chunks": None}
+            return xr.open_zarr(str(st.path), consolidated=False, zarr_format=3, **kw)
+    except SonarmapError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - zarr/xarray raise many types on damaged stores
+        raise locate_error(st, list(st.arrays), None, exc, "the survey") from None
+
+
+def load_products(path: str | os.PathLike[str]) -> Any:
+    """Load a survey store into memory, checking everything read.
+
+    Checks the metadata (:func:`open_products`), that every chunk of a completed task (its
+    marker exists) and of the other checksummed arrays is present, every chunk's checksum, and
+    every value against :data:`PRODUCT_RANGES` (times: int64 ns >= 0, 0 for pings not written).
+
+    Returns
+    -------
+    xarray.Dataset
+
+    Raises
+    ------
+    DataFormatError
+        Naming the store and the array and chunk (damaged data) or the variable and ping (a value
+        outside its documented range).
+    """
+    p = Path(path)
+    st, schema = inspect_products(p)
+    k = int_attr(st.attrs, "chunk_size", p, low=1)
+    done = sorted(done_chunks(p))
+    for name in st.arrays:
+        if name in schema:  # chunks of unfinished tasks are legitimately missing (fill values)
+            check_chunk_files(st, name, required=False)
+            for c in done:
+                check_chunk_files(st, name, slice(c * k, (c + 1) * k))
+        else:
+            check_chunk_files(st, name)
+    ds = _open_checked(st, lazy=False)  # one read per array, not one dask task per chunk
+    try:
+        ds = ds.load()
+    except SonarmapError:
+        raise
+    except Exception as exc:  # noqa: BLE001
+        raise locate_error(st, list(st.arrays), None, exc, "the survey") from None
+    n_bins, n_beams = int(ds[COORD_RANGE].shape[-1]), int(ds[COORD_AZIMUTH].shape[-1])
+    check_times(ds[DIM_PING].values, p)
+    if "point_time" in ds:
+        check_times(ds["point_time"].values, p, name="point_time", item="point")
+    for name, kw in PRODUCT_RANGES.items():
+        if name in ds.variables:
+            check_values(ds[name].values, name, p, **kw)
+    if "range_bin" in ds:
+        check_values(ds["range_bin"].values, "range_bin", p, low=0, high=n_bins - 1, allowed=(-1,))
+    if "point_beam" in ds:
+        check_values(ds["point_beam"].values, "point_beam", p, low=0, high=n_beams - 1, item="point")
+    return ds
+
+
+def product_ping(path: str | os.PathLike[str], index: int = 0, *, image: str = "auto") -> Ping:
+    """Ping ``index`` of a product store as a :class:`~sonarmap.ping.Ping` to draw.
+
+    Parameters
+    ----------
+    path : path-like
+        A store written by :func:`process_survey`.
+    index : int
+        The ping (0-based, in the store's order).
+    image : {"auto", "labels", "raw"}
+        ``"labels"``: the stored segmentation (1 object, 0 free space; needs ``keep_labels``);
+        ``"raw"``: the ping read again from its source file; ``"auto"``: labels if stored, else raw.
+
+    Returns
+    -------
+    Ping
+        With the store's geometry (labels) or the source's (raw), the stored time and source;
+        ``meta["image"]`` says which image it is.
+
+    Raises
+    ------
+    InputError
+        If ``index`` is outside the store or ``image`` is not one of the choices.
+    DataFormatError
+        If the ping's chunk is not written yet, the labels are not stored, or the source cannot
+        be read or no longer holds the ping (its time differs).
+    """
+    if image not in ("auto", "labels", "raw"):
+        raise InputError(f"image must be 'auto', 'labels' or 'raw', got {image!r}")
+    p = Path(path)
+    st, schema = inspect_products(p)
+    n = int_attr(st.attrs, "n_pings", p)
+    if not 0 <= int(index) < n:
+        raise InputError(f"{p}: index {index} is outside the store's {n} pings")
+    i = int(index)
+    k = int_attr(st.attrs, "chunk_size", p, low=1)
+    if i // k not in done_chunks(p):
+        raise DataFormatError(f"ping {i} is not processed yet (chunk {i // k} unfinished)", p)
+    row = slice(i, i + 1)
+    t = int(np.asarray(read_array(st, DIM_PING, row), np.int64)[0])
+    check_times(np.asarray([t]), p, i)
+    source = str(read_array(st, "source", row)[0])
+    if image == "labels" or (image == "auto" and "labels" in schema):
+        if "labels" not in schema:
+            raise DataFormatError("no labels stored (run sonarmap process with --keep-labels)", p)
+        labels = np.asarray(read_array(st, "labels", row)[0])
+        check_values(labels, "labels", p, low=0, high=1, start=i)
+        return Ping(image=labels.astype(np.float32), geometry=store_geometry(st), time_ns=t, source=source,
+                    meta={"image": "labels"})
+    from sonarmap.io import read_ping
+
+    file = source.split("#", 1)[0]
+    if not file or not os.path.exists(file):
+        raise DataFormatError(f"ping {i}: its source {file!r:.200} is not available (and no labels are stored)", p)
+    sources = [str(x).split("#", 1)[0] for x in read_array(st, "source", slice(0, i))]
+    raw = read_ping(file, index=sum(1 for x in sources if x == file))
+    if raw.time_ns != t:
+        raise DataFormatError(f"ping {i}: the ping read from {file} has another time than the stored one "
+                              "(the source changed)", p)
+    return raw.replace(meta={**raw.meta, "image": "raw"})
