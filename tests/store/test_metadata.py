@@ -1,7 +1,7 @@
 """One data model for both zarr stores: the raw-ping store of ``sonarmap convert`` and the product
 store of ``sonarmap process`` share one coordinate layout (:mod:`sonarmap.datamodel`), carry
-consolidated metadata kept in step with their arrays (so ``xarray.open_zarr`` opens them without a
-warning), and ``sonarmap info`` / ``sonarmap show`` accept a product store."""
+consolidated metadata kept in step with their arrays (:mod:`sonarmap.store.metadata`; so
+``xarray.open_zarr`` opens them without a warning), and ``sonarmap info`` / ``sonarmap show`` accept a product store."""
 
 from __future__ import annotations
 
@@ -23,9 +23,9 @@ from sonarmap.datamodel import (
     DIM_BEAM,
     DIM_PING,
     DIM_RANGE,
-    consolidated_status,
 )
 from sonarmap.errors import DataFormatError
+from sonarmap.store import consolidated_status
 
 N = 4
 

@@ -11,13 +11,8 @@ import pytest
 from sonarmap.cli import main
 from sonarmap.errors import DataFormatError, InputError
 from sonarmap.io import detect_format, read_pings, zarrstore
+from sonarmap.datamodel import COORD_AZIMUTH, COORD_RANGE, DIM_BEAM, DIM_PING, DIM_RANGE, VAR_INTENSITY
 from sonarmap.store import (
-    COORD_AZIMUTH,
-    COORD_RANGE,
-    DIM_BEAM,
-    DIM_PING,
-    DIM_RANGE,
-    VAR_INTENSITY,
     PingVariable,
     SurveyWriter,
     add_ping_variable,

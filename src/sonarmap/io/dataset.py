@@ -5,7 +5,7 @@ The store lives in :mod:`sonarmap.store` (pings and products, one package); impo
 
 from __future__ import annotations
 
-from sonarmap.store import (
+from sonarmap.datamodel import (
     COORD_AZIMUTH,
     COORD_RANGE,
     DATA_MODEL_VERSION,
@@ -15,6 +15,8 @@ from sonarmap.store import (
     INT_MISSING,
     TIME_UNITS_RE,
     VAR_INTENSITY,
+)
+from sonarmap.store import (
     CheckedStore,
     PingVariable,
     SurveyWriter,

@@ -22,11 +22,8 @@ from sonarmap.io._binary import make_summary
 from sonarmap._files import MAX_SIDECAR_BYTES, read_bytes_bounded
 from sonarmap.io.reader import GeometrySpec
 from sonarmap.ping import Ping
+from sonarmap.datamodel import ATTR_MODEL, DIM_PING, VAR_GEOMETRY, VAR_INTENSITY
 from sonarmap.store import (
-    ATTR_MODEL,
-    DIM_PING,
-    VAR_GEOMETRY,
-    VAR_INTENSITY,
     dataset_to_pings,
     inspect_survey,
     is_product_store,
@@ -97,7 +94,7 @@ def summary(path: str | os.PathLike[str]) -> dict[str, Any]:
     DataFormatError
         If the store's metadata, times or first geometry index are corrupt (naming the store).
     """
-    from sonarmap.datamodel import consolidated_status
+    from sonarmap.store import consolidated_status
 
     if is_product_store(path):
         return product_summary(path)

@@ -1,8 +1,8 @@
 """The one zarr store of sonarmap: raw pings (``sonarmap convert``) and per-ping products
 (``sonarmap process`` / ``sonarmap live``), written, checked and read in one place.
 
-Both kinds of store share the data model of :mod:`sonarmap.datamodel` (dimensions, coordinates,
-CF attributes), the codecs (every chunk ``zstd`` + ``crc32c``, every chunk written), consolidated
+Both kinds of store share the data model of :mod:`sonarmap.datamodel` (names, dimensions,
+coordinates, CF attributes, fill values, value ranges), the codecs (every chunk ``zstd`` + ``crc32c``, every chunk written), consolidated
 metadata kept in step with the arrays, atomic creation (built beside the target, renamed into
 place) and one exclusive writer at a time (:class:`sonarmap._atomic.WriterLock`).  sonarmap's
 readers never trust a store: every metadata document is parsed and checked first, every chunk file
@@ -11,6 +11,8 @@ is checked before zarr opens it, and every value against its documented range; a
 
 Modules
 -------
+:mod:`~sonarmap.store.metadata`
+    Metadata documents: consolidated metadata.
 :mod:`~sonarmap.store.check`
     Metadata inspection (:class:`CheckedStore`), chunk files and checksums, value checks.
 :mod:`~sonarmap.store.chunks`
@@ -35,17 +37,8 @@ Examples
 
 from __future__ import annotations
 
-from sonarmap.datamodel import (
-    COORD_AZIMUTH,
-    COORD_RANGE,
-    DIM_BEAM,
-    DIM_PING,
-    DIM_RANGE,
-    VAR_INTENSITY,
-)
 from sonarmap.store.appender import ProductAppender, create_product_store
 from sonarmap.store.check import (
-    TIME_UNITS_RE,
     CheckedStore,
     check_chunk_files,
     check_times,
@@ -64,12 +57,8 @@ from sonarmap.store.chunks import (
     checksum_codecs,
     open_writable,
 )
+from sonarmap.store.metadata import consolidate, consolidated_status, invalidate_consolidated
 from sonarmap.store.pings import (
-    ATTR_MODEL,
-    ATTRS,
-    DATA_MODEL_VERSION,
-    INT_MISSING,
-    VAR_GEOMETRY,
     PingVariable,
     dataset_to_pings,
     inspect_survey,
@@ -80,15 +69,8 @@ from sonarmap.store.pings import (
 )
 from sonarmap.store.products import (
     DEFAULT_CHUNK_SIZE,
-    DIM_OTHER,
-    INFORMATIONAL_FLAGS,
     LIVE_SETTLE_S,
-    N_OTHER_RETURNS,
-    PRODUCT_RANGES,
-    PRODUCT_VARIABLES,
     STATE_DIR,
-    SURVEY_FORMAT,
-    TIME_UNITS,
     create_store,
     done_chunks,
     flagged_mask,
@@ -120,22 +102,18 @@ from sonarmap.store.writer import (
 )
 
 __all__ = [
-    # the data model's names, for convenience
-    "DIM_PING", "DIM_RANGE", "DIM_BEAM", "VAR_INTENSITY", "COORD_RANGE", "COORD_AZIMUTH",
     # raw-ping stores
-    "ATTR_MODEL", "ATTRS", "DATA_MODEL_VERSION", "INT_MISSING", "VAR_GEOMETRY", "PingVariable", "SurveyWriter",
-    "write_survey", "pings_to_dataset", "open_survey", "inspect_survey", "survey_length", "dataset_to_pings",
-    "survey_geometries", "add_ping_variable", "write_ping_variable", "remove_stale_store_temporaries",
+    "PingVariable", "SurveyWriter", "write_survey", "pings_to_dataset", "open_survey", "inspect_survey",
+    "survey_length", "dataset_to_pings", "survey_geometries", "add_ping_variable", "write_ping_variable",
+    "remove_stale_store_temporaries",
     # product stores
-    "DEFAULT_CHUNK_SIZE", "DIM_OTHER", "N_OTHER_RETURNS", "PRODUCT_VARIABLES", "PRODUCT_RANGES",
-    "INFORMATIONAL_FLAGS", "LIVE_SETTLE_S", "STATE_DIR", "SURVEY_FORMAT", "TIME_UNITS", "flagged_mask",
-    "product_record", "product_schema", "stack_product_records", "mixture_arrays", "create_store",
-    "store_layout", "create_product_store", "ProductAppender", "marker_dir", "done_chunks", "write_marker",
-    "remove_tmp", "remove_marker_temporaries", "remove_store", "read_root_attrs", "int_attr", "survey_status",
-    "inspect_products", "is_product_store", "store_geometry", "reference_range", "product_summary",
-    "open_products", "load_products", "product_ping",
-    # checking and chunks
-    "CheckedStore", "TIME_UNITS_RE", "inspect_store", "is_zarr_store", "kind_of", "read_array", "check_times",
-    "check_values", "check_chunk_files", "locate_error", "checksum_codecs", "array_codec_kwargs", "ChunkRows",
-    "ChunkWriter", "StoreReplacedError", "open_writable",
+    "DEFAULT_CHUNK_SIZE", "LIVE_SETTLE_S", "STATE_DIR", "flagged_mask", "product_record", "product_schema",
+    "stack_product_records", "mixture_arrays", "create_store", "store_layout", "create_product_store",
+    "ProductAppender", "marker_dir", "done_chunks", "write_marker", "remove_tmp", "remove_marker_temporaries",
+    "remove_store", "read_root_attrs", "int_attr", "survey_status", "inspect_products", "is_product_store",
+    "store_geometry", "reference_range", "product_summary", "open_products", "load_products", "product_ping",
+    # metadata, checking and chunks
+    "consolidate", "invalidate_consolidated", "consolidated_status", "CheckedStore", "inspect_store",
+    "is_zarr_store", "kind_of", "read_array", "check_times", "check_values", "check_chunk_files", "locate_error",
+    "checksum_codecs", "array_codec_kwargs", "ChunkRows", "ChunkWriter", "StoreReplacedError", "open_writable",
 ]

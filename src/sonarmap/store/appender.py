@@ -89,7 +89,7 @@ class ProductAppender:
 
     def __init__(self, path: str | os.PathLike[str], *, range_m: Any = None) -> None:
         from sonarmap.store.chunks import ChunkWriter
-        from sonarmap.datamodel import node_docs, read_metadata_doc
+        from sonarmap.store.metadata import node_docs, read_metadata_doc
 
         self.path = Path(path)
         st, schema = inspect_products(self.path)

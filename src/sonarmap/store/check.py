@@ -17,7 +17,6 @@ import dataclasses
 import json
 import math
 import os
-import re
 import struct
 from collections.abc import Iterable, Iterator, Mapping
 from pathlib import Path
@@ -27,14 +26,12 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from sonarmap._files import MAX_SIDECAR_BYTES, read_bytes_bounded, require_regular_file
-from sonarmap.datamodel import DIM_PING
+from sonarmap.datamodel import DIM_PING, TIME_MAX_NS
 from sonarmap.errors import DataFormatError
 
 __all__ = [
     "CheckedStore",
     "MAX_CHUNK_BYTES",
-    "TIME_MAX_NS",
-    "TIME_UNITS_RE",
     "check_chunk_files",
     "check_times",
     "check_values",
@@ -45,10 +42,6 @@ __all__ = [
     "read_array",
 ]
 
-#: Latest ping time a store holds (int64 nanoseconds since 1970: 2262-04-11).
-TIME_MAX_NS = int(np.iinfo(np.int64).max)
-
-TIME_UNITS_RE = re.compile(r"nanoseconds since 1970-01-01(?:[ T]00:00(?::00(?:\.0+)?)?)?Z?")
 
 
 # ---------------------------------------------------------------------- metadata

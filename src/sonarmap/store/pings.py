@@ -47,25 +47,35 @@ from numpy.typing import ArrayLike, NDArray
 from sonarmap import __version__
 from sonarmap._atomic import WriterLock
 from sonarmap.datamodel import (
-    COORD_ATTRS,
+    ATTR_GEOMETRIES,
+    ATTR_MODEL,
+    ATTR_POSE_FRAME,
+    ATTR_SOURCES,
     COORD_AZIMUTH,
     COORD_RANGE,
+    DATA_MODEL_VERSION,
     DIM_BEAM,
     DIM_PING,
     DIM_QUAT,
     DIM_RANGE,
     DIM_XYZ,
+    INT_MISSING,
+    META_PREFIX,
+    PING_ARRAYS,
+    PING_ATTRS,
+    TIME_MAX_NS,
+    TIME_UNITS_RE,
+    VAR_GEOMETRY,
     VAR_INTENSITY,
+    VAR_ORIENTATION,
+    VAR_POSITION,
+    VAR_SOURCE,
     azimuth_dims,
-    consolidate,
-    invalidate_consolidated,
 )
 from sonarmap.errors import DataFormatError, InputError, SonarmapError
 from sonarmap.geometry import SonarGeometry, geometry_from_dict
 from sonarmap.ping import Ping, Pose
 from sonarmap.store.check import (
-    TIME_MAX_NS,
-    TIME_UNITS_RE,
     CheckedStore,
     _crc_scan,
     _one_line,
@@ -77,14 +87,12 @@ from sonarmap.store.check import (
     locate_error,
     read_array,
 )
+from sonarmap.store.metadata import consolidate, invalidate_consolidated
 
 if TYPE_CHECKING:  # pragma: no cover
     import xarray as xr
 
 __all__ = [
-    "ATTRS",
-    "DATA_MODEL_VERSION",
-    "INT_MISSING",
     "PingVariable",
     "dataset_to_pings",
     "inspect_survey",
@@ -94,36 +102,6 @@ __all__ = [
     "survey_length",
 ]
 
-VAR_GEOMETRY = "geometry_index"
-VAR_SOURCE = "source_index"
-VAR_POSITION = "pose_position_m"
-VAR_ORIENTATION = "pose_orientation_xyzw"
-META_PREFIX = "meta_"
-DATA_MODEL_VERSION = 1
-#: Stored in int64 ``meta_*`` variables for pings that lack the key.
-INT_MISSING = np.iinfo(np.int64).min
-ATTR_GEOMETRIES = "sonarmap_geometries"
-ATTR_SOURCES = "sonarmap_sources"
-ATTR_POSE_FRAME = "sonarmap_pose_frame"
-ATTR_MODEL = "sonarmap_data_model"
-
-#: CF attributes of the core variables (the single definition used by writer and docs).
-ATTRS: dict[str, dict[str, str]] = {
-    **COORD_ATTRS,
-    VAR_INTENSITY: {
-        "long_name": "Received echo intensity, sensor counts scaled to [0, 1]",
-        "units": "1",
-        "valid_min": "0",
-        "valid_max": "1",
-    },
-    VAR_GEOMETRY: {"long_name": f"Index into the {ATTR_GEOMETRIES} attribute", "units": "1"},
-    VAR_SOURCE: {"long_name": f"Index into the {ATTR_SOURCES} attribute", "units": "1"},
-    VAR_POSITION: {"long_name": "Vehicle position in the world frame (NaN if unknown)", "units": "m"},
-    VAR_ORIENTATION: {
-        "long_name": "Vehicle orientation quaternion x, y, z, w (NaN if unknown)",
-        "units": "1",
-    },
-}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -272,11 +250,11 @@ def pings_to_dataset(
     n = len(plist)
     arrays = _stack_pings(plist, shape, state)
     data_vars: dict[str, Any] = {
-        VAR_INTENSITY: ((DIM_PING, DIM_RANGE, DIM_BEAM), arrays.intensity, ATTRS[VAR_INTENSITY]),
-        VAR_GEOMETRY: ((DIM_PING,), arrays.geometry_index, ATTRS[VAR_GEOMETRY]),
-        VAR_SOURCE: ((DIM_PING,), arrays.source_index, ATTRS[VAR_SOURCE]),
-        VAR_POSITION: ((DIM_PING, DIM_XYZ), arrays.position, ATTRS[VAR_POSITION]),
-        VAR_ORIENTATION: ((DIM_PING, DIM_QUAT), arrays.orientation, ATTRS[VAR_ORIENTATION]),
+        VAR_INTENSITY: ((DIM_PING, DIM_RANGE, DIM_BEAM), arrays.intensity, PING_ATTRS[VAR_INTENSITY]),
+        VAR_GEOMETRY: ((DIM_PING,), arrays.geometry_index, PING_ATTRS[VAR_GEOMETRY]),
+        VAR_SOURCE: ((DIM_PING,), arrays.source_index, PING_ATTRS[VAR_SOURCE]),
+        VAR_POSITION: ((DIM_PING, DIM_XYZ), arrays.position, PING_ATTRS[VAR_POSITION]),
+        VAR_ORIENTATION: ((DIM_PING, DIM_QUAT), arrays.orientation, PING_ATTRS[VAR_ORIENTATION]),
     }
     for key, kind in state.meta.items():
         data_vars[f"{META_PREFIX}{key}"] = _meta_variable(plist, key, kind)
@@ -285,12 +263,12 @@ def pings_to_dataset(
         state.extras[var.name] = var
         data_vars[var.name] = _extra_variable(var, extras.get(var.name), n, shape)
     coords = {
-        DIM_PING: (DIM_PING, arrays.time_ns.astype("datetime64[ns]"), ATTRS[DIM_PING]),
-        DIM_RANGE: (DIM_RANGE, np.arange(shape[0], dtype=np.int32), ATTRS[DIM_RANGE]),
-        DIM_BEAM: (DIM_BEAM, np.arange(shape[1], dtype=np.int32), ATTRS[DIM_BEAM]),
-        COORD_RANGE: ((DIM_PING, DIM_RANGE), arrays.range_m, ATTRS[COORD_RANGE]),
+        DIM_PING: (DIM_PING, arrays.time_ns.astype("datetime64[ns]"), PING_ATTRS[DIM_PING]),
+        DIM_RANGE: (DIM_RANGE, np.arange(shape[0], dtype=np.int32), PING_ATTRS[DIM_RANGE]),
+        DIM_BEAM: (DIM_BEAM, np.arange(shape[1], dtype=np.int32), PING_ATTRS[DIM_BEAM]),
+        COORD_RANGE: ((DIM_PING, DIM_RANGE), arrays.range_m, PING_ATTRS[COORD_RANGE]),
         COORD_AZIMUTH: (azimuth_dims(state.azimuth_per_ping),
-                        arrays.azimuth if state.azimuth_per_ping else state.azimuth, ATTRS[COORD_AZIMUTH]),
+                        arrays.azimuth if state.azimuth_per_ping else state.azimuth, PING_ATTRS[COORD_AZIMUTH]),
     }
     ds = xr.Dataset(data_vars=data_vars, coords=coords)
     ds.attrs.update(_global_attrs(state))
@@ -464,15 +442,6 @@ def _attr_json_list(st: CheckedStore, key: str) -> list[str]:
     return out
 
 
-#: The arrays every raw survey store holds: name -> (rank, dtype kinds, trailing dims).
-_RAW_ARRAYS: dict[str, tuple[int, str, tuple[str, ...]]] = {
-    VAR_INTENSITY: (3, "f", (DIM_RANGE, DIM_BEAM)),
-    DIM_PING: (1, "i", ()),
-    VAR_GEOMETRY: (1, "iu", ()),
-    VAR_SOURCE: (1, "iu", ()),
-    VAR_POSITION: (2, "f", (DIM_XYZ,)),
-    VAR_ORIENTATION: (2, "f", (DIM_QUAT,)),
-}
 
 
 def inspect_survey(path: Path) -> CheckedStore:
@@ -501,7 +470,7 @@ def inspect_survey(path: Path) -> CheckedStore:
             if dim in sizes and int(size) != sizes[dim]:
                 raise DataFormatError(f"array '{name}' has {size} along {dim}, the survey has {sizes[dim]}",
                                       st.meta_file(name))
-    for name, (ndim, kinds, trailing) in _RAW_ARRAYS.items():
+    for name, (ndim, kinds, trailing) in PING_ARRAYS.items():
         arr = st.require(name, ndim=ndim, kinds=kinds)
         dims = st.dims(name)
         if dims != (DIM_PING, *trailing):
@@ -703,7 +672,7 @@ def dataset_to_pings(
         data model (naming store, variable and ping).
     """
     path = ds.encoding.get("source")
-    for name in _RAW_ARRAYS:
+    for name in PING_ARRAYS:
         if name not in ds.variables:
             raise DataFormatError(f"no '{name}' variable; not a sonarmap survey", path)
     geoms = survey_geometries(ds)

@@ -27,7 +27,6 @@ from __future__ import annotations
 
 import contextlib
 import json
-import math
 import os
 import shutil
 import tempfile
@@ -44,19 +43,24 @@ from sonarmap._atomic import atomic_write_text, write_error
 from sonarmap._config import jsonable
 from sonarmap._files import MAX_SIDECAR_BYTES, read_bytes_bounded
 from sonarmap.datamodel import (
+    COORD_ATTRS,
     COORD_AZIMUTH,
     COORD_RANGE,
     COORDINATES,
     DIM_BEAM,
     DIM_PING,
     DIM_RANGE,
-    consolidate,
-    consolidated_status,
+    INFORMATIONAL_FLAGS,
+    PRODUCT_FILL,
+    PRODUCT_RANGES,
+    PRODUCT_VARIABLES,
+    SURVEY_FORMAT,
+    TIME_UNITS,
+    TIME_UNITS_RE,
 )
 from sonarmap.errors import DataFormatError, InputError, SonarmapError
 from sonarmap.ping import Ping
 from sonarmap.store.check import (
-    TIME_UNITS_RE,
     CheckedStore,
     _one_line,
     check_chunk_files,
@@ -68,19 +72,12 @@ from sonarmap.store.check import (
     read_array,
 )
 from sonarmap.store.chunks import array_codec_kwargs, checksum_codecs
-from sonarmap.store.pings import ATTRS as DATA_MODEL_ATTRS
+from sonarmap.store.metadata import consolidate, consolidated_status
 
 __all__ = [
     "DEFAULT_CHUNK_SIZE",
-    "DIM_OTHER",
-    "INFORMATIONAL_FLAGS",
     "LIVE_SETTLE_S",
-    "N_OTHER_RETURNS",
-    "PRODUCT_RANGES",
-    "PRODUCT_VARIABLES",
     "STATE_DIR",
-    "SURVEY_FORMAT",
-    "TIME_UNITS",
     "create_store",
     "done_chunks",
     "flagged_mask",
@@ -108,81 +105,6 @@ __all__ = [
 DEFAULT_CHUNK_SIZE = 256
 #: Marker directory inside the store (not part of the dataset).
 STATE_DIR = ".sonarmap"
-#: The ``sonarmap_format`` root attribute of a product store.
-SURVEY_FORMAT = "sonarmap-survey/1"
-#: The CF units of the stored ping times.
-TIME_UNITS = "nanoseconds since 1970-01-01T00:00:00"
-#: Dimension of ``other_range``: the surfaces behind a beam's return that are stored.
-DIM_OTHER = "other_return"
-#: At most this many surfaces behind each return are stored (``other_range``).
-N_OTHER_RETURNS = 2
-
-#: Product variables: name -> (dims, attrs).  Dimension names follow the survey data model
-#: (echopype style: ``ping_time``, ``range_sample``, ``beam``); ``component`` and ``parameter``
-#: index the mixture model.
-PRODUCT_VARIABLES: dict[str, tuple[tuple[str, ...], dict[str, str]]] = {
-    DIM_PING: ((DIM_PING,), dict(DATA_MODEL_ATTRS[DIM_PING])),
-    "source": ((DIM_PING,), {"long_name": "Source file (and frame) of the ping"}),
-    "kld": ((DIM_PING,), {"long_name": "Kullback-Leibler divergence, data || mixture fit",
-                          "units": "nat"}),
-    "flags": ((DIM_PING,), {"long_name": "Fit quality flags, space separated (empty: none)"}),
-    "background_range_db": ((DIM_PING,), {
-        "long_name": "Range dependence of the estimated background level (90th / 10th percentile over "
-                     "range; NaN: image not normalised, e.g. thresholded)", "units": "dB"}),
-    "floor_levels": ((DIM_PING,), {
-        "long_name": "Levels of the classified image merged into its zero level before the ping was modelled "
-                     "(the quantisation floor; 0: none)", "units": "1"}),
-    "mixture_weight": ((DIM_PING, "component"), {"long_name": "Mixture component weight",
-                                                 "units": "1"}),
-    "mixture_param": ((DIM_PING, "component", "parameter"),
-                      {"long_name": "Mixture component parameters, scale last (NaN: unused)"}),
-    "pd": ((DIM_PING,), {"long_name": "Probability of detection at the chosen threshold",
-                         "units": "1"}),
-    "pfa": ((DIM_PING,), {"long_name": "Probability of false alarm at the chosen threshold",
-                          "units": "1"}),
-    "range": ((DIM_PING, DIM_BEAM), {"long_name": "Range to the first return per beam (NaN: none)",
-                                     "units": "m",
-                                     "description": "Leading edge of the return's echo along the beam: the "
-                                                    "first crossing of half its peak, interpolated "
-                                                    "between range bins, on the edge-aligned mean profile "
-                                                    "of up to 7 neighbouring beams of the same surface "
-                                                    "(the echo's peak in strongest mode)"}),
-    "range_bin": ((DIM_PING, DIM_BEAM), {"long_name": "Range-bin index of the return (-1: none)",
-                                         "units": "1"}),
-    "range_intensity": ((DIM_PING, DIM_BEAM), {"long_name": "Intensity at the return", "units": "1"}),
-    "range_confidence": ((DIM_PING, DIM_BEAM), {"long_name": "Confidence of the return",
-                                                "units": "1"}),
-    "range_sigma": ((DIM_PING, DIM_BEAM), {
-        "long_name": "One-sigma uncertainty of the return's range (NaN: no return or no estimate)",
-        "units": "m",
-        "description": "Standard deviation of the error of range, estimated per echo by the ranges "
-                       "stage (sonarmap.ranges.echoes)"}),
-    "p_detect": ((DIM_PING, DIM_BEAM), {
-        "long_name": "Probability that a surface in the beam is detected and reported (NaN: unknown)",
-        "units": "1",
-        "description": "The occupancy map's per-beam pD: P(the beam reports a return | a surface in "
-                       "the beam), for the hit and the free-space updates of that beam"}),
-    "other_range": ((DIM_PING, DIM_OTHER, DIM_BEAM), {
-        "long_name": "Ranges of further surfaces behind the return, nearest first (NaN: none)",
-        "units": "m",
-        "description": "Leading edges of the echoes of further surfaces on the beam behind the "
-                       f"reported return; at most {N_OTHER_RETURNS}, NaN-padded"}),
-    "labels": ((DIM_PING, DIM_RANGE, DIM_BEAM),
-               {"long_name": "Segmentation labels (1: object, 0: free space)", "units": "1"}),
-}
-
-
-#: Fill value of each product variable (its value in pings not written yet).
-_FILL: dict[str, Any] = {
-    "background_range_db": np.nan, "floor_levels": 0, "kld": np.nan, "pd": np.nan, "pfa": np.nan, "mixture_weight": np.nan, "mixture_param": np.nan,
-    "range": np.nan, "range_bin": -1, "range_intensity": np.nan, "range_confidence": np.nan,
-    "range_sigma": np.nan, "p_detect": np.nan, "other_range": np.nan,
-    "labels": 0, "ping_time": 0, "source": "", "flags": "",
-}
-
-
-#: Flags that describe the scene rather than a doubtful fit (not counted as "flagged fits").
-INFORMATIONAL_FLAGS = frozenset({"no_returns", "no_object", "collapsed"})
 
 
 def flagged_mask(flags: Iterable[Any]) -> NDArray[np.bool_]:
@@ -309,7 +231,7 @@ def create_store(path: Path, n_pings: int, chunk_size: int, schema: Mapping[str,
                     fill: Any = ""
                 else:
                     dt = np.dtype(dtype)
-                    fill = _FILL[name]
+                    fill = PRODUCT_FILL[name]
                 root.create_array(
                     name, shape=(n, *shape), chunks=(k, *shape), dtype=dt, fill_value=fill,
                     dimension_names=dims, attributes=vattrs, **array_codec_kwargs(),
@@ -344,11 +266,11 @@ def store_layout(geom: Any, cfg_dict: dict[str, Any], schema: Mapping[str, tuple
 
     coord_arrays = [
         (DIM_RANGE, np.arange(geom.n_bins, dtype=np.int32), COORDINATES[DIM_RANGE],
-         dict(DATA_MODEL_ATTRS[DIM_RANGE])),
+         dict(COORD_ATTRS[DIM_RANGE])),
         (DIM_BEAM, np.arange(geom.n_beams, dtype=np.int32), COORDINATES[DIM_BEAM],
-         dict(DATA_MODEL_ATTRS[DIM_BEAM])),
+         dict(COORD_ATTRS[DIM_BEAM])),
         (COORD_AZIMUTH, np.asarray(geom.azimuth_rad, np.float64), COORDINATES[COORD_AZIMUTH],
-         dict(DATA_MODEL_ATTRS[COORD_AZIMUTH])),
+         dict(COORD_ATTRS[COORD_AZIMUTH])),
     ]
     attrs = {
         "sonarmap_format": SURVEY_FORMAT,
@@ -378,7 +300,7 @@ def _write_echo_range(root: Any, store: Path, range_m: NDArray[np.float64], n: i
     the coordinate is known when the store is created.  Every full chunk holds the same values,
     hence the same bytes: the first is encoded by zarr and copied to the others' files.
     """
-    attrs = dict(DATA_MODEL_ATTRS[COORD_RANGE])
+    attrs = dict(COORD_ATTRS[COORD_RANGE])
     arr = root.create_array(COORD_RANGE, shape=(n, range_m.size), chunks=(k, range_m.size), dtype=np.float64,
                             fill_value=np.nan, dimension_names=COORDINATES[COORD_RANGE], attributes=attrs,
                             **checksum_codecs(), config={"write_empty_chunks": True})
@@ -558,7 +480,7 @@ def product_summary(path: str | os.PathLike[str]) -> dict[str, Any]:
     dict
         :func:`sonarmap.io.make_summary` fields (``format`` is ``"zarr-products"``) plus
         ``pings_done``, ``complete``, ``flagged``, ``variables``, ``keep_labels``, ``chunk_pings``,
-        ``consolidated`` (see :func:`sonarmap.datamodel.consolidated_status`).
+        ``consolidated`` (see :func:`sonarmap.store.metadata.consolidated_status`).
 
     Raises
     ------
@@ -595,31 +517,6 @@ def product_summary(path: str | os.PathLike[str]) -> dict[str, Any]:
 
 
 # ---------------------------------------------------------------------- reading
-#: Documented value range of each product variable, checked by :func:`load_products`
-#: (keyword arguments of :func:`sonarmap.store.check.check_values`).  NaN is "none" / "unknown" /
-#: "not yet written" wherever a float variable has it as fill value.  ``range_bin`` is checked
-#: against the number of range bins, ``point_beam`` against the number of beams, the times by
-#: :func:`sonarmap.store.check.check_times`; ``labels`` (uint8) and the strings are not checked.
-PRODUCT_RANGES: dict[str, dict[str, Any]] = {
-    "kld": {"low": 0.0, "high": math.inf, "nan": True, "inf": True},  # inf: zero_mass fits
-    "background_range_db": {"nan": True},
-    "floor_levels": {"low": 0},
-    "mixture_weight": {"low": 0.0, "high": 1.0, "nan": True},
-    "mixture_param": {"nan": True},
-    "pd": {"low": 0.0, "high": 1.0, "nan": True},
-    "pfa": {"low": 0.0, "high": 1.0, "nan": True},
-    "range": {"low": 0.0, "nan": True},
-    "range_intensity": {"nan": True},
-    "range_confidence": {"low": 0.0, "high": 1.0, "nan": True},
-    "range_sigma": {"low": 0.0, "nan": True},
-    "p_detect": {"low": 0.0, "high": 1.0, "nan": True},
-    "other_range": {"low": 0.0, "nan": True},
-    "point_xyz": {"nan": True, "item": "point"},
-    "point_intensity": {"nan": True, "item": "point"},
-    "point_range_sigma": {"low": 0.0, "nan": True, "item": "point"},
-    COORD_AZIMUTH: {"low": -math.pi, "high": math.pi, "item": "beam"},
-    COORD_RANGE: {"low": 0.0, "item": "range bin"},
-}
 
 
 def reference_range(st: CheckedStore) -> NDArray[np.float64]:

@@ -10,7 +10,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from sonarmap.errors import InputError, SonarmapError
-from sonarmap.store.products import _FILL, N_OTHER_RETURNS
+from sonarmap.datamodel import N_OTHER_RETURNS, PRODUCT_FILL
 
 __all__ = ["mixture_arrays", "product_record", "product_schema", "stack_product_records"]
 
@@ -124,7 +124,7 @@ def stack_product_records(records: Sequence[dict[str, Any]], schema: Mapping[str
         if dtype == "str":
             out[name] = np.array([rec[name] for rec in records], dtype=object)
             continue
-        arr = np.full((n, *shape), _FILL[name], dtype=dtype)
+        arr = np.full((n, *shape), PRODUCT_FILL[name], dtype=dtype)
         for i, rec in enumerate(records):
             val = np.asarray(rec[name])
             if val.shape != shape:

@@ -13,7 +13,7 @@ of later processing stages (e.g. ranges with dims ``(ping_time, beam)``) are dec
 Every chunk is written with a CRC32C checksum (:func:`sonarmap.store.chunks.checksum_codecs`) and
 every chunk is written, even one equal to the fill value.  Every store has consolidated metadata,
 written when a writer is done and removed while one changes the store
-(:func:`sonarmap.datamodel.consolidate`).  A writer holds an exclusive lock on its store
+(:func:`sonarmap.store.metadata.consolidate`).  A writer holds an exclusive lock on its store
 (:class:`sonarmap._atomic.WriterLock`): a second writer fails at once, naming the first's pid.
 """
 
@@ -36,16 +36,16 @@ from sonarmap.datamodel import (
     DIM_BEAM,
     DIM_PING,
     DIM_RANGE,
+    META_PREFIX,
+    PING_TIME_UNITS,
     VAR_INTENSITY,
-    consolidate,
-    invalidate_consolidated,
 )
 from sonarmap.errors import DataFormatError, InputError, SonarmapError
 from sonarmap.ping import Ping
 from sonarmap.store.check import _dims, inspect_store, is_zarr_store
 from sonarmap.store.chunks import checksum_codecs
+from sonarmap.store.metadata import consolidate, invalidate_consolidated
 from sonarmap.store.pings import (
-    META_PREFIX,
     PingVariable,
     _State,
     _check_ping_for_store,
@@ -71,7 +71,7 @@ __all__ = [
 
 def _encoding(ds: xr.Dataset, chunk_pings: int) -> dict[str, dict[str, Any]]:
     enc: dict[str, dict[str, Any]] = {
-        DIM_PING: {"units": "nanoseconds since 1970-01-01", "dtype": "int64", "chunks": (max(chunk_pings, 1024),),
+        DIM_PING: {"units": PING_TIME_UNITS, "dtype": "int64", "chunks": (max(chunk_pings, 1024),),
                    **checksum_codecs()},
         DIM_RANGE: checksum_codecs(),
         DIM_BEAM: checksum_codecs(),

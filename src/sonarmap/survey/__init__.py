@@ -31,12 +31,9 @@ store itself, and the store functions re-exported here, are :mod:`sonarmap.store
 
 from __future__ import annotations
 
+from sonarmap.datamodel import INFORMATIONAL_FLAGS, N_OTHER_RETURNS, PRODUCT_RANGES, PRODUCT_VARIABLES
 from sonarmap.store import (
-    INFORMATIONAL_FLAGS,
     LIVE_SETTLE_S,
-    N_OTHER_RETURNS,
-    PRODUCT_RANGES,
-    PRODUCT_VARIABLES,
     ProductAppender,
     create_product_store,
     flagged_mask,

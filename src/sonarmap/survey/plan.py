@@ -16,7 +16,8 @@ from numpy.typing import NDArray
 
 from sonarmap._config import jsonable
 from sonarmap.errors import DataFormatError, InputError, SonarmapError
-from sonarmap.store import DEFAULT_CHUNK_SIZE, SURVEY_FORMAT
+from sonarmap.datamodel import SURVEY_FORMAT
+from sonarmap.store import DEFAULT_CHUNK_SIZE
 from sonarmap.ping import Ping
 
 __all__ = ["DEFAULT_CHUNK_SIZE", "PingFunction", "SurveyExistsError", "ChunkSpec", "SurveyPlan", "plan_survey"]

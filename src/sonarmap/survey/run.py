@@ -15,23 +15,23 @@ from typing import Any
 import numpy as np
 
 from sonarmap._atomic import WriterLock, atomic_write_text
-from sonarmap.datamodel import consolidate, consolidated_status, invalidate_consolidated
 from sonarmap._config import config_dict
 from sonarmap.errors import DataFormatError, InputError, SonarmapError
 from sonarmap.ping import Ping
+from sonarmap.datamodel import COORD_AZIMUTH, SURVEY_FORMAT, TIME_UNITS
 from sonarmap.store import (
-    COORD_AZIMUTH,
     STATE_DIR,
-    SURVEY_FORMAT,
-    TIME_UNITS,
     CheckedStore,
     ChunkRows,
     check_times,
     checksum_codecs,
+    consolidate,
+    consolidated_status,
     create_store,
     done_chunks,
     flagged_mask,
     inspect_products,
+    invalidate_consolidated,
     mixture_arrays,
     open_writable,
     product_record,
