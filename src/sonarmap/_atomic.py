@@ -5,6 +5,12 @@
   those a killed run left behind (their process is gone) are removed by the next run writing the
   same target.  A write that fails (disk full, quota, read-only file system ...) is a
   :class:`~sonarmap.errors.DataFormatError` naming the target, which is left untouched.
+* :func:`temp_dir_beside` / :func:`replace_output` / :func:`remove_output`: outputs that are
+  directories (zarr stores, ROS 2 bags) or written by other libraries (ROS 1 bags) are built in a
+  temporary directory ``.{name}.{random}.tmp`` beside the target and moved onto it with renames
+  only; an output being replaced or removed is first renamed aside into ``.{name}.{random}.old``,
+  so it is never half-deleted in place.  What killed writers left
+  beside a target is removed by the next writer holding its lock (:func:`remove_stale_dirs`).
 * :class:`WriterLock`: an exclusive claim on an output (a file or a store directory) for the life
   of one writer, so two writers never share a store.  The claim is ``flock`` on a lock file
   ``.{name}.lock`` beside the output, holding the writer's pid and host; the kernel drops it when
@@ -20,6 +26,7 @@ import hashlib
 import json
 import os
 import re
+import shutil
 import socket
 import tempfile
 import time
@@ -35,6 +42,10 @@ __all__ = [
     "atomic_write_bytes",
     "atomic_write_text",
     "remove_stale_temporaries",
+    "temp_dir_beside",
+    "replace_output",
+    "remove_output",
+    "remove_stale_dirs",
     "pid_alive",
     "write_error",
     "WriterLock",
@@ -218,6 +229,98 @@ def atomic_write_text(path: str | os.PathLike[str], text: str, *, clean: bool = 
     """Write ``text`` (UTF-8) to ``path`` atomically (``clean`` as for :func:`atomic_path`)."""
     with atomic_open(path, "w", clean=clean, encoding="utf-8") as fh:
         fh.write(text)
+
+
+# ---------------------------------------------------------------------------- directories
+def temp_dir_beside(path: str | os.PathLike[str], *, suffix: str = ".tmp") -> Path:
+    """A new, empty directory ``.{name}.{random}{suffix}`` beside ``path`` (its parent created if needed).
+
+    Raises
+    ------
+    OSError
+        If the directory cannot be created (the caller names what failed).
+    """
+    target = Path(path)
+    target.parent.mkdir(parents=True, exist_ok=True)
+    return Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=suffix, dir=target.parent))
+
+
+def _move_aside(path: Path) -> Path:
+    """Rename ``path`` to ``old`` inside a new ``.{name}.{random}.old`` directory beside it; returns that."""
+    trash = temp_dir_beside(path, suffix=".old")
+    os.replace(path, trash / "old")
+    return trash
+
+
+def replace_output(src: str | os.PathLike[str], dst: str | os.PathLike[str]) -> None:
+    """Move ``src`` (a directory or file) onto ``dst`` with renames only, replacing what ``dst`` holds.
+
+    An existing ``dst`` is renamed aside first and deleted once ``src`` is in place (renamed back
+    if that fails), so ``dst`` is at every moment either the old or the new output.
+
+    Raises
+    ------
+    OSError
+        If a rename fails (the caller names what failed).
+    """
+    src, dst = Path(src), Path(dst)
+    if not (dst.exists() or dst.is_symlink()):
+        os.replace(src, dst)
+        return
+    trash = _move_aside(dst)
+    try:
+        os.replace(src, dst)
+    except BaseException:
+        os.replace(trash / "old", dst)
+        with contextlib.suppress(OSError):
+            os.rmdir(trash)  # empty again; were the old output not back, it would stay here
+        raise
+    shutil.rmtree(trash, ignore_errors=True)
+
+
+def remove_output(path: str | os.PathLike[str]) -> None:
+    """Delete an output: a directory is renamed aside first (never half-deleted in place), a file or
+    link unlinked; nothing happens if ``path`` does not exist.
+
+    Raises
+    ------
+    OSError
+        If the rename or the unlink fails.
+    """
+    p = Path(path)
+    if not p.exists() and not p.is_symlink():
+        return
+    if p.is_dir() and not p.is_symlink():
+        shutil.rmtree(_move_aside(p), ignore_errors=True)
+    else:
+        p.unlink()
+
+
+def remove_stale_dirs(path: str | os.PathLike[str]) -> list[Path]:
+    """Remove the temporary directories that killed writers of ``path`` left beside it.
+
+    Call only while holding the target's :class:`WriterLock`: no other writer of ``path`` then
+    runs, so every ``.{name}.{random}.tmp`` / ``.old`` directory beside it (new outputs being
+    built, replaced ones being deleted; ``.{name}.old-{pid}`` of earlier versions) is left over.
+
+    Returns
+    -------
+    list of Path
+        The directories removed.
+    """
+    p = Path(os.path.abspath(path))
+    pattern = re.compile(rf"\.{re.escape(p.name)}\.(?:{_RANDOM}\.(?:tmp|old)|old-\d+)")
+    try:
+        names = os.listdir(p.parent)
+    except OSError:
+        return []
+    removed = []
+    for name in names:
+        d = p.parent / name
+        if pattern.fullmatch(name) and d.is_dir() and not d.is_symlink():
+            shutil.rmtree(d, ignore_errors=True)
+            removed.append(d)
+    return removed
 
 
 # ---------------------------------------------------------------------------- writer lock

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sonarmap.store.chunks import ChunkRows, ChunkWriter, StoreReplacedError, array_codec_kwargs
+from sonarmap.store.chunks import ChunkRows, ChunkWriter, StoreReplacedError, array_codec_kwargs, chunk_key
 
 
 def test_chunk_writer_writes_the_bytes_zarr_writes(tmp_path: Path) -> None:
@@ -96,3 +96,26 @@ def test_chunk_rows_never_write_into_a_replaced_store(tmp_path: Path) -> None:
     with pytest.raises(StoreReplacedError):
         writer.write(chunk, rows)
     assert sorted(p.read_bytes() for p in (out / "kld").rglob("*") if p.is_file()) == before
+
+
+@pytest.mark.parametrize("fmt", [2, 3])
+def test_chunk_keys_and_grid_are_the_files_zarr_writes(tmp_path: Path, fmt: int) -> None:
+    """:func:`chunk_key` / :func:`chunk_grid` name exactly the chunk files zarr writes (v2 and v3
+    keys, whole array and a range of rows), which is what the checks of missing chunks rely on."""
+    import zarr
+
+    from sonarmap.store.check import chunk_grid
+
+    root = zarr.open_group(str(tmp_path / "s.zarr"), mode="w", zarr_format=fmt)
+    kw = {"compressors": None} if fmt == 2 else array_codec_kwargs()
+    arr = root.create_array("a", shape=(10, 5, 3), chunks=(4, 2, 3), dtype="int16", fill_value=-1, **kw)
+    arr[...] = np.arange(150, dtype=np.int16).reshape(10, 5, 3)
+    sep, v2 = (".", True) if fmt == 2 else ("/", False)
+    written = {str(p.relative_to(tmp_path / "s.zarr" / "a")) for p in (tmp_path / "s.zarr" / "a").rglob("*")
+               if p.is_file() and p.name not in (".zarray", ".zattrs", "zarr.json")}
+    keys = {chunk_key(c, separator=sep, v2=v2) for c in chunk_grid(arr.shape, arr.chunks)}
+    assert keys == written and len(keys) == 3 * 3
+    assert {chunk_key(c, separator=sep, v2=v2) for c in chunk_grid(arr.shape, arr.chunks, slice(4, 5))} == {
+        chunk_key((1, j, 0), separator=sep, v2=v2) for j in range(3)}
+    assert list(chunk_grid((0, 3), (4, 3))) == [] and list(chunk_grid((), ())) == [()]
+    assert chunk_key((), v2=True) == "0" and chunk_key((2, 0)) == "c/2/0"

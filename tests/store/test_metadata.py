@@ -283,3 +283,25 @@ def test_old_layout_converted_store_reads_and_appends(stores: dict[str, Path], t
     assert ds[COORD_AZIMUTH].dims == (DIM_PING, DIM_BEAM) and ds[COORD_AZIMUTH].shape == (N + 1, az.size)
     np.testing.assert_array_equal(ds[COORD_AZIMUTH].values[N], test_pings[N].geometry.azimuth_rad)
     assert consolidated_status(out) == "current" and _open_strict(out).returncode == 0
+
+
+def test_geometries_in_attributes_read_back_in_both_formats(stores: dict[str, Path]) -> None:
+    """The raw-ping store records each geometry with its azimuth source (keys sorted), a product
+    store's ``source_geometry`` the geometry's dict; one reader gives the geometry of either."""
+    import dataclasses
+
+    from sonarmap.geometry import preset
+    from sonarmap.store import inspect_products, store_geometry
+    from sonarmap.store.metadata import geometry_from_json, geometry_json, read_root_attrs
+
+    g = dataclasses.replace(preset("didson-hf"), azimuth_source="preset:didson-hf")  # as the readers give it
+    raw, prod = geometry_json(g), geometry_json(g, with_source=False)
+    assert json.loads(raw)["azimuth_source"] == g.azimuth_source and "azimuth_source" not in json.loads(prod)
+    assert geometry_from_json(raw, "test") == g and geometry_from_json(raw, "test").azimuth_source == g.azimuth_source
+    back = geometry_from_json(prod, "test")
+    assert np.array_equal(back.azimuth_rad, g.azimuth_rad) and back.azimuth_source == "table"
+    attrs = read_root_attrs(stores["processed"])
+    assert attrs is not None and attrs["source_geometry"] == geometry_json(
+        geometry_from_json(attrs["source_geometry"], "test"), with_source=False)
+    st, _ = inspect_products(stores["processed"])
+    assert store_geometry(st).n_beams == len(json.loads(attrs["source_geometry"])["azimuths"])

@@ -146,7 +146,9 @@ def read_pings(
 
 def is_store_dir(p: Path) -> bool:
     """A directory that is a dataset store (zarr) or a ROS 2 bag rather than a folder of PNG pings."""
-    return (p / ".zgroup").exists() or (p / "zarr.json").exists() or (p / "metadata.yaml").exists()
+    from sonarmap.store import is_zarr_store
+
+    return is_zarr_store(p) or (p / "metadata.yaml").exists()
 
 
 def read_ping(path: str | os.PathLike[str], *, geometry: GeometrySpec = None, index: int = 0) -> Ping:

@@ -79,6 +79,7 @@ import numpy as np
 from sonarmap.errors import DataFormatError, GeometryError, InputError, SonarmapWarning
 from sonarmap.geometry import SonarGeometry, as_geometry, geometry_from_dict
 from sonarmap.io._binary import U8_SCALE, check_time_ns, make_summary
+from sonarmap._atomic import replace_output, temp_dir_beside
 from sonarmap._files import open_regular, require_regular_file
 from sonarmap.ping import Ping
 
@@ -274,9 +275,8 @@ def bag_writer(path: str | os.PathLike[str], version: int) -> Iterator[tuple[Any
     if version not in (1, 2):
         raise InputError(f"version: must be 1 or 2 (got {version!r})")
     target = Path(path)
-    target.parent.mkdir(parents=True, exist_ok=True)
     store = typestore(version)
-    tmpdir = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent))
+    tmpdir = temp_dir_beside(target)
     tmp = tmpdir / target.name
     try:
         if version == 1:
@@ -295,12 +295,7 @@ def bag_writer(path: str | os.PathLike[str], version: int) -> Iterator[tuple[Any
 
         with writer:
             yield writer, serialize, store
-        if target.exists():
-            if target.is_dir():
-                shutil.rmtree(target)
-            else:
-                target.unlink()
-        os.replace(tmp, target)
+        replace_output(tmp, target)
     finally:
         shutil.rmtree(tmpdir, ignore_errors=True)
 

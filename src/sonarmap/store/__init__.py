@@ -12,11 +12,12 @@ is checked before zarr opens it, and every value against its documented range; a
 Modules
 -------
 :mod:`~sonarmap.store.metadata`
-    Metadata documents: consolidated metadata.
+    Metadata documents, root attributes (geometries as JSON), consolidated metadata.
 :mod:`~sonarmap.store.check`
     Metadata inspection (:class:`CheckedStore`), chunk files and checksums, value checks.
 :mod:`~sonarmap.store.chunks`
-    The codecs, and the two chunk writers of product stores (zarr's API; direct and atomic).
+    The codecs, chunk keys, the store's temporary files, and the two chunk writers of product
+    stores (zarr's API; direct and atomic).
 :mod:`~sonarmap.store.pings`
     The raw-ping store: pings <-> xarray Dataset, opening and reading it back.
 :mod:`~sonarmap.store.writer`
@@ -44,20 +45,29 @@ from sonarmap.store.check import (
     check_times,
     check_values,
     inspect_store,
-    is_zarr_store,
     kind_of,
     locate_error,
     read_array,
 )
 from sonarmap.store.chunks import (
+    STATE_DIR,
     ChunkRows,
     ChunkWriter,
     StoreReplacedError,
     array_codec_kwargs,
     checksum_codecs,
+    create_array,
     open_writable,
+    remove_tmp,
 )
-from sonarmap.store.metadata import consolidate, consolidated_status, invalidate_consolidated
+from sonarmap.store.metadata import (
+    consolidate,
+    consolidated_status,
+    int_attr,
+    invalidate_consolidated,
+    is_zarr_store,
+    read_root_attrs,
+)
 from sonarmap.store.pings import (
     PingVariable,
     dataset_to_pings,
@@ -70,50 +80,41 @@ from sonarmap.store.pings import (
 from sonarmap.store.products import (
     DEFAULT_CHUNK_SIZE,
     LIVE_SETTLE_S,
-    STATE_DIR,
-    create_store,
+    complete_marker,
+    create_products,
     done_chunks,
+    finish_store,
     flagged_mask,
     inspect_products,
-    int_attr,
     is_product_store,
     load_products,
     marker_dir,
     open_products,
     product_ping,
     product_summary,
-    read_root_attrs,
     reference_range,
     remove_marker_temporaries,
     remove_store,
-    remove_tmp,
     store_geometry,
-    store_layout,
     survey_status,
     write_marker,
 )
 from sonarmap.store.records import mixture_arrays, product_record, product_schema, stack_product_records
-from sonarmap.store.writer import (
-    SurveyWriter,
-    add_ping_variable,
-    remove_stale_store_temporaries,
-    write_ping_variable,
-    write_survey,
-)
+from sonarmap.store.writer import SurveyWriter, add_ping_variable, write_ping_variable, write_survey
 
 __all__ = [
     # raw-ping stores
     "PingVariable", "SurveyWriter", "write_survey", "pings_to_dataset", "open_survey", "inspect_survey",
     "survey_length", "dataset_to_pings", "survey_geometries", "add_ping_variable", "write_ping_variable",
-    "remove_stale_store_temporaries",
     # product stores
-    "DEFAULT_CHUNK_SIZE", "LIVE_SETTLE_S", "STATE_DIR", "flagged_mask", "product_record", "product_schema",
-    "stack_product_records", "mixture_arrays", "create_store", "store_layout", "create_product_store",
-    "ProductAppender", "marker_dir", "done_chunks", "write_marker", "remove_tmp", "remove_marker_temporaries",
-    "remove_store", "read_root_attrs", "int_attr", "survey_status", "inspect_products", "is_product_store",
-    "store_geometry", "reference_range", "product_summary", "open_products", "load_products", "product_ping",
+    "DEFAULT_CHUNK_SIZE", "LIVE_SETTLE_S", "flagged_mask", "product_record", "product_schema",
+    "stack_product_records", "mixture_arrays", "create_products", "create_product_store", "ProductAppender",
+    "marker_dir", "done_chunks", "write_marker", "remove_marker_temporaries", "complete_marker", "finish_store",
+    "remove_store", "survey_status", "inspect_products", "is_product_store", "store_geometry", "reference_range",
+    "product_summary", "open_products", "load_products", "product_ping",
     # metadata, checking and chunks
-    "consolidate", "invalidate_consolidated", "consolidated_status", "CheckedStore", "inspect_store",
-    "is_zarr_store", "kind_of", "read_array", "check_times", "check_values", "check_chunk_files", "locate_error",
-    "checksum_codecs", "array_codec_kwargs", "ChunkRows", "ChunkWriter", "StoreReplacedError", "open_writable",
+    "is_zarr_store", "read_root_attrs", "int_attr", "consolidate", "invalidate_consolidated",
+    "consolidated_status", "CheckedStore", "inspect_store", "kind_of", "read_array", "check_times",
+    "check_values", "check_chunk_files", "locate_error", "STATE_DIR", "checksum_codecs", "array_codec_kwargs",
+    "create_array", "remove_tmp", "ChunkRows", "ChunkWriter", "StoreReplacedError", "open_writable",
 ]

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import contextlib
 import json
 import os
 from collections.abc import Sequence
@@ -11,25 +10,24 @@ from typing import Any
 
 import numpy as np
 
-from sonarmap._atomic import atomic_write_text, write_error
-from sonarmap._config import config_dict
 from sonarmap.datamodel import COORD_RANGE
 from sonarmap.errors import DataFormatError, InputError, SonarmapError
 from sonarmap.ping import Ping
+from sonarmap.store.chunks import ChunkWriter, put_file
+from sonarmap.store.metadata import int_attr, node_docs, read_metadata_doc, with_consolidated
 from sonarmap.store.products import (
     DEFAULT_CHUNK_SIZE,
-    STATE_DIR,
-    create_store,
-    store_layout,
-    write_marker,
+    create_products,
+    finish_store,
     flagged_mask,
     inspect_products,
-    int_attr,
     store_geometry,
+    write_marker,
 )
-from sonarmap.store.records import mixture_arrays, product_record, product_schema, stack_product_records
+from sonarmap.store.records import stack_product_records
 
 __all__ = ["ProductAppender", "create_product_store"]
+
 
 def create_product_store(path: str | os.PathLike[str], ping: Ping, products: Any, *, config: Any,
                          chunk_size: int = DEFAULT_CHUNK_SIZE, keep_labels: bool = False,
@@ -47,18 +45,9 @@ def create_product_store(path: str | os.PathLike[str], ping: Ping, products: Any
     """
     if isinstance(chunk_size, bool) or int(chunk_size) != chunk_size or chunk_size < 1:
         raise InputError(f"chunk_size: must be a positive integer (got {chunk_size!r})")
-    out = Path(path)
-    rec = product_record(products, keep_labels=keep_labels)
-    schema = product_schema(rec)
-    _, _, cnames = mixture_arrays(products.fit)
-    geom = ping.geometry
-    coord_arrays, attrs = store_layout(
-        geom, config_dict(config), schema, keep_labels=keep_labels, chunk_size=int(chunk_size), n_pings=0,
-        n_chunks=0, n_input_files=len(inputs), inputs=list(inputs)[:20], poses=None, fingerprint=fingerprint,
-    )
-    attrs["live_status"] = "writing"
-    create_store(out, 0, int(chunk_size), schema, attrs, {"arrays": coord_arrays, "component_names": cnames,
-                                             "echo_range": geom.range_m})
+    create_products(path, ping.geometry, products, config=config, keep_labels=keep_labels, chunk_size=int(chunk_size),
+                    n_pings=0, n_chunks=0, inputs=list(inputs)[:20], n_input_files=len(inputs), poses=None,
+                    fingerprint=fingerprint, extra_attrs={"live_status": "writing"})
 
 
 class ProductAppender:
@@ -88,9 +77,6 @@ class ProductAppender:
     """
 
     def __init__(self, path: str | os.PathLike[str], *, range_m: Any = None) -> None:
-        from sonarmap.store.chunks import ChunkWriter
-        from sonarmap.store.metadata import node_docs, read_metadata_doc
-
         self.path = Path(path)
         st, schema = inspect_products(self.path)
         self.schema = schema
@@ -147,29 +133,16 @@ class ProductAppender:
         if n % k:
             write_marker(self.path, n // k, (n // k) * k, n)
         self._publish(n, status="complete")
-        with contextlib.suppress(OSError):
-            os.rmdir(self.path / STATE_DIR / "tmp")
-        atomic_write_text(self.path / STATE_DIR / "complete",
-                          json.dumps({"n_pings": n, "n_flagged": self.n_flagged}) + "\n")
+        finish_store(self.path, n, self.n_flagged)
         self.closed = True
 
     def _publish(self, n: int, status: str = "writing") -> None:
         doc = self._root_doc
         attrs = doc.setdefault("attributes", {})
         attrs.update(n_pings=n, n_chunks=-(-n // self.chunk_size), live_status=status)
-        doc["consolidated_metadata"] = {"kind": "inline", "must_understand": False,
-                                        "metadata": dict(sorted(self._nodes.items()))}
-        self._replace(self.path / "zarr.json", doc)
+        self._replace(self.path / "zarr.json", with_consolidated(doc, self._nodes))
 
     def _replace(self, target: Path, doc: dict[str, Any]) -> None:
         """Replace one metadata document atomically (temporary file in the store, then rename)."""
-        import uuid
-
-        tmp = self.path / STATE_DIR / "tmp" / f"meta-{os.getpid()}-{uuid.uuid4().hex}"
-        try:
-            tmp.write_bytes(json.dumps(doc).encode("utf-8"))  # compact: the C encoder, ~10x faster
-            os.replace(tmp, target)
-        except OSError as exc:
-            with contextlib.suppress(OSError):
-                tmp.unlink()
-            raise write_error(exc, self.path, f"cannot write {target.relative_to(self.path)}") from None
+        payload = json.dumps(doc).encode("utf-8")  # compact: the C encoder, ~10x faster
+        put_file(self.path, target, payload, str(target.relative_to(self.path)))

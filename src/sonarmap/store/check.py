@@ -17,17 +17,18 @@ import dataclasses
 import json
 import math
 import os
-import struct
-from collections.abc import Iterable, Iterator, Mapping
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from sonarmap._files import MAX_SIDECAR_BYTES, read_bytes_bounded, require_regular_file
-from sonarmap.datamodel import DIM_PING, TIME_MAX_NS
+from sonarmap._files import read_bytes_bounded, require_regular_file
+from sonarmap.datamodel import DIM_PING, TIME_MAX_NS, TIME_UNITS_RE
 from sonarmap.errors import DataFormatError
+from sonarmap.store.chunks import chunk_key, crc32c_suffix
+from sonarmap.store.metadata import is_zarr_store, one_line, read_metadata_doc
 
 __all__ = [
     "CheckedStore",
@@ -36,7 +37,6 @@ __all__ = [
     "check_times",
     "check_values",
     "inspect_store",
-    "is_zarr_store",
     "kind_of",
     "locate_error",
     "read_array",
@@ -45,45 +45,6 @@ __all__ = [
 
 
 # ---------------------------------------------------------------------- metadata
-def is_zarr_store(path: Path) -> bool:
-    """Whether ``path`` is a directory holding a zarr group (v3 ``zarr.json`` or v2 ``.zgroup``)."""
-    return path.is_dir() and ((path / "zarr.json").exists() or (path / ".zgroup").exists())
-
-
-def _one_line(exc: BaseException, limit: int = 200) -> str:
-    """An exception's message on one line, at most ``limit`` characters."""
-    msg = " ".join(str(exc).split()) or type(exc).__name__
-    return msg if len(msg) <= limit else msg[: limit - 3] + "..."
-
-
-def _read_json_doc(path: Path, what: str, *, required: bool = True) -> dict[str, Any] | None:
-    """A zarr metadata document (JSON object), or ``None`` if absent and not ``required``.
-
-    Raises
-    ------
-    DataFormatError
-        Naming the file, if it is missing (and required), not a regular file, too large, not
-        UTF-8, not JSON, or not a JSON object.
-    """
-    if not required and not os.path.lexists(path):
-        return None
-    data = read_bytes_bounded(path, MAX_SIDECAR_BYTES, what)
-    try:
-        text = data.decode("utf-8")
-    except UnicodeDecodeError as exc:
-        raise DataFormatError(f"{what} is not valid UTF-8 (byte {exc.start})", path) from None
-    try:
-        doc = json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise DataFormatError(f"{what} is not valid JSON ({exc.msg}; line {exc.lineno} column {exc.colno})",
-                              path) from None
-    except (ValueError, RecursionError) as exc:
-        raise DataFormatError(f"{what} is not valid JSON ({_one_line(exc)})", path) from None
-    if not isinstance(doc, dict):
-        raise DataFormatError(f"{what} is a JSON {type(doc).__name__}, expected an object", path)
-    return doc
-
-
 def _check_array_doc(doc: Mapping[str, Any], fmt: int, path: Path) -> None:
     """Types of the keys of an array's metadata that zarr would otherwise trip over."""
 
@@ -169,6 +130,19 @@ class CheckedStore:
         """Dimension names of array ``name`` (checked when the store was inspected)."""
         return _dims(self.arrays[name])
 
+    def require_dims(self, name: str, expected: tuple[str, ...]) -> None:
+        """A :class:`DataFormatError` naming array ``name`` if its dimensions are not ``expected``."""
+        dims = self.dims(name)
+        if dims != expected:
+            raise DataFormatError(f"array '{name}' has dimensions {dims}, expected {expected}", self.meta_file(name))
+
+    def require_time_units(self, name: str, expected: str) -> None:
+        """A :class:`DataFormatError` naming array ``name`` if its ``units`` are not int64 nanoseconds
+        since 1970 (:data:`~sonarmap.datamodel.TIME_UNITS_RE`; ``expected`` is named in the message)."""
+        units = self.arrays[name].attrs.get("units")
+        if not isinstance(units, str) or not TIME_UNITS_RE.fullmatch(units):
+            raise DataFormatError(f"array '{name}' has units {units!r:.60}, expected {expected!r}", self.meta_file(name))
+
     def checksummed(self, name: str) -> bool:
         """Whether the chunks of array ``name`` carry a CRC32C checksum (written by this version)."""
         arr = self.arrays[name]
@@ -215,19 +189,45 @@ def inspect_store(path: Path) -> CheckedStore:
     if not is_zarr_store(path):
         raise DataFormatError("not a zarr survey store (no zarr.json/.zgroup)", path)
     fmt = 3 if (path / "zarr.json").exists() else 2
+    _check_group_doc(path, fmt)
+    names = _array_names(path, fmt)
+    try:
+        # never the consolidated copy: every array's own (checked) metadata is what is read
+        group = zarr.open_group(str(path), mode="r", zarr_format=fmt, use_consolidated=False)
+        attrs = dict(group.attrs)
+    except Exception as exc:  # noqa: BLE001 - zarr raises many types on corrupt metadata
+        raise DataFormatError(f"group metadata: {one_line(exc)}", path / ("zarr.json" if fmt == 3 else ".zgroup")) from None
+    arrays: dict[str, Any] = {}
+    for name in names:
+        arr = _open_array(group, name, path / name / ("zarr.json" if fmt == 3 else ".zarray"))
+        if arr is not None:
+            arrays[name] = arr
+    return CheckedStore(path, fmt, group, attrs, arrays)
+
+
+def _read_optional(path: Path, what: str) -> None:
+    """Check the metadata document ``path`` if it exists (zarr v2 ``.zattrs``)."""
+    if os.path.lexists(path):
+        read_metadata_doc(path, what)
+
+
+def _check_group_doc(path: Path, fmt: int) -> None:
+    """The root group's metadata document(s) of a zarr ``fmt`` store parse and describe a group."""
     if fmt == 3:
-        root = _read_json_doc(path / "zarr.json", "group metadata")
-        assert root is not None
+        root = read_metadata_doc(path / "zarr.json", "group metadata")
         if root.get("zarr_format") != 3 or root.get("node_type") != "group":
             raise DataFormatError("group metadata: not a zarr v3 group (zarr_format/node_type)", path / "zarr.json")
         if "attributes" in root and not isinstance(root["attributes"], dict):
             raise DataFormatError("group metadata: 'attributes' is not an object", path / "zarr.json")
     else:
-        root = _read_json_doc(path / ".zgroup", "group metadata")
-        assert root is not None
+        root = read_metadata_doc(path / ".zgroup", "group metadata")
         if root.get("zarr_format") != 2:
             raise DataFormatError("group metadata: not a zarr v2 group (zarr_format)", path / ".zgroup")
-        _read_json_doc(path / ".zattrs", "group attributes", required=False)
+        _read_optional(path / ".zattrs", "group attributes")
+
+
+def _array_names(path: Path, fmt: int) -> list[str]:
+    """The arrays directly below the root (sorted), each one's metadata document checked."""
     names = []
     try:
         entries = sorted(os.listdir(path))
@@ -237,59 +237,47 @@ def inspect_store(path: Path) -> CheckedStore:
         d = path / name
         if name.startswith(".") or not d.is_dir():
             continue
-        if fmt == 3:
-            meta = d / "zarr.json"
-            if not os.path.lexists(meta):
-                continue
-            doc = _read_json_doc(meta, "array metadata")
-            assert doc is not None
-            if doc.get("node_type") == "group":
-                continue
-            _check_array_doc(doc, 3, meta)
-        else:
-            meta = d / ".zarray"
-            if not os.path.lexists(meta):
-                continue
-            doc = _read_json_doc(meta, "array metadata")
-            assert doc is not None
-            _check_array_doc(doc, 2, meta)
-            _read_json_doc(d / ".zattrs", "array attributes", required=False)
-        names.append(name)
-    try:
-        # never the consolidated copy: every array's own (checked) metadata is what is read
-        group = zarr.open_group(str(path), mode="r", zarr_format=fmt, use_consolidated=False)
-        attrs = dict(group.attrs)
-    except Exception as exc:  # noqa: BLE001 - zarr raises many types on corrupt metadata
-        raise DataFormatError(f"group metadata: {_one_line(exc)}", path / ("zarr.json" if fmt == 3 else ".zgroup")) from None
-    arrays: dict[str, Any] = {}
-    for name in names:
-        meta = path / name / ("zarr.json" if fmt == 3 else ".zarray")
-        try:
-            arr = group[name]
-            _ = arr.dtype, arr.shape, arr.chunks, dict(arr.attrs)
-            dims = _dims(arr)
-            if dims and len(dims) != len(arr.shape):
-                raise DataFormatError(f"{len(dims)} dimension names for {len(arr.shape)} dimensions")
-        except DataFormatError as exc:
-            raise DataFormatError(f"array metadata: {exc}", meta) from None
-        except Exception as exc:  # noqa: BLE001
-            raise DataFormatError(f"array metadata: {type(exc).__name__}: {_one_line(exc)}", meta) from None
-        if not hasattr(arr, "shape") or isinstance(arr, zarr.Group):
+        meta = d / ("zarr.json" if fmt == 3 else ".zarray")
+        if not os.path.lexists(meta):
             continue
-        n_chunk = int(np.prod([int(c) for c in arr.chunks], dtype=object)) if arr.chunks else 1
-        if n_chunk > MAX_CHUNK_BYTES:
-            raise DataFormatError(f"array metadata: chunks of {n_chunk} elements are larger than sonarmap reads",
-                                  meta)
-        arrays[name] = arr
-    return CheckedStore(path, fmt, group, attrs, arrays)
+        doc = read_metadata_doc(meta, "array metadata")
+        if fmt == 3 and doc.get("node_type") == "group":
+            continue
+        _check_array_doc(doc, fmt, meta)
+        if fmt == 2:
+            _read_optional(d / ".zattrs", "array attributes")
+        names.append(name)
+    return names
+
+
+def _open_array(group: Any, name: str, meta: Path) -> Any:
+    """Array ``name`` of ``group`` opened and its metadata checked (``None`` for a sub-group)."""
+    import zarr
+
+    try:
+        arr = group[name]
+        _ = arr.dtype, arr.shape, arr.chunks, dict(arr.attrs)
+        dims = _dims(arr)
+        if dims and len(dims) != len(arr.shape):
+            raise DataFormatError(f"{len(dims)} dimension names for {len(arr.shape)} dimensions")
+    except DataFormatError as exc:
+        raise DataFormatError(f"array metadata: {exc}", meta) from None
+    except Exception as exc:  # noqa: BLE001
+        raise DataFormatError(f"array metadata: {type(exc).__name__}: {one_line(exc)}", meta) from None
+    if not hasattr(arr, "shape") or isinstance(arr, zarr.Group):
+        return None
+    n_chunk = int(np.prod([int(c) for c in arr.chunks], dtype=object)) if arr.chunks else 1
+    if n_chunk > MAX_CHUNK_BYTES:
+        raise DataFormatError(f"array metadata: chunks of {n_chunk} elements are larger than sonarmap reads", meta)
+    return arr
 
 
 # ---------------------------------------------------------------------- chunks and values
-def _chunk_coords(arr: Any, rows: slice | None = None) -> Iterator[tuple[int, ...]]:
-    """Chunk-grid coordinates of ``arr`` covering rows ``rows`` of its first dimension."""
+def chunk_grid(shape: Sequence[int], chunks: Sequence[int], rows: slice | None = None) -> Iterator[tuple[int, ...]]:
+    """Grid coordinates of the chunks of an array of ``shape`` in ``chunks`` that cover rows ``rows``
+    of its first dimension (all rows if ``None``); ``()`` once for a 0-d array."""
     import itertools
 
-    shape, chunks = tuple(arr.shape), tuple(arr.chunks)
     if not shape:
         yield ()
         return
@@ -303,17 +291,22 @@ def _chunk_coords(arr: Any, rows: slice | None = None) -> Iterator[tuple[int, ..
     yield from itertools.product(first, *rest)
 
 
+def _chunk_coords(arr: Any, rows: slice | None = None) -> Iterator[tuple[int, ...]]:
+    """Chunk-grid coordinates of the zarr array ``arr`` covering rows ``rows`` (:func:`chunk_grid`)."""
+    return chunk_grid(tuple(arr.shape), tuple(arr.chunks), rows)
+
+
 def _chunk_key(arr: Any, coords: tuple[int, ...]) -> str:
     """The store key of chunk ``coords`` of ``arr`` (``c/1/0/0`` in v3, ``1.0.0`` in v2)."""
     try:
         return str(arr.metadata.encode_chunk_key(coords))
     except Exception:  # noqa: BLE001 - only for messages
-        return "c/" + "/".join(str(c) for c in coords)
+        return chunk_key(coords)
 
 
 def _reason(exc: BaseException) -> str:
     """What a failed chunk decode means, for the message."""
-    msg = _one_line(exc, 160)
+    msg = one_line(exc, 160)
     if "checksum" in msg.lower():
         return "checksum mismatch (the chunk file is corrupt)"
     return f"corrupt, cannot be decoded ({type(exc).__name__}: {msg})"
@@ -327,15 +320,20 @@ MAX_CHUNK_BYTES = 1 << 30
 _STRING_ITEM_BYTES = 1024
 
 
+def _encoded_limit(chunks: Sequence[int], item: int) -> int:
+    """Largest plausible size of one encoded chunk file of ``chunks`` elements of ``item`` bytes
+    (zstd's worst case + checksum)."""
+    raw = int(np.prod([int(c) for c in chunks], dtype=object)) * max(int(item), 1)
+    return raw + raw // 64 + 4096
+
+
 def _chunk_limit(arr: Any) -> int:
-    """Largest plausible size of one encoded chunk file of ``arr`` (zstd's worst case + checksum)."""
-    n = int(np.prod([int(c) for c in arr.chunks], dtype=object)) if arr.chunks else 1
+    """:func:`_encoded_limit` of the zarr array ``arr``."""
     try:
         item = int(np.dtype(arr.dtype).itemsize) if kind_of(arr) != "T" else _STRING_ITEM_BYTES
     except TypeError:
         item = _STRING_ITEM_BYTES
-    raw = n * max(item, 1)
-    return raw + raw // 64 + 4096
+    return _encoded_limit(tuple(arr.chunks or ()), item)
 
 
 def _chunk_files(st: CheckedStore, name: str) -> dict[str, int]:
@@ -405,39 +403,13 @@ def _crc_scan(path: Path, names: Iterable[str], rows: slice | None) -> DataForma
     Cheap enough for the error path: no zarr round trips, just the files.  Returns the error of
     the first bad chunk, or ``None`` (nothing found, or no checksums to check).
     """
-    import itertools
-
-    import google_crc32c
-
     for name in names:
-        try:
-            doc = json.loads((path / name / "zarr.json").read_text(encoding="utf-8"))
-            if [c.get("name") if isinstance(c, dict) else c for c in doc["codecs"]][-1] != "crc32c":
-                continue
-            shape = [int(x) for x in doc["shape"]]
-            chunks = [int(x) for x in doc["chunk_grid"]["configuration"]["chunk_shape"]]
-            cke = doc.get("chunk_key_encoding") or {}
-            sep = (cke.get("configuration") or {}).get("separator", "/")
-            v2 = cke.get("name") == "v2"
-            if len(shape) != len(chunks) or any(c <= 0 for c in chunks):
-                continue
-            dt = doc.get("data_type")
-            item = np.dtype(dt).itemsize if isinstance(dt, str) and dt != "string" else _STRING_ITEM_BYTES
-            raw = int(np.prod(chunks, dtype=object)) * max(int(item), 1)
-            limit = raw + raw // 64 + 4096
-        except (OSError, ValueError, KeyError, TypeError, IndexError, AttributeError, OverflowError):
+        layout = _crc_layout(path / name / "zarr.json")
+        if layout is None:
             continue
-        if any(n == 0 for n in shape):
-            continue
-        ranges = [range(-(-n // c)) for n, c in zip(shape, chunks, strict=True)]
-        if shape and rows is not None:
-            lo, hi = max(0, rows.start or 0), min(shape[0], rows.stop)
-            if hi <= lo:
-                continue
-            ranges[0] = range(lo // chunks[0], (hi - 1) // chunks[0] + 1)
-        for coords in itertools.product(*ranges):
-            parts = [str(c) for c in coords] or (["0"] if v2 else [])
-            key = sep.join(parts) if v2 else sep.join(["c", *parts])
+        shape, chunks, sep, v2, limit = layout
+        for coords in chunk_grid(shape, chunks, rows):
+            key = chunk_key(coords, separator=sep, v2=v2)
             f = path / name / key
             try:
                 size = os.stat(f).st_size
@@ -448,10 +420,30 @@ def _crc_scan(path: Path, names: Iterable[str], rows: slice | None) -> DataForma
                 data = read_bytes_bounded(f, min(size, limit), f"chunk file of array '{name}'")
             except DataFormatError as exc:
                 return exc
-            if len(data) < 4 or struct.unpack("<I", data[-4:])[0] != google_crc32c.value(data[:-4]):
+            if len(data) < 4 or data[-4:] != crc32c_suffix(data[:-4]):
                 return DataFormatError(f"array '{name}', chunk {key}: checksum mismatch (the chunk file is corrupt)",
                                        path)
     return None
+
+
+def _crc_layout(meta: Path) -> tuple[list[int], list[int], str, bool, int] | None:
+    """``(shape, chunks, key separator, v2 keys, largest chunk file)`` of a zarr v3 array whose last
+    codec is ``crc32c``; ``None`` for any other array or unreadable metadata."""
+    try:
+        doc = json.loads(meta.read_text(encoding="utf-8"))
+        if [c.get("name") if isinstance(c, dict) else c for c in doc["codecs"]][-1] != "crc32c":
+            return None
+        shape = [int(x) for x in doc["shape"]]
+        chunks = [int(x) for x in doc["chunk_grid"]["configuration"]["chunk_shape"]]
+        cke = doc.get("chunk_key_encoding") or {}
+        sep = (cke.get("configuration") or {}).get("separator", "/")
+        if len(shape) != len(chunks) or any(c <= 0 for c in chunks):
+            return None
+        dt = doc.get("data_type")
+        item = np.dtype(dt).itemsize if isinstance(dt, str) and dt != "string" else _STRING_ITEM_BYTES
+        return shape, chunks, sep, cke.get("name") == "v2", _encoded_limit(chunks, item)
+    except (OSError, ValueError, KeyError, TypeError, IndexError, AttributeError, OverflowError):
+        return None
 
 
 def locate_error(st: CheckedStore, names: Iterable[str], rows: slice | None, exc: BaseException,
@@ -483,7 +475,7 @@ def locate_error(st: CheckedStore, names: Iterable[str], rows: slice | None, exc
             except Exception as e:  # noqa: BLE001 - whatever the codecs raise
                 return DataFormatError(f"{prefix}array '{name}', chunk {_chunk_key(arr, coords)}: {_reason(e)}",
                                        st.path)
-    return DataFormatError(f"{prefix or 'cannot read: '}{type(exc).__name__}: {_one_line(exc)}", st.path)
+    return DataFormatError(f"{prefix or 'cannot read: '}{type(exc).__name__}: {one_line(exc)}", st.path)
 
 
 def read_array(st: CheckedStore, name: str, rows: slice | None = None) -> NDArray[Any]:

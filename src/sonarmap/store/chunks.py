@@ -26,6 +26,7 @@ worker is still busy) raises :class:`StoreReplacedError` instead of being writte
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import json
 import os
@@ -42,8 +43,9 @@ import numpy as np
 from sonarmap._atomic import write_error
 from sonarmap.errors import SonarmapError
 
-__all__ = ["ChunkRange", "ChunkRows", "ChunkWriter", "StoreReplacedError", "ZSTD_LEVEL", "array_codec_kwargs",
-           "checksum_codecs", "crc32c_suffix", "open_writable"]
+__all__ = ["ChunkRange", "ChunkRows", "ChunkWriter", "STATE_DIR", "StoreReplacedError", "TMP_DIR", "ZSTD_LEVEL",
+           "array_codec_kwargs", "checksum_codecs", "chunk_key", "create_array", "crc32c_suffix", "open_writable",
+           "put_file", "remove_tmp", "store_identity"]
 
 #: zstd level of every product variable (zarr's default; level 0 = zstd's default, 3).
 ZSTD_LEVEL = 0
@@ -58,22 +60,39 @@ def checksum_codecs() -> dict[str, Any]:
     """
     from zarr.codecs import Crc32cCodec, ZstdCodec
 
-    return {"compressors": (ZstdCodec(level=0, checksum=False), Crc32cCodec())}
+    return {"compressors": (ZstdCodec(level=ZSTD_LEVEL, checksum=False), Crc32cCodec())}
 
 
 def array_codec_kwargs() -> dict[str, Any]:
     """Codec / key options passed to ``zarr.Group.create_array`` for product variables.
 
-    They pin what zarr 3 uses by default (``zstd``), plus a ``crc32c`` checksum of every chunk, so
-    the store's metadata does not depend on zarr's defaults - :class:`ChunkWriter` encodes
-    exactly these - and a corrupt chunk file is an error when read, not wrong values.
+    :func:`checksum_codecs` and zarr 3's default chunk keys, pinned so the store's metadata does
+    not depend on zarr's defaults - :class:`ChunkWriter` encodes exactly these.
     """
-    from zarr.codecs import Crc32cCodec, ZstdCodec
+    return {**checksum_codecs(), "chunk_key_encoding": {"name": "default", "separator": "/"}}
 
-    return {
-        "compressors": (ZstdCodec(level=ZSTD_LEVEL, checksum=False), Crc32cCodec()),
-        "chunk_key_encoding": {"name": "default", "separator": "/"},
-    }
+
+def create_array(group: Any, name: str, values: Any = None, **kwargs: Any) -> Any:
+    """``group.create_array(name, **kwargs)`` with :func:`checksum_codecs`, every chunk written
+    (even one equal to the fill value); ``values``, if given, are written into it.
+
+    Returns
+    -------
+    zarr.Array
+    """
+    arr = group.create_array(name, **kwargs, **checksum_codecs(), config={"write_empty_chunks": True})
+    if values is not None:
+        arr[...] = values
+    return arr
+
+
+def chunk_key(coords: tuple[int, ...], *, separator: str = "/", v2: bool = False) -> str:
+    """The store key of the chunk at grid position ``coords``: ``c/1/0`` (zarr 3's default
+    encoding), or ``1.0`` with ``v2=True`` (``separator`` ``"."``; ``0`` for a 0-d array)."""
+    parts = [str(int(c)) for c in coords]
+    if v2:
+        return separator.join(parts or ["0"])
+    return separator.join(["c", *parts])
 
 
 def crc32c_suffix(data: bytes) -> bytes:
@@ -97,23 +116,79 @@ class _Var:
     checksum: bool = False  # a crc32c codec follows zstd
 
 
+#: The directory of a store's own state (resume markers, temporary files; not part of the dataset).
+STATE_DIR = ".sonarmap"
 #: Temporary files are written here (inside the store, so ``os.replace`` stays on one file system)
 #: and moved into place; whatever an interrupted run left there is removed by the next one.
-TMP_DIR = os.path.join(".sonarmap", "tmp")
+TMP_DIR = os.path.join(STATE_DIR, "tmp")
+
+
+def remove_tmp(store: str | os.PathLike[str]) -> None:
+    """Remove the temporary files an interrupted writer left in ``.sonarmap/tmp`` (call before
+    any writer of this run starts)."""
+    d = Path(store) / TMP_DIR
+    for f in d.iterdir() if d.is_dir() else ():
+        with contextlib.suppress(OSError):
+            f.unlink()
+
+
+def put_file(store: str | os.PathLike[str], target: str | os.PathLike[str], payload: bytes, what: str) -> None:
+    """Write ``payload`` to ``target`` inside ``store`` atomically: a temporary file in the store's
+    ``.sonarmap/tmp`` (which must exist), then ``os.replace``, so readers never see a torn file.
+
+    Raises
+    ------
+    DataFormatError
+        ``cannot write <what>``, naming the store, if the data cannot be written.
+    """
+    tmp = os.path.join(store, TMP_DIR, f"{os.getpid()}-{uuid.uuid4().hex}")
+    try:
+        with open(tmp, "wb") as fh:
+            fh.write(payload)
+        os.replace(tmp, target)
+    except BaseException as exc:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        if isinstance(exc, OSError):
+            raise write_error(exc, store, f"cannot write {what}") from None
+        raise
 
 
 class StoreReplacedError(SonarmapError, RuntimeError):
     """The store directory is not the one the writer was made for (deleted or replaced)."""
 
 
+def store_identity(store: str | os.PathLike[str]) -> tuple[int, int]:
+    """``(st_dev, st_ino)`` of the store directory, which a chunk writer checks before every chunk.
+
+    Raises
+    ------
+    DataFormatError
+        If the store cannot be found (naming it).
+    """
+    try:
+        st = os.stat(store)
+    except OSError as exc:
+        raise write_error(exc, Path(store), "cannot prepare the store for writing") from None
+    return st.st_dev, st.st_ino
+
+
+def _check_identity(store: str, identity: tuple[int, int], index: int) -> None:
+    """Raise :class:`StoreReplacedError` if ``store`` is gone or is not the directory ``identity`` was."""
+    try:
+        st = os.stat(store)
+    except FileNotFoundError:
+        st = None
+    if st is None or (st.st_dev, st.st_ino) != identity:
+        raise StoreReplacedError(f"{store}: the store was removed or replaced; not writing chunk {index}")
+
+
 @dataclass(frozen=True)
 class ChunkWriter:
     """Writes chunk ``k`` (along the first dimension) of every product variable of a store.
 
-    ``identity`` is the ``(st_dev, st_ino)`` of the store directory when the writer was made: a
-    write into a store that has since been replaced (e.g. a worker left over from a killed run
-    while the output is re-created with ``--overwrite``) raises :class:`StoreReplacedError`
-    instead of writing.
+    ``identity`` is the store directory's :func:`store_identity` when the writer was made; a store
+    replaced since is never written into (:class:`StoreReplacedError`).
     """
 
     store: str
@@ -136,12 +211,12 @@ class ChunkWriter:
             if var is None:
                 return None
             out.append(var)
+        identity = store_identity(root)
         try:
-            st = os.stat(root)
             os.makedirs(root / TMP_DIR, exist_ok=True)
         except OSError as exc:
             raise write_error(exc, root, "cannot prepare the store for writing") from None
-        return cls(os.fspath(root), tuple(out), (st.st_dev, st.st_ino))
+        return cls(os.fspath(root), tuple(out), identity)
 
     def __getstate__(self) -> dict[str, Any]:
         return {"store": self.store, "variables": self.variables, "identity": self.identity}
@@ -150,15 +225,6 @@ class ChunkWriter:
         for k in ("store", "variables", "identity"):
             object.__setattr__(self, k, state[k])
         object.__setattr__(self, "_made_dirs", set())
-
-    def clean_tmp(self) -> None:
-        """Remove temporary files left by an interrupted run (call before any writer runs)."""
-        d = os.path.join(self.store, TMP_DIR)
-        for name in os.listdir(d) if os.path.isdir(d) else ():
-            try:
-                os.unlink(os.path.join(d, name))
-            except OSError:
-                pass
 
     # ------------------------------------------------------------------ writing
     def encode(self, var: _Var, values: Any) -> bytes:
@@ -195,34 +261,15 @@ class ChunkWriter:
         if missing:
             raise KeyError(f"chunk {index}: no data for {', '.join(missing)}")
         payloads = [(var, self.encode(var, data[var.name])) for var in self.variables]
-        try:
-            st = os.stat(self.store)
-        except FileNotFoundError:
-            st = None
-        if st is None or (st.st_dev, st.st_ino) != self.identity:
-            raise StoreReplacedError(f"{self.store}: the store was removed or replaced; not writing chunk {index}")
+        _check_identity(self.store, self.identity, index)
         for var, payload in payloads:
-            key = var.separator.join(["c", str(int(index))] + ["0"] * (len(var.chunk_shape) - 1))
-            self._put(os.path.join(self.store, var.name, *key.split("/")), payload)
-
-    def _put(self, path: str, payload: bytes) -> None:
-        parent = os.path.dirname(path)
-        if parent not in self._made_dirs:
-            os.makedirs(parent, exist_ok=True)
-            self._made_dirs.add(parent)
-        tmp = os.path.join(self.store, TMP_DIR, f"{os.getpid()}-{uuid.uuid4().hex}")
-        try:
-            with open(tmp, "wb") as fh:
-                fh.write(payload)
-            os.replace(tmp, path)
-        except BaseException as exc:
-            try:
-                os.unlink(tmp)
-            except OSError:
-                pass
-            if isinstance(exc, OSError):
-                raise write_error(exc, self.store, f"cannot write chunk {os.path.relpath(path, self.store)}") from None
-            raise
+            key = chunk_key((index, *[0] * (len(var.chunk_shape) - 1)), separator=var.separator)
+            path = os.path.join(self.store, var.name, *key.split(var.separator))
+            parent = os.path.dirname(path)
+            if parent not in self._made_dirs:
+                os.makedirs(parent, exist_ok=True)
+                self._made_dirs.add(parent)
+            put_file(self.store, path, payload, f"chunk {os.path.relpath(path, self.store)}")
 
 
 def _parse(name: str, meta: Mapping[str, Any]) -> _Var | None:
@@ -302,10 +349,8 @@ class ChunkRows:
     split chunks.  Every chunk is written, even one equal to the fill value: a checksummed store
     has all its chunks, so a missing one is recognised as damage when read.
 
-    ``identity`` is the ``(st_dev, st_ino)`` of the store directory when the writer was made: a
-    write into a store that has since been replaced (e.g. a worker left over from a killed run
-    while the output is re-created with ``--overwrite``) raises :class:`StoreReplacedError`
-    instead of writing.
+    ``identity`` is the store directory's :func:`store_identity` when the writer was made; a store
+    replaced since is never written into (:class:`StoreReplacedError`).
     """
 
     store: str
@@ -314,22 +359,13 @@ class ChunkRows:
     @classmethod
     def open(cls, store: str | os.PathLike[str]) -> ChunkRows:
         """A writer for the product store ``store`` (which must exist)."""
-        try:
-            st = os.stat(store)
-        except OSError as exc:
-            raise write_error(exc, Path(store), "cannot prepare the store for writing") from None
-        return cls(os.fspath(store), (st.st_dev, st.st_ino))
+        return cls(os.fspath(store), store_identity(store))
 
     def write(self, chunk: ChunkRange, data: Mapping[str, Any]) -> None:
         """Write rows ``chunk.start:chunk.stop`` of every variable in ``data`` (name -> rows)."""
         import zarr
 
-        try:
-            st = os.stat(self.store)
-        except FileNotFoundError:
-            st = None
-        if st is None or (st.st_dev, st.st_ino) != self.identity:
-            raise StoreReplacedError(f"{self.store}: the store was removed or replaced; not writing chunk {chunk.index}")
+        _check_identity(self.store, self.identity, chunk.index)
         root = _open_roots.get((self.store, self.identity))
         with warnings.catch_warnings(), zarr.config.set({"array.write_empty_chunks": True}):
             warnings.simplefilter("ignore")

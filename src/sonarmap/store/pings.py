@@ -64,7 +64,7 @@ from sonarmap.datamodel import (
     PING_ARRAYS,
     PING_ATTRS,
     TIME_MAX_NS,
-    TIME_UNITS_RE,
+    PING_TIME_UNITS,
     VAR_GEOMETRY,
     VAR_INTENSITY,
     VAR_ORIENTATION,
@@ -73,12 +73,11 @@ from sonarmap.datamodel import (
     azimuth_dims,
 )
 from sonarmap.errors import DataFormatError, InputError, SonarmapError
-from sonarmap.geometry import SonarGeometry, geometry_from_dict
+from sonarmap.geometry import SonarGeometry
 from sonarmap.ping import Ping, Pose
 from sonarmap.store.check import (
     CheckedStore,
     _crc_scan,
-    _one_line,
     check_chunk_files,
     check_times,
     check_values,
@@ -87,7 +86,14 @@ from sonarmap.store.check import (
     locate_error,
     read_array,
 )
-from sonarmap.store.metadata import consolidate, invalidate_consolidated
+from sonarmap.store.metadata import (
+    consolidate,
+    geometry_from_json,
+    geometry_json,
+    invalidate_consolidated,
+    json_string_list,
+    one_line,
+)
 
 if TYPE_CHECKING:  # pragma: no cover
     import xarray as xr
@@ -154,19 +160,6 @@ def _meta_kind(v: Any) -> str | None:
     return None
 
 
-def _geometry_json(g: SonarGeometry) -> str:
-    d = g.to_dict()
-    d["azimuth_source"] = g.azimuth_source
-    return json.dumps(d, sort_keys=True)
-
-
-def _geometry_from_json(s: str) -> SonarGeometry:
-    d = json.loads(s)
-    src = d.pop("azimuth_source", "table")
-    g = geometry_from_dict(d, source="survey geometry")
-    return g if g.azimuth_source == src else dataclasses.replace(g, azimuth_source=src)
-
-
 @dataclasses.dataclass
 class _State:
     """What a store's attributes say: geometries, sources, meta variables and their kinds."""
@@ -194,7 +187,7 @@ class _State:
         gid = id(g)
         if gid in cache:
             return cache[gid]
-        s = _geometry_json(g)
+        s = geometry_json(g)
         try:
             idx = self.geometries.index(s)
         except ValueError:
@@ -433,11 +426,8 @@ def _attr_json_list(st: CheckedStore, key: str) -> list[str]:
     v = st.attrs.get(key)
     if v is None:
         raise DataFormatError(f"root attribute {key} is missing; not a sonarmap survey store", st.meta_file())
-    try:
-        out = json.loads(v) if isinstance(v, str) else None
-    except (ValueError, RecursionError):
-        out = None
-    if not isinstance(out, list) or not all(isinstance(s, str) for s in out):
+    out = json_string_list(v)
+    if out is None:
         raise DataFormatError(f"root attribute {key} is not a JSON list of strings", st.meta_file())
     return out
 
@@ -472,18 +462,12 @@ def inspect_survey(path: Path) -> CheckedStore:
                                       st.meta_file(name))
     for name, (ndim, kinds, trailing) in PING_ARRAYS.items():
         arr = st.require(name, ndim=ndim, kinds=kinds)
-        dims = st.dims(name)
-        if dims != (DIM_PING, *trailing):
-            raise DataFormatError(f"array '{name}' has dimensions {dims}, expected {(DIM_PING, *trailing)}",
-                                  st.meta_file(name))
+        st.require_dims(name, (DIM_PING, *trailing))
         if name == DIM_PING:
             if np.dtype(arr.dtype) != np.int64:
                 raise DataFormatError(f"array '{DIM_PING}' has data type {arr.dtype}, expected int64 nanoseconds",
                                       st.meta_file(name))
-            units = arr.attrs.get("units")
-            if not isinstance(units, str) or not TIME_UNITS_RE.fullmatch(units):
-                raise DataFormatError(f"array '{DIM_PING}' has units {units!r:.60}, expected 'nanoseconds since "
-                                      "1970-01-01'", st.meta_file(name))
+            st.require_time_units(DIM_PING, PING_TIME_UNITS)
     if not isinstance(st.attrs.get(ATTR_POSE_FRAME), str):
         raise DataFormatError(f"root attribute {ATTR_POSE_FRAME} is missing or not a string", st.meta_file())
     for name in st.arrays:
@@ -623,20 +607,16 @@ def survey_geometries(ds: xr.Dataset) -> list[SonarGeometry]:
         items = json.loads(raw) if isinstance(raw, str) else None
         if not isinstance(items, list):
             raise TypeError("not a JSON list")
-        return [_geometry_from_json(s) for s in items]
+        return [geometry_from_json(s, "survey geometry", default_source="table") for s in items]
     except Exception as exc:  # noqa: BLE001 - geometry parsing raises many types on corrupt JSON
-        raise DataFormatError(f"corrupt {ATTR_GEOMETRIES} attribute ({_one_line(exc)})", src) from None
+        raise DataFormatError(f"corrupt {ATTR_GEOMETRIES} attribute ({one_line(exc)})", src) from None
 
 
 def _sources(ds: xr.Dataset) -> list[str]:
     """The ``sonarmap_sources`` attribute (a JSON list of strings) of a survey dataset."""
     src = ds.encoding.get("source")
-    raw = ds.attrs.get(ATTR_SOURCES)
-    try:
-        items = json.loads(raw) if isinstance(raw, str) else None
-    except (ValueError, RecursionError):
-        items = None
-    if not isinstance(items, list) or not all(isinstance(s, str) for s in items):
+    items = json_string_list(ds.attrs.get(ATTR_SOURCES))
+    if items is None:
         raise DataFormatError(f"{ATTR_SOURCES} attribute is missing or not a JSON list of strings", src)
     return items
 
@@ -778,7 +758,7 @@ def _block_error(ds: xr.Dataset, rows: slice, exc: BaseException) -> DataFormatE
     path = ds.encoding.get("source")
     what = f"pings {rows.start}-{rows.stop - 1}"
     if path is None:
-        return DataFormatError(f"cannot read {what}: {type(exc).__name__}: {_one_line(exc)}")
+        return DataFormatError(f"cannot read {what}: {type(exc).__name__}: {one_line(exc)}")
     found = _crc_scan(Path(path), [str(v) for v in ds.variables], rows)
     if found is not None:
         return DataFormatError(f"cannot read {what}: " + str(found).removeprefix(f"{path}: "), path)

@@ -29,19 +29,17 @@ import contextlib
 import json
 import os
 import shutil
-import tempfile
 import time
 import warnings
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from sonarmap._atomic import atomic_write_text, write_error
-from sonarmap._config import jsonable
-from sonarmap._files import MAX_SIDECAR_BYTES, read_bytes_bounded
+from sonarmap._atomic import atomic_write_text, remove_output, replace_output, temp_dir_beside, write_error
+from sonarmap._config import config_dict, jsonable
 from sonarmap.datamodel import (
     COORD_ATTRS,
     COORD_AZIMUTH,
@@ -56,13 +54,11 @@ from sonarmap.datamodel import (
     PRODUCT_VARIABLES,
     SURVEY_FORMAT,
     TIME_UNITS,
-    TIME_UNITS_RE,
 )
 from sonarmap.errors import DataFormatError, InputError, SonarmapError
 from sonarmap.ping import Ping
 from sonarmap.store.check import (
     CheckedStore,
-    _one_line,
     check_chunk_files,
     check_times,
     check_values,
@@ -71,31 +67,40 @@ from sonarmap.store.check import (
     locate_error,
     read_array,
 )
-from sonarmap.store.chunks import array_codec_kwargs, checksum_codecs
-from sonarmap.store.metadata import consolidate, consolidated_status
+from sonarmap.store.chunks import STATE_DIR, TMP_DIR, array_codec_kwargs, chunk_key, create_array
+from sonarmap.store.metadata import (
+    consolidate,
+    consolidated_status,
+    geometry_from_json,
+    geometry_json,
+    int_attr,
+    one_line,
+    read_root_attrs,
+)
+from sonarmap.store.records import mixture_arrays, product_record, product_schema
+
+#: Delete an existing output (renamed aside first: never half-deleted in place).
+remove_store = remove_output
 
 __all__ = [
     "DEFAULT_CHUNK_SIZE",
     "LIVE_SETTLE_S",
-    "STATE_DIR",
-    "create_store",
+    "complete_marker",
+    "create_products",
+    "finish_store",
     "done_chunks",
     "flagged_mask",
     "inspect_products",
-    "int_attr",
     "is_product_store",
     "load_products",
     "marker_dir",
     "open_products",
     "product_ping",
     "product_summary",
-    "read_root_attrs",
     "reference_range",
     "remove_marker_temporaries",
     "remove_store",
-    "remove_tmp",
     "store_geometry",
-    "store_layout",
     "survey_status",
     "write_marker",
 ]
@@ -103,8 +108,6 @@ __all__ = [
 #: Pings per task of ``sonarmap process`` and per zarr chunk of its store (hundreds keep overheads
 #: negligible).
 DEFAULT_CHUNK_SIZE = 256
-#: Marker directory inside the store (not part of the dataset).
-STATE_DIR = ".sonarmap"
 
 
 def flagged_mask(flags: Iterable[Any]) -> NDArray[np.bool_]:
@@ -142,15 +145,6 @@ def write_marker(store: Path, chunk_index: int, start: int, stop: int) -> None:
     atomic_write_text(marker, json.dumps({"start": start, "stop": stop}) + "\n", clean=False)
 
 
-def remove_tmp(store: Path) -> None:
-    """Remove the temporary files an interrupted writer left in ``.sonarmap/tmp`` (call before
-    any writer of this run starts)."""
-    d = store / STATE_DIR / "tmp"
-    for f in d.iterdir() if d.is_dir() else ():
-        with contextlib.suppress(OSError):
-            f.unlink()
-
-
 def remove_marker_temporaries(store: Path) -> None:
     """Remove what killed runs left among the markers: temporary files (``.<k>.done.*``) - call
     only while holding the store's lock (no other run writes markers then)."""
@@ -161,23 +155,19 @@ def remove_marker_temporaries(store: Path) -> None:
                 os.unlink(d / name)
 
 
-def read_root_attrs(store: Path) -> dict[str, Any] | None:
-    """The root attributes of a store, or ``None`` if it has no readable root ``zarr.json``."""
-    meta = store / "zarr.json"
-    try:
-        d = json.loads(read_bytes_bounded(meta, MAX_SIDECAR_BYTES, "group metadata").decode("utf-8"))
-    except (OSError, ValueError, RecursionError):
-        return None
-    attrs = d.get("attributes", {}) if isinstance(d, dict) else None
-    return attrs if isinstance(attrs, dict) else None
+def complete_marker(store: Path) -> Path:
+    """The file that says a store is complete (every chunk stored; a JSON summary)."""
+    return store / STATE_DIR / "complete"
 
 
-def int_attr(attrs: Mapping[str, Any], key: str, store: Path, *, low: int = 0) -> int:
-    """Root attribute ``key``, an integer >= ``low`` (else a DataFormatError naming zarr.json)."""
-    v = attrs.get(key)
-    if isinstance(v, bool) or not isinstance(v, int) or v < low:
-        raise DataFormatError(f"root attribute {key} is {v!r:.40}, expected an integer >= {low}", store / "zarr.json")
-    return v
+def finish_store(store: Path, n_pings: int, n_flagged: int) -> None:
+    """Mark a store complete: its emptied temporary directory removed, then - unless it exists -
+    :func:`complete_marker` written (atomically) with the pings and flagged fits."""
+    with contextlib.suppress(OSError):
+        os.rmdir(store / TMP_DIR)  # empty once every chunk is stored
+    marker = complete_marker(store)
+    if not marker.exists():
+        atomic_write_text(marker, json.dumps({"n_pings": n_pings, "n_flagged": n_flagged}) + "\n")
 
 
 def survey_status(store: str | os.PathLike[str]) -> dict[str, Any]:
@@ -198,86 +188,103 @@ def survey_status(store: str | os.PathLike[str]) -> dict[str, Any]:
         "n_chunks": int_attr(attrs, "n_chunks", p),
         "n_pings": int_attr(attrs, "n_pings", p),
         "done": len(done_chunks(p)),
-        "complete": (p / STATE_DIR / "complete").exists(),
+        "complete": complete_marker(p).exists(),
         "fingerprint": attrs.get("fingerprint"),
     }
 
 
 # ---------------------------------------------------------------------- creation
-def create_store(path: Path, n_pings: int, chunk_size: int, schema: Mapping[str, tuple[tuple[int, ...], str]],
-                  attrs: dict[str, Any], coords: dict[str, Any]) -> None:
-    """Create the empty store in a temporary directory, then rename it onto ``path``."""
+def create_products(path: str | os.PathLike[str], geometry: Any, products: Any, *, config: Any, keep_labels: bool,
+                    chunk_size: int, n_pings: int, n_chunks: int, inputs: list[str], n_input_files: int,
+                    poses: str | None, fingerprint: str,
+                    extra_attrs: Mapping[str, Any] | None = None) -> dict[str, tuple[tuple[int, ...], str]]:
+    """Create an empty product store of ``n_pings`` pings for the sonar ``geometry``, atomically.
+
+    The variables and their shapes come from one ping's ``products`` (:func:`product_record`),
+    the static coordinates from ``geometry`` (one product store holds one sonar geometry); the
+    root attributes record the provenance (``config``, ``inputs``, ``poses``, ``fingerprint``)
+    and ``extra_attrs``.  The store is built beside ``path`` and renamed onto it.
+
+    Returns
+    -------
+    dict
+        The schema: variable -> (shape without the ping dimension, dtype).
+
+    Raises
+    ------
+    DataFormatError
+        If the store cannot be written (naming it).
+    """
     import zarr
 
-
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent))
+    schema = product_schema(product_record(products, keep_labels=keep_labels))
+    attrs = _root_attrs(geometry, config_dict(config), schema, keep_labels=keep_labels, chunk_size=chunk_size,
+                        n_pings=n_pings, n_chunks=n_chunks, n_input_files=n_input_files, inputs=inputs,
+                        poses=poses, fingerprint=fingerprint)
+    attrs.update(extra_attrs or {})
+    out = Path(path)
+    try:
+        tmp = temp_dir_beside(out)
+    except OSError as exc:
+        raise write_error(exc, out, "cannot create the store") from None
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             root = zarr.open_group(str(tmp), mode="w", zarr_format=3, attributes=attrs)
-            n, k = n_pings, chunk_size
-            for name, (shape, dtype) in schema.items():
-                dims, vattrs = PRODUCT_VARIABLES[name]
-                vattrs = dict(vattrs)
-                if name == "ping_time":
-                    vattrs.update(units=TIME_UNITS, calendar="proleptic_gregorian")
-                if DIM_BEAM in dims:
-                    vattrs["coordinates"] = COORD_AZIMUTH
-                if name.startswith("mixture_") and coords.get("component_names"):
-                    vattrs["components"] = " ".join(coords["component_names"])
-                if dtype == "str":
-                    dt: Any = str
-                    fill: Any = ""
-                else:
-                    dt = np.dtype(dtype)
-                    fill = PRODUCT_FILL[name]
-                root.create_array(
-                    name, shape=(n, *shape), chunks=(k, *shape), dtype=dt, fill_value=fill,
-                    dimension_names=dims, attributes=vattrs, **array_codec_kwargs(),
-                )
-            # Static coordinates along beam / range_sample.
-            for name, values, dims, vattrs in coords.get("arrays", ()):
-                arr = root.create_array(name, shape=values.shape, dtype=values.dtype,
-                                        dimension_names=dims, attributes=vattrs, **checksum_codecs(),
-                                        config={"write_empty_chunks": True})
-                arr[...] = values
-            if coords.get("echo_range") is not None:
-                _write_echo_range(root, tmp, np.asarray(coords["echo_range"], np.float64), n, k)
+            _create_variables(root, schema, n_pings, chunk_size, mixture_arrays(products.fit)[2])
+            _create_coordinates(root, tmp, geometry, n_pings, chunk_size)
         (tmp / STATE_DIR / "chunks").mkdir(parents=True)
         consolidate(tmp)
-        os.replace(tmp, path)
+        replace_output(tmp, out)
     except BaseException as exc:
         shutil.rmtree(tmp, ignore_errors=True)
         if isinstance(exc, OSError) and not isinstance(exc, SonarmapError):
-            raise write_error(exc, path, "cannot create the store") from None
+            raise write_error(exc, out, "cannot create the store") from None
         raise
+    return schema
 
 
-def store_layout(geom: Any, cfg_dict: dict[str, Any], schema: Mapping[str, tuple[tuple[int, ...], str]], *,
-                  keep_labels: bool, chunk_size: int, n_pings: int, n_chunks: int, n_input_files: int,
-                  inputs: list[str], poses: str | None, fingerprint: str) -> tuple[list[Any], dict[str, Any]]:
-    """The static coordinate arrays and root attributes of a new product store.
+def _create_variables(root: Any, schema: Mapping[str, tuple[tuple[int, ...], str]], n: int, k: int,
+                      component_names: Sequence[str]) -> None:
+    """The product variables of ``schema``: ``n`` pings in chunks of ``k``, fill-valued, CF attributes."""
+    for name, (shape, dtype) in schema.items():
+        dims, vattrs = PRODUCT_VARIABLES[name]
+        vattrs = dict(vattrs)
+        if name == DIM_PING:
+            vattrs.update(units=TIME_UNITS, calendar="proleptic_gregorian")
+        if DIM_BEAM in dims:
+            vattrs["coordinates"] = COORD_AZIMUTH
+        if name.startswith("mixture_") and component_names:
+            vattrs["components"] = " ".join(component_names)
+        dt: Any = str if dtype == "str" else np.dtype(dtype)
+        fill: Any = "" if dtype == "str" else PRODUCT_FILL[name]
+        root.create_array(name, shape=(n, *shape), chunks=(k, *shape), dtype=dt, fill_value=fill,
+                          dimension_names=dims, attributes=vattrs, **array_codec_kwargs())
 
-    The coordinate layout of every sonarmap store (:mod:`sonarmap.datamodel`); shared by
-    :func:`process_survey` and :func:`create_product_store` (live runs).
-    """
+
+def _create_coordinates(root: Any, store: Path, geometry: Any, n: int, k: int) -> None:
+    """The coordinates of a product store: ``range_sample``, ``beam``, ``beam_azimuth`` (beam) and
+    ``echo_range`` (ping_time, range_sample) - the layout of every sonarmap store (:mod:`sonarmap.datamodel`)."""
+    for name, values in ((DIM_RANGE, np.arange(geometry.n_bins, dtype=np.int32)),
+                         (DIM_BEAM, np.arange(geometry.n_beams, dtype=np.int32)),
+                         (COORD_AZIMUTH, np.asarray(geometry.azimuth_rad, np.float64))):
+        create_array(root, name, values, shape=values.shape, dtype=values.dtype, dimension_names=COORDINATES[name],
+                     attributes=dict(COORD_ATTRS[name]))
+    _write_echo_range(root, store, np.asarray(geometry.range_m, np.float64), n, k)
+
+
+def _root_attrs(geom: Any, cfg_dict: dict[str, Any], schema: Mapping[str, tuple[tuple[int, ...], str]], *,
+                keep_labels: bool, chunk_size: int, n_pings: int, n_chunks: int, n_input_files: int,
+                inputs: list[str], poses: str | None, fingerprint: str) -> dict[str, Any]:
+    """The root attributes of a new product store: format, provenance, chunking and schema."""
     from sonarmap import __version__
 
-    coord_arrays = [
-        (DIM_RANGE, np.arange(geom.n_bins, dtype=np.int32), COORDINATES[DIM_RANGE],
-         dict(COORD_ATTRS[DIM_RANGE])),
-        (DIM_BEAM, np.arange(geom.n_beams, dtype=np.int32), COORDINATES[DIM_BEAM],
-         dict(COORD_ATTRS[DIM_BEAM])),
-        (COORD_AZIMUTH, np.asarray(geom.azimuth_rad, np.float64), COORDINATES[COORD_AZIMUTH],
-         dict(COORD_ATTRS[COORD_AZIMUTH])),
-    ]
-    attrs = {
+    return {
         "sonarmap_format": SURVEY_FORMAT,
         "sonarmap_version": __version__,
         "title": "sonarmap survey products",
         "Conventions": "CF-1.8",
-        "source_geometry": json.dumps(jsonable(geom.to_dict())),
+        "source_geometry": geometry_json(geom, with_source=False),
         "pipeline_config": json.dumps(jsonable(cfg_dict), sort_keys=True),
         "keep_labels": bool(keep_labels),
         "chunk_size": chunk_size,
@@ -290,46 +297,31 @@ def store_layout(geom: Any, cfg_dict: dict[str, Any], schema: Mapping[str, tuple
         "schema": {k: [list(s), d] for k, (s, d) in schema.items()},
         "coordinates": f"{COORD_RANGE} {COORD_AZIMUTH}",
     }
-    return coord_arrays, attrs
 
 
 def _write_echo_range(root: Any, store: Path, range_m: NDArray[np.float64], n: int, k: int) -> None:
     """``echo_range (ping_time, range_sample)`` of a product store: every ping's row is ``range_m``.
 
-    One product store holds one sonar geometry (:func:`run_chunk` refuses pings of another), so
-    the coordinate is known when the store is created.  Every full chunk holds the same values,
-    hence the same bytes: the first is encoded by zarr and copied to the others' files.
+    One product store holds one sonar geometry (:func:`sonarmap.survey.run_chunk` refuses pings
+    of another), so the coordinate is known when the store is created.  Every full chunk holds the
+    same values, hence the same bytes: the first is encoded by zarr and copied to the others' files.
     """
-    attrs = dict(COORD_ATTRS[COORD_RANGE])
-    arr = root.create_array(COORD_RANGE, shape=(n, range_m.size), chunks=(k, range_m.size), dtype=np.float64,
-                            fill_value=np.nan, dimension_names=COORDINATES[COORD_RANGE], attributes=attrs,
-                            **checksum_codecs(), config={"write_empty_chunks": True})
+    arr = create_array(root, COORD_RANGE, shape=(n, range_m.size), chunks=(k, range_m.size), dtype=np.float64,
+                       fill_value=np.nan, dimension_names=COORDINATES[COORD_RANGE],
+                       attributes=dict(COORD_ATTRS[COORD_RANGE]))
     if n == 0:
         return
     full = n // k
     rows = np.broadcast_to(range_m, (min(n, k), range_m.size))
     arr[: rows.shape[0]] = rows
     if full > 1:
-        first = store / COORD_RANGE / "c" / "0" / "0"
-        data = first.read_bytes()
+        data = (store / COORD_RANGE / chunk_key((0, 0))).read_bytes()
         for i in range(1, full):
-            d = store / COORD_RANGE / "c" / str(i)
-            d.mkdir(parents=True, exist_ok=True)
-            (d / "0").write_bytes(data)
+            f = store / COORD_RANGE / chunk_key((i, 0))
+            f.parent.mkdir(parents=True, exist_ok=True)
+            f.write_bytes(data)
     if n % k and full:
         arr[full * k :] = np.broadcast_to(range_m, (n - full * k, range_m.size))
-
-
-def remove_store(path: Path) -> None:
-    """Delete an existing output by renaming it aside first (never half-deleted in place)."""
-    if not path.exists() and not path.is_symlink():
-        return
-    if path.is_dir() and not path.is_symlink():
-        trash = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".old", dir=path.parent))
-        os.replace(path, trash / "old")
-        shutil.rmtree(trash, ignore_errors=True)
-    else:
-        path.unlink()
 
 
 # ---------------------------------------------------------------------- checking
@@ -356,10 +348,7 @@ def inspect_products(p: Path) -> tuple[CheckedStore, dict[str, tuple[tuple[int, 
     _check_schema_arrays(st, schema, n)
     _check_coordinates(st, schema, n)
     _check_point_arrays(st)
-    units = st.arrays[DIM_PING].attrs.get("units")
-    if not isinstance(units, str) or not TIME_UNITS_RE.fullmatch(units):
-        raise DataFormatError(f"array '{DIM_PING}' has units {units!r:.60}, expected {TIME_UNITS!r}",
-                              st.meta_file(DIM_PING))
+    st.require_time_units(DIM_PING, TIME_UNITS)
     return st, schema
 
 
@@ -391,10 +380,7 @@ def _check_schema_arrays(st: CheckedStore, schema: Mapping[str, tuple[tuple[int,
         if tuple(arr.shape) != (n, *shape):
             raise DataFormatError(f"array '{name}' has shape {tuple(arr.shape)}, the store's schema says "
                                   f"{(n, *shape)}", st.meta_file(name))
-        dims = st.dims(name)
-        if dims != PRODUCT_VARIABLES[name][0]:
-            raise DataFormatError(f"array '{name}' has dimensions {dims}, expected {PRODUCT_VARIABLES[name][0]}",
-                                  st.meta_file(name))
+        st.require_dims(name, PRODUCT_VARIABLES[name][0])
         ok = kind_of(arr) == "T" if dtype == "str" else np.dtype(arr.dtype) == np.dtype(dtype)
         if not ok:
             raise DataFormatError(f"array '{name}' has data type {arr.dtype}, the store's schema says {dtype}",
@@ -459,13 +445,10 @@ def is_product_store(path: str | os.PathLike[str]) -> bool:
 
 def store_geometry(st: CheckedStore) -> Any:
     """The sonar geometry of a product store (its ``source_geometry`` attribute)."""
-    from sonarmap.geometry import geometry_from_dict
-
     try:
-        d = json.loads(st.attrs.get("source_geometry", ""))
-        return geometry_from_dict(d, source="source_geometry attribute")
+        return geometry_from_json(st.attrs.get("source_geometry", ""), "source_geometry attribute")
     except (TypeError, ValueError, RecursionError, AttributeError) as exc:
-        raise DataFormatError(f"root attribute source_geometry is not a geometry ({_one_line(exc, 160)})",
+        raise DataFormatError(f"root attribute source_geometry is not a geometry ({one_line(exc, 160)})",
                               st.meta_file()) from None
 
 

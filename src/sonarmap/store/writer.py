@@ -20,9 +20,7 @@ written when a writer is done and removed while one changes the store
 from __future__ import annotations
 
 import os
-import re
 import shutil
-import tempfile
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -30,7 +28,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import ArrayLike
 
-from sonarmap._atomic import WriterLock, write_error
+from sonarmap._atomic import WriterLock, remove_stale_dirs, replace_output, temp_dir_beside, write_error
 from sonarmap.datamodel import (
     COORD_AZIMUTH,
     DIM_BEAM,
@@ -43,7 +41,7 @@ from sonarmap.datamodel import (
 from sonarmap.errors import DataFormatError, InputError, SonarmapError
 from sonarmap.ping import Ping
 from sonarmap.store.check import _dims, inspect_store, is_zarr_store
-from sonarmap.store.chunks import checksum_codecs
+from sonarmap.store.chunks import checksum_codecs, create_array
 from sonarmap.store.metadata import consolidate, invalidate_consolidated
 from sonarmap.store.pings import (
     PingVariable,
@@ -64,7 +62,6 @@ if TYPE_CHECKING:  # pragma: no cover
 __all__ = [
     "SurveyWriter",
     "add_ping_variable",
-    "remove_stale_store_temporaries",
     "write_ping_variable",
     "write_survey",
 ]
@@ -139,7 +136,7 @@ class SurveyWriter:
         self._invalidated = False
         self._lock = WriterLock(self.path).acquire()
         try:
-            remove_stale_store_temporaries(self.path)
+            remove_stale_dirs(self.path)
             self._append = mode == "a" and is_zarr_store(self.path)
             if self._append:
                 self._target = self.path
@@ -147,8 +144,7 @@ class SurveyWriter:
                 self._written = survey_length(self.path)
             else:
                 try:
-                    self._tmp = Path(tempfile.mkdtemp(prefix=f".{self.path.name}.", suffix=".tmp",
-                                                      dir=self.path.parent))
+                    self._tmp = temp_dir_beside(self.path)
                 except OSError as exc:
                     raise write_error(exc, self.path, "cannot create the store") from None
                 self._target = self._tmp / "store.zarr"
@@ -252,7 +248,7 @@ class SurveyWriter:
                 raise InputError(f"{self.path}: no pings to write")
             consolidate(self._target)
             try:
-                _replace_dir(self._target, self.path)
+                replace_output(self._target, self.path)
             except OSError as exc:
                 raise write_error(exc, self.path, "cannot move the new store into place") from None
             shutil.rmtree(self._tmp, ignore_errors=True)
@@ -283,50 +279,6 @@ class SurveyWriter:
                 raise
         else:
             self.abort()
-
-
-def _replace_dir(src: Path, dst: Path) -> None:
-    """Move directory ``src`` onto ``dst`` (replacing it) with renames only."""
-    if dst.exists():
-        trash = dst.with_name(f".{dst.name}.old-{os.getpid()}")
-        if trash.exists():
-            shutil.rmtree(trash)
-        os.replace(dst, trash)
-        try:
-            os.replace(src, dst)
-        except BaseException:
-            os.replace(trash, dst)
-            raise
-        shutil.rmtree(trash, ignore_errors=True)
-    else:
-        os.replace(src, dst)
-
-
-def remove_stale_store_temporaries(path: str | os.PathLike[str]) -> list[Path]:
-    """Remove the temporary directories that killed writers of store ``path`` left beside it.
-
-    Call only while holding the store's :class:`~sonarmap._atomic.WriterLock`: no other writer of
-    ``path`` then runs, so every ``.{name}.<random>.tmp`` / ``.old`` / ``.old-<pid>`` directory
-    beside it (new stores being built, replaced stores being deleted) is left over.
-
-    Returns
-    -------
-    list of Path
-        The directories removed.
-    """
-    p = Path(os.path.abspath(path))
-    pattern = re.compile(rf"\.{re.escape(p.name)}\.(?:[a-z0-9_]{{8}}\.(?:tmp|old)|old-\d+)")
-    try:
-        names = os.listdir(p.parent)
-    except OSError:
-        return []
-    removed = []
-    for name in names:
-        d = p.parent / name
-        if pattern.fullmatch(name) and d.is_dir() and not d.is_symlink():
-            shutil.rmtree(d, ignore_errors=True)
-            removed.append(d)
-    return removed
 
 
 def _update_attrs(path: Path, attrs: Mapping[str, Any]) -> None:
@@ -364,11 +316,9 @@ def _azimuth_per_ping(path: Path, n: int, chunk_pings: int) -> None:
     table = np.asarray(old[...], dtype=np.float64)
     attrs = dict(old.attrs)
     del g[COORD_AZIMUTH]
-    arr = g.create_array(COORD_AZIMUTH, shape=(n, table.size), chunks=(chunk_pings, table.size), dtype=np.float64,
-                         fill_value=np.nan, dimension_names=(DIM_PING, DIM_BEAM), attributes=attrs,
-                         **checksum_codecs(), config={"write_empty_chunks": True})
-    if n:
-        arr[...] = np.broadcast_to(table, (n, table.size))
+    create_array(g, COORD_AZIMUTH, np.broadcast_to(table, (n, table.size)) if n else None, shape=(n, table.size),
+                 chunks=(chunk_pings, table.size), dtype=np.float64, fill_value=np.nan,
+                 dimension_names=(DIM_PING, DIM_BEAM), attributes=attrs)
 
 
 def _check_append_compatible(path: Path, ds: xr.Dataset) -> None:

@@ -17,12 +17,11 @@ chunks ran serially, in local worker processes or on a dask cluster, in any
 order, with retries, or across an interruption and a resumed run.
 
 The output is a product store (:mod:`sonarmap.store.products`: its layout, markers and checks;
-:func:`open_products` / :func:`load_products` read it).  A run
-holds an exclusive lock on its output (:class:`sonarmap._atomic.WriterLock`), so a second run on
-the same output fails at once instead of interleaving with the first; the lock of a killed run
-is taken over by the next.  Re-running the same command (same inputs, configuration and
-options: compared through a fingerprint) resumes; anything else needs ``overwrite=True``.
-
+:func:`open_products` / :func:`load_products` read it).  A run holds an exclusive lock on its
+output (:class:`sonarmap._atomic.WriterLock`), so a second run on the same output fails at once
+instead of interleaving with the first; the lock of a killed run is taken over by the next.
+Re-running the same command (same inputs, configuration and options: compared through a
+fingerprint) resumes; anything else needs ``overwrite=True``.
 
 Modules: :mod:`~sonarmap.survey.plan` (chunks, fingerprint), :mod:`~sonarmap.survey.executors`
 (serial, local processes, dask) and :mod:`~sonarmap.survey.run` (:func:`process_survey`); the

@@ -2,9 +2,7 @@
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
-import json
 import os
 import time
 import warnings
@@ -14,25 +12,25 @@ from typing import Any
 
 import numpy as np
 
-from sonarmap._atomic import WriterLock, atomic_write_text
+from sonarmap._atomic import WriterLock, remove_stale_dirs
 from sonarmap._config import config_dict
+from sonarmap.datamodel import COORD_AZIMUTH, SURVEY_FORMAT, TIME_UNITS
 from sonarmap.errors import DataFormatError, InputError, SonarmapError
 from sonarmap.ping import Ping
-from sonarmap.datamodel import COORD_AZIMUTH, SURVEY_FORMAT, TIME_UNITS
 from sonarmap.store import (
-    STATE_DIR,
     CheckedStore,
     ChunkRows,
     check_times,
-    checksum_codecs,
+    complete_marker,
     consolidate,
     consolidated_status,
-    create_store,
+    create_array,
+    create_products,
     done_chunks,
+    finish_store,
     flagged_mask,
     inspect_products,
     invalidate_consolidated,
-    mixture_arrays,
     open_writable,
     product_record,
     product_schema,
@@ -40,11 +38,9 @@ from sonarmap.store import (
     read_root_attrs,
     reference_range,
     remove_marker_temporaries,
-    remove_stale_store_temporaries,
     remove_store,
     remove_tmp,
     stack_product_records,
-    store_layout,
     write_marker,
 )
 from sonarmap.survey.plan import (
@@ -270,7 +266,7 @@ def _create_and_run(out: Path, plan: SurveyPlan, task: "_Task", cfg_dict: dict[s
         client = own_client = Client(scheduler, timeout="30s")
     n_workers = int(workers if workers is not None else (os.cpu_count() or 1))
     serial = client is None and (workers == 0 or (workers is None and n_workers == 1))
-    finished_before = (out / STATE_DIR / "complete").exists()
+    finished_before = complete_marker(out).exists()
     ok = False
     try:
         if client is None and not serial and not finished_before:
@@ -358,7 +354,7 @@ def process_survey(
 
     # one writer per output (a killed run's lock is taken over and its leftovers removed)
     with WriterLock(out):
-        remove_stale_store_temporaries(out)
+        remove_stale_dirs(out)
         _check_existing(out, fp, overwrite)
         task = _Task(cfg, bool(keep_labels), {}, ping_function)
         todo, executor, st, root = _create_and_run(out, plan, task, cfg_dict, fp, poses=poses, client=client,
@@ -441,22 +437,17 @@ def _probe_and_create(out: Path, plan: SurveyPlan, task: Any, cfg_dict: dict[str
         if prod.fit is not None:  # a ping with a mixture fit gives the mixture's shape
             break
     assert first is not None
-    rec = product_record(prod, keep_labels=task.keep_labels)
-    schema = product_schema(rec)
-    _, _, cnames = mixture_arrays(prod.fit)
+    schema = product_schema(product_record(prod, keep_labels=task.keep_labels))
     geom = first.geometry
     if pool is not None:
         # Start the first chunks now (products sent back) while the store is created.
         pool.start(plan.chunks(), dataclasses.replace(task, schema=schema, reference=(
             np.asarray(geom.azimuth_rad, np.float64), np.asarray(geom.range_m, np.float64))))
-    coord_arrays, attrs = store_layout(
-        geom, cfg_dict, schema, keep_labels=task.keep_labels, chunk_size=plan.chunk_size,
-        n_pings=plan.n_pings, n_chunks=plan.n_chunks, n_input_files=len(plan.files),
-        inputs=[p for p, _, _ in plan.files[:20]] + (["..."] if len(plan.files) > 20 else []),
-        poses=None if poses is None else os.path.abspath(poses), fingerprint=fingerprint,
-    )
-    create_store(out, plan.n_pings, plan.chunk_size, schema, attrs, {"arrays": coord_arrays, "component_names": cnames,
-                                                                     "echo_range": geom.range_m})
+    create_products(out, geom, prod, config=cfg_dict, keep_labels=task.keep_labels, chunk_size=plan.chunk_size,
+                    n_pings=plan.n_pings, n_chunks=plan.n_chunks,
+                    inputs=[p for p, _, _ in plan.files[:20]] + (["..."] if len(plan.files) > 20 else []),
+                    n_input_files=len(plan.files), poses=None if poses is None else os.path.abspath(poses),
+                    fingerprint=fingerprint)
 
 
 def _finalise(out: Path, st: Any, root: Any, plan: SurveyPlan, *, poses: Any, points: Any,
@@ -470,7 +461,7 @@ def _finalise(out: Path, st: Any, root: Any, plan: SurveyPlan, *, poses: Any, po
     gates = tuple(tuple(sorted(set(str(f).split()) & REFUSING)) for f in all_flags)
     points_path: Path | None = None
     n_points = 0
-    complete = out / STATE_DIR / "complete"
+    complete = complete_marker(out)
     if poses is not None:
         target = Path(points) if points is not None else out.with_suffix(".ply")
         if complete.exists() and "point_xyz" in root and target.exists():
@@ -478,12 +469,9 @@ def _finalise(out: Path, st: Any, root: Any, plan: SurveyPlan, *, poses: Any, po
         else:
             invalidate_consolidated(out)  # arrays change: no stale consolidated metadata meanwhile
             points_path, n_points = _register_points(root, st, out, poses, target, extrinsics)
-    with contextlib.suppress(OSError):
-        os.rmdir(out / STATE_DIR / "tmp")  # empty once every chunk is stored
     if consolidated_status(out) != "current":  # new points, or a store of an older version
         consolidate(out)
-    if not complete.exists():
-        atomic_write_text(complete, json.dumps({"n_pings": plan.n_pings, "n_flagged": n_flagged}) + "\n")
+    finish_store(out, plan.n_pings, n_flagged)
     return n_flagged, gates, points_path, n_points
 
 
@@ -531,10 +519,8 @@ def _register_points(root: Any, st: CheckedStore, out: Path, poses: Any, points:
         for name, (values, dims, attrs) in arrays.items():
             if name in root:
                 del root[name]
-            arr = root.create_array(name, shape=values.shape, chunks=(block, *values.shape[1:]),
-                                    dtype=values.dtype, dimension_names=dims, attributes=attrs,
-                                    **checksum_codecs(), config={"write_empty_chunks": True})
-            arr[...] = values
+            create_array(root, name, values, shape=values.shape, chunks=(block, *values.shape[1:]),
+                         dtype=values.dtype, dimension_names=dims, attributes=attrs)
     target = Path(points) if points is not None else out.with_suffix(".ply")
     write_point_cloud(cloud, target)
     return target, n
