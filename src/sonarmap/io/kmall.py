@@ -86,6 +86,7 @@ from sonarmap.io.kongsberg import (
     AMPLITUDE_DB_STEP,
     _open_buffer,
     _ping_geometry,
+    _walk,
     _walk_error,
     find_sibling,
     pair_key,
@@ -157,89 +158,7 @@ assert _KMB_DTYPE.itemsize == 56
 _KMB_BYTES = 120
 
 
-# ---------------------------------------------------------------------- index scan (numba, lazy)
-def _walk_py(buf: Any, max_len: int) -> tuple[Any, int, int, int]:  # pragma: no cover - jitted
-    """Offsets of the complete datagrams; status 0 ok, 1 trailing partial, >1 corrupt (see caller)."""
-    size = buf.shape[0]
-    cap = 256
-    offs = np.empty(cap, np.int64)
-    n = 0
-    off = 0
-    status = 0
-    err_off = 0
-    err_val = 0
-    while True:
-        rem = size - off
-        if rem == 0:
-            break
-        if rem < 8:
-            status = 1
-            err_off = off
-            err_val = -1
-            break
-        length = (np.int64(buf[off]) | (np.int64(buf[off + 1]) << 8) | (np.int64(buf[off + 2]) << 16)
-                  | (np.int64(buf[off + 3]) << 24))
-        if buf[off + 4] != 35:  # '#'
-            status = 2
-            err_off = off + 4
-            err_val = buf[off + 4]
-            break
-        if length < 24:
-            status = 3
-            err_off = off
-            err_val = length
-            break
-        if length > max_len:
-            status = 4
-            err_off = off
-            err_val = length
-            break
-        if length > rem:
-            status = 1
-            err_off = off
-            err_val = length
-            p = off + 1
-            while p + 24 <= size:  # a complete datagram inside the claimed span: a corrupt length
-                if (buf[p + 4] == 35 and 65 <= buf[p + 5] <= 90 and 65 <= buf[p + 6] <= 90
-                        and 65 <= buf[p + 7] <= 90):
-                    lp = (np.int64(buf[p]) | (np.int64(buf[p + 1]) << 8) | (np.int64(buf[p + 2]) << 16)
-                          | (np.int64(buf[p + 3]) << 24))
-                    if 24 <= lp <= max_len and p + lp <= size:
-                        e = p + lp - 4
-                        tail = (np.int64(buf[e]) | (np.int64(buf[e + 1]) << 8)
-                                | (np.int64(buf[e + 2]) << 16) | (np.int64(buf[e + 3]) << 24))
-                        if tail == lp:
-                            status = 6
-                            err_val = p
-                            break
-                p += 1
-            break
-        e = off + length - 4
-        tail = (np.int64(buf[e]) | (np.int64(buf[e + 1]) << 8) | (np.int64(buf[e + 2]) << 16)
-                | (np.int64(buf[e + 3]) << 24))
-        if tail != length:
-            status = 5
-            err_off = off
-            err_val = tail
-            break
-        if n == cap:
-            cap *= 2
-            grown = np.empty(cap, np.int64)
-            grown[:n] = offs[:n]
-            offs = grown
-        offs[n] = off
-        n += 1
-        off += length
-    return offs[:n], status, err_off, err_val
-
-
-@functools.cache
-def _walk() -> Any:
-    from numba import njit
-
-    return njit(cache=True, nogil=True)(_walk_py)
-
-
+# ---------------------------------------------------------------------- #MWC beam walk (numba, lazy)
 def _beams_py(  # pragma: no cover - jitted
     body: Any, p: int, n_beams: int, per_beam: int, bps: int, a_bits: Any, h_bits: Any,
     start: Any, det: Any, sector: Any, ns: Any, data: Any,
@@ -304,7 +223,8 @@ class _Index:
         return {t.decode("latin-1"): int(c) for t, c in zip(types.tolist(), n.tolist())}
 
 
-#: Message of each corrupt-datagram status of the walk kernel (as :data:`kongsberg._WALK_ERRORS`).
+#: Message of each corrupt-datagram status of the walk (``kongsberg._walk`` with ``kmall=True``; as
+#: :data:`kongsberg._WALK_ERRORS`).
 _WALK_ERRORS = {
     2: "datagram type does not start with '#' but 0x{value:02X}: corrupt file or not a KMALL datagram "
        "stream",
@@ -318,8 +238,7 @@ _WALK_ERRORS = {
 
 def _scan(path: Path) -> _Index:
     buf = _open_buffer(path, "KMALL file")
-    offs, status, err_off, err_val = _walk()(buf, MAX_DATAGRAM_BYTES)
-    offs = np.asarray(offs, dtype=np.int64)
+    offs, status, err_off, err_val = _walk(buf, MAX_DATAGRAM_BYTES, kmall=True)
     if status == 1:
         warn_partial(path, err_off, buf.size - err_off, err_val if err_val > 0 else 24, "datagram")
     elif status:

@@ -218,8 +218,20 @@ class KongsbergWarning(SonarmapWarning):
 # format detection does for every file - does not import numba.
 
 
-def _walk_py(buf: Any, max_len: int, known: Any) -> tuple[Any, int, int, int, int]:  # pragma: no cover - jitted
-    """Offsets of the complete datagrams; status 0 ok, 1 trailing partial, >1 corrupt (see caller)."""
+def _walk_py(buf: Any, max_len: int, known: Any, kmall: bool) -> tuple[Any, int, int, int]:  # pragma: no cover - jitted
+    """Offsets of the complete datagrams of an EM ``.all``/``.wcd`` stream or, with ``kmall``, of a
+    KMALL one; status 0 ok, 1 trailing partial, >1 corrupt (the callers' ``_WALK_ERRORS``).
+
+    Both formats start a datagram with a little-endian uint32 length and a marker byte after it.
+    ``.all``: the length does not count its own 4 bytes, the marker is STX (0x02), the datagram ends
+    with ETX (0x03) and a 2-byte checksum, and ``known[type]`` tells the datagram types.  KMALL:
+    the length counts the whole datagram, the marker is ``'#'`` followed by three capital letters,
+    and the last 4 bytes repeat the length.
+    """
+    lead = 0 if kmall else 4  # bytes of a datagram its length field does not count
+    min_len = 24 if kmall else 19  # the shortest length field: the header (kmall/kongsberg _MIN_LENGTH)
+    head = 8 if kmall else 5  # bytes up to the marker (KMALL: and the type)
+    marker = 35 if kmall else 2  # '#' / STX
     size = buf.shape[0]
     cap = 256
     offs = np.empty(cap, np.int64)
@@ -228,24 +240,23 @@ def _walk_py(buf: Any, max_len: int, known: Any) -> tuple[Any, int, int, int, in
     status = 0
     err_off = 0
     err_val = 0
-    alt = -1
     while True:
         rem = size - off
         if rem == 0:
             break
-        if rem < 5:
+        if rem < head:
             status = 1
             err_off = off
-            err_val = -1  # not even a length field and STX
+            err_val = -1  # not even a length field and a marker
             break
         length = (np.int64(buf[off]) | (np.int64(buf[off + 1]) << 8) | (np.int64(buf[off + 2]) << 16)
                   | (np.int64(buf[off + 3]) << 24))
-        if buf[off + 4] != 2:
+        if buf[off + 4] != marker:
             status = 2
             err_off = off + 4
             err_val = buf[off + 4]
             break
-        if length < 19:
+        if length < min_len:
             status = 3
             err_off = off
             err_val = length
@@ -255,28 +266,43 @@ def _walk_py(buf: Any, max_len: int, known: Any) -> tuple[Any, int, int, int, in
             err_off = off
             err_val = length
             break
-        if length > rem - 4:
+        if lead + length > rem:
             # a truncated tail - unless a complete datagram starts inside it (a corrupt length)
             status = 1
             err_off = off
             err_val = length
             p = off + 1
-            while p + 4 + 19 <= size:
-                if buf[p + 4] == 2 and known[buf[p + 5]]:
+            while p + lead + min_len <= size:
+                if buf[p + 4] == marker and (
+                        (65 <= buf[p + 5] <= 90 and 65 <= buf[p + 6] <= 90 and 65 <= buf[p + 7] <= 90)
+                        if kmall else known[buf[p + 5]]):
                     lp = (np.int64(buf[p]) | (np.int64(buf[p + 1]) << 8) | (np.int64(buf[p + 2]) << 16)
                           | (np.int64(buf[p + 3]) << 24))
-                    if 19 <= lp <= max_len and p + 4 + lp <= size and buf[p + 4 + lp - 3] == 3:
-                        alt = p
-                        break
+                    if min_len <= lp <= max_len and p + lead + lp <= size:
+                        e = p + lead + lp
+                        if kmall:
+                            whole = (np.int64(buf[e - 4]) | (np.int64(buf[e - 3]) << 8)
+                                     | (np.int64(buf[e - 2]) << 16) | (np.int64(buf[e - 1]) << 24)) == lp
+                        else:
+                            whole = buf[e - 3] == 3
+                        if whole:
+                            status = 6
+                            err_val = p
+                            break
                 p += 1
-            if alt >= 0:
-                status = 6
-                err_val = alt
             break
-        if buf[off + 4 + length - 3] != 3:
+        end = off + lead + length
+        if kmall:
+            trail = (np.int64(buf[end - 4]) | (np.int64(buf[end - 3]) << 8) | (np.int64(buf[end - 2]) << 16)
+                     | (np.int64(buf[end - 1]) << 24))
+            whole = trail == length
+        else:
+            trail = length  # reported: the length whose end has no ETX
+            whole = buf[end - 3] == 3
+        if not whole:
             status = 5
             err_off = off
-            err_val = length
+            err_val = trail
             break
         if n == cap:
             cap *= 2
@@ -285,8 +311,8 @@ def _walk_py(buf: Any, max_len: int, known: Any) -> tuple[Any, int, int, int, in
             offs = grown
         offs[n] = off
         n += 1
-        off += 4 + length
-    return offs[:n], status, err_off, err_val, n
+        off = end
+    return offs[:n], status, err_off, err_val
 
 
 def _beams_py(buf: Any, offs: Any, lens: Any, ntx: Any, nrx: Any, angle: Any, srs: Any, ns: Any,
@@ -565,10 +591,16 @@ def _walk_error(path: Path, buf: NDArray[np.uint8], status: int, err_off: int, e
     return DataFormatError(text, path, err_off)
 
 
+def _walk(buf: NDArray[np.uint8], max_len: int, *, kmall: bool = False) -> tuple[NDArray[np.int64], int, int, int]:
+    """The datagram walk of an EM ``.all``/``.wcd`` (or, with ``kmall``, a KMALL) file's bytes:
+    (offsets of the complete datagrams, status, error offset, error value), see :func:`_walk_py`."""
+    offs, status, err_off, err_val = _kernels().walk(buf, max_len, _KNOWN, kmall)
+    return np.asarray(offs, dtype=np.int64), status, err_off, err_val
+
+
 def _scan(path: Path, what: str) -> _Index:
     buf = _open_buffer(path, what)
-    offs, status, err_off, err_val, _ = _kernels().walk(buf, MAX_DATAGRAM_BYTES, _KNOWN)
-    offs = np.asarray(offs, dtype=np.int64)
+    offs, status, err_off, err_val = _walk(buf, MAX_DATAGRAM_BYTES)
     if status == 1:
         need = f"{err_val + 4}" if err_val >= 0 else "at least 23"
         warn_partial(path, err_off, buf.size - err_off, need, "datagram", stacklevel=5)
