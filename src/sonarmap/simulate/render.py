@@ -50,6 +50,7 @@ from numpy.typing import ArrayLike, NDArray
 from sonarmap.errors import InputError
 from sonarmap.geometry import SonarGeometry
 from sonarmap.ping import Ping
+from sonarmap.preprocess.absorption import absorption_db_per_m
 from sonarmap.simulate.scene import CLUTTER, STRUCTURE, Scene
 
 __all__ = [
@@ -92,19 +93,12 @@ def seawater_absorption_db_per_m(
 
     About 1 dB/m at 1.8 MHz and 15 deg C.  Not the simulator default: DIDSON images are recorded
     after the sonar's own time-varied gain, so the *net* loss left in the image is much smaller
-    (see :class:`SimulationConfig`).
+    (see :class:`SimulationConfig`).  The library's
+    :func:`~sonarmap.preprocess.absorption.absorption_db_per_m` (``model="ainslie-mccolm"``) with
+    the simulator's defaults; arguments outside its ranges raise :class:`InputError`.
     """
-    f = frequency_hz / 1e3  # kHz
-    z = depth_m / 1e3  # km
-    f1 = 0.78 * math.sqrt(salinity_psu / 35.0) * math.exp(temperature_c / 26.0)
-    f2 = 42.0 * math.exp(temperature_c / 17.0)
-    boric = 0.106 * f1 * f * f / (f1 * f1 + f * f) * math.exp((ph - 8.0) / 0.56)
-    mgso4 = (
-        0.52 * (1 + temperature_c / 43.0) * (salinity_psu / 35.0)
-        * f2 * f * f / (f2 * f2 + f * f) * math.exp(-z / 6.0)
-    )
-    water = 0.00049 * f * f * math.exp(-(temperature_c / 27.0 + z / 17.0))
-    return (boric + mgso4 + water) / 1e3
+    return absorption_db_per_m(frequency_hz, temperature_c=temperature_c, salinity_psu=salinity_psu,
+                               depth_m=depth_m, ph=ph, model="ainslie-mccolm")
 
 
 @dataclasses.dataclass(frozen=True)
