@@ -186,6 +186,15 @@ def format_from_suffix(path: str | os.PathLike[str]) -> str:
     return _SUFFIX[sfx]
 
 
+def _cloud_format(path: str | os.PathLike[str], format: str | None) -> str:  # noqa: A002
+    """The point-cloud format of ``format`` (any case), else of ``path``'s suffix; InputError if
+    it is not one of :data:`CLOUD_FORMATS`."""
+    fmt = (format or format_from_suffix(path)).lower()
+    if fmt not in CLOUD_FORMATS:
+        raise InputError(f"format: must be one of {CLOUD_FORMATS}, got {format!r}")
+    return fmt
+
+
 def cloud_kind(cloud: PointCloud) -> str:
     """``"occupancy"`` for the occupied-cell cloud of ``OccupancyMap.to_point_cloud``, else ``"points"``.
 
@@ -696,9 +705,7 @@ def write_point_cloud(
     >>> write_point_cloud(cloud, "map.las", georef=g)             # doctest: +SKIP
     'las'
     """
-    fmt = (format or format_from_suffix(path)).lower()
-    if fmt not in CLOUD_FORMATS:
-        raise InputError(f"format: must be one of {CLOUD_FORMATS}, got {format!r}")
+    fmt = _cloud_format(path, format)
     writer = {"ply": write_ply, "las": write_las, "csv": write_csv}[fmt]
     writer(cloud, path, frame=frame, georef=georef, kind=kind)
     return fmt
@@ -706,9 +713,7 @@ def write_point_cloud(
 
 def read_point_cloud(path: str | os.PathLike[str], *, format: str | None = None) -> PointCloud:  # noqa: A002
     """Read a PLY, LAS or CSV point cloud (format from ``format`` or the suffix)."""
-    fmt = (format or format_from_suffix(path)).lower()
-    if fmt not in CLOUD_FORMATS:
-        raise InputError(f"format: must be one of {CLOUD_FORMATS}, got {format!r}")
+    fmt = _cloud_format(path, format)
     return {"ply": read_ply, "las": read_las, "csv": read_csv}[fmt](path)
 
 
@@ -727,9 +732,7 @@ def read_point_cloud_crs(path: str | os.PathLike[str], *, format: str | None = N
     import pyproj
 
     p = Path(path)
-    fmt = (format or format_from_suffix(p)).lower()
-    if fmt not in CLOUD_FORMATS:
-        raise InputError(f"format: must be one of {CLOUD_FORMATS}, got {format!r}")
+    fmt = _cloud_format(p, format)
     if fmt == "las":
         import laspy
 
