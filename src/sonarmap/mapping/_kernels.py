@@ -50,37 +50,39 @@ def _hash(key: int, mask: int) -> int:
     return int(h >> np.uint64(33)) & mask
 
 
-@njit(cache=True)
-def _find(keys: np.ndarray, slots: np.ndarray, key: int) -> int:
+@njit(cache=True, inline="always")
+def _probe(keys: np.ndarray, key: int) -> int:
+    """Entry of ``key`` in the table, or the free entry where it would go (linear probing)."""
     mask = keys.size - 1
     i = _hash(key, mask)
     while True:
         k = keys[i]
-        if k == key:
-            return slots[i]
-        if k == EMPTY:
-            return -1
+        if k == key or k == EMPTY:
+            return i
         i = (i + 1) & mask
+
+
+@njit(cache=True)
+def _find(keys: np.ndarray, slots: np.ndarray, key: int) -> int:
+    i = _probe(keys, key)
+    if keys[i] == key:
+        return slots[i]
+    return -1
 
 
 @njit(cache=True)
 def _find_or_insert(keys: np.ndarray, slots: np.ndarray, chunk_keys: np.ndarray, counts: np.ndarray, key: int) -> int:
-    mask = keys.size - 1
-    i = _hash(key, mask)
-    while True:
-        k = keys[i]
-        if k == key:
-            return slots[i]
-        if k == EMPTY:
-            n = counts[0]
-            if n >= chunk_keys.size or 2 * (n + 1) > keys.size:
-                return -1
-            keys[i] = key
-            slots[i] = n
-            chunk_keys[n] = key
-            counts[0] = n + 1
-            return n
-        i = (i + 1) & mask
+    i = _probe(keys, key)
+    if keys[i] == key:
+        return slots[i]
+    n = counts[0]
+    if n >= chunk_keys.size or 2 * (n + 1) > keys.size:
+        return -1
+    keys[i] = key
+    slots[i] = n
+    chunk_keys[n] = key
+    counts[0] = n + 1
+    return n
 
 
 @njit(cache=True)
@@ -88,12 +90,9 @@ def rebuild_table(chunk_keys: np.ndarray, n: int, capacity: int) -> tuple[np.nda
     """A fresh hash table of ``capacity`` entries holding the first ``n`` chunk keys."""
     keys = np.full(capacity, EMPTY, dtype=np.int64)
     slots = np.zeros(capacity, dtype=np.int32)
-    mask = capacity - 1
     for s in range(n):
         key = chunk_keys[s]
-        i = _hash(key, mask)
-        while keys[i] != EMPTY:
-            i = (i + 1) & mask
+        i = _probe(keys, key)  # the keys are distinct: a free entry
         keys[i] = key
         slots[i] = s
     return keys, slots
