@@ -262,31 +262,23 @@ def reduce_binary(levels, margin_lut, weights, wtot, fixed, node, m, wfree, stac
     sweep = 0
     while changed and sweep < max_sweeps:
         changed = 0
-        if sweep % 2 == 1:
-            k_out = lo
-            for k in range(lo, hi):                # forward
-                p = stack[k]
-                i = p // w
-                j = p - i * w
-                if _try_fix_u(levels, margin_lut, weights, fixed, i, j, h, w, wr, wb) if uni else \
-                        _try_fix(levels, margin_lut, weights, fixed, i, j, h, w):
-                    changed += 1
-                else:
-                    stack[k_out] = p
-                    k_out += 1
+        step = 1 if sweep % 2 == 1 else -1       # forward on odd sweeps, else backward
+        k_out = lo if step == 1 else hi - 1
+        k = k_out
+        for _ in range(hi - lo):
+            p = stack[k]
+            i = p // w
+            j = p - i * w
+            if _try_fix_u(levels, margin_lut, weights, fixed, i, j, h, w, wr, wb) if uni else \
+                    _try_fix(levels, margin_lut, weights, fixed, i, j, h, w):
+                changed += 1
+            else:
+                stack[k_out] = p
+                k_out += step
+            k += step
+        if step == 1:
             hi = k_out
         else:
-            k_out = hi - 1
-            for k in range(hi - 1, lo - 1, -1):   # backward
-                p = stack[k]
-                i = p // w
-                j = p - i * w
-                if _try_fix_u(levels, margin_lut, weights, fixed, i, j, h, w, wr, wb) if uni else \
-                        _try_fix(levels, margin_lut, weights, fixed, i, j, h, w):
-                    changed += 1
-                else:
-                    stack[k_out] = p
-                    k_out -= 1
             lo = k_out + 1
         sweep += 1
     # number the survivors (ascending raster order) and list their edges
