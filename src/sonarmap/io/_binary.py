@@ -15,7 +15,7 @@ import os
 import warnings
 from collections.abc import Iterator
 from pathlib import Path
-from typing import Any
+from typing import Any, Self
 
 import numpy as np
 from numpy.typing import NDArray
@@ -26,6 +26,7 @@ from sonarmap.io.reader import check_ping_range
 
 __all__ = [
     "PartialFrameWarning",
+    "ClosingFile",
     "map_file",
     "map_frames",
     "records_at",
@@ -51,6 +52,21 @@ __all__ = [
 
 class PartialFrameWarning(SonarmapWarning):
     """The last frame/record of a file is incomplete (e.g. the recording was cut) and was skipped."""
+
+
+class ClosingFile:
+    """``with`` support of the reader file classes (``ArisFile``, ``DdfFile``, ``OculusFile``,
+    ``KongsbergFile``, ``KmallFile``): ``__enter__`` returns the file, ``__exit__`` calls its
+    ``close()``."""
+
+    def close(self) -> None:  # pragma: no cover - every subclass defines it
+        raise NotImplementedError
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
 
 
 def map_file(path: str | os.PathLike[str], *, min_size: int = 0, what: str = "file") -> np.memmap | np.ndarray:

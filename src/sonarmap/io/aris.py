@@ -47,6 +47,7 @@ from sonarmap.geometry import SonarGeometry, as_geometry, preset
 from sonarmap.io._binary import (
     MAX_WINDOW_M,
     U8_SCALE,
+    ClosingFile,
     check_index,
     check_plausible,
     check_sound_speed,
@@ -270,7 +271,7 @@ def _deg(h: np.void, field: str) -> float | None:
     return finite_or(h[field])
 
 
-class ArisFile:
+class ArisFile(ClosingFile):
     """Lazy, memory-mapped access to the frames of an ARIS recording.
 
     Parameters
@@ -346,12 +347,6 @@ class ArisFile:
     def __iter__(self) -> Iterator[Ping]:
         for i in range(self._n):
             yield self._ping(i)
-
-    def __enter__(self) -> ArisFile:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
     def close(self) -> None:
         """Release the memory map (frames already returned stay valid: images are copies)."""

@@ -51,6 +51,7 @@ from sonarmap.errors import DataFormatError
 from sonarmap.geometry import GeometryWarning, SonarGeometry, as_geometry, preset, uniform_azimuths
 from sonarmap.io._binary import (
     U8_SCALE,
+    ClosingFile,
     check_index,
     check_plausible,
     check_time_ns,
@@ -187,7 +188,7 @@ def _geometry(
     )
 
 
-class DdfFile:
+class DdfFile(ClosingFile):
     """Lazy, memory-mapped access to the frames of a DIDSON ``.ddf`` file (DDF_03/DDF_04).
 
     ``len(f)`` frames (from the file size), ``f[i]`` a :class:`Ping`, ``f.frame_header(i)`` a dict.
@@ -244,12 +245,6 @@ class DdfFile:
     def __iter__(self) -> Iterator[Ping]:
         for i in range(self._n):
             yield self[i]
-
-    def __enter__(self) -> DdfFile:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
     def close(self) -> None:
         """Release the memory map."""

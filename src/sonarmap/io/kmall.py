@@ -69,6 +69,7 @@ from sonarmap.errors import DataFormatError
 from sonarmap.geometry import SonarGeometry, as_geometry
 from sonarmap.io._binary import (
     MAX_PLAUSIBLE_TIME_NS,
+    ClosingFile,
     PartialFrameWarning,
     check_index,
     check_sound_speed,
@@ -530,7 +531,7 @@ class _Ping:
     mrz: _MRecord | None
 
 
-class KmallFile:
+class KmallFile(ClosingFile):
     """Lazy, memory-mapped access to the water-column pings of a ``.kmall`` file.
 
     One ping per #MWC datagram, i.e. per ping counter and RX fan (head / swath); pings in time
@@ -642,12 +643,6 @@ class KmallFile:
             if pos >= start:
                 yield ping
             pos += 1
-
-    def __enter__(self) -> KmallFile:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
     def close(self) -> None:
         """Release the memory map (pings already returned stay valid: images are copies)."""

@@ -74,6 +74,7 @@ from sonarmap.errors import DataFormatError, SonarmapWarning
 from sonarmap.geometry import SonarGeometry, as_geometry
 from sonarmap.io._binary import (
     MAX_TIME_NS,
+    ClosingFile,
     PartialFrameWarning,
     check_index,
     count_container_pings,
@@ -1065,7 +1066,7 @@ def _runtime_dict(r: np.void) -> dict[str, float]:
 
 
 # ---------------------------------------------------------------------- the file
-class KongsbergFile:
+class KongsbergFile(ClosingFile):
     """Lazy, memory-mapped access to the water-column pings of a Kongsberg EM recording.
 
     Parameters
@@ -1149,12 +1150,6 @@ class KongsbergFile:
     def __iter__(self) -> Iterator[Ping]:
         for rec in self.records:
             yield self._ping(rec)
-
-    def __enter__(self) -> KongsbergFile:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
     def close(self) -> None:
         """Release the memory maps (pings already returned stay valid: images are copies)."""

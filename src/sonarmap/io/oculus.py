@@ -67,6 +67,7 @@ from sonarmap.io._binary import (
     MAX_PLAUSIBLE_TIME_NS,
     MAX_WINDOW_M,
     U8_SCALE,
+    ClosingFile,
     check_index,
     check_plausible,
     check_sound_speed,
@@ -381,7 +382,7 @@ def decode_simple_ping(
         return Ping(image=image, geometry=geom, time_ns=time_ns, source=source, meta=meta)
 
 
-class OculusFile:
+class OculusFile(ClosingFile):
     """Lazy access to the pings of an Oculus network stream or ViewPoint log.
 
     ``len(f)`` pings; ``f[i]`` decodes ping ``i``; ``f.kind`` is ``"raw"``, ``"log-v1"`` or
@@ -629,12 +630,6 @@ class OculusFile:
     def __iter__(self) -> Iterator[Ping]:
         for i in range(len(self)):
             yield self[i]
-
-    def __enter__(self) -> OculusFile:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
     def close(self) -> None:
         """Close the memory map / database connection."""
