@@ -467,3 +467,14 @@ def test_water_column_with_per_ping_geometry_is_refused_before_any_work(data_dir
         with pytest.raises(InputError, match="kongsberg water column .* `sonarmap ranges`"):
             process_survey([data_dir / "kongsberg" / "0077_20221109_123655_Belgica.all"], out, workers=2)
     assert not out.exists()
+
+
+def test_summary_rate_of_a_short_run_is_not_zero(tmp_path):
+    from sonarmap.survey.run import SurveyResult
+
+    r = SurveyResult(output=tmp_path / "s.zarr", n_pings=6, n_flagged=0, n_chunks=1, chunks_run=1,
+                     chunks_skipped=0, elapsed_s=13.1, executor="processes:1")
+    assert "0.46 pings/s" in r.summary()
+    assert "570 pings/s" in SurveyResult(output=tmp_path / "s.zarr", n_pings=42_000, n_flagged=0, n_chunks=1,
+                                         chunks_run=1, chunks_skipped=0, elapsed_s=73.7,
+                                         executor="processes:2").summary()

@@ -213,7 +213,7 @@ class SurveyResult:
         pts = f", {self.n_points} points" if self.points_path is not None else ""
         return (
             f"{self.n_pings} pings, {self.n_flagged} flagged fits, {self.elapsed_s:.1f} s, "
-            f"{self.pings_per_s:.0f} pings/s [{self.executor}]{resumed}{pts} -> {self.output}"
+            f"{_rate(self.pings_per_s)} pings/s [{self.executor}]{resumed}{pts} -> {self.output}"
         )
 
 
@@ -560,3 +560,9 @@ def replicate_pings(
         os.symlink(img, d / f"{stem}_raw.png")
         os.symlink(side, d / f"{stem}.json")
     return d
+
+
+def _rate(per_s: float) -> str:
+    """A throughput for a summary line: whole pings per second from 10 up, else 2 significant
+    digits (a 6-ping run at 0.46 pings/s does not read as 0)."""
+    return f"{per_s:.0f}" if per_s >= 10 or per_s != per_s or per_s == float("inf") else f"{per_s:.2g}"
