@@ -95,6 +95,33 @@ def test_map_and_segment_take_the_calibration(data_dir, tmp_path):
     assert not (tmp_path / "x.csv").exists()
 
 
+@pytest.mark.slow
+def test_process_takes_the_calibration_and_resumes_only_under_it(data_dir, tmp_path, capsys):
+    """``process --calibration`` stores the ranges ``ranges --calibration`` gives; the calibration is
+    part of the run's fingerprint (a store is never resumed under another one)."""
+    import numpy as np
+    import pandas as pd
+    import xarray as xr
+
+    rec = data_dir / "aris" / "sample.aris"
+    cal = tmp_path / "aris.json"
+    assert main(["calibrate", str(rec), "-o", str(cal), "-q"]) == 0
+    assert main(["ranges", str(rec), "-o", str(tmp_path / "r.csv"), "--calibration", str(cal), "-q"]) == 0
+    store = tmp_path / "p.zarr"
+    assert main(["process", str(rec), "-o", str(store), "--calibration", str(cal), "-j", "0", "-q"]) == 0
+    ds = xr.open_zarr(store)
+    want = pd.read_csv(tmp_path / "r.csv").pivot(index="time_ns", columns="beam", values="range_m")
+    got = ds["range"].values
+    assert got.shape == want.shape
+    np.testing.assert_allclose(got, want.to_numpy(), atol=1e-5, equal_nan=True)  # the CSV's 6 digits
+    capsys.readouterr()
+    # the same command resumes; without the calibration it is another run, refused in one line
+    assert main(["process", str(rec), "-o", str(store), "--calibration", str(cal), "-j", "0"]) == 0
+    assert "resumed (1/1 chunks already done)" in capsys.readouterr().err
+    assert main(["process", str(rec), "-o", str(store), "-j", "0"]) == 1
+    assert "made from different inputs, configuration or options" in capsys.readouterr().err
+
+
 def test_calibrate_three_ping_oculus_says_what_it_cannot_estimate(data_dir, tmp_path, capsys):
     out = tmp_path / "oc.json"
     assert main(["calibrate", str(data_dir / "oculus" / "three_pings_8bit.raw"), "-o", str(out)]) == 0

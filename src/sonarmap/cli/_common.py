@@ -34,7 +34,7 @@ OUTPUT_DIR_OPTION: Any = typer.Option(..., "--output", "-o", help="Output direct
 QUIET_OPTION: Any = typer.Option(False, "--quiet", "-q", help="No progress bar and no summary.")
 VERBOSE_OPTION: Any = typer.Option(False, "--verbose", "-v", help="One line per ping and the total time on stderr.")
 
-#: ``--calibration`` of the commands that run the per-ping pipeline (ranges, map, segment).
+#: ``--calibration`` of the commands that run the per-ping pipeline (ranges, map, segment, process).
 CALIBRATION_OPTION: Any = typer.Option(
     None, "--calibration",
     help="Output of sonarmap calibrate on this recording: normalise every ping by the recording's "

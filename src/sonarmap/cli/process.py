@@ -7,7 +7,7 @@ from typing import Any
 
 import typer
 
-from sonarmap.cli._common import GEOMETRY_OPTION, err_console, example
+from sonarmap.cli._common import CALIBRATION_OPTION, GEOMETRY_OPTION, err_console, example
 
 __all__ = ["register", "process_command", "survey_progress"]
 
@@ -97,6 +97,7 @@ def process_command(
         None, "--extrinsics", help="Sensor mounting JSON used with --poses (default: sensor = body)."
     ),
     sonar: str | None = GEOMETRY_OPTION,
+    calibration: Path | None = CALIBRATION_OPTION,
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing store of other inputs or configuration."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar and no summary."),
     strict: bool = typer.Option(False, "--strict", help="Exit 1 when the model could not explain some ping (a flagged fit)."),
@@ -115,6 +116,14 @@ def process_command(
 
     t0 = time.perf_counter()
     load_geometry_option(sonar)  # an unknown preset is a usage error before any work
+    background = None
+    run_config: Any = config
+    if calibration is not None:
+        from sonarmap.cli._common import apply_calibration
+        from sonarmap.pipeline import PipelineConfig
+
+        base = PipelineConfig.from_toml(config) if config is not None else PipelineConfig()
+        run_config, background = apply_calibration(base, calibration)
     if scheduler is not None and workers is not None:
         raise typer.BadParameter("give either --workers or --scheduler, not both", param_hint="--workers")
     if scheduler is not None:
@@ -127,7 +136,7 @@ def process_command(
         result = process_survey(
             [str(p) for p in inputs],
             output,
-            config=config,
+            config=run_config,
             workers=workers,
             scheduler=scheduler,
             chunk_size=chunk_size,
@@ -138,6 +147,7 @@ def process_command(
             geometry=sonar,
             overwrite=overwrite,
             progress=bar,
+            background=background,
         )
     if not quiet:
         from sonarmap.cli.ranges import flagged_summary

@@ -216,7 +216,7 @@ def _geometry_token(geometry: Any) -> Any:
 
 
 def _fingerprint(plan: SurveyPlan, config: dict[str, Any], *, keep_labels: bool, poses: Any,
-                 extrinsics: Any, version: str, ping_function: str) -> str:
+                 extrinsics: Any, version: str, ping_function: str, background: dict[str, Any] | None = None) -> str:
     h = hashlib.blake2b(digest_size=20)
     head = {
         "format": SURVEY_FORMAT,
@@ -229,6 +229,8 @@ def _fingerprint(plan: SurveyPlan, config: dict[str, Any], *, keep_labels: bool,
         "extrinsics": None if extrinsics is None else _file_token(extrinsics),
         "ping_function": ping_function,
     }
+    if background is not None:  # only then: the fingerprints of runs without a calibration stay as they were
+        head["background"] = jsonable(background)
     h.update(json.dumps(head, sort_keys=True).encode())
     for (path, fmt, n), (size, mtime) in zip(plan.files, plan.stamps, strict=True):
         h.update(f"{path}\0{fmt}\0{n}\0{size}\0{mtime}\n".encode())

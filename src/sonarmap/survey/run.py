@@ -70,6 +70,7 @@ def run_chunk(
     schema: Mapping[str, tuple[tuple[int, ...], str]] | None = None,
     ping_function: PingFunction | None = None,
     reference: tuple[np.ndarray, np.ndarray] | None = None,
+    background: Any = None,
 ) -> dict[str, np.ndarray]:
     """Process one chunk: read its pings, run the per-ping pipeline, stack the products.
 
@@ -91,6 +92,9 @@ def run_chunk(
     reference : (azimuth_rad, range_m), optional
         The survey's beam azimuths and bin ranges; a ping with another geometry is an error
         (one product store holds one sonar configuration).
+    background : RecordingBackground, optional
+        The recording's background level (``sonarmap calibrate``), passed on as the ping
+        function's ``background=``; without it each ping is normalised by its own.
 
     Returns
     -------
@@ -109,12 +113,20 @@ def run_chunk(
                 f"{ping.source}: sonar geometry '{ping.geometry.name}' (beams/range bins) differs from "
                 "the survey's first ping; process each sonar configuration into its own store"
             )
-        prod = fn(ping, config, keep_labels=keep_labels)
+        prod = _call(fn, ping, config, keep_labels, background)
         records.append(product_record(prod, keep_labels=keep_labels))
         sources.append(ping.source)
     if len(records) != chunk.n_pings:
         raise DataFormatError(f"chunk {chunk.index}: read {len(records)} pings, planned {chunk.n_pings}")
     return stack_product_records(records, schema or product_schema(records[0]), sources)
+
+
+def _call(fn: PingFunction, ping: Ping, config: Any, keep_labels: bool, background: Any) -> Any:
+    """``fn(ping, config, keep_labels=)``, with ``background=`` only when there is one (a custom
+    ping function need not take it unless the run has a calibration)."""
+    if background is None:
+        return fn(ping, config, keep_labels=keep_labels)
+    return fn(ping, config, keep_labels=keep_labels, background=background)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -153,10 +165,12 @@ class _Task:
     reference: tuple[np.ndarray, np.ndarray] | None = None
     #: If set, the task writes its chunk itself and returns a :class:`_Stored`.
     writer: ChunkRows | None = None
+    #: The recording's background level (``process_survey(background=)``).
+    background: Any = None
 
     def __call__(self, chunk: ChunkSpec) -> dict[str, np.ndarray] | _Stored:
         data = run_chunk(chunk, self.config, keep_labels=self.keep_labels, schema=self.schema,
-                         ping_function=self.ping_function, reference=self.reference)
+                         ping_function=self.ping_function, reference=self.reference, background=self.background)
         if self.writer is None:
             return data
         self.writer.write(chunk, data)
@@ -218,10 +232,14 @@ class SurveyResult:
 
 
 def _plan_run(inputs: Any, config: Any, *, chunk_size: int, geometry: Any, keep_labels: bool, poses: Any,
-              extrinsics: Any, ping_function: PingFunction | None) -> tuple[Any, SurveyPlan, dict[str, Any], str]:
+              extrinsics: Any, ping_function: PingFunction | None,
+              background: Any = None) -> tuple[Any, SurveyPlan, dict[str, Any], str]:
     """The run's configuration, plan, configuration dict and fingerprint (inputs checked first)."""
     from sonarmap import __version__
+    from sonarmap.preprocess.normalise import RecordingBackground
 
+    if background is not None and not isinstance(background, RecordingBackground):
+        raise InputError(f"background: expected a RecordingBackground, got {type(background).__name__}")
     cfg = _resolve_config(config) if ping_function is None else _maybe_config(config)
     plan = plan_survey(inputs, chunk_size=chunk_size, geometry=geometry)
     _check_fixed_geometry(plan)
@@ -229,8 +247,8 @@ def _plan_run(inputs: Any, config: Any, *, chunk_size: int, geometry: Any, keep_
         raise DataFormatError("poses file not found", poses)
     cfg_dict = config_dict(cfg)
     fp = _fingerprint(plan, cfg_dict, keep_labels=keep_labels, poses=poses, extrinsics=extrinsics,
-                      version=__version__,
-                      ping_function=_function_name(ping_function))
+                      version=__version__, ping_function=_function_name(ping_function),
+                      background=None if background is None else background.to_dict())
     return cfg, plan, cfg_dict, fp
 
 
@@ -302,6 +320,7 @@ def process_survey(
     overwrite: bool = False,
     progress: Callable[[int, int], None] | None = None,
     ping_function: PingFunction | None = None,
+    background: Any = None,
 ) -> SurveyResult:
     """Process a whole survey into a zarr store of per-ping products; resumable.
 
@@ -334,6 +353,10 @@ def process_survey(
         ``progress(done_pings, total_pings)``, called after each stored chunk (and once at start).
     ping_function : callable, optional
         Replacement for :func:`sonarmap.pipeline.process_ping` (must be picklable by reference).
+    background : RecordingBackground, optional
+        The recording's background level (``sonarmap calibrate``,
+        :func:`sonarmap.preprocess.normalise.estimate_recording_background`) for every ping; part
+        of the run's fingerprint, so a store is never resumed under another calibration.
 
     Returns
     -------
@@ -350,13 +373,13 @@ def process_survey(
         raise InputError(f"workers: must be a non-negative integer (got {workers!r})")
     cfg, plan, cfg_dict, fp = _plan_run(inputs, config, chunk_size=chunk_size, geometry=geometry,
                                         keep_labels=keep_labels, poses=poses, extrinsics=extrinsics,
-                                        ping_function=ping_function)
+                                        ping_function=ping_function, background=background)
 
     # one writer per output (a killed run's lock is taken over and its leftovers removed)
     with WriterLock(out):
         remove_stale_dirs(out)
         _check_existing(out, fp, overwrite)
-        task = _Task(cfg, bool(keep_labels), {}, ping_function)
+        task = _Task(cfg, bool(keep_labels), {}, ping_function, background=background)
         todo, executor, st, root = _create_and_run(out, plan, task, cfg_dict, fp, poses=poses, client=client,
                                                    scheduler=scheduler, workers=workers, progress=progress)
         n_flagged, gates, points_path, n_points = _finalise(out, st, root, plan, poses=poses, points=points,
@@ -432,7 +455,7 @@ def _probe_and_create(out: Path, plan: SurveyPlan, task: Any, cfg_dict: dict[str
     fn = task.ping_function or _default_ping_function()
     first: Ping | None = None
     for ping in _iter_chunk_pings(plan.chunk(0)):
-        prod = fn(ping, task.config, keep_labels=task.keep_labels)
+        prod = _call(fn, ping, task.config, task.keep_labels, task.background)
         first = first or ping
         if prod.fit is not None:  # a ping with a mixture fit gives the mixture's shape
             break
