@@ -661,8 +661,8 @@ def geometry_from_dict(
     Every field is checked before anything is allocated: numbers must be finite numbers (not
     bools or strings), ``num_beams`` an integer in ``1..MAX_BEAMS``, ``num_bins`` an integer in
     ``1..MAX_BINS``, ``0 <= min_range < max_range <= MAX_RANGE_M``, ``fov`` in ``(0, 2 pi]``,
-    ``elevation_beamwidth`` in ``(0, pi]`` rad, ``azimuths`` / ``psf`` / ``taper`` lists of one finite number per beam, ``ranges`` a list of
-    ``num_bins`` finite numbers, ``noise >= 0``, ``name`` a short printable string.  Unknown keys
+    ``elevation_beamwidth`` in ``(0, pi]`` rad, ``azimuths`` / ``psf`` / ``taper`` lists of one
+    finite number per beam, ``ranges`` a list of ``num_bins`` finite numbers, ``noise >= 0``, ``name`` a short printable string.  Unknown keys
     are ignored; ``null`` counts as absent for the optional fields.
 
     Parameters

@@ -12,9 +12,9 @@ import typer
 __all__ = [
     "CALIBRATION_OPTION", "GEOMETRY_OPTION", "OUTPUT_DIR_OPTION", "OUTPUT_OPTION", "PINGS_ARGUMENT", "PING_RATE_OPTION",
     "QUIET_OPTION", "START_TIME_OPTION", "STDOUT", "VERBOSE_OPTION",
-    "PingProgress", "apply_calibration", "check_choice", "console", "count_pings", "err_console", "example",
-    "check_clock_used", "clock_options", "first_ping", "input_progress", "load_calibration", "load_geometry_option", "open_output", "output_name",
-    "ping_progress", "read_input_pings", "run_pings",
+    "PingProgress", "apply_calibration", "check_choice", "check_clock_used", "clock_options", "console",
+    "count_pings", "err_console", "example", "first_ping", "input_progress", "load_calibration",
+    "load_geometry_option", "open_output", "output_name", "ping_progress", "read_input_pings", "run_pings",
 ]
 
 #: The ``PINGS...`` argument of the commands that read pings.
