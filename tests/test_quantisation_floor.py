@@ -19,6 +19,7 @@ def dark_hull():
     return simulate_ping(scene_from_name("hull_slope2", geometry=g), g, config=preset_sim_configs(g)[0], seed=0)
 
 
+@pytest.mark.slow  # the dark_hull fixture renders a simulated ping (~4 s)
 def test_the_dark_background_sits_on_the_bottom_levels(dark_hull):
     # the premise: the gain assist lowered the gain, the background lives on levels 0-2
     assert dark_hull.ping.meta["gain_assist_db"] >= 6
@@ -27,11 +28,13 @@ def test_the_dark_background_sits_on_the_bottom_levels(dark_hull):
     assert h[:3].sum() > 0.75 and h[1] > 10 * h[2]
 
 
+@pytest.mark.slow  # the dark_hull fixture renders a simulated ping (~4 s)
 def test_without_the_floor_the_ping_is_refused(dark_hull):
     out = process_ping(dark_hull.ping, PipelineConfig().replace(max_floor_levels=0))
     assert "kld" in out.gates and out.ranges.n_returns == 0 and out.floor_levels == 0
 
 
+@pytest.mark.slow  # the dark_hull fixture renders a simulated ping (~4 s)
 def test_with_the_floor_the_hull_is_found_at_its_range(dark_hull):
     out = process_ping(dark_hull.ping, PipelineConfig())
     assert out.gates == () and out.floor_levels >= 1

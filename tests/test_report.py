@@ -49,6 +49,7 @@ def test_report_is_self_contained(report_html: Path) -> None:
         assert base64.b64decode(s.split(",", 1)[1])[:8] == b"\x89PNG\r\n\x1a\n"
 
 
+@pytest.mark.slow
 def test_report_draws_example_fans(report_html: Path) -> None:
     text = report_html.read_text(encoding="utf-8")
     assert text.count('alt="ping ') == 2

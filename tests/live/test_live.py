@@ -542,6 +542,7 @@ def _grow_sqlite_bag(src_db: Path, dst_dir: Path, delay_s: float, start_s: float
     return th
 
 
+@pytest.mark.slow
 def test_follow_a_ros2_bag_while_it_is_recorded(aris_pings: list, tmp_path: Path) -> None:
     from sonarmap.io import read_pings
     from sonarmap.io.rosbag import write_bag

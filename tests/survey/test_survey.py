@@ -417,6 +417,7 @@ def test_resume_removes_temporaries_of_the_interrupted_run(
     assert_same_dataset(serial_store, out)
 
 
+@pytest.mark.slow
 def test_pool_workers_start_with_a_warm_pipeline() -> None:
     """Every worker runs the pipeline once when it starts, before its first task."""
     from sonarmap.survey.executors import _is_warm, _ProcessPool
