@@ -148,16 +148,28 @@ def table1(data_dir: str | os.PathLike[str]) -> list[Table1Row]:
 
 def background_counts(data_dir: str | os.PathLike[str], *, config: Any = None) -> NDArray[np.float64]:
     """Pooled 256-bin floor histogram of the pre-processed background pings."""
+    return _segment_counts(_background_pings(data_dir), background_config() if config is None else config,
+                           1)[0]
+
+
+def _background_pings(data_dir: str | os.PathLike[str]) -> list[Any]:
+    """The background pings of the DIDSON folder ``data_dir`` (read once for every output)."""
     from sonarmap.io.pngjson import iter_png_pings
 
     bg = Path(data_dir) / "background"
     if not bg.is_dir():
         raise InputError(f"data: {bg} is not a directory (expected <didson>/background)")
-    cfg = background_config() if config is None else config
-    total = np.zeros(256)
-    for ping in iter_png_pings(bg):
-        total += histogram(_preprocessed(ping, cfg), 256, binning="floor")
-    return total
+    return list(iter_png_pings(bg))
+
+
+def _segment_counts(pings: list[Any], config: Any, segments: int) -> NDArray[np.float64]:
+    """Floor histograms ``(segments, 256)`` of the pre-processed pings, pooled per range segment
+    (``np.array_split`` of the rows); their sum over segments is the pooled histogram."""
+    counts = np.zeros((segments, 256))
+    for ping in pings:
+        for s, block in enumerate(np.array_split(_preprocessed(ping, config), segments, axis=0)):
+            counts[s] += histogram(block, 256, binning="floor")
+    return counts
 
 
 def background_fit(counts: NDArray[np.float64], *, method: str = "lsq") -> MixtureFit:
@@ -196,7 +208,9 @@ def write_paper_outputs(data_dir: str | os.PathLike[str], out_dir: str | os.Path
                        + [_fmt(v) for v in PAPER_TABLE1[r.image]] + [all(r.within_tolerance())]
                        + [_fmt(v) for v in Table1Row.cells(r.exact)] + [";".join(sorted(r.exact.flags))]
                        + [_fmt(v) for v in Table1Row.cells(r.em)] + [";".join(sorted(r.em.flags))])
-    counts = background_counts(data_dir)
+    background = _background_pings(data_dir)
+    seg_counts = _segment_counts(background, background_config(), 4)  # Fig. 5's segments
+    counts = seg_counts.sum(axis=0)  # integer counts: the same pooled histogram, exactly
     bfit = background_fit(counts)
     bem = background_fit(counts, method="em")
     with atomic_open(out / "background.csv", "w", newline="", encoding="utf-8") as fh:
@@ -206,28 +220,21 @@ def write_paper_outputs(data_dir: str | os.PathLike[str], out_dir: str | os.Path
         for f in (bfit, bem):
             w.writerow([f.method, _fmt(f.weights[1]), _fmt(1 / f.params[1][0]), _fmt(f.kld),
                         *PAPER_BACKGROUND, int(f.n_samples), ";".join(sorted(f.flags))])
-    _figures(data_dir, out, rows, bfit)
-    _sonar_model_figures(data_dir, out)
+    _figures(out, rows, bfit, seg_counts)
+    _sonar_model_figures(data_dir, out, background)
     return {"rows": rows, "background": bfit, "background_em": bem}
 
 
-def _figures(data_dir: str | os.PathLike[str], out: Path, rows: list[Table1Row], bfit: MixtureFit) -> None:
+def _figures(out: Path, rows: list[Table1Row], bfit: MixtureFit, seg_counts: NDArray[np.float64]) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from sonarmap.io.pngjson import iter_png_pings
     from sonarmap.stats.roc import roc_curve
 
     # Fig. 5: background histograms per range segment with the pooled model
-    cfg = background_config()
-    segs = 4
-    seg_counts = np.zeros((segs, 256))
-    for ping in iter_png_pings(Path(data_dir) / "background"):
-        img = _preprocessed(ping, cfg)
-        for s, block in enumerate(np.array_split(img, segs, axis=0)):
-            seg_counts[s] += histogram(block, 256, binning="floor")
+    segs = seg_counts.shape[0]
     fig, axes = plt.subplots(1, segs, figsize=(4 * segs, 3.2), sharey=True)
     model = bfit.pmf()
     for s, ax in enumerate(axes):
@@ -279,13 +286,13 @@ def _figures(data_dir: str | os.PathLike[str], out: Path, rows: list[Table1Row],
         plt.close(fig)
 
 
-def _sonar_model_figures(data_dir: str | os.PathLike[str], out: Path) -> None:
-    """Figs. 2 and 3: the sonar model (eq. 2-5) and the channel model with pre-processing (eq. 6-7)."""
+def _sonar_model_figures(data_dir: str | os.PathLike[str], out: Path, background: list[Any]) -> None:
+    """Figs. 2 and 3: the sonar model (eq. 2-5) and the channel model with pre-processing (eq. 6-7),
+    from the test pings of ``data_dir`` and the ``background`` pings."""
     from sonarmap.io.pngjson import iter_png_pings
     from sonarmap.plots import save_figure
 
     tests = list(iter_png_pings(sorted((Path(data_dir) / "test").glob("*_raw.png"))))
-    background = list(iter_png_pings(Path(data_dir) / "background"))
     if not tests or not background:
         raise InputError(f"data: {data_dir} has no test or background pings for Figs. 2 and 3")
     from sonarmap.preprocess.gain import estimate_radial_gain, estimate_taper, intensity_profile
