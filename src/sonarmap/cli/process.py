@@ -73,6 +73,18 @@ class survey_progress:  # noqa: N801 - used as a context manager, reads like a f
             self._progress.__exit__(*exc)
 
 
+def _with_calibration(config: Path | None, calibration: Path | None) -> tuple[Any, Any]:
+    """``(config, background)`` for :func:`process_survey`: the ``--config`` path as given and no
+    background without ``--calibration``; with it, the configuration with the model families the
+    calibration chose and the recording's background level."""
+    if calibration is None:
+        return config, None
+    from sonarmap.cli._common import apply_calibration
+    from sonarmap.pipeline import PipelineConfig
+
+    return apply_calibration(PipelineConfig.from_toml(config) if config is not None else PipelineConfig(), calibration)
+
+
 def process_command(
     inputs: list[Path] = typer.Argument(..., help="Ping files, directories of PNG+JSON pings, or globs."),
     output: Path = typer.Option(..., "--output", "-o", help="Output survey store (e.g. survey.zarr)."),
@@ -107,7 +119,7 @@ def process_command(
 
     Re-running the same command after an interruption resumes where it stopped; the result is
     identical to an uninterrupted run.  A store of another input or configuration is replaced
-    only with --overwrite.  The progress bar is on stderr, the two summary lines on stdout.
+    only with --overwrite.  The progress bar and the two summary lines are on stderr.
     """
     import time
 
@@ -116,14 +128,7 @@ def process_command(
 
     t0 = time.perf_counter()
     load_geometry_option(sonar)  # an unknown preset is a usage error before any work
-    background = None
-    run_config: Any = config
-    if calibration is not None:
-        from sonarmap.cli._common import apply_calibration
-        from sonarmap.pipeline import PipelineConfig
-
-        base = PipelineConfig.from_toml(config) if config is not None else PipelineConfig()
-        run_config, background = apply_calibration(base, calibration)
+    run_config, background = _with_calibration(config, calibration)
     if scheduler is not None and workers is not None:
         raise typer.BadParameter("give either --workers or --scheduler, not both", param_hint="--workers")
     if scheduler is not None:
@@ -134,20 +139,9 @@ def process_command(
         quiet_library_loggers()
     with survey_progress(f"{output.name}", quiet=quiet) as bar:
         result = process_survey(
-            [str(p) for p in inputs],
-            output,
-            config=run_config,
-            workers=workers,
-            scheduler=scheduler,
-            chunk_size=chunk_size,
-            keep_labels=keep_labels,
-            poses=poses,
-            points=points,
-            extrinsics=extrinsics,
-            geometry=sonar,
-            overwrite=overwrite,
-            progress=bar,
-            background=background,
+            [str(p) for p in inputs], output, config=run_config, workers=workers, scheduler=scheduler,
+            chunk_size=chunk_size, keep_labels=keep_labels, poses=poses, points=points, extrinsics=extrinsics,
+            geometry=sonar, overwrite=overwrite, progress=bar, background=background,
         )
     if not quiet:
         from sonarmap.cli.ranges import flagged_summary

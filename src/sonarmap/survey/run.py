@@ -232,12 +232,15 @@ class SurveyResult:
 
 
 def _plan_run(inputs: Any, config: Any, *, chunk_size: int, geometry: Any, keep_labels: bool, poses: Any,
-              extrinsics: Any, ping_function: PingFunction | None,
+              extrinsics: Any, ping_function: PingFunction | None, workers: int | None = None,
               background: Any = None) -> tuple[Any, SurveyPlan, dict[str, Any], str]:
-    """The run's configuration, plan, configuration dict and fingerprint (inputs checked first)."""
+    """The run's configuration, plan, configuration dict and fingerprint (arguments and inputs
+    checked first)."""
     from sonarmap import __version__
     from sonarmap.preprocess.normalise import RecordingBackground
 
+    if workers is not None and (isinstance(workers, bool) or int(workers) != workers or workers < 0):
+        raise InputError(f"workers: must be a non-negative integer (got {workers!r})")
     if background is not None and not isinstance(background, RecordingBackground):
         raise InputError(f"background: expected a RecordingBackground, got {type(background).__name__}")
     cfg = _resolve_config(config) if ping_function is None else _maybe_config(config)
@@ -332,19 +335,17 @@ def process_survey(
         The survey store (a directory, conventionally ``*.zarr``).
     config : PipelineConfig, mapping or TOML path, optional
         Pipeline configuration (validated); defaults to ``PipelineConfig()``.
-    workers : int, optional
-        Local worker processes (default: CPU count); ``0`` runs in the calling process.
-    scheduler, client : str, distributed.Client, optional
-        Run the chunks on a dask.distributed scheduler (``tcp://host:port``) or client (first).
+    workers, scheduler, client : int, str, distributed.Client, optional
+        Local worker processes (default: CPU count; ``0`` runs in the calling process), or run the
+        chunks on a dask.distributed scheduler (``tcp://host:port``) or client (first).
     chunk_size : int
         Pings per task and per zarr chunk (hundreds keep overheads negligible).
     keep_labels : bool
         Also store per-pixel labels ``(ping_time, range_sample, beam)``.
-    poses, points : path-like, optional
+    poses, points, extrinsics : path-like, optional
         Vehicle poses (CSV): the ranges are registered into a world point cloud, stored (``point_*``
-        variables) and written to ``points`` (``.ply``/``.las``, default ``<output stem>.ply``).
-    extrinsics : path-like, optional
-        Sensor mounting (extrinsics JSON, see :mod:`sonarmap.mapping.poses`) used with ``poses``.
+        variables) and written to ``points`` (``.ply``/``.las``, default ``<output stem>.ply``),
+        with the sensor mounting ``extrinsics`` (JSON, see :mod:`sonarmap.mapping.poses`).
     geometry : SonarGeometry, preset name or JSON path, optional
         Geometry override for the readers.
     overwrite : bool
@@ -354,9 +355,8 @@ def process_survey(
     ping_function : callable, optional
         Replacement for :func:`sonarmap.pipeline.process_ping` (must be picklable by reference).
     background : RecordingBackground, optional
-        The recording's background level (``sonarmap calibrate``,
-        :func:`sonarmap.preprocess.normalise.estimate_recording_background`) for every ping; part
-        of the run's fingerprint, so a store is never resumed under another calibration.
+        The recording's background level (``sonarmap calibrate``) for every ping; part of the
+        run's fingerprint, so a store is never resumed under another calibration.
 
     Returns
     -------
@@ -369,9 +369,7 @@ def process_survey(
         or is not a survey store, and ``overwrite`` is false.
     """
     t0, out = time.perf_counter(), Path(output)
-    if workers is not None and (isinstance(workers, bool) or int(workers) != workers or workers < 0):
-        raise InputError(f"workers: must be a non-negative integer (got {workers!r})")
-    cfg, plan, cfg_dict, fp = _plan_run(inputs, config, chunk_size=chunk_size, geometry=geometry,
+    cfg, plan, cfg_dict, fp = _plan_run(inputs, config, chunk_size=chunk_size, geometry=geometry, workers=workers,
                                         keep_labels=keep_labels, poses=poses, extrinsics=extrinsics,
                                         ping_function=ping_function, background=background)
 
