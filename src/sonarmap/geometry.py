@@ -43,6 +43,7 @@ from sonarmap._atomic import atomic_write_text
 from sonarmap.errors import DataFormatError, GeometryError, SonarmapWarning
 
 __all__ = [
+    "plausible_elevation_beamwidth",
     "SonarGeometry",
     "GeometryWarning",
     "load_geometry",
@@ -596,10 +597,19 @@ def _checked_name(name: object) -> str:
     return name
 
 
+def plausible_elevation_beamwidth(value_rad: float | None) -> float | None:
+    """``value_rad`` if it is a width across the fan a sonar can have - finite, in (0, pi] rad -
+    else None (what a reader does with a width its file or message reports)."""
+    if value_rad is None:
+        return None
+    v = float(value_rad)
+    return v if 0.0 < v <= math.pi else None  # NaN fails both comparisons
+
+
 def _checked_elevation_beamwidth(value: object) -> float:
     """``value`` as a beamwidth in (0, pi] rad."""
     bw = _real(value, "elevation_beamwidth_rad")
-    if not 0.0 < bw <= math.pi:
+    if plausible_elevation_beamwidth(bw) is None:
         raise GeometryError(f"elevation_beamwidth_rad: must be in (0, pi] rad (got {bw})")
     return bw
 

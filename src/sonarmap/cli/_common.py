@@ -180,14 +180,14 @@ def read_input_pings(
     return pings
 
 
-#: ``Ping.meta["time_source"]`` of pings timed by ``--start-time`` / ``--ping-rate``.
-_CLOCKED_SOURCES = ("file_mtime+rate_hz", "start_time_ns+order", "start_time_ns+rate_hz")
-
-
 def check_clock_used(first: Any, clock: dict[str, Any] | None) -> None:
     """Warn (one line) when ``--start-time`` / ``--ping-rate`` were given for a recording that has
     its own clock, where they change nothing."""
-    if clock and first.meta.get("time_source") not in _CLOCKED_SOURCES:
+    if not clock:
+        return
+    from sonarmap.io.oculus import CLOCKLESS_TIME_SOURCES
+
+    if first.meta.get("time_source") not in CLOCKLESS_TIME_SOURCES:
         import warnings
 
         from sonarmap.errors import SonarmapWarning

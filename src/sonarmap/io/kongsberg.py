@@ -71,7 +71,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from sonarmap.errors import DataFormatError, SonarmapWarning
-from sonarmap.geometry import SonarGeometry, as_geometry
+from sonarmap.geometry import SonarGeometry, as_geometry, plausible_elevation_beamwidth
 from sonarmap.io._binary import (
     MAX_TIME_NS,
     ClosingFile,
@@ -828,8 +828,7 @@ def _ping_geometry(azimuth: bytes, s0: int, n_bins: int, sound_speed: float, sam
     ``tx_beamwidth_deg`` (the along-track transmit beamwidth the runtime parameters record)
     becomes ``elevation_beamwidth_rad`` when it is a plausible positive width."""
     step = sound_speed / (2.0 * sample_rate)
-    elevation = (math.radians(tx_beamwidth_deg)
-                 if tx_beamwidth_deg is not None and 0.0 < tx_beamwidth_deg <= 180.0 else None)
+    elevation = plausible_elevation_beamwidth(None if tx_beamwidth_deg is None else math.radians(tx_beamwidth_deg))
     return SonarGeometry.from_window(
         min_range_m=s0 * step,
         max_range_m=(s0 + n_bins) * step,

@@ -85,6 +85,7 @@ from sonarmap.ping import Ping
 __all__ = [
     "FORMAT",
     "DEFAULT_RAW_INTERVAL_S",
+    "CLOCKLESS_TIME_SOURCES",
     "OCULUS_ID",
     "MSG_SIMPLE_PING_RESULT",
     "OculusFile",
@@ -382,6 +383,16 @@ def decode_simple_ping(
         return Ping(image=image, geometry=geom, time_ns=time_ns, source=source, meta=meta)
 
 
+def _clock_source(start_given: bool, rate_given: bool) -> str:
+    """``Ping.meta["time_source"]`` of a clockless capture (module notes)."""
+    return f"{'start_time_ns' if start_given else 'file_mtime'}+{'rate_hz' if rate_given else 'order'}"
+
+
+#: Every ``time_source`` of a capture without a clock: its times come from the file's modification
+#: time or ``start_time_ns``, and the packet order or ``rate_hz``.
+CLOCKLESS_TIME_SOURCES = tuple(_clock_source(s, r) for s in (False, True) for r in (False, True))
+
+
 class OculusFile(ClosingFile):
     """Lazy access to the pings of an Oculus network stream or ViewPoint log.
 
@@ -484,9 +495,7 @@ class OculusFile(ClosingFile):
         else:
             start = int(start_time_ns)
         step_ns = 1e9 / rate_hz if rate_hz is not None else DEFAULT_RAW_INTERVAL_S * 1e9
-        self.time_source = (
-            f"{'file_mtime' if start_time_ns is None else 'start_time_ns'}+{'order' if rate_hz is None else 'rate_hz'}"
-        )
+        self.time_source = _clock_source(start_time_ns is not None, rate_hz is not None)
         self.ping_interval_s = step_ns * 1e-9
         end = start + round((len(records) - 1) * step_ns) if records else start
         if not 0 < start <= end <= MAX_PLAUSIBLE_TIME_NS:

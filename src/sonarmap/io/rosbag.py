@@ -77,7 +77,7 @@ from typing import Any
 import numpy as np
 
 from sonarmap.errors import DataFormatError, GeometryError, InputError, SonarmapWarning
-from sonarmap.geometry import SonarGeometry, as_geometry, geometry_from_dict
+from sonarmap.geometry import SonarGeometry, as_geometry, geometry_from_dict, plausible_elevation_beamwidth
 from sonarmap.io._binary import U8_SCALE, check_time_ns, make_summary
 from sonarmap._atomic import replace_output, temp_dir_beside
 from sonarmap._files import open_regular, require_regular_file
@@ -208,8 +208,7 @@ def elevation_from_ping_info(info: Any) -> float | None:
     tx = np.asarray(getattr(info, "tx_beamwidths", ()), dtype=np.float64).reshape(-1)
     if tx.size == 0 or not np.all(np.isfinite(tx)) or not np.allclose(tx, tx[0], rtol=1e-6, atol=0.0):
         return None
-    v = float(tx[0])
-    return v if 0.0 < v <= math.pi else None
+    return plausible_elevation_beamwidth(float(tx[0]))
 
 
 def _fwhm(p: np.ndarray) -> float:

@@ -42,7 +42,7 @@ from typing import Any
 import numpy as np
 
 from sonarmap.errors import DataFormatError, GeometryError, SonarmapWarning
-from sonarmap.geometry import SonarGeometry
+from sonarmap.geometry import SonarGeometry, plausible_elevation_beamwidth
 from sonarmap.io.oculus import MSG_SIMPLE_PING_RESULT, decode_simple_ping
 from sonarmap.ping import Ping
 
@@ -148,10 +148,9 @@ def ping_from_legacy_image(msg: Any, path: Path, topic: str, idx: int, override:
         raise ValueError(
             f"intensities have {raw.size} bytes, expected {ranges.size} ranges x {az.size} beams x {ds} bytes"
         )
-    elevation = float(getattr(msg, "elevation_beamwidth", 0.0))
     geom, order = _message_geometry(
         np.ascontiguousarray(az).tobytes(), ranges.tobytes(), float(msg.frequency), float(msg.sound_speed),
-        _name(msg, topic), elevation if math.isfinite(elevation) and 0.0 < elevation <= math.pi else None,
+        _name(msg, topic), plausible_elevation_beamwidth(getattr(msg, "elevation_beamwidth", None)),
     )
     dt = dt.newbyteorder(">" if msg.is_bigendian else "<")
     image = _scale_pixels(raw.view(dt).reshape(ranges.size, az.size))
