@@ -216,3 +216,20 @@ def test_component_pixel_rule_keeps_compact_targets_drops_fish_sized_blobs():
     assert r0.n_returns == 0
     r = extract_ranges(lab, img, g, min_component_pixels=40, **kw)
     assert r.n_returns == 12 and (r.bin[10:22] == 100).all() and (r.bin[60:66] == -1).all()
+
+
+def test_a_small_window_is_modelled_not_refused_by_the_kld_gate():
+    """A 64 x 16 ping of a hull: a correct model's KLD there is ~0.14 (sampling), which a fixed
+    0.05 limit refused (no returns, flag ``kld``); the gate allows for the sample size."""
+    from sonarmap import preset
+    from sonarmap.simulate import scene_from_name, simulate_ping
+
+    g = preset("oculus-m750d-like")
+    g = g.replace(range_m=np.linspace(float(g.range_m[0]), float(g.range_m[-1]), 64),
+                  azimuth_rad=np.linspace(float(g.azimuth_rad[0]), float(g.azimuth_rad[-1]), 16),
+                  psf=None, taper=None, psf_raw=None)
+    sim = simulate_ping(scene_from_name("hull", geometry=g), g, seed=0)
+    prod = process_ping(sim.ping, PipelineConfig())
+    assert prod.kld > 0.05 and "kld" not in prod.flags
+    err = (prod.ranges.range_m - sim.surface_range_m) / abs(g.range_resolution_m)
+    assert np.all(np.abs(err[np.isfinite(sim.surface_range_m)]) <= 3)

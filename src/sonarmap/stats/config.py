@@ -27,7 +27,8 @@ class FitConfig(ConfigSection):
         Quantisation levels of the histogram (and of the level images the classifier labels).
     max_kld, max_object_weight, min_separation : float
         Fit gates (:func:`sonarmap.stats.gates.fit_gates`): a ping whose fit fails one yields no
-        returns and carries the gate's name in its flags.
+        returns and carries the gate's name in its flags.  ``max_kld`` is the KL divergence
+        allowed beyond what the ping's sample size explains (:func:`sonarmap.stats.gates.sampling_kld`).
     max_floor_levels : int
         The quantisation floor.  An 8-bit ping whose fit fails the KL-divergence gate is modelled
         again with the lowest ``n = 1, 2, ..`` levels of the image the classifier sees merged into
