@@ -89,6 +89,7 @@ def test_detection_and_soundings_in_meta(synthetic: tuple[Path, kw.KmallSpec]) -
     r = spec.seabed_sample * m["range_per_sample_m"]
     np.testing.assert_allclose(np.hypot(m["mrz_y_m"], m["mrz_z_m"]), r, rtol=1e-5)
     assert m["pulse_width_us"] == pytest.approx(200.0)
+    assert m["effective_pulse_us"] == pytest.approx(200.0)  # 1 / the sector's 5 kHz bandwidth
     np.testing.assert_allclose(m["tx_sector_tilt_deg"], [kw.TILT])
     np.testing.assert_allclose(m["tx_sector_frequency_hz"], [kw.FREQUENCY])
     np.testing.assert_allclose(m["tx_sector_beamwidth_along_deg"], [1.0])  # the writer's sector

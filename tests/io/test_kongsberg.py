@@ -175,6 +175,21 @@ def test_detection_agrees_with_raw_range_and_the_echo(pings: list) -> None:
         lag = np.array(lag)
         assert np.mean((lag >= 0) & (lag <= 2)) > 0.7
         assert m["pulse_width_us"] == pytest.approx(216.0)
+        # a shaped pulse of 6687 Hz bandwidth: 150 us effective, the length the echoes are
+        # smoothed over (2 samples of 4.9 cm, where the 216 us signal length gave 3)
+        assert m["effective_pulse_us"] == pytest.approx(1e6 / 6687.0, abs=1e-3)
+        from sonarmap.ranges.measure import pulse_bins
+
+        assert pulse_bins(p) == 2
+
+
+def test_effective_pulse_is_one_over_the_bandwidth() -> None:
+    from sonarmap.io.kongsberg import effective_pulse_us
+
+    assert effective_pulse_us([5000.0, 5000.0]) == pytest.approx(200.0)
+    assert effective_pulse_us([4000.0, 6000.0]) == pytest.approx(200.0)  # the sectors' mean bandwidth
+    assert effective_pulse_us([np.nan, 0.0, -5.0, 1e9]) is None  # nothing plausible
+    assert effective_pulse_us([]) is None
 
 
 def test_xyz_position_attitude_installation(pings: list) -> None:

@@ -84,6 +84,7 @@ from sonarmap.io.kongsberg import (
     _AMP_LUT,
     _beam_layout,
     AMPLITUDE_DB_FULL_SCALE,
+    effective_pulse_us,
     AMPLITUDE_DB_STEP,
     _open_buffer,
     _ping_geometry,
@@ -477,6 +478,7 @@ def _decode_mrz(body: bytes) -> dict[str, Any]:
         "water_level_z": float(wl_z), "lat": float(lat), "lon": float(lon), "height": float(height),
         "n_valid": int(n_valid), "wc_sample_rate": float(wc_fs), "soundings": snd,
         "pulse_s": np.array([s[10] for s in sectors], dtype=np.float64),
+        "bandwidth_hz": np.array([s[9] for s in sectors], dtype=np.float64),
         "tx_tilt": np.array([s[5] for s in sectors], dtype=np.float64),
     }
 
@@ -868,6 +870,9 @@ class KmallFile(ClosingFile):
             pulse = round(float(np.mean(z["pulse_s"])) * 1e6, 3)
             if math.isfinite(pulse) and pulse > 0:
                 meta["pulse_width_us"] = pulse
+        effective = effective_pulse_us(z["bandwidth_hz"])
+        if effective is not None:
+            meta["effective_pulse_us"] = effective
         if abs(z["lat"]) <= 90 and abs(z["lon"]) <= 180:
             meta["latitude_deg"] = z["lat"]
             meta["longitude_deg"] = z["lon"]

@@ -96,6 +96,7 @@ __all__ = [
     "AMPLITUDE_DB_FULL_SCALE",
     "AMPLITUDE_DB_STEP",
     "image_to_db",
+    "effective_pulse_us",
     "KongsbergFile",
     "KongsbergWarning",
     "sibling_paths",
@@ -634,6 +635,21 @@ def _verify(index: _Index, rows: NDArray[np.intp], mode: Checksum, what: str) ->
         keep[i] = False
         start = i + 1
     return rows[keep]
+
+
+def effective_pulse_us(bandwidth_hz: Any) -> float | None:
+    """The effective (matched-filter) pulse length ``1 / B`` in µs of the transmit sectors'
+    signal bandwidths ``B`` (Hz; their mean), or None when none is a plausible bandwidth.
+
+    The range resolution of a pulse of bandwidth ``B`` is ``c / 2B``: a shaped CW pulse is
+    shorter than its total signal length (the shared EM2040 file: 216 µs of signal, 6687 Hz of
+    bandwidth, 150 µs effective) and an FM pulse is compressed to about ``1 / B``.
+    """
+    b = np.asarray(bandwidth_hz, dtype=np.float64).ravel()
+    b = b[np.isfinite(b) & (b >= 100.0) & (b <= 1e7)]
+    if b.size == 0:
+        return None
+    return round(1e6 / float(b.mean()), 3)
 
 
 def image_to_db(image: NDArray[np.floating[Any]], full_scale_db: float = AMPLITUDE_DB_FULL_SCALE,
@@ -1367,6 +1383,9 @@ class KongsbergFile(ClosingFile):
             pulse = round(float(txs["signal_length"].sum()) / ntx * 1e6, 3)
             if math.isfinite(pulse) and pulse > 0:
                 meta["pulse_width_us"] = pulse
+            effective = effective_pulse_us(txs["bandwidth"])
+            if effective is not None:
+                meta["effective_pulse_us"] = effective
         meta["raw_matched"] = nrx == rec.total
         if nrx != rec.total:
             return

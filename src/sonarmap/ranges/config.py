@@ -115,7 +115,9 @@ class RangeConfig(ConfigSection):
         beam's speckled echo moves its half-peak crossing by bins).  0 = every beam on its own.
     pulse_length_m : float, optional
         Transmit pulse length along range (``c tau / 2``); echoes are measured on the image
-        smoothed over it.  Default: from the ping (``meta["pulse_width_us"]``, ARIS), else none.
+        smoothed over it.  Default: from the ping - its effective length ``1 / B`` where the file
+        gives the transmit bandwidth ``B`` (``meta["effective_pulse_us"]``, Kongsberg), else its
+        ``meta["pulse_width_us"]`` (ARIS) - else none.
     continue_evidence : float
         Surface continuation (:func:`sonarmap.ranges.tracking.continuation_mask`): a tracked
         surface of >= 5 beams is followed beyond its ends along its slope where, in a window of its

@@ -90,10 +90,14 @@ def _meta_number(ping: Ping, key: str, default: float | None = None) -> float | 
 
 def pulse_bins(ping: Ping, config: RangeConfig = RangeConfig()) -> int:
     """The pulse length in range bins (>= 1): ``config.pulse_length_m``, else the ping's
-    ``meta["pulse_width_us"]`` at its sound speed (``meta["sound_speed_m_s"]``, default 1500 m/s)."""
+    effective pulse length ``meta["effective_pulse_us"]`` (``1 / B`` of the transmit bandwidth
+    ``B``, where the file gives it: Kongsberg), else its ``meta["pulse_width_us"]``, at its sound
+    speed (``meta["sound_speed_m_s"]``, default 1500 m/s)."""
     length = config.pulse_length_m
     if length is None:
-        us = _meta_number(ping, "pulse_width_us")
+        us = _meta_number(ping, "effective_pulse_us")
+        if us is None:
+            us = _meta_number(ping, "pulse_width_us")
         c = _meta_number(ping, "sound_speed_m_s", 1500.0)
         ok = us is not None and 0 < us < 1e5 and c is not None and 1300 <= c <= 1700
         length = us * 1e-6 * c / 2.0 if ok else 0.0  # type: ignore[operator]
