@@ -261,3 +261,24 @@ def test_elevation_arc_discount_is_an_option() -> None:
     shared, _ = pd_pfa_increments(0.9, 1e-4, bins_per_cell=3, n_arc=3, range_sigma_bins=1.0)
     assert n_arc > 3 and vals[False] == pytest.approx(full, rel=1e-5)
     assert vals[True] == pytest.approx(shared, rel=1e-5) and 0 < shared < full
+
+
+@pytest.mark.parametrize("z_chunks", [-(2**20) - 1, 2**20, -(2**20) + 1, 2**20 - 1])
+def test_a_ray_without_a_return_outside_the_packable_extent_is_refused(z_chunks: int) -> None:
+    """Free space only (no hit): the walk's first chunk used to be range-checked only when its
+    packed key differed from the last one - the key of chunk z = -2**20 - 1 is -1, the table's
+    EMPTY marker, so it was written at a negative pool row (memory corruption).  Every chunk at
+    or beyond +-(2**20 - 1) is refused with the extent error, before any voxel is written."""
+    m = OccupancyMap(OccupancyConfig(resolution_m=1.0, chunk_size=2))
+    z = (z_chunks * 2 + 0.5) * 1.0  # the sensor inside chunk z_chunks (2 cells per chunk)
+    with pytest.raises(InputError, match="representable map extent"):
+        m.integrate([np.nan], [0.0], _poses(np.eye(3), [[0.5, 0.5, z]]), min_range_m=0.5, max_range_m=3.0,
+                    pd=0.9, pfa=0.05)
+    assert len(m.observed_cells()) == 0
+
+
+def test_rays_just_inside_the_packable_extent_are_mapped() -> None:
+    m = OccupancyMap(OccupancyConfig(resolution_m=1.0, chunk_size=2))
+    z = ((2**20 - 2) * 2 + 0.5) * 1.0  # the last chunk inside the limit
+    m.integrate([2.2], [0.0], _poses(np.eye(3), [[0.5, 0.5, z]]), min_range_m=0.5, max_range_m=3.0, pd=0.9, pfa=0.05)
+    assert m.occupied_cells().tolist() == [[2, 0, 2**21 - 4]]

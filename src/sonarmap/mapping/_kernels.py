@@ -174,6 +174,13 @@ def integrate_rays(
             ex = int(np.floor(ends[r, 0]))
             ey = int(np.floor(ends[r, 1]))
             ez = int(np.floor(ends[r, 2]))
+            # the walk stays between its end voxels (a voxel past them at most, inside the
+            # margin of lim): checking both ends keeps every chunk it visits packable.  (Checked
+            # in the walk only when the key changed, an unpackable first chunk whose key aliased
+            # the last one - EMPTY itself for cz = -2**20 - 1 - was written at a negative row.)
+            if (abs(ix >> sx) >= lim or abs(iy >> sy) >= lim or abs(iz >> sz) >= lim
+                    or abs(ex >> sx) >= lim or abs(ey >> sy) >= lim or abs(ez >> sz) >= lim):
+                return -2
             n_steps = abs(ex - ix) + abs(ey - iy) + abs(ez - iz)
             stx, tdx, tmx = _axis_step(px, dx, ix)
             sty, tdy, tmy = _axis_step(py, dy, iy)
@@ -182,8 +189,6 @@ def integrate_rays(
                 cx, cy, cz = ix >> sx, iy >> sy, iz >> sz
                 key = _pack(cx, cy, cz)
                 if key != last_key:
-                    if abs(cx) >= lim or abs(cy) >= lim or abs(cz) >= lim:
-                        return -2
                     c = _find_or_insert(keys, slots, chunk_keys, counts, key)
                     if c < 0:
                         return p
