@@ -245,9 +245,12 @@ def _range_dependence_db(level: NDArray[np.floating]) -> float:
 
 
 def _lower_quartile(x: NDArray[np.float32], axis: int) -> NDArray[np.float32]:
-    # np.sort is ~10x faster than np.partition along short rows (vectorised sort kernels)
+    # the same order statistic either way: np.sort's vectorised kernels win along short rows (the
+    # beams of a range row), np.partition along long ones (the ~700 pixels of a block: 2x faster)
     n = x.shape[axis]
     k = (n - 1) // 4
+    if n >= 512:
+        return np.partition(x, k, axis=axis).take(k, axis=axis)
     return np.sort(x, axis=axis).take(k, axis=axis)
 
 
