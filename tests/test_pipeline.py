@@ -218,6 +218,7 @@ def test_component_pixel_rule_keeps_compact_targets_drops_fish_sized_blobs():
     assert r.n_returns == 12 and (r.bin[10:22] == 100).all() and (r.bin[60:66] == -1).all()
 
 
+@pytest.mark.slow  # ~4.5 s: the simulator samples the hull over the Oculus fan
 def test_a_small_window_is_modelled_not_refused_by_the_kld_gate():
     """A 64 x 16 ping of a hull: a correct model's KLD there is ~0.14 (sampling), which a fixed
     0.05 limit refused (no returns, flag ``kld``); the gate allows for the sample size."""
