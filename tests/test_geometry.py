@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import warnings
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -15,6 +16,7 @@ from sonarmap.geometry import (
     GeometryWarning,
     SonarGeometry,
     geometry_from_dict,
+    geometry_from_json_bytes,
     load_geometry,
     preset,
     preset_names,
@@ -185,3 +187,45 @@ def test_public_api_exports() -> None:
     assert sonarmap.SonarGeometry is SonarGeometry
     assert issubclass(sonarmap.InputError, ValueError)
     assert issubclass(sonarmap.DataFormatError, OSError)
+
+
+def test_json_of_one_content_is_validated_once_and_named_per_file(monkeypatch: pytest.MonkeyPatch) -> None:
+    import sonarmap.geometry as geometry_module
+
+    calls: list[str] = []
+    real = geometry_module.geometry_from_dict
+
+    def counting(d: Any, **kw: Any) -> SonarGeometry:
+        calls.append(kw["source"])
+        return real(d, **kw)
+
+    monkeypatch.setattr(geometry_module, "geometry_from_dict", counting)
+    d = {"num_beams": 4, "num_bins": 8, "min_range": 1.0, "max_range": 3.0, "fov": 0.4,
+         "azimuths": [-0.15, -0.05, 0.05, 0.15], "psf": [0.0, 0.5, 1.0, 0.5]}
+    data = json.dumps(d).encode()
+    a = geometry_from_json_bytes(data, "a.json", "1500000000000000")
+    b = geometry_from_json_bytes(data, "b.json", "1500000000100000")
+    assert calls == ["a.json"]  # the second file's content was not decoded or validated again
+    assert (a.name, b.name) == ("1500000000000000", "1500000000100000")
+    assert a.key == b.key and a != b  # same content, each named after its own file
+    parsed = geometry_from_dict(d, source="b.json", default_name="1500000000100000")
+    assert b == parsed and b.key == parsed.key
+    for field in ("azimuth_rad", "range_m", "psf", "psf_raw", "taper"):
+        np.testing.assert_array_equal(getattr(b, field), getattr(parsed, field))
+    assert (b.fov_rad, b.window, b.azimuth_source) == (parsed.fov_rad, parsed.window, parsed.azimuth_source)
+    # a name in the JSON names every file's geometry
+    named = json.dumps({**d, "name": "hull"}).encode()
+    assert geometry_from_json_bytes(named, "c.json", "1").name == "hull"
+    assert geometry_from_json_bytes(named, "d.json", "2").name == "hull"
+    # a file name that is not a valid geometry name is refused as when parsing, naming the file
+    with pytest.raises(GeometryError, match=r"^e\.json: field 'name'"):
+        geometry_from_json_bytes(data, "e.json", "bad\nname")
+
+
+def test_json_content_that_warns_warns_for_every_file() -> None:
+    data = json.dumps({"fov": 0.5, "num_beams": 10, "num_bins": 20, "min_range": 1.0,
+                       "max_range": 3.0, "noise": 0.0123}).encode()
+    for source in ("w1.json", "w2.json"):
+        with pytest.warns(GeometryWarning, match=source):
+            g = geometry_from_json_bytes(data, source, source[:2])
+        assert g.azimuth_source == "uniform" and g.name == source[:2]

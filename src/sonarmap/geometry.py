@@ -23,6 +23,7 @@ extended with optional ``ranges``, ``frequency``, ``sound_speed``, ``name``.
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import functools
 import hashlib
@@ -30,6 +31,7 @@ import json
 import math
 import os
 import sys
+import threading
 import warnings
 from collections.abc import Mapping
 from importlib import resources
@@ -754,8 +756,52 @@ def _parse_geometry_json(data: bytes, source: str, default_name: str) -> SonarGe
 _cached_geometry_json = functools.lru_cache(maxsize=64)(_parse_geometry_json)
 
 
+@dataclasses.dataclass(frozen=True)
+class _Template:
+    """The validated geometry of one JSON content, for every file that holds that content."""
+
+    geometry: SonarGeometry
+    #: The JSON has its own ``name``; else each file's geometry is named after the file.
+    named: bool
+
+
+#: Validated geometries by JSON content (at most ``_TEMPLATES_MAX``, oldest dropped first); ``None``
+#: for a content that is parsed per file (its geometry warns, naming the file).  A survey's
+#: sidecars are one content under thousands of file names: it is decoded and validated once.
+_templates: dict[bytes, _Template | None] = {}
+_templates_lock = threading.Lock()
+_TEMPLATES_MAX = 64
+
+
+def _template_of(data: bytes, geometry: SonarGeometry) -> _Template | None:
+    """The template of ``data`` (already parsed into ``geometry`` without error), or ``None`` if
+    parsing it warns: uniform azimuths (no table) or a single beam (without ``fov``), whose
+    warnings name the file, so such contents are parsed for every file as before."""
+    if geometry.azimuth_source == "uniform" or geometry.n_beams < 2:
+        return None
+    d = json.loads(data)
+    return _Template(geometry, isinstance(d, Mapping) and "name" in d)
+
+
+def _renamed(geometry: SonarGeometry, name: str, source: str) -> SonarGeometry:
+    """``geometry`` under the (checked) ``name``: a shallow copy sharing its read-only arrays and its
+    content ``key`` (which does not depend on the name), not validated again."""
+    try:
+        name = _checked_name(name)
+    except GeometryError as exc:
+        raise GeometryError(f"{source}: {exc}") from None
+    out = copy.copy(geometry)
+    object.__setattr__(out, "name", name)
+    return out
+
+
 def geometry_from_json_bytes(data: bytes, source: str, default_name: str) -> SonarGeometry:
     """Parse and validate geometry JSON bytes; results of small files are cached by content.
+
+    Files of the same content (a survey's sidecars) are parsed and validated once; each gets the
+    same geometry, named after ``default_name`` when the JSON has no ``name`` (exactly what parsing
+    the file would give).  A content that warns when parsed is parsed for every file, so every
+    file's warning names it.
 
     Raises
     ------
@@ -766,7 +812,20 @@ def geometry_from_json_bytes(data: bytes, source: str, default_name: str) -> Son
     """
     if len(data) > _CACHE_MAX_BYTES:  # do not pin large files in the cache
         return _parse_geometry_json(data, source, default_name)
-    return _cached_geometry_json(data, source, default_name)
+    if data not in _templates:
+        geometry = _cached_geometry_json(data, source, default_name)
+        template = _template_of(data, geometry)
+        with _templates_lock:
+            while len(_templates) >= _TEMPLATES_MAX:
+                del _templates[next(iter(_templates))]
+            _templates[data] = template
+        return geometry
+    template = _templates.get(data)
+    if template is None:
+        return _cached_geometry_json(data, source, default_name)
+    if template.named or template.geometry.name == default_name:
+        return template.geometry
+    return _renamed(template.geometry, default_name, source)
 
 
 def geometry_summary(geometry: Any) -> dict[str, Any]:
