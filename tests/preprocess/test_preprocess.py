@@ -129,3 +129,15 @@ def test_cli_preprocess_writes_pings_and_figure(tmp_path, test_ping_paths):
     direct = preprocess(read_ping(test_ping_paths[4]), PreprocessConfig.paper_table1())
     np.testing.assert_allclose(back.image, direct.image, atol=1.0 / 65535 + 1e-6)  # 16-bit
     assert main(["preprocess", str(test_ping_paths[0]), "-o", str(out), "--recipe", "nope"]) == 2  # usage error
+
+
+def test_plan_is_cached_by_geometry_content_not_name() -> None:
+    from sonarmap.preprocess import pipeline as pp
+
+    g = preset("didson-hf").replace(noise=0.0217)  # a content no other test plans
+    img = np.random.default_rng(3).random(g.shape, dtype=np.float32)
+    first = pp.preprocess_image(img, g)
+    hits = pp._plan_cached.cache_info().hits
+    renamed = g.replace(name="1500000000100000")  # as the reader names each ping's geometry
+    np.testing.assert_array_equal(pp.preprocess_image(img, renamed), first)
+    assert pp._plan_cached.cache_info().hits == hits + 1

@@ -255,8 +255,31 @@ class _Plan:
     taper_source: str | None
 
 
-@functools.lru_cache(maxsize=64)
+@dataclasses.dataclass(frozen=True, eq=False)
+class _ByContent:
+    """A geometry as a cache key by its content (``SonarGeometry.key``), whatever its name.
+
+    The plan depends only on the content; a survey's pings have one content under as many names
+    (each ping's file stem), which as keys of their own would miss the cache at every ping.
+    """
+
+    geometry: SonarGeometry
+
+    def __hash__(self) -> int:
+        return hash(self.geometry.key)
+
+    def __eq__(self, other: object) -> bool:
+        return isinstance(other, _ByContent) and other.geometry.key == self.geometry.key
+
+
 def _plan(geometry: SonarGeometry, config: PreprocessConfig) -> _Plan:
+    """The folded pre-processing of ``geometry`` and ``config`` (cached by content)."""
+    return _plan_cached(_ByContent(geometry), config)
+
+
+@functools.lru_cache(maxsize=64)
+def _plan_cached(by_content: _ByContent, config: PreprocessConfig) -> _Plan:
+    geometry = by_content.geometry
     n = geometry.n_beams
     steps: list[str] = []
     M: NDArray[np.float64] | None = None
