@@ -101,7 +101,11 @@ def read_bytes_bounded(path: str | os.PathLike[str], max_bytes: int, what: str =
         if size > max_bytes:
             raise DataFormatError(f"{what} is {size} bytes, more than the {max_bytes} allowed", path)
         try:
-            data = fh.read(max_bytes + 1)
+            # read the size fstat gave (+1 to see growth), not max_bytes + 1: CPython allocates
+            # the whole requested buffer first (16 MiB for a 3 kB sidecar)
+            data = fh.read(size + 1)
+            if len(data) > size:  # grew since fstat: read on, up to the bound
+                data += fh.read(max_bytes + 1 - len(data))
         except OSError as exc:
             raise DataFormatError(f"cannot read: {exc.strerror or exc}", path) from None
     if len(data) > max_bytes:  # grew while reading
