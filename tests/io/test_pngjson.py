@@ -15,6 +15,7 @@ from sonarmap.io import detect_format, read_ping, read_pings
 from sonarmap.io.pngjson import (
     find_png_pings,
     iter_png_pings,
+    read_image_file,
     read_png_ping,
     time_ns_from_stem,
     write_png_ping,
@@ -70,6 +71,18 @@ def test_write_read_round_trip_lossless(tmp_path: Path, test_ping_paths: list[Pa
     a = np.asarray(Image.open(test_ping_paths[3]))
     b = np.asarray(Image.open(out))
     np.testing.assert_array_equal(a, b)
+
+
+def test_eight_bit_levels_map_to_float32_k_times_float32_one_255th(tmp_path: Path) -> None:
+    from PIL import Image
+
+    levels = np.arange(256, dtype=np.uint8).reshape(16, 16)
+    Image.fromarray(levels, mode="L").save(tmp_path / "levels.png")
+    got = read_image_file(tmp_path / "levels.png")
+    want = np.arange(256, dtype=np.float32).reshape(16, 16) * np.float32(1.0 / 255.0)
+    assert got.dtype == np.float32
+    np.testing.assert_array_equal(got.view(np.uint32), want.view(np.uint32))  # bit for bit
+    assert got[0, 0] == 0.0 and got[-1, -1] == 1.0
 
 
 def test_sixteen_bit_round_trip(tmp_path: Path) -> None:
