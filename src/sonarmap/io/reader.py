@@ -20,6 +20,7 @@ A reader is a module (``sonarmap.io.aris``, ``sonarmap.io.ddf``, ...) with four 
 
 from __future__ import annotations
 
+import functools
 import importlib
 import os
 from collections.abc import Iterator
@@ -153,7 +154,10 @@ def reader_modules() -> list[ModuleType]:
     return mods
 
 
+@functools.cache
 def _by_name(name: str) -> Reader:
+    # a format's module is fixed for the process: found once (the walk imports every format
+    # module, 8 import_module calls; a survey chunk of PNG pings asks once per ping)
     for mod in reader_modules():
         if getattr(mod, "FORMAT", mod.__name__.rsplit(".", 1)[-1]) == name:
             return mod  # type: ignore[return-value]

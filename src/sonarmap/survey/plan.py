@@ -172,11 +172,9 @@ def _iter_chunk_pings(chunk: ChunkSpec) -> Iterator[Ping]:
     ``first`` are not decoded; a survey store reads only the chunks that hold them)."""
     from sonarmap.io import reader_for
 
-    readers: dict[str, Any] = {}  # looked up once per format (a chunk of PNG pings has one item per ping)
     for path, fmt, first, count in chunk.items:
         got = 0
-        reader = readers.get(fmt) or readers.setdefault(fmt, reader_for(fmt))
-        for ping in reader.iter_pings(Path(path), geometry=chunk.geometry, start=first, stop=first + count):
+        for ping in reader_for(fmt).iter_pings(Path(path), geometry=chunk.geometry, start=first, stop=first + count):
             got += 1
             yield ping
         if got != count:
