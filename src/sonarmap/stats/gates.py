@@ -101,8 +101,8 @@ def sampling_kld(n_samples: float, n_levels: int, n_params: int) -> float:
     A histogram of ``n_samples`` pixels on ``n_levels`` occupied levels, drawn from a model with
     ``n_params`` fitted parameters, has ``G = 2 N kld ~ chi2(dof)``, ``dof = n_levels - 1 -
     n_params`` (at least 1).  Returns the KLD of ``G`` at its mean plus :data:`SAMPLING_SIGMAS`
-    standard deviations, ``(dof + 4 sqrt(2 dof)) / 2N``: 0.0035 for a 512 x 96 ping on 200 levels,
-    0.13 for a 64 x 16 window on 170.
+    standard deviations, ``(dof + 4 sqrt(2 dof)) / 2N``: 0.0028 for a 512 x 96 ping on 200 levels,
+    0.12 for a 64 x 16 window on 170 (4 parameters).
 
     Parameters
     ----------
