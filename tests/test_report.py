@@ -70,6 +70,7 @@ def test_report_renders_in_headless_chromium(report_html: Path, tmp_path: Path) 
     assert img.std() > 20
 
 
+@pytest.mark.slow  # starts a child process
 def test_page_error_detection_works(tmp_path: Path) -> None:
     """The check above would catch a broken page (guards against a silently weak test)."""
     bad = tmp_path / "bad.html"

@@ -264,6 +264,7 @@ def _run_limited(body: str) -> dict[str, Any]:
     return json.loads(proc.stdout.strip().splitlines()[-1])
 
 
+@pytest.mark.slow  # starts a child process
 def test_num_bins_1e9_allocates_nothing(tmp_path: Path, didson_dir: Path) -> None:
     """``num_bins: 1e9`` used to allocate ~8 GB twice; now refused before any allocation."""
     side, png = _real_ping(didson_dir)
@@ -407,6 +408,7 @@ def test_fifo_pings_in_cli_info_and_ranges(
     _assert_one_clean_cli_error(capsys, ["info", str(tmp_path)], "FIFO")
 
 
+@pytest.mark.slow  # starts a child process
 def test_symlinks_to_dev_zero_are_refused(tmp_path: Path, didson_dir: Path) -> None:
     """In a memory-limited child: reading /dev/zero to the end would exhaust memory."""
     side, png = _real_ping(didson_dir)

@@ -597,6 +597,7 @@ def test_two_writers_on_one_store(seeds: dict[str, Path], tmp_path: Path,
     assert len(_read_all(store)) == 5 and not (tmp_path / ".s.zarr.lock").exists()
 
 
+@pytest.mark.slow  # starts a child process
 def test_interrupted_process_resumes_over_a_stale_lock(seeds: dict[str, Path], tmp_path: Path) -> None:
     from sonarmap.survey import load_products, process_survey, survey_status
 
@@ -630,6 +631,7 @@ def _dead_pid() -> int:
     return p.pid
 
 
+@pytest.mark.slow  # starts a child process
 def test_stale_temporaries_of_killed_runs_are_removed(tmp_path: Path, test_ping_paths: list[Path],
                                                       capsys: pytest.CaptureFixture[str]) -> None:
     """What a killed ``sonarmap ranges`` leaves (``.ranges.csv.<pid>-<host>.<random>.tmp.csv``) is
