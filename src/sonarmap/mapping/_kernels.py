@@ -109,6 +109,77 @@ def _axis_step(p, d, i):  # pragma: no cover - numba
         return -1, -1.0 / d, (p - i) / -d
     return 0, np.inf, np.inf
 
+
+@njit(cache=True, inline="always")
+def _voxel_index(c: int, ix: int, iy: int, iz: int, sx: int, sy: int, sz: int) -> int:  # pragma: no cover - numba
+    """Position in the ``logodds`` / ``stamp`` pools of voxel ``(ix, iy, iz)`` of pool chunk ``c``
+    (chunks of ``2**sx x 2**sy x 2**sz`` voxels)."""
+    mx, my, mz = (1 << sx) - 1, (1 << sy) - 1, (1 << sz) - 1
+    return (c << (sx + sy + sz)) | ((ix & mx) << (sy + sz)) | ((iy & my) << sz) | (iz & mz)
+
+
+@njit(cache=True, inline="always")
+def _packable(x: float, y: float, z: float, sx: int, sy: int, sz: int) -> bool:  # pragma: no cover - numba
+    """Whether the chunk of the voxel holding point ``(x, y, z)`` (voxel units) has a packable key
+    (+-2**20 chunks, less one of margin)."""
+    lim = _OFF - 1
+    return (abs(int(np.floor(x)) >> sx) < lim and abs(int(np.floor(y)) >> sy) < lim
+            and abs(int(np.floor(z)) >> sz) < lim)
+
+
+@njit(cache=True, inline="always")
+def _add_segment(
+    px: float, py: float, pz: float, qx: float, qy: float, qz: float, dl: float, pid: int,
+    sx: int, sy: int, sz: int, l_min: float, l_max: float, last_key: int, last_c: int,
+    keys: np.ndarray, slots: np.ndarray, chunk_keys: np.ndarray, counts: np.ndarray,
+    logodds: np.ndarray, stamp: np.ndarray,
+) -> tuple[int, int]:  # pragma: no cover - numba
+    """Add ``dl`` to the log-odds of every voxel the segment from ``p`` to ``q`` (voxel units)
+    crosses, ``p``'s voxel first and ``q``'s last (Amanatides & Woo 1987; ``p == q``: its one
+    voxel), clamped to ``[l_min, l_max]``; a voxel ping ``pid`` already updated is left alone.
+
+    ``(last_key, last_c)`` is the packed key and pool row of the chunk last updated (a walk stays
+    in one chunk for many voxels: the table is probed only when the chunk changes); returns it
+    after the segment, with a negative row if the pool or the table filled up on the way.  The
+    caller has checked that both end voxels are inside the packable extent.
+    """
+    dx, dy, dz = qx - px, qy - py, qz - pz
+    ix = int(np.floor(px))
+    iy = int(np.floor(py))
+    iz = int(np.floor(pz))
+    n_steps = abs(int(np.floor(qx)) - ix) + abs(int(np.floor(qy)) - iy) + abs(int(np.floor(qz)) - iz)
+    stx, tdx, tmx = _axis_step(px, dx, ix)
+    sty, tdy, tmy = _axis_step(py, dy, iy)
+    stz, tdz, tmz = _axis_step(pz, dz, iz)
+    for _ in range(n_steps + 1):
+        key = _pack(ix >> sx, iy >> sy, iz >> sz)
+        if key != last_key:
+            c = _find_or_insert(keys, slots, chunk_keys, counts, key)
+            if c < 0:
+                return last_key, c
+            last_key = key
+            last_c = c
+        idx = _voxel_index(last_c, ix, iy, iz, sx, sy, sz)
+        if stamp[idx] != pid:
+            stamp[idx] = pid
+            v = logodds[idx] + dl
+            logodds[idx] = min(max(v, l_min), l_max)
+        if tmx < tmy:
+            if tmx < tmz:
+                ix += stx
+                tmx += tdx
+            else:
+                iz += stz
+                tmz += tdz
+        elif tmy < tmz:
+            iy += sty
+            tmy += tdy
+        else:
+            iz += stz
+            tmz += tdz
+    return last_key, last_c
+
+
 @njit(cache=True)
 def integrate_rays(
     starts: np.ndarray,  # (n_rays, 3) float64, voxel units (world / resolution)
@@ -131,9 +202,6 @@ def integrate_rays(
 ) -> int:
     """Integrate pings ``first_ping ...``: hits first, then free space along every ray."""
     sx, sy, sz = shifts[0], shifts[1], shifts[2]
-    mx, my, mz = (1 << sx) - 1, (1 << sy) - 1, (1 << sz) - 1
-    vol_shift = sx + sy + sz
-    lim = _OFF - 1
     n_pings = ray_offsets.size - 1
     for p in range(first_ping, n_pings):
         pid = ping_ids[p]
@@ -145,73 +213,27 @@ def integrate_rays(
         for r in range(r0, r1):
             if not hit[r]:
                 continue
-            ix = int(np.floor(ends[r, 0]))
-            iy = int(np.floor(ends[r, 1]))
-            iz = int(np.floor(ends[r, 2]))
-            cx, cy, cz = ix >> sx, iy >> sy, iz >> sz
-            if abs(cx) >= lim or abs(cy) >= lim or abs(cz) >= lim:
+            ex, ey, ez = ends[r, 0], ends[r, 1], ends[r, 2]
+            if not _packable(ex, ey, ez, sx, sy, sz):
                 return -2
-            key = _pack(cx, cy, cz)
-            if key != last_key:
-                c = _find_or_insert(keys, slots, chunk_keys, counts, key)
-                if c < 0:
-                    return p
-                last_key = key
-                last_c = c
-            idx = (last_c << vol_shift) | ((ix & mx) << (sy + sz)) | ((iy & my) << sz) | (iz & mz)
-            if stamp[idx] != pid:
-                stamp[idx] = pid
-                v = logodds[idx] + l_hit[r]
-                logodds[idx] = min(max(v, l_min), l_max)
-        # ---- pass 2: free space along each ray (Amanatides & Woo 1987)
+            last_key, last_c = _add_segment(ex, ey, ez, ex, ey, ez, l_hit[r], pid, sx, sy, sz, l_min, l_max,
+                                            last_key, last_c, keys, slots, chunk_keys, counts, logodds, stamp)
+            if last_c < 0:
+                return p
+        # ---- pass 2: free space along each ray
         for r in range(r0, r1):
-            lm = l_miss[r]
             px, py, pz = starts[r, 0], starts[r, 1], starts[r, 2]
-            dx, dy, dz = ends[r, 0] - px, ends[r, 1] - py, ends[r, 2] - pz
-            ix = int(np.floor(px))
-            iy = int(np.floor(py))
-            iz = int(np.floor(pz))
-            ex = int(np.floor(ends[r, 0]))
-            ey = int(np.floor(ends[r, 1]))
-            ez = int(np.floor(ends[r, 2]))
+            ex, ey, ez = ends[r, 0], ends[r, 1], ends[r, 2]
             # the walk stays between its end voxels (a voxel past them at most, inside the
             # margin of lim): checking both ends keeps every chunk it visits packable.  (Checked
             # in the walk only when the key changed, an unpackable first chunk whose key aliased
             # the last one - EMPTY itself for cz = -2**20 - 1 - was written at a negative row.)
-            if (abs(ix >> sx) >= lim or abs(iy >> sy) >= lim or abs(iz >> sz) >= lim
-                    or abs(ex >> sx) >= lim or abs(ey >> sy) >= lim or abs(ez >> sz) >= lim):
+            if not (_packable(px, py, pz, sx, sy, sz) and _packable(ex, ey, ez, sx, sy, sz)):
                 return -2
-            n_steps = abs(ex - ix) + abs(ey - iy) + abs(ez - iz)
-            stx, tdx, tmx = _axis_step(px, dx, ix)
-            sty, tdy, tmy = _axis_step(py, dy, iy)
-            stz, tdz, tmz = _axis_step(pz, dz, iz)
-            for _ in range(n_steps + 1):
-                cx, cy, cz = ix >> sx, iy >> sy, iz >> sz
-                key = _pack(cx, cy, cz)
-                if key != last_key:
-                    c = _find_or_insert(keys, slots, chunk_keys, counts, key)
-                    if c < 0:
-                        return p
-                    last_key = key
-                    last_c = c
-                idx = (last_c << vol_shift) | ((ix & mx) << (sy + sz)) | ((iy & my) << sz) | (iz & mz)
-                if stamp[idx] != pid:
-                    stamp[idx] = pid
-                    v = logodds[idx] + lm
-                    logodds[idx] = min(max(v, l_min), l_max)
-                if tmx < tmy:
-                    if tmx < tmz:
-                        ix += stx
-                        tmx += tdx
-                    else:
-                        iz += stz
-                        tmz += tdz
-                elif tmy < tmz:
-                    iy += sty
-                    tmy += tdy
-                else:
-                    iz += stz
-                    tmz += tdz
+            last_key, last_c = _add_segment(px, py, pz, ex, ey, ez, l_miss[r], pid, sx, sy, sz, l_min, l_max,
+                                            last_key, last_c, keys, slots, chunk_keys, counts, logodds, stamp)
+            if last_c < 0:
+                return p
     return -1
 
 
@@ -228,8 +250,6 @@ def lookup(
 ) -> None:
     """Log-odds and observed flag of voxels (0 / False where never observed)."""
     sx, sy, sz = shifts[0], shifts[1], shifts[2]
-    mx, my, mz = (1 << sx) - 1, (1 << sy) - 1, (1 << sz) - 1
-    vol_shift = sx + sy + sz
     lim = _OFF - 1
     for i in range(ijk.shape[0]):
         ix, iy, iz = ijk[i, 0], ijk[i, 1], ijk[i, 2]
@@ -241,6 +261,6 @@ def lookup(
         c = _find(keys, slots, _pack(cx, cy, cz))
         if c < 0:
             continue
-        idx = (c << vol_shift) | ((ix & mx) << (sy + sz)) | ((iy & my) << sz) | (iz & mz)
+        idx = _voxel_index(c, ix, iy, iz, sx, sy, sz)
         out_l[i] = logodds[idx]
         out_seen[i] = stamp[idx] != 0
