@@ -1,4 +1,5 @@
-"""Safe opening of input files: regular files only, bounded reads, bounded decompression.
+"""Safe opening of input files: regular files only, bounded reads, bounded decompression, JSON
+decoding.
 
 Every reader goes through these so that a FIFO named like a ping cannot hang a run, a symlink to
 ``/dev/zero`` cannot read until memory runs out, and a small compressed item cannot inflate to
@@ -8,11 +9,13 @@ gigabytes.  Each failure is a :class:`~sonarmap.errors.DataFormatError` naming t
 from __future__ import annotations
 
 import fcntl
+import json
 import os
 import stat
+import sys
 import zlib
 from pathlib import Path
-from typing import BinaryIO
+from typing import Any, BinaryIO
 
 from sonarmap.errors import DataFormatError
 
@@ -22,6 +25,7 @@ __all__ = [
     "open_regular",
     "read_bytes_bounded",
     "decompress_bounded",
+    "parse_json",
 ]
 
 #: Largest JSON sidecar / geometry file read (a 4096-beam table with a PSF is ~0.5 MB).
@@ -138,3 +142,47 @@ def decompress_bounded(
     if not d.eof:
         raise DataFormatError(f"{what} is truncated (zlib stream incomplete)", path)
     return out
+
+
+def parse_json(data: bytes | str, source: str | os.PathLike[str] | None = None) -> Any:
+    """The value of a JSON document read from a file.
+
+    Parameters
+    ----------
+    data : bytes or str
+        The document (bytes in UTF-8, -16 or -32, as :func:`json.loads` detects them).
+    source : str or path-like, optional
+        The file, named in the errors.
+
+    Returns
+    -------
+    Any
+        What :func:`json.loads` returns.
+
+    Raises
+    ------
+    DataFormatError
+        Naming ``source``, if ``data`` is not JSON (with the line and column), not UTF-8 text,
+        nested too deeply for the parser, or holds an integer over Python's digit limit.
+
+    Examples
+    --------
+    >>> parse_json(b'{"num_beams": 96}')
+    {'num_beams': 96}
+    """
+    try:
+        return json.loads(data)
+    except json.JSONDecodeError as exc:
+        raise DataFormatError(
+            f"invalid JSON at line {exc.lineno} column {exc.colno}: {exc.msg}", source
+        ) from None
+    except UnicodeDecodeError as exc:
+        raise DataFormatError(f"not UTF-8 text ({exc.reason})", source) from None
+    except RecursionError:
+        raise DataFormatError("invalid JSON: arrays or objects nested too deeply", source) from None
+    except ValueError as exc:  # e.g. an integer beyond Python's int-str digit limit
+        if "integer string conversion" in str(exc):
+            raise DataFormatError(
+                f"invalid JSON: an integer has more than {sys.get_int_max_str_digits()} digits", source
+            ) from None
+        raise DataFormatError(f"invalid JSON: {' '.join(str(exc).split())}", source) from None

@@ -30,7 +30,6 @@ import hashlib
 import json
 import math
 import os
-import sys
 import threading
 import warnings
 from collections.abc import Mapping
@@ -42,7 +41,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from sonarmap._atomic import atomic_write_text
-from sonarmap.errors import DataFormatError, GeometryError, SonarmapWarning
+from sonarmap.errors import GeometryError, SonarmapWarning
 
 __all__ = [
     "plausible_elevation_beamwidth",
@@ -734,23 +733,9 @@ def geometry_from_dict(
 
 
 def _parse_geometry_json(data: bytes, source: str, default_name: str) -> SonarGeometry:
-    try:
-        d = json.loads(data)
-    except json.JSONDecodeError as exc:
-        raise DataFormatError(
-            f"invalid JSON at line {exc.lineno} column {exc.colno}: {exc.msg}", source
-        ) from None
-    except UnicodeDecodeError as exc:
-        raise DataFormatError(f"not UTF-8 text ({exc.reason})", source) from None
-    except RecursionError:
-        raise DataFormatError("invalid JSON: arrays or objects nested too deeply", source) from None
-    except ValueError as exc:  # e.g. an integer beyond Python's int-str digit limit
-        if "integer string conversion" in str(exc):
-            raise DataFormatError(
-                f"invalid JSON: an integer has more than {sys.get_int_max_str_digits()} digits", source
-            ) from None
-        raise DataFormatError(f"invalid JSON: {' '.join(str(exc).split())}", source) from None
-    return geometry_from_dict(d, source=source, default_name=default_name)
+    from sonarmap._files import parse_json  # lazily, as the file reads below: `import sonarmap` stays light
+
+    return geometry_from_dict(parse_json(data, source), source=source, default_name=default_name)
 
 
 _cached_geometry_json = functools.lru_cache(maxsize=64)(_parse_geometry_json)

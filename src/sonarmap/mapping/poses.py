@@ -50,6 +50,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from sonarmap._atomic import atomic_write_text
+from sonarmap._files import parse_json
 from sonarmap.errors import DataFormatError, InputError
 from sonarmap.mapping.frames import (
     FRD_FROM_FLU,
@@ -417,12 +418,10 @@ def load_extrinsics(path: str | os.PathLike[str]) -> Extrinsics:
     """
     p = Path(path)
     try:
-        d = json.loads(p.read_text(encoding="utf-8"))
+        text = p.read_text(encoding="utf-8")
     except OSError as exc:
         raise DataFormatError(f"cannot read extrinsics: {exc.strerror or exc}", p) from None
-    except json.JSONDecodeError as exc:
-        raise DataFormatError(f"invalid JSON at line {exc.lineno} column {exc.colno}: {exc.msg}", p) from None
-    return Extrinsics.from_dict(d, source=str(p))
+    return Extrinsics.from_dict(parse_json(text, p), source=str(p))
 
 
 def save_extrinsics(extrinsics: Extrinsics, path: str | os.PathLike[str]) -> None:

@@ -26,7 +26,6 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import json
 import math
 import os
 from pathlib import Path
@@ -36,6 +35,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from sonarmap._config import config_table
+from sonarmap._files import parse_json
 from sonarmap.errors import InputError
 from sonarmap.geometry import SonarGeometry
 from sonarmap.ping import Ping, as_image
@@ -233,12 +233,7 @@ def load_config(path: str | os.PathLike[str]) -> PreprocessConfig:
         except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
             raise DataFormatError(f"invalid TOML: {exc}", p) from None
     else:
-        try:
-            d = json.loads(data)
-        except json.JSONDecodeError as exc:
-            raise DataFormatError(
-                f"invalid JSON at line {exc.lineno} column {exc.colno}: {exc.msg}", p
-            ) from None
+        d = parse_json(data, p)
     try:
         return PreprocessConfig.from_dict(d)
     except InputError as exc:
