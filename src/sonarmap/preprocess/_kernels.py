@@ -63,3 +63,21 @@ def excess(z, t, gain):  # pragma: no cover - numba
             e = (z[i, j] - t) * gain
             out[i, j] = 0.0 if e <= 0 else (1.0 if e > 1.0 else e)
     return out
+
+
+@njit(cache=True, nogil=True)
+def interpolate_rows(cols, r0, r1, fr):  # pragma: no cover - numba
+    """``out[i] = (1 - fr[i]) cols[r0[i]] + fr[i] cols[r1[i]]`` (float32, elementwise: the same bits
+    on every machine and thread count)."""
+    n = r0.shape[0]
+    m = cols.shape[1]
+    out = np.empty((n, m), dtype=np.float32)
+    one = np.float32(1.0)
+    for i in range(n):
+        f = fr[i]
+        g = one - f
+        a = cols[r0[i]]
+        b = cols[r1[i]]
+        for j in range(m):
+            out[i, j] = a[j] * g + b[j] * f
+    return out

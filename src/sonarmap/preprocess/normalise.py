@@ -270,25 +270,32 @@ def _block_factor(z: NDArray[np.float32]) -> NDArray[np.float32]:
 
 
 @functools.lru_cache(maxsize=32)
-def _interp_matrix(n: int, nb: int) -> NDArray[np.float32]:
-    """(n, nb) linear interpolation weights from ``nb`` block centres to ``n`` samples (edges held)."""
-    w = np.zeros((n, nb), dtype=np.float32)
+def _interp_weights(n: int, nb: int) -> tuple[NDArray[np.intp], NDArray[np.intp], NDArray[np.float32]]:
+    """``(i0, i1, f)``: sample ``k`` of ``n`` lies a fraction ``f[k]`` of the way from block centre
+    ``i0[k]`` to ``i1[k]`` of ``nb`` blocks (edges held: ``f`` is 0 or 1 beyond the outer centres)."""
     x = np.clip((np.arange(n) + 0.5) * nb / n - 0.5, 0, nb - 1)
-    i0 = np.minimum(x.astype(np.int64), max(nb - 2, 0))
+    i0 = np.minimum(x.astype(np.intp), max(nb - 2, 0))
     i1 = np.minimum(i0 + 1, nb - 1)
     f = (x - i0).astype(np.float32)
-    rows = np.arange(n)
-    np.add.at(w, (rows, i0), 1 - f)
-    np.add.at(w, (rows, i1), f)
-    w.setflags(write=False)
-    return w
+    for a in (i0, i1, f):
+        a.setflags(write=False)
+    return i0, i1, f
 
 
 def expand_grid(grid: NDArray[np.float32], shape: tuple[int, int]) -> NDArray[np.float32]:
-    """Bilinear interpolation of a block grid to the full lattice (block centres; edges held)."""
-    nr, nc = grid.shape
-    return (_interp_matrix(shape[0], nr) @ grid.astype(np.float32) @ _interp_matrix(shape[1], nc).T).astype(
-        np.float32, copy=False)
+    """Bilinear interpolation of a block grid to the full lattice (block centres; edges held).
+
+    Separable, from the two neighbouring block centres along each axis, in elementwise float32
+    arithmetic: the result does not depend on the BLAS library or its thread count (a product
+    with dense interpolation matrices did, in the last bit).
+    """
+    from sonarmap.preprocess._kernels import interpolate_rows
+
+    g = np.ascontiguousarray(grid, dtype=np.float32)
+    c0, c1, fc = _interp_weights(shape[1], g.shape[1])
+    cols = interpolate_rows(np.ascontiguousarray(g.T), c0, c1, fc).T  # across beams on the small grid
+    r0, r1, fr = _interp_weights(shape[0], g.shape[0])
+    return interpolate_rows(np.ascontiguousarray(cols), r0, r1, fr)
 
 
 def estimate_background(
