@@ -209,3 +209,14 @@ def test_ranges_sigma_is_calibrated_and_pooled_edges_hold_their_recall():
     per_beam = {r.method: r for r in evaluate_ranges(PipelineConfig().replace(edge_pool_beams=0), presets=("didson-hf",),
                                                      seeds=(0,)).rows}
     assert rows["didson-hf"].recall > per_beam["didson-hf"].recall + 0.05
+
+
+def test_command_line_scene_choice(capsys):
+    from sonarmap.evaluate.segmentation import main
+
+    assert main(["--ranges", "--presets", "didson-hf", "--scenes", "empty", "--seeds", "1", "--per-scene"]) == 0
+    out = capsys.readouterr().out
+    assert "| didson-hf | empty |" in out and "hull_slope4" not in out
+    with pytest.raises(SystemExit) as exc:
+        main(["--scenes", "hull,bogus"])
+    assert exc.value.code == 2 and "unknown scene(s) bogus" in capsys.readouterr().err

@@ -413,7 +413,7 @@ def evaluate_presets(
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """``python -m sonarmap.evaluate [--ranges] [--presets NAME,...] [--seeds N]``.
+    """``python -m sonarmap.evaluate [--ranges] [--presets NAME,...] [--scenes NAME,...] [--seeds N]``.
 
     Without ``--ranges``: the every-sonar table (:func:`evaluate_presets`).  With ``--ranges``:
     the ranges acceptance (:func:`evaluate_ranges`: presets x :data:`RANGES_SCENES`, scored
@@ -424,16 +424,26 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     ap = argparse.ArgumentParser(prog="python -m sonarmap.evaluate", description=main.__doc__)
     ap.add_argument("--presets", default=",".join(ACCEPTANCE_PRESETS), help="comma-separated preset names")
+    ap.add_argument("--scenes", default=None,
+                    help="comma-separated scene names (default: the table's own scene set)")
     ap.add_argument("--seeds", type=int, default=3, help="seeds per scene and noise level")
     ap.add_argument("--ranges", action="store_true", help="the ranges acceptance (sub-bin truth)")
     ap.add_argument("--per-scene", action="store_true", help="with --ranges: also one row per preset and scene")
     args = ap.parse_args(None if argv is None else list(argv))
     presets = [p for p in args.presets.split(",") if p]
+    scenes = None if args.scenes is None else [s for s in args.scenes.split(",") if s]
+    from sonarmap.simulate.scene import SCENE_NAMES
+
+    unknown = sorted(set(scenes or ()) - set(SCENE_NAMES))
+    if unknown:
+        ap.error(f"--scenes: unknown scene(s) {', '.join(unknown)}; choose from {', '.join(SCENE_NAMES)}")
     if args.ranges:
-        report = evaluate_ranges(presets=presets, seeds=tuple(range(args.seeds)))
+        report = evaluate_ranges(presets=presets, seeds=tuple(range(args.seeds)),
+                                 scenes=RANGES_SCENES if scenes is None else scenes)
         print(report.table(per_scene=args.per_scene))
         return 0
-    rows = evaluate_presets(presets=presets, seeds=tuple(range(args.seeds)))
+    rows = evaluate_presets(presets=presets, seeds=tuple(range(args.seeds)),
+                            scenes=ACCEPTANCE_SCENES if scenes is None else scenes)
     print(format_table(rows))
     return 0
 
