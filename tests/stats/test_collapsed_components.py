@@ -18,8 +18,10 @@ def test_collapsed_components_flag_on_real_pings(test_ping_paths):
         assert not f.ok if close else "collapsed_components" not in f.flags
         if close:
             flagged.append(i)
-    # measured: images 0-3, 5-7 collapse (scales within 1.4 %); 4, 8, 9 are separated (>= 75 %)
-    assert flagged == [0, 1, 2, 3, 5, 6, 7]
+    # measured: images 0-3, 5, 6 collapse (scales within 1.8 %); 4, 7, 8, 9 are separated (>= 75 %).
+    # Image 7 collapsed under plain EM (log-likelihood -147647.88, 53 iterations: EM stopped at the
+    # collapsed saddle); SQUAREM reaches the separated fit (0.078 vs 0.19), 33 higher
+    assert flagged == [0, 1, 2, 3, 5, 6]
     # the paper's 2-class default never carries the flag
     for path in test_ping_paths:
         assert "collapsed_components" not in fit_mixture(read_ping(path).image, method="em").flags

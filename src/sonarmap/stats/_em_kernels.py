@@ -318,48 +318,26 @@ def em_kernel(
     max_iter: int,
     tol: float,
     ll_trace: np.ndarray,
+    accel: bool = True,
 ) -> tuple[int, bool]:
-    """Run EM (kinds 0-2) in place on ``eta`` and ``w``; returns ``(n_iter, converged)``.
+    """EM for the kinds 0-2 (spike, exponential, Rayleigh: exact M-step), in place on ``eta``
+    and ``w``; returns ``(n_iter, converged)``.
 
-    ``ll_trace[i]`` receives the log-likelihood at the parameters *entering* iteration ``i``;
-    ``ll_trace[n_iter]`` that of the returned parameters.  Stops when the log-likelihood gain is
-    at most ``tol * (|ll| + 1)``.
+    :func:`em_general_kernel` with ``par[:, 0] = eta`` (same iterates, trace and stopping rule;
+    see there); the two-parameter machinery stays idle.
     """
     C = kind.shape[0]
-    L = x.shape[0]
-    occ, N = _occupied(counts)
-    P = np.zeros((C, L))
-    u = np.empty(L)
-    m_lo, m_hi = _eta_mean_bounds(kind, x, eta_lo, eta_hi, u)
-    Nc = np.empty(C)
-    tbar = np.empty(C)
-    pk = np.empty(C)
-    converged = False
-    it = 0
-    ll_prev = -np.inf
-    while True:
-        # component pmfs at the current parameters, then the E-step
-        for c in range(C):
-            if kind[c] == 0:
-                P[c, 0] = 1.0
-            else:
-                _eta_pmf(kind[c], x, eta[c], u, P, c)
-        ll = _responsibilities(counts, x, kind, w, occ, P, P, Nc, tbar, pk, False)
-        ll_trace[it] = ll
-        if it > 0 and ll - ll_prev <= tol * (abs(ll) + 1.0):
-            converged = True
-            break
-        if it >= max_iter:
-            break
-        ll_prev = ll
-        # M-step (exact)
-        for c in range(C):
-            w[c] = Nc[c] / N
-            if kind[c] != 0 and Nc[c] > 0:
-                eta[c] = _solve(kind[c], x, tbar[c] / Nc[c], eta[c], eta_lo[c], eta_hi[c],
-                                m_lo[c], m_hi[c], u)
-        it += 1
-    return it, converged
+    par = np.zeros((C, 2))
+    lo = np.zeros((C, 2))
+    hi = np.zeros((C, 2))
+    for c in range(C):
+        par[c, 0] = eta[c]
+        lo[c, 0] = eta_lo[c]
+        hi[c, 0] = eta_hi[c]
+    out = em_general_kernel(counts, x, kind, par, w, lo, hi, max_iter, tol, 0, ll_trace, accel)
+    for c in range(C):
+        eta[c] = par[c, 0]
+    return out
 
 
 # ---------------------------------------------------------------------------- general EM
@@ -871,9 +849,10 @@ def _mstep2(kind: int, par: np.ndarray, lo: np.ndarray, hi: np.ndarray, x: np.nd
 
 @njit(cache=True, nogil=True)
 def _estep_general(counts, x, xe, lx, kind, par, w, occ, P, Rsp, Nc, tbar, pk, u, V, GR, HS, SC,
-                   cur) -> float:
-    """Component pmfs at ``(par, w)`` (two-parameter ones from their slots), responsibilities
-    ``Rsp``, ``Nc``, ``tbar``; returns the log-likelihood."""
+                   cur, keep) -> float:
+    """Component pmfs at ``(par, w)`` (two-parameter ones from their slots), ``Nc``, ``tbar``
+    and with ``keep`` the responsibilities ``Rsp`` (the M-step of kinds 3-6 needs them);
+    returns the log-likelihood."""
     C = kind.shape[0]
     L = x.shape[0]
     for c in range(C):
@@ -889,7 +868,7 @@ def _estep_general(counts, x, xe, lx, kind, par, w, occ, P, Rsp, Nc, tbar, pk, u
             inv = 1.0 / SC[c, s, 3]
             for k in range(L):
                 P[c, k] = e[k] * inv
-    return _responsibilities(counts, x, kind, w, occ, P, Rsp, Nc, tbar, pk, True)
+    return _responsibilities(counts, x, kind, w, occ, P, Rsp, Nc, tbar, pk, keep)
 
 
 @njit(cache=True, nogil=True)
@@ -909,6 +888,135 @@ def _mstep_general(x, xe, lx, kind, par, w, lo, hi, N, Rsp, Nc, tbar, m_lo, m_hi
                              HS[c], SC[c], cur[c], max_newton)
 
 
+# ---------------------------------------------------------------------------- SQUAREM
+#
+# EM converges linearly, and slowly where components overlap (hundreds to thousands of iterations).
+# SQUAREM (Varadhan & Roland 2008, scheme S3) extrapolates from x0, x1 = F(x0) and x2 = F(x1),
+# F the EM map (one E-step and one M-step):
+#     r = x1 - x0,  v = x2 - 2 x1 + x0,  a = ||r|| / ||v|| clipped to [1, step_max],
+#     x' = x0 + 2 a r + a^2 v                                  (a = 1 gives x' = x2),
+# then takes one stabilising EM step x3 = F(x'), kept only if ll(x3) >= ll(x2); otherwise the
+# cycle ends at x2, so the log-likelihood of the kept iterates never decreases.  ``step_max``
+# starts at SQ_STEP_MAX0, grows 4x after an accepted step clipped at it and shrinks 4x after a
+# rejected one (the step control of the R package SQUAREM).  The coordinates (:func:`_sq_coords`)
+# are log weights (the interior of the simplex; the extrapolated weights are renormalised), log |p|
+# for a parameter whose bounds exclude 0 (eta, gamma's shape and 1/scale, Rice's 1/scale^2,
+# Weibull's and K's shape) and p itself otherwise (Rice's nu, Weibull's and K's log scale); the
+# extrapolated point is kept inside the box and off its boundary (:func:`_sq_point`).  A zero
+# weight stays zero (as under EM).  ``n_iter`` counts EM map evaluations: 3 per cycle.
+
+SQ_STEP_MAX0 = 4.0
+SQ_MIN_SHRINK = 1e-3
+_SQ_GROW = 4.0
+
+
+@njit(cache=True, nogil=True)
+def _sq_coords(kind: np.ndarray, par: np.ndarray, w: np.ndarray, lo: np.ndarray, hi: np.ndarray,
+               y: np.ndarray) -> None:
+    """The extrapolation coordinates of ``(par, w)`` into ``y (3 C,)``: ``C`` log weights
+    (``-inf`` for a zero weight), then ``(C, 2)`` parameters (log |p| where the box excludes 0)."""
+    C = kind.shape[0]
+    for c in range(C):
+        y[c] = np.log(w[c]) if w[c] > 0 else -np.inf
+        for j in range(2):
+            p = par[c, j]
+            i = C + 2 * c + j
+            if lo[c, j] > 0:
+                y[i] = np.log(p)
+            elif hi[c, j] < 0:
+                y[i] = np.log(-p)
+            else:
+                y[i] = p
+
+
+@njit(cache=True, nogil=True)
+def _sq_step_length(y0: np.ndarray, y1: np.ndarray, y2: np.ndarray, step_max: float) -> float:
+    """SQUAREM's S3 step length ``a = ||r|| / ||v||`` of three successive EM iterates (in
+    :func:`_sq_coords`), clipped to ``[1, step_max]``; coordinates that are not finite in all
+    three (zero weights) do not count."""
+    sr = 0.0
+    sv = 0.0
+    for i in range(y0.shape[0]):
+        if math.isfinite(y0[i]) and math.isfinite(y1[i]) and math.isfinite(y2[i]):
+            r = y1[i] - y0[i]
+            v = y2[i] - 2.0 * y1[i] + y0[i]
+            sr += r * r
+            sv += v * v
+    a = math.sqrt(sr / sv) if sv > 0 else step_max
+    if not a >= 1.0:
+        a = 1.0
+    return min(a, step_max)
+
+
+@njit(cache=True, nogil=True)
+def _sq_extrapolate(y0: np.ndarray, y1: np.ndarray, y2: np.ndarray, a: float, y: np.ndarray) -> None:
+    """SQUAREM's point ``y = y0 + 2 a r + a^2 v`` (``y2`` for ``a = 1``); coordinates that are
+    not finite in all three iterates keep ``y2``'s value."""
+    for i in range(y0.shape[0]):
+        yi = y2[i]
+        if math.isfinite(y0[i]) and math.isfinite(y1[i]) and math.isfinite(y2[i]):
+            r = y1[i] - y0[i]
+            v = y2[i] - 2.0 * y1[i] + y0[i]
+            yi = y0[i] + 2.0 * a * r + a * a * v
+            if not math.isfinite(yi):
+                yi = y2[i]
+        y[i] = yi
+
+
+@njit(cache=True, nogil=True)
+def _sq_point(kind: np.ndarray, y: np.ndarray, lo: np.ndarray, hi: np.ndarray, par2: np.ndarray,
+              w2: np.ndarray, par: np.ndarray, w: np.ndarray) -> None:
+    """``(par, w)`` of the extrapolated coordinates ``y`` (:func:`_sq_coords`), kept off the
+    boundary that the last EM iterate ``(par2, w2)`` is off.
+
+    A weight falls at most to ``SQ_MIN_SHRINK`` times ``w2``'s, and the weights are normalised;
+    a parameter beyond its box goes halfway from ``par2``'s value to the bound it crossed.  A
+    point on the boundary can be a fixed point of EM that the data do not support (a zero weight;
+    Rice at ``nu = 0``, where the likelihood is even in ``nu``): plain EM creeps away from near
+    it, clipping onto it would stop there.  Likewise the shape of a gamma or Weibull does not
+    cross 1 by extrapolation (halfway to 1 instead): below 1 level 0 is in the component's support
+    (evaluated at half a step), at and above 1 it is not, and once the component takes some of
+    level 0's count the M-step cannot leave that side (its expected log-likelihood is ``-inf``
+    beyond), so a jump across would trap EM in the other side's optimum.
+    """
+    C = kind.shape[0]
+    top = -np.inf
+    for c in range(C):
+        top = max(top, y[c])
+    tot = 0.0
+    for c in range(C):
+        v = np.exp(y[c] - top) if y[c] > -np.inf else 0.0
+        w[c] = v
+        tot += v
+    tot2 = 0.0
+    for c in range(C):
+        w[c] = max(w[c] / tot, SQ_MIN_SHRINK * w2[c])
+        tot2 += w[c]
+    for c in range(C):
+        w[c] /= tot2
+        for j in range(2):
+            yi = y[C + 2 * c + j]
+            if lo[c, j] > 0:
+                p = np.exp(yi)
+            elif hi[c, j] < 0:
+                p = -np.exp(yi)
+            else:
+                p = yi
+            if p < lo[c, j]:
+                p = 0.5 * (lo[c, j] + par2[c, j])
+            elif p > hi[c, j]:
+                p = 0.5 * (hi[c, j] + par2[c, j])
+            elif j == 0 and (kind[c] == 3 or kind[c] == 4) and (p >= 1.0) != (par2[c, 0] >= 1.0):
+                p = 0.5 * (1.0 + par2[c, 0])  # level 0's side of shape 1, see above
+            par[c, j] = p
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _small_gain(ll: float, ll_prev: float, tol: float) -> bool:
+    """The stopping rule: one EM step gained at most ``tol * (|ll| + 1)``."""
+    return ll - ll_prev <= tol * (abs(ll) + 1.0)
+
+
 @njit(cache=True, nogil=True)
 def em_general_kernel(
     counts: np.ndarray,
@@ -922,14 +1030,23 @@ def em_general_kernel(
     tol: float,
     max_newton: int,
     ll_trace: np.ndarray,
+    accel: bool = True,
 ) -> tuple[int, bool]:
-    """(Generalised) EM for any mix of kinds 0-6, in place on ``par (C, 2)`` and ``w``.
+    """(Generalised) EM for any mix of kinds 0-6, in place on ``par (C, 2)`` and ``w``; returns
+    ``(n_iter, converged)``.
 
-    ``par[c, 0]`` is ``eta`` for kinds 1-2 (exact M-step as in :func:`em_kernel`) and the first
+    ``par[c, 0]`` is ``eta`` for kinds 1-2 (exact M-step: moment matching) and the first
     coordinate of kinds 3-6 (damped Newton, improvement only); ``lo``/``hi`` are ``(C, 2)``
-    bounds.  Same trace and stopping rule as :func:`em_kernel`: ``n_iter`` counts M-steps, and
-    the fit has converged when one EM step gains at most ``tol * (|ll| + 1)``.
+    bounds.  With ``accel`` (default) the EM map is accelerated by SQUAREM (see the notes above
+    :data:`SQ_STEP_MAX0`), otherwise plain EM.
 
+    ``n_iter`` counts EM map evaluations (M-steps; under SQUAREM including the stabilising steps
+    of rejected extrapolations) and is at most ``max_iter``.  ``ll_trace[i]`` receives the
+    log-likelihood of the parameters held after ``i`` of them (``ll_trace[0]``: the start,
+    ``ll_trace[n_iter]``: the returned parameters); it never decreases (but for the rounding of
+    an EM step that gains nothing).  The fit has converged when one EM step - from the held
+    parameters, or the stabilising step from an extrapolated point - gains at most
+    ``tol * (|ll| + 1)``; the parameters returned are that step's result.
     """
     C = kind.shape[0]
     L = x.shape[0]
@@ -941,29 +1058,85 @@ def em_general_kernel(
     P = np.zeros((C, L))
     Rsp = np.zeros((C, L))
     u = np.empty(L)
-    # two evaluation slots per component (see _eval_slot); sc NaN = empty
-    V = np.empty((C, 2, 4, L))
-    GR = np.empty((C, 2, L, 2))
-    HS = np.empty((C, 2, L, 3))
+    keep = False  # responsibilities per level: only the Newton M-step of kinds 3-6 needs them
+    for c in range(C):
+        keep = keep or kind[c] >= 3
+    # two evaluation slots per two-parameter component (see _eval_slot); sc NaN = empty
+    Ls = L if keep else 1
+    V = np.empty((C, 2, 4, Ls))
+    GR = np.empty((C, 2, Ls, 2))
+    HS = np.empty((C, 2, Ls, 3))
     SC = np.full((C, 2, _SC_SIZE), np.nan)
     cur = np.zeros(C, dtype=np.int64)
     m_lo, m_hi = _eta_mean_bounds(kind, x, lo[:, 0], hi[:, 0], u)
     Nc = np.empty(C)
     tbar = np.empty(C)
     pk = np.empty(C)
-    converged = False
-    it = 0
-    ll = _estep_general(counts, x, xe, lx, kind, par, w, occ, P, Rsp, Nc, tbar, pk, u, V, GR, HS, SC, cur)
-    ll_trace[0] = ll
-    while it < max_iter:
-        ll_prev = ll
+
+    def estep() -> float:
+        return _estep_general(counts, x, xe, lx, kind, par, w, occ, P, Rsp, Nc, tbar, pk, u, V, GR, HS,
+                              SC, cur, keep)
+
+    def mstep() -> None:
         _mstep_general(x, xe, lx, kind, par, w, lo, hi, N, Rsp, Nc, tbar, m_lo, m_hi, u, V, GR, HS,
                        SC, cur, max_newton)
-        it += 1
-        ll = _estep_general(counts, x, xe, lx, kind, par, w, occ, P, Rsp, Nc, tbar, pk, u, V, GR, HS,
-                            SC, cur)
+
+    Y = np.empty((4, 3 * C))  # SQUAREM: coordinates of x0, x1, x2 and the extrapolated point
+    par2 = np.empty((C, 2))
+    w2 = np.empty(C)
+    step_max = SQ_STEP_MAX0
+    converged = False
+    it = 0
+    ll = estep()
+    ll_trace[0] = ll
+    while it < max_iter:
+        # x1 = F(x0) and x2 = F(x1): plain EM steps (one per pass without ``accel``)
+        for k in range(2 if accel else 1):
+            if accel:
+                _sq_coords(kind, par, w, lo, hi, Y[k])
+            ll_prev = ll
+            mstep()
+            it += 1
+            ll = estep()
+            ll_trace[it] = ll
+            if _small_gain(ll, ll_prev, tol):
+                converged = True
+                break
+            if it >= max_iter:
+                break
+        if converged:
+            break
+        if not accel or it >= max_iter:
+            continue
+        # x' = x0 + 2 a r + a^2 v, then x3 = F(x'), kept if ll(x3) >= ll(x2)
+        ll2 = ll
+        _sq_coords(kind, par, w, lo, hi, Y[2])
+        a = _sq_step_length(Y[0], Y[1], Y[2], step_max)
+        ll_prev = ll2
+        if a > 1.0:
+            par2[:, :] = par
+            w2[:] = w
+            _sq_extrapolate(Y[0], Y[1], Y[2], a, Y[3])
+            _sq_point(kind, Y[3], lo, hi, par2, w2, par, w)
+            ll_prev = estep()
+        stepped = ll_prev > -np.inf  # else x' is off the support (or NaN): no EM step from it
+        if stepped:
+            mstep()
+            it += 1
+            ll = estep()
+        if a > 1.0 and not (stepped and ll >= ll2):
+            # rejected: back to x2
+            par[:, :] = par2
+            w[:] = w2
+            ll = estep()
+            ll_trace[it] = ll
+            if a >= step_max:
+                step_max = max(1.0, step_max / _SQ_GROW)
+            continue
         ll_trace[it] = ll
-        if ll - ll_prev <= tol * (abs(ll) + 1.0):
+        if a >= step_max:
+            step_max *= _SQ_GROW
+        if _small_gain(ll, ll_prev, tol):
             converged = True
             break
     return it, converged

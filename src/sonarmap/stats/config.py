@@ -6,7 +6,7 @@ from __future__ import annotations
 import dataclasses
 from typing import Any, ClassVar
 
-from sonarmap._config import ConfigSection, check_choice, check_integers, coerce_reals, config_error
+from sonarmap._config import ConfigSection, check_booleans, check_choice, check_integers, coerce_reals, config_error
 
 __all__ = ["FitConfig"]
 
@@ -23,6 +23,13 @@ class FitConfig(ConfigSection):
         ``"em"`` or ``"lsq"``.
     fit_tol : float
         EM relative log-likelihood tolerance.
+    fit_accelerate : bool
+        Accelerate EM by SQUAREM (:func:`sonarmap.stats.mixture.fit_mixture`'s ``accelerate``).
+        Off by default: at ``fit_tol = 1e-6`` plain EM stops short of the likelihood maximum
+        (by up to 8e-5 relative on the ARIS sample frames), SQUAREM stops nearer to it (within
+        4e-5) in 3-10x fewer EM steps, and the pipeline's products follow the fit: on the real
+        ARIS frames 0 and 1 the converged fit (plain EM at ``fit_tol <= 1e-8`` as well) no longer
+        carries the surface along the target's faint near end.
     n_levels : int
         Quantisation levels of the histogram (and of the level images the classifier labels).
     max_kld, max_object_weight, min_separation : float
@@ -49,6 +56,7 @@ class FitConfig(ConfigSection):
     families: tuple[str, ...] = ("exponential", "rayleigh")
     fit_method: str = "em"
     fit_tol: float = 1e-6
+    fit_accelerate: bool = False
     n_levels: int = 256
     max_kld: float = 0.05
     max_object_weight: float = 0.5
@@ -61,6 +69,7 @@ class FitConfig(ConfigSection):
         if self.fit_tol <= 0:
             raise config_error(w, "fit_tol", "must be > 0", self.fit_tol)
         check_integers(self, (("n_levels", 2), ("max_floor_levels", 0)), w)
+        check_booleans(self, ("fit_accelerate",), w)
         check_choice(self, "fit_method", ("em", "lsq"), w)
         fams = self.families
         if isinstance(fams, str) or not isinstance(fams, list | tuple) or len(fams) < 2:

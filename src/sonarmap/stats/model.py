@@ -41,7 +41,8 @@ def fit_counts(counts: ArrayLike, config: FitConfig = FitConfig()) -> Any:
         raise InputError(f"config: expected a FitConfig, got {type(config).__name__}")
     try:
         return fit_mixture(np.asarray(counts, dtype=np.float64), families=config.families,  # type: ignore[arg-type]
-                           method=config.fit_method, n_levels=config.n_levels, tol=config.fit_tol)  # type: ignore[arg-type]
+                           method=config.fit_method, n_levels=config.n_levels, tol=config.fit_tol,  # type: ignore[arg-type]
+                           accelerate=config.fit_accelerate)
     except FitError:
         return None
 
