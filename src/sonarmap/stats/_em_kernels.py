@@ -823,6 +823,8 @@ def _mstep2(kind: int, par: np.ndarray, lo: np.ndarray, hi: np.ndarray, x: np.nd
             if step * pred <= 1e-13 * (abs(q0) + 1.0):
                 break  # a shorter step cannot gain more than the rounding of Q: stop halving
             c0 = min(max(p0 + step * d0, lo[0]), hi[0])
+            if (kind == 3 or kind == 4) and p0 >= 1.0 and c0 < 1.0:
+                c0 = 1.0  # shape 1 bounds the step like the box (level 0 enters the support below)
             c1 = min(max(p1 + step * d1, lo[1]), hi[1])
             if c0 == p0 and c1 == p1:
                 break
