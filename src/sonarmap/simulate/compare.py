@@ -95,13 +95,13 @@ def background_stats(images: Iterable[NDArray[np.floating]]) -> BackgroundStats:
 def histogram_kld(p: NDArray[np.float64], q: NDArray[np.float64], eps: float = 1e-9) -> float:
     """Kullback-Leibler divergence ``KL(p || q)`` in nats between two 256-bin histograms.
 
-    ``eps`` is added to both before renormalising so empty bins do not give infinities.
+    ``eps`` is added to both before renormalising so empty bins do not give infinities; the
+    divergence is the library's eq. 11 (:func:`sonarmap.stats.mixture.kl_divergence`).
     """
-    a = np.asarray(p, dtype=np.float64) + eps
+    from sonarmap.stats.mixture import kl_divergence
+
     b = np.asarray(q, dtype=np.float64) + eps
-    a /= a.sum()
-    b /= b.sum()
-    return float(np.sum(a * np.log(a / b)))
+    return kl_divergence(np.asarray(p, dtype=np.float64) + eps, b / b.sum())
 
 
 def compare_background(
