@@ -134,6 +134,7 @@ def test_ranges_cli_zero_and_constant_pings(tmp_path, test_pings):
     assert main(["ranges", str(tmp_path), "-o", str(out), "--method", "nope"]) == 2  # usage error
 
 
+@pytest.mark.slow  # over a second in the fast subset
 def test_segment_cli_writes_labels_and_figure(tmp_path, test_ping_paths):
     from PIL import Image
 

@@ -259,6 +259,7 @@ def test_map_dash_needs_a_format(two_pings: Path, capsys: pytest.CaptureFixture[
     assert "--format" in cap.err and cap.out == ""
 
 
+@pytest.mark.slow  # over a second in the fast subset
 def test_convert_refuses_an_existing_output_unless_overwrite_or_append(two_pings: Path, tmp_path: Path,
                                                                        capsys: pytest.CaptureFixture[str]) -> None:
     from sonarmap.io import zarrstore

@@ -759,6 +759,7 @@ def _message_fields(version: int) -> list[tuple[str, int, np.dtype]]:
     return [f for fmt, off in parts for f in _struct_fields(fmt, off)]
 
 
+@pytest.mark.slow  # over a second in the fast subset
 def test_fuzz_viewpoint_logs(tmp_path: Path) -> None:
     rng = np.random.default_rng(20240603)
     img_rng = np.random.default_rng(7)

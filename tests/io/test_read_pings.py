@@ -16,6 +16,7 @@ from sonarmap.store import write_survey
 from sonarmap.io.rosbag import write_bag
 
 
+@pytest.mark.slow  # over a second in the fast subset
 def test_detection_by_content_not_extension(data_dir: Path, tmp_path: Path) -> None:
     # copies with misleading names (temp files, never in the repo)
     a = tmp_path / "recording.dat"

@@ -344,6 +344,7 @@ def test_cli_ranges_to_stdout_parse_with_pandas(aris_file: Path, capsys: pytest.
     assert all(json.loads(line)["time_ns"] > 0 for line in cap.out.splitlines())
 
 
+@pytest.mark.slow  # over a second in the fast subset
 def test_cli_ranges_to_a_bag_replay_with_the_pings_stamps(aris_file: Path, tmp_path: Path,
                                                           capsys: pytest.CaptureFixture[str]) -> None:
     import pandas as pd

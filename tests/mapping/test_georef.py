@@ -48,6 +48,7 @@ def _cloud(xyz, frame: str = "ned") -> PointCloud:
 
 
 # ------------------------------------------------------------------------------ GeoReference
+@pytest.mark.slow  # over a second in the fast subset
 def test_utm_zone_choice_hemispheres_and_exceptions() -> None:
     assert utm_epsg(LAT0, LON0) == 32631
     assert GeoReference.from_origin(LAT0, LON0).epsg == 32631

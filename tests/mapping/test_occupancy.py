@@ -122,6 +122,7 @@ def test_diagonal_ray_is_6_connected_and_2d_grid() -> None:
     assert (arr.logodds > 0).sum() == 2  # two hit cells in the plane
 
 
+@pytest.mark.slow  # over a second in the fast subset
 def test_sparse_storage_grows_and_export_matches_lookup() -> None:
     rng = np.random.default_rng(0)
     P, B = 60, 32

@@ -101,6 +101,7 @@ def test_hull_ghost_energy_measurable_and_truth_has_no_ghosts() -> None:
     assert not (res.class_mask[:, np.setdiff1d(cols + 8, cols)[:1]] == 1).any()
 
 
+@pytest.mark.slow  # over a second in the fast subset
 def test_taper_multiplies_echo_and_background() -> None:
     g = GEOM.replace(psf=None)
     r0 = simulate_ping(point_target(5.0, g.azimuth_rad[5], ts_db=-55.0), g, config=QUIET, seed=0)

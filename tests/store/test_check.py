@@ -243,6 +243,7 @@ def test_report_of_a_sound_store_still_works(seeds: dict[str, Path], tmp_path: P
     assert "2020-09-13" in (tmp_path / "r.html").read_text(encoding="utf-8")  # the real span, not 1970
 
 
+@pytest.mark.slow  # over a second in the fast subset
 def test_product_store_with_labels_and_points_loads_and_is_checked(seeds: dict[str, Path], tmp_path: Path) -> None:
     import zarr
 

@@ -47,6 +47,7 @@ def test_data_model(aris_pings: list[Ping]) -> None:
                                                   azimuth_rad=[-0.1, 0, 0.1], range_m=[1, 2, 3]))])
 
 
+@pytest.mark.slow  # over a second in the fast subset
 def test_convert_reopen_lossless(aris_pings: list[Ping], data_dir: Path, tmp_path: Path) -> None:
     store = tmp_path / "s.zarr"
     assert write_survey(iter(aris_pings), store, chunk_pings=4) == 6
@@ -81,6 +82,7 @@ def test_append_poses_and_atomic_failure(aris_pings: list[Ping], tmp_path: Path)
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
 
 
+@pytest.mark.slow  # over a second in the fast subset
 def test_interrupted_append_is_detected_and_repaired(aris_pings: list[Ping], tmp_path: Path) -> None:
     import zarr
 
@@ -93,6 +95,7 @@ def test_interrupted_append_is_detected_and_repaired(aris_pings: list[Ping], tmp
     assert open_survey(store, repair=True).sizes[DIM_PING] == 4
 
 
+@pytest.mark.slow  # over a second in the fast subset
 def test_extra_per_ping_variables(aris_pings: list[Ping], tmp_path: Path) -> None:
     store = tmp_path / "x.zarr"
     var = PingVariable("first_return_range_m", ("beam",), units="m", long_name="First return range")
@@ -144,6 +147,7 @@ def test_cli_convert_and_info(data_dir: Path, tmp_path: Path, capsys: pytest.Cap
     assert not bad.exists()
 
 
+@pytest.mark.slow  # over a second in the fast subset
 def test_append_pings_to_store_with_products(aris_pings: list[Ping], tmp_path: Path) -> None:
     """Pings appended after a processing stage added a variable get that variable's fill value."""
     store = tmp_path / "p.zarr"
