@@ -1305,10 +1305,8 @@ def fit_mixture(
         exponential/Rayleigh only - for reproducing Table I; ``kld`` is then computed with the
         unnormalised model as the authors did.
     accelerate : bool
-        EM (and the EM warm start of least squares) accelerated by SQUAREM (default; see
-        :mod:`sonarmap.stats._em_kernels`): the same stopping rule, typically 3-10x fewer EM
-        steps on overlapping components.  False: plain EM.  The two can end in different local
-        optima of a multi-modal likelihood.
+        SQUAREM-accelerated EM (:mod:`sonarmap.stats._em_kernels`; also least squares' EM warm start): the
+        same stopping rule, 3-10x fewer EM steps on overlapping components.  False: plain EM.
 
     Returns
     -------
