@@ -98,28 +98,18 @@ def histogram_kernel(flat: np.ndarray, zero, one, scale, n: int, floor: bool, co
 
 
 @njit(cache=True, nogil=True)
-def quantize_kernel(flat: np.ndarray, zero, one, scale, n: int, floor: bool, out: np.ndarray) -> bool:
-    """Level index of every value (see :func:`histogram_kernel`); False if a value is not finite."""
+def levels_kernel(flat: np.ndarray, zero, one, scale, n: int, floor: bool, lut: np.ndarray, out: np.ndarray) -> bool:
+    """Level index of every value (see :func:`histogram_kernel`), or ``lut[level]`` when ``lut`` is
+    not empty, in one pass; False if a value is not finite."""
     acc = zero
+    table = lut.shape[0] > 0
     for i in range(flat.shape[0]):
         y = flat[i]
         acc += y * zero
         if acc != acc:
             return False
-        out[i] = _level(y, zero, one, scale, n, floor)
-    return True
-
-
-@njit(cache=True, nogil=True)
-def lookup_kernel(flat: np.ndarray, zero, one, scale, n: int, floor: bool, lut: np.ndarray, out: np.ndarray) -> bool:
-    """``out[i] = lut[level(flat[i])]`` in one pass; False if a value is not finite."""
-    acc = zero
-    for i in range(flat.shape[0]):
-        y = flat[i]
-        acc += y * zero
-        if acc != acc:
-            return False
-        out[i] = lut[_level(y, zero, one, scale, n, floor)]
+        k = _level(y, zero, one, scale, n, floor)
+        out[i] = lut[k] if table else k
     return True
 
 
@@ -474,6 +464,19 @@ def log_i0e_ratio(z: np.ndarray, f: np.ndarray, a: np.ndarray) -> None:
                 a[k] = 0.5 * zi * s1[i] / s0[i]
 
 
+
+@njit(cache=True, nogil=True, inline="always")
+def _drop_crossing(t, z, av, amax, drop):  # pragma: no cover - numba
+    """Newton from ``t`` to where the exponent ``-z cosh t + av t`` of :func:`log_bessel_k` falls
+    ``drop`` under its maximum ``amax`` (monotone on either side of it; steps below 1e-3 stop it)."""
+    for _ in range(80):
+        d = -z * np.sinh(t) + av
+        step = (-z * np.cosh(t) + av * t - amax + drop) / d
+        t -= step
+        if abs(step) < 1e-3:
+            break
+    return t
+
 @njit(cache=True, nogil=True)
 def log_bessel_k(v: float, z: float, derivs: bool, out: np.ndarray) -> float:
     """``log K_v(z)`` for real ``v`` and ``z > 0``; with ``derivs``, ``out[:5] = (F_v, F_z, F_vv,
@@ -494,24 +497,11 @@ def log_bessel_k(v: float, z: float, derivs: bool, out: np.ndarray) -> float:
     amax = -z * cts + av * ts
     curv = z * cts
     drop = 46.0
-    t = ts + np.sqrt(2.0 * drop / curv)  # right of the root (the exponent is more than quadratic)
-    for _ in range(80):
-        d = -z * np.sinh(t) + av
-        step = (-z * np.cosh(t) + av * t - amax + drop) / d
-        t -= step
-        if abs(step) < 1e-3:
-            break
-    t_hi = t
+    # right of the root (the exponent is more than quadratic)
+    t_hi = _drop_crossing(ts + np.sqrt(2.0 * drop / curv), z, av, amax, drop)
     t_lo = 0.0
     if -z < amax - drop:
-        t = 0.0
-        for _ in range(80):
-            d = -z * np.sinh(t) + av
-            step = (-z * np.cosh(t) + av * t - amax + drop) / d
-            t -= step
-            if abs(step) < 1e-3:
-                break
-        t_lo = max(t - 1e-3, 0.0)
+        t_lo = max(_drop_crossing(0.0, z, av, amax, drop) - 1e-3, 0.0)
     hmax = min(0.25, 0.6 / np.sqrt(curv))
     n = int(np.ceil((t_hi - t_lo) / hmax))
     if n < 8:

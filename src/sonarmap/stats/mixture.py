@@ -151,6 +151,7 @@ def _kernel_args(arr: NDArray[np.floating[Any]], n_levels: int, binning: str) ->
 
 
 _LEVELS_OK: dict[tuple[int, str], int] = {}
+_NO_TABLE = np.zeros(0, dtype=np.uint8)  # levels_kernel: no look-up table
 
 
 def _check_levels_binning(n_levels: int, binning: str) -> int:
@@ -191,9 +192,7 @@ def quantize(
     -----
     One fused pass (numba): validation, clipping, scaling and rounding in the image's dtype.
     """
-    from sonarmap.stats._em_kernels import quantize_kernel
-
-    return _fused_levels(quantize_kernel, image, n_levels, binning)
+    return _fused_levels(image, n_levels, binning)
 
 
 def quantize_lookup(
@@ -216,18 +215,19 @@ def quantize_lookup(
         One fused pass (numba) of quantisation and look-up; the errors (:class:`InputError`) are
         those of :func:`quantize`.
     """
-    from sonarmap.stats._em_kernels import lookup_kernel
-
-    return _fused_levels(lookup_kernel, image, n_levels, binning, lut, lookup=True)
+    return _fused_levels(image, n_levels, binning, lut)
 
 
-def _fused_levels(kernel: Any, image: ArrayLike, n_levels: int, binning: str, *tables: Any,
-                  lookup: bool = False) -> NDArray[Any]:
-    """Run a fused quantisation kernel (:mod:`sonarmap.stats._em_kernels`) into a new level image."""
+def _fused_levels(image: ArrayLike, n_levels: int, binning: str, lut: NDArray[np.uint8] | None = None) -> NDArray[Any]:
+    """The level image, or ``lut`` applied to it, in one fused pass
+    (:func:`sonarmap.stats._em_kernels.levels_kernel`)."""
+    from sonarmap.stats._em_kernels import levels_kernel
+
     arr = _as_float_image(image)
     flat, zero, one, scale, n, floor = _kernel_args(arr, n_levels, binning)
-    out = np.empty(arr.shape, dtype=np.uint8 if lookup or n <= 256 else np.uint16)
-    if not kernel(flat, zero, one, scale, n, floor, *tables, out.reshape(-1)):
+    out = np.empty(arr.shape, dtype=np.uint8 if lut is not None or n <= 256 else np.uint16)
+    table = _NO_TABLE if lut is None else lut
+    if not levels_kernel(flat, zero, one, scale, n, floor, table, out.reshape(-1)):
         raise _not_finite()
     return out
 
