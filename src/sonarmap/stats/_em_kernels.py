@@ -296,40 +296,6 @@ def _responsibilities(counts: np.ndarray, x: np.ndarray, kind: np.ndarray, w: np
     return ll
 
 
-@njit(cache=True, nogil=True)
-def em_kernel(
-    counts: np.ndarray,
-    x: np.ndarray,
-    kind: np.ndarray,
-    eta: np.ndarray,
-    w: np.ndarray,
-    eta_lo: np.ndarray,
-    eta_hi: np.ndarray,
-    max_iter: int,
-    tol: float,
-    ll_trace: np.ndarray,
-    accel: bool = True,
-) -> tuple[int, bool]:
-    """EM for the kinds 0-2 (spike, exponential, Rayleigh: exact M-step), in place on ``eta``
-    and ``w``; returns ``(n_iter, converged)``.
-
-    :func:`em_general_kernel` with ``par[:, 0] = eta`` (same iterates, trace and stopping rule;
-    see there); the two-parameter machinery stays idle.
-    """
-    C = kind.shape[0]
-    par = np.zeros((C, 2))
-    lo = np.zeros((C, 2))
-    hi = np.zeros((C, 2))
-    for c in range(C):
-        par[c, 0] = eta[c]
-        lo[c, 0] = eta_lo[c]
-        hi[c, 0] = eta_hi[c]
-    out = em_general_kernel(counts, x, kind, par, w, lo, hi, max_iter, tol, 0, ll_trace, accel)
-    for c in range(C):
-        eta[c] = par[c, 0]
-    return out
-
-
 # ---------------------------------------------------------------------------- general EM
 #
 # Two-parameter families, in the coordinates the M-step works in (``kind``: coordinates):
@@ -464,7 +430,6 @@ def log_i0e_ratio(z: np.ndarray, f: np.ndarray, a: np.ndarray) -> None:
                 a[k] = 0.5 * zi * s1[i] / s0[i]
 
 
-
 @njit(cache=True, nogil=True, inline="always")
 def _drop_crossing(t, z, av, amax, drop):  # pragma: no cover - numba
     """Newton from ``t`` to where the exponent ``-z cosh t + av t`` of :func:`log_bessel_k` falls
@@ -476,6 +441,7 @@ def _drop_crossing(t, z, av, amax, drop):  # pragma: no cover - numba
         if abs(step) < 1e-3:
             break
     return t
+
 
 @njit(cache=True, nogil=True)
 def log_bessel_k(v: float, z: float, derivs: bool, out: np.ndarray) -> float:
@@ -890,9 +856,9 @@ def _mstep_general(x, xe, lx, kind, par, w, lo, hi, N, Rsp, Nc, tbar, m_lo, m_hi
 # then takes one stabilising EM step x3 = F(x'), kept only if ll(x3) >= ll(x2); otherwise the
 # cycle ends at x2, so the log-likelihood of the kept iterates never decreases.  ``step_max``
 # starts at SQ_STEP_MAX0, grows 4x after an accepted step clipped at it and shrinks 4x after a
-# rejected one (the step control of the R package SQUAREM).  The coordinates (:func:`_sq_coords`)
-# are log weights (the interior of the simplex; the extrapolated weights are renormalised), log |p|
-# for a parameter whose bounds exclude 0 (eta, gamma's shape and 1/scale, Rice's 1/scale^2,
+# rejected step clipped at it (a rejected shorter step leaves it).  The coordinates
+# (:func:`_sq_coords`) are log weights (the interior of the simplex; the extrapolated weights are
+# renormalised), log |p| for a parameter whose bounds exclude 0 (eta, gamma's shape and 1/scale, Rice's 1/scale^2,
 # Weibull's and K's shape) and p itself otherwise (Rice's nu, Weibull's and K's log scale); the
 # extrapolated point is kept inside the box and off its boundary (:func:`_sq_point`).  A zero
 # weight stays zero (as under EM).  ``n_iter`` counts EM map evaluations: 3 per cycle.

@@ -619,23 +619,17 @@ def _em(
     tol: float,
     accel: bool = True,
 ) -> tuple[NDArray[np.float64], list[tuple[float, ...]], int, bool, NDArray[np.float64]]:
-    """EM entirely in one numba kernel: :func:`em_kernel` for spike + exponential + Rayleigh
-    components (:func:`_fast_coords`), else :func:`em_general_kernel` (:func:`_general_coords`);
-    SQUAREM-accelerated unless ``accel`` is False (plain EM, kept for comparison)."""
-    from sonarmap.stats._em_kernels import em_general_kernel, em_kernel
+    """EM entirely in one numba kernel, :func:`em_general_kernel` in the coordinates of
+    :func:`_general_coords` (the exact M-step for the spike, exponential and Rayleigh
+    components); SQUAREM-accelerated unless ``accel`` is False (plain EM, kept for comparison)."""
+    from sonarmap.stats._em_kernels import em_general_kernel
 
     w = np.array(w0, dtype=np.float64)
     trace = np.empty(max_iter + 1)
-    if all(n in _KIND for n in spec.names):
-        kind, eta, lo, hi = _fast_coords(spec, params0)
-        n_iter, conv = em_kernel(counts, spec.levels, kind, eta, w, lo, hi, int(max_iter), float(tol), trace,
-                                 accel)
-        params = [() if n == "zero" else (_scale_of(n, float(eta[c])),) for c, n in enumerate(spec.names)]
-    else:
-        kind, par, lo, hi = _general_coords(spec, params0)
-        n_iter, conv = em_general_kernel(counts, spec.levels, kind, par, w, lo, hi, int(max_iter),
-                                         float(tol), 3, trace, accel)
-        params = [_from_coords(n, float(par[c, 0]), float(par[c, 1])) for c, n in enumerate(spec.names)]
+    kind, par, lo, hi = _general_coords(spec, params0)
+    n_iter, conv = em_general_kernel(counts, spec.levels, kind, par, w, lo, hi, int(max_iter),
+                                     float(tol), 3, trace, accel)
+    params = [_from_coords(n, float(par[c, 0]), float(par[c, 1])) for c, n in enumerate(spec.names)]
     return w, params, int(n_iter), bool(conv), trace[: n_iter + 1].copy()
 
 
@@ -645,26 +639,6 @@ def _eta_of(name: str, scale: float) -> float:
 
 def _scale_of(name: str, eta: float) -> float:
     return -1.0 / eta if name == "exponential" else math.sqrt(-1.0 / (2.0 * eta))
-
-
-_KIND = {"zero": 0, "exponential": 1, "rayleigh": 2}
-
-
-def _fast_coords(spec: _Spec, params0: list[tuple[float, ...]]) -> _KernelArgs:
-    """``(kind, eta, lo, hi)`` of :func:`em_kernel` for spike + exponential + Rayleigh components
-    (exact M-step, see :mod:`sonarmap.stats._em_kernels`)."""
-    C = len(spec.names)
-    kind = np.empty(C, dtype=np.int64)
-    eta = np.zeros(C)
-    lo = np.zeros(C)
-    hi = np.zeros(C)
-    for c, name in enumerate(spec.names):
-        kind[c] = _KIND[name]
-        if name != "zero":
-            eta[c] = _eta_of(name, params0[c][0])
-            lo[c] = _eta_of(name, spec.smin)
-            hi[c] = _eta_of(name, spec.smax)
-    return kind, eta, lo, hi
 
 
 _KIND_GENERAL = {"zero": 0, "exponential": 1, "rayleigh": 2, "gamma": 3, "weibull": 4, "rice": 5,
