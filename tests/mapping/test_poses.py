@@ -184,3 +184,14 @@ def test_extrinsics_json_quaternion_rpy_and_flu(tmp_path) -> None:
         load_extrinsics(badj)
     with pytest.raises(DataFormatError, match="cannot read"):
         load_extrinsics(tmp_path / "missing.json")
+
+
+@pytest.mark.parametrize(("content", "message"), [(b'{"translation": [0, 0', "invalid JSON at line 1"),
+                                                  (b'{"name": "\xff"}', "not UTF-8 text"),
+                                                  (b"[" * 100_000, "nested too deeply")])
+def test_bad_extrinsics_json_is_one_named_error(tmp_path, content, message) -> None:
+    path = tmp_path / "mount.json"
+    path.write_bytes(content)
+    with pytest.raises(DataFormatError, match=message) as exc:
+        load_extrinsics(path)
+    assert "mount.json" in str(exc.value)

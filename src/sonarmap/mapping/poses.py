@@ -418,10 +418,10 @@ def load_extrinsics(path: str | os.PathLike[str]) -> Extrinsics:
     """
     p = Path(path)
     try:
-        text = p.read_text(encoding="utf-8")
+        data = p.read_bytes()
     except OSError as exc:
         raise DataFormatError(f"cannot read extrinsics: {exc.strerror or exc}", p) from None
-    return Extrinsics.from_dict(parse_json(text, p), source=str(p))
+    return Extrinsics.from_dict(parse_json(data, p), source=str(p))
 
 
 def save_extrinsics(extrinsics: Extrinsics, path: str | os.PathLike[str]) -> None:
