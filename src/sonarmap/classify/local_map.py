@@ -53,7 +53,7 @@ def _lookup_table(fit: MixtureFit, eta: float | None) -> NDArray[np.uint8]:
 
 
 def _compute_table(fit: MixtureFit, eta: float | None) -> NDArray[np.uint8]:
-    logp = fit.class_log_pmf()
+    logp = fit.decision_log_pmf()
     prior = fit.class_prior()
     n_cls = logp.shape[0]
     if n_cls == 1:

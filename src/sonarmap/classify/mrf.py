@@ -365,13 +365,13 @@ def unary_from_log_likelihood(
 def unary_from_fit(image: ArrayLike, fit: Any, *, n_levels: int = 256, floor: float = -50.0) -> NDArray[np.float32]:
     """Unary costs of an image under a fitted mixture (``sonarmap.stats.mixture.MixtureFit``).
 
-    Uses ``fit.class_log_pmf()`` and ``fit.class_prior()``; levels from
+    Uses ``fit.decision_log_pmf()`` and ``fit.class_prior()``; levels from
     ``sonarmap.stats.mixture.quantize``.
     """
     from sonarmap.stats.mixture import quantize
 
     levels = quantize(np.asarray(image, dtype=np.float32), n_levels=n_levels)
-    lpmf = np.asarray(fit.class_log_pmf(), dtype=np.float64)
+    lpmf = np.asarray(fit.decision_log_pmf(), dtype=np.float64)
     with np.errstate(divide="ignore"):
         lprior = np.log(np.asarray(fit.class_prior(), dtype=np.float64))
     return unary_from_log_likelihood(levels, lpmf, lprior, floor=floor)
@@ -763,7 +763,7 @@ def segment_mrf(
     image : ndarray, shape (n_bins, n_beams)
         Pre-processed intensities in [0, 1].
     fit : MixtureFit
-        Fitted mixture giving ``class_log_pmf()`` and ``class_prior()``.
+        Fitted mixture giving ``decision_log_pmf()`` and ``class_prior()``.
     beta, neighbourhood, contrast, range_weight
         Pairwise model (see :func:`pairwise_weights`).
     object_prior_min, speckle_eps

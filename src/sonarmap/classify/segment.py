@@ -89,7 +89,7 @@ def class_costs(fit: Any, *, object_prior_min: float = 0.0, speckle_eps: float =
     Parameters
     ----------
     fit : MixtureFit
-        Gives ``class_log_pmf()`` and ``class_prior()``.
+        Gives ``decision_log_pmf()`` and ``class_prior()``.
     object_prior_min : float
         Every object class's prior raised to at least this (the background's lowered to match).
     speckle_eps : float
@@ -103,7 +103,7 @@ def class_costs(fit: Any, *, object_prior_min: float = 0.0, speckle_eps: float =
     -------
     ndarray of float64, shape (n_classes, n_levels)
     """
-    lp = np.asarray(fit.class_log_pmf(), dtype=np.float64)
+    lp = np.asarray(fit.decision_log_pmf(), dtype=np.float64)
     if speckle_eps > 0 and lp.shape[0] > 1:
         lp = lp.copy()
         with np.errstate(divide="ignore"):

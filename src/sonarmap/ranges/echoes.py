@@ -118,7 +118,7 @@ def smooth_along_range(image: ArrayLike, pulse_bins: int) -> NDArray[np.float64]
 def level_llr(fit: object, *, clip: float = 4.0) -> NDArray[np.float64]:
     """Per quantised level, the log-likelihood ratio ``log p(y|structure) - log p(y|background)``
     (nats) under a fitted mixture (eq. 8-10; the best object class), clipped to ``[-clip, clip]``."""
-    lp = np.asarray(fit.class_log_pmf(), dtype=np.float64)  # type: ignore[attr-defined]
+    lp = np.asarray(fit.decision_log_pmf(), dtype=np.float64)  # type: ignore[attr-defined]
     if lp.shape[0] < 2:
         return np.zeros(lp.shape[1])
     with np.errstate(invalid="ignore"):

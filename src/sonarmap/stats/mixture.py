@@ -72,6 +72,7 @@ __all__ = [
     "as_intensity_image",
     "as_counts",
     "kl_divergence",
+    "monotone_object_log_pmf",
     "FLAG_DESCRIPTIONS",
     "component_pmf_matrix",
 ]
@@ -272,6 +273,36 @@ def as_counts(
     return counts.astype(np.float64), clipped
 
 
+def monotone_object_log_pmf(class_log_pmf: ArrayLike) -> NDArray[np.float64]:
+    """Class log-pmfs whose object classes' likelihood ratio against the background (row 0) never
+    falls with intensity (see :meth:`MixtureFit.decision_log_pmf`).
+
+    Parameters
+    ----------
+    class_log_pmf : ndarray, shape (n_classes, n_levels)
+        ``log p(level | class)``, background first, levels in increasing intensity.
+
+    Returns
+    -------
+    ndarray of float64, shape (n_classes, n_levels)
+        A new array: every object row raised to ``log p(k|bg) + max_{j<=k} (log p(j|c) - log p(j|bg))``
+        where that is finite; unchanged (bit for bit) wherever the ratio is at its running maximum,
+        where the background is impossible, and in the background row.
+    """
+    lp = np.array(class_log_pmf, dtype=np.float64)
+    if lp.ndim != 2 or lp.shape[0] < 1:
+        raise InputError(f"class_log_pmf: expected (n_classes, n_levels), got {np.shape(class_log_pmf)}")
+    bg = lp[0]
+    for c in range(1, lp.shape[0]):
+        with np.errstate(invalid="ignore"):
+            d = lp[c] - bg
+        d = np.where(np.isfinite(d), d, -np.inf)
+        m = np.maximum.accumulate(d)
+        raise_ = np.isfinite(bg) & np.isfinite(m) & (d < m)
+        lp[c] = np.where(raise_, bg + m, lp[c])
+    return lp
+
+
 def kl_divergence(counts: ArrayLike, model_pmf: ArrayLike) -> float:
     """``D(p_hat || q) = sum p_hat ln(p_hat / q)`` in nats (eq. 11); ``p_hat = counts / sum``."""
     from scipy.special import rel_entr
@@ -437,6 +468,36 @@ class MixtureFit:
             cached.setflags(write=False)
             self._cache["class_log_pmf"] = cached
         return cached.copy()
+
+    def decision_log_pmf(self) -> NDArray[np.float64]:
+        """:meth:`class_log_pmf` as the decisions use it: each object class's log-likelihood ratio
+        against the background made non-decreasing in intensity.
+
+        A brighter echo is never less likely to be structure than a dimmer one.  A fitted family
+        may still say so where the data has (almost) no pixels: a light-tailed object class (a
+        Rayleigh or a gamma of large shape) against a heavier-tailed background falls below it
+        again at the top levels, which would label the image's brightest pixels background (on
+        the real ARIS frames with the gamma object that ``sonarmap calibrate`` chooses, up to 32
+        of the brightest pixels of a frame).  Per object class ``c`` and level ``k``::
+
+            log p'(k|c) = log p(k|background) + max_{j <= k} [log p(j|c) - log p(j|background)]
+
+        (levels where both are impossible keep their values).  Used by the MRF unary (eq. 17-18),
+        local MAP (eq. 12-13) and the ranges' echo evidence; the model itself (eq. 8-11, the
+        KLD, :meth:`class_log_pmf`) is unchanged.  Where the ratio already rises with intensity
+        (the paper's DIDSON fits) this is :meth:`class_log_pmf` exactly.
+
+        Returns
+        -------
+        ndarray of float64, shape (n_classes, L)
+        """
+        cached = self._cache.get("decision_log_pmf")
+        if cached is None:
+            lp = self._cache.get("class_log_pmf")
+            cached = monotone_object_log_pmf(self.class_log_pmf() if lp is None else lp)
+            cached.setflags(write=False)
+            self._cache["decision_log_pmf"] = cached
+        return cached.copy()  # type: ignore[no-any-return]
 
     def _class_log_pmf(self) -> NDArray[np.float64]:
         comp = self.component_pmfs()
