@@ -43,6 +43,9 @@ BANDS_DEG: tuple[tuple[float, float], ...] = ((0.0, 15.0), (15.0, 30.0), (30.0, 
 BASELINE_MIN_RANGE_M = 1.0
 #: Tolerance of (a): at least this many samples.
 TOLERANCE_SAMPLES = 2.0
+#: :func:`echo_leading_edge_m` looks for the detected echo's peak this many samples before / after
+#: the sonar's detected sample.
+EDGE_SEARCH_SAMPLES = (15, 10)
 
 
 def read_recording(path: Path = RECORDING) -> list[Any]:
@@ -219,6 +222,29 @@ def amplitude_peak_m(ping: Any, min_range_m: float = BASELINE_MIN_RANGE_M) -> ND
     return rng[np.argmax(img, axis=0)]
 
 
+def echo_leading_edge_m(ping: Any, before: int = EDGE_SEARCH_SAMPLES[0],
+                        after: int = EDGE_SEARCH_SAMPLES[1]) -> NDArray[np.float64]:
+    """The range convention applied to the echo the sonar detected: per beam, the first crossing
+    of half the echo's peak (the largest sample from ``before`` samples in front of the detected
+    sample to ``after`` behind it), walking back from the peak on the raw samples, linearly
+    interpolated; NaN where the sonar has no detection.  An oracle: it is told where the echo is."""
+    img = np.asarray(ping.image, dtype=np.float64)
+    rng = np.asarray(ping.geometry.range_m, dtype=np.float64)
+    det = np.asarray(ping.meta["detected_bin"])
+    out = np.full(img.shape[1], np.nan)
+    for b in np.flatnonzero((det >= 0) & np.isfinite(np.asarray(ping.meta["detected_range_m"], dtype=np.float64))):
+        lo, hi = max(int(det[b]) - before, 0), min(int(det[b]) + after + 1, img.shape[0])
+        col = img[:, b]
+        k = lo + int(np.argmax(col[lo:hi]))
+        half = 0.5 * col[k]
+        j = k
+        while j > 0 and col[j - 1] >= half:
+            j -= 1
+        x = (j - 1) + (half - col[j - 1]) / (col[j] - col[j - 1]) if j > 0 else 0.0
+        out[b] = rng[0] + x * (rng[1] - rng[0])
+    return out
+
+
 def tolerance_m(ping: Any) -> NDArray[np.float64]:
     """Per beam: max(2 samples, half the flat-seabed footprint's range extent at the detection)."""
     m = ping.meta
@@ -240,6 +266,8 @@ class Detection:
     sonarmap_early: int  # returns before the detection by more than the tolerance
     sidelobe_arc: int  # ... of which within 3 samples of the ping's nadir (minimum) range
     peak_pass: int
+    edge_pass: int  # the range convention at the sonar's detection (echo_leading_edge_m) passes
+    sonarmap_edge_pass: int  # sonarmap's return within TOLERANCE_SAMPLES of that leading edge
     level_db: float  # median sample level at the sonar's detection (the file's dB, TVG applied)
 
     @property
@@ -255,9 +283,10 @@ class Detection:
         band = "all angles" if (lo, hi) == (0.0, 90.0) else f"{lo:.0f}-{hi:.0f}°" if hi < 90 else f"≥ {lo:.0f}°"
         head = "both" if self.serial < 0 else str(self.serial)
         within = f"{self.sonarmap_pass / self.n_returns:.3f}" if self.n_returns else "-"
+        frac = (lambda n: f"{n / self.n_beams:.3f}") if self.n_beams else (lambda n: "-")
         return (f"| {head} | {band} | {self.n_beams} | {self.level_db:.1f} | {self.n_returns} | "
                 f"{self.sonarmap_fraction:.3f} | {within} | {self.sonarmap_early} ({self.sidelobe_arc}) | "
-                f"{self.peak_fraction:.3f} |")
+                f"{self.peak_fraction:.3f} | {frac(self.edge_pass)} | {frac(self.sonarmap_edge_pass)} |")
 
 
 def detection_table(pings: Sequence[Any], ranges: Sequence[Any],
@@ -279,8 +308,11 @@ def detection_table(pings: Sequence[Any], ranges: Sequence[Any],
         nadir = np.nanmin(det)
         arc = early & (np.abs(r - nadir) <= 3 * step)
         peak = np.abs(amplitude_peak_m(ping) - det) <= tol
+        edge = echo_leading_edge_m(ping)
+        edge_pass = np.abs(edge - det) <= tol
+        on_edge = np.abs(r - edge) <= TOLERANCE_SAMPLES * step
         ang = np.abs(np.asarray(m["beam_pointing_angle_deg"], dtype=np.float64))
-        stack = np.vstack([ok, np.isfinite(r), passed, early, arc, peak]).astype(np.int64)
+        stack = np.vstack([ok, np.isfinite(r), passed, early, arc, peak, edge_pass, on_edge]).astype(np.int64)
         row = np.asarray(m["detected_bin"])
         cols = np.arange(row.size)
         db = np.where(row >= 0, image_to_db(ping.image[np.clip(row, 0, None), cols]), np.nan)
@@ -401,7 +433,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             print(row.row())
     print("\n(a) first return vs the sonar's detection (pass: within max(2 samples, half the footprint))")
     print("| head | band | beams | level at detection (dB) | returns | sonarmap pass / beams | pass / returns | "
-          "early (on the sidelobe arc) | amplitude peak pass / beams |\n|---|---|---|---|---|---|---|---|---|")
+          "early (on the sidelobe arc) | amplitude peak pass / beams | leading edge at the detection pass / beams | "
+          "sonarmap within 2 samples of that edge / beams |\n|---|---|---|---|---|---|---|---|---|---|---|")
     for row in res["detection"]:
         print(row.row())
     return 0
