@@ -316,16 +316,18 @@ def test_every_preset_same_default_no_false_returns_and_surfaces_found():
 
 
 def test_capped_persistency_reduction_gives_the_same_minimiser(monkeypatch, aris_pings, oculus_pings, test_pings):
-    """The MRF's reduction stops after 2 propagation sweeps and leaves the rest to the exact cut:
-    the labels equal those of the reduction run to its fixed point, on real pings of 3 sonars."""
+    """The MRF's reductions (single-pixel test, then 6 passes of chains along the beams) leave the
+    rest to the exact cut: the labels equal those of the single-pixel reduction alone run to its
+    fixed point, and of it capped at 2 sweeps, on real pings of 3 sonars."""
     import sonarmap.classify.mrf as mrf
 
     pings = [aris_pings[0], oculus_pings[0], test_pings[4], test_pings[7]]
-    capped = [process_ping(p, keep_labels=True).labels for p in pings]
-    monkeypatch.setattr(mrf, "_REDUCTION_SWEEPS", 256)
-    full = [process_ping(p, keep_labels=True).labels for p in pings]
-    for a, b in zip(capped, full):
-        np.testing.assert_array_equal(a, b)
+    default = [process_ping(p, keep_labels=True).labels for p in pings]
+    monkeypatch.setattr(mrf, "_CHAIN_PASSES", 0)
+    for sweeps in (2, 256):
+        monkeypatch.setattr(mrf, "_REDUCTION_SWEEPS", sweeps)
+        for a, p in zip(default, pings):
+            np.testing.assert_array_equal(a, process_ping(p, keep_labels=True).labels)
 
 
 def test_normalisation_keeps_a_bright_target_from_filling_the_top_level():

@@ -106,6 +106,49 @@ def test_reduction_fixes_dominant_pixels_and_denoises():
     assert res.energy <= mrf.solve_icm(u, beta=1.0).energy
 
 
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 2**31 - 1), st.sampled_from([0.5, 1.0, 2.0]), st.sampled_from([1.0, 0.25]),
+       st.sampled_from(["ties", "normal", "stripes"]))
+def test_chain_reduction_keeps_the_least_minimiser(seed, beta, range_weight, kind):
+    """The chain reduction (uniform 4-neighbourhood) fixes only pixels with one label in every
+    minimiser: the labels equal the cut after the single-pixel reduction alone - also with exact
+    ties (quarter-integer costs, where the cut reports the least minimiser) - and the energy is the
+    full-lattice cut's."""
+    rng = np.random.default_rng(seed)
+    h, w = (int(v) for v in rng.integers(3, 40, 2))
+    if kind == "ties":
+        margin = rng.integers(-16, 17, (h, w)) * 0.25
+    elif kind == "normal":
+        margin = rng.normal(0, 3, (h, w))
+    else:                                   # long runs along the beams, as in sonar images
+        margin = rng.normal(0, 1.5, (h, w)) + np.where(np.arange(h)[:, None] % 9 < 2, 3.0, -1.0)
+    lut = np.stack([np.maximum(margin, 0), np.maximum(-margin, 0)]).reshape(2, -1)
+    levels = np.arange(h * w).reshape(h, w)
+    res = mrf.solve_graphcut_levels(levels, lut, beta=beta, range_weight=range_weight)
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(mrf, "_CHAIN_PASSES", 0)
+        mp.setattr(mrf, "_REDUCTION_SWEEPS", 256)
+        ref = mrf.solve_graphcut_levels(levels, lut, beta=beta, range_weight=range_weight)
+    np.testing.assert_array_equal(res.labels, ref.labels)
+    assert res.n_free <= ref.n_free
+    wt = mrf.pairwise_weights((h, w), beta=beta, range_weight=range_weight)
+    full = mrf.solve_graphcut(lut.reshape(2, h, w), weights=wt, reduce=False)
+    assert res.energy == pytest.approx(full.energy, abs=1e-9)
+
+
+def test_chain_reduction_decides_runs_the_pixel_test_cannot():
+    """A range bin of weak evidence across the beams (margin 2: 1 after its edges to the background
+    bins, below the weight 2 wb of its free edges along the bin) is decided by the chains: nothing
+    is left to the cut."""
+    margin = np.full((12, 30), -6.0)
+    margin[5] = 2.0
+    lut = np.stack([np.maximum(margin, 0), np.maximum(-margin, 0)]).reshape(2, -1)
+    levels = np.arange(margin.size).reshape(margin.shape)
+    res = mrf.solve_graphcut_levels(levels, lut, beta=2.0, range_weight=0.25)
+    assert res.n_free == 0
+    np.testing.assert_array_equal(res.labels, (margin > 0).astype(np.uint8))
+
+
 def test_energy_counts_unary_and_cut_edges():
     u = np.zeros((2, 2, 2))
     u[1, 0, 0] = 1.5

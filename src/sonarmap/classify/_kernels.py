@@ -181,15 +181,14 @@ def _try_fix_u(levels, margin_lut, weights, fixed, i, j, h, w, wr, wb):  # pragm
 
 
 @njit(cache=True, nogil=True)
-def reduce_binary(levels, margin_lut, weights, wtot, fixed, node, m, wfree, stack, uniform, max_sweeps=256):  # pragma: no cover
-    """Exact persistency reduction of a binary Potts problem, then graph arrays for the rest.
+def reduce_binary(levels, margin_lut, weights, wtot, fixed, stack, uniform, max_sweeps=256):  # pragma: no cover
+    """Exact persistency reduction of a binary Potts problem; lists the pixels left free.
 
     The margin of pixel ``(i, j)`` is ``margin_lut[levels[i, j]]`` (``unary[0] - unary[1]``,
     positive favours label 1); a general unary is passed as ``levels = arange(h*w)`` and
     ``margin_lut = margin.ravel()``.  ``wtot`` is the total incident edge weight per pixel;
-    ``fixed``, ``node``, ``m``, ``wfree`` and ``stack`` are caller-owned work arrays (reused
-    across pings of equal shape, so no large allocation happens per call; ``m`` and ``wfree``
-    are unused and kept for the signature).
+    ``fixed`` and ``stack`` (``h * w`` entries) are caller-owned work arrays (reused
+    across pings of equal shape, so no large allocation happens per call).
 
     A pixel whose effective margin - its own plus ``+w`` for every edge to a neighbour already
     fixed to 1 and ``-w`` for one fixed to 0 - exceeds the total weight of its edges to still-free
@@ -207,11 +206,8 @@ def reduce_binary(levels, margin_lut, weights, wtot, fixed, node, m, wfree, stac
     Returns
     -------
     n_free : int
-    m_eff : float64 (n_free,)
-        Effective margin of each free node (``node[i, j]`` is its index, valid only where
-        ``fixed[i, j] < 0``).
-    ei, ej : int64 (n_edges,), ew : float64 (n_edges,)
-        Free-free edges and their weights.  ``fixed`` holds 0/1, or -1 for free pixels.
+        Pixels left free: ``fixed`` holds 0/1, or -1 for free pixels; ``stack[:n_free]`` lists the
+        free pixels' flat indices in ascending raster order (see :func:`free_graph`).
     """
     h, w = levels.shape
     n_dirs = weights.shape[0]
@@ -281,11 +277,169 @@ def reduce_binary(levels, margin_lut, weights, wtot, fixed, node, m, wfree, stac
         else:
             lo = k_out + 1
         sweep += 1
-    # number the survivors (ascending raster order) and list their edges
+    # move the survivors (ascending raster order) to the front
     n_free = hi - lo
     for a in range(n_free):
-        p = stack[lo + a]
-        stack[a] = p
+        stack[a] = stack[lo + a]
+    return n_free
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _chain_margins(levels, margin_lut, fixed, i, j0, n, tc, tv, wb, buf):  # pragma: no cover - numba
+    """Bounds ``ulo = buf[0] <= margin <= uhi = buf[1]`` of the effective margins of the free run
+    ``(i, j0 .. j0+n-1)`` of one range bin given every pixel outside the run: fixed neighbours add
+    ``+w`` (label 1) or ``-w`` (label 0), a free neighbour in an adjacent bin anything in
+    ``[-wr, wr]`` (``tc`` and ``tv`` map a neighbour state ``fixed + 1`` to its fixed contribution
+    and its free weight).  Returns an upper bound on ``sum |ulo| + |uhi| + 2 wb`` over the run, the
+    scale of the chain costs (for the rounding-error bound of :func:`_chain_decide`)."""
+    h, w = levels.shape
+    up = i > 0
+    down = i < h - 1
+    scale = 0.0
+    for t in range(n):
+        j = j0 + t
+        base = margin_lut[levels[i, j]]
+        vf = 0.0
+        if up:
+            f = fixed[i - 1, j] + 1
+            base += tc[f]
+            vf += tv[f]
+        if down:
+            f = fixed[i + 1, j] + 1
+            base += tc[f]
+            vf += tv[f]
+        buf[0, t] = base - vf
+        buf[1, t] = base + vf
+        scale += abs(base) + vf + wb
+    if j0 > 0:
+        e = wb if fixed[i, j0 - 1] == 1 else -wb
+        buf[0, 0] += e
+        buf[1, 0] += e
+    if j0 + n < w:
+        e = wb if fixed[i, j0 + n] == 1 else -wb
+        buf[0, n - 1] += e
+        buf[1, n - 1] += e
+    return 2.0 * scale
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _chain_decide(n, wb, tol, buf, dec):  # pragma: no cover - numba
+    """Min-marginals of the two chain problems (margins ``ulo = buf[0]`` / ``uhi = buf[1]``, Potts
+    weight ``wb``) by forward-backward dynamic programming on message differences: with ``F_t`` /
+    ``B_t`` the least cost of the chain before / after ``t`` given ``x_t``, ``F_t(1) - F_t(0) =
+    clip(F_{t-1}(1) - F_{t-1}(0), -wb, wb) - u_t`` (kept in ``buf[2]`` / ``buf[3]``) and likewise
+    backwards, and ``x_t = 1`` beats ``x_t = 0`` by ``-(F_t(1) - F_t(0) + B_t(1) - B_t(0))``.
+    ``dec[t]`` = 1 where label 1 is cheaper by more than ``tol`` under ``ulo`` (every minimiser
+    has 1), 0 where label 0 is under ``uhi``, else -1."""
+    fl = -buf[0, 0]
+    fh = -buf[1, 0]
+    buf[2, 0] = fl
+    buf[3, 0] = fh
+    for t in range(1, n):
+        fl = min(max(fl, -wb), wb) - buf[0, t]
+        fh = min(max(fh, -wb), wb) - buf[1, t]
+        buf[2, t] = fl
+        buf[3, t] = fh
+    bl = 0.0
+    bh = 0.0
+    for t in range(n - 1, -1, -1):
+        # branch-free: at most one of the two tests holds (the margins satisfy ulo <= uhi)
+        dec[t] = -1 + 2 * (buf[2, t] + bl < -tol) + (buf[3, t] + bh > tol)
+        bl = min(max(bl - buf[0, t], -wb), wb)
+        bh = min(max(bh - buf[1, t], -wb), wb)
+
+
+@njit(cache=True, nogil=True)
+def reduce_chains(levels, margin_lut, fixed, stack, n_free, wr, wb, max_passes):  # pragma: no cover - numba
+    """Exact persistency reduction by chains along the beams, after :func:`reduce_binary`
+    (uniform 4-neighbourhood weights: ``wr`` along range, ``wb`` across beams).
+
+    Each maximal run of free pixels in one range bin is a chain; with everything outside it held
+    fixed, its effective margins lie between ``ulo`` and ``uhi`` (a free neighbour in an adjacent
+    bin contributes anything in ``[-wr, wr]``; :func:`_chain_margins`).  For a submodular energy
+    the least minimiser grows with the margins, so a pixel that takes label 1 in every minimiser
+    of the chain under ``ulo`` has 1 in every minimiser of the whole problem, and one that takes 0
+    in every minimiser under ``uhi`` has 0 (the restriction of a minimiser to the chain minimises
+    the chain problem with the true margins).  The chain min-marginals are exact dynamic
+    programming (:func:`_chain_decide`); a decision needs a min-marginal gap above a bound on
+    the DP's rounding error, so the fixing is exact in floating point too.  Since the Potts
+    weight across beams is the strong one, this decides most of what the single-pixel test of
+    :func:`reduce_binary` leaves.  Passes over the remaining list ``stack[:n_free]`` (which must
+    be in ascending raster order, kept while compacting it in place) repeat until one fixes nothing
+    or ``max_passes`` have run; a pass skips a bin whose own and adjacent bins have not changed
+    since its last evaluation.  Returns the new ``n_free``.
+    """
+    h, w = levels.shape
+    buf = np.empty((4, w))
+    dec = np.empty(w, dtype=np.int8)
+    tc = np.array([0.0, -wr, wr])              # by neighbour state + 1: free, fixed 0, fixed 1
+    tv = np.array([wr, 0.0, 0.0])
+    # a row's runs are evaluated again only if a pixel of the row or of an adjacent row has been
+    # fixed since its last evaluation: row r was last evaluated at stamp ev[r] and last changed
+    # at ch[r + 1] (ch is padded by one row on each side)
+    ev = np.full(h, -1, dtype=np.int64)
+    ch = np.zeros(h + 2, dtype=np.int64)
+    stamp = 0
+    for _ in range(max_passes):
+        k = 0
+        k_out = 0
+        row = -1
+        skip = False
+        while k < n_free:
+            p0 = stack[k]
+            i = p0 // w
+            j0 = p0 - i * w
+            n = 1
+            while k + n < n_free and stack[k + n] == p0 + n and j0 + n < w:
+                n += 1
+            if i != row:
+                row = i
+                e = ev[i]
+                skip = e >= 0 and ch[i] < e and ch[i + 1] < e and ch[i + 2] < e
+                if not skip:
+                    stamp += 1
+                    ev[i] = stamp
+            if skip:
+                for t in range(n):                 # nothing new around: keep the run as it is
+                    stack[k_out + t] = p0 + t
+                k_out += n
+                k += n
+                continue
+            scale = _chain_margins(levels, margin_lut, fixed, i, j0, n, tc, tv, wb, buf)
+            _chain_decide(n, wb, 2e-15 * n * scale, buf, dec)
+            k_old = k_out
+            for t in range(n):
+                fixed[i, j0 + t] = dec[t]          # -1 (still free) for the survivors
+                stack[k_out] = p0 + t
+                k_out += dec[t] < 0
+            if k_out - k_old < n:
+                ch[i + 1] = ev[i]
+            k += n
+        if k_out == n_free:
+            break
+        n_free = k_out
+    return n_free
+
+
+@njit(cache=True, nogil=True)
+def free_graph(levels, margin_lut, weights, fixed, node, stack, n_free):  # pragma: no cover - numba
+    """The cut graph of the pixels the reductions left free.
+
+    ``stack[:n_free]`` are the free pixels (flat indices, ascending); node ``a`` is pixel
+    ``stack[a]``, and ``node[i, j]`` is set to the node of each free pixel.
+
+    Returns
+    -------
+    m_eff : float64 (n_free,)
+        Effective margin of each node: its own plus ``+w`` for every edge to a neighbour fixed to
+        1 and ``-w`` for one fixed to 0.
+    ei, ej : int64 (n_edges,), ew : float64 (n_edges,)
+        Free-free edges (node indices) and their weights.
+    """
+    h, w = levels.shape
+    n_dirs = weights.shape[0]
+    for a in range(n_free):
+        p = stack[a]
         i = p // w
         node[i, p - i * w] = a
     m_eff = np.empty(n_free)
@@ -325,7 +479,7 @@ def reduce_binary(levels, margin_lut, weights, wtot, fixed, node, m, wfree, stac
                 elif f == 0:
                     mm -= weights[d, ii, jj]
         m_eff[a] = mm
-    return n_free, m_eff, ei[:n_edges], ej[:n_edges], ew[:n_edges]
+    return m_eff, ei[:n_edges], ej[:n_edges], ew[:n_edges]
 
 
 @njit(cache=True, nogil=True)
