@@ -36,7 +36,6 @@ Rules (applied in this order)
 from __future__ import annotations
 
 import dataclasses
-import threading
 from typing import TYPE_CHECKING, Literal
 
 import numpy as np
@@ -176,75 +175,60 @@ def wide_components(
     return kernel(m, sd, int(min_beams), int(min_bins) if min_bins is not None else 0)
 
 
-class _IdxWork(threading.local):
-    """Per-thread all -1 int32 work arrays of :func:`_kernels.linked_components`, per shape."""
-
-    def __init__(self) -> None:
-        self.arrays: dict[tuple[int, int], NDArray[np.int32]] = {}
-
-    def get(self, h: int, w: int) -> NDArray[np.int32]:
-        arr = self.arrays.get((h, w))
-        if arr is None:
-            if len(self.arrays) > 4:
-                self.arrays.clear()
-            arr = self.arrays[(h, w)] = np.full((h, w), -1, dtype=np.int32)
-        return arr
-
-
-_IDX_WORK = _IdxWork()
-
-
 def rule0(mask: NDArray[np.bool_], min_beams: int, min_bins: int | None, link_beams: int,
-           min_pixels: int = 0) -> NDArray[np.bool_]:
+          min_pixels: int = 0) -> NDArray[np.bool_]:
     """Rule 0 (wide components, then linked pieces) in one kernel: same as :func:`wide_components`
     followed by :func:`_link_components`."""
-    from sonarmap.ranges._kernels import linked_components
-
-    m = np.ascontiguousarray(mask, dtype=bool)
-    h, w = m.shape
-    return linked_components(m, int(min_beams), int(min_bins) if min_bins is not None else 0,
-                             int(link_beams), 4 if link_beams > 0 else 0, _IDX_WORK.get(h, w), int(min_pixels))
+    return _components(mask, (min_beams, min_bins, link_beams, min_pixels), None, 0.0)
 
 
 def component_rule(mask: NDArray[np.bool_], min_component_beams: int = 1, min_component_bins: int | None = None,
-                   link_beams: int = 0, min_component_pixels: int = 0) -> NDArray[np.bool_]:
-    """Rule 0 of :func:`extract_ranges` with its parameters (the mask unchanged when it is off)."""
-    if min_component_beams > 1 or min_component_pixels > 0:
-        return rule0(mask, min_component_beams, min_component_bins, link_beams, min_component_pixels)
-    return mask
+                   link_beams: int = 0, min_component_pixels: int = 0, *, geometry: SonarGeometry | None = None,
+                   min_extent_m: float = 0.0) -> NDArray[np.bool_]:
+    """Rule 0 of :func:`extract_ranges` with its parameters (the mask unchanged when it is off),
+    then, given ``geometry`` and ``min_extent_m > 0``, :func:`drop_small_components` on the result
+    (in the same pass: the components of rule 0's result are the components it kept)."""
+    rule_on = min_component_beams > 1 or min_component_pixels > 0
+    rule = (min_component_beams, min_component_bins, link_beams, min_component_pixels) if rule_on else None
+    if geometry is None or not min_extent_m > 0:
+        return _components(mask, rule, None, 0.0) if rule_on else mask
+    return _components(mask, rule, geometry, min_extent_m)
 
 
 def drop_small_components(mask: NDArray[np.bool_], geometry: SonarGeometry, min_extent_m: float) -> NDArray[np.bool_]:
     """Drop the 8-connected components of ``mask`` smaller than ``min_extent_m`` both across range
     (arc length at the component's far edge, one beam spacing included) and along range."""
-    from scipy import ndimage
-
     m = np.asarray(mask, dtype=bool)
-    if not m.any() or min_extent_m <= 0:
+    if not min_extent_m > 0:
         return m
-    rows = np.flatnonzero(m.any(axis=1))
-    cols = np.flatnonzero(m.any(axis=0))
-    ra, rb, ca, cb = int(rows[0]), int(rows[-1]) + 1, int(cols[0]), int(cols[-1]) + 1
-    lab, n = ndimage.label(m[ra:rb, ca:cb], structure=np.ones((3, 3), dtype=bool))
-    if n == 0:
-        return m
-    r = np.asarray(geometry.range_m, dtype=np.float64)[ra:rb]
-    az_all = np.asarray(geometry.azimuth_rad, dtype=np.float64)
-    dr = abs(geometry.range_resolution_m)
-    daz = float(abs(az_all[-1] - az_all[0]) / (az_all.size - 1)) if az_all.size > 1 else 0.0
-    az = az_all[ca:cb]
-    box = np.array([(sl[0].start, sl[0].stop - 1, sl[1].start, sl[1].stop - 1)
-                    for sl in ndimage.find_objects(lab)], dtype=np.int64).reshape(-1, 4)
-    i0, i1, j0, j1 = box.T
-    cross = np.maximum(np.abs(r[i1]), np.abs(r[i0])) * (np.abs(az[j1] - az[j0]) + daz)
-    along = (i1 - i0 + 1) * dr
-    keep = np.zeros(n + 1, dtype=bool)
-    keep[1:] = np.maximum(cross, along) >= min_extent_m
-    if keep[1:].all():
-        return m
-    out = np.zeros_like(m)
-    out[ra:rb, ca:cb] = keep[lab]
-    return out
+    return _components(m, None, geometry, min_extent_m)
+
+
+_NO_AXIS = np.zeros(1)
+
+
+def _components(mask: NDArray[np.bool_], rule: tuple[int, int | None, int, int] | None,
+                geometry: SonarGeometry | None, min_extent_m: float) -> NDArray[np.bool_]:
+    """The component rules in one kernel (:func:`_kernels.linked_components`): rule 0 with
+    ``rule = (min_beams, min_bins, link_beams, min_pixels)`` (None: every component), then the
+    metric extent rule when ``geometry`` is given and ``min_extent_m > 0``."""
+    from sonarmap.ranges._kernels import linked_components
+
+    m = np.ascontiguousarray(mask, dtype=bool)
+    if m.ndim != 2:
+        raise InputError(f"mask: expected (n_bins, n_beams), got shape {m.shape}")
+    beams, bins, link, pixels = rule if rule is not None else (1, None, 0, 0)
+    r, az, dr, daz = _NO_AXIS, _NO_AXIS, 0.0, 0.0
+    if geometry is not None and min_extent_m > 0:
+        r = np.ascontiguousarray(geometry.range_m, dtype=np.float64)
+        az = np.ascontiguousarray(geometry.azimuth_rad, dtype=np.float64)
+        if r.size < m.shape[0] or az.size < m.shape[1]:
+            raise InputError(f"mask: shape {m.shape} exceeds the geometry's {(r.size, az.size)}")
+        dr = abs(geometry.range_resolution_m)
+        daz = float(abs(az[-1] - az[0]) / (az.size - 1)) if az.size > 1 else 0.0
+    return linked_components(m, int(beams), int(bins) if bins is not None else 0, int(link), 4 if link > 0 else 0,
+                             int(pixels), rule is not None, r, az, float(dr), daz,
+                             float(min_extent_m) if geometry is not None else 0.0)
 
 
 def half_peak_edges(ranges: BeamRanges, image: ArrayLike, mask: ArrayLike, geometry: SonarGeometry, *,

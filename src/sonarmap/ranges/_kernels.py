@@ -438,109 +438,160 @@ def refine_leading_edge(img, bins, k_max, level):  # pragma: no cover - numba
 
 
 @njit(cache=True, nogil=True)
-def linked_components(mask, min_beams, min_bins, gap, rounds, idx, min_pixels=0):  # pragma: no cover - numba
-    """Rule 0 of :func:`sonarmap.ranges.extract_ranges` in one kernel: the 8-connected components
-    of ``mask`` spanning >= ``min_beams`` beams or >= ``min_bins`` bins (``min_bins <= 0``: beams
-    only) or holding >= ``min_pixels`` pixels (``min_pixels <= 0``: off), then up to ``rounds``
-    rounds adding every other component with a pixel within ``gap`` beams and 1 bin of a pixel
-    kept at the start of the round (stopping at the first round that adds nothing).
+def _row_runs(mask):  # pragma: no cover - numba
+    """The runs of true pixels of every row: ``(first, start, stop)``, row ``i``'s runs being
+    ``first[i]:first[i + 1]`` in beam order, run ``k`` covering beams ``start[k]..stop[k]``."""
+    h, w = mask.shape
+    first = np.empty(h + 1, dtype=np.int64)
+    start = np.empty(h * ((w + 1) // 2), dtype=np.int32)
+    stop = np.empty(h * ((w + 1) // 2), dtype=np.int32)
+    k = 0
+    for i in range(h):
+        first[i] = k
+        j = 0
+        while j < w:
+            if mask[i, j]:
+                start[k] = j
+                while j < w and mask[i, j]:
+                    j += 1
+                stop[k] = j - 1
+                k += 1
+            j += 1
+    first[h] = k
+    return first, start[:k], stop[:k]
+
+
+@njit(cache=True, nogil=True)
+def _run_roots(first, start, stop):  # pragma: no cover - numba
+    """8-connected components of the runs: each run's root run (union-find, smaller root wins).
+    Runs of consecutive rows touch when their beam intervals, one widened by a beam each side,
+    overlap."""
+    n = start.size
+    parent = np.arange(n, dtype=np.int32)
+    for i in range(1, first.size - 1):
+        a, a_end = first[i], first[i + 1]
+        b, b_end = first[i - 1], first[i]
+        while a < a_end and b < b_end:
+            if stop[b] < start[a] - 1:
+                b += 1
+            elif stop[a] < start[b] - 1:
+                a += 1
+            else:
+                ra = _find(parent, a)
+                rb = _find(parent, b)
+                if ra < rb:
+                    parent[rb] = ra
+                elif rb < ra:
+                    parent[ra] = rb
+                if stop[a] < stop[b]:
+                    a += 1
+                else:
+                    b += 1
+    for a in range(n):
+        parent[a] = _find(parent, a)
+    return parent
+
+
+@njit(cache=True, nogil=True)
+def _link_round(first, start, stop, root, kept, add, gap):  # pragma: no cover - numba
+    """Mark in ``add`` every component not in ``kept`` with a pixel within ``gap`` beams and 1 bin
+    of a ``kept`` component's pixel; True if any."""
+    hit = False
+    for i in range(first.size - 1):
+        nxt = first[i + 1]
+        b0 = nxt
+        b_end = first[i + 2] if i + 2 < first.size else nxt
+        for a in range(first[i], first[i + 1]):
+            ka = kept[root[a]]
+            # the later runs of the same row, then the runs of the next row, within gap beams
+            for b in range(a + 1, nxt):
+                if start[b] - stop[a] > gap:
+                    break
+                if kept[root[b]] != ka:
+                    add[root[a] if kept[root[b]] else root[b]] = True
+                    hit = True
+            while b0 < b_end and stop[b0] < start[a] - gap:
+                b0 += 1
+            for b in range(b0, b_end):
+                if start[b] - stop[a] > gap:
+                    break
+                if kept[root[b]] != ka:
+                    add[root[a] if kept[root[b]] else root[b]] = True
+                    hit = True
+    return hit
+
+
+@njit(cache=True, nogil=True)
+def linked_components(mask, min_beams, min_bins, gap, rounds, min_pixels, rule, range_m, azimuth, dr, daz,
+                      min_extent):  # pragma: no cover - numba
+    """Rule 0 of :func:`sonarmap.ranges.extract_ranges` and the metric extent rule in one kernel.
+
+    With ``rule``: the 8-connected components of ``mask`` spanning >= ``min_beams`` beams or
+    >= ``min_bins`` bins (``min_bins <= 0``: beams only) or holding >= ``min_pixels`` pixels
+    (``min_pixels <= 0``: off), then up to ``rounds`` rounds adding every other component with a
+    pixel within ``gap`` beams and 1 bin of a pixel kept at the start of the round (stopping at the
+    first round that adds nothing); without: every component.  Then, when ``min_extent > 0``, the
+    kept components smaller than ``min_extent`` both across range (``max |range_m|`` of their first
+    and last bin times their azimuth extent plus ``daz``) and along range (bins times ``dr``) are
+    dropped (:func:`sonarmap.ranges.drop_small_components`).
 
     Same result as :func:`wide_components` followed by ``_link_components`` (whose components of
-    ``mask & ~kept`` are exactly the components of ``mask`` not kept yet), but the lattice is
-    labelled once.  ``idx`` is a caller-owned int32 work array of ``mask``'s shape that must be
-    all -1 on entry; it is restored to -1 before returning.
+    ``mask & ~kept`` are exactly the components of ``mask`` not kept yet), but on runs of pixels:
+    the lattice is labelled once, and the kept components are the components of the result.
     """
     h, w = mask.shape
-    n = 0
+    first, start, stop = _row_runs(mask)
+    root = _run_roots(first, start, stop)
+    n = start.size
+    imin = np.full(n, h, dtype=np.int64)
+    imax = np.full(n, -1, dtype=np.int64)
+    jmin = np.full(n, w, dtype=np.int64)
+    jmax = np.full(n, -1, dtype=np.int64)
+    npx = np.zeros(n, dtype=np.int64)
     for i in range(h):
-        for j in range(w):
-            if mask[i, j]:
-                n += 1
-    pi = np.empty(n, dtype=np.int32)
-    pj = np.empty(n, dtype=np.int32)
-    n = 0
-    for i in range(h):
-        for j in range(w):
-            if mask[i, j]:
-                idx[i, j] = n
-                pi[n] = i
-                pj[n] = j
-                n += 1
-    parent = np.arange(n, dtype=np.int32)
-    for a in range(n):
-        i = pi[a]
-        j = pj[a]
-        _union_back_neighbours(idx, parent, a, i, j, w)
-    root = np.empty(n, dtype=np.int32)
-    imin, imax, jmin, jmax = _empty_extents(n, h, w)
-    npx = np.zeros(n, dtype=np.int32)
-    for a in range(n):
-        r = _find(parent, a)
-        root[a] = r
-        npx[r] += 1
-        i = pi[a]
-        j = pj[a]
-        # the extent, written out: pixels come in raster order, so a component's first pixel
-        # has its lowest bin and its last the highest (2x faster than the _grow_box helper here)
-        if imin[r] > i:
-            imin[r] = i
-        imax[r] = i
-        if j < jmin[r]:
-            jmin[r] = j
-        if j > jmax[r]:
-            jmax[r] = j
-    kept = np.zeros(n, dtype=np.bool_)      # per root
-    n_kept = 0
-    for a in range(n):
-        r = root[a]
-        if r == a and (_is_wide(r, imin, imax, jmin, jmax, min_beams, min_bins)
-                       or (min_pixels > 0 and npx[r] >= min_pixels)):
-            kept[r] = True
-    for a in range(n):
-        if kept[root[a]]:
-            n_kept += 1
-    add = np.zeros(n, dtype=np.bool_)
-    for _ in range(rounds):
-        if n_kept == 0 or n_kept == n:
-            break
-        # near pairs are symmetric: scan the windows of the smaller of the two pixel sets
-        from_kept = n_kept <= n - n_kept
-        hit = False
-        for a in range(n):
-            if kept[root[a]] != from_kept or (not from_kept and add[root[a]]):
-                continue
-            i = pi[a]
-            j = pj[a]
-            for ii in range(max(i - 1, 0), min(i + 2, h)):
-                for jj in range(max(j - gap, 0), min(j + gap + 1, w)):
-                    b = idx[ii, jj]
-                    if b >= 0 and kept[root[b]] != from_kept:
-                        hit = True
-                        if from_kept:
-                            add[root[b]] = True
-                        else:
-                            add[root[a]] = True
-                            break
-                if hit and not from_kept and add[root[a]]:
-                    break
-        if not hit:
-            break
-        for a in range(n):
+        for a in range(first[i], first[i + 1]):
             r = root[a]
-            if add[r]:
-                if not kept[r]:
-                    kept[r] = True
-                add[r] = False
-        n_kept = 0
-        for a in range(n):
-            if kept[root[a]]:
-                n_kept += 1
-    out = np.zeros((h, w), dtype=np.bool_)
+            imin[r] = min(imin[r], i)
+            imax[r] = i
+            jmin[r] = min(jmin[r], start[a])
+            jmax[r] = max(jmax[r], stop[a])
+            npx[r] += stop[a] - start[a] + 1
+    kept = np.zeros(n, dtype=np.bool_)
     for a in range(n):
-        if kept[root[a]]:
-            out[pi[a], pj[a]] = True
-        idx[pi[a], pj[a]] = -1
+        if root[a] == a:
+            kept[a] = not rule or (_is_wide(a, imin, imax, jmin, jmax, min_beams, min_bins)
+                                   or (min_pixels > 0 and npx[a] >= min_pixels))
+    if rule:
+        add = np.zeros(n, dtype=np.bool_)
+        for _ in range(rounds):
+            if not _link_round(first, start, stop, root, kept, add, gap):
+                break
+            for a in range(n):
+                if add[a]:
+                    kept[a] = True
+                    add[a] = False
+    if min_extent > 0:
+        for a in range(n):
+            if kept[a]:
+                i0, i1 = imin[a], imax[a]
+                far = _max_nan(abs(range_m[i1]), abs(range_m[i0]))
+                cross = far * (abs(azimuth[jmax[a]] - azimuth[jmin[a]]) + daz)
+                along = (i1 - i0 + 1) * dr
+                kept[a] = _max_nan(cross, along) >= min_extent
+    out = np.zeros((h, w), dtype=np.bool_)
+    for i in range(h):
+        for a in range(first[i], first[i + 1]):
+            if kept[root[a]]:
+                out[i, start[a]:stop[a] + 1] = True
     return out
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _max_nan(a, b):  # pragma: no cover - numba
+    """``np.maximum`` of two floats (NaN if either is)."""
+    if a != a or b != b:
+        return np.nan
+    return a if a >= b else b
 
 
 @njit(cache=True, nogil=True)

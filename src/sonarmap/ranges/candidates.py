@@ -15,7 +15,7 @@ from numpy.typing import NDArray
 
 from sonarmap.errors import InputError
 from sonarmap.geometry import SonarGeometry
-from sonarmap.ranges import component_rule, drop_small_components, rule0
+from sonarmap.ranges import component_rule, rule0
 from sonarmap.ranges.config import CandidateConfig
 
 __all__ = ["candidate_mask", "pooled_band_mask", "pooled_band_pixels"]
@@ -48,10 +48,9 @@ def candidate_mask(labels: NDArray[np.uint8], geometry: SonarGeometry, config: C
         rule = (c.normalised_component_beams, c.normalised_component_bins, c.normalised_component_pixels)
     else:
         rule = (c.min_component_beams, c.min_component_bins, c.min_component_pixels)
-    mask = component_rule(np.asarray(labels) >= 1, rule[0], rule[1], c.link_beams, rule[2])
-    if c.min_component_extent_m > 0:
-        mask = drop_small_components(mask, geometry, c.min_component_extent_m)
-    return mask
+    # rule 0 and the metric extent rule in one labelling of the lattice
+    return component_rule(np.asarray(labels) >= 1, rule[0], rule[1], c.link_beams, rule[2], geometry=geometry,
+                          min_extent_m=c.min_component_extent_m)
 
 
 def pooled_band_mask(image: NDArray[np.float32], level: float, *, pool_beams: int = 4, pool_bins: int = 3,
