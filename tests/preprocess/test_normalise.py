@@ -37,3 +37,67 @@ def test_expand_grid_is_bilinear_and_independent_of_blas_threads(grid_shape, sha
     assert out[-1, -1] == pytest.approx(grid[-1, -1], abs=1e-6)
     with threadpool_limits(1):
         assert np.array_equal(expand_grid(grid, shape), out)
+    buf = np.full(shape, np.nan, dtype=np.float32)
+    assert expand_grid(grid, shape, out=buf) is buf and np.array_equal(buf, out)
+
+
+def _images(rng: np.random.Generator, n: int, m: int) -> list[np.ndarray]:
+    """8-bit images (the readers' level x float32(1/255) and level / 255), float and tied data."""
+    levels = rng.integers(0, 256, (n, m))
+    return [levels.astype(np.float32) * np.float32(1.0 / 255.0), levels.astype(np.float32) / np.float32(255.0),
+            rng.exponential(size=(n, m)).astype(np.float32), np.round(rng.random((n, m)) * 4).astype(np.float32) - 1]
+
+
+@pytest.mark.parametrize("shape", [(1, 1), (3, 2), (40, 5), (2000, 48), (703, 256), (17, 300)])
+def test_selection_kernels_equal_numpys_order_statistics(shape) -> None:
+    """The numba order statistics of the background estimate equal numpy's and scipy's, bit for bit."""
+    from scipy.ndimage import median_filter
+
+    from sonarmap.preprocess._kernels import median5, median_inplace, percentiles_linear, row_quartile_u8
+    from sonarmap.preprocess.normalise import _Q10_90, _row_quartile
+
+    rng = np.random.default_rng(shape[0] * 1000 + shape[1])
+    n, m = shape
+    k = (m - 1) // 4
+    for t, img in enumerate(_images(rng, n, m)):
+        ref = np.sort(np.maximum(img, 0.0), axis=1)[:, k]
+        out, ok = row_quartile_u8(img, k)
+        assert ok or t >= 2  # 8-bit data is counted (either scaling), the rest sorted
+        if ok:
+            assert np.array_equal(out, ref)
+        assert _row_quartile(img).tobytes() == ref.tobytes()
+        flat = img.ravel()
+        assert median5(flat).tobytes() == median_filter(flat, size=5, mode="nearest").tobytes()
+        for x in (flat, flat.astype(np.float64), flat[: max(flat.size - 1, 1)]):
+            assert np.float64(median_inplace(x.copy(), x.size)) == np.float64(np.median(x))
+            if x.size >= 2:
+                assert percentiles_linear(x, _Q10_90).tobytes() == np.percentile(x, [10, 90]).tobytes()
+
+
+def test_smoothing_and_background_rows_equal_the_numpy_reference() -> None:
+    """smooth_log_level = 3 rounds of scipy uniform_filter1d / np.median; background_rows = the
+    medians over the first rows of a stable argsort (ties included)."""
+    from scipy.ndimage import uniform_filter1d
+
+    from sonarmap.preprocess._kernels import background_rows, smooth_log_level
+
+    rng = np.random.default_rng(4)
+    for n, width in ((2000, 125), (703, 43), (512, 32), (20, 15), (16, 15)):
+        log_level = np.log(np.round(rng.lognormal(size=n) * 20) / 20 + 0.05)
+        log_level[n // 3: n // 3 + 5] += 3.0  # a surface across the fan
+        keep, smooth, above = np.ones(n), log_level, np.zeros(n, bool)
+        for _ in range(3):
+            den = uniform_filter1d(keep, width, mode="nearest")
+            num = uniform_filter1d(log_level * keep, width, mode="nearest")
+            smooth = np.where(den > 0.05, num / np.maximum(den, 1e-12), smooth)
+            resid = log_level - smooth
+            sigma = 1.4826 * float(np.median(np.abs(resid[keep > 0]))) if np.any(keep > 0) else 0.0
+            above = resid > 2.5 * max(sigma, 0.02)
+            keep = (~above).astype(np.float64)
+        s, a = smooth_log_level(log_level, width)
+        assert s.tobytes() == smooth.tobytes() and np.array_equal(a, above)
+        q50 = np.round(rng.random(n) * 8).astype(np.float32).astype(np.float64)  # many ties
+        q25 = q50 - rng.random(n)
+        for n_rows in (1, n // 4, n):
+            rows = np.argsort(q50, kind="stable")[:n_rows]
+            assert background_rows(q25, q50, n_rows) == (np.median(q50[rows]), np.median((q50 - q25)[rows]))

@@ -29,13 +29,21 @@ def pooled_ratio(img, level, factor, pool_r, pool_c):  # pragma: no cover - numb
     """
     n, m = img.shape
     z = np.empty((n, m), dtype=np.float32)
+    pooled_ratio_into(img, level, factor, pool_r, pool_c, z, np.empty((n, m), dtype=np.float32))
+    return z
+
+
+@njit(cache=True, nogil=True)
+def pooled_ratio_into(img, level, factor, pool_r, pool_c, z, tmp):  # pragma: no cover - numba
+    """:func:`pooled_ratio` written into ``z``, with ``tmp`` (float32, the image's shape) as work
+    space: callers reuse both (fresh image-sized arrays cost page faults on every ping)."""
+    n, m = img.shape
     for i in range(n):
         inv = 1.0 / level[i]
         for j in range(m):
             z[i, j] = img[i, j] * inv / factor[i, j]
     # along range for all beams at once, row by row (contiguous rows; a column-by-column pass
     # strides through memory): per beam the same arithmetic as _running_mean, so the same bits
-    tmp = np.empty((n, m), dtype=np.float32)
     s = np.zeros(m)
     h = pool_r // 2
     for k in range(-h, pool_r - h):
@@ -50,28 +58,22 @@ def pooled_ratio(img, level, factor, pool_r, pool_c):  # pragma: no cover - numb
             s[j] += z[a, j] - z[b, j]
     for i in range(n):
         _running_mean(tmp[i], z[i], pool_c)
-    return z
-
-
-@njit(cache=True, nogil=True)
-def excess(z, t, gain):  # pragma: no cover - numba
-    """``min(gain * max(z - t, 0), 1)`` as float32."""
-    n, m = z.shape
-    out = np.empty((n, m), dtype=np.float32)
-    for i in range(n):
-        for j in range(m):
-            e = (z[i, j] - t) * gain
-            out[i, j] = 0.0 if e <= 0 else (1.0 if e > 1.0 else e)
-    return out
 
 
 @njit(cache=True, nogil=True)
 def interpolate_rows(cols, r0, r1, fr):  # pragma: no cover - numba
     """``out[i] = (1 - fr[i]) cols[r0[i]] + fr[i] cols[r1[i]]`` (float32, elementwise: the same bits
     on every machine and thread count)."""
+    out = np.empty((r0.shape[0], cols.shape[1]), dtype=np.float32)
+    interpolate_rows_into(cols, r0, r1, fr, out)
+    return out
+
+
+@njit(cache=True, nogil=True)
+def interpolate_rows_into(cols, r0, r1, fr, out):  # pragma: no cover - numba
+    """:func:`interpolate_rows` written into ``out``."""
     n = r0.shape[0]
     m = cols.shape[1]
-    out = np.empty((n, m), dtype=np.float32)
     one = np.float32(1.0)
     for i in range(n):
         f = fr[i]
@@ -80,4 +82,251 @@ def interpolate_rows(cols, r0, r1, fr):  # pragma: no cover - numba
         b = cols[r1[i]]
         for j in range(m):
             out[i, j] = a[j] * g + b[j] * f
+
+
+@njit(cache=True, nogil=True)
+def row_quartile_u8(img, k):  # pragma: no cover - numba
+    """Order statistic ``k`` of each row of ``max(img, 0)`` by counting, for 8-bit data.
+
+    Every value must be one of at most 256 distinct values in [0, 1], one per level
+    ``round(255 v)`` (the image's own value of a level is the first one met): then ordering the
+    levels orders the values, and the ``k``-th smallest value is the level where the row's
+    cumulative count passes ``k``.  Returns ``(out, ok)``; ``ok`` False (``out`` undefined) when a
+    value breaks that (not 8-bit data: sort instead).
+    """
+    n, m = img.shape
+    out = np.empty(n, dtype=np.float32)
+    value = np.full(256, -1.0, dtype=np.float32)
+    count = np.zeros(256, dtype=np.int32)
+    keys = np.empty(m, dtype=np.int64)
+    for i in range(n):
+        lo = 255
+        for j in range(m):
+            v = img[i, j]
+            if not v > 0:
+                v = np.float32(0.0)
+            if not v <= 1.0:
+                return out, False
+            key = int(v * np.float32(255.0) + np.float32(0.5))
+            w = value[key]
+            if w != v:
+                if w >= 0:
+                    return out, False
+                value[key] = v
+            count[key] += 1
+            keys[j] = key
+            lo = min(lo, key)
+        c = 0
+        for key in range(lo, 256):
+            c += count[key]
+            if c > k:
+                out[i] = value[key]
+                break
+        for j in range(m):
+            count[keys[j]] = 0
+    return out, True
+
+
+@njit(cache=True, nogil=True)
+def median5(x):  # pragma: no cover - numba
+    """``scipy.ndimage.median_filter(x, size=5, mode="nearest")`` of a 1-D float32 array without NaN
+    (the middle one of the 5 values around each sample, edge samples repeated)."""
+    n = x.size
+    out = np.empty(n, dtype=np.float32)
+    w = np.empty(5, dtype=np.float32)
+    for i in range(n):
+        for d in range(5):
+            w[d] = x[min(max(i + d - 2, 0), n - 1)]
+        for a in range(1, 5):
+            t = w[a]
+            b = a - 1
+            while b >= 0 and w[b] > t:
+                w[b + 1] = w[b]
+                b -= 1
+            w[b + 1] = t
+        out[i] = w[2]
     return out
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _move_below(a, lo, hi, p, strict):  # pragma: no cover - numba
+    """Branch-free partition pass: the values of ``a[lo:hi]`` below ``p`` (``strict``) or at most
+    ``p`` to the front; returns ``lo`` + their count."""
+    s = lo
+    for i in range(lo, hi):
+        t = a[i]
+        a[i] = a[s]
+        a[s] = t
+        s += (t < p) if strict else (t <= p)
+    return s
+
+
+@njit(cache=True, nogil=True)
+def select(a, n, k):  # pragma: no cover - numba
+    """The ``k``-th smallest of ``a[:n]`` (no NaN), reordering ``a[:n]`` so that ``a[:k]`` holds
+    values at most it (quickselect, pivots the median of 3 pseudo-random values - fixed ones
+    degrade on the near-sorted, partitioned arrays of repeated selections -, values equal to the
+    pivot split off)."""
+    lo = 0
+    hi = n
+    state = np.uint64(0x9E3779B97F4A7C15)
+    while hi - lo > 16:
+        span = np.uint64(hi - lo)
+        state = state * np.uint64(6364136223846793005) + np.uint64(1442695040888963407)
+        x = a[lo + np.int64((state >> np.uint64(33)) % span)]
+        state = state * np.uint64(6364136223846793005) + np.uint64(1442695040888963407)
+        y = a[lo + np.int64((state >> np.uint64(33)) % span)]
+        state = state * np.uint64(6364136223846793005) + np.uint64(1442695040888963407)
+        z = a[lo + np.int64((state >> np.uint64(33)) % span)]
+        p = max(min(x, y), min(max(x, y), z))
+        s = _move_below(a, lo, hi, p, True)
+        if k < s:
+            hi = s
+            continue
+        e = _move_below(a, s, hi, p, False)
+        if k < e:
+            return p
+        lo = e
+    for i in range(lo + 1, hi):
+        t = a[i]
+        j = i - 1
+        while j >= lo and a[j] > t:
+            a[j + 1] = a[j]
+            j -= 1
+        a[j + 1] = t
+    return a[k]
+
+
+@njit(cache=True, nogil=True)
+def median_inplace(a, n):  # pragma: no cover - numba
+    """``np.median(a[:n])`` of a float64 array without NaN (``n >= 1``; ``a[:n]`` is reordered):
+    the middle value, or the mean ``(lo + hi) / 2`` of the two middle ones."""
+    hi = select(a, n, n // 2)
+    if n % 2:
+        return hi
+    return (select(a, n // 2, n // 2 - 1) + hi) / 2.0
+
+
+@njit(cache=True, nogil=True)
+def smooth_log_level(log_level, width):  # pragma: no cover - numba
+    """The 3 rounds of robust smoothing of :func:`sonarmap.preprocess.normalise._row_level`:
+    ``(smooth, above)``, the same arithmetic as its scipy ``uniform_filter1d(mode="nearest")`` /
+    ``np.median`` version (``len(log_level) > width``)."""
+    n = log_level.size
+    keep = np.ones(n)
+    smooth = log_level.copy()
+    above = np.zeros(n, dtype=np.bool_)
+    den = np.empty(n)
+    num = np.empty(n)
+    work = np.empty(n)
+    resid = np.empty(n)
+    for _ in range(3):
+        _running_mean(keep, den, width)
+        for i in range(n):
+            work[i] = log_level[i] * keep[i]
+        _running_mean(work, num, width)
+        c = 0
+        for i in range(n):
+            if den[i] > 0.05:
+                smooth[i] = num[i] / max(den[i], 1e-12)
+            resid[i] = log_level[i] - smooth[i]
+            if keep[i] > 0:
+                work[c] = abs(resid[i])
+                c += 1
+        sigma = 1.4826 * median_inplace(work, c) if c > 0 else 0.0
+        limit = 2.5 * max(sigma, 0.02)
+        for i in range(n):
+            above[i] = resid[i] > limit
+            keep[i] = 0.0 if above[i] else 1.0
+    return smooth, above
+
+
+@njit(cache=True, nogil=True)
+def block_values(img, level, nr, nc, br, bc, out):  # pragma: no cover - numba
+    """``img / level[:, None]`` gathered by blocks of ``br x bc`` into ``out`` (float32,
+    ``(nr nc, br bc)``): row ``a * nc + b`` holds block ``(a, b)``, by bin then beam (as
+    ``reshape(nr, br, nc, bc).transpose(0, 2, 1, 3)``)."""
+    for a in range(nr):
+        for i in range(br):
+            r = a * br + i
+            lv = level[r]
+            for b in range(nc):
+                row = out[a * nc + b]
+                for j in range(bc):
+                    row[i * bc + j] = img[r, b * bc + j] / lv
+
+
+@njit(cache=True, nogil=True)
+def background_rows(q25, q50, n_rows):  # pragma: no cover - numba
+    """``(median(q50[rows]), median((q50 - q25)[rows]))`` over ``rows``, the first ``n_rows`` of
+    ``np.argsort(q50, kind="stable")``: every row below the ``n_rows``-th smallest ``q50`` and the
+    first rows equal to it.  NaN-free float64 input."""
+    n = q50.size
+    work = q50.copy()
+    v = select(work, n, n_rows - 1)
+    below = 0
+    for i in range(n):
+        below += q50[i] < v
+    ties = n_rows - below
+    spread = np.empty(n_rows)
+    c = 0
+    for i in range(n):
+        if q50[i] < v or (q50[i] == v and ties > 0):
+            if q50[i] == v:
+                ties -= 1
+            work[c] = q50[i]
+            spread[c] = q50[i] - q25[i]
+            c += 1
+    return median_inplace(work, n_rows), median_inplace(spread, n_rows)
+
+
+@njit(cache=True, nogil=True)
+def excess_top(z, t, gain):  # pragma: no cover - numba
+    """``min(gain * max(z - t, 0), 1)`` as float32, and the number of its values at 1."""
+    n, m = z.shape
+    out = np.empty((n, m), dtype=np.float32)
+    top = 0
+    for i in range(n):
+        for j in range(m):
+            e = (z[i, j] - t) * gain
+            u = 0.0 if e <= 0 else (1.0 if e > 1.0 else e)
+            out[i, j] = u
+            top += u >= 1.0
+    return out, top
+
+
+@njit(cache=True, nogil=True)
+def percentiles_linear(x, q):  # pragma: no cover - numba
+    """``np.percentile(x, 100 q)`` (method "linear") of a 1-D array without NaN, ``n >= 2`` values,
+    ``0 <= q < 1``: numpy's arithmetic - the virtual index ``(n - 1) q``, its floor ``i`` and
+    fraction ``g``, the difference ``d = x[i + 1] - x[i]`` in the input's precision, then
+    ``x[i] + d g`` (``g < 0.5``) or ``x[i + 1] - d (1 - g)`` in float64."""
+    n = x.size
+    a = x.copy()
+    out = np.empty(q.size)
+    for t in range(q.size):
+        v = (n - 1) * q[t]
+        i = int(np.floor(v))
+        g = v - i
+        lo = select(a, n, i)
+        hi = a[i + 1]
+        for k in range(i + 2, n):
+            hi = min(hi, a[k])
+        d = hi - lo
+        out[t] = hi - d * (1.0 - g) if g >= 0.5 else lo + d * g
+    return out
+
+
+@njit(cache=True, nogil=True)
+def finite_and_zeros(img, zero):  # pragma: no cover - numba
+    """``(np.all(np.isfinite(img)), np.count_nonzero(img <= zero))`` of a float32 image in one pass
+    (``zero`` float32)."""
+    n, m = img.shape
+    finite = True
+    zeros = 0
+    for i in range(n):
+        for j in range(m):
+            v = img[i, j]
+            finite &= np.isfinite(v)
+            zeros += v <= zero
+    return finite, zeros
