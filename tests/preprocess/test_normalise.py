@@ -74,6 +74,16 @@ def test_selection_kernels_equal_numpys_order_statistics(shape) -> None:
                 assert percentiles_linear(x, _Q10_90).tobytes() == np.percentile(x, [10, 90]).tobytes()
 
 
+def test_median5_network_takes_the_middle_value_of_every_tie_pattern() -> None:
+    import itertools
+
+    from sonarmap.preprocess._kernels import median5
+
+    for t in itertools.product(range(5), repeat=5):
+        x = np.array(t, dtype=np.float32)
+        assert median5(x)[2] == np.sort(x)[2]
+
+
 def test_smoothing_and_background_rows_equal_the_numpy_reference() -> None:
     """smooth_log_level = 3 rounds of scipy uniform_filter1d / np.median; background_rows = the
     medians over the first rows of a stable argsort (ties included)."""

@@ -130,21 +130,20 @@ def row_quartile_u8(img, k):  # pragma: no cover - numba
 @njit(cache=True, nogil=True)
 def median5(x):  # pragma: no cover - numba
     """``scipy.ndimage.median_filter(x, size=5, mode="nearest")`` of a 1-D float32 array without NaN
-    (the middle one of the 5 values around each sample, edge samples repeated)."""
+    (the middle one of the 5 values around each sample, edge samples repeated), by a branch-free
+    min/max network: the middle of 5 is the middle of ``e``, the larger of the two pair minima
+    and the smaller of the two pair maxima of ``a, b, c, d``."""
     n = x.size
     out = np.empty(n, dtype=np.float32)
-    w = np.empty(5, dtype=np.float32)
     for i in range(n):
-        for d in range(5):
-            w[d] = x[min(max(i + d - 2, 0), n - 1)]
-        for a in range(1, 5):
-            t = w[a]
-            b = a - 1
-            while b >= 0 and w[b] > t:
-                w[b + 1] = w[b]
-                b -= 1
-            w[b + 1] = t
-        out[i] = w[2]
+        a = x[min(max(i - 2, 0), n - 1)]
+        b = x[min(max(i - 1, 0), n - 1)]
+        c = x[i]
+        d = x[min(i + 1, n - 1)]
+        e = x[min(i + 2, n - 1)]
+        f = max(min(a, b), min(c, d))
+        g = min(max(a, b), max(c, d))
+        out[i] = max(min(e, f), min(max(e, f), g))
     return out
 
 
