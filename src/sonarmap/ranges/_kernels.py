@@ -898,13 +898,29 @@ def box_mean_f32(img, size0, size1):  # pragma: no cover - numba
     """``scipy.ndimage.uniform_filter(img, size=(size0, size1), mode="constant")`` of a 2-D float32
     image, bit for bit (scipy's arithmetic: axis 0 then axis 1, axes of size 1 skipped, each line
     zero-padded by ``size // 2`` before, a double running sum ``+= new - old`` divided by the size
-    and rounded to float32; ``tests/test_pipeline.py`` checks the identity against scipy)."""
+    and rounded to float32; ``tests/test_pipeline.py`` checks the identity against scipy).
+
+    The pass along axis 0 runs over whole rows (one running sum per column, the same operations
+    in the same order as a column at a time, on contiguous memory)."""
     h, w = img.shape
     mid = np.empty((h, w), dtype=np.float32)
     if size0 > 1:
-        buf = np.zeros(h + size0 - 1)
+        b = size0 // 2
+        tmp = np.zeros(w)
+        for k in range(size0):
+            t = k - b
+            for j in range(w):
+                tmp[j] += float(img[t, j]) if 0 <= t < h else 0.0
         for j in range(w):
-            _box_line(img[:, j], buf, size0, mid[:, j])
+            mid[0, j] = tmp[j] / size0
+        for k in range(1, h):
+            t_new = k + size0 - 1 - b
+            t_old = k - 1 - b
+            for j in range(w):
+                vn = float(img[t_new, j]) if t_new < h else 0.0
+                vo = float(img[t_old, j]) if t_old >= 0 else 0.0
+                tmp[j] += vn - vo
+                mid[k, j] = tmp[j] / size0
     else:
         mid[:, :] = img
     if size1 <= 1:
@@ -914,6 +930,35 @@ def box_mean_f32(img, size0, size1):  # pragma: no cover - numba
     for i in range(h):
         _box_line(mid[i, :], buf, size1, out[i, :])
     return out
+
+
+@njit(cache=True, nogil=True)
+def box_band(img, size0, size1, level):  # pragma: no cover - numba
+    """``box_mean_f32(img, size0, size1) >= level`` (``level`` float32: numpy compares a float32
+    image with a Python float in float32), with the first and one-past-last row holding a band
+    pixel and the number of columns holding one (0 rows when none)."""
+    pooled = box_mean_f32(img, size0, size1)
+    h, w = pooled.shape
+    band = np.zeros((h, w), dtype=np.bool_)
+    col = np.zeros(w, dtype=np.bool_)
+    r0 = h
+    r1 = 0
+    for i in range(h):
+        row = False
+        for j in range(w):
+            if pooled[i, j] >= level:
+                band[i, j] = True
+                col[j] = True
+                row = True
+        if row:
+            if r0 == h:
+                r0 = i
+            r1 = i + 1
+    n_cols = 0
+    for j in range(w):
+        if col[j]:
+            n_cols += 1
+    return band, r0, r1, n_cols
 
 
 @njit(cache=True, nogil=True, inline="always")

@@ -57,16 +57,31 @@ def pooled_band_mask(image: NDArray[np.float32], level: float, *, pool_beams: in
                      min_beams: int = 40) -> NDArray[np.bool_] | None:
     """Band pooling as a mask: pixels of ``image`` averaged over ``pool_bins`` x ``2 pool_beams + 1``
     that reach ``level`` and belong to an 8-connected band spanning >= ``min_beams`` beams (None: none)."""
-    from sonarmap.ranges._kernels import box_mean_f32
+    from sonarmap.ranges._kernels import box_band
 
     img = np.asarray(image, dtype=np.float32)
-    if img.ndim != 2 or img.size == 0:
-        from scipy.ndimage import uniform_filter
+    if img.ndim != 2 or img.size == 0 or type(level) not in (float, int) or not abs(level) < 3e38:
+        return _pooled_band_mask_numpy(img, level, pool_beams, pool_bins, min_beams)
+    # = uniform_filter(img, size=(pool_bins, 2 pool_beams + 1), mode="constant") >= level, compared
+    # in float32 as numpy compares a float32 image with a Python number
+    band, r0, r1, n_cols = box_band(np.ascontiguousarray(img), int(pool_bins), 2 * int(pool_beams) + 1,
+                                    np.float32(level))
+    if n_cols < min_beams:
+        return None  # no component can span min_beams beams
+    # the components lie within rows r0 .. r1 - 1: label only those
+    kept = rule0(band[r0:r1], min_beams, img.shape[0] + 1, 0)
+    if not kept.any():
+        return None
+    band[r0:r1] = kept
+    return band
 
-        pooled = uniform_filter(img, size=(pool_bins, 2 * pool_beams + 1), mode="constant")
-    else:
-        # = scipy.ndimage.uniform_filter(img, size=(pool_bins, 2 pool_beams + 1), mode="constant")
-        pooled = box_mean_f32(np.ascontiguousarray(img), int(pool_bins), 2 * int(pool_beams) + 1)
+
+def _pooled_band_mask_numpy(img: NDArray[np.float32], level: float, pool_beams: int, pool_bins: int,
+                            min_beams: int) -> NDArray[np.bool_] | None:
+    """:func:`pooled_band_mask` in numpy (images that are not 2-D, levels that are not Python numbers)."""
+    from scipy.ndimage import uniform_filter
+
+    pooled = uniform_filter(img, size=(pool_bins, 2 * pool_beams + 1), mode="constant")
     band = pooled >= level
     if not band.any():
         return None
