@@ -1048,6 +1048,14 @@ def excess_ratio(raw, level, full, log_db, r0, r1):  # pragma: no cover - numba
     ``b = level[i] * full[i, j]``, on rows ``r0 .. r1 - 1`` (zero elsewhere); float64."""
     n, m = raw.shape
     out = np.zeros((n, m))
+    excess_ratio_rows(raw, level, full, log_db, r0, r1, out)
+    return out
+
+
+@njit(cache=True, nogil=True)
+def excess_ratio_rows(raw, level, full, log_db, r0, r1, out):  # pragma: no cover - numba
+    """:func:`excess_ratio` written into rows ``r0 .. r1 - 1`` of ``out`` (zero there on entry)."""
+    n, m = raw.shape
     k = log_db * np.log(10.0) / 10.0
     for i in range(max(r0, 0), min(r1, n)):
         for j in range(m):
@@ -1061,7 +1069,6 @@ def excess_ratio(raw, level, full, log_db, r0, r1):  # pragma: no cover - numba
                 v = raw[i, j] / max(b, 1e-12) - 1.0
             if v > 0.0:
                 out[i, j] = v
-    return out
 
 
 @njit(cache=True, nogil=True)

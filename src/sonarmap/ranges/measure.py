@@ -136,6 +136,41 @@ def measurement_image(ping: Ping, background: Any, config: RangeConfig = RangeCo
     return excess_ratio(raw, level, full, float(d) if d is not None else 0.0, int(r0), int(r1))
 
 
+def _measurement_rows(ping: Ping, background: Any, config: RangeConfig, r0: int, r1: int,
+                      done: list[Any]) -> NDArray[np.float64]:
+    """``measurement_image(ping, background, config, rows=(r0, r1))``, or the image of an earlier
+    call when its rows cover these.
+
+    ``done`` is ``[]`` or ``[image, (r0, r1), inputs]`` of the earlier call on the same ping
+    (updated in place): a new image reuses the inputs (the beam factor on the full lattice) and
+    that image's memory, computing only the rows it lacks and zeroing those outside the new rows
+    (each pixel's value does not depend on the others: the same image, bit for bit).
+    """
+    from sonarmap.ranges._kernels import excess_ratio_rows
+    from sonarmap.preprocess.normalise import expand_grid
+
+    n = ping.image.shape[0]
+    a, b = max(r0, 0), min(r1, n)
+    if not done:
+        raw = np.ascontiguousarray(ping.image, dtype=np.float32)
+        level = np.ascontiguousarray(background.level_by_bin, dtype=np.float32)
+        full = (np.ones(raw.shape, np.float32) if background.beam_factor is None
+                else np.ascontiguousarray(expand_grid(background.beam_factor, raw.shape), dtype=np.float32))
+        d = _log_range_db(ping, config)
+        done[:] = [np.zeros(raw.shape), (0, 0), (raw, level, full, float(d) if d is not None else 0.0)]
+    out, (a0, b0), inputs = done
+    if done[1] != (0, 0) and a >= a0 and b <= b0:
+        return out
+    for lo, hi in ((a0, min(b0, a)), (max(a0, b), b0)):  # rows no longer measured
+        if hi > lo:
+            out[lo:hi] = 0.0
+    for lo, hi in ((a, min(b, a0)), (max(a, b0), b)):  # rows not measured yet
+        if hi > lo:
+            excess_ratio_rows(*inputs, lo, hi, out)
+    done[1] = (a, b)
+    return out
+
+
 def surface_ranges(ping: Ping, image: NDArray[np.float32], levels: NDArray[Any], mask: NDArray[np.bool_],
                    fit: Any, config: RangeConfig = RangeConfig(), candidates: CandidateConfig = CandidateConfig(), *,
                    normalised: bool = False, bg_mean: float | None = None, background: Any = None,
@@ -166,7 +201,7 @@ def surface_ranges(ping: Ping, image: NDArray[np.float32], levels: NDArray[Any],
     pb = pulse_bins(ping, config)
     measured = normalised and background is not None and getattr(background, "level_by_bin", None) is not None
 
-    done: list[Any] = []  # the measurement image and its rows, once computed
+    done: list[Any] = []  # the measurement image, its rows and its inputs, once computed
 
     def measure(cand: NDArray[np.bool_]) -> tuple[Any, float, Any, Any]:
         meas, bg = image, bg_mean or 0.0
@@ -174,10 +209,8 @@ def surface_ranges(ping: Ping, image: NDArray[np.float32], levels: NDArray[Any],
             # echo intensity above the background, in background units (its mean is 1)
             occupied = np.flatnonzero(cand.any(axis=1))
             pad = pb + 4
-            rows = (int(occupied[0]) - pad, int(occupied[-1]) + 1 + pad)
-            if not done or rows[0] < done[1][0] or rows[1] > done[1][1]:
-                done[:] = [measurement_image(ping, background, config, rows=rows), rows]
-            meas, bg = done[0], 1.0
+            meas, bg = _measurement_rows(ping, background, config, int(occupied[0]) - pad,
+                                         int(occupied[-1]) + 1 + pad, done), 1.0
         # a pooled band pixel passed a >= pool_factor x background test over the whole box: one
         # nat at least, whatever its own (single-look, speckled) value says
         echoes = find_echoes(cand, meas, geom, levels=levels, level_evidence=lut, boost=band, boost_min=1.0,
