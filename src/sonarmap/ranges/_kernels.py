@@ -1062,6 +1062,8 @@ def excess_ratio_rows(raw, level, full, log_db, r0, r1, out):  # pragma: no cove
             b = level[i] * full[i, j]
             if log_db > 0:
                 x = k * (raw[i, j] - b)
+                if not x > 0.0:
+                    continue  # exp(x) - 1 <= 0: the pixel stays 0 (most of the background)
                 if x > 69.0:
                     x = 69.0
                 v = np.exp(x) - 1.0
