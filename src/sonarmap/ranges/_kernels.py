@@ -308,6 +308,86 @@ def bridge_surfaces(first, count, pos, lo_bin, hi_bin, unary, tracked, slope_bin
     return out
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _key_less(a, b):  # pragma: no cover - numba
+    """``a`` sorts before ``b`` as in numpy (NaN last)."""
+    return a < b or (np.isnan(b) and not np.isnan(a))
+
+
+@njit(cache=True, nogil=True)
+def track_surfaces(echo_beam, m, pos, lo_bin, hi_bin, unary, n_surfaces, max_gap, slope_bins, slope_cost, jump_bins,
+                   touch_bins, segment_cost, gap_cost, bridge_beams):  # pragma: no cover - numba
+    """:func:`sonarmap.ranges.tracking.track_surfaces` in one kernel: ``n_surfaces`` passes of
+    :func:`viterbi_surfaces` (each on the echoes the earlier ones left), the bridges
+    (:func:`bridge_surfaces`; over one beam the nearest bridge wins, on equal edges the later
+    echo), and per beam the surfaces sorted by edge (stable, NaN last) and cut to ``n_surfaces``.
+    Returns the ``(n_surfaces, m)`` echo indices (-1: none)."""
+    n_e = pos.size
+    count = np.zeros(m, np.int64)
+    for a in range(n_e):
+        count[echo_beam[a]] += 1
+    first = np.zeros(m, np.int64)
+    for j in range(1, m):
+        first[j] = first[j - 1] + count[j - 1]
+    out = np.full((n_surfaces, m), -1, np.int64)
+    if n_e == 0:
+        return out
+    usable = np.ones(n_e, np.bool_)
+    picks = np.full((n_surfaces + 1, m), -1, np.int64)
+    n_picks = 0
+    for _ in range(n_surfaces):
+        chosen = viterbi_surfaces(first, count, echo_beam, pos, lo_bin, hi_bin, unary, usable, max_gap, slope_bins,
+                                  slope_cost, jump_bins, touch_bins, segment_cost, gap_cost)
+        hit = False
+        for j in range(m):
+            if chosen[j] >= 0:
+                hit = True
+        if not hit:
+            break
+        for j in range(m):
+            picks[n_picks + 1, j] = chosen[j]
+            if chosen[j] >= 0:
+                usable[chosen[j]] = False
+        n_picks += 1
+    if n_picks == 0:
+        return out
+    row0 = 1  # picks[0] holds the bridges, if any
+    if bridge_beams > 0:
+        tracked = np.zeros(n_e, np.bool_)
+        for p in range(1, n_picks + 1):
+            for j in range(m):
+                if picks[p, j] >= 0:
+                    tracked[picks[p, j]] = True
+        bridged = bridge_surfaces(first, count, pos, lo_bin, hi_bin, unary, tracked, slope_bins, slope_cost,
+                                  jump_bins, touch_bins, bridge_beams)
+        for a in range(n_e):
+            if bridged[a] and not tracked[a]:
+                j = echo_beam[a]
+                b = picks[0, j]
+                # the nearest bridge of the beam; of equal edges the later echo
+                if b < 0 or not _key_less(-pos[a], -pos[b]):
+                    picks[0, j] = a
+                row0 = 0
+    n_rows = n_picks + 1 - row0
+    idx = np.empty(n_rows, np.int64)
+    key = np.empty(n_rows)
+    for j in range(m):
+        # stable insertion sort by edge (no surface: +inf)
+        for r in range(n_rows):
+            e = picks[row0 + r, j]
+            k = pos[e] if e >= 0 else np.inf
+            q = r
+            while q > 0 and _key_less(k, key[q - 1]):
+                idx[q] = idx[q - 1]
+                key[q] = key[q - 1]
+                q -= 1
+            idx[q] = e
+            key[q] = k
+        for r in range(min(n_rows, n_surfaces)):
+            out[r, j] = idx[r]
+    return out
+
+
 # ----------------------------------------------------------------------------- components and edges
 
 

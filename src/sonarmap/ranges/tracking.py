@@ -91,46 +91,12 @@ def track_surfaces(echoes: Echoes, config: TrackConfig = TrackConfig()) -> Track
 
     if not isinstance(echoes, Echoes):
         raise InputError(f"echoes: expected Echoes, got {type(echoes).__name__}")
-    m = echoes.n_beams
-    out = np.full((config.n_surfaces, m), -1, dtype=np.int64)
-    if echoes.size == 0:
-        return Tracks(echo=out)
-    first, count = echoes.per_beam()
-    unary = config.beam_cost - echoes.evidence
-    usable = np.ones(echoes.size, dtype=bool)
     lo, hi = echoes.intervals()
-    picks = []
-    for _ in range(config.n_surfaces):
-        chosen = _kernels.viterbi_surfaces(
-            first, count, echoes.beam, np.ascontiguousarray(echoes.edge_bin), lo, hi, unary, usable,
-            int(config.max_gap), config.slope_bins, config.slope_cost, config.jump_bins, config.touch_bins,
-            config.segment_cost, config.gap_cost)
-        if not (chosen >= 0).any():
-            break
-        picks.append(chosen)
-        usable[chosen[chosen >= 0]] = False
-    if not picks:
-        return Tracks(echo=out)
-    stack = np.stack(picks)
-    if config.bridge_beams > 0:
-        tracked = np.zeros(echoes.size, dtype=bool)
-        tracked[stack[stack >= 0]] = True
-        bridged = _kernels.bridge_surfaces(first, count, np.ascontiguousarray(echoes.edge_bin), lo, hi, unary, tracked,
-                                           config.slope_bins, config.slope_cost, config.jump_bins, config.touch_bins,
-                                           int(config.bridge_beams))
-        new = np.flatnonzero(bridged & ~tracked)
-        if new.size:
-            # a bridging echo is the nearest of its beam: it goes in front, the farthest drops out
-            # (of two bridges over one beam the nearer is kept: written last)
-            new = new[np.argsort(-echoes.edge_bin[new], kind="stable")]
-            row = np.full((1, m), -1, dtype=np.int64)
-            row[0, echoes.beam[new]] = new
-            stack = np.concatenate([row, stack])
-    key = np.where(stack >= 0, echoes.edge_bin[np.maximum(stack, 0)], np.inf)
-    order = np.argsort(key, axis=0, kind="stable")
-    stack = np.take_along_axis(stack, order, axis=0)[: config.n_surfaces]
-    out[: stack.shape[0]] = stack
-    return Tracks(echo=out)
+    c = config
+    return Tracks(echo=_kernels.track_surfaces(
+        echoes.beam, int(echoes.n_beams), np.ascontiguousarray(echoes.edge_bin, dtype=np.float64), lo, hi,
+        c.beam_cost - echoes.evidence, int(c.n_surfaces), int(c.max_gap), float(c.slope_bins), float(c.slope_cost),
+        float(c.jump_bins), float(c.touch_bins), float(c.segment_cost), float(c.gap_cost), int(c.bridge_beams)))
 
 
 def continuation_mask(echoes: Echoes, first: NDArray[np.int64], levels: NDArray[np.integer],
