@@ -1121,6 +1121,83 @@ def band_peak_pixels(band, img, cols):  # pragma: no cover - numba
     return out
 
 
+# ------------------------------------------------------------------ ranges and sigmas of edges
+@njit(cache=True, nogil=True, inline="always")
+def _interp_index(fp, x):  # pragma: no cover - numba
+    """``np.interp(x, np.arange(fp.size), fp)``, numpy's arithmetic (``fp`` finite)."""
+    n = fp.size
+    if np.isnan(x):
+        return x
+    if x < 0.0:
+        return fp[0]
+    if x >= n - 1:
+        return fp[n - 1]
+    j = int(x)
+    if j == x:
+        return fp[j]
+    return (fp[j + 1] - fp[j]) * (x - j) + fp[j]
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _edge_sigma(noise, slope, bin_m, bin_var, pulse_var, scale):  # pragma: no cover - numba
+    """One value of :func:`sonarmap.ranges.echoes.edge_sigma_m` in its numpy arithmetic (NaN
+    propagating through ``np.maximum`` / ``np.minimum``); ``bin_var = bin_m**2 / 12``,
+    ``pulse_var = pulse_m**2 / 12``."""
+    s = slope if (np.isnan(slope) or slope > 1e-12) else 1e-12
+    x = np.inf if np.isnan(noise) else scale * noise / s
+    if not (np.isnan(x) or x < 8.0):
+        x = 8.0
+    jitter = x * bin_m
+    return np.sqrt(bin_var + jitter * jitter + pulse_var)
+
+
+@njit(cache=True, nogil=True)
+def edge_sigmas(noise, slope, bin_m, bin_var, pulse_var, scale):  # pragma: no cover - numba
+    """:func:`_edge_sigma` of every element (1-D arrays of one size)."""
+    out = np.empty(noise.size)
+    for k in range(noise.size):
+        out[k] = _edge_sigma(noise[k], slope[k], bin_m, bin_var, pulse_var, scale)
+    return out
+
+
+@njit(cache=True, nogil=True)
+def echo_ranges(edge, peak_value, slope, range_m, fraction, sqrt2, background, sqrt_looks, bin_m, bin_var, pulse_var,
+                scale):  # pragma: no cover - numba
+    """Per echo the range of its edge (``np.interp`` on ``range_m``) and its sigma
+    (:func:`sonarmap.ranges.echoes.range_sigma_m` at ``fraction`` x the peak)."""
+    n = edge.size
+    rng = np.empty(n)
+    sigma = np.empty(n)
+    for k in range(n):
+        rng[k] = _interp_index(range_m, edge[k])
+        noise = sqrt2 * (abs(fraction * peak_value[k]) + background) / sqrt_looks
+        sigma[k] = _edge_sigma(noise, slope[k], bin_m, bin_var, pulse_var, scale)
+    return rng, sigma
+
+
+@njit(cache=True, nogil=True)
+def with_edges(edge_bin, edge_range, slope, sigma, idx, edge, rise, noise, range_m, bin_m, bin_var, pulse_var,
+               scale):  # pragma: no cover - numba
+    """Copies of the echoes' ``edge_bin``, ``edge_range``, ``slope``, ``sigma`` with echoes ``idx``
+    given the edges ``edge`` (clipped to the bins), their ranges, slopes ``rise`` and sigmas
+    (:func:`_edge_sigma` of ``noise``)."""
+    eb = edge_bin.copy()
+    er = edge_range.copy()
+    sl = slope.copy()
+    sg = sigma.copy()
+    top = range_m.size - 1.0
+    for t in range(idx.size):
+        k = idx[t]
+        x = edge[t]
+        if not np.isnan(x):
+            x = min(max(x, 0.0), top)
+        eb[k] = x
+        er[k] = _interp_index(range_m, x)
+        sl[k] = rise[t]
+        sg[k] = _edge_sigma(noise[t], rise[t], bin_m, bin_var, pulse_var, scale)
+    return eb, er, sl, sg
+
+
 # ------------------------------------------------------------------ measurement image, clipped echoes
 @njit(cache=True, nogil=True)
 def excess_ratio(raw, level, full, log_db, r0, r1):  # pragma: no cover - numba

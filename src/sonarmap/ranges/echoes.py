@@ -168,11 +168,13 @@ def edge_sigma_m(noise: ArrayLike, slope: ArrayLike, bin_m: float, *, pulse_m: f
     bins), plus the bin grid's and the pulse's uniform spreads (:func:`range_sigma_m` models
     ``noise`` from speckle looks; :func:`pooled_edges` measures it across the pooled beams).
     """
-    s = np.maximum(np.asarray(slope, dtype=np.float64), 1e-12)
-    nz = np.asarray(noise, dtype=np.float64)
+    from sonarmap.ranges._kernels import edge_sigmas
+
     # never more than ~8 bins uncertain (also where the noise is unknown)
-    jitter = np.minimum(np.where(np.isnan(nz), np.inf, float(scale) * nz / s), 8.0) * bin_m
-    return np.sqrt(bin_m**2 / 12.0 + jitter**2 + (pulse_m**2) / 12.0)
+    nz, s = np.broadcast_arrays(np.asarray(noise, dtype=np.float64), np.asarray(slope, dtype=np.float64))
+    out = edge_sigmas(np.ascontiguousarray(nz).ravel(), np.ascontiguousarray(s).ravel(), float(bin_m),
+                      float(bin_m**2 / 12.0), float((pulse_m**2) / 12.0), float(scale))
+    return out.reshape(nz.shape)
 
 
 def _check_edge_options(fraction: float, peak_rel: float, scan: str) -> None:
@@ -275,13 +277,14 @@ def find_echoes(
     bk = int(pulse_bins) + 2 if back is None else int(back)
     beam, start, stop, peak, pval, edge, slope, evid, npx = _kernels.find_echoes(
         m, img, code, lut, bst, float(boost_min), gap, float(fraction), float(peak_rel), bk, scan == "forward")
-    r = np.asarray(geometry.range_m, dtype=np.float64)
-    idx = np.arange(r.size, dtype=np.float64)
-    edge_r = np.interp(edge, idx, r)
+    r = np.ascontiguousarray(geometry.range_m, dtype=np.float64)
     bin_m = abs(geometry.range_resolution_m)
     pulse_m = int(pulse_bins) * bin_m if pulse_bins >= 2 else 0.0
-    sigma = range_sigma_m(fraction * pval, slope, bin_m, looks=looks * max(int(pulse_bins), 1),
-                          background=background, pulse_m=pulse_m, scale=sigma_scale)
+    # the edges' ranges (np.interp on the bins) and range_sigma_m's sigmas, in one pass
+    sqrt_looks = float(np.sqrt(np.maximum(np.asarray(looks * max(int(pulse_bins), 1), dtype=np.float64), 1.0)))
+    edge_r, sigma = _kernels.echo_ranges(edge, pval, slope, r, float(fraction), math.sqrt(2.0),
+                                         max(float(background), 0.0), sqrt_looks, bin_m, bin_m**2 / 12.0,
+                                         (pulse_m**2) / 12.0, float(sigma_scale))
     return Echoes(beam=beam, start_bin=start, stop_bin=stop, peak_bin=peak, peak_value=pval, edge_bin=edge,
                   edge_range_m=edge_r, peak_range_m=r[peak], slope=slope,
                   evidence=evid, n_pixels=npx, sigma_m=sigma, n_beams=int(m.shape[1]))
@@ -399,15 +402,13 @@ def pooled_edges(
 def _with_edges(echoes: Echoes, idx: np.ndarray, edge: np.ndarray, rise: np.ndarray, noise: np.ndarray,
                 geometry: SonarGeometry, pulse_bins: int, sigma_scale: float) -> Echoes:
     """``echoes`` with echoes ``idx`` given new leading edges ``edge`` (bins), slopes and sigmas."""
-    eb = echoes.edge_bin.copy()
-    eb[idx] = np.clip(edge, 0.0, geometry.n_bins - 1.0)
-    r = np.asarray(geometry.range_m, dtype=np.float64)
-    er = echoes.edge_range_m.copy()
-    er[idx] = np.interp(eb[idx], np.arange(r.size, dtype=np.float64), r)
-    sl = echoes.slope.copy()
-    sl[idx] = rise
+    from sonarmap.ranges import _kernels
+
     bin_m = abs(geometry.range_resolution_m)
     pulse_m = int(pulse_bins) * bin_m if pulse_bins >= 2 else 0.0
-    sig = echoes.sigma_m.copy()
-    sig[idx] = edge_sigma_m(noise, rise, bin_m, pulse_m=pulse_m, scale=sigma_scale)
+    eb, er, sl, sig = _kernels.with_edges(
+        echoes.edge_bin, echoes.edge_range_m, echoes.slope, echoes.sigma_m, np.asarray(idx, dtype=np.int64),
+        np.asarray(edge, dtype=np.float64), np.asarray(rise, dtype=np.float64), np.asarray(noise, dtype=np.float64),
+        np.ascontiguousarray(geometry.range_m, dtype=np.float64), bin_m, bin_m**2 / 12.0, (pulse_m**2) / 12.0,
+        float(sigma_scale))
     return dataclasses.replace(echoes, edge_bin=eb, edge_range_m=er, slope=sl, sigma_m=sig)
