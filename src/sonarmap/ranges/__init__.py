@@ -484,27 +484,16 @@ def ranges_from_tracks(echoes: "Echoes", tracks: "Tracks", geometry: SonarGeomet
     """The :class:`BeamRanges` of tracked surfaces: per beam the nearest tracked echo's leading
     edge (``mode="first"``) or peak (``"strongest"``), its sigma, and the surfaces behind it.
     ``p_detect`` is left NaN (the pipeline sets it from the ping's model)."""
-    e = tracks.echo
-    sel = e[0]
-    ok = sel >= 0
-    if not ok.any():
+    from sonarmap.ranges._kernels import track_ranges
+
+    e = np.ascontiguousarray(tracks.echo, dtype=np.int64)
+    if not (e[0] >= 0).any():
         return no_returns(geometry, time_ns=time_ns, source=source, mode=mode)
-    s = np.maximum(sel, 0)
-    n = geometry.n_beams
-    r = np.asarray(geometry.range_m, dtype=np.float64)
-    at = echoes.edge_range_m if mode == "first" else echoes.peak_range_m
-    rng = np.where(ok, at[s], np.nan)
-    if mode == "first":
-        b = np.where(ok, np.clip(np.floor(echoes.edge_bin[s] + 0.5), 0, r.size - 1), -1).astype(np.int64)
-    else:
-        b = np.where(ok, echoes.peak_bin[s], -1).astype(np.int64)
     img = np.asarray(image, dtype=np.float32)
-    inten = np.where(ok, img[np.maximum(b, 0), np.arange(n)], np.nan).astype(np.float32)
-    sigma = np.where(ok, echoes.sigma_m[s], np.nan)
-    other = np.where(e[1:] >= 0, at[np.maximum(e[1:], 0)], np.nan)
-    # confidence: the share of existing neighbour beams (+-2) whose return lies within 20 bins
-    sup, cnt = _support(b, 2, 20)
-    conf = np.where(ok, sup / np.maximum(cnt, 1), 0.0).astype(np.float32)
+    geometry.check_image(img, "image")
+    at = echoes.edge_range_m if mode == "first" else echoes.peak_range_m
+    rng, b, inten, sigma, other, conf = track_ranges(e, echoes.edge_bin, echoes.peak_bin, at, echoes.sigma_m, img,
+                                                     mode == "first")
     return BeamRanges(range_m=rng, bin=b, intensity=inten, confidence=conf,
                       azimuth_rad=np.asarray(geometry.azimuth_rad, dtype=np.float64), time_ns=int(time_ns),
                       source=source, mode=mode, sigma_m=sigma, other_range_m=other)

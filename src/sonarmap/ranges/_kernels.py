@@ -1198,6 +1198,72 @@ def with_edges(edge_bin, edge_range, slope, sigma, idx, edge, rise, noise, range
     return eb, er, sl, sg
 
 
+@njit(cache=True, nogil=True)
+def track_ranges(echo, edge_bin, peak_bin, at, sigma_m, img, first_mode):  # pragma: no cover - numba
+    """The per-beam fields of :func:`sonarmap.ranges.ranges_from_tracks` (its numpy arithmetic):
+    range ``at[e]``, bin (the edge rounded and clipped to the image, or the peak), ``img``
+    intensity there (float32), sigma, the ranges of the surfaces behind and the neighbour-support
+    confidence (+-2 beams, 20 bins), for the nearest tracked echo ``e = echo[0, j]``."""
+    n_s, m = echo.shape
+    top = img.shape[0] - 1
+    rng = np.full(m, np.nan)
+    b = np.full(m, -1, np.int64)
+    inten = np.full(m, np.nan, np.float32)
+    sig = np.full(m, np.nan)
+    for j in range(m):
+        e = echo[0, j]
+        if e < 0:
+            continue
+        rng[j] = at[e]
+        if first_mode:
+            x = np.floor(edge_bin[e] + 0.5)
+            if np.isnan(x):
+                b[j] = np.iinfo(np.int64).min  # what numpy's cast of NaN gives on x86
+            else:
+                b[j] = int(min(max(x, 0.0), top))
+        else:
+            b[j] = peak_bin[e]
+        inten[j] = img[max(b[j], 0), j]
+        sig[j] = sigma_m[e]
+    other = np.full((n_s - 1, m), np.nan)
+    for r in range(1, n_s):
+        for j in range(m):
+            if echo[r, j] >= 0:
+                other[r - 1, j] = at[echo[r, j]]
+    sup, cnt = support_counts(b, 2, 20)
+    conf = np.zeros(m, np.float32)
+    for j in range(m):
+        if echo[0, j] >= 0:
+            conf[j] = sup[j] / max(cnt[j], 1)
+    return rng, b, inten, sig, other, conf
+
+
+@njit(cache=True, nogil=True)
+def clipped_spread(img, sel, edge_bin, stop_bin, level, bin_m):  # pragma: no cover - numba
+    """The returns whose echo reaches ``level`` (:func:`sonarmap.ranges.measure.clipped_echo_sigma`):
+    their echo indices and the spread from the edge to the first clipped row (metres, > 0)."""
+    n = img.shape[0]
+    hit_e = np.empty(sel.size, np.int64)
+    spread = np.empty(sel.size)
+    k = 0
+    for j in range(sel.size):
+        e = sel[j]
+        if e < 0:
+            continue
+        x = np.ceil(edge_bin[e])
+        lo = 0 if np.isnan(x) else int(min(max(x, 0.0), n - 1.0))
+        hi = min(max(stop_bin[e], 0), n)
+        for i in range(lo, hi):
+            if img[i, j] >= level:
+                d = (i - edge_bin[e]) * bin_m
+                if d > 0:
+                    hit_e[k] = e
+                    spread[k] = d
+                    k += 1
+                break
+    return hit_e[:k], spread[:k]
+
+
 # ------------------------------------------------------------------ measurement image, clipped echoes
 @njit(cache=True, nogil=True)
 def excess_ratio(raw, level, full, log_db, r0, r1):  # pragma: no cover - numba

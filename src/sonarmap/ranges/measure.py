@@ -259,18 +259,12 @@ def clipped_echo_sigma(echoes: Any, sel: NDArray[np.int64], raw: NDArray[Any], g
     clipped sample.  That interval's uniform spread, ``length / sqrt 12``, is added in
     quadrature to the return's sigma; the range itself is not moved.
     """
-    from sonarmap.ranges._kernels import first_clipped_rows
+    from sonarmap.ranges._kernels import clipped_spread
 
-    img = np.ascontiguousarray(raw)
-    idx = np.flatnonzero(sel >= 0)
-    e = sel[idx]
-    lo = np.clip(np.ceil(echoes.edge_bin[e]).astype(np.int64), 0, img.shape[0] - 1)
-    hi = np.clip(echoes.stop_bin[e], 0, img.shape[0])
-    first = first_clipped_rows(img, idx, lo, hi, CLIP_LEVEL)  # per return: its echo's first clipped row
-    spread = (first - echoes.edge_bin[e]) * abs(geom.range_resolution_m)
-    hit = (first >= 0) & (spread > 0)
-    if not hit.any():
+    e, spread = clipped_spread(np.ascontiguousarray(raw), np.ascontiguousarray(sel, dtype=np.int64), echoes.edge_bin,
+                               echoes.stop_bin, CLIP_LEVEL, abs(geom.range_resolution_m))
+    if not e.size:
         return echoes
     sigma = echoes.sigma_m.copy()
-    sigma[e[hit]] = np.hypot(sigma[e[hit]], spread[hit] / math.sqrt(12.0))
+    sigma[e] = np.hypot(sigma[e], spread / math.sqrt(12.0))
     return dataclasses.replace(echoes, sigma_m=sigma)
