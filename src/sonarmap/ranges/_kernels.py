@@ -1176,25 +1176,28 @@ def echo_ranges(edge, peak_value, slope, range_m, fraction, sqrt2, background, s
 
 
 @njit(cache=True, nogil=True)
-def with_edges(edge_bin, edge_range, slope, sigma, idx, edge, rise, noise, range_m, bin_m, bin_var, pulse_var,
+def with_edges(edge_bin, edge_range, slope, sigma, sel, beams, edge, rise, noise, range_m, bin_m, bin_var, pulse_var,
                scale):  # pragma: no cover - numba
-    """Copies of the echoes' ``edge_bin``, ``edge_range``, ``slope``, ``sigma`` with echoes ``idx``
-    given the edges ``edge`` (clipped to the bins), their ranges, slopes ``rise`` and sigmas
-    (:func:`_edge_sigma` of ``noise``)."""
+    """Copies of the echoes' ``edge_bin``, ``edge_range``, ``slope``, ``sigma`` with, for each beam
+    ``j`` of ``beams``, echo ``sel[j]`` given the edge ``edge[j]`` (clipped to the bins as
+    ``np.clip`` does), its range, the slope ``rise[j]`` and the sigma (:func:`_edge_sigma` of
+    ``noise[j]``)."""
     eb = edge_bin.copy()
     er = edge_range.copy()
     sl = slope.copy()
     sg = sigma.copy()
     top = range_m.size - 1.0
-    for t in range(idx.size):
-        k = idx[t]
-        x = edge[t]
+    for t in range(beams.size):
+        j = beams[t]
+        k = sel[j]
+        x = edge[j]
         if not np.isnan(x):
-            x = min(max(x, 0.0), top)
+            x = x if x >= 0.0 else 0.0
+            x = x if x <= top else top
         eb[k] = x
         er[k] = _interp_index(range_m, x)
-        sl[k] = rise[t]
-        sg[k] = _edge_sigma(noise[t], rise[t], bin_m, bin_var, pulse_var, scale)
+        sl[k] = rise[j]
+        sg[k] = _edge_sigma(noise[j], rise[j], bin_m, bin_var, pulse_var, scale)
     return eb, er, sl, sg
 
 
@@ -1264,6 +1267,64 @@ def clipped_spread(img, sel, edge_bin, stop_bin, level, bin_m):  # pragma: no co
     return hit_e[:k], spread[:k]
 
 
+@njit(cache=True, nogil=True)
+def first_intervals(sel, edge_bin, start_bin, stop_bin):  # pragma: no cover - numba
+    """:func:`sonarmap.ranges.echoes._first_intervals` (non-empty echoes): per beam the edge of echo
+    ``sel[j]`` (NaN: none) and the bin interval and stop of echo ``max(sel[j], 0)``, float64."""
+    m = sel.size
+    edge = np.empty(m)
+    lo = np.empty(m)
+    hi = np.empty(m)
+    stop = np.empty(m)
+    for j in range(m):
+        e = max(sel[j], 0)
+        edge[j] = edge_bin[e] if sel[j] >= 0 else np.nan
+        x = np.floor(edge_bin[e])
+        f = np.iinfo(np.int64).min if np.isnan(x) else int(x)  # numpy's cast of NaN on x86
+        lo[j] = min(start_bin[e], f)
+        hi[j] = stop_bin[e] - 1
+        stop[j] = stop_bin[e]
+    return edge, lo, hi, stop
+
+
+@njit(cache=True, nogil=True)
+def pooled_edges_done(sel, new, used, start_bin, stop, back):  # pragma: no cover - numba
+    """The beams whose pooled edge ``new`` is kept (:func:`sonarmap.ranges.echoes.pooled_edges`):
+    a return, pooled, within ``back`` bins in front of its echo's first structure bin and not
+    behind its ``stop``."""
+    out = np.empty(sel.size, np.int64)
+    k = 0
+    for j in range(sel.size):
+        if sel[j] >= 0 and used[j] > 0 and new[j] >= start_bin[sel[j]] - back and new[j] <= stop[j]:
+            out[k] = j
+            k += 1
+    return out[:k]
+
+
+@njit(cache=True, nogil=True)
+def llr_table(lp, clip):  # pragma: no cover - numba
+    """:func:`sonarmap.ranges.echoes.level_llr` from ``log p(level | class)`` (>= 2 classes), in
+    numpy's arithmetic: the best object class (NaN propagating) minus the background, NaN to 0,
+    +-inf to +-clip, clipped."""
+    n_c, n_l = lp.shape
+    out = np.empty(n_l)
+    for k in range(n_l):
+        best = lp[1, k]
+        for c in range(2, n_c):
+            v = lp[c, k]
+            if not (np.isnan(best) or best >= v):
+                best = v
+        x = best - lp[0, k]
+        if np.isnan(x):
+            x = 0.0
+        elif x == np.inf:
+            x = clip
+        elif x == -np.inf:
+            x = -clip
+        out[k] = min(max(x, -clip), clip)
+    return out
+
+
 # ------------------------------------------------------------------ measurement image, clipped echoes
 @njit(cache=True, nogil=True)
 def excess_ratio(raw, level, full, log_db, r0, r1):  # pragma: no cover - numba
@@ -1294,17 +1355,3 @@ def excess_ratio_rows(raw, level, full, log_db, r0, r1, out):  # pragma: no cove
                 v = raw[i, j] / max(b, 1e-12) - 1.0
             if v > 0.0:
                 out[i, j] = v
-
-
-@njit(cache=True, nogil=True)
-def first_clipped_rows(img, cols, lo, hi, level):  # pragma: no cover - numba
-    """Per ``k``, the first row in ``lo[k] .. hi[k] - 1`` of column ``cols[k]`` of ``img`` that
-    reaches ``level`` (-1 if none)."""
-    out = np.full(cols.size, -1, dtype=np.int64)
-    for k in range(cols.size):
-        j = cols[k]
-        for i in range(lo[k], hi[k]):
-            if img[i, j] >= level:
-                out[k] = i
-                break
-    return out

@@ -98,6 +98,16 @@ class Echoes:
         whichever is nearer) to its last structure bin - what surfaces touch across beams by."""
         return np.minimum(self.start_bin, np.floor(self.edge_bin).astype(np.int64)), self.stop_bin - 1
 
+    def replaced(self, **changes: NDArray[np.generic]) -> Echoes:
+        """A copy with the arrays ``changes`` replaced (``dataclasses.replace`` without its
+        per-call field introspection: the echoes of a ping are rebuilt several times)."""
+        if not changes.keys() <= self.__dataclass_fields__.keys():
+            raise TypeError(f"Echoes has no fields {sorted(changes.keys() - self.__dataclass_fields__.keys())}")
+        new = object.__new__(Echoes)
+        new.__dict__.update(self.__dict__)
+        new.__dict__.update(changes)
+        return new
+
     def per_beam(self) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
         """``(first, count)``: the echoes of beam ``j`` are ``first[j] : first[j] + count[j]``."""
         count = np.bincount(self.beam, minlength=self.n_beams).astype(np.int64)
@@ -118,12 +128,12 @@ def smooth_along_range(image: ArrayLike, pulse_bins: int) -> NDArray[np.float64]
 def level_llr(fit: object, *, clip: float = 4.0) -> NDArray[np.float64]:
     """Per quantised level, the log-likelihood ratio ``log p(y|structure) - log p(y|background)``
     (nats) under a fitted mixture (eq. 8-10; the best object class), clipped to ``[-clip, clip]``."""
-    lp = np.asarray(fit.decision_log_pmf(), dtype=np.float64)  # type: ignore[attr-defined]
+    from sonarmap.ranges._kernels import llr_table
+
+    lp = np.ascontiguousarray(fit.decision_log_pmf(), dtype=np.float64)  # type: ignore[attr-defined]
     if lp.shape[0] < 2:
         return np.zeros(lp.shape[1])
-    with np.errstate(invalid="ignore"):
-        lut = lp[1:].max(axis=0) - lp[0]
-    return np.clip(np.nan_to_num(lut, nan=0.0, posinf=clip, neginf=-clip), -clip, clip)
+    return llr_table(lp, float(clip))
 
 
 def range_sigma_m(edge_value: ArrayLike, slope: ArrayLike, bin_m: float, *, looks: ArrayLike = 1.0,
@@ -308,13 +318,13 @@ def surface_runs(echoes: Echoes, first: ArrayLike, touch_bins: float = 1.0) -> N
 
 def _first_intervals(echoes: Echoes, sel: NDArray[np.int64]) -> tuple[NDArray[np.float64], ...]:
     """Per beam the edge (NaN: none), bin interval and stop of the echo ``sel`` picks."""
+    from sonarmap.ranges import _kernels
+
     if echoes.size == 0:
         z = np.zeros(sel.shape)
         return np.full(sel.shape, np.nan), z, z, z
-    s = np.maximum(sel, 0)
-    lo, hi = echoes.intervals()
-    return (np.where(sel >= 0, echoes.edge_bin[s], np.nan), lo[s].astype(np.float64), hi[s].astype(np.float64),
-            echoes.stop_bin[s].astype(np.float64))
+    return _kernels.first_intervals(np.ascontiguousarray(sel, dtype=np.int64), echoes.edge_bin, echoes.start_bin,
+                                    echoes.stop_bin)
 
 
 def pooled_edges(
@@ -384,31 +394,28 @@ def pooled_edges(
         return echoes
     img = smooth_along_range(image, pulse_bins) if pulse_bins >= 2 else np.ascontiguousarray(image)
     geometry.check_image(img, "image")
-    ok = sel >= 0
-    s = np.maximum(sel, 0)
     new, value, rise, used, noise = _kernels.pooled_edges(
         img, edge, stop, run, int(half_beams), int(front_bins), int(max_bins), int(smooth_bins) | 1,
         float(fraction), int(n_iter))
     # the leading edge belongs to the beam's own echo: within the walk of find_echoes in front of
     # its first structure bin and before its last one (else a neighbouring surface pulled it)
-    start = echoes.start_bin[s].astype(np.float64)
-    own = (new >= start - (int(pulse_bins) + 2)) & (new <= stop)
-    done = ok & (used > 0) & own
-    if not done.any():
+    sel = np.ascontiguousarray(sel)
+    done = _kernels.pooled_edges_done(sel, new, used, echoes.start_bin, stop, int(pulse_bins) + 2)
+    if not done.size:
         return echoes
-    return _with_edges(echoes, s[done], new[done], rise[done], noise[done], geometry, pulse_bins, sigma_scale)
+    return _with_edges(echoes, sel, done, new, rise, noise, geometry, pulse_bins, sigma_scale)
 
 
-def _with_edges(echoes: Echoes, idx: np.ndarray, edge: np.ndarray, rise: np.ndarray, noise: np.ndarray,
-                geometry: SonarGeometry, pulse_bins: int, sigma_scale: float) -> Echoes:
-    """``echoes`` with echoes ``idx`` given new leading edges ``edge`` (bins), slopes and sigmas."""
+def _with_edges(echoes: Echoes, sel: np.ndarray, beams: np.ndarray, edge: np.ndarray, rise: np.ndarray,
+                noise: np.ndarray, geometry: SonarGeometry, pulse_bins: int, sigma_scale: float) -> Echoes:
+    """``echoes`` with the echoes ``sel[beams]`` given the new leading edges ``edge[beams]`` (bins),
+    slopes and sigmas (``rise``, ``noise``: per beam)."""
     from sonarmap.ranges import _kernels
 
     bin_m = abs(geometry.range_resolution_m)
     pulse_m = int(pulse_bins) * bin_m if pulse_bins >= 2 else 0.0
     eb, er, sl, sig = _kernels.with_edges(
-        echoes.edge_bin, echoes.edge_range_m, echoes.slope, echoes.sigma_m, np.asarray(idx, dtype=np.int64),
-        np.asarray(edge, dtype=np.float64), np.asarray(rise, dtype=np.float64), np.asarray(noise, dtype=np.float64),
+        echoes.edge_bin, echoes.edge_range_m, echoes.slope, echoes.sigma_m, sel, beams, edge, rise, noise,
         np.ascontiguousarray(geometry.range_m, dtype=np.float64), bin_m, bin_m**2 / 12.0, (pulse_m**2) / 12.0,
         float(sigma_scale))
-    return dataclasses.replace(echoes, edge_bin=eb, edge_range_m=er, slope=sl, sigma_m=sig)
+    return echoes.replaced(edge_bin=eb, edge_range_m=er, slope=sl, sigma_m=sig)

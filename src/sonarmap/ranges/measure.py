@@ -15,7 +15,6 @@ the background, linear in intensity).  Called alone with the default
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from typing import Any
 
@@ -267,4 +266,4 @@ def clipped_echo_sigma(echoes: Any, sel: NDArray[np.int64], raw: NDArray[Any], g
         return echoes
     sigma = echoes.sigma_m.copy()
     sigma[e] = np.hypot(sigma[e], spread / math.sqrt(12.0))
-    return dataclasses.replace(echoes, sigma_m=sigma)
+    return echoes.replaced(sigma_m=sigma)
