@@ -796,8 +796,16 @@ def surface_runs(edge, lo, hi, touch):  # pragma: no cover - numba
 
 @njit(cache=True, nogil=True, inline="always")
 def _median(x, c):  # pragma: no cover - numba
-    s = np.sort(x[:c])
-    return s[c // 2] if c % 2 == 1 else 0.5 * (s[c // 2 - 1] + s[c // 2])
+    """The median of ``x[:c]`` (finite values), sorting ``x[:c]`` in place (insertion sort: the
+    windows hold a few values, and np.sort allocated a copy per call)."""
+    for a in range(1, c):
+        v = x[a]
+        b = a
+        while b > 0 and x[b - 1] > v:
+            x[b] = x[b - 1]
+            b -= 1
+        x[b] = v
+    return x[c // 2] if c % 2 == 1 else 0.5 * (x[c // 2 - 1] + x[c // 2])
 
 
 @njit(cache=True, nogil=True)
