@@ -1017,6 +1017,33 @@ def continuation_mask(levels, lut, edge, stop, run, min_run, max_beams, window_b
     return out
 
 
+@njit(cache=True, nogil=True)
+def continuation_extra(extra, cand, first, edge_bin):  # pragma: no cover - numba
+    """The continuation pixels of :func:`sonarmap.ranges.measure.surface_ranges`: ``extra & ~cand``
+    on the beams whose first such pixel lies in front of the beam's return (``edge_bin[first[j]]``;
+    every beam without one), and whether any is left."""
+    n, m = extra.shape
+    out = np.zeros((n, m), np.bool_)
+    top = np.full(m, n, np.int64)
+    for i in range(n):
+        for j in range(m):
+            if extra[i, j] and not cand[i, j]:
+                out[i, j] = True
+                if top[j] == n:
+                    top[j] = i
+    keep = np.zeros(m, np.bool_)
+    hit = False
+    for j in range(m):
+        keep[j] = top[j] < n and (first[j] < 0 or top[j] < edge_bin[first[j]])
+        hit = hit or keep[j]
+    if hit:
+        for i in range(n):
+            for j in range(m):
+                if out[i, j] and not keep[j]:
+                    out[i, j] = False
+    return out, hit
+
+
 # ------------------------------------------------------------------ band pooling (candidates)
 @njit(cache=True, nogil=True)
 def box_mean_f32(img, size0, size1):  # pragma: no cover - numba

@@ -197,6 +197,14 @@ def _check_edge_options(fraction: float, peak_rel: float, scan: str) -> None:
         raise InputError(f"peak_rel: must lie in (0, 1] (got {peak_rel})")
 
 
+def _levels_in_range(code: np.ndarray, size: int) -> bool:
+    """Every value of the integer array ``code`` lies in ``[0, size)`` (no scan when its dtype
+    cannot hold any other: 8-bit levels and a 256-entry table)."""
+    if code.dtype.kind == "u" and np.iinfo(code.dtype).max < size:
+        return True
+    return not code.size or (int(code.min()) >= 0 and int(code.max()) < size)
+
+
 def _evidence_table(m: np.ndarray, llr: ArrayLike | None, levels: ArrayLike | None,
                     level_evidence: ArrayLike | None) -> tuple[np.ndarray, np.ndarray]:
     """Per-pixel codes and the evidence table they index, from ``levels`` + ``level_evidence`` or ``llr``.
@@ -208,7 +216,7 @@ def _evidence_table(m: np.ndarray, llr: ArrayLike | None, levels: ArrayLike | No
         lut = np.ascontiguousarray(level_evidence, dtype=np.float64)
         if code.shape != m.shape:
             raise InputError(f"levels: shape {code.shape} does not match mask {m.shape}")
-        if code.size and (int(code.min()) < 0 or int(code.max()) >= lut.size):
+        if not _levels_in_range(code, lut.size):
             raise InputError(f"levels: values must lie in [0, {lut.size})")
         return code, lut
     ev = np.ones(m.shape) if llr is None else np.asarray(llr, dtype=np.float64)
@@ -288,16 +296,25 @@ def find_echoes(
     beam, start, stop, peak, pval, edge, slope, evid, npx = _kernels.find_echoes(
         m, img, code, lut, bst, float(boost_min), gap, float(fraction), float(peak_rel), bk, scan == "forward")
     r = np.ascontiguousarray(geometry.range_m, dtype=np.float64)
-    bin_m = abs(geometry.range_resolution_m)
-    pulse_m = int(pulse_bins) * bin_m if pulse_bins >= 2 else 0.0
-    # the edges' ranges (np.interp on the bins) and range_sigma_m's sigmas, in one pass
-    sqrt_looks = float(np.sqrt(np.maximum(np.asarray(looks * max(int(pulse_bins), 1), dtype=np.float64), 1.0)))
-    edge_r, sigma = _kernels.echo_ranges(edge, pval, slope, r, float(fraction), math.sqrt(2.0),
-                                         max(float(background), 0.0), sqrt_looks, bin_m, bin_m**2 / 12.0,
-                                         (pulse_m**2) / 12.0, float(sigma_scale))
+    edge_r, sigma = _echo_ranges(edge, pval, slope, geometry, pulse_bins, fraction, looks, background, sigma_scale)
     return Echoes(beam=beam, start_bin=start, stop_bin=stop, peak_bin=peak, peak_value=pval, edge_bin=edge,
                   edge_range_m=edge_r, peak_range_m=r[peak], slope=slope,
                   evidence=evid, n_pixels=npx, sigma_m=sigma, n_beams=int(m.shape[1]))
+
+
+def _echo_ranges(edge: NDArray[np.float64], pval: NDArray[np.float64], slope: NDArray[np.float64],
+                 geometry: SonarGeometry, pulse_bins: int, fraction: float, looks: float, background: float,
+                 sigma_scale: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The edges' ranges (``np.interp`` on the bins) and :func:`range_sigma_m`'s sigmas at
+    ``fraction`` x the peaks, in one pass."""
+    from sonarmap.ranges import _kernels
+
+    bin_m = abs(geometry.range_resolution_m)
+    pulse_m = int(pulse_bins) * bin_m if pulse_bins >= 2 else 0.0
+    sqrt_looks = float(np.sqrt(np.maximum(np.asarray(looks * max(int(pulse_bins), 1), dtype=np.float64), 1.0)))
+    return _kernels.echo_ranges(edge, pval, slope, np.ascontiguousarray(geometry.range_m, dtype=np.float64),
+                                float(fraction), math.sqrt(2.0), max(float(background), 0.0), sqrt_looks, bin_m,
+                                bin_m**2 / 12.0, (pulse_m**2) / 12.0, float(sigma_scale))
 
 
 def surface_runs(echoes: Echoes, first: ArrayLike, touch_bins: float = 1.0) -> NDArray[np.int64]:

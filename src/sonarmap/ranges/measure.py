@@ -135,6 +135,22 @@ def measurement_image(ping: Ping, background: Any, config: RangeConfig = RangeCo
     return excess_ratio(raw, level, full, float(d) if d is not None else 0.0, int(r0), int(r1))
 
 
+def _continuation(echoes: Any, first: NDArray[np.int64], levels: NDArray[Any], llr_lut: NDArray[np.float64],
+                  cand: NDArray[np.bool_], config: RangeConfig) -> NDArray[np.bool_] | None:
+    """A surface's faint stretch that the component rule left without candidates: pixels along
+    its extrapolation where their likelihood ratio says structure, for the tracker to judge
+    (:func:`sonarmap.ranges.tracking.continuation_mask`) - only where it could become the return,
+    on a beam without one or whose return lies behind it (None: no such pixel)."""
+    from sonarmap.ranges._kernels import continuation_extra
+    from sonarmap.ranges.tracking import continuation_mask
+
+    extra = continuation_mask(echoes, first, levels, llr_lut, min_evidence=config.continue_evidence,
+                              touch_bins=config.track.touch_bins)
+    extra, hit = continuation_extra(extra, np.ascontiguousarray(cand), np.ascontiguousarray(first, dtype=np.int64),
+                                    echoes.edge_bin if echoes.size else np.zeros(1))
+    return extra if hit else None
+
+
 def _measurement_rows(ping: Ping, background: Any, config: RangeConfig, r0: int, r1: int,
                       done: list[Any]) -> NDArray[np.float64]:
     """``measurement_image(ping, background, config, rows=(r0, r1))``, or the image of an earlier
@@ -178,7 +194,7 @@ def surface_ranges(ping: Ping, image: NDArray[np.float32], levels: NDArray[Any],
     the number of bins each return's echo spans (0 where no return)."""
     from sonarmap.ranges import ranges_from_tracks
     from sonarmap.ranges.echoes import find_echoes, level_llr, pooled_edges
-    from sonarmap.ranges.tracking import continuation_mask, track_surfaces
+    from sonarmap.ranges.tracking import track_surfaces
 
     geom = ping.geometry
     cand = mask
@@ -201,9 +217,11 @@ def surface_ranges(ping: Ping, image: NDArray[np.float32], levels: NDArray[Any],
     measured = normalised and background is not None and getattr(background, "level_by_bin", None) is not None
 
     done: list[Any] = []  # the measurement image, its rows and its inputs, once computed
+    # the image find_echoes measures unless normalised (converted once: it may measure twice)
+    plain = np.ascontiguousarray(image, dtype=np.float64) if pb < 2 and not measured else image
 
     def measure(cand: NDArray[np.bool_]) -> tuple[Any, float, Any, Any]:
-        meas, bg = image, bg_mean or 0.0
+        meas, bg = plain, bg_mean or 0.0
         if measured:
             # echo intensity above the background, in background units (its mean is 1)
             occupied = np.flatnonzero(cand.any(axis=1))
@@ -219,17 +237,8 @@ def surface_ranges(ping: Ping, image: NDArray[np.float32], levels: NDArray[Any],
 
     meas, bg, echoes, tracks = measure(cand)
     if config.continue_evidence > 0 and llr_lut is not None:
-        # a surface's faint stretch that the component rule left without candidates: pixels along
-        # its extrapolation where their likelihood ratio says structure, for the tracker to judge
-        extra = continuation_mask(echoes, tracks.first, levels, llr_lut, min_evidence=config.continue_evidence,
-                                  touch_bins=config.track.touch_bins) & ~cand
-        if extra.any() and echoes.size:
-            # only where it could become the return: a beam without one, or whose return lies behind
-            first = tracks.first
-            current = np.where(first >= 0, echoes.edge_bin[np.maximum(first, 0)], np.inf)
-            top = np.where(extra.any(axis=0), np.argmax(extra, axis=0), extra.shape[0])
-            extra &= (top < current)[None, :]
-        if extra.any():
+        extra = _continuation(echoes, tracks.first, levels, llr_lut, cand, config)
+        if extra is not None:
             cand = cand | extra
             meas, bg, echoes, tracks = measure(cand)
     sel = tracks.first

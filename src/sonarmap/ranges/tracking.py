@@ -134,13 +134,13 @@ def continuation_mask(echoes: Echoes, first: NDArray[np.int64], levels: NDArray[
     ndarray of bool, shape (n_bins, n_beams)
     """
     from sonarmap.ranges import _kernels
-    from sonarmap.ranges.echoes import _first_intervals
+    from sonarmap.ranges.echoes import _first_intervals, _levels_in_range
 
     code = np.ascontiguousarray(levels)
     lut = np.ascontiguousarray(level_evidence, dtype=np.float64)
     if code.ndim != 2 or code.shape[1] != echoes.n_beams:
         raise InputError(f"levels: expected shape (n_bins, {echoes.n_beams}), got {code.shape}")
-    if code.size and (int(code.min()) < 0 or int(code.max()) >= lut.size):
+    if not _levels_in_range(code, lut.size):
         raise InputError(f"levels: values must lie in [0, {lut.size})")
     sel = np.asarray(first, dtype=np.int64)
     if echoes.size == 0 or not (sel >= 0).any():
