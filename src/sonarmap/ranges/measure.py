@@ -193,21 +193,24 @@ def surface_ranges(ping: Ping, image: NDArray[np.float32], levels: NDArray[Any],
     """Echoes of the candidate structure (``mask`` plus pooled bands), tracked across beams; also
     the number of bins each return's echo spans (0 where no return)."""
     from sonarmap.ranges import ranges_from_tracks
+    from sonarmap.ranges._kernels import mask_extent
     from sonarmap.ranges.echoes import find_echoes, level_llr, pooled_edges
     from sonarmap.ranges.tracking import track_surfaces
 
     geom = ping.geometry
-    cand = mask
+    cand = np.ascontiguousarray(mask, dtype=bool)
     band = None
+    r0, r1, n_cols = mask_extent(cand)
     # band pooling recovers thin single-look surface bands the per-pixel route leaves in pieces;
     # only needed where some beam has no candidate at all
     if (candidates.pool_factor > 0 and bg_mean is not None and bg_mean > 0 and not normalised
-            and pool_bands and not mask.any(axis=0).all()):
+            and pool_bands and n_cols < cand.shape[1]):
         band = pooled_band_mask(image, candidates.pool_factor * bg_mean, pool_beams=candidates.pool_beams,
                                 pool_bins=candidates.pool_bins, min_beams=candidates.pool_min_beams)
         if band is not None:
             cand = cand | band
-    if not cand.any():
+            r0, r1, n_cols = mask_extent(cand)
+    if r1 <= r0:
         return (no_returns(geom, time_ns=ping.time_ns, source=ping.source, mode=config.range_mode),
                 np.zeros(geom.n_beams, dtype=np.int64))
     llr_lut = level_llr(fit) if fit is not None and len(fit.class_names) >= 2 else None
@@ -224,10 +227,8 @@ def surface_ranges(ping: Ping, image: NDArray[np.float32], levels: NDArray[Any],
         meas, bg = plain, bg_mean or 0.0
         if measured:
             # echo intensity above the background, in background units (its mean is 1)
-            occupied = np.flatnonzero(cand.any(axis=1))
-            pad = pb + 4
-            meas, bg = _measurement_rows(ping, background, config, int(occupied[0]) - pad,
-                                         int(occupied[-1]) + 1 + pad, done), 1.0
+            r0, r1, _ = mask_extent(cand)
+            meas, bg = _measurement_rows(ping, background, config, r0 - pb - 4, r1 + pb + 4, done), 1.0
         # a pooled band pixel passed a >= pool_factor x background test over the whole box: one
         # nat at least, whatever its own (single-look, speckled) value says
         echoes = find_echoes(cand, meas, geom, levels=levels, level_evidence=lut, boost=band, boost_min=1.0,
