@@ -281,3 +281,33 @@ def test_real_pings_leading_edges_sigma_and_p_detect(test_pings, aris_pings):
         assert r.n_returns >= 40
         assert np.nanmin(r.range_m) > 15.4
         assert np.all(np.isfinite(r.sigma_m[r.valid]))
+
+
+def test_smoothing_along_range_is_scipy_uniform_filter1d_bit_for_bit():
+    """smooth_along_range's kernel reproduces scipy.ndimage.uniform_filter1d (mode "nearest") exactly."""
+    from scipy.ndimage import uniform_filter1d
+
+    from sonarmap.ranges.echoes import smooth_along_range
+
+    rng = np.random.default_rng(0)
+    for t in range(120):
+        h, w, size = int(rng.integers(2, 90)), int(rng.integers(1, 30)), int(rng.integers(2, 12))
+        img = rng.exponential(1.0, (h, w)).astype(np.float32) if t % 2 else rng.normal(0.0, 1e3, (h, w))
+        ref = uniform_filter1d(np.asarray(img, dtype=np.float64), size=size, axis=0, mode="nearest")
+        assert np.array_equal(ref.view(np.int64), smooth_along_range(img, size).view(np.int64))
+
+
+def test_edge_sigma_kernel_is_the_numpy_formula_bit_for_bit():
+    """edge_sigma_m (one kernel) gives the bits of its numpy formula, NaN and inf included."""
+    from sonarmap.ranges.echoes import edge_sigma_m
+
+    rng = np.random.default_rng(1)
+    noise = rng.exponential(1.0, 5000) * 10 ** rng.uniform(-6, 3, 5000)
+    slope = rng.normal(0.0, 1.0, 5000) * 10 ** rng.uniform(-14, 2, 5000)
+    noise[::97], slope[::89], noise[::103], slope[::107] = np.nan, np.nan, np.inf, 0.0
+    for bin_m, pulse_m, scale in ((0.01, 0.0, 1.5), (0.003, 0.012, 5.0)):
+        s = np.maximum(slope, 1e-12)
+        jitter = np.minimum(np.where(np.isnan(noise), np.inf, scale * noise / s), 8.0) * bin_m
+        ref = np.sqrt(bin_m**2 / 12.0 + jitter**2 + (pulse_m**2) / 12.0)
+        got = edge_sigma_m(noise, slope, bin_m, pulse_m=pulse_m, scale=scale)
+        assert np.array_equal(ref.view(np.int64), got.view(np.int64))

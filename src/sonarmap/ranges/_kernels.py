@@ -1072,6 +1072,31 @@ def mask_extent(mask):  # pragma: no cover - numba
     return r0, r1, n_cols
 
 
+@njit(cache=True, nogil=True)
+def smooth_rows(img, size):  # pragma: no cover - numba
+    """``scipy.ndimage.uniform_filter1d(img, size, axis=0, mode="nearest")`` of a 2-D float64 image,
+    bit for bit (scipy's arithmetic: each column extended by its edge values, ``size // 2`` before,
+    a double running sum ``+= new - old`` divided by the size), over whole rows at a time (one
+    running sum per column: the same operations in the same order, on contiguous memory)."""
+    h, w = img.shape
+    out = np.empty((h, w))
+    b = size // 2
+    tmp = np.zeros(w)
+    for k in range(size):
+        t = min(max(k - b, 0), h - 1)
+        for j in range(w):
+            tmp[j] += img[t, j]
+    for j in range(w):
+        out[0, j] = tmp[j] / size
+    for k in range(1, h):
+        t_new = min(k + size - 1 - b, h - 1)
+        t_old = max(k - 1 - b, 0)
+        for j in range(w):
+            tmp[j] += img[t_new, j] - img[t_old, j]
+            out[k, j] = tmp[j] / size
+    return out
+
+
 # ------------------------------------------------------------------ band pooling (candidates)
 @njit(cache=True, nogil=True)
 def box_mean_f32(img, size0, size1):  # pragma: no cover - numba

@@ -120,6 +120,11 @@ def smooth_along_range(image: ArrayLike, pulse_bins: int) -> NDArray[np.float64]
     img = np.asarray(image, dtype=np.float64)
     if pulse_bins < 2 or img.shape[0] < 2:
         return np.ascontiguousarray(img)
+    if img.ndim == 2:
+        from sonarmap.ranges._kernels import smooth_rows
+
+        # = uniform_filter1d(img, size=pulse_bins, axis=0, mode="nearest"), bit for bit, ~10x faster
+        return smooth_rows(np.ascontiguousarray(img), int(pulse_bins))
     from scipy.ndimage import uniform_filter1d
 
     return np.ascontiguousarray(uniform_filter1d(img, size=int(pulse_bins), axis=0, mode="nearest"))
