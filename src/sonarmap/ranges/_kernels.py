@@ -22,7 +22,7 @@ def _column_pixels(mask):  # pragma: no cover - numba
     for i in range(n):
         base = i * m
         for j in range(m):
-            first[j + 1] += flat[base + j]
+            first[j + 1] += flat[base + j] != 0
     for j in range(m):
         first[j + 1] += first[j]
     rows = np.empty(first[m], np.int64)
