@@ -78,6 +78,8 @@ def test_json_round_trip_lossless(tmp_path: Path, didson_dir: Path) -> None:
         for f in ("noise", "fov_rad", "frequency_hz", "sound_speed_m_s", "rx_gain_db", "window", "name",
                   "elevation_beamwidth_rad"):
             assert getattr(src, f) == getattr(back, f), f
+        a, b = src.azimuth_beamwidth_rad, back.azimuth_beamwidth_rad
+        assert (a is None and b is None) or np.array_equal(a, b)
 
 
 def test_elevation_beamwidth_field(tmp_path: Path) -> None:
@@ -93,6 +95,36 @@ def test_elevation_beamwidth_field(tmp_path: Path) -> None:
         with pytest.raises(GeometryError, match=msg):
             geometry_from_dict({**d, "elevation_beamwidth": bad}, source="g.json")
     assert geometry_from_dict({**d, "elevation_beamwidth": None}).elevation_beamwidth_rad is None
+
+
+def test_azimuth_beamwidth_field(tmp_path: Path) -> None:
+    aris, ocu, did = preset("aris3000-128"), preset("oculus-m750d-like"), preset("didson-hf")
+    assert aris.azimuth_beamwidth_rad.shape == (128,)
+    assert np.median(aris.azimuth_beamwidth_rad / np.gradient(aris.azimuth_rad)) == pytest.approx(1.0, abs=0.1)
+    assert np.allclose(ocu.azimuth_beamwidth_rad, np.deg2rad(0.55))
+    assert np.allclose(did.azimuth_beamwidth_rad, np.deg2rad(0.3))
+    assert did.to_dict()["azimuth_beamwidth"] == pytest.approx(np.deg2rad(0.3))  # one number: all equal
+    for src in (aris, did):
+        save_geometry(src, tmp_path / "g.json")
+        back = load_geometry(tmp_path / "g.json")
+        assert back == src and np.array_equal(back.azimuth_beamwidth_rad, src.azimuth_beamwidth_rad)
+    # a file without it (every file written before it existed) still loads, as before
+    d = did.to_dict()
+    del d["azimuth_beamwidth"]
+    old = geometry_from_dict(d)
+    assert old.azimuth_beamwidth_rad is None and "azimuth_beamwidth" not in old.to_dict()
+    assert old.key == did.replace(azimuth_beamwidth_rad=None).key != did.key
+    assert geometry_from_dict({**d, "azimuth_beamwidth": None}).azimuth_beamwidth_rad is None
+    for bad, msg in ((0.0, r"\(0, pi\]"), (4.0, r"\(0, pi\]"), ("wide", "azimuth_beamwidth"),
+                     ([0.01] * 3, "does not match"), ([0.01] * 95 + [float("nan")], "azimuth_beamwidth")):
+        with pytest.raises(GeometryError, match=msg):
+            geometry_from_dict({**d, "azimuth_beamwidth": bad}, source="g.json")
+
+
+def test_oculus_default_azimuth_beamwidth_by_frequency() -> None:
+    from sonarmap.geometry import oculus_azimuth_beamwidth_rad
+
+    assert [round(np.rad2deg(oculus_azimuth_beamwidth_rad(f)), 2) for f in (7.5e5, 1.2e6, 2.1e6)] == [1.0, 0.6, 0.55]
 
 
 def test_explicit_nonuniform_range_table_round_trip(tmp_path: Path) -> None:

@@ -59,6 +59,7 @@ __all__ = [
     "MAX_BINS",
     "MAX_RANGE_M",
     "SINGLE_BEAM_WIDTH_RAD",
+    "oculus_azimuth_beamwidth_rad",
     "ARIS_LENS",
 ]
 
@@ -287,6 +288,15 @@ class SonarGeometry:
         sonar, the along-track transmit beamwidth of a swath multibeam), in ``(0, pi]``; ``None``
         when the recording and the sonar model do not say it.  Written to ROS ``PingInfo``
         ``tx_beamwidths``; not used by the per-ping processing.
+    azimuth_beamwidth_rad : float or array_like of shape (n_beams,), optional
+        Full width of each beam's main lobe in the fan's plane (azimuth) at the **two-way -3 dB**
+        level: the angle over which a point scatterer's echo - transmit times receive pattern, in
+        intensity (power) - stays within half of its on-axis value.  With a Gaussian main lobe a
+        point target ``P`` times above the detection threshold is seen in every beam within
+        ``azimuth_beamwidth_rad x sqrt(log2(P)) / 2`` of it.  (A one-way -3 dB width ``w1`` is a
+        two-way width of ``w1 / sqrt(2)``.)  A scalar applies to every beam; stored per beam
+        (read-only float64) or ``None`` when unknown.  Used by the range stage's point-target
+        rule (:func:`sonarmap.ranges.tracking.point_streaks`); written as ``azimuth_beamwidth``.
 
     Raises
     ------
@@ -310,6 +320,7 @@ class SonarGeometry:
     window: tuple[float, float] | None = None
     psf_raw: NDArray[np.float64] | None = dataclasses.field(default=None, repr=False)
     elevation_beamwidth_rad: float | None = None
+    azimuth_beamwidth_rad: NDArray[np.float64] | None = None
 
     def __post_init__(self) -> None:
         az, rng = _checked_axes(self.azimuth_rad, self.range_m)
@@ -330,6 +341,9 @@ class SonarGeometry:
         if self.elevation_beamwidth_rad is not None:
             object.__setattr__(self, "elevation_beamwidth_rad",
                                _checked_elevation_beamwidth(self.elevation_beamwidth_rad))
+        if self.azimuth_beamwidth_rad is not None:
+            object.__setattr__(self, "azimuth_beamwidth_rad",
+                               _checked_azimuth_beamwidth(self.azimuth_beamwidth_rad, az.size))
         if self.window is not None:
             object.__setattr__(self, "window", _checked_window(self.window))
 
@@ -491,6 +505,8 @@ class SonarGeometry:
         )
         if self.elevation_beamwidth_rad is not None:  # keys of geometries without it stay as they were
             h.update(repr(self.elevation_beamwidth_rad).encode())
+        if self.azimuth_beamwidth_rad is not None:  # likewise
+            h.update(b"azimuth_beamwidth" + self.azimuth_beamwidth_rad.tobytes())
         return h.hexdigest()
 
     def __eq__(self, other: object) -> bool:
@@ -551,6 +567,9 @@ class SonarGeometry:
             d["taper"] = self.taper.tolist()
         if self.elevation_beamwidth_rad is not None:
             d["elevation_beamwidth"] = self.elevation_beamwidth_rad
+        bw = self.azimuth_beamwidth_rad
+        if bw is not None:
+            d["azimuth_beamwidth"] = float(bw[0]) if np.all(bw == bw[0]) else bw.tolist()
         return d
 
 
@@ -559,6 +578,7 @@ class SonarGeometry:
 _KNOWN_KEYS = {
     "name", "fov", "num_beams", "num_bins", "min_range", "max_range", "noise", "rx_gain",
     "frequency", "sound_speed", "azimuths", "ranges", "psf", "taper", "elevation_beamwidth",
+    "azimuth_beamwidth",
 }  # fmt: skip
 
 _MAX_NAME_CHARS = 256
@@ -615,6 +635,31 @@ def _checked_elevation_beamwidth(value: object) -> float:
     return bw
 
 
+def _checked_azimuth_beamwidth(value: object, n_beams: int) -> NDArray[np.float64]:
+    """``value`` (a number or one number per beam) as a read-only per-beam array of widths in
+    (0, pi] rad."""
+    if isinstance(value, int | float | np.integer | np.floating) and not isinstance(value, bool | np.bool_):
+        arr = np.full(n_beams, _real(value, "azimuth_beamwidth_rad"))
+    else:
+        arr = np.array(_frozen_array(value, "azimuth_beamwidth_rad", max_size=MAX_BEAMS))
+        if arr.size != n_beams:
+            raise GeometryError(f"azimuth_beamwidth_rad: length {arr.size} does not match {n_beams} beams")
+    if not np.all((arr > 0) & (arr <= math.pi)):
+        raise GeometryError("azimuth_beamwidth_rad: widths must be in (0, pi] rad")
+    arr.setflags(write=False)
+    return arr
+
+
+def _optional_azimuth_beamwidth(d: Mapping[str, Any], source: str) -> float | NDArray[np.float64] | None:
+    """Optional field ``azimuth_beamwidth``: a number or a list of one per beam (None if absent)."""
+    val = d.get("azimuth_beamwidth")
+    if val is None:
+        return None
+    if isinstance(val, list | tuple | np.ndarray):
+        return _real_list(val, "field 'azimuth_beamwidth'", MAX_BEAMS)
+    return _number_field(d, "azimuth_beamwidth", source)
+
+
 def _optional_fov(d: Mapping[str, Any], source: str) -> float | None:
     """Optional field ``fov`` in (0, 2 pi] rad (None if absent or null)."""
     if d.get("fov") is None:
@@ -637,6 +682,7 @@ def _geometry_kwargs(d: Mapping[str, Any], source: str, name: str) -> dict[str, 
         "taper": _list_field(d, "taper", MAX_BEAMS),
         "elevation_beamwidth_rad": (None if d.get("elevation_beamwidth") is None
                                     else _number_field(d, "elevation_beamwidth", source)),
+        "azimuth_beamwidth_rad": _optional_azimuth_beamwidth(d, source),
         "name": name,
     }
 
@@ -883,6 +929,26 @@ ARIS_LENS = {
 ARIS_STANDARD_ELEVATION_BEAMWIDTH_RAD = math.radians(14.0)
 
 
+#: DIDSON 300 high-frequency mode (1.8 MHz): 0.3 deg two-way beams (SoundMetrics' published
+#: figure; the beams are 0.23-0.37 deg apart on the measured azimuth table).
+DIDSON_HF_AZIMUTH_BEAMWIDTH_RAD = math.radians(0.3)
+#: Two-way -3 dB azimuth beamwidth of the Oculus M-series by operating frequency (upper bound of
+#: the band in Hz, width in degrees): 1.0 deg at 750 kHz and 0.6 deg at 1.2 MHz (Blueprint's
+#: published angular resolution of the M750d / M1200d), 0.55 deg at 2.1 MHz - measured on the
+#: 2.1 MHz recording ``oculus/three_pings_8bit.raw`` (the seabed's beam-to-beam correlation,
+#: ``docs/simulator.md``; the vendor quotes 0.4 deg for the M1200d's 2.1 MHz mode).
+OCULUS_AZIMUTH_BEAMWIDTH_DEG: tuple[tuple[float, float], ...] = ((0.95e6, 1.0), (1.6e6, 0.6), (math.inf, 0.55))
+
+
+def oculus_azimuth_beamwidth_rad(frequency_hz: float) -> float:
+    """The default two-way azimuth beamwidth of an Oculus sonar operating at ``frequency_hz``
+    (:data:`OCULUS_AZIMUTH_BEAMWIDTH_DEG`)."""
+    for top, deg in OCULUS_AZIMUTH_BEAMWIDTH_DEG:
+        if frequency_hz < top:
+            return math.radians(deg)
+    return math.radians(OCULUS_AZIMUTH_BEAMWIDTH_DEG[-1][1])
+
+
 def _data_text(name: str) -> str:
     return resources.files("sonarmap.data").joinpath(name).read_text(encoding="utf-8")
 
@@ -891,7 +957,8 @@ def _data_text(name: str) -> str:
 def _presets() -> dict[str, SonarGeometry]:
     out: dict[str, SonarGeometry] = {}
     did = json.loads(_data_text("didson_hf.json"))
-    out["didson-hf"] = geometry_from_dict(did, source="preset didson-hf")
+    out["didson-hf"] = geometry_from_dict(did, source="preset didson-hf").replace(
+        azimuth_beamwidth_rad=DIDSON_HF_AZIMUTH_BEAMWIDTH_RAD)
     tables = json.loads(_data_text("aris_beamwidths.json"))["tables"]
     for table, (name, freq) in ARIS_LENS.items():
         t = tables[table]
@@ -912,6 +979,7 @@ def _presets() -> dict[str, SonarGeometry]:
             name=name,
             azimuth_source=f"preset:{name}",
             elevation_beamwidth_rad=None if "telephoto" in name else ARIS_STANDARD_ELEVATION_BEAMWIDTH_RAD,
+            azimuth_beamwidth_rad=np.deg2rad(np.abs(right - left)),
         )
     ocu = json.loads(_data_text("oculus_m750d_like.json"))
     az = np.deg2rad(np.asarray(ocu["bearings_centideg"], dtype=np.float64) / 100.0)
@@ -924,6 +992,7 @@ def _presets() -> dict[str, SonarGeometry]:
         sound_speed_m_s=float(ocu["sound_speed"]),
         name="oculus-m750d-like",
         azimuth_source="preset:oculus-m750d-like",
+        azimuth_beamwidth_rad=oculus_azimuth_beamwidth_rad(float(ocu["frequency"])),
     )
     return out
 

@@ -264,6 +264,7 @@ def _frame_geometry(
         name=name,
         azimuth_source=f"preset:{name}",
         elevation_beamwidth_rad=base.elevation_beamwidth_rad,
+        azimuth_beamwidth_rad=base.azimuth_beamwidth_rad,
     )
 
 

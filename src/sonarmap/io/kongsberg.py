@@ -839,12 +839,16 @@ def _decode_beams(index: _Index, rec: _PingRecord) -> _Beams:
 
 @functools.lru_cache(maxsize=256)
 def _ping_geometry(azimuth: bytes, s0: int, n_bins: int, sound_speed: float, sample_rate: float,
-                   frequency: float, name: str, tx_beamwidth_deg: float | None = None) -> SonarGeometry:
+                   frequency: float, name: str, tx_beamwidth_deg: float | None = None,
+                   rx_beamwidth_deg: float | None = None) -> SonarGeometry:
     """One head's geometry of one ping (cached: consecutive pings usually share it).
     ``tx_beamwidth_deg`` (the along-track transmit beamwidth the runtime parameters record)
-    becomes ``elevation_beamwidth_rad`` when it is a plausible positive width."""
+    becomes ``elevation_beamwidth_rad`` when it is a plausible positive width; the receive
+    beamwidth ``rx_beamwidth_deg`` (across track, in the fan's plane) becomes
+    ``azimuth_beamwidth_rad`` (:data:`DEFAULT_RX_BEAMWIDTH_DEG` when not recorded)."""
     step = sound_speed / (2.0 * sample_rate)
     elevation = plausible_elevation_beamwidth(None if tx_beamwidth_deg is None else math.radians(tx_beamwidth_deg))
+    rx = plausible_elevation_beamwidth(None if rx_beamwidth_deg is None else math.radians(rx_beamwidth_deg))
     return SonarGeometry.from_window(
         min_range_m=s0 * step,
         max_range_m=(s0 + n_bins) * step,
@@ -855,7 +859,13 @@ def _ping_geometry(azimuth: bytes, s0: int, n_bins: int, sound_speed: float, sam
         name=name,
         azimuth_source="table",
         elevation_beamwidth_rad=elevation,
+        azimuth_beamwidth_rad=rx if rx is not None else math.radians(DEFAULT_RX_BEAMWIDTH_DEG),
     )
+
+
+#: Receive beamwidth (degrees, across track) assumed when the runtime parameters do not give one:
+#: the 1 deg receive array of the EM 2040 / EM 712 class.
+DEFAULT_RX_BEAMWIDTH_DEG = 1.0
 
 
 # ---------------------------------------------------------------------- ancillary data (.all)
@@ -1260,7 +1270,8 @@ class KongsbergFile(ClosingFile):
             geom = _ping_geometry(
                 np.ascontiguousarray(azimuth[order]).tobytes(), s0, n_bins,
                 int(wc["sound_speed"]) / 10.0, sample_rate, freq, f"em{rec.model}-{rec.serial}",
-                None if run is None else run["runtime_tx_beamwidth_deg"])
+                None if run is None else run["runtime_tx_beamwidth_deg"],
+                None if run is None else run["runtime_rx_beamwidth_deg"])
         return geom, order, s0, n_bins
 
     def _ping(self, rec: _PingRecord) -> Ping:

@@ -61,7 +61,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from sonarmap.errors import DataFormatError, InputError
-from sonarmap.geometry import SonarGeometry, as_geometry
+from sonarmap.geometry import SonarGeometry, as_geometry, oculus_azimuth_beamwidth_rad
 from sonarmap.io._binary import (
     MAX_PING_BYTES,
     MAX_PLAUSIBLE_TIME_NS,
@@ -217,6 +217,7 @@ def _geometry(
         sound_speed_m_s=sound_speed,
         name=f"oculus-{model.lower()}" if model else "oculus",
         azimuth_source="table",
+        azimuth_beamwidth_rad=oculus_azimuth_beamwidth_rad(frequency),
     )
 
 
