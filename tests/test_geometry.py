@@ -121,6 +121,15 @@ def test_azimuth_beamwidth_field(tmp_path: Path) -> None:
             geometry_from_dict({**d, "azimuth_beamwidth": bad}, source="g.json")
 
 
+def test_azimuth_beamwidth_follows_a_new_beam_count() -> None:
+    ocu, aris = preset("oculus-m750d-like"), preset("aris3000-128")
+    few = ocu.replace(azimuth_rad=np.linspace(-0.5, 0.5, 16))
+    assert np.allclose(few.azimuth_beamwidth_rad, np.deg2rad(0.55)) and few.azimuth_beamwidth_rad.shape == (16,)
+    assert aris.replace(azimuth_rad=np.linspace(-0.2, 0.2, 64)).azimuth_beamwidth_rad is None  # a table
+    assert np.array_equal(aris.replace(azimuth_rad=aris.azimuth_rad * 0.9).azimuth_beamwidth_rad,
+                          aris.azimuth_beamwidth_rad)
+
+
 def test_oculus_default_azimuth_beamwidth_by_frequency() -> None:
     from sonarmap.geometry import oculus_azimuth_beamwidth_rad
 

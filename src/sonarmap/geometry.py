@@ -435,11 +435,20 @@ class SonarGeometry:
         )
 
     def replace(self, **changes: Any) -> SonarGeometry:
-        """Return a copy with fields replaced (``dataclasses.replace``)."""
+        """Return a copy with fields replaced (``dataclasses.replace``).
+
+        A new ``psf`` drops the raw beam pattern, a new ``range_m`` the window; new azimuths of
+        another beam count keep ``azimuth_beamwidth_rad`` only when it is one width for all beams.
+        """
         if "psf" in changes and "psf_raw" not in changes:
             changes["psf_raw"] = None
         if "range_m" in changes and "window" not in changes:
             changes["window"] = None
+        bw = self.azimuth_beamwidth_rad
+        if "azimuth_rad" in changes and "azimuth_beamwidth_rad" not in changes and bw is not None \
+                and np.size(changes["azimuth_rad"]) != bw.size:
+            # other beams: one width for all carries over, a per-beam table does not
+            changes["azimuth_beamwidth_rad"] = float(bw[0]) if np.all(bw == bw[0]) else None
         return dataclasses.replace(self, **changes)
 
     # ------------------------------------------------------------------ derived quantities
