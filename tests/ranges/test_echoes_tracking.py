@@ -311,3 +311,101 @@ def test_edge_sigma_kernel_is_the_numpy_formula_bit_for_bit():
         ref = np.sqrt(bin_m**2 / 12.0 + jitter**2 + (pulse_m**2) / 12.0)
         got = edge_sigma_m(noise, slope, bin_m, pulse_m=pulse_m, scale=scale)
         assert np.array_equal(ref.view(np.int64), got.view(np.int64))
+def _fan(n_beams: int = 60, bw_deg: float | None = 0.5) -> SonarGeometry:
+    """0.25 deg beams, a 0.5 deg (two-spacing) main lobe."""
+    az = np.deg2rad(0.25 * (np.arange(n_beams) - n_beams / 2))
+    return SonarGeometry(range_m=1.0 + 0.005 * np.arange(300), azimuth_rad=az,
+                         azimuth_beamwidth_rad=None if bw_deg is None else np.deg2rad(bw_deg))
+
+
+def _school_image(g: SonarGeometry) -> np.ndarray:
+    """Five fish at different ranges side by side, each smeared over the beams by a Gaussian
+    two-way lobe of 2 beam spacings (peak 30 x its weakest beam), with halos chaining them."""
+    img = np.zeros(g.shape)
+    for centre, r in ((8, 100), (15, 106), (22, 97), (29, 103), (36, 110)):
+        for j in range(centre - 4, centre + 5):
+            img[r:r + 2, j] = max(img[r, j], 30.0 * 2.0 ** (-((j - centre) / 2.0) ** 2 * 4))
+    return img
+
+
+def test_point_streaks_drop_a_fish_school_but_not_a_flat_surface():
+    from sonarmap.ranges.tracking import point_streaks
+
+    g = _fan()
+    img = _school_image(g)
+    mask = img > 0.5
+    e = find_echoes(mask, img, g, llr=4.0 * mask)
+    chosen = track_surfaces(e, TrackConfig(segment_cost=30.0, point_fraction=0.0)).first
+    assert (chosen >= 0).sum() >= 20  # the tracker chains the school into pieces
+    assert point_streaks(e, chosen)[chosen >= 0].all()
+    assert not (track_surfaces(e, TrackConfig(segment_cost=30.0)).first >= 0).any()
+    # without the geometry's beamwidth the rule is off
+    e0 = find_echoes(mask, img, _fan(bw_deg=None), llr=4.0 * mask)
+    assert e0.beamwidth_beams is None and not point_streaks(e0, chosen).any()
+    # a flat, strong, thin surface of level echoes: far wider than a point of its strength
+    flat = _line_image(g, np.full(g.n_beams, 150))
+    e2 = find_echoes(flat > 0, flat, g, llr=4.0 * (flat > 0))
+    c2 = track_surfaces(e2, TrackConfig(segment_cost=30.0)).first
+    assert (c2 >= 0).all() and not point_streaks(e2, c2).any()
+    with pytest.raises(InputError):
+        point_streaks(e, chosen[:5])
+
+
+def test_thin_curving_hull_line_survives_the_point_rule():
+    # a DIDSON-like hull line: strong, thin (2 bins), speckled (single look), flat over runs of 6
+    # beams with 3-bin steps between them - the steps are range jumps, so only the width of the
+    # runs tells them from point streaks: 6 beams of level echoes, while a point of their
+    # strength (peak / weakest < 3) spans 1.3 beamwidths
+    rng = np.random.default_rng(3)
+    r = 150 + 3 * (np.arange(96) // 6)
+    img = np.zeros((300, 96))
+    img[r, np.arange(96)] = rng.uniform(0.4, 1.0, 96)
+    img[r + 1, np.arange(96)] = rng.uniform(0.4, 1.0, 96)
+    mask = img > 0
+    kept = []
+    for bw in (0.3, 1.0, 5.0):
+        e = find_echoes(mask, img, _fan(96, bw_deg=bw), llr=4.0 * mask)
+        kept.append(track_surfaces(e, TrackConfig(segment_cost=30.0)).first)
+    off = track_surfaces(e, TrackConfig(segment_cost=30.0, point_fraction=0.0)).first
+    assert (off >= 0).sum() >= 90
+    # the DIDSON's 0.3 deg beams, and a beam three times as wide: every return stays
+    assert np.array_equal(kept[0], off) and np.array_equal(kept[1], off)
+    assert not (kept[2] >= 0).any()  # 5 deg beams (20 spacings) could smear a point over each run
+
+
+def test_real_didson_hull_lines_keep_every_return_with_a_beamwidth(test_pings):
+    # the DIDSON sidecars do not give a beamwidth; with the sonar's 0.3 deg (or 1 deg, three
+    # times too wide) every return of the 10 test pings stays where it was
+    import dataclasses
+    import warnings
+
+    from sonarmap.pipeline import PipelineConfig, process_ping
+
+    for p in test_pings[4:]:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            base = process_ping(p, PipelineConfig()).ranges
+            for deg in (0.3, 1.0):
+                g = p.geometry.replace(azimuth_beamwidth_rad=np.deg2rad(deg))
+                r = process_ping(dataclasses.replace(p, geometry=g), PipelineConfig()).ranges
+                np.testing.assert_array_equal(r.bin, base.bin)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("seed", [0, 1])
+def test_oculus_fish_school_gives_few_returns_on_empty_beams(seed):
+    # a school of 40 fish on the Oculus-like preset: each fish is smeared over 5-10 beams by the
+    # 0.55 deg (2.3-spacing) main lobe; 49-50 false returns per ping without the point rule
+    import warnings
+
+    from sonarmap.evaluate.segmentation import _simulate, preset_sim_configs
+    from sonarmap.geometry import preset
+    from sonarmap.pipeline import PipelineConfig, process_ping
+
+    g = preset("oculus-m750d-like")
+    sim, empty = _simulate("fish", g, preset_sim_configs(g)[0], seed, -3.0, recording_meta=True)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        pr = process_ping(sim.ping, PipelineConfig())
+    assert empty.sum() > 200
+    assert int((pr.ranges.valid & empty).sum()) <= 0.03 * empty.sum()

@@ -316,9 +316,12 @@ def _key_less(a, b):  # pragma: no cover - numba
 
 @njit(cache=True, nogil=True)
 def track_surfaces(echo_beam, m, pos, lo_bin, hi_bin, unary, n_surfaces, max_gap, slope_bins, slope_cost, jump_bins,
-                   touch_bins, segment_cost, gap_cost, bridge_beams):  # pragma: no cover - numba
+                   touch_bins, segment_cost, gap_cost, bridge_beams, point_on, peak_val, point, clipped, evidence,
+                   width_beams, pulse_bins, flat_bins, point_jump_bins, dip, over_range, margin,
+                   fraction):  # pragma: no cover - numba
     """:func:`sonarmap.ranges.tracking.track_surfaces` in one kernel: ``n_surfaces`` passes of
-    :func:`viterbi_surfaces` (each on the echoes the earlier ones left), the bridges
+    :func:`viterbi_surfaces` (each on the echoes the earlier ones left; with ``point_on`` a pass's
+    point pieces, :func:`point_pieces` with the arguments after it, are not kept), the bridges
     (:func:`bridge_surfaces`; over one beam the nearest bridge wins, on equal edges the later
     echo), and per beam the surfaces sorted by edge (stable, NaN last) and cut to ``n_surfaces``.
     Returns the ``(n_surfaces, m)`` echo indices (-1: none)."""
@@ -345,9 +348,22 @@ def track_surfaces(echo_beam, m, pos, lo_bin, hi_bin, unary, n_surfaces, max_gap
         if not hit:
             break
         for j in range(m):
-            picks[n_picks + 1, j] = chosen[j]
             if chosen[j] >= 0:
-                usable[chosen[j]] = False
+                usable[chosen[j]] = False  # point pieces included: their echoes are not tracked again
+        if point_on:
+            drop = point_pieces(chosen, pos, peak_val, point, clipped, evidence, width_beams, lo_bin, hi_bin,
+                                max_gap, jump_bins, touch_bins, pulse_bins, flat_bins, point_jump_bins, dip,
+                                over_range, margin, fraction)
+            hit = False
+            for j in range(m):
+                if drop[j]:
+                    chosen[j] = -1
+                elif chosen[j] >= 0:
+                    hit = True
+            if not hit:
+                continue
+        for j in range(m):
+            picks[n_picks + 1, j] = chosen[j]
         n_picks += 1
     if n_picks == 0:
         return out
@@ -1443,3 +1459,165 @@ def excess_ratio_rows(raw, level, full, log_db, r0, r1, out):  # pragma: no cove
                 v = raw[i, j] / max(b, 1e-12) - 1.0
             if v > 0.0:
                 out[i, j] = v
+    return out
+
+
+@njit(cache=True, nogil=True)
+def first_clipped_rows(img, cols, lo, hi, level):  # pragma: no cover - numba
+    """Per ``k``, the first row in ``lo[k] .. hi[k] - 1`` of column ``cols[k]`` of ``img`` that
+    reaches ``level`` (-1 if none)."""
+    out = np.full(cols.size, -1, dtype=np.int64)
+    for k in range(cols.size):
+        j = cols[k]
+        for i in range(lo[k], hi[k]):
+            if img[i, j] >= level:
+                out[k] = i
+                break
+    return out
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _is_point_run(chosen, pos, peak_val, point, clipped, width_beams, s, k, split_l, split_r, flat_mean,
+                  jump_bins, dip, over_range, margin, lo_beam, hi_beam):  # pragma: no cover - numba
+    """Whether the chosen echoes on beams ``s .. k - 1`` (a flat run of one piece, or the whole
+    piece) can be one point target's streak: at least half point echoes, a real range jump (or the
+    piece's end, or a dip) at both ends and no wider than the main lobe lets a point be (see
+    :func:`point_pieces`)."""
+    n = k - s
+    if n < 2:
+        return False
+    n_echo = 0
+    n_pt = 0
+    peak = 0.0
+    weakest = np.inf
+    any_clip = False
+    bw = 0.0
+    for q in range(s, k):
+        bw += width_beams[q]
+        c = chosen[q]
+        if c < 0:
+            continue
+        n_echo += 1
+        if point[c]:
+            n_pt += 1
+        peak = max(peak, peak_val[c])
+        weakest = min(weakest, peak_val[c])
+        if clipped[c]:
+            any_clip = True
+    if 2 * n_pt < n_echo:
+        return False
+    # ends: the piece ends, a beam without an echo, a dip, a range jump, or the streak's own tail
+    # (an echo weaker than dip x the run's weakest, whose edge the weak level moves)
+    if not split_l and s > lo_beam and chosen[s - 1] >= 0 and abs(pos[chosen[s - 1]] - flat_mean) < jump_bins \
+            and peak_val[chosen[s - 1]] >= dip * weakest:
+        return False
+    if not split_r and k <= hi_beam and chosen[k] >= 0 and abs(pos[chosen[k]] - flat_mean) < jump_bins \
+            and peak_val[chosen[k]] >= dip * weakest:
+        return False
+    # width: a Gaussian main lobe W beams wide holds a point over W sqrt(log2(peak / level)) above
+    # a level; the run's weakest echo bounds the level its ends reach
+    ratio = peak * (over_range if any_clip else 1.0) / max(weakest, 1e-12)
+    cap = (bw / n) * np.sqrt(max(np.log2(ratio), 0.0)) if ratio > 1.0 else 0.0
+    return n - 1 <= margin * cap
+
+
+@njit(cache=True, nogil=True)
+def _piece_end(chosen, pos, lo_bin, hi_bin, j, max_gap, jump_bins, touch_bins):  # pragma: no cover - numba
+    """The last beam of the piece starting at beam ``j`` (the tracker's neighbour rule)."""
+    m = chosen.size
+    k = j
+    while True:
+        nxt = -1
+        for g in range(1, max_gap + 2):
+            q = k + g
+            if q >= m:
+                break
+            if chosen[q] >= 0:
+                if _neighbours(chosen[q], chosen[k], g, pos, lo_bin, hi_bin, jump_bins, touch_bins):
+                    nxt = q
+                break
+        if nxt < 0:
+            return k
+        k = nxt
+
+
+@njit(cache=True, nogil=True)
+def point_pieces(chosen, pos, peak_val, point, clipped, evidence, width_beams, lo_bin, hi_bin, max_gap,
+                 jump_bins, touch_bins, pulse_bins, flat_bins, point_jump_bins, dip, over_range, margin,
+                 fraction):  # pragma: no cover - numba
+    """Beams of the tracked pieces that are point targets, not surfaces (see
+    :func:`sonarmap.ranges.tracking.point_streaks`).
+
+    ``chosen``: one pass's echo per beam (-1 none).  A piece is a chain of chosen echoes on beams at
+    most ``max_gap + 1`` apart, each a neighbour of the one before (the tracker's rule).  A piece
+    whose edges lie within ``pulse_bins`` of each other is one run (all its beams are returned when
+    it is a point streak); else its flat
+    runs (consecutive beams, each edge within ``flat_bins`` of the mean edge of the run before it)
+    are split at dips of the peak value (below ``dip`` x the larger peak on each side: a main lobe
+    is unimodal); a run is a point streak when :func:`_is_point_run` says so.  Returns True on
+    every beam of a piece whose point streaks hold at least ``fraction`` of its evidence.
+    """
+    m = chosen.size
+    drop = np.zeros(m, np.bool_)
+    j = 0
+    while j < m:
+        if chosen[j] < 0:
+            j += 1
+            continue
+        # one piece: from beam j to the last beam chained to it
+        last = _piece_end(chosen, pos, lo_bin, hi_bin, j, max_gap, jump_bins, touch_bins)
+        # the whole piece at one range (within a pulse) and no wider than a point
+        lo_e = np.inf
+        hi_e = -np.inf
+        for q in range(j, last + 1):
+            if chosen[q] >= 0:
+                lo_e = min(lo_e, pos[chosen[q]])
+                hi_e = max(hi_e, pos[chosen[q]])
+        if hi_e - lo_e <= pulse_bins and _is_point_run(
+                chosen, pos, peak_val, point, clipped, width_beams, j, last + 1, True, True, 0.0, point_jump_bins,
+                dip, over_range, margin, j, last):
+            for q in range(j, last + 1):
+                if chosen[q] >= 0:
+                    drop[q] = True
+            j = last + 1
+            continue
+        ev_all = 0.0
+        ev_point = 0.0
+        s = j
+        while s <= last:
+            if chosen[s] < 0:
+                s += 1
+                continue
+            # a flat run from s
+            total = pos[chosen[s]]
+            e = s + 1
+            while e <= last and chosen[e] >= 0 and abs(pos[chosen[e]] - total / (e - s)) <= flat_bins:
+                total += pos[chosen[e]]
+                e += 1
+            mean = total / (e - s)
+            # split it at dips of the peak value; each part (the last one ends the run) is tested
+            a = s
+            for u in range(s + 1, e + 1):
+                if u < e:
+                    left = 0.0
+                    for q in range(a, u):
+                        left = max(left, peak_val[chosen[q]])
+                    right = 0.0
+                    for q in range(u + 1, e):
+                        right = max(right, peak_val[chosen[q]])
+                    if not (u + 1 < e and peak_val[chosen[u]] < dip * min(left, right)):
+                        continue
+                ok = _is_point_run(chosen, pos, peak_val, point, clipped, width_beams, a, u, a != s, u < e, mean,
+                                   point_jump_bins, dip, over_range, margin, j, last)
+                for q in range(a, u):
+                    ev = max(evidence[chosen[q]], 0.0)
+                    ev_all += ev
+                    ev_point += ev if ok else 0.0
+                a = u
+            s = e
+        if ev_all > 0.0 and ev_point >= fraction * ev_all:
+            for q in range(j, last + 1):
+                if chosen[q] >= 0:
+                    drop[q] = True
+        j = last + 1
+    return drop

@@ -40,7 +40,8 @@ from numpy.typing import ArrayLike, NDArray
 from sonarmap.errors import InputError
 from sonarmap.geometry import SonarGeometry
 
-__all__ = ["Echoes", "find_echoes", "pooled_edges", "surface_runs", "range_sigma_m", "edge_sigma_m", "smooth_along_range", "level_llr"]
+__all__ = ["Echoes", "find_echoes", "pooled_edges", "surface_runs", "range_sigma_m", "edge_sigma_m", "smooth_along_range", "level_llr",
+           "beamwidth_in_beams"]
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -72,6 +73,12 @@ class Echoes:
         One-sigma uncertainty of ``edge_range_m`` (:func:`range_sigma_m`).
     n_beams : int
         Beams of the ping.
+    clipped : ndarray of bool, optional
+        Whether the echo reaches the receiver's full scale (its peak is then a lower bound); None:
+        not known (see :func:`sonarmap.ranges.measure.surface_ranges`).
+    beamwidth_beams : ndarray of float64, optional
+        Per beam, the geometry's two-way azimuth beamwidth in units of the local beam spacing
+        (``SonarGeometry.azimuth_beamwidth_rad``); None when the geometry does not give it.
     """
 
     beam: NDArray[np.int64]
@@ -87,6 +94,8 @@ class Echoes:
     n_pixels: NDArray[np.int64]
     sigma_m: NDArray[np.float64]
     n_beams: int
+    clipped: NDArray[np.bool_] | None = None
+    beamwidth_beams: NDArray[np.float64] | None = None
 
     @property
     def size(self) -> int:
@@ -303,8 +312,18 @@ def find_echoes(
     r = np.ascontiguousarray(geometry.range_m, dtype=np.float64)
     edge_r, sigma = _echo_ranges(edge, pval, slope, geometry, pulse_bins, fraction, looks, background, sigma_scale)
     return Echoes(beam=beam, start_bin=start, stop_bin=stop, peak_bin=peak, peak_value=pval, edge_bin=edge,
-                  edge_range_m=edge_r, peak_range_m=r[peak], slope=slope,
-                  evidence=evid, n_pixels=npx, sigma_m=sigma, n_beams=int(m.shape[1]))
+                  edge_range_m=edge_r, peak_range_m=r[peak], slope=slope, evidence=evid, n_pixels=npx,
+                  sigma_m=sigma, n_beams=int(m.shape[1]), beamwidth_beams=beamwidth_in_beams(geometry))
+
+
+def beamwidth_in_beams(geometry: SonarGeometry) -> NDArray[np.float64] | None:
+    """Per beam, ``geometry.azimuth_beamwidth_rad`` over the local beam spacing (the mean gap to
+    the neighbouring beams); None without a beamwidth or with fewer than two beams."""
+    bw = getattr(geometry, "azimuth_beamwidth_rad", None)
+    if bw is None or geometry.n_beams < 2:
+        return None
+    spacing = np.abs(np.gradient(np.asarray(geometry.azimuth_rad, dtype=np.float64)))
+    return np.asarray(bw, dtype=np.float64) / spacing
 
 
 def _echo_ranges(edge: NDArray[np.float64], pval: NDArray[np.float64], slope: NDArray[np.float64],

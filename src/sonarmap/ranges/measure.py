@@ -28,7 +28,7 @@ from sonarmap.ranges.candidates import pooled_band_mask, pooled_band_pixels
 from sonarmap.ranges.config import CandidateConfig, RangeConfig
 
 __all__ = ["surface_ranges", "rule_ranges", "measurement_image", "pulse_bins", "background_mean",
-           "clipped_echo_sigma", "CLIP_LEVEL"]
+           "clipped_echo_sigma", "clipped_echoes", "CLIP_LEVEL"]
 
 
 def background_mean(fit: Any, config: RangeConfig = RangeConfig()) -> tuple[float | None, float | None]:
@@ -234,7 +234,9 @@ def surface_ranges(ping: Ping, image: NDArray[np.float32], levels: NDArray[Any],
         echoes = find_echoes(cand, meas, geom, levels=levels, level_evidence=lut, boost=band, boost_min=1.0,
                              pulse_bins=pb, fraction=fraction, background=bg, scan=config.edge_scan,
                              sigma_scale=config.sigma_scale)
-        return meas, bg, echoes, track_surfaces(echoes, config.track)
+        if echoes.beamwidth_beams is not None and echoes.size:
+            echoes = echoes.replaced(clipped=clipped_echoes(echoes, ping.image))
+        return meas, bg, echoes, track_surfaces(echoes, config.track, pb)
 
     meas, bg, echoes, tracks = measure(cand)
     if config.continue_evidence > 0 and llr_lut is not None:
@@ -258,6 +260,17 @@ def surface_ranges(ping: Ping, image: NDArray[np.float32], levels: NDArray[Any],
 
 #: A raw sample at or above this is at the receiver's full scale (8-bit images: level 255).
 CLIP_LEVEL = 254.5 / 255.0
+
+
+def clipped_echoes(echoes: Any, raw: NDArray[Any]) -> NDArray[np.bool_]:
+    """Per echo, whether a raw sample of its structure bins reaches the receiver's full scale
+    (:data:`CLIP_LEVEL`)."""
+    from sonarmap.ranges._kernels import first_clipped_rows
+
+    img = np.ascontiguousarray(raw)
+    lo = np.clip(echoes.start_bin, 0, img.shape[0])
+    hi = np.clip(echoes.stop_bin, 0, img.shape[0])
+    return first_clipped_rows(img, np.ascontiguousarray(echoes.beam), lo, hi, CLIP_LEVEL) >= 0
 
 
 def clipped_echo_sigma(echoes: Any, sel: NDArray[np.int64], raw: NDArray[Any], geom: Any) -> Any:

@@ -27,6 +27,40 @@ front of every tracked echo of their beam that continue a tracked surface beam b
 a neighbour under the rules above whose evidence pays for its slope) and, within ``bridge_beams``
 beams, reach a tracked echo again on the other side, become the beams' returns (a faint stretch
 of the slanted target on the real ARIS frames, where the lines behind it took three beams).
+
+*Point targets* (:func:`point_streaks`).  A point scatterer (a fish) lies at one range, and its
+echo reaches every beam whose main lobe points near it: in the image it is a *streak*, flat in
+range, as wide as the main lobe at the level where the echo falls to the detection threshold.
+With a Gaussian two-way lobe of -3 dB width ``W`` (``SonarGeometry.azimuth_beamwidth_rad``) a
+point ``P`` times above the threshold spans at most ``W sqrt(log2 P)``: one or two beams of a
+weak fish, 5-10 beams of the clipped fish of the Oculus-like preset (0.55 deg lobe, 2.3 beam
+spacings).  A school is such streaks at different ranges side by side, chained by the tracker
+into pieces.  A surface extends over many more beams with a range that changes smoothly; where
+it is flat over a run of beams (at normal incidence) its echo stays level over the run, far wider
+than a point of its strength could be, and it goes on into the next run without a jump in range.
+
+A flat run - consecutive beams of one piece, each leading edge within ``max(1, pulse_bins / 2)``
+bins of the mean of the run before it, split where the peak value dips below ``point_dip`` of
+the larger peaks on both sides (a main lobe is unimodal: two fish side by side) - is a *point
+streak* when
+
+* at least half of its echoes are point echoes: strong in every pixel (mean log-likelihood
+  ratio at least ``point_llr`` nats per structure pixel);
+* at both ends the surface does not go on: the piece ends, the next beam has no echo, the run
+  was split at a dip, the next echo lies a real range jump away (at least twice the flatness
+  tolerance from the run's mean edge: a smooth surface's next edge lies just beyond the
+  tolerance, which is where its flat run ended), or it is weaker than
+  ``point_dip`` x the run's weakest echo (the streak's own tail, whose half-peak edge its weak
+  level moves);
+* it is no wider than a point: ``(n - 1) <= point_margin x W sqrt(log2(peak / weakest))`` in
+  beams, ``peak`` its strongest echo's peak value (times ``point_over_range_db`` when an echo is
+  clipped at full scale: a clipped peak is only a lower bound) and ``weakest`` its weakest one's
+  (across a point's streak the echo falls from its peak towards the threshold).
+
+A piece whose leading edges all lie within ``pulse_bins`` of each other is tested as one run (a
+fish or two at one range).  A piece whose point streaks hold at least ``point_fraction`` of its
+evidence is a point target or a school of them: it is not reported, and its echoes are not
+tracked again.  The rule needs the beamwidth: it is off for a geometry without one.
 """
 
 from __future__ import annotations
@@ -40,12 +74,35 @@ from sonarmap._config import check_integers, coerce_reals, config_error
 from sonarmap.errors import InputError
 from sonarmap.ranges.echoes import Echoes
 
-__all__ = ["TrackConfig", "Tracks", "track_surfaces", "continuation_mask"]
+__all__ = ["TrackConfig", "Tracks", "track_surfaces", "point_streaks", "continuation_mask"]
 
 
 @dataclasses.dataclass(frozen=True)
 class TrackConfig:
-    """Costs of the surface model (nats; see the module notes)."""
+    """Costs of the surface model (nats; see the module notes).
+
+    Parameters
+    ----------
+    segment_cost, beam_cost, slope_cost, slope_bins, gap_cost, max_gap, jump_bins, touch_bins
+        The surface model's costs and neighbour rules (module notes).
+    n_surfaces : int
+        Tracking passes (surfaces per beam).
+    bridge_beams : int
+        Longest bridge over beams another surface took (0 = off).
+    point_fraction : float
+        A tracked piece whose point streaks (:func:`point_streaks`) hold at least this fraction of
+        its evidence is a point target or a school of them, not a surface: it is not reported.
+        0 = off (as is the rule for a geometry without ``azimuth_beamwidth_rad``).
+    point_llr : float
+        A point echo holds at least this mean log-likelihood ratio per structure pixel (nats).
+    point_over_range_db : float
+        How far above the receiver's full scale a clipped point's true peak may lie (dB).
+    point_margin : float
+        A point streak may be this factor wider than the main lobe allows (speckle, sampling).
+    point_dip : float
+        A flat run is split where its peak value falls below this fraction of the larger peaks
+        on both sides (two points side by side at one range).
+    """
 
     segment_cost: float = 60.0
     beam_cost: float = 1.0
@@ -57,11 +114,17 @@ class TrackConfig:
     touch_bins: float = 1.0
     n_surfaces: int = 3
     bridge_beams: int = 4
+    point_fraction: float = 0.6
+    point_llr: float = 3.5
+    point_over_range_db: float = 30.0
+    point_margin: float = 1.25
+    point_dip: float = 0.6
 
     def __post_init__(self) -> None:
         where = "track config: "
         coerce_reals(self, ("segment_cost", "beam_cost", "slope_cost", "slope_bins", "gap_cost", "jump_bins",
-                            "touch_bins"), where, minimum=0)
+                            "touch_bins", "point_fraction", "point_llr", "point_over_range_db", "point_margin",
+                            "point_dip"), where, minimum=0)
         if self.slope_bins <= 0:
             raise config_error(where, "slope_bins", "must be > 0", self.slope_bins)
         check_integers(self, (("max_gap", 0), ("n_surfaces", 1), ("bridge_beams", 0)), where)
@@ -85,18 +148,96 @@ class Tracks:
         return self.echo[0]
 
 
-def track_surfaces(echoes: Echoes, config: TrackConfig = TrackConfig()) -> Tracks:
-    """Track surfaces across beams (see the module notes); the result is sorted by range per beam."""
+def track_surfaces(echoes: Echoes, config: TrackConfig = TrackConfig(), pulse_bins: int = 1) -> Tracks:
+    """Track surfaces across beams (see the module notes); the result is sorted by range per beam.
+
+    Pieces that are point targets (:func:`point_streaks`, with ``pulse_bins`` the pulse length in
+    bins) are not reported; their echoes are not tracked again."""
     from sonarmap.ranges import _kernels
 
     if not isinstance(echoes, Echoes):
         raise InputError(f"echoes: expected Echoes, got {type(echoes).__name__}")
     lo, hi = echoes.intervals()
     c = config
+    point = _point_arguments(echoes, c, pulse_bins)
     return Tracks(echo=_kernels.track_surfaces(
         echoes.beam, int(echoes.n_beams), np.ascontiguousarray(echoes.edge_bin, dtype=np.float64), lo, hi,
         c.beam_cost - echoes.evidence, int(c.n_surfaces), int(c.max_gap), float(c.slope_bins), float(c.slope_cost),
-        float(c.jump_bins), float(c.touch_bins), float(c.segment_cost), float(c.gap_cost), int(c.bridge_beams)))
+        float(c.jump_bins), float(c.touch_bins), float(c.segment_cost), float(c.gap_cost), int(c.bridge_beams),
+        *point))
+
+
+def _point_arguments(echoes: Echoes, config: TrackConfig, pulse_bins: int) -> tuple:  # type: ignore[type-arg]
+    """The point-target arguments of :func:`_kernels.point_pieces` after ``on`` (False: the rule is
+    off - no beamwidth or ``point_fraction`` 0), for :func:`_kernels.track_surfaces`."""
+    on = config.point_fraction > 0 and echoes.beamwidth_beams is not None and echoes.size > 0
+    pb = max(int(pulse_bins), 1)
+    flat = max(1.0, 0.5 * pb)  # a point's edges agree within half a pulse (at least a bin)
+    if not on:
+        z = np.zeros(0)
+        return (False, z, np.zeros(0, dtype=np.bool_), np.zeros(0, dtype=np.bool_), z, z, float(pb), flat,
+                2.0 * flat, 0.0, 1.0, 0.0, 0.0)
+    point = echoes.evidence >= config.point_llr * echoes.n_pixels
+    clipped = np.zeros(echoes.size, dtype=bool) if echoes.clipped is None else echoes.clipped
+    return (True, np.ascontiguousarray(echoes.peak_value, dtype=np.float64), np.ascontiguousarray(point),
+            np.ascontiguousarray(clipped, dtype=np.bool_), np.ascontiguousarray(echoes.evidence, dtype=np.float64),
+            np.ascontiguousarray(echoes.beamwidth_beams, dtype=np.float64), float(pb), flat, 2.0 * flat,
+            float(config.point_dip), 10.0 ** (config.point_over_range_db / 10.0), float(config.point_margin),
+            float(config.point_fraction))
+
+
+def point_streaks(echoes: Echoes, chosen: NDArray[np.int64], config: TrackConfig = TrackConfig(),
+                  pulse_bins: int = 1, lo: NDArray[np.int64] | None = None,
+                  hi: NDArray[np.int64] | None = None) -> NDArray[np.bool_]:
+    """Beams of the tracked pieces that are point targets (fish, a school of them), not surfaces.
+
+    See the module notes ("Point targets").  Nothing is returned without
+    :attr:`Echoes.beamwidth_beams` (a geometry without ``azimuth_beamwidth_rad``).
+
+    Parameters
+    ----------
+    echoes : Echoes
+    chosen : ndarray of int, shape (n_beams,)
+        One tracking pass: per beam the chosen echo (-1 none).
+    config : TrackConfig
+    pulse_bins : int
+        Pulse length in bins.
+    lo, hi : ndarray of int, optional
+        The echoes' bin intervals (:meth:`Echoes.intervals`).
+
+    Returns
+    -------
+    ndarray of bool, shape (n_beams,)
+        True on the beams of point pieces.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from sonarmap.geometry import SonarGeometry
+    >>> from sonarmap.ranges.echoes import find_echoes
+    >>> az = np.deg2rad(np.linspace(-3, 3, 25))
+    >>> g = SonarGeometry(azimuth_rad=az, range_m=np.linspace(1, 2, 60), azimuth_beamwidth_rad=np.deg2rad(0.5))
+    >>> img = np.zeros((60, 25)); img[30:32, 10:15] = 16 * 2.0 ** -(np.arange(-2, 3) ** 2)  # a fish
+    >>> e = find_echoes(img > 0, img, g, llr=np.full(img.shape, 4.0))  # 2 beams wide lobes, 12 dB
+    >>> chosen = np.full(25, -1); chosen[10:15] = np.arange(5)
+    >>> bool(point_streaks(e, chosen)[10:15].all())
+    True
+    """
+    from sonarmap.ranges import _kernels
+
+    sel = np.ascontiguousarray(chosen, dtype=np.int64)
+    if sel.shape != (echoes.n_beams,):
+        raise InputError(f"chosen: expected shape ({echoes.n_beams},), got {sel.shape}")
+    on, peak, point, clipped, evidence, width, pb, flat, jump, dip, over, margin, fraction = _point_arguments(
+        echoes, config, pulse_bins)
+    if not on or not (sel >= 0).any():
+        return np.zeros(sel.shape, dtype=bool)
+    if lo is None or hi is None:
+        lo, hi = echoes.intervals()
+    return _kernels.point_pieces(  # type: ignore[no-any-return]
+        sel, np.ascontiguousarray(echoes.edge_bin, dtype=np.float64), peak, point, clipped, evidence, width, lo, hi,
+        int(config.max_gap), float(config.jump_bins), float(config.touch_bins), pb, flat, jump, dip, over, margin,
+        fraction)
 
 
 def continuation_mask(echoes: Echoes, first: NDArray[np.int64], levels: NDArray[np.integer],
