@@ -497,6 +497,34 @@ def test_store_skips_pings_of_another_geometry(aris_pings: list, oculus_pings: l
     assert sink.n_skipped == 1 and load_products(tmp_path / "g.zarr").sizes["ping_time"] == 2
 
 
+def test_store_is_created_in_the_writer_thread(aris_pings: list, tmp_path: Path,
+                                              monkeypatch: pytest.MonkeyPatch) -> None:
+    """The first write only starts the store (its creation, ~0.25 s of zarr metadata, runs in the
+    writer thread); a creation error comes back on close, and the lock is released."""
+    import sonarmap.survey
+    from sonarmap.errors import DataFormatError
+    from sonarmap.pipeline import process_ping
+
+    started = threading.Event()
+    release = threading.Event()
+
+    def slow_failing_create(*args: Any, **kwargs: Any) -> None:
+        started.set()
+        release.wait(5.0)
+        raise DataFormatError("no space left on device", tmp_path / "c.zarr")
+
+    monkeypatch.setattr(sonarmap.survey, "create_product_store", slow_failing_create)
+    sink = StoreSink(tmp_path / "c.zarr", config=None, flush_every=1)
+    products = process_ping(aris_pings[0])
+    sink.write(aris_pings[0], products)  # returns while the store is still being created
+    assert started.wait(5.0) and sink.n_written == 0
+    sink.write(aris_pings[0], products)  # flushed rows wait in the queue
+    release.set()
+    with pytest.raises(DataFormatError, match="no space left"):
+        sink.close()
+    StoreSink(tmp_path / "c.zarr", config=None).close()  # the lock was released
+
+
 def test_cli_sends_the_oculus_settings_in_the_fire_message(raw_capture: Path, tmp_path: Path) -> None:
     """--oculus-range / --oculus-gain / --oculus-frequency / --oculus-ping-rate / --no-gain-assist
     reach the sonar; by default gain assist is on (flags 0x19, as in the shared capture)."""

@@ -45,7 +45,29 @@ from sonarmap.errors import SonarmapError
 
 __all__ = ["ChunkRange", "ChunkRows", "ChunkWriter", "STATE_DIR", "StoreReplacedError", "TMP_DIR", "ZSTD_LEVEL",
            "array_codec_kwargs", "checksum_codecs", "chunk_key", "create_array", "crc32c_suffix", "open_writable",
-           "put_file", "remove_tmp", "store_identity"]
+           "ignore_zarr_warnings", "put_file", "remove_tmp", "store_identity"]
+
+
+_zarr_warnings_ignored = False
+
+
+def ignore_zarr_warnings() -> None:
+    """Ignore zarr's own warning categories (its specification and deprecation notices) from now on.
+
+    Installed once, never undone: ``warnings.catch_warnings`` swaps the process-wide filter list,
+    so a writer thread inside it (a live store appending) would swallow - or restore over - the
+    warnings of the processing thread meanwhile.
+    """
+    global _zarr_warnings_ignored
+    if _zarr_warnings_ignored:
+        return
+    from zarr import errors
+
+    for category in (errors.ZarrFutureWarning, errors.ZarrDeprecationWarning, errors.ZarrUserWarning,
+                     errors.ZarrRuntimeWarning):
+        warnings.filterwarnings("ignore", category=category)
+    _zarr_warnings_ignored = True
+
 
 #: zstd level of every product variable (zarr's default; level 0 = zstd's default, 3).
 ZSTD_LEVEL = 0
@@ -367,8 +389,8 @@ class ChunkRows:
 
         _check_identity(self.store, self.identity, chunk.index)
         root = _open_roots.get((self.store, self.identity))
-        with warnings.catch_warnings(), zarr.config.set({"array.write_empty_chunks": True}):
-            warnings.simplefilter("ignore")
+        ignore_zarr_warnings()
+        with zarr.config.set({"array.write_empty_chunks": True}):
             try:
                 if root is None:
                     root = _open_roots[(self.store, self.identity)] = open_writable(Path(self.store))

@@ -67,7 +67,14 @@ from sonarmap.store.check import (
     locate_error,
     read_array,
 )
-from sonarmap.store.chunks import STATE_DIR, TMP_DIR, array_codec_kwargs, chunk_key, create_array
+from sonarmap.store.chunks import (
+    STATE_DIR,
+    TMP_DIR,
+    array_codec_kwargs,
+    chunk_key,
+    create_array,
+    ignore_zarr_warnings,
+)
 from sonarmap.store.metadata import (
     consolidate,
     consolidated_status,
@@ -228,11 +235,10 @@ def create_products(path: str | os.PathLike[str], geometry: Any, products: Any, 
     except OSError as exc:
         raise write_error(exc, out, "cannot create the store") from None
     try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            root = zarr.open_group(str(tmp), mode="w", zarr_format=3, attributes=attrs)
-            _create_variables(root, schema, n_pings, chunk_size, mixture_arrays(products.fit)[2])
-            _create_coordinates(root, tmp, geometry, n_pings, chunk_size)
+        ignore_zarr_warnings()  # not catch_warnings: a live store is created in its writer thread
+        root = zarr.open_group(str(tmp), mode="w", zarr_format=3, attributes=attrs)
+        _create_variables(root, schema, n_pings, chunk_size, mixture_arrays(products.fit)[2])
+        _create_coordinates(root, tmp, geometry, n_pings, chunk_size)
         (tmp / STATE_DIR / "chunks").mkdir(parents=True)
         consolidate(tmp)
         replace_output(tmp, out)
