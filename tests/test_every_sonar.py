@@ -211,27 +211,16 @@ def test_ranges_cli_flags_column_summary_and_strict(tmp_path, test_pings, capsys
 def test_drop_small_components_matches_a_per_component_reference(test_pings):
     """The metric extent rule: a component survives iff its far-edge arc length (one beam spacing
     included) or its range extent reaches the limit (random masks against a per-component loop)."""
-    from scipy import ndimage
+    from extent_reference import extent_reference
 
     from sonarmap.ranges import drop_small_components
 
     g = test_pings[0].geometry
-    r, az = g.range_m, g.azimuth_rad
-    dr, daz = (r[-1] - r[0]) / (r.size - 1), (az[-1] - az[0]) / (az.size - 1)
-
-    def reference(m, e):
-        lab, n = ndimage.label(m, structure=np.ones((3, 3)))
-        keep = np.zeros(n + 1, bool)
-        for k, sl in enumerate(ndimage.find_objects(lab), 1):
-            i0, i1, j0, j1 = sl[0].start, sl[0].stop - 1, sl[1].start, sl[1].stop - 1
-            keep[k] = max(max(r[i1], r[i0]) * (az[j1] - az[j0] + daz), (i1 - i0 + 1) * dr) >= e
-        return keep[lab]
-
     rng = np.random.default_rng(0)
     for _ in range(20):
         m = rng.random(g.shape) < rng.uniform(0.001, 0.05)
         for e in (0.02, 0.1, 0.3):
-            np.testing.assert_array_equal(drop_small_components(m, g, e), reference(m, e))
+            np.testing.assert_array_equal(drop_small_components(m, g, e), extent_reference(m, g, e))
     assert not drop_small_components(np.zeros(g.shape, bool), g, 0.1).any()
 
 

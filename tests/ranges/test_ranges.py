@@ -163,27 +163,16 @@ def test_fused_rule0_equals_wide_then_linked_components():
 def test_component_rule_with_extent_equals_rule0_then_drop_small_components():
     """component_rule's one-pass extent rule equals rule 0 followed by a per-component (scipy) extent
     test, with and without rule 0, on random masks of a fan."""
-    from scipy import ndimage
+    from extent_reference import extent_reference
 
     from sonarmap.ranges import component_rule, rule0
 
     g = SonarGeometry(range_m=0.5 + 0.02 * np.arange(60), azimuth_rad=np.deg2rad(np.linspace(-20, 20, 30)))
-    r, az = g.range_m, g.azimuth_rad
-    dr, daz = abs(g.range_resolution_m), (az[-1] - az[0]) / (az.size - 1)
-
-    def drop(m, e):
-        lab, n = ndimage.label(m, structure=np.ones((3, 3)))
-        keep = np.zeros(n + 1, bool)
-        for k, sl in enumerate(ndimage.find_objects(lab), 1):
-            i0, i1, j0, j1 = sl[0].start, sl[0].stop - 1, sl[1].start, sl[1].stop - 1
-            keep[k] = max(max(r[i1], r[i0]) * (az[j1] - az[j0] + daz), (i1 - i0 + 1) * dr) >= e
-        return keep[lab]
-
     rng = np.random.default_rng(5)
     for t in range(200):
         m = rng.random(g.shape) < rng.uniform(0.02, 0.4)
         mb, mn, gap, px = int(rng.integers(1, 12)), int(rng.integers(0, 12)), int(rng.integers(0, 5)), int(t % 3) * 10
         e = float(rng.choice([0.0, 0.05, 0.1, 0.3]))
         ruled = rule0(m, mb, mn, gap, px) if mb > 1 or px > 0 else m
-        ref = drop(ruled, e) if e > 0 else ruled
+        ref = extent_reference(ruled, g, e) if e > 0 else ruled
         assert np.array_equal(component_rule(m, mb, mn, gap, px, geometry=g, min_extent_m=e), ref)
