@@ -493,8 +493,7 @@ class MixtureFit:
         """
         cached = self._cache.get("decision_log_pmf")
         if cached is None:
-            lp = self._cache.get("class_log_pmf")
-            cached = monotone_object_log_pmf(self.class_log_pmf() if lp is None else lp)
+            cached = monotone_object_log_pmf(self.class_log_pmf())
             cached.setflags(write=False)
             self._cache["decision_log_pmf"] = cached
         return cached.copy()  # type: ignore[no-any-return]
