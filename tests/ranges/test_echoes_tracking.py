@@ -11,7 +11,7 @@ from sonarmap.errors import InputError
 from sonarmap.geometry import SonarGeometry
 from sonarmap.ranges import ranges_from_tracks
 from sonarmap.ranges.echoes import Echoes, find_echoes, range_sigma_m
-from sonarmap.ranges.tracking import TrackConfig, track_surfaces
+from sonarmap.ranges.tracking import TrackConfig, Tracks, front_surfaces, track_surfaces
 
 
 def _geom(n_bins: int = 200, n_beams: int = 16) -> SonarGeometry:
@@ -173,6 +173,53 @@ def test_no_bridge_without_the_surface_on_the_other_side():
     a = ranges_from_tracks(e, track_surfaces(e, TrackConfig(segment_cost=30.0, bridge_beams=0)), g, img)
     b = ranges_from_tracks(e, track_surfaces(e, TrackConfig(segment_cost=30.0)), g, img)
     np.testing.assert_array_equal(a.bin, b.bin)
+
+
+def _front_and_behind(front_beams: slice):
+    """A faint surface in front (rows 100-101) on ``front_beams``, a strong one behind (rows
+    150-152) on beams 20-39."""
+    g = _geom(n_beams=40)
+    img = np.zeros(g.shape)
+    llr = np.zeros(g.shape)
+    img[100:102, front_beams] = 1.0
+    llr[100:102, front_beams] = 3.0
+    img[150:153, 20:40] = 1.0
+    llr[150:153, 20:40] = 20.0
+    return g, img, find_echoes(img > 0, img, g, llr=llr)
+
+
+def test_front_pass_reports_a_surface_the_passes_left_behind_a_stronger_one():
+    # one pass: the strong surface takes beams 20-39, the faint one in front keeps only 0-19;
+    # its 20 echoes left over on 20-39 pay for a piece of their own (20 x 5 nats > 30)
+    g, img, e = _front_and_behind(slice(0, 40))
+    cfg = TrackConfig(segment_cost=30.0, n_surfaces=1, bridge_beams=0)
+    t = track_surfaces(e, cfg)
+    assert np.all(ranges_from_tracks(e, t, g, img).bin[20:] == 150)
+    f = front_surfaces(e, t, cfg)
+    br = ranges_from_tracks(e, f, g, img)
+    assert np.all(br.bin == 100)
+    # the beam already held n_surfaces (1): the surface behind drops off there
+    assert f.echo.shape == (1, 40)
+    # with two surfaces the one behind is kept
+    cfg2 = TrackConfig(segment_cost=30.0, n_surfaces=2, bridge_beams=0)
+    t2 = track_surfaces(e, cfg2)
+    f2 = front_surfaces(e, t2, cfg2)
+    np.testing.assert_array_equal(f2.echo, t2.echo)  # two passes track both: nothing to add
+    assert np.all(ranges_from_tracks(e, f2, g, img).other_range_m[0][20:] == g.range_m[150] - 0.005)
+
+
+def test_front_pass_keeps_nothing_that_cannot_pay_for_a_surface():
+    # only 4 faint echoes in front of the strong surface (4 x 5 nats < 30): unchanged
+    g, img, e = _front_and_behind(slice(22, 26))
+    cfg = TrackConfig(segment_cost=30.0, n_surfaces=1, bridge_beams=0)
+    t = track_surfaces(e, cfg)
+    assert front_surfaces(e, t, cfg) is t
+    # and echoes behind the return never move it
+    g, img, e = _front_and_behind(slice(0, 20))
+    t = track_surfaces(e, cfg)
+    assert front_surfaces(e, t, cfg) is t
+    with pytest.raises(InputError, match="tracks"):
+        front_surfaces(e, Tracks(echo=t.echo[:, :10]), cfg)
 
 
 def test_viterbi_is_exact_on_small_problems():

@@ -195,7 +195,7 @@ def surface_ranges(ping: Ping, image: NDArray[np.float32], levels: NDArray[Any],
     from sonarmap.ranges import ranges_from_tracks
     from sonarmap.ranges._kernels import mask_extent
     from sonarmap.ranges.echoes import find_echoes, level_llr, pooled_edges
-    from sonarmap.ranges.tracking import track_surfaces
+    from sonarmap.ranges.tracking import front_surfaces, track_surfaces
 
     geom = ping.geometry
     cand = np.ascontiguousarray(mask, dtype=bool)
@@ -244,6 +244,9 @@ def surface_ranges(ping: Ping, image: NDArray[np.float32], levels: NDArray[Any],
         if extra is not None:
             cand = cand | extra
             meas, bg, echoes, tracks = measure(cand)
+    if config.track.front_pass:
+        # after the continuation, which walks on from the passes' own surfaces
+        tracks = front_surfaces(echoes, tracks, config.track, pb)
     sel = tracks.first
     if config.edge_pool_beams > 0 and config.range_mode == "first":
         # the pooled profile is smoothed over at least 3 bins along range in all (a single-look

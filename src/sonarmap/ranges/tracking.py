@@ -28,6 +28,16 @@ a neighbour under the rules above whose evidence pays for its slope) and, within
 beams, reach a tracked echo again on the other side, become the beams' returns (a faint stretch
 of the slanted target on the real ARIS frames, where the lines behind it took three beams).
 
+A longer stretch, or one with a beam where the surface in front has no echo at all, cannot be
+bridged; and when the passes run out (``n_surfaces``) on stronger surfaces behind, a fainter
+surface in front may not be tracked at all.  The *front pass* (:func:`front_surfaces`) gives the
+first return its meaning back: one more pass of the same dynamic programme over the echoes that
+lie wholly in front of their beam's nearest tracked echo; every piece it keeps pays the same
+costs as any surface (``segment_cost``, slopes, gaps, the point-target rule), and its echoes become
+the beams' returns.  On the real ARIS frames the target's faint end (beams 27-39), which a line
+4.5 m behind it won in the first pass, is reported again, whatever local optimum the ping's fit
+stopped at.
+
 *Point targets* (:func:`point_streaks`).  A point scatterer (a fish) lies at one range, and its
 echo reaches every beam whose main lobe points near it: in the image it is a *streak*, flat in
 range, as wide as the main lobe at the level where the echo falls to the detection threshold.
@@ -70,11 +80,11 @@ import dataclasses
 import numpy as np
 from numpy.typing import NDArray
 
-from sonarmap._config import check_integers, coerce_reals, config_error
+from sonarmap._config import check_booleans, check_integers, coerce_reals, config_error
 from sonarmap.errors import InputError
 from sonarmap.ranges.echoes import Echoes
 
-__all__ = ["TrackConfig", "Tracks", "track_surfaces", "point_streaks", "continuation_mask"]
+__all__ = ["TrackConfig", "Tracks", "track_surfaces", "front_surfaces", "point_streaks", "continuation_mask"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -89,6 +99,8 @@ class TrackConfig:
         Tracking passes (surfaces per beam).
     bridge_beams : int
         Longest bridge over beams another surface took (0 = off).
+    front_pass : bool
+        Run the front pass (:func:`front_surfaces`) in the pipeline's range stage.
     point_fraction : float
         A tracked piece whose point streaks (:func:`point_streaks`) hold at least this fraction of
         its evidence is a point target or a school of them, not a surface: it is not reported.
@@ -114,6 +126,7 @@ class TrackConfig:
     touch_bins: float = 1.0
     n_surfaces: int = 3
     bridge_beams: int = 4
+    front_pass: bool = True
     point_fraction: float = 0.6
     point_llr: float = 3.5
     point_over_range_db: float = 30.0
@@ -128,6 +141,7 @@ class TrackConfig:
         if self.slope_bins <= 0:
             raise config_error(where, "slope_bins", "must be > 0", self.slope_bins)
         check_integers(self, (("max_gap", 0), ("n_surfaces", 1), ("bridge_beams", 0)), where)
+        check_booleans(self, ("front_pass",), where)
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -167,9 +181,65 @@ def track_surfaces(echoes: Echoes, config: TrackConfig = TrackConfig(), pulse_bi
         *point))
 
 
-def _point_arguments(echoes: Echoes, config: TrackConfig, pulse_bins: int) -> tuple:  # type: ignore[type-arg]
+def front_surfaces(echoes: Echoes, tracks: Tracks, config: TrackConfig = TrackConfig(),
+                   pulse_bins: int = 1) -> Tracks:
+    """The front pass (module notes): surfaces in front of each beam's nearest tracked echo.
+
+    One more pass of the tracking programme over the echoes that lie wholly in front of their
+    beam's nearest tracked echo (their bin interval ends before its interval starts; beams without
+    a tracked echo take no part); each echo of a piece it keeps becomes its beam's nearest surface,
+    the farthest one dropping off when the beam already holds ``n_surfaces``.
+
+    Parameters
+    ----------
+    echoes : Echoes
+    tracks : Tracks
+        :func:`track_surfaces` of ``echoes``.
+    config : TrackConfig
+    pulse_bins : int
+        Pulse length in bins (the point-target rule).
+
+    Returns
+    -------
+    Tracks
+        ``tracks`` itself when the pass keeps nothing.
+    """
+    from sonarmap.ranges import _kernels
+
+    if not isinstance(tracks, Tracks) or tracks.echo.ndim != 2 or tracks.echo.shape[1] != echoes.n_beams:
+        raise InputError(f"tracks: expected Tracks over {echoes.n_beams} beams")
+    first = tracks.first
+    if echoes.size == 0 or not (first >= 0).any():
+        return tracks
+    lo, hi = echoes.intervals()
+    tracked = np.zeros(echoes.size, dtype=bool)
+    tracked[tracks.echo[tracks.echo >= 0]] = True
+    nearest = first[echoes.beam]
+    front = ~tracked & (nearest >= 0)
+    front[front] = hi[front] < lo[nearest[front]]
+    idx = np.flatnonzero(front)
+    if idx.size == 0:
+        return tracks
+    c = config
+    chosen = _kernels.track_surfaces(
+        echoes.beam[idx], int(echoes.n_beams), np.ascontiguousarray(echoes.edge_bin[idx], dtype=np.float64),
+        lo[idx], hi[idx], c.beam_cost - echoes.evidence[idx], 1, int(c.max_gap), float(c.slope_bins),
+        float(c.slope_cost), float(c.jump_bins), float(c.touch_bins), float(c.segment_cost), float(c.gap_cost), 0,
+        *_point_arguments(echoes, c, pulse_bins, idx))[0]
+    hit = chosen >= 0
+    if not hit.any():
+        return tracks
+    out = tracks.echo.copy()
+    out[1:, hit] = tracks.echo[:-1, hit]
+    out[0, hit] = idx[chosen[hit]]
+    return Tracks(echo=out)
+
+
+def _point_arguments(echoes: Echoes, config: TrackConfig, pulse_bins: int,
+                     idx: NDArray[np.int64] | None = None) -> tuple:  # type: ignore[type-arg]
     """The point-target arguments of :func:`_kernels.point_pieces` after ``on`` (False: the rule is
-    off - no beamwidth or ``point_fraction`` 0), for :func:`_kernels.track_surfaces`."""
+    off - no beamwidth or ``point_fraction`` 0), for :func:`_kernels.track_surfaces`; of the echoes
+    ``idx`` only when given."""
     on = config.point_fraction > 0 and echoes.beamwidth_beams is not None and echoes.size > 0
     pb = max(int(pulse_bins), 1)
     flat = max(1.0, 0.5 * pb)  # a point's edges agree within half a pulse (at least a bin)
@@ -177,10 +247,12 @@ def _point_arguments(echoes: Echoes, config: TrackConfig, pulse_bins: int) -> tu
         z = np.zeros(0)
         return (False, z, np.zeros(0, dtype=np.bool_), np.zeros(0, dtype=np.bool_), z, z, float(pb), flat,
                 2.0 * flat, 0.0, 1.0, 0.0, 0.0)
-    point = echoes.evidence >= config.point_llr * echoes.n_pixels
-    clipped = np.zeros(echoes.size, dtype=bool) if echoes.clipped is None else echoes.clipped
-    return (True, np.ascontiguousarray(echoes.peak_value, dtype=np.float64), np.ascontiguousarray(point),
-            np.ascontiguousarray(clipped, dtype=np.bool_), np.ascontiguousarray(echoes.evidence, dtype=np.float64),
+    sel = slice(None) if idx is None else idx
+    point = echoes.evidence[sel] >= config.point_llr * echoes.n_pixels[sel]
+    clipped = np.zeros(point.size, dtype=bool) if echoes.clipped is None else echoes.clipped[sel]
+    return (True, np.ascontiguousarray(echoes.peak_value[sel], dtype=np.float64), np.ascontiguousarray(point),
+            np.ascontiguousarray(clipped, dtype=np.bool_),
+            np.ascontiguousarray(echoes.evidence[sel], dtype=np.float64),
             np.ascontiguousarray(echoes.beamwidth_beams, dtype=np.float64), float(pb), flat, 2.0 * flat,
             float(config.point_dip), 10.0 ** (config.point_over_range_db / 10.0), float(config.point_margin),
             float(config.point_fraction))
