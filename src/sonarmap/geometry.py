@@ -894,7 +894,19 @@ def geometry_summary(geometry: Any) -> dict[str, Any]:
         "taper": geometry.taper is not None,
         "elevation_beamwidth_deg": (None if geometry.elevation_beamwidth_rad is None
                                     else float(np.rad2deg(geometry.elevation_beamwidth_rad))),
+        "azimuth_beamwidth_deg": _beamwidth_summary(getattr(geometry, "azimuth_beamwidth_rad", None)),
     }
+
+
+def _beamwidth_summary(width_rad: Any) -> float | list[float] | None:
+    """A per-beam width (two-way -3 dB, rad) in degrees: one value when it is the same for every
+    beam, else ``[min, max]``; None when unknown."""
+    if width_rad is None:
+        return None
+    w = np.rad2deg(np.asarray(width_rad, dtype=np.float64).reshape(-1))
+    if np.allclose(w, w[0], rtol=1e-6, atol=0.0):
+        return round(float(w[0]), 6)
+    return [round(float(w.min()), 6), round(float(w.max()), 6)]
 
 
 def load_geometry(path: str | os.PathLike[str]) -> SonarGeometry:

@@ -25,8 +25,11 @@ def test_info_json_and_presets(capsys: pytest.CaptureFixture[str], didson_dir: P
     assert main(["info", "--json", str(didson_dir / "didson.json")]) == 0
     d = json.loads(capsys.readouterr().out)
     assert d["kind"] == "geometry" and d["beams"] == 96 and d["azimuth_table"] == "non-uniform"
+    assert d["azimuth_beamwidth_deg"] is None  # the sidecar does not give it
     assert main(["info", "--presets", "--json"]) == 0
-    assert len(json.loads(capsys.readouterr().out)) == 8
+    presets = {p["preset"]: p for p in json.loads(capsys.readouterr().out)}
+    assert len(presets) == 8
+    assert presets["didson-hf"]["azimuth_beamwidth_deg"] == pytest.approx(0.3)  # two-way -3 dB
 
 
 def test_malformed_json_exits_1_one_line(capsys: pytest.CaptureFixture[str], data_dir: Path) -> None:

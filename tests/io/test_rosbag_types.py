@@ -306,7 +306,7 @@ def test_unreadable_listing_names_the_new_types(tmp_path: Path) -> None:
 
 # ---------------------------------------------------------------------- ProjectedSonarImage beam widths
 def test_projected_image_beamwidths_follow_the_geometry(tmp_path: Path) -> None:
-    g = preset("didson-hf")
+    g = preset("didson-hf").replace(azimuth_beamwidth_rad=None)  # the beam pattern's width
     tx, rx = beamwidths(g)
     spacing = np.gradient(g.azimuth_rad)  # DIDSON's lens fan is not evenly spaced: one width per beam
     assert tx.size == 0 and rx.size == g.n_beams and np.all((0.5 * spacing < rx) & (rx < 10 * spacing))
@@ -333,6 +333,32 @@ def test_tx_beamwidth_is_the_elevation_beamwidth_and_reads_back(tmp_path: Path, 
     (back,) = read_pings(path)
     assert back.geometry.elevation_beamwidth_rad == g.elevation_beamwidth_rad  # exact (geometry side channel)
     assert rosbag.elevation_from_ping_info(msg.ping_info) == pytest.approx(float(tx[0]), rel=0, abs=0)
+
+
+@pytest.mark.parametrize("version", [1, 2])
+def test_rx_beamwidth_is_the_one_way_azimuth_beamwidth_and_reads_back(tmp_path: Path, version: int) -> None:
+    g = preset("didson-hf")  # two-way 0.3 deg main lobe, the same for every beam
+    two_way = float(g.azimuth_beamwidth_rad[0])
+    _, rx = beamwidths(g)
+    assert rx.dtype == np.float32 and rx.size == 1 and rx[0] == np.float32(np.sqrt(2.0) * two_way)
+    path = _bag(tmp_path, version)
+    write_bag([Ping(image=np.zeros(g.shape, np.float32), geometry=g, time_ns=T0)], path, version=version)
+    ((_, _, msg),) = [m for m in _read(path, version) if m[0] == "/sonar/image"]
+    assert np.array_equal(msg.ping_info.rx_beamwidths, rx)
+    assert rosbag.azimuth_from_ping_info(msg.ping_info) == pytest.approx(two_way, rel=1e-6)
+    (back,) = read_pings(path)
+    assert np.allclose(back.geometry.azimuth_beamwidth_rad, two_way, rtol=1e-6)
+    # without the geometry side channel the width comes from the message alone
+    T = _store(2).types
+    info = T["marine_acoustic_msgs/msg/PingInfo"](frequency=1e6, sound_speed=1500.0,
+                                                 tx_beamwidths=np.zeros(0, np.float32),
+                                                 rx_beamwidths=np.full(3, 0.02, np.float32))
+    assert rosbag.azimuth_from_ping_info(info) == pytest.approx(0.02 / np.sqrt(2.0))
+    for bad in ([], [0.02, 0.03], [0.0], [-0.1], [2.0], [float("nan")]):
+        info = T["marine_acoustic_msgs/msg/PingInfo"](frequency=1e6, sound_speed=1500.0,
+                                                     tx_beamwidths=np.zeros(0, np.float32),
+                                                     rx_beamwidths=np.asarray(bad, np.float32))
+        assert rosbag.azimuth_from_ping_info(info) is None, bad
 
 
 def test_elevation_from_ping_info_needs_one_plausible_width() -> None:

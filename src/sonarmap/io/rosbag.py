@@ -91,6 +91,7 @@ __all__ = [
     "typestore",
     "write_bag",
     "beamwidths",
+    "azimuth_from_ping_info",
     "ping_info",
     "bag_writer",
     "iter_bag_pings",
@@ -161,10 +162,13 @@ def beamwidths(geometry: SonarGeometry) -> tuple[np.ndarray, np.ndarray]:
     an empty array is "not reported", one value is constant across the ping, else one per beam.
 
     * ``rx_beamwidths`` (the across-fan width of each receive beam): a single-beam geometry's
-      ``fov_rad`` (its beam's width); else, when the geometry has a beam pattern (``psf``, an
-      intensity pattern across beams), its full width at half maximum (-3 dB) in beams times the
-      local beam spacing - one value for an evenly spaced fan, one per beam otherwise; else empty
-      (a geometry without a pattern says nothing about the beams' widths).
+      ``fov_rad`` (its beam's width); else the geometry's ``azimuth_beamwidth_rad`` - a two-way
+      -3 dB width, written as the one-way -3 dB width ``sqrt(2)`` times larger (Gaussian main
+      lobe) and read back by :func:`azimuth_from_ping_info`; else, when the geometry has a beam
+      pattern (``psf``, an intensity pattern across beams), its full width at half maximum (-3 dB)
+      in beams times the local beam spacing; one value when every beam has the same width, one
+      per beam otherwise; else empty (a geometry without a pattern says nothing about the beams'
+      widths).
     * ``tx_beamwidths`` (the width across the fan: an imaging sonar's vertical aperture, a swath
       multibeam's along-track transmit beamwidth): the geometry's ``elevation_beamwidth_rad`` as
       one value, else empty (not reported).  Read back by :func:`elevation_from_ping_info`.
@@ -172,12 +176,15 @@ def beamwidths(geometry: SonarGeometry) -> tuple[np.ndarray, np.ndarray]:
     Examples
     --------
     >>> from sonarmap.geometry import preset
-    >>> tx, rx = beamwidths(preset("didson-hf"))  # a lens fan: not evenly spaced
-    >>> tx.size, rx.size
-    (0, 96)
-    >>> tx, rx = beamwidths(preset("aris3000-128"))  # a standard ARIS lens: 14 deg vertical
+    >>> tx, rx = beamwidths(preset("didson-hf"))  # 0.3 deg two-way main lobe on every beam
+    >>> tx.size, round(float(np.rad2deg(rx[0])), 3)
+    (0, 0.424)
+    >>> tx, rx = beamwidths(preset("didson-hf").replace(azimuth_beamwidth_rad=None))
+    >>> rx.size  # the beam pattern's width; the lens fan is not evenly spaced: one per beam
+    96
+    >>> tx, rx = beamwidths(preset("aris3000-128"))  # standard ARIS lens: 14 deg vertical, per-beam widths
     >>> round(float(np.rad2deg(tx[0])), 3), rx.size
-    (14.0, 0)
+    (14.0, 128)
     """
     g = geometry
     tx = (np.zeros(0, np.float32) if g.elevation_beamwidth_rad is None
@@ -191,12 +198,15 @@ def _rx_beamwidths(g: SonarGeometry) -> np.ndarray:
     if g.n_beams == 1:
         return np.array([g.fov_rad], np.float32)
     pattern = g.psf_raw if g.psf_raw is not None else g.psf
-    if pattern is None:
+    if g.azimuth_beamwidth_rad is not None:
+        rx = math.sqrt(2.0) * np.asarray(g.azimuth_beamwidth_rad, dtype=np.float64)
+    elif pattern is None:
         return empty
-    w = _fwhm(np.asarray(pattern, dtype=np.float64))
-    if not w > 0:
-        return empty
-    rx = w * np.gradient(np.asarray(g.azimuth_rad, dtype=np.float64))
+    else:
+        w = _fwhm(np.asarray(pattern, dtype=np.float64))
+        if not w > 0:
+            return empty
+        rx = w * np.gradient(np.asarray(g.azimuth_rad, dtype=np.float64))
     if np.allclose(rx, rx[0], rtol=1e-6, atol=0.0):
         rx = rx[:1]
     return rx.astype(np.float32)
@@ -209,6 +219,27 @@ def elevation_from_ping_info(info: Any) -> float | None:
     if tx.size == 0 or not np.all(np.isfinite(tx)) or not np.allclose(tx, tx[0], rtol=1e-6, atol=0.0):
         return None
     return plausible_elevation_beamwidth(float(tx[0]))
+
+
+def azimuth_from_ping_info(info: Any) -> float | None:
+    """The geometry's ``azimuth_beamwidth_rad`` (two-way -3 dB) from a ``PingInfo``'s
+    ``rx_beamwidths`` (one-way -3 dB, see :func:`beamwidths`): when they hold one finite width in
+    (0, pi/2] rad (one value, or the same value for every beam), that width over ``sqrt(2)``;
+    else None (not reported, or widths that differ across beams)."""
+    rx = np.asarray(getattr(info, "rx_beamwidths", ()), dtype=np.float64).reshape(-1)
+    if rx.size == 0 or not np.all(np.isfinite(rx)) or not np.allclose(rx, rx[0], rtol=1e-6, atol=0.0):
+        return None
+    return two_way_beamwidth(float(rx[0]))
+
+
+def two_way_beamwidth(one_way_rad: Any) -> float | None:
+    """A beam's two-way -3 dB width from a message's one-way -3 dB width (Gaussian main lobe:
+    ``1 / sqrt(2)`` of it); None unless it is a number in (0, pi/2] rad."""
+    try:
+        w = float(one_way_rad)
+    except (TypeError, ValueError):
+        return None
+    return w / math.sqrt(2.0) if math.isfinite(w) and 0.0 < w <= math.pi / 2 else None
 
 
 def _fwhm(p: np.ndarray) -> float:
@@ -441,21 +472,23 @@ def _fan_azimuths(dirs: bytes) -> tuple[np.ndarray, str]:
 @functools.lru_cache(maxsize=64)
 def _message_geometry(
     az_bytes: bytes, ranges: bytes, frequency: float, sound_speed: float, name: str,
-    elevation_beamwidth_rad: float | None = None,
+    elevation_beamwidth_rad: float | None = None, azimuth_beamwidth_rad: float | None = None,
 ) -> tuple[SonarGeometry, np.ndarray | None]:
     """Geometry from per-beam azimuths (message order) and ranges; the column order if re-sorted."""
     return sorted_beam_geometry(np.frombuffer(az_bytes, dtype=np.float64),
                                 np.frombuffer(ranges, dtype=np.float32).astype(np.float64), frequency, sound_speed, name,
-                                elevation_beamwidth_rad=elevation_beamwidth_rad)
+                                elevation_beamwidth_rad=elevation_beamwidth_rad,
+                                azimuth_beamwidth_rad=azimuth_beamwidth_rad)
 
 
 def sorted_beam_geometry(
     az: np.ndarray, range_m: np.ndarray, frequency: float, sound_speed: float, name: str, *,
-    elevation_beamwidth_rad: float | None = None,
+    elevation_beamwidth_rad: float | None = None, azimuth_beamwidth_rad: float | None = None,
 ) -> tuple[SonarGeometry, np.ndarray | None]:
     """Geometry of a message's beams, sorted by azimuth (with the column order if it re-sorted them);
     an unknown frequency reads as 1.8 MHz, a sound speed outside 1300-1700 m/s as 1500 m/s; the
-    width across the fan the message reports (see :func:`elevation_from_ping_info`), if any."""
+    widths across the fan (see :func:`elevation_from_ping_info`) and of the beams in it (two-way,
+    :func:`azimuth_from_ping_info`) the message reports, if any."""
     order = None
     if az.size > 1 and np.any(np.diff(az) <= 0):
         order = np.argsort(az, kind="stable")
@@ -463,7 +496,7 @@ def sorted_beam_geometry(
     c = sound_speed if 1300.0 <= sound_speed <= 1700.0 else 1500.0
     geom = SonarGeometry(azimuth_rad=az, range_m=range_m, sound_speed_m_s=c, name=name,
                          frequency_hz=frequency if math.isfinite(frequency) and frequency > 0 else 1.8e6,
-                         elevation_beamwidth_rad=elevation_beamwidth_rad)
+                         elevation_beamwidth_rad=elevation_beamwidth_rad, azimuth_beamwidth_rad=azimuth_beamwidth_rad)
     return geom, order
 
 
@@ -934,6 +967,7 @@ def _ping_from_msg(
     geom, order = _message_geometry(
         np.ascontiguousarray(az).tobytes(), ranges.tobytes(), float(msg.ping_info.frequency),
         float(msg.ping_info.sound_speed), name, elevation_from_ping_info(msg.ping_info),
+        azimuth_from_ping_info(msg.ping_info),
     )
     image = _decode_image(msg.image, ranges.size, dirs.shape[0])
     if order is not None:

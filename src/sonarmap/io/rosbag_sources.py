@@ -67,14 +67,15 @@ def _meta(kind: str, topic: str, idx: int, msg: Any) -> dict[str, Any]:
 @functools.lru_cache(maxsize=64)
 def _sample_geometry(
     az: bytes, n_samples: int, sample0: int, sound_speed: float, sample_rate: float, frequency: float, name: str,
-    elevation_beamwidth_rad: float | None = None,
+    elevation_beamwidth_rad: float | None = None, azimuth_beamwidth_rad: float | None = None,
 ) -> tuple[SonarGeometry, np.ndarray | None]:
     """Geometry of a RawSonarImage (beams sorted by azimuth; the column order if re-sorted)."""
     from sonarmap.io.rosbag import sorted_beam_geometry
 
     r = (np.arange(n_samples, dtype=np.float64) + sample0) * (sound_speed / (2.0 * sample_rate))
     return sorted_beam_geometry(np.frombuffer(az, dtype=np.float64), r, frequency, sound_speed, name,
-                                elevation_beamwidth_rad=elevation_beamwidth_rad)
+                                elevation_beamwidth_rad=elevation_beamwidth_rad,
+                                azimuth_beamwidth_rad=azimuth_beamwidth_rad)
 
 
 def ping_from_raw_sonar_image(
@@ -87,7 +88,7 @@ def ping_from_raw_sonar_image(
     ValueError, GeometryError
         Inconsistent sizes, a non-positive sample rate, an implausible sound speed or angles.
     """
-    from sonarmap.io.rosbag import _decode_image, _stamp_ns, elevation_from_ping_info
+    from sonarmap.io.rosbag import _decode_image, _stamp_ns, azimuth_from_ping_info, elevation_from_ping_info
 
     rx = np.asarray(msg.rx_angles, dtype=np.float64).reshape(-1)
     n_samples = int(msg.samples_per_beam)
@@ -107,6 +108,7 @@ def ping_from_raw_sonar_image(
     geom, order = _sample_geometry(
         np.ascontiguousarray(rx).tobytes(), n_samples, int(msg.sample0), c, fs,
         float(msg.ping_info.frequency), _name(msg, topic), elevation_from_ping_info(msg.ping_info),
+        azimuth_from_ping_info(msg.ping_info),
     )
     image = _decode_image(msg.image, n_samples, rx.size)
     if order is not None:
@@ -131,7 +133,7 @@ def ping_from_legacy_image(msg: Any, path: Path, topic: str, idx: int, override:
     ValueError, GeometryError
         Inconsistent sizes, unknown ``data_size``, non-finite angles or ranges.
     """
-    from sonarmap.io.rosbag import _message_geometry, _scale_pixels, _stamp_ns
+    from sonarmap.io.rosbag import _message_geometry, _scale_pixels, _stamp_ns, two_way_beamwidth
 
     az = np.asarray(msg.azimuth_angles, dtype=np.float64).reshape(-1)
     ranges = np.asarray(msg.ranges, dtype=np.float32).reshape(-1)
@@ -151,6 +153,7 @@ def ping_from_legacy_image(msg: Any, path: Path, topic: str, idx: int, override:
     geom, order = _message_geometry(
         np.ascontiguousarray(az).tobytes(), ranges.tobytes(), float(msg.frequency), float(msg.sound_speed),
         _name(msg, topic), plausible_elevation_beamwidth(getattr(msg, "elevation_beamwidth", None)),
+        two_way_beamwidth(getattr(msg, "azimuth_beamwidth", None)),
     )
     dt = dt.newbyteorder(">" if msg.is_bigendian else "<")
     image = _scale_pixels(raw.view(dt).reshape(ranges.size, az.size))
