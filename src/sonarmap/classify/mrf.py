@@ -431,14 +431,14 @@ class _Workspace(threading.local):
         self.arrays: dict[tuple[int, int], tuple[NDArray[Any], ...]] = {}
 
     def get(self, h: int, w: int) -> tuple[NDArray[Any], ...]:
-        """``(fixed, node, stack)`` of :func:`sonarmap.classify._kernels.reduce_binary`."""
+        """``(node, stack)`` of :func:`sonarmap.classify._kernels.free_graph` and the reductions
+        (nothing returned lives in them: the labels are a fresh array)."""
         key = (h, w)
         arr = self.arrays.get(key)
         if arr is None:
             if len(self.arrays) > 4:
                 self.arrays.clear()
             arr = (
-                np.empty((h, w), dtype=np.int8),
                 np.empty((h, w), dtype=np.int64),
                 np.empty(h * w + 1, dtype=np.int64),
             )
@@ -460,6 +460,10 @@ _WORK = _Workspace()
 #: same pings (identical labels again).
 _REDUCTION_SWEEPS = 2
 _CHAIN_PASSES = 6
+#: Largest level table for which the first reduction pass reads a per-level outcome table
+#: (:func:`sonarmap.classify._kernels.reduce_uniform4`) instead of testing every pixel; a general
+#: unary (one level per pixel) keeps the pixel test.
+_TABLE_LEVELS = 1024
 
 
 def _graphcut_lut(
@@ -477,24 +481,28 @@ def _graphcut_lut(
     direction have one weight), so the reduction reads scalars instead of ``wt`` inside the lattice
     and, for a 4-neighbourhood, the chain reduction replaces the single-pixel sweeps.
     """
-    from sonarmap.classify._kernels import energy_lut, free_graph, reduce_binary, reduce_chains, write_free_labels
+    from sonarmap.classify._kernels import energy_lut, free_graph, reduce_binary, reduce_chains, reduce_uniform4
 
     h, w = levels.shape
     if wtot is None:
         wtot = _total_weight(wt)
-    fixed, node, stack = _WORK.get(h, w)
+    node, stack = _WORK.get(h, w)
+    # the reductions' pixel states (0, 1, or -1 free) become the labels once the cut has set the
+    # free pixels: a fresh array, so no lattice pass copies them out of a work array
+    fixed = np.empty((h, w), dtype=np.int8)
     margin_lut = np.ascontiguousarray(cost_lut[0] - cost_lut[1])
     pair = _uniform_pair(wt) if uniform else _NOT_UNIFORM
     chains = pair.size == 2 and _CHAIN_PASSES > 0
-    n_free = reduce_binary(levels, margin_lut, wt, wtot, fixed, stack, pair, 0 if chains else _REDUCTION_SWEEPS)
+    if chains and margin_lut.size <= _TABLE_LEVELS:
+        n_free = reduce_uniform4(levels, margin_lut, wt, wtot, fixed, stack, pair[0], pair[1])
+    else:
+        n_free = reduce_binary(levels, margin_lut, wt, wtot, fixed, stack, pair, 0 if chains else _REDUCTION_SWEEPS)
     if n_free and chains:
         n_free = reduce_chains(levels, margin_lut, fixed, stack, n_free, pair[0], pair[1], _CHAIN_PASSES)
-    x = np.zeros(1, dtype=np.uint8)
     if n_free:
         m_eff, ei, ej, ew = free_graph(levels, margin_lut, wt, fixed, node, stack, n_free)
-        x = _cut(m_eff, ei, ej, ew)[0].astype(np.uint8)
-    labels = np.empty((h, w), dtype=np.uint8)
-    write_free_labels(fixed, node, x, labels)
+        fixed.reshape(-1)[stack[:n_free]] = _cut(m_eff, ei, ej, ew)[0]
+    labels = fixed.view(np.uint8)
     e = float(energy_lut(levels, cost_lut, wt, labels)) if with_energy else math.nan
     return labels, e, int(n_free)
 

@@ -1,0 +1,79 @@
+"""The table-driven first reduction pass against the pixel test it replaces, and the level-table
+graph cut (uint8 levels, the pipeline's path) against the unreduced solution - also with ties."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from sonarmap.classify import mrf
+from sonarmap.classify._kernels import reduce_binary, reduce_chains, reduce_uniform4
+
+
+def _problem(seed: int, kind: str) -> tuple[np.ndarray, np.ndarray]:
+    """uint8 levels and a 256-level margin table: quarter-integer margins (exact ties), normal
+    ones, or bright stripes along the beams (long runs, as in sonar images)."""
+    rng = np.random.default_rng(seed)
+    h, w = (int(v) for v in rng.integers(3, 48, 2))
+    if kind == "ties":
+        margin = rng.integers(-24, 25, 256) * 0.25
+    else:
+        margin = rng.normal(0, 3, 256)
+    levels = rng.integers(0, 256, (h, w))
+    if kind == "stripes":
+        margin = np.sort(margin)
+        levels = np.where(np.arange(h)[:, None] % 9 < 2, rng.integers(180, 256, (h, w)), rng.integers(0, 200, (h, w)))
+    return levels.astype(np.uint8), margin
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(0, 2**31 - 1), st.sampled_from([0.5, 1.0, 2.0, 1.37]), st.sampled_from([1.0, 0.25, 0.3]),
+       st.sampled_from(["ties", "normal", "stripes"]))
+def test_table_pass_equals_the_pixel_test(seed, beta, range_weight, kind):
+    """:func:`reduce_uniform4` fixes the same pixels to the same labels and lists the same free
+    pixels, in the same order, as the first pass of :func:`reduce_binary`; the chain reduction
+    after either is the same too."""
+    levels, margin = _problem(seed, kind)
+    h, w = levels.shape
+    wt, wtot = mrf._uniform(h, w, 4, beta, range_weight)
+    pair = mrf._uniform_pair(wt)
+    ref_fixed, ref_stack = np.empty((h, w), np.int8), np.empty(h * w + 1, np.int64)
+    fixed, stack = np.empty((h, w), np.int8), np.empty(h * w + 1, np.int64)
+    n_ref = reduce_binary(levels, margin, wt, wtot, ref_fixed, ref_stack, pair, 0)
+    n = reduce_uniform4(levels, margin, wt, wtot, fixed, stack, pair[0], pair[1])
+    assert n == n_ref
+    np.testing.assert_array_equal(fixed, ref_fixed)
+    np.testing.assert_array_equal(stack[:n], ref_stack[:n_ref])
+    if n:
+        n_ref = reduce_chains(levels, margin, ref_fixed, ref_stack, n_ref, pair[0], pair[1], 6)
+        n = reduce_chains(levels, margin, fixed, stack, n, pair[0], pair[1], 6)
+        assert n == n_ref
+        np.testing.assert_array_equal(fixed, ref_fixed)
+        np.testing.assert_array_equal(stack[:n], ref_stack[:n_ref])
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 2**31 - 1), st.sampled_from([0.5, 1.0, 2.0]), st.sampled_from([1.0, 0.25]),
+       st.sampled_from(["ties", "normal", "stripes"]))
+def test_level_table_cut_keeps_the_least_minimiser(seed, beta, range_weight, kind):
+    """The pipeline's path (uint8 levels, a 256-level table, :func:`mrf.graphcut_levels_labels`)
+    gives the labels of the single-pixel reduction with full sweeps and no chains, with exact ties
+    too, and the full-lattice cut's energy; the labels are a fresh array each call."""
+    levels, margin = _problem(seed, kind)
+    h, w = levels.shape
+    lut = np.stack([np.maximum(margin, 0), np.maximum(-margin, 0)])
+    labels = mrf.graphcut_levels_labels(levels, lut, beta=beta, range_weight=range_weight)
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(mrf, "_CHAIN_PASSES", 0)
+        mp.setattr(mrf, "_REDUCTION_SWEEPS", 256)
+        ref = mrf.solve_graphcut_levels(levels, lut, beta=beta, range_weight=range_weight)
+    assert labels.dtype == np.uint8
+    np.testing.assert_array_equal(labels, ref.labels)
+    wt = mrf.pairwise_weights((h, w), beta=beta, range_weight=range_weight)
+    full = mrf.solve_graphcut(lut[:, levels], weights=wt, reduce=False)
+    assert mrf.energy(labels, lut[:, levels], weights=wt) == pytest.approx(full.energy, abs=1e-9)
+    again = mrf.graphcut_levels_labels(levels, lut, beta=beta, range_weight=range_weight)
+    assert not np.shares_memory(again, labels)
+    np.testing.assert_array_equal(again, labels)
