@@ -108,6 +108,136 @@ def anneal(unary, weights, labels, temperatures, seed):  # pragma: no cover - nu
                 labels[i, j] = choice
 
 
+@njit(cache=True, nogil=True)
+def level_cost_table(lp, prior, with_prior, floor):  # pragma: no cover - numba
+    """The per-level cost table of :func:`sonarmap.classify.segment.level_costs`, elementwise as
+    its numpy form computes it: ``v = lp[k, l] + prior[k]`` (without ``with_prior``: ``lp[k, l]``),
+    NaN and ``-inf`` -> ``floor``, ``+inf`` -> 0, ``cost = -max(v, floor)``, less the level's
+    least cost."""
+    n_cls, n = lp.shape
+    cost = np.empty((n_cls, n))
+    for lev in range(n):
+        low = np.inf
+        for k in range(n_cls):
+            v = lp[k, lev] + prior[k] if with_prior else lp[k, lev]
+            if np.isnan(v) or v == -np.inf:
+                v = floor
+            elif v == np.inf:
+                v = 0.0
+            c = -(v if v > floor else floor)
+            cost[k, lev] = c
+            if c < low:
+                low = c
+        for k in range(n_cls):
+            cost[k, lev] = cost[k, lev] - low
+    return cost
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _pairwise_block(a, lo, n):  # pragma: no cover - numba
+    """numpy's float64 pairwise summation of ``a[lo:lo + n]`` for ``n <= 128``: a plain loop
+    below 8 terms, else 8 interleaved partial sums combined as a tree, then the remainder."""
+    if n < 8:
+        res = 0.0
+        for t in range(n):
+            res += a[lo + t]
+        return res
+    r0 = a[lo]
+    r1 = a[lo + 1]
+    r2 = a[lo + 2]
+    r3 = a[lo + 3]
+    r4 = a[lo + 4]
+    r5 = a[lo + 5]
+    r6 = a[lo + 6]
+    r7 = a[lo + 7]
+    t = 8
+    while t < n - n % 8:
+        r0 += a[lo + t]
+        r1 += a[lo + t + 1]
+        r2 += a[lo + t + 2]
+        r3 += a[lo + t + 3]
+        r4 += a[lo + t + 4]
+        r5 += a[lo + t + 5]
+        r6 += a[lo + t + 6]
+        r7 += a[lo + t + 7]
+        t += 8
+    res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
+    while t < n:
+        res += a[lo + t]
+        t += 1
+    return res
+
+
+@njit(cache=True, nogil=True)
+def _pairwise_sum(a, lo, n):  # pragma: no cover - numba
+    """``a[lo:lo + n].sum()`` exactly as numpy computes it for float64: pairwise summation,
+    :func:`_pairwise_block` up to 128 terms, above that the sum of the two halves (the first
+    half's length rounded down to a multiple of 8).  The recursion is unrolled into an explicit
+    post-order traversal (numba does not cache recursive functions reliably)."""
+    if n <= 128:
+        return _pairwise_block(a, lo, n)
+    f_lo = np.empty(64, dtype=np.int64)
+    f_n = np.empty(64, dtype=np.int64)
+    f_done = np.empty(64, dtype=np.bool_)
+    vals = np.empty(64)
+    f_lo[0] = lo
+    f_n[0] = n
+    f_done[0] = False
+    top = 1
+    nv = 0
+    while top > 0:
+        top -= 1
+        s = f_lo[top]
+        m = f_n[top]
+        if m <= 128:
+            vals[nv] = _pairwise_block(a, s, m)
+            nv += 1
+        elif f_done[top]:
+            nv -= 1
+            vals[nv - 1] = vals[nv - 1] + vals[nv]      # left half + right half
+        else:
+            m2 = m // 2
+            m2 -= m2 % 8
+            f_done[top] = True                        # combine after both halves
+            f_lo[top + 1] = s + m2                    # right half, evaluated second
+            f_n[top + 1] = m - m2
+            f_done[top + 1] = False
+            f_lo[top + 2] = s                         # left half, evaluated first
+            f_n[top + 2] = m2
+            f_done[top + 2] = False
+            top += 3
+    return vals[0]
+
+
+@njit(cache=True, nogil=True)
+def decision_rates_pmf(pmf, det, prior):  # pragma: no cover - numba
+    """``(pd, pfa)`` of :func:`sonarmap.classify.segment.decision_pd_pfa` from the class pmfs
+    ``(n_classes, n_levels)``, the detected levels and the class priors, with numpy's float64
+    summation order (:func:`_pairwise_sum`) and Python's ``min`` / ``max``, so bit for bit its
+    numpy form for two classes (with more, numpy's row sums of ``pmf[1:][:, det]`` are not
+    pairwise per row): pFA the background's pmf summed over the detected levels, pD the object
+    classes' sums weighted by their priors over the object prior."""
+    n_cls, n = pmf.shape
+    sel = np.empty(n)
+    m = 0
+    for lev in range(n):
+        if det[lev]:
+            sel[m] = pmf[0, lev]
+            m += 1
+    pfa = _pairwise_sum(sel, 0, m)
+    weighted = np.empty(n_cls - 1)
+    for c in range(1, n_cls):
+        m = 0
+        for lev in range(n):
+            if det[lev]:
+                sel[m] = pmf[c, lev]
+                m += 1
+        weighted[c - 1] = _pairwise_sum(sel, 0, m) * prior[c]
+    den = _pairwise_sum(prior, 1, n_cls - 1)
+    pd = _pairwise_sum(weighted, 0, n_cls - 1) / (1e-300 if 1e-300 > den else den)
+    return (1.0 if 1.0 < pd else pd), (1.0 if 1.0 < pfa else pfa)
+
+
 @njit(cache=True, nogil=True, inline="always")
 def _pull(f, wt, acc):  # pragma: no cover - numba
     """(free weight, margin change) contribution of one neighbour state ``f``."""

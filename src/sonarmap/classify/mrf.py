@@ -491,14 +491,16 @@ def _graphcut_lut(
     # free pixels: a fresh array, so no lattice pass copies them out of a work array
     fixed = np.empty((h, w), dtype=np.int8)
     margin_lut = np.ascontiguousarray(cost_lut[0] - cost_lut[1])
-    pair = _uniform_pair(wt) if uniform else _NOT_UNIFORM
-    chains = pair.size == 2 and _CHAIN_PASSES > 0
+    # uniform 4-neighbourhood (the pipeline's): the chain reduction replaces the sweeps
+    chains = uniform and wt.shape[0] == 2 and h >= 3 and w >= 3 and _CHAIN_PASSES > 0
+    wr, wb = (float(wt[0, 1, 1]), float(wt[1, 1, 1])) if chains else (0.0, 0.0)
     if chains and margin_lut.size <= _TABLE_LEVELS:
-        n_free = reduce_uniform4(levels, margin_lut, wt, wtot, fixed, stack, pair[0], pair[1])
+        n_free = reduce_uniform4(levels, margin_lut, wt, wtot, fixed, stack, wr, wb)
     else:
+        pair = _uniform_pair(wt) if uniform else _NOT_UNIFORM
         n_free = reduce_binary(levels, margin_lut, wt, wtot, fixed, stack, pair, 0 if chains else _REDUCTION_SWEEPS)
     if n_free and chains:
-        n_free = reduce_chains(levels, margin_lut, fixed, stack, n_free, pair[0], pair[1], _CHAIN_PASSES)
+        n_free = reduce_chains(levels, margin_lut, fixed, stack, n_free, wr, wb, _CHAIN_PASSES)
     if n_free:
         m_eff, ei, ej, ew = free_graph(levels, margin_lut, wt, fixed, node, stack, n_free)
         fixed.reshape(-1)[stack[:n_free]] = _cut(m_eff, ei, ej, ew)[0]
@@ -523,7 +525,7 @@ def graphcut_levels_labels(
     lev = np.asarray(levels)
     lut = np.ascontiguousarray(cost_lut, dtype=np.float64)
     if (lev.ndim != 2 or lev.dtype != np.uint8 or lut.ndim != 2 or lut.shape[0] != 2 or lut.shape[1] < 256
-            or neighbourhood not in (4, 8) or not np.isfinite(lut).all()):
+            or neighbourhood not in (4, 8) or not math.isfinite(float(lut.sum()))):
         return solve_graphcut_levels(levels, cost_lut, beta=beta, neighbourhood=neighbourhood,
                                      range_weight=range_weight).labels
     h, w = lev.shape

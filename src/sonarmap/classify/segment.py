@@ -60,17 +60,21 @@ def level_costs(class_log_pmf: ArrayLike, class_log_prior: ArrayLike | None = No
     -------
     ndarray of float64, shape (n_classes, n_levels)
     """
-    lp = np.asarray(class_log_pmf, dtype=np.float64)
+    from sonarmap.classify._kernels import level_cost_table
+
+    lp = np.ascontiguousarray(class_log_pmf, dtype=np.float64)
     if lp.ndim != 2 or lp.shape[0] < 2:
         raise InputError(f"class_log_pmf: expected (n_classes >= 2, n_levels), got {lp.shape}")
+    pr = _NO_PRIOR
     if class_log_prior is not None:
-        pr = np.asarray(class_log_prior, dtype=np.float64).reshape(-1)
+        pr = np.ascontiguousarray(class_log_prior, dtype=np.float64).reshape(-1)
         if pr.size != lp.shape[0]:
             raise InputError(f"class_log_prior: {pr.size} entries for {lp.shape[0]} classes")
-        lp = lp + pr[:, None]
-    lp = np.nan_to_num(lp, nan=floor, neginf=floor, posinf=0.0)
-    cost = -np.maximum(lp, floor)
-    return cost - cost.min(axis=0, keepdims=True)  # type: ignore[no-any-return]
+    # one pass over the table (numpy's nan_to_num / maximum / min / subtract, elementwise the same)
+    return level_cost_table(lp, pr, class_log_prior is not None, float(floor))  # type: ignore[no-any-return]
+
+
+_NO_PRIOR = np.zeros(0)
 
 
 def _class_prior(fit: Any, prior_min: float) -> NDArray[np.float64]:
@@ -122,6 +126,13 @@ def decision_pd_pfa(fit: Any, decision: ArrayLike) -> tuple[float, float]:
     pmf = np.asarray(fit.class_pmf())
     det = np.asarray(decision) != 0
     prior = np.asarray(fit.class_prior())
+    if (pmf.dtype == np.float64 and pmf.ndim == 2 and pmf.shape[0] == 2 and det.shape == pmf.shape[1:]
+            and prior.dtype == np.float64 and prior.shape == (2,)):
+        # two classes (the pipeline's): one kernel, numpy's summation order (same bits)
+        from sonarmap.classify._kernels import decision_rates_pmf
+
+        pd, pfa = decision_rates_pmf(np.ascontiguousarray(pmf), det, prior)
+        return float(pd), float(pfa)
     pfa = float(pmf[0][det].sum())
     pd = float((pmf[1:][:, det].sum(axis=1) * prior[1:]).sum() / max(float(prior[1:].sum()), 1e-300))
     return min(pd, 1.0), min(pfa, 1.0)
@@ -143,7 +154,10 @@ def _decision_table(fit: Any, config: ClassifyConfig) -> NDArray[Any]:
 
 def _table_rates(fit: Any, method: str, table: NDArray[Any]) -> tuple[float, float]:
     """pD / pFA of the decision a :func:`_decision_table` makes (the MRF's: its unary's argmin)."""
-    return decision_pd_pfa(fit, table if method == "map" else np.argmin(table, axis=0))
+    if method == "map":
+        return decision_pd_pfa(fit, table)
+    # the unary's argmin (first least cost); two classes: label 1 where it costs strictly less
+    return decision_pd_pfa(fit, table[1] < table[0] if table.shape[0] == 2 else np.argmin(table, axis=0))
 
 
 def decision_rates(fit: Any, config: ClassifyConfig = ClassifyConfig()) -> tuple[float, float]:
