@@ -175,9 +175,30 @@ def _mean(kind: int, x: np.ndarray, eta: float, u: np.ndarray) -> float:
 
 
 @njit(cache=True, nogil=True)
+def _eval_cached(kind: int, x: np.ndarray, eta: float, c: int, U: np.ndarray, EC: np.ndarray) -> tuple[float, float, float]:
+    """:func:`_eval` of component ``c`` into ``U[c]``, reused when ``U[c]`` already holds it.
+
+    ``EC[c] = (eta, Z, sum u T, sum u T^2)`` of the last evaluation into ``U[c]`` (``eta`` NaN:
+    none).  An EM step evaluates a component at its ``eta`` for the E-step's pmf, then at the
+    same ``eta`` again as the M-step's first Newton iterate, and the E-step after it at the
+    Newton iterate the M-step ended on: the cache gives each of them the one evaluation - the
+    same numbers, since :func:`_eval` is a pure function of ``(kind, x, eta)``.
+    """
+    if EC[c, 0] == eta:
+        return EC[c, 1], EC[c, 2], EC[c, 3]
+    z, s1, s2 = _eval(kind, x, eta, U[c])
+    EC[c, 0] = eta
+    EC[c, 1] = z
+    EC[c, 2] = s1
+    EC[c, 3] = s2
+    return z, s1, s2
+
+
+@njit(cache=True, nogil=True)
 def _solve(kind: int, x: np.ndarray, target: float, eta0: float, lo: float, hi: float,
-           m_lo: float, m_hi: float, u: np.ndarray) -> float:
-    """``eta`` in ``[lo, hi]`` with ``E_eta[T] = target`` (clamped to the bounds)."""
+           m_lo: float, m_hi: float, c: int, U: np.ndarray, EC: np.ndarray) -> float:
+    """``eta`` in ``[lo, hi]`` with ``E_eta[T] = target`` (clamped to the bounds); the
+    evaluations go through the cache ``(U, EC)`` of component ``c`` (:func:`_eval_cached`)."""
     if target <= m_lo:
         return lo
     if target >= m_hi:
@@ -186,7 +207,7 @@ def _solve(kind: int, x: np.ndarray, target: float, eta0: float, lo: float, hi: 
     b = hi
     eta = min(max(eta0, lo), hi)
     for _ in range(100):
-        z, s1, s2 = _eval(kind, x, eta, u)
+        z, s1, s2 = _eval_cached(kind, x, eta, c, U, EC)
         m = s1 / z
         v = s2 / z - m * m
         g = m - target
@@ -210,7 +231,9 @@ def _solve(kind: int, x: np.ndarray, target: float, eta0: float, lo: float, hi: 
 def solve_eta_kind(kind: int, x: np.ndarray, target: float, eta0: float, lo: float, hi: float) -> float:
     """Exact M-step of one exponential (``kind 1``) or Rayleigh (``kind 2``) component."""
     u = np.empty(x.shape[0])
-    return _solve(kind, x, target, eta0, lo, hi, _mean(kind, x, lo, u), _mean(kind, x, hi, u), u)
+    U = np.empty((1, x.shape[0]))
+    EC = np.full((1, 4), np.nan)
+    return _solve(kind, x, target, eta0, lo, hi, _mean(kind, x, lo, u), _mean(kind, x, hi, u), 0, U, EC)
 
 
 @njit(cache=True, nogil=True)
@@ -247,11 +270,15 @@ def _eta_mean_bounds(kind: np.ndarray, x: np.ndarray, lo: np.ndarray, hi: np.nda
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _eta_pmf(kind: int, x: np.ndarray, eta: float, u: np.ndarray, P: np.ndarray, c: int) -> None:
-    """Row ``c`` of ``P``: the normalised pmf of a kind 1-2 component (``u`` is scratch)."""
-    z, _, _ = _eval(kind, x, eta, u)
+def _eta_pmf(kind: int, x: np.ndarray, eta: float, occ: np.ndarray, P: np.ndarray, c: int, U: np.ndarray,
+             EC: np.ndarray) -> None:
+    """Row ``c`` of ``P`` on the occupied levels ``occ`` (the only ones the E-step reads): the
+    normalised pmf of a kind 1-2 component, evaluated through the cache ``(U, EC)``."""
+    z, _, _ = _eval_cached(kind, x, eta, c, U, EC)
     inv = 1.0 / z
-    for k in range(x.shape[0]):
+    u = U[c]
+    for jj in range(occ.shape[0]):
+        k = occ[jj]
         P[c, k] = u[k] * inv
 
 
@@ -806,11 +833,11 @@ def _mstep2(kind: int, par: np.ndarray, lo: np.ndarray, hi: np.ndarray, x: np.nd
 
 
 @njit(cache=True, nogil=True)
-def _estep_general(counts, x, xe, lx, kind, par, w, occ, P, Rsp, Nc, tbar, pk, u, V, GR, HS, SC,
+def _estep_general(counts, x, xe, lx, kind, par, w, occ, P, Rsp, Nc, tbar, pk, U, EC, V, GR, HS, SC,
                    cur, keep) -> float:
-    """Component pmfs at ``(par, w)`` (two-parameter ones from their slots), ``Nc``, ``tbar``
-    and with ``keep`` the responsibilities ``Rsp`` (the M-step of kinds 3-6 needs them);
-    returns the log-likelihood."""
+    """Component pmfs at ``(par, w)`` (two-parameter ones from their slots, kinds 1-2 on the
+    occupied levels through the cache ``(U, EC)``), ``Nc``, ``tbar`` and with ``keep`` the
+    responsibilities ``Rsp`` (the M-step of kinds 3-6 needs them); returns the log-likelihood."""
     C = kind.shape[0]
     L = x.shape[0]
     for c in range(C):
@@ -818,7 +845,7 @@ def _estep_general(counts, x, xe, lx, kind, par, w, occ, P, Rsp, Nc, tbar, pk, u
         if kc == 0:
             P[c, 0] = 1.0
         elif kc <= 2:
-            _eta_pmf(kc, x, par[c, 0], u, P, c)
+            _eta_pmf(kc, x, par[c, 0], occ, P, c, U, EC)
         else:
             s = _slot_at(kc, par[c, 0], par[c, 1], x, xe, lx, V[c], GR[c], HS[c], SC[c], cur[c])
             cur[c] = s
@@ -830,7 +857,7 @@ def _estep_general(counts, x, xe, lx, kind, par, w, occ, P, Rsp, Nc, tbar, pk, u
 
 
 @njit(cache=True, nogil=True)
-def _mstep_general(x, xe, lx, kind, par, w, lo, hi, N, Rsp, Nc, tbar, m_lo, m_hi, u, V, GR, HS, SC,
+def _mstep_general(x, xe, lx, kind, par, w, lo, hi, N, Rsp, Nc, tbar, m_lo, m_hi, U, EC, V, GR, HS, SC,
                    cur, max_newton) -> None:
     C = kind.shape[0]
     for c in range(C):
@@ -840,7 +867,7 @@ def _mstep_general(x, xe, lx, kind, par, w, lo, hi, N, Rsp, Nc, tbar, m_lo, m_hi
             continue
         if kc <= 2:
             par[c, 0] = _solve(kc, x, tbar[c] / Nc[c], par[c, 0], lo[c, 0], hi[c, 0],
-                               m_lo[c], m_hi[c], u)
+                               m_lo[c], m_hi[c], c, U, EC)
         else:
             cur[c] = _mstep2(kc, par[c], lo[c], hi[c], x, xe, lx, Rsp[c], Nc[c], V[c], GR[c],
                              HS[c], SC[c], cur[c], max_newton)
@@ -1011,14 +1038,17 @@ def em_general_kernel(
     h = x[1] - x[0]
     xe = x.copy()
     xe[0] = 0.5 * h
-    lx = np.log(xe)
-    occ, N = _occupied(counts)
-    P = np.zeros((C, L))
-    Rsp = np.zeros((C, L))
-    u = np.empty(L)
     keep = False  # responsibilities per level: only the Newton M-step of kinds 3-6 needs them
     for c in range(C):
         keep = keep or kind[c] >= 3
+    lx = np.log(xe) if keep else xe  # log levels: only kinds 3-6 read them
+    occ, N = _occupied(counts)
+    P = np.zeros((C, L))
+    Rsp = np.zeros((C, L)) if keep else np.zeros((C, 1))
+    u = np.empty(L)
+    # kinds 1-2: each component's last evaluation (:func:`_eval_cached`)
+    U = np.empty((C, L))
+    EC = np.full((C, 4), np.nan)
     # two evaluation slots per two-parameter component (see _eval_slot); sc NaN = empty
     Ls = L if keep else 1
     V = np.empty((C, 2, 4, Ls))
@@ -1032,11 +1062,11 @@ def em_general_kernel(
     pk = np.empty(C)
 
     def estep() -> float:
-        return _estep_general(counts, x, xe, lx, kind, par, w, occ, P, Rsp, Nc, tbar, pk, u, V, GR, HS,
+        return _estep_general(counts, x, xe, lx, kind, par, w, occ, P, Rsp, Nc, tbar, pk, U, EC, V, GR, HS,
                               SC, cur, keep)
 
     def mstep() -> None:
-        _mstep_general(x, xe, lx, kind, par, w, lo, hi, N, Rsp, Nc, tbar, m_lo, m_hi, u, V, GR, HS,
+        _mstep_general(x, xe, lx, kind, par, w, lo, hi, N, Rsp, Nc, tbar, m_lo, m_hi, U, EC, V, GR, HS,
                        SC, cur, max_newton)
 
     Y = np.empty((4, 3 * C))  # SQUAREM: coordinates of x0, x1, x2 and the extrapolated point
