@@ -113,6 +113,26 @@ def levels_kernel(flat: np.ndarray, zero, one, scale, n: int, floor: bool, lut: 
     return True
 
 
+@njit(cache=True, nogil=True)
+def monotone_rows(lp: np.ndarray) -> None:  # pragma: no cover - numba
+    """In place on ``lp (n_classes, L)``: every row ``c >= 1`` raised to ``lp[0] + running max of
+    (lp[c] - lp[0])`` where that is finite and above the row (see
+    :func:`sonarmap.stats.mixture.monotone_object_log_pmf`, whose numpy expression this is element
+    for element: ``np.maximum.accumulate``'s ``m >= d or isnan(m)``, the same sums)."""
+    bg = lp[0]
+    for c in range(1, lp.shape[0]):
+        row = lp[c]
+        m = -np.inf
+        for k in range(lp.shape[1]):
+            d = row[k] - bg[k]
+            if not math.isfinite(d):
+                d = -np.inf
+            if k == 0 or not (m >= d or m != m):
+                m = d
+            if math.isfinite(bg[k]) and math.isfinite(m) and d < m:
+                row[k] = bg[k] + m
+
+
 # ---------------------------------------------------------------------------- EM
 
 

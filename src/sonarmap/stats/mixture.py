@@ -289,17 +289,12 @@ def monotone_object_log_pmf(class_log_pmf: ArrayLike) -> NDArray[np.float64]:
         where that is finite; unchanged (bit for bit) wherever the ratio is at its running maximum,
         where the background is impossible, and in the background row.
     """
+    from sonarmap.stats._em_kernels import monotone_rows
+
     lp = np.array(class_log_pmf, dtype=np.float64)
     if lp.ndim != 2 or lp.shape[0] < 1:
         raise InputError(f"class_log_pmf: expected (n_classes, n_levels), got {np.shape(class_log_pmf)}")
-    bg = lp[0]
-    for c in range(1, lp.shape[0]):
-        with np.errstate(invalid="ignore"):
-            d = lp[c] - bg
-        d = np.where(np.isfinite(d), d, -np.inf)
-        m = np.maximum.accumulate(d)
-        raise_ = np.isfinite(bg) & np.isfinite(m) & (d < m)
-        lp[c] = np.where(raise_, bg + m, lp[c])
+    monotone_rows(lp)
     return lp
 
 
@@ -420,8 +415,11 @@ class MixtureFit:
     @property
     def object_weight(self) -> float:
         """Total weight of the non-background classes."""
-        cls = np.asarray(self.component_classes)
-        return float(self.weights[cls != 0].sum())
+        cached = self._cache.get("object_weight")
+        if cached is None:
+            cls = np.asarray(self.component_classes)
+            cached = self._cache["object_weight"] = float(self.weights[cls != 0].sum())
+        return cached  # type: ignore[no-any-return]
 
     @property
     def ok(self) -> bool:
@@ -434,9 +432,24 @@ class MixtureFit:
         not flagged ``all_zero`` or ``degenerate``."""
         return len(self.class_names) >= 2 and not self.flags & {"all_zero", "degenerate"}
 
+    def _cached(self, key: str, make: Any) -> NDArray[np.float64]:
+        """The read-only array ``make()`` computed once per fit under ``key`` (the fit is immutable)."""
+        cached = self._cache.get(key)
+        if cached is None:
+            cached = np.asarray(make())
+            cached.setflags(write=False)
+            self._cache[key] = cached
+        return cached  # type: ignore[no-any-return]
+
     def component_pmfs(self) -> NDArray[np.float64]:
         """``p_c(k)`` per component, shape ``(n_components, L)``, each summing to 1."""
-        return component_pmf_matrix(self.component_names, self.params, self.levels, self.discretization)
+        return self._pmf_matrix().copy()
+
+    def _pmf_matrix(self) -> NDArray[np.float64]:
+        """:meth:`component_pmfs`, read-only, computed once (:func:`fit_mixture` hands over the
+        matrix it computed for the KLD)."""
+        return self._cached("component_pmfs", lambda: component_pmf_matrix(
+            self.component_names, self.params, self.levels, self.discretization))
 
     def component_log_pmfs(self) -> NDArray[np.float64]:
         """``log p_c(k)`` per component, shape ``(n_components, L)`` (``-inf`` where zero)."""
@@ -445,7 +458,7 @@ class MixtureFit:
 
     def pmf(self) -> NDArray[np.float64]:
         """Mixture pmf on the levels, shape ``(L,)``, summing to 1 (eq. 8)."""
-        return self.weights @ self.component_pmfs()
+        return self.weights @ self._pmf_matrix()
 
     def empirical_pmf(self) -> NDArray[np.float64]:
         """Normalised histogram ``p_hat``, shape ``(L,)``."""
@@ -453,8 +466,9 @@ class MixtureFit:
 
     def class_prior(self) -> NDArray[np.float64]:
         """Prior probability of each class (sum of its component weights), shape ``(n_classes,)``."""
-        return np.bincount(np.asarray(self.component_classes), weights=self.weights,
-                           minlength=len(self.class_names)).astype(np.float64)
+        return self._cached("class_prior", lambda: np.bincount(
+            np.asarray(self.component_classes), weights=self.weights,
+            minlength=len(self.class_names)).astype(np.float64)).copy()
 
     def class_log_pmf(self) -> NDArray[np.float64]:
         """``log p(level | class)``, shape ``(n_classes, L)``, each class normalised over levels.
@@ -462,12 +476,7 @@ class MixtureFit:
         A class with zero weight uses the equal-weight average of its components' pmfs, so the
         result is always a proper pmf (classification with a zero prior is then well defined).
         """
-        cached = self._cache.get("class_log_pmf")
-        if cached is None:
-            cached = self._class_log_pmf()
-            cached.setflags(write=False)
-            self._cache["class_log_pmf"] = cached
-        return cached.copy()
+        return self._cached("class_log_pmf", self._class_log_pmf).copy()
 
     def decision_log_pmf(self) -> NDArray[np.float64]:
         """:meth:`class_log_pmf` as the decisions use it: each object class's log-likelihood ratio
@@ -491,15 +500,11 @@ class MixtureFit:
         -------
         ndarray of float64, shape (n_classes, L)
         """
-        cached = self._cache.get("decision_log_pmf")
-        if cached is None:
-            cached = monotone_object_log_pmf(self.class_log_pmf())
-            cached.setflags(write=False)
-            self._cache["decision_log_pmf"] = cached
-        return cached.copy()  # type: ignore[no-any-return]
+        return self._cached("decision_log_pmf",
+                            lambda: monotone_object_log_pmf(self._cached("class_log_pmf", self._class_log_pmf))).copy()
 
     def _class_log_pmf(self) -> NDArray[np.float64]:
-        comp = self.component_pmfs()
+        comp = self._pmf_matrix()
         cls = np.asarray(self.component_classes)
         mix = np.empty((len(self.class_names), self.n_levels))
         for j in range(len(self.class_names)):
@@ -513,7 +518,7 @@ class MixtureFit:
 
     def class_pmf(self) -> NDArray[np.float64]:
         """``p(level | class)``, shape ``(n_classes, L)``."""
-        return np.exp(self.class_log_pmf())
+        return self._cached("class_pmf", lambda: np.exp(self._cached("class_log_pmf", self._class_log_pmf))).copy()
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-compatible summary (parameters, diagnostics, flags)."""
@@ -1254,7 +1259,8 @@ def _finished_fit(problem: _FitProblem, raw: _RawFit, flags: set[str], *, method
     spec, counts = problem.spec, problem.counts
     w = np.clip(np.asarray(raw.weights, dtype=np.float64), 0.0, None)
     w = w / w.sum()
-    q = w @ _pmfs(spec, raw.params)
+    pmfs = _pmfs(spec, raw.params)
+    q = w @ pmfs
     kld = _model_kld(counts, q, spec.discretization)
     ll = _loglik(counts, q)
     if not math.isfinite(kld):
@@ -1266,7 +1272,7 @@ def _finished_fit(problem: _FitProblem, raw: _RawFit, flags: set[str], *, method
     w.setflags(write=False)
     spec.levels.setflags(write=False)
     counts.setflags(write=False)
-    return MixtureFit(
+    fit = MixtureFit(
         weights=w,
         params=tuple(tuple(float(v) for v in p) for p in params),
         component_names=spec.names,
@@ -1284,6 +1290,11 @@ def _finished_fit(problem: _FitProblem, raw: _RawFit, flags: set[str], *, method
         loglik_trace=raw.loglik_trace,
         discretization=spec.discretization,
     )
+    if all(p is q for p, q in zip(params, raw.params)):
+        # the fit's own parameters (none reported at a bound): its component pmfs are these
+        pmfs.setflags(write=False)
+        fit._cache["component_pmfs"] = pmfs
+    return fit
 
 
 def fit_mixture(
