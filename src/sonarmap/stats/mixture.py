@@ -610,57 +610,81 @@ def _initial_guesses(
     spec: _Spec, counts: NDArray[np.float64]
 ) -> list[tuple[NDArray[np.float64], list[tuple[float, ...]]]]:
     """Data-driven starting points (several object scales), the preferred one first."""
-    x = spec.levels
-    N = float(counts.sum())
-    frac0 = float(counts[0]) / N
-    cdf = np.cumsum(counts[1:])
-    n_nz = float(cdf[-1])
-    if n_nz > 0:
-        q50 = float(x[min(int(np.searchsorted(cdf, 0.5 * n_nz)) + 1, x.size - 1)])
-        q99 = float(x[min(int(np.searchsorted(cdf, 0.99 * n_nz)) + 1, x.size - 1)])
-    else:
-        q50, q99 = 2 * spec.smin, 10 * spec.smin
-    lo_s, hi_s = 2 * spec.smin, spec.smax / 2
-    bg_scale = min(max(q50 / math.log(2.0), spec.smin * 1.5), hi_s)
-    # the first start is the one used alone when its fit looks sound (see ``_needs_restart``);
-    # q99 / 2 comes last: it can lead EM to an object that mimics the background
-    obj_scales: list[float] = []
-    for s in (q99, 4 * bg_scale, q99 / 2.0):
-        s = min(max(s, lo_s), hi_s)
-        if s not in obj_scales:
-            obj_scales.append(s)
-    starts = []
+    return list(_Starts(spec, counts))
+
+
+class _Starts(Sequence[tuple[NDArray[np.float64], list[tuple[float, ...]]]]):
+    """:func:`_initial_guesses` as a sequence that builds each start when it is first asked for
+    (the fitters use the first alone unless its result looks unsound, see :func:`_em_best`)."""
+
+    def __init__(self, spec: _Spec, counts: NDArray[np.float64]) -> None:
+        x = spec.levels
+        N = float(counts.sum())
+        self._spec = spec
+        self._frac0 = float(counts[0]) / N
+        cdf = np.cumsum(counts[1:])
+        n_nz = float(cdf[-1])
+        if n_nz > 0:
+            q50 = float(x[min(int(np.searchsorted(cdf, 0.5 * n_nz)) + 1, x.size - 1)])
+            q99 = float(x[min(int(np.searchsorted(cdf, 0.99 * n_nz)) + 1, x.size - 1)])
+        else:
+            q50, q99 = 2 * spec.smin, 10 * spec.smin
+        lo_s, hi_s = 2 * spec.smin, spec.smax / 2
+        self._bg_scale = bg_scale = min(max(q50 / math.log(2.0), spec.smin * 1.5), hi_s)
+        # the first start is the one used alone when its fit looks sound (see ``_needs_restart``);
+        # q99 / 2 comes last: it can lead EM to an object that mimics the background
+        obj_scales: list[float] = []
+        for s in (q99, 4 * bg_scale, q99 / 2.0):
+            s = min(max(s, lo_s), hi_s)
+            if s not in obj_scales:
+                obj_scales.append(s)
+        self._obj_scales = obj_scales
+        self._made: dict[int, tuple[NDArray[np.float64], list[tuple[float, ...]]]] = {}
+
+    def __len__(self) -> int:
+        return len(self._obj_scales)
+
+    def __getitem__(self, i: Any) -> Any:
+        if isinstance(i, slice):
+            return [self[j] for j in range(*i.indices(len(self)))]
+        i = range(len(self))[i]  # IndexError past the end, negative indices
+        if i not in self._made:
+            self._made[i] = _start_at(self._spec, self._frac0, self._bg_scale, self._obj_scales[i])
+        return self._made[i]
+
+
+def _start_at(spec: _Spec, frac0: float, bg_scale: float, so: float
+              ) -> tuple[NDArray[np.float64], list[tuple[float, ...]]]:
+    """The start of :func:`_initial_guesses` with background scale ``bg_scale`` and object scale ``so``."""
+    params: list[tuple[float, ...]] = []
+    w = np.zeros(len(spec.names))
     free = spec.free
     n_obj = len(free) - 1
-    for so in obj_scales:
-        params: list[tuple[float, ...]] = []
-        w = np.zeros(len(spec.names))
-        for j, i in enumerate(free):
-            name = spec.names[i]
-            scale = bg_scale if j == 0 else so * (1.0 + 0.5 * (j - 1))
-            if name == "rayleigh":
-                p: tuple[float, ...] = (scale / math.sqrt(math.pi / 2) if j == 0 else scale,)
-            elif name == "exponential":
-                p = (scale,)
-            elif name == "gamma":
-                p = (2.0, scale / 2.0)
-            elif name == "weibull":
-                p = (1.5, scale)
-            elif name == "k":
-                # moderately heavy-tailed start; the mean intensity matches the exponential's
-                p = (4.0, scale)
-            else:  # rice
-                p = (0.8 * scale, 0.3 * scale)
-            params.append(p)
-            w[i] = (1.0 - frac0) * (0.95 if j == 0 else 0.05 / max(n_obj, 1)) if spec.spike else (
-                0.95 if j == 0 else 0.05 / max(n_obj, 1)
-            )
-        if spec.spike:
-            w[0] = 1.0 - w.sum()
-        w = w / w.sum()
-        full = [() if n == "zero" else params[free.index(i)] for i, n in enumerate(spec.names)]
-        starts.append((w, full))
-    return starts
+    for j, i in enumerate(free):
+        name = spec.names[i]
+        scale = bg_scale if j == 0 else so * (1.0 + 0.5 * (j - 1))
+        if name == "rayleigh":
+            p: tuple[float, ...] = (scale / math.sqrt(math.pi / 2) if j == 0 else scale,)
+        elif name == "exponential":
+            p = (scale,)
+        elif name == "gamma":
+            p = (2.0, scale / 2.0)
+        elif name == "weibull":
+            p = (1.5, scale)
+        elif name == "k":
+            # moderately heavy-tailed start; the mean intensity matches the exponential's
+            p = (4.0, scale)
+        else:  # rice
+            p = (0.8 * scale, 0.3 * scale)
+        params.append(p)
+        w[i] = (1.0 - frac0) * (0.95 if j == 0 else 0.05 / max(n_obj, 1)) if spec.spike else (
+            0.95 if j == 0 else 0.05 / max(n_obj, 1)
+        )
+    if spec.spike:
+        w[0] = 1.0 - w.sum()
+    w = w / w.sum()
+    full = [() if n == "zero" else params[free.index(i)] for i, n in enumerate(spec.names)]
+    return w, full
 
 
 def _bounds(spec: _Spec, name: str) -> list[tuple[float, float]]:
@@ -772,7 +796,7 @@ def _general_coords(spec: _Spec, params0: list[tuple[float, ...]]) -> _KernelArg
 def _em_best(
     spec: _Spec,
     counts: NDArray[np.float64],
-    starts: list[tuple[NDArray[np.float64], list[tuple[float, ...]]]],
+    starts: Sequence[tuple[NDArray[np.float64], list[tuple[float, ...]]]],
     max_iter: int,
     tol: float,
     min_weight: float,
@@ -1111,11 +1135,11 @@ def _input_flags(counts: NDArray[np.float64], n_clipped: int, zero_spike: bool) 
     return flags
 
 
-def _lsq_fit(spec: _Spec, counts: NDArray[np.float64], starts: list[Any], loss: str, min_weight: float, *,
+def _lsq_fit(spec: _Spec, counts: NDArray[np.float64], starts: Sequence[Any], loss: str, min_weight: float, *,
              warm: bool, accel: bool = True) -> tuple[NDArray[np.float64], list[tuple[float, ...]], int, bool]:
     """The least-squares fit (eq. 10); with ``warm`` (no caller's init) it starts from a short EM
     fit, and from the paper's p0 only when that result looks unsound."""
-    lsq_starts = list(starts)
+    lsq_starts = [] if warm else list(starts)
     if warm:
         em_out = _em_best(spec, counts, starts, 200, 1e-9, min_weight, accel)
         lsq_starts = [(em_out[0], em_out[1])]
@@ -1198,11 +1222,11 @@ def _fit_problem(data: ArrayLike, families: Sequence[str], *, method: str, zero_
 
 def _starting_points(spec: _Spec, counts: NDArray[np.float64],
                      init: tuple[ArrayLike, Sequence[tuple[float, ...]]] | None
-                     ) -> list[tuple[NDArray[np.float64], list[tuple[float, ...]]]]:
+                     ) -> Sequence[tuple[NDArray[np.float64], list[tuple[float, ...]]]]:
     """The caller's ``init`` (checked, weights normalised) as the one start, else the initial
     guesses of :func:`_initial_guesses`."""
     if init is None:
-        return _initial_guesses(spec, counts)
+        return _Starts(spec, counts)
     names = spec.names
     w_init = np.asarray(init[0], dtype=np.float64)
     p_init = [tuple(float(v) for v in p) for p in init[1]]
