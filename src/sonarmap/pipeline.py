@@ -338,10 +338,18 @@ def _p_detect(pd: float, pd_range: float, ranges: BeamRanges, thickness: NDArray
     if not (math.isfinite(pd) and math.isfinite(pd_range)) or pd <= 0:
         return np.full(n, np.nan if not math.isfinite(pd_range) else pd_range, dtype=np.float32)
     t = np.asarray(thickness, dtype=np.float64)
-    fill = float(np.median(t[ranges.valid])) if ranges.n_returns else 1.0
-    t = np.where(ranges.valid, np.maximum(t, 1.0), max(fill, 1.0))
+    valid = ranges.valid
+    tv = np.sort(t[valid])
+    if tv.size:
+        # np.median of the (NaN-free) thicknesses: the middle one, or the mean of the middle two
+        h = tv.size // 2
+        fill = float(tv[h]) if tv.size % 2 else (float(tv[h - 1]) + float(tv[h])) / 2.0
+        fill = math.nan if math.isnan(tv[-1]) else fill  # np.sort puts NaN last
+    else:
+        fill = 1.0
+    t = np.where(valid, np.maximum(t, 1.0), max(fill, 1.0))
     f = 1.0 - (1.0 - min(pd, 1.0)) ** t
-    mean = float(f[ranges.valid].mean()) if ranges.n_returns else float(f.mean())
+    mean = float(f[valid].mean()) if tv.size else float(f.mean())
     return np.clip(pd_range * f / max(mean, 1e-12), 0.0, 1.0).astype(np.float32)
 
 
@@ -349,7 +357,7 @@ def _pd_range(pd: float, labels: NDArray[np.uint8], ranges: BeamRanges, flags: s
     """``pd`` times the fraction of detecting beams that kept a return (see ``PingProducts.pd_range``)."""
     if "no_fit" in flags or not math.isfinite(pd):
         return math.nan
-    detecting = int(np.count_nonzero((labels >= 1).any(axis=0) | (ranges.bin >= 0)))
+    detecting = int(np.count_nonzero(labels.any(axis=0) | (ranges.bin >= 0)))  # uint8: >= 1 is != 0
     if detecting == 0:
         return pd
     return pd * ranges.n_returns / detecting
