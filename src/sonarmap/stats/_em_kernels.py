@@ -343,6 +343,55 @@ def _responsibilities(counts: np.ndarray, x: np.ndarray, kind: np.ndarray, w: np
     return ll
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _responsibilities_012(counts: np.ndarray, x: np.ndarray, w: np.ndarray, occ: np.ndarray, U: np.ndarray,
+                          inv1: float, inv2: float, Nc: np.ndarray, tbar: np.ndarray) -> float:
+    """:func:`_responsibilities` (``keep`` False) of the spike, one exponential and one Rayleigh
+    (kinds ``0, 1, 2``: the pipeline's model), with the pmfs ``P[c, k] = U[c, k] * inv_c`` formed
+    where they are used: the same operations in the same order, in registers."""
+    w0 = w[0]
+    w1 = w[1]
+    w2 = w[2]
+    n0 = 0.0
+    n1 = 0.0
+    n2 = 0.0
+    t1 = 0.0
+    t2 = 0.0
+    ll = 0.0
+    u1 = U[1]
+    u2 = U[2]
+    for jj in range(occ.shape[0]):
+        k = occ[jj]
+        n = counts[k]
+        v0 = w0 * (1.0 if k == 0 else 0.0)
+        v1 = w1 * (u1[k] * inv1)
+        v2 = w2 * (u2[k] * inv2)
+        s = 0.0 + v0
+        s += v1
+        s += v2
+        if s <= 0:
+            ll = -np.inf
+            continue
+        ll += n * np.log(s)
+        f = n / s
+        xk = x[k]
+        r0 = v0 * f
+        r1 = v1 * f
+        r2 = v2 * f
+        n0 += r0
+        n1 += r1
+        n2 += r2
+        t1 += r1 * xk
+        t2 += r2 * xk * xk
+    Nc[0] = n0
+    Nc[1] = n1
+    Nc[2] = n2
+    tbar[0] = 0.0
+    tbar[1] = t1
+    tbar[2] = t2
+    return ll
+
+
 # ---------------------------------------------------------------------------- general EM
 #
 # Two-parameter families, in the coordinates the M-step works in (``kind``: coordinates):
@@ -860,6 +909,10 @@ def _estep_general(counts, x, xe, lx, kind, par, w, occ, P, Rsp, Nc, tbar, pk, U
     responsibilities ``Rsp`` (the M-step of kinds 3-6 needs them); returns the log-likelihood."""
     C = kind.shape[0]
     L = x.shape[0]
+    if not keep and C == 3 and kind[0] == 0 and kind[1] == 1 and kind[2] == 2:
+        z1, _, _ = _eval_cached(1, x, par[1, 0], 1, U, EC)
+        z2, _, _ = _eval_cached(2, x, par[2, 0], 2, U, EC)
+        return _responsibilities_012(counts, x, w, occ, U, 1.0 / z1, 1.0 / z2, Nc, tbar)
     for c in range(C):
         kc = kind[c]
         if kc == 0:
