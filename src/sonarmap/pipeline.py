@@ -318,9 +318,18 @@ def _model_image(raw: NDArray[np.float32], geom: Any, config: PipelineConfig, re
         from sonarmap.preprocess.pipeline import preprocess_image
 
         image = preprocess_image(raw, geom, pre)
-    if constant or not np.any(image > 0) or float(image.max()) == float(image.min()):
+    if constant or _flat(image):
         return _Modelled(image, normalised, background, None, 0)
     return _Modelled(image, normalised, background, _classify(image, config, gate=True), 0)
+
+
+def _flat(image: NDArray[np.float32]) -> bool:
+    """No positive pixel, or one value everywhere (``not np.any(image > 0) or max == min``; for
+    an image without NaN ``np.any(image > 0)`` is ``max > 0``, which saves a pass)."""
+    hi, lo = float(image.max()), float(image.min())
+    if math.isnan(hi):
+        return not np.any(image > 0)  # NaN compares unequal: max == min is False
+    return not hi > 0 or hi == lo
 
 
 def _p_detect(pd: float, pd_range: float, ranges: BeamRanges, thickness: NDArray[np.int64]) -> NDArray[np.float32]:
