@@ -150,13 +150,13 @@ def _classify(image: NDArray[np.float32], config: PipelineConfig, gate: bool = F
     ping: its labels are all background).  ``levels`` and ``fit``, when given, are the image's
     levels and their fit (not recomputed)."""
     from sonarmap.classify.segment import decision_rates, segment
-    from sonarmap.stats.mixture import quantize
-    from sonarmap.stats.model import fit_levels
+    from sonarmap.stats.mixture import quantize_counts
+    from sonarmap.stats.model import fit_counts
 
     if levels is None or fit is None:
-        # the intensity model (eq. 8-11): quantised levels and their mixture fit
-        levels = quantize(image, config.fit.n_levels)
-        fit = fit_levels(levels, config.fit)
+        # the intensity model (eq. 8-11): quantised levels and the mixture fit of their histogram
+        levels, counts = quantize_counts(image, config.fit.n_levels)
+        fit = fit_counts(counts, config.fit)
     gates = _gates(fit, config) if gate else frozenset()
     if gates:
         pd, pfa = decision_rates(fit, config.classify)

@@ -131,3 +131,23 @@ def test_monotone_object_log_pmf_equals_the_numpy_expression(seed):
     want = _monotone_reference(lp)
     assert got.tobytes() == want.tobytes()
     assert monotone_object_log_pmf(lp.T.copy().T).tobytes() == want.tobytes()  # Fortran-ordered input
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_quantize_counts_is_quantize_and_its_histogram(seed):
+    from sonarmap.errors import InputError
+    from sonarmap.stats.mixture import quantize, quantize_counts
+
+    rng = np.random.default_rng(seed)
+    shape = (int(rng.integers(1, 70)), int(rng.integers(1, 40)))
+    dtype = np.float32 if seed % 2 else np.float64
+    image = np.where(rng.random(shape) < 0.5, 0.0, rng.uniform(-0.2, 1.3, shape)).astype(dtype)
+    for n_levels, binning in ((256, "round"), (256, "floor"), (300, "round"), (17, "floor")):
+        levels, counts = quantize_counts(image, n_levels, binning=binning)
+        want = quantize(image, n_levels, binning=binning)
+        assert levels.dtype == want.dtype and np.array_equal(levels, want)
+        assert counts.dtype == np.float64
+        assert np.array_equal(counts, np.bincount(want.ravel(), minlength=n_levels).astype(np.float64))
+    image[0, 0] = np.nan
+    with pytest.raises(InputError):
+        quantize_counts(image)

@@ -133,6 +133,38 @@ def monotone_rows(lp: np.ndarray) -> None:  # pragma: no cover - numba
                 row[k] = bg[k] + m
 
 
+@njit(cache=True, nogil=True)
+def levels_counts_kernel(flat: np.ndarray, zero, one, scale, n: int, floor: bool, out: np.ndarray,
+                         counts: np.ndarray) -> bool:
+    """:func:`levels_kernel` (no table) and, in the same pass, the histogram of the levels into
+    ``counts (n,)`` as float64 (:func:`level_counts` of ``out``: four interleaved partial
+    histograms); False if a value is not finite."""
+    part = np.zeros((4, n), dtype=np.int64)
+    acc = zero
+    m = flat.shape[0]
+    m4 = m - m % 4
+    for i in range(0, m4, 4):
+        for j in range(4):
+            y = flat[i + j]
+            acc += y * zero
+            if acc != acc:
+                return False
+            k = _level(y, zero, one, scale, n, floor)
+            out[i + j] = k
+            part[j, k] += 1
+    for i in range(m4, m):
+        y = flat[i]
+        acc += y * zero
+        if acc != acc:
+            return False
+        k = _level(y, zero, one, scale, n, floor)
+        out[i] = k
+        part[0, k] += 1
+    for v in range(n):
+        counts[v] = float(part[0, v] + part[1, v] + part[2, v] + part[3, v])
+    return True
+
+
 # ---------------------------------------------------------------------------- EM
 
 

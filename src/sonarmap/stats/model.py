@@ -1,8 +1,9 @@
 """The intensity-model stage of the per-ping pipeline: the mixture fit of an image's levels and
 the gates that refuse an implausible fit.
 
-:func:`fit_levels` and :func:`failed_gates` are what :func:`sonarmap.pipeline.process_ping` runs
-after pre-processing or normalisation; called alone with the default
+:func:`fit_counts` (of :func:`sonarmap.stats.mixture.quantize_counts`' histogram, i.e.
+:func:`fit_levels` of the level image) and :func:`failed_gates` are what
+:func:`sonarmap.pipeline.process_ping` runs after pre-processing or normalisation; called alone with the default
 :class:`~sonarmap.stats.config.FitConfig` they give the default pipeline's fit.
 """
 
