@@ -85,9 +85,11 @@ def class_separation(fit: MixtureFit) -> float:
     wo = w[obj]
     if not bg_mean > 0:
         return math.nan
-    if not wo.sum() > 0:
+    wo_sum = wo.sum()
+    if not wo_sum > 0:
         wo = np.ones(len(obj))
-    obj_mean = float((wo / wo.sum()) @ (comp[obj] @ levels))
+        wo_sum = wo.sum()
+    obj_mean = float((wo / wo_sum) @ (comp[obj] @ levels))
     return obj_mean / bg_mean
 
 
@@ -130,19 +132,21 @@ def _kld_unclipped(fit: MixtureFit) -> tuple[float, float]:
     (saturated surfaces: the ``clipped`` flag, a censored bin the pmfs do not model) - the other
     levels, both pmfs renormalised there."""
     counts = np.asarray(fit.counts, dtype=np.float64)
-    if "clipped" not in fit.flags and not counts[-1] > 0.01 * counts.sum():
+    total = counts.sum()
+    if "clipped" not in fit.flags and not counts[-1] > 0.01 * total:
         kld = float(fit.kld) if math.isfinite(fit.kld) else math.inf
     else:
         from sonarmap.stats.mixture import kl_divergence
 
         q = np.asarray(fit.pmf(), dtype=np.float64)[:-1]
         counts = counts[:-1]
-        if not q.sum() > 0 or not counts.sum() > 0:
+        total = counts.sum()
+        if not q.sum() > 0 or not total > 0:
             return math.inf, 0.0
         kld = float(kl_divergence(counts, q / q.sum()))
-    if not counts.sum() > 0:
+    if not total > 0:
         return kld, 0.0
-    return kld, sampling_kld(float(counts.sum()), int(np.count_nonzero(counts)), fit.n_params)
+    return kld, sampling_kld(float(total), int(np.count_nonzero(counts)), fit.n_params)
 
 
 def fit_gates(fit: MixtureFit, *, max_kld: float = 0.05, max_object_weight: float = 0.5,
