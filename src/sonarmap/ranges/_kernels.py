@@ -1463,6 +1463,42 @@ def excess_ratio_rows(raw, level, full, log_db, r0, r1, out):  # pragma: no cove
 
 
 @njit(cache=True, nogil=True)
+def excess_ratio_grid(raw, level, grid, c0, c1, fc, g0, g1, gf, log_db, r0, r1, out):  # pragma: no cover - numba
+    """:func:`excess_ratio_rows` with the beam factor interpolated from its block ``grid`` on the
+    fly (``full`` = :func:`sonarmap.preprocess.normalise.expand_grid` of it, the same float32
+    operations: across beams with weights ``c0, c1, fc``, then along range with ``g0, g1, gf``;
+    a grid of 0 rows: factor 1), only on rows ``r0 .. r1 - 1``, which are overwritten (0 where
+    the ratio is not above 1); ``raw`` of any real dtype (taken as float32)."""
+    n, m = raw.shape
+    nb = grid.shape[0]
+    cols = np.ones((max(nb, 1), m), np.float32)
+    one = np.float32(1.0)
+    for q in range(nb):
+        for j in range(m):
+            cols[q, j] = grid[q, c0[j]] * (one - fc[j]) + grid[q, c1[j]] * fc[j]
+    k = log_db * np.log(10.0) / 10.0
+    for i in range(max(r0, 0), min(r1, n)):
+        a = cols[g0[i]] if nb > 0 else cols[0]
+        b = cols[g1[i]] if nb > 0 else cols[0]
+        f = gf[i] if nb > 0 else np.float32(0.0)
+        g = one - f
+        for j in range(m):
+            full = a[j] * g + b[j] * f if nb > 0 else one
+            bb = level[i] * full
+            v = 0.0
+            if log_db > 0:
+                x = k * (np.float32(raw[i, j]) - bb)
+                if x > 0.0:
+                    if x > 69.0:
+                        x = 69.0
+                    v = np.exp(x) - 1.0
+            else:
+                v = np.float32(raw[i, j]) / max(bb, 1e-12) - 1.0
+            out[i, j] = v if v > 0.0 else 0.0
+    return out
+
+
+@njit(cache=True, nogil=True)
 def first_clipped_rows(img, cols, lo, hi, level):  # pragma: no cover - numba
     """Per ``k``, the first row in ``lo[k] .. hi[k] - 1`` of column ``cols[k]`` of ``img`` that
     reaches ``level`` (-1 if none)."""

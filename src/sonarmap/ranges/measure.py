@@ -15,7 +15,9 @@ the background, linear in intensity).  Called alone with the default
 
 from __future__ import annotations
 
+import functools
 import math
+import threading
 from typing import Any
 
 import numpy as np
@@ -151,38 +153,74 @@ def _continuation(echoes: Any, first: NDArray[np.int64], levels: NDArray[Any], l
     return extra if hit else None
 
 
+@functools.lru_cache(maxsize=64)
+def _block_weights(n: int, nb: int) -> tuple[NDArray[np.intp], NDArray[np.intp], NDArray[np.float32]]:
+    """``(i0, i1, f)`` of :func:`sonarmap.preprocess.normalise.expand_grid`'s bilinear weights
+    along an axis of ``n`` samples and ``nb`` blocks: sample ``k`` lies ``f[k]`` of the way from
+    block centre ``i0[k]`` to ``i1[k]`` (edges held); tests/ranges/test_measurement_rows.py checks
+    the expansion against ``expand_grid`` bit for bit."""
+    x = np.clip((np.arange(n) + 0.5) * nb / n - 0.5, 0, nb - 1)
+    i0 = np.minimum(x.astype(np.intp), max(nb - 2, 0))
+    i1 = np.minimum(i0 + 1, nb - 1)
+    f = (x - i0).astype(np.float32)
+    for a in (i0, i1, f):
+        a.setflags(write=False)
+    return i0, i1, f
+
+
+_WORK = threading.local()
+
+
+def _work_image(shape: tuple[int, int]) -> tuple[NDArray[np.float64], list[int]]:
+    """This thread's float64 work image of ``shape`` and ``[lo, hi)``, the rows that may be non-zero
+    (a fresh image on the thread's first call of a shape: no page faults per ping; nothing returned
+    by :func:`surface_ranges` lives in it)."""
+    cached = getattr(_WORK, "image", None)
+    if cached is None or cached[0].shape != shape:
+        cached = (np.zeros(shape), [0, 0])
+        _WORK.image = cached
+    return cached
+
+
 def _measurement_rows(ping: Ping, background: Any, config: RangeConfig, r0: int, r1: int,
                       done: list[Any]) -> NDArray[np.float64]:
     """``measurement_image(ping, background, config, rows=(r0, r1))``, or the image of an earlier
     call when its rows cover these.
 
     ``done`` is ``[]`` or ``[image, (r0, r1), inputs]`` of the earlier call on the same ping
-    (updated in place): a new image reuses the inputs (the beam factor on the full lattice) and
-    that image's memory, computing only the rows it lacks and zeroing those outside the new rows
-    (each pixel's value does not depend on the others: the same image, bit for bit).
+    (updated in place): a new image reuses the inputs and that image's memory (this thread's
+    work image, :func:`_work_image`), computing only the rows it lacks and zeroing those outside
+    the new rows (each pixel's value does not depend on the others: the same image, bit for bit).
+    The beam factor is interpolated from its block grid on the measured rows only
+    (:func:`_kernels.excess_ratio_grid`).
     """
-    from sonarmap.ranges._kernels import excess_ratio_rows
-    from sonarmap.preprocess.normalise import expand_grid
+    from sonarmap.ranges._kernels import excess_ratio_grid
 
-    n = ping.image.shape[0]
+    n, m = ping.image.shape
     a, b = max(r0, 0), min(r1, n)
     if not done:
-        raw = np.ascontiguousarray(ping.image, dtype=np.float32)
+        raw = np.ascontiguousarray(ping.image)
+        if raw.dtype.kind not in "fiu":
+            raw = np.ascontiguousarray(raw, dtype=np.float32)
         level = np.ascontiguousarray(background.level_by_bin, dtype=np.float32)
-        full = (np.ones(raw.shape, np.float32) if background.beam_factor is None
-                else np.ascontiguousarray(expand_grid(background.beam_factor, raw.shape), dtype=np.float32))
+        grid = (np.ones((0, 1), np.float32) if background.beam_factor is None
+                else np.ascontiguousarray(background.beam_factor, dtype=np.float32))
         d = _log_range_db(ping, config)
-        done[:] = [np.zeros(raw.shape), (0, 0), (raw, level, full, float(d) if d is not None else 0.0)]
-    out, (a0, b0), inputs = done
+        out, dirty = _work_image((n, m))
+        weights = (*_block_weights(m, grid.shape[1]), *_block_weights(n, max(grid.shape[0], 1)))
+        done[:] = [out, (0, 0), (raw, level, grid, *weights, float(d) if d is not None else 0.0), dirty]
+    out, (a0, b0), inputs, dirty = done
     if done[1] != (0, 0) and a >= a0 and b <= b0:
         return out
-    for lo, hi in ((a0, min(b0, a)), (max(a0, b), b0)):  # rows no longer measured
+    for lo, hi in ((dirty[0], min(dirty[1], a)), (max(dirty[0], b), dirty[1])):  # rows no longer measured
         if hi > lo:
             out[lo:hi] = 0.0
-    for lo, hi in ((a, min(b, a0)), (max(a, b0), b)):  # rows not measured yet
+    dirty[:] = [min(dirty[0], a), max(dirty[1], b)]  # (should a kernel fail half-way)
+    for lo, hi in ((a, min(b, a0)), (max(a, b0), b)):  # rows not measured yet (on this ping)
         if hi > lo:
-            excess_ratio_rows(*inputs, lo, hi, out)
+            excess_ratio_grid(*inputs, lo, hi, out)
     done[1] = (a, b)
+    dirty[:] = [a, b]
     return out
 
 
