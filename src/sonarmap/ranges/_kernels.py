@@ -56,13 +56,47 @@ def find_echoes(mask, img, code, lut, boost, boost_min, max_gap, fraction, peak_
     at least ``boost_min`` where ``boost`` (shape (1, 1): nowhere) is set) and its number of
     structure pixels.
     """
-    has_boost = boost.shape[0] == mask.shape[0]
-    n, m = mask.shape
     # the structure pixels of every column in range order, from one pass over the rows (a scan
     # down each column of the mostly empty mask was most of the kernel's time)
     col_first, rows = _column_pixels(mask)
+    return _echoes_of_columns(mask, img, code, lut, boost, boost_min, max_gap, fraction, peak_rel, back, forward,
+                              np.arange(mask.shape[1]), col_first, rows)
+
+
+@njit(cache=True, nogil=True)
+def find_echoes_in(mask, img, code, lut, boost, boost_min, max_gap, fraction, peak_rel, back, forward,
+                   cols):  # pragma: no cover - numba
+    """:func:`find_echoes` on the columns ``cols`` only (ascending): the echoes of those beams, the
+    same as :func:`find_echoes` gives them (each beam's echoes depend on its column alone)."""
+    n = mask.shape[0]
+    col_first = np.zeros(cols.size + 1, np.int64)
+    for c in range(cols.size):
+        j = cols[c]
+        col_first[c + 1] = col_first[c]
+        for i in range(n):
+            if mask[i, j]:
+                col_first[c + 1] += 1
+    rows = np.empty(col_first[cols.size], np.int64)
+    for c in range(cols.size):
+        j = cols[c]
+        t = col_first[c]
+        for i in range(n):
+            if mask[i, j]:
+                rows[t] = i
+                t += 1
+    return _echoes_of_columns(mask, img, code, lut, boost, boost_min, max_gap, fraction, peak_rel, back, forward,
+                              cols, col_first, rows)
+
+
+@njit(cache=True, nogil=True)
+def _echoes_of_columns(mask, img, code, lut, boost, boost_min, max_gap, fraction, peak_rel, back, forward, cols,
+                       col_first, rows):  # pragma: no cover - numba
+    """The echoes of :func:`find_echoes` on the columns ``cols``, whose structure pixels are at
+    rows ``rows[col_first[c] : col_first[c + 1]]`` (ascending) for column ``cols[c]``."""
+    has_boost = boost.shape[0] == mask.shape[0]
+    n = mask.shape[0]
     # echoes are separated by more than max_gap bins: an upper bound of their number
-    n_echoes = m * (n // (max_gap + 2) + 1)
+    n_echoes = cols.size * (n // (max_gap + 2) + 1)
     beam = np.empty(n_echoes, np.int64)
     start = np.empty(n_echoes, np.int64)
     stop = np.empty(n_echoes, np.int64)
@@ -74,9 +108,10 @@ def find_echoes(mask, img, code, lut, boost, boost_min, max_gap, fraction, peak_
     n_pix = np.empty(n_echoes, np.int64)
     step = max(max_gap, 0) + 1  # the farthest next structure pixel of the same echo
     k = 0
-    for j in range(m):
-        t = col_first[j]
-        t_end = col_first[j + 1]
+    for c in range(cols.size):
+        j = cols[c]
+        t = col_first[c]
+        t_end = col_first[c + 1]
         while t < t_end:
             # an echo: structure pixels at most max_gap background bins apart
             s = rows[t]
@@ -1037,7 +1072,8 @@ def continuation_mask(levels, lut, edge, stop, run, min_run, max_beams, window_b
 def continuation_extra(extra, cand, first, edge_bin):  # pragma: no cover - numba
     """The continuation pixels of :func:`sonarmap.ranges.measure.surface_ranges`: ``extra & ~cand``
     on the beams whose first such pixel lies in front of the beam's return (``edge_bin[first[j]]``;
-    every beam without one), and whether any is left."""
+    every beam without one), whether any is left, those beams (ascending) and the first and
+    one-past-last row holding such a pixel (``(n, 0)``: none)."""
     n, m = extra.shape
     out = np.zeros((n, m), np.bool_)
     top = np.full(m, n, np.int64)
@@ -1052,12 +1088,18 @@ def continuation_extra(extra, cand, first, edge_bin):  # pragma: no cover - numb
     for j in range(m):
         keep[j] = top[j] < n and (first[j] < 0 or top[j] < edge_bin[first[j]])
         hit = hit or keep[j]
+    r0 = n
+    r1 = 0
     if hit:
         for i in range(n):
             for j in range(m):
-                if out[i, j] and not keep[j]:
-                    out[i, j] = False
-    return out, hit
+                if out[i, j]:
+                    if not keep[j]:
+                        out[i, j] = False
+                    else:
+                        r0 = min(r0, i)
+                        r1 = i + 1
+    return out, hit, np.flatnonzero(keep), r0, r1
 
 
 @njit(cache=True, nogil=True)

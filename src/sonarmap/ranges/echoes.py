@@ -40,7 +40,7 @@ from numpy.typing import ArrayLike, NDArray
 from sonarmap.errors import InputError
 from sonarmap.geometry import SonarGeometry
 
-__all__ = ["Echoes", "find_echoes", "pooled_edges", "surface_runs", "range_sigma_m", "edge_sigma_m", "smooth_along_range", "level_llr",
+__all__ = ["Echoes", "find_echoes", "spliced_echoes", "pooled_edges", "surface_runs", "range_sigma_m", "edge_sigma_m", "smooth_along_range", "level_llr",
            "beamwidth_in_beams"]
 
 
@@ -258,6 +258,7 @@ def find_echoes(
     background: float = 0.0,
     scan: str = "back",
     sigma_scale: float = 1.0,
+    columns: NDArray[np.int64] | None = None,
 ) -> Echoes:
     """Find the echoes of a ping (see the module notes).
 
@@ -293,6 +294,9 @@ def find_echoes(
         How the crossing is found: walking from the peak towards the sonar to the first bin below
         the level (``"back"``), or from ``back`` bins in front of the echo to the first bin that
         reaches it (``"forward"``: a speckle dip on the rising flank does not stop it).
+    columns : ndarray of int64, optional
+        Only the echoes of these beams (ascending; each beam's echoes depend on its column of
+        ``mask``, ``image`` and ``levels`` alone: see :func:`spliced_echoes`).
     """
     from sonarmap.ranges import _kernels
 
@@ -307,13 +311,32 @@ def find_echoes(
         raise InputError(f"boost: shape {bst.shape} does not match mask {m.shape}")
     gap = max(2, int(pulse_bins)) if max_gap is None else int(max_gap)
     bk = int(pulse_bins) + 2 if back is None else int(back)
-    beam, start, stop, peak, pval, edge, slope, evid, npx = _kernels.find_echoes(
-        m, img, code, lut, bst, float(boost_min), gap, float(fraction), float(peak_rel), bk, scan == "forward")
+    args = (m, img, code, lut, bst, float(boost_min), gap, float(fraction), float(peak_rel), bk, scan == "forward")
+    beam, start, stop, peak, pval, edge, slope, evid, npx = (
+        _kernels.find_echoes(*args) if columns is None
+        else _kernels.find_echoes_in(*args, np.ascontiguousarray(columns, dtype=np.int64)))
     r = np.ascontiguousarray(geometry.range_m, dtype=np.float64)
     edge_r, sigma = _echo_ranges(edge, pval, slope, geometry, pulse_bins, fraction, looks, background, sigma_scale)
     return Echoes(beam=beam, start_bin=start, stop_bin=stop, peak_bin=peak, peak_value=pval, edge_bin=edge,
                   edge_range_m=edge_r, peak_range_m=r[peak], slope=slope, evidence=evid, n_pixels=npx,
                   sigma_m=sigma, n_beams=int(m.shape[1]), beamwidth_beams=beamwidth_in_beams(geometry))
+
+
+def spliced_echoes(echoes: Echoes, new: Echoes, columns: NDArray[np.int64]) -> Echoes:
+    """``echoes`` with the echoes of the beams ``columns`` replaced by ``new`` (the echoes of those
+    beams only, e.g. :func:`find_echoes` with ``columns``), sorted by beam as :func:`find_echoes`
+    sorts them; the per-echo fields of both (``clipped`` too when both have it)."""
+    keep = np.ones(echoes.n_beams, dtype=bool)
+    keep[columns] = False
+    old = np.flatnonzero(keep[echoes.beam])
+    order = np.argsort(np.concatenate([echoes.beam[old], new.beam]), kind="stable")
+    fields = ["beam", "start_bin", "stop_bin", "peak_bin", "peak_value", "edge_bin", "edge_range_m", "peak_range_m",
+              "slope", "evidence", "n_pixels", "sigma_m"]
+    both = echoes.clipped is not None and new.clipped is not None
+    if both:
+        fields.append("clipped")
+    out = echoes.replaced(**{f: np.concatenate([getattr(echoes, f)[old], getattr(new, f)])[order] for f in fields})
+    return out if both or echoes.clipped is None else out.replaced(clipped=None)  # type: ignore[arg-type]
 
 
 def beamwidth_in_beams(geometry: SonarGeometry) -> NDArray[np.float64] | None:

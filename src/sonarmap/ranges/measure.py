@@ -138,19 +138,22 @@ def measurement_image(ping: Ping, background: Any, config: RangeConfig = RangeCo
 
 
 def _continuation(echoes: Any, first: NDArray[np.int64], levels: NDArray[Any], llr_lut: NDArray[np.float64],
-                  cand: NDArray[np.bool_], config: RangeConfig) -> NDArray[np.bool_] | None:
+                  cand: NDArray[np.bool_], config: RangeConfig) -> tuple[NDArray[np.bool_], NDArray[np.int64],
+                                                                        int, int] | None:
     """A surface's faint stretch that the component rule left without candidates: pixels along
     its extrapolation where their likelihood ratio says structure, for the tracker to judge
     (:func:`sonarmap.ranges.tracking.continuation_mask`) - only where it could become the return,
-    on a beam without one or whose return lies behind it (None: no such pixel)."""
+    on a beam without one or whose return lies behind it (None: no such pixel); with the beams
+    holding them and their first and one-past-last row."""
     from sonarmap.ranges._kernels import continuation_extra
     from sonarmap.ranges.tracking import continuation_mask
 
     extra = continuation_mask(echoes, first, levels, llr_lut, min_evidence=config.continue_evidence,
                               touch_bins=config.track.touch_bins)
-    extra, hit = continuation_extra(extra, np.ascontiguousarray(cand), np.ascontiguousarray(first, dtype=np.int64),
-                                    echoes.edge_bin if echoes.size else np.zeros(1))
-    return extra if hit else None
+    extra, hit, cols, r0, r1 = continuation_extra(extra, np.ascontiguousarray(cand),
+                                                  np.ascontiguousarray(first, dtype=np.int64),
+                                                  echoes.edge_bin if echoes.size else np.zeros(1))
+    return (extra, cols, int(r0), int(r1)) if hit else None
 
 
 @functools.lru_cache(maxsize=64)
@@ -224,6 +227,16 @@ def _measurement_rows(ping: Ping, background: Any, config: RangeConfig, r0: int,
     return out
 
 
+def _rows_unseen(first: tuple[int, int], second: tuple[int, int], rows: tuple[int, int], pb: int) -> bool:
+    """Whether the measurement image rows ``second`` (a superset of ``first``) differ from
+    ``first`` only on rows that no echo of candidates on ``rows`` (first, one-past-last) reads:
+    :func:`sonarmap.ranges.echoes.find_echoes` reads from ``back + 1 = pb + 3`` bins in front of
+    an echo to one bin past it, smoothed over ``pb`` bins when ``pb >= 2``."""
+    lo = rows[0] - pb - 3 - (pb // 2 if pb >= 2 else 0)
+    hi = rows[1] + pb + 1
+    return (second[0] >= first[0] or lo >= first[0]) and (second[1] <= first[1] or hi <= first[1])
+
+
 def surface_ranges(ping: Ping, image: NDArray[np.float32], levels: NDArray[Any], mask: NDArray[np.bool_],
                    fit: Any, config: RangeConfig = RangeConfig(), candidates: CandidateConfig = CandidateConfig(), *,
                    normalised: bool = False, bg_mean: float | None = None, background: Any = None,
@@ -232,7 +245,7 @@ def surface_ranges(ping: Ping, image: NDArray[np.float32], levels: NDArray[Any],
     the number of bins each return's echo spans (0 where no return)."""
     from sonarmap.ranges import ranges_from_tracks
     from sonarmap.ranges._kernels import mask_extent
-    from sonarmap.ranges.echoes import find_echoes, level_llr, pooled_edges
+    from sonarmap.ranges.echoes import find_echoes, level_llr, pooled_edges, spliced_echoes
     from sonarmap.ranges.tracking import front_surfaces, track_surfaces
 
     geom = ping.geometry
@@ -261,27 +274,35 @@ def surface_ranges(ping: Ping, image: NDArray[np.float32], levels: NDArray[Any],
     # the image find_echoes measures unless normalised (converted once: it may measure twice)
     plain = np.ascontiguousarray(image, dtype=np.float64) if pb < 2 and not measured else image
 
-    def measure(cand: NDArray[np.bool_]) -> tuple[Any, float, Any, Any]:
+    def measure(cand: NDArray[np.bool_], rows: tuple[int, int],
+                before: tuple[Any, NDArray[np.int64], tuple[int, int]] | None = None) -> tuple[Any, float, Any, Any]:
         meas, bg = plain, bg_mean or 0.0
         if measured:
             # echo intensity above the background, in background units (its mean is 1)
-            r0, r1, _ = mask_extent(cand)
-            meas, bg = _measurement_rows(ping, background, config, r0 - pb - 4, r1 + pb + 4, done), 1.0
+            valid = done[1] if done else (0, 0)
+            meas, bg = _measurement_rows(ping, background, config, rows[0] - pb - 4, rows[1] + pb + 4, done), 1.0
+            if before is not None and not _rows_unseen(valid, done[1], before[2], pb):
+                before = None  # rows the first pass's echoes looked at have changed
         # a pooled band pixel passed a >= pool_factor x background test over the whole box: one
         # nat at least, whatever its own (single-look, speckled) value says
         echoes = find_echoes(cand, meas, geom, levels=levels, level_evidence=lut, boost=band, boost_min=1.0,
                              pulse_bins=pb, fraction=fraction, background=bg, scan=config.edge_scan,
-                             sigma_scale=config.sigma_scale)
+                             sigma_scale=config.sigma_scale, columns=None if before is None else before[1])
         if echoes.beamwidth_beams is not None and echoes.size:
             echoes = echoes.replaced(clipped=clipped_echoes(echoes, ping.image))
+        if before is not None:
+            # only the beams with new candidates were measured again (each beam's echoes depend
+            # on its own column only)
+            echoes = spliced_echoes(before[0], echoes, before[1])
         return meas, bg, echoes, track_surfaces(echoes, config.track, pb)
 
-    meas, bg, echoes, tracks = measure(cand)
+    meas, bg, echoes, tracks = measure(cand, (r0, r1))
     if config.continue_evidence > 0 and llr_lut is not None:
-        extra = _continuation(echoes, tracks.first, levels, llr_lut, cand, config)
-        if extra is not None:
+        more = _continuation(echoes, tracks.first, levels, llr_lut, cand, config)
+        if more is not None:
+            extra, cols, e0, e1 = more
             cand = cand | extra
-            meas, bg, echoes, tracks = measure(cand)
+            meas, bg, echoes, tracks = measure(cand, (min(r0, e0), max(r1, e1)), (echoes, cols, (r0, r1)))
     if config.track.front_pass:
         # after the continuation, which walks on from the passes' own surfaces
         tracks = front_surfaces(echoes, tracks, config.track, pb)

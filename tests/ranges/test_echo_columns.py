@@ -1,0 +1,41 @@
+"""Echoes of some beams only (``find_echoes(columns=...)``) spliced into a ping's echoes
+(:func:`sonarmap.ranges.echoes.spliced_echoes`) are the echoes of the whole ping, bit for bit - the
+second measuring pass of :func:`sonarmap.ranges.measure.surface_ranges` relies on it."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from sonarmap.geometry import SonarGeometry
+from sonarmap.ranges.echoes import find_echoes, spliced_echoes
+
+
+@pytest.mark.parametrize("seed", range(16))
+def test_spliced_columns_equal_whole_ping(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    n, m = int(rng.integers(8, 120)), int(rng.integers(1, 30))
+    geom = SonarGeometry(range_m=1.0 + 0.01 * np.arange(n), azimuth_rad=np.linspace(-0.3, 0.3, m),
+                         azimuth_beamwidth_rad=0.02)
+    img = rng.exponential(1.0, (n, m)).astype(np.float32)
+    levels = rng.integers(0, 16, (n, m)).astype(np.uint8)
+    lut = rng.normal(0.5, 1.0, 16)
+    boost = rng.random((n, m)) < 0.05 if seed % 3 == 0 else None
+    before = rng.random((n, m)) < rng.uniform(0.02, 0.4)
+    cols = np.flatnonzero(rng.random(m) < 0.3).astype(np.int64)
+    after = before.copy()
+    after[:, cols] |= rng.random((n, cols.size)) < 0.1
+    kw = dict(levels=levels, level_evidence=lut, boost=boost, pulse_bins=int(rng.integers(1, 4)),
+              background=0.3, scan="forward" if seed % 2 else "back")
+    whole = find_echoes(after, img, geom, **kw)
+    part = find_echoes(after, img, geom, columns=cols, **kw)
+    assert set(part.beam.tolist()) <= set(cols.tolist())
+    got = spliced_echoes(find_echoes(before, img, geom, **kw), part, cols)
+    for f in dataclasses.fields(whole):
+        a, b = getattr(whole, f.name), getattr(got, f.name)
+        if isinstance(a, np.ndarray):
+            assert a.dtype == b.dtype and np.array_equal(a, b, equal_nan=True), f.name
+        else:
+            assert a == b, f.name
