@@ -30,7 +30,9 @@ def test_spliced_columns_equal_whole_ping(seed: int) -> None:
     kw = dict(levels=levels, level_evidence=lut, boost=boost, pulse_bins=int(rng.integers(1, 4)),
               background=0.3, scan="forward" if seed % 2 else "back")
     whole = find_echoes(after, img, geom, **kw)
-    part = find_echoes(after, img, geom, columns=cols, **kw)
+    hit = np.flatnonzero(after[:, cols].any(axis=1))
+    rows = (int(hit[0]), int(hit[-1]) + 1) if hit.size and seed % 2 else None
+    part = find_echoes(after, img, geom, columns=cols, rows=rows, **kw)
     assert set(part.beam.tolist()) <= set(cols.tolist())
     got = spliced_echoes(find_echoes(before, img, geom, **kw), part, cols)
     for f in dataclasses.fields(whole):

@@ -64,23 +64,25 @@ def find_echoes(mask, img, code, lut, boost, boost_min, max_gap, fraction, peak_
 
 
 @njit(cache=True, nogil=True)
-def find_echoes_in(mask, img, code, lut, boost, boost_min, max_gap, fraction, peak_rel, back, forward,
-                   cols):  # pragma: no cover - numba
-    """:func:`find_echoes` on the columns ``cols`` only (ascending): the echoes of those beams, the
-    same as :func:`find_echoes` gives them (each beam's echoes depend on its column alone)."""
-    n = mask.shape[0]
+def find_echoes_in(mask, img, code, lut, boost, boost_min, max_gap, fraction, peak_rel, back, forward, cols, r0,
+                   r1):  # pragma: no cover - numba
+    """:func:`find_echoes` on the columns ``cols`` only (ascending), whose true pixels of ``mask``
+    lie on rows ``r0 .. r1 - 1``: the echoes of those beams, the same as :func:`find_echoes` gives
+    them (each beam's echoes depend on its column alone)."""
+    r0 = max(r0, 0)
+    r1 = min(r1, mask.shape[0])
     col_first = np.zeros(cols.size + 1, np.int64)
     for c in range(cols.size):
         j = cols[c]
         col_first[c + 1] = col_first[c]
-        for i in range(n):
+        for i in range(r0, r1):
             if mask[i, j]:
                 col_first[c + 1] += 1
     rows = np.empty(col_first[cols.size], np.int64)
     for c in range(cols.size):
         j = cols[c]
         t = col_first[c]
-        for i in range(n):
+        for i in range(r0, r1):
             if mask[i, j]:
                 rows[t] = i
                 t += 1
@@ -995,9 +997,12 @@ def _window_llr(levels, lut, j, t, thick):  # pragma: no cover - numba
 @njit(cache=True, nogil=True)
 def continuation_mask(levels, lut, edge, stop, run, min_run, max_beams, window_bins, min_evidence, max_misses):  # pragma: no cover - numba
     """Continuation pixels of tracked surfaces (see :func:`sonarmap.ranges.tracking.continuation_mask`);
-    ``lut[levels]`` is the per-pixel log-likelihood ratio."""
+    ``lut[levels]`` is the per-pixel log-likelihood ratio; also the first and one-past-last row
+    holding one (``(n, 0)``: none)."""
     n, m = levels.shape
     out = np.zeros((n, m), np.bool_)
+    r_lo = n
+    r_hi = 0
     n_runs = run.max() + 1
     tail = np.empty(10, np.int64)
     slopes = np.empty(45)
@@ -1058,6 +1063,8 @@ def continuation_mask(levels, lut, edge, stop, run, min_run, max_beams, window_b
                 if best >= min_evidence:
                     for i in range(t_best, t_best + thick):
                         out[i, j] = True
+                    r_lo = min(r_lo, t_best)
+                    r_hi = max(r_hi, t_best + thick)
                     e0 = float(t_best)
                     j0 = j
                     misses = 0
@@ -1065,41 +1072,42 @@ def continuation_mask(levels, lut, edge, stop, run, min_run, max_beams, window_b
                 misses += 1
                 if misses > max_misses:
                     break
-    return out
+    return out, r_lo, r_hi
 
 
 @njit(cache=True, nogil=True)
-def continuation_extra(extra, cand, first, edge_bin):  # pragma: no cover - numba
+def continuation_extra(extra, cand, first, edge_bin, r0, r1):  # pragma: no cover - numba
     """The continuation pixels of :func:`sonarmap.ranges.measure.surface_ranges`: ``extra & ~cand``
     on the beams whose first such pixel lies in front of the beam's return (``edge_bin[first[j]]``;
-    every beam without one), whether any is left, those beams (ascending) and the first and
-    one-past-last row holding such a pixel (``(n, 0)``: none)."""
+    every beam without one), written into ``extra`` (whose pixels all lie on rows ``r0 .. r1 - 1``);
+    whether any is left, those beams (ascending) and the first and one-past-last row holding such
+    a pixel (``(n, 0)``: none)."""
     n, m = extra.shape
-    out = np.zeros((n, m), np.bool_)
     top = np.full(m, n, np.int64)
-    for i in range(n):
+    for i in range(max(r0, 0), min(r1, n)):
         for j in range(m):
-            if extra[i, j] and not cand[i, j]:
-                out[i, j] = True
-                if top[j] == n:
+            if extra[i, j]:
+                if cand[i, j]:
+                    extra[i, j] = False
+                elif top[j] == n:
                     top[j] = i
     keep = np.zeros(m, np.bool_)
     hit = False
     for j in range(m):
         keep[j] = top[j] < n and (first[j] < 0 or top[j] < edge_bin[first[j]])
         hit = hit or keep[j]
-    r0 = n
-    r1 = 0
+    e0 = n
+    e1 = 0
     if hit:
-        for i in range(n):
+        for i in range(max(r0, 0), min(r1, n)):
             for j in range(m):
-                if out[i, j]:
+                if extra[i, j]:
                     if not keep[j]:
-                        out[i, j] = False
+                        extra[i, j] = False
                     else:
-                        r0 = min(r0, i)
-                        r1 = i + 1
-    return out, hit, np.flatnonzero(keep), r0, r1
+                        e0 = min(e0, i)
+                        e1 = i + 1
+    return extra, hit, np.flatnonzero(keep), e0, e1
 
 
 @njit(cache=True, nogil=True)

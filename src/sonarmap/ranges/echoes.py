@@ -259,6 +259,7 @@ def find_echoes(
     scan: str = "back",
     sigma_scale: float = 1.0,
     columns: NDArray[np.int64] | None = None,
+    rows: tuple[int, int] | None = None,
 ) -> Echoes:
     """Find the echoes of a ping (see the module notes).
 
@@ -297,6 +298,9 @@ def find_echoes(
     columns : ndarray of int64, optional
         Only the echoes of these beams (ascending; each beam's echoes depend on its column of
         ``mask``, ``image`` and ``levels`` alone: see :func:`spliced_echoes`).
+    rows : (int, int), optional
+        With ``columns``: the first and one-past-last row holding a ``mask`` pixel of them (the
+        rows searched; default all).
     """
     from sonarmap.ranges import _kernels
 
@@ -314,7 +318,8 @@ def find_echoes(
     args = (m, img, code, lut, bst, float(boost_min), gap, float(fraction), float(peak_rel), bk, scan == "forward")
     beam, start, stop, peak, pval, edge, slope, evid, npx = (
         _kernels.find_echoes(*args) if columns is None
-        else _kernels.find_echoes_in(*args, np.ascontiguousarray(columns, dtype=np.int64)))
+        else _kernels.find_echoes_in(*args, np.ascontiguousarray(columns, dtype=np.int64),
+                                     *((0, m.shape[0]) if rows is None else (int(rows[0]), int(rows[1])))))
     r = np.ascontiguousarray(geometry.range_m, dtype=np.float64)
     edge_r, sigma = _echo_ranges(edge, pval, slope, geometry, pulse_bins, fraction, looks, background, sigma_scale)
     return Echoes(beam=beam, start_bin=start, stop_bin=stop, peak_bin=peak, peak_value=pval, edge_bin=edge,

@@ -146,13 +146,13 @@ def _continuation(echoes: Any, first: NDArray[np.int64], levels: NDArray[Any], l
     on a beam without one or whose return lies behind it (None: no such pixel); with the beams
     holding them and their first and one-past-last row."""
     from sonarmap.ranges._kernels import continuation_extra
-    from sonarmap.ranges.tracking import continuation_mask
+    from sonarmap.ranges.tracking import _continuation_pixels
 
-    extra = continuation_mask(echoes, first, levels, llr_lut, min_evidence=config.continue_evidence,
-                              touch_bins=config.track.touch_bins)
+    extra, lo, hi = _continuation_pixels(echoes, first, levels, llr_lut, min_evidence=config.continue_evidence,
+                                         touch_bins=config.track.touch_bins)
     extra, hit, cols, r0, r1 = continuation_extra(extra, np.ascontiguousarray(cand),
                                                   np.ascontiguousarray(first, dtype=np.int64),
-                                                  echoes.edge_bin if echoes.size else np.zeros(1))
+                                                  echoes.edge_bin if echoes.size else np.zeros(1), lo, hi)
     return (extra, cols, int(r0), int(r1)) if hit else None
 
 
@@ -287,7 +287,8 @@ def surface_ranges(ping: Ping, image: NDArray[np.float32], levels: NDArray[Any],
         # nat at least, whatever its own (single-look, speckled) value says
         echoes = find_echoes(cand, meas, geom, levels=levels, level_evidence=lut, boost=band, boost_min=1.0,
                              pulse_bins=pb, fraction=fraction, background=bg, scan=config.edge_scan,
-                             sigma_scale=config.sigma_scale, columns=None if before is None else before[1])
+                             sigma_scale=config.sigma_scale, columns=None if before is None else before[1],
+                             rows=rows)
         if echoes.beamwidth_beams is not None and echoes.size:
             echoes = echoes.replaced(clipped=clipped_echoes(echoes, ping.image))
         if before is not None:

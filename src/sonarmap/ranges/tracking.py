@@ -346,6 +346,17 @@ def continuation_mask(echoes: Echoes, first: NDArray[np.int64], levels: NDArray[
     -------
     ndarray of bool, shape (n_bins, n_beams)
     """
+    return _continuation_pixels(echoes, first, levels, level_evidence, min_run=min_run, max_beams=max_beams,
+                                window_bins=window_bins, min_evidence=min_evidence, max_misses=max_misses,
+                                touch_bins=touch_bins)[0]
+
+
+def _continuation_pixels(echoes: Echoes, first: NDArray[np.int64], levels: NDArray[np.integer],
+                         level_evidence: NDArray[np.float64], *, min_run: int = 5, max_beams: int = 16,
+                         window_bins: float = 3.0, min_evidence: float = 10.0, max_misses: int = 2,
+                         touch_bins: float = 1.0) -> tuple[NDArray[np.bool_], int, int]:
+    """:func:`continuation_mask` and the first and one-past-last row holding one of its pixels
+    (``(n_bins, 0)``: none)."""
     from sonarmap.ranges import _kernels
     from sonarmap.ranges.echoes import _first_intervals, _levels_in_range
 
@@ -357,8 +368,9 @@ def continuation_mask(echoes: Echoes, first: NDArray[np.int64], levels: NDArray[
         raise InputError(f"levels: values must lie in [0, {lut.size})")
     sel = np.asarray(first, dtype=np.int64)
     if echoes.size == 0 or not (sel >= 0).any():
-        return np.zeros(code.shape, dtype=bool)
+        return np.zeros(code.shape, dtype=bool), code.shape[0], 0
     edge, lo, hi, stop = _first_intervals(echoes, sel)
     run = _kernels.surface_runs(edge, lo, hi, float(touch_bins))
-    return _kernels.continuation_mask(code, lut, edge, stop, run, int(min_run), int(max_beams), float(window_bins),
-                                      float(min_evidence), int(max_misses))
+    out, r0, r1 = _kernels.continuation_mask(code, lut, edge, stop, run, int(min_run), int(max_beams),
+                                             float(window_bins), float(min_evidence), int(max_misses))
+    return out, int(r0), int(r1)
