@@ -120,6 +120,16 @@ class BeamRanges:
         if not np.array_equal(b < 0, ~np.isfinite(np.asarray(self.range_m))):
             raise InputError("bin/range_m: no-return beams must have bin -1 and range NaN together")
 
+    @classmethod
+    def _checked_already(cls, **fields: object) -> BeamRanges:
+        """A :class:`BeamRanges` of ``fields`` that are already of the types, dtypes and shapes
+        :meth:`__post_init__` checks and converts to (a kernel's outputs), without running it;
+        ``p_detect`` is NaN and every field must be given except it."""
+        new = object.__new__(cls)
+        new.__dict__.update(fields)
+        new.__dict__["p_detect"] = np.full(np.shape(fields["azimuth_rad"])[0], np.nan, dtype=np.float32)
+        return new
+
     @property
     def valid(self) -> NDArray[np.bool_]:
         """Beams with a return."""
@@ -494,6 +504,10 @@ def ranges_from_tracks(echoes: "Echoes", tracks: "Tracks", geometry: SonarGeomet
     at = echoes.edge_range_m if mode == "first" else echoes.peak_range_m
     rng, b, inten, sigma, other, conf = track_ranges(e, echoes.edge_bin, echoes.peak_bin, at, echoes.sigma_m, img,
                                                      mode == "first")
-    return BeamRanges(range_m=rng, bin=b, intensity=inten, confidence=conf,
-                      azimuth_rad=np.asarray(geometry.azimuth_rad, dtype=np.float64), time_ns=int(time_ns),
-                      source=source, mode=mode, sigma_m=sigma, other_range_m=other)
+    fields = dict(range_m=rng, bin=b, intensity=inten, confidence=conf,
+                  azimuth_rad=np.asarray(geometry.azimuth_rad, dtype=np.float64), time_ns=int(time_ns),
+                  source=source, mode=mode, sigma_m=sigma, other_range_m=other)
+    if rng.shape != fields["azimuth_rad"].shape or not np.array_equal(b < 0, ~np.isfinite(rng)):  # type: ignore[union-attr]
+        return BeamRanges(**fields)  # type: ignore[arg-type]  # (raises the constructor's error)
+    # the kernel's arrays have BeamRanges' dtypes and shapes
+    return BeamRanges._checked_already(**fields)

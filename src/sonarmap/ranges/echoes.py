@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import weakref
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -350,8 +351,20 @@ def beamwidth_in_beams(geometry: SonarGeometry) -> NDArray[np.float64] | None:
     bw = getattr(geometry, "azimuth_beamwidth_rad", None)
     if bw is None or geometry.n_beams < 2:
         return None
-    spacing = np.abs(np.gradient(np.asarray(geometry.azimuth_rad, dtype=np.float64)))
-    return np.asarray(bw, dtype=np.float64) / spacing
+    az = np.asarray(geometry.azimuth_rad, dtype=np.float64)
+    # a geometry's arrays are read-only: its beamwidths are computed once per geometry object
+    frozen = not az.flags.writeable and not (isinstance(bw, np.ndarray) and bw.flags.writeable)
+    known = _BEAMWIDTHS.get(geometry) if frozen else None
+    if known is not None:
+        return known.copy()
+    out = np.asarray(bw, dtype=np.float64) / np.abs(np.gradient(az))
+    if frozen:
+        _BEAMWIDTHS[geometry] = out.copy()
+    return out
+
+
+#: :func:`beamwidth_in_beams` per geometry (with read-only arrays), while the geometry lives.
+_BEAMWIDTHS: weakref.WeakKeyDictionary[SonarGeometry, NDArray[np.float64]] = weakref.WeakKeyDictionary()
 
 
 def _echo_ranges(edge: NDArray[np.float64], pval: NDArray[np.float64], slope: NDArray[np.float64],
@@ -363,7 +376,7 @@ def _echo_ranges(edge: NDArray[np.float64], pval: NDArray[np.float64], slope: ND
 
     bin_m = abs(geometry.range_resolution_m)
     pulse_m = int(pulse_bins) * bin_m if pulse_bins >= 2 else 0.0
-    sqrt_looks = float(np.sqrt(np.maximum(np.asarray(looks * max(int(pulse_bins), 1), dtype=np.float64), 1.0)))
+    sqrt_looks = math.sqrt(max(float(looks * max(int(pulse_bins), 1)), 1.0))  # NaN stays NaN, as np.maximum
     return _kernels.echo_ranges(edge, pval, slope, np.ascontiguousarray(geometry.range_m, dtype=np.float64),
                                 float(fraction), math.sqrt(2.0), max(float(background), 0.0), sqrt_looks, bin_m,
                                 bin_m**2 / 12.0, (pulse_m**2) / 12.0, float(sigma_scale))
