@@ -53,6 +53,27 @@ def test_box_mean_kernel_is_scipy_uniform_filter_bit_for_bit():
         assert np.array_equal(ref.view(np.uint32), box_mean_f32(img, s0, s1).view(np.uint32))
 
 
+def test_box_band_kernel_is_box_mean_threshold():
+    """The row-by-row band kernel equals the box mean's threshold, with its row span and column count."""
+    from sonarmap.ranges._kernels import box_band, box_mean_f32
+
+    rng = np.random.default_rng(1)
+    for t in range(150):
+        h, w = int(rng.integers(1, 70)), int(rng.integers(1, 70))
+        img = (rng.random((h, w)) ** rng.uniform(1, 8)).astype(np.float32)
+        if t % 3 == 0:
+            img[rng.random((h, w)) < 0.6] = 0
+        s0, s1 = int(rng.integers(1, 6)), int(rng.integers(1, 12))
+        pooled = box_mean_f32(img, s0, s1)
+        level = np.float32(np.quantile(pooled, rng.uniform(0.3, 1.0))) if t % 5 else np.float32(2.0)
+        want = pooled >= level
+        band, r0, r1, n_cols = box_band(img, s0, s1, level)
+        rows = np.flatnonzero(want.any(axis=1))
+        assert np.array_equal(band, want)
+        assert (r0, r1) == ((int(rows[0]), int(rows[-1]) + 1) if rows.size else (h, 0))
+        assert n_cols == int(want.any(axis=0).sum())
+
+
 def test_band_peak_kernel_matches_numpy_formulation():
     from sonarmap.ranges._kernels import band_peak_pixels
 

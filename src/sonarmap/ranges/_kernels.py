@@ -12,14 +12,16 @@ from numba import njit
 
 
 @njit(cache=True, nogil=True)
-def _column_pixels(mask):  # pragma: no cover - numba
-    """``(first, rows)``: the true pixels of column ``j`` of the C-contiguous ``mask`` lie at rows
-    ``rows[first[j] : first[j + 1]]`` (ascending).  Two passes over the rows: a branch-free count,
-    then the fill, which skips 8 empty pixels at a time."""
+def _column_pixels(mask, r0, r1):  # pragma: no cover - numba
+    """``(first, rows)``: the true pixels of column ``j`` of the C-contiguous ``mask``, all on rows
+    ``r0 .. r1 - 1``, lie at rows ``rows[first[j] : first[j + 1]]`` (ascending).  Two passes over
+    those rows: a branch-free count, then the fill, which skips 8 empty pixels at a time."""
     n, m = mask.shape
+    r0 = max(r0, 0)
+    r1 = min(r1, n)
     flat = mask.reshape(n * m).view(np.uint8)
     first = np.zeros(m + 1, np.int64)
-    for i in range(n):
+    for i in range(r0, r1):
         base = i * m
         for j in range(m):
             first[j + 1] += flat[base + j] != 0
@@ -29,7 +31,7 @@ def _column_pixels(mask):  # pragma: no cover - numba
     fill = first[:m].copy()
     by_words = m % 8 == 0
     words = flat.view(np.uint64) if by_words else np.zeros(0, np.uint64)
-    for i in range(n):
+    for i in range(r0, r1):
         base = i * m
         if by_words:
             for w in range(m // 8):
@@ -47,8 +49,10 @@ def _column_pixels(mask):  # pragma: no cover - numba
 
 
 @njit(cache=True, nogil=True)
-def find_echoes(mask, img, code, lut, boost, boost_min, max_gap, fraction, peak_rel, back, forward):  # pragma: no cover - numba
-    """Echoes along every beam (see :func:`sonarmap.ranges.echoes.find_echoes`).
+def find_echoes(mask, img, code, lut, boost, boost_min, max_gap, fraction, peak_rel, back, forward, r0,
+                r1):  # pragma: no cover - numba
+    """Echoes along every beam (see :func:`sonarmap.ranges.echoes.find_echoes`), whose structure
+    pixels (``mask``) all lie on rows ``r0 .. r1 - 1``.
 
     Returns per echo: beam, start, stop (exclusive, structure pixels), peak bin, peak value,
     edge position (fractional bin index of the ``fraction`` crossing), edge slope (value per
@@ -58,7 +62,7 @@ def find_echoes(mask, img, code, lut, boost, boost_min, max_gap, fraction, peak_
     """
     # the structure pixels of every column in range order, from one pass over the rows (a scan
     # down each column of the mostly empty mask was most of the kernel's time)
-    col_first, rows = _column_pixels(mask)
+    col_first, rows = _column_pixels(mask, r0, r1)
     return _echoes_of_columns(mask, img, code, lut, boost, boost_min, max_gap, fraction, peak_rel, back, forward,
                               np.arange(mask.shape[1]), col_first, rows)
 

@@ -300,8 +300,8 @@ def find_echoes(
         Only the echoes of these beams (ascending; each beam's echoes depend on its column of
         ``mask``, ``image`` and ``levels`` alone: see :func:`spliced_echoes`).
     rows : (int, int), optional
-        With ``columns``: the first and one-past-last row holding a ``mask`` pixel of them (the
-        rows searched; default all).
+        The first and one-past-last row holding a ``mask`` pixel (of the ``columns``, if given):
+        the rows searched (default all).
     """
     from sonarmap.ranges import _kernels
 
@@ -317,10 +317,10 @@ def find_echoes(
     gap = max(2, int(pulse_bins)) if max_gap is None else int(max_gap)
     bk = int(pulse_bins) + 2 if back is None else int(back)
     args = (m, img, code, lut, bst, float(boost_min), gap, float(fraction), float(peak_rel), bk, scan == "forward")
+    span = (0, m.shape[0]) if rows is None else (int(rows[0]), int(rows[1]))
     beam, start, stop, peak, pval, edge, slope, evid, npx = (
-        _kernels.find_echoes(*args) if columns is None
-        else _kernels.find_echoes_in(*args, np.ascontiguousarray(columns, dtype=np.int64),
-                                     *((0, m.shape[0]) if rows is None else (int(rows[0]), int(rows[1])))))
+        _kernels.find_echoes(*args, *span) if columns is None
+        else _kernels.find_echoes_in(*args, np.ascontiguousarray(columns, dtype=np.int64), *span))
     r = np.ascontiguousarray(geometry.range_m, dtype=np.float64)
     edge_r, sigma = _echo_ranges(edge, pval, slope, geometry, pulse_bins, fraction, looks, background, sigma_scale)
     return Echoes(beam=beam, start_bin=start, stop_bin=stop, peak_bin=peak, peak_value=pval, edge_bin=edge,
