@@ -189,10 +189,11 @@ def _echoes_of_columns(mask, img, code, lut, boost, boost_min, max_gap, fraction
 def _neighbours(a, b, g, pos, lo_bin, hi_bin, jump_bins, touch_bins):  # pragma: no cover - numba
     """The tracker's neighbour rule for echoes ``a`` and ``b`` ``g`` beams apart: their edges
     differ by at most ``jump_bins`` per beam and their bin intervals lie at most ``touch_bins`` per
-    beam apart (a surface is contiguous across beams)."""
-    if abs(pos[a] - pos[b]) / g > jump_bins:
+    beam apart (a surface is contiguous across beams).  The contiguity test first: it has no
+    division and fails for most pairs (echoes of other surfaces)."""
+    if max(lo_bin[a] - hi_bin[b], lo_bin[b] - hi_bin[a]) > touch_bins * g:
         return False
-    return max(lo_bin[a] - hi_bin[b], lo_bin[b] - hi_bin[a]) <= touch_bins * g
+    return not abs(pos[a] - pos[b]) / g > jump_bins
 
 
 @njit(cache=True, nogil=True)
