@@ -240,6 +240,16 @@ def _evidence_table(m: np.ndarray, llr: ArrayLike | None, levels: ArrayLike | No
     return np.arange(ev.size, dtype=np.int64).reshape(ev.shape), np.ascontiguousarray(ev.ravel())
 
 
+def _boost_pixels(boost: ArrayLike | None, shape: tuple[int, ...]) -> NDArray[np.bool_]:
+    """:func:`find_echoes`' ``boost`` as a C-contiguous boolean image (shape (1, 1): none)."""
+    if boost is None:
+        return np.zeros((1, 1), dtype=bool)
+    bst = np.ascontiguousarray(boost, dtype=bool)
+    if bst.shape != shape:
+        raise InputError(f"boost: shape {bst.shape} does not match mask {shape}")
+    return bst
+
+
 def find_echoes(
     mask: ArrayLike,
     image: ArrayLike,
@@ -296,12 +306,9 @@ def find_echoes(
         How the crossing is found: walking from the peak towards the sonar to the first bin below
         the level (``"back"``), or from ``back`` bins in front of the echo to the first bin that
         reaches it (``"forward"``: a speckle dip on the rising flank does not stop it).
-    columns : ndarray of int64, optional
-        Only the echoes of these beams (ascending; each beam's echoes depend on its column of
-        ``mask``, ``image`` and ``levels`` alone: see :func:`spliced_echoes`).
-    rows : (int, int), optional
-        The first and one-past-last row holding a ``mask`` pixel (of the ``columns``, if given):
-        the rows searched (default all).
+    columns, rows : ndarray of int64, (int, int), optional
+        Only the echoes of the beams ``columns`` (ascending; a beam's echoes depend on its own
+        column only: :func:`spliced_echoes`); the rows holding the ``mask`` pixels (default all).
     """
     from sonarmap.ranges import _kernels
 
@@ -311,16 +318,13 @@ def find_echoes(
     geometry.check_image(img, "image")
     _check_edge_options(fraction, peak_rel, scan)
     code, lut = _evidence_table(m, llr, levels, level_evidence)
-    bst = np.zeros((1, 1), dtype=bool) if boost is None else np.ascontiguousarray(boost, dtype=bool)
-    if boost is not None and bst.shape != m.shape:
-        raise InputError(f"boost: shape {bst.shape} does not match mask {m.shape}")
     gap = max(2, int(pulse_bins)) if max_gap is None else int(max_gap)
     bk = int(pulse_bins) + 2 if back is None else int(back)
-    args = (m, img, code, lut, bst, float(boost_min), gap, float(fraction), float(peak_rel), bk, scan == "forward")
-    span = (0, m.shape[0]) if rows is None else (int(rows[0]), int(rows[1]))
+    args = (m, img, code, lut, _boost_pixels(boost, m.shape), float(boost_min), gap, float(fraction), float(peak_rel),
+            bk, scan == "forward", *((0, m.shape[0]) if rows is None else (int(rows[0]), int(rows[1]))))
     beam, start, stop, peak, pval, edge, slope, evid, npx = (
-        _kernels.find_echoes(*args, *span) if columns is None
-        else _kernels.find_echoes_in(*args, np.ascontiguousarray(columns, dtype=np.int64), *span))
+        _kernels.find_echoes(*args) if columns is None
+        else _kernels.find_echoes_in(*args[:-2], np.ascontiguousarray(columns, dtype=np.int64), *args[-2:]))
     r = np.ascontiguousarray(geometry.range_m, dtype=np.float64)
     edge_r, sigma = _echo_ranges(edge, pval, slope, geometry, pulse_bins, fraction, looks, background, sigma_scale)
     return Echoes(beam=beam, start_bin=start, stop_bin=stop, peak_bin=peak, peak_value=pval, edge_bin=edge,
