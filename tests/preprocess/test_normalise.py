@@ -111,3 +111,45 @@ def test_smoothing_and_background_rows_equal_the_numpy_reference() -> None:
         for n_rows in (1, n // 4, n):
             rows = np.argsort(q50, kind="stable")[:n_rows]
             assert background_rows(q25, q50, n_rows) == (np.median(q50[rows]), np.median((q50 - q25)[rows]))
+
+
+def _on_8bit_grid_reference(img: np.ndarray) -> bool:
+    """The numpy form of on_8bit_grid: every positive value of a sample is a multiple of 1/255."""
+    flat = img.ravel()
+    sample = flat[:: max(flat.size // 4096, 1)]
+    pos = sample[sample > 0]
+    if pos.size == 0:
+        return True
+    scaled = pos * np.float32(255.0)
+    with np.errstate(invalid="ignore"):
+        return bool(np.all(np.abs(scaled - np.rint(scaled)) < 1e-3))
+
+
+def test_on_8bit_grid_kernel_equals_the_numpy_test() -> None:
+    """The one-pass kernel answers as the numpy test on 8-bit, float, thresholded, transposed and
+    non-finite images, float32 and float64, with values just on and just off the 1e-3 tolerance."""
+    from sonarmap.preprocess.normalise import on_8bit_grid
+
+    rng = np.random.default_rng(8)
+    answers = set()
+    for it in range(1200):
+        shape = (int(rng.integers(1, 300)), int(rng.integers(1, 200)))
+        dtype = (np.float32, np.float64)[it % 2]
+        img = (rng.integers(0, 256, shape) / 255).astype(dtype)
+        kind = it % 7
+        if kind == 1:
+            img = rng.random(shape).astype(dtype)
+        elif kind == 2:
+            img.flat[rng.integers(0, img.size)] += dtype(rng.choice([1e-3, 0.99e-3, 1.01e-3, 0.5]) / 255)
+        elif kind == 3:
+            img.flat[rng.integers(0, img.size, 3)] = rng.choice([np.nan, np.inf, -np.inf, -1.0])
+        elif kind == 4:
+            img[:] = 0
+        elif kind == 5:
+            img = img.T
+        elif kind == 6:
+            img[rng.random(shape) < 0.6] = 0  # thresholded (DIDSON-like)
+        expected = _on_8bit_grid_reference(img)
+        assert on_8bit_grid(img) is expected
+        answers.add(expected)
+    assert answers == {True, False}

@@ -329,3 +329,22 @@ def finite_and_zeros(img, zero):  # pragma: no cover - numba
             finite &= np.isfinite(v)
             zeros += v <= zero
     return finite, zeros
+
+
+@njit(cache=True, nogil=True)
+def on_255_grid(flat, step):  # pragma: no cover - numba
+    """``np.all(np.abs(s - np.rint(s)) < 1e-3)`` with ``s = pos * np.float32(255)`` over the positive
+    values ``pos`` of ``flat[::step]`` (float32 or float64, the same arithmetic as numpy's), stopping
+    after the first block of 256 samples with a value off the grid (branch-free within a block:
+    zeros and positives alternate unpredictably in thresholded images)."""
+    scale = np.float32(255.0)
+    n = flat.size
+    for k0 in range(0, n, 256 * step):
+        miss = False
+        for k in range(k0, min(k0 + 256 * step, n), step):
+            v = flat[k]
+            s = v * scale
+            miss |= (v > 0) & (not abs(s - np.rint(s)) < 1e-3)
+        if miss:
+            return False
+    return True

@@ -128,7 +128,12 @@ def on_8bit_grid(img: NDArray[np.float32]) -> bool:
     """True when a sample of the image's positive values are all multiples of 1/255 (8-bit data:
     nothing below can change it, so the per-ping cost is one small sample)."""
     flat = img.ravel()
-    sample = flat[:: max(flat.size // 4096, 1)]
+    step = max(flat.size // 4096, 1)
+    if flat.dtype == np.float32 or flat.dtype == np.float64:
+        from sonarmap.preprocess._kernels import on_255_grid
+
+        return bool(on_255_grid(flat, step))  # the same test in one pass, stopping at the first miss
+    sample = flat[::step]
     pos = sample[sample > 0]
     if pos.size == 0:
         return True
