@@ -153,3 +153,58 @@ def test_on_8bit_grid_kernel_equals_the_numpy_test() -> None:
         assert on_8bit_grid(img) is expected
         answers.add(expected)
     assert answers == {True, False}
+
+
+def _pooled_ratio_reference():
+    """The one-row-at-a-time form of the pooled ratio (scipy's uniform_filter(img / level / factor,
+    pool, mode="nearest") in float64 running sums stored as float32), jitted."""
+    from numba import njit
+
+    @njit
+    def running_mean(src, dst, size):
+        n, h, s = src.shape[0], size // 2, 0.0
+        for k in range(-h, size - h):
+            s += src[min(max(k, 0), n - 1)]
+        for i in range(n):
+            dst[i] = s / size
+            s += src[min(max(i - h + size, 0), n - 1)] - src[min(max(i - h, 0), n - 1)]
+
+    @njit
+    def pooled(img, level, factor, pool_r, pool_c):
+        n, m = img.shape
+        z = np.empty((n, m), np.float32)
+        for i in range(n):
+            for j in range(m):
+                z[i, j] = img[i, j] * (1.0 / level[i]) / factor[i, j]
+        tmp = np.empty((n, m), np.float32)
+        for j in range(m):
+            running_mean(z[:, j].copy(), tmp[:, j], pool_r)
+        for i in range(n):
+            running_mean(tmp[i].copy(), z[i], pool_c)
+        return z
+
+    return pooled
+
+
+@pytest.mark.parametrize("shape", [(2000, 48), (703, 256), (1, 1), (3, 2), (7, 5), (9, 64), (33, 17)])
+def test_pooled_ratio_grid_equals_the_ratio_to_the_expanded_grid(shape) -> None:
+    """pooled_ratio_grid (factor interpolated on the way, 4 rows per beam pass) gives the bits of
+    pooled_ratio with the factor expand_grid makes, for any pool, grid and row count (n % 4), and
+    a grid of one block of 1 the bits of no factor."""
+    from sonarmap.preprocess._kernels import pooled_ratio, pooled_ratio_grid
+    from sonarmap.preprocess.normalise import _ONE_BLOCK, _grid_rows
+
+    reference = _pooled_ratio_reference()
+
+    rng = np.random.default_rng(shape[0] * 7 + shape[1])
+    n, m = shape
+    for t in range(6):
+        img = _images(rng, n, m)[t % 3]
+        level = rng.uniform(0.01, 3.0, n).astype(np.float32)
+        grid = rng.uniform(0.5, 2.0, (int(rng.integers(1, 17)), int(rng.integers(1, 17)))).astype(np.float32)
+        pool = (int(rng.integers(1, min(n, 9) + 1)), int(rng.integers(1, min(m, 7) + 1)))
+        z, work = np.empty((n, m), np.float32), np.empty((n, m), np.float32)
+        for g, full in ((grid, expand_grid(grid, shape)), (_ONE_BLOCK, np.ones(shape, np.float32))):
+            pooled_ratio_grid(img, level, *_grid_rows(g, shape), *pool, z, work)
+            assert z.tobytes() == pooled_ratio(img, level, full, *pool).tobytes()
+            assert z.tobytes() == reference(img, level, full, *pool).tobytes()

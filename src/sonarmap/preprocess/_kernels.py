@@ -41,23 +41,99 @@ def pooled_ratio_into(img, level, factor, pool_r, pool_c, z, tmp):  # pragma: no
     for i in range(n):
         inv = 1.0 / level[i]
         for j in range(m):
-            z[i, j] = img[i, j] * inv / factor[i, j]
-    # along range for all beams at once, row by row (contiguous rows; a column-by-column pass
-    # strides through memory): per beam the same arithmetic as _running_mean, so the same bits
+            tmp[i, j] = img[i, j] * inv / factor[i, j]
+    _pool_rows(tmp, pool_r, pool_c, z)
+
+
+@njit(cache=True, nogil=True)
+def pooled_ratio_grid(img, level, cols, r0, r1, fr, pool_r, pool_c, z, ratio):  # pragma: no cover - numba
+    """:func:`pooled_ratio_into` with ``factor = interpolate_rows(cols, r0, r1, fr)`` interpolated
+    on the way (the same float32 arithmetic), written into ``z``; ``ratio`` (float32, the image's
+    shape) is work space: no image-sized factor array is written and read back.  The beam pass
+    advances 4 rows' running sums together: each row's sum is a chain of dependent additions, whose
+    latency bounds the one-row loop.
+    """
+    n, m = img.shape
+    one = np.float32(1.0)
+    frow = np.empty(m, dtype=np.float32)
+    for i in range(n):
+        inv = 1.0 / level[i]
+        f = fr[i]
+        g = one - f
+        a = cols[r0[i]]
+        b = cols[r1[i]]
+        for j in range(m):
+            frow[j] = a[j] * g + b[j] * f
+        row = ratio[i]
+        src = img[i]
+        for j in range(m):
+            row[j] = src[j] * inv / frow[j]
+    _pool_rows(ratio, pool_r, pool_c, z)
+
+
+@njit(cache=True, nogil=True)
+def _pool_rows(ratio, pool_r, pool_c, z):  # pragma: no cover - numba
+    """The separable running means of :func:`pooled_ratio_into` of ``ratio`` into ``z`` (another
+    array): along range by a running sum per beam, then across beams 4 rows at a time."""
+    n, m = ratio.shape
     s = np.zeros(m)
     h = pool_r // 2
     for k in range(-h, pool_r - h):
         r = min(max(k, 0), n - 1)
         for j in range(m):
-            s[j] += z[r, j]
-    for i in range(n):
-        a = min(max(i - h + pool_r, 0), n - 1)
-        b = min(max(i - h, 0), n - 1)
-        for j in range(m):
-            tmp[i, j] = s[j] / pool_r
-            s[j] += z[a, j] - z[b, j]
-    for i in range(n):
-        _running_mean(tmp[i], z[i], pool_c)
+            s[j] += ratio[r, j]
+    buf = np.empty((4, m), dtype=np.float32)
+    sums = np.empty((4, m))
+    i0 = 0
+    while i0 < n:
+        rows = min(4, n - i0)
+        for t in range(rows):
+            i = i0 + t
+            a = ratio[min(max(i - h + pool_r, 0), n - 1)]
+            b = ratio[min(max(i - h, 0), n - 1)]
+            for j in range(m):
+                buf[t, j] = s[j] / pool_r
+                s[j] += a[j] - b[j]
+        if rows == 4:
+            _running_sums4(buf, sums, pool_c)
+            for t in range(4):
+                out = z[i0 + t]
+                row = sums[t]
+                for j in range(m):
+                    out[j] = row[j] / pool_c
+        else:
+            for t in range(rows):
+                _running_mean(buf[t], z[i0 + t], pool_c)
+        i0 += rows
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _running_sums4(buf, sums, size):  # pragma: no cover - numba
+    """The running sums of :func:`_running_mean` (before its division by ``size``) of the 4 rows
+    of ``buf`` into ``sums`` (float64), the 4 sums advanced together (the same additions per row)."""
+    m = buf.shape[1]
+    h = size // 2
+    s0 = 0.0
+    s1 = 0.0
+    s2 = 0.0
+    s3 = 0.0
+    for k in range(-h, size - h):
+        c = min(max(k, 0), m - 1)
+        s0 += buf[0, c]
+        s1 += buf[1, c]
+        s2 += buf[2, c]
+        s3 += buf[3, c]
+    for j in range(m):
+        sums[0, j] = s0
+        sums[1, j] = s1
+        sums[2, j] = s2
+        sums[3, j] = s3
+        a = min(max(j - h + size, 0), m - 1)
+        b = min(max(j - h, 0), m - 1)
+        s0 += buf[0, a] - buf[0, b]
+        s1 += buf[1, a] - buf[1, b]
+        s2 += buf[2, a] - buf[2, b]
+        s3 += buf[3, a] - buf[3, b]
 
 
 @njit(cache=True, nogil=True)

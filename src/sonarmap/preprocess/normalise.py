@@ -357,14 +357,27 @@ def expand_grid(grid: NDArray[np.float32], shape: tuple[int, int], *,
     """
     from sonarmap.preprocess._kernels import interpolate_rows, interpolate_rows_into
 
+    cols, r0, r1, fr = _grid_rows(grid, shape)
+    if out is None:
+        return interpolate_rows(cols, r0, r1, fr)
+    interpolate_rows_into(cols, r0, r1, fr, out)
+    return out
+
+
+def _grid_rows(grid: NDArray[np.float32], shape: tuple[int, int]
+               ) -> tuple[NDArray[np.float32], NDArray[np.intp], NDArray[np.intp], NDArray[np.float32]]:
+    """:func:`expand_grid`'s first step: ``(cols, r0, r1, fr)``, the grid interpolated across
+    the beams (``(n_block_rows, shape[1])``, C-contiguous) and the weights of its rows along range:
+    the lattice is ``interpolate_rows(cols, r0, r1, fr)``."""
+    from sonarmap.preprocess._kernels import interpolate_rows
+
     g = np.ascontiguousarray(grid, dtype=np.float32)
     c0, c1, fc = _interp_weights(shape[1], g.shape[1])
     cols = interpolate_rows(np.ascontiguousarray(g.T), c0, c1, fc).T  # across beams on the small grid
-    r0, r1, fr = _interp_weights(shape[0], g.shape[0])
-    if out is None:
-        return interpolate_rows(np.ascontiguousarray(cols), r0, r1, fr)
-    interpolate_rows_into(np.ascontiguousarray(cols), r0, r1, fr, out)
-    return out
+    return (np.ascontiguousarray(cols), *_interp_weights(shape[0], g.shape[0]))
+
+
+_ONE_BLOCK = np.ones((1, 1), dtype=np.float32)
 
 
 def estimate_background(
@@ -480,13 +493,16 @@ def _finish(img: NDArray[np.float32], level: NDArray[np.float32], factor: NDArra
             zero_fraction: float, floor_quantile: float, pool: tuple[int, int],
             reason: str) -> tuple[BackgroundLevel, NDArray[np.float32] | None]:
     """Steps 2-4: divide by level x factor, multi-look, threshold, scale."""
-    from sonarmap.preprocess._kernels import excess_top, pooled_ratio_into
+    from sonarmap.preprocess._kernels import excess_top, pooled_ratio_grid
 
     n, m = img.shape
-    full = np.ones((n, m), np.float32) if factor is None else expand_grid(factor, (n, m), out=_WORK.get("full", (n, m)))
+    # the factor interpolated from its grid on the way (a grid of one block of 1: no factor, the
+    # same bits as dividing by 1)
+    cols, r0, r1, fr = _grid_rows(_ONE_BLOCK if factor is None else factor, (n, m))
     z = _WORK.get("z", (n, m))
-    pooled_ratio_into(np.ascontiguousarray(img, dtype=np.float32), np.ascontiguousarray(level, dtype=np.float32),
-                      full, int(min(max(pool[0], 1), n)), int(min(max(pool[1], 1), m)), z, _WORK.get("tmp", (n, m)))
+    pooled_ratio_grid(np.ascontiguousarray(img, dtype=np.float32), np.ascontiguousarray(level, dtype=np.float32),
+                      cols, r0, r1, fr, int(min(max(pool[0], 1), n)), int(min(max(pool[1], 1), m)), z,
+                      _WORK.get("tmp", (n, m)))
     c50, spread = _background_quartiles(z)
     scale = float(spread) / math.log(1.5)
     if not scale > 0 or not math.isfinite(scale):
