@@ -208,3 +208,28 @@ def test_pooled_ratio_grid_equals_the_ratio_to_the_expanded_grid(shape) -> None:
             pooled_ratio_grid(img, level, *_grid_rows(g, shape), *pool, z, work)
             assert z.tobytes() == pooled_ratio(img, level, full, *pool).tobytes()
             assert z.tobytes() == reference(img, level, full, *pool).tobytes()
+
+
+@pytest.mark.parametrize("shape", [(4096, 512), (40, 512), (3, 600), (1, 513), (257, 1024)])
+def test_partitioned_background_quartiles_equal_the_sorted_ones(shape, monkeypatch) -> None:
+    """Long rows partitioned (the lower quartile only in the background rows) give the sorted
+    rows' (c50, spread), with ties, zeros and non-finite values (which fall back to sorting)."""
+    from sonarmap.preprocess import normalise
+
+    rng = np.random.default_rng(shape[0] + shape[1])
+    for t in range(5):
+        z = rng.exponential(size=shape).astype(np.float32)
+        if t == 1:
+            z = np.round(z * 4) / 4  # many ties
+        elif t == 2:
+            z[rng.random(shape) < 0.3] = 0
+        elif t == 3:
+            z.flat[rng.integers(0, z.size, 50)] = np.inf
+        elif t == 4:
+            z[: max(shape[0] // 2, 1)] = np.nan
+        got = normalise._background_quartiles(z)
+        monkeypatch.setattr(normalise, "_PARTITION_MIN", 1 << 30)
+        with np.errstate(invalid="ignore"):
+            expected = normalise._background_quartiles(z)
+        monkeypatch.undo()
+        assert np.array(got).tobytes() == np.array(expected).tobytes()
