@@ -233,3 +233,32 @@ def test_partitioned_background_quartiles_equal_the_sorted_ones(shape, monkeypat
             expected = normalise._background_quartiles(z)
         monkeypatch.undo()
         assert np.array(got).tobytes() == np.array(expected).tobytes()
+
+
+def test_row_quartile_of_scaled_levels_equals_the_general_count() -> None:
+    """The readers' 8-bit form (level x float32(1/255)) counted without a value table gives the
+    general count's answer and bits; a value off that form anywhere (the other scaling, above 1,
+    the 256th level's multiple, a float) hands the image to the general count, which decides."""
+    from sonarmap.preprocess._kernels import _row_quartile_levels, _row_quartile_scaled, row_quartile_u8
+
+    rng = np.random.default_rng(11)
+    step = np.float32(1.0 / 255.0)
+    odd = [np.float32(1.0) + np.float32(1e-7), np.float32(256) * step, np.float32(3) / np.float32(255),
+           np.float32(0.3), np.float32(-0.0), np.float32(-2.0), np.float32(np.nan), np.float32(1.0)]
+    taken = set()
+    for t in range(400):
+        n, m = int(rng.integers(1, 60)), int(rng.integers(1, 300))
+        img = rng.integers(0, 256, (n, m)).astype(np.float32) * step
+        if t % 4 == 3:
+            img = rng.integers(0, 256, (n, m)).astype(np.float32) / np.float32(255.0)  # the other scaling
+        elif t % 2:
+            img.flat[rng.integers(0, img.size, int(rng.integers(1, 4)))] = rng.choice(odd)
+        k = int(rng.integers(0, m))
+        out, ok = row_quartile_u8(img, k)
+        ref, ref_ok = _row_quartile_levels(img, k)
+        assert ok == ref_ok
+        if ok:
+            assert out.tobytes() == ref.tobytes()
+            assert out.tobytes() == np.sort(np.where(img > 0, img, np.float32(0)), axis=1)[:, k].tobytes()
+        taken.add((ok, bool(_row_quartile_scaled(img, k, np.empty(n, np.float32)))))
+    assert taken == {(True, True), (True, False), (False, False)}

@@ -169,7 +169,59 @@ def row_quartile_u8(img, k):  # pragma: no cover - numba
     levels orders the values, and the ``k``-th smallest value is the level where the row's
     cumulative count passes ``k``.  Returns ``(out, ok)``; ``ok`` False (``out`` undefined) when a
     value breaks that (not 8-bit data: sort instead).
+
+    The readers' 8-bit images (every value ``level * float32(1 / 255)``) take
+    :func:`_row_quartile_scaled`; any other data the general form.
     """
+    out = np.empty(img.shape[0], dtype=np.float32)
+    if _row_quartile_scaled(img, k, out):
+        return out, True
+    return _row_quartile_levels(img, k)
+
+
+@njit(cache=True, nogil=True)
+def _row_quartile_scaled(img, k, out):  # pragma: no cover - numba
+    """:func:`row_quartile_u8` into ``out`` when every value of ``max(img, 0)`` is its level times
+    ``float32(1 / 255)`` (then each level has one value and the result is the same); False (``out``
+    partly written) when one is not.  The levels and that test come from one branch-free pass over
+    each row (it vectorises), the first value of each level needs no table."""
+    n, m = img.shape
+    keys = np.empty(m, dtype=np.int32)
+    count = np.zeros(256, dtype=np.int32)
+    scale = np.float32(255.0)
+    half = np.float32(0.5)
+    step = np.float32(1.0 / 255.0)
+    two = np.float32(2.0)
+    for i in range(n):
+        row = img[i]
+        good = True
+        lo = 255
+        for j in range(m):
+            v = row[j]
+            v = min(v, two) if v > 0 else np.float32(0.0)  # (clamped: no overflowing level)
+            key = np.int32(v * scale + half)
+            good &= (v <= 1.0) & (np.float32(key) * step == v)
+            keys[j] = key
+            lo = min(lo, key)
+        if not good:
+            return False
+        for j in range(m):
+            count[keys[j]] += 1
+        c = 0
+        for key in range(lo, 256):
+            c += count[key]
+            if c > k:
+                out[i] = np.float32(key) * step
+                break
+        for j in range(m):
+            count[keys[j]] = 0
+    return True
+
+
+@njit(cache=True, nogil=True)
+def _row_quartile_levels(img, k):  # pragma: no cover - numba
+    """:func:`row_quartile_u8` of any data: each level's value is the first one met, a value
+    that breaks the one-value-per-level rule ends the count (``ok`` False)."""
     n, m = img.shape
     out = np.empty(n, dtype=np.float32)
     value = np.full(256, -1.0, dtype=np.float32)
