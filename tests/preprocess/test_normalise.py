@@ -262,3 +262,29 @@ def test_row_quartile_of_scaled_levels_equals_the_general_count() -> None:
             assert out.tobytes() == np.sort(np.where(img > 0, img, np.float32(0)), axis=1)[:, k].tobytes()
         taken.add((ok, bool(_row_quartile_scaled(img, k, np.empty(n, np.float32)))))
     assert taken == {(True, True), (True, False), (False, False)}
+
+
+def test_level_tail_equals_the_numpy_steps() -> None:
+    """level_tail: the ring-down rows keep their level, then at most max_rise x the running
+    minimum, numpy's float32 steps bit for bit (Python and numpy float64 factors, off for 0)."""
+    from sonarmap.preprocess._kernels import level_tail
+
+    rng = np.random.default_rng(12)
+    for t in range(300):
+        n = int(rng.integers(1, 400))
+        smooth = np.exp(rng.normal(size=n))
+        level = np.exp(rng.normal(size=n)).astype(np.float32).astype(np.float64)
+        above = rng.random(n) < 0.3
+        above[: int(rng.integers(0, 5))] = True
+        if t % 5 == 0:
+            above[:] = t % 10 == 0
+        max_rise = (2.0, 1.3, np.float64(1.7), 0.0, 2.1)[t % 5]
+        out = smooth.copy()
+        if above.any():
+            lead = int(np.argmin(above)) if not above.all() else n
+            out[:lead] = level[:lead]
+        out = out.astype(np.float32)
+        if max_rise > 0:
+            out = np.minimum(out, max_rise * np.minimum.accumulate(out)).astype(np.float32)
+        rise = np.result_type(max_rise, np.float32).type(max_rise)
+        assert level_tail(smooth, level, above, rise, max_rise > 0).tobytes() == out.tobytes()

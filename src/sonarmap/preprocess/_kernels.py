@@ -369,6 +369,29 @@ def smooth_log_level(log_level, width):  # pragma: no cover - numba
 
 
 @njit(cache=True, nogil=True)
+def level_tail(smooth, level, above, max_rise, rise):  # pragma: no cover - numba
+    """The end of :func:`sonarmap.preprocess.normalise._row_level` (float64 ``smooth = exp(...)``
+    and ``level``): ``level`` over the leading rows of ``above``, float32, then (``rise``) at most
+    ``max_rise`` times its running minimum - numpy's ``np.minimum(out, max_rise *
+    np.minimum.accumulate(out))`` as float32 (``max_rise`` float32 or float64: the product's
+    precision)."""
+    n = smooth.size
+    out = np.empty(n, dtype=np.float32)
+    lead = 0
+    while lead < n and above[lead]:
+        lead += 1
+    for i in range(n):
+        out[i] = level[i] if i < lead else smooth[i]
+    if rise and n > 0:
+        low = out[0]
+        for i in range(n):
+            v = out[i]
+            low = min(low, v)
+            out[i] = min(v, max_rise * low)
+    return out
+
+
+@njit(cache=True, nogil=True)
 def block_values(img, level, nr, nc, br, bc, out):  # pragma: no cover - numba
     """``img / level[:, None]`` gathered by blocks of ``br x bc`` into ``out`` (float32,
     ``(nr nc, br bc)``): row ``a * nc + b`` holds block ``(a, b)``, by bin then beam (as

@@ -459,7 +459,7 @@ def _row_level(img: NDArray[np.float32], max_rise: float) -> NDArray[np.float32]
     bin on that stay above the curve are the transmitter's ring-down and keep their own level.
     Finally the level may rise at most ``max_rise`` above its minimum at nearer ranges.
     """
-    from sonarmap.preprocess._kernels import median5, smooth_log_level
+    from sonarmap.preprocess._kernels import level_tail, median5, smooth_log_level
 
     n = img.shape[0]
     level = _row_quartile(img)
@@ -481,17 +481,12 @@ def _row_level(img: NDArray[np.float32], max_rise: float) -> NDArray[np.float32]
         # uniform_filter1d, mode "nearest"), their ratio where keep covers > 5 % of the window,
         # then the rows > 2.5 robust sigma above it left out
         smooth, above = smooth_log_level(log_level, width)
-    out = np.exp(smooth)
-    if above.any():
-        # ring-down: the leading rows above the curve stay background at their own level
-        lead = int(np.argmin(above)) if not above.all() else n
-        out[:lead] = level[:lead]
-    out = out.astype(np.float32)
-    if max_rise > 0:
-        # a surface across most beams (seabed) is no background: the level may rise at most
-        # max_rise x above its minimum nearer to the sonar
-        out = np.minimum(out, max_rise * np.minimum.accumulate(out)).astype(np.float32)
-    return out
+    # ring-down: the leading rows above the curve stay background at their own level; then a
+    # surface across most beams (seabed) is no background: the level may rise at most max_rise x
+    # above its minimum nearer to the sonar (off for max_rise <= 0)
+    # (max_rise in the precision numpy multiplies a float32 array by it: float32 for a Python float)
+    rise = np.result_type(max_rise, np.float32).type(max_rise)
+    return level_tail(np.exp(smooth), level, above, rise, max_rise > 0)
 
 
 def _finish(img: NDArray[np.float32], level: NDArray[np.float32], factor: NDArray[np.float32] | None,
