@@ -288,3 +288,18 @@ def test_level_tail_equals_the_numpy_steps() -> None:
             out = np.minimum(out, max_rise * np.minimum.accumulate(out)).astype(np.float32)
         rise = np.result_type(max_rise, np.float32).type(max_rise)
         assert level_tail(smooth, level, above, rise, max_rise > 0).tobytes() == out.tobytes()
+
+
+def test_median_inplace_equals_numpys_median_with_ties() -> None:
+    """median_inplace (the lower middle value as the maximum of the lower half left by the
+    selection) equals np.median on even and odd sizes, many ties, float32 and float64."""
+    from sonarmap.preprocess._kernels import median_inplace
+
+    rng = np.random.default_rng(13)
+    for t in range(2000):
+        n = int(rng.integers(1, 300))
+        x = rng.normal(size=n)
+        if t % 3 == 0:
+            x = np.round(x * 2)  # ties
+        x = x.astype((np.float64, np.float32)[t % 2])
+        assert np.float64(median_inplace(x.copy(), n)) == np.float64(np.median(x))

@@ -331,7 +331,11 @@ def median_inplace(a, n):  # pragma: no cover - numba
     hi = select(a, n, n // 2)
     if n % 2:
         return hi
-    return (select(a, n // 2, n // 2 - 1) + hi) / 2.0
+    # a[:n // 2] now holds the n // 2 smallest values: the lower middle one is their maximum
+    lo = a[0]
+    for i in range(1, n // 2):
+        lo = max(lo, a[i])
+    return (lo + hi) / 2.0
 
 
 @njit(cache=True, nogil=True)
