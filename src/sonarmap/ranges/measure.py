@@ -237,6 +237,28 @@ def _rows_unseen(first: tuple[int, int], second: tuple[int, int], rows: tuple[in
     return (second[0] >= first[0] or lo >= first[0]) and (second[1] <= first[1] or hi <= first[1])
 
 
+def _with_pooled_bands(mask: NDArray[np.bool_], image: NDArray[np.float32], candidates: CandidateConfig,
+                       bg_mean: float | None, pool: bool
+                       ) -> tuple[NDArray[np.bool_], NDArray[np.bool_] | None, int, int]:
+    """``(candidates, band, r0, r1)``: ``mask`` plus the pooled bands (:func:`pooled_band_mask`;
+    ``band`` None when none), and the rows ``r0 .. r1 - 1`` they occupy.  Band pooling recovers
+    thin single-look surface bands the per-pixel route leaves in pieces; it is only needed (and
+    only run, with ``pool``) where some beam has no candidate at all."""
+    from sonarmap.ranges._kernels import mask_extent
+
+    cand = np.ascontiguousarray(mask, dtype=bool)
+    r0, r1, n_cols = mask_extent(cand)
+    if not (pool and candidates.pool_factor > 0 and bg_mean is not None and bg_mean > 0 and n_cols < cand.shape[1]):
+        return cand, None, r0, r1
+    band = pooled_band_mask(image, candidates.pool_factor * bg_mean, pool_beams=candidates.pool_beams,
+                            pool_bins=candidates.pool_bins, min_beams=candidates.pool_min_beams)
+    if band is None:
+        return cand, None, r0, r1
+    cand = cand | band
+    r0, r1, _ = mask_extent(cand)
+    return cand, band, r0, r1
+
+
 def surface_ranges(ping: Ping, image: NDArray[np.float32], levels: NDArray[Any], mask: NDArray[np.bool_],
                    fit: Any, config: RangeConfig = RangeConfig(), candidates: CandidateConfig = CandidateConfig(), *,
                    normalised: bool = False, bg_mean: float | None = None, background: Any = None,
@@ -244,23 +266,12 @@ def surface_ranges(ping: Ping, image: NDArray[np.float32], levels: NDArray[Any],
     """Echoes of the candidate structure (``mask`` plus pooled bands), tracked across beams; also
     the number of bins each return's echo spans (0 where no return)."""
     from sonarmap.ranges import ranges_from_tracks
-    from sonarmap.ranges._kernels import mask_extent
     from sonarmap.ranges.echoes import find_echoes, level_llr, pooled_edges, spliced_echoes
     from sonarmap.ranges.tracking import front_surfaces, track_surfaces
 
     geom = ping.geometry
-    cand = np.ascontiguousarray(mask, dtype=bool)
-    band = None
-    r0, r1, n_cols = mask_extent(cand)
-    # band pooling recovers thin single-look surface bands the per-pixel route leaves in pieces;
-    # only needed where some beam has no candidate at all
-    if (candidates.pool_factor > 0 and bg_mean is not None and bg_mean > 0 and not normalised
-            and pool_bands and n_cols < cand.shape[1]):
-        band = pooled_band_mask(image, candidates.pool_factor * bg_mean, pool_beams=candidates.pool_beams,
-                                pool_bins=candidates.pool_bins, min_beams=candidates.pool_min_beams)
-        if band is not None:
-            cand = cand | band
-            r0, r1, n_cols = mask_extent(cand)
+    cand, band, r0, r1 = _with_pooled_bands(mask, image, candidates, bg_mean,
+                                            pool_bands and not normalised)
     if r1 <= r0:
         return (no_returns(geom, time_ns=ping.time_ns, source=ping.source, mode=config.range_mode),
                 np.zeros(geom.n_beams, dtype=np.int64))
