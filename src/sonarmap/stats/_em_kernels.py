@@ -246,11 +246,22 @@ def _eval_cached(kind: int, x: np.ndarray, eta: float, c: int, U: np.ndarray, EC
     return z, s1, s2
 
 
+_EPS = 2.220446049250313e-16  # relative spacing of doubles (upper bound), np.finfo(float).eps
+
+
 @njit(cache=True, nogil=True)
 def _solve(kind: int, x: np.ndarray, target: float, eta0: float, lo: float, hi: float,
            m_lo: float, m_hi: float, c: int, U: np.ndarray, EC: np.ndarray) -> float:
     """``eta`` in ``[lo, hi]`` with ``E_eta[T] = target`` (clamped to the bounds); the
-    evaluations go through the cache ``(U, EC)`` of component ``c`` (:func:`_eval_cached`)."""
+    evaluations go through the cache ``(U, EC)`` of component ``c`` (:func:`_eval_cached`).
+
+    Newton steps safeguarded by bisection; stops when ``|E_eta[T] - target| <= 1e-13 target``
+    or when the next step is below the resolution of the evaluation: :func:`_eval` sees ``eta``
+    only through ``q = exp(eta s)`` (``s = h`` for kind 1, ``h^2`` for kind 2) rounded to a
+    double, whose relative spacing is at most ``eps``, so ``eta`` closer than ``eps / s`` give
+    the same or an adjacent ``q`` - the computed mean cannot tell them apart, and bisecting
+    below that (while ``E_eta[T] - target`` is rounding noise) moves ``eta`` by noise only.
+    """
     if target <= m_lo:
         return lo
     if target >= m_hi:
@@ -258,6 +269,8 @@ def _solve(kind: int, x: np.ndarray, target: float, eta0: float, lo: float, hi: 
     a = lo
     b = hi
     eta = min(max(eta0, lo), hi)
+    h = x[1] - x[0]
+    res = _EPS / (h if kind == 1 else h * h)  # eta resolution of _eval (see above)
     for _ in range(100):
         z, s1, s2 = _eval_cached(kind, x, eta, c, U, EC)
         m = s1 / z
@@ -272,7 +285,7 @@ def _solve(kind: int, x: np.ndarray, target: float, eta0: float, lo: float, hi: 
         nxt = eta - g / v if v > 0 else 0.5 * (a + b)
         if not (a < nxt < b):
             nxt = 0.5 * (a + b)
-        if abs(nxt - eta) <= 1e-14 * (abs(eta) + 1.0):
+        if abs(nxt - eta) <= max(1e-14 * (abs(eta) + 1.0), res):
             eta = nxt
             break
         eta = nxt
