@@ -357,23 +357,109 @@ def _key_less(a, b):  # pragma: no cover - numba
 
 
 @njit(cache=True, nogil=True)
+def beam_index(echo_beam, m):  # pragma: no cover - numba
+    """``(first, count)``: the echoes (sorted by beam) of beam ``j`` are ``first[j] .. first[j] +
+    count[j] - 1``."""
+    count = np.zeros(m, np.int64)
+    for a in range(echo_beam.size):
+        count[echo_beam[a]] += 1
+    first = np.zeros(m, np.int64)
+    for j in range(1, m):
+        first[j] = first[j - 1] + count[j - 1]
+    return first, count
+
+
+@njit(cache=True, nogil=True)
+def front_pass(first, count, echo_beam, tracks, pos, lo_bin, hi_bin, unary, max_gap, slope_bins, slope_cost,
+               jump_bins, touch_bins, segment_cost, gap_cost, point_on, peak_val, point, clipped, evidence,
+               width_beams, pulse_bins, flat_bins, point_jump_bins, dip, over_range, margin,
+               fraction):  # pragma: no cover - numba
+    """The front pass (:func:`sonarmap.ranges.tracking.front_surfaces`) of the tracked surfaces
+    ``tracks`` (``(n_surfaces, m)`` echo indices, nearest first): one :func:`viterbi_surfaces`
+    pass over the untracked echoes whose bin interval ends before that of their beam's nearest
+    tracked echo starts, its point pieces (:func:`point_pieces`, with ``point_on``) dropped.
+    Returns per beam the pass's echo (-1 none) and whether it chose any."""
+    m = tracks.shape[1]
+    n_e = pos.size
+    chosen = np.full(m, -1, np.int64)
+    usable = np.zeros(n_e, np.bool_)
+    tracked = np.zeros(n_e, np.bool_)
+    for r in range(tracks.shape[0]):
+        for j in range(m):
+            if tracks[r, j] >= 0:
+                tracked[tracks[r, j]] = True
+    any_usable = False
+    for a in range(n_e):
+        near = tracks[0, echo_beam[a]]
+        if near >= 0 and not tracked[a] and hi_bin[a] < lo_bin[near]:
+            usable[a] = True
+            any_usable = True
+    if not any_usable:
+        return chosen, False
+    chosen = viterbi_surfaces(first, count, echo_beam, pos, lo_bin, hi_bin, unary, usable, max_gap, slope_bins,
+                              slope_cost, jump_bins, touch_bins, segment_cost, gap_cost)
+    hit = False
+    if point_on:
+        drop = point_pieces(chosen, pos, peak_val, point, clipped, evidence, width_beams, lo_bin, hi_bin, max_gap,
+                            jump_bins, touch_bins, pulse_bins, flat_bins, point_jump_bins, dip, over_range, margin,
+                            fraction)
+        for j in range(m):
+            if drop[j]:
+                chosen[j] = -1
+    for j in range(m):
+        if chosen[j] >= 0:
+            hit = True
+    return chosen, hit
+
+
+@njit(cache=True, nogil=True)
+def with_front(tracks, chosen):  # pragma: no cover - numba
+    """``tracks`` with the front pass's echoes ``chosen`` (per beam, -1 none) as the nearest
+    surfaces (a new array; the farthest surface of a full beam drops off)."""
+    out = tracks.copy()
+    n = tracks.shape[0]
+    for j in range(tracks.shape[1]):
+        if chosen[j] >= 0:
+            for r in range(n - 1, 0, -1):
+                out[r, j] = tracks[r - 1, j]
+            out[0, j] = chosen[j]
+    return out
+
+
+@njit(cache=True, nogil=True)
 def track_surfaces(echo_beam, m, pos, lo_bin, hi_bin, unary, n_surfaces, max_gap, slope_bins, slope_cost, jump_bins,
                    touch_bins, segment_cost, gap_cost, bridge_beams, point_on, peak_val, point, clipped, evidence,
                    width_beams, pulse_bins, flat_bins, point_jump_bins, dip, over_range, margin,
-                   fraction):  # pragma: no cover - numba
+                   fraction, front):  # pragma: no cover - numba
     """:func:`sonarmap.ranges.tracking.track_surfaces` in one kernel: ``n_surfaces`` passes of
     :func:`viterbi_surfaces` (each on the echoes the earlier ones left; with ``point_on`` a pass's
     point pieces, :func:`point_pieces` with the arguments after it, are not kept), the bridges
     (:func:`bridge_surfaces`; over one beam the nearest bridge wins, on equal edges the later
     echo), and per beam the surfaces sorted by edge (stable, NaN last) and cut to ``n_surfaces``.
-    Returns the ``(n_surfaces, m)`` echo indices (-1: none)."""
+    Returns the ``(n_surfaces, m)`` echo indices (-1: none), with ``front`` the same after the
+    front pass (:func:`front_pass`, :func:`with_front`; the same array when it keeps nothing or
+    without ``front``), and whether the front pass kept anything."""
+    first, count = beam_index(echo_beam, m)
+    out = _tracked(first, count, echo_beam, m, pos, lo_bin, hi_bin, unary, n_surfaces, max_gap, slope_bins,
+                   slope_cost, jump_bins, touch_bins, segment_cost, gap_cost, bridge_beams, point_on, peak_val, point,
+                   clipped, evidence, width_beams, pulse_bins, flat_bins, point_jump_bins, dip, over_range, margin,
+                   fraction)
+    if not front or pos.size == 0:
+        return out, out, False
+    chosen, hit = front_pass(first, count, echo_beam, out, pos, lo_bin, hi_bin, unary, max_gap, slope_bins,
+                             slope_cost, jump_bins, touch_bins, segment_cost, gap_cost, point_on, peak_val, point,
+                             clipped, evidence, width_beams, pulse_bins, flat_bins, point_jump_bins, dip, over_range,
+                             margin, fraction)
+    return out, (with_front(out, chosen) if hit else out), hit
+
+
+@njit(cache=True, nogil=True)
+def _tracked(first, count, echo_beam, m, pos, lo_bin, hi_bin, unary, n_surfaces, max_gap, slope_bins, slope_cost,
+             jump_bins, touch_bins, segment_cost, gap_cost, bridge_beams, point_on, peak_val, point, clipped,
+             evidence, width_beams, pulse_bins, flat_bins, point_jump_bins, dip, over_range, margin,
+             fraction):  # pragma: no cover - numba
+    """:func:`track_surfaces` without the front pass (``first``, ``count``: :func:`beam_index`)."""
     n_e = pos.size
-    count = np.zeros(m, np.int64)
-    for a in range(n_e):
-        count[echo_beam[a]] += 1
-    first = np.zeros(m, np.int64)
-    for j in range(1, m):
-        first[j] = first[j - 1] + count[j - 1]
     out = np.full((n_surfaces, m), -1, np.int64)
     if n_e == 0:
         return out

@@ -267,7 +267,7 @@ def surface_ranges(ping: Ping, image: NDArray[np.float32], levels: NDArray[Any],
     the number of bins each return's echo spans (0 where no return)."""
     from sonarmap.ranges import ranges_from_tracks
     from sonarmap.ranges.echoes import find_echoes, level_llr, pooled_edges, spliced_echoes
-    from sonarmap.ranges.tracking import front_surfaces, track_surfaces
+    from sonarmap.ranges.tracking import track_surfaces, tracks_and_front
 
     geom = ping.geometry
     cand, band, r0, r1 = _with_pooled_bands(mask, image, candidates, bg_mean,
@@ -286,7 +286,8 @@ def surface_ranges(ping: Ping, image: NDArray[np.float32], levels: NDArray[Any],
     plain = np.ascontiguousarray(image, dtype=np.float64) if pb < 2 and not measured else image
 
     def measure(cand: NDArray[np.bool_], rows: tuple[int, int],
-                before: tuple[Any, NDArray[np.int64], tuple[int, int]] | None = None) -> tuple[Any, float, Any, Any]:
+                before: tuple[Any, NDArray[np.int64], tuple[int, int]] | None = None
+                ) -> tuple[Any, float, Any, Any, Any]:
         meas, bg = plain, bg_mean or 0.0
         if measured:
             # echo intensity above the background, in background units (its mean is 1)
@@ -306,18 +307,21 @@ def surface_ranges(ping: Ping, image: NDArray[np.float32], levels: NDArray[Any],
             # only the beams with new candidates were measured again (each beam's echoes depend
             # on its own column only)
             echoes = spliced_echoes(before[0], echoes, before[1])
-        return meas, bg, echoes, track_surfaces(echoes, config.track, pb)
+        # the front pass inside the tracking kernel (kept for the last measurement only: the
+        # continuation walks on from the passes' own surfaces)
+        if config.track.front_pass:
+            return meas, bg, echoes, *tracks_and_front(echoes, config.track, pb)
+        tracks = track_surfaces(echoes, config.track, pb)
+        return meas, bg, echoes, tracks, tracks
 
-    meas, bg, echoes, tracks = measure(cand, (r0, r1))
+    meas, bg, echoes, tracks, fronted = measure(cand, (r0, r1))
     if config.continue_evidence > 0 and llr_lut is not None:
         more = _continuation(echoes, tracks.first, levels, llr_lut, cand, config)
         if more is not None:
             extra, cols, e0, e1 = more
             cand = cand | extra
-            meas, bg, echoes, tracks = measure(cand, (min(r0, e0), max(r1, e1)), (echoes, cols, (r0, r1)))
-    if config.track.front_pass:
-        # after the continuation, which walks on from the passes' own surfaces
-        tracks = front_surfaces(echoes, tracks, config.track, pb)
+            meas, bg, echoes, tracks, fronted = measure(cand, (min(r0, e0), max(r1, e1)), (echoes, cols, (r0, r1)))
+    tracks = fronted
     sel = tracks.first
     if config.edge_pool_beams > 0 and config.range_mode == "first":
         # the pooled profile is smoothed over at least 3 bins along range in all (a single-look

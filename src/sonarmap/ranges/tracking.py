@@ -84,7 +84,7 @@ from sonarmap._config import check_booleans, check_integers, coerce_reals, confi
 from sonarmap.errors import InputError
 from sonarmap.ranges.echoes import Echoes
 
-__all__ = ["TrackConfig", "Tracks", "track_surfaces", "front_surfaces", "point_streaks", "continuation_mask"]
+__all__ = ["TrackConfig", "Tracks", "track_surfaces", "tracks_and_front", "front_surfaces", "point_streaks", "continuation_mask"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -167,18 +167,34 @@ def track_surfaces(echoes: Echoes, config: TrackConfig = TrackConfig(), pulse_bi
 
     Pieces that are point targets (:func:`point_streaks`, with ``pulse_bins`` the pulse length in
     bins) are not reported; their echoes are not tracked again."""
+    return Tracks(echo=_tracked(echoes, config, pulse_bins, False)[0])
+
+
+def tracks_and_front(echoes: Echoes, config: TrackConfig = TrackConfig(),
+                     pulse_bins: int = 1) -> tuple[Tracks, Tracks]:
+    """``(track_surfaces(...), front_surfaces(echoes, track_surfaces(...), ...))`` in one kernel
+    call; the second is the first object itself when the front pass keeps nothing."""
+    out, front, hit = _tracked(echoes, config, pulse_bins, True)
+    tracks = Tracks(echo=out)
+    return tracks, (Tracks(echo=front) if hit else tracks)
+
+
+def _tracked(echoes: Echoes, config: TrackConfig, pulse_bins: int,
+             front: bool) -> tuple[NDArray[np.int64], NDArray[np.int64], bool]:
+    """:func:`_kernels.track_surfaces` of ``echoes``: the tracks, (with ``front``) the tracks
+    after the front pass, and whether that pass kept anything."""
     from sonarmap.ranges import _kernels
 
     if not isinstance(echoes, Echoes):
         raise InputError(f"echoes: expected Echoes, got {type(echoes).__name__}")
     lo, hi = echoes.intervals()
     c = config
-    point = _point_arguments(echoes, c, pulse_bins)
-    return Tracks(echo=_kernels.track_surfaces(
+    out, after, hit = _kernels.track_surfaces(
         echoes.beam, int(echoes.n_beams), np.ascontiguousarray(echoes.edge_bin, dtype=np.float64), lo, hi,
         c.beam_cost - echoes.evidence, int(c.n_surfaces), int(c.max_gap), float(c.slope_bins), float(c.slope_cost),
         float(c.jump_bins), float(c.touch_bins), float(c.segment_cost), float(c.gap_cost), int(c.bridge_beams),
-        *point))
+        *_point_arguments(echoes, c, pulse_bins), bool(front))
+    return out, after, bool(hit)
 
 
 def front_surfaces(echoes: Echoes, tracks: Tracks, config: TrackConfig = TrackConfig(),
@@ -188,7 +204,8 @@ def front_surfaces(echoes: Echoes, tracks: Tracks, config: TrackConfig = TrackCo
     One more pass of the tracking programme over the echoes that lie wholly in front of their
     beam's nearest tracked echo (their bin interval ends before its interval starts; beams without
     a tracked echo take no part); each echo of a piece it keeps becomes its beam's nearest surface,
-    the farthest one dropping off when the beam already holds ``n_surfaces``.
+    the farthest one dropping off when the beam already holds ``n_surfaces``.  One kernel
+    (:func:`_kernels.front_pass`); :func:`tracks_and_front` runs it inside the tracking kernel.
 
     Parameters
     ----------
@@ -208,38 +225,22 @@ def front_surfaces(echoes: Echoes, tracks: Tracks, config: TrackConfig = TrackCo
 
     if not isinstance(tracks, Tracks) or tracks.echo.ndim != 2 or tracks.echo.shape[1] != echoes.n_beams:
         raise InputError(f"tracks: expected Tracks over {echoes.n_beams} beams")
-    first = tracks.first
-    if echoes.size == 0 or not (first >= 0).any():
+    if echoes.size == 0:
         return tracks
     lo, hi = echoes.intervals()
-    tracked = np.zeros(echoes.size, dtype=bool)
-    tracked[tracks.echo[tracks.echo >= 0]] = True
-    nearest = first[echoes.beam]
-    front = ~tracked & (nearest >= 0)
-    front[front] = hi[front] < lo[nearest[front]]
-    idx = np.flatnonzero(front)
-    if idx.size == 0:
-        return tracks
     c = config
-    chosen = _kernels.track_surfaces(
-        echoes.beam[idx], int(echoes.n_beams), np.ascontiguousarray(echoes.edge_bin[idx], dtype=np.float64),
-        lo[idx], hi[idx], c.beam_cost - echoes.evidence[idx], 1, int(c.max_gap), float(c.slope_bins),
-        float(c.slope_cost), float(c.jump_bins), float(c.touch_bins), float(c.segment_cost), float(c.gap_cost), 0,
-        *_point_arguments(echoes, c, pulse_bins, idx))[0]
-    hit = chosen >= 0
-    if not hit.any():
-        return tracks
-    out = tracks.echo.copy()
-    out[1:, hit] = tracks.echo[:-1, hit]
-    out[0, hit] = idx[chosen[hit]]
-    return Tracks(echo=out)
+    first, count = _kernels.beam_index(echoes.beam, int(echoes.n_beams))
+    echo = np.ascontiguousarray(tracks.echo, dtype=np.int64)
+    chosen, hit = _kernels.front_pass(
+        first, count, echoes.beam, echo, np.ascontiguousarray(echoes.edge_bin, dtype=np.float64), lo, hi,
+        c.beam_cost - echoes.evidence, int(c.max_gap), float(c.slope_bins), float(c.slope_cost), float(c.jump_bins),
+        float(c.touch_bins), float(c.segment_cost), float(c.gap_cost), *_point_arguments(echoes, c, pulse_bins))
+    return Tracks(echo=_kernels.with_front(echo, chosen)) if hit else tracks
 
 
-def _point_arguments(echoes: Echoes, config: TrackConfig, pulse_bins: int,
-                     idx: NDArray[np.int64] | None = None) -> tuple:  # type: ignore[type-arg]
+def _point_arguments(echoes: Echoes, config: TrackConfig, pulse_bins: int) -> tuple:  # type: ignore[type-arg]
     """The point-target arguments of :func:`_kernels.point_pieces` after ``on`` (False: the rule is
-    off - no beamwidth or ``point_fraction`` 0), for :func:`_kernels.track_surfaces`; of the echoes
-    ``idx`` only when given."""
+    off - no beamwidth or ``point_fraction`` 0), for :func:`_kernels.track_surfaces`."""
     on = config.point_fraction > 0 and echoes.beamwidth_beams is not None and echoes.size > 0
     pb = max(int(pulse_bins), 1)
     flat = max(1.0, 0.5 * pb)  # a point's edges agree within half a pulse (at least a bin)
@@ -247,12 +248,11 @@ def _point_arguments(echoes: Echoes, config: TrackConfig, pulse_bins: int,
         z = np.zeros(0)
         return (False, z, np.zeros(0, dtype=np.bool_), np.zeros(0, dtype=np.bool_), z, z, float(pb), flat,
                 2.0 * flat, 0.0, 1.0, 0.0, 0.0)
-    sel = slice(None) if idx is None else idx
-    point = echoes.evidence[sel] >= config.point_llr * echoes.n_pixels[sel]
-    clipped = np.zeros(point.size, dtype=bool) if echoes.clipped is None else echoes.clipped[sel]
-    return (True, np.ascontiguousarray(echoes.peak_value[sel], dtype=np.float64), np.ascontiguousarray(point),
+    point = echoes.evidence >= config.point_llr * echoes.n_pixels
+    clipped = np.zeros(point.size, dtype=bool) if echoes.clipped is None else echoes.clipped
+    return (True, np.ascontiguousarray(echoes.peak_value, dtype=np.float64), np.ascontiguousarray(point),
             np.ascontiguousarray(clipped, dtype=np.bool_),
-            np.ascontiguousarray(echoes.evidence[sel], dtype=np.float64),
+            np.ascontiguousarray(echoes.evidence, dtype=np.float64),
             np.ascontiguousarray(echoes.beamwidth_beams, dtype=np.float64), float(pb), flat, 2.0 * flat,
             float(config.point_dip), 10.0 ** (config.point_over_range_db / 10.0), float(config.point_margin),
             float(config.point_fraction))
