@@ -238,7 +238,7 @@ def process_ping(ping: Ping, config: PipelineConfig = PipelineConfig(), *, keep_
         flags.add("no_returns")
     pd_range = _pd_range(float(pd), labels, ranges, flags)
     if thickness is not None:
-        ranges = dataclasses.replace(ranges, p_detect=_p_detect(float(pd), pd_range, ranges, thickness))
+        ranges = ranges.with_p_detect(_p_detect(float(pd), pd_range, ranges, thickness))
     return products(ranges, flags, labels, pd, pfa, pd_range)
 
 

@@ -176,3 +176,24 @@ def test_component_rule_with_extent_equals_rule0_then_drop_small_components():
         ruled = rule0(m, mb, mn, gap, px) if mb > 1 or px > 0 else m
         ref = extent_reference(ruled, g, e) if e > 0 else ruled
         assert np.array_equal(component_rule(m, mb, mn, gap, px, geometry=g, min_extent_m=e), ref)
+
+
+def test_with_p_detect_is_replace_without_rechecking(geom):
+    import dataclasses
+
+    mask = np.zeros(geom.shape, bool)
+    mask[40:44, 5:15] = True
+    r = extract_ranges(mask, mask.astype(np.float32), geom)
+    p = np.linspace(0, 1, geom.n_beams)
+    new = r.with_p_detect(p)
+    ref = dataclasses.replace(r, p_detect=p)
+    assert new.p_detect.dtype == np.float32 and new is not r
+    for f in dataclasses.fields(BeamRanges):
+        a, b = getattr(new, f.name), getattr(ref, f.name)
+        if isinstance(a, np.ndarray):
+            np.testing.assert_array_equal(a, b)
+        else:
+            assert a == b
+    assert np.isnan(r.p_detect).all()  # the original is untouched
+    with pytest.raises(InputError, match="p_detect"):
+        r.with_p_detect(p[:-1])

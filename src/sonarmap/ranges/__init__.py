@@ -130,6 +130,17 @@ class BeamRanges:
         new.__dict__["p_detect"] = np.full(np.shape(fields["azimuth_rad"])[0], np.nan, dtype=np.float32)
         return new
 
+    def with_p_detect(self, p_detect: ArrayLike) -> BeamRanges:
+        """A copy with ``p_detect`` replaced (``dataclasses.replace`` without re-checking the
+        other fields, which this object's construction checked already)."""
+        p = np.asarray(p_detect, dtype=np.float32)
+        if p.shape != self.bin.shape:
+            raise InputError(f"p_detect: expected shape {self.bin.shape}, got {p.shape}")
+        new = object.__new__(type(self))
+        new.__dict__.update(self.__dict__)
+        new.__dict__["p_detect"] = p
+        return new
+
     @property
     def valid(self) -> NDArray[np.bool_]:
         """Beams with a return."""

@@ -1298,18 +1298,24 @@ def box_mean_f32(img, size0, size1):  # pragma: no cover - numba
 def box_band(img, size0, size1, level):  # pragma: no cover - numba
     """``box_mean_f32(img, size0, size1) >= level`` (``level`` float32: numpy compares a float32
     image with a Python float in float32), with the first and one-past-last row holding a band
-    pixel and the number of columns holding one (0 rows when none)."""
-    pooled = box_mean_f32(img, size0, size1)
-    h, w = pooled.shape
-    band = np.zeros((h, w), dtype=np.bool_)
+    pixel and the number of columns holding one (0 rows when none).
+
+    For a positive finite ``level`` the pass along axis 1 compares each running sum with
+    :func:`_mean_threshold` instead of dividing, rounding and comparing (the same test: it is
+    monotone in the sum), 4 rows side by side (:func:`_box_rows_band`)."""
+    mid = box_mean_f32(img, size0, 1)
+    h, w = mid.shape
+    if size1 > 1 and 0 < level < np.inf:
+        band = _box_rows_band(mid, size1, _mean_threshold(level, size1))
+    else:
+        band = (box_mean_f32(mid, 1, size1) if size1 > 1 else mid) >= level
     col = np.zeros(w, dtype=np.bool_)
     r0 = h
     r1 = 0
     for i in range(h):
         row = False
         for j in range(w):
-            v = pooled[i, j] >= level  # no branch per pixel: it mispredicts on speckle
-            band[i, j] = v
+            v = band[i, j]
             col[j] |= v
             row |= v
         if row:
@@ -1321,6 +1327,91 @@ def box_band(img, size0, size1, level):  # pragma: no cover - numba
         if col[j]:
             n_cols += 1
     return band, r0, r1, n_cols
+
+
+@njit(cache=True, nogil=True)
+def _mean_threshold(level, size):  # pragma: no cover - numba
+    """The least float64 ``x`` with ``float32(x / size) >= level`` (``level`` a positive finite
+    float32): the test is monotone in ``x`` (a correctly rounded division, then a rounding), so it
+    is ``x >= threshold``; found by bisection over the bit patterns of the positive doubles."""
+    bits = np.empty(1, np.int64)
+    lo = 0  # +0.0 fails the test
+    hi = 0x7FF0000000000000  # +inf passes it
+    while hi - lo > 1:
+        mid = lo + (hi - lo) // 2
+        bits[0] = mid
+        if np.float32(bits.view(np.float64)[0] / size) >= level:
+            hi = mid
+        else:
+            lo = mid
+    bits[0] = hi
+    return bits.view(np.float64)[0]
+
+
+@njit(cache=True, nogil=True)
+def _box_rows_band(mid, size, threshold):  # pragma: no cover - numba
+    """``box_mean_f32(mid, 1, size) >= level`` for ``threshold = _mean_threshold(level, size)``:
+    per row the running sum of :func:`_box_line` (the same operations in the same order: bit for
+    bit) compared with the threshold; 4 rows side by side (a row's running sum is a chain of
+    dependent additions), the rows left over one at a time."""
+    h, w = mid.shape
+    band = np.empty((h, w), dtype=np.bool_)
+    b = size // 2
+    for i in range(0, h - h % 4, 4):
+        a0 = 0.0
+        a1 = 0.0
+        a2 = 0.0
+        a3 = 0.0
+        for k in range(size):
+            t = k - b
+            if 0 <= t < w:
+                a0 += float(mid[i, t])
+                a1 += float(mid[i + 1, t])
+                a2 += float(mid[i + 2, t])
+                a3 += float(mid[i + 3, t])
+            else:
+                a0 += 0.0
+                a1 += 0.0
+                a2 += 0.0
+                a3 += 0.0
+        band[i, 0] = a0 >= threshold
+        band[i + 1, 0] = a1 >= threshold
+        band[i + 2, 0] = a2 >= threshold
+        band[i + 3, 0] = a3 >= threshold
+        for k in range(1, w):
+            t_new = k + size - 1 - b
+            t_old = k - 1 - b
+            n0 = n1 = n2 = n3 = o0 = o1 = o2 = o3 = 0.0
+            if t_new < w:
+                n0 = float(mid[i, t_new])
+                n1 = float(mid[i + 1, t_new])
+                n2 = float(mid[i + 2, t_new])
+                n3 = float(mid[i + 3, t_new])
+            if t_old >= 0:
+                o0 = float(mid[i, t_old])
+                o1 = float(mid[i + 1, t_old])
+                o2 = float(mid[i + 2, t_old])
+                o3 = float(mid[i + 3, t_old])
+            a0 += n0 - o0
+            a1 += n1 - o1
+            a2 += n2 - o2
+            a3 += n3 - o3
+            band[i, k] = a0 >= threshold
+            band[i + 1, k] = a1 >= threshold
+            band[i + 2, k] = a2 >= threshold
+            band[i + 3, k] = a3 >= threshold
+    for i in range(h - h % 4, h):
+        a = 0.0
+        for k in range(size):
+            t = k - b
+            a += float(mid[i, t]) if 0 <= t < w else 0.0
+        band[i, 0] = a >= threshold
+        for k in range(1, w):
+            t_new = k + size - 1 - b
+            t_old = k - 1 - b
+            a += (float(mid[i, t_new]) if t_new < w else 0.0) - (float(mid[i, t_old]) if t_old >= 0 else 0.0)
+            band[i, k] = a >= threshold
+    return band
 
 
 @njit(cache=True, nogil=True, inline="always")
