@@ -41,3 +41,15 @@ def test_mean_threshold_is_the_least_sum_that_reaches_the_level() -> None:
             x = _kernels._mean_threshold(level, size)
             assert np.float32(x / size) >= level
             assert not np.float32(np.nextafter(x, -np.inf) / size) >= level
+
+
+def test_union_extent_is_the_union_and_its_rows() -> None:
+    rng = np.random.default_rng(3)
+    for _ in range(200):
+        h, w = (int(v) for v in rng.integers(1, 30, 2))
+        a = rng.random((h, w)) < rng.random() * 0.1
+        b = rng.random((h, w)) < rng.random() * 0.1
+        out, r0, r1 = _kernels.union_extent(a, b)
+        np.testing.assert_array_equal(out, a | b)
+        rows = np.flatnonzero((a | b).any(axis=1))
+        assert (r0, r1) == ((int(rows[0]), int(rows[-1]) + 1) if rows.size else (h, 0))

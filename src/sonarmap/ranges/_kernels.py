@@ -1202,6 +1202,31 @@ def continuation_extra(extra, cand, first, edge_bin, r0, r1):  # pragma: no cove
 
 
 @njit(cache=True, nogil=True)
+def union_extent(a, b):  # pragma: no cover - numba
+    """``(a | b, r0, r1)`` of two C-contiguous boolean images of one shape: their union and the
+    first and one-past-last row holding a true pixel of it (``(n, 0)``: none), in one pass."""
+    n, m = a.shape
+    out = np.empty((n, m), np.bool_)
+    fa = a.reshape(n * m).view(np.uint8)
+    fb = b.reshape(n * m).view(np.uint8)
+    fo = out.reshape(n * m).view(np.uint8)
+    r0 = n
+    r1 = 0
+    for i in range(n):
+        base = i * m
+        row = np.uint8(0)
+        for j in range(m):
+            v = fa[base + j] | fb[base + j]
+            fo[base + j] = v
+            row |= v
+        if row:
+            if r0 == n:
+                r0 = i
+            r1 = i + 1
+    return out, r0, r1
+
+
+@njit(cache=True, nogil=True)
 def mask_extent(mask):  # pragma: no cover - numba
     """``(r0, r1, n_cols)`` of a C-contiguous boolean image: the first and one-past-last row
     holding a true pixel (``(n, 0)``: none) and the number of columns holding one; one pass

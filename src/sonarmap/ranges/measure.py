@@ -244,7 +244,7 @@ def _with_pooled_bands(mask: NDArray[np.bool_], image: NDArray[np.float32], cand
     ``band`` None when none), and the rows ``r0 .. r1 - 1`` they occupy.  Band pooling recovers
     thin single-look surface bands the per-pixel route leaves in pieces; it is only needed (and
     only run, with ``pool``) where some beam has no candidate at all."""
-    from sonarmap.ranges._kernels import mask_extent
+    from sonarmap.ranges._kernels import mask_extent, union_extent
 
     cand = np.ascontiguousarray(mask, dtype=bool)
     r0, r1, n_cols = mask_extent(cand)
@@ -254,8 +254,7 @@ def _with_pooled_bands(mask: NDArray[np.bool_], image: NDArray[np.float32], cand
                             pool_bins=candidates.pool_bins, min_beams=candidates.pool_min_beams)
     if band is None:
         return cand, None, r0, r1
-    cand = cand | band
-    r0, r1, _ = mask_extent(cand)
+    cand, r0, r1 = union_extent(cand, np.ascontiguousarray(band))
     return cand, band, r0, r1
 
 
