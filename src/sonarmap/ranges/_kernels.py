@@ -1201,6 +1201,17 @@ def continuation_extra(extra, cand, first, edge_bin, r0, r1):  # pragma: no cove
     return extra, hit, np.flatnonzero(keep), e0, e1
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _grow_rows(row, i, r0, r1, n):  # pragma: no cover - numba
+    """``(r0, r1)``, the first and one-past-last row holding a true pixel (``r0 == n``: none yet),
+    after row ``i`` (``row``: whether it holds one)."""
+    if row:
+        if r0 == n:
+            r0 = i
+        r1 = i + 1
+    return r0, r1
+
+
 @njit(cache=True, nogil=True)
 def union_extent(a, b):  # pragma: no cover - numba
     """``(a | b, r0, r1)`` of two C-contiguous boolean images of one shape: their union and the
@@ -1219,10 +1230,7 @@ def union_extent(a, b):  # pragma: no cover - numba
             v = fa[base + j] | fb[base + j]
             fo[base + j] = v
             row |= v
-        if row:
-            if r0 == n:
-                r0 = i
-            r1 = i + 1
+        r0, r1 = _grow_rows(row, i, r0, r1, n)
     return out, r0, r1
 
 
@@ -1243,10 +1251,7 @@ def mask_extent(mask):  # pragma: no cover - numba
             v = flat[base + j]
             acc[j] |= v
             row |= v
-        if row:
-            if r0 == n:
-                r0 = i
-            r1 = i + 1
+        r0, r1 = _grow_rows(row, i, r0, r1, n)
     n_cols = 0
     for j in range(m):
         if acc[j]:
