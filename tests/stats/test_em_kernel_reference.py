@@ -14,7 +14,7 @@ from sonarmap.stats.components import quantization_levels
 from sonarmap.stats.mixture import _fit_problem, _general_coords, _initial_guesses, component_pmf_matrix
 
 
-@njit(cache=True)
+@njit(cache=False)  # not cached: a cached test kernel keeps the old code of the src kernels it calls
 def _reference_plain_em(counts, x, kind, par, w, lo, hi, max_iter, tol, trace):  # pragma: no cover - numba
     """Plain EM for kinds 0-2: full-level pmfs from :func:`_eval` every E-step, every M-step's
     Newton with an empty evaluation cache."""
