@@ -53,7 +53,7 @@ from sonarmap._config import check_field_names
 from sonarmap.errors import InputError
 
 __all__ = ["BackgroundLevel", "on_8bit_grid", "RecordingBackground", "estimate_background", "estimate_recording_background",
-           "normalise_image", "BACKGROUND_MEAN", "expand_grid", "input_gain", "suppress_sidelobes", "condition_image",
+           "normalise_image", "BACKGROUND_MEAN", "expand_grid", "grid_weights", "input_gain", "suppress_sidelobes", "condition_image",
            "SIDELOBE_LEVEL_DB", "INPUT_GAIN_QUANTILE", "INPUT_GAIN_BELOW", "MIN_LEVEL_COUNTS"]
 
 #: Mean of the background excess after normalisation (the DIDSON background's 1/lambda, Table I).
@@ -338,10 +338,11 @@ def _block_factor(img: NDArray[np.float32], level: NDArray[np.float32]) -> NDArr
     return np.clip(grid / med, 0.5, 2.0).astype(np.float32)
 
 
-@functools.lru_cache(maxsize=32)
-def _interp_weights(n: int, nb: int) -> tuple[NDArray[np.intp], NDArray[np.intp], NDArray[np.float32]]:
-    """``(i0, i1, f)``: sample ``k`` of ``n`` lies a fraction ``f[k]`` of the way from block centre
-    ``i0[k]`` to ``i1[k]`` of ``nb`` blocks (edges held: ``f`` is 0 or 1 beyond the outer centres)."""
+@functools.lru_cache(maxsize=64)
+def grid_weights(n: int, nb: int) -> tuple[NDArray[np.intp], NDArray[np.intp], NDArray[np.float32]]:
+    """:func:`expand_grid`'s bilinear weights along one axis, ``(i0, i1, f)`` (read-only, cached):
+    sample ``k`` of ``n`` lies a fraction ``f[k]`` of the way from block centre ``i0[k]`` to
+    ``i1[k]`` of ``nb`` blocks (edges held: ``f`` is 0 or 1 beyond the outer centres)."""
     x = np.clip((np.arange(n) + 0.5) * nb / n - 0.5, 0, nb - 1)
     i0 = np.minimum(x.astype(np.intp), max(nb - 2, 0))
     i1 = np.minimum(i0 + 1, nb - 1)
@@ -377,9 +378,9 @@ def _grid_rows(grid: NDArray[np.float32], shape: tuple[int, int]
     from sonarmap.preprocess._kernels import interpolate_rows
 
     g = np.ascontiguousarray(grid, dtype=np.float32)
-    c0, c1, fc = _interp_weights(shape[1], g.shape[1])
+    c0, c1, fc = grid_weights(shape[1], g.shape[1])
     cols = interpolate_rows(np.ascontiguousarray(g.T), c0, c1, fc).T  # across beams on the small grid
-    return (np.ascontiguousarray(cols), *_interp_weights(shape[0], g.shape[0]))
+    return (np.ascontiguousarray(cols), *grid_weights(shape[0], g.shape[0]))
 
 
 _ONE_BLOCK = np.ones((1, 1), dtype=np.float32)

@@ -15,7 +15,6 @@ the background, linear in intensity).  Called alone with the default
 
 from __future__ import annotations
 
-import functools
 import math
 import threading
 from typing import Any
@@ -156,21 +155,6 @@ def _continuation(echoes: Any, first: NDArray[np.int64], levels: NDArray[Any], l
     return (extra, cols, int(r0), int(r1)) if hit else None
 
 
-@functools.lru_cache(maxsize=64)
-def _block_weights(n: int, nb: int) -> tuple[NDArray[np.intp], NDArray[np.intp], NDArray[np.float32]]:
-    """``(i0, i1, f)`` of :func:`sonarmap.preprocess.normalise.expand_grid`'s bilinear weights
-    along an axis of ``n`` samples and ``nb`` blocks: sample ``k`` lies ``f[k]`` of the way from
-    block centre ``i0[k]`` to ``i1[k]`` (edges held); tests/ranges/test_measurement_rows.py checks
-    the expansion against ``expand_grid`` bit for bit."""
-    x = np.clip((np.arange(n) + 0.5) * nb / n - 0.5, 0, nb - 1)
-    i0 = np.minimum(x.astype(np.intp), max(nb - 2, 0))
-    i1 = np.minimum(i0 + 1, nb - 1)
-    f = (x - i0).astype(np.float32)
-    for a in (i0, i1, f):
-        a.setflags(write=False)
-    return i0, i1, f
-
-
 _WORK = threading.local()
 
 
@@ -197,6 +181,7 @@ def _measurement_rows(ping: Ping, background: Any, config: RangeConfig, r0: int,
     The beam factor is interpolated from its block grid on the measured rows only
     (:func:`_kernels.excess_ratio_grid`).
     """
+    from sonarmap.preprocess.normalise import grid_weights
     from sonarmap.ranges._kernels import excess_ratio_grid
 
     n, m = ping.image.shape
@@ -210,7 +195,7 @@ def _measurement_rows(ping: Ping, background: Any, config: RangeConfig, r0: int,
                 else np.ascontiguousarray(background.beam_factor, dtype=np.float32))
         d = _log_range_db(ping, config)
         out, dirty = _work_image((n, m))
-        weights = (*_block_weights(m, grid.shape[1]), *_block_weights(n, max(grid.shape[0], 1)))
+        weights = (*grid_weights(m, grid.shape[1]), *grid_weights(n, max(grid.shape[0], 1)))
         done[:] = [out, (0, 0), (raw, level, grid, *weights, float(d) if d is not None else 0.0), dirty]
     out, (a0, b0), inputs, dirty = done
     if done[1] != (0, 0) and a >= a0 and b <= b0:
