@@ -36,19 +36,24 @@ def test_pooled_band_mask_finds_a_wide_faint_band_only():
     assert pooled_band_mask(np.zeros((64, 60), np.float32), 0.1) is None
 
 
+def _box_cases(rng: np.random.Generator, n: int = 150):
+    """``(t, image, box rows, box columns)`` of ``n`` random images (every third one 60 % zeros),
+    drawn lazily from ``rng`` (a test may draw from it between cases)."""
+    for t in range(n):
+        h, w = int(rng.integers(1, 70)), int(rng.integers(1, 70))
+        img = (rng.random((h, w)) ** rng.uniform(1, 8)).astype(np.float32)
+        if t % 3 == 0:
+            img[rng.random((h, w)) < 0.6] = 0
+        yield t, img, int(rng.integers(1, 6)), int(rng.integers(1, 12))
+
+
 def test_box_mean_kernel_is_scipy_uniform_filter_bit_for_bit():
     """The band-pooling box mean (numba) reproduces scipy.ndimage.uniform_filter exactly."""
     from scipy.ndimage import uniform_filter
 
     from sonarmap.ranges._kernels import box_mean_f32
 
-    rng = np.random.default_rng(0)
-    for t in range(150):
-        h, w = int(rng.integers(1, 70)), int(rng.integers(1, 70))
-        img = (rng.random((h, w)) ** rng.uniform(1, 8)).astype(np.float32)
-        if t % 3 == 0:
-            img[rng.random((h, w)) < 0.6] = 0
-        s0, s1 = int(rng.integers(1, 6)), int(rng.integers(1, 12))
+    for _, img, s0, s1 in _box_cases(np.random.default_rng(0)):
         ref = uniform_filter(img, size=(s0, s1), mode="constant")
         assert np.array_equal(ref.view(np.uint32), box_mean_f32(img, s0, s1).view(np.uint32))
 
@@ -58,19 +63,14 @@ def test_box_band_kernel_is_box_mean_threshold():
     from sonarmap.ranges._kernels import box_band, box_mean_f32
 
     rng = np.random.default_rng(1)
-    for t in range(150):
-        h, w = int(rng.integers(1, 70)), int(rng.integers(1, 70))
-        img = (rng.random((h, w)) ** rng.uniform(1, 8)).astype(np.float32)
-        if t % 3 == 0:
-            img[rng.random((h, w)) < 0.6] = 0
-        s0, s1 = int(rng.integers(1, 6)), int(rng.integers(1, 12))
+    for t, img, s0, s1 in _box_cases(rng):
         pooled = box_mean_f32(img, s0, s1)
         level = np.float32(np.quantile(pooled, rng.uniform(0.3, 1.0))) if t % 5 else np.float32(2.0)
         want = pooled >= level
         band, r0, r1, n_cols = box_band(img, s0, s1, level)
         rows = np.flatnonzero(want.any(axis=1))
         assert np.array_equal(band, want)
-        assert (r0, r1) == ((int(rows[0]), int(rows[-1]) + 1) if rows.size else (h, 0))
+        assert (r0, r1) == ((int(rows[0]), int(rows[-1]) + 1) if rows.size else (img.shape[0], 0))
         assert n_cols == int(want.any(axis=0).sum())
 
 
