@@ -215,10 +215,8 @@ def _rx_beamwidths(g: SonarGeometry) -> np.ndarray:
 def elevation_from_ping_info(info: Any) -> float | None:
     """The width across the fan a ``PingInfo`` reports: its ``tx_beamwidths`` when they hold one
     finite width in (0, pi] rad (one value, or the same value for every beam), else None."""
-    tx = np.asarray(getattr(info, "tx_beamwidths", ()), dtype=np.float64).reshape(-1)
-    if tx.size == 0 or not np.all(np.isfinite(tx)) or not np.allclose(tx, tx[0], rtol=1e-6, atol=0.0):
-        return None
-    return plausible_elevation_beamwidth(float(tx[0]))
+    tx = _one_width(getattr(info, "tx_beamwidths", ()))
+    return None if tx is None else plausible_elevation_beamwidth(tx)
 
 
 def azimuth_from_ping_info(info: Any) -> float | None:
@@ -226,10 +224,17 @@ def azimuth_from_ping_info(info: Any) -> float | None:
     ``rx_beamwidths`` (one-way -3 dB, see :func:`beamwidths`): when they hold one finite width in
     (0, pi/2] rad (one value, or the same value for every beam), that width over ``sqrt(2)``;
     else None (not reported, or widths that differ across beams)."""
-    rx = np.asarray(getattr(info, "rx_beamwidths", ()), dtype=np.float64).reshape(-1)
-    if rx.size == 0 or not np.all(np.isfinite(rx)) or not np.allclose(rx, rx[0], rtol=1e-6, atol=0.0):
+    rx = _one_width(getattr(info, "rx_beamwidths", ()))
+    return None if rx is None else two_way_beamwidth(rx)
+
+
+def _one_width(widths: Any) -> float | None:
+    """The width a ``PingInfo`` beamwidth array holds when it holds one: one finite value, or the
+    same finite value for every beam (None: empty, non-finite or differing widths)."""
+    w = np.asarray(widths, dtype=np.float64).reshape(-1)
+    if w.size == 0 or not np.all(np.isfinite(w)) or not np.allclose(w, w[0], rtol=1e-6, atol=0.0):
         return None
-    return two_way_beamwidth(float(rx[0]))
+    return float(w[0])
 
 
 def two_way_beamwidth(one_way_rad: Any) -> float | None:
