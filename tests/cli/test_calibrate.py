@@ -54,7 +54,9 @@ def test_calibrate_aris_recording_and_use_it(data_dir, tmp_path, capsys):
     assert main(["ranges", str(data_dir / "aris" / "sample.aris"), "-o", str(csv_out), "--calibration", str(out)]) == 0
     rows = list(csv.DictReader(csv_out.open()))
     rm = [float(r["range_m"]) for r in rows if r["range_m"]]
-    assert len(rm) >= 100 and min(rm) > 15.5
+    # nothing in the water column in front of the target, whose near end (frame 0, beams 37-39)
+    # lies at 15.4 m (the uncalibrated default reports 15.42-15.44 m there)
+    assert len(rm) >= 100 and min(rm) > 15.3
     # a calibration of another sonar setting is refused in one line
     oc = tmp_path / "oc.json"
     assert main(["calibrate", str(data_dir / "oculus" / "three_pings_8bit.raw"), "-o", str(oc)]) == 0

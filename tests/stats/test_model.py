@@ -18,7 +18,7 @@ def test_fit_levels_is_the_fit_of_the_level_histogram(test_pings):
     levels = quantize(img)
     fit = fit_levels(levels)
     ref = fit_mixture(np.bincount(levels.ravel(), minlength=256).astype(np.float64), families=("exponential", "rayleigh"),
-                      method="em", n_levels=256, tol=1e-6, accelerate=False)
+                      method="em", n_levels=256, tol=FitConfig().fit_tol, accelerate=FitConfig().fit_accelerate)
     np.testing.assert_array_equal(fit.weights, ref.weights)
     # signed levels take the bincount route, same histogram
     np.testing.assert_array_equal(fit_levels(levels.astype(np.int32)).weights, fit.weights)
