@@ -132,3 +132,38 @@ def test_newton_m_step_does_not_stall_at_weibull_shape_one(test_ping_paths):
     for accelerate in (False, True):
         f = fit_mixture(img, families=("exponential", "weibull"), method="em", accelerate=accelerate)
         assert f.converged and f.params[2][0] > 2.5 and f.loglik > -88085.0, (accelerate, f.params, f.loglik)
+
+
+def test_a_restart_climbing_to_the_same_maximum_is_merged(background_paths):
+    """On a DIDSON background ping every start runs (its object scale is close to the
+    background's); the later starts reach the first start's maximum, and ``_em_best`` stops them
+    once they are within MERGE_RTOL of it: the fit is that maximum, and the kernel reports the
+    merge as a negative step count."""
+    from sonarmap.io import read_ping
+    from sonarmap.pipeline import process_ping
+    from sonarmap.stats import mixture as M
+
+    counts = process_ping(read_ping(background_paths[0])).fit.counts
+    problem = _fit_problem(counts, ("exponential", "rayleigh"), method="em", zero_spike=True, n_levels=256,
+                           binning="round", class_names=None, min_weight=2e-3, scale_max=1.0, min_scale_ratio=2.0,
+                           discretization="exact")
+    spec = problem.spec
+    starts = list(M._starting_points(spec, problem.counts, None))
+    assert len(starts) == 3
+    first = M._em(spec, problem.counts, *starts[0], 1000, 1e-11)
+    assert first is not None and first[3] and M._needs_restart(spec, first, 2e-3)
+    ref = (first[0], _general_coords(spec, first[1])[1])
+    for w0, p0 in starts[1:]:
+        full = M._em(spec, problem.counts, w0, p0, 1000, 1e-11)
+        assert full is not None and full[3]
+        np.testing.assert_allclose(full[0], first[0], rtol=1e-3)  # the same maximum
+        assert abs(full[4][-1] - first[4][-1]) < 1e-3
+        assert M._em(spec, problem.counts, w0, p0, 1000, 1e-11, merge=ref) is None
+    best = M._em_best(spec, problem.counts, starts, 1000, 1e-11, 2e-3)
+    np.testing.assert_array_equal(best[0], first[0])
+    # with a reference far from the start's maximum the kernel runs to convergence
+    w, trace = np.array(starts[1][0], dtype=np.float64), np.empty(1001)
+    kind, par, lo, hi = _general_coords(spec, starts[1][1])
+    n, conv = em_general_kernel(problem.counts, spec.levels, kind, par, w, lo, hi, 1000, 1e-11, 3, trace, True,
+                                ref[0], ref[1] * 3.0, M.MERGE_RTOL)
+    assert n > 0 and conv

@@ -1114,6 +1114,18 @@ def _sq_point(kind: np.ndarray, y: np.ndarray, lo: np.ndarray, hi: np.ndarray, p
             par[c, j] = p
 
 
+@njit(cache=True, nogil=True)
+def _near(w: np.ndarray, par: np.ndarray, ref_w: np.ndarray, ref_par: np.ndarray, rtol: float) -> bool:
+    """Whether every weight and non-zero coordinate lies within ``rtol`` (relative) of the reference."""
+    for c in range(w.shape[0]):
+        if abs(w[c] - ref_w[c]) > rtol * abs(ref_w[c]):
+            return False
+        for j in range(2):
+            if abs(par[c, j] - ref_par[c, j]) > rtol * abs(ref_par[c, j]):
+                return False
+    return True
+
+
 @njit(cache=True, nogil=True, inline="always")
 def _small_gain(ll: float, ll_prev: float, tol: float) -> bool:
     """The stopping rule: one EM step gained at most ``tol * (|ll| + 1)``."""
@@ -1134,9 +1146,17 @@ def em_general_kernel(
     max_newton: int,
     ll_trace: np.ndarray,
     accel: bool = True,
+    ref_w: np.ndarray | None = None,
+    ref_par: np.ndarray | None = None,
+    merge_rtol: float = 0.0,
 ) -> tuple[int, bool]:
     """(Generalised) EM for any mix of kinds 0-6, in place on ``par (C, 2)`` and ``w``; returns
-    ``(n_iter, converged)``.
+    ``(n_iter, converged)``, ``n_iter = -1 - it`` when the run merged (below).
+
+    With ``ref_w`` / ``ref_par`` (a converged result of the same problem from another start) and
+    ``merge_rtol > 0`` the run stops once, at the start of an iteration (a SQUAREM cycle), every
+    weight and every non-zero parameter coordinate lies within ``merge_rtol`` (relative) of the
+    reference: it is climbing to the same maximum.
 
     ``par[c, 0]`` is ``eta`` for kinds 1-2 (exact M-step: moment matching) and the first
     coordinate of kinds 3-6 (damped Newton, improvement only); ``lo``/``hi`` are ``(C, 2)``
@@ -1196,6 +1216,8 @@ def em_general_kernel(
     ll = estep()
     ll_trace[0] = ll
     while it < max_iter:
+        if ref_w is not None and ref_par is not None and merge_rtol > 0.0 and _near(w, par, ref_w, ref_par, merge_rtol):
+            return -1 - it, converged
         # x1 = F(x0) and x2 = F(x1): plain EM steps (one per pass without ``accel``)
         for k in range(2 if accel else 1):
             if accel:
