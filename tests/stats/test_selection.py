@@ -102,3 +102,36 @@ def test_threads_do_not_change_the_fits():
     for a, b in zip(one.fits, two.fits):
         assert a.params == b.params and np.array_equal(a.weights, b.weights)
         assert a.n_iter == b.n_iter and a.flags == b.flags
+
+
+def test_a_rice_that_becomes_a_rayleigh_is_stopped_where_the_rayleigh_candidate_stands_for_it(aris_pings,
+                                                                                             monkeypatch):
+    """On the normalised ARIS recording (pooled as ``sonarmap calibrate`` pools it) three Rice
+    candidates' nu goes to 0, where EM creeps until max_iter (the likelihood is even in nu).  With
+    ``rice_min`` such a fit stops there, not converged; select_model does so only where the
+    Rayleigh candidate is fitted too, and chooses as it does without the stop."""
+    from sonarmap.preprocess.normalise import estimate_background, estimate_recording_background
+    from sonarmap.stats import selection
+    from sonarmap.stats.mixture import histogram
+
+    rec = estimate_recording_background(aris_pings)
+    counts = sum(histogram(estimate_background(p.image, reference=rec)[1], 256).astype(float) for p in aris_pings)
+    fams = ("exponential", "exponential", "rice")
+    slow = fit_mixture(counts, families=fams, method="em", max_iter=2000)
+    fast = fit_mixture(counts, families=fams, method="em", max_iter=2000, rice_min=0.02)
+    assert "not_converged" in slow.flags and slow.n_iter == 2000  # measured: nu / sigma 0.007
+    assert "not_converged" in fast.flags and fast.n_iter < 200
+    assert fast.params[3][0] / fast.params[3][1] < 0.02
+    with pytest.raises(InputError, match="rice_min"):
+        fit_mixture(counts, families=fams, method="em", rice_min=-1.0)
+    assert selection._rayleigh_for_rice(("exponential", "rice", "gamma")) == ("exponential", "rayleigh", "gamma")
+    assert selection._rayleigh_for_rice(("exponential", "weibull", "rice")) == ("exponential", "rayleigh", "weibull")
+    assert selection._rayleigh_for_rice(("exponential", "gamma")) is None
+    cands = default_candidates(2)
+    sel = select_model(counts, candidates=cands)
+    assert sel.fits[cands.index(fams)].n_iter < 200
+    # without the Rayleigh candidate the Rice is fitted to the end
+    alone = select_model(counts, candidates=[fams])
+    assert alone.fits[0].n_iter == 2000
+    monkeypatch.setattr(selection, "RICE_AS_RAYLEIGH", 0.0)
+    assert select_model(counts, candidates=cands).best_index == sel.best_index

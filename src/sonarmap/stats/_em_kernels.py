@@ -1114,6 +1114,25 @@ def _sq_point(kind: np.ndarray, y: np.ndarray, lo: np.ndarray, hi: np.ndarray, p
             par[c, j] = p
 
 
+#: :func:`em_general_kernel` statuses.
+EM_MAX_ITER = 0
+EM_CONVERGED = 1
+EM_MERGED = 2
+EM_RICE_AT_ZERO = 3
+#: EM steps before :func:`em_general_kernel`'s ``rice_min`` test applies (a start may begin near 0).
+RICE_MIN_ITER = 30
+
+
+@njit(cache=True, nogil=True)
+def _rice_at_zero(kind: np.ndarray, par: np.ndarray, rice_min: float) -> bool:
+    """Whether a Rice component (kind 5, coordinates ``(nu, 1 / sigma^2)``) has ``nu / sigma`` below
+    ``rice_min``."""
+    for c in range(kind.shape[0]):
+        if kind[c] == 5 and par[c, 0] * math.sqrt(par[c, 1]) < rice_min:
+            return True
+    return False
+
+
 @njit(cache=True, nogil=True)
 def _near(w: np.ndarray, par: np.ndarray, ref_w: np.ndarray, ref_par: np.ndarray, rtol: float) -> bool:
     """Whether every weight and non-zero coordinate lies within ``rtol`` (relative) of the reference."""
@@ -1149,14 +1168,19 @@ def em_general_kernel(
     ref_w: np.ndarray | None = None,
     ref_par: np.ndarray | None = None,
     merge_rtol: float = 0.0,
-) -> tuple[int, bool]:
+    rice_min: float = 0.0,
+) -> tuple[int, int]:
     """(Generalised) EM for any mix of kinds 0-6, in place on ``par (C, 2)`` and ``w``; returns
-    ``(n_iter, converged)``, ``n_iter = -1 - it`` when the run merged (below).
+    ``(n_iter, status)``: :data:`EM_MAX_ITER` (0), :data:`EM_CONVERGED` (1), :data:`EM_MERGED` (2)
+    or :data:`EM_RICE_AT_ZERO` (3) - the last two stop a run early (below).
 
     With ``ref_w`` / ``ref_par`` (a converged result of the same problem from another start) and
-    ``merge_rtol > 0`` the run stops once, at the start of an iteration (a SQUAREM cycle), every
-    weight and every non-zero parameter coordinate lies within ``merge_rtol`` (relative) of the
-    reference: it is climbing to the same maximum.
+    ``merge_rtol > 0`` the run stops (``EM_MERGED``) once, at the start of an iteration (a SQUAREM
+    cycle), every weight and every non-zero parameter coordinate lies within ``merge_rtol``
+    (relative) of the reference: it is climbing to the same maximum.  With ``rice_min > 0`` it
+    stops (``EM_RICE_AT_ZERO``) at the start of an iteration after the first
+    :data:`RICE_MIN_ITER` once a Rice component's ``nu / sigma`` is below ``rice_min``: the Rice
+    has become a Rayleigh, where EM converges sublinearly (the likelihood is even in ``nu``).
 
     ``par[c, 0]`` is ``eta`` for kinds 1-2 (exact M-step: moment matching) and the first
     coordinate of kinds 3-6 (damped Newton, improvement only); ``lo``/``hi`` are ``(C, 2)``
@@ -1217,7 +1241,9 @@ def em_general_kernel(
     ll_trace[0] = ll
     while it < max_iter:
         if ref_w is not None and ref_par is not None and merge_rtol > 0.0 and _near(w, par, ref_w, ref_par, merge_rtol):
-            return -1 - it, converged
+            return it, EM_MERGED
+        if rice_min > 0.0 and it >= RICE_MIN_ITER and _rice_at_zero(kind, par, rice_min):
+            return it, EM_RICE_AT_ZERO
         # x1 = F(x0) and x2 = F(x1): plain EM steps (one per pass without ``accel``)
         for k in range(2 if accel else 1):
             if accel:
@@ -1267,4 +1293,4 @@ def em_general_kernel(
         if _small_gain(ll, ll_prev, tol):
             converged = True
             break
-    return it, converged
+    return it, EM_CONVERGED if converged else EM_MAX_ITER

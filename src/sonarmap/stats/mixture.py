@@ -571,6 +571,7 @@ class _Spec:
     smax: float
     min_ratio: float = 2.0
     discretization: str = "exact"
+    rice_min: float = 0.0
 
     @property
     def free(self) -> list[int]:
@@ -738,22 +739,24 @@ def _em(
 
     ``merge``: ``(weights, coordinates)`` of a converged result of the same histogram; the run
     stops and returns None once it is within :data:`MERGE_RTOL` of it (climbing to the same
-    maximum)."""
-    from sonarmap.stats._em_kernels import em_general_kernel
+    maximum).  With ``spec.rice_min`` a run whose Rice component has become a Rayleigh stops
+    there, not converged."""
+    from sonarmap.stats._em_kernels import EM_CONVERGED, EM_MERGED, em_general_kernel
 
     w = np.array(w0, dtype=np.float64)
     trace = np.empty(max_iter + 1)
     kind, par, lo, hi = _general_coords(spec, params0)
-    if merge is None:
-        n_iter, conv = em_general_kernel(counts, spec.levels, kind, par, w, lo, hi, int(max_iter),
-                                         float(tol), 3, trace, accel)
+    if merge is None and spec.rice_min <= 0:
+        n_iter, status = em_general_kernel(counts, spec.levels, kind, par, w, lo, hi, int(max_iter),
+                                           float(tol), 3, trace, accel)
     else:
-        n_iter, conv = em_general_kernel(counts, spec.levels, kind, par, w, lo, hi, int(max_iter),
-                                         float(tol), 3, trace, accel, merge[0], merge[1], MERGE_RTOL)
-        if n_iter < 0:
+        ref_w, ref_par = merge if merge is not None else (None, None)
+        n_iter, status = em_general_kernel(counts, spec.levels, kind, par, w, lo, hi, int(max_iter), float(tol), 3,
+                                           trace, accel, ref_w, ref_par, MERGE_RTOL, spec.rice_min)
+        if status == EM_MERGED:
             return None
     params = [_from_coords(n, float(par[c, 0]), float(par[c, 1])) for c, n in enumerate(spec.names)]
-    return w, params, int(n_iter), bool(conv), trace[: n_iter + 1].copy()
+    return w, params, int(n_iter), status == EM_CONVERGED, trace[: n_iter + 1].copy()
 
 
 def _eta_of(name: str, scale: float) -> float:
@@ -1227,7 +1230,7 @@ class _FitProblem:
 
 def _fit_problem(data: ArrayLike, families: Sequence[str], *, method: str, zero_spike: bool, n_levels: int,
                  binning: Binning, class_names: Sequence[str] | None, min_weight: float, scale_max: float,
-                 min_scale_ratio: float, discretization: str) -> _FitProblem:
+                 min_scale_ratio: float, discretization: str, rice_min: float = 0.0) -> _FitProblem:
     """Check :func:`fit_mixture`'s options (in its documented order of errors) and build the
     histogram of ``data``, the model spec and the class layout."""
     if method not in ("lsq", "em"):
@@ -1253,7 +1256,10 @@ def _fit_problem(data: ArrayLike, families: Sequence[str], *, method: str, zero_
         raise InputError("discretization: 'paper' needs method='lsq' and binning='floor'")
     if not min_scale_ratio >= 1.0:
         raise InputError(f"min_scale_ratio: must be >= 1, got {min_scale_ratio}")
-    spec = _Spec(names, zero_spike, levels, step, float(scale_max), float(min_scale_ratio), discretization)
+    if not (math.isfinite(rice_min) and rice_min >= 0):
+        raise InputError(f"rice_min: must be a finite number >= 0, got {rice_min}")
+    spec = _Spec(names, zero_spike, levels, step, float(scale_max), float(min_scale_ratio), discretization,
+                 float(rice_min))
     classes, cnames = _class_layout(names, zero_spike, class_names)
     return _FitProblem(spec, counts, n_clipped, len(fams), classes, cnames)
 
@@ -1365,7 +1371,7 @@ def fit_mixture(
     class_names: Sequence[str] | None = None, min_weight: float = 2e-3, scale_max: float = 1.0,
     loss: str = "linear", max_iter: int = 1000, tol: float = 1e-11,
     init: tuple[ArrayLike, Sequence[tuple[float, ...]]] | None = None, min_scale_ratio: float = 2.0,
-    discretization: Literal["exact", "paper"] = "exact", accelerate: bool = True,
+    discretization: Literal["exact", "paper"] = "exact", accelerate: bool = True, rice_min: float = 0.0,
 ) -> MixtureFit:
     """Fit a zero-spike mixture of discrete pmfs to one ping's intensity histogram.
 
@@ -1395,8 +1401,7 @@ def fit_mixture(
     scale_max : float
         Upper bound of every scale (intensity units); the lower bound is one level step.
     loss : str
-        ``least_squares`` loss for ``method="lsq"`` (``"linear"`` is the paper's; ``"soft_l1"``
-        down-weights outlying bins).
+        ``least_squares`` loss for ``method="lsq"`` (``"linear"``: the paper's; ``"soft_l1"``: robust).
     max_iter, tol : int, float
         EM iteration limit (EM map evaluations, see :attr:`MixtureFit.n_iter`) and relative
         log-likelihood tolerance: EM stops when one EM step gains at most ``tol * (|loglik| + 1)``.
@@ -1404,16 +1409,18 @@ def fit_mixture(
         Starting point (same layout as :attr:`MixtureFit.weights` / ``params``).
     min_scale_ratio : float
         Least squares only: every object scale is at least this multiple of the background scale
-        (an object pmf that merely reshapes the background is not an object; without it the
-        object component of an empty ping such as Table I image 6 mimics the background).
+        (else the object of an empty ping such as Table I image 6 mimics the background).
     discretization : {"exact", "paper"}
         ``"exact"`` (default): pmfs normalised on the levels.  ``"paper"``: the authors'
         discretisation (see :func:`component_pmf_matrix`), least squares with floor binning and
         exponential/Rayleigh only - for reproducing Table I; ``kld`` is then computed with the
         unnormalised model as the authors did.
     accelerate : bool
-        SQUAREM-accelerated EM (:mod:`sonarmap.stats._em_kernels`; also least squares' EM warm start): the
-        same stopping rule, 3-10x fewer EM steps on overlapping components.  False: plain EM.
+        SQUAREM-accelerated EM (also least squares' EM warm start): the same stopping rule, 3-10x
+        fewer EM steps on overlapping components.  False: plain EM.
+    rice_min : float
+        EM stops (``not_converged``) after 30 steps once a Rice's ``nu / sigma`` is below this: it
+        has become a Rayleigh, where EM creeps (:data:`~sonarmap.stats.selection.RICE_AS_RAYLEIGH`).
 
     Returns
     -------
@@ -1422,9 +1429,7 @@ def fit_mixture(
     Raises
     ------
     InputError
-        Bad image (NaN, integer dtype, empty) or bad options.
-    FitError
-        Empty histogram.
+        Bad image (NaN, integer dtype, empty) or bad options (FitError: an empty histogram).
 
     Notes
     -----
@@ -1432,9 +1437,9 @@ def fit_mixture(
     constant, tiny images; a vanishing object component as in Table I image 6) give a result
     carrying :attr:`MixtureFit.flags`, never a silently wrong one.
     """
-    problem = _fit_problem(data, families, method=method, zero_spike=zero_spike, n_levels=n_levels,
-                           binning=binning, class_names=class_names, min_weight=min_weight,
-                           scale_max=scale_max, min_scale_ratio=min_scale_ratio, discretization=discretization)
+    problem = _fit_problem(data, families, method=method, zero_spike=zero_spike, n_levels=n_levels, binning=binning,
+                           class_names=class_names, min_weight=min_weight, scale_max=scale_max,
+                           min_scale_ratio=min_scale_ratio, discretization=discretization, rice_min=rice_min)
     flags = _input_flags(problem.counts, problem.n_clipped, zero_spike)
     raw = _run_fitter(problem, flags, init, method=method, loss=loss, max_iter=max_iter, tol=tol,
                       min_weight=min_weight, accelerate=accelerate)
