@@ -178,7 +178,8 @@ def test_pool_config_validation():
     from sonarmap.errors import InputError
     from sonarmap.pipeline import PipelineConfig
 
-    for bad in (dict(pool_factor=-1.0), dict(pool_beams=-1), dict(pool_bins=0), dict(pool_min_beams=0)):
+    for bad in (dict(pool_factor=-1.0), dict(pool_beams=-1), dict(pool_bins=0), dict(pool_min_beams=0),
+                dict(pool_link_beams=-1)):
         with pytest.raises(InputError):
             PipelineConfig().replace(**bad)
     assert PipelineConfig.from_dict(PipelineConfig().to_dict()) == PipelineConfig()

@@ -97,12 +97,14 @@ def test_acceptance_registration_within_2_bins_and_coverage(rendered) -> None:
 
 @pytest.mark.slow
 def test_acceptance_registration_seafloor() -> None:
+    """The rippled seafloor is covered where its pooled band breaks into short pieces (band
+    continuation; measured 0.73 bins, 99.3 % - 91.3 % without it)."""
     from sonarmap.evaluate.mapping import evaluate_survey
 
     s = simulate_survey(n_pings=24, seed=2, kind="seafloor")
     ev = evaluate_survey(s, resolutions_m=(0.1,))
-    assert ev.accuracy.rms_bins <= 2.0, ev.accuracy
-    assert ev.accuracy.coverage >= 0.90, ev.accuracy
+    assert ev.accuracy.rms_bins <= 0.8, ev.accuracy
+    assert ev.accuracy.coverage >= 0.99, ev.accuracy
 
 
 def test_dropouts_are_seeded_and_validated() -> None:

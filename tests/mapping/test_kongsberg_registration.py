@@ -262,15 +262,16 @@ def test_cli_map_is_georeferenced_and_is_the_checked_registration(recording: Pat
 def test_pipeline_registration_does_not_regress(result: dict[str, Any]) -> None:
     rows = {r.name: r for r in result["pipeline"]}
     both = rows["both heads"]
-    # measured 2160 points, median 0.059 m, p95 0.228 m, max 0.71 m - inside the targets (median
+    # measured 2240 points, median 0.061 m, p95 0.245 m, max 0.85 m - inside the targets (median
     # <= 0.10, p95 <= 0.30 m); with the echoes smoothed over the 216 us signal length instead of
     # the effective 1 / B = 150 us: median 0.074 m, p95 0.242 m; before the sidelobe suppression
     # and the input gain: 1378 points, 0.068 / 1.06 m, max 2.1 m (the sidelobe arc)
     assert both.n_points >= 2100 and both.median_m < 0.065 and both.p95_m < 0.30
     passed = {r.name: r for r in result["pipeline_passed"]}["both heads"]
-    # the leading edge lies 1-2 cm before the sonar's detection point (measured 1920 points,
-    # 0.054 / 0.158 m; 3-4 cm before with the 216 us smoothing)
-    assert passed.n_points >= 1880 and passed.median_m < 0.06 and passed.p95_m < 0.17
+    # the leading edge lies 1-2 cm before the sonar's detection point (measured 1977 points,
+    # 0.055 / 0.176 m; 3-4 cm before with the 216 us smoothing; 1920 points, 0.054 / 0.158 m without
+    # the band continuation, whose passing returns lie beyond 45 deg, where the tolerance is widest)
+    assert passed.n_points >= 1930 and passed.median_m < 0.06 and passed.p95_m < 0.18
     assert -0.03 < passed.mean_range_diff_m < 0.0
 
 
@@ -278,16 +279,17 @@ def test_pipeline_detection_does_not_regress(result: dict[str, Any]) -> None:
     rows = {(d.serial, d.band): d for d in result["detection"]}
     total = rows[(-1, (0.0, 90.0))]
     assert total.n_beams == 2538
-    # measured 2394 returns, 0.837 of the beams pass (with the echoes smoothed over the 216 us
-    # signal length instead of the effective 1 / B = 150 us: 0.812, the nadir edges 0.73 samples
-    # before the detection instead of 0.03; before the sidelobe suppression and the input gain:
-    # 1560 returns, 0.506; the plain amplitude peak 0.834)
-    assert total.n_returns >= 2350 and total.sonarmap_fraction > 0.83
+    # measured 2474 returns, 0.859 of the beams pass (without the band continuation: 2394, 0.837;
+    # with the echoes smoothed over the 216 us signal length instead of the effective
+    # 1 / B = 150 us: 0.812, the nadir edges 0.73 samples before the detection instead of 0.03;
+    # before the sidelobe suppression and the input gain: 1560 returns, 0.506; the plain
+    # amplitude peak 0.834)
+    assert total.n_returns >= 2420 and total.sonarmap_fraction > 0.85
     assert total.sonarmap_pass / total.n_returns > 0.88
     for serial in (2004, 2031):
         assert rows[(serial, (0.0, 15.0))].sonarmap_fraction > 0.97  # 0.981 over both heads
     assert rows[(-1, (15.0, 30.0))].sonarmap_fraction > 0.90  # 0.915; the amplitude peak 0.844
-    assert rows[(-1, (45.0, 90.0))].n_returns > 200  # beyond 45 deg: none before
+    assert rows[(-1, (45.0, 90.0))].n_returns > 290  # beyond 45 deg: 324 (none before the input gain)
     # no early return lies on the nadir sidelobe arc any more (before: 186 of the 274)
     assert total.sidelobe_arc == 0
     # the plain amplitude-peak baseline: what the issue quotes (0.84)

@@ -36,6 +36,69 @@ def test_pooled_band_mask_finds_a_wide_faint_band_only():
     assert pooled_band_mask(np.zeros((64, 60), np.float32), 0.1) is None
 
 
+def _rippled_band_image() -> tuple[np.ndarray, np.ndarray]:
+    """A thin rippled surface over 96 beams and its first row per beam: an echo 3 bins thick,
+    flat on beams 0-45, then sand ripples of +-6 bins and 24 beams (flanks up to 1.6 bins per
+    beam), faded on every sixth beam.  Pooled over 3 bins x 5 beams at level 0.3, its band is a
+    58-beam piece and pieces of 13, 13, 13 and 3 beams."""
+    j = np.arange(96)
+    rows = 100 + np.where(j >= 46, np.round(6 * np.sin(2 * np.pi * (j - 46) / 24)), 0).astype(int)
+    img = np.zeros((200, 96), np.float32)
+    for t in range(3):
+        img[rows + t, j] = 1.0
+    for f in range(50, 96, 6):  # faded beams
+        img[rows[f]:rows[f] + 3, f] = 0.0
+    return img, rows
+
+
+def test_pooled_band_mask_continues_a_rippled_surface_across_its_gaps():
+    """Short pooled pieces that continue a kept band across beams are kept (link_beams), on every
+    beam of the surface; without the link only the piece wider than min_beams survives."""
+    img, rows = _rippled_band_image()
+    depth = np.arange(200)[:, None] - rows[None, :]
+    on_surface = (depth >= -2) & (depth <= 4)
+    alone = pooled_band_mask(img, 0.3, pool_beams=2, pool_bins=3, min_beams=40)
+    assert alone is not None and alone.any(axis=0).sum() == 58
+    band = pooled_band_mask(img, 0.3, pool_beams=2, pool_bins=3, min_beams=40, link_beams=4)
+    assert band is not None and band.any(axis=0).all() and not (band & ~on_surface).any()
+    assert (band >= alone).all()
+    assert np.array_equal(pooled_band_mask(img, 0.3, pool_beams=2, pool_bins=3, min_beams=40, link_beams=1), alone)
+    # the numpy route (a level that is not a Python number) gives the same mask
+    assert np.array_equal(pooled_band_mask(img, np.float64(0.3), pool_beams=2, pool_bins=3, min_beams=40,
+                                           link_beams=4), band)
+    # the pieces alone (no band wide enough to anchor them) are not a surface
+    img[:, :46] = 0
+    assert pooled_band_mask(img, 0.3, pool_beams=2, pool_bins=3, min_beams=40, link_beams=4) is None
+
+
+def test_continued_bands_drops_a_school_beside_and_over_a_surface():
+    """Fish streaks (flat, 3-7 beams) are not linked: not those that no kept band reaches, nor
+    those within reach over beams the surface already holds (in front of or behind it)."""
+    from sonarmap.ranges.candidates import continued_bands
+
+    band = np.zeros((200, 96), dtype=bool)
+    band[100:102, 0:50] = True                      # a surface on beams 0-49
+    kept = band.copy()
+    school = np.zeros_like(band)
+    rng = np.random.default_rng(3)
+    for _ in range(25):                             # a school over beams 56-95, 10+ bins off the surface
+        r, j, n = int(rng.integers(20, 160)), int(rng.integers(56, 90)), int(rng.integers(3, 8))
+        r += 30 if r >= 90 else 0
+        school[r:r + 2, j:j + n] = True
+    school[95:97, 30:46] = True                     # streaks within reach, in front of the surface
+    school[104:106, 44:52] = True                   # and behind it (beams 44-49 held)
+    out = continued_bands(band | school, kept, 4)
+    assert np.array_equal(out, kept)
+    # a piece continuing the surface beyond its end, three beams on and two bins deeper, is kept
+    # (and the streak behind the surface, now within reach of it too, still is not)
+    band[103:105, 53:61] = True
+    out = continued_bands(band | school, kept, 4)
+    assert out[103:105, 53:61].all() and not (out & ~band).any()
+    assert not continued_bands(band, kept, 3)[103:105, 53:61].any()  # farther than link_beams
+    with pytest.raises(InputError, match="kept: expected"):
+        continued_bands(band, kept[:10], 4)
+
+
 def _box_cases(rng: np.random.Generator, n: int = 150):
     """``(t, image, box rows, box columns)`` of ``n`` random images (every third one 60 % zeros),
     drawn lazily from ``rng`` (a test may draw from it between cases)."""

@@ -847,6 +847,92 @@ def linked_components(mask, min_beams, min_bins, gap, rounds, min_pixels, rule, 
     return out
 
 
+@njit(cache=True, nogil=True)
+def continued_bands(band, min_beams, seeds, link_beams, link_bins):  # pragma: no cover - numba
+    """The 8-connected components of ``band`` spanning >= ``min_beams`` beams, or with an empty
+    ``min_beams <= 0`` holding a ``seeds`` pixel, and every further component that continues them
+    across beams (band pooling's short pieces of a surface).
+
+    Rounds, each judged on the components kept at its start, until one adds nothing: a component
+    is added when one of its pixels lies ``d`` = 2..``link_beams`` beams from a kept pixel and at
+    most ``link_bins`` bins per beam (``floor(link_bins d)``) from it in range, and at most half of
+    the beams it spans hold a kept
+    pixel (it adds beams to the surface; over beams the kept bands already hold it is another
+    layer - a fish, a second surface - not their continuation).  Returns the kept pixels.
+    """
+    h, w = band.shape
+    first, start, stop = _row_runs(band)
+    root = _run_roots(first, start, stop)
+    n = start.size
+    row = np.empty(n, dtype=np.int64)
+    jmin = np.full(n, w, dtype=np.int64)
+    jmax = np.full(n, -1, dtype=np.int64)
+    kept = np.zeros(n, dtype=np.bool_)
+    for i in range(h):
+        for a in range(first[i], first[i + 1]):
+            row[a] = i
+            r = root[a]
+            jmin[r] = min(jmin[r], start[a])
+            jmax[r] = max(jmax[r], stop[a])
+            if min_beams <= 0 and not kept[r]:
+                for j in range(start[a], stop[a] + 1):
+                    if seeds[i, j]:
+                        kept[r] = True
+                        break
+    rest = 0  # components not kept
+    for r in range(n):
+        if root[r] == r:
+            if min_beams > 0:
+                kept[r] = jmax[r] - jmin[r] + 1 >= min_beams
+            rest += not kept[r]
+    out = np.zeros((h, w), dtype=np.bool_)
+    for a in range(n):
+        if kept[root[a]]:
+            out[row[a], start[a]:stop[a] + 1] = True
+    if link_beams < 2 or rest == 0 or rest == n:
+        return out
+    count = np.zeros((h + 1, w), dtype=np.int32)  # kept pixels of each column above each row
+    redo = np.ones(w, dtype=np.bool_)  # columns whose counts are out of date
+    taken = np.zeros(w + 1, dtype=np.int64)  # columns holding a kept pixel, cumulative
+    near = np.zeros(n, dtype=np.bool_)
+    while True:
+        for j in range(w):
+            if redo[j]:
+                for i in range(h):
+                    count[i + 1, j] = count[i, j] + out[i, j]
+                redo[j] = False
+            taken[j + 1] = taken[j] + (count[h, j] > 0)
+        near[:] = False
+        for a in range(n):
+            r = root[a]
+            if kept[r] or near[r]:
+                continue
+            i = row[a]
+            for j in range(start[a], stop[a] + 1):
+                for d in range(2, link_beams + 1):
+                    reach = max(int(link_bins * d), 1)
+                    lo = max(i - reach, 0)
+                    hi = min(i + reach + 1, h)
+                    if ((j - d >= 0 and count[hi, j - d] > count[lo, j - d])
+                            or (j + d < w and count[hi, j + d] > count[lo, j + d])):
+                        near[r] = True
+                        break
+                if near[r]:
+                    break
+        added = False
+        for r in range(n):
+            if near[r] and root[r] == r and 2 * (taken[jmax[r] + 1] - taken[jmin[r]]) <= jmax[r] - jmin[r] + 1:
+                kept[r] = True
+                added = True
+        if not added:
+            return out
+        for a in range(n):
+            r = root[a]
+            if near[r] and kept[r]:
+                out[row[a], start[a]:stop[a] + 1] = True
+                redo[start[a]:stop[a] + 1] = True
+
+
 @njit(cache=True, nogil=True, inline="always")
 def _max_nan(a, b):  # pragma: no cover - numba
     """``np.maximum`` of two floats (NaN if either is)."""

@@ -50,6 +50,13 @@ class CandidateConfig(ConfigSection):
         surface bands of single-look speckle that the per-pixel model leaves in fragments of 0-5
         pixels per beam; fish schools and speckle do not span ``pool_min_beams`` beams.  Not
         applied to normalised images, which are multi-looked already.
+    pool_link_beams, pool_link_bins : int, float
+        With the surface tracker, a pooled band shorter than ``pool_min_beams`` is kept too when
+        it continues a kept band across beams
+        (:func:`sonarmap.ranges.candidates.continued_bands`): within ``pool_link_beams`` beams of
+        it and ``pool_link_bins`` bins per beam from it in range, mostly on beams it does not
+        hold (``pool_link_beams`` 0 = off).  A rippled seafloor's band breaks into short pieces
+        at its steep flanks.
     pool_mode : str
         ``"fill"``: band pooling adds candidates on the beams the per-pixel route left empty;
         ``"fallback"``: only when the per-pixel route found fewer than ``pool_min_beams``
@@ -71,15 +78,17 @@ class CandidateConfig(ConfigSection):
     pool_beams: int = 2
     pool_bins: int = 3
     pool_min_beams: int = 40
+    pool_link_beams: int = 4
+    pool_link_bins: float = 2.0
     pool_mode: str = "fill"
 
     def __post_init__(self) -> None:
         w = self._where
-        coerce_reals(self, ("pool_factor", "min_component_extent_m"), w, minimum=0)
+        coerce_reals(self, ("pool_factor", "min_component_extent_m", "pool_link_bins"), w, minimum=0)
         check_integers(self, (("min_component_beams", 1), ("min_component_bins", 1), ("min_component_pixels", 0),
                               ("normalised_component_beams", 1), ("normalised_component_bins", 1),
                               ("normalised_component_pixels", 0), ("link_beams", 0), ("pool_beams", 0),
-                              ("pool_bins", 1), ("pool_min_beams", 1)), w)
+                              ("pool_bins", 1), ("pool_min_beams", 1), ("pool_link_beams", 0)), w)
         check_choice(self, "pool_mode", ("fallback", "fill"), w)
 
 

@@ -236,7 +236,8 @@ def _with_pooled_bands(mask: NDArray[np.bool_], image: NDArray[np.float32], cand
     if not (pool and candidates.pool_factor > 0 and bg_mean is not None and bg_mean > 0 and n_cols < cand.shape[1]):
         return cand, None, r0, r1
     band = pooled_band_mask(image, candidates.pool_factor * bg_mean, pool_beams=candidates.pool_beams,
-                            pool_bins=candidates.pool_bins, min_beams=candidates.pool_min_beams)
+                            pool_bins=candidates.pool_bins, min_beams=candidates.pool_min_beams,
+                            link_beams=candidates.pool_link_beams, link_bins=candidates.pool_link_bins)
     if band is None:
         return cand, None, r0, r1
     cand, r0, r1 = union_extent(cand, np.ascontiguousarray(band))
