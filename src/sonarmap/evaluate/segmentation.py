@@ -429,6 +429,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--seeds", type=int, default=3, help="seeds per scene and noise level")
     ap.add_argument("--ranges", action="store_true", help="the ranges acceptance (sub-bin truth)")
     ap.add_argument("--per-scene", action="store_true", help="with --ranges: also one row per preset and scene")
+    ap.add_argument("--noise-free", action="store_true",
+                    help="with --ranges: also score the noise-free echoes' half-peak leading edges")
     args = ap.parse_args(None if argv is None else list(argv))
     presets = [p for p in args.presets.split(",") if p]
     scenes = None if args.scenes is None else [s for s in args.scenes.split(",") if s]
@@ -439,8 +441,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         ap.error(f"--scenes: unknown scene(s) {', '.join(unknown)}; choose from {', '.join(SCENE_NAMES)}")
     if args.ranges:
         report = evaluate_ranges(presets=presets, seeds=tuple(range(args.seeds)),
-                                 scenes=RANGES_SCENES if scenes is None else scenes)
-        print(report.table(per_scene=args.per_scene))
+                                 scenes=RANGES_SCENES if scenes is None else scenes, noise_free=args.noise_free)
+        print(report.table(per_scene=args.per_scene, noise_free=args.noise_free))
         return 0
     rows = evaluate_presets(presets=presets, seeds=tuple(range(args.seeds)),
                             scenes=ACCEPTANCE_SCENES if scenes is None else scenes)
@@ -566,6 +568,8 @@ def evaluate(
 RANGES_PRESETS = ACCEPTANCE_PRESETS
 RANGES_SCENES = ("hull", "hull_slope2", "hull_slope4", "hull_slope8", "curved_hull", "propeller", "seafloor",
                  "fish_over_hull", "fish", "empty")
+#: Row suffix of the noise-free leading edges (``evaluate_ranges(noise_free=True)``).
+NOISE_FREE = " | noise-free leading edge"
 #: Sloped-hull scenes (2-8 bins of range change per beam) pooled for the sloped-recall figure.
 SLOPED_SCENES = ("hull_slope2", "hull_slope4", "hull_slope8")
 
@@ -590,9 +594,11 @@ class RangesReport:
     sloped: MethodScore
     fish_over_hull: MethodScore
 
-    def table(self, *, per_scene: bool = False) -> str:
-        """The per-preset markdown table (with ``per_scene``, also the scene rows) and the figures."""
-        rows = [r for r in self.rows if per_scene or " | " not in r.method]
+    def table(self, *, per_scene: bool = False, noise_free: bool = False) -> str:
+        """The per-preset markdown table (with ``per_scene``, also the scene rows; with
+        ``noise_free``, the noise-free leading-edge rows) and the figures."""
+        rows = [r for r in self.rows if (per_scene and not r.method.endswith(NOISE_FREE))
+                or (noise_free and r.method.endswith(NOISE_FREE)) or " | " not in r.method]
         s, f = self.sloped, self.fish_over_hull
         return "\n".join([
             format_table(rows),
@@ -607,6 +613,7 @@ class RangesReport:
 def evaluate_ranges(
     config: Any = None, *, presets: Sequence[str] = RANGES_PRESETS, scenes: Sequence[str] = RANGES_SCENES,
     seeds: Sequence[int] = (0,), noise_steps_db: Sequence[float] = (0.0, 6.0), tol_bins: int = 3,
+    noise_free: bool = False,
 ) -> RangesReport:
     """The ranges acceptance: one pipeline on every preset x scene, scored on sub-bin truth.
 
@@ -630,6 +637,15 @@ def evaluate_ranges(
         Receiver-noise steps over each preset's profile.
     tol_bins : int
         Recall tolerance.
+    noise_free : bool
+        Also score, as ``"<preset> | noise-free leading edge"`` rows, what an ideal detector
+        that follows the range convention reports: per beam the half-peak crossing of the first
+        peak of the noise-free, unclipped echo (``SimResult.clean`` rendered with
+        ``full_scale_db=300``, :func:`sonarmap.simulate.render.leading_edges_m`) of the same
+        scenes, noise levels and seeds, without the scenes with fish (which echo comes first is the tracker's
+        decision there, not the convention's).  It tells the part of the error that is the
+        convention against this truth (the -3 dB footprint) from the part that noise and the
+        estimator add.
 
     Returns
     -------
@@ -648,10 +664,35 @@ def evaluate_ranges(
                    -3.0, "surface", recording_meta=True)[name]
         rows.append(pool_scores(name, [x for v in per.values() for x in v]))
         rows.extend(pool_scores(f"{name} | {scene}", v) for scene, v in per.items())
+        if noise_free:
+            rows.append(pool_scores(f"{name}{NOISE_FREE}",
+                                    _noise_free_scores([c for c in scenes if not c.startswith("fish")],
+                                                       preset_sim_configs(geom, noise_steps_db), seeds, geom,
+                                                       tol_bins)))
         sloped.extend(x for scene in SLOPED_SCENES for x in per.get(scene, []))
         fish.extend(per.get("fish_over_hull", []))
     return RangesReport(rows=tuple(rows), sloped=pool_scores("sloped hulls", sloped),
                         fish_over_hull=pool_scores("fish_over_hull", fish))
+
+
+def _noise_free_scores(scenes: Sequence[str], sim_configs: Sequence[Any], seeds: Sequence[int], geometry: Any,
+                       tol_bins: int) -> list[PingScore]:
+    """Scores of the noise-free echoes' half-peak leading edges (``evaluate_ranges(noise_free=True)``)."""
+    from sonarmap.simulate.render import leading_edges_m
+
+    out = []
+    for scene in scenes:
+        for sc in sim_configs:
+            for seed in seeds:
+                # unclipped: full scale far above every echo (the recorded pings clip bright echoes)
+                sim, _ = _simulate(scene, geometry, dataclasses.replace(sc, full_scale_db=300.0), seed, -3.0, True)
+                r = leading_edges_m(sim.clean, geometry)
+                b = np.where(np.isfinite(r), np.searchsorted(geometry.range_m, r), -1).astype(np.int64)
+                # no detection threshold on a noise-free echo: no beam is scored for false returns
+                out.append(score_ping(None, b, r, sim.class_mask, sim.first_return_bin, sim.first_return_range_m,
+                                      tol_bins=tol_bins, empty_beams=np.zeros(r.size, dtype=bool),
+                                      surface_range_m=sim.surface_range_m, bin_range_m=geometry.range_m))
+    return out
 
 
 def _fmt(x: float, spec: str = ".3f") -> str:
