@@ -73,11 +73,10 @@ def class_separation(fit: MixtureFit) -> float:
     if len(fit.class_names) < 2:
         return math.nan
     levels = np.asarray(fit.levels, dtype=np.float64)
-    comp = np.asarray(fit.component_pmfs(), dtype=np.float64)
-    classes = np.asarray(fit.component_classes)
-    names = fit.component_names
+    comp = fit._pmf_matrix()  # read-only: component_pmfs() without its copy
+    classes = fit.component_classes
     w = np.asarray(fit.weights, dtype=np.float64)
-    bg = [i for i, (c, n) in enumerate(zip(classes, names)) if c == 0 and n != "zero"]
+    bg = [i for i, (c, n) in enumerate(zip(classes, fit.component_names)) if c == 0 and n != "zero"]
     obj = [i for i, c in enumerate(classes) if c != 0]
     if not bg or not obj:
         return math.nan

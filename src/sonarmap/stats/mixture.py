@@ -53,6 +53,7 @@ about 1.0011); see ``docs/statistics.md`` and :func:`sonarmap.paper.paper_kld`.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from collections.abc import Sequence
 from typing import Any, Literal, NamedTuple
@@ -323,7 +324,7 @@ def kl_divergence(counts: ArrayLike, model_pmf: ArrayLike) -> float:
     total = c.sum()
     if total <= 0:
         raise FitError("counts: histogram is empty")
-    return float(np.sum(rel_entr(c / total, q)))
+    return float(rel_entr(c / total, q).sum())
 
 
 # ---------------------------------------------------------------------------- result
@@ -573,9 +574,22 @@ class _Spec:
     discretization: str = "exact"
     rice_min: float = 0.0
 
-    @property
-    def free(self) -> list[int]:
-        return [i for i, n in enumerate(self.names) if n != "zero"]
+    @functools.cached_property
+    def free(self) -> tuple[int, ...]:
+        """The indices of the continuous components."""
+        return tuple(i for i, n in enumerate(self.names) if n != "zero")
+
+    @functools.cached_property
+    def general_bounds(self) -> tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.float64]]:
+        """:func:`_general_bounds` of this spec (computed once; the EM kernel only reads them)."""
+        return _general_bounds(self)
+
+    @functools.cached_property
+    def fit_levels(self) -> NDArray[np.float64]:
+        """A read-only view of ``levels`` for the fits (the fitters' kernels take the writable array)."""
+        view = self.levels.view()
+        view.setflags(write=False)
+        return view
 
 
 def component_pmf_matrix(
@@ -620,7 +634,7 @@ def _pmfs(spec: _Spec, params: Sequence[tuple[float, ...]]) -> NDArray[np.float6
 def _loglik(counts: NDArray[np.float64], q: NDArray[np.float64]) -> float:
     occ = counts > 0
     with np.errstate(divide="ignore"):
-        return float(np.sum(counts[occ] * np.log(q[occ])))
+        return float((counts[occ] * np.log(q[occ])).sum())
 
 
 def _initial_guesses(
@@ -804,30 +818,41 @@ def _general_coords(spec: _Spec, params0: list[tuple[float, ...]]) -> _KernelArg
     (``(nu, log scale)``, Bessel function by quadrature: :func:`~sonarmap.stats._em_kernels.log_bessel_k`) a few
     damped Newton steps with analytic gradient and Hessian, each accepted only if it increases
     that component's expected log-likelihood - so the log-likelihood never decreases.
+    ``kind``, ``lo`` and ``hi`` depend on ``spec`` alone (:func:`_general_bounds`, shared).
     """
+    kind, lo, hi = spec.general_bounds
+    par = np.zeros((len(spec.names), 2))
+    for c, name in enumerate(spec.names):
+        if name == "zero":
+            continue
+        p = params0[c]
+        if len(p) == 2:
+            (b_lo, b_hi) = _bounds(spec, name)[0]
+            p = (min(max(p[0], b_lo), b_hi), min(max(p[1], spec.smin), spec.smax))
+        par[c] = _to_coords(name, p)
+    return kind, par, lo, hi
+
+
+def _general_bounds(spec: _Spec) -> tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.float64]]:
+    """``(kind, lo, hi)`` of :func:`_general_coords`: every component's family code and the
+    bounds of its coordinates (coordinate 1 decreases with the scale for gamma and Rice)."""
     C = len(spec.names)
     kind = np.empty(C, dtype=np.int64)
-    par = np.zeros((C, 2))
     lo = np.zeros((C, 2))
     hi = np.zeros((C, 2))
     for c, name in enumerate(spec.names):
         kind[c] = _KIND_GENERAL[name]
         if name == "zero":
             continue
-        (b_lo, b_hi) = _bounds(spec, name)[0]
         if name in ("exponential", "rayleigh"):
             lo[c, 0], hi[c, 0] = _eta_of(name, spec.smin), _eta_of(name, spec.smax)
         else:
-            # coordinate 1 decreases with the scale for gamma and Rice
+            (b_lo, b_hi) = _bounds(spec, name)[0]
             a = _to_coords(name, (b_lo, spec.smin))
             b = _to_coords(name, (b_hi, spec.smax))
             lo[c] = (b_lo, min(a[1], b[1]))
             hi[c] = (b_hi, max(a[1], b[1]))
-        p = params0[c]
-        if len(p) == 2:
-            p = (min(max(p[0], b_lo), b_hi), min(max(p[1], spec.smin), spec.smax))
-        par[c] = _to_coords(name, p)
-    return kind, par, lo, hi
+    return kind, lo, hi
 
 
 def _em_best(
@@ -1235,17 +1260,46 @@ def _fit_problem(data: ArrayLike, families: Sequence[str], *, method: str, zero_
     histogram of ``data``, the model spec and the class layout."""
     if method not in ("lsq", "em"):
         raise InputError(f"method: must be 'lsq' or 'em', got {method!r}")
-    fams = tuple(family(f).name for f in families)
-    if not fams or "zero" in fams:
-        raise InputError("families: need at least one continuous family (the spike is zero_spike)")
+    fams = _family_names(families)
     counts, n_clipped = as_counts(data, n_levels, binning=binning)
-    L = counts.size
-    levels = quantization_levels(L, binning=binning)
-    N = float(counts.sum())
-    if N <= 0:
+    if float(counts.sum()) <= 0:
         raise FitError("data: histogram is empty (no pixels)")
     if not 0 <= min_weight < 1:
         raise InputError(f"min_weight: must be in [0, 1), got {min_weight}")
+    key = (fams, zero_spike, counts.size, binning, scale_max, min_scale_ratio, discretization, method, rice_min)
+    try:
+        cached = class_names is None and hash(key) is not None
+    except TypeError:  # an option of an unhashable type: no caching
+        cached = False
+    layout = _LAYOUTS.get(key) if cached else None
+    if layout is None:
+        layout = _model_layout(fams, zero_spike, counts.size, binning, class_names, scale_max, min_scale_ratio,
+                               discretization, method, rice_min)
+        if cached:
+            _LAYOUTS[key] = layout
+    spec, classes, cnames = layout
+    return _FitProblem(spec, counts, n_clipped, len(fams), classes, cnames)
+
+
+def _family_names(families: Sequence[str]) -> tuple[str, ...]:
+    """The canonical names of ``families`` (at least one, no spike), else an InputError."""
+    key = tuple(families) if isinstance(families, tuple) else None
+    fams = _FAMILY_NAMES.get(key) if key is not None else None  # type: ignore[arg-type]
+    if fams is None:
+        fams = tuple(family(f).name for f in families)
+        if not fams or "zero" in fams:
+            raise InputError("families: need at least one continuous family (the spike is zero_spike)")
+        if key is not None and all(isinstance(f, str) for f in key):
+            _FAMILY_NAMES[key] = fams
+    return fams
+
+
+def _model_layout(fams: tuple[str, ...], zero_spike: bool, n: int, binning: Binning,
+                  class_names: Sequence[str] | None, scale_max: float, min_scale_ratio: float,
+                  discretization: str, method: str, rice_min: float = 0.0) -> tuple[_Spec, tuple[int, ...], tuple[str, ...]]:
+    """The model of :func:`_fit_problem` on ``n`` levels: its spec, the class of every component
+    and the class names; an InputError for a bad option."""
+    levels = quantization_levels(n, binning=binning)
     step = float(levels[1])
     if not step < scale_max:
         raise InputError(f"scale_max: must exceed one level step ({step:.3g}), got {scale_max}")
@@ -1260,8 +1314,13 @@ def _fit_problem(data: ArrayLike, families: Sequence[str], *, method: str, zero_
         raise InputError(f"rice_min: must be a finite number >= 0, got {rice_min}")
     spec = _Spec(names, zero_spike, levels, step, float(scale_max), float(min_scale_ratio), discretization,
                  float(rice_min))
-    classes, cnames = _class_layout(names, zero_spike, class_names)
-    return _FitProblem(spec, counts, n_clipped, len(fams), classes, cnames)
+    return (spec, *_class_layout(names, zero_spike, class_names))
+
+
+#: :func:`_family_names` per tuple of family names, :func:`_model_layout` per option set (the
+#: pings of a recording share one model; their fits share a read-only view of its levels).
+_FAMILY_NAMES: dict[tuple[str, ...], tuple[str, ...]] = {}
+_LAYOUTS: dict[tuple[Any, ...], tuple[_Spec, tuple[int, ...], tuple[str, ...]]] = {}
 
 
 def _starting_points(spec: _Spec, counts: NDArray[np.float64],
@@ -1338,11 +1397,10 @@ def _finished_fit(problem: _FitProblem, raw: _RawFit, flags: set[str], *, method
     params = _result_flags(flags, spec.names, problem.classes, w, raw.params, n_families=problem.n_families,
                            min_weight=min_weight, step=spec.smin, scale_max=spec.smax)
     w.setflags(write=False)
-    spec.levels.setflags(write=False)
     counts.setflags(write=False)
     fit = MixtureFit(
         weights=w,
-        params=tuple(tuple(float(v) for v in p) for p in params),
+        params=tuple(tuple(map(float, p)) for p in params),
         component_names=spec.names,
         component_classes=problem.classes,
         class_names=problem.class_names,
@@ -1351,7 +1409,7 @@ def _finished_fit(problem: _FitProblem, raw: _RawFit, flags: set[str], *, method
         n_iter=int(raw.n_iter),
         converged=bool(raw.converged),
         flags=frozenset(flags),
-        levels=spec.levels,
+        levels=spec.fit_levels,
         counts=counts,
         method=method,
         binning=binning,
