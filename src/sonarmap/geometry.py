@@ -452,17 +452,17 @@ class SonarGeometry:
         return dataclasses.replace(self, **changes)
 
     # ------------------------------------------------------------------ derived quantities
-    @property
+    @functools.cached_property
     def n_beams(self) -> int:
         """Number of beams (image columns)."""
         return int(self.azimuth_rad.size)
 
-    @property
+    @functools.cached_property
     def n_bins(self) -> int:
         """Number of range bins (image rows)."""
         return int(self.range_m.size)
 
-    @property
+    @functools.cached_property
     def shape(self) -> tuple[int, int]:
         """Image shape ``(n_bins, n_beams)``."""
         return (self.n_bins, self.n_beams)
@@ -479,7 +479,7 @@ class SonarGeometry:
             return self.window[1]
         return float(self.range_m[-1] + self.range_resolution_m)
 
-    @property
+    @functools.cached_property
     def range_resolution_m(self) -> float:
         """Mean range-bin spacing in metres."""
         if self.n_bins > 1:

@@ -234,9 +234,10 @@ def process_ping(ping: Ping, config: PipelineConfig = PipelineConfig(), *, keep_
         ranges = rule_ranges(ping, m.image, labels, mask, config.ranges, config.candidates, normalised=normalised,
                              bg_mean=bg_mean, edge=edge)
     flags = set(fit.flags) if fit is not None else {"no_fit"}
-    if ranges.n_returns == 0:
+    n_returns = ranges.n_returns
+    if n_returns == 0:
         flags.add("no_returns")
-    pd_range = _pd_range(float(pd), labels, ranges, flags)
+    pd_range = _pd_range(float(pd), labels, ranges, flags, n_returns)
     if thickness is not None:
         ranges = ranges.with_p_detect(_p_detect(float(pd), pd_range, ranges, thickness))
     return products(ranges, flags, labels, pd, pfa, pd_range)
@@ -347,26 +348,28 @@ def _p_detect(pd: float, pd_range: float, ranges: BeamRanges, thickness: NDArray
     if not (math.isfinite(pd) and math.isfinite(pd_range)) or pd <= 0:
         return np.full(n, np.nan if not math.isfinite(pd_range) else pd_range, dtype=np.float32)
     t = np.asarray(thickness, dtype=np.float64)
-    valid = ranges.valid
-    tv = np.sort(t[valid])
+    valid = ranges.bin >= 0
+    tv = t[valid]
     if tv.size:
         # np.median of the (NaN-free) thicknesses: the middle one, or the mean of the middle two
+        tv.sort()
         h = tv.size // 2
         fill = float(tv[h]) if tv.size % 2 else (float(tv[h - 1]) + float(tv[h])) / 2.0
-        fill = math.nan if math.isnan(tv[-1]) else fill  # np.sort puts NaN last
+        fill = math.nan if math.isnan(tv[-1]) else fill  # a sort puts NaN last
     else:
         fill = 1.0
     t = np.where(valid, np.maximum(t, 1.0), max(fill, 1.0))
     f = 1.0 - (1.0 - min(pd, 1.0)) ** t
     mean = float(f[valid].mean()) if tv.size else float(f.mean())
-    return np.clip(pd_range * f / max(mean, 1e-12), 0.0, 1.0).astype(np.float32)
+    return (pd_range * f / max(mean, 1e-12)).clip(0.0, 1.0).astype(np.float32)
 
 
-def _pd_range(pd: float, labels: NDArray[np.uint8], ranges: BeamRanges, flags: set[str]) -> float:
-    """``pd`` times the fraction of detecting beams that kept a return (see ``PingProducts.pd_range``)."""
+def _pd_range(pd: float, labels: NDArray[np.uint8], ranges: BeamRanges, flags: set[str], n_returns: int) -> float:
+    """``pd`` times the fraction of detecting beams that kept a return (see ``PingProducts.pd_range``;
+    ``n_returns`` is ``ranges.n_returns``)."""
     if "no_fit" in flags or not math.isfinite(pd):
         return math.nan
     detecting = int(np.count_nonzero(labels.any(axis=0) | (ranges.bin >= 0)))  # uint8: >= 1 is != 0
     if detecting == 0:
         return pd
-    return pd * ranges.n_returns / detecting
+    return pd * n_returns / detecting

@@ -207,13 +207,23 @@ RECIPES = ("default", "paper-table1", "paper-background")
 
 def recipe(name: str) -> PreprocessConfig:
     """A named recipe: ``default``, ``paper-table1`` or ``paper-background``."""
+    made = _RECIPES.get(name) if isinstance(name, str) else None
+    if made is not None:
+        return made
     if name == "default":
-        return PreprocessConfig()
-    if name == "paper-table1":
-        return PreprocessConfig.paper_table1()
-    if name == "paper-background":
-        return PreprocessConfig.paper_background()
-    raise InputError(f"recipe: unknown '{name}'; choose from {', '.join(RECIPES)}")
+        made = PreprocessConfig()
+    elif name == "paper-table1":
+        made = PreprocessConfig.paper_table1()
+    elif name == "paper-background":
+        made = PreprocessConfig.paper_background()
+    else:
+        raise InputError(f"recipe: unknown '{name}'; choose from {', '.join(RECIPES)}")
+    _RECIPES[name] = made
+    return made
+
+
+#: :func:`recipe` per name, built once (the configurations are immutable values).
+_RECIPES: dict[str, PreprocessConfig] = {}
 
 
 def load_config(path: str | os.PathLike[str]) -> PreprocessConfig:
@@ -268,8 +278,18 @@ class _ByContent:
 
 
 def _plan(geometry: SonarGeometry, config: PreprocessConfig) -> _Plan:
-    """The folded pre-processing of ``geometry`` and ``config`` (cached by content)."""
-    return _plan_cached(_ByContent(geometry), config)
+    """The folded pre-processing of ``geometry`` and ``config`` (cached by content; the plan of
+    the previous call is reused without hashing when both are the same objects again)."""
+    last = _LAST_PLAN[0]
+    if last is not None and last[0] is geometry and last[1] is config:
+        return last[2]
+    plan = _plan_cached(_ByContent(geometry), config)
+    _LAST_PLAN[0] = (geometry, config, plan)
+    return plan
+
+
+#: ``(geometry, config, plan)`` of the last :func:`_plan` call (a recording's pings share both).
+_LAST_PLAN: list[tuple[SonarGeometry, PreprocessConfig, _Plan] | None] = [None]
 
 
 @functools.lru_cache(maxsize=64)

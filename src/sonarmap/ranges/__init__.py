@@ -518,7 +518,7 @@ def ranges_from_tracks(echoes: "Echoes", tracks: "Tracks", geometry: SonarGeomet
     fields = dict(range_m=rng, bin=b, intensity=inten, confidence=conf,
                   azimuth_rad=np.asarray(geometry.azimuth_rad, dtype=np.float64), time_ns=int(time_ns),
                   source=source, mode=mode, sigma_m=sigma, other_range_m=other)
-    if rng.shape != fields["azimuth_rad"].shape or not np.array_equal(b < 0, ~np.isfinite(rng)):  # type: ignore[union-attr]
+    if rng.shape != fields["azimuth_rad"].shape or not ((b < 0) != np.isfinite(rng)).all():  # type: ignore[union-attr]
         return BeamRanges(**fields)  # type: ignore[arg-type]  # (raises the constructor's error)
     # the kernel's arrays have BeamRanges' dtypes and shapes
     return BeamRanges._checked_already(**fields)

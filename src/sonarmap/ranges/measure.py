@@ -331,8 +331,9 @@ def clipped_echoes(echoes: Any, raw: NDArray[Any]) -> NDArray[np.bool_]:
     from sonarmap.ranges._kernels import first_clipped_rows
 
     img = np.ascontiguousarray(raw)
-    lo = np.clip(echoes.start_bin, 0, img.shape[0])
-    hi = np.clip(echoes.stop_bin, 0, img.shape[0])
+    n = img.shape[0]
+    lo = np.minimum(np.maximum(echoes.start_bin, 0), n)  # np.clip of the int64 bins, without its dispatch
+    hi = np.minimum(np.maximum(echoes.stop_bin, 0), n)
     return first_clipped_rows(img, np.ascontiguousarray(echoes.beam), lo, hi, CLIP_LEVEL) >= 0
 
 
