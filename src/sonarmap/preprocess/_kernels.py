@@ -503,3 +503,15 @@ def on_255_grid(flat, step):  # pragma: no cover - numba
         if miss:
             return False
     return True
+
+
+
+@njit(cache=True, nogil=True)
+def clip_negative(out):  # pragma: no cover - numba
+    """``np.maximum(out, 0, out=out)`` on a C-contiguous float32 image, bit for bit (NaN kept,
+    ``-0.0`` becomes ``0.0`` as with numpy's maximum); branch-free, so it vectorises."""
+    flat = out.reshape(-1)
+    zero = np.float32(0.0)
+    for i in range(flat.size):
+        x = flat[i]
+        flat[i] = x if (x > zero) | (x != x) else zero

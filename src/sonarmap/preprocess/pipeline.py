@@ -381,7 +381,12 @@ def preprocess_image(
     if plan.row_factor is not None:
         out *= plan.row_factor
     if cfg.clip_negative:
-        np.maximum(out, 0.0, out=out)
+        if out.dtype == np.float32 and out.flags.c_contiguous:
+            from sonarmap.preprocess._kernels import clip_negative
+
+            clip_negative(out)  # np.maximum(out, 0.0, out=out), vectorised
+        else:
+            np.maximum(out, 0.0, out=out)
     if cfg.normalise != "none":
         in_max = float(img.max())
         if cfg.normalise == "min-max":

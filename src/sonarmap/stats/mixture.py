@@ -522,10 +522,13 @@ class MixtureFit:
 
     def _class_log_pmf(self) -> NDArray[np.float64]:
         comp = self._pmf_matrix()
-        cls = np.asarray(self.component_classes)
+        classes = tuple(int(c) for c in self.component_classes)
         mix = np.empty((len(self.class_names), self.n_levels))
         for j in range(len(self.class_names)):
-            members = cls == j
+            members = [i for i, c in enumerate(classes) if c == j]
+            if len(members) == 1 and 0 < self.weights[members[0]] < math.inf:
+                mix[j] = comp[members[0]]  # = (w / w) @ comp[members] = 1 x comp, exactly
+                continue
             w = self.weights[members]
             tot = w.sum()
             w = w / tot if tot > 0 else np.full(w.size, 1.0 / w.size)
