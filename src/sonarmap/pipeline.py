@@ -360,7 +360,8 @@ def _p_detect(pd: float, pd_range: float, ranges: BeamRanges, thickness: NDArray
         fill = 1.0
     t = np.where(valid, np.maximum(t, 1.0), max(fill, 1.0))
     f = 1.0 - (1.0 - min(pd, 1.0)) ** t
-    mean = float(f[valid].mean()) if tv.size else float(f.mean())
+    fv = f[valid] if tv.size else f
+    mean = float(fv.sum()) / fv.size  # = fv.mean(): numpy's sum over the count, without its wrapper
     return (pd_range * f / max(mean, 1e-12)).clip(0.0, 1.0).astype(np.float32)
 
 

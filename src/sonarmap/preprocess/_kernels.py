@@ -505,7 +505,6 @@ def on_255_grid(flat, step):  # pragma: no cover - numba
     return True
 
 
-
 @njit(cache=True, nogil=True)
 def clip_negative(out):  # pragma: no cover - numba
     """``np.maximum(out, 0, out=out)`` on a C-contiguous float32 image, bit for bit (NaN kept,

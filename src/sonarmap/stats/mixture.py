@@ -1189,10 +1189,10 @@ def _class_layout(names: tuple[str, ...], zero_spike: bool, class_names: Sequenc
     return classes, cnames
 
 
-def _input_flags(counts: NDArray[np.float64], n_clipped: int, zero_spike: bool) -> set[str]:
-    """Flags of the histogram itself: ``few_samples``, ``clipped``, ``degenerate``, ``all_zero``."""
+def _input_flags(counts: NDArray[np.float64], n_clipped: int, zero_spike: bool, N: float) -> set[str]:
+    """Flags of the histogram itself (``N`` its total): ``few_samples``, ``clipped``, ``degenerate``,
+    ``all_zero``."""
     flags: set[str] = set()
-    N = float(counts.sum())
     if N < 100:
         flags.add("few_samples")
     if n_clipped > 0.01 * N:
@@ -1251,6 +1251,7 @@ class _FitProblem:
     spec: _Spec
     counts: NDArray[np.float64]
     n_clipped: int
+    n_samples: float
     n_families: int
     classes: tuple[int, ...]
     class_names: tuple[str, ...]
@@ -1265,7 +1266,8 @@ def _fit_problem(data: ArrayLike, families: Sequence[str], *, method: str, zero_
         raise InputError(f"method: must be 'lsq' or 'em', got {method!r}")
     fams = _family_names(families)
     counts, n_clipped = as_counts(data, n_levels, binning=binning)
-    if float(counts.sum()) <= 0:
+    N = float(counts.sum())
+    if N <= 0:
         raise FitError("data: histogram is empty (no pixels)")
     if not 0 <= min_weight < 1:
         raise InputError(f"min_weight: must be in [0, 1), got {min_weight}")
@@ -1281,7 +1283,7 @@ def _fit_problem(data: ArrayLike, families: Sequence[str], *, method: str, zero_
         if cached:
             _LAYOUTS[key] = layout
     spec, classes, cnames = layout
-    return _FitProblem(spec, counts, n_clipped, len(fams), classes, cnames)
+    return _FitProblem(spec, counts, n_clipped, N, len(fams), classes, cnames)
 
 
 def _family_names(families: Sequence[str]) -> tuple[str, ...]:
@@ -1501,7 +1503,7 @@ def fit_mixture(
     problem = _fit_problem(data, families, method=method, zero_spike=zero_spike, n_levels=n_levels, binning=binning,
                            class_names=class_names, min_weight=min_weight, scale_max=scale_max,
                            min_scale_ratio=min_scale_ratio, discretization=discretization, rice_min=rice_min)
-    flags = _input_flags(problem.counts, problem.n_clipped, zero_spike)
+    flags = _input_flags(problem.counts, problem.n_clipped, zero_spike, problem.n_samples)
     raw = _run_fitter(problem, flags, init, method=method, loss=loss, max_iter=max_iter, tol=tol,
                       min_weight=min_weight, accelerate=accelerate)
     return _finished_fit(problem, raw, flags, method=method, binning=binning, min_weight=min_weight)
