@@ -215,7 +215,7 @@ def _check_edge_options(fraction: float, peak_rel: float, scan: str) -> None:
 def _levels_in_range(code: np.ndarray, size: int) -> bool:
     """Every value of the integer array ``code`` lies in ``[0, size)`` (no scan when its dtype
     cannot hold any other: 8-bit levels and a 256-entry table)."""
-    if code.dtype.kind == "u" and np.iinfo(code.dtype).max < size:
+    if code.dtype.kind == "u" and (1 << 8 * code.dtype.itemsize) - 1 < size:  # np.iinfo(dtype).max
         return True
     return not code.size or (int(code.min()) >= 0 and int(code.max()) < size)
 
