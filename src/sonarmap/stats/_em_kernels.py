@@ -35,10 +35,19 @@ def level_counts(levels, n_levels):  # pragma: no cover - numba
         for j in range(w):
             if levels[i, j] >= top:
                 top = levels[i, j] + 1
-    # four interleaved partial histograms: runs of one level (the zeros) do not serialise
+    out = np.empty(top)
+    _counts_into(levels.ravel(), out)
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _counts_into(flat, counts):  # pragma: no cover - numba
+    """``counts[v]`` = the number of ``v`` in ``flat`` (as float64; every value below
+    ``counts.size``), from four interleaved partial histograms: runs of one level (the zeros) do
+    not serialise."""
+    top = counts.shape[0]
     part = np.zeros((4, top), dtype=np.int64)
-    n = h * w
-    flat = levels.ravel()
+    n = flat.shape[0]
     n4 = n - n % 4
     for k in range(0, n4, 4):
         part[0, flat[k]] += 1
@@ -47,10 +56,8 @@ def level_counts(levels, n_levels):  # pragma: no cover - numba
         part[3, flat[k + 3]] += 1
     for k in range(n4, n):
         part[0, flat[k]] += 1
-    out = np.empty(top)
     for v in range(top):
-        out[v] = float(part[0, v] + part[1, v] + part[2, v] + part[3, v])
-    return out
+        counts[v] = float(part[0, v] + part[1, v] + part[2, v] + part[3, v])
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -136,32 +143,21 @@ def monotone_rows(lp: np.ndarray) -> None:  # pragma: no cover - numba
 @njit(cache=True, nogil=True)
 def levels_counts_kernel(flat: np.ndarray, zero, one, scale, n: int, floor: bool, out: np.ndarray,
                          counts: np.ndarray) -> bool:
-    """:func:`levels_kernel` (no table) and, in the same pass, the histogram of the levels into
-    ``counts (n,)`` as float64 (:func:`level_counts` of ``out``: four interleaved partial
-    histograms); False if a value is not finite."""
-    part = np.zeros((4, n), dtype=np.int64)
-    acc = zero
+    """:func:`levels_kernel` (no table) and the histogram of the levels into ``counts (n,)`` as
+    float64 (:func:`_counts_into`, as :func:`level_counts` of ``out``); False if a value is not
+    finite (``counts`` is then not written).
+
+    Two passes: the levels (branch-free, so it vectorises; ``y - y`` is 0 for every finite ``y``
+    and NaN otherwise), then the histogram of ``out``."""
     m = flat.shape[0]
-    m4 = m - m % 4
-    for i in range(0, m4, 4):
-        for j in range(4):
-            y = flat[i + j]
-            acc += y * zero
-            if acc != acc:
-                return False
-            k = _level(y, zero, one, scale, n, floor)
-            out[i + j] = k
-            part[j, k] += 1
-    for i in range(m4, m):
+    bad = False
+    for i in range(m):
         y = flat[i]
-        acc += y * zero
-        if acc != acc:
-            return False
-        k = _level(y, zero, one, scale, n, floor)
-        out[i] = k
-        part[0, k] += 1
-    for v in range(n):
-        counts[v] = float(part[0, v] + part[1, v] + part[2, v] + part[3, v])
+        bad |= y - y != zero
+        out[i] = _level(y, zero, one, scale, n, floor)
+    if bad:
+        return False
+    _counts_into(out, counts)
     return True
 
 
