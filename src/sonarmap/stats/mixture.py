@@ -1281,6 +1281,8 @@ def _fit_problem(data: ArrayLike, families: Sequence[str], *, method: str, zero_
         layout = _model_layout(fams, zero_spike, counts.size, binning, class_names, scale_max, min_scale_ratio,
                                discretization, method, rice_min)
         if cached:
+            if len(_LAYOUTS) >= 64:
+                _LAYOUTS.clear()
             _LAYOUTS[key] = layout
     spec, classes, cnames = layout
     return _FitProblem(spec, counts, n_clipped, N, len(fams), classes, cnames)
@@ -1322,8 +1324,8 @@ def _model_layout(fams: tuple[str, ...], zero_spike: bool, n: int, binning: Binn
     return (spec, *_class_layout(names, zero_spike, class_names))
 
 
-#: :func:`_family_names` per tuple of family names, :func:`_model_layout` per option set (the
-#: pings of a recording share one model; their fits share a read-only view of its levels).
+#: :func:`_family_names` per tuple of family names, :func:`_model_layout` per option set (at most
+#: 64; the pings of a recording share one model, and their fits a read-only view of its levels).
 _FAMILY_NAMES: dict[tuple[str, ...], tuple[str, ...]] = {}
 _LAYOUTS: dict[tuple[Any, ...], tuple[_Spec, tuple[int, ...], tuple[str, ...]]] = {}
 
