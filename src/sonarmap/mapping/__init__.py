@@ -29,6 +29,7 @@ from sonarmap.mapping.poses import (
     sensor_poses,
     write_trajectory_csv,
 )
+from sonarmap.mapping.footprint import footprint_azimuths
 from sonarmap.mapping.raster import GeoRaster, height_raster, occupancy_raster, read_geotiff, write_geotiff
 from sonarmap.mapping.register import PointCloud, RegistrationConfig, register_ranges, register_returns
 
@@ -48,6 +49,7 @@ __all__ = [
     "SensorModel",
     "SensorPoses",
     "Trajectory",
+    "footprint_azimuths",
     "height_raster",
     "load_extrinsics",
     "map_from_pings",

@@ -2,11 +2,13 @@
 
 A 2-D imaging sonar measures range and azimuth but integrates over its vertical (elevation)
 aperture.  Under the *zero-elevation* (profiling) assumption every return is placed in the
-sensor's imaging plane, ``p_s = r (cos a, sin a, 0)``; optionally each return is *spread* over the
-vertical aperture as ``n_elevation`` points at elevations ``linspace(-aperture/2, aperture/2)``
-(useful for occupancy carving and for visualising the elevation ambiguity).  World points are
-``p_w = R_ws p_s + t_ws`` with the sensor -> world transforms of
-:func:`sonarmap.mapping.poses.sensor_poses`.
+sensor's imaging plane, ``p_s = r (cos a, sin a, 0)``, at the azimuth ``a`` where it was
+measured: the near edge of its beam's footprint on a surface inclined across the beams, else the
+beam's axis (:mod:`sonarmap.mapping.footprint`; given the beams' width).  Optionally each return
+is *spread* over the vertical aperture as ``n_elevation`` points at elevations
+``linspace(-aperture/2, aperture/2)`` (useful for occupancy carving and for visualising the
+elevation ambiguity).  World points are ``p_w = R_ws p_s + t_ws`` with the sensor -> world
+transforms of :func:`sonarmap.mapping.poses.sensor_poses`.
 
 Everything is vectorised over ``(ping, beam, elevation)``; 1 M returns register in a few tens of
 milliseconds.
@@ -23,6 +25,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from sonarmap.errors import InputError
+from sonarmap.mapping.footprint import FOOTPRINT_EDGE_FRACTION, footprint_azimuths
 from sonarmap.mapping.poses import SensorPoses
 
 __all__ = ["RegistrationConfig", "PointCloud", "register_returns", "register_ranges", "elevation_samples"]
@@ -43,11 +46,19 @@ class RegistrationConfig:
         Full vertical aperture spread over when ``n_elevation > 1`` (DIDSON/ARIS: 14 degrees).
     min_confidence : float
         Returns with a lower confidence are dropped.
+    footprint_edge : bool
+        Place each return at the near edge of its beam's footprint
+        (:func:`sonarmap.mapping.footprint.footprint_azimuths`) where the beamwidth is given;
+        False: on the beam's axis.
+    footprint_fraction : float
+        Offset of that edge from the axis in two-way -3 dB beamwidths (1/2: the -3 dB edge).
     """
 
     n_elevation: int = 1
     vertical_aperture_rad: float = DEFAULT_APERTURE_RAD
     min_confidence: float = 0.0
+    footprint_edge: bool = True
+    footprint_fraction: float = FOOTPRINT_EDGE_FRACTION
 
     def __post_init__(self) -> None:
         if int(self.n_elevation) != self.n_elevation or self.n_elevation < 1:
@@ -56,6 +67,8 @@ class RegistrationConfig:
             raise InputError(f"vertical_aperture_rad: must be in [0, pi), got {self.vertical_aperture_rad}")
         if not 0.0 <= self.min_confidence <= 1.0:
             raise InputError(f"min_confidence: must be in [0, 1], got {self.min_confidence}")
+        if not 0.0 <= self.footprint_fraction <= 1.0:
+            raise InputError(f"footprint_fraction: must be in [0, 1], got {self.footprint_fraction}")
 
 
 def elevation_samples(n_elevation: int, aperture_rad: float) -> NDArray[np.float64]:
@@ -201,6 +214,7 @@ def register_returns(
     intensity: ArrayLike | None = None,
     confidence: ArrayLike | None = None,
     sigma_m: ArrayLike | None = None,
+    azimuth_beamwidth_rad: ArrayLike | None = None,
     config: RegistrationConfig | None = None,
 ) -> PointCloud:
     """Register a batch of per-beam ranges into world points.
@@ -217,6 +231,12 @@ def register_returns(
         Per-return attributes (default 1).
     sigma_m : array_like, shape (n_pings, n_beams), optional
         One-sigma range uncertainty per return (default NaN: unknown).
+    azimuth_beamwidth_rad : array_like, broadcastable to (n_pings, n_beams), optional
+        Each beam's two-way -3 dB width in the fan's plane
+        (:attr:`~sonarmap.geometry.SonarGeometry.azimuth_beamwidth_rad`).  With
+        ``config.footprint_edge`` a return is placed at the near edge of its beam's footprint
+        (:func:`~sonarmap.mapping.footprint.footprint_azimuths`: the leading edge's range was
+        measured there); None or NaN: on the beam's axis.
     config : RegistrationConfig, optional
 
     Returns
@@ -238,6 +258,9 @@ def register_returns(
     E = elev.size
     a_in = np.asarray(azimuth_rad, dtype=np.float64)
     a_small = a_in if a_in.ndim == 1 else az  # cos/sin per beam when the table is shared
+    if cfg.footprint_edge and azimuth_beamwidth_rad is not None:
+        bw = _as_2d(azimuth_beamwidth_rad, (P, B), "azimuth_beamwidth_rad", np.float64, np.nan)
+        a_small = footprint_azimuths(r, a_small, bw, fraction=cfg.footprint_fraction)
     xyz = _world_points(r, a_small, keep, poses, elev)
     bi = np.broadcast_to(np.arange(B, dtype=np.int32), (P, B))[keep]
     rr = r[keep]
@@ -300,6 +323,7 @@ def register_ranges(
     poses: SensorPoses,
     *,
     config: RegistrationConfig | None = None,
+    azimuth_beamwidth_rad: ArrayLike | Sequence[ArrayLike | None] | None = None,
 ) -> PointCloud:
     """Register a sequence of :class:`sonarmap.ranges.BeamRanges` (one per ping).
 
@@ -312,12 +336,20 @@ def register_ranges(
         carried to the points when present) of shape (n_beams,).
     poses : SensorPoses
         One sensor pose per element of ``ranges``.
+    config : RegistrationConfig, optional
+    azimuth_beamwidth_rad : float, array_like of shape (n_beams,), list or tuple, optional
+        The beams' two-way -3 dB width in the fan's plane
+        (:attr:`~sonarmap.geometry.SonarGeometry.azimuth_beamwidth_rad` of the pings' geometry):
+        one width or one per beam for every ping, or a list with one entry per ping (a width, one
+        per beam, or None); None or NaN: unknown (the returns stay on their beams' axes).  See
+        :func:`register_returns`.
     """
     ranges = list(ranges)
     if len(ranges) != len(poses):
         raise InputError(f"poses: {len(poses)} poses for {len(ranges)} pings")
     if not ranges:
         return PointCloud.empty()
+    widths = _per_ping_widths(azimuth_beamwidth_rad, ranges)
     sizes = {np.asarray(br.range_m).size for br in ranges}
     if len(sizes) == 1:
         return register_returns(
@@ -327,6 +359,7 @@ def register_ranges(
             intensity=np.stack([br.intensity for br in ranges]),
             confidence=np.stack([br.confidence for br in ranges]),
             sigma_m=_stack_field(ranges, "sigma_m"),
+            azimuth_beamwidth_rad=None if widths is None else np.stack(widths),
             config=config,
         )
     return PointCloud.concat(
@@ -334,8 +367,29 @@ def register_ranges(
             register_returns(
                 br.range_m, br.azimuth_rad, poses.select([i]),
                 intensity=br.intensity, confidence=br.confidence, sigma_m=_stack_field([br], "sigma_m"),
+                azimuth_beamwidth_rad=None if widths is None else widths[i],
                 config=config,
             )
             for i, br in enumerate(ranges)
         ]
     )
+
+
+def _per_ping_widths(widths: Any, ranges: Sequence[Any]) -> list[NDArray[np.float64]] | None:
+    """``register_ranges``'s beamwidths as one float64 (n_beams,) array per ping (NaN: unknown),
+    or None when none are given."""
+    if widths is None:
+        return None
+    n = len(ranges)
+    per_ping = list(widths) if isinstance(widths, (list, tuple)) else [widths] * n
+    if len(per_ping) != n:
+        raise InputError(f"azimuth_beamwidth_rad: {len(per_ping)} entries for {n} pings")
+    out = []
+    for w, br in zip(per_ping, ranges, strict=True):
+        b = np.asarray(br.range_m).size
+        arr = np.full(b, np.nan) if w is None else np.asarray(w, dtype=np.float64)
+        try:
+            out.append(np.broadcast_to(arr, (b,)))
+        except ValueError:
+            raise InputError(f"azimuth_beamwidth_rad: shape {arr.shape} does not match {b} beams") from None
+    return out
