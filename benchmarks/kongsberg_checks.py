@@ -71,23 +71,34 @@ def beam_ranges(ping: Any, range_m: NDArray[np.float64]) -> Any:
                       time_ns=ping.time_ns, source=ping.source)
 
 
-def register_as_cli(pings: Sequence[Any], ranges: Sequence[Any], georef: Any) -> list[Any]:
+def register_as_cli(pings: Sequence[Any], ranges: Sequence[Any], georef: Any, *,
+                    footprint_edge: bool = True) -> list[Any]:
     """Each ping's ranges registered as ``sonarmap map`` registers them (one cloud per ping).
 
     The same calls as the CLI without ``--poses``: the pose from
     :func:`~sonarmap.mapping.navigation.navigation_pose`, the ``SensorPoses`` from
     :func:`~sonarmap.mapping.navigation.ping_sensor_poses`, the ranges through
-    :func:`~sonarmap.mapping.navigation.placed_ranges`, then :func:`register_ranges`.
+    :func:`~sonarmap.mapping.navigation.placed_ranges`, then :func:`register_ranges` with the
+    geometry's beamwidth: a return at the near edge of its beam's footprint (its leading edge's
+    place), or with ``footprint_edge=False`` on the beam's axis (``--beam-axis``).
     """
     from sonarmap.mapping.navigation import navigation_pose, ping_sensor_poses, placed_ranges
-    from sonarmap.mapping.register import register_ranges
+    from sonarmap.mapping.register import RegistrationConfig, register_ranges
 
+    cfg = RegistrationConfig(footprint_edge=footprint_edge)
     out = []
     for ping, br in zip(pings, ranges, strict=True):
         placed = ping.replace(pose=navigation_pose(ping, georef))
         sp = ping_sensor_poses([placed]).with_extrinsics(None)
-        out.append(register_ranges([placed_ranges(placed, br)], sp))
+        out.append(register_ranges([placed_ranges(placed, br)], sp, config=cfg,
+                                   azimuth_beamwidth_rad=ping.geometry.azimuth_beamwidth_rad))
     return out
+
+
+def register_on_the_axis(pings: Sequence[Any], ranges: Sequence[Any], georef: Any) -> list[Any]:
+    """:func:`register_as_cli` on the beams' axes: for the sonar's own detections, which are
+    beam-centre estimates (amplitude or phase centre of the echo), not leading edges."""
+    return register_as_cli(pings, ranges, georef, footprint_edge=False)
 
 
 def register_on_the_cone(pings: Sequence[Any], ranges: Sequence[Any], georef: Any) -> list[Any]:
@@ -144,11 +155,16 @@ class Registration:
     mean_across_m: float
     mean_down_m: float
     mean_range_diff_m: float  # sonarmap's range - the sonar's detected range, mean
+    # distance to the seabed profile through the sonar's soundings (profile_distances)
+    surface_median_m: float = math.nan  # of |d|
+    surface_p95_m: float = math.nan  # of |d|
+    surface_mean_m: float = math.nan  # signed, + = deeper than the profile
 
     def row(self) -> str:
         return (f"| {self.name} | {self.n_points} | {self.median_m:.3f} | {self.p95_m:.3f} | {self.max_m:.3f} | "
                 f"{self.mean_along_m:+.3f} | {self.mean_across_m:+.3f} | {self.mean_down_m:+.3f} | "
-                f"{self.mean_range_diff_m:+.3f} |")
+                f"{self.mean_range_diff_m:+.3f} | {self.surface_median_m:.3f} | {self.surface_p95_m:.3f} | "
+                f"{self.surface_mean_m:+.3f} |")
 
 
 def registration_errors(pings: Sequence[Any], ranges: Sequence[Any], georef: Any, *,
@@ -156,7 +172,9 @@ def registration_errors(pings: Sequence[Any], ranges: Sequence[Any], georef: Any
     """Per ping with an XYZ datagram: sonarmap's point minus the sonar's, beam-matched.
 
     Each entry: ``serial``, ``counter``, ``error`` (n, 3) in the heading frame (along, across,
-    down; the X datagram's heading), ``distance`` (n,), ``range_diff`` (n,), ``angle_deg`` (n,).
+    down; the X datagram's heading), ``distance`` (n,), ``surface`` (n,: signed distance to the
+    seabed profile through the sonar's soundings, :func:`profile_distances`), ``range_diff`` (n,),
+    ``angle_deg`` (n,).
     ``register(pings, ranges, georef)`` makes the points (default: as ``sonarmap map``).
     """
     clouds = register(pings, ranges, georef)
@@ -176,9 +194,43 @@ def registration_errors(pings: Sequence[Any], ranges: Sequence[Any], georef: Any
             "serial": ping.meta["system_serial"], "counter": ping.meta["ping_counter"],
             "attitude_gap_s": ping.meta.get("attitude_gap_s", math.nan),
             "error": np.column_stack([along, across, d[:, 2]]), "distance": np.linalg.norm(d, axis=1),
+            "surface": profile_distances(ours[keep], ref, valid, h),
             "range_diff": (np.asarray(br.range_m) - ping.meta["detected_range_m"])[keep],
             "angle_deg": np.abs(ping.meta["beam_pointing_angle_deg"])[keep],
         })
+    return out
+
+
+def profile_distances(points: NDArray[np.float64], ref: NDArray[np.float64], valid: NDArray[np.bool_],
+                      heading_rad: float) -> NDArray[np.float64]:
+    """Signed distance (+ = deeper) of world ``points`` (n, 3) to the seabed profile through the
+    sonar's soundings ``ref`` (n_beams, 3) of the same ping, in the across-track plane.
+
+    The soundings' valid points, in order of their across-track coordinate (heading frame), are
+    joined into a polyline in (across, down); each point's distance is to its nearest segment, NaN
+    for points outside the profile's across-track span.  The along-track coordinate is left out
+    (the swath is a line across track to a few cm, 0.19 m at 60 deg: the transmit cone).
+    """
+    c, s = math.cos(heading_rad), math.sin(heading_rad)
+
+    def across_down(p: NDArray[np.float64]) -> NDArray[np.float64]:
+        return np.column_stack([-p[:, 0] * s + p[:, 1] * c, p[:, 2]])
+
+    prof = across_down(ref[valid])
+    prof = prof[np.argsort(prof[:, 0])]
+    q = across_down(points)
+    out = np.full(q.shape[0], np.nan)
+    if prof.shape[0] < 2:
+        return out
+    a, b = prof[:-1], prof[1:]
+    ab = b - a
+    t = np.clip(np.einsum("psk,sk->ps", q[:, None, :] - a[None], ab) / np.einsum("sk,sk->s", ab, ab), 0.0, 1.0)
+    foot = a[None] + t[..., None] * ab[None]
+    d = np.linalg.norm(q[:, None, :] - foot, axis=2)
+    k = np.argmin(d, axis=1)
+    inside = (q[:, 0] >= prof[0, 0]) & (q[:, 0] <= prof[-1, 0])
+    below = q[:, 1] >= foot[np.arange(q.shape[0]), k, 1]
+    out[inside] = np.where(below, 1.0, -1.0)[inside] * d[np.arange(q.shape[0]), k][inside]
     return out
 
 
@@ -191,8 +243,12 @@ def summarize_registration(name: str, entries: Sequence[dict[str, Any]]) -> Regi
     rd = np.concatenate([e["range_diff"] for e in entries])
     if dist.size == 0:
         return Registration(name, 0, *(math.nan,) * 7)
+    surf = np.concatenate([e["surface"] for e in entries])
+    surf = surf[np.isfinite(surf)]
     return Registration(name, int(dist.size), float(np.median(dist)), float(np.percentile(dist, 95)),
-                        float(dist.max()), *(float(v) for v in err.mean(axis=0)), float(np.nanmean(rd)))
+                        float(dist.max()), *(float(v) for v in err.mean(axis=0)), float(np.nanmean(rd)),
+                        *((float(np.median(np.abs(surf))), float(np.percentile(np.abs(surf), 95)), float(surf.mean()))
+                          if surf.size else (math.nan,) * 3))
 
 
 def detected_ranges(pings: Sequence[Any]) -> list[Any]:
@@ -380,14 +436,17 @@ def run(path: Path = RECORDING) -> dict[str, Any]:
     pipe = pipeline_ranges(pings)
     twtt = travel_time_ranges(pings)
     out: dict[str, Any] = {"pings": pings, "georef": georef}
-    for name, ranges, register in (("detections", det, register_as_cli), ("pipeline", pipe, register_as_cli),
-                                   ("travel_time", twtt, register_as_cli),
+    for name, ranges, register in (("detections", det, register_on_the_axis), ("pipeline", pipe, register_as_cli),
+                                   ("pipeline_axis", pipe, register_on_the_axis),
+                                   ("travel_time", twtt, register_on_the_axis),
                                    ("travel_time_cone", twtt, register_on_the_cone)):
         entries = registration_errors(pings, ranges, georef, register=register)
         out[name] = registration_rows(entries)
         out[f"{name}_entries"] = entries
     passed = [_passed_only(p, br) for p, br in zip(pings, pipe, strict=True)]
     out["pipeline_passed"] = registration_rows(registration_errors(pings, passed, georef))
+    out["pipeline_passed_axis"] = registration_rows(registration_errors(pings, passed, georef,
+                                                                        register=register_on_the_axis))
     out["detection"] = detection_table(pings, pipe)
     out["fan_fit"] = transmit_fan_fit(pings)
     out["sound_speed_profiles"] = sound_speed_profiles(path)
@@ -422,12 +481,15 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"\nsound speed profile (U): {depth.size} points; 0-30 m: "
               + ", ".join(f"{d:g} m {c:.1f}" for d, c in zip(depth[top], speed[top])) + " m/s")
     head = ("| | points | median (m) | p95 (m) | max (m) | mean along (m) | mean across (m) | mean down (m) | "
-            "mean range - detection (m) |\n|---|---|---|---|---|---|---|---|---|")
+            "mean range - detection (m) | to the seabed: median (m) | p95 (m) | mean, + deeper (m) |"
+            "\n|---|---|---|---|---|---|---|---|---|---|---|---|")
     for name, title in (("detections", "(b) geometry: the sonar's detected ranges through sonarmap's placement"),
                         ("travel_time", "(b) geometry, the detection as the raw range datagram's travel time"),
                         ("travel_time_cone", "(b) the same on the transmit cone instead of the imaging plane"),
-                        ("pipeline", "(b) sonarmap's default pipeline, first return per beam"),
-                        ("pipeline_passed", "(b) the pipeline's returns that pass (a)")):
+                        ("pipeline", "(b) sonarmap's default pipeline, first return per beam (footprint edge)"),
+                        ("pipeline_axis", "(b) the same on the beams' axes (--beam-axis)"),
+                        ("pipeline_passed", "(b) the pipeline's returns that pass (a)"),
+                        ("pipeline_passed_axis", "(b) the same on the beams' axes")):
         print(f"\n{title}\n{head}")
         for row in res[name]:
             print(row.row())

@@ -76,7 +76,7 @@ def result(recording: Path) -> dict[str, Any]:
 def _rows(pings: list[Any], georef: Any, ranges: list[Any] | None = None,
           register: Callable[..., Any] | None = None) -> dict[str, Any]:
     entries = checks.registration_errors(pings, ranges if ranges is not None else checks.detected_ranges(pings),
-                                         georef, register=register or checks.register_as_cli)
+                                         georef, register=register or checks.register_on_the_axis)
     return {r.name: r for r in checks.registration_rows(entries)}
 
 
@@ -260,19 +260,36 @@ def test_cli_map_is_georeferenced_and_is_the_checked_registration(recording: Pat
 
 # ---------------------------------------------------------------------- (a), (b) with the pipeline
 def test_pipeline_registration_does_not_regress(result: dict[str, Any]) -> None:
-    rows = {r.name: r for r in result["pipeline"]}
+    # point-to-point against the sonar's soundings (beam-centre estimates): the returns on the
+    # beams' axes, where the soundings are
+    rows = {r.name: r for r in result["pipeline_axis"]}
     both = rows["both heads"]
     # measured 2240 points, median 0.061 m, p95 0.245 m, max 0.85 m - inside the targets (median
     # <= 0.10, p95 <= 0.30 m); with the echoes smoothed over the 216 us signal length instead of
     # the effective 1 / B = 150 us: median 0.074 m, p95 0.242 m; before the sidelobe suppression
     # and the input gain: 1378 points, 0.068 / 1.06 m, max 2.1 m (the sidelobe arc)
     assert both.n_points >= 2100 and both.median_m < 0.065 and both.p95_m < 0.30
-    passed = {r.name: r for r in result["pipeline_passed"]}["both heads"]
+    passed = {r.name: r for r in result["pipeline_passed_axis"]}["both heads"]
     # the leading edge lies 1-2 cm before the sonar's detection point (measured 1977 points,
     # 0.055 / 0.176 m; 3-4 cm before with the 216 us smoothing; 1920 points, 0.054 / 0.158 m without
     # the band continuation, whose passing returns lie beyond 45 deg, where the tolerance is widest)
     assert passed.n_points >= 1930 and passed.median_m < 0.06 and passed.p95_m < 0.18
     assert -0.03 < passed.mean_range_diff_m < 0.0
+
+
+def test_pipeline_points_lie_on_the_seabed_at_the_footprint_edge(result: dict[str, Any]) -> None:
+    """Registered as ``sonarmap map`` does (each return at the near edge of its beam's footprint),
+    the points lie nearer the seabed profile through the sonar's soundings than on the beams' axes,
+    with no depth bias; point to point they move away from the beam-centre soundings, along the
+    seabed."""
+    edge = {r.name: r for r in result["pipeline"]}["both heads"]
+    axis = {r.name: r for r in result["pipeline_axis"]}["both heads"]
+    # measured: to the seabed median 0.023 m, p95 0.118 m, mean +0.008 m (on the axes 0.027 /
+    # 0.135 / -0.033 m); point to point median 0.119 m, p95 0.287 m (0.061 / 0.245 m)
+    assert edge.n_points == axis.n_points
+    assert edge.surface_median_m < min(0.025, axis.surface_median_m)
+    assert edge.surface_p95_m < min(0.125, axis.surface_p95_m)
+    assert abs(edge.surface_mean_m) < 0.015 < abs(axis.surface_mean_m)
 
 
 def test_pipeline_detection_does_not_regress(result: dict[str, Any]) -> None:

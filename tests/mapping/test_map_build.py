@@ -23,6 +23,25 @@ def test_static_map_equals_the_cli_output(data_dir, tmp_path):
     np.testing.assert_allclose(res.cloud.xyz_m, cli.xyz_m, atol=1e-6)
 
 
+def test_beam_axis_switch(data_dir, tmp_path):
+    """``--beam-axis`` / ``footprint_edge=False`` keep every return on its beam's axis: the same
+    ranges, moved off the axis by the default only across the fan (at most half a beamwidth)."""
+    from sonarmap.cli import main
+
+    src = data_dir / "oculus" / "three_pings_8bit.raw"  # its geometry gives the beamwidth
+    out = tmp_path / "axis.ply"
+    assert main(["map", str(src), "--static", "--beam-axis", "-o", str(out), "-q"]) == 0
+    axis = map_from_pings(read_pings(src), MapConfig(static=True, footprint_edge=False)).cloud
+    edge = map_from_pings(read_pings(src), MapConfig(static=True)).cloud
+    np.testing.assert_allclose(axis.xyz_m, read_point_cloud(out).xyz_m, atol=1e-6)
+    assert np.array_equal(axis.range_m, edge.range_m) and np.array_equal(axis.beam, edge.beam)
+    rng = np.linalg.norm(edge.xyz_m, axis=1)
+    np.testing.assert_allclose(rng, np.linalg.norm(axis.xyz_m, axis=1), rtol=1e-9)
+    moved = np.linalg.norm(edge.xyz_m - axis.xyz_m, axis=1)
+    half_width = np.radians(0.55) / 2  # the Oculus's two-way beamwidth at 2.1 MHz
+    assert np.all(moved <= rng * half_width * 1.001) and (moved > 0).mean() > 0.5
+
+
 def test_occupancy_map_and_the_callbacks(data_dir):
     seen, started = [], []
     res = map_from_pings(read_pings(data_dir / "oculus" / "three_pings_8bit.raw"),

@@ -120,6 +120,11 @@ _SPREAD_OPTION: Any = typer.Option(
 _MIN_CONFIDENCE_OPTION: Any = typer.Option(
     0.0, "--min-confidence", min=0.0, max=1.0, help="Drop weaker returns from the point cloud (not with --grid)."
 )
+_BEAM_AXIS_OPTION: Any = typer.Option(
+    False, "--beam-axis",
+    help="Place each return on its beam's axis instead of the near edge of the beam's footprint, where its "
+    "leading edge was measured (point clouds).",
+)
 _POSES_FRAME_OPTION: Any = typer.Option(None, "--poses-frame", help="Override the CSV's frame: ned | enu.")
 _FRAME_OPTION: Any = typer.Option("ned", "--frame", help="Output coordinates: ned (default) | enu (z up, for viewers).")
 _OUTSIDE_OPTION: Any = typer.Option(
@@ -173,6 +178,7 @@ def map_command(
     grid_array: Path | None = _GRID_ARRAY_OPTION,
     spread: int = _SPREAD_OPTION,
     min_confidence: float = _MIN_CONFIDENCE_OPTION,
+    beam_axis: bool = _BEAM_AXIS_OPTION,
     poses_frame: str | None = _POSES_FRAME_OPTION,
     out_frame: str = _FRAME_OPTION,
     outside: str = _OUTSIDE_OPTION,
@@ -203,7 +209,6 @@ def map_command(
     bounds = None if clamp is None else _clamp_bounds(clamp)
     _check_static_and_octomap(static, poses, octomap, grid, dims)
     origin_ll = None if origin is None else _lat_lon(origin)
-
     geometry = load_geometry_option(sonar)
     clock = clock_options(start_time, ping_rate)
     pcfg, background = apply_calibration(PipelineConfig.from_toml(config) if config is not None else PipelineConfig(),
@@ -212,7 +217,7 @@ def map_command(
         trajectory=read_trajectory_csv(poses, frame=poses_frame) if poses is not None else None,
         extrinsics=load_extrinsics(extrinsics) if extrinsics is not None else None,
         static=static, outside=outside, n_elevation=spread, min_confidence=min_confidence, grid_m=grid, dims=dims,
-        clamp=bounds, fixed_model=fixed_model, origin_lat_lon=origin_ll, crs=crs)
+        clamp=bounds, fixed_model=fixed_model, origin_lat_lon=origin_ll, crs=crs, footprint_edge=not beam_axis)
     inputs = expand_inputs([str(p) for p in pings])
     total = None if quiet else count_pings(inputs)
     progress = ping_progress("map", total, quiet=quiet, verbose=verbose)

@@ -140,11 +140,14 @@ def evaluate_survey(
     n_elevation: int = 1,
     elevation_ambiguity: bool = False,
     models: tuple[str, ...] = ("pd/pfa", "fixed 0.8/0.3", "fixed 0.8/0.3, OctoMap clamps"),
+    registration: Any = None,
 ) -> SurveyEvaluation:
     """Run the per-ping pipeline on a rendered survey, register and map, and score against truth.
 
     Registration uses the true sensor poses, so the errors measured are those of the ranges and
-    of the zero-elevation assumption.  Occupancy IoU compares the occupied cells with
+    of the zero-elevation assumption; ``registration`` (a
+    :class:`~sonarmap.mapping.register.RegistrationConfig`, default ``RegistrationConfig()``) says
+    how, with the survey geometry's beamwidth for the footprint edge.  Occupancy IoU compares the occupied cells with
     :func:`truth_voxels` for each resolution and sensor model (:data:`SURVEY_MODELS`):
 
     * ``"pd/pfa"``: the pD/pFA-driven inverse sensor model with each ping's range-measurement
@@ -175,7 +178,8 @@ def evaluate_survey(
         cfg = pipeline_config if pipeline_config is not None else PipelineConfig()
         products = [process_ping(p, cfg) for p in survey.pings]
     ranges = [p.ranges for p in products]
-    cloud = register_ranges(ranges, survey.poses)
+    cloud = register_ranges(ranges, survey.poses, azimuth_beamwidth_rad=survey.geometry.azimuth_beamwidth_rad,
+                            config=registration)
     acc = registration_accuracy(survey, cloud.xyz_m)
     pd_range = np.array([float(p.pd_range) for p in products])
     pfa = np.array([float(p.pfa) for p in products])

@@ -63,6 +63,10 @@ class MapConfig:
         Geodetic origin of the local frame (WGS 84 degrees) for trajectory or static maps.
     crs : str, optional
         Projected CRS of the georeference (default with navigation: the data's UTM zone).
+    footprint_edge : bool
+        Place each return at the near edge of its beam's footprint where the pings' geometry
+        gives the beamwidth (:class:`~sonarmap.mapping.register.RegistrationConfig`); False: on
+        the beam's axis (point clouds only).
     """
 
     trajectory: Any = None
@@ -77,6 +81,7 @@ class MapConfig:
     fixed_model: bool = False
     origin_lat_lon: tuple[float, float] | None = None
     crs: str | None = None
+    footprint_edge: bool = True
 
     def __post_init__(self) -> None:
         if self.outside not in ("error", "skip"):
@@ -164,7 +169,8 @@ def map_from_pings(pings: Iterable[Any], config: MapConfig = MapConfig(), pipeli
                                         **(config.clamp or {})))
            if config.grid_m is not None else None)
     acc = _Accumulator(config, occ, use_nav, SensorModel.fixed(0.8, 0.3) if config.fixed_model else None,
-                       RegistrationConfig(n_elevation=config.n_elevation, min_confidence=config.min_confidence))
+                       RegistrationConfig(n_elevation=config.n_elevation, min_confidence=config.min_confidence,
+                                          footprint_edge=config.footprint_edge))
     place = _placement(config.static, use_nav, georef)
     from sonarmap.pipeline import process_ping
 
@@ -266,7 +272,8 @@ class _Accumulator:
         # the bistatic range correction of the head's sensor frame)
         ranges = [placed_ranges(p, prod.ranges) if self.use_nav else prod.ranges for p, prod in self.batch]
         if self.occ is None:
-            cloud = register_ranges(ranges, sp, config=self.rcfg)
+            cloud = register_ranges(ranges, sp, config=self.rcfg,
+                                    azimuth_beamwidth_rad=[p.geometry.azimuth_beamwidth_rad for p, _ in self.batch])
             self.clouds.append(cloud)
             self.n_returns += len(cloud) // self.rcfg.n_elevation
         else:

@@ -41,6 +41,7 @@ from sonarmap.store import (
     remove_store,
     remove_tmp,
     stack_product_records,
+    store_geometry,
     write_marker,
 )
 from sonarmap.survey.plan import (
@@ -500,7 +501,9 @@ def _register_points(root: Any, st: CheckedStore, out: Path, poses: Any, points:
                      extrinsics: Any) -> tuple[Path, int]:
     """Register the stored ranges with the trajectory into world points (stored + written to a file).
 
-    Pings outside the trajectory's time span are skipped.  The cloud is stored in the survey as
+    Pings outside the trajectory's time span are skipped; each return is placed at the near edge of
+    its beam's footprint when the store's geometry gives the beamwidth
+    (:func:`sonarmap.mapping.register.register_returns`).  The cloud is stored in the survey as
     ``point_xyz (point, xyz)``, ``point_time``, ``point_beam``, ``point_intensity``,
     ``point_range_sigma`` (NaN in a store without ``range_sigma``) and written to ``points``
     (default ``<output>.ply``) in the format given by its suffix.
@@ -523,6 +526,7 @@ def _register_points(root: Any, st: CheckedStore, out: Path, poses: Any, points:
         intensity=np.nan_to_num(read_array(st, "range_intensity"), nan=0.0),
         confidence=np.nan_to_num(read_array(st, "range_confidence"), nan=0.0),
         sigma_m=read_array(st, "range_sigma") if "range_sigma" in st.arrays else None,
+        azimuth_beamwidth_rad=store_geometry(st).azimuth_beamwidth_rad,
     )
     n = len(cloud)
     block = max(1, min(n, 1 << 18))
