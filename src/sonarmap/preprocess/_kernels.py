@@ -451,16 +451,18 @@ def background_rows(q25, q50, n_rows):  # pragma: no cover - numba
 
 @njit(cache=True, nogil=True)
 def excess_top(z, t, gain):  # pragma: no cover - numba
-    """``min(gain * max(z - t, 0), 1)`` as float32, and the number of its values at 1."""
-    n, m = z.shape
-    out = np.empty((n, m), dtype=np.float32)
+    """``min(gain * max(z - t, 0), 1)`` as float32, and the number of its values at 1 (``z``
+    C-contiguous: one loop over its pixels, which vectorises; per row, a short row - 48 beams - did
+    not)."""
+    out = np.empty(z.shape, dtype=np.float32)
+    src = z.ravel()
+    dst = out.ravel()
     top = 0
-    for i in range(n):
-        for j in range(m):
-            e = (z[i, j] - t) * gain
-            u = 0.0 if e <= 0 else (1.0 if e > 1.0 else e)
-            out[i, j] = u
-            top += u >= 1.0
+    for k in range(src.size):
+        e = (src[k] - t) * gain
+        u = 0.0 if e <= 0 else (1.0 if e > 1.0 else e)
+        dst[k] = u
+        top += u >= 1.0
     return out, top
 
 
@@ -488,16 +490,15 @@ def percentiles_linear(x, q):  # pragma: no cover - numba
 
 @njit(cache=True, nogil=True)
 def finite_and_zeros(img, zero):  # pragma: no cover - numba
-    """``(np.all(np.isfinite(img)), np.count_nonzero(img <= zero))`` of a float32 image in one pass
-    (``zero`` float32)."""
-    n, m = img.shape
+    """``(np.all(np.isfinite(img)), np.count_nonzero(img <= zero))`` of a C-contiguous float32 image
+    in one pass (``zero`` float32) over its pixels as one array (vectorised; short rows were not)."""
+    flat = img.ravel()
     finite = True
     zeros = 0
-    for i in range(n):
-        for j in range(m):
-            v = img[i, j]
-            finite &= np.isfinite(v)
-            zeros += v <= zero
+    for k in range(flat.size):
+        v = flat[k]
+        finite &= np.isfinite(v)
+        zeros += v <= zero
     return finite, zeros
 
 
