@@ -473,15 +473,31 @@ def reduce_uniform4(levels, margin_lut, weights, wtot, fixed, stack, wr, wb):  #
     and the same free list, faster.  An interior pixel's outcome is a function of its level and of
     the states of its upper and left neighbours (:func:`pass1_table`), so the raster sweep is one
     table read per pixel with a short dependency on the left neighbour's state; border pixels
-    take the general test.  Returns ``n_free``."""
+    take the general test (:func:`_pass1_pixel`), whose outcome on the first and last pixel of
+    the interior rows is kept per level and neighbour states when first met.  Returns ``n_free``."""
     h, w = levels.shape
     tab = pass1_table(margin_lut, wr, wb, wtot[1, 1])
+    # the first and last pixel of an interior row: the general test's outcome is likewise a
+    # function of the level and the visited neighbours' states (uniform weights: the same weights
+    # and total on every interior row), kept when first met (-2: not yet) - on a tall image the
+    # general test's unpredictable branches on these 2 pixels a row cost a third of the pass
+    seen_first = np.full(3 * margin_lut.size, -2, dtype=np.int8)
+    seen_last = np.full(9 * margin_lut.size, -2, dtype=np.int8)
     n = 0
     for j in range(w):
         n = _pass1_pixel(levels, margin_lut, weights, wtot, fixed, stack, 0, j, n)
     for i in range(1, h - 1):
-        n = _pass1_pixel(levels, margin_lut, weights, wtot, fixed, stack, i, 0, n)
-        s = np.int64(fixed[i, 0])
+        key = 3 * np.int64(levels[i, 0]) + np.int64(fixed[i - 1, 0]) + 1
+        s = np.int64(seen_first[key])
+        if s == -2:
+            n = _pass1_pixel(levels, margin_lut, weights, wtot, fixed, stack, i, 0, n)
+            s = np.int64(fixed[i, 0])
+            seen_first[key] = s
+        else:
+            fixed[i, 0] = s
+            if s < 0:
+                stack[n] = i * w
+                n += 1
         base = i * w
         for j in range(1, w - 1):
             b = np.int64(tab[3 * np.int64(levels[i, j]) + np.int64(fixed[i - 1, j]) + 1])
@@ -490,7 +506,16 @@ def reduce_uniform4(levels, margin_lut, weights, wtot, fixed, stack, wr, wb):  #
             if s < 0:                          # free pixels come in runs: a predictable branch
                 stack[n] = base + j
                 n += 1
-        n = _pass1_pixel(levels, margin_lut, weights, wtot, fixed, stack, i, w - 1, n)
+        key = 3 * (3 * np.int64(levels[i, w - 1]) + np.int64(fixed[i - 1, w - 1]) + 1) + s + 1
+        s = np.int64(seen_last[key])
+        if s == -2:
+            n = _pass1_pixel(levels, margin_lut, weights, wtot, fixed, stack, i, w - 1, n)
+            seen_last[key] = fixed[i, w - 1]
+        else:
+            fixed[i, w - 1] = s
+            if s < 0:
+                stack[n] = base + w - 1
+                n += 1
     for j in range(w):
         n = _pass1_pixel(levels, margin_lut, weights, wtot, fixed, stack, h - 1, j, n)
     return n
