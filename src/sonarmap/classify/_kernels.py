@@ -483,6 +483,8 @@ def reduce_uniform4(levels, margin_lut, weights, wtot, fixed, stack, wr, wb):  #
     # general test's unpredictable branches on these 2 pixels a row cost a third of the pass
     seen_first = np.full(3 * margin_lut.size, -2, dtype=np.int8)
     seen_last = np.full(9 * margin_lut.size, -2, dtype=np.int8)
+    flat_levels = levels.reshape(h * w)
+    flat_fixed = fixed.reshape(h * w)
     n = 0
     for j in range(w):
         n = _pass1_pixel(levels, margin_lut, weights, wtot, fixed, stack, 0, j, n)
@@ -499,12 +501,15 @@ def reduce_uniform4(levels, margin_lut, weights, wtot, fixed, stack, wr, wb):  #
                 stack[n] = i * w
                 n += 1
         base = i * w
-        for j in range(1, w - 1):
-            b = np.int64(tab[3 * np.int64(levels[i, j]) + np.int64(fixed[i - 1, j]) + 1])
+        # (unsigned indices into flat views: no negative-index wraparound code in the loop)
+        row = np.uint64(base)
+        up = np.uint64(base - w)
+        for j in range(np.uint64(1), np.uint64(w - 1)):
+            b = np.int64(tab[np.uint64(3 * np.int64(flat_levels[row + j]) + np.int64(flat_fixed[up + j]) + 1)])
             s = ((b >> (2 * (s + 1))) & 3) - 1
-            fixed[i, j] = s
+            flat_fixed[row + j] = s
             if s < 0:                          # free pixels come in runs: a predictable branch
-                stack[n] = base + j
+                stack[np.uint64(n)] = row + j
                 n += 1
         key = 3 * (3 * np.int64(levels[i, w - 1]) + np.int64(fixed[i - 1, w - 1]) + 1) + s + 1
         s = np.int64(seen_last[key])
