@@ -199,9 +199,10 @@ def _row_quartile_scaled(img, k, out):  # pragma: no cover - numba
     """:func:`row_quartile_u8` into ``out`` when every value of ``max(img, 0)`` is its level times
     ``float32(1 / 255)`` (then each level has one value and the result is the same); False (``out``
     partly written) when one is not.  The levels and that test come from one branch-free pass over
-    each row (it vectorises), the first value of each level needs no table."""
+    each row (it vectorises), the first value of each level needs no table.  The levels are
+    unsigned, as the scan's index: no negative-index wraparound code in the counting loops."""
     n, m = img.shape
-    keys = np.empty(m, dtype=np.int32)
+    keys = np.empty(m, dtype=np.uint32)
     count = np.zeros(256, dtype=np.int32)
     scale = np.float32(255.0)
     half = np.float32(0.5)
@@ -210,11 +211,11 @@ def _row_quartile_scaled(img, k, out):  # pragma: no cover - numba
     for i in range(n):
         row = img[i]
         good = True
-        lo = 255
+        lo = np.uint32(255)
         for j in range(m):
             v = row[j]
             v = min(v, two) if v > 0 else np.float32(0.0)  # (clamped: no overflowing level)
-            key = np.int32(v * scale + half)
+            key = np.uint32(v * scale + half)
             good &= (v <= 1.0) & (np.float32(key) * step == v)
             keys[j] = key
             lo = min(lo, key)
@@ -223,11 +224,13 @@ def _row_quartile_scaled(img, k, out):  # pragma: no cover - numba
         for j in range(m):
             count[keys[j]] += 1
         c = 0
-        for key in range(lo, 256):
+        key = np.uint64(lo)
+        while key < np.uint64(256):
             c += count[key]
             if c > k:
                 out[i] = np.float32(key) * step
                 break
+            key += np.uint64(1)
         for j in range(m):
             count[keys[j]] = 0
     return True
