@@ -562,11 +562,11 @@ def _chain_run(levels, margin_lut, fixed, i, j0, n, tc, tv, wb, buf, dec):  # pr
         base = margin_lut[levels[i, j]]
         vf = 0.0
         if up:
-            f = fixed[i - 1, j] + 1
+            f = np.uint64(fixed[i - 1, j] + 1)  # (unsigned: no wraparound code)
             base += tc[f]
             vf += tv[f]
         if down:
-            f = fixed[i + 1, j] + 1
+            f = np.uint64(fixed[i + 1, j] + 1)
             base += tc[f]
             vf += tv[f]
         lo = base - vf
