@@ -127,11 +127,16 @@ def test_a_rice_that_becomes_a_rayleigh_is_stopped_where_the_rayleigh_candidate_
     assert selection._rayleigh_for_rice(("exponential", "rice", "gamma")) == ("exponential", "rayleigh", "gamma")
     assert selection._rayleigh_for_rice(("exponential", "weibull", "rice")) == ("exponential", "rayleigh", "weibull")
     assert selection._rayleigh_for_rice(("exponential", "gamma")) is None
+    assert selection._rayleigh_for_rice(("exponential", "k", "rice")) == ("exponential", "rayleigh", "k")
     cands = default_candidates(2)
     sel = select_model(counts, candidates=cands)
     assert sel.fits[cands.index(fams)].n_iter < 200
     # without the Rayleigh candidate the Rice is fitted to the end
     alone = select_model(counts, candidates=[fams])
     assert alone.fits[0].n_iter == 2000
+    # the Rayleigh candidate stands for it in whatever order its families are listed
+    reordered = select_model(counts, candidates=[("exponential", "rice", "exponential"),
+                                                 ("exponential", "rayleigh", "exponential")])
+    assert reordered.fits[0].n_iter < 200
     monkeypatch.setattr(selection, "RICE_AS_RAYLEIGH", 0.0)
     assert select_model(counts, candidates=cands).best_index == sel.best_index

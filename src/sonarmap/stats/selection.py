@@ -69,14 +69,21 @@ OBJECT_FAMILIES = ("exponential", "rayleigh", "rice", "weibull", "gamma")
 RICE_AS_RAYLEIGH = 0.02
 
 
+def _canonical(c: Sequence[str]) -> tuple[str, ...]:
+    """Candidate ``c`` with its object families in the order of :func:`default_candidates`
+    (families not in :data:`OBJECT_FAMILIES` after them, by name)."""
+    n = len(OBJECT_FAMILIES)
+    return (c[0],) + tuple(sorted(c[1:], key=lambda f: (OBJECT_FAMILIES.index(f) if f in OBJECT_FAMILIES else n, f)))
+
+
 def _rayleigh_for_rice(c: tuple[str, ...]) -> tuple[str, ...] | None:
-    """Candidate ``c`` with its first Rice replaced by a Rayleigh, in the canonical order of
-    :func:`default_candidates` (None without a Rice)."""
+    """Candidate ``c`` with its first Rice replaced by a Rayleigh, in :func:`_canonical` order
+    (None without a Rice)."""
     if "rice" not in c[1:]:
         return None
     objs = list(c[1:])
     objs[objs.index("rice")] = "rayleigh"
-    return (c[0],) + tuple(sorted(objs, key=OBJECT_FAMILIES.index))
+    return _canonical((c[0], *objs))
 
 
 def default_candidates(max_objects: int = 2) -> list[tuple[str, ...]]:
@@ -139,8 +146,10 @@ def select_model(
     if isinstance(workers, bool) or int(workers) != workers or workers < 1:
         raise InputError(f"workers: must be a positive integer, got {workers!r}")
 
+    fitted = {_canonical(c) for c in cands}  # whatever order the caller lists a candidate's families in
+
     def fit(c: tuple[str, ...]) -> MixtureFit:
-        rice_min = RICE_AS_RAYLEIGH if _rayleigh_for_rice(c) in cands else 0.0
+        rice_min = RICE_AS_RAYLEIGH if _rayleigh_for_rice(c) in fitted else 0.0
         return fit_mixture(counts, families=c, method=method, binning=binning, max_iter=max_iter, rice_min=rice_min)
 
     if workers > 1 and len(cands) > 1:
