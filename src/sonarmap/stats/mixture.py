@@ -874,12 +874,20 @@ def _em_best(
     best = _em(spec, counts, starts[0][0], starts[0][1], max_iter, tol, accel)
     assert best is not None
     if len(starts) > 1 and _needs_restart(spec, best, min_weight):
+        ref = _merge_reference(spec, best)
         for w0, p0 in starts[1:]:
-            ref = (best[0], _general_coords(spec, best[1])[1]) if best[3] else None
             out = _em(spec, counts, w0, p0, max_iter, tol, accel, ref)
             if out is not None and out[4][-1] > best[4][-1]:
                 best = out
+                ref = _merge_reference(spec, best)
     return best
+
+
+def _merge_reference(spec: _Spec, fit: tuple[NDArray[np.float64], list[tuple[float, ...]], int, bool, Any]
+                     ) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
+    """``(weights, kernel coordinates)`` of an :func:`_em` result for :func:`_em`'s ``merge``
+    (None unless it converged: only a maximum is a reference)."""
+    return (fit[0], _general_coords(spec, fit[1])[1]) if fit[3] else None
 
 
 def _needs_restart(
@@ -1303,7 +1311,8 @@ def _family_names(families: Sequence[str]) -> tuple[str, ...]:
 
 def _model_layout(fams: tuple[str, ...], zero_spike: bool, n: int, binning: Binning,
                   class_names: Sequence[str] | None, scale_max: float, min_scale_ratio: float,
-                  discretization: str, method: str, rice_min: float = 0.0) -> tuple[_Spec, tuple[int, ...], tuple[str, ...]]:
+                  discretization: str, method: str,
+                  rice_min: float = 0.0) -> tuple[_Spec, tuple[int, ...], tuple[str, ...]]:
     """The model of :func:`_fit_problem` on ``n`` levels: its spec, the class of every component
     and the class names; an InputError for a bad option."""
     levels = quantization_levels(n, binning=binning)
@@ -1476,10 +1485,9 @@ def fit_mixture(
         Least squares only: every object scale is at least this multiple of the background scale
         (else the object of an empty ping such as Table I image 6 mimics the background).
     discretization : {"exact", "paper"}
-        ``"exact"`` (default): pmfs normalised on the levels.  ``"paper"``: the authors'
-        discretisation (see :func:`component_pmf_matrix`), least squares with floor binning and
-        exponential/Rayleigh only - for reproducing Table I; ``kld`` is then computed with the
-        unnormalised model as the authors did.
+        ``"exact"`` (default): pmfs normalised on the levels.  ``"paper"``: the authors' discretisation
+        (see :func:`component_pmf_matrix`), least squares with floor binning and exponential/Rayleigh
+        only - for reproducing Table I; ``kld`` is then computed with the unnormalised model as they did.
     accelerate : bool
         SQUAREM-accelerated EM (also least squares' EM warm start): the same stopping rule, 3-10x
         fewer EM steps on overlapping components.  False: plain EM.
@@ -1494,13 +1502,15 @@ def fit_mixture(
     Raises
     ------
     InputError
-        Bad image (NaN, integer dtype, empty) or bad options (FitError: an empty histogram).
+        Bad image (NaN, integer dtype, empty) or bad options.
+    FitError
+        Empty histogram.
 
     Notes
     -----
-    Implements eq. 8-11 and 19-21 of Teixeira et al. (IROS 2018).  Degenerate inputs (all-zero,
-    constant, tiny images; a vanishing object component as in Table I image 6) give a result
-    carrying :attr:`MixtureFit.flags`, never a silently wrong one.
+    Implements eq. 8-11 and 19-21 of Teixeira et al. (IROS 2018).  Degenerate inputs (all-zero, constant, tiny
+    images; a vanishing object component as in Table I image 6) give a result carrying :attr:`MixtureFit.flags`,
+    never a silently wrong one.
     """
     problem = _fit_problem(data, families, method=method, zero_spike=zero_spike, n_levels=n_levels, binning=binning,
                            class_names=class_names, min_weight=min_weight, scale_max=scale_max,
