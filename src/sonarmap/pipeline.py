@@ -348,7 +348,7 @@ def _p_detect(pd: float, pd_range: float, ranges: BeamRanges, thickness: NDArray
     if not (math.isfinite(pd) and math.isfinite(pd_range)) or pd <= 0:
         return np.full(n, np.nan if not math.isfinite(pd_range) else pd_range, dtype=np.float32)
     t = np.asarray(thickness, dtype=np.float64)
-    valid = ranges.bin >= 0
+    valid = ranges.valid
     tv = t[valid]
     if tv.size:
         # np.median of the (NaN-free) thicknesses: the middle one, or the mean of the middle two

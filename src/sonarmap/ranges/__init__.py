@@ -149,7 +149,7 @@ class BeamRanges:
     @property
     def n_returns(self) -> int:
         """Number of beams with a return."""
-        return int(np.count_nonzero(self.bin >= 0))
+        return int(np.count_nonzero(self.valid))
 
     @property
     def n_beams(self) -> int:
