@@ -1039,18 +1039,117 @@ def _median(x, c):  # pragma: no cover - numba
 
 
 @njit(cache=True, nogil=True)
-def pooled_edges(img, edge, stop, run, half_beams, front_bins, max_bins, smooth_bins, fraction, n_iter):  # pragma: no cover - numba
+def _clipped_at(clip, j, pos):  # pragma: no cover - numba
+    """Whether either raw sample around fractional row ``pos`` of column ``j`` is clipped."""
+    n = clip.shape[0]
+    i0 = int(np.floor(pos))
+    for i in (i0, i0 + 1):
+        if 0 <= i < n and clip[i, j] != 0:
+            return True
+    return False
+
+
+@njit(cache=True, nogil=True)
+def _clipped_edge(sm, clipped_k, nk, p, fraction, n_own):  # pragma: no cover - numba
+    """``(ok, x, level, slope, sigma)``: the ``fraction`` crossing of a Gaussian echo fitted to
+    the log of the unclipped bins of profile ``sm`` (``nk`` bins) on both sides of the clipped run
+    around its peak ``p`` - down to 5 % of the clipped maximum, and beyond the echo's own ``n_own``
+    bins only while the profile falls - with the echo's level and rise per bin there and the crossing's standard error (bins, from the fit's residuals).  The crossing
+    may lie inside the clipped run (an echo that peaks above twice the clip level).  Not ``ok``
+    with fewer than 2 bins on either flank, a fit that does not curve down, a fitted peak not above
+    the clipped maximum, or a crossing before the rising flank or after the clipped run."""
+    c0 = p
+    while c0 > 0 and clipped_k[c0 - 1]:
+        c0 -= 1
+    c1 = p
+    while c1 < nk - 1 and clipped_k[c1 + 1]:
+        c1 += 1
+    floor = 0.05 * sm[p]
+    # sums for the least-squares parabola in k - c0 (centred for conditioning)
+    S = np.zeros(5)
+    T = np.zeros(3)
+    n_up = 0
+    k = c0 - 1
+    while k >= 0 and not clipped_k[k] and sm[k] >= floor:
+        n_up += 1
+        k -= 1
+    first = k + 1
+    n_down = 0
+    k = c1 + 1
+    while k < nk and not clipped_k[k] and sm[k] >= floor and (k < n_own or sm[k] < sm[k - 1]):
+        n_down += 1
+        k += 1
+    if n_up < 2 or n_down < 2:
+        return False, 0.0, 0.0, 0.0, 0.0
+    for k in range(first, c1 + 1 + n_down):
+        if c0 <= k <= c1:
+            continue
+        u = float(k - c0)
+        y = np.log(sm[k])
+        up = 1.0
+        for e in range(5):
+            S[e] += up
+            if e < 3:
+                T[e] += up * y
+            up *= u
+    A = np.empty((3, 3))
+    for r in range(3):
+        for q in range(3):
+            A[r, q] = S[r + q]
+    coef = np.linalg.solve(A, T)
+    a, b, c = coef[0], coef[1], coef[2]
+    if not c < 0:
+        return False, 0.0, 0.0, 0.0, 0.0
+    u0 = -b / (2.0 * c)
+    w2 = -1.0 / (2.0 * c)
+    peak = np.exp(a + b * u0 + c * u0 * u0)
+    if not peak > sm[p] or not np.isfinite(peak):
+        return False, 0.0, 0.0, 0.0, 0.0
+    du = np.sqrt(-2.0 * np.log(fraction) * w2)
+    x = c0 + u0 - du
+    if not (first - 1.0 <= x <= c1):
+        return False, 0.0, 0.0, 0.0, 0.0
+    # standard error of the crossing: the fit's residual variance through the covariance of
+    # (a, b, c) and the crossing's gradient u0 - du = -b / 2c - sqrt(ln(f) / c)
+    rss = 0.0
+    n = 0
+    for k in range(first, c1 + 1 + n_down):
+        if c0 <= k <= c1:
+            continue
+        u = float(k - c0)
+        r = np.log(sm[k]) - (a + b * u + c * u * u)
+        rss += r * r
+        n += 1
+    cov = np.linalg.inv(A) * (rss / max(n - 3, 1))
+    lf = np.log(fraction)
+    g1 = -1.0 / (2.0 * c)
+    g2 = b / (2.0 * c * c) + (lf / (c * c)) / (2.0 * np.sqrt(lf / c))
+    var = g1 * g1 * cov[1, 1] + 2.0 * g1 * g2 * cov[1, 2] + g2 * g2 * cov[2, 2]
+    level = fraction * peak
+    return True, x, level, level * du / w2, np.sqrt(max(var, 0.0))
+
+
+@njit(cache=True, nogil=True)
+def pooled_edges(img, edge, stop, run, half_beams, front_bins, max_bins, smooth_bins, fraction, n_iter,
+                 clip):  # pragma: no cover - numba
     """Leading edges measured on the surface-aligned mean profile of neighbouring beams
     (see :func:`sonarmap.ranges.echoes.pooled_edges`).
 
     ``edge`` (fractional bins, NaN: no return) and ``stop`` (one past the echo's last structure
     bin) per beam; ``run`` labels the runs of beams that are one surface (-1: none).  Returns per
     beam the new edge, the pooled profile's value and rise per bin at the crossing, the number of
-    beams pooled (0 where the beam keeps its own edge) and the standard error of the pooled
-    profile at the crossing.
+    beams pooled (0 where the beam keeps its own edge), the standard error of the pooled
+    profile at the crossing and whether the edge is that of a fitted clipped echo.
+
+    ``clip`` (uint8, the image's shape; shape (0, 0): none) marks the raw samples at the
+    receiver's full scale.  Where the pooled profile's peak is clipped, its first peak is the clip
+    level, below the echo's own: the leading edge is then the half-peak crossing of a Gaussian
+    echo fitted to the log of the unclipped samples on both flanks (:func:`_clipped_edge`).
     """
     m = edge.size
     cur = edge.copy()
+    has_clip = clip.shape[0] > 0
+    fitted = np.zeros(m, np.bool_)
     value = np.full(m, np.nan)
     rise = np.full(m, np.nan)
     used = np.zeros(m, np.int64)
@@ -1087,18 +1186,27 @@ def pooled_edges(img, edge, stop, run, half_beams, front_bins, max_bins, smooth_
                     c += 1
             depth[j] = int(min(max(_median(win, c), 3.0), max_bins))
             kmax = max(kmax, depth[j])
-        width = front_bins + kmax + 1 + 2 * h
+        # (with clipping, front_bins more behind the echo: the falling flank of a clipped peak)
+        tail = front_bins if has_clip else 0
+        width = front_bins + kmax + 1 + 2 * h + tail
         # every beam's own profile at offsets -front_bins - h .. kmax + h from its alignment, and
         # their running sum over beams (a run is a contiguous block of beams: a window's sum is
         # a difference of two rows)
         prof = np.zeros((m, width))
         csum = np.zeros((m + 1, width))
+        ccnt = np.zeros((m + 1, width if has_clip else 1), np.int64)
         for jj in range(m):
             if run[jj] >= 0:
                 for k in range(width):
                     prof[jj, k] = _interp_column(img, jj, align[jj] + (k - h - front_bins))
             for k in range(width):
                 csum[jj + 1, k] = csum[jj, k] + prof[jj, k]
+            if has_clip:
+                for k in range(width):
+                    ccnt[jj + 1, k] = ccnt[jj, k]
+                    if run[jj] >= 0 and _clipped_at(clip, jj, align[jj] + (k - h - front_bins)):
+                        ccnt[jj + 1, k] += 1
+        clipped_k = np.zeros(width, np.bool_)
         new = cur.copy()
         mean = np.empty(width)
         sm = np.empty(width)
@@ -1111,13 +1219,14 @@ def pooled_edges(img, edge, stop, run, half_beams, front_bins, max_bins, smooth_
                 lo += 1
             hi = lo + c
             nk = front_bins + depth[j] + 1
-            for k in range(nk + 2 * h):
+            nf = nk + tail
+            for k in range(nf + 2 * h):
                 mean[k] = (csum[hi, k] - csum[lo, k]) / c
             # smoothed along range over smooth_bins (the profile extends h bins either side), only
             # where the echo is deep enough (>= 6 smoothing half-widths) for the box not to widen
             # it: a one-bin echo smoothed over 3 bins would have its crossing a bin early
             hj = h if depth[j] >= 6 * h else 0
-            for k in range(nk):
+            for k in range(nf):
                 acc = 0.0
                 for d in range(h - hj, h + hj + 1):
                     acc += mean[k + d]
@@ -1138,6 +1247,20 @@ def pooled_edges(img, edge, stop, run, half_beams, front_bins, max_bins, smooth_
             else:
                 slope = sm[i] - sm[i - 1]
                 x = i - 1 + (lv - sm[i - 1]) / max(slope, 1e-12)
+            if has_clip:
+                # a smoothed bin is clipped when any pooled beam has a clipped sample in its box
+                for k in range(nf):
+                    clipped_k[k] = False
+                    for d in range(h - hj, h + hj + 1):
+                        if ccnt[hi, k + d] - ccnt[lo, k + d] > 0:
+                            clipped_k[k] = True
+                fitted[j] = False
+                fit_sx = 0.0
+                if clipped_k[p]:
+                    ok, xf, lvf, sf, fit_sx = _clipped_edge(sm, clipped_k, nf, p, fraction, nk)
+                    if ok:
+                        x, lv, slope = xf, lvf, sf
+                        fitted[j] = True
             new[j] = align[j] + x - front_bins
             value[j] = lv
             rise[j] = slope
@@ -1159,8 +1282,12 @@ def pooled_edges(img, edge, stop, run, half_beams, front_bins, max_bins, smooth_
                 s2 += v * v
             var = max(s2 / c - (s1 / c) ** 2, 0.0) * c / (c - 1)
             noise[j] = np.sqrt(var / c)
+            if fitted[j]:
+                # the fitted crossing's standard error (bins) as a profile noise at its rise: the
+                # sigma then scales it as it scales the pooled profile's own jitter
+                noise[j] = fit_sx * slope
         cur = new
-    return cur, value, rise, used, noise
+    return cur, value, rise, used, noise, fitted
 
 
 @njit(cache=True, nogil=True)

@@ -80,6 +80,9 @@ class Echoes:
     beamwidth_beams : ndarray of float64, optional
         Per beam, the geometry's two-way azimuth beamwidth in units of the local beam spacing
         (``SonarGeometry.azimuth_beamwidth_rad``); None when the geometry does not give it.
+    clip_fitted : ndarray of bool, optional
+        Whether the echo's leading edge is that of a Gaussian fitted to its clipped peak
+        (:func:`pooled_edges` with ``clip``); None: none is.
     """
 
     beam: NDArray[np.int64]
@@ -97,6 +100,7 @@ class Echoes:
     n_beams: int
     clipped: NDArray[np.bool_] | None = None
     beamwidth_beams: NDArray[np.float64] | None = None
+    clip_fitted: NDArray[np.bool_] | None = None
 
     @property
     def size(self) -> int:
@@ -413,6 +417,9 @@ def _first_intervals(echoes: Echoes, sel: NDArray[np.int64]) -> tuple[NDArray[np
                                     echoes.stop_bin)
 
 
+_NO_CLIP = np.zeros((0, 0), dtype=np.uint8)
+
+
 def pooled_edges(
     echoes: Echoes,
     first: ArrayLike,
@@ -428,6 +435,7 @@ def pooled_edges(
     n_iter: int = 2,
     touch_bins: float = 1.0,
     sigma_scale: float = 1.0,
+    clip: NDArray[np.bool_] | None = None,
 ) -> Echoes:
     """Leading edges of a tracked surface measured on a multi-look along the surface.
 
@@ -455,41 +463,57 @@ def pooled_edges(
         As in :func:`find_echoes`.
     sigma_scale : float
         Calibration of :func:`edge_sigma_m`'s jitter term (``PipelineConfig.ranges.sigma_pool_scale``).
+    clip : ndarray of bool, shape (n_bins, n_beams), optional
+        The raw samples at full scale (``>= sonarmap.ranges.measure.CLIP_LEVEL``).  A clipped
+        pooled peak is below the echo's own: its edge is then the crossing of a Gaussian fitted
+        to the log of the unclipped bins of both flanks (none: the clipped peak is used).
     half_beams, front_bins, max_bins, smooth_bins, n_iter, touch_bins
         The pooling window (see above).
 
     Returns
     -------
     Echoes
-        ``echoes`` with the returns' ``edge_bin``, ``edge_range_m``, ``slope``, ``sigma_m`` replaced.
+        ``echoes`` with the returns' ``edge_bin``, ``edge_range_m``, ``slope``, ``sigma_m`` replaced
+        (and ``clip_fitted`` marking the echoes whose edge is that of a fitted clipped echo).
     """
     from sonarmap.ranges import _kernels
 
     sel = np.asarray(first, dtype=np.int64)
-    for key, v, lo in (("half_beams", half_beams, 0), ("front_bins", front_bins, 0), ("max_bins", max_bins, 3),
-                       ("smooth_bins", smooth_bins, 1), ("n_iter", n_iter, 1)):
-        if isinstance(v, bool) or int(v) != v or v < lo:
-            raise InputError(f"{key}: must be an integer >= {lo} (got {v!r})")
-    if not 0 < fraction < 1:
-        raise InputError(f"fraction: must lie in (0, 1) (got {fraction})")
-    if sel.shape != (echoes.n_beams,):
-        raise InputError(f"first: expected shape ({echoes.n_beams},), got {sel.shape}")
+    _check_pooling(echoes, sel, (half_beams, front_bins, max_bins, smooth_bins, n_iter), fraction, clip,
+                   np.shape(image))
     edge, lo, hi, stop = _first_intervals(echoes, sel)
     run = _kernels.surface_runs(edge, lo, hi, float(touch_bins))
     if half_beams == 0 or run.max(initial=-1) < 0:
         return echoes
     img = smooth_along_range(image, pulse_bins) if pulse_bins >= 2 else np.ascontiguousarray(image)
     geometry.check_image(img, "image")
-    new, value, rise, used, noise = _kernels.pooled_edges(
+    new, value, rise, used, noise, fitted = _kernels.pooled_edges(
         img, edge, stop, run, int(half_beams), int(front_bins), int(max_bins), int(smooth_bins) | 1,
-        float(fraction), int(n_iter))
+        float(fraction), int(n_iter), _NO_CLIP if clip is None else np.ascontiguousarray(clip).view(np.uint8))
     # the leading edge belongs to the beam's own echo: within the walk of find_echoes in front of
     # its first structure bin and before its last one (else a neighbouring surface pulled it)
     sel = np.ascontiguousarray(sel)
     done = _kernels.pooled_edges_done(sel, new, used, echoes.start_bin, stop, int(pulse_bins) + 2)
     if not done.size:
         return echoes
-    return _with_edges(echoes, sel, done, new, rise, noise, geometry, pulse_bins, sigma_scale)
+    out = _with_edges(echoes, sel, done, new, rise, noise, geometry, pulse_bins, sigma_scale)
+    keep = sel[done[fitted[done]]]
+    return out.replaced(clip_fitted=np.isin(np.arange(echoes.size), keep)) if keep.size else out
+
+
+def _check_pooling(echoes: Echoes, sel: np.ndarray, window: tuple[int, int, int, int, int], fraction: float,
+                   clip: NDArray[np.bool_] | None, shape: tuple[int, ...]) -> None:
+    """The options of :func:`pooled_edges` (``window``: half_beams, front_bins, max_bins,
+    smooth_bins, n_iter) are valid, ``first`` has a value per beam and ``clip`` the image's shape."""
+    for key, v, lo in zip(("half_beams", "front_bins", "max_bins", "smooth_bins", "n_iter"), window, (0, 0, 3, 1, 1)):
+        if isinstance(v, bool) or int(v) != v or v < lo:
+            raise InputError(f"{key}: must be an integer >= {lo} (got {v!r})")
+    if not 0 < fraction < 1:
+        raise InputError(f"fraction: must lie in (0, 1) (got {fraction})")
+    if sel.shape != (echoes.n_beams,):
+        raise InputError(f"first: expected shape ({echoes.n_beams},), got {sel.shape}")
+    if clip is not None and np.shape(clip) != shape:
+        raise InputError(f"clip: expected the image's shape {shape}, got {np.shape(clip)}")
 
 
 def _with_edges(echoes: Echoes, sel: np.ndarray, beams: np.ndarray, edge: np.ndarray, rise: np.ndarray,

@@ -311,9 +311,12 @@ def surface_ranges(ping: Ping, image: NDArray[np.float32], levels: NDArray[Any],
     if config.edge_pool_beams > 0 and config.range_mode == "first":
         # the pooled profile is smoothed over at least 3 bins along range in all (a single-look
         # profile's maximum is otherwise a speckle spike)
+        # a clipped return is measured by a Gaussian fitted to its flanks (pooled_edges)
+        clipped = echoes.clipped if echoes.clipped is not None else clipped_echoes(echoes, ping.image)
+        clip = np.asarray(ping.image) >= CLIP_LEVEL if clipped[sel[sel >= 0]].any() else None
         echoes = pooled_edges(echoes, sel, meas, geom, pulse_bins=pb, half_beams=config.edge_pool_beams,
                               smooth_bins=3 if pb < 3 else 1, fraction=fraction,
-                              touch_bins=config.track.touch_bins, sigma_scale=config.sigma_pool_scale)
+                              touch_bins=config.track.touch_bins, sigma_scale=config.sigma_pool_scale, clip=clip)
     if echoes.size and (sel >= 0).any():
         echoes = clipped_echo_sigma(echoes, sel, ping.image, geom)
     thickness = np.where(sel >= 0, (echoes.stop_bin - echoes.start_bin)[np.maximum(sel, 0)] if echoes.size else 0, 0)
@@ -343,10 +346,14 @@ def clipped_echo_sigma(echoes: Any, sel: NDArray[np.int64], raw: NDArray[Any], g
     A clipped echo's peak is only a lower bound: the half-peak crossing of the true echo lies
     somewhere between the crossing measured (half the clipped level) and the echo's first
     clipped sample.  That interval's uniform spread, ``length / sqrt 12``, is added in
-    quadrature to the return's sigma; the range itself is not moved.
+    quadrature to the return's sigma; the range itself is not moved.  Returns whose edge is that of
+    a Gaussian fitted to the clipped echo's flanks (``Echoes.clip_fitted``, :func:`pooled_edges`)
+    keep their sigma: the fit's own standard error is in it.
     """
     from sonarmap.ranges._kernels import clipped_spread
 
+    if echoes.clip_fitted is not None:  # a Gaussian fitted to the clipped peak gave the edge
+        sel = np.where((sel >= 0) & echoes.clip_fitted[np.maximum(sel, 0)], -1, sel)
     e, spread = clipped_spread(np.ascontiguousarray(raw), np.ascontiguousarray(sel, dtype=np.int64), echoes.edge_bin,
                                echoes.stop_bin, CLIP_LEVEL, abs(geom.range_resolution_m))
     if not e.size:
