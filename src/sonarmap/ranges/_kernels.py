@@ -891,16 +891,17 @@ def continued_bands(band, min_beams, seeds, link_beams, link_bins):  # pragma: n
             out[row[a], start[a]:stop[a] + 1] = True
     if link_beams < 2 or rest == 0 or rest == n:
         return out
-    count = np.zeros((h + 1, w), dtype=np.int32)  # kept pixels of each column above each row
-    redo = np.ones(w, dtype=np.bool_)  # columns whose counts are out of date
+    count = np.empty((h + 1, w), dtype=np.int32)  # kept pixels of each column above each row
+    count[0] = 0
     taken = np.zeros(w + 1, dtype=np.int64)  # columns holding a kept pixel, cumulative
     near = np.zeros(n, dtype=np.bool_)
     while True:
+        # row by row over every column (contiguous, it vectorises: 1.7x faster than the columns
+        # one by one, even than only the columns a round changed - most pings take one round)
+        for i in range(h):
+            for j in range(w):
+                count[i + 1, j] = count[i, j] + out[i, j]
         for j in range(w):
-            if redo[j]:
-                for i in range(h):
-                    count[i + 1, j] = count[i, j] + out[i, j]
-                redo[j] = False
             taken[j + 1] = taken[j] + (count[h, j] > 0)
         near[:] = False
         for a in range(n):
@@ -930,7 +931,6 @@ def continued_bands(band, min_beams, seeds, link_beams, link_bins):  # pragma: n
             r = root[a]
             if near[r] and kept[r]:
                 out[row[a], start[a]:stop[a] + 1] = True
-                redo[start[a]:stop[a] + 1] = True
 
 
 @njit(cache=True, nogil=True, inline="always")
