@@ -533,3 +533,49 @@ def clip_negative(out):  # pragma: no cover - numba
     for i in range(flat.size):
         x = flat[i]
         flat[i] = x if (x > zero) | (x != x) else zero
+
+
+@njit(cache=True, nogil=True)
+def clip_rescale(out, top, subtract_min):  # pragma: no cover - numba
+    """:func:`clip_negative`, then the pre-processing's normalisation of a C-contiguous float32
+    image, bit for bit: ``out -= out.min()`` with ``subtract_min``, then ``out *= float32(top /
+    out.max())`` when that maximum is positive.
+
+    After the clipping every value is ``+0.0``, positive or NaN, so their bit patterns read as
+    unsigned integers order them (NaN above ``+inf``): the minimum and maximum are integer
+    reductions, which vectorise (a float one does not).  Returns False, having only clipped, when
+    a value is NaN (the caller takes numpy's way: the NaN propagates through the minimum).
+    """
+    flat = out.reshape(-1)
+    bits = flat.view(np.uint32)
+    zero = np.float32(0.0)
+    n = flat.size
+    for i in range(n):
+        x = flat[i]
+        flat[i] = x if (x > zero) | (x != x) else zero
+    inf = np.uint32(0x7F800000)
+    lo = np.uint32(0xFFFFFFFF)
+    hi = np.uint32(0)
+    for i in range(n):
+        u = bits[i]
+        lo = min(lo, u)
+        hi = max(hi, u)
+    if hi > inf:
+        return False
+    if subtract_min:
+        word = np.empty(1, dtype=np.uint32)
+        word[0] = lo
+        m = word.view(np.float32)[0]
+        for i in range(n):
+            flat[i] = flat[i] - m
+        hi = np.uint32(0)
+        for i in range(n):
+            hi = max(hi, bits[i])
+    if hi > inf or hi == 0:  # the maximum is NaN (+inf - +inf) or zero: no scaling
+        return True
+    word = np.empty(1, dtype=np.uint32)
+    word[0] = hi
+    s = np.float32(top / np.float64(word.view(np.float32)[0]))
+    for i in range(n):
+        flat[i] = flat[i] * s
+    return True

@@ -380,13 +380,17 @@ def preprocess_image(
     out = img @ plan.matrix if plan.matrix is not None else img.copy()
     if plan.row_factor is not None:
         out *= plan.row_factor
-    if cfg.clip_negative:
-        if out.dtype == np.float32 and out.flags.c_contiguous:
-            from sonarmap.preprocess._kernels import clip_negative
+    if cfg.clip_negative and out.dtype == np.float32 and out.flags.c_contiguous:
+        from sonarmap.preprocess._kernels import clip_negative, clip_rescale
 
+        if cfg.normalise == "none":
             clip_negative(out)  # np.maximum(out, 0.0, out=out), vectorised
-        else:
-            np.maximum(out, 0.0, out=out)
+            return out
+        # the clipping and the normalisation below in one kernel (NaN: only clipped, numpy's way)
+        if clip_rescale(out, float(img.max()), cfg.normalise == "min-max"):
+            return out
+    elif cfg.clip_negative:
+        np.maximum(out, 0.0, out=out)
     if cfg.normalise != "none":
         in_max = float(img.max())
         if cfg.normalise == "min-max":
