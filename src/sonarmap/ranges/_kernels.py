@@ -197,6 +197,16 @@ def _neighbours(a, b, g, pos, lo_bin, hi_bin, jump_bins, touch_bins):  # pragma:
 
 
 @njit(cache=True, nogil=True)
+def _ordered_intervals(echo_beam, lo_bin, hi_bin):  # pragma: no cover - numba
+    """Whether the bin intervals ``[lo_bin, hi_bin]`` of each beam's echoes (sorted by beam, then
+    range) have both ends non-decreasing."""
+    ok = True
+    for a in range(echo_beam.size - 1):
+        ok &= (echo_beam[a] != echo_beam[a + 1]) | ((lo_bin[a] <= lo_bin[a + 1]) & (hi_bin[a] <= hi_bin[a + 1]))
+    return ok
+
+
+@njit(cache=True, nogil=True)
 def viterbi_surfaces(first, count, echo_beam, pos, lo_bin, hi_bin, unary, usable, max_gap, slope_bins, slope_cost,
                      jump_bins, touch_bins, segment_cost, gap_cost):  # pragma: no cover - numba
     """Best set of surface pieces over beams (exact dynamic programme; see
@@ -218,8 +228,16 @@ def viterbi_surfaces(first, count, echo_beam, pos, lo_bin, hi_bin, unary, usable
     # best cost of any finished path up to (and including) beam j, and where it ends
     done = np.zeros(m + 1)
     done_end = np.full(m + 1, -1, np.int64)
+    # with each beam's bin intervals in order (both ends non-decreasing, as find_echoes makes them)
+    # the echoes of beam j - g that echo a can touch are one window: it starts after those ending
+    # more than touch_bins * g before a starts (none of them touches a later echo of beam j either)
+    # and ends before the first starting that far behind a ends - the same pairs in the same order
+    ordered = _ordered_intervals(echo_beam, lo_bin, hi_bin)
+    lead = np.empty(max_gap + 2, np.int64)
     for j in range(m):
         base = done[j]  # best finished before beam j (start a new piece here)
+        for g in range(1, min(max_gap + 1, j) + 1):
+            lead[g] = first[j - g]
         for a in range(first[j], first[j] + count[j]):
             if not usable[a]:
                 continue
@@ -229,7 +247,17 @@ def viterbi_surfaces(first, count, echo_beam, pos, lo_bin, hi_bin, unary, usable
                 jb = j - g
                 if jb < 0:
                     break
-                for b in range(first[jb], first[jb] + count[jb]):
+                b0 = first[jb]
+                b1 = b0 + count[jb]
+                reach = touch_bins * g
+                if ordered:
+                    b0 = lead[g]
+                    while b0 < b1 and lo_bin[a] - hi_bin[b0] > reach:
+                        b0 += 1
+                    lead[g] = b0
+                for b in range(b0, b1):
+                    if ordered and lo_bin[b] - hi_bin[a] > reach:
+                        break
                     if not usable[b] or best[b] == np.inf:
                         continue
                     if not _neighbours(a, b, g, pos, lo_bin, hi_bin, jump_bins, touch_bins):
