@@ -440,16 +440,17 @@ def reduce_binary(levels, margin_lut, weights, wtot, fixed, stack, uniform, max_
 def pass1_table(margin_lut, wr, wb, t):  # pragma: no cover - numba
     """The outcome of :func:`reduce_binary`'s first pass at an interior pixel of a uniform
     4-neighbourhood (``wr`` along range, ``wb`` across beams, total incident weight ``t``) for
-    every level and state of its two visited neighbours, packed: byte ``3 l + up + 1`` holds, in
-    its bit pair ``2 (left + 1)``, ``state + 1`` of a pixel of level ``l`` whose upper neighbour
-    has state ``up`` and left neighbour ``left`` (``-1`` free, 0, 1).  Same arithmetic, in the
-    same order, as the pixel test, so the table's decisions are the test's."""
+    every level and state of its two visited neighbours, packed: entry ``3 l + up + 1`` holds, in
+    its 3-bit field at bit ``3 (left + 1)``, ``3 (state + 1)`` of a pixel of level ``l`` whose upper
+    neighbour has state ``up`` and left neighbour ``left`` (``-1`` free, 0, 1): a field's value is
+    the shift of the next pixel's field.  Same arithmetic, in the same order, as the pixel test,
+    so the table's decisions are the test's."""
     n = margin_lut.size
-    tab = np.empty(3 * n, dtype=np.uint8)
+    tab = np.empty(3 * n, dtype=np.uint16)
     for lev in range(n):
         m0 = margin_lut[lev]
         for up in range(3):
-            byte = 0
+            entry = 0
             for left in range(3):
                 r = 0
                 if m0 > t:
@@ -461,8 +462,8 @@ def pass1_table(margin_lut, wr, wb, t):  # pragma: no cover - numba
                     a, mm = _pull(left - 1, wb, mm)
                     wf += a
                     r = 1 if mm > wf else (0 if mm < -wf else -1)
-                byte |= (r + 1) << (2 * left)
-            tab[3 * lev + up] = byte
+                entry |= (3 * (r + 1)) << (3 * left)
+            tab[3 * lev + up] = entry
     return tab
 
 
@@ -477,6 +478,7 @@ def reduce_uniform4(levels, margin_lut, weights, wtot, fixed, stack, wr, wb):  #
     the interior rows is kept per level and neighbour states when first met.  Returns ``n_free``."""
     h, w = levels.shape
     tab = pass1_table(margin_lut, wr, wb, wtot[1, 1])
+    states = np.array([-1, 0, 0, 0, 0, 0, 1, 0], dtype=np.int8)  # state by field value 3 (state + 1)
     # the first and last pixel of an interior row: the general test's outcome is likewise a
     # function of the level and the visited neighbours' states (uniform weights: the same weights
     # and total on every interior row), kept when first met (-2: not yet) - on a tall image the
@@ -504,13 +506,17 @@ def reduce_uniform4(levels, margin_lut, weights, wtot, fixed, stack, wr, wb):  #
         # (unsigned indices into flat views: no negative-index wraparound code in the loop)
         row = np.uint64(base)
         up = np.uint64(base - w)
+        # the left neighbour's state as the shift of its field in the table entry, 3 (s + 1): the
+        # chain from one pixel's state to the next is a shift and a mask
+        u = np.uint64(3 * (s + 1))
         for j in range(np.uint64(1), np.uint64(w - 1)):
-            b = np.int64(tab[np.uint64(3 * np.int64(flat_levels[row + j]) + np.int64(flat_fixed[up + j]) + 1)])
-            s = ((b >> (2 * (s + 1))) & 3) - 1
-            flat_fixed[row + j] = s
-            if s < 0:                          # free pixels come in runs: a predictable branch
+            u = (np.uint64(tab[np.uint64(3 * np.int64(flat_levels[row + j]) + np.int64(flat_fixed[up + j]) + 1)])
+                 >> u) & np.uint64(7)
+            flat_fixed[row + j] = states[u]
+            if u == 0:                         # free pixels come in runs: a predictable branch
                 stack[np.uint64(n)] = row + j
                 n += 1
+        s = np.int64(states[u])
         key = 3 * (3 * np.int64(levels[i, w - 1]) + np.int64(fixed[i - 1, w - 1]) + 1) + s + 1
         s = np.int64(seen_last[key])
         if s == -2:
