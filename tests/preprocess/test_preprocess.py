@@ -73,6 +73,32 @@ def test_normalisation_and_metadata():
     assert bg.meta["preprocess"]["noise"] == g.noise  # per-ping 1/SNR
 
 
+@pytest.mark.parametrize("subtract_min", [True, False])
+@pytest.mark.parametrize("with_nan", [False, True])
+def test_clip_rescale_is_numpys_clip_and_normalisation_bit_for_bit(subtract_min, with_nan):
+    from sonarmap.preprocess._kernels import clip_rescale
+
+    rng = np.random.default_rng(3)
+    out = (rng.standard_normal((64, 24)) * 0.3).astype(np.float32)
+    out[5, 5] = -0.0
+    if with_nan:
+        out[7, 3] = np.nan
+    top = 0.7
+    expected = np.maximum(out, 0.0)
+    if subtract_min:
+        expected -= expected.min()
+    o_max = float(expected.max())
+    if o_max > 0:
+        expected *= np.float32(top / o_max)
+    got = out.copy()
+    if not clip_rescale(got, top, subtract_min):  # NaN: only clipped, the caller goes numpy's way
+        assert with_nan
+        np.testing.assert_array_equal(got.view(np.uint32), np.maximum(out, 0.0).view(np.uint32))
+        return
+    assert not with_nan
+    np.testing.assert_array_equal(got.view(np.uint32), expected.view(np.uint32))
+
+
 def test_config_round_trip_and_validation(tmp_path):
     cfg = PreprocessConfig(noise=0.02, radial_gain=RadialGain(k1=20, k2=2), taper_values=(1.0,) * 96)
     assert PreprocessConfig.from_dict(json.loads(json.dumps(cfg.to_dict()))) == cfg
