@@ -160,11 +160,12 @@ class BeamRanges:
 def no_returns(geometry: SonarGeometry, *, time_ns: int = 0, source: str = "", mode: str = "first") -> BeamRanges:
     """A :class:`BeamRanges` with no return on any beam."""
     n = geometry.n_beams
-    return BeamRanges(
+    # (of the checked types and shapes by construction: BeamRanges' checks skipped)
+    return BeamRanges._checked_already(
         range_m=np.full(n, np.nan), bin=np.full(n, -1, dtype=np.int64),
         intensity=np.full(n, np.nan, dtype=np.float32), confidence=np.zeros(n, dtype=np.float32),
         azimuth_rad=np.asarray(geometry.azimuth_rad, dtype=np.float64), time_ns=int(time_ns),
-        source=source, mode=mode,
+        source=source, mode=mode, sigma_m=np.full(n, np.nan), other_range_m=np.full((0, n), np.nan),
     )
 
 
