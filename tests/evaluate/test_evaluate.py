@@ -174,6 +174,40 @@ def test_sub_bin_scores_hand_made():
         score_ping(None, rb, rm, cm, truth_bins, grid[np.maximum(truth_bins, 0)], surface_range_m=surface)
 
 
+def test_hull_under_fish_tells_the_fish_from_a_range_error():
+    """Of the beams with a fish in front of the hull: hull hit, fish reported first, hull reported
+    5 bins late, no return - hand-made, 4 beams of 20 bins of 1 cm."""
+    grid = 1.0 + 0.01 * np.arange(20)
+    cm = np.zeros((20, 4), np.uint8)
+    cm[12:15, :] = 1
+    cm[4, :] = 2  # a fish in front of every beam's hull
+    truth_bins = np.full(4, 12)
+    surface = np.full(4, 1.12)
+    rb = np.array([12, 5, 17, -1])
+    rm = np.array([1.12, 1.05, 1.17, np.nan])
+    s = score_ping(None, rb, rm, cm, truth_bins, grid[truth_bins], surface_range_m=surface, bin_range_m=grid)
+    assert (s.n_fish_beams, s.n_fish_hit_beams, s.n_fish_first_beams, s.n_fish_none_beams) == (4, 1, 1, 1)
+    m = pool_scores("x", [s, s])
+    assert (m.hull_under_fish, m.fish_first_under_fish, m.no_return_under_fish) == (0.25, 0.25, 0.25)
+    # a return 4 bins in front of the hull and 4 behind the fish is not on the fish
+    s2 = score_ping(None, np.array([8, 12, 12, 12]), np.array([1.08, 1.12, 1.12, 1.12]), cm, truth_bins,
+                    grid[truth_bins], surface_range_m=surface, bin_range_m=grid)
+    assert (s2.n_fish_hit_beams, s2.n_fish_first_beams) == (3, 0)
+
+
+def test_fish_over_hull_fish_are_not_reported_first():
+    """On the simulator's fish-over-hull pings of every preset no beam reports the fish in front of
+    the hull (measured: 0 of the 105 fish beams per noise level; what the hull-under-fish figure
+    misses there is the hull's own range error, the same with the fish taken out of the scene)."""
+    from sonarmap.evaluate import RANGES_PRESETS, evaluate_ranges
+
+    rep = evaluate_ranges(presets=RANGES_PRESETS, scenes=("fish_over_hull",), seeds=(0,), noise_steps_db=(0.0,))
+    f = rep.fish_over_hull
+    assert f.n_fish_beams >= 100
+    assert f.fish_first_under_fish == 0.0 and f.no_return_under_fish == 0.0
+    assert "the fish reported first on 0.000" in rep.table()
+
+
 def test_ranges_report_runs_on_a_small_scene_set():
     from sonarmap.evaluate import RANGES_SCENES, SLOPED_SCENES, evaluate_ranges
 

@@ -34,6 +34,12 @@ on the noisy ping and scored with:
 ``hull_under_fish``
     Recall (within ``tol_bins``) on the beams whose structure has clutter (fish) in front of it
     in the truth mask: is the hull still reported, not the fish?
+``fish_first_under_fish``
+    On the same beams, the fraction whose reported first return lies on a fish (within
+    ``tol_bins`` of a clutter pixel of the beam and more than ``tol_bins`` in front of the
+    structure).  What ``hull_under_fish`` misses is this, beams without a return, and returns
+    elsewhere (usually the hull, reported more than ``tol_bins`` from its truth: a range error,
+    not the fish).
 
 Scores are pooled over all pings of a method (counts are summed before the ratios are taken).
 
@@ -107,6 +113,9 @@ class PingScore:
     n_fish_beams, n_fish_hit_beams : int
         Beams with clutter in front of their structure (truth mask); those reported within
         ``tol_bins`` of the structure.
+    n_fish_first_beams, n_fish_none_beams : int
+        Of those beams, the ones whose first return is reported on the clutter (the module
+        notes, ``fish_first_under_fish``), and the ones without a return.
     """
 
     tp: int
@@ -123,11 +132,14 @@ class PingScore:
     n_within_sigma: int = 0
     n_fish_beams: int = 0
     n_fish_hit_beams: int = 0
+    n_fish_first_beams: int = 0
+    n_fish_none_beams: int = 0
 
 
 @dataclasses.dataclass(frozen=True)
 class MethodScore:
-    """Pooled scores of one method (see the module notes)."""
+    """Pooled scores of one method (see the module notes; ``no_return_under_fish`` is the
+    fraction of the ``hull_under_fish`` beams without a return)."""
 
     method: str
     n_pings: int
@@ -142,6 +154,8 @@ class MethodScore:
     sigma_coverage: float = math.nan
     hull_under_fish: float = math.nan
     n_fish_beams: int = 0
+    fish_first_under_fish: float = math.nan
+    no_return_under_fish: float = math.nan
 
     def as_row(self) -> dict[str, Any]:
         """Plain dict for tables and CSV."""
@@ -214,6 +228,16 @@ def _fish_beams(cm: np.ndarray, tb: np.ndarray, has: np.ndarray) -> np.ndarray:
     return np.zeros(tb.shape, dtype=bool)
 
 
+def _on_clutter(cm: np.ndarray, rpos: np.ndarray, beams: np.ndarray, tol_bins: int) -> np.ndarray:
+    """Of ``beams``, those whose reported position ``rpos`` (fractional bins) lies within
+    ``tol_bins`` of a clutter pixel (class 2) of its beam."""
+    out = np.zeros(beams.shape, dtype=bool)
+    for j in np.flatnonzero(beams):
+        rows = np.flatnonzero(cm[:, j] == 2)
+        out[j] = rows.size > 0 and bool((np.abs(rows - rpos[j]) <= tol_bins).any())
+    return out
+
+
 def score_ping(
     labels: ArrayLike | None,
     range_bins: ArrayLike,
@@ -280,12 +304,14 @@ def score_ping(
     err_m = np.abs(rm - truth_m)
     n_sigma, n_within = _sigma_counts(sigma_m, both, err_m, tb.shape)
     fish = _fish_beams(cm, tb, has)
+    fish_first = _on_clutter(cm, rpos, fish & both & (err_bins < -tol_bins), tol_bins)
     return PingScore(tp=tp, fp=fp, fn=fn, n_struct_beams=int(has.sum()), n_hit_beams=int(hit.sum()),
                      n_empty_beams=int(empty.sum()), n_false_beams=int((empty & rep).sum()),
                      errors_m=tuple(float(e) for e in err_m[both]), n_hit1_beams=int(hit1.sum()),
                      errors_bins=tuple(float(e) for e in err_bins[both]), n_sigma_beams=n_sigma,
                      n_within_sigma=n_within, n_fish_beams=int(fish.sum()),
-                     n_fish_hit_beams=int((fish & hit).sum()))
+                     n_fish_hit_beams=int((fish & hit).sum()), n_fish_first_beams=int(fish_first.sum()),
+                     n_fish_none_beams=int((fish & ~rep).sum()))
 
 
 def pool_scores(method: str, scores: Iterable[PingScore]) -> MethodScore:
@@ -314,6 +340,8 @@ def pool_scores(method: str, scores: Iterable[PingScore]) -> MethodScore:
         sigma_coverage=sum(x.n_within_sigma for x in s) / nsig if nsig else math.nan,
         hull_under_fish=sum(x.n_fish_hit_beams for x in s) / nfish if nfish else math.nan,
         n_fish_beams=nfish,
+        fish_first_under_fish=sum(x.n_fish_first_beams for x in s) / nfish if nfish else math.nan,
+        no_return_under_fish=sum(x.n_fish_none_beams for x in s) / nfish if nfish else math.nan,
     )
 
 
@@ -606,7 +634,9 @@ class RangesReport:
             f"sloped (2-8 bins/beam) recall within 3 bins: {s.recall:.3f} (within 1 bin {s.recall_1bin:.3f}, "
             f"median signed error {s.median_signed_error_bins:+.2f} bins, {s.n_struct_beams} beams)",
             f"hull reported under fish (within 3 bins): {f.hull_under_fish:.3f} ({f.n_fish_beams} beams with "
-            "fish in front of the hull)",
+            f"fish in front of the hull; the fish reported first on {f.fish_first_under_fish:.3f}, no return on "
+            f"{f.no_return_under_fish:.3f}, another range (more than 3 bins from the hull) on "
+            f"{1.0 - f.hull_under_fish - f.fish_first_under_fish - f.no_return_under_fish:.3f})",
         ])
 
 
