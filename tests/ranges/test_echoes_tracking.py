@@ -519,3 +519,59 @@ def test_oculus_fish_school_gives_few_returns_on_empty_beams(seed):
         pr = process_ping(sim.ping, PipelineConfig())
     assert empty.sum() > 200
     assert int((pr.ranges.valid & empty).sum()) <= 0.03 * empty.sum()
+
+
+def test_clipped_fish_streak_is_a_point_although_its_half_clip_edges_drift():
+    # a fish clipped at full scale on 5 beams, pulse unknown (1 bin): the half-clip crossings of
+    # its echoes drift by 2.5 bins across the streak (the stronger the echo over full scale, the
+    # earlier half the clip level is crossed), which breaks it into flat runs without a range
+    # jump between them; the unclipped echo's half-peak edge lies between each measured edge and
+    # the echo's first full-scale row (104), and those intervals agree: one point
+    from sonarmap.ranges.tracking import clip_rise, point_streaks
+
+    g = _fan()
+    img = np.zeros(g.shape)
+    img[100:110, 10:15] = 1.0
+    mask = img > 0
+    e = find_echoes(mask, img, g, llr=4.0 * mask)
+    assert e.size == 5
+    e = e.replaced(edge_bin=np.array([100.2, 100.2, 101.5, 102.6, 102.7]), peak_value=np.full(5, 30.0),
+                   clipped=np.ones(5, dtype=bool), peak_bin=np.full(5, 104))
+    chosen = np.full(g.n_beams, -1)
+    chosen[10:15] = np.arange(5)
+    assert not point_streaks(e, chosen).any()  # the first full-scale row unknown: a rise of 0
+    np.testing.assert_array_equal(clip_rise(e), np.zeros(5))
+    e = e.replaced(clip_row=np.full(5, 104))
+    np.testing.assert_allclose(clip_rise(e), [3.8, 3.8, 2.5, 1.4, 1.3])
+    assert point_streaks(e, chosen)[10:15].all()
+    # a full-scale row behind the first peak (a second fish in the echo) does not move the edge
+    np.testing.assert_array_equal(clip_rise(e.replaced(peak_bin=np.full(5, 102))), np.zeros(5))
+    # unclipped echoes at those edges are no point: their edges are where the echoes are
+    assert not point_streaks(e.replaced(clipped=np.zeros(5, dtype=bool)), chosen).any()
+    # nor is a clipped surface wider than the lobe lets a point be
+    g40 = _fan(40)
+    plate = np.zeros(g40.shape)
+    plate[100:110] = 1.0
+    e40 = find_echoes(plate > 0, plate, g40, llr=4.0 * (plate > 0))
+    e40 = e40.replaced(clipped=np.ones(40, dtype=bool), clip_row=np.full(40, 104), peak_value=np.full(40, 30.0))
+    assert not point_streaks(e40, np.arange(40)).any()
+
+
+@pytest.mark.slow
+def test_oculus_clipped_fish_without_a_recording_header_give_few_returns():
+    # no header: the pulse length is unknown (1 bin) and the clipped fish's half-clip edges drift
+    # by more than that across a streak; 14 false returns before the edges of clipped echoes were
+    # taken as intervals up to their first full-scale row, 5 now (a piece whose echoes merge two
+    # fish at different ranges)
+    import warnings
+
+    from sonarmap.evaluate.segmentation import _simulate, preset_sim_configs
+    from sonarmap.geometry import preset
+    from sonarmap.pipeline import PipelineConfig, process_ping
+
+    g = preset("oculus-m750d-like")
+    sim, empty = _simulate("fish", g, preset_sim_configs(g)[0], 0, -3.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        pr = process_ping(sim.ping, PipelineConfig())
+    assert int((pr.ranges.valid & empty).sum()) <= 5

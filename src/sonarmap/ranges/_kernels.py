@@ -399,7 +399,7 @@ def beam_index(echo_beam, m):  # pragma: no cover - numba
 
 @njit(cache=True, nogil=True)
 def front_pass(first, count, echo_beam, tracks, pos, lo_bin, hi_bin, unary, max_gap, slope_bins, slope_cost,
-               jump_bins, touch_bins, segment_cost, gap_cost, point_on, peak_val, point, clipped, evidence,
+               jump_bins, touch_bins, segment_cost, gap_cost, point_on, peak_val, point, clip_rise, evidence,
                width_beams, pulse_bins, flat_bins, point_jump_bins, dip, over_range, margin,
                fraction):  # pragma: no cover - numba
     """The front pass (:func:`sonarmap.ranges.tracking.front_surfaces`) of the tracked surfaces
@@ -428,7 +428,7 @@ def front_pass(first, count, echo_beam, tracks, pos, lo_bin, hi_bin, unary, max_
                               slope_cost, jump_bins, touch_bins, segment_cost, gap_cost)
     hit = False
     if point_on:
-        drop = point_pieces(chosen, pos, peak_val, point, clipped, evidence, width_beams, lo_bin, hi_bin, max_gap,
+        drop = point_pieces(chosen, pos, peak_val, point, clip_rise, evidence, width_beams, lo_bin, hi_bin, max_gap,
                             jump_bins, touch_bins, pulse_bins, flat_bins, point_jump_bins, dip, over_range, margin,
                             fraction)
         for j in range(m):
@@ -456,7 +456,7 @@ def with_front(tracks, chosen):  # pragma: no cover - numba
 
 @njit(cache=True, nogil=True)
 def track_surfaces(echo_beam, m, pos, lo_bin, hi_bin, unary, n_surfaces, max_gap, slope_bins, slope_cost, jump_bins,
-                   touch_bins, segment_cost, gap_cost, bridge_beams, point_on, peak_val, point, clipped, evidence,
+                   touch_bins, segment_cost, gap_cost, bridge_beams, point_on, peak_val, point, clip_rise, evidence,
                    width_beams, pulse_bins, flat_bins, point_jump_bins, dip, over_range, margin,
                    fraction, front):  # pragma: no cover - numba
     """:func:`sonarmap.ranges.tracking.track_surfaces` in one kernel: ``n_surfaces`` passes of
@@ -470,20 +470,20 @@ def track_surfaces(echo_beam, m, pos, lo_bin, hi_bin, unary, n_surfaces, max_gap
     first, count = beam_index(echo_beam, m)
     out = _tracked(first, count, echo_beam, m, pos, lo_bin, hi_bin, unary, n_surfaces, max_gap, slope_bins,
                    slope_cost, jump_bins, touch_bins, segment_cost, gap_cost, bridge_beams, point_on, peak_val, point,
-                   clipped, evidence, width_beams, pulse_bins, flat_bins, point_jump_bins, dip, over_range, margin,
+                   clip_rise, evidence, width_beams, pulse_bins, flat_bins, point_jump_bins, dip, over_range, margin,
                    fraction)
     if not front or pos.size == 0:
         return out, out, False
     chosen, hit = front_pass(first, count, echo_beam, out, pos, lo_bin, hi_bin, unary, max_gap, slope_bins,
                              slope_cost, jump_bins, touch_bins, segment_cost, gap_cost, point_on, peak_val, point,
-                             clipped, evidence, width_beams, pulse_bins, flat_bins, point_jump_bins, dip, over_range,
+                             clip_rise, evidence, width_beams, pulse_bins, flat_bins, point_jump_bins, dip, over_range,
                              margin, fraction)
     return out, (with_front(out, chosen) if hit else out), hit
 
 
 @njit(cache=True, nogil=True)
 def _tracked(first, count, echo_beam, m, pos, lo_bin, hi_bin, unary, n_surfaces, max_gap, slope_bins, slope_cost,
-             jump_bins, touch_bins, segment_cost, gap_cost, bridge_beams, point_on, peak_val, point, clipped,
+             jump_bins, touch_bins, segment_cost, gap_cost, bridge_beams, point_on, peak_val, point, clip_rise,
              evidence, width_beams, pulse_bins, flat_bins, point_jump_bins, dip, over_range, margin,
              fraction):  # pragma: no cover - numba
     """:func:`track_surfaces` without the front pass (``first``, ``count``: :func:`beam_index`)."""
@@ -507,7 +507,7 @@ def _tracked(first, count, echo_beam, m, pos, lo_bin, hi_bin, unary, n_surfaces,
             if chosen[j] >= 0:
                 usable[chosen[j]] = False  # point pieces included: their echoes are not tracked again
         if point_on:
-            drop = point_pieces(chosen, pos, peak_val, point, clipped, evidence, width_beams, lo_bin, hi_bin,
+            drop = point_pieces(chosen, pos, peak_val, point, clip_rise, evidence, width_beams, lo_bin, hi_bin,
                                 max_gap, jump_bins, touch_bins, pulse_bins, flat_bins, point_jump_bins, dip,
                                 over_range, margin, fraction)
             hit = False
@@ -2029,12 +2029,25 @@ def first_clipped_rows(img, cols, lo, hi, level):  # pragma: no cover - numba
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _is_point_run(chosen, pos, peak_val, point, clipped, width_beams, s, k, split_l, split_r, flat_mean,
+def _edge_hi(pos, clip_rise, c):  # pragma: no cover - numba
+    """The far end of echo ``c``'s edge interval: its edge, or for a clipped echo its first
+    full-scale sample (``pos + clip_rise``: the unclipped echo's half-peak lies in between)."""
+    return pos[c] + clip_rise[c] if clip_rise[c] > 0.0 else pos[c]
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _gap(a_lo, a_hi, b_lo, b_hi):  # pragma: no cover - numba
+    """Distance between the intervals ``[a_lo, a_hi]`` and ``[b_lo, b_hi]`` (0 when they overlap)."""
+    return max(0.0, b_lo - a_hi, a_lo - b_hi)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _is_point_run(chosen, pos, peak_val, point, clip_rise, width_beams, s, k, split_l, split_r, flat_lo, flat_hi,
                   jump_bins, dip, over_range, margin, lo_beam, hi_beam):  # pragma: no cover - numba
     """Whether the chosen echoes on beams ``s .. k - 1`` (a flat run of one piece, or the whole
-    piece) can be one point target's streak: at least half point echoes, a real range jump (or the
-    piece's end, or a dip) at both ends and no wider than the main lobe lets a point be (see
-    :func:`point_pieces`)."""
+    piece; ``[flat_lo, flat_hi]`` its mean edge interval) can be one point target's streak: at least
+    half point echoes, a real range jump (or the piece's end, or a dip) at both ends and no wider
+    than the main lobe lets a point be (see :func:`point_pieces`)."""
     n = k - s
     if n < 2:
         return False
@@ -2054,16 +2067,18 @@ def _is_point_run(chosen, pos, peak_val, point, clipped, width_beams, s, k, spli
             n_pt += 1
         peak = max(peak, peak_val[c])
         weakest = min(weakest, peak_val[c])
-        if clipped[c]:
+        if clip_rise[c] >= 0.0:
             any_clip = True
     if 2 * n_pt < n_echo:
         return False
     # ends: the piece ends, a beam without an echo, a dip, a range jump, or the streak's own tail
     # (an echo weaker than dip x the run's weakest, whose edge the weak level moves)
-    if not split_l and s > lo_beam and chosen[s - 1] >= 0 and abs(pos[chosen[s - 1]] - flat_mean) < jump_bins \
+    if not split_l and s > lo_beam and chosen[s - 1] >= 0 \
+            and _gap(pos[chosen[s - 1]], _edge_hi(pos, clip_rise, chosen[s - 1]), flat_lo, flat_hi) < jump_bins \
             and peak_val[chosen[s - 1]] >= dip * weakest:
         return False
-    if not split_r and k <= hi_beam and chosen[k] >= 0 and abs(pos[chosen[k]] - flat_mean) < jump_bins \
+    if not split_r and k <= hi_beam and chosen[k] >= 0 \
+            and _gap(pos[chosen[k]], _edge_hi(pos, clip_rise, chosen[k]), flat_lo, flat_hi) < jump_bins \
             and peak_val[chosen[k]] >= dip * weakest:
         return False
     # width: a Gaussian main lobe W beams wide holds a point over W sqrt(log2(peak / level)) above
@@ -2094,16 +2109,17 @@ def _piece_end(chosen, pos, lo_bin, hi_bin, j, max_gap, jump_bins, touch_bins): 
 
 
 @njit(cache=True, nogil=True)
-def point_pieces(chosen, pos, peak_val, point, clipped, evidence, width_beams, lo_bin, hi_bin, max_gap,
+def point_pieces(chosen, pos, peak_val, point, clip_rise, evidence, width_beams, lo_bin, hi_bin, max_gap,
                  jump_bins, touch_bins, pulse_bins, flat_bins, point_jump_bins, dip, over_range, margin,
                  fraction):  # pragma: no cover - numba
     """Beams of the tracked pieces that are point targets, not surfaces (see
     :func:`sonarmap.ranges.tracking.point_streaks`).
 
     ``chosen``: one pass's echo per beam (-1 none).  A piece is a chain of chosen echoes on beams at
-    most ``max_gap + 1`` apart, each a neighbour of the one before (the tracker's rule).  A piece
-    whose edges lie within ``pulse_bins`` of each other is one run (all its beams are returned when
-    it is a point streak); else its flat
+    most ``max_gap + 1`` apart, each a neighbour of the one before (the tracker's rule).  An echo's
+    edge is the interval ``[pos, pos + clip_rise]`` when it is clipped (``clip_rise >= 0``), else
+    ``pos``; distances are between intervals.  A piece whose edges lie within ``pulse_bins`` of
+    each other is one run (all its beams are returned when it is a point streak); else its flat
     runs (consecutive beams, each edge within ``flat_bins`` of the mean edge of the run before it)
     are split at dips of the peak value (below ``dip`` x the larger peak on each side: a main lobe
     is unimodal); a run is a point streak when :func:`_is_point_run` says so.  Returns True on
@@ -2118,16 +2134,16 @@ def point_pieces(chosen, pos, peak_val, point, clipped, evidence, width_beams, l
             continue
         # one piece: from beam j to the last beam chained to it
         last = _piece_end(chosen, pos, lo_bin, hi_bin, j, max_gap, jump_bins, touch_bins)
-        # the whole piece at one range (within a pulse) and no wider than a point
+        # the whole piece at one range (its edge intervals within a pulse) and no wider than a point
         lo_e = np.inf
         hi_e = -np.inf
         for q in range(j, last + 1):
             if chosen[q] >= 0:
-                lo_e = min(lo_e, pos[chosen[q]])
+                lo_e = min(lo_e, _edge_hi(pos, clip_rise, chosen[q]))
                 hi_e = max(hi_e, pos[chosen[q]])
         if hi_e - lo_e <= pulse_bins and _is_point_run(
-                chosen, pos, peak_val, point, clipped, width_beams, j, last + 1, True, True, 0.0, point_jump_bins,
-                dip, over_range, margin, j, last):
+                chosen, pos, peak_val, point, clip_rise, width_beams, j, last + 1, True, True, 0.0, 0.0,
+                point_jump_bins, dip, over_range, margin, j, last):
             for q in range(j, last + 1):
                 if chosen[q] >= 0:
                     drop[q] = True
@@ -2140,13 +2156,17 @@ def point_pieces(chosen, pos, peak_val, point, clipped, evidence, width_beams, l
             if chosen[s] < 0:
                 s += 1
                 continue
-            # a flat run from s
+            # a flat run from s: each edge interval within flat_bins of the run's mean interval
             total = pos[chosen[s]]
+            total_hi = _edge_hi(pos, clip_rise, chosen[s])
             e = s + 1
-            while e <= last and chosen[e] >= 0 and abs(pos[chosen[e]] - total / (e - s)) <= flat_bins:
+            while e <= last and chosen[e] >= 0 and _gap(pos[chosen[e]], _edge_hi(pos, clip_rise, chosen[e]),
+                                                        total / (e - s), total_hi / (e - s)) <= flat_bins:
                 total += pos[chosen[e]]
+                total_hi += _edge_hi(pos, clip_rise, chosen[e])
                 e += 1
             mean = total / (e - s)
+            mean_hi = total_hi / (e - s)
             # split it at dips of the peak value; each part (the last one ends the run) is tested
             a = s
             for u in range(s + 1, e + 1):
@@ -2159,8 +2179,8 @@ def point_pieces(chosen, pos, peak_val, point, clipped, evidence, width_beams, l
                         right = max(right, peak_val[chosen[q]])
                     if not (u + 1 < e and peak_val[chosen[u]] < dip * min(left, right)):
                         continue
-                ok = _is_point_run(chosen, pos, peak_val, point, clipped, width_beams, a, u, a != s, u < e, mean,
-                                   point_jump_bins, dip, over_range, margin, j, last)
+                ok = _is_point_run(chosen, pos, peak_val, point, clip_rise, width_beams, a, u, a != s, u < e, mean,
+                                   mean_hi, point_jump_bins, dip, over_range, margin, j, last)
                 for q in range(a, u):
                     ev = max(evidence[chosen[q]], 0.0)
                     ev_all += ev

@@ -77,6 +77,9 @@ class Echoes:
     clipped : ndarray of bool, optional
         Whether the echo reaches the receiver's full scale (its peak is then a lower bound); None:
         not known (see :func:`sonarmap.ranges.measure.surface_ranges`).
+    clip_row : ndarray of int64, optional
+        The echo's first full-scale row (-1: not clipped); None: not known.  The half-peak edge
+        of a clipped echo's unclipped signal lies between ``edge_bin`` and this row.
     beamwidth_beams : ndarray of float64, optional
         Per beam, the geometry's two-way azimuth beamwidth in units of the local beam spacing
         (``SonarGeometry.azimuth_beamwidth_rad``); None when the geometry does not give it.
@@ -99,6 +102,7 @@ class Echoes:
     sigma_m: NDArray[np.float64]
     n_beams: int
     clipped: NDArray[np.bool_] | None = None
+    clip_row: NDArray[np.int64] | None = None
     beamwidth_beams: NDArray[np.float64] | None = None
     clip_fitted: NDArray[np.bool_] | None = None
 
@@ -339,18 +343,21 @@ def find_echoes(
 def spliced_echoes(echoes: Echoes, new: Echoes, columns: NDArray[np.int64]) -> Echoes:
     """``echoes`` with the echoes of the beams ``columns`` replaced by ``new`` (the echoes of those
     beams only, e.g. :func:`find_echoes` with ``columns``), sorted by beam as :func:`find_echoes`
-    sorts them; the per-echo fields of both (``clipped`` too when both have it)."""
+    sorts them; the per-echo fields of both (``clipped`` and ``clip_row`` too when both have them)."""
     keep = np.ones(echoes.n_beams, dtype=bool)
     keep[columns] = False
     old = np.flatnonzero(keep[echoes.beam])
     order = np.argsort(np.concatenate([echoes.beam[old], new.beam]), kind="stable")
     fields = ["beam", "start_bin", "stop_bin", "peak_bin", "peak_value", "edge_bin", "edge_range_m", "peak_range_m",
               "slope", "evidence", "n_pixels", "sigma_m"]
-    both = echoes.clipped is not None and new.clipped is not None
-    if both:
-        fields.append("clipped")
+    gone = {}
+    for f in ("clipped", "clip_row"):
+        if getattr(echoes, f) is not None and getattr(new, f) is not None:
+            fields.append(f)
+        elif getattr(echoes, f) is not None:
+            gone[f] = None
     out = echoes.replaced(**{f: np.concatenate([getattr(echoes, f)[old], getattr(new, f)])[order] for f in fields})
-    return out if both or echoes.clipped is None else out.replaced(clipped=None)  # type: ignore[arg-type]
+    return out.replaced(**gone) if gone else out  # type: ignore[arg-type]
 
 
 def beamwidth_in_beams(geometry: SonarGeometry) -> NDArray[np.float64] | None:

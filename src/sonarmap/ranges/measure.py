@@ -29,7 +29,7 @@ from sonarmap.ranges.candidates import pooled_band_mask, pooled_band_pixels
 from sonarmap.ranges.config import CandidateConfig, RangeConfig
 
 __all__ = ["surface_ranges", "rule_ranges", "measurement_image", "pulse_bins", "background_mean",
-           "clipped_echo_sigma", "clipped_echoes", "CLIP_LEVEL"]
+           "clipped_echo_sigma", "clipped_echoes", "clip_rows", "CLIP_LEVEL"]
 
 
 def background_mean(fit: Any, config: RangeConfig = RangeConfig()) -> tuple[float | None, float | None]:
@@ -287,7 +287,8 @@ def surface_ranges(ping: Ping, image: NDArray[np.float32], levels: NDArray[Any],
                              sigma_scale=config.sigma_scale, columns=None if before is None else before[1],
                              rows=rows)
         if echoes.beamwidth_beams is not None and echoes.size:
-            echoes = echoes.replaced(clipped=clipped_echoes(echoes, ping.image))
+            rows = clip_rows(echoes, ping.image)
+            echoes = echoes.replaced(clipped=rows >= 0, clip_row=rows)
         if before is not None:
             # only the beams with new candidates were measured again (each beam's echoes depend
             # on its own column only)
@@ -331,13 +332,19 @@ CLIP_LEVEL = 254.5 / 255.0
 def clipped_echoes(echoes: Any, raw: NDArray[Any]) -> NDArray[np.bool_]:
     """Per echo, whether a raw sample of its structure bins reaches the receiver's full scale
     (:data:`CLIP_LEVEL`)."""
+    return clip_rows(echoes, raw) >= 0
+
+
+def clip_rows(echoes: Any, raw: NDArray[Any]) -> NDArray[np.int64]:
+    """Per echo, the first of its structure bins whose raw sample reaches the receiver's full
+    scale (:data:`CLIP_LEVEL`); -1 where none does."""
     from sonarmap.ranges._kernels import first_clipped_rows
 
     img = np.ascontiguousarray(raw)
     n = img.shape[0]
     lo = np.minimum(np.maximum(echoes.start_bin, 0), n)  # np.clip of the int64 bins, without its dispatch
     hi = np.minimum(np.maximum(echoes.stop_bin, 0), n)
-    return first_clipped_rows(img, np.ascontiguousarray(echoes.beam), lo, hi, CLIP_LEVEL) >= 0
+    return first_clipped_rows(img, np.ascontiguousarray(echoes.beam), lo, hi, CLIP_LEVEL)  # type: ignore[no-any-return]
 
 
 def clipped_echo_sigma(echoes: Any, sel: NDArray[np.int64], raw: NDArray[Any], geom: Any) -> Any:

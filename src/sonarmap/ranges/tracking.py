@@ -49,6 +49,17 @@ into pieces.  A surface extends over many more beams with a range that changes s
 it is flat over a run of beams (at normal incidence) its echo stays level over the run, far wider
 than a point of its strength could be, and it goes on into the next run without a jump in range.
 
+The edge of a clipped echo (one that reaches the receiver's full scale) is the crossing of half
+the clip level, not of half its peak: the more the echo exceeds full scale, the earlier on its
+rise that crossing lies, so across a clipped point's streak the measured edges drift along the
+rise (about 2 bins across the Oculus-like preset's clipped fish), more than a pulse of unknown
+length (1 bin) allows.  The half-peak edge of its unclipped signal lies between the measured
+edge and the echo's first full-scale row (:func:`clip_rise`, the interval the clipped return's
+range sigma is widened by; only when the first peak is the clipped one - a later clipped peak,
+a second fish in the same echo, leaves the edge where it is).  In the tests below a clipped
+echo's edge is that interval, a run's mean edge the mean of its echoes' intervals, and a
+distance between edges the gap between intervals (the plain distance when nothing is clipped).
+
 A flat run - consecutive beams of one piece, each leading edge within ``max(1, pulse_bins / 2)``
 bins of the mean of the run before it, split where the peak value dips below ``point_dip`` of
 the larger peaks on both sides (a main lobe is unimodal: two fish side by side) - is a *point
@@ -84,7 +95,8 @@ from sonarmap._config import check_booleans, check_integers, coerce_reals, confi
 from sonarmap.errors import InputError
 from sonarmap.ranges.echoes import Echoes
 
-__all__ = ["TrackConfig", "Tracks", "track_surfaces", "tracks_and_front", "front_surfaces", "point_streaks", "continuation_mask"]
+__all__ = ["TrackConfig", "Tracks", "track_surfaces", "tracks_and_front", "front_surfaces", "point_streaks",
+           "clip_rise", "continuation_mask"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -246,16 +258,29 @@ def _point_arguments(echoes: Echoes, config: TrackConfig, pulse_bins: int) -> tu
     flat = max(1.0, 0.5 * pb)  # a point's edges agree within half a pulse (at least a bin)
     if not on:
         z = np.zeros(0)
-        return (False, z, np.zeros(0, dtype=np.bool_), np.zeros(0, dtype=np.bool_), z, z, float(pb), flat,
-                2.0 * flat, 0.0, 1.0, 0.0, 0.0)
+        return (False, z, np.zeros(0, dtype=np.bool_), z, z, z, float(pb), flat, 2.0 * flat, 0.0, 1.0, 0.0, 0.0)
     point = echoes.evidence >= config.point_llr * echoes.n_pixels
-    clipped = np.zeros(point.size, dtype=bool) if echoes.clipped is None else echoes.clipped
     return (True, np.ascontiguousarray(echoes.peak_value, dtype=np.float64), np.ascontiguousarray(point),
-            np.ascontiguousarray(clipped, dtype=np.bool_),
+            clip_rise(echoes),
             np.ascontiguousarray(echoes.evidence, dtype=np.float64),
             np.ascontiguousarray(echoes.beamwidth_beams, dtype=np.float64), float(pb), flat, 2.0 * flat,
             float(config.point_dip), 10.0 ** (config.point_over_range_db / 10.0), float(config.point_margin),
             float(config.point_fraction))
+
+
+def clip_rise(echoes: Echoes) -> NDArray[np.float64]:
+    """Per echo, how far the half-peak edge of its unclipped signal may lie behind its measured
+    edge (bins): from ``edge_bin`` to its first full-scale row for an echo whose first peak is
+    clipped (that row at most a bin behind ``peak_bin``), 0 for another clipped echo or when the
+    row is not known, -1 for an echo that is not clipped (module notes, "Point targets")."""
+    if echoes.clipped is None:
+        return np.full(echoes.size, -1.0)
+    out = np.where(echoes.clipped, 0.0, -1.0)
+    if echoes.clip_row is not None:
+        # only a clipped first peak moves the edge (a later peak may clip: two fish in one echo)
+        first = echoes.clipped & (echoes.clip_row >= 0) & (echoes.clip_row <= echoes.peak_bin + 1)
+        out = np.where(first, np.maximum(echoes.clip_row - echoes.edge_bin, 0.0), out)
+    return np.ascontiguousarray(out, dtype=np.float64)
 
 
 def point_streaks(echoes: Echoes, chosen: NDArray[np.int64], config: TrackConfig = TrackConfig(),
@@ -300,14 +325,14 @@ def point_streaks(echoes: Echoes, chosen: NDArray[np.int64], config: TrackConfig
     sel = np.ascontiguousarray(chosen, dtype=np.int64)
     if sel.shape != (echoes.n_beams,):
         raise InputError(f"chosen: expected shape ({echoes.n_beams},), got {sel.shape}")
-    on, peak, point, clipped, evidence, width, pb, flat, jump, dip, over, margin, fraction = _point_arguments(
+    on, peak, point, rise, evidence, width, pb, flat, jump, dip, over, margin, fraction = _point_arguments(
         echoes, config, pulse_bins)
     if not on or not (sel >= 0).any():
         return np.zeros(sel.shape, dtype=bool)
     if lo is None or hi is None:
         lo, hi = echoes.intervals()
     return _kernels.point_pieces(  # type: ignore[no-any-return]
-        sel, np.ascontiguousarray(echoes.edge_bin, dtype=np.float64), peak, point, clipped, evidence, width, lo, hi,
+        sel, np.ascontiguousarray(echoes.edge_bin, dtype=np.float64), peak, point, rise, evidence, width, lo, hi,
         int(config.max_gap), float(config.jump_bins), float(config.touch_bins), pb, flat, jump, dip, over, margin,
         fraction)
 
