@@ -197,3 +197,24 @@ def test_with_p_detect_is_replace_without_rechecking(geom):
     assert np.isnan(r.p_detect).all()  # the original is untouched
     with pytest.raises(InputError, match="p_detect"):
         r.with_p_detect(p[:-1])
+
+
+@pytest.mark.parametrize("seed", range(12))
+def test_first_clipped_rows_by_rows_equals_the_column_walk(seed: int) -> None:
+    """first_clipped_rows gives the first row reaching the level in each interval, whether it lists
+    the clipped samples from a pass along the rows (intervals covering much of their span) or walks
+    each interval down its column (few, short intervals)."""
+    from sonarmap.ranges._kernels import first_clipped_rows
+
+    rng = np.random.default_rng(seed)
+    n, m = int(rng.integers(1, 60)), int(rng.integers(1, 40))
+    img = rng.random((n, m)).astype(np.float32 if seed % 2 else np.float64)
+    if seed % 3 == 0:
+        img[rng.random((n, m)) < 0.1] = np.nan
+    k = int(rng.integers(0, 3 * m)) if seed % 4 else 2
+    cols = rng.integers(0, m, k).astype(np.int64)
+    lo = rng.integers(0, n + 1, k).astype(np.int64)
+    hi = np.minimum(lo + rng.integers(-2, n if seed % 4 else 3, k), n).astype(np.int64)
+    level = float(rng.choice([0.5, 0.9, 0.99, 2.0]))
+    want = [next((i for i in range(a, b) if img[i, j] >= level), -1) for j, a, b in zip(cols, lo, hi)]
+    assert first_clipped_rows(img, cols, lo, hi, level).tolist() == want

@@ -2056,14 +2056,60 @@ def excess_ratio_grid(raw, level, grid, c0, c1, fc, g0, g1, gf, log_db, r0, r1, 
 @njit(cache=True, nogil=True)
 def first_clipped_rows(img, cols, lo, hi, level):  # pragma: no cover - numba
     """Per ``k``, the first row in ``lo[k] .. hi[k] - 1`` of column ``cols[k]`` of ``img`` that
-    reaches ``level`` (-1 if none)."""
+    reaches ``level`` (-1 if none).
+
+    Where the intervals cover more than an eighth of the rows they span, the samples reaching
+    ``level`` are listed per column from one pass along the rows of that span first (a walk down
+    the columns of a tall image misses the cache at every row); else each interval is walked."""
     out = np.full(cols.size, -1, dtype=np.int64)
+    n, m = img.shape
+    r0 = n
+    r1 = 0
+    covered = 0
+    for k in range(cols.size):
+        if hi[k] > lo[k]:
+            r0 = min(r0, lo[k])
+            r1 = max(r1, hi[k])
+            covered += hi[k] - lo[k]
+    if covered * 8 <= (r1 - r0) * m:
+        for k in range(cols.size):
+            j = cols[k]
+            for i in range(lo[k], hi[k]):
+                if img[i, j] >= level:
+                    out[k] = i
+                    break
+        return out
+    # the rows reaching level of each column, ascending: rows[first[j] : first[j + 1]]
+    first = np.zeros(m + 1, np.int64)
+    for i in range(r0, r1):
+        row = img[i]
+        for j in range(m):
+            first[j + 1] += row[j] >= level
+    for j in range(m):
+        first[j + 1] += first[j]
+    rows = np.empty(first[m], np.int64)
+    if rows.size == 0:
+        return out
+    fill = first[:m].copy()
+    for i in range(r0, r1):
+        row = img[i]
+        for j in range(m):
+            if row[j] >= level:
+                rows[fill[j]] = i
+                fill[j] += 1
     for k in range(cols.size):
         j = cols[k]
-        for i in range(lo[k], hi[k]):
-            if img[i, j] >= level:
-                out[k] = i
-                break
+        # the first listed row at or after lo[k] (binary search), if before hi[k]
+        a = first[j]
+        b = first[j + 1]
+        while a < b:
+            c = (a + b) // 2
+            if rows[c] < lo[k]:
+                a = c + 1
+            else:
+                b = c
+        if a < first[j + 1] and rows[a] < hi[k]:
+            out[k] = rows[a]
     return out
 
 
