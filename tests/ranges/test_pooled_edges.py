@@ -247,6 +247,36 @@ def test_a_clipped_echo_is_measured_by_a_gaussian_fitted_to_its_flanks():
     assert abs(np.nanmedian(ef)) < 0.5 and np.mean(np.abs(ef) <= 1) > 0.9
 
 
+def test_the_fit_reaches_a_wide_echos_rising_flank_beyond_the_walk_window():
+    """A wide clipped echo (Gaussian of 8 bins, 4 x full scale) rises from 5 % to half the clip
+    level over ~7 bins: a fit limited to the half-peak walk's 6 bins in front of the alignment
+    has too few rising samples (no fit: the edge stays ~6 bins early); ``fit_front_bins`` 16 fits
+    every beam, and the fitted sigma scales with ``fit_sigma_scale``."""
+    from sonarmap.ranges.measure import CLIP_LEVEL
+
+    g = _geom(n_bins=300, n_beams=48)
+    for seed in range(2):
+        img, mask, truth = _clipped_gaussian_surface(seed, width=8.0)
+        e = find_echoes(mask, img, g)
+        first = _first(e)
+        s = np.maximum(first, 0)
+        ok = first >= 0
+        err = {}
+        for ff in (6, 16):
+            out = pooled_edges(e, first, img, g, clip=img >= CLIP_LEVEL, fit_front_bins=ff, sigma_scale=5.0)
+            err[ff] = out.edge_bin[s[ok]] - truth[ok]
+        assert np.median(err[6]) < -4  # measured -6.1
+        assert abs(np.median(err[16])) < 0.5 and np.mean(np.abs(err[16]) <= 1) > 0.9
+        assert out.clip_fitted is not None and out.clip_fitted[s[ok]].all()
+        wide = pooled_edges(e, first, img, g, clip=img >= CLIP_LEVEL, sigma_scale=5.0, fit_sigma_scale=10.0)
+        assert np.array_equal(wide.edge_bin, out.edge_bin, equal_nan=True)
+        assert np.all(wide.sigma_m[s[ok]] > out.sigma_m[s[ok]])
+    with pytest.raises(InputError, match="fit_sigma_scale"):
+        pooled_edges(e, first, img, g, fit_sigma_scale=float("nan"))
+    with pytest.raises(InputError, match="fit_front_bins"):
+        pooled_edges(e, first, img, g, fit_front_bins=-1)
+
+
 def test_an_unclipped_echo_is_not_refitted():
     g = _geom(n_bins=300, n_beams=48)
     img, mask, _ = _clipped_gaussian_surface(0, peak=0.4)  # below full scale everywhere

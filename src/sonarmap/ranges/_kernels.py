@@ -1211,7 +1211,7 @@ def _clipped_edge(sm, clipped_k, nk, p, fraction, n_own):  # pragma: no cover - 
 
 @njit(cache=True, nogil=True)
 def pooled_edges(img, edge, stop, run, half_beams, front_bins, max_bins, smooth_bins, fraction, n_iter,
-                 clip):  # pragma: no cover - numba
+                 clip, fit_front_bins, fit_noise_scale):  # pragma: no cover - numba
     """Leading edges measured on the surface-aligned mean profile of neighbouring beams
     (see :func:`sonarmap.ranges.echoes.pooled_edges`).
 
@@ -1224,11 +1224,17 @@ def pooled_edges(img, edge, stop, run, half_beams, front_bins, max_bins, smooth_
     ``clip`` (uint8, the image's shape; shape (0, 0): none) marks the raw samples at the
     receiver's full scale.  Where the pooled profile's peak is clipped, its first peak is the clip
     level, below the echo's own: the leading edge is then the half-peak crossing of a Gaussian
-    echo fitted to the log of the unclipped samples on both flanks (:func:`_clipped_edge`).
+    echo fitted to the log of the unclipped samples on both flanks (:func:`_clipped_edge`), whose
+    rising flank may reach ``fit_front_bins`` (>= ``front_bins``) in front of the alignment; the
+    fitted crossing's standard error is scaled by ``fit_noise_scale``.  The peak search and the
+    half-peak walk of unclipped profiles stay within ``front_bins``.
     """
     m = edge.size
     cur = edge.copy()
     has_clip = clip.shape[0] > 0
+    # the profile's front: the fitted rising flank of a clipped echo may start further in front
+    front = max(front_bins, fit_front_bins) if has_clip else front_bins
+    lim = front - front_bins
     fitted = np.zeros(m, np.bool_)
     value = np.full(m, np.nan)
     rise = np.full(m, np.nan)
@@ -1268,8 +1274,8 @@ def pooled_edges(img, edge, stop, run, half_beams, front_bins, max_bins, smooth_
             kmax = max(kmax, depth[j])
         # (with clipping, front_bins more behind the echo: the falling flank of a clipped peak)
         tail = front_bins if has_clip else 0
-        width = front_bins + kmax + 1 + 2 * h + tail
-        # every beam's own profile at offsets -front_bins - h .. kmax + h from its alignment, and
+        width = front + kmax + 1 + 2 * h + tail
+        # every beam's own profile at offsets -front - h .. kmax + h from its alignment, and
         # their running sum over beams (a run is a contiguous block of beams: a window's sum is
         # a difference of two rows)
         prof = np.zeros((m, width))
@@ -1278,13 +1284,13 @@ def pooled_edges(img, edge, stop, run, half_beams, front_bins, max_bins, smooth_
         for jj in range(m):
             if run[jj] >= 0:
                 for k in range(width):
-                    prof[jj, k] = _interp_column(img, jj, align[jj] + (k - h - front_bins))
+                    prof[jj, k] = _interp_column(img, jj, align[jj] + (k - h - front))
             for k in range(width):
                 csum[jj + 1, k] = csum[jj, k] + prof[jj, k]
             if has_clip:
                 for k in range(width):
                     ccnt[jj + 1, k] = ccnt[jj, k]
-                    if run[jj] >= 0 and _clipped_at(clip, jj, align[jj] + (k - h - front_bins)):
+                    if run[jj] >= 0 and _clipped_at(clip, jj, align[jj] + (k - h - front)):
                         ccnt[jj + 1, k] += 1
         clipped_k = np.zeros(width, np.bool_)
         new = cur.copy()
@@ -1298,7 +1304,7 @@ def pooled_edges(img, edge, stop, run, half_beams, front_bins, max_bins, smooth_
             while run[lo] != run[j]:
                 lo += 1
             hi = lo + c
-            nk = front_bins + depth[j] + 1
+            nk = front + depth[j] + 1
             nf = nk + tail
             for k in range(nf + 2 * h):
                 mean[k] = (csum[hi, k] - csum[lo, k]) / c
@@ -1311,22 +1317,25 @@ def pooled_edges(img, edge, stop, run, half_beams, front_bins, max_bins, smooth_
                 for d in range(h - hj, h + hj + 1):
                     acc += mean[k + d]
                 sm[k] = acc / (2 * hj + 1)
-            p = 0
-            for k in range(1, nk):
+            # peak and walk within front_bins of the alignment (profile bins lim ..)
+            p = lim
+            for k in range(lim + 1, nk):
                 if sm[k] > sm[p]:
                     p = k
             if not sm[p] > 0:
                 continue
             lv = fraction * sm[p]
             i = p
-            while i > 0 and sm[i - 1] >= lv:
+            while i > lim and sm[i - 1] >= lv:
                 i -= 1
-            if i == 0:
+            # x: the crossing in bins from the profile's bin lim (front_bins in front of the
+            # alignment)
+            if i == lim:
                 x = 0.0
-                slope = sm[1] - sm[0] if nk > 1 else 0.0
+                slope = sm[lim + 1] - sm[lim] if nk > lim + 1 else 0.0
             else:
                 slope = sm[i] - sm[i - 1]
-                x = i - 1 + (lv - sm[i - 1]) / max(slope, 1e-12)
+                x = (i - 1 - lim) + (lv - sm[i - 1]) / max(slope, 1e-12)
             if has_clip:
                 # a smoothed bin is clipped when any pooled beam has a clipped sample in its box
                 for k in range(nf):
@@ -1339,7 +1348,7 @@ def pooled_edges(img, edge, stop, run, half_beams, front_bins, max_bins, smooth_
                 if clipped_k[p]:
                     ok, xf, lvf, sf, fit_sx = _clipped_edge(sm, clipped_k, nf, p, fraction, nk)
                     if ok:
-                        x, lv, slope = xf, lvf, sf
+                        x, lv, slope = xf - lim, lvf, sf
                         fitted[j] = True
             new[j] = align[j] + x - front_bins
             value[j] = lv
@@ -1347,7 +1356,7 @@ def pooled_edges(img, edge, stop, run, half_beams, front_bins, max_bins, smooth_
             used[j] = c
             # the mean profile's own noise at the crossing: the spread of the pooled beams'
             # smoothed values there, over sqrt(beams) - speckle and misalignment alike
-            i0 = int(x)
+            i0 = max(int(np.floor(x)), -lim)
             f = x - i0
             s1 = 0.0
             s2 = 0.0
@@ -1355,8 +1364,8 @@ def pooled_edges(img, edge, stop, run, half_beams, front_bins, max_bins, smooth_
                 v0 = 0.0
                 v1 = 0.0
                 for d in range(h - hj, h + hj + 1):
-                    v0 += prof[jj, i0 + d]
-                    v1 += prof[jj, min(i0 + 1, nk - 1) + d]
+                    v0 += prof[jj, lim + i0 + d]
+                    v1 += prof[jj, min(lim + i0 + 1, nk - 1) + d]
                 v = ((1.0 - f) * v0 + f * v1) / (2 * hj + 1)
                 s1 += v
                 s2 += v * v
@@ -1365,7 +1374,7 @@ def pooled_edges(img, edge, stop, run, half_beams, front_bins, max_bins, smooth_
             if fitted[j]:
                 # the fitted crossing's standard error (bins) as a profile noise at its rise: the
                 # sigma then scales it as it scales the pooled profile's own jitter
-                noise[j] = fit_sx * slope
+                noise[j] = fit_sx * slope * fit_noise_scale
         cur = new
     return cur, value, rise, used, noise, fitted
 

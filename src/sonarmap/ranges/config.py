@@ -147,6 +147,12 @@ class RangeConfig(ConfigSection):
         fitted on the simulator so that 68 % of the errors lie within +-sigma
         (``docs/segmentation.md``).  Every return's sigma also covers the clipping of its echo
         (:data:`CLIP_LEVEL`: the interval from the crossing to the first sample at full scale).
+    sigma_fit_scale : float
+        Sigma of a clipped echo's fitted leading edge (a Gaussian fitted to the unclipped flanks
+        of the pooled profile, :func:`sonarmap.ranges.echoes.pooled_edges`): the fit's standard
+        error times this factor, fitted on the simulator's ARIS presets (3 seeds) so that 68 % of
+        the fitted returns' errors lie within +-sigma; such a return's sigma no longer adds the
+        clipping interval.
     log_dynamic_range_db : float, optional
         The raw samples are log-compressed, ``dynamic range`` dB per unit of pixel value (ARIS):
         echoes of normalised images are measured in linear intensity.  Default: the ping's
@@ -178,6 +184,7 @@ class RangeConfig(ConfigSection):
     continue_evidence: float = 10.0
     sigma_scale: float = 1.5
     sigma_pool_scale: float = 5.0
+    sigma_fit_scale: float = 6.25
     log_dynamic_range_db: float | None = None
     min_run: int = 1
     reject_isolated: bool = True
@@ -210,7 +217,7 @@ class RangeConfig(ConfigSection):
                                    else "must be a finite number >= 0", v)
             object.__setattr__(self, key, float(v))
         coerce_reals(self, ("edge_factor",), w)
-        coerce_reals(self, ("sigma_scale", "sigma_pool_scale", "continue_evidence"), w, minimum=0)
+        coerce_reals(self, ("sigma_scale", "sigma_pool_scale", "sigma_fit_scale", "continue_evidence"), w, minimum=0)
         coerce_reals(self, ("edge_fraction",), w)
         if not 0 <= self.edge_fraction < 1:
             raise config_error(w, "edge_fraction", "must lie in [0, 1)", self.edge_fraction)

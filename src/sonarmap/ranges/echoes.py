@@ -443,19 +443,19 @@ def pooled_edges(
     touch_bins: float = 1.0,
     sigma_scale: float = 1.0,
     clip: NDArray[np.bool_] | None = None,
+    fit_front_bins: int = 16,
+    fit_sigma_scale: float | None = None,
 ) -> Echoes:
     """Leading edges of a tracked surface measured on a multi-look along the surface.
 
     For every beam ``j`` with a return (``first[j]``, an echo index), the beams ``j - half_beams
-    .. j + half_beams`` of the same surface (:func:`surface_runs`) are aligned on their edges -
-    the running median of the current edges over that window, which follows a slope exactly -
-    and their columns of the image (smoothed along range over ``pulse_bins``, as in
-    :func:`find_echoes`) are averaged at offsets ``-front_bins`` to the window's median echo
-    depth (last structure bin, at least 3 and at most ``max_bins`` bins).  That mean profile,
-    smoothed over ``smooth_bins``, has its peak at the echo's own peak; the leading edge is the
-    first crossing of ``fraction`` x that peak walking from it towards the sonar, interpolated
-    to sub-bin (the range convention of :func:`find_echoes`).  ``n_iter`` rounds re-align on the
-    new edges.  Runs of fewer than 3 beams keep their own edges.
+    .. j + half_beams`` of the same surface (:func:`surface_runs`) are aligned on the running
+    median of their current edges (which follows a slope exactly) and their columns (smoothed
+    along range over ``pulse_bins``) averaged at offsets ``-front_bins`` to the window's median
+    echo depth (3 .. ``max_bins`` bins).  The leading edge is the first crossing of ``fraction``
+    x that mean profile's peak (smoothed over ``smooth_bins``) walking from it towards the sonar,
+    interpolated (the convention of :func:`find_echoes`); ``n_iter`` rounds re-align on the new
+    edges.  Runs of fewer than 3 beams keep their own edges.
 
     Parameters
     ----------
@@ -463,20 +463,20 @@ def pooled_edges(
         The ping's echoes (:func:`find_echoes`).
     first : array_like of int, shape (n_beams,)
         Per beam the echo index of its return (-1 none): ``Tracks.first``.
-    image : ndarray, shape (n_bins, n_beams)
-        The image the echoes were measured on.
-    geometry : SonarGeometry
+    image, geometry : ndarray (n_bins, n_beams), SonarGeometry
+        The image the echoes were measured on, and its geometry.
     pulse_bins, fraction : int, float
         As in :func:`find_echoes`.
     sigma_scale : float
         Calibration of :func:`edge_sigma_m`'s jitter term (``PipelineConfig.ranges.sigma_pool_scale``).
     clip : ndarray of bool, shape (n_bins, n_beams), optional
-        The raw samples at full scale (``>= sonarmap.ranges.measure.CLIP_LEVEL``).  A clipped
-        pooled peak is below the echo's own: its edge is then the crossing of a Gaussian fitted
-        to the log of the unclipped bins of both flanks (none: the clipped peak is used).
+        The raw samples at full scale (``>= sonarmap.ranges.measure.CLIP_LEVEL``): a clipped
+        pooled peak's edge is the crossing of a Gaussian fitted to the log of the unclipped bins
+        of both flanks, the rising one down to 5 % of the clipped maximum and at most
+        ``fit_front_bins`` in front of the alignment; its sigma is the fit's standard error times
+        ``fit_sigma_scale`` (default ``sigma_scale``; ``PipelineConfig.ranges.sigma_fit_scale``).
     half_beams, front_bins, max_bins, smooth_bins, n_iter, touch_bins
         The pooling window (see above).
-
     Returns
     -------
     Echoes
@@ -484,10 +484,10 @@ def pooled_edges(
         (and ``clip_fitted`` marking the echoes whose edge is that of a fitted clipped echo).
     """
     from sonarmap.ranges import _kernels
-
     sel = np.asarray(first, dtype=np.int64)
-    _check_pooling(echoes, sel, (half_beams, front_bins, max_bins, smooth_bins, n_iter), fraction, clip,
-                   np.shape(image))
+    fit_scale = float(sigma_scale if fit_sigma_scale is None else fit_sigma_scale)
+    _check_pooling(echoes, sel, (half_beams, front_bins, max_bins, smooth_bins, n_iter, fit_front_bins), fraction,
+                   clip, np.shape(image), fit_scale)
     edge, lo, hi, stop = _first_intervals(echoes, sel)
     run = _kernels.surface_runs(edge, lo, hi, float(touch_bins))
     if half_beams == 0 or run.max(initial=-1) < 0:
@@ -496,9 +496,10 @@ def pooled_edges(
     geometry.check_image(img, "image")
     new, value, rise, used, noise, fitted = _kernels.pooled_edges(
         img, edge, stop, run, int(half_beams), int(front_bins), int(max_bins), int(smooth_bins) | 1,
-        float(fraction), int(n_iter), _NO_CLIP if clip is None else np.ascontiguousarray(clip).view(np.uint8))
-    # the leading edge belongs to the beam's own echo: within the walk of find_echoes in front of
-    # its first structure bin and before its last one (else a neighbouring surface pulled it)
+        float(fraction), int(n_iter), _NO_CLIP if clip is None else np.ascontiguousarray(clip).view(np.uint8),
+        int(fit_front_bins), fit_scale / sigma_scale if sigma_scale > 0 else 0.0)
+    # the edge belongs to the beam's own echo: within find_echoes' walk in front of its first
+    # structure bin and before its last (else a neighbouring surface pulled it)
     sel = np.ascontiguousarray(sel)
     done = _kernels.pooled_edges_done(sel, new, used, echoes.start_bin, stop, int(pulse_bins) + 2)
     if not done.size:
@@ -508,11 +509,15 @@ def pooled_edges(
     return out.replaced(clip_fitted=np.isin(np.arange(echoes.size), keep)) if keep.size else out
 
 
-def _check_pooling(echoes: Echoes, sel: np.ndarray, window: tuple[int, int, int, int, int], fraction: float,
-                   clip: NDArray[np.bool_] | None, shape: tuple[int, ...]) -> None:
+def _check_pooling(echoes: Echoes, sel: np.ndarray, window: tuple[int, int, int, int, int, int], fraction: float,
+                   clip: NDArray[np.bool_] | None, shape: tuple[int, ...], fit_scale: float) -> None:
     """The options of :func:`pooled_edges` (``window``: half_beams, front_bins, max_bins,
-    smooth_bins, n_iter) are valid, ``first`` has a value per beam and ``clip`` the image's shape."""
-    for key, v, lo in zip(("half_beams", "front_bins", "max_bins", "smooth_bins", "n_iter"), window, (0, 0, 3, 1, 1)):
+    smooth_bins, n_iter, fit_front_bins; ``fit_scale``: its fit_sigma_scale) are valid, ``first``
+    has a value per beam and ``clip`` the image's shape."""
+    if not (math.isfinite(fit_scale) and fit_scale >= 0):
+        raise InputError(f"fit_sigma_scale: must be a finite number >= 0 (got {fit_scale!r})")
+    keys = ("half_beams", "front_bins", "max_bins", "smooth_bins", "n_iter", "fit_front_bins")
+    for key, v, lo in zip(keys, window, (0, 0, 3, 1, 1, 0)):
         if isinstance(v, bool) or int(v) != v or v < lo:
             raise InputError(f"{key}: must be an integer >= {lo} (got {v!r})")
     if not 0 < fraction < 1:

@@ -317,7 +317,8 @@ def surface_ranges(ping: Ping, image: NDArray[np.float32], levels: NDArray[Any],
         clip = np.asarray(ping.image) >= CLIP_LEVEL if clipped[sel[sel >= 0]].any() else None
         echoes = pooled_edges(echoes, sel, meas, geom, pulse_bins=pb, half_beams=config.edge_pool_beams,
                               smooth_bins=3 if pb < 3 else 1, fraction=fraction,
-                              touch_bins=config.track.touch_bins, sigma_scale=config.sigma_pool_scale, clip=clip)
+                              touch_bins=config.track.touch_bins, sigma_scale=config.sigma_pool_scale, clip=clip,
+                              fit_sigma_scale=config.sigma_fit_scale)
     if echoes.size and (sel >= 0).any():
         echoes = clipped_echo_sigma(echoes, sel, ping.image, geom)
     thickness = np.where(sel >= 0, (echoes.stop_bin - echoes.start_bin)[np.maximum(sel, 0)] if echoes.size else 0, 0)
