@@ -506,7 +506,14 @@ def pooled_edges(
         return echoes
     out = _with_edges(echoes, sel, done, new, rise, noise, geometry, pulse_bins, sigma_scale)
     keep = sel[done[fitted[done]]]
-    return out.replaced(clip_fitted=np.isin(np.arange(echoes.size), keep)) if keep.size else out
+    return out.replaced(clip_fitted=_marked(echoes.size, keep)) if keep.size else out
+
+
+def _marked(n: int, index: NDArray[np.int64]) -> NDArray[np.bool_]:
+    """``np.isin(np.arange(n), index)`` for indices in ``[0, n)``, without its sort."""
+    out = np.zeros(n, dtype=bool)
+    out[index] = True
+    return out
 
 
 def _check_pooling(echoes: Echoes, sel: np.ndarray, window: tuple[int, int, int, int, int, int], fraction: float,

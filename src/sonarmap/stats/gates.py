@@ -37,6 +37,7 @@ Gates (:data:`GATE_DESCRIPTIONS`):
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -65,6 +66,14 @@ REFUSING = frozenset(GATE_DESCRIPTIONS)
 IMPLAUSIBLE = REFUSING - {"collapsed"}
 
 
+@functools.lru_cache(maxsize=64)
+def _class_members(classes: tuple[int, ...], names: tuple[str, ...]) -> tuple[list[int], list[int]]:
+    """The continuous background components and the object components of a model layout
+    (computed once per layout: every fit of a recording shares one)."""
+    bg = [i for i, (c, n) in enumerate(zip(classes, names)) if c == 0 and n != "zero"]
+    return bg, [i for i, c in enumerate(classes) if c != 0]
+
+
 def class_separation(fit: MixtureFit) -> float:
     """Mean of the object classes over the mean of the background's continuous component.
 
@@ -74,10 +83,8 @@ def class_separation(fit: MixtureFit) -> float:
         return math.nan
     levels = np.asarray(fit.levels, dtype=np.float64)
     comp = fit._pmf_matrix()  # read-only: component_pmfs() without its copy
-    classes = fit.component_classes
     w = np.asarray(fit.weights, dtype=np.float64)
-    bg = [i for i, (c, n) in enumerate(zip(classes, fit.component_names)) if c == 0 and n != "zero"]
-    obj = [i for i, c in enumerate(classes) if c != 0]
+    bg, obj = _class_members(tuple(fit.component_classes), tuple(fit.component_names))
     if not bg or not obj:
         return math.nan
     bg_mean = float(comp[bg[0]] @ levels)

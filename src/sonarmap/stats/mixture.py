@@ -283,7 +283,7 @@ def as_counts(
         c = arr.astype(np.float64)
         if c.size < 2:
             raise InputError(f"counts: need at least 2 levels, got {c.size}")
-        if not np.isfinite(c).all() or (c < 0).any():
+        if not (c.min() >= 0.0 and c.max() < math.inf):  # = isfinite(c).all() and not (c < 0).any()
             raise InputError("counts: must be finite and non-negative")
         return c, 0
     counts, clipped = _histogram_clipped(arr, n_levels, binning)
@@ -315,10 +315,17 @@ def monotone_object_log_pmf(class_log_pmf: ArrayLike) -> NDArray[np.float64]:
     return lp
 
 
-def kl_divergence(counts: ArrayLike, model_pmf: ArrayLike) -> float:
-    """``D(p_hat || q) = sum p_hat ln(p_hat / q)`` in nats (eq. 11); ``p_hat = counts / sum``."""
+@functools.cache
+def _rel_entr() -> Any:
+    """:func:`scipy.special.rel_entr`, imported on first use (scipy stays out of ``import sonarmap``)."""
     from scipy.special import rel_entr
 
+    return rel_entr
+
+
+def kl_divergence(counts: ArrayLike, model_pmf: ArrayLike) -> float:
+    """``D(p_hat || q) = sum p_hat ln(p_hat / q)`` in nats (eq. 11); ``p_hat = counts / sum``."""
+    rel_entr = _rel_entr()
     c = np.asarray(counts, dtype=np.float64)
     q = np.asarray(model_pmf, dtype=np.float64)
     total = c.sum()
@@ -393,6 +400,15 @@ class MixtureFit:
         default_factory=dict, init=False, repr=False, compare=False
     )
 
+    @classmethod
+    def _of(cls, **fields: Any) -> MixtureFit:
+        """The fit with every field given (``fields``, all but ``_cache``), built without the
+        dataclass ``__init__``'s per-field ``object.__setattr__`` (one fit per ping)."""
+        fit = object.__new__(cls)
+        fit.__dict__.update(fields)
+        fit.__dict__["_cache"] = {}
+        return fit
+
     # ------------------------------------------------------------------ derived
     @property
     def n_components(self) -> int:
@@ -434,8 +450,8 @@ class MixtureFit:
         """Total weight of the non-background classes."""
         cached = self._cache.get("object_weight")
         if cached is None:
-            cls = np.asarray(self.component_classes)
-            cached = self._cache["object_weight"] = float(self.weights[cls != 0].sum())
+            obj = _object_members(tuple(self.component_classes))  # = component_classes != 0
+            cached = self._cache["object_weight"] = float(self.weights[obj].sum())
         return cached  # type: ignore[no-any-return]
 
     @property
@@ -522,10 +538,8 @@ class MixtureFit:
 
     def _class_log_pmf(self) -> NDArray[np.float64]:
         comp = self._pmf_matrix()
-        classes = tuple(int(c) for c in self.component_classes)
         mix = np.empty((len(self.class_names), self.n_levels))
-        for j in range(len(self.class_names)):
-            members = [i for i, c in enumerate(classes) if c == j]
+        for j, members in enumerate(_members_by_class(tuple(self.component_classes), len(self.class_names))):
             if len(members) == 1 and 0 < self.weights[members[0]] < math.inf:
                 mix[j] = comp[members[0]]  # = (w / w) @ comp[members] = 1 x comp, exactly
                 continue
@@ -561,6 +575,19 @@ class MixtureFit:
             "flags": sorted(self.flags),
             "n_samples": float(self.n_samples),
         }
+
+
+@functools.lru_cache(maxsize=64)
+def _object_members(classes: tuple[Any, ...]) -> list[int]:
+    """The indices of the components of the object classes (``classes != 0``), once per layout."""
+    return [i for i, c in enumerate(classes) if c != 0]
+
+
+@functools.lru_cache(maxsize=64)
+def _members_by_class(classes: tuple[Any, ...], n_classes: int) -> tuple[list[int], ...]:
+    """The component indices of each of ``n_classes`` classes (once per model layout)."""
+    ints = [int(c) for c in classes]
+    return tuple([i for i, c in enumerate(ints) if c == j] for j in range(n_classes))
 
 
 # ---------------------------------------------------------------------------- fitting
@@ -1232,7 +1259,7 @@ def _result_flags(flags: set[str], names: tuple[str, ...], classes: tuple[int, .
     """Add the flags of a fitted result to ``flags`` (``no_object``, ``collapsed_scale``,
     ``scale_at_bound``, ``collapsed_components``); returns the parameters, an unidentified object
     scale reported at its bound."""
-    obj_w = float(w[np.asarray(classes) != 0].sum())
+    obj_w = float(w[_object_members(tuple(classes))].sum())  # = w[classes != 0].sum()
     if n_families > 1 and obj_w < min_weight:
         flags.add("no_object")
     if "no_object" in flags:
@@ -1400,7 +1427,7 @@ def _finished_fit(problem: _FitProblem, raw: _RawFit, flags: set[str], *, method
     """The :class:`MixtureFit` of a fitter's result: weights renormalised, KLD and
     log-likelihood of the model, the result's flags added to ``flags``."""
     spec, counts = problem.spec, problem.counts
-    w = np.clip(np.asarray(raw.weights, dtype=np.float64), 0.0, None)
+    w = np.maximum(np.asarray(raw.weights, dtype=np.float64), 0.0)  # = np.clip(w, 0, None), without its wrapper
     w = w / w.sum()
     pmfs = _pmfs(spec, raw.params)
     q = w @ pmfs
@@ -1414,9 +1441,9 @@ def _finished_fit(problem: _FitProblem, raw: _RawFit, flags: set[str], *, method
                            min_weight=min_weight, step=spec.smin, scale_max=spec.smax)
     w.setflags(write=False)
     counts.setflags(write=False)
-    fit = MixtureFit(
+    fit = MixtureFit._of(
         weights=w,
-        params=tuple(tuple(map(float, p)) for p in params),
+        params=tuple([tuple(map(float, p)) for p in params]),
         component_names=spec.names,
         component_classes=problem.classes,
         class_names=problem.class_names,
