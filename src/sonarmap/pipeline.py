@@ -303,7 +303,8 @@ def _model_ping(raw: NDArray[np.float32], geom: Any, config: PipelineConfig, ref
 
 def _model_image(raw: NDArray[np.float32], geom: Any, config: PipelineConfig, reference: Any) -> _Modelled:
     """:func:`_model_ping` of one image, without the quantisation floor."""
-    constant = float(raw.max()) == float(raw.min())
+    raw_max = float(raw.max())
+    constant = raw_max == float(raw.min())
     background = None
     normalised = None
     if config.normalise == "auto" and not constant:
@@ -315,6 +316,11 @@ def _model_image(raw: NDArray[np.float32], geom: Any, config: PipelineConfig, re
         image = normalised
     elif pre is None or constant:
         image = raw
+    elif background is not None:
+        # the background estimate has checked that every pixel of ``raw`` is finite
+        from sonarmap.preprocess.pipeline import preprocess_finite
+
+        image = preprocess_finite(raw, geom, pre, raw_max)
     else:
         from sonarmap.preprocess.pipeline import preprocess_image
 
@@ -365,12 +371,22 @@ def _p_detect(pd: float, pd_range: float, ranges: BeamRanges, thickness: NDArray
     return (pd_range * f / max(mean, 1e-12)).clip(0.0, 1.0).astype(np.float32)
 
 
+def _labelled_columns(labels: NDArray[Any]) -> NDArray[np.bool_]:
+    """``labels.any(axis=0)``: the beams holding a labelled pixel (one pass of a kernel for a
+    C-contiguous unsigned label image, the classifiers' output)."""
+    if labels.ndim == 2 and labels.dtype.kind == "u" and labels.flags.c_contiguous:
+        from sonarmap._pipeline_kernels import any_columns
+
+        return any_columns(labels)  # type: ignore[no-any-return]
+    return labels.any(axis=0)  # type: ignore[no-any-return]
+
+
 def _pd_range(pd: float, labels: NDArray[np.uint8], ranges: BeamRanges, flags: set[str], n_returns: int) -> float:
     """``pd`` times the fraction of detecting beams that kept a return (see ``PingProducts.pd_range``;
     ``n_returns`` is ``ranges.n_returns``)."""
     if "no_fit" in flags or not math.isfinite(pd):
         return math.nan
-    detecting = int(np.count_nonzero(labels.any(axis=0) | (ranges.bin >= 0)))  # uint8: >= 1 is != 0
+    detecting = int(np.count_nonzero(_labelled_columns(labels) | (ranges.bin >= 0)))  # uint8: >= 1 is != 0
     if detecting == 0:
         return pd
     return pd * n_returns / detecting

@@ -374,7 +374,25 @@ def preprocess_image(
     cfg = PreprocessConfig() if config is None else config
     if not isinstance(geometry, SonarGeometry):
         raise InputError(f"geometry: expected SonarGeometry, got {type(geometry).__name__}")
-    img = as_image(image, "image")
+    return _preprocessed(as_image(image, "image"), geometry, cfg, None)
+
+
+def preprocess_finite(image: NDArray[np.float32], geometry: SonarGeometry, config: PreprocessConfig,
+                      image_max: float) -> NDArray[np.float32]:
+    """:func:`preprocess_image` of an image its caller has checked already: a non-empty 2-D
+    C-contiguous float32 array of finite values whose maximum is ``image_max`` (the per-ping
+    pipeline's conditioned image, whose finiteness the background estimate verified): the
+    same result without a second pass for each.  Any other array goes through
+    :func:`preprocess_image`."""
+    if not (isinstance(image, np.ndarray) and image.dtype == np.float32 and image.ndim == 2 and image.size
+            and image.flags.c_contiguous and isinstance(geometry, SonarGeometry)):
+        return preprocess_image(image, geometry, config)
+    return _preprocessed(image, geometry, config, image_max)
+
+
+def _preprocessed(img: NDArray[np.float32], geometry: SonarGeometry, cfg: PreprocessConfig,
+                  img_max: float | None) -> NDArray[np.float32]:
+    """:func:`preprocess_image` of a validated image (``img_max``: its maximum, None: not known)."""
     geometry.check_image(img)
     plan = _plan(geometry, cfg)
     out = img @ plan.matrix if plan.matrix is not None else img.copy()
@@ -387,12 +405,12 @@ def preprocess_image(
             clip_negative(out)  # np.maximum(out, 0.0, out=out), vectorised
             return out
         # the clipping and the normalisation below in one kernel (NaN: only clipped, numpy's way)
-        if clip_rescale(out, float(img.max()), cfg.normalise == "min-max"):
+        if clip_rescale(out, float(img.max()) if img_max is None else img_max, cfg.normalise == "min-max"):
             return out
     elif cfg.clip_negative:
         np.maximum(out, 0.0, out=out)
     if cfg.normalise != "none":
-        in_max = float(img.max())
+        in_max = float(img.max()) if img_max is None else img_max
         if cfg.normalise == "min-max":
             out -= out.min()
         o_max = float(out.max())
