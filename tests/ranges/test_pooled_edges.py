@@ -294,3 +294,21 @@ def test_a_clip_mask_of_another_shape_is_refused():
     e = find_echoes(mask, img, g)
     with pytest.raises(InputError, match="clip"):
         pooled_edges(e, _first(e), img, g, clip=np.zeros((10, 48), dtype=bool))
+
+
+def test_first_interval_runs_is_first_intervals_then_surface_runs() -> None:
+    from sonarmap.ranges import _kernels
+
+    rng = np.random.default_rng(5)
+    for _ in range(300):
+        n_e, m = int(rng.integers(1, 60)), int(rng.integers(1, 40))
+        edge_bin = rng.random(n_e) * 100
+        edge_bin[rng.random(n_e) < 0.1] = np.nan
+        start = rng.integers(0, 100, n_e)
+        stop = start + rng.integers(1, 20, n_e)
+        sel = rng.integers(-1, n_e, m)
+        touch = float(rng.choice([0.0, 1.0, 2.5]))
+        edge, lo, hi, st = _kernels.first_intervals(sel, edge_bin, start, stop)
+        got = _kernels.first_interval_runs(sel, edge_bin, start, stop, touch)
+        assert np.array_equal(got[0], edge, equal_nan=True) and np.array_equal(got[1], st)
+        assert np.array_equal(got[2], _kernels.surface_runs(edge, lo, hi, touch))

@@ -1956,6 +1956,14 @@ def first_intervals(sel, edge_bin, start_bin, stop_bin):  # pragma: no cover - n
 
 
 @njit(cache=True, nogil=True)
+def first_interval_runs(sel, edge_bin, start_bin, stop_bin, touch):  # pragma: no cover - numba
+    """``(edge, stop, run)``: :func:`first_intervals`' edge and stop per beam and the
+    :func:`surface_runs` of its intervals, in one call."""
+    edge, lo, hi, stop = first_intervals(sel, edge_bin, start_bin, stop_bin)
+    return edge, stop, surface_runs(edge, lo, hi, touch)
+
+
+@njit(cache=True, nogil=True)
 def pooled_edges_done(sel, new, used, start_bin, stop, back):  # pragma: no cover - numba
     """The beams whose pooled edge ``new`` is kept (:func:`sonarmap.ranges.echoes.pooled_edges`):
     a return, pooled, within ``back`` bins in front of its echo's first structure bin and not

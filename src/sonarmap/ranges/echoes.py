@@ -409,8 +409,7 @@ def surface_runs(echoes: Echoes, first: ArrayLike, touch_bins: float = 1.0) -> N
     sel = np.asarray(first, dtype=np.int64)
     if sel.shape != (echoes.n_beams,):
         raise InputError(f"first: expected shape ({echoes.n_beams},), got {sel.shape}")
-    edge, lo, hi, _stop = _first_intervals(echoes, sel)
-    return _kernels.surface_runs(edge, lo, hi, float(touch_bins))
+    return _first_runs(echoes, sel, touch_bins)[2]
 
 
 def _first_intervals(echoes: Echoes, sel: NDArray[np.int64]) -> tuple[NDArray[np.float64], ...]:
@@ -422,6 +421,19 @@ def _first_intervals(echoes: Echoes, sel: NDArray[np.int64]) -> tuple[NDArray[np
         return np.full(sel.shape, np.nan), z, z, z
     return _kernels.first_intervals(np.ascontiguousarray(sel, dtype=np.int64), echoes.edge_bin, echoes.start_bin,
                                     echoes.stop_bin)
+
+
+def _first_runs(echoes: Echoes, sel: NDArray[np.int64], touch_bins: float
+                ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.int64]]:
+    """``(edge, stop, run)``: :func:`_first_intervals`' edge and stop per beam and the runs of
+    beams whose intervals touch (:func:`surface_runs`), in one kernel call."""
+    from sonarmap.ranges import _kernels
+
+    if echoes.size == 0:
+        edge, lo, hi, stop = _first_intervals(echoes, sel)
+        return edge, stop, _kernels.surface_runs(edge, lo, hi, float(touch_bins))
+    return _kernels.first_interval_runs(np.ascontiguousarray(sel, dtype=np.int64), echoes.edge_bin, echoes.start_bin,  # type: ignore[no-any-return]
+                               echoes.stop_bin, float(touch_bins))
 
 
 _NO_CLIP = np.zeros((0, 0), dtype=np.uint8)
@@ -488,8 +500,7 @@ def pooled_edges(
     fit_scale = float(sigma_scale if fit_sigma_scale is None else fit_sigma_scale)
     _check_pooling(echoes, sel, (half_beams, front_bins, max_bins, smooth_bins, n_iter, fit_front_bins), fraction,
                    clip, np.shape(image), fit_scale)
-    edge, lo, hi, stop = _first_intervals(echoes, sel)
-    run = _kernels.surface_runs(edge, lo, hi, float(touch_bins))
+    edge, stop, run = _first_runs(echoes, sel, touch_bins)
     if half_beams == 0 or run.max(initial=-1) < 0:
         return echoes
     img = smooth_along_range(image, pulse_bins) if pulse_bins >= 2 else np.ascontiguousarray(image)

@@ -383,7 +383,7 @@ def _continuation_pixels(echoes: Echoes, first: NDArray[np.int64], levels: NDArr
     """:func:`continuation_mask` and the first and one-past-last row holding one of its pixels
     (``(n_bins, 0)``: none)."""
     from sonarmap.ranges import _kernels
-    from sonarmap.ranges.echoes import _first_intervals, _levels_in_range
+    from sonarmap.ranges.echoes import _first_runs, _levels_in_range
 
     code = np.ascontiguousarray(levels)
     lut = np.ascontiguousarray(level_evidence, dtype=np.float64)
@@ -394,8 +394,7 @@ def _continuation_pixels(echoes: Echoes, first: NDArray[np.int64], levels: NDArr
     sel = np.asarray(first, dtype=np.int64)
     if echoes.size == 0 or not (sel >= 0).any():
         return np.zeros(code.shape, dtype=bool), code.shape[0], 0
-    edge, lo, hi, stop = _first_intervals(echoes, sel)
-    run = _kernels.surface_runs(edge, lo, hi, float(touch_bins))
+    edge, stop, run = _first_runs(echoes, sel, touch_bins)
     out, r0, r1 = _kernels.continuation_mask(code, lut, edge, stop, run, int(min_run), int(max_beams),
                                              float(window_bins), float(min_evidence), int(max_misses))
     return out, int(r0), int(r1)
