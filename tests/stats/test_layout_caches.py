@@ -45,3 +45,15 @@ def test_a_fit_built_without_init_equals_the_dataclass() -> None:
     assert fit.object_weight == again.object_weight
     assert class_separation(fit) == class_separation(again)
     np.testing.assert_array_equal(fit.decision_log_pmf(), again.decision_log_pmf())
+
+
+def test_the_fits_own_arrays_without_a_copy() -> None:
+    rng = np.random.default_rng(4)
+    y = np.r_[np.zeros(3000), rng.exponential(0.03, 2500), rng.rayleigh(0.25, 500)]
+    fit = fit_mixture(np.clip(y, 0, 1).reshape(60, 100), method="em")
+    for name in ("class_prior", "class_log_pmf", "decision_log_pmf", "class_pmf"):
+        own = getattr(fit, name)(copy=False)
+        assert not own.flags.writeable and getattr(fit, name)(copy=False) is own
+        mine = getattr(fit, name)()
+        assert mine.flags.writeable and mine is not own and np.array_equal(mine, own)
+    assert set(fit._cache) == {"component_pmfs", "class_prior", "class_log_pmf", "decision_log_pmf", "class_pmf"}

@@ -153,7 +153,7 @@ def level_llr(fit: object, *, clip: float = 4.0) -> NDArray[np.float64]:
     (nats) under a fitted mixture (eq. 8-10; the best object class), clipped to ``[-clip, clip]``."""
     from sonarmap.ranges._kernels import llr_table
 
-    lp = np.ascontiguousarray(fit.decision_log_pmf(), dtype=np.float64)  # type: ignore[attr-defined]
+    lp = np.ascontiguousarray(fit.decision_log_pmf(copy=False), dtype=np.float64)  # type: ignore[attr-defined]
     if lp.shape[0] < 2:
         return np.zeros(lp.shape[1])
     return llr_table(lp, float(clip))

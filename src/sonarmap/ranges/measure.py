@@ -38,7 +38,7 @@ def background_mean(fit: Any, config: RangeConfig = RangeConfig()) -> tuple[floa
     usable = fit is not None and fit.classifiable
     if not (usable or (config.refine_bins > 0 and fit is not None)):
         return None, None
-    bg = float(np.asarray(fit.class_pmf())[0] @ np.asarray(fit.levels))
+    bg = float(np.asarray(fit.class_pmf(copy=False))[0] @ np.asarray(fit.levels))
     return (bg if usable else None), (config.edge_factor * bg if config.refine_bins > 0 else None)
 
 

@@ -497,23 +497,34 @@ class MixtureFit:
         """Normalised histogram ``p_hat``, shape ``(L,)``."""
         return self.counts / self.counts.sum()
 
-    def class_prior(self) -> NDArray[np.float64]:
-        """Prior probability of each class (sum of its component weights), shape ``(n_classes,)``."""
-        return self._cached("class_prior", lambda: np.bincount(
-            np.asarray(self.component_classes), weights=self.weights,
-            minlength=len(self.class_names)).astype(np.float64)).copy()
+    def class_prior(self, copy: bool = True) -> NDArray[np.float64]:
+        """Prior probability of each class (sum of its component weights), shape ``(n_classes,)``;
+        with ``copy=False`` the fit's own read-only array (computed once)."""
+        prior = self._cache.get("class_prior")
+        if prior is None:
+            prior = self._cached("class_prior", self._class_prior)
+        return prior.copy() if copy else prior  # type: ignore[no-any-return]
 
-    def class_log_pmf(self) -> NDArray[np.float64]:
-        """``log p(level | class)``, shape ``(n_classes, L)``, each class normalised over levels.
+    def _class_prior(self) -> NDArray[np.float64]:
+        return np.bincount(np.asarray(self.component_classes), weights=self.weights,
+                           minlength=len(self.class_names)).astype(np.float64)
+
+    def class_log_pmf(self, copy: bool = True) -> NDArray[np.float64]:
+        """``log p(level | class)``, shape ``(n_classes, L)``, each class normalised over levels;
+        with ``copy=False`` the fit's own read-only array (computed once).
 
         A class with zero weight uses the equal-weight average of its components' pmfs, so the
         result is always a proper pmf (classification with a zero prior is then well defined).
         """
-        return self._cached("class_log_pmf", self._class_log_pmf).copy()
+        lp = self._cache.get("class_log_pmf")
+        if lp is None:
+            lp = self._cached("class_log_pmf", self._class_log_pmf)
+        return lp.copy() if copy else lp  # type: ignore[no-any-return]
 
-    def decision_log_pmf(self) -> NDArray[np.float64]:
+    def decision_log_pmf(self, copy: bool = True) -> NDArray[np.float64]:
         """:meth:`class_log_pmf` as the decisions use it: each object class's log-likelihood ratio
-        against the background made non-decreasing in intensity.
+        against the background made non-decreasing in intensity (``copy=False``: the fit's own
+        read-only array, computed once).
 
         A brighter echo is never less likely to be structure than a dimmer one.  A fitted family
         may still say so where the data has (almost) no pixels: a light-tailed object class (a
@@ -533,8 +544,10 @@ class MixtureFit:
         -------
         ndarray of float64, shape (n_classes, L)
         """
-        return self._cached("decision_log_pmf",
-                            lambda: monotone_object_log_pmf(self._cached("class_log_pmf", self._class_log_pmf))).copy()
+        lp = self._cache.get("decision_log_pmf")
+        if lp is None:
+            lp = self._cached("decision_log_pmf", lambda: monotone_object_log_pmf(self.class_log_pmf(copy=False)))
+        return lp.copy() if copy else lp  # type: ignore[no-any-return]
 
     def _class_log_pmf(self) -> NDArray[np.float64]:
         comp = self._pmf_matrix()
@@ -550,9 +563,13 @@ class MixtureFit:
         with np.errstate(divide="ignore"):
             return np.log(mix)
 
-    def class_pmf(self) -> NDArray[np.float64]:
-        """``p(level | class)``, shape ``(n_classes, L)``."""
-        return self._cached("class_pmf", lambda: np.exp(self._cached("class_log_pmf", self._class_log_pmf))).copy()
+    def class_pmf(self, copy: bool = True) -> NDArray[np.float64]:
+        """``p(level | class)``, shape ``(n_classes, L)``; with ``copy=False`` the fit's own
+        read-only array (computed once)."""
+        pmf = self._cache.get("class_pmf")
+        if pmf is None:
+            pmf = self._cached("class_pmf", lambda: np.exp(self.class_log_pmf(copy=False)))
+        return pmf.copy() if copy else pmf  # type: ignore[no-any-return]
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-compatible summary (parameters, diagnostics, flags)."""
