@@ -113,6 +113,14 @@ class PingProducts:
     input_gain_db: float = 0.0
     floor_levels: int = 0
 
+    @classmethod
+    def _of(cls, **fields: Any) -> PingProducts:
+        """The products with every field given, built without the frozen dataclass
+        ``__init__``'s per-field ``object.__setattr__`` (one per ping)."""
+        products = object.__new__(cls)
+        products.__dict__.update(fields)
+        return products
+
     @property
     def flagged(self) -> bool:
         """True when the model cannot explain the ping (a gate of
@@ -201,7 +209,7 @@ def process_ping(ping: Ping, config: PipelineConfig = PipelineConfig(), *, keep_
     def products(ranges: BeamRanges, flags: set[str], labels: NDArray[np.uint8] | None, pd: float, pfa: float,
                  pd_range: float, gates: tuple[str, ...] = ()) -> PingProducts:
         fit = m.classified[1] if m.classified is not None else None
-        return PingProducts(
+        return PingProducts._of(
             time_ns=ping.time_ns, source=ping.source, fit=fit,
             kld=float(fit.kld) if fit is not None else math.nan, flags=tuple(sorted(flags)),
             ranges=ranges, labels=labels if keep_labels else None, pd=float(pd), pfa=float(pfa),

@@ -121,6 +121,31 @@ def levels_kernel(flat: np.ndarray, zero, one, scale, n: int, floor: bool, lut: 
 
 
 @njit(cache=True, nogil=True)
+def nonzero_quantiles(counts: np.ndarray, f1: float, f2: float) -> tuple[float, int, int]:  # pragma: no cover - numba
+    """``(n, i1, i2)`` of the levels above zero: with ``cdf = np.cumsum(counts[1:])`` (the same
+    sequential sums), ``n = cdf[-1]`` and ``i = np.searchsorted(cdf, f n)`` for ``f1`` and ``f2``
+    (the first index whose cumulative count reaches ``f n``; ``len(cdf)`` when none does;
+    ``f1 <= f2``)."""
+    L = counts.shape[0]
+    n = 0.0
+    for k in range(1, L):
+        n += counts[k]
+    t1 = f1 * n
+    t2 = f2 * n
+    i1 = L - 1
+    i2 = L - 1
+    acc = 0.0
+    for k in range(1, L):
+        acc += counts[k]
+        if i1 == L - 1 and acc >= t1:
+            i1 = k - 1
+        if acc >= t2:
+            i2 = k - 1
+            break
+    return n, i1, i2
+
+
+@njit(cache=True, nogil=True)
 def monotone_rows(lp: np.ndarray) -> None:  # pragma: no cover - numba
     """In place on ``lp (n_classes, L)``: every row ``c >= 1`` raised to ``lp[0] + running max of
     (lp[c] - lp[0])`` where that is finite and above the row (see

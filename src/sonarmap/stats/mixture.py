@@ -696,15 +696,17 @@ class _Starts(Sequence[tuple[NDArray[np.float64], list[tuple[float, ...]]]]):
     (the fitters use the first alone unless its result looks unsound, see :func:`_em_best`)."""
 
     def __init__(self, spec: _Spec, counts: NDArray[np.float64]) -> None:
+        from sonarmap.stats._em_kernels import nonzero_quantiles
+
         x = spec.levels
         N = float(counts.sum())
         self._spec = spec
         self._frac0 = float(counts[0]) / N
-        cdf = np.cumsum(counts[1:])
-        n_nz = float(cdf[-1])
+        # the median and 99th percentile level above zero (np.cumsum + np.searchsorted, one pass)
+        n_nz, i50, i99 = nonzero_quantiles(counts, 0.5, 0.99)
         if n_nz > 0:
-            q50 = float(x[min(int(np.searchsorted(cdf, 0.5 * n_nz)) + 1, x.size - 1)])
-            q99 = float(x[min(int(np.searchsorted(cdf, 0.99 * n_nz)) + 1, x.size - 1)])
+            q50 = float(x[min(int(i50) + 1, x.size - 1)])
+            q99 = float(x[min(int(i99) + 1, x.size - 1)])
         else:
             q50, q99 = 2 * spec.smin, 10 * spec.smin
         lo_s, hi_s = 2 * spec.smin, spec.smax / 2
