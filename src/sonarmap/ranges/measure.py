@@ -149,6 +149,8 @@ def _continuation(echoes: Any, first: NDArray[np.int64], levels: NDArray[Any], l
 
     extra, lo, hi = _continuation_pixels(echoes, first, levels, llr_lut, min_evidence=config.continue_evidence,
                                          touch_bins=config.track.touch_bins)
+    if hi <= lo:
+        return None  # no continuation pixel at all (continuation_extra would keep none)
     extra, hit, cols, r0, r1 = continuation_extra(extra, np.ascontiguousarray(cand),
                                                   np.ascontiguousarray(first, dtype=np.int64),
                                                   echoes.edge_bin if echoes.size else np.zeros(1), lo, hi)
