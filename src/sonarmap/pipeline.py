@@ -312,7 +312,7 @@ def _model_ping(raw: NDArray[np.float32], geom: Any, config: PipelineConfig, ref
 def _model_image(raw: NDArray[np.float32], geom: Any, config: PipelineConfig, reference: Any) -> _Modelled:
     """:func:`_model_ping` of one image, without the quantisation floor."""
     raw_max = float(raw.max())
-    constant = raw_max == float(raw.min())
+    constant = _all_equal(raw, raw_max)
     background = None
     normalised = None
     if config.normalise == "auto" and not constant:
@@ -341,10 +341,18 @@ def _model_image(raw: NDArray[np.float32], geom: Any, config: PipelineConfig, re
 def _flat(image: NDArray[np.float32]) -> bool:
     """No positive pixel, or one value everywhere (``not np.any(image > 0) or max == min``; for
     an image without NaN ``np.any(image > 0)`` is ``max > 0``, which saves a pass)."""
-    hi, lo = float(image.max()), float(image.min())
+    hi = float(image.max())
     if math.isnan(hi):
         return not np.any(image > 0)  # NaN compares unequal: max == min is False
-    return not hi > 0 or hi == lo
+    return not hi > 0 or _all_equal(image, hi)
+
+
+def _all_equal(image: NDArray[Any], hi: float) -> bool:
+    """``hi == image.min()`` for ``hi = image.max()`` (False when ``hi`` is NaN): every pixel
+    is ``hi``.  A first pixel that is not ``hi`` says no without the pass for the minimum."""
+    if math.isnan(hi) or float(image.flat[0]) != hi:
+        return False
+    return hi == float(image.min())
 
 
 def _p_detect(pd: float, pd_range: float, ranges: BeamRanges, thickness: NDArray[np.int64]) -> NDArray[np.float32]:
