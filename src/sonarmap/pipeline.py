@@ -36,11 +36,16 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from sonarmap.classify.segment import decision_rates, segment
 from sonarmap.config import METHODS, SOLVER_NAMES, PipelineConfig
 from sonarmap.errors import InputError
 from sonarmap.ping import Ping
+from sonarmap.preprocess.normalise import RecordingBackground, condition_image, estimate_background, on_8bit_grid
+from sonarmap.preprocess.pipeline import preprocess_finite, preprocess_image
 from sonarmap.ranges import BeamRanges, no_returns
 from sonarmap.ranges.candidates import candidate_mask, pooled_band_mask, pooled_band_pixels
+from sonarmap.ranges.measure import background_mean, rule_ranges, surface_ranges
+from sonarmap.stats.model import failed_gates, fit_counts
 
 __all__ = ["PipelineConfig", "PingProducts", "process_ping", "classify_image", "pooled_band_pixels", "pooled_band_mask", "METHODS", "SOLVER_NAMES"]
 
@@ -145,8 +150,6 @@ def _gates(fit: Any, config: PipelineConfig) -> frozenset[str]:
     """The fit gates ``fit`` fails under ``config`` (none for CFAR or without a fit)."""
     if config.classify.method.startswith("cfar-"):
         return frozenset()
-    from sonarmap.stats.model import failed_gates
-
     return failed_gates(fit, config.fit)
 
 
@@ -157,9 +160,7 @@ def _classify(image: NDArray[np.float32], config: PipelineConfig, gate: bool = F
     fails (:func:`_gates`; only with ``gate=True``, which also skips the labelling of a gated
     ping: its labels are all background).  ``levels`` and ``fit``, when given, are the image's
     levels and their fit (not recomputed)."""
-    from sonarmap.classify.segment import decision_rates, segment
-    from sonarmap.stats.mixture import quantize_counts
-    from sonarmap.stats.model import fit_counts
+    from sonarmap.stats.mixture import quantize_counts  # (scipy: imported with the first ping)
 
     if levels is None or fit is None:
         # the intensity model (eq. 8-11): quantised levels and the mixture fit of their histogram
@@ -196,8 +197,6 @@ def process_ping(ping: Ping, config: PipelineConfig = PipelineConfig(), *, keep_
     PingProducts
     """
     _check_arguments(ping, config, background)
-    from sonarmap.preprocess.normalise import condition_image
-
     geom = ping.geometry
     # sidelobe suppression and input gain; 8-bit images (every DIDSON, ARIS and Oculus recording)
     # pass unchanged
@@ -228,8 +227,6 @@ def process_ping(ping: Ping, config: PipelineConfig = PipelineConfig(), *, keep_
         # an implausible fit never becomes confident output: no returns, the reasons as flags
         return no_return_products(set(fit.flags) | gates, float(pd), float(pfa), tuple(sorted(gates)))
     # per-beam ranges (sec. V): candidate structure, then echoes tracked across beams
-    from sonarmap.ranges.measure import background_mean, rule_ranges, surface_ranges
-
     bg_mean, edge = background_mean(fit, config.ranges)
     normalised = m.normalised is not None
     mask = candidate_mask(labels, geom, config.candidates, normalised=normalised)
@@ -258,8 +255,6 @@ def _check_arguments(ping: Any, config: Any, background: Any) -> None:
     if not isinstance(config, PipelineConfig):
         raise InputError(f"config: expected a PipelineConfig, got {type(config).__name__}")
     if background is not None and config.normalise == "auto":
-        from sonarmap.preprocess.normalise import RecordingBackground
-
         if not isinstance(background, RecordingBackground):
             raise InputError(f"background: expected a RecordingBackground, got {type(background).__name__}")
 
@@ -284,9 +279,6 @@ def _model_ping(raw: NDArray[np.float32], geom: Any, config: PipelineConfig, ref
     into the zero level (:attr:`PipelineConfig.fit.max_floor_levels`); the first floor whose fit passes
     every gate is kept, else the ping as recorded.
     """
-    from sonarmap.preprocess.normalise import on_8bit_grid
-    from sonarmap.stats.model import fit_counts
-
     m = _model_image(raw, geom, config, reference)
     if not (m.classified is not None and "kld" in m.classified[5] and config.fit.max_floor_levels > 0
             and config.fit.n_levels == 256 and on_8bit_grid(raw)):
@@ -316,8 +308,6 @@ def _model_image(raw: NDArray[np.float32], geom: Any, config: PipelineConfig, re
     background = None
     normalised = None
     if config.normalise == "auto" and not constant:
-        from sonarmap.preprocess.normalise import estimate_background
-
         background, normalised = estimate_background(raw, reference=reference)
     pre = config.preprocess_config()
     if normalised is not None:
@@ -326,12 +316,8 @@ def _model_image(raw: NDArray[np.float32], geom: Any, config: PipelineConfig, re
         image = raw
     elif background is not None:
         # the background estimate has checked that every pixel of ``raw`` is finite
-        from sonarmap.preprocess.pipeline import preprocess_finite
-
         image = preprocess_finite(raw, geom, pre, raw_max)
     else:
-        from sonarmap.preprocess.pipeline import preprocess_image
-
         image = preprocess_image(raw, geom, pre)
     if constant or _flat(image):
         return _Modelled(image, normalised, background, None, 0)
