@@ -24,9 +24,11 @@ from numpy.typing import NDArray
 
 from sonarmap._config import is_finite_number
 from sonarmap.ping import Ping
-from sonarmap.ranges import BeamRanges, extract_ranges, half_peak_edges, no_returns
+from sonarmap.ranges import BeamRanges, extract_ranges, half_peak_edges, no_returns, ranges_from_tracks
 from sonarmap.ranges.candidates import pooled_band_mask, pooled_band_pixels
 from sonarmap.ranges.config import CandidateConfig, RangeConfig
+from sonarmap.ranges.echoes import find_echoes, level_llr, pooled_edges, spliced_echoes
+from sonarmap.ranges.tracking import _continuation_pixels, track_surfaces, tracks_and_front
 
 __all__ = ["surface_ranges", "rule_ranges", "measurement_image", "pulse_bins", "background_mean",
            "clipped_echo_sigma", "clipped_echoes", "clip_rows", "CLIP_LEVEL"]
@@ -145,7 +147,6 @@ def _continuation(echoes: Any, first: NDArray[np.int64], levels: NDArray[Any], l
     on a beam without one or whose return lies behind it (None: no such pixel); with the beams
     holding them and their first and one-past-last row."""
     from sonarmap.ranges._kernels import continuation_extra
-    from sonarmap.ranges.tracking import _continuation_pixels
 
     extra, lo, hi = _continuation_pixels(echoes, first, levels, llr_lut, min_evidence=config.continue_evidence,
                                          touch_bins=config.track.touch_bins)
@@ -252,10 +253,6 @@ def surface_ranges(ping: Ping, image: NDArray[np.float32], levels: NDArray[Any],
                    pool_bands: bool = True) -> tuple[BeamRanges, NDArray[np.int64]]:
     """Echoes of the candidate structure (``mask`` plus pooled bands), tracked across beams; also
     the number of bins each return's echo spans (0 where no return)."""
-    from sonarmap.ranges import ranges_from_tracks
-    from sonarmap.ranges.echoes import find_echoes, level_llr, pooled_edges, spliced_echoes
-    from sonarmap.ranges.tracking import track_surfaces, tracks_and_front
-
     geom = ping.geometry
     cand, band, r0, r1 = _with_pooled_bands(mask, image, candidates, bg_mean,
                                             pool_bands and not normalised)

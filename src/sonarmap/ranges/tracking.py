@@ -93,7 +93,7 @@ from numpy.typing import NDArray
 
 from sonarmap._config import check_booleans, check_integers, coerce_reals, config_error
 from sonarmap.errors import InputError
-from sonarmap.ranges.echoes import Echoes
+from sonarmap.ranges.echoes import Echoes, _first_runs, _levels_in_range
 
 __all__ = ["TrackConfig", "Tracks", "track_surfaces", "tracks_and_front", "front_surfaces", "point_streaks",
            "clip_rise", "continuation_mask"]
@@ -383,7 +383,6 @@ def _continuation_pixels(echoes: Echoes, first: NDArray[np.int64], levels: NDArr
     """:func:`continuation_mask` and the first and one-past-last row holding one of its pixels
     (``(n_bins, 0)``: none)."""
     from sonarmap.ranges import _kernels
-    from sonarmap.ranges.echoes import _first_runs, _levels_in_range
 
     code = np.ascontiguousarray(levels)
     lut = np.ascontiguousarray(level_evidence, dtype=np.float64)
