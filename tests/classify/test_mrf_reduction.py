@@ -9,7 +9,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from sonarmap.classify import mrf
-from sonarmap.classify._kernels import reduce_binary, reduce_chains, reduce_uniform4
+from sonarmap.classify._kernels import free_graph, free_graph4, reduce_binary, reduce_chains, reduce_uniform4
 
 
 def _problem(seed: int, kind: str) -> tuple[np.ndarray, np.ndarray]:
@@ -77,3 +77,24 @@ def test_level_table_cut_keeps_the_least_minimiser(seed, beta, range_weight, kin
     again = mrf.graphcut_levels_labels(levels, lut, beta=beta, range_weight=range_weight)
     assert not np.shares_memory(again, labels)
     np.testing.assert_array_equal(again, labels)
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(0, 2**31 - 1), st.sampled_from([0.0, 0.5, 2.0, 1.37]), st.sampled_from([1.0, 0.25, 0.3]),
+       st.sampled_from(["ties", "normal", "stripes"]), st.sampled_from([0, 1, 6]))
+def test_uniform_free_graph_equals_the_general_one(seed, beta, range_weight, kind, chain_passes):
+    """:func:`free_graph4` (scalar weights, no node map) gives the arrays of :func:`free_graph`
+    with the uniform weight array, bit for bit, after the first pass and after chain passes."""
+    levels, margin = _problem(seed, kind)
+    h, w = levels.shape
+    wt, wtot = mrf._uniform(h, w, 4, beta, range_weight)
+    wr, wb = float(wt[0, 1, 1]), float(wt[1, 1, 1])
+    fixed, stack = np.empty((h, w), np.int8), np.empty(h * w + 1, np.int64)
+    n = reduce_uniform4(levels, margin, wt, wtot, fixed, stack, wr, wb)
+    if n and chain_passes:
+        n = reduce_chains(levels, margin, fixed, stack, n, wr, wb, chain_passes)
+    ref = free_graph(levels, margin, wt, fixed, np.empty((h, w), np.int64), stack, n)
+    got = free_graph4(levels, margin, fixed, stack, n, wr, wb)
+    for a, b in zip(got, ref, strict=True):
+        assert a.dtype == b.dtype
+        np.testing.assert_array_equal(a, b)

@@ -739,6 +739,68 @@ def free_graph(levels, margin_lut, weights, fixed, node, stack, n_free):  # prag
     return m_eff, ei[:n_edges], ej[:n_edges], ew[:n_edges]
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _pull_fixed(f, wt, mm):  # pragma: no cover - numba
+    """``mm`` plus ``wt`` for a neighbour fixed to 1, minus ``wt`` for one fixed to 0 (``f`` -1, a
+    free neighbour: ``mm``)."""
+    if f == 1:
+        return mm + wt
+    if f == 0:
+        return mm - wt
+    return mm
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _add_edge(ei, ej, ew, n_edges, a, b, wt):  # pragma: no cover - numba
+    """Append the edge ``(a, b)`` of weight ``wt``; returns the new edge count."""
+    ei[n_edges] = a
+    ej[n_edges] = b
+    ew[n_edges] = wt
+    return n_edges + 1
+
+
+@njit(cache=True, nogil=True)
+def free_graph4(levels, margin_lut, fixed, stack, n_free, wr, wb):  # pragma: no cover - numba
+    """:func:`free_graph` for uniform 4-neighbourhood weights (``wr`` on every edge along range,
+    ``wb`` on every edge across beams, as :func:`sonarmap.classify.mrf._uniform` makes them):
+    the same arrays, without reading the weight array or the lattice-sized ``node`` map.  The
+    free pixels are listed in ascending raster order, so a free right neighbour is the next node
+    and the free lower neighbours are met in ascending order too: one pointer walking the list
+    finds them (on a tall image the map's scattered writes and reads, and those of the weights,
+    miss the cache at almost every node)."""
+    h, w = levels.shape
+    m_eff = np.empty(n_free)
+    ei = np.empty(n_free * 2, dtype=np.int64)
+    ej = np.empty(n_free * 2, dtype=np.int64)
+    ew = np.empty(n_free * 2)
+    n_edges = 0
+    below = 0                                   # the node of the last free lower neighbour found
+    for a in range(n_free):
+        p = stack[a]
+        i = p // w
+        j = p - i * w
+        mm = margin_lut[levels[i, j]]
+        # the order of free_graph: down, up, right, left (the same sums, bit for bit)
+        if i + 1 < h:
+            f = fixed[i + 1, j]
+            if f < 0 and wr != 0.0:
+                while below < n_free - 1 and stack[below] < p + w:
+                    below += 1
+                n_edges = _add_edge(ei, ej, ew, n_edges, a, below, wr)
+            mm = _pull_fixed(f, wr, mm)
+        if i > 0:
+            mm = _pull_fixed(fixed[i - 1, j], wr, mm)
+        if j + 1 < w:
+            f = fixed[i, j + 1]
+            if f < 0 and wb != 0.0:
+                n_edges = _add_edge(ei, ej, ew, n_edges, a, a + 1, wb)
+            mm = _pull_fixed(f, wb, mm)
+        if j > 0:
+            mm = _pull_fixed(fixed[i, j - 1], wb, mm)
+        m_eff[a] = mm
+    return m_eff, ei[:n_edges], ej[:n_edges], ew[:n_edges]
+
+
 @njit(cache=True, nogil=True)
 def energy_lut(levels, cost_lut, weights, labels):  # pragma: no cover - numba
     """Energy with unary ``cost_lut[label, levels[i, j]]`` plus Potts pairwise terms."""

@@ -481,7 +481,8 @@ def _graphcut_lut(
     direction have one weight), so the reduction reads scalars instead of ``wt`` inside the lattice
     and, for a 4-neighbourhood, the chain reduction replaces the single-pixel sweeps.
     """
-    from sonarmap.classify._kernels import energy_lut, free_graph, reduce_binary, reduce_chains, reduce_uniform4
+    from sonarmap.classify._kernels import (energy_lut, free_graph, free_graph4, reduce_binary, reduce_chains,
+                                            reduce_uniform4)
 
     h, w = levels.shape
     if wtot is None:
@@ -502,7 +503,9 @@ def _graphcut_lut(
     if n_free and chains:
         n_free = reduce_chains(levels, margin_lut, fixed, stack, n_free, wr, wb, _CHAIN_PASSES)
     if n_free:
-        m_eff, ei, ej, ew = free_graph(levels, margin_lut, wt, fixed, node, stack, n_free)
+        # uniform 4-neighbourhood: the graph from the scalar weights, without the node map
+        m_eff, ei, ej, ew = (free_graph4(levels, margin_lut, fixed, stack, n_free, wr, wb) if chains
+                             else free_graph(levels, margin_lut, wt, fixed, node, stack, n_free))
         fixed.reshape(-1)[stack[:n_free]] = _cut(m_eff, ei, ej, ew)[0]
     labels = fixed.view(np.uint8)
     e = float(energy_lut(levels, cost_lut, wt, labels)) if with_energy else math.nan
