@@ -10,6 +10,7 @@ from hypothesis import strategies as st
 
 from sonarmap.classify import mrf
 from sonarmap.classify._kernels import free_graph, free_graph4, reduce_binary, reduce_chains, reduce_uniform4
+from sonarmap.classify._ladders import reduce_ladders
 
 
 def _problem(seed: int, kind: str) -> tuple[np.ndarray, np.ndarray]:
@@ -79,6 +80,20 @@ def test_level_table_cut_keeps_the_least_minimiser(seed, beta, range_weight, kin
     np.testing.assert_array_equal(again, labels)
 
 
+def _chained(levels: np.ndarray, margin: np.ndarray, beta: float, range_weight: float, chain_passes: int
+             ) -> tuple[np.ndarray, float, float, np.ndarray, np.ndarray, int]:
+    """``(wt, wr, wb, fixed, stack, n_free)`` after the first reduction pass and ``chain_passes``
+    chain passes (uniform 4-neighbourhood weights)."""
+    h, w = levels.shape
+    wt, wtot = mrf._uniform(h, w, 4, beta, range_weight)
+    wr, wb = float(wt[0, 1, 1]), float(wt[1, 1, 1])
+    fixed, stack = np.empty((h, w), np.int8), np.empty(h * w + 1, np.int64)
+    n = reduce_uniform4(levels, margin, wt, wtot, fixed, stack, wr, wb)
+    if n and chain_passes:
+        n = reduce_chains(levels, margin, fixed, stack, n, wr, wb, chain_passes)
+    return wt, wr, wb, fixed, stack, n
+
+
 @settings(max_examples=60, deadline=None)
 @given(st.integers(0, 2**31 - 1), st.sampled_from([0.0, 0.5, 2.0, 1.37]), st.sampled_from([1.0, 0.25, 0.3]),
        st.sampled_from(["ties", "normal", "stripes"]), st.sampled_from([0, 1, 6]))
@@ -87,14 +102,31 @@ def test_uniform_free_graph_equals_the_general_one(seed, beta, range_weight, kin
     with the uniform weight array, bit for bit, after the first pass and after chain passes."""
     levels, margin = _problem(seed, kind)
     h, w = levels.shape
-    wt, wtot = mrf._uniform(h, w, 4, beta, range_weight)
-    wr, wb = float(wt[0, 1, 1]), float(wt[1, 1, 1])
-    fixed, stack = np.empty((h, w), np.int8), np.empty(h * w + 1, np.int64)
-    n = reduce_uniform4(levels, margin, wt, wtot, fixed, stack, wr, wb)
-    if n and chain_passes:
-        n = reduce_chains(levels, margin, fixed, stack, n, wr, wb, chain_passes)
+    wt, wr, wb, fixed, stack, n = _chained(levels, margin, beta, range_weight, chain_passes)
     ref = free_graph(levels, margin, wt, fixed, np.empty((h, w), np.int64), stack, n)
     got = free_graph4(levels, margin, fixed, stack, n, wr, wb)
     for a, b in zip(got, ref, strict=True):
         assert a.dtype == b.dtype
         np.testing.assert_array_equal(a, b)
+
+
+@settings(max_examples=80, deadline=None)
+@given(st.integers(0, 2**31 - 1), st.sampled_from([0.5, 1.0, 2.0, 1.37]), st.sampled_from([1.0, 0.25, 0.3]),
+       st.sampled_from(["ties", "normal", "stripes"]), st.sampled_from([1, 3]))
+def test_ladders_fix_only_persistent_labels(seed, beta, range_weight, kind, passes):
+    """Every pixel :func:`reduce_ladders` fixes has that label in the least and in the greatest
+    minimiser of the unreduced problem (so in every one), also with exact ties; the free list
+    stays the free pixels in ascending raster order."""
+    levels, margin = _problem(seed, kind)
+    wt, wr, wb, fixed, stack, n = _chained(levels, margin, beta, range_weight, 6)
+    before = fixed.copy()
+    if n:
+        n = reduce_ladders(levels, margin, fixed, stack, n, wr, wb, passes)
+    np.testing.assert_array_equal(stack[:n], np.flatnonzero(fixed.ravel() < 0))
+    lut = np.stack([np.maximum(margin, 0), np.maximum(-margin, 0)])
+    least = mrf.solve_graphcut(lut[:, levels], weights=wt, reduce=False).labels
+    # the greatest minimiser: the least one of the problem with the labels swapped
+    greatest = 1 - mrf.solve_graphcut(lut[::-1][:, levels], weights=wt, reduce=False).labels
+    new = (before < 0) & (fixed >= 0)
+    np.testing.assert_array_equal(fixed[new], least[new])
+    np.testing.assert_array_equal(fixed[new], greatest[new])
