@@ -57,15 +57,19 @@ def test_table_pass_equals_the_pixel_test(seed, beta, range_weight, kind):
 
 @settings(max_examples=40, deadline=None)
 @given(st.integers(0, 2**31 - 1), st.sampled_from([0.5, 1.0, 2.0]), st.sampled_from([1.0, 0.25]),
-       st.sampled_from(["ties", "normal", "stripes"]))
-def test_level_table_cut_keeps_the_least_minimiser(seed, beta, range_weight, kind):
+       st.sampled_from(["ties", "normal", "stripes"]), st.sampled_from([None, 0]))
+def test_level_table_cut_keeps_the_least_minimiser(seed, beta, range_weight, kind, rounds_min):
     """The pipeline's path (uint8 levels, a 256-level table, :func:`mrf.graphcut_levels_labels`)
     gives the labels of the single-pixel reduction with full sweeps and no chains, with exact ties
-    too, and the full-lattice cut's energy; the labels are a fresh array each call."""
+    too, and the full-lattice cut's energy (also with the rounds of ladders and chains of large
+    images, ``rounds_min`` 0); the labels are a fresh array each call."""
     levels, margin = _problem(seed, kind)
     h, w = levels.shape
     lut = np.stack([np.maximum(margin, 0), np.maximum(-margin, 0)])
-    labels = mrf.graphcut_levels_labels(levels, lut, beta=beta, range_weight=range_weight)
+    with pytest.MonkeyPatch.context() as mp:
+        if rounds_min is not None:
+            mp.setattr(mrf, "_LADDER_ROUNDS_MIN", rounds_min)
+        labels = mrf.graphcut_levels_labels(levels, lut, beta=beta, range_weight=range_weight)
     with pytest.MonkeyPatch.context() as mp:
         mp.setattr(mrf, "_CHAIN_PASSES", 0)
         mp.setattr(mrf, "_REDUCTION_SWEEPS", 256)
