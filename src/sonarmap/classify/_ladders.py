@@ -59,48 +59,54 @@ def _gap(f, b0, b1, b2, b3, r):  # pragma: no cover - numba
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _pixel_bounds(levels, margin_lut, fixed, ii, j, oi, first, last, wr, wb):  # pragma: no cover - numba
-    """``(lo, hi)``: the margins of pixel ``(ii, j)`` (if free) given everything outside the
-    ladder: its own, ``+-wr`` from the pixel in bin ``oi`` outside the ladder (``[-wr, wr]`` if
-    free, none outside the lattice) and ``+-wb`` from the fixed pixels before (``first``) and after
-    (``last``) the run.  Branch-free but for the rare cases (the rows are mixed free and fixed)."""
-    h, w = levels.shape
-    base = margin_lut[levels[ii, j]]
-    vf = 0.0
-    if 0 <= oi < h:
-        g = fixed[oi, j]
-        vf = wr if g < 0 else 0.0
-        base += 0.0 if g < 0 else (wr if g == 1 else -wr)
-    if first and j > 0:
-        base += wb if fixed[ii, j - 1] == 1 else -wb
-    if last and j + 1 < w:
-        base += wb if fixed[ii, j + 1] == 1 else -wb
-    return base - vf, base + vf
+def _outside(fixed, oi, j, wr):  # pragma: no cover - numba
+    """``(c, v)``: what the pixel ``(oi, j)`` outside the ladder adds to its neighbour's margin,
+    ``c`` for sure and ``[-v, v]`` more (``+-wr`` if fixed, ``[-wr, wr]`` if free)."""
+    g = fixed[oi, j]
+    return (wr if g == 1 else -wr) if g >= 0 else 0.0, wr if g < 0 else 0.0
 
 
 @njit(cache=True, nogil=True)
 def _local_costs(levels, margin_lut, fixed, i, j0, n, wr, wb, loc):  # pragma: no cover - numba
     """The column costs of the ladder of bins ``i, i + 1`` over columns ``j0 .. j0 + n - 1``:
     ``loc[v, t, s]`` for the lowest (``v = 0``) and highest (``v = 1``) margins, ``inf`` for a state
-    that contradicts a fixed pixel; returns the summed cost scale of the columns."""
-    scale = 0.0
+    that contradicts a fixed pixel; returns the summed cost scale of the columns.  A free pixel's
+    margin: its own, the pixel outside the ladder in its column (``+-wr``, ``[-wr, wr]`` if free,
+    nothing outside the lattice) and at the run's ends the fixed pixels beyond (``+-wb``)."""
+    h, w = levels.shape
     inf = np.inf
+    scale = 0.0
     for t in range(n):
         j = j0 + t
         fa = fixed[i, j]
         fb = fixed[i + 1, j]
-        la, ha = _pixel_bounds(levels, margin_lut, fixed, i, j, i - 1, t == 0, t == n - 1, wr, wb)
-        lb, hb = _pixel_bounds(levels, margin_lut, fixed, i + 1, j, i + 2, t == 0, t == n - 1, wr, wb)
-        # a fixed pixel: no margin, its other state forbidden
-        la = la if fa < 0 else 0.0
-        ha = ha if fa < 0 else 0.0
-        lb = lb if fb < 0 else 0.0
-        hb = hb if fb < 0 else 0.0
+        ma = margin_lut[levels[i, j]]
+        mb = margin_lut[levels[i + 1, j]]
+        va = vb = 0.0
+        if i > 0:
+            c, va = _outside(fixed, i - 1, j, wr)
+            ma += c
+        if i + 2 < h:
+            c, vb = _outside(fixed, i + 2, j, wr)
+            mb += c
+        if t == 0 and j > 0:
+            ma += wb if fixed[i, j - 1] == 1 else -wb
+            mb += wb if fixed[i + 1, j - 1] == 1 else -wb
+        if t == n - 1 and j + 1 < w:
+            ma += wb if fixed[i, j + 1] == 1 else -wb
+            mb += wb if fixed[i + 1, j + 1] == 1 else -wb
+        # a fixed pixel: no margin, its other state forbidden (branch-free: the rows mix both)
+        ka = 1.0 if fa < 0 else 0.0
+        kb = 1.0 if fb < 0 else 0.0
+        la = (ma - va) * ka
+        ha = (ma + va) * ka
+        lb = (mb - vb) * kb
+        hb = (mb + vb) * kb
         pa0 = inf if fa == 1 else 0.0
         pa1 = inf if fa == 0 else 0.0
         pb0 = inf if fb == 1 else 0.0
         pb1 = inf if fb == 0 else 0.0
-        scale += max(abs(la), abs(ha)) + max(abs(lb), abs(hb)) + wr + 2.0 * wb
+        scale += (abs(ma) + va) * ka + (abs(mb) + vb) * kb + wr + 2.0 * wb
         loc[0, t, 0] = pa0 + pb0
         loc[0, t, 1] = (wr - la) + pa1 + pb0
         loc[0, t, 2] = (wr - lb) + pa0 + pb1
