@@ -350,10 +350,12 @@ def clip_rows(echoes: Any, raw: NDArray[Any]) -> NDArray[np.int64]:
 def clipped_echo_sigma(echoes: Any, sel: NDArray[np.int64], raw: NDArray[Any], geom: Any) -> Any:
     """Widen the sigma of returns whose echo reaches the receiver's full scale.
 
-    A clipped echo's peak is only a lower bound: the half-peak crossing of the true echo lies
-    somewhere between the crossing measured (half the clipped level) and the echo's first
-    clipped sample.  That interval's uniform spread, ``length / sqrt 12``, is added in
-    quadrature to the return's sigma; the range itself is not moved.  Returns whose edge is that of
+    A clipped echo's peak is only a lower bound: the half-peak crossing of the true echo lies at
+    or behind the crossing measured (half the clipped level) - before the echo's first clipped
+    sample when it peaks below twice full scale, inside the clipped run above that.  The spread
+    of the interval up to the first clipped sample, ``length / sqrt 12``, is added in quadrature
+    to the return's sigma (on the simulator these returns' errors then lie within +-sigma on
+    0.59-0.86 of the beams, by preset); the range itself is not moved.  Returns whose edge is that of
     a Gaussian fitted to the clipped echo's flanks (``Echoes.clip_fitted``, :func:`pooled_edges`)
     keep their sigma: the fit's own standard error is in it.
     """
