@@ -271,6 +271,9 @@ def test_the_fit_reaches_a_wide_echos_rising_flank_beyond_the_walk_window():
         wide = pooled_edges(e, first, img, g, clip=img >= CLIP_LEVEL, sigma_scale=5.0, fit_sigma_scale=10.0)
         assert np.array_equal(wide.edge_bin, out.edge_bin, equal_nan=True)
         assert np.all(wide.sigma_m[s[ok]] > out.sigma_m[s[ok]])
+        # the fitted returns' calibration does not go through the pooled profile's
+        alone = pooled_edges(e, first, img, g, clip=img >= CLIP_LEVEL, sigma_scale=0.0, fit_sigma_scale=10.0)
+        assert np.array_equal(alone.sigma_m[s[ok]], wide.sigma_m[s[ok]])
     with pytest.raises(InputError, match="fit_sigma_scale"):
         pooled_edges(e, first, img, g, fit_sigma_scale=float("nan"))
     with pytest.raises(InputError, match="fit_front_bins"):

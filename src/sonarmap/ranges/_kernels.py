@@ -1211,7 +1211,7 @@ def _clipped_edge(sm, clipped_k, nk, p, fraction, n_own):  # pragma: no cover - 
 
 @njit(cache=True, nogil=True)
 def pooled_edges(img, edge, stop, run, half_beams, front_bins, max_bins, smooth_bins, fraction, n_iter,
-                 clip, fit_front_bins, fit_noise_scale):  # pragma: no cover - numba
+                 clip, fit_front_bins):  # pragma: no cover - numba
     """Leading edges measured on the surface-aligned mean profile of neighbouring beams
     (see :func:`sonarmap.ranges.echoes.pooled_edges`).
 
@@ -1225,9 +1225,8 @@ def pooled_edges(img, edge, stop, run, half_beams, front_bins, max_bins, smooth_
     receiver's full scale.  Where the pooled profile's peak is clipped, its first peak is the clip
     level, below the echo's own: the leading edge is then the half-peak crossing of a Gaussian
     echo fitted to the log of the unclipped samples on both flanks (:func:`_clipped_edge`), whose
-    rising flank may reach ``fit_front_bins`` (>= ``front_bins``) in front of the alignment; the
-    fitted crossing's standard error is scaled by ``fit_noise_scale``.  The peak search and the
-    half-peak walk of unclipped profiles stay within ``front_bins``.
+    rising flank may reach ``fit_front_bins`` (>= ``front_bins``) in front of the alignment.  The
+    peak search and the half-peak walk of unclipped profiles stay within ``front_bins``.
     """
     m = edge.size
     cur = edge.copy()
@@ -1374,7 +1373,7 @@ def pooled_edges(img, edge, stop, run, half_beams, front_bins, max_bins, smooth_
             if fitted[j]:
                 # the fitted crossing's standard error (bins) as a profile noise at its rise: the
                 # sigma then scales it as it scales the pooled profile's own jitter
-                noise[j] = fit_sx * slope * fit_noise_scale
+                noise[j] = fit_sx * slope
         cur = new
     return cur, value, rise, used, noise, fitted
 
@@ -1845,11 +1844,11 @@ def echo_ranges(edge, peak_value, slope, range_m, fraction, sqrt2, background, s
 
 @njit(cache=True, nogil=True)
 def with_edges(edge_bin, edge_range, slope, sigma, sel, beams, edge, rise, noise, range_m, bin_m, bin_var, pulse_var,
-               scale):  # pragma: no cover - numba
+               scale, fitted, fit_scale):  # pragma: no cover - numba
     """Copies of the echoes' ``edge_bin``, ``edge_range``, ``slope``, ``sigma`` with, for each beam
     ``j`` of ``beams``, echo ``sel[j]`` given the edge ``edge[j]`` (clipped to the bins as
     ``np.clip`` does), its range, the slope ``rise[j]`` and the sigma (:func:`_edge_sigma` of
-    ``noise[j]``)."""
+    ``noise[j]``, scaled by ``fit_scale`` where ``fitted[j]``, else by ``scale``)."""
     eb = edge_bin.copy()
     er = edge_range.copy()
     sl = slope.copy()
@@ -1865,7 +1864,7 @@ def with_edges(edge_bin, edge_range, slope, sigma, sel, beams, edge, rise, noise
         eb[k] = x
         er[k] = _interp_index(range_m, x)
         sl[k] = rise[j]
-        sg[k] = _edge_sigma(noise[j], rise[j], bin_m, bin_var, pulse_var, scale)
+        sg[k] = _edge_sigma(noise[j], rise[j], bin_m, bin_var, pulse_var, fit_scale if fitted[j] else scale)
     return eb, er, sl, sg
 
 

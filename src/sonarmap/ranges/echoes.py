@@ -489,6 +489,7 @@ def pooled_edges(
         ``fit_sigma_scale`` (default ``sigma_scale``; ``PipelineConfig.ranges.sigma_fit_scale``).
     half_beams, front_bins, max_bins, smooth_bins, n_iter, touch_bins
         The pooling window (see above).
+
     Returns
     -------
     Echoes
@@ -508,14 +509,14 @@ def pooled_edges(
     new, value, rise, used, noise, fitted = _kernels.pooled_edges(
         img, edge, stop, run, int(half_beams), int(front_bins), int(max_bins), int(smooth_bins) | 1,
         float(fraction), int(n_iter), _NO_CLIP if clip is None else np.ascontiguousarray(clip).view(np.uint8),
-        int(fit_front_bins), fit_scale / sigma_scale if sigma_scale > 0 else 0.0)
+        int(fit_front_bins))
     # the edge belongs to the beam's own echo: within find_echoes' walk in front of its first
     # structure bin and before its last (else a neighbouring surface pulled it)
     sel = np.ascontiguousarray(sel)
     done = _kernels.pooled_edges_done(sel, new, used, echoes.start_bin, stop, int(pulse_bins) + 2)
     if not done.size:
         return echoes
-    out = _with_edges(echoes, sel, done, new, rise, noise, geometry, pulse_bins, sigma_scale)
+    out = _with_edges(echoes, sel, done, new, rise, noise, geometry, pulse_bins, (sigma_scale, fitted, fit_scale))
     keep = sel[done[fitted[done]]]
     return out.replaced(clip_fitted=_marked(echoes.size, keep)) if keep.size else out
 
@@ -547,9 +548,11 @@ def _check_pooling(echoes: Echoes, sel: np.ndarray, window: tuple[int, int, int,
 
 
 def _with_edges(echoes: Echoes, sel: np.ndarray, beams: np.ndarray, edge: np.ndarray, rise: np.ndarray,
-                noise: np.ndarray, geometry: SonarGeometry, pulse_bins: int, sigma_scale: float) -> Echoes:
+                noise: np.ndarray, geometry: SonarGeometry, pulse_bins: int,
+                scales: tuple[float, np.ndarray, float]) -> Echoes:
     """``echoes`` with the echoes ``sel[beams]`` given the new leading edges ``edge[beams]`` (bins),
-    slopes and sigmas (``rise``, ``noise``: per beam)."""
+    slopes and sigmas (``rise``, ``noise``: per beam; ``scales``: the jitter calibration, the beams
+    whose edge is a fitted clipped echo's, and their calibration)."""
     from sonarmap.ranges import _kernels
 
     bin_m = abs(geometry.range_resolution_m)
@@ -557,5 +560,5 @@ def _with_edges(echoes: Echoes, sel: np.ndarray, beams: np.ndarray, edge: np.nda
     eb, er, sl, sig = _kernels.with_edges(
         echoes.edge_bin, echoes.edge_range_m, echoes.slope, echoes.sigma_m, sel, beams, edge, rise, noise,
         np.ascontiguousarray(geometry.range_m, dtype=np.float64), bin_m, bin_m**2 / 12.0, (pulse_m**2) / 12.0,
-        float(sigma_scale))
+        float(scales[0]), scales[1], float(scales[2]))
     return echoes.replaced(edge_bin=eb, edge_range_m=er, slope=sl, sigma_m=sig)
