@@ -29,6 +29,7 @@ from sonarmap.ranges.candidates import pooled_band_mask, pooled_band_pixels
 from sonarmap.ranges.config import CandidateConfig, RangeConfig
 from sonarmap.ranges.echoes import find_echoes, level_llr, pooled_edges, spliced_echoes
 from sonarmap.ranges.tracking import _continuation_pixels, track_surfaces, tracks_and_front
+from sonarmap.ranges.template import template_edges
 
 __all__ = ["surface_ranges", "rule_ranges", "measurement_image", "pulse_bins", "background_mean",
            "clipped_echo_sigma", "clipped_echoes", "clip_rows", "CLIP_LEVEL"]
@@ -318,11 +319,23 @@ def surface_ranges(ping: Ping, image: NDArray[np.float32], levels: NDArray[Any],
                               smooth_bins=3 if pb < 3 else 1, fraction=fraction,
                               touch_bins=config.track.touch_bins, sigma_scale=config.sigma_pool_scale, clip=clip,
                               fit_sigma_scale=config.sigma_fit_scale)
+    if config.edge_template_beams > 0 and config.range_mode == "first" and echoes.size:
+        echoes = _template_pass(echoes, sel, meas, geom, config, fraction, pb)
     if echoes.size and (sel >= 0).any():
         echoes = clipped_echo_sigma(echoes, sel, ping.image, geom)
     thickness = np.where(sel >= 0, (echoes.stop_bin - echoes.start_bin)[np.maximum(sel, 0)] if echoes.size else 0, 0)
     return (ranges_from_tracks(echoes, tracks, geom, image, mode=config.range_mode,  # type: ignore[arg-type]
                                time_ns=ping.time_ns, source=ping.source), thickness.astype(np.int64))
+
+
+def _template_pass(echoes: Any, sel: NDArray[np.int64], meas: Any, geom: Any, config: RangeConfig, fraction: float,
+                   pb: int) -> Any:
+    """Long surfaces' leading edges measured against the surface's echo template
+    (:func:`sonarmap.ranges.template.template_edges`; a fitted clipped echo keeps its fit)."""
+    return template_edges(echoes, sel, meas, geom, half_template=config.edge_template_beams,
+                          min_beams=config.edge_template_min_beams, fraction=fraction,
+                          touch_bins=config.track.touch_bins, pulse_bins=pb,
+                          sigma_scale=config.sigma_template_scale, skip=echoes.clip_fitted)
 
 
 #: A raw sample at or above this is at the receiver's full scale (8-bit images: level 255).

@@ -1,0 +1,242 @@
+"""Numba kernels of :mod:`sonarmap.ranges.template` (private).
+
+Images are ``(n_bins, n_beams)``; a surface run is a contiguous block of beams with the same
+non-negative ``run`` label (:func:`sonarmap.ranges.echoes.surface_runs`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+
+@njit(cache=True, nogil=True)
+def _local_quadratic(cur, a, half):  # pragma: no cover - numba
+    """``(value, slope)`` at position ``a`` of the least-squares quadratic through ``cur`` over
+    positions ``a - half .. a + half`` (clipped to the array; a line below 5 points, ``cur[a]``
+    and 0 below 3)."""
+    nb = cur.size
+    lo = max(0, a - half)
+    hi = min(nb, a + half + 1)
+    c = hi - lo
+    if c < 3:
+        return cur[a], 0.0
+    deg = 3 if c >= 5 else 2
+    A = np.zeros((deg, deg))
+    rhs = np.zeros(deg)
+    for b in range(lo, hi):
+        x = float(b - a)
+        p = np.empty(deg)
+        p[0] = 1.0
+        for e in range(1, deg):
+            p[e] = p[e - 1] * x
+        for r in range(deg):
+            rhs[r] += p[r] * cur[b]
+            for q in range(deg):
+                A[r, q] += p[r] * p[q]
+    coef = np.linalg.solve(A, rhs)
+    return coef[0], coef[1]
+
+
+@njit(cache=True, nogil=True)
+def _median_depth(edge, stop, j0, j1, max_bins):  # pragma: no cover - numba
+    """The run's median echo depth behind its edges (bins, 3 .. ``max_bins``)."""
+    d = np.empty(j1 - j0)
+    for j in range(j0, j1):
+        d[j - j0] = stop[j] - edge[j]
+    d.sort()
+    n = d.size
+    med = d[n // 2] if n % 2 == 1 else 0.5 * (d[n // 2 - 1] + d[n // 2])
+    return int(min(max(med, 3.0), max_bins))
+
+
+@njit(cache=True, nogil=True)
+def _template_crossing(T, sm, k0, depth, fraction):  # pragma: no cover - numba
+    """``(ok, t0, p)``: the first peak ``p`` (index into ``T``) of the 3-bin mean ``sm`` of the
+    template ``T`` (offsets ``k0 ..``; unsmoothed for echoes under 6 bins deep) within offsets
+    -6 .. ``depth``, and the ``fraction`` crossing ``t0`` (an offset, interpolated) walking from
+    it towards the sonar."""
+    K = T.size
+    # smoothed only where the echo is deep enough for the box not to widen it (a one-bin echo
+    # smoothed over 3 bins has its crossing a bin early), as in pooled_edges
+    h = 1 if depth >= 6 else 0
+    for k in range(K):
+        lo = max(k - h, 0)
+        hi = min(k + h + 1, K)
+        acc = 0.0
+        for i in range(lo, hi):
+            acc += T[i]
+        sm[k] = acc / (hi - lo)
+    p = -1
+    for k in range(K):
+        off = k + k0
+        if -6 <= off <= depth and (p < 0 or sm[k] > sm[p]):
+            p = k
+    if p < 0 or not sm[p] > 0:
+        return False, 0.0, p
+    lv = fraction * sm[p]
+    i = p
+    while i > 0 and sm[i - 1] >= lv:
+        i -= 1
+    if i == 0:
+        return False, 0.0, p
+    t0 = (i - 1 + k0) + (lv - sm[i - 1]) / max(sm[i] - sm[i - 1], 1e-12)
+    return True, t0, p
+
+
+@njit(cache=True, nogil=True)
+def _front_level(T, k0, front):  # pragma: no cover - numba
+    """The template's mean level in front of the surface (offsets ``k0 .. -front``)."""
+    acc = 0.0
+    c = 0
+    for k in range(0, -front - k0 + 1):
+        acc += T[k]
+        c += 1
+    return acc / max(c, 1)
+
+
+@njit(cache=True, nogil=True)
+def _crossing_var(csum, sm, lo, hi, x):  # pragma: no cover - numba
+    """The variance (bins^2) of the template's crossing at index ``x`` (fractional) from the spread
+    of its beams ``lo .. hi - 1`` there (each column's 3-bin mean; the standard error of their
+    mean over the template's rise per bin)."""
+    K = sm.size
+    i = min(max(int(np.floor(x)), 1), K - 3)
+    f = x - i
+    rise = sm[i + 1] - sm[i]
+    if not rise > 0:
+        return 0.0
+    s1 = 0.0
+    s2 = 0.0
+    for b in range(lo, hi):
+        v = 0.0
+        for k in range(i - 1, i + 3):
+            col = csum[b + 1, k] - csum[b, k]
+            # column b's 3-bin means at i (k = i-1..i+1) and i + 1 (k = i..i+2)
+            if k <= i + 1:
+                v += (1.0 - f) * col / 3.0
+            if k >= i:
+                v += f * col / 3.0
+        s1 += v
+        s2 += v * v
+    c = hi - lo
+    if c < 2:
+        return 0.0
+    var = max(s2 / c - (s1 / c) ** 2, 0.0) * c / (c - 1)
+    return var / c / (rise * rise)
+
+
+@njit(cache=True, nogil=True)
+def _score_shift(img, j0, line, slope, T, k0, a, lo, hi, front, top, floor, max_shift, n_score,
+                 max_rows):  # pragma: no cover - numba
+    """``(c, fisher)``: Fisher scoring of the template position ``c`` at beam ``a`` of the run
+    (each beam ``b`` of ``lo .. hi - 1`` sees the template at ``c + slope[a] (b - a)``), for
+    exponential (single-look) intensities of mean ``max(T, floor)``, from ``line[a]``, within
+    ``max_shift`` of it; the Fisher information at the result (0: none)."""
+    n = img.shape[0]
+    K = T.size
+    c = line[a]
+    fisher = 0.0
+    for _ in range(n_score + 1):
+        g = 0.0
+        fisher = 0.0
+        for b in range(lo, hi):
+            r0 = max(int(np.floor(line[b] - front)), 0)
+            r1 = min(int(np.ceil(line[b] + top)), n - 1)
+            stride = max(1, (r1 - r0 + 1) // max_rows)
+            off = c + slope[a] * (b - a)
+            for r in range(r0, r1 + 1, stride):
+                u = r - off - k0
+                i0 = int(np.floor(u))
+                if i0 < 0 or i0 >= K - 1:
+                    continue
+                tp = T[i0 + 1] - T[i0]
+                mu = max(T[i0] + (u - i0) * tp, floor)
+                v = img[r, j0 + b]
+                g += tp * (v - mu) / (mu * mu)
+                fisher += tp * tp / (mu * mu)
+        if not fisher > 0:
+            return c, 0.0
+        step = min(max(-g / fisher, -2.0), 2.0)
+        if abs(step) < 0.01:
+            break
+        c = min(max(c + step, line[a] - max_shift), line[a] + max_shift)
+    return c, fisher
+
+
+@njit(cache=True, nogil=True)
+def _run_edges(img, edge, stop, skip, j0, j1, half_template, half_window, front, max_bins, max_shift,
+               n_score, fraction, peak_rows, max_rows, n_iter, min_contrast, new, var):  # pragma: no cover - numba
+    """:func:`template_edges` of the run of beams ``j0 .. j1 - 1`` (in place on ``new``, ``var``);
+    ``n_iter`` rounds, each aligning the template on the edges of the round before."""
+    n = img.shape[0]
+    nb = j1 - j0
+    cur = edge[j0:j1].copy()
+    line = np.empty(nb)
+    slope = np.empty(nb)
+    depth = _median_depth(edge, stop, j0, j1, max_bins)
+    pad = front + int(np.ceil(max_shift)) + 10
+    k0 = -pad
+    K = depth + 2 * pad + 1
+    csum = np.zeros((nb + 1, K))
+    T = np.empty(K)
+    sm = np.empty(K)
+    for _ in range(n_iter):
+        for a in range(nb):
+            line[a], slope[a] = _local_quadratic(cur, a, half_template)
+        # every beam's column at offsets k0 .. from its line, and their running sum over beams
+        for a in range(nb):
+            for k in range(K):
+                pos = line[a] + (k + k0)
+                i0 = min(max(int(np.floor(pos)), 0), n - 2)
+                f = min(max(pos - i0, 0.0), 1.0)
+                csum[a + 1, k] = csum[a, k] + (1.0 - f) * img[i0, j0 + a] + f * img[i0 + 1, j0 + a]
+        for a in range(nb):
+            if skip[j0 + a]:
+                continue
+            lo = max(0, a - half_template)
+            hi = min(nb, a + half_template + 1)
+            for k in range(K):
+                T[k] = (csum[hi, k] - csum[lo, k]) / (hi - lo)
+            ok, t0, p = _template_crossing(T, sm, k0, depth, fraction)
+            if not ok or not sm[p] >= min_contrast * _front_level(T, k0, front):
+                continue
+            floor = max(1e-6, 0.01 * sm[p])
+            wlo = max(0, a - half_window)
+            whi = min(nb, a + half_window + 1)
+            c, fisher = _score_shift(img, j0, line, slope, T, k0, a, wlo, whi, front, (p + k0) + peak_rows,
+                                     floor, max_shift, n_score, max_rows)
+            if not fisher > 0:
+                continue
+            new[j0 + a] = c + t0
+            var[j0 + a, 0] = 1.0 / fisher
+            var[j0 + a, 1] = _crossing_var(csum, sm, lo, hi, t0 - k0)
+        for a in range(nb):
+            cur[a] = new[j0 + a]
+
+
+@njit(cache=True, nogil=True)
+def template_edges(img, edge, stop, run, skip, half_template, half_window, front, min_beams, max_bins,
+                   max_shift, n_score, fraction, peak_rows, max_rows, n_iter, min_contrast):  # pragma: no cover - numba
+    """Per beam the leading edge re-measured against its surface's echo template, and the
+    variances (bins^2; NaN where the beam keeps its edge) of the template's position (inverse
+    Fisher information) and of its crossing (the template beams' spread): see
+    :func:`sonarmap.ranges.template.template_edges`.  ``edge`` and ``stop`` (fractional bins;
+    one past the echo's last structure bin) per beam, ``run`` the surface runs (-1: none),
+    ``skip`` the beams that keep their edge."""
+    m = edge.size
+    new = edge.copy()
+    var = np.full((m, 2), np.nan)
+    j = 0
+    while j < m:
+        if run[j] < 0:
+            j += 1
+            continue
+        j1 = j
+        while j1 < m and run[j1] == run[j]:
+            j1 += 1
+        if j1 - j >= min_beams:
+            _run_edges(img, edge, stop, skip, j, j1, half_template, half_window, front, max_bins, max_shift,
+                       n_score, fraction, peak_rows, max_rows, n_iter, min_contrast, new, var)
+        j = j1
+    return new, var

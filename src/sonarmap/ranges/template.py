@@ -1,0 +1,163 @@
+"""Leading edges re-measured against the surface's own echo template.
+
+A surface seen across many beams echoes with nearly the same shape on neighbouring beams: the
+same pulse, the same incidence, the same band depth.  :func:`template_edges` uses that.  For
+each beam of a long tracked surface it
+
+1. fits a quadratic to the current leading edges of the beams within ``half_template`` of it
+   (the surface's local course, which follows a slope and a curve);
+2. averages those beams' columns aligned on that course: the *template*, a multi-look of
+   ``2 half_template + 1`` beams whose half-peak crossing (the range convention of
+   :mod:`sonarmap.ranges.echoes`, on the template smoothed over 3 bins) is the echo's leading edge
+   relative to the course;
+3. slides the template along range over the beams within ``half_window`` of the beam (each at
+   the course's local slope) to the position that best explains their samples - the maximum
+   likelihood of single-look (exponential) intensities whose mean is the template, by Fisher
+   scoring - on the rows from ``front_bins`` in front of the course to just past the template's
+   peak.
+
+The beam's edge is that position plus the template's crossing.  Two rounds: a template aligned
+on noisy edges is blurred, and a thin echo's blurred crossing lies early (on the simulated hull
+survey one round put the returns a median 0.3 bin in front of two).  A faint echo (a template
+peak under ``min_contrast`` times its level in front of the surface) keeps its edge: through a
+faint grazing seafloor's template (3-10x on the simulator's ARIS presets) the crossing lay 3 bins
+early, where the pooled profile's lay 2.6.
+
+Every sample of the rise and of the peak informs the edge, not only the two around one crossing
+of a speckled profile.  The stage is off by default (``PipelineConfig.ranges.edge_template_beams``
+= 0; ``docs/segmentation.md``, "Template edges"): it measures the simulator's surfaces better,
+but on the real Kongsberg swath it moves the oblique beams' returns later than their own echoes'
+leading edges.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from sonarmap.errors import InputError
+from sonarmap.geometry import SonarGeometry
+from sonarmap.ranges.echoes import Echoes, _first_runs, edge_sigma_m
+
+
+def template_edges(
+    echoes: Echoes,
+    first: ArrayLike,
+    image: ArrayLike,
+    geometry: SonarGeometry,
+    *,
+    half_template: int = 5,
+    half_window: int = 1,
+    front_bins: int = 8,
+    min_beams: int = 30,
+    max_bins: int = 60,
+    max_shift_bins: float = 4.0,
+    n_iter: int = 2,
+    min_contrast: float = 12.0,
+    fraction: float = 0.5,
+    touch_bins: float = 1.0,
+    pulse_bins: int = 1,
+    sigma_scale: float = 1.0,
+    skip: ArrayLike | None = None,
+) -> Echoes:
+    """Leading edges of the returns on long surfaces measured against the surface's echo template.
+
+    See the module notes.  Only surfaces (:func:`sonarmap.ranges.echoes.surface_runs`) of at
+    least ``min_beams`` beams are measured (the echo must keep its shape over the template's
+    beams; propeller blades and fish do not).  A beam keeps its edge where the template has no
+    crossing, its samples say nothing of the position, or ``skip`` says so.
+
+    Parameters
+    ----------
+    echoes : Echoes
+        The ping's echoes with their current leading edges (e.g. after
+        :func:`sonarmap.ranges.echoes.pooled_edges`).
+    first : array_like of int, shape (n_beams,)
+        Per beam the echo index of its return (-1 none): ``Tracks.first``.
+    image, geometry : ndarray (n_bins, n_beams), SonarGeometry
+        The image the echoes were measured on (linear intensity) and its geometry.
+    half_template, half_window, front_bins : int
+        Beams either side averaged into the template; beams either side sharing the beam's
+        template position; rows in front of the course that the position is fitted on.
+    min_beams, max_bins : int
+        Shortest surface measured; longest echo depth (bins) the template's peak is searched over.
+    max_shift_bins : float
+        Largest move of the template position from the course.
+    n_iter : int
+        Rounds, each aligning the templates on the edges of the round before (see the notes).
+    min_contrast : float
+        Least ratio of the template's peak to its mean level in front of the surface (offsets
+        beyond ``front_bins``): a weaker echo keeps its edge (see the notes).
+    fraction, touch_bins, pulse_bins
+        The range convention's fraction of the first peak; how close two beams' echoes come on
+        one surface (:func:`surface_runs`); the pulse length in bins (its spread enters sigma).
+    sigma_scale : float
+        ``PipelineConfig.ranges.sigma_template_scale``: ``sigma^2 = bin^2 / 12 + (scale bin
+        se)^2 + pulse^2 / 12``, ``se`` the standard error of position and crossing (bins).
+    skip : array_like of bool, shape (n_echoes,), optional
+        Echoes whose edge is kept (e.g. the fitted clipped echoes of ``pooled_edges``).
+
+    Returns
+    -------
+    Echoes
+        ``echoes`` with the measured returns' ``edge_bin``, ``edge_range_m``, ``sigma_m`` replaced.
+    """
+    from sonarmap.ranges import _template_kernels
+
+    sel = np.ascontiguousarray(np.asarray(first, dtype=np.int64))
+    _check_template_options(sel, echoes, half_template, half_window, n_iter, front_bins, min_beams, max_bins,
+                            max_shift_bins, fraction, sigma_scale, min_contrast)
+    img = np.ascontiguousarray(image, dtype=np.float64)
+    geometry.check_image(img, "image")
+    edge, stop, run = _first_runs(echoes, sel, touch_bins)
+    if run.max(initial=-1) < 0:
+        return echoes
+    skip_beam = np.zeros(sel.size, dtype=np.bool_)
+    if skip is not None:
+        marks = np.asarray(skip, dtype=bool)
+        skip_beam[sel >= 0] = marks[sel[sel >= 0]]
+    new, var = _template_kernels.template_edges(
+        img, edge, stop, run, skip_beam, int(half_template), int(half_window), int(front_bins), int(min_beams),
+        int(max_bins), float(max_shift_bins), 6, float(fraction), 3, 24, int(n_iter), float(min_contrast))
+    return _with_template_edges(echoes, sel, new, var, geometry, pulse_bins, sigma_scale)
+
+
+def _with_template_edges(echoes: Echoes, sel: NDArray[np.int64], new: NDArray[np.float64], var: NDArray[np.float64],
+                         geometry: SonarGeometry, pulse_bins: int, sigma_scale: float) -> Echoes:
+    """``echoes`` with the returns the template measured (finite ``var``) moved to ``new`` (bins)
+    and their sigma ``sqrt(bin^2 / 12 + (scale bin se)^2 + pulse^2 / 12)``, ``se^2`` the sum of
+    the position's and the crossing's variances."""
+    done = np.flatnonzero(np.isfinite(var[:, 0]))
+    if not done.size:
+        return echoes
+    bin_m = abs(geometry.range_resolution_m)
+    pulse_m = int(pulse_bins) * bin_m if pulse_bins >= 2 else 0.0
+    idx = sel[done]
+    edge_bin = echoes.edge_bin.copy()
+    edge_range_m = echoes.edge_range_m.copy()
+    sigma_m = echoes.sigma_m.copy()
+    edge_bin[idx] = new[done]
+    edge_range_m[idx] = np.interp(new[done], np.arange(geometry.n_bins, dtype=np.float64),
+                                  np.asarray(geometry.range_m, dtype=np.float64))
+    se = np.sqrt(var[done, 0] + var[done, 1])
+    sigma_m[idx] = edge_sigma_m(se, 1.0, bin_m, pulse_m=pulse_m, scale=sigma_scale)
+    return echoes.replaced(edge_bin=edge_bin, edge_range_m=edge_range_m, sigma_m=sigma_m)
+
+
+def _check_template_options(sel: NDArray[np.int64], echoes: Echoes, half_template: int, half_window: int,
+                            n_iter: int, front_bins: int, min_beams: int, max_bins: int, max_shift_bins: float,
+                            fraction: float, sigma_scale: float, min_contrast: float) -> None:
+    """The options of :func:`template_edges` are in range and ``first`` has a value per beam."""
+    if sel.shape != (echoes.n_beams,):
+        raise InputError(f"first: expected one echo index per beam ({echoes.n_beams}), got shape {sel.shape}")
+    for key, v, lo in (("half_template", half_template, 1), ("half_window", half_window, 0), ("n_iter", n_iter, 1),
+                       ("front_bins", front_bins, 1), ("min_beams", min_beams, 3), ("max_bins", max_bins, 3)):
+        if isinstance(v, bool) or int(v) != v or v < lo:
+            raise InputError(f"{key}: must be an integer >= {lo} (got {v!r})")
+    for key, v in (("max_shift_bins", max_shift_bins), ("sigma_scale", sigma_scale), ("min_contrast", min_contrast)):
+        if not (math.isfinite(float(v)) and float(v) >= 0):
+            raise InputError(f"{key}: must be a finite number >= 0 (got {v!r})")
+    if not 0 < fraction < 1:
+        raise InputError(f"fraction: must lie in (0, 1) (got {fraction})")

@@ -1,0 +1,119 @@
+"""Leading edges measured against the surface's own echo template (``template_edges``)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from sonarmap.errors import GeometryError, InputError
+from sonarmap.geometry import SonarGeometry
+from sonarmap.pipeline import PipelineConfig
+from sonarmap.ranges.echoes import find_echoes, pooled_edges
+from sonarmap.ranges.template import template_edges
+
+
+def _geom(n_bins: int = 300, n_beams: int = 96) -> SonarGeometry:
+    return SonarGeometry(range_m=2.0 + 0.02 * np.arange(n_bins), azimuth_rad=np.linspace(-0.4, 0.4, n_beams))
+
+
+def _speckled(seed: int, truth: np.ndarray, n_bins: int = 300, rise: float = 8.0, depth: float = 20.0,
+              floor: float = 0.02) -> tuple[np.ndarray, np.ndarray]:
+    """Single-look (exponential) speckle on an echo rising linearly over ``rise`` bins with its
+    half-peak crossing at ``truth`` (per beam), flat for ``depth`` bins; and its support."""
+    rng = np.random.default_rng(seed)
+    r = np.arange(n_bins, dtype=float)[:, None]
+    x = r - (truth[None, :] - 0.5 * rise)
+    env = np.clip(x / rise, 0.0, 1.0) * (x < rise + depth)
+    return (env + floor) * rng.exponential(1.0, (n_bins, truth.size)), env > 0.25
+
+
+def _edges(img: np.ndarray, mask: np.ndarray, g: SonarGeometry, **kw: object) -> tuple[np.ndarray, np.ndarray, object]:
+    """Per beam the pooled edge and the template edge (NaN: no return), and the template's echoes."""
+    e = find_echoes(mask, img, g)
+    first, count = e.per_beam()
+    first = np.where(count > 0, first, -1)
+    pooled = pooled_edges(e, first, img, g)
+    tmpl = template_edges(pooled, first, img, g, **kw)
+    s = np.maximum(first, 0)
+    ok = first >= 0
+    return np.where(ok, pooled.edge_bin[s], np.nan), np.where(ok, tmpl.edge_bin[s], np.nan), (tmpl, first)
+
+
+def test_a_template_measures_simulated_sloped_hulls_better_than_the_pooled_profile():
+    """The pipeline with and without the template stage on the simulator's ARIS 3000 hull sloped
+    4 bins per beam (both noise levels, 2 seeds), scored on the sub-bin surface truth: within a
+    bin on more beams (measured 0.51 -> 0.73), the median error within half a bin."""
+    from sonarmap import preset
+    from sonarmap.evaluate.segmentation import _simulate, preset_sim_configs
+    from sonarmap.pipeline import process_ping
+
+    g = preset("aris3000-128")
+    dr = abs(g.range_resolution_m)
+    errs: dict[int, list[np.ndarray]] = {0: [], 5: []}
+    for sc in preset_sim_configs(g):
+        for seed in (0, 1):
+            sim, _ = _simulate("hull_slope4", g, sc, seed, -3.0, True)
+            for beams in errs:
+                r = process_ping(sim.ping, PipelineConfig().replace(edge_template_beams=beams)).ranges.range_m
+                errs[beams].append((np.asarray(r) - sim.surface_range_m) / dr)
+    within = {k: np.mean(np.abs(np.nan_to_num(np.concatenate(v), nan=1e9)) <= 1.0) for k, v in errs.items()}
+    assert within[5] > within[0] + 0.1, within
+    assert abs(np.nanmedian(np.concatenate(errs[5]))) < 0.5
+
+
+def test_noise_free_echoes_keep_their_crossing():
+    g = _geom()
+    truth = 120.0 + 0.4 * np.arange(g.n_beams) + 0.25
+    r = np.arange(g.n_bins, dtype=float)[:, None]
+    x = r - (truth[None, :] - 4.0)
+    env = np.clip(x / 8.0, 0.0, 1.0) * (x < 28.0)
+    img = env + 0.02
+    pooled, tmpl, (echoes, first) = _edges(img, env > 0.25, g)
+    assert np.all(np.isfinite(tmpl))
+    # on the crossing within a quarter bin on every beam (measured 0.16; the pooled profile's
+    # 3-bin box and sampling leave 0.50)
+    assert np.abs(tmpl - truth).max() < 0.25
+    assert np.abs(tmpl - truth).max() < np.abs(pooled - truth).max()
+    # each measured return's sigma is finite and at least the bin grid's spread
+    sig = echoes.sigma_m[first]
+    assert np.all(np.isfinite(sig)) and np.all(sig >= 0.02 / np.sqrt(12) - 1e-12)
+
+
+def test_short_surfaces_and_skipped_echoes_keep_their_edges():
+    g = _geom(n_beams=20)
+    truth = 100.0 + 0.5 * np.arange(20)
+    img, mask = _speckled(1, truth)
+    pooled, tmpl, _ = _edges(img, mask, g)  # 20 beams: shorter than min_beams=30
+    assert np.array_equal(pooled, tmpl, equal_nan=True)
+    g = _geom()
+    truth = 100.0 + 0.5 * np.arange(g.n_beams)
+    img, mask = _speckled(1, truth)
+    e = find_echoes(mask, img, g)
+    first, count = e.per_beam()
+    first = np.where(count > 0, first, -1)
+    skip = np.ones(e.size, dtype=bool)
+    assert np.array_equal(template_edges(e, first, img, g, skip=skip).edge_bin, e.edge_bin)
+    assert np.array_equal(template_edges(e, first, img, g, min_beams=200).edge_bin, e.edge_bin)
+
+
+def test_options_are_checked():
+    g = _geom()
+    truth = 100.0 + 0.5 * np.arange(g.n_beams)
+    img, mask = _speckled(2, truth)
+    e = find_echoes(mask, img, g)
+    first = np.full(g.n_beams, -1)
+    with pytest.raises(InputError, match="first"):
+        template_edges(e, first[:5], img, g)
+    for key, bad in (("half_template", 0), ("n_iter", 0), ("min_beams", 2), ("max_shift_bins", -1.0),
+                     ("fraction", 1.0), ("min_contrast", float("nan")), ("sigma_scale", -1.0)):
+        with pytest.raises(InputError, match=key):
+            template_edges(e, first, img, g, **{key: bad})
+    with pytest.raises(GeometryError, match="image"):
+        template_edges(e, first, img[:10], g)
+
+
+def test_the_pipeline_option_switches_the_stage():
+    with pytest.raises(Exception, match="edge_template_beams"):
+        PipelineConfig().replace(edge_template_beams=-1)
+    assert PipelineConfig().ranges.edge_template_beams == 0  # off by default (docs/segmentation.md)
+    assert PipelineConfig().replace(edge_template_beams=5).ranges.edge_template_beams == 5
