@@ -26,7 +26,7 @@ early, where the pooled profile's lay 2.6.
 Every sample of the rise and of the peak informs the edge, not only the two around one crossing
 of a speckled profile.  The stage is off by default (``PipelineConfig.ranges.edge_template_beams``
 = 0; ``docs/segmentation.md``, "template edges"): it measures the simulator's surfaces better,
-but on the real Kongsberg swath it moves the oblique beams' returns later than their own echoes'
+but on the real Kongsberg swath it puts the oblique beams' returns in front of their own echoes'
 leading edges.
 """
 
