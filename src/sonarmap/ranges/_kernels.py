@@ -494,6 +494,48 @@ def with_front(tracks, chosen):  # pragma: no cover - numba
 
 
 @njit(cache=True, nogil=True)
+def clip_rises(edge_bin, peak_bin, clipped, clip_row, has_clipped, has_row):  # pragma: no cover - numba
+    """:func:`sonarmap.ranges.tracking.clip_rise` (``has_clipped`` / ``has_row``: whether
+    ``clipped`` / ``clip_row`` are known): -1 for an echo that is not clipped, 0 for a clipped one,
+    ``max(clip_row - edge_bin, 0)`` (NaN stays NaN, as numpy's maximum) for one whose first peak
+    is clipped (its first full-scale row at most a bin behind ``peak_bin``)."""
+    n = edge_bin.size
+    out = np.full(n, -1.0)
+    if not has_clipped:
+        return out
+    for k in range(n):
+        if not clipped[k]:
+            continue
+        out[k] = 0.0
+        if has_row and clip_row[k] >= 0 and clip_row[k] <= peak_bin[k] + 1:
+            d = clip_row[k] - edge_bin[k]
+            out[k] = d if (d >= 0.0 or np.isnan(d)) else 0.0
+    return out
+
+
+@njit(cache=True, nogil=True)
+def track_inputs(edge_bin, start_bin, stop_bin, evidence, n_pixels, peak_bin, clipped, clip_row, has_clipped,
+                 has_row, beam_cost, point_llr):  # pragma: no cover - numba
+    """The per-echo inputs of :func:`track_surfaces` (numpy's arithmetic, element by element):
+    the bin intervals (``Echoes.intervals``: ``min(start_bin, floor(edge_bin))``, ``stop_bin - 1``),
+    the unary ``beam_cost - evidence``, the point echoes (``evidence >= point_llr x n_pixels``)
+    and :func:`clip_rises`."""
+    n = edge_bin.size
+    lo = np.empty(n, np.int64)
+    hi = np.empty(n, np.int64)
+    unary = np.empty(n)
+    point = np.empty(n, np.bool_)
+    for k in range(n):
+        x = np.floor(edge_bin[k])
+        f = np.iinfo(np.int64).min if np.isnan(x) else int(x)  # numpy's cast of NaN on x86
+        lo[k] = min(start_bin[k], f)
+        hi[k] = stop_bin[k] - 1
+        unary[k] = beam_cost - evidence[k]
+        point[k] = evidence[k] >= point_llr * n_pixels[k]
+    return lo, hi, unary, point, clip_rises(edge_bin, peak_bin, clipped, clip_row, has_clipped, has_row)
+
+
+@njit(cache=True, nogil=True)
 def track_surfaces(echo_beam, m, pos, lo_bin, hi_bin, unary, n_surfaces, max_gap, slope_bins, slope_cost, jump_bins,
                    touch_bins, segment_cost, gap_cost, bridge_beams, point_on, peak_val, point, clip_rise, evidence,
                    width_beams, pulse_bins, flat_bins, point_jump_bins, dip, over_range, margin,

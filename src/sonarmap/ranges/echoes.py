@@ -106,6 +106,15 @@ class Echoes:
     beamwidth_beams: NDArray[np.float64] | None = None
     clip_fitted: NDArray[np.bool_] | None = None
 
+    @classmethod
+    def _of(cls, **fields: object) -> Echoes:
+        """The echoes of ``fields`` (every field without a default), the optional ones None, built
+        without the frozen dataclass ``__init__``'s per-field ``object.__setattr__``."""
+        new = object.__new__(cls)
+        new.__dict__.update(_NO_OPTIONAL)
+        new.__dict__.update(fields)
+        return new
+
     @property
     def size(self) -> int:
         """Number of echoes."""
@@ -131,6 +140,10 @@ class Echoes:
         count = np.bincount(self.beam, minlength=self.n_beams).astype(np.int64)
         first = np.concatenate([[0], np.cumsum(count)[:-1]]).astype(np.int64)
         return first, count
+
+
+#: The optional fields of :class:`Echoes`, unset.
+_NO_OPTIONAL = {"clipped": None, "clip_row": None, "beamwidth_beams": None, "clip_fitted": None}
 
 
 def smooth_along_range(image: ArrayLike, pulse_bins: int) -> NDArray[np.float64]:
@@ -318,8 +331,6 @@ def find_echoes(
         Only the echoes of the beams ``columns`` (ascending; a beam's echoes depend on its own
         column only: :func:`spliced_echoes`); the rows holding the ``mask`` pixels (default all).
     """
-    from sonarmap.ranges import _kernels
-
     m = np.ascontiguousarray(mask, dtype=bool)
     geometry.check_image(m, "mask")
     img = smooth_along_range(image, pulse_bins)
@@ -328,16 +339,30 @@ def find_echoes(
     code, lut = _evidence_table(m, llr, levels, level_evidence)
     gap = max(2, int(pulse_bins)) if max_gap is None else int(max_gap)
     bk = int(pulse_bins) + 2 if back is None else int(back)
-    args = (m, img, code, lut, _boost_pixels(boost, m.shape), float(boost_min), gap, float(fraction), float(peak_rel),
-            bk, scan == "forward", *((0, m.shape[0]) if rows is None else (int(rows[0]), int(rows[1]))))
+    return _echoes_of(m, img, code, lut, _boost_pixels(boost, m.shape), geometry,
+                      (float(boost_min), gap, float(fraction), float(peak_rel), bk, scan == "forward"),
+                      (int(pulse_bins), float(looks), float(background), float(sigma_scale)), columns, rows)
+
+
+def _echoes_of(m: NDArray[np.bool_], img: NDArray[np.float64], code: NDArray[np.integer], lut: NDArray[np.float64],
+               boost: NDArray[np.bool_], geometry: SonarGeometry, walk: tuple[float, int, float, float, int, bool],
+               sigma: tuple[int, float, float, float], columns: NDArray[np.int64] | None,
+               rows: tuple[int, int] | None) -> Echoes:
+    """:func:`find_echoes` of its checked arrays: the C-contiguous mask, smoothed float64 image,
+    per-pixel codes and their evidence table, the boost pixels (:func:`_boost_pixels`), ``walk``
+    = ``(boost_min, max_gap, fraction, peak_rel, back, forward)`` and ``sigma`` = ``(pulse_bins,
+    looks, background, sigma_scale)`` (the pipeline's range stage calls it with arrays it made)."""
+    from sonarmap.ranges import _kernels
+
+    args = (m, img, code, lut, boost, *walk, *((0, m.shape[0]) if rows is None else (int(rows[0]), int(rows[1]))))
     beam, start, stop, peak, pval, edge, slope, evid, npx = (
         _kernels.find_echoes(*args) if columns is None
         else _kernels.find_echoes_in(*args[:-2], np.ascontiguousarray(columns, dtype=np.int64), *args[-2:]))
     r = np.ascontiguousarray(geometry.range_m, dtype=np.float64)
-    edge_r, sigma = _echo_ranges(edge, pval, slope, geometry, pulse_bins, fraction, looks, background, sigma_scale)
-    return Echoes(beam=beam, start_bin=start, stop_bin=stop, peak_bin=peak, peak_value=pval, edge_bin=edge,
-                  edge_range_m=edge_r, peak_range_m=r[peak], slope=slope, evidence=evid, n_pixels=npx,
-                  sigma_m=sigma, n_beams=int(m.shape[1]), beamwidth_beams=beamwidth_in_beams(geometry))
+    edge_r, sig = _echo_ranges(edge, pval, slope, geometry, sigma[0], walk[2], *sigma[1:])
+    return Echoes._of(beam=beam, start_bin=start, stop_bin=stop, peak_bin=peak, peak_value=pval, edge_bin=edge,
+                      edge_range_m=edge_r, peak_range_m=r[peak], slope=slope, evidence=evid, n_pixels=npx,
+                      sigma_m=sig, n_beams=int(m.shape[1]), beamwidth_beams=beamwidth_in_beams(geometry))
 
 
 def spliced_echoes(echoes: Echoes, new: Echoes, columns: NDArray[np.int64]) -> Echoes:
@@ -438,6 +463,10 @@ def _first_runs(echoes: Echoes, sel: NDArray[np.int64], touch_bins: float
 
 _NO_CLIP = np.zeros((0, 0), dtype=np.uint8)
 
+#: :func:`pooled_edges`' default ``front_bins``, ``max_bins``, ``n_iter`` and ``fit_front_bins``
+#: (the pipeline's range stage pools with them).
+POOL_FRONT_BINS, POOL_MAX_BINS, POOL_N_ITER, POOL_FIT_FRONT_BINS = 6, 200, 2, 16
+
 
 def pooled_edges(
     echoes: Echoes,
@@ -447,15 +476,15 @@ def pooled_edges(
     *,
     pulse_bins: int = 1,
     half_beams: int = 3,
-    front_bins: int = 6,
-    max_bins: int = 200,
+    front_bins: int = POOL_FRONT_BINS,
+    max_bins: int = POOL_MAX_BINS,
     smooth_bins: int = 3,
     fraction: float = 0.5,
-    n_iter: int = 2,
+    n_iter: int = POOL_N_ITER,
     touch_bins: float = 1.0,
     sigma_scale: float = 1.0,
     clip: NDArray[np.bool_] | None = None,
-    fit_front_bins: int = 16,
+    fit_front_bins: int = POOL_FIT_FRONT_BINS,
     fit_sigma_scale: float | None = None,
 ) -> Echoes:
     """Leading edges of a tracked surface measured on a multi-look along the surface.
@@ -496,11 +525,24 @@ def pooled_edges(
         ``echoes`` with the returns' ``edge_bin``, ``edge_range_m``, ``slope``, ``sigma_m`` replaced
         (and ``clip_fitted`` marking the echoes whose edge is that of a fitted clipped echo).
     """
-    from sonarmap.ranges import _kernels
     sel = np.asarray(first, dtype=np.int64)
     fit_scale = float(sigma_scale if fit_sigma_scale is None else fit_sigma_scale)
-    _check_pooling(echoes, sel, (half_beams, front_bins, max_bins, smooth_bins, n_iter, fit_front_bins), fraction,
-                   clip, np.shape(image), fit_scale)
+    window = (half_beams, front_bins, max_bins, smooth_bins, n_iter, fit_front_bins)
+    _check_pooling(echoes, sel, window, fraction, clip, np.shape(image), fit_scale)
+    return _pooled(echoes, sel, image, geometry, pulse_bins, window, (fraction, touch_bins),
+                   (sigma_scale, fit_scale), clip)
+
+
+def _pooled(echoes: Echoes, sel: NDArray[np.int64], image: ArrayLike, geometry: SonarGeometry, pulse_bins: int,
+            window: tuple[int, int, int, int, int, int], fraction_touch: tuple[float, float],
+            scales: tuple[float, float], clip: NDArray[np.bool_] | None) -> Echoes:
+    """:func:`pooled_edges` of checked options (:func:`_check_pooling`: ``window`` = ``(half_beams,
+    front_bins, max_bins, smooth_bins, n_iter, fit_front_bins)``, ``scales`` = ``(sigma_scale,
+    fit_sigma_scale)``; the pipeline's range stage calls it with its validated configuration)."""
+    from sonarmap.ranges import _kernels
+
+    half_beams, front_bins, max_bins, smooth_bins, n_iter, fit_front_bins = window
+    fraction, touch_bins = fraction_touch
     edge, stop, run = _first_runs(echoes, sel, touch_bins)
     if half_beams == 0 or run.max(initial=-1) < 0:
         return echoes
@@ -516,7 +558,7 @@ def pooled_edges(
     done = _kernels.pooled_edges_done(sel, new, used, echoes.start_bin, stop, int(pulse_bins) + 2)
     if not done.size:
         return echoes
-    out = _with_edges(echoes, sel, done, new, rise, noise, geometry, pulse_bins, (sigma_scale, fitted, fit_scale))
+    out = _with_edges(echoes, sel, done, new, rise, noise, geometry, pulse_bins, (scales[0], fitted, scales[1]))
     keep = sel[done[fitted[done]]]
     return out.replaced(clip_fitted=_marked(echoes.size, keep)) if keep.size else out
 

@@ -27,7 +27,9 @@ from sonarmap.ping import Ping
 from sonarmap.ranges import BeamRanges, extract_ranges, half_peak_edges, no_returns, ranges_from_tracks
 from sonarmap.ranges.candidates import pooled_band_mask, pooled_band_pixels
 from sonarmap.ranges.config import CandidateConfig, RangeConfig
-from sonarmap.ranges.echoes import find_echoes, level_llr, pooled_edges, spliced_echoes
+from sonarmap.ranges.echoes import (POOL_FIT_FRONT_BINS, POOL_FRONT_BINS, POOL_MAX_BINS, POOL_N_ITER, _boost_pixels,
+                                    _echoes_of, _evidence_table, _pooled, level_llr, smooth_along_range,
+                                    spliced_echoes)
 from sonarmap.ranges.tracking import _continuation_pixels, track_surfaces, tracks_and_front
 from sonarmap.ranges.template import template_edges
 
@@ -267,8 +269,14 @@ def surface_ranges(ping: Ping, image: NDArray[np.float32], levels: NDArray[Any],
     measured = normalised and background is not None and getattr(background, "level_by_bin", None) is not None
 
     done: list[Any] = []  # the measurement image, its rows and its inputs, once computed
-    # the image find_echoes measures unless normalised (converted once: it may measure twice)
+    # the image the echoes are measured on unless normalised, and its smoothing over the pulse
+    # (find_echoes' checks and conversions, made once: it may measure twice)
     plain = np.ascontiguousarray(image, dtype=np.float64) if pb < 2 and not measured else image
+    smoothed = None if measured else smooth_along_range(plain, pb)
+    geom.check_image(cand, "mask")
+    code, lut = _evidence_table(cand, None, levels, lut)
+    boost = _boost_pixels(band, cand.shape)
+    walk = (1.0, max(2, pb), float(fraction), 0.5, pb + 2, config.edge_scan == "forward")
 
     def measure(cand: NDArray[np.bool_], rows: tuple[int, int],
                 before: tuple[Any, NDArray[np.int64], tuple[int, int]] | None = None
@@ -280,12 +288,12 @@ def surface_ranges(ping: Ping, image: NDArray[np.float32], levels: NDArray[Any],
             meas, bg = _measurement_rows(ping, background, config, rows[0] - pb - 4, rows[1] + pb + 4, done), 1.0
             if before is not None and not _rows_unseen(valid, done[1], before[2], pb):
                 before = None  # rows the first pass's echoes looked at have changed
-        # a pooled band pixel passed a >= pool_factor x background test over the whole box: one
-        # nat at least, whatever its own (single-look, speckled) value says
-        echoes = find_echoes(cand, meas, geom, levels=levels, level_evidence=lut, boost=band, boost_min=1.0,
-                             pulse_bins=pb, fraction=fraction, background=bg, scan=config.edge_scan,
-                             sigma_scale=config.sigma_scale, columns=None if before is None else before[1],
-                             rows=rows)
+        # find_echoes (its default peak_rel, max_gap, back and looks); a pooled band pixel passed
+        # a >= pool_factor x background test over the whole box: one nat at least (boost_min),
+        # whatever its own (single-look, speckled) value says
+        img = smooth_along_range(meas, pb) if smoothed is None else smoothed
+        echoes = _echoes_of(cand, img, code, lut, boost, geom, walk, (pb, 1.0, float(bg), float(config.sigma_scale)),
+                            None if before is None else before[1], rows)
         if echoes.beamwidth_beams is not None and echoes.size:
             rows = clip_rows(echoes, ping.image)
             echoes = echoes.replaced(clipped=rows >= 0, clip_row=rows)
@@ -310,15 +318,7 @@ def surface_ranges(ping: Ping, image: NDArray[np.float32], levels: NDArray[Any],
     tracks = fronted
     sel = tracks.first
     if config.edge_pool_beams > 0 and config.range_mode == "first":
-        # the pooled profile is smoothed over at least 3 bins along range in all (a single-look
-        # profile's maximum is otherwise a speckle spike)
-        # a clipped return is measured by a Gaussian fitted to its flanks (pooled_edges)
-        clipped = echoes.clipped if echoes.clipped is not None else clipped_echoes(echoes, ping.image)
-        clip = np.asarray(ping.image) >= CLIP_LEVEL if clipped[sel[sel >= 0]].any() else None
-        echoes = pooled_edges(echoes, sel, meas, geom, pulse_bins=pb, half_beams=config.edge_pool_beams,
-                              smooth_bins=3 if pb < 3 else 1, fraction=fraction,
-                              touch_bins=config.track.touch_bins, sigma_scale=config.sigma_pool_scale, clip=clip,
-                              fit_sigma_scale=config.sigma_fit_scale)
+        echoes = _pooled_returns(echoes, sel, meas, ping, config, pb, fraction)
     if config.edge_template_beams > 0 and config.range_mode == "first" and echoes.size:
         echoes = _template_pass(echoes, sel, meas, geom, config, fraction, pb)
     if echoes.size and (sel >= 0).any():
@@ -336,6 +336,20 @@ def _template_pass(echoes: Any, sel: NDArray[np.int64], meas: Any, geom: Any, co
                           min_beams=config.edge_template_min_beams, fraction=fraction,
                           touch_bins=config.track.touch_bins, pulse_bins=pb,
                           sigma_scale=config.sigma_template_scale, skip=echoes.clip_fitted)
+
+
+def _pooled_returns(echoes: Any, sel: NDArray[np.int64], meas: NDArray[Any], ping: Ping, config: RangeConfig,
+                    pb: int, fraction: float) -> Any:
+    """:func:`pooled_edges` of the returns ``sel`` on the measured image ``meas``, with the validated
+    ``config`` and the default window; the pooled profile is smoothed over at least 3 bins along
+    range in all (a single-look profile's maximum is otherwise a speckle spike), and a clipped
+    return is measured by a Gaussian fitted to its flanks."""
+    clipped = echoes.clipped if echoes.clipped is not None else clipped_echoes(echoes, ping.image)
+    clip = np.asarray(ping.image) >= CLIP_LEVEL if clipped[sel[sel >= 0]].any() else None
+    window = (config.edge_pool_beams, POOL_FRONT_BINS, POOL_MAX_BINS, 3 if pb < 3 else 1, POOL_N_ITER,
+              POOL_FIT_FRONT_BINS)
+    return _pooled(echoes, sel, meas, ping.geometry, pb, window, (fraction, config.track.touch_bins),
+                   (config.sigma_pool_scale, config.sigma_fit_scale), clip)
 
 
 #: A raw sample at or above this is at the receiver's full scale (8-bit images: level 255).

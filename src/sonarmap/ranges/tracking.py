@@ -199,14 +199,36 @@ def _tracked(echoes: Echoes, config: TrackConfig, pulse_bins: int,
 
     if not isinstance(echoes, Echoes):
         raise InputError(f"echoes: expected Echoes, got {type(echoes).__name__}")
-    lo, hi = echoes.intervals()
+    lo, hi, unary, point, rise = _track_inputs(echoes, config)
     c = config
     out, after, hit = _kernels.track_surfaces(
         echoes.beam, int(echoes.n_beams), np.ascontiguousarray(echoes.edge_bin, dtype=np.float64), lo, hi,
-        c.beam_cost - echoes.evidence, int(c.n_surfaces), int(c.max_gap), float(c.slope_bins), float(c.slope_cost),
+        unary, int(c.n_surfaces), int(c.max_gap), float(c.slope_bins), float(c.slope_cost),
         float(c.jump_bins), float(c.touch_bins), float(c.segment_cost), float(c.gap_cost), int(c.bridge_beams),
-        *_point_arguments(echoes, c, pulse_bins), bool(front))
+        *_point_arguments(echoes, c, pulse_bins, (point, rise)), bool(front))
     return out, after, bool(hit)
+
+
+_NO_FLAGS = np.zeros(0, dtype=np.bool_)
+_NO_ROWS = np.zeros(0, dtype=np.int64)
+
+
+def _track_inputs(echoes: Echoes, config: TrackConfig) -> tuple[NDArray[np.int64], NDArray[np.int64],
+                                                                 NDArray[np.float64], NDArray[np.bool_],
+                                                                 NDArray[np.float64]]:
+    """``(lo, hi, unary, point, rise)``: the echoes' bin intervals (:meth:`Echoes.intervals`), the
+    tracker's per-echo cost ``beam_cost - evidence``, the point echoes (mean log-likelihood ratio
+    per structure pixel at least ``point_llr``) and :func:`clip_rise`, in one kernel call."""
+    from sonarmap.ranges import _kernels
+
+    e = echoes
+    return _kernels.track_inputs(  # type: ignore[no-any-return]
+        np.ascontiguousarray(e.edge_bin, dtype=np.float64), np.ascontiguousarray(e.start_bin, dtype=np.int64),
+        np.ascontiguousarray(e.stop_bin, dtype=np.int64), np.ascontiguousarray(e.evidence, dtype=np.float64),
+        np.ascontiguousarray(e.n_pixels, dtype=np.int64), np.ascontiguousarray(e.peak_bin, dtype=np.int64),
+        _NO_FLAGS if e.clipped is None else np.ascontiguousarray(e.clipped, dtype=np.bool_),
+        _NO_ROWS if e.clip_row is None else np.ascontiguousarray(e.clip_row, dtype=np.int64),
+        e.clipped is not None, e.clip_row is not None, float(config.beam_cost), float(config.point_llr))
 
 
 def front_surfaces(echoes: Echoes, tracks: Tracks, config: TrackConfig = TrackConfig(),
@@ -239,29 +261,32 @@ def front_surfaces(echoes: Echoes, tracks: Tracks, config: TrackConfig = TrackCo
         raise InputError(f"tracks: expected Tracks over {echoes.n_beams} beams")
     if echoes.size == 0:
         return tracks
-    lo, hi = echoes.intervals()
+    lo, hi, unary, point, rise = _track_inputs(echoes, config)
     c = config
     first, count = _kernels.beam_index(echoes.beam, int(echoes.n_beams))
     echo = np.ascontiguousarray(tracks.echo, dtype=np.int64)
     chosen, hit = _kernels.front_pass(
         first, count, echoes.beam, echo, np.ascontiguousarray(echoes.edge_bin, dtype=np.float64), lo, hi,
-        c.beam_cost - echoes.evidence, int(c.max_gap), float(c.slope_bins), float(c.slope_cost), float(c.jump_bins),
-        float(c.touch_bins), float(c.segment_cost), float(c.gap_cost), *_point_arguments(echoes, c, pulse_bins))
+        unary, int(c.max_gap), float(c.slope_bins), float(c.slope_cost), float(c.jump_bins),
+        float(c.touch_bins), float(c.segment_cost), float(c.gap_cost),
+        *_point_arguments(echoes, c, pulse_bins, (point, rise)))
     return Tracks(echo=_kernels.with_front(echo, chosen)) if hit else tracks
 
 
-def _point_arguments(echoes: Echoes, config: TrackConfig, pulse_bins: int) -> tuple:  # type: ignore[type-arg]
+def _point_arguments(echoes: Echoes, config: TrackConfig, pulse_bins: int,
+                     point_rise: tuple[NDArray[np.bool_], NDArray[np.float64]] | None = None
+                     ) -> tuple:  # type: ignore[type-arg]
     """The point-target arguments of :func:`_kernels.point_pieces` after ``on`` (False: the rule is
-    off - no beamwidth or ``point_fraction`` 0), for :func:`_kernels.track_surfaces`."""
+    off - no beamwidth or ``point_fraction`` 0), for :func:`_kernels.track_surfaces`
+    (``point_rise``: the point echoes and :func:`clip_rise` of :func:`_track_inputs`, when made)."""
     on = config.point_fraction > 0 and echoes.beamwidth_beams is not None and echoes.size > 0
     pb = max(int(pulse_bins), 1)
     flat = max(1.0, 0.5 * pb)  # a point's edges agree within half a pulse (at least a bin)
     if not on:
         z = np.zeros(0)
         return (False, z, np.zeros(0, dtype=np.bool_), z, z, z, float(pb), flat, 2.0 * flat, 0.0, 1.0, 0.0, 0.0)
-    point = echoes.evidence >= config.point_llr * echoes.n_pixels
-    return (True, np.ascontiguousarray(echoes.peak_value, dtype=np.float64), np.ascontiguousarray(point),
-            clip_rise(echoes),
+    point, rise = _track_inputs(echoes, config)[3:] if point_rise is None else point_rise
+    return (True, np.ascontiguousarray(echoes.peak_value, dtype=np.float64), point, rise,
             np.ascontiguousarray(echoes.evidence, dtype=np.float64),
             np.ascontiguousarray(echoes.beamwidth_beams, dtype=np.float64), float(pb), flat, 2.0 * flat,
             float(config.point_dip), 10.0 ** (config.point_over_range_db / 10.0), float(config.point_margin),
@@ -273,14 +298,15 @@ def clip_rise(echoes: Echoes) -> NDArray[np.float64]:
     edge (bins): from ``edge_bin`` to its first full-scale row for an echo whose first peak is
     clipped (that row at most a bin behind ``peak_bin``), 0 for another clipped echo or when the
     row is not known, -1 for an echo that is not clipped (module notes, "Point targets")."""
-    if echoes.clipped is None:
-        return np.full(echoes.size, -1.0)
-    out = np.where(echoes.clipped, 0.0, -1.0)
-    if echoes.clip_row is not None:
-        # only a clipped first peak moves the edge (a later peak may clip: two fish in one echo)
-        first = echoes.clipped & (echoes.clip_row >= 0) & (echoes.clip_row <= echoes.peak_bin + 1)
-        out = np.where(first, np.maximum(echoes.clip_row - echoes.edge_bin, 0.0), out)
-    return np.ascontiguousarray(out, dtype=np.float64)
+    from sonarmap.ranges import _kernels
+
+    # only a clipped first peak moves the edge (a later peak may clip: two fish in one echo)
+    e = echoes
+    return _kernels.clip_rises(  # type: ignore[no-any-return]
+        np.ascontiguousarray(e.edge_bin, dtype=np.float64), np.ascontiguousarray(e.peak_bin, dtype=np.int64),
+        _NO_FLAGS if e.clipped is None else np.ascontiguousarray(e.clipped, dtype=np.bool_),
+        _NO_ROWS if e.clip_row is None else np.ascontiguousarray(e.clip_row, dtype=np.int64),
+        e.clipped is not None, e.clip_row is not None)
 
 
 def point_streaks(echoes: Echoes, chosen: NDArray[np.int64], config: TrackConfig = TrackConfig(),
@@ -325,12 +351,13 @@ def point_streaks(echoes: Echoes, chosen: NDArray[np.int64], config: TrackConfig
     sel = np.ascontiguousarray(chosen, dtype=np.int64)
     if sel.shape != (echoes.n_beams,):
         raise InputError(f"chosen: expected shape ({echoes.n_beams},), got {sel.shape}")
+    inputs = _track_inputs(echoes, config)
     on, peak, point, rise, evidence, width, pb, flat, jump, dip, over, margin, fraction = _point_arguments(
-        echoes, config, pulse_bins)
+        echoes, config, pulse_bins, inputs[3:])
     if not on or not (sel >= 0).any():
         return np.zeros(sel.shape, dtype=bool)
     if lo is None or hi is None:
-        lo, hi = echoes.intervals()
+        lo, hi = inputs[:2]
     return _kernels.point_pieces(  # type: ignore[no-any-return]
         sel, np.ascontiguousarray(echoes.edge_bin, dtype=np.float64), peak, point, rise, evidence, width, lo, hi,
         int(config.max_gap), float(config.jump_bins), float(config.touch_bins), pb, flat, jump, dip, over, margin,

@@ -325,13 +325,15 @@ def _rel_entr() -> Any:
 
 def kl_divergence(counts: ArrayLike, model_pmf: ArrayLike) -> float:
     """``D(p_hat || q) = sum p_hat ln(p_hat / q)`` in nats (eq. 11); ``p_hat = counts / sum``."""
-    rel_entr = _rel_entr()
     c = np.asarray(counts, dtype=np.float64)
-    q = np.asarray(model_pmf, dtype=np.float64)
-    total = c.sum()
+    return _kl_of(c, np.asarray(model_pmf, dtype=np.float64), float(c.sum()))
+
+
+def _kl_of(c: NDArray[np.float64], q: NDArray[np.float64], total: float) -> float:
+    """:func:`kl_divergence` of float64 counts ``c`` whose sum is ``total`` (``float(c.sum())``)."""
     if total <= 0:
         raise FitError("counts: histogram is empty")
-    return float(rel_entr(c / total, q).sum())
+    return float(_rel_entr()(c / total, q).sum())
 
 
 # ---------------------------------------------------------------------------- result
@@ -678,8 +680,12 @@ def _pmfs(spec: _Spec, params: Sequence[tuple[float, ...]]) -> NDArray[np.float6
     return component_pmf_matrix(spec.names, params, spec.levels, spec.discretization)
 
 
-def _loglik(counts: NDArray[np.float64], q: NDArray[np.float64]) -> float:
+def _loglik(counts: NDArray[np.float64], q: NDArray[np.float64], positive: bool = False) -> float:
+    """``sum_k n_k ln q_k`` over the occupied levels; ``positive`` promises ``q > 0`` there (a
+    finite KLD of the same histogram): no zero to take the log of, no error state to set."""
     occ = counts > 0
+    if positive:
+        return float((counts[occ] * np.log(q[occ])).sum())
     with np.errstate(divide="ignore"):
         return float((counts[occ] * np.log(q[occ])).sum())
 
@@ -695,11 +701,11 @@ class _Starts(Sequence[tuple[NDArray[np.float64], list[tuple[float, ...]]]]):
     """:func:`_initial_guesses` as a sequence that builds each start when it is first asked for
     (the fitters use the first alone unless its result looks unsound, see :func:`_em_best`)."""
 
-    def __init__(self, spec: _Spec, counts: NDArray[np.float64]) -> None:
+    def __init__(self, spec: _Spec, counts: NDArray[np.float64], n_samples: float | None = None) -> None:
         from sonarmap.stats._em_kernels import nonzero_quantiles
 
         x = spec.levels
-        N = float(counts.sum())
+        N = float(counts.sum()) if n_samples is None else n_samples
         self._spec = spec
         self._frac0 = float(counts[0]) / N
         # the median and 99th percentile level above zero (np.cumsum + np.searchsorted, one pass)
@@ -917,7 +923,8 @@ def _em_best(
     looks unsound (:func:`_needs_restart`), keeping the highest log-likelihood.  A later start
     that comes within :data:`MERGE_RTOL` of the converged best so far is climbing to the same
     maximum and is stopped there (its result would be that maximum)."""
-    best = _em(spec, counts, starts[0][0], starts[0][1], max_iter, tol, accel)
+    w0, p0 = starts[0]
+    best = _em(spec, counts, w0, p0, max_iter, tol, accel)
     assert best is not None
     if len(starts) > 1 and _needs_restart(spec, best, min_weight):
         ref = _merge_reference(spec, best)
@@ -1386,12 +1393,12 @@ _LAYOUTS: dict[tuple[Any, ...], tuple[_Spec, tuple[int, ...], tuple[str, ...]]] 
 
 
 def _starting_points(spec: _Spec, counts: NDArray[np.float64],
-                     init: tuple[ArrayLike, Sequence[tuple[float, ...]]] | None
+                     init: tuple[ArrayLike, Sequence[tuple[float, ...]]] | None, n_samples: float | None = None
                      ) -> Sequence[tuple[NDArray[np.float64], list[tuple[float, ...]]]]:
     """The caller's ``init`` (checked, weights normalised) as the one start, else the initial
-    guesses of :func:`_initial_guesses`."""
+    guesses of :func:`_initial_guesses` (``n_samples``: ``float(counts.sum())`` when known)."""
     if init is None:
-        return _Starts(spec, counts)
+        return _Starts(spec, counts, n_samples)
     names = spec.names
     w_init = np.asarray(init[0], dtype=np.float64)
     p_init = [tuple(float(v) for v in p) for p in init[1]]
@@ -1416,7 +1423,7 @@ def _run_fitter(problem: _FitProblem, flags: set[str], init: tuple[ArrayLike, Se
     """Fit with ``method`` from ``init`` or the initial guesses (least squares without ``init``
     starts from a short EM fit); an all-zero histogram is the spike alone, without fitting."""
     spec, counts = problem.spec, problem.counts
-    starts = _starting_points(spec, counts, init)
+    starts = _starting_points(spec, counts, init, problem.n_samples)
     trace = np.zeros(0)
     if "all_zero" in flags:
         w = np.zeros(len(spec.names))
@@ -1431,14 +1438,14 @@ def _run_fitter(problem: _FitProblem, flags: set[str], init: tuple[ArrayLike, Se
     return _RawFit(w, params, n_iter, conv, trace)
 
 
-def _model_kld(counts: NDArray[np.float64], q: NDArray[np.float64], discretization: str) -> float:
-    """``D(p_hat || q)`` (eq. 11); with the paper's discretisation against the unnormalised model,
-    as the authors computed it."""
+def _model_kld(counts: NDArray[np.float64], q: NDArray[np.float64], discretization: str, total: float) -> float:
+    """``D(p_hat || q)`` (eq. 11; ``total`` is ``float(counts.sum())``); with the paper's
+    discretisation against the unnormalised model, as the authors computed it."""
     if discretization == "paper":
         from scipy.special import rel_entr
 
-        return float(np.sum(rel_entr(counts / float(counts.sum()), q)))
-    return kl_divergence(counts, q)
+        return float(np.sum(rel_entr(counts / total, q)))
+    return _kl_of(counts, q, total)
 
 
 def _finished_fit(problem: _FitProblem, raw: _RawFit, flags: set[str], *, method: Method, binning: Binning,
@@ -1450,8 +1457,8 @@ def _finished_fit(problem: _FitProblem, raw: _RawFit, flags: set[str], *, method
     w = w / w.sum()
     pmfs = _pmfs(spec, raw.params)
     q = w @ pmfs
-    kld = _model_kld(counts, q, spec.discretization)
-    ll = _loglik(counts, q)
+    kld = _model_kld(counts, q, spec.discretization, problem.n_samples)
+    ll = _loglik(counts, q, math.isfinite(kld))
     if not math.isfinite(kld):
         flags.add("zero_mass")
     if not raw.converged:
