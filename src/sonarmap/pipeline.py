@@ -352,25 +352,18 @@ def _p_detect(pd: float, pd_range: float, ranges: BeamRanges, thickness: NDArray
     median echo thickness of the ping's returns (1 bin when there is none).  NaN when the ping has
     no finite ``pd`` (CFAR, no fit).
     """
+    from sonarmap._pipeline_kernels import echo_thickness, scaled_rates
+
     n = ranges.n_beams
     if not (math.isfinite(pd) and math.isfinite(pd_range)) or pd <= 0:
         return np.full(n, np.nan if not math.isfinite(pd_range) else pd_range, dtype=np.float32)
-    t = np.asarray(thickness, dtype=np.float64)
-    valid = ranges.valid
-    tv = t[valid]
-    if tv.size:
-        # np.median of the (NaN-free) thicknesses: the middle one, or the mean of the middle two
-        tv.sort()
-        h = tv.size // 2
-        fill = float(tv[h]) if tv.size % 2 else (float(tv[h - 1]) + float(tv[h])) / 2.0
-        fill = math.nan if math.isnan(tv[-1]) else fill  # a sort puts NaN last
-    else:
-        fill = 1.0
-    t = np.where(valid, np.maximum(t, 1.0), max(fill, 1.0))
+    # the thickness per beam, the median of the returns' (np.median) on the beams without one
+    t, valid, n_valid = echo_thickness(np.ascontiguousarray(thickness, dtype=np.float64),
+                                       np.ascontiguousarray(ranges.bin, dtype=np.int64))
     f = 1.0 - (1.0 - min(pd, 1.0)) ** t
-    fv = f[valid] if tv.size else f
+    fv = f[valid] if n_valid else f
     mean = float(fv.sum()) / fv.size  # = fv.mean(): numpy's sum over the count, without its wrapper
-    return (pd_range * f / max(mean, 1e-12)).clip(0.0, 1.0).astype(np.float32)
+    return scaled_rates(f, float(pd_range), max(mean, 1e-12))  # type: ignore[no-any-return]
 
 
 def _labelled_columns(labels: NDArray[Any]) -> NDArray[np.bool_]:

@@ -48,7 +48,7 @@ if TYPE_CHECKING:
     from sonarmap.ranges.echoes import Echoes
     from sonarmap.ranges.tracking import Tracks
 
-__all__ = ["BeamRanges", "extract_ranges", "ranges_from_tracks", "no_returns", "first_return_bins", "wide_components",
+__all__ = ["BeamRanges", "extract_ranges", "ranges_from_tracks", "track_returns", "no_returns", "first_return_bins", "wide_components",
            "rule0"]
 
 Mode = Literal["first", "strongest"]
@@ -506,20 +506,28 @@ def ranges_from_tracks(echoes: "Echoes", tracks: "Tracks", geometry: SonarGeomet
     """The :class:`BeamRanges` of tracked surfaces: per beam the nearest tracked echo's leading
     edge (``mode="first"``) or peak (``"strongest"``), its sigma, and the surfaces behind it.
     ``p_detect`` is left NaN (the pipeline sets it from the ping's model)."""
+    return track_returns(echoes, tracks, geometry, image, mode=mode, time_ns=time_ns, source=source)[0]
+
+
+def track_returns(echoes: "Echoes", tracks: "Tracks", geometry: SonarGeometry, image: ArrayLike, *,
+                  mode: Mode = "first", time_ns: int = 0, source: str = "") -> tuple[BeamRanges, NDArray[np.int64]]:
+    """:func:`ranges_from_tracks` and the number of bins each return's echo spans (``stop_bin -
+    start_bin`` of the nearest tracked echo; 0 where no return), from one kernel pass."""
     from sonarmap.ranges._kernels import track_ranges
 
     e = np.ascontiguousarray(tracks.echo, dtype=np.int64)
     if not (e[0] >= 0).any():
-        return no_returns(geometry, time_ns=time_ns, source=source, mode=mode)
+        return no_returns(geometry, time_ns=time_ns, source=source, mode=mode), np.zeros(e.shape[1], dtype=np.int64)
     img = np.asarray(image, dtype=np.float32)
     geometry.check_image(img, "image")
     at = echoes.edge_range_m if mode == "first" else echoes.peak_range_m
-    rng, b, inten, sigma, other, conf = track_ranges(e, echoes.edge_bin, echoes.peak_bin, at, echoes.sigma_m, img,
-                                                     mode == "first")
+    rng, b, inten, sigma, other, conf, thick, consistent = track_ranges(
+        e, echoes.edge_bin, echoes.peak_bin, at, echoes.sigma_m, img, mode == "first", echoes.start_bin,
+        echoes.stop_bin)
     fields = dict(range_m=rng, bin=b, intensity=inten, confidence=conf,
                   azimuth_rad=np.asarray(geometry.azimuth_rad, dtype=np.float64), time_ns=int(time_ns),
                   source=source, mode=mode, sigma_m=sigma, other_range_m=other)
-    if rng.shape != fields["azimuth_rad"].shape or not ((b < 0) != np.isfinite(rng)).all():  # type: ignore[union-attr]
-        return BeamRanges(**fields)  # type: ignore[arg-type]  # (raises the constructor's error)
+    if rng.shape != fields["azimuth_rad"].shape or not consistent:  # type: ignore[union-attr]
+        return BeamRanges(**fields), thick  # type: ignore[arg-type]  # (raises the constructor's error)
     # the kernel's arrays have BeamRanges' dtypes and shapes
-    return BeamRanges._checked_already(**fields)
+    return BeamRanges._checked_already(**fields), thick

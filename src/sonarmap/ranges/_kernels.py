@@ -1911,11 +1911,13 @@ def with_edges(edge_bin, edge_range, slope, sigma, sel, beams, edge, rise, noise
 
 
 @njit(cache=True, nogil=True)
-def track_ranges(echo, edge_bin, peak_bin, at, sigma_m, img, first_mode):  # pragma: no cover - numba
+def track_ranges(echo, edge_bin, peak_bin, at, sigma_m, img, first_mode, start_bin, stop_bin):  # pragma: no cover - numba
     """The per-beam fields of :func:`sonarmap.ranges.ranges_from_tracks` (its numpy arithmetic):
     range ``at[e]``, bin (the edge rounded and clipped to the image, or the peak), ``img``
     intensity there (float32), sigma, the ranges of the surfaces behind and the neighbour-support
-    confidence (+-2 beams, 20 bins), for the nearest tracked echo ``e = echo[0, j]``."""
+    confidence (+-2 beams, 20 bins), for the nearest tracked echo ``e = echo[0, j]``; also the
+    echo's thickness ``stop_bin[e] - start_bin[e]`` (0 where no return) and whether every beam
+    without a bin (< 0) has a range that is not finite and every other a finite one."""
     n_s, m = echo.shape
     top = img.shape[0] - 1
     rng = np.full(m, np.nan)
@@ -1944,10 +1946,16 @@ def track_ranges(echo, edge_bin, peak_bin, at, sigma_m, img, first_mode):  # pra
                 other[r - 1, j] = at[echo[r, j]]
     sup, cnt = support_counts(b, 2, 20)
     conf = np.zeros(m, np.float32)
+    thick = np.zeros(m, np.int64)
+    consistent = True
     for j in range(m):
-        if echo[0, j] >= 0:
+        e = echo[0, j]
+        if e >= 0:
             conf[j] = sup[j] / max(cnt[j], 1)
-    return rng, b, inten, sig, other, conf
+            thick[j] = stop_bin[e] - start_bin[e]
+        if (b[j] < 0) == np.isfinite(rng[j]):
+            consistent = False
+    return rng, b, inten, sig, other, conf, thick, consistent
 
 
 @njit(cache=True, nogil=True)

@@ -24,7 +24,7 @@ from numpy.typing import NDArray
 
 from sonarmap._config import is_finite_number
 from sonarmap.ping import Ping
-from sonarmap.ranges import BeamRanges, extract_ranges, half_peak_edges, no_returns, ranges_from_tracks
+from sonarmap.ranges import BeamRanges, extract_ranges, half_peak_edges, no_returns, track_returns
 from sonarmap.ranges.candidates import pooled_band_mask, pooled_band_pixels
 from sonarmap.ranges.config import CandidateConfig, RangeConfig
 from sonarmap.ranges.echoes import (POOL_FIT_FRONT_BINS, POOL_FRONT_BINS, POOL_MAX_BINS, POOL_N_ITER, _boost_pixels,
@@ -323,9 +323,8 @@ def surface_ranges(ping: Ping, image: NDArray[np.float32], levels: NDArray[Any],
         echoes = _template_pass(echoes, sel, meas, geom, config, fraction, pb)
     if echoes.size and (sel >= 0).any():
         echoes = clipped_echo_sigma(echoes, sel, ping.image, geom)
-    thickness = np.where(sel >= 0, (echoes.stop_bin - echoes.start_bin)[np.maximum(sel, 0)] if echoes.size else 0, 0)
-    return (ranges_from_tracks(echoes, tracks, geom, image, mode=config.range_mode,  # type: ignore[arg-type]
-                               time_ns=ping.time_ns, source=ping.source), thickness.astype(np.int64))
+    return track_returns(echoes, tracks, geom, image, mode=config.range_mode,  # type: ignore[arg-type]
+                         time_ns=ping.time_ns, source=ping.source)
 
 
 def _template_pass(echoes: Any, sel: NDArray[np.int64], meas: Any, geom: Any, config: RangeConfig, fraction: float,
