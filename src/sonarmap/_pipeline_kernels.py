@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["any_columns", "echo_thickness", "scaled_rates"]
+__all__ = ["any_columns", "detecting_beams", "echo_thickness", "scaled_rates"]
 
 
 @njit(cache=True, nogil=True)
@@ -19,6 +19,18 @@ def any_columns(img):  # pragma: no cover - numba
         for j in range(m):
             acc[j] |= img[i, j]
     return acc != 0
+
+
+@njit(cache=True, nogil=True)
+def detecting_beams(img, bins):  # pragma: no cover - numba
+    """``np.count_nonzero(img.any(axis=0) | (bins >= 0))`` (:func:`any_columns`): the beams with a
+    labelled pixel or a return."""
+    hit = any_columns(img)
+    n = 0
+    for j in range(hit.size):
+        if hit[j] or bins[j] >= 0:
+            n += 1
+    return n
 
 
 @njit(cache=True, nogil=True)

@@ -381,7 +381,12 @@ def _pd_range(pd: float, labels: NDArray[np.uint8], ranges: BeamRanges, flags: s
     ``n_returns`` is ``ranges.n_returns``)."""
     if "no_fit" in flags or not math.isfinite(pd):
         return math.nan
-    detecting = int(np.count_nonzero(_labelled_columns(labels) | (ranges.bin >= 0)))  # uint8: >= 1 is != 0
+    if labels.ndim == 2 and labels.dtype.kind == "u" and labels.flags.c_contiguous and ranges.bin.dtype == np.int64:
+        from sonarmap._pipeline_kernels import detecting_beams
+
+        detecting = int(detecting_beams(labels, ranges.bin))  # the classifiers' labels: one kernel call
+    else:
+        detecting = int(np.count_nonzero(_labelled_columns(labels) | (ranges.bin >= 0)))  # uint8: >= 1 is != 0
     if detecting == 0:
         return pd
     return pd * n_returns / detecting

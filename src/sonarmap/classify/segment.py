@@ -79,7 +79,7 @@ _NO_PRIOR = np.zeros(0)
 
 def _class_prior(fit: Any, prior_min: float) -> NDArray[np.float64]:
     """Fitted class priors with every object class raised to at least ``prior_min``."""
-    prior = np.asarray(fit.class_prior(), dtype=np.float64).copy()
+    prior = np.array(fit.class_prior(), dtype=np.float64)  # (a copy of its own)
     if prior_min > 0 and prior.size > 1:
         prior[1:] = np.maximum(prior[1:], prior_min)
         prior[0] = max(1.0 - prior[1:].sum(), 1e-12)
@@ -124,7 +124,8 @@ def decision_pd_pfa(fit: Any, decision: ArrayLike) -> tuple[float, float]:
     class's probability of those levels, pD the object classes' (weighted by their priors).
     """
     pmf = np.asarray(fit.class_pmf())
-    det = np.asarray(decision) != 0
+    det = np.asarray(decision)
+    det = det if det.dtype == np.bool_ else det != 0
     prior = np.asarray(fit.class_prior())
     if (pmf.dtype == np.float64 and pmf.ndim == 2 and pmf.shape[0] == 2 and det.shape == pmf.shape[1:]
             and prior.dtype == np.float64 and prior.shape == (2,)):

@@ -2027,6 +2027,25 @@ def pooled_edges_done(sel, new, used, start_bin, stop, back):  # pragma: no cove
 
 
 @njit(cache=True, nogil=True)
+def kept_edges(sel, new, used, start_bin, stop, back, edge_bin, edge_range, slope, sigma, rise, noise, range_m, bin_m,
+               bin_var, pulse_var, scale, fitted, fit_scale):  # pragma: no cover - numba
+    """The pooled edges kept (:func:`pooled_edges_done`) given to their echoes (:func:`with_edges`)
+    in one call: the number of beams kept, the echoes' new ``edge_bin``, ``edge_range``, ``slope``
+    and ``sigma``, the echoes whose kept edge is that of a fitted clipped echo (``fitted``) and
+    their number."""
+    done = pooled_edges_done(sel, new, used, start_bin, stop, back)
+    eb, er, sl, sg = with_edges(edge_bin, edge_range, slope, sigma, sel, done, new, rise, noise, range_m, bin_m,
+                                bin_var, pulse_var, scale, fitted, fit_scale)
+    marked = np.zeros(edge_bin.size, np.bool_)
+    n_marked = 0
+    for t in range(done.size):
+        if fitted[done[t]]:
+            marked[sel[done[t]]] = True
+            n_marked += 1
+    return done.size, eb, er, sl, sg, marked, n_marked
+
+
+@njit(cache=True, nogil=True)
 def llr_table(lp, clip):  # pragma: no cover - numba
     """:func:`sonarmap.ranges.echoes.level_llr` from ``log p(level | class)`` (>= 2 classes), in
     numpy's arithmetic: the best object class (NaN propagating) minus the background, NaN to 0,

@@ -552,22 +552,8 @@ def _pooled(echoes: Echoes, sel: NDArray[np.int64], image: ArrayLike, geometry: 
         img, edge, stop, run, int(half_beams), int(front_bins), int(max_bins), int(smooth_bins) | 1,
         float(fraction), int(n_iter), _NO_CLIP if clip is None else np.ascontiguousarray(clip).view(np.uint8),
         int(fit_front_bins))
-    # the edge belongs to the beam's own echo: within find_echoes' walk in front of its first
-    # structure bin and before its last (else a neighbouring surface pulled it)
-    sel = np.ascontiguousarray(sel)
-    done = _kernels.pooled_edges_done(sel, new, used, echoes.start_bin, stop, int(pulse_bins) + 2)
-    if not done.size:
-        return echoes
-    out = _with_edges(echoes, sel, done, new, rise, noise, geometry, pulse_bins, (scales[0], fitted, scales[1]))
-    keep = sel[done[fitted[done]]]
-    return out.replaced(clip_fitted=_marked(echoes.size, keep)) if keep.size else out
-
-
-def _marked(n: int, index: NDArray[np.int64]) -> NDArray[np.bool_]:
-    """``np.isin(np.arange(n), index)`` for indices in ``[0, n)``, without its sort."""
-    out = np.zeros(n, dtype=bool)
-    out[index] = True
-    return out
+    return _with_edges(echoes, np.ascontiguousarray(sel), (new, used, stop), rise, noise, geometry, pulse_bins,
+                       (scales[0], fitted, scales[1]))
 
 
 def _check_pooling(echoes: Echoes, sel: np.ndarray, window: tuple[int, int, int, int, int, int], fraction: float,
@@ -589,18 +575,26 @@ def _check_pooling(echoes: Echoes, sel: np.ndarray, window: tuple[int, int, int,
         raise InputError(f"clip: expected the image's shape {shape}, got {np.shape(clip)}")
 
 
-def _with_edges(echoes: Echoes, sel: np.ndarray, beams: np.ndarray, edge: np.ndarray, rise: np.ndarray,
-                noise: np.ndarray, geometry: SonarGeometry, pulse_bins: int,
+def _with_edges(echoes: Echoes, sel: np.ndarray, pooled: tuple[np.ndarray, np.ndarray, np.ndarray],
+                rise: np.ndarray, noise: np.ndarray, geometry: SonarGeometry, pulse_bins: int,
                 scales: tuple[float, np.ndarray, float]) -> Echoes:
-    """``echoes`` with the echoes ``sel[beams]`` given the new leading edges ``edge[beams]`` (bins),
-    slopes and sigmas (``rise``, ``noise``: per beam; ``scales``: the jitter calibration, the beams
-    whose edge is a fitted clipped echo's, and their calibration)."""
+    """``echoes`` with the pooled leading edges kept given to the returns ``sel`` (bins), with their
+    slopes and sigmas (``pooled``: per beam the pooled edge, the beams pooled and the echo's stop;
+    ``rise``, ``noise``: per beam; ``scales``: the jitter calibration, the beams whose edge is a
+    fitted clipped echo's, and their calibration).  A pooled edge is kept where it belongs to the
+    beam's own echo: within find_echoes' walk in front of its first structure bin and before its
+    last (else a neighbouring surface pulled it)."""
     from sonarmap.ranges import _kernels
 
     bin_m = abs(geometry.range_resolution_m)
     pulse_m = int(pulse_bins) * bin_m if pulse_bins >= 2 else 0.0
-    eb, er, sl, sig = _kernels.with_edges(
-        echoes.edge_bin, echoes.edge_range_m, echoes.slope, echoes.sigma_m, sel, beams, edge, rise, noise,
-        np.ascontiguousarray(geometry.range_m, dtype=np.float64), bin_m, bin_m**2 / 12.0, (pulse_m**2) / 12.0,
-        float(scales[0]), scales[1], float(scales[2]))
+    new, used, stop = pooled
+    n_kept, eb, er, sl, sig, marked, n_marked = _kernels.kept_edges(
+        sel, new, used, echoes.start_bin, stop, int(pulse_bins) + 2, echoes.edge_bin, echoes.edge_range_m,
+        echoes.slope, echoes.sigma_m, rise, noise, np.ascontiguousarray(geometry.range_m, dtype=np.float64), bin_m,
+        bin_m**2 / 12.0, (pulse_m**2) / 12.0, float(scales[0]), scales[1], float(scales[2]))
+    if not n_kept:
+        return echoes
+    if n_marked:
+        return echoes.replaced(edge_bin=eb, edge_range_m=er, slope=sl, sigma_m=sig, clip_fitted=marked)
     return echoes.replaced(edge_bin=eb, edge_range_m=er, slope=sl, sigma_m=sig)

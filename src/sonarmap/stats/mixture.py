@@ -659,16 +659,20 @@ def component_pmf_matrix(
     xn = np.arange(L) / (L - 1) if discretization == "paper" else x
     out = np.empty((len(names), L))
     for c, (name, p) in enumerate(zip(names, params)):
+        e = out[c]  # each row computed in place (the same elementwise operations)
         if name == "zero":
-            out[c] = 0.0
-            out[c, 0] = 1.0
+            e[:] = 0.0
+            e[0] = 1.0
         elif name == "exponential":
-            e = np.exp(x * (-1.0 / p[0]))
-            out[c] = e / (e.sum() if xn is x else np.exp(xn * (-1.0 / p[0])).sum())
+            np.exp(np.multiply(x, -1.0 / p[0], out=e), out=e)
+            e /= e.sum() if xn is x else np.exp(xn * (-1.0 / p[0])).sum()
         elif name == "rayleigh":
             k = -0.5 / (p[0] * p[0])
-            e = x * np.exp((x * x) * k)
-            out[c] = e / (e.sum() if xn is x else (xn * np.exp((xn * xn) * k)).sum())
+            np.multiply(x, x, out=e)
+            e *= k
+            np.exp(e, out=e)
+            e *= x
+            e /= e.sum() if xn is x else (xn * np.exp((xn * xn) * k)).sum()
         elif discretization == "paper":
             raise InputError("discretization: 'paper' supports only exponential and rayleigh")
         else:
