@@ -1959,16 +1959,17 @@ def track_ranges(echo, edge_bin, peak_bin, at, sigma_m, img, first_mode, start_b
 
 
 @njit(cache=True, nogil=True)
-def clipped_spread(img, sel, edge_bin, stop_bin, level, bin_m):  # pragma: no cover - numba
-    """The returns whose echo reaches ``level`` (:func:`sonarmap.ranges.measure.clipped_echo_sigma`):
-    their echo indices and the spread from the edge to the first clipped row (metres, > 0)."""
+def clipped_spread(img, sel, edge_bin, stop_bin, level, bin_m, fitted, has_fitted):  # pragma: no cover - numba
+    """The returns whose echo reaches ``level`` (:func:`sonarmap.ranges.measure.clipped_echo_sigma`),
+    except those whose edge is a fitted clipped echo's (``fitted``, when ``has_fitted``): their echo
+    indices and the spread from the edge to the first clipped row (metres, > 0)."""
     n = img.shape[0]
     hit_e = np.empty(sel.size, np.int64)
     spread = np.empty(sel.size)
     k = 0
     for j in range(sel.size):
         e = sel[j]
-        if e < 0:
+        if e < 0 or (has_fitted and fitted[e]):
             continue
         x = np.ceil(edge_bin[e])
         lo = 0 if np.isnan(x) else int(min(max(x, 0.0), n - 1.0))
@@ -2140,14 +2141,16 @@ def excess_ratio_grid(raw, level, grid, c0, c1, fc, g0, g1, gf, log_db, r0, r1, 
 
 @njit(cache=True, nogil=True)
 def first_clipped_rows(img, cols, lo, hi, level):  # pragma: no cover - numba
-    """Per ``k``, the first row in ``lo[k] .. hi[k] - 1`` of column ``cols[k]`` of ``img`` that
-    reaches ``level`` (-1 if none).
+    """Per ``k``, the first row in ``lo[k] .. hi[k] - 1`` (both clipped to ``0 .. n_rows``) of
+    column ``cols[k]`` of ``img`` that reaches ``level`` (-1 if none).
 
     Where the intervals cover more than an eighth of the rows they span, the samples reaching
     ``level`` are listed per column from one pass along the rows of that span first (a walk down
     the columns of a tall image misses the cache at every row); else each interval is walked."""
     out = np.full(cols.size, -1, dtype=np.int64)
     n, m = img.shape
+    lo = np.minimum(np.maximum(lo, 0), n)
+    hi = np.minimum(np.maximum(hi, 0), n)
     r0 = n
     r1 = 0
     covered = 0

@@ -366,11 +366,13 @@ def clip_rows(echoes: Any, raw: NDArray[Any]) -> NDArray[np.int64]:
     scale (:data:`CLIP_LEVEL`); -1 where none does."""
     from sonarmap.ranges._kernels import first_clipped_rows
 
-    img = np.ascontiguousarray(raw)
-    n = img.shape[0]
-    lo = np.minimum(np.maximum(echoes.start_bin, 0), n)  # np.clip of the int64 bins, without its dispatch
-    hi = np.minimum(np.maximum(echoes.stop_bin, 0), n)
-    return first_clipped_rows(img, np.ascontiguousarray(echoes.beam), lo, hi, CLIP_LEVEL)  # type: ignore[no-any-return]
+    # (the kernel clips the bins to the image's rows)
+    return first_clipped_rows(np.ascontiguousarray(raw), np.ascontiguousarray(echoes.beam),  # type: ignore[no-any-return]
+                              np.ascontiguousarray(echoes.start_bin, dtype=np.int64),
+                              np.ascontiguousarray(echoes.stop_bin, dtype=np.int64), CLIP_LEVEL)
+
+
+_NO_FITTED = np.zeros(0, dtype=np.bool_)
 
 
 def clipped_echo_sigma(echoes: Any, sel: NDArray[np.int64], raw: NDArray[Any], geom: Any) -> Any:
@@ -387,10 +389,12 @@ def clipped_echo_sigma(echoes: Any, sel: NDArray[np.int64], raw: NDArray[Any], g
     """
     from sonarmap.ranges._kernels import clipped_spread
 
-    if echoes.clip_fitted is not None:  # a Gaussian fitted to the clipped peak gave the edge
-        sel = np.where((sel >= 0) & echoes.clip_fitted[np.maximum(sel, 0)], -1, sel)
+    # (not those whose edge a Gaussian fitted to the clipped peak gave: clip_fitted)
+    fitted = echoes.clip_fitted
     e, spread = clipped_spread(np.ascontiguousarray(raw), np.ascontiguousarray(sel, dtype=np.int64), echoes.edge_bin,
-                               echoes.stop_bin, CLIP_LEVEL, abs(geom.range_resolution_m))
+                               echoes.stop_bin, CLIP_LEVEL, abs(geom.range_resolution_m),
+                               _NO_FITTED if fitted is None else np.ascontiguousarray(fitted, dtype=np.bool_),
+                               fitted is not None)
     if not e.size:
         return echoes
     sigma = echoes.sigma_m.copy()
