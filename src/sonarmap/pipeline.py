@@ -31,7 +31,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -259,11 +259,11 @@ def _check_arguments(ping: Any, config: Any, background: Any) -> None:
             raise InputError(f"background: expected a RecordingBackground, got {type(background).__name__}")
 
 
-@dataclasses.dataclass(frozen=True, eq=False)
-class _Modelled:
+class _Modelled(NamedTuple):
     """What :func:`_model_ping` made of a ping: the image the classifier saw, the normalised image
     (None when not normalised), the background estimate, ``(labels, fit, pd, pfa, levels, gates)``
-    of :func:`_classify` (None for a constant image) and the quantisation floor used."""
+    of :func:`_classify` (None for a constant image) and the quantisation floor used (a named
+    tuple: one per ping, without a frozen dataclass's per-field ``object.__setattr__``)."""
 
     image: NDArray[np.float32]
     normalised: NDArray[np.float32] | None
@@ -296,8 +296,7 @@ def _model_ping(raw: NDArray[np.float32], geom: Any, config: PipelineConfig, ref
             continue
         image = np.maximum(m.image - np.float32(n / (config.fit.n_levels - 1)), np.float32(0.0))
         shifted = np.maximum(levels.astype(np.int16) - n, 0).astype(levels.dtype)
-        return dataclasses.replace(m, image=image, floor=n,
-                                   classified=_classify(image, config, gate=True, levels=shifted, fit=fit))
+        return m._replace(image=image, floor=n, classified=_classify(image, config, gate=True, levels=shifted, fit=fit))
     return m
 
 

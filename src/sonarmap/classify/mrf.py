@@ -551,12 +551,25 @@ def graphcut_levels_labels(
     """
     lev = np.asarray(levels)
     lut = np.ascontiguousarray(cost_lut, dtype=np.float64)
-    if (lev.ndim != 2 or lev.dtype != np.uint8 or lut.ndim != 2 or lut.shape[0] != 2 or lut.shape[1] < 256
-            or neighbourhood not in (4, 8) or not math.isfinite(float(lut.sum()))):
+    if not (_table_cut_applies(lev, lut, neighbourhood) and math.isfinite(float(lut.sum()))):
         return solve_graphcut_levels(levels, cost_lut, beta=beta, neighbourhood=neighbourhood,
                                      range_weight=range_weight).labels
+    return _table_cut(lev, lut, _check_beta(beta), neighbourhood, float(range_weight))
+
+
+def _table_cut_applies(lev: NDArray[Any], lut: NDArray[np.float64], neighbourhood: int) -> bool:
+    """Whether :func:`_table_cut` takes these levels and table (the finiteness of the table aside)."""
+    return (lev.ndim == 2 and lev.dtype == np.uint8 and lut.ndim == 2 and lut.shape[0] == 2 and lut.shape[1] >= 256
+            and neighbourhood in (4, 8))
+
+
+def _table_cut(lev: NDArray[np.uint8], lut: NDArray[np.float64], beta: float, neighbourhood: int,
+               range_weight: float) -> NDArray[np.uint8]:
+    """:func:`graphcut_levels_labels` of checked arguments (:func:`_table_cut_applies`, a finite
+    C-contiguous float64 table, a finite ``beta >= 0``): the classification stage calls it with
+    the finite tables of :func:`sonarmap.classify.segment.level_costs`."""
     h, w = lev.shape
-    wt, wtot = _uniform(h, w, neighbourhood, _check_beta(beta), float(range_weight))
+    wt, wtot = _uniform(h, w, neighbourhood, beta, range_weight)
     return _graphcut_lut(np.ascontiguousarray(lev), lut, wt, wtot, with_energy=False, uniform=True)[0]
 
 

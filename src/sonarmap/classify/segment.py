@@ -282,6 +282,10 @@ def _mrf_labels(image: NDArray[np.float32], levels: NDArray[Any], cost: NDArray[
     from sonarmap.classify import mrf
 
     if config.solver == "graphcut" and cost.shape[0] == 2 and not config.contrast:
+        if cost.dtype == np.float64 and cost.flags.c_contiguous and mrf._table_cut_applies(levels, cost,
+                                                                                            config.neighbourhood):
+            # a level_costs table is finite (its floor): graphcut_levels_labels without its checks
+            return mrf._table_cut(levels, cost, float(beta), config.neighbourhood, float(config.range_weight))
         return mrf.graphcut_levels_labels(levels, cost, beta=beta, neighbourhood=config.neighbourhood,
                                           range_weight=config.range_weight)
     unary = np.ascontiguousarray(cost[:, levels])

@@ -1309,9 +1309,9 @@ def _result_flags(flags: set[str], names: tuple[str, ...], classes: tuple[int, .
     return list(params)
 
 
-@dataclasses.dataclass(frozen=True, eq=False)
-class _FitProblem:
-    """What :func:`fit_mixture` fits: the histogram, the model and its class layout."""
+class _FitProblem(NamedTuple):
+    """What :func:`fit_mixture` fits: the histogram, the model and its class layout (a named tuple:
+    one per ping, built without a frozen dataclass's per-field ``object.__setattr__``)."""
 
     spec: _Spec
     counts: NDArray[np.float64]
