@@ -54,12 +54,13 @@ def test_p_detect_kernels_are_its_numpy_form() -> None:
                     np.testing.assert_array_equal(got, want)
 
 
-def test_detecting_beams_counts_labelled_columns_or_returns() -> None:
-    from sonarmap._pipeline_kernels import detecting_beams
+def test_return_counts_count_returns_and_labelled_columns_or_returns() -> None:
+    from sonarmap._pipeline_kernels import return_counts
 
     rng = np.random.default_rng(3)
     for shape in [(512, 96), (64, 16), (3, 1), (0, 4)]:
         for p in (0.0, 0.002, 0.4):
             labels = (rng.random(shape) < p).astype(np.uint8)
             bins = np.where(rng.random(shape[1]) < 0.3, rng.integers(0, 50, shape[1]), -1).astype(np.int64)
-            assert detecting_beams(labels, bins) == np.count_nonzero(labels.any(axis=0) | (bins >= 0))
+            assert return_counts(labels, bins) == (np.count_nonzero(bins >= 0),
+                                                   np.count_nonzero(labels.any(axis=0) | (bins >= 0)))

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["any_columns", "detecting_beams", "echo_thickness", "scaled_rates"]
+__all__ = ["any_columns", "return_counts", "echo_thickness", "scaled_rates"]
 
 
 @njit(cache=True, nogil=True)
@@ -22,15 +22,17 @@ def any_columns(img):  # pragma: no cover - numba
 
 
 @njit(cache=True, nogil=True)
-def detecting_beams(img, bins):  # pragma: no cover - numba
-    """``np.count_nonzero(img.any(axis=0) | (bins >= 0))`` (:func:`any_columns`): the beams with a
-    labelled pixel or a return."""
+def return_counts(img, bins):  # pragma: no cover - numba
+    """``(np.count_nonzero(bins >= 0), np.count_nonzero(img.any(axis=0) | (bins >= 0)))``
+    (:func:`any_columns`): the beams with a return, and those with a labelled pixel or a return."""
     hit = any_columns(img)
+    n_returns = 0
     n = 0
     for j in range(hit.size):
+        n_returns += bins[j] >= 0
         if hit[j] or bins[j] >= 0:
             n += 1
-    return n
+    return n_returns, n
 
 
 @njit(cache=True, nogil=True)

@@ -239,10 +239,10 @@ def process_ping(ping: Ping, config: PipelineConfig = PipelineConfig(), *, keep_
         ranges = rule_ranges(ping, m.image, labels, mask, config.ranges, config.candidates, normalised=normalised,
                              bg_mean=bg_mean, edge=edge)
     flags = set(fit.flags) if fit is not None else {"no_fit"}
-    n_returns = ranges.n_returns
+    n_returns, detecting = _return_counts(labels, ranges)
     if n_returns == 0:
         flags.add("no_returns")
-    pd_range = _pd_range(float(pd), labels, ranges, flags, n_returns)
+    pd_range = _pd_range(float(pd), flags, n_returns, detecting)
     if thickness is not None:
         ranges = ranges.with_p_detect(_p_detect(float(pd), pd_range, ranges, thickness))
     return products(ranges, flags, labels, pd, pfa, pd_range)
@@ -375,17 +375,22 @@ def _labelled_columns(labels: NDArray[Any]) -> NDArray[np.bool_]:
     return labels.any(axis=0)  # type: ignore[no-any-return]
 
 
-def _pd_range(pd: float, labels: NDArray[np.uint8], ranges: BeamRanges, flags: set[str], n_returns: int) -> float:
+def _return_counts(labels: NDArray[np.uint8], ranges: BeamRanges) -> tuple[int, int]:
+    """``(ranges.n_returns, detecting)``: the beams with a return, and the beams with a labelled
+    pixel or a return (one kernel call for the classifiers' labels)."""
+    if labels.ndim == 2 and labels.dtype.kind == "u" and labels.flags.c_contiguous and ranges.bin.dtype == np.int64:
+        from sonarmap._pipeline_kernels import return_counts
+
+        n_returns, detecting = return_counts(labels, ranges.bin)
+        return int(n_returns), int(detecting)
+    return ranges.n_returns, int(np.count_nonzero(_labelled_columns(labels) | (ranges.bin >= 0)))  # uint8: >= 1 is != 0
+
+
+def _pd_range(pd: float, flags: set[str], n_returns: int, detecting: int) -> float:
     """``pd`` times the fraction of detecting beams that kept a return (see ``PingProducts.pd_range``;
-    ``n_returns`` is ``ranges.n_returns``)."""
+    ``n_returns``, ``detecting``: :func:`_return_counts`)."""
     if "no_fit" in flags or not math.isfinite(pd):
         return math.nan
-    if labels.ndim == 2 and labels.dtype.kind == "u" and labels.flags.c_contiguous and ranges.bin.dtype == np.int64:
-        from sonarmap._pipeline_kernels import detecting_beams
-
-        detecting = int(detecting_beams(labels, ranges.bin))  # the classifiers' labels: one kernel call
-    else:
-        detecting = int(np.count_nonzero(_labelled_columns(labels) | (ranges.bin >= 0)))  # uint8: >= 1 is != 0
     if detecting == 0:
         return pd
     return pd * n_returns / detecting

@@ -1289,7 +1289,10 @@ def _result_flags(flags: set[str], names: tuple[str, ...], classes: tuple[int, .
     """Add the flags of a fitted result to ``flags`` (``no_object``, ``collapsed_scale``,
     ``scale_at_bound``, ``collapsed_components``); returns the parameters, an unidentified object
     scale reported at its bound."""
-    obj_w = float(w[_object_members(tuple(classes))].sum())  # = w[classes != 0].sum()
+    obj = _object_members(tuple(classes))
+    wl = w.tolist()
+    # = w[classes != 0].sum() (one member: its weight, compared alike)
+    obj_w = wl[obj[0]] if len(obj) == 1 else float(w[obj].sum())
     if n_families > 1 and obj_w < min_weight:
         flags.add("no_object")
     if "no_object" in flags:
@@ -1298,7 +1301,7 @@ def _result_flags(flags: set[str], names: tuple[str, ...], classes: tuple[int, .
         params = [p if (cls == 0 or not p) else tuple(p[:-1]) + (float(scale_max),)
                   for p, cls in zip(params, classes)]
     for c, (name, p) in enumerate(zip(names, params)):
-        if name == "zero" or w[c] < min_weight:
+        if name == "zero" or wl[c] < min_weight:
             continue
         if p[-1] <= 1.5 * step:
             flags.add("collapsed_scale")
