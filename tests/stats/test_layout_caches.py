@@ -23,12 +23,13 @@ LAYOUTS = [
 @pytest.mark.parametrize(("classes", "names"), LAYOUTS)
 def test_members_are_those_of_the_masks(classes: tuple[int, ...], names: tuple[str, ...]) -> None:
     cls = np.asarray(classes)
-    assert _object_members(classes) == list(np.flatnonzero(cls != 0))
+    assert _object_members(classes).tolist() == list(np.flatnonzero(cls != 0))
     n_classes = int(cls.max()) + 1
-    assert _members_by_class(classes, n_classes) == tuple(list(np.flatnonzero(cls == j)) for j in range(n_classes))
+    assert tuple(m.tolist() for m in _members_by_class(classes, n_classes)) == tuple(
+        list(np.flatnonzero(cls == j)) for j in range(n_classes))
     bg, obj = _class_members(classes, names)
     assert bg == [i for i in range(len(names)) if classes[i] == 0 and names[i] != "zero"]
-    assert obj == list(np.flatnonzero(cls != 0))
+    assert obj.tolist() == list(np.flatnonzero(cls != 0))
     w = np.random.default_rng(len(classes)).random(len(classes))
     assert float(w[_object_members(classes)].sum()) == float(w[cls != 0].sum())
 

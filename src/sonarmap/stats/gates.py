@@ -41,9 +41,10 @@ import functools
 import math
 
 import numpy as np
+from numpy.typing import NDArray
 
 from sonarmap.errors import InputError
-from sonarmap.stats.mixture import MixtureFit
+from sonarmap.stats.mixture import MixtureFit, _object_members
 
 __all__ = ["GATE_DESCRIPTIONS", "REFUSING", "IMPLAUSIBLE", "fit_gates", "class_separation", "sampling_kld"]
 
@@ -67,11 +68,12 @@ IMPLAUSIBLE = REFUSING - {"collapsed"}
 
 
 @functools.lru_cache(maxsize=64)
-def _class_members(classes: tuple[int, ...], names: tuple[str, ...]) -> tuple[list[int], list[int]]:
-    """The continuous background components and the object components of a model layout
-    (computed once per layout: every fit of a recording shares one)."""
+def _class_members(classes: tuple[int, ...], names: tuple[str, ...]) -> tuple[list[int], NDArray[np.intp]]:
+    """The continuous background components and the object components (an index array,
+    :func:`sonarmap.stats.mixture._object_members`) of a model layout (computed once per layout:
+    every fit of a recording shares one)."""
     bg = [i for i, (c, n) in enumerate(zip(classes, names)) if c == 0 and n != "zero"]
-    return bg, [i for i, c in enumerate(classes) if c != 0]
+    return bg, _object_members(classes)
 
 
 def class_separation(fit: MixtureFit) -> float:
@@ -85,7 +87,7 @@ def class_separation(fit: MixtureFit) -> float:
     comp = fit._pmf_matrix()  # read-only: component_pmfs() without its copy
     w = np.asarray(fit.weights, dtype=np.float64)
     bg, obj = _class_members(tuple(fit.component_classes), tuple(fit.component_names))
-    if not bg or not obj:
+    if not bg or not len(obj):
         return math.nan
     bg_mean = float(comp[bg[0]] @ levels)
     wo = w[obj]
