@@ -321,7 +321,7 @@ def surface_ranges(ping: Ping, image: NDArray[np.float32], levels: NDArray[Any],
         echoes = _pooled_returns(echoes, sel, meas, ping, config, pb, fraction)
     if config.edge_template_beams > 0 and config.range_mode == "first" and echoes.size:
         echoes = _template_pass(echoes, sel, meas, geom, config, fraction, pb)
-    if echoes.size and (sel >= 0).any():
+    if echoes.size:  # (without a return, clipped_echo_sigma's kernel finds nothing: the echoes unchanged)
         echoes = clipped_echo_sigma(echoes, sel, ping.image, geom)
     return track_returns(echoes, tracks, geom, image, mode=config.range_mode,  # type: ignore[arg-type]
                          time_ns=ping.time_ns, source=ping.source)
