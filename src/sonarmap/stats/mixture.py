@@ -835,7 +835,8 @@ def _em(
                                            trace, accel, ref_w, ref_par, MERGE_RTOL, spec.rice_min)
         if status == EM_MERGED:
             return None
-    params = [_from_coords(n, float(par[c, 0]), float(par[c, 1])) for c, n in enumerate(spec.names)]
+    coords = par.tolist()  # (Python floats: no numpy scalar per coordinate)
+    params = [_from_coords(n, *coords[c]) for c, n in enumerate(spec.names)]
     return w, params, int(n_iter), status == EM_CONVERGED, trace[: n_iter + 1].copy()
 
 
