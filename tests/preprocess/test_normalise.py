@@ -210,14 +210,30 @@ def test_pooled_ratio_grid_equals_the_ratio_to_the_expanded_grid(shape) -> None:
             assert z.tobytes() == reference(img, level, full, *pool).tobytes()
 
 
-@pytest.mark.parametrize("shape", [(4096, 512), (40, 512), (3, 600), (1, 513), (257, 1024)])
-def test_partitioned_background_quartiles_equal_the_sorted_ones(shape, monkeypatch) -> None:
-    """Long rows partitioned (the lower quartile only in the background rows) give the sorted
-    rows' (c50, spread), with ties, zeros and non-finite values (which fall back to sorting)."""
+def _background_quartiles_reference(z: np.ndarray) -> tuple[float, float]:
+    """Step 4's ``(c50, spread)`` the plain numpy way: every row sorted, a stable argsort of the
+    medians, np.median."""
+    n, m = z.shape
+    rows = np.sort(z, axis=1)
+    q25, q50 = rows[:, (m - 1) // 4].astype(np.float64), rows[:, (m - 1) // 2].astype(np.float64)
+    sel = np.argsort(q50, kind="stable")[: max(n // 4, 1)]
+    return float(np.median(q50[sel])), float(np.median((q50 - q25)[sel]))
+
+
+@pytest.mark.parametrize("shape", [(4096, 512), (703, 256), (2000, 48), (40, 512), (3, 600), (1, 513), (257, 1024),
+                                   (64, 1500)])
+@pytest.mark.parametrize("partition_min", [None, 1, 1 << 30])
+def test_background_quartiles_equal_the_sorted_ones(shape, partition_min, monkeypatch) -> None:
+    """Long rows partitioned (the lower quartile only in the background rows), and only the rows
+    that can be background rows ordered, give the sorted rows' (c50, spread), with ties, zeros and
+    non-finite values (which fall back to ordering every row) and a sample of rows unlike the
+    others (whose threshold falls short)."""
     from sonarmap.preprocess import normalise
 
+    if partition_min is not None:
+        monkeypatch.setattr(normalise, "_PARTITION_MIN", partition_min)
     rng = np.random.default_rng(shape[0] + shape[1])
-    for t in range(5):
+    for t in range(6):
         z = rng.exponential(size=shape).astype(np.float32)
         if t == 1:
             z = np.round(z * 4) / 4  # many ties
@@ -227,12 +243,28 @@ def test_partitioned_background_quartiles_equal_the_sorted_ones(shape, monkeypat
             z.flat[rng.integers(0, z.size, 50)] = np.inf
         elif t == 4:
             z[: max(shape[0] // 2, 1)] = np.nan
-        got = normalise._background_quartiles(z)
-        monkeypatch.setattr(normalise, "_PARTITION_MIN", 1 << 30)
+        elif t == 5:
+            z[:: normalise._SAMPLE_STEP] *= np.float32(0.25)  # the sampled rows lowest
         with np.errstate(invalid="ignore"):
-            expected = normalise._background_quartiles(z)
-        monkeypatch.undo()
+            expected = _background_quartiles_reference(z)
+        got = normalise._background_quartiles(z)
         assert np.array(got).tobytes() == np.array(expected).tobytes()
+
+
+def test_candidate_rows_hold_the_lowest_medians() -> None:
+    """The rows left for ordering hold every row whose median is among the quarter lowest (ties
+    included), in ascending order; a sample unlike the other rows gives None."""
+    from sonarmap.preprocess import normalise
+
+    rng = np.random.default_rng(5)
+    z = rng.exponential(size=(1000, 64)).astype(np.float32)
+    z[rng.random(1000) < 0.5] *= np.float32(3.0)
+    med = np.sort(z, axis=1)[:, 31]
+    rows = normalise._candidate_rows(z, 31, 250)
+    assert rows is not None and 250 <= rows.size < 1000 and np.all(np.diff(rows) > 0)
+    assert set(np.flatnonzero(med <= np.sort(med)[249])) <= set(rows.tolist())
+    z[:: normalise._SAMPLE_STEP] *= np.float32(0.1)
+    assert normalise._candidate_rows(z, 31, 250) is None
 
 
 def test_row_quartile_of_scaled_levels_equals_the_general_count() -> None:

@@ -429,6 +429,23 @@ def block_values(img, level, nr, nc, br, bc, out):  # pragma: no cover - numba
 
 
 @njit(cache=True, nogil=True)
+def rows_ranked_at_most(z, t, k):  # pragma: no cover - numba
+    """The rows of ``z`` (ascending) holding more than ``k`` values at most ``t``: those whose
+    ``k``-th smallest value (0-based; NaN sorts last) is at most ``t``.  One pass that counts
+    (vectorised along the rows)."""
+    n, m = z.shape
+    out = np.empty(n, dtype=np.intp)
+    c = 0
+    for i in range(n):
+        cnt = 0
+        for j in range(m):
+            cnt += z[i, j] <= t
+        out[c] = i
+        c += cnt > k
+    return out[:c]
+
+
+@njit(cache=True, nogil=True)
 def background_rows(q25, q50, n_rows):  # pragma: no cover - numba
     """``(median(q50[rows]), median((q50 - q25)[rows]))`` over ``rows``, the first ``n_rows`` of
     ``np.argsort(q50, kind="stable")``: every row below the ``n_rows``-th smallest ``q50`` and the
