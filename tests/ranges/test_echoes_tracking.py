@@ -575,3 +575,28 @@ def test_oculus_clipped_fish_without_a_recording_header_give_few_returns():
         warnings.simplefilter("ignore")
         pr = process_ping(sim.ping, PipelineConfig())
     assert int((pr.ranges.valid & empty).sum()) <= 5
+
+
+def test_dense_masks_give_the_echoes_of_the_column_walk() -> None:
+    """A mask filling more than half its rows (walked along the rows, without gathering its pixels)
+    gives the echoes of the walk down the columns (``find_echoes_in`` on every beam): gaps, ties,
+    both edge scans, float32 and float64 images."""
+    from sonarmap.ranges import _kernels
+
+    rng = np.random.default_rng(3)
+    for t in range(200):
+        n, m = int(rng.integers(1, 50)), int(rng.integers(1, 30))
+        r0 = int(rng.integers(0, n))
+        r1 = int(rng.integers(r0 + 1, n + 1))
+        mask = np.zeros((n, m), dtype=bool)
+        mask[r0:r1] = rng.random((r1 - r0, m)) < rng.uniform(0.55, 1.0)
+        img = rng.random((n, m)).astype(np.float32 if t % 2 else np.float64)
+        if t % 3 == 0:
+            img = np.round(img * 4) / 4
+        code = rng.integers(0, 8, (n, m)).astype(np.uint8)
+        args = (mask, img, code, rng.random(8), np.zeros((1, 1), dtype=bool), 1.0, int(rng.integers(0, 4)),
+                float(rng.uniform(0.2, 0.8)), float(rng.uniform(0.2, 1.0)), int(rng.integers(0, 5)), bool(t % 4 == 1))
+        got = _kernels.find_echoes(*args, r0, r1)
+        expected = _kernels.find_echoes_in(*args, np.arange(m, dtype=np.int64), r0, r1)
+        for g, e in zip(got, expected):
+            assert g.dtype == e.dtype and g.tobytes() == e.tobytes()
