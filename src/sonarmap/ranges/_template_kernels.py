@@ -9,6 +9,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from sonarmap.ranges._kernels import _interp_column
+
 
 @njit(cache=True, nogil=True)
 def _local_quadratic(cur, a, half):  # pragma: no cover - numba
@@ -169,7 +171,6 @@ def _run_edges(img, edge, stop, skip, j0, j1, half_template, half_window, front,
                n_score, fraction, peak_rows, max_rows, n_iter, min_contrast, new, var):  # pragma: no cover - numba
     """:func:`template_edges` of the run of beams ``j0 .. j1 - 1`` (in place on ``new``, ``var``);
     ``n_iter`` rounds, each aligning the template on the edges of the round before."""
-    n = img.shape[0]
     nb = j1 - j0
     cur = edge[j0:j1].copy()
     line = np.empty(nb)
@@ -187,10 +188,7 @@ def _run_edges(img, edge, stop, skip, j0, j1, half_template, half_window, front,
         # every beam's column at offsets k0 .. from its line, and their running sum over beams
         for a in range(nb):
             for k in range(K):
-                pos = line[a] + (k + k0)
-                i0 = min(max(int(np.floor(pos)), 0), n - 2)
-                f = min(max(pos - i0, 0.0), 1.0)
-                csum[a + 1, k] = csum[a, k] + (1.0 - f) * img[i0, j0 + a] + f * img[i0 + 1, j0 + a]
+                csum[a + 1, k] = csum[a, k] + _interp_column(img, j0 + a, line[a] + (k + k0))
         for a in range(nb):
             if skip[j0 + a]:
                 continue

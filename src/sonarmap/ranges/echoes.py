@@ -407,6 +407,13 @@ def beamwidth_in_beams(geometry: SonarGeometry) -> NDArray[np.float64] | None:
 _BEAMWIDTHS: weakref.WeakKeyDictionary[SonarGeometry, NDArray[np.float64]] = weakref.WeakKeyDictionary()
 
 
+def _bin_and_pulse_m(geometry: SonarGeometry, pulse_bins: int) -> tuple[float, float]:
+    """``(bin, pulse)`` lengths (m) that a leading edge's sigma adds as uniform spreads: the range
+    bin, and the pulse where it spans at least 2 bins (shorter, it is inside the bin's spread)."""
+    bin_m = abs(geometry.range_resolution_m)
+    return bin_m, (int(pulse_bins) * bin_m if pulse_bins >= 2 else 0.0)
+
+
 def _echo_ranges(edge: NDArray[np.float64], pval: NDArray[np.float64], slope: NDArray[np.float64],
                  geometry: SonarGeometry, pulse_bins: int, fraction: float, looks: float, background: float,
                  sigma_scale: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
@@ -414,8 +421,7 @@ def _echo_ranges(edge: NDArray[np.float64], pval: NDArray[np.float64], slope: ND
     ``fraction`` x the peaks, in one pass."""
     from sonarmap.ranges import _kernels
 
-    bin_m = abs(geometry.range_resolution_m)
-    pulse_m = int(pulse_bins) * bin_m if pulse_bins >= 2 else 0.0
+    bin_m, pulse_m = _bin_and_pulse_m(geometry, pulse_bins)
     sqrt_looks = math.sqrt(max(float(looks * max(int(pulse_bins), 1)), 1.0))  # NaN stays NaN, as np.maximum
     return _kernels.echo_ranges(edge, pval, slope, np.ascontiguousarray(geometry.range_m, dtype=np.float64),
                                 float(fraction), math.sqrt(2.0), max(float(background), 0.0), sqrt_looks, bin_m,
@@ -586,8 +592,7 @@ def _with_edges(echoes: Echoes, sel: np.ndarray, pooled: tuple[np.ndarray, np.nd
     last (else a neighbouring surface pulled it)."""
     from sonarmap.ranges import _kernels
 
-    bin_m = abs(geometry.range_resolution_m)
-    pulse_m = int(pulse_bins) * bin_m if pulse_bins >= 2 else 0.0
+    bin_m, pulse_m = _bin_and_pulse_m(geometry, pulse_bins)
     new, used, stop = pooled
     n_kept, eb, er, sl, sig, marked, n_marked = _kernels.kept_edges(
         sel, new, used, echoes.start_bin, stop, int(pulse_bins) + 2, echoes.edge_bin, echoes.edge_range_m,

@@ -39,7 +39,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from sonarmap.errors import InputError
 from sonarmap.geometry import SonarGeometry
-from sonarmap.ranges.echoes import Echoes, _first_runs, edge_sigma_m
+from sonarmap.ranges.echoes import Echoes, _first_runs, _bin_and_pulse_m, edge_sigma_m
 
 
 def template_edges(
@@ -132,8 +132,7 @@ def _with_template_edges(echoes: Echoes, sel: NDArray[np.int64], new: NDArray[np
     done = np.flatnonzero(np.isfinite(var[:, 0]))
     if not done.size:
         return echoes
-    bin_m = abs(geometry.range_resolution_m)
-    pulse_m = int(pulse_bins) * bin_m if pulse_bins >= 2 else 0.0
+    bin_m, pulse_m = _bin_and_pulse_m(geometry, pulse_bins)
     idx = sel[done]
     edge_bin = echoes.edge_bin.copy()
     edge_range_m = echoes.edge_range_m.copy()
