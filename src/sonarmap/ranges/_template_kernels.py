@@ -214,8 +214,38 @@ def _run_edges(img, edge, stop, skip, j0, j1, half_template, half_window, front,
 
 
 @njit(cache=True, nogil=True)
+def _anchor_run(edge, new, var, j0, j1, anchor):  # pragma: no cover - numba
+    """Anchor the template-measured edges of the run ``j0 .. j1 - 1`` on the edges they replace
+    (in place): each measured beam's edge moves by the median, over the measured beams of the
+    run within ``anchor`` beams, of (edge before - template edge), and ``var[:, 1]`` adds that
+    median's variance (``pi / 2`` times the offsets' variance over their number) to the
+    template crossing's."""
+    nb = j1 - j0
+    d = np.empty(nb)
+    ok = np.zeros(nb, np.bool_)
+    for a in range(nb):
+        ok[a] = np.isfinite(var[j0 + a, 0]) and np.isfinite(edge[j0 + a]) and np.isfinite(new[j0 + a])
+        d[a] = edge[j0 + a] - new[j0 + a] if ok[a] else 0.0
+    buf = np.empty(2 * anchor + 1)
+    for a in range(nb):
+        if not ok[a]:
+            continue
+        c = 0
+        for k in range(max(0, a - anchor), min(nb, a + anchor + 1)):
+            if ok[k]:
+                buf[c] = d[k]
+                c += 1
+        w = buf[:c]
+        new[j0 + a] += np.median(w)
+        if c >= 2:
+            mu = w.mean()
+            var[j0 + a, 1] += 0.5 * np.pi * ((w - mu) ** 2).sum() / (c - 1) / c
+
+
+@njit(cache=True, nogil=True)
 def template_edges(img, edge, stop, run, skip, half_template, half_window, front, min_beams, max_bins,
-                   max_shift, n_score, fraction, peak_rows, max_rows, n_iter, min_contrast):  # pragma: no cover - numba
+                   max_shift, n_score, fraction, peak_rows, max_rows, n_iter, min_contrast,
+                   anchor):  # pragma: no cover - numba
     """Per beam the leading edge re-measured against its surface's echo template, and the
     variances (bins^2; NaN where the beam keeps its edge) of the template's position (inverse
     Fisher information) and of its crossing (the template beams' spread): see
@@ -236,5 +266,7 @@ def template_edges(img, edge, stop, run, skip, half_template, half_window, front
         if j1 - j >= min_beams:
             _run_edges(img, edge, stop, skip, j, j1, half_template, half_window, front, max_bins, max_shift,
                        n_score, fraction, peak_rows, max_rows, n_iter, min_contrast, new, var)
+            if anchor > 0:
+                _anchor_run(edge, new, var, j, j1, anchor)
         j = j1
     return new, var

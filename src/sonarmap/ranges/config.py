@@ -198,9 +198,10 @@ class RangeConfig(ConfigSection):
     sigma_scale: float = 1.5
     sigma_pool_scale: float = 5.0
     sigma_fit_scale: float = 6.25
-    edge_template_beams: int = 0
+    edge_template_beams: int = 5
     edge_template_min_beams: int = 30
-    sigma_template_scale: float = 2.0
+    edge_template_anchor_beams: int = 10
+    sigma_template_scale: float = 1.7
     log_dynamic_range_db: float | None = None
     min_run: int = 1
     reject_isolated: bool = True
@@ -240,7 +241,8 @@ class RangeConfig(ConfigSection):
             raise config_error(w, "edge_fraction", "must lie in [0, 1)", self.edge_fraction)
         check_integers(self, (("min_run", 1), ("neighbour_beams", 1), ("max_jump_bins", 0),
                               ("min_segment_beams", 1), ("refine_bins", 0), ("edge_pool_beams", 0),
-                              ("edge_template_beams", 0), ("edge_template_min_beams", 3)), w)
+                              ("edge_template_beams", 0), ("edge_template_min_beams", 3),
+                              ("edge_template_anchor_beams", 0)), w)
         check_booleans(self, ("reject_isolated",), w)
 
     def to_dict(self) -> dict[str, Any]:

@@ -334,7 +334,8 @@ def _template_pass(echoes: Any, sel: NDArray[np.int64], meas: Any, geom: Any, co
     return template_edges(echoes, sel, meas, geom, half_template=config.edge_template_beams,
                           min_beams=config.edge_template_min_beams, fraction=fraction,
                           touch_bins=config.track.touch_bins, pulse_bins=pb,
-                          sigma_scale=config.sigma_template_scale, skip=echoes.clip_fitted)
+                          sigma_scale=config.sigma_template_scale,
+                          anchor_beams=config.edge_template_anchor_beams, skip=echoes.clip_fitted)
 
 
 def _pooled_returns(echoes: Any, sel: NDArray[np.int64], meas: NDArray[Any], ping: Ping, config: RangeConfig,

@@ -16,18 +16,18 @@ each beam of a long tracked surface it
    scoring - on the rows from ``front_bins`` in front of the course to just past the template's
    peak.
 
-The beam's edge is that position plus the template's crossing.  Two rounds: a template aligned
-on noisy edges is blurred, and a thin echo's blurred crossing lies early (on the simulated hull
-survey one round put the returns a median 0.3 bin in front of two).  A faint echo (a template
-peak under ``min_contrast`` times its level in front of the surface) keeps its edge: through a
-faint grazing seafloor's template (3-10x on the simulator's ARIS presets) the crossing lay 3 bins
-early, where the pooled profile's lay 2.6.
+The template's own half-peak crossing is noisy (even aligned on the true surface, an 11-beam
+template's crossing lies within a bin of it on about 60 % of the simulated DIDSON hull's beams),
+while the position it is slid to is precise.  So the beam's edge is that position *anchored* on
+the edges the stage started from (:func:`sonarmap.ranges.echoes.pooled_edges`): the template's
+relative positions keep their precision, and the median over ``anchor_beams`` beams either side
+of (edge before - template edge) sets the range convention's level.  Two rounds: a template
+aligned on noisy edges is blurred.  A faint echo (a template peak under ``min_contrast`` times its
+level in front of the surface) keeps its edge: through a faint grazing seafloor's template (3-10x
+on the simulator's ARIS presets) the crossing lay 3 bins early.
 
-Every sample of the rise and of the peak informs the edge, not only the two around one crossing
-of a speckled profile.  The stage is off by default (``PipelineConfig.ranges.edge_template_beams``
-= 0; ``docs/segmentation.md``, "template edges"): it measures the simulator's surfaces better,
-but on the real Kongsberg swath it puts the oblique beams' returns in front of their own echoes'
-leading edges.
+Every sample of the rise and of the peak informs the relative position, not only the two around
+one crossing of a speckled profile (``docs/segmentation.md``, "Template edges").
 """
 
 from __future__ import annotations
@@ -60,6 +60,7 @@ def template_edges(
     touch_bins: float = 1.0,
     pulse_bins: int = 1,
     sigma_scale: float = 1.0,
+    anchor_beams: int = 10,
     skip: ArrayLike | None = None,
 ) -> Echoes:
     """Leading edges of the returns on long surfaces measured against the surface's echo template.
@@ -83,19 +84,17 @@ def template_edges(
         template position; rows in front of the course that the position is fitted on.
     min_beams, max_bins : int
         Shortest surface measured; longest echo depth (bins) the template's peak is searched over.
-    max_shift_bins : float
-        Largest move of the template position from the course.
-    n_iter : int
-        Rounds, each aligning the templates on the edges of the round before (see the notes).
+    max_shift_bins, n_iter : float, int
+        Largest move of the template position from the course; rounds (see the notes).
     min_contrast : float
         Least ratio of the template's peak to its mean level in front of the surface (offsets
         beyond ``front_bins``): a weaker echo keeps its edge (see the notes).
     fraction, touch_bins, pulse_bins
-        The range convention's fraction of the first peak; how close two beams' echoes come on
-        one surface (:func:`surface_runs`); the pulse length in bins (its spread enters sigma).
-    sigma_scale : float
-        ``PipelineConfig.ranges.sigma_template_scale``: ``sigma^2 = bin^2 / 12 + (scale bin
-        se)^2 + pulse^2 / 12``, ``se`` the standard error of position and crossing (bins).
+        Convention's fraction of the first peak; :func:`surface_runs`' touch; pulse length (bins).
+    sigma_scale, anchor_beams : float, int
+        ``sigma^2 = bin^2 / 12 + (scale bin se)^2 + pulse^2 / 12``, ``se^2`` the variances of
+        position, crossing and anchor (bins^2); the anchor's half-width (0: the template's own
+        crossing is the edge).  ``PipelineConfig.ranges.sigma_template_scale`` and ``.edge_template_anchor_beams``.
     skip : array_like of bool, shape (n_echoes,), optional
         Echoes whose edge is kept (e.g. the fitted clipped echoes of ``pooled_edges``).
 
@@ -107,8 +106,8 @@ def template_edges(
     from sonarmap.ranges import _template_kernels
 
     sel = np.ascontiguousarray(np.asarray(first, dtype=np.int64))
-    _check_template_options(sel, echoes, half_template, half_window, n_iter, front_bins, min_beams, max_bins,
-                            max_shift_bins, fraction, sigma_scale, min_contrast)
+    _check_template_options(sel, echoes, (half_template, half_window, n_iter, front_bins, min_beams, max_bins,
+                                          anchor_beams), max_shift_bins, fraction, sigma_scale, min_contrast)
     img = np.ascontiguousarray(image, dtype=np.float64)
     geometry.check_image(img, "image")
     edge, stop, run = _first_runs(echoes, sel, touch_bins)
@@ -120,7 +119,8 @@ def template_edges(
         skip_beam[sel >= 0] = marks[sel[sel >= 0]]
     new, var = _template_kernels.template_edges(
         img, edge, stop, run, skip_beam, int(half_template), int(half_window), int(front_bins), int(min_beams),
-        int(max_bins), float(max_shift_bins), 6, float(fraction), 3, 24, int(n_iter), float(min_contrast))
+        int(max_bins), float(max_shift_bins), 6, float(fraction), 3, 24, int(n_iter), float(min_contrast),
+        int(anchor_beams))
     return _with_template_edges(echoes, sel, new, var, geometry, pulse_bins, sigma_scale)
 
 
@@ -145,14 +145,16 @@ def _with_template_edges(echoes: Echoes, sel: NDArray[np.int64], new: NDArray[np
     return echoes.replaced(edge_bin=edge_bin, edge_range_m=edge_range_m, sigma_m=sigma_m)
 
 
-def _check_template_options(sel: NDArray[np.int64], echoes: Echoes, half_template: int, half_window: int,
-                            n_iter: int, front_bins: int, min_beams: int, max_bins: int, max_shift_bins: float,
+def _check_template_options(sel: NDArray[np.int64], echoes: Echoes, ints: tuple[int, ...], max_shift_bins: float,
                             fraction: float, sigma_scale: float, min_contrast: float) -> None:
-    """The options of :func:`template_edges` are in range and ``first`` has a value per beam."""
+    """The options of :func:`template_edges` are in range and ``first`` has a value per beam
+    (``ints``: half_template, half_window, n_iter, front_bins, min_beams, max_bins, anchor_beams)."""
+    half_template, half_window, n_iter, front_bins, min_beams, max_bins, anchor_beams = ints
     if sel.shape != (echoes.n_beams,):
         raise InputError(f"first: expected one echo index per beam ({echoes.n_beams}), got shape {sel.shape}")
     for key, v, lo in (("half_template", half_template, 1), ("half_window", half_window, 0), ("n_iter", n_iter, 1),
-                       ("front_bins", front_bins, 1), ("min_beams", min_beams, 3), ("max_bins", max_bins, 3)):
+                       ("front_bins", front_bins, 1), ("min_beams", min_beams, 3), ("max_bins", max_bins, 3),
+                       ("anchor_beams", anchor_beams, 0)):
         if isinstance(v, bool) or int(v) != v or v < lo:
             raise InputError(f"{key}: must be an integer >= {lo} (got {v!r})")
     for key, v in (("max_shift_bins", max_shift_bins), ("sigma_scale", sigma_scale), ("min_contrast", min_contrast)):
