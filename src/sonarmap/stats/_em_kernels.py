@@ -198,40 +198,44 @@ def _eval(kind: int, x: np.ndarray, eta: float, u: np.ndarray) -> tuple[float, f
     multiplications per level instead of an ``exp``, relative error below ``L^2`` ulps.  Both
     sequences decrease, so once a term is below 1e-300 the rest are set to 0.
     """
-    L = x.shape[0]
     h = x[1] - x[0]
-    z = 0.0
-    s1 = 0.0
-    s2 = 0.0
-    k = 0
     if kind == 1:
-        r = np.exp(eta * h)
-        e = 1.0
+        return _tail_1(x, 0, 1.0, np.exp(eta * h), 0.0, 0.0, 0.0, u)
+    q = np.exp(eta * h * h)
+    return _tail_2(x, 0, 1.0, q, q * q, 0.0, 0.0, 0.0, u)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _level_1(x: np.ndarray, k: int, e: float, r: float, z: float, s1: float, s2: float,
+             u: np.ndarray) -> tuple[float, float, float, float]:
+    """Level ``k`` of :func:`_eval`'s exponential (``u[k] = e = r^k``): ``(e r, z, s1, s2)``
+    with its terms added."""
+    t = x[k]
+    u[k] = e
+    return e * r, z + e, s1 + e * t, s2 + e * t * t
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _level_2(x: np.ndarray, k: int, e: float, g: float, q2: float, z: float, s1: float, s2: float,
+             u: np.ndarray) -> tuple[float, float, float, float, float]:
+    """Level ``k`` of :func:`_eval`'s Rayleigh (``u[k] = x_k e``, ``e = q^(k^2)``, ``g =
+    q^(2k+1)``): ``(e g, g q^2, z, s1, s2)`` with its terms added."""
+    xk = x[k]
+    t = xk * xk
+    v = xk * e
+    u[k] = v
+    return e * g, g * q2, z + v, s1 + v * t, s2 + v * t * t
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _tail_1(x: np.ndarray, k: int, e: float, r: float, z: float, s1: float, s2: float,
+            u: np.ndarray) -> tuple[float, float, float]:
+    """:func:`_eval` of the exponential from level ``k`` on (its state there: ``e``, the sums);
+    a term ``e`` below 1e-300 ends the recurrence (``u`` is 0 from there)."""
+    L = x.shape[0]
+    if not e < 1e-300:
         while k < L:
-            t = x[k]
-            u[k] = e
-            z += e
-            s1 += e * t
-            s2 += e * t * t
-            e *= r
-            k += 1
-            if e < 1e-300:
-                break
-    else:
-        q = np.exp(eta * h * h)
-        q2 = q * q
-        g = q  # q^(2k+1)
-        e = 1.0  # q^(k^2)
-        while k < L:
-            xk = x[k]
-            t = xk * xk
-            v = xk * e
-            u[k] = v
-            z += v
-            s1 += v * t
-            s2 += v * t * t
-            e *= g
-            g *= q2
+            e, z, s1, s2 = _level_1(x, k, e, r, z, s1, s2, u)
             k += 1
             if e < 1e-300:
                 break
@@ -239,6 +243,53 @@ def _eval(kind: int, x: np.ndarray, eta: float, u: np.ndarray) -> tuple[float, f
         u[k] = 0.0
         k += 1
     return z, s1, s2
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _tail_2(x: np.ndarray, k: int, e: float, g: float, q2: float, z: float, s1: float, s2: float,
+            u: np.ndarray) -> tuple[float, float, float]:
+    """:func:`_eval` of the Rayleigh from level ``k`` on (its state there: ``e``, ``g``, the
+    sums); a term ``e`` below 1e-300 ends the recurrence (``u`` is 0 from there)."""
+    L = x.shape[0]
+    if not e < 1e-300:
+        while k < L:
+            e, g, z, s1, s2 = _level_2(x, k, e, g, q2, z, s1, s2, u)
+            k += 1
+            if e < 1e-300:
+                break
+    while k < L:
+        u[k] = 0.0
+        k += 1
+    return z, s1, s2
+
+
+@njit(cache=True, nogil=True)
+def _eval_12(x: np.ndarray, eta1: float, eta2: float, u1: np.ndarray,
+             u2: np.ndarray) -> tuple[float, float, float, float, float, float]:
+    """:func:`_eval` of an exponential at ``eta1`` (into ``u1``) and of a Rayleigh at ``eta2``
+    (into ``u2``) in one loop over the levels: each recurrence's operations are its own, in its
+    own order (the same numbers), and the two dependency chains overlap (~25 % less time than
+    two calls)."""
+    L = x.shape[0]
+    h = x[1] - x[0]
+    r = np.exp(eta1 * h)
+    q = np.exp(eta2 * h * h)
+    q2 = q * q
+    g = q
+    e1 = 1.0
+    e2 = 1.0
+    z1 = s11 = s21 = 0.0
+    z2 = s12 = s22 = 0.0
+    k = 0
+    while k < L:
+        e1, z1, s11, s21 = _level_1(x, k, e1, r, z1, s11, s21, u1)
+        e2, g, z2, s12, s22 = _level_2(x, k, e2, g, q2, z2, s12, s22, u2)
+        k += 1
+        if e1 < 1e-300 or e2 < 1e-300:
+            break
+    z1, s11, s21 = _tail_1(x, k, e1, r, z1, s11, s21, u1)
+    z2, s12, s22 = _tail_2(x, k, e2, g, q2, z2, s12, s22, u2)
+    return z1, s11, s21, z2, s12, s22
 
 
 @njit(cache=True, nogil=True)
@@ -267,7 +318,30 @@ def _eval_cached(kind: int, x: np.ndarray, eta: float, c: int, U: np.ndarray, EC
     return z, s1, s2
 
 
+@njit(cache=True, nogil=True)
+def _eval_cached_12(x: np.ndarray, eta1: float, eta2: float, U: np.ndarray,
+                    EC: np.ndarray) -> tuple[float, float, float, float, float, float]:
+    """:func:`_eval_cached` of components 1 (an exponential at ``eta1``) and 2 (a Rayleigh at
+    ``eta2``): both evaluated in one loop (:func:`_eval_12`) when neither is cached."""
+    if EC[1, 0] == eta1 or EC[2, 0] == eta2:
+        z1, s11, s21 = _eval_cached(1, x, eta1, 1, U, EC)
+        z2, s12, s22 = _eval_cached(2, x, eta2, 2, U, EC)
+        return z1, s11, s21, z2, s12, s22
+    z1, s11, s21, z2, s12, s22 = _eval_12(x, eta1, eta2, U[1], U[2])
+    EC[1, 0] = eta1
+    EC[1, 1] = z1
+    EC[1, 2] = s11
+    EC[1, 3] = s21
+    EC[2, 0] = eta2
+    EC[2, 1] = z2
+    EC[2, 2] = s12
+    EC[2, 3] = s22
+    return z1, s11, s21, z2, s12, s22
+
+
 _EPS = 2.220446049250313e-16  # relative spacing of doubles (upper bound), np.finfo(float).eps
+#: Newton steps of :func:`_solve` at most.
+_SOLVE_MAX_STEPS = 100
 
 
 @njit(cache=True, nogil=True)
@@ -283,34 +357,77 @@ def _solve(kind: int, x: np.ndarray, target: float, eta0: float, lo: float, hi: 
     the same or an adjacent ``q`` - the computed mean cannot tell them apart, and bisecting
     below that (while ``E_eta[T] - target`` is rounding noise) moves ``eta`` by noise only.
     """
-    if target <= m_lo:
-        return lo
-    if target >= m_hi:
-        return hi
-    a = lo
-    b = hi
-    eta = min(max(eta0, lo), hi)
+    a, b, eta, n = _solve_start(target, eta0, lo, hi, m_lo, m_hi)
     h = x[1] - x[0]
     res = _EPS / (h if kind == 1 else h * h)  # eta resolution of _eval (see above)
-    for _ in range(100):
+    for _ in range(n):
         z, s1, s2 = _eval_cached(kind, x, eta, c, U, EC)
-        m = s1 / z
-        v = s2 / z - m * m
-        g = m - target
-        if abs(g) <= 1e-13 * abs(target):
+        done, eta, a, b = _newton_step(z, s1, s2, target, eta, a, b, res)
+        if done:
             break
-        if g > 0:
-            b = eta
-        else:
-            a = eta
-        nxt = eta - g / v if v > 0 else 0.5 * (a + b)
-        if not (a < nxt < b):
-            nxt = 0.5 * (a + b)
-        if abs(nxt - eta) <= max(1e-14 * (abs(eta) + 1.0), res):
-            eta = nxt
-            break
-        eta = nxt
     return eta
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _newton_step(z: float, s1: float, s2: float, target: float, eta: float, a: float, b: float,
+                 res: float) -> tuple[bool, float, float, float]:
+    """One step of :func:`_solve` from its evaluation ``(z, s1, s2)`` at ``eta`` (bracket ``[a,
+    b]``, resolution ``res``): ``(done, eta, a, b)``, ``eta`` the next iterate (the solution when
+    done)."""
+    m = s1 / z
+    v = s2 / z - m * m
+    g = m - target
+    if abs(g) <= 1e-13 * abs(target):
+        return True, eta, a, b
+    if g > 0:
+        b = eta
+    else:
+        a = eta
+    nxt = eta - g / v if v > 0 else 0.5 * (a + b)
+    if not (a < nxt < b):
+        nxt = 0.5 * (a + b)
+    return abs(nxt - eta) <= max(1e-14 * (abs(eta) + 1.0), res), nxt, a, b
+
+
+@njit(cache=True, nogil=True)
+def _solve_12(x: np.ndarray, t1: float, t2: float, eta0: np.ndarray, lo: np.ndarray, hi: np.ndarray,
+              m_lo: np.ndarray, m_hi: np.ndarray, U: np.ndarray, EC: np.ndarray) -> tuple[float, float]:
+    """:func:`_solve` of component 1 (an exponential, target ``t1``) and component 2 (a Rayleigh,
+    target ``t2``) from the starts ``eta0[1:3, 0]`` with the bounds ``lo``, ``hi`` and their means
+    ``m_lo``, ``m_hi`` (rows / entries 1 and 2), in lockstep: each solve's iterates are its own
+    (the same numbers as alone), and while both go on, their evaluations share one loop over the
+    levels (:func:`_eval_cached_12`)."""
+    h = x[1] - x[0]
+    res1 = _EPS / h
+    res2 = _EPS / (h * h)
+    a1, b1, eta1, n1 = _solve_start(t1, eta0[1, 0], lo[1, 0], hi[1, 0], m_lo[1], m_hi[1])
+    a2, b2, eta2, n2 = _solve_start(t2, eta0[2, 0], lo[2, 0], hi[2, 0], m_lo[2], m_hi[2])
+    while n1 > 0 or n2 > 0:
+        if n1 > 0 and n2 > 0:
+            z1, s11, s21, z2, s12, s22 = _eval_cached_12(x, eta1, eta2, U, EC)
+        elif n1 > 0:
+            z1, s11, s21 = _eval_cached(1, x, eta1, 1, U, EC)
+        else:
+            z2, s12, s22 = _eval_cached(2, x, eta2, 2, U, EC)
+        if n1 > 0:
+            done, eta1, a1, b1 = _newton_step(z1, s11, s21, t1, eta1, a1, b1, res1)
+            n1 = 0 if done else n1 - 1
+        if n2 > 0:
+            done, eta2, a2, b2 = _newton_step(z2, s12, s22, t2, eta2, a2, b2, res2)
+            n2 = 0 if done else n2 - 1
+    return eta1, eta2
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _solve_start(target: float, eta0: float, lo: float, hi: float, m_lo: float,
+                 m_hi: float) -> tuple[float, float, float, int]:
+    """:func:`_solve`'s start: ``(a, b, eta, steps)``, the bracket, the first iterate and the
+    Newton steps left (0: the target is beyond a bound, ``eta`` is that bound)."""
+    if target <= m_lo:
+        return lo, hi, lo, 0
+    if target >= m_hi:
+        return lo, hi, hi, 0
+    return lo, hi, min(max(eta0, lo), hi), _SOLVE_MAX_STEPS
 
 
 @njit(cache=True)
@@ -976,8 +1093,7 @@ def _estep_general(counts, x, xe, lx, kind, par, w, occ, P, Rsp, Nc, tbar, pk, U
     C = kind.shape[0]
     L = x.shape[0]
     if not keep and C == 3 and kind[0] == 0 and kind[1] == 1 and kind[2] == 2:
-        z1, _, _ = _eval_cached(1, x, par[1, 0], 1, U, EC)
-        z2, _, _ = _eval_cached(2, x, par[2, 0], 2, U, EC)
+        z1, _, _, z2, _, _ = _eval_cached_12(x, par[1, 0], par[2, 0], U, EC)
         return _responsibilities_012(counts, x, w, occ, U, 1.0 / z1, 1.0 / z2, Nc, tbar)
     for c in range(C):
         kc = kind[c]
@@ -999,6 +1115,12 @@ def _estep_general(counts, x, xe, lx, kind, par, w, occ, P, Rsp, Nc, tbar, pk, U
 def _mstep_general(x, xe, lx, kind, par, w, lo, hi, N, Rsp, Nc, tbar, m_lo, m_hi, U, EC, V, GR, HS, SC,
                    cur, max_newton) -> None:
     C = kind.shape[0]
+    if C == 3 and kind[0] == 0 and kind[1] == 1 and kind[2] == 2 and Nc[1] > 0 and Nc[2] > 0:
+        # the pipeline's model: the two solves in lockstep (the same iterates)
+        for c in range(C):
+            w[c] = Nc[c] / N
+        par[1, 0], par[2, 0] = _solve_12(x, tbar[1] / Nc[1], tbar[2] / Nc[2], par, lo, hi, m_lo, m_hi, U, EC)
+        return
     for c in range(C):
         w[c] = Nc[c] / N
         kc = kind[c]
