@@ -1445,17 +1445,29 @@ def pooled_edges(img, edge, stop, run, half_beams, front_bins, max_bins, smooth_
             hi = lo + c
             nk = front + depth[j] + 1
             nf = nk + tail
+            row_hi = csum[hi]
+            row_lo = csum[lo]
+            cf = float(c)
             for k in range(nf + 2 * h):
-                mean[k] = (csum[hi, k] - csum[lo, k]) / c
+                mean[k] = (row_hi[k] - row_lo[k]) / cf
             # smoothed along range over smooth_bins (the profile extends h bins either side), only
             # where the echo is deep enough (>= 6 smoothing half-widths) for the box not to widen
             # it: a one-bin echo smoothed over 3 bins would have its crossing a bin early
             hj = h if depth[j] >= 6 * h else 0
-            for k in range(nf):
-                acc = 0.0
-                for d in range(h - hj, h + hj + 1):
-                    acc += mean[k + d]
-                sm[k] = acc / (2 * hj + 1)
+            # (the box summed from 0 in order, the 3-bin and 1-bin boxes written out: their loops
+            # vectorise, the loop over the box did not; 1024 x 512 pings 3.0 -> 2.6 ms)
+            if hj == 1:
+                for k in range(nf):
+                    sm[k] = (((0.0 + mean[k + h - 1]) + mean[k + h]) + mean[k + h + 1]) / 3.0
+            elif hj == 0:
+                for k in range(nf):
+                    sm[k] = (0.0 + mean[k + h]) / 1.0
+            else:
+                for k in range(nf):
+                    acc = 0.0
+                    for d in range(h - hj, h + hj + 1):
+                        acc += mean[k + d]
+                    sm[k] = acc / (2 * hj + 1)
             # peak and walk within front_bins of the alignment (profile bins lim ..)
             p = lim
             for k in range(lim + 1, nk):
