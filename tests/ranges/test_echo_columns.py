@@ -44,3 +44,17 @@ def test_spliced_columns_equal_whole_ping(seed: int) -> None:
             assert a.dtype == b.dtype and np.array_equal(a, b, equal_nan=True), f.name
         else:
             assert a == b, f.name
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_column_counts_are_numpys_cumulative_column_sums(seed: int) -> None:
+    """``_column_counts`` (find_echoes' first pass) against numpy: the running total of each
+    column's true pixels on rows ``r0 .. r1 - 1``."""
+    from sonarmap.ranges._kernels import _column_counts
+
+    rng = np.random.default_rng(seed)
+    n, m = int(rng.integers(1, 300)), int(rng.integers(1, 70))
+    mask = rng.random((n, m)) < rng.uniform(0.0, 0.8)
+    for r0, r1 in ((0, n), (n // 3, n - n // 4), (n // 2, n // 2)):
+        ref = np.concatenate([[0], np.cumsum(mask[r0:r1].sum(axis=0))])
+        assert np.array_equal(_column_counts(mask, r0, r1), ref)

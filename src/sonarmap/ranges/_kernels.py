@@ -18,13 +18,16 @@ def _column_counts(mask, r0, r1):  # pragma: no cover - numba
     is their total)."""
     n, m = mask.shape
     flat = mask.reshape(n * m).view(np.uint8)
-    first = np.zeros(m + 1, np.int64)
+    # (counted per column into their own array, row by row through a slice: this loop vectorises,
+    # the one adding into ``first[j + 1]`` did not - Oculus masks 30 -> 5 us)
+    count = np.zeros(m, np.int64)
     for i in range(r0, r1):
-        base = i * m
+        row = flat[i * m:(i + 1) * m]
         for j in range(m):
-            first[j + 1] += flat[base + j] != 0
+            count[j] += row[j] != 0
+    first = np.zeros(m + 1, np.int64)
     for j in range(m):
-        first[j + 1] += first[j]
+        first[j + 1] = first[j] + count[j]
     return first
 
 
