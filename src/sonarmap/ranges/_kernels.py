@@ -117,25 +117,31 @@ def find_echoes_in(mask, img, code, lut, boost, boost_min, max_gap, fraction, pe
     them (each beam's echoes depend on its column alone)."""
     r0 = max(r0, 0)
     r1 = min(r1, mask.shape[0])
-    col_first = np.zeros(cols.size + 1, np.int64)
-    for c in range(cols.size):
-        j = cols[c]
-        col_first[c + 1] = col_first[c]
-        for i in range(r0, r1):
-            if mask[i, j]:
-                col_first[c + 1] += 1
-    rows = np.empty(col_first[cols.size], np.int64)
-    pix = np.empty((col_first[cols.size], 2), np.float64)
+    # the pixels gathered along the rows, each row read once for all the columns (walks down the
+    # columns of a tall image missed the cache at every row: 4096 x 512 pings ~370 -> ~290 us)
+    nc = cols.size
+    count = np.zeros(nc, np.int64)
+    for i in range(r0, r1):
+        row = mask[i]
+        for c in range(nc):
+            count[c] += row[cols[c]]
+    col_first = np.zeros(nc + 1, np.int64)
+    for c in range(nc):
+        col_first[c + 1] = col_first[c] + count[c]
+    rows = np.empty(col_first[nc], np.int64)
+    pix = np.empty((col_first[nc], 2), np.float64)
     has_boost = boost.shape[0] == mask.shape[0]
-    for c in range(cols.size):
-        j = cols[c]
-        t = col_first[c]
-        for i in range(r0, r1):
-            if mask[i, j]:
+    fill = col_first[:nc].copy()
+    for i in range(r0, r1):
+        row = mask[i]
+        for c in range(nc):
+            j = cols[c]
+            if row[j]:
+                t = fill[c]
                 rows[t] = i
                 pix[t, 0] = img[i, j]
                 pix[t, 1] = _pixel_evidence(code, lut, boost, has_boost, boost_min, i, j)
-                t += 1
+                fill[c] = t + 1
     return _echoes_of_columns(img, max_gap, fraction, peak_rel, back, forward, cols, col_first, rows, pix)
 
 
