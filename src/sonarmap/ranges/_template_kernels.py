@@ -248,8 +248,8 @@ def template_edges(img, edge, stop, run, skip, half_template, half_window, front
                    anchor):  # pragma: no cover - numba
     """Per beam the leading edge re-measured against its surface's echo template, and the
     variances (bins^2; NaN where the beam keeps its edge) of the template's position (inverse
-    Fisher information) and of its crossing (the template beams' spread): see
-    :func:`sonarmap.ranges.template.template_edges`.  ``edge`` and ``stop`` (fractional bins;
+    Fisher information) and of its crossing (the template beams' spread; with ``anchor > 0`` plus
+    the anchor's, :func:`_anchor_run`): see :func:`sonarmap.ranges.template.template_edges`.  ``edge`` and ``stop`` (fractional bins;
     one past the echo's last structure bin) per beam, ``run`` the surface runs (-1: none),
     ``skip`` the beams that keep their edge."""
     m = edge.size

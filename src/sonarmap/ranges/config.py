@@ -162,10 +162,17 @@ class RangeConfig(ConfigSection):
     edge_template_min_beams : int
         Shortest surface measured against a template (shorter runs - propeller blades, small
         objects - change their echo's shape within a template's width).
+    edge_template_anchor_beams : int
+        The template edges keep their relative positions and take their level from the edges
+        they replace: each moves by the median of (edge before - template edge) over the
+        template-measured beams within this many beams of it.  0 = the template's own half-peak
+        crossing is the edge (noisier; on the real Kongsberg swath a median 2 samples early on
+        the oblique beams).
     sigma_template_scale : float
-        Sigma of a template-measured edge: the template position's standard error (inverse square
-        root of its Fisher information) times this factor, fitted on the simulator so that 68 %
-        of the errors lie within +-sigma (``docs/segmentation.md``).
+        Sigma of a template-measured edge: the standard error of the template's position
+        (inverse square root of its Fisher information), of its crossing and of the anchor's
+        median, in quadrature, times this factor, fitted on the simulator so that 68 % of the
+        errors lie within +-sigma (``docs/segmentation.md``, "Template edges").
     log_dynamic_range_db : float, optional
         The raw samples are log-compressed, ``dynamic range`` dB per unit of pixel value (ARIS):
         echoes of normalised images are measured in linear intensity.  Default: the ping's
