@@ -128,7 +128,7 @@ def _with_template_edges(echoes: Echoes, sel: NDArray[np.int64], new: NDArray[np
                          geometry: SonarGeometry, pulse_bins: int, sigma_scale: float) -> Echoes:
     """``echoes`` with the returns the template measured (finite ``var``) moved to ``new`` (bins)
     and their sigma ``sqrt(bin^2 / 12 + (scale bin se)^2 + pulse^2 / 12)``, ``se^2`` the sum of
-    the position's and the crossing's variances."""
+    the position's variance (``var[:, 0]``) and the crossing's plus the anchor's (``var[:, 1]``)."""
     done = np.flatnonzero(np.isfinite(var[:, 0]))
     if not done.size:
         return echoes
