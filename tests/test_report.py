@@ -101,3 +101,28 @@ def test_cli_report(store: Path, tmp_path: Path) -> None:
     r = subprocess.run([sys.executable, "-m", "sonarmap", "report", str(tmp_path), "-o", str(tmp_path / "x.html")],
                        capture_output=True, text=True, timeout=120)
     assert r.returncode == 1 and "not a sonarmap survey store" in r.stderr
+
+
+def test_chance_diagonal_is_drawn_densely_on_the_log_axis() -> None:
+    """pD = pFA from 0 to 1, with log-spaced points: on the report's symlog pFA axis two end
+    points would be joined by a straight segment in display space (pD 0.5 drawn at pFA 1e-3)."""
+    from sonarmap.report import chance_diagonal
+
+    x, y = chance_diagonal()
+    np.testing.assert_array_equal(x, y)
+    assert x[0] == 0.0 and x[-1] == 1.0 and x[1] <= 1e-3
+    assert np.all(np.diff(x) > 0) and np.max(x[2:] / x[1:-1]) < 1.1
+
+
+def test_component_scales_hide_components_without_pixels() -> None:
+    """A component holding almost no pixels (the object class of a ping without objects, its
+    scale at a bound) is not drawn; the last finite parameter is the scale."""
+    from sonarmap.report import MIN_SCALE_WEIGHT, component_scales
+
+    param = np.array([[[np.nan, np.nan], [0.02, np.nan], [2.0, 0.15]],
+                      [[np.nan, np.nan], [0.03, np.nan], [2.0, 1.0]]])
+    weight = np.array([[0.6, 0.35, 0.05], [0.7, 0.3, MIN_SCALE_WEIGHT / 2]])
+    s = component_scales(param, weight)
+    assert np.isnan(s[:, 0]).all()
+    np.testing.assert_allclose(s[:, 1], [0.02, 0.03])
+    assert s[0, 2] == 0.15 and np.isnan(s[1, 2])

@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from sonarmap._atomic import atomic_write_text
 from sonarmap.errors import DataFormatError
@@ -91,6 +92,32 @@ def _time_axis(ax: Any) -> None:
     ax.xaxis.set_major_formatter(mdates.ConciseDateFormatter(loc))
 
 
+#: A mixture component's scale is drawn only where its weight is at least this: a component that
+#: holds almost no pixels (an object class on a ping without objects) has an undetermined scale.
+MIN_SCALE_WEIGHT = 0.005
+
+
+def component_scales(param: NDArray[np.floating], weight: NDArray[np.floating]) -> NDArray[np.float64]:
+    """Per ping and mixture component, the scale the report draws: the component's last finite
+    parameter (``param``, shape (n_pings, n_components, n_params)), NaN where it has none or where
+    the component's ``weight`` (n_pings, n_components) is below :data:`MIN_SCALE_WEIGHT`."""
+    p = np.asarray(param, dtype=np.float64)
+    out = np.full(p.shape[:2], np.nan)
+    for i, c in np.ndindex(*p.shape[:2]):
+        v = p[i, c][np.isfinite(p[i, c])]
+        if v.size and weight[i, c] >= MIN_SCALE_WEIGHT:
+            out[i, c] = v[-1]
+    return out
+
+
+def chance_diagonal(n: int = 200) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The ROC of a classifier at chance, ``pD = pFA``, sampled densely enough (0, then ``n``
+    points log-spaced from 1e-4 to 1) to be drawn as a line on the report's log-scaled pFA axis
+    (two end points would be joined by a straight segment in display space)."""
+    x = np.concatenate([[0.0], np.geomspace(1e-4, 1.0, n)])
+    return x, x.copy()
+
+
 def _fig_timeseries(ds: Any, dpi: int) -> str:
     from sonarmap.plots import new_figure
 
@@ -109,16 +136,14 @@ def _fig_timeseries(ds: Any, dpi: int) -> str:
     axes[0].legend(fontsize=7, ncol=max(1, w.shape[1]), loc="upper right")
     axes[0].set_title("Mixture weights", fontsize=9)
     if p.ndim == 3 and p.shape[2]:
-        # Scale parameter = last finite parameter of each component.
+        scales = component_scales(p, w)
         for c in range(p.shape[1]):
-            row = p[:, c, :]
-            if np.isnan(row).all():
-                continue
-            last = np.array([r[np.isfinite(r)][-1] if np.isfinite(r).any() else np.nan for r in row])
-            axes[1].plot(t, last, lw=0.8, label=names[c] if c < len(names) else str(c))
+            if not np.isnan(p[:, c, :]).all():
+                axes[1].plot(t, scales[:, c], lw=0.8, marker=".", ms=2, label=names[c] if c < len(names) else str(c))
         axes[1].legend(fontsize=7, loc="upper right")
     axes[1].set_ylabel("scale")
-    axes[1].set_title("Mixture component scale parameters", fontsize=9)
+    axes[1].set_title("Mixture component scale parameters (gaps: the component holds < "
+                      f"{100 * MIN_SCALE_WEIGHT:g} % of the pixels)", fontsize=9)
     axes[2].plot(t, kld, lw=0.8, color="0.2", label="KLD")
     if flagged.any():
         axes[2].plot(t[flagged], kld[flagged], "o", ms=3, color="tab:red", label="flagged fit")
@@ -185,7 +210,7 @@ def _fig_roc(ds: Any, examples: list[dict[str, Any]], dpi: int) -> str | None:
         ax.plot(x, y, lw=1.2, label=f"{label} (mixture model)")
     if ok.any():
         ax.scatter(pfa[ok], pd[ok], s=6, c="0.3", alpha=0.5, label="operating point of each ping")
-    ax.plot([0, 1], [0, 1], ls=":", color="0.6", lw=0.8)
+    ax.plot(*chance_diagonal(), ls=":", color="0.6", lw=0.8, label="chance")
     ax.set_xscale("symlog", linthresh=1e-3)
     ax.set_xlim(0, 1)
     ax.set_ylim(0, 1.01)
