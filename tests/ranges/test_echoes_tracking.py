@@ -389,7 +389,9 @@ def test_real_pings_leading_edges_sigma_and_p_detect(test_pings, aris_pings):
     for f in aris_pings[:2]:
         r = process_ping(f).ranges
         assert r.n_returns >= 40
-        assert np.nanmin(r.range_m) > 15.4
+        # the target's nearest leading edge lies at ~15.4 m (frame 0, beams 37-39; smoothed along
+        # the surface 15.40 m): nothing in the water column in front, more than 5 bins before it
+        assert np.nanmin(r.range_m) > 15.35
         assert np.all(np.isfinite(r.sigma_m[r.valid]))
 
 

@@ -173,6 +173,14 @@ class RangeConfig(ConfigSection):
         (inverse square root of its Fisher information), of its crossing and of the anchor's
         median, in quadrature, times this factor, fitted on the simulator so that 68 % of the
         errors lie within +-sigma (``docs/segmentation.md``, "Template edges").
+    edge_smooth_beams : int
+        Each first return's leading edge is combined with the prediction of the edges within this
+        many beams on either side on its surface (a leave-one-out local quadratic across beams),
+        weighted by their sigmas and by the surface's roughness
+        (:func:`sonarmap.ranges.smoothing.smooth_surface_edges`): a noisy edge moves towards its
+        neighbours, a precise one stays.  0 = off; else >= 2.
+    edge_smooth_min_beams : int
+        Shortest run of returns combined (>= 5).
     log_dynamic_range_db : float, optional
         The raw samples are log-compressed, ``dynamic range`` dB per unit of pixel value (ARIS):
         echoes of normalised images are measured in linear intensity.  Default: the ping's
@@ -209,6 +217,8 @@ class RangeConfig(ConfigSection):
     edge_template_min_beams: int = 30
     edge_template_anchor_beams: int = 10
     sigma_template_scale: float = 1.7
+    edge_smooth_beams: int = 8
+    edge_smooth_min_beams: int = 7
     log_dynamic_range_db: float | None = None
     min_run: int = 1
     reject_isolated: bool = True
@@ -249,7 +259,10 @@ class RangeConfig(ConfigSection):
         check_integers(self, (("min_run", 1), ("neighbour_beams", 1), ("max_jump_bins", 0),
                               ("min_segment_beams", 1), ("refine_bins", 0), ("edge_pool_beams", 0),
                               ("edge_template_beams", 0), ("edge_template_min_beams", 3),
-                              ("edge_template_anchor_beams", 0)), w)
+                              ("edge_template_anchor_beams", 0), ("edge_smooth_beams", 0),
+                              ("edge_smooth_min_beams", 5)), w)
+        if self.edge_smooth_beams == 1:
+            raise config_error(w, "edge_smooth_beams", "must be 0 (off) or >= 2", self.edge_smooth_beams)
         check_booleans(self, ("reject_isolated",), w)
 
     def to_dict(self) -> dict[str, Any]:

@@ -1,0 +1,139 @@
+"""Numba kernel of :mod:`sonarmap.ranges.smoothing` (leading edges along a surface)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+
+@njit(cache=True, nogil=True)
+def _solve3(a, b):  # pragma: no cover - numba
+    """``a x = b`` for a symmetric 3 x 3 ``a`` by Cramer's rule (``x`` NaN when singular); also
+    returns ``a``'s inverse's first row (the prediction weights' coefficients)."""
+    c00 = a[1, 1] * a[2, 2] - a[1, 2] * a[2, 1]
+    c01 = a[1, 2] * a[2, 0] - a[1, 0] * a[2, 2]
+    c02 = a[1, 0] * a[2, 1] - a[1, 1] * a[2, 0]
+    det = a[0, 0] * c00 + a[0, 1] * c01 + a[0, 2] * c02
+    x = np.full(3, np.nan)
+    row = np.full(3, np.nan)
+    if not abs(det) > 1e-300:
+        return x, row
+    inv = np.empty((3, 3))
+    inv[0, 0] = c00 / det
+    inv[0, 1] = (a[0, 2] * a[2, 1] - a[0, 1] * a[2, 2]) / det
+    inv[0, 2] = (a[0, 1] * a[1, 2] - a[0, 2] * a[1, 1]) / det
+    inv[1, 0] = c01 / det
+    inv[1, 1] = (a[0, 0] * a[2, 2] - a[0, 2] * a[2, 0]) / det
+    inv[1, 2] = (a[0, 2] * a[1, 0] - a[0, 0] * a[1, 2]) / det
+    inv[2, 0] = c02 / det
+    inv[2, 1] = (a[0, 1] * a[2, 0] - a[0, 0] * a[2, 1]) / det
+    inv[2, 2] = (a[0, 0] * a[1, 1] - a[0, 1] * a[1, 0]) / det
+    for r in range(3):
+        x[r] = inv[r, 0] * b[0] + inv[r, 1] * b[1] + inv[r, 2] * b[2]
+        row[r] = inv[0, r]
+    return x, row
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _tricube(i, a, h):  # pragma: no cover - numba
+    """``(u, w)``: the offset ``i - a`` in beams and its tricube weight over a window of
+    ``h`` beams either side."""
+    u = float(i - a)
+    t = 1.0 - (abs(u) / (h + 1)) ** 3
+    return u, t * t * t
+
+
+@njit(cache=True, nogil=True)
+def smooth_edges(edge, sigma, run, half_beams, min_beams, sigma_min):  # pragma: no cover - numba
+    """Per beam ``(edge, sigma)`` (bins) after :func:`sonarmap.ranges.smoothing.smooth_surface_edges`.
+
+    ``edge``, ``sigma`` (bins, NaN: none) and ``run`` (surface label, -1: none; a run is a
+    contiguous block of beams) per beam.  Beams of runs with fewer than ``min_beams`` finite
+    edges, and beams with fewer than 4 neighbours in their window, keep their values.
+    """
+    m = edge.size
+    new = edge.copy()
+    out_sigma = sigma.copy()
+    h = half_beams
+    a3 = np.empty((3, 3))
+    b3 = np.empty(3)
+    j0 = 0
+    while j0 < m:
+        j1 = j0 + 1
+        while j1 < m and run[j1] == run[j0]:
+            j1 += 1
+        n_ok = 0
+        for j in range(j0, j1):
+            if np.isfinite(edge[j]) and np.isfinite(sigma[j]):
+                n_ok += 1
+        if run[j0] >= 0 and n_ok >= min_beams:
+            for a in range(j0, j1):
+                if not (np.isfinite(edge[a]) and np.isfinite(sigma[a])):
+                    continue
+                _smooth_beam(edge, sigma, a, max(j0, a - h), min(j1, a + h + 1), h, sigma_min, a3, b3,
+                             new, out_sigma)
+        j0 = j1
+    return new, out_sigma
+
+
+@njit(cache=True, nogil=True)
+def _smooth_beam(edge, sigma, a, lo, hi, h, sigma_min, a3, b3, new, out_sigma):  # pragma: no cover - numba
+    """Beam ``a``'s edge and sigma combined with the leave-one-out weighted local quadratic of the
+    beams ``lo .. hi - 1`` (see :func:`smooth_edges`), written to ``new`` / ``out_sigma``."""
+    a3[:, :] = 0.0
+    b3[:] = 0.0
+    n = 0
+    for i in range(lo, hi):
+        if i == a or not (np.isfinite(edge[i]) and np.isfinite(sigma[i])):
+            continue
+        u, tw = _tricube(i, a, h)
+        w = tw / max(sigma[i], sigma_min) ** 2
+        p = 1.0
+        for r in range(3):
+            q = p * p  # u^(r + c), from c = r
+            for c in range(r, 3):
+                a3[r, c] += w * q
+                q *= u
+            b3[r] += w * p * edge[i]
+            p *= u
+        n += 1
+    if n < 4:
+        return
+    for r in range(3):
+        for c in range(r):
+            a3[r, c] = a3[c, r]
+    coef, row = _solve3(a3, b3)
+    if not np.isfinite(coef[0]):
+        return
+    # the neighbours' scatter about the quadratic (tricube weights), their sigmas, and the
+    # prediction's variance: sum l_i^2 (sigma_i^2 + roughness) + roughness
+    sw = 0.0
+    sr = 0.0
+    ss = 0.0
+    for i in range(lo, hi):
+        if i == a or not (np.isfinite(edge[i]) and np.isfinite(sigma[i])):
+            continue
+        u, tw = _tricube(i, a, h)
+        r = edge[i] - (coef[0] + coef[1] * u + coef[2] * u * u)
+        sw += tw
+        sr += tw * r * r
+        ss += tw * max(sigma[i], sigma_min) ** 2
+    dof = max(1.0 - 3.0 / n, 0.2)
+    v_res = sr / sw / dof
+    rough = max(v_res - ss / sw, 0.0)
+    vp = rough
+    for i in range(lo, hi):
+        if i == a or not (np.isfinite(edge[i]) and np.isfinite(sigma[i])):
+            continue
+        u, tw = _tricube(i, a, h)
+        s2 = max(sigma[i], sigma_min) ** 2
+        li = (row[0] + row[1] * u + row[2] * u * u) * tw / s2
+        vp += li * li * (s2 + rough)
+    s_a = max(sigma[a], sigma_min)
+    k = s_a * s_a / (s_a * s_a + vp)
+    new[a] = edge[a] + k * (coef[0] - edge[a])
+    # the beam-to-beam scatter the combination removes (never below half the sigma)
+    v_new = max(s_a * s_a - k * min(v_res, s_a * s_a), 0.25 * s_a * s_a)
+    out_sigma[a] = min(sigma[a], math.sqrt(v_new))

@@ -1,0 +1,114 @@
+"""Leading edges along a tracked surface: each beam's edge combined with what its neighbours say.
+
+A surface seen by neighbouring beams is continuous: where one beam's leading edge is noisy (a
+speckled, slowly rising echo), the edges of the beams around it predict where it should lie.
+:func:`smooth_surface_edges` combines the two per beam, weighting each by its uncertainty:
+
+* the **prediction** ``p_j``: a weighted least-squares quadratic in the beam index through the
+  edges of the beams within ``half_beams`` of ``j`` on the same surface run, *without* beam ``j``
+  itself (leave-one-out), with tricube weights over the window times ``1 / sigma_i^2``;
+* its **variance** ``v_j = sum_i l_i^2 (sigma_i^2 + rho) + rho``, with ``l_i`` the quadratic's
+  weights at ``j`` and ``rho`` the surface's roughness about the quadratic - the neighbours'
+  weighted residual variance (over its degrees of freedom) beyond what their sigmas explain.  A
+  surface with real structure at the scale of a few beams (a steep line sampled beam by beam, a
+  step within a run) has a large ``rho``, so its beams keep their own edges;
+* the **combination** ``e_j + k (p_j - e_j)``, ``k = sigma_j^2 / (sigma_j^2 + v_j)``: a precise
+  edge (a bright, sharp rise) barely moves, a noisy one moves most of the way to its neighbours'
+  prediction.
+
+The sigma shrinks by the beam-to-beam scatter the combination removes,
+``sigma_j^2 - k min(s^2, sigma_j^2)`` with ``s^2`` the neighbours' residual variance (never below
+half of sigma): an error the neighbours share - a bias of the whole surface - is not averaged
+away, and stays in the sigma.
+
+Only first returns of runs of at least ``min_beams`` beams are combined (the pipeline's
+``RangeConfig.edge_smooth_beams`` / ``edge_smooth_min_beams``).  Measured on the simulator
+(``docs/segmentation.md``, "Smoothing along the surface") and on the Kongsberg swath against the
+sonar's own detections (``benchmarks/kongsberg_checks.py``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from sonarmap.errors import InputError
+from sonarmap.geometry import SonarGeometry
+from sonarmap.ranges.echoes import Echoes, _first_runs
+
+__all__ = ["smooth_surface_edges", "SIGMA_MIN_BINS"]
+
+#: Sigmas below this many bins are taken as this in the weights (a sigma of a few hundredths of a
+#: bin would otherwise pin a beam's own edge and dominate its neighbours' predictions).
+SIGMA_MIN_BINS = 0.3
+
+
+def smooth_surface_edges(echoes: Echoes, first: ArrayLike, geometry: SonarGeometry, *, half_beams: int = 8,
+                         min_beams: int = 7, touch_bins: float = 1.0) -> Echoes:
+    """Combine each return's leading edge with the prediction from its neighbours on its surface.
+
+    Parameters
+    ----------
+    echoes : Echoes
+        The ping's echoes with their leading edges and sigmas (after
+        :func:`sonarmap.ranges.echoes.pooled_edges` / :func:`sonarmap.ranges.template.template_edges`).
+    first : array_like of int, shape (n_beams,)
+        Per beam the echo index of its return (-1: none), ``Tracks.first``.
+    geometry : SonarGeometry
+        The ping's geometry (bin spacing, ranges).
+    half_beams : int
+        Beams on either side of each beam in its prediction (>= 2).
+    min_beams : int
+        Shortest run of returns (beams whose echoes touch, :func:`sonarmap.ranges.echoes.pooled_edges`'
+        runs) that is combined (>= 5).
+    touch_bins : float
+        Echo intervals this close belong to one run (``TrackConfig.touch_bins``).
+
+    Returns
+    -------
+    Echoes
+        ``echoes`` with the returns' ``edge_bin``, ``edge_range_m`` and ``sigma_m`` replaced where
+        combined; every other field unchanged.
+
+    Raises
+    ------
+    InputError
+        If an option is out of range or ``first`` has not one entry per beam.
+    """
+    from sonarmap.ranges._smoothing_kernels import smooth_edges
+
+    sel = np.asarray(first, dtype=np.int64)
+    for key, v, lo in (("half_beams", half_beams, 2), ("min_beams", min_beams, 5)):
+        if isinstance(v, bool) or int(v) != v or v < lo:
+            raise InputError(f"{key}: must be an integer >= {lo} (got {v!r})")
+    if sel.shape != (echoes.n_beams,):
+        raise InputError(f"first: expected one echo index per beam ({echoes.n_beams}), got shape {sel.shape}")
+    if not echoes.size or not (sel >= 0).any():
+        return echoes
+    edge, _, run = _first_runs(echoes, sel, touch_bins)
+    bin_m = abs(float(geometry.range_m[1] - geometry.range_m[0])) if geometry.n_bins > 1 else 1.0
+    ok = sel >= 0
+    sigma = np.full(sel.size, np.nan)
+    sigma[ok] = echoes.sigma_m[sel[ok]] / bin_m
+    new, new_sigma = smooth_edges(edge, sigma, run, int(half_beams), int(min_beams), SIGMA_MIN_BINS)
+    return _with_smoothed(echoes, sel, new, new_sigma * bin_m, geometry)
+
+
+def _with_smoothed(echoes: Echoes, sel: NDArray[np.int64], new: NDArray[np.float64], sigma_m: NDArray[np.float64],
+                   geometry: SonarGeometry) -> Echoes:
+    """``echoes`` with the returns ``sel`` moved to ``new`` (bins, per beam) with ``sigma_m``
+    where either changed."""
+    ok = sel >= 0
+    idx = sel[ok]
+    moved = (new[ok] != echoes.edge_bin[idx]) | (sigma_m[ok] != echoes.sigma_m[idx])
+    if not moved.any():
+        return echoes
+    idx = idx[moved]
+    edge_bin = echoes.edge_bin.copy()
+    edge_range_m = echoes.edge_range_m.copy()
+    sigma = echoes.sigma_m.copy()
+    edge_bin[idx] = new[ok][moved]
+    edge_range_m[idx] = np.interp(edge_bin[idx], np.arange(geometry.n_bins, dtype=np.float64),
+                                  np.asarray(geometry.range_m, dtype=np.float64))
+    sigma[idx] = sigma_m[ok][moved]
+    return echoes.replaced(edge_bin=edge_bin, edge_range_m=edge_range_m, sigma_m=sigma)
