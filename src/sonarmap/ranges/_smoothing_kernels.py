@@ -41,7 +41,8 @@ def _tricube(i, a, h):  # pragma: no cover - numba
     """``(u, w)``: the offset ``i - a`` in beams and its tricube weight over a window of
     ``h`` beams either side."""
     u = float(i - a)
-    t = 1.0 - (abs(u) / (h + 1)) ** 3
+    v = abs(u) / (h + 1)
+    t = 1.0 - v * v * v
     return u, t * t * t
 
 
