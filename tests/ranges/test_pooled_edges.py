@@ -315,3 +315,36 @@ def test_first_interval_runs_is_first_intervals_then_surface_runs() -> None:
         got = _kernels.first_interval_runs(sel, edge_bin, start, stop, touch)
         assert np.array_equal(got[0], edge, equal_nan=True) and np.array_equal(got[1], st)
         assert np.array_equal(got[2], _kernels.surface_runs(edge, lo, hi, touch))
+
+
+def test_forward_scan_finds_the_first_crossing_of_a_deep_echo_with_a_dip():
+    """A deep echo whose front (bins 100-111, level 0.8) is followed by a dip (0.2) and its
+    brightest part (1.0 from bin 117): half of the peak is first reached on the front. Scanning
+    forward finds it there; walking back from the peak stops at the dip, behind the front (the
+    real Oculus seabed on 6 beams of ping 0). Both agree on an echo without a dip."""
+    g = _geom()
+    env = np.zeros((g.n_bins, g.n_beams))
+    env[100:112] = np.linspace(0.3, 0.8, 12)[:, None]
+    env[112:117] = 0.2
+    env[117:140] = 1.0
+    img = env + 0.01
+    mask = env > 0.1
+    e = find_echoes(mask, img, g)
+    first = _first(e)
+    s = np.maximum(first, 0)
+    fwd = pooled_edges(e, first, img, g, scan="forward").edge_bin[s]
+    back = pooled_edges(e, first, img, g, scan="back").edge_bin[s]
+    assert np.all(np.abs(fwd - 104.0) < 1.5), fwd  # 0.5 is reached at bin ~104.4 on the front
+    assert np.all(back > 115.0), back
+    plain = np.zeros_like(env)
+    plain[100:140] = np.clip((np.arange(40) + 1) / 8.0, 0, 1)[:, None]
+    e = find_echoes(plain > 0.1, plain + 0.01, g)
+    first = _first(e)
+    s = np.maximum(first, 0)
+    np.testing.assert_allclose(pooled_edges(e, first, plain + 0.01, g, scan="forward").edge_bin[s],
+                               pooled_edges(e, first, plain + 0.01, g, scan="back").edge_bin[s])
+    with pytest.raises(InputError, match="scan"):
+        pooled_edges(e, first, plain, g, scan="sideways")
+    assert PipelineConfig().ranges.edge_pool_scan == "forward"
+    with pytest.raises(ValueError, match="edge_pool_scan"):
+        PipelineConfig().replace(edge_pool_scan="up")

@@ -1360,7 +1360,7 @@ def _clipped_edge(sm, clipped_k, nk, p, fraction, n_own):  # pragma: no cover - 
 
 @njit(cache=True, nogil=True)
 def pooled_edges(img, edge, stop, run, half_beams, front_bins, max_bins, smooth_bins, fraction, n_iter,
-                 clip, fit_front_bins):  # pragma: no cover - numba
+                 clip, fit_front_bins, forward):  # pragma: no cover - numba
     """Leading edges measured on the surface-aligned mean profile of neighbouring beams
     (see :func:`sonarmap.ranges.echoes.pooled_edges`).
 
@@ -1376,6 +1376,10 @@ def pooled_edges(img, edge, stop, run, half_beams, front_bins, max_bins, smooth_
     echo fitted to the log of the unclipped samples on both flanks (:func:`_clipped_edge`), whose
     rising flank may reach ``fit_front_bins`` (>= ``front_bins``) in front of the alignment.  The
     peak search and the half-peak walk of unclipped profiles stay within ``front_bins``.
+
+    With ``forward`` the crossing is the first bin from the profile's front that reaches the level
+    (the first crossing); else the walk from the peak towards the sonar to the first bin below it
+    (which stops at a dip inside a deep echo, behind its front).
     """
     m = edge.size
     cur = edge.copy()
@@ -1488,6 +1492,10 @@ def pooled_edges(img, edge, stop, run, half_beams, front_bins, max_bins, smooth_
             i = p
             while i > lim and sm[i - 1] >= lv:
                 i -= 1
+            if forward:  # the first crossing from the front (i <= p: sm[p] reaches the level)
+                i = lim
+                while i < p and sm[i] < lv:
+                    i += 1
             # x: the crossing in bins from the profile's bin lim (front_bins in front of the
             # alignment)
             if i == lim:

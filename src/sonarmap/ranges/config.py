@@ -122,6 +122,13 @@ class RangeConfig(ConfigSection):
         of the ``edge_pool_beams`` beams on either side of each beam on the same surface
         (:func:`sonarmap.ranges.echoes.pooled_edges`: a multi-look along the surface; a single
         beam's speckled echo moves its half-peak crossing by bins).  0 = every beam on its own.
+    edge_pool_scan : str
+        How the crossing is found on the pooled mean profile: ``"forward"`` (default: the first
+        bin from the profile's front that reaches the level - the range convention's first
+        crossing) or ``"back"`` (walk from the profile's peak towards the sonar to the first bin
+        below it, as ``edge_scan`` does on a single beam, where a speckle spike in front would
+        otherwise be the crossing; on a deep mean profile that walk stops at a dip inside the
+        echo, behind its front).
     pulse_length_m : float, optional
         Transmit pulse length along range (``c tau / 2``); echoes are measured on the image
         smoothed over it.  Default: from the ping - its effective length ``1 / B`` where the file
@@ -208,6 +215,7 @@ class RangeConfig(ConfigSection):
     edge_fraction: float = 0.5
     edge_scan: str = "back"
     edge_pool_beams: int = 3
+    edge_pool_scan: str = "forward"
     pulse_length_m: float | None = None
     continue_evidence: float = 10.0
     sigma_scale: float = 1.5
@@ -241,6 +249,7 @@ class RangeConfig(ConfigSection):
             raise config_error(w, "track", "must be a track table", self.track)
         check_choice(self, "tracker", ("surface", "rules"), w)
         check_choice(self, "edge_scan", ("forward", "back"), w)
+        check_choice(self, "edge_pool_scan", ("forward", "back"), w)
         check_choice(self, "range_mode", ("first", "strongest"), w)
         for key, positive in (("log_dynamic_range_db", True), ("pulse_length_m", False)):
             v = getattr(self, key)

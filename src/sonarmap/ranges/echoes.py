@@ -492,6 +492,7 @@ def pooled_edges(
     clip: NDArray[np.bool_] | None = None,
     fit_front_bins: int = POOL_FIT_FRONT_BINS,
     fit_sigma_scale: float | None = None,
+    scan: str = "forward",
 ) -> Echoes:
     """Leading edges of a tracked surface measured on a multi-look along the surface.
 
@@ -499,10 +500,13 @@ def pooled_edges(
     .. j + half_beams`` of the same surface (:func:`surface_runs`) are aligned on the running
     median of their current edges (which follows a slope exactly) and their columns (smoothed
     along range over ``pulse_bins``) averaged at offsets ``-front_bins`` to the window's median
-    echo depth (3 .. ``max_bins`` bins).  The leading edge is the first crossing of ``fraction``
-    x that mean profile's peak (smoothed over ``smooth_bins``) walking from it towards the sonar,
-    interpolated (the convention of :func:`find_echoes`); ``n_iter`` rounds re-align on the new
-    edges.  Runs of fewer than 3 beams keep their own edges.
+    echo depth (3 .. ``max_bins`` bins).  The leading edge is the crossing of ``fraction`` x that
+    mean profile's peak (smoothed over ``smooth_bins``), interpolated (the convention of
+    :func:`find_echoes`): with ``scan="forward"`` (default) the first bin from the profile's front
+    that reaches the level, with ``"back"`` the walk from the peak towards the sonar to the first
+    bin below it (which stops at a dip inside a deep echo: the real Oculus seabed's returns 14 cm
+    behind its front on 6 beams of ping 0).  ``n_iter`` rounds re-align on the new edges.  Runs
+    of fewer than 3 beams keep their own edges.
 
     Parameters
     ----------
@@ -524,6 +528,8 @@ def pooled_edges(
         ``fit_sigma_scale`` (default ``sigma_scale``; ``PipelineConfig.ranges.sigma_fit_scale``).
     half_beams, front_bins, max_bins, smooth_bins, n_iter, touch_bins
         The pooling window (see above).
+    scan : str
+        ``"forward"`` or ``"back"`` (see above).
 
     Returns
     -------
@@ -535,13 +541,15 @@ def pooled_edges(
     fit_scale = float(sigma_scale if fit_sigma_scale is None else fit_sigma_scale)
     window = (half_beams, front_bins, max_bins, smooth_bins, n_iter, fit_front_bins)
     _check_pooling(echoes, sel, window, fraction, clip, np.shape(image), fit_scale)
+    if scan not in ("forward", "back"):
+        raise InputError(f"scan: must be 'forward' or 'back' (got {scan!r})")
     return _pooled(echoes, sel, image, geometry, pulse_bins, window, (fraction, touch_bins),
-                   (sigma_scale, fit_scale), clip)
+                   (sigma_scale, fit_scale), clip, forward=scan == "forward")
 
 
 def _pooled(echoes: Echoes, sel: NDArray[np.int64], image: ArrayLike, geometry: SonarGeometry, pulse_bins: int,
             window: tuple[int, int, int, int, int, int], fraction_touch: tuple[float, float],
-            scales: tuple[float, float], clip: NDArray[np.bool_] | None) -> Echoes:
+            scales: tuple[float, float], clip: NDArray[np.bool_] | None, *, forward: bool = True) -> Echoes:
     """:func:`pooled_edges` of checked options (:func:`_check_pooling`: ``window`` = ``(half_beams,
     front_bins, max_bins, smooth_bins, n_iter, fit_front_bins)``, ``scales`` = ``(sigma_scale,
     fit_sigma_scale)``; the pipeline's range stage calls it with its validated configuration)."""
@@ -557,7 +565,7 @@ def _pooled(echoes: Echoes, sel: NDArray[np.int64], image: ArrayLike, geometry: 
     new, value, rise, used, noise, fitted = _kernels.pooled_edges(
         img, edge, stop, run, int(half_beams), int(front_bins), int(max_bins), int(smooth_bins) | 1,
         float(fraction), int(n_iter), _NO_CLIP if clip is None else np.ascontiguousarray(clip).view(np.uint8),
-        int(fit_front_bins))
+        int(fit_front_bins), bool(forward))
     return _with_edges(echoes, np.ascontiguousarray(sel), (new, used, stop), rise, noise, geometry, pulse_bins,
                        (scales[0], fitted, scales[1]))
 

@@ -353,7 +353,8 @@ def _pooled_returns(echoes: Any, sel: NDArray[np.int64], meas: NDArray[Any], pin
     window = (config.edge_pool_beams, POOL_FRONT_BINS, POOL_MAX_BINS, 3 if pb < 3 else 1, POOL_N_ITER,
               POOL_FIT_FRONT_BINS)
     return _pooled(echoes, sel, meas, ping.geometry, pb, window, (fraction, config.track.touch_bins),
-                   (config.sigma_pool_scale, config.sigma_fit_scale), clip)
+                   (config.sigma_pool_scale, config.sigma_fit_scale), clip,
+                   forward=config.edge_pool_scan == "forward")
 
 
 #: A raw sample at or above this is at the receiver's full scale (8-bit images: level 255).
