@@ -12,11 +12,21 @@ from numba import njit
 from sonarmap.ranges._kernels import _interp_column
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _power(x, e):  # pragma: no cover - numba
+    """``x^e`` as the running product ``1.0 x x ...`` (``e`` factors)."""
+    v = 1.0
+    for _ in range(e):
+        v = v * x
+    return v
+
+
 @njit(cache=True, nogil=True)
-def _local_quadratic(cur, a, half):  # pragma: no cover - numba
+def _local_quadratic(cur, a, half, A, rhs):  # pragma: no cover - numba
     """``(value, slope)`` at position ``a`` of the least-squares quadratic through ``cur`` over
     positions ``a - half .. a + half`` (clipped to the array; a line below 5 points, ``cur[a]``
-    and 0 below 3)."""
+    and 0 below 3).  ``A (3, 3)`` and ``rhs (3,)`` are scratch: the normal equations are summed
+    in their leading block, the powers of each position formed in registers."""
     nb = cur.size
     lo = max(0, a - half)
     hi = min(nb, a + half + 1)
@@ -24,19 +34,18 @@ def _local_quadratic(cur, a, half):  # pragma: no cover - numba
     if c < 3:
         return cur[a], 0.0
     deg = 3 if c >= 5 else 2
-    A = np.zeros((deg, deg))
-    rhs = np.zeros(deg)
+    for r in range(deg):
+        rhs[r] = 0.0
+        for q in range(deg):
+            A[r, q] = 0.0
     for b in range(lo, hi):
         x = float(b - a)
-        p = np.empty(deg)
-        p[0] = 1.0
-        for e in range(1, deg):
-            p[e] = p[e - 1] * x
         for r in range(deg):
-            rhs[r] += p[r] * cur[b]
+            pr = _power(x, r)
+            rhs[r] += pr * cur[b]
             for q in range(deg):
-                A[r, q] += p[r] * p[q]
-    coef = np.linalg.solve(A, rhs)
+                A[r, q] += pr * _power(x, q)
+    coef = np.linalg.solve(A[:deg, :deg], rhs[:deg])
     return coef[0], coef[1]
 
 
@@ -182,9 +191,11 @@ def _run_edges(img, edge, stop, skip, j0, j1, half_template, half_window, front,
     csum = np.zeros((nb + 1, K))
     T = np.empty(K)
     sm = np.empty(K)
+    A = np.empty((3, 3))
+    rhs = np.empty(3)
     for _ in range(n_iter):
         for a in range(nb):
-            line[a], slope[a] = _local_quadratic(cur, a, half_template)
+            line[a], slope[a] = _local_quadratic(cur, a, half_template, A, rhs)
         # every beam's column at offsets k0 .. from its line, and their running sum over beams
         for a in range(nb):
             for k in range(K):
