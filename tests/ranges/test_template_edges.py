@@ -165,3 +165,38 @@ def test_anchored_edges_keep_the_pooled_level_and_the_templates_precision():
         mad["pooled"].append(np.median(np.abs(ep - np.median(ep))))
         mad["anchored"].append(np.median(np.abs(ea - np.median(ea))))
     assert np.mean(mad["anchored"]) < 0.9 * np.mean(mad["pooled"]), mad
+
+
+def test_the_anchor_median_and_spread_equal_numbas_median_mean_and_sum():
+    """The anchor's median (insertion into a scratch array) and its spread (two sequential sums)
+    are numba's np.median, w.mean() and ((w - mu) ** 2).sum() bit for bit, ties included."""
+    from numba import njit
+
+    from sonarmap.ranges._template_kernels import _sorted_median
+
+    @njit(cache=False)
+    def ours(w: np.ndarray, srt: np.ndarray) -> tuple[float, float]:
+        mu = 0.0
+        for q in range(w.size):
+            mu += w[q]
+        mu = mu / w.size
+        ss = 0.0
+        for q in range(w.size):
+            e = w[q] - mu
+            ss += e * e
+        return _sorted_median(w, srt), ss
+
+    @njit(cache=False)
+    def numbas(w: np.ndarray) -> tuple[float, float]:
+        return np.median(w), ((w - w.mean()) ** 2).sum()
+
+    rng = np.random.default_rng(5)
+    srt = np.empty(21)
+    for i in range(3000):
+        w = rng.normal(size=int(rng.integers(1, 22))) * 10.0 ** rng.uniform(-3, 2)
+        if i % 3 == 0:
+            w = np.round(w, 1)  # ties
+        before = w.copy()
+        got, want = ours(w, srt), numbas(w)
+        assert np.array_equal(w, before)
+        assert got[0] == want[0] and (w.size < 2 or got[1] == want[1])

@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from sonarmap.ranges._kernels import _interp_column
+from sonarmap.ranges._kernels import _interp_column, _median
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -224,6 +224,17 @@ def _run_edges(img, edge, stop, skip, j0, j1, half_template, half_window, front,
             cur[a] = new[j0 + a]
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _sorted_median(w, srt):  # pragma: no cover - numba
+    """``np.median(w)`` of finite values (numba's: the middle order statistic, or the mean of the
+    two middle ones) from a copy in the scratch ``srt`` (:func:`_kernels._median`; no array
+    allocated, ``w`` not reordered)."""
+    c = w.size
+    for q in range(c):
+        srt[q] = w[q]
+    return _median(srt, c)
+
+
 @njit(cache=True, nogil=True)
 def _anchor_run(edge, new, var, j0, j1, anchor):  # pragma: no cover - numba
     """Anchor the template-measured edges of the run ``j0 .. j1 - 1`` on the edges they replace
@@ -238,6 +249,7 @@ def _anchor_run(edge, new, var, j0, j1, anchor):  # pragma: no cover - numba
         ok[a] = np.isfinite(var[j0 + a, 0]) and np.isfinite(edge[j0 + a]) and np.isfinite(new[j0 + a])
         d[a] = edge[j0 + a] - new[j0 + a] if ok[a] else 0.0
     buf = np.empty(2 * anchor + 1)
+    srt = np.empty(2 * anchor + 1)
     for a in range(nb):
         if not ok[a]:
             continue
@@ -247,10 +259,18 @@ def _anchor_run(edge, new, var, j0, j1, anchor):  # pragma: no cover - numba
                 buf[c] = d[k]
                 c += 1
         w = buf[:c]
-        new[j0 + a] += np.median(w)
+        new[j0 + a] += _sorted_median(w, srt)
         if c >= 2:
-            mu = w.mean()
-            var[j0 + a, 1] += 0.5 * np.pi * ((w - mu) ** 2).sum() / (c - 1) / c
+            # w.mean() and ((w - mu) ** 2).sum(): the same sequential sums, without temporaries
+            mu = 0.0
+            for q in range(c):
+                mu += w[q]
+            mu = mu / c
+            ss = 0.0
+            for q in range(c):
+                e = w[q] - mu
+                ss += e * e
+            var[j0 + a, 1] += 0.5 * np.pi * ss / (c - 1) / c
 
 
 @njit(cache=True, nogil=True)
