@@ -200,3 +200,44 @@ def test_the_anchor_median_and_spread_equal_numbas_median_mean_and_sum():
         got, want = ours(w, srt), numbas(w)
         assert np.array_equal(w, before)
         assert got[0] == want[0] and (w.size < 2 or got[1] == want[1])
+
+
+def test_the_local_quadratic_solves_its_normal_equations_as_lapack_does():
+    """_solve_small is numba's np.linalg.solve (LAPACK's dgesv) bit for bit: on the normal
+    equations of every window of the template's course (half-widths 1-12, both clipped ends) and
+    on random 2 x 2 / 3 x 3 systems."""
+    from numba import njit
+
+    from sonarmap.ranges._template_kernels import _solve_small
+
+    @njit(cache=False)
+    def both(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        want = np.linalg.solve(a, b)
+        A = np.zeros((3, 3))
+        rhs = np.zeros(3)
+        n = b.size
+        A[:n, :n] = a
+        rhs[:n] = b
+        _solve_small(A, rhs, n)
+        return rhs[:n].copy(), want
+
+    rng = np.random.default_rng(11)
+    systems = []
+    for half in range(1, 13):
+        for xmin in range(-half, 1):
+            for xmax in range(0, half + 1):
+                if xmax - xmin + 1 < 3:
+                    continue
+                deg = 3 if xmax - xmin + 1 >= 5 else 2
+                x = np.arange(xmin, xmax + 1, dtype=float)
+                p = x[None, :] ** np.arange(deg)[:, None]
+                for _ in range(20):
+                    cur = rng.uniform(0, 4000) + rng.normal(size=x.size) * 10.0 ** rng.uniform(-2, 2)
+                    systems.append((p @ p.T, p @ cur))
+    for i in range(20000):
+        n = 2 + i % 2
+        a = rng.normal(size=(n, n)) * 10.0 ** rng.uniform(-2, 4, size=(n, n))
+        systems.append((a + a.T if i % 3 == 0 else a, rng.normal(size=n) * 10.0 ** rng.uniform(-2, 4, size=n)))
+    for a, b in systems:
+        got, want = both(np.ascontiguousarray(a), np.ascontiguousarray(b))
+        assert got.tobytes() == want.tobytes()
