@@ -208,7 +208,7 @@ def test_the_local_quadratic_solves_its_normal_equations_as_lapack_does():
     on random 2 x 2 / 3 x 3 systems."""
     from numba import njit
 
-    from sonarmap.ranges._template_kernels import _solve_small
+    from sonarmap.ranges._kernels import _solve_small
 
     @njit(cache=False)
     def both(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from sonarmap.ranges._kernels import _interp_column, _median
+from sonarmap.ranges._kernels import _interp_column, _median, _solve_small
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -47,86 +47,6 @@ def _local_quadratic(cur, a, half, A, rhs):  # pragma: no cover - numba
                 A[r, q] += pr * _power(x, q)
     _solve_small(A, rhs, deg)
     return rhs[0], rhs[1]
-
-
-#: The smallest pivot LAPACK's dgetf2 scales by its reciprocal (dlamch('S'), the smallest normal
-#: double); below it, it divides.
-_SFMIN = 2.2250738585072014e-308
-
-
-@njit(cache=True, nogil=True)
-def _solve_small(A, rhs, deg):  # pragma: no cover - numba
-    """``np.linalg.solve(A[:deg, :deg], rhs[:deg])`` in place for ``deg`` 2 or 3 (``rhs[:deg]``
-    becomes the solution, ``A[:deg, :deg]`` its LU factors) by LAPACK's operations in LAPACK's
-    order - OpenBLAS' dgesv: the left-looking dgetf2 (partial pivoting, the column below a pivot
-    scaled by its reciprocal), then dgetrs' row swaps and unit-lower and upper triangular solves
-    (a division by each pivot) - so the same bits as numba's np.linalg.solve, without its copies
-    and library call (tests/ranges/test_template_edges.py compares them).  A non-singular ``A``
-    (the normal equations of distinct positions)."""
-    piv = (0, 0, 0)
-    for j in range(deg):
-        # the column's earlier row swaps, its upper part (dot products), the rest (a matrix-vector
-        # product subtracted as one sum)
-        for i in range(j):
-            p = piv[i]
-            if p != i:
-                t = A[i, j]
-                A[i, j] = A[p, j]
-                A[p, j] = t
-        for i in range(1, j):
-            d = 0.0
-            for k in range(i):
-                d += A[i, k] * A[k, j]
-            A[i, j] -= d
-        for r in range(j, deg):
-            d = 0.0
-            for k in range(j):
-                d += A[r, k] * A[k, j]
-            A[r, j] += -1.0 * d
-        jp = j
-        for r in range(j + 1, deg):
-            if abs(A[r, j]) > abs(A[jp, j]):
-                jp = r
-        piv = _with_pivot(piv, j, jp)
-        t = A[jp, j]
-        if t != 0.0:
-            if jp != j:
-                for k in range(j + 1):
-                    u = A[j, k]
-                    A[j, k] = A[jp, k]
-                    A[jp, k] = u
-            if abs(t) >= _SFMIN:
-                t = 1.0 / t
-                for r in range(j + 1, deg):
-                    A[r, j] *= t
-            else:
-                for r in range(j + 1, deg):
-                    A[r, j] /= t
-    for i in range(deg):
-        p = piv[i]
-        if p != i:
-            t = rhs[i]
-            rhs[i] = rhs[p]
-            rhs[p] = t
-    for i in range(deg):
-        da = -rhs[i]
-        for r in range(i + 1, deg):
-            rhs[r] = rhs[r] + da * A[r, i]
-    for i in range(deg - 1, -1, -1):
-        rhs[i] = rhs[i] / A[i, i]
-        da = -rhs[i]
-        for r in range(i):
-            rhs[r] = rhs[r] + da * A[r, i]
-
-
-@njit(cache=True, nogil=True, inline="always")
-def _with_pivot(piv, j, jp):  # pragma: no cover - numba
-    """The pivot tuple ``piv`` with entry ``j`` set to ``jp``."""
-    if j == 0:
-        return (jp, piv[1], piv[2])
-    if j == 1:
-        return (piv[0], jp, piv[2])
-    return (piv[0], piv[1], jp)
 
 
 @njit(cache=True, nogil=True)
