@@ -373,6 +373,8 @@ def spliced_echoes(echoes: Echoes, new: Echoes, columns: NDArray[np.int64]) -> E
     keep[columns] = False
     old = np.flatnonzero(keep[echoes.beam])
     order = np.argsort(np.concatenate([echoes.beam[old], new.beam]), kind="stable")
+    # each field's result as one gather from the two fields side by side
+    take = np.concatenate([old, np.arange(echoes.size, echoes.size + new.size)])[order]
     fields = ["beam", "start_bin", "stop_bin", "peak_bin", "peak_value", "edge_bin", "edge_range_m", "peak_range_m",
               "slope", "evidence", "n_pixels", "sigma_m"]
     gone = {}
@@ -381,7 +383,7 @@ def spliced_echoes(echoes: Echoes, new: Echoes, columns: NDArray[np.int64]) -> E
             fields.append(f)
         elif getattr(echoes, f) is not None:
             gone[f] = None
-    out = echoes.replaced(**{f: np.concatenate([getattr(echoes, f)[old], getattr(new, f)])[order] for f in fields})
+    out = echoes.replaced(**{f: np.concatenate([getattr(echoes, f), getattr(new, f)])[take] for f in fields})
     return out.replaced(**gone) if gone else out  # type: ignore[arg-type]
 
 
