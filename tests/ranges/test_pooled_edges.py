@@ -348,3 +348,38 @@ def test_forward_scan_finds_the_first_crossing_of_a_deep_echo_with_a_dip():
     assert PipelineConfig().ranges.edge_pool_scan == "forward"
     with pytest.raises(ValueError, match="edge_pool_scan"):
         PipelineConfig().replace(edge_pool_scan="up")
+
+
+@pytest.mark.parametrize("deep", ["first", "last"])
+@pytest.mark.parametrize("with_clip", [False, True])
+def test_the_profiles_are_computed_as_far_as_the_windows_read_them(monkeypatch: pytest.MonkeyPatch,
+                                                                   with_clip: bool, deep: str) -> None:
+    """The kernel computes each beam's profile and running sums only as far as the windows ending
+    past it read them (_profile_needs): the same outputs as with every profile at the full width
+    (the kernel run as Python with the full width), on a run whose first or last 6 beams echo 10x
+    deeper than the others (the last: every beam before them is read at their depth)."""
+    from sonarmap.ranges import _kernels
+
+    rng = np.random.default_rng(3)
+    n, m = 160, 24
+    img = rng.exponential(0.05, (n, m))
+    edge = 40.0 + rng.normal(0.0, 1.0, m)
+    beams = np.arange(m)
+    depth = np.where(beams < 6 if deep == "first" else (beams >= 14) & (beams < 20), 90.0, 9.0)
+    for j in range(m):  # echoes rising to their end: the deep ones peak far behind their edge
+        d = int(depth[j])
+        img[int(edge[j]):int(edge[j]) + d, j] += np.linspace(0.3, 1.0, d)
+    stop = edge + depth
+    run = np.where(beams < 20, 0, 1).astype(np.int64)
+    clip = ((img >= 1.02) if with_clip else np.zeros((0, 0), bool)).astype(np.uint8)
+    args = (img, edge, stop, run, 3, 8, 200, 3, 0.5, 2, clip, 16, True)
+    got = _kernels.pooled_edges(*args)
+
+    def full_width(run: np.ndarray, count: np.ndarray, depth: np.ndarray, half_beams: int, extra: int) -> np.ndarray:
+        # the kernel's width, front + kmax + 1 + tail + 2 h, for every beam
+        return np.full(run.size, extra + int(depth[count >= 3].max(initial=0)), np.int64)
+
+    monkeypatch.setattr(_kernels, "_profile_needs", full_width)
+    want = _kernels.pooled_edges.py_func(*args)
+    for a, b in zip(got, want):
+        assert np.asarray(a).tobytes() == np.asarray(b).tobytes()

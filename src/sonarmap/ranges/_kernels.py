@@ -1440,6 +1440,28 @@ def _clipped_edge(sm, clipped_k, nk, p, fraction, n_own):  # pragma: no cover - 
 
 
 @njit(cache=True, nogil=True)
+def _profile_needs(run, count, depth, half_beams, extra):  # pragma: no cover - numba
+    """Per beam ``jj`` of :func:`pooled_edges`, how many profile bins of beams ``0 .. jj`` the
+    windows read through the running sums ``csum[jj + 1]``: the most, over the windows (beams
+    ``j`` with ``count[j] >= 3``, the ``count[j]`` beams of ``j``'s run from the first within
+    ``half_beams`` of it) ending after ``jj``, of ``depth[j] + extra`` (the bins
+    ``front + depth + 1 + tail`` of the profile plus the smoothing's ``2 h``)."""
+    m = run.size
+    need = np.zeros(m, np.int64)
+    for j in range(m):
+        if count[j] < 3:
+            continue
+        lo = max(0, j - half_beams)
+        while run[lo] != run[j]:
+            lo += 1
+        hi = lo + count[j]
+        need[hi - 1] = max(need[hi - 1], depth[j] + extra)
+    for jj in range(m - 2, -1, -1):
+        need[jj] = max(need[jj], need[jj + 1])
+    return need
+
+
+@njit(cache=True, nogil=True)
 def pooled_edges(img, edge, stop, run, half_beams, front_bins, max_bins, smooth_bins, fraction, n_iter,
                  clip, fit_front_bins, forward):  # pragma: no cover - numba
     """Leading edges measured on the surface-aligned mean profile of neighbouring beams
@@ -1511,17 +1533,20 @@ def pooled_edges(img, edge, stop, run, half_beams, front_bins, max_bins, smooth_
         # every beam's own profile at offsets -front - h .. kmax + h from its alignment, and
         # their running sum over beams (a run is a contiguous block of beams: a window's sum is
         # a difference of two rows)
+        # (beam jj's profile and running sums only as far as a window ending past it reads them:
+        # the same values where read; a few deep echoes no longer widen every beam's profile)
+        need = _profile_needs(run, count, depth, half_beams, front + 1 + tail + 2 * h)
         prof = np.zeros((m, width))
         csum = np.zeros((m + 1, width))
         ccnt = np.zeros((m + 1, width if has_clip else 1), np.int64)
         for jj in range(m):
             if run[jj] >= 0:
-                for k in range(width):
+                for k in range(need[jj]):
                     prof[jj, k] = _interp_column(img, jj, align[jj] + (k - h - front))
-            for k in range(width):
+            for k in range(need[jj]):
                 csum[jj + 1, k] = csum[jj, k] + prof[jj, k]
             if has_clip:
-                for k in range(width):
+                for k in range(need[jj]):
                     ccnt[jj + 1, k] = ccnt[jj, k]
                     if run[jj] >= 0 and _clipped_at(clip, jj, align[jj] + (k - h - front)):
                         ccnt[jj + 1, k] += 1
