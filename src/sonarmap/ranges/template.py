@@ -110,18 +110,25 @@ def template_edges(
                                           anchor_beams), max_shift_bins, fraction, sigma_scale, min_contrast)
     img = np.ascontiguousarray(image, dtype=np.float64)
     geometry.check_image(img, "image")
+    if echoes.n_beams < min_beams:
+        return echoes  # no surface can span min_beams beams
     edge, stop, run = _first_runs(echoes, sel, touch_bins)
     if run.max(initial=-1) < 0:
         return echoes
+    new, var = _template_kernels.template_edges(
+        img, edge, stop, run, _skipped_beams(sel, skip), int(half_template), int(half_window), int(front_bins),
+        int(min_beams), int(max_bins), float(max_shift_bins), 6, float(fraction), 3, 24, int(n_iter),
+        float(min_contrast), int(anchor_beams))
+    return _with_template_edges(echoes, sel, new, var, geometry, pulse_bins, sigma_scale)
+
+
+def _skipped_beams(sel: NDArray[np.int64], skip: ArrayLike | None) -> NDArray[np.bool_]:
+    """Per beam, whether its return (``sel``, -1 none) is one of the echoes ``skip`` marks."""
     skip_beam = np.zeros(sel.size, dtype=np.bool_)
     if skip is not None:
         marks = np.asarray(skip, dtype=bool)
         skip_beam[sel >= 0] = marks[sel[sel >= 0]]
-    new, var = _template_kernels.template_edges(
-        img, edge, stop, run, skip_beam, int(half_template), int(half_window), int(front_bins), int(min_beams),
-        int(max_bins), float(max_shift_bins), 6, float(fraction), 3, 24, int(n_iter), float(min_contrast),
-        int(anchor_beams))
-    return _with_template_edges(echoes, sel, new, var, geometry, pulse_bins, sigma_scale)
+    return skip_beam
 
 
 def _with_template_edges(echoes: Echoes, sel: NDArray[np.int64], new: NDArray[np.float64], var: NDArray[np.float64],
