@@ -218,3 +218,21 @@ def test_first_clipped_rows_by_rows_equals_the_column_walk(seed: int) -> None:
     level = float(rng.choice([0.5, 0.9, 0.99, 2.0]))
     want = [next((i for i in range(a, b) if img[i, j] >= level), -1) for j, a, b in zip(cols, lo, hi)]
     assert first_clipped_rows(img, cols, lo, hi, level).tolist() == want
+
+
+def test_full_scale_mask_agrees_with_the_kernels_at_the_level():
+    """The pooled profile's clip mask and the kernels' first clipped rows count the same samples as
+    clipped, also at the float32 values either side of the level (compared in float64)."""
+    from sonarmap.ranges._kernels import first_clipped_rows
+    from sonarmap.ranges.measure import CLIP_LEVEL, full_scale_mask
+
+    f = np.float32(CLIP_LEVEL)
+    vals = np.array([np.nextafter(f, np.float32(0)), f, np.nextafter(f, np.float32(2)), 1.0, 0.5], np.float32)
+    img = np.tile(vals[:, None], (1, 3))
+    mask = full_scale_mask(img)
+    rows = [first_clipped_rows(img, np.array([0]), np.array([k]), np.array([k + 1]), CLIP_LEVEL)[0]
+            for k in range(vals.size)]
+    assert mask[:, 0].tolist() == [r >= 0 for r in rows]
+    assert mask[:, 0].tolist() == (vals.astype(np.float64) >= CLIP_LEVEL).tolist()
+    u8 = np.array([[254, 255]], np.uint8) / np.float64(255.0)
+    assert full_scale_mask(u8).tolist() == [[False, True]]

@@ -20,7 +20,7 @@ import threading
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from sonarmap._config import is_finite_number
 from sonarmap.ping import Ping
@@ -35,7 +35,7 @@ from sonarmap.ranges.template import template_edges
 from sonarmap.ranges.smoothing import smooth_surface_edges
 
 __all__ = ["surface_ranges", "rule_ranges", "measurement_image", "pulse_bins", "background_mean",
-           "clipped_echo_sigma", "clipped_echoes", "clip_rows", "CLIP_LEVEL"]
+           "clipped_echo_sigma", "clipped_echoes", "clip_rows", "CLIP_LEVEL", "full_scale_mask"]
 
 
 def background_mean(fit: Any, config: RangeConfig = RangeConfig()) -> tuple[float | None, float | None]:
@@ -349,7 +349,7 @@ def _pooled_returns(echoes: Any, sel: NDArray[np.int64], meas: NDArray[Any], pin
     range in all (a single-look profile's maximum is otherwise a speckle spike), and a clipped
     return is measured by a Gaussian fitted to its flanks."""
     clipped = echoes.clipped if echoes.clipped is not None else clipped_echoes(echoes, ping.image)
-    clip = np.asarray(ping.image) >= CLIP_LEVEL if clipped[sel[sel >= 0]].any() else None
+    clip = full_scale_mask(ping.image) if clipped[sel[sel >= 0]].any() else None
     window = (config.edge_pool_beams, POOL_FRONT_BINS, POOL_MAX_BINS, 3 if pb < 3 else 1, POOL_N_ITER,
               POOL_FIT_FRONT_BINS)
     return _pooled(echoes, sel, meas, ping.geometry, pb, window, (fraction, config.track.touch_bins),
@@ -359,6 +359,20 @@ def _pooled_returns(echoes: Any, sel: NDArray[np.int64], meas: NDArray[Any], pin
 
 #: A raw sample at or above this is at the receiver's full scale (8-bit images: level 255).
 CLIP_LEVEL = 254.5 / 255.0
+
+
+def full_scale_mask(raw: ArrayLike) -> NDArray[np.bool_]:
+    """The samples of ``raw`` at or above :data:`CLIP_LEVEL`, compared in float64 as the range
+    kernels compare them (numpy would compare a float32 image with the level rounded to float32,
+    0.998039186 < 0.998039216: a sample at exactly that value would count as clipped here and not
+    in the kernels)."""
+    a = np.asarray(raw)
+    if a.dtype == np.float32:  # the smallest float32 whose float64 value reaches the level
+        lv32 = np.float32(CLIP_LEVEL)
+        if float(lv32) < CLIP_LEVEL:
+            lv32 = np.nextafter(lv32, np.float32(np.inf))
+        return a >= lv32  # type: ignore[no-any-return]
+    return np.asarray(a, dtype=np.float64) >= CLIP_LEVEL  # type: ignore[no-any-return]
 
 
 def clipped_echoes(echoes: Any, raw: NDArray[Any]) -> NDArray[np.bool_]:
