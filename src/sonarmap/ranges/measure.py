@@ -359,6 +359,10 @@ def _pooled_returns(echoes: Any, sel: NDArray[np.int64], meas: NDArray[Any], pin
 
 #: A raw sample at or above this is at the receiver's full scale (8-bit images: level 255).
 CLIP_LEVEL = 254.5 / 255.0
+#: The smallest float32 whose float64 value reaches :data:`CLIP_LEVEL` (float32 rounds the level
+#: down, 0.998039186 < 0.998039216).
+_CLIP_LEVEL_F32 = (np.float32(CLIP_LEVEL) if float(np.float32(CLIP_LEVEL)) >= CLIP_LEVEL
+                   else np.nextafter(np.float32(CLIP_LEVEL), np.float32(np.inf)))
 
 
 def full_scale_mask(raw: ArrayLike) -> NDArray[np.bool_]:
@@ -367,11 +371,8 @@ def full_scale_mask(raw: ArrayLike) -> NDArray[np.bool_]:
     0.998039186 < 0.998039216: a sample at exactly that value would count as clipped here and not
     in the kernels)."""
     a = np.asarray(raw)
-    if a.dtype == np.float32:  # the smallest float32 whose float64 value reaches the level
-        lv32 = np.float32(CLIP_LEVEL)
-        if float(lv32) < CLIP_LEVEL:
-            lv32 = np.nextafter(lv32, np.float32(np.inf))
-        return a >= lv32  # type: ignore[no-any-return]
+    if a.dtype == np.float32:
+        return a >= _CLIP_LEVEL_F32  # type: ignore[no-any-return]
     return np.asarray(a, dtype=np.float64) >= CLIP_LEVEL  # type: ignore[no-any-return]
 
 

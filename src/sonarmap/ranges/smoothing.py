@@ -30,11 +30,11 @@ sonar's own detections (``benchmarks/kongsberg_checks.py``).
 from __future__ import annotations
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
 from sonarmap.errors import InputError
 from sonarmap.geometry import SonarGeometry
-from sonarmap.ranges.echoes import Echoes, _first_runs
+from sonarmap.ranges.echoes import Echoes, _first_runs, _moved_edges
 
 __all__ = ["smooth_surface_edges", "SIGMA_MIN_BINS"]
 
@@ -86,29 +86,14 @@ def smooth_surface_edges(echoes: Echoes, first: ArrayLike, geometry: SonarGeomet
     if not echoes.size or not (sel >= 0).any():
         return echoes
     edge, _, run = _first_runs(echoes, sel, touch_bins)
-    bin_m = abs(float(geometry.range_m[1] - geometry.range_m[0])) if geometry.n_bins > 1 else 1.0
+    bin_m = abs(geometry.range_resolution_m) or 1.0  # (the bin the sigmas were formed with)
     ok = sel >= 0
     sigma = np.full(sel.size, np.nan)
     sigma[ok] = echoes.sigma_m[sel[ok]] / bin_m
     new, new_sigma = smooth_edges(edge, sigma, run, int(half_beams), int(min_beams), SIGMA_MIN_BINS)
-    return _with_smoothed(echoes, sel, new, new_sigma * bin_m, geometry)
-
-
-def _with_smoothed(echoes: Echoes, sel: NDArray[np.int64], new: NDArray[np.float64], sigma_m: NDArray[np.float64],
-                   geometry: SonarGeometry) -> Echoes:
-    """``echoes`` with the returns ``sel`` moved to ``new`` (bins, per beam) with ``sigma_m``
-    where either changed."""
-    ok = sel >= 0
+    new_sigma *= bin_m
     idx = sel[ok]
-    moved = (new[ok] != echoes.edge_bin[idx]) | (sigma_m[ok] != echoes.sigma_m[idx])
+    moved = (new[ok] != echoes.edge_bin[idx]) | (new_sigma[ok] != echoes.sigma_m[idx])
     if not moved.any():
         return echoes
-    idx = idx[moved]
-    edge_bin = echoes.edge_bin.copy()
-    edge_range_m = echoes.edge_range_m.copy()
-    sigma = echoes.sigma_m.copy()
-    edge_bin[idx] = new[ok][moved]
-    edge_range_m[idx] = np.interp(edge_bin[idx], np.arange(geometry.n_bins, dtype=np.float64),
-                                  np.asarray(geometry.range_m, dtype=np.float64))
-    sigma[idx] = sigma_m[ok][moved]
-    return echoes.replaced(edge_bin=edge_bin, edge_range_m=edge_range_m, sigma_m=sigma)
+    return _moved_edges(echoes, idx[moved], new[ok][moved], new_sigma[ok][moved], geometry)

@@ -39,7 +39,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from sonarmap.errors import InputError
 from sonarmap.geometry import SonarGeometry
-from sonarmap.ranges.echoes import Echoes, _first_runs, _bin_and_pulse_m, edge_sigma_m
+from sonarmap.ranges.echoes import Echoes, _bin_and_pulse_m, _first_runs, _moved_edges, edge_sigma_m
 
 
 def template_edges(
@@ -140,16 +140,9 @@ def _with_template_edges(echoes: Echoes, sel: NDArray[np.int64], new: NDArray[np
     if not done.size:
         return echoes
     bin_m, pulse_m = _bin_and_pulse_m(geometry, pulse_bins)
-    idx = sel[done]
-    edge_bin = echoes.edge_bin.copy()
-    edge_range_m = echoes.edge_range_m.copy()
-    sigma_m = echoes.sigma_m.copy()
-    edge_bin[idx] = new[done]
-    edge_range_m[idx] = np.interp(new[done], np.arange(geometry.n_bins, dtype=np.float64),
-                                  np.asarray(geometry.range_m, dtype=np.float64))
     se = np.sqrt(var[done, 0] + var[done, 1])
-    sigma_m[idx] = edge_sigma_m(se, 1.0, bin_m, pulse_m=pulse_m, scale=sigma_scale)
-    return echoes.replaced(edge_bin=edge_bin, edge_range_m=edge_range_m, sigma_m=sigma_m)
+    return _moved_edges(echoes, sel[done], new[done], edge_sigma_m(se, 1.0, bin_m, pulse_m=pulse_m, scale=sigma_scale),
+                        geometry)
 
 
 def _check_template_options(sel: NDArray[np.int64], echoes: Echoes, ints: tuple[int, ...], max_shift_bins: float,
