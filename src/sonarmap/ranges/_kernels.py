@@ -1595,13 +1595,14 @@ def pooled_edges(img, edge, stop, run, half_beams, front_bins, max_bins, smooth_
             if not sm[p] > 0:
                 continue
             lv = fraction * sm[p]
-            i = p
-            while i > lim and sm[i - 1] >= lv:
-                i -= 1
             if forward:  # the first crossing from the front (i <= p: sm[p] reaches the level)
                 i = lim
                 while i < p and sm[i] < lv:
                     i += 1
+            else:  # the walk back from the peak
+                i = p
+                while i > lim and sm[i - 1] >= lv:
+                    i -= 1
             # x: the crossing in bins from the profile's bin lim (front_bins in front of the
             # alignment)
             if i == lim:
