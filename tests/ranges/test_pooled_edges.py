@@ -140,29 +140,37 @@ def test_pooled_edges_rejects_bad_arguments():
         PipelineConfig().replace(sigma_pool_scale=-1.0)
 
 
-def _continuation_case(seed: int, faint_llr: float) -> tuple[np.ndarray, object, np.ndarray, np.ndarray]:
-    """A surface sloped 2 bins per beam: beams 0-19 strong (classifier structure), beams 20-31 a
-    faint stretch whose pixels carry ``faint_llr`` nats each over 6 bins, noise (-1 +- 1) elsewhere."""
+def _surface_case(edges: np.ndarray, llr: np.ndarray, faint: np.ndarray) -> tuple[object, np.ndarray, tuple]:
+    """Echoes, tracked first returns and (levels, evidence per level) of a surface with leading
+    edges ``edges`` over 200 bins: beams 0-19 strong (classifier structure, 3 nats per pixel),
+    the others a faint stretch whose 6 pixels carry ``faint[j]`` (noise ``llr`` elsewhere)."""
     from sonarmap.ranges.tracking import TrackConfig, track_surfaces
 
-    g = _geom(n_bins=200, n_beams=32)
-    rng = np.random.default_rng(seed)
-    truth = 60.0 + 2.0 * np.arange(32)
-    llr = np.round(rng.normal(-1.0, 1.0, g.shape), 1)
+    g = _geom(n_bins=200, n_beams=edges.size)
     img = np.zeros(g.shape)
     mask = np.zeros(g.shape, dtype=bool)
-    for j, t in enumerate(truth.astype(int)):
+    for j, t in enumerate(edges.astype(int)):
         if j < 20:
             img[t:t + 6, j] = [0.5, 1.0, 1.0, 1.0, 0.8, 0.4]
             mask[t:t + 6, j] = True
             llr[t:t + 6, j] = 3.0
         else:
-            llr[t:t + 6, j] = np.round(faint_llr + rng.normal(0, 0.5, 6), 1)
+            llr[t:t + 6, j] = faint[j]
     e = find_echoes(mask, img, g)
     first = track_surfaces(e, TrackConfig(segment_cost=10.0)).first
     # the kernel takes quantised levels and the evidence per level: here one level per 0.1 nat
     values = np.unique(llr)
-    return truth, e, first, (np.searchsorted(values, llr), values)
+    return e, first, (np.searchsorted(values, llr), values)
+
+
+def _continuation_case(seed: int, faint_llr: float) -> tuple[np.ndarray, object, np.ndarray, tuple]:
+    """A surface sloped 2 bins per beam: beams 0-19 strong (classifier structure), beams 20-31 a
+    faint stretch whose pixels carry ``faint_llr`` nats each over 6 bins, noise (-1 +- 1) elsewhere."""
+    rng = np.random.default_rng(seed)
+    truth = 60.0 + 2.0 * np.arange(32)
+    llr = np.round(rng.normal(-1.0, 1.0, (200, 32)), 1)
+    faint = np.round(faint_llr + rng.normal(0, 0.5, (32, 6)), 1)
+    return (truth, *_surface_case(truth, llr, faint))
 
 
 def test_continuation_follows_a_faint_stretch_along_the_slope_and_not_noise():
@@ -180,6 +188,20 @@ def test_continuation_follows_a_faint_stretch_along_the_slope_and_not_noise():
     assert not continuation_mask(e, first, *llr, min_evidence=10.0).any()
     with pytest.raises(InputError, match="levels"):
         continuation_mask(e, first, llr[0][:, :3], llr[1])
+
+
+def test_continuation_searches_a_missed_beam_again_between_the_beams_found_around_it():
+    """A step in a faint stretch: the extrapolation misses beam 21 (8 bins behind the line), finds
+    beam 22 (its window widens by a bin per beam); beam 21 is then searched around the line from
+    beam 20 to beam 22 and found."""
+    from sonarmap.ranges.tracking import continuation_mask
+
+    edges = np.concatenate([60.0 + 2.0 * np.arange(21), [108.0, 110.0], 110.0 + 2.0 * np.arange(1, 10)])
+    e, first, llr = _surface_case(edges, np.full((200, 32), -1.0), np.full(32, 2.5))
+    add = continuation_mask(e, first, *llr, min_evidence=10.0)
+    for j in range(20, 32):
+        rows = np.flatnonzero(add[:, j])
+        assert rows.size and abs(rows[0] - edges[j]) <= 1, (j, rows)
 
 
 def test_a_clipped_echo_carries_the_clipping_in_its_sigma():

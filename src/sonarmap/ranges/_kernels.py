@@ -1663,6 +1663,72 @@ def _window_llr(levels, lut, j, t, thick):  # pragma: no cover - numba
 
 
 @njit(cache=True, nogil=True)
+def _best_window(levels, lut, j, a, b, thick):  # pragma: no cover - numba
+    """The start ``t`` in ``a .. b`` of beam ``j``'s ``thick``-bin window of largest summed
+    log-likelihood ratio, and that sum (``-inf`` when ``b < a``)."""
+    best = -np.inf
+    t_best = a
+    for t in range(a, b + 1):
+        v = _window_llr(levels, lut, j, t, thick)
+        if v > best:
+            best = v
+            t_best = t
+    return t_best, best
+
+
+@njit(cache=True, nogil=True)
+def _continue_run(levels, lut, edge, j0, d, direction, thick, max_beams, window_bins, min_evidence, max_misses,
+                  out, r_lo, r_hi):  # pragma: no cover - numba
+    """One walk of :func:`continuation_mask` from the run's end beam ``j0`` in ``direction`` along
+    the slope ``d`` (bins per beam of walk); marks its windows in ``out`` and returns the grown
+    ``(r_lo, r_hi)``.  A beam missed between two found ones is searched again around the line
+    between them (a tighter prediction than the extrapolation that missed it)."""
+    n, m = levels.shape
+    e0 = edge[j0]
+    j = j0
+    misses = 0
+    for _ in range(max_beams):
+        j += direction
+        if j < 0 or j >= m:
+            break
+        steps = abs(j - j0)
+        pred = e0 + d * steps
+        w = max(window_bins, 0.5 * thick) + steps
+        if np.isfinite(edge[j]) and abs(edge[j] - pred) <= w + thick:
+            break  # the tracker links an existing return
+        a = int(max(np.floor(pred - w), 0.0))
+        b = int(min(np.ceil(pred + w), n - thick))
+        if b < a:
+            break
+        t_best, best = _best_window(levels, lut, j, a, b, thick)
+        if best >= min_evidence:
+            for i in range(t_best, t_best + thick):
+                out[i, j] = True
+            r_lo = min(r_lo, t_best)
+            r_hi = max(r_hi, t_best + thick)
+            # the beams missed since the last one found, around the line between the two
+            wm = max(window_bins, 0.5 * thick)
+            for k in range(1, steps):
+                jm = j0 + direction * k
+                pm = e0 + (t_best - e0) * k / steps
+                tm, bm = _best_window(levels, lut, jm, int(max(np.floor(pm - wm), 0.0)),
+                                      int(min(np.ceil(pm + wm), n - thick)), thick)
+                if bm >= min_evidence:
+                    for i in range(tm, tm + thick):
+                        out[i, jm] = True
+                    r_lo = min(r_lo, tm)
+                    r_hi = max(r_hi, tm + thick)
+            e0 = float(t_best)
+            j0 = j
+            misses = 0
+            continue
+        misses += 1
+        if misses > max_misses:
+            break
+    return r_lo, r_hi
+
+
+@njit(cache=True, nogil=True)
 def continuation_mask(levels, lut, edge, stop, run, min_run, max_beams, window_bins, min_evidence, max_misses):  # pragma: no cover - numba
     """Continuation pixels of tracked surfaces (see :func:`sonarmap.ranges.tracking.continuation_mask`);
     ``lut[levels]`` is the per-pixel log-likelihood ratio; also the first and one-past-last row
@@ -1704,42 +1770,8 @@ def continuation_mask(levels, lut, edge, stop, run, min_run, max_beams, window_b
                     c += 1
             s = np.sort(slopes[:c])
             d = (s[c // 2] if c % 2 == 1 else 0.5 * (s[c // 2 - 1] + s[c // 2])) * direction
-            j0 = tail[0]
-            e0 = edge[j0]
-            j = j0
-            misses = 0
-            for _ in range(max_beams):
-                j += direction
-                if j < 0 or j >= m:
-                    break
-                steps = abs(j - j0)
-                pred = e0 + d * steps
-                w = max(window_bins, 0.5 * thick) + steps
-                if np.isfinite(edge[j]) and abs(edge[j] - pred) <= w + thick:
-                    break  # the tracker links an existing return
-                a = int(max(np.floor(pred - w), 0.0))
-                b = int(min(np.ceil(pred + w), n - thick))
-                if b < a:
-                    break
-                best = -np.inf
-                t_best = a
-                for t in range(a, b + 1):
-                    v = _window_llr(levels, lut, j, t, thick)
-                    if v > best:
-                        best = v
-                        t_best = t
-                if best >= min_evidence:
-                    for i in range(t_best, t_best + thick):
-                        out[i, j] = True
-                    r_lo = min(r_lo, t_best)
-                    r_hi = max(r_hi, t_best + thick)
-                    e0 = float(t_best)
-                    j0 = j
-                    misses = 0
-                    continue
-                misses += 1
-                if misses > max_misses:
-                    break
+            r_lo, r_hi = _continue_run(levels, lut, edge, tail[0], d, direction, thick, max_beams, window_bins,
+                                       min_evidence, max_misses, out, r_lo, r_hi)
     return out, r_lo, r_hi
 
 

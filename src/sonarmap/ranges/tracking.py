@@ -380,8 +380,10 @@ def continuation_mask(echoes: Echoes, first: NDArray[np.int64], levels: NDArray[
     bin per beam of extrapolation) of the prediction is a continuation when that sum reaches
     ``min_evidence``: its pixels are returned, and the prediction restarts from it.  The walk
     stops at ``max_misses`` beams in a row without one, at another return near the prediction,
-    or after ``max_beams`` beams.  The pixels are candidates only: the tracker decides whether
-    they are part of the surface.
+    or after ``max_beams`` beams.  A beam the walk missed and passed is searched again, once the
+    walk finds the next beam, within ``max(window_bins, thickness / 2)`` of the line between the two
+    beams found around it (a step in the surface puts the extrapolated window beside the echo).
+    The pixels are candidates only: the tracker decides whether they are part of the surface.
 
     Parameters
     ----------
