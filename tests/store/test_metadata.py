@@ -173,6 +173,27 @@ def test_info_summarises_a_product_store(stores: dict[str, Path], capsys: pytest
 
 
 @pytest.mark.slow
+def test_info_summarises_an_interrupted_run(stores: dict[str, Path], tmp_path: Path,
+                                            capsys: pytest.CaptureFixture[str], test_pings: list) -> None:  # noqa: ANN001
+    """A run stopped before its last chunk: the chunks it did not finish have no data files, and
+    ``info`` reports the pings done so far instead of failing on the missing chunks."""
+    from sonarmap.store.products import complete_marker, marker_dir
+
+    store = tmp_path / "interrupted.zarr"
+    shutil.copytree(stores["processed"], store)  # 4 pings in chunks of 2
+    (marker_dir(store) / "00000001.done").unlink()
+    complete_marker(store).unlink()
+    for arr in store.iterdir():
+        if (arr / "c" / "1").exists():
+            shutil.rmtree(arr / "c" / "1") if (arr / "c" / "1").is_dir() else (arr / "c" / "1").unlink()
+    capsys.readouterr()
+    _cli(["info", str(store), "--json"])
+    info = json.loads(capsys.readouterr().out)
+    assert info["pings"] == N and info["pings_done"] == 2 and info["complete"] is False
+    assert info["time_last_utc"] == str(test_pings[1].datetime64)  # the last ping of the done chunk
+
+
+@pytest.mark.slow
 def test_show_renders_a_product_store(stores: dict[str, Path], tmp_path: Path,
                                       test_pings: list) -> None:  # noqa: ANN001
     from sonarmap.survey import load_products, product_ping

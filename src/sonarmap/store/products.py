@@ -483,18 +483,18 @@ def product_summary(path: str | os.PathLike[str]) -> dict[str, Any]:
     status = survey_status(p)
     k = int_attr(st.attrs, "chunk_size", p, low=1)
     n = int_attr(st.attrs, "n_pings", p)
-    rows = np.zeros(n, bool)
-    for c in done_chunks(p):
-        rows[c * k : (c + 1) * k] = True
-    times = np.asarray(read_array(st, DIM_PING), np.int64)[rows] if rows.any() else np.zeros(0, np.int64)
+    # Only the completed chunks: those of an interrupted run's unfinished chunks are not written.
+    spans = [slice(c * k, min((c + 1) * k, n)) for c in sorted(done_chunks(p)) if c * k < n]
+    times = np.concatenate([np.asarray(read_array(st, DIM_PING, s), np.int64) for s in spans]
+                           ) if spans else np.zeros(0, np.int64)
     check_times(times, p)
-    flags = read_array(st, "flags")[rows] if rows.any() else np.zeros(0, object)
+    flags = np.concatenate([read_array(st, "flags", s) for s in spans]) if spans else np.zeros(0, object)
     geometry = store_geometry(st)
     return make_summary(
         "zarr-products", p, n_pings=n, geometry=geometry,
         time_start_ns=int(times.min()) if times.size else None,
         time_end_ns=int(times.max()) if times.size else None,
-        pings_done=int(rows.sum()),
+        pings_done=int(times.size),
         complete=bool(status["complete"]),
         flagged=int(flagged_mask(flags).sum()),
         variables=sorted(schema),
