@@ -40,6 +40,23 @@ def test_malformed_json_exits_1_one_line(capsys: pytest.CaptureFixture[str], dat
     assert "Traceback" not in err
 
 
+def test_long_lines_are_not_wrapped_or_cut_on_a_pipe(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                                     monkeypatch: pytest.MonkeyPatch, data_dir: Path,
+                                                     test_ping_paths: list[Path]) -> None:
+    """On a pipe or file rich assumes 80 columns: info's values must not be cut with an ellipsis
+    and a one-line summary must stay one line, whatever the length of the paths in them."""
+    monkeypatch.delenv("COLUMNS", raising=False)
+    link = tmp_path / ("a-long-file-name-" * 6 + ".aris")
+    link.symlink_to(data_dir / "aris" / "sample.aris")
+    assert main(["info", str(link)]) == 0
+    rows = [line.split() for line in capsys.readouterr().out.splitlines()]
+    assert ["path", str(link)] in rows
+    csv = tmp_path / ("another-long-directory-name-" * 3) / "ranges.csv"
+    assert main(["ranges", str(test_ping_paths[0]), "-o", str(csv)]) == 0
+    err = capsys.readouterr().err.splitlines()
+    assert any(str(csv) in line and line.endswith("solver=graphcut)") for line in err), err
+
+
 def test_usage_error_exits_2(capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["info", "--no-such-option"]) == 2
     assert main(["no-such-command"]) == 2

@@ -197,18 +197,33 @@ def check_clock_used(first: Any, clock: dict[str, Any] | None) -> None:
                       SonarmapWarning, stacklevel=2)
 
 
-def console() -> Any:
-    """A rich console on stdout."""
+#: Line width of a console that is not a terminal (a pipe or a file): wide enough that no line
+#: of a summary or table is wrapped or cut (rich assumes 80 columns there).
+PIPE_WIDTH = 10_000
+
+
+def _console(*, stderr: bool) -> Any:
+    """A rich console whose long lines are not broken: text is not wrapped (``soft_wrap``), and on
+    a pipe or file (without ``COLUMNS`` set) the width is :data:`PIPE_WIDTH`, so a table keeps its
+    rows on one line each and never shortens a value with an ellipsis."""
+    import os
+
     from rich.console import Console
 
-    return Console(highlight=False)
+    c = Console(stderr=stderr, highlight=False, soft_wrap=True)
+    if not c.is_terminal and not os.environ.get("COLUMNS"):
+        c.width = PIPE_WIDTH
+    return c
+
+
+def console() -> Any:
+    """A rich console on stdout (results: ``info``'s table)."""
+    return _console(stderr=False)
 
 
 def err_console() -> Any:
-    """A rich console on stderr (progress bars and status)."""
-    from rich.console import Console
-
-    return Console(stderr=True, highlight=False)
+    """A rich console on stderr (progress bars, status and summaries)."""
+    return _console(stderr=True)
 
 
 def example(*lines: str) -> str:
