@@ -57,6 +57,23 @@ def test_long_lines_are_not_wrapped_or_cut_on_a_pipe(tmp_path: Path, capsys: pyt
     assert any(str(csv) in line and line.endswith("solver=graphcut)") for line in err), err
 
 
+def test_help_paragraphs_are_wrapped_as_paragraphs(capsys: pytest.CaptureFixture[str],
+                                                   monkeypatch: pytest.MonkeyPatch) -> None:
+    """A command's --help description flows as paragraphs: no line is broken in two because the
+    docstring's source lines are wider than the terminal (a long line, then a stub of a word or two)."""
+    from sonarmap.cli import app
+
+    monkeypatch.setenv("COLUMNS", "80")
+    for info in app.registered_commands:
+        name = info.name or info.callback.__name__
+        assert main([name, "--help"]) == 0
+        out = capsys.readouterr().out
+        text = out.split("Usage:", 1)[1].split("╭", 1)[0].splitlines()[2:]  # the description
+        lines = [line.strip() for line in text]
+        for line, after in zip(lines, lines[1:], strict=False):
+            assert not (line and after and len(line) < 40), f"sonarmap {name} --help: stub line {line!r}"
+
+
 def test_usage_error_exits_2(capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["info", "--no-such-option"]) == 2
     assert main(["no-such-command"]) == 2

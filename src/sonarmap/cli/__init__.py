@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import contextlib
 import importlib
+import inspect
 import logging
 import os
 import sys
@@ -25,7 +26,7 @@ import typer.core
 from sonarmap import __version__
 from sonarmap.errors import SonarmapError, show_warning_one_line
 
-__all__ = ["app", "main", "COMMAND_MODULES", "state"]
+__all__ = ["app", "main", "COMMAND_MODULES", "reflow_help", "state"]
 
 COMMAND_MODULES = (
     "info",
@@ -122,6 +123,29 @@ def _install_plain_help_types() -> None:
         arg_cls._usage_display_name = _usage_name  # type: ignore[method-assign]
 
 
+def reflow_help(text: str) -> str:
+    """A command's docstring as ``--help`` text: each paragraph one line, for the terminal to wrap.
+
+    typer keeps the single line breaks of a docstring's later paragraphs, so source lines wider
+    than the terminal came out broken in two (a long line and a stub).  A paragraph whose first
+    line is ``\b`` keeps its line breaks (the click convention; the marker itself is dropped).
+
+    Examples
+    --------
+    >>> reflow_help("Title.\n\n    One sentence\n    over two lines.\n")
+    'Title.\n\nOne sentence over two lines.'
+    """
+    paragraphs = inspect.cleandoc(text).split("\n\n")
+    out = []
+    for para in paragraphs:
+        lines = para.split("\n")
+        if lines[0].strip() == "\b":
+            out.append("\n".join(lines[1:]))
+        else:
+            out.append(" ".join(line.strip() for line in lines if line.strip()))
+    return "\n\n".join(out)
+
+
 def _register_all() -> None:
     for name in COMMAND_MODULES:
         modname = f"sonarmap.cli.{name}"
@@ -132,6 +156,10 @@ def _register_all() -> None:
                 continue
             raise
         mod.register(app)
+    for info in app.registered_commands:
+        doc = info.help if info.help is not None else (info.callback.__doc__ if info.callback else None)
+        if doc:
+            info.help = reflow_help(doc)
 
 
 _install_plain_help_types()

@@ -169,6 +169,7 @@ def register(app: typer.Typer) -> None:
         sigma_m: one-sigma uncertainty of range_m (m);
         p_detect: probability that a surface in the beam is detected and reported;
         time: ping time, ISO 8601 UTC with ns; time_ns: ping time, integer ns since the epoch.
+
         Give -o - to write the CSV to stdout (the summary stays on stderr).  The CSV file is
         replaced atomically when the command succeeds.  -o x.bag (or --to bag1/bag2) writes
         one marine_acoustic_msgs/SonarRanges message per ping instead (docs/formats.md).
