@@ -51,6 +51,7 @@ __all__ = [
     "save_geometry",
     "geometry_from_dict",
     "geometry_from_json_bytes",
+    "geometry_from_sidecar_bytes",
     "geometry_summary",
     "preset",
     "preset_names",
@@ -866,6 +867,28 @@ def geometry_from_json_bytes(data: bytes, source: str, default_name: str) -> Son
     if template.named or template.geometry.name == default_name:
         return template.geometry
     return _renamed(template.geometry, default_name, source)
+
+
+#: The name of a ping's sidecar geometry that names no sonar and takes no preset's azimuth table.
+SIDECAR_DEFAULT_NAME = "sonar"
+
+
+def geometry_from_sidecar_bytes(data: bytes, source: str) -> SonarGeometry:
+    """:func:`geometry_from_json_bytes` for a ping's sidecar JSON (``<ts>.json`` beside its image).
+
+    The geometry is named by the JSON's ``name``; without one, after the preset whose measured
+    azimuth table it takes (``didson-hf`` for the DIDSON's sidecars), else
+    :data:`SIDECAR_DEFAULT_NAME` - never after the ping's file, whose stem is its time stamp.
+
+    Raises
+    ------
+    DataFormatError, GeometryError
+        As :func:`geometry_from_json_bytes`.
+    """
+    geometry = geometry_from_json_bytes(data, source, SIDECAR_DEFAULT_NAME)
+    if geometry.name == SIDECAR_DEFAULT_NAME and geometry.azimuth_source.startswith("preset:"):
+        return _renamed(geometry, geometry.azimuth_source.removeprefix("preset:"), source)
+    return geometry
 
 
 def geometry_summary(geometry: Any) -> dict[str, Any]:

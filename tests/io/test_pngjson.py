@@ -40,6 +40,23 @@ def test_load_all_126_real_pings(test_ping_paths: list[Path], background_paths: 
     assert 0.55 < zero < 0.7
 
 
+def test_sidecar_geometry_is_named_after_the_sonar_not_the_ping(tmp_path: Path, test_ping_paths: list[Path]) -> None:
+    """A sidecar without ``name`` names its sonar after the preset whose azimuth table it takes
+    (the DIDSON's), else ``sonar``; never after the ping's file (its time stamp), which reports,
+    ``info`` and the product stores would then show as the sonar's name."""
+    assert {p.geometry.name for p in read_pings(test_ping_paths[:3])} == {"didson-hf"}
+    g = preset("oculus-m750d-like")
+    out = write_png_ping(Ping(np.zeros(g.shape, np.float32), g, time_ns=7_000_000_000), tmp_path)
+    side = tmp_path / "7000000.json"
+    d = json.loads(side.read_text())
+    assert d.pop("name") == "oculus-m750d-like" and len(d["azimuths"]) == g.n_beams
+    side.write_text(json.dumps(d))
+    assert read_png_ping(out).geometry.name == "sonar"  # its own azimuths, no name
+    d["name"] = "my-sonar"
+    side.write_text(json.dumps(d))
+    assert read_png_ping(out).geometry.name == "my-sonar"
+
+
 def test_time_stamps_from_file_names() -> None:
     assert time_ns_from_stem("1468966347175925_raw") == 1468966347175925000
     assert time_ns_from_stem("1468966347") == 1468966347 * 10**9

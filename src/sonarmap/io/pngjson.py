@@ -31,7 +31,7 @@ from numpy.typing import NDArray
 
 from sonarmap._atomic import atomic_path, atomic_write_text
 from sonarmap.errors import DataFormatError, GeometryError
-from sonarmap.geometry import SonarGeometry, geometry_from_json_bytes, as_geometry
+from sonarmap.geometry import SonarGeometry, as_geometry, geometry_from_sidecar_bytes
 from sonarmap.io.reader import GeometrySpec
 from sonarmap._files import MAX_SIDECAR_BYTES, open_regular, read_bytes_bounded, require_regular_file
 from sonarmap.ping import Ping
@@ -261,7 +261,7 @@ def read_png_ping(
                 f"no sidecar JSON ({side.name}); pass a geometry (preset or JSON file)", p
             )
         data = read_bytes_bounded(side, MAX_SIDECAR_BYTES, "sidecar JSON")
-        geom = geometry_from_json_bytes(data, str(side), _base_stem(p))
+        geom = geometry_from_sidecar_bytes(data, str(side))
         if b'"intensity_scale"' in data:
             scale = _intensity_scale(data, side)
     else:
