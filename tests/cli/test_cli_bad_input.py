@@ -206,3 +206,14 @@ def test_water_column_to_a_store_is_refused_with_what_to_use(cmd: str, tmp_path:
     assert rc == 1 and not out.exists()
     msg = [ln for ln in err.splitlines() if "error" in ln]
     assert len(msg) == 1 and "every ping" in msg[0] and "sonarmap ranges" in msg[0], err
+
+
+def test_a_failed_process_prints_no_empty_line_for_its_progress_bar(tmp_path: Path, data_dir: Path,
+                                                                    capsys: pytest.CaptureFixture[str]) -> None:
+    """On a pipe, the progress bar of a run that fails is dropped whole: stderr holds the reader's
+    warning and the error, and no empty line between them."""
+    rc = main(["process", str(data_dir / "kongsberg" / "0077_20221109_123655_Belgica.all"), "-o",
+               str(tmp_path / "k.zarr")])
+    err = capsys.readouterr().err.splitlines()
+    assert rc == 1 and len(err) == 2, err
+    assert err[0].startswith("sonarmap: warning:") and err[1].startswith("sonarmap: error:"), err

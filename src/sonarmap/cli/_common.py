@@ -15,6 +15,7 @@ __all__ = [
     "PingProgress", "apply_calibration", "check_choice", "check_clock_used", "clock_options", "console",
     "count_pings", "err_console", "example", "first_ping", "input_progress", "load_calibration",
     "load_geometry_option", "open_output", "output_name", "ping_progress", "read_input_pings", "run_pings",
+    "stop_progress",
 ]
 
 #: The ``PINGS...`` argument of the commands that read pings.
@@ -388,6 +389,17 @@ def open_output(path: str | Path, *, newline: str | None = None) -> Iterator[IO[
         yield fh
 
 
+def stop_progress(progress: Any, *, failed: bool) -> None:
+    """Stop a rich ``Progress``; after a failure remove it instead of printing it, so that the
+    error is the only line: erased on a terminal, nothing at all (not even an empty line) on a
+    pipe or file."""
+    if failed:
+        progress.live.transient = True  # a terminal: erase the bar
+        if not progress.console.is_terminal:
+            progress.console.quiet = True  # a pipe or file: print nothing at all
+    progress.stop()
+
+
 class PingProgress:
     """A progress bar over pings on stderr (rich), with optional per-ping lines.
 
@@ -461,13 +473,9 @@ class PingProgress:
         """Stop the bar; with ``failed`` remove it instead of printing it completed."""
         if self._progress is None:
             return
-        if failed:
-            self._progress.live.transient = True  # a terminal: erase the bar
-            if not self._progress.console.is_terminal:
-                self._progress.console.quiet = True  # a pipe or file: print nothing at all
-        elif self._task is not None and self.total is None:
+        if not failed and self._task is not None and self.total is None:
             self._progress.update(self._task, total=self.done)
-        self._progress.stop()
+        stop_progress(self._progress, failed=failed)
         self._progress = None
 
     def __enter__(self) -> PingProgress:

@@ -7,7 +7,7 @@ from typing import Any
 
 import typer
 
-from sonarmap.cli._common import CALIBRATION_OPTION, GEOMETRY_OPTION, err_console, example
+from sonarmap.cli._common import CALIBRATION_OPTION, GEOMETRY_OPTION, err_console, example, stop_progress
 
 __all__ = ["register", "process_command", "survey_progress"]
 
@@ -56,7 +56,7 @@ class survey_progress:  # noqa: N801 - used as a context manager, reads like a f
                 console=err_console(),
                 transient=False,
             )
-            self._progress.__enter__()
+            self._progress.start()
         return self
 
     def __call__(self, done: int, total: int) -> None:
@@ -68,9 +68,10 @@ class survey_progress:  # noqa: N801 - used as a context manager, reads like a f
             return
         self._progress.update(self._task, completed=done)
 
-    def __exit__(self, *exc: object) -> None:
+    def __exit__(self, exc_type: object, *exc: object) -> None:
         if self._progress is not None:
-            self._progress.__exit__(*exc)
+            stop_progress(self._progress, failed=exc_type is not None)
+            self._progress = None
 
 
 def _with_calibration(config: Path | None, calibration: Path | None) -> tuple[Any, Any]:
