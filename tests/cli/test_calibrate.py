@@ -135,6 +135,17 @@ def test_calibrate_three_ping_oculus_says_what_it_cannot_estimate(data_dir, tmp_
     assert cal["radial_gain"] is not None  # fitted on the bins beyond 0 m, no log10(0) error
 
 
+def test_calibrate_water_column_says_why_and_what_instead(data_dir, tmp_path, capsys):
+    """Kongsberg water column changes its window every ping: the one error line says what differs
+    between which pings, and that ranges and map normalise each ping by itself."""
+    out = tmp_path / "em.json"
+    rc = main(["calibrate", str(data_dir / "kongsberg" / "0077_20221109_123655_Belgica.all"), "-o", str(out)])
+    err = [ln for ln in capsys.readouterr().err.splitlines() if "error" in ln]
+    assert rc == 1 and not out.exists() and len(err) == 1
+    assert "bins x 256 beams where" in err[0] and "#head2004/ping59681 has 458 x 256" in err[0]
+    assert "one sonar setting" in err[0] and "ranges and map normalise each ping" in err[0]
+
+
 def test_calibrate_degenerate_recording_exits_1(tmp_path, test_ping_paths, capsys):
     import numpy as np
 

@@ -18,6 +18,7 @@ Either way the output says what the data could not support.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import typer
 
@@ -82,7 +83,7 @@ def register(app: typer.Typer) -> None:
             geom = pings[0].geometry
             for p in pings[1:]:
                 if p.geometry.shape != geom.shape or not np.allclose(p.geometry.azimuth_rad, geom.azimuth_rad):
-                    raise GeometryError(f"{p.source}: geometry differs from {pings[0].source} (mixed set)")
+                    raise GeometryError(_mixed_geometry_message(p, pings[0]))
             rec = estimate_recording_background(pings)
             if rec.thresholded:
                 d, lines = _calibrate_thresholded(pings, geom, method, taper_estimator)
@@ -96,6 +97,16 @@ def register(app: typer.Typer) -> None:
         # the summary is a message: on stderr (the calibration itself is the file, or stdout)
         for line in [*lines, f"-> {output_name(output)}"]:
             err_console().print(line, markup=False, soft_wrap=True)
+
+
+def _mixed_geometry_message(ping: Any, first: Any) -> str:
+    """Why ``ping`` cannot be calibrated with ``first``: what differs, and what to do instead."""
+    a, b = ping.geometry, first.geometry
+    what = (f"{a.n_bins} bins x {a.n_beams} beams where {first.source} has {b.n_bins} x {b.n_beams}"
+            if a.shape != b.shape else f"other beam azimuths than {first.source}")
+    return (f"{ping.source}: {what}; calibrate needs the pings of one sonar setting (a recording whose "
+            "range window or beams change every ping, such as Kongsberg water column, has no "
+            "calibration: ranges and map normalise each ping by its own background)")
 
 
 def _calibrate_thresholded(pings: list, geom: object, method: str, taper_estimator: str) -> tuple[dict, list[str]]:  # type: ignore[type-arg]
