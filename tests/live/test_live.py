@@ -201,6 +201,25 @@ def test_cannot_connect_is_a_source_error() -> None:
         run_live(src, max_pings=1)
 
 
+def test_a_refused_connection_warns_once_while_it_retries() -> None:
+    """A wrong address says so at the first refusal (one warning line), not only when the retries
+    run out - a run with --duration shorter than the retries would otherwise end silently."""
+    import socket
+    import warnings
+
+    s = socket.socket()
+    s.bind(("127.0.0.1", 0))
+    port = s.getsockname()[1]
+    s.close()
+    src = OculusTcpSource("127.0.0.1", port, max_retries=3, backoff_s=0.01)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        with pytest.raises(SourceError, match="cannot connect after 4 attempts"):
+            run_live(src, max_pings=1)
+    assert [w for w in src.warnings if "cannot connect" in w] == [
+        f"tcp://127.0.0.1:{port}: cannot connect (Connection refused); retrying, up to 3 more times"]
+
+
 # ---------------------------------------------------------------------------- follow + batch equality
 def _write_progressively(src: Path, dst: Path, interval_s: float, written_at: list[float]) -> None:
     from sonarmap.io.aris import FILE_HEADER_SIZE, ArisFile

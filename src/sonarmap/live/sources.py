@@ -222,6 +222,8 @@ class OculusTcpSource(PingSource):
                 last = exc.strerror or str(exc) or type(exc).__name__
                 if self.max_retries is not None and failures > self.max_retries:
                     raise SourceError(f"{self.name}: cannot connect after {failures} attempts ({last})") from None
+                tries = "" if self.max_retries is None else f", up to {self.max_retries} more times"
+                self._warn("connect", f"{self.name}: cannot connect ({last}); retrying{tries}")
                 if self._sleep(delay):
                     return None
                 delay = min(self.max_backoff_s, delay * 2)
