@@ -217,3 +217,16 @@ def test_a_failed_process_prints_no_empty_line_for_its_progress_bar(tmp_path: Pa
     err = capsys.readouterr().err.splitlines()
     assert rc == 1 and len(err) == 2, err
     assert err[0].startswith("sonarmap: warning:") and err[1].startswith("sonarmap: error:"), err
+
+
+@pytest.mark.parametrize("cmd", [["ranges"], ["map", "--static"], ["convert"], ["calibrate"]])
+def test_a_single_input_without_a_complete_ping_is_named_in_the_error(cmd: list[str], tmp_path: Path, data_dir: Path,
+                                                                       capsys: pytest.CaptureFixture[str]) -> None:
+    """An ARIS file cut inside its first frame: the error names the file (not the argument PINGS)."""
+    cut = tmp_path / "cut.aris"
+    cut.write_bytes((data_dir / "aris" / "sample.aris").read_bytes()[:50_000])
+    out = tmp_path / ("o.zarr" if cmd[0] == "convert" else "o.csv")
+    rc = main([cmd[0], str(cut), "-o", str(out), *cmd[1:]])
+    err = capsys.readouterr().err.splitlines()
+    assert rc == 1 and not out.exists()
+    assert err[-1].startswith(f"sonarmap: error: {cut}: no "), err

@@ -13,7 +13,7 @@ __all__ = [
     "CALIBRATION_OPTION", "GEOMETRY_OPTION", "OUTPUT_DIR_OPTION", "OUTPUT_OPTION", "PINGS_ARGUMENT", "PING_RATE_OPTION",
     "QUIET_OPTION", "START_TIME_OPTION", "STDOUT", "VERBOSE_OPTION",
     "PingProgress", "apply_calibration", "check_choice", "check_clock_used", "clock_options", "console",
-    "count_pings", "err_console", "example", "first_ping", "input_progress", "load_calibration",
+    "count_pings", "err_console", "example", "first_ping", "input_name", "input_progress", "load_calibration",
     "load_geometry_option", "open_output", "output_name", "ping_progress", "read_input_pings", "run_pings",
     "stop_progress",
 ]
@@ -84,6 +84,17 @@ def first_ping(
     if first is None:
         raise InputError(f"{argument}: {message}")
     return first, itertools.chain([first], pings)
+
+
+def input_name(inputs: list[Path] | list[str], argument: str) -> str:
+    """How an error about the input names it: the path when there is one, else ``argument``.
+
+    Examples
+    --------
+    >>> input_name(["cut.aris"], "PINGS"), input_name(["a.aris", "b.aris"], "PINGS")
+    ('cut.aris', 'PINGS')
+    """
+    return str(inputs[0]) if len(inputs) == 1 else argument
 
 
 def clock_options(start_time: str | None, ping_rate: float | None) -> dict[str, Any]:
@@ -159,7 +170,7 @@ def read_input_pings(
     geometry : SonarGeometry, optional
         Overrides the pings' own geometry (``--sonar``).
     argument, message : str
-        As for :func:`first_ping`.
+        As for :func:`first_ping`; a single input is named by its path instead of ``argument``.
     clock : dict, optional
         :func:`clock_options` (the times of recordings without a clock).
 
@@ -176,7 +187,7 @@ def read_input_pings(
     from sonarmap.io import read_pings
 
     first, pings = first_ping(read_pings([str(p) for p in inputs], geometry=geometry, **(clock or {})),
-                              argument, message)
+                              input_name(inputs, argument), message)
     check_clock_used(first, clock)
     return pings
 

@@ -18,6 +18,7 @@ from sonarmap.cli._common import (
     clock_options,
     count_pings,
     first_ping,
+    input_name,
     example,
     load_geometry_option,
     ping_progress,
@@ -73,7 +74,7 @@ def convert(
         _refuse_per_ping_geometry(paths)
     read_kwargs: dict[str, Any] = {"topic": topic} if topic else {}
     ping_iter = read_pings(paths, geometry=geometry, **read_kwargs, **clock)
-    first, ping_iter = first_ping(ping_iter, "INPUTS")
+    first, ping_iter = first_ping(ping_iter, input_name(paths, "INPUTS"))
     check_clock_used(first, clock)  # before the bar: an unreadable input prints only its error
     with ping_progress("convert", None if no_bar else count_pings(paths), quiet=no_bar, verbose=verbose) as bar:
         bar.start()

@@ -21,6 +21,7 @@ from sonarmap.cli._common import (
     clock_options,
     count_pings,
     first_ping,
+    input_name,
     err_console,
     example,
     load_geometry_option,
@@ -234,7 +235,7 @@ def map_command(
 
     # the first ping is read before any processing, so that input and pose errors come first
     ping_iter = read_pings(inputs, geometry=geometry, **clock)
-    first, ping_iter = first_ping(ping_iter)
+    first, ping_iter = first_ping(ping_iter, input_name(inputs, "PINGS"))
     check_clock_used(first, clock)
     with contextlib.ExitStack() as shown:  # the progress display, from the first processed ping on
         res = map_from_pings(ping_iter, mcfg, pcfg, background=background, on_start=checks, on_ping=advance)
