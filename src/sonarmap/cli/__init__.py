@@ -124,7 +124,7 @@ def _install_plain_help_types() -> None:
 
 
 def reflow_help(text: str) -> str:
-    """A command's docstring as ``--help`` text: each paragraph one line, for the terminal to wrap.
+    r"""A command's docstring as ``--help`` text: each paragraph one line, for the terminal to wrap.
 
     typer keeps the single line breaks of a docstring's later paragraphs, so source lines wider
     than the terminal came out broken in two (a long line and a stub).  A paragraph whose first
