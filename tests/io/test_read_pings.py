@@ -47,6 +47,14 @@ def test_unknown_content(tmp_path: Path) -> None:
         list(read_pings(p))
 
 
+def test_an_empty_file_is_called_empty(tmp_path: Path) -> None:
+    """A 0-byte file (a recording that was never written to) says so, not 'unrecognised format'."""
+    p = tmp_path / "sample.aris"
+    p.write_bytes(b"")
+    with pytest.raises(DataFormatError, match=r"sample\.aris: empty file \(0 bytes\): no pings"):
+        list(read_pings(p))
+
+
 def test_several_inputs_in_order_and_lazy(data_dir: Path) -> None:
     paths = [data_dir / "oculus" / "three_pings_8bit.raw", data_dir / "aris" / "sample.aris"]
     it = read_pings(paths)

@@ -44,8 +44,8 @@ def detect_format(path: str | os.PathLike[str]) -> str:
     Raises
     ------
     DataFormatError
-        If the path does not exist, is a FIFO, device or socket, cannot be read, or no reader
-        recognises it.
+        If the path does not exist, is a FIFO, device or socket, cannot be read, is an empty file,
+        or no reader recognises it.
     """
     p = Path(path)
     if not p.exists():
@@ -65,6 +65,8 @@ def detect_format(path: str | os.PathLike[str]) -> str:
         raise
     except OSError as exc:  # e.g. a directory that cannot be listed
         raise DataFormatError(f"cannot read: {exc.strerror or exc}", p) from None
+    if not head and not p.is_dir():
+        raise DataFormatError("empty file (0 bytes): no pings", p)
     raise DataFormatError("unrecognised file format (no reader matched its content)", p)
 
 
