@@ -154,6 +154,7 @@ def test_cli_map_outside_trajectory_error_or_skip(tmp_path, test_ping_paths, cap
     assert main(["map", *map(str, paths), "--poses", str(short), "-o", str(out), "-q"]) == 1
     err = capsys.readouterr().err
     assert "outside the trajectory span" in err and err.count("\n") == 1
+    assert err.startswith(f"sonarmap: error: {short}: 1 of 3 ping time(s)") and "--outside skip" in err, err
     assert main(["map", *map(str, paths), "--poses", str(short), "-o", str(out), "--outside", "skip"]) == 0
     assert "1 skipped outside the trajectory" in capsys.readouterr().err
     assert set(read_point_cloud(out).time_ns.tolist()) <= set(ts[:2])

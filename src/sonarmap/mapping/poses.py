@@ -249,9 +249,14 @@ class Trajectory:
         lo, hi = self.span_ns
         if outside == "error" and not valid.all():
             bad = int(t[~valid][0])
+
+            def utc(ns: int) -> str:
+                return f"{np.datetime64(ns, 'ns')}Z"
+
             raise InputError(
-                f"time_ns: {int((~valid).sum())} of {t.size} ping time(s) lie outside the "
-                f"trajectory span [{lo}, {hi}] ns (first: {bad}); use outside='skip' to drop them"
+                f"{self.source or 'trajectory'}: {int((~valid).sum())} of {t.size} ping time(s) lie outside "
+                f"the trajectory span {utc(lo)} to {utc(hi)} (first: {utc(bad)}); drop them with "
+                "--outside skip (outside='skip' in Python)"
             )
         m = t.size
         pos = np.full((m, 3), np.nan)
