@@ -57,6 +57,13 @@ def test_long_lines_are_not_wrapped_or_cut_on_a_pipe(tmp_path: Path, capsys: pyt
     assert any(str(csv) in line and line.endswith("solver=graphcut)") for line in err), err
 
 
+def test_info_lines_have_no_trailing_blanks(capsys: pytest.CaptureFixture[str], data_dir: Path) -> None:
+    """info's table is text for people and scripts: no row is padded with blanks to the widest value."""
+    assert main(["info", str(data_dir / "aris" / "sample.aris"), str(data_dir / "didson" / "didson.json")]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert len(lines) > 40 and [ln for ln in lines if ln != ln.rstrip()] == []
+
+
 def test_help_paragraphs_are_wrapped_as_paragraphs(capsys: pytest.CaptureFixture[str],
                                                    monkeypatch: pytest.MonkeyPatch) -> None:
     """A command's --help description flows as paragraphs: no line is broken in two because the

@@ -69,7 +69,10 @@ def _print(info: dict[str, Any]) -> None:
         elif isinstance(v, list):
             v = ", ".join(f"{x:.4g}" if isinstance(x, float) else str(x) for x in v)
         t.add_row(k, str(v))
-    console().print(t)
+    c = console()
+    with c.capture() as captured:  # rich pads every row to the widest value: no trailing blanks
+        c.print(t)
+    typer.echo("\n".join(line.rstrip() for line in captured.get().splitlines()), color=c.is_terminal)
 
 
 def register(app: typer.Typer) -> None:
