@@ -32,6 +32,18 @@ def test_fit_command(test_ping_paths, tmp_path):
     assert abs(sum(float(v) for v in rows[0]["weights"].split(";")) - 1) < 1e-6
 
 
+def test_fit_names_every_ping_of_a_dual_head_recording_apart(data_dir, tmp_path):
+    """The two heads of the Kongsberg recording share ping counters: the ping cell keeps the head
+    (it was the last path part, 'ping59681', on two rows)."""
+    out = tmp_path / "em.csv"
+    assert main(["fit", str(data_dir / "kongsberg" / "0077_20221109_123655_Belgica.all"), "-o", str(out), "-q"]) == 0
+    with open(out, newline="") as fh:
+        names = [r["ping"] for r in csv.DictReader(fh)]
+    assert len(names) == 10 and len(set(names)) == 10
+    assert names[:2] == ["0077_20221109_123655_Belgica.all#head2004/ping59681",
+                         "0077_20221109_123655_Belgica.all#head2031/ping59681"]
+
+
 def test_calibrate_aris_recording_and_use_it(data_dir, tmp_path, capsys):
     """Any recording, not only open water: the ARIS file gives the background level vs range and
     beam, and `ranges --calibration` normalises every frame by it."""

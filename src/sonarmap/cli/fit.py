@@ -46,8 +46,10 @@ def register(app: typer.Typer) -> None:
     ) -> None:
         """Fit the zero-spike mixture to each ping's histogram; write ping, family, weights, scales, kld, flags, gates.
 
-        The gates column lists the fit gates the ping fails (a ping failing one yields no returns
-        in the pipeline).  Give -o - to write the CSV to stdout; a file is replaced atomically.
+        The ping column is the file name, with the ping's place in a recording after # (sample.aris#3,
+        em.all#head2004/ping59681).  The gates column lists the fit gates the ping fails (a ping
+        failing one yields no returns in the pipeline).  Give -o - to write the CSV to stdout; a
+        file is replaced atomically.
         """
         import csv
 
@@ -68,7 +70,7 @@ def register(app: typer.Typer) -> None:
             for ping in ping_iter:
                 img = _image_to_fit(ping, normalise=normalise, recipe_config=cfg)
                 f = fit_mixture(img, families=fams, method=method, binning=binning)  # type: ignore[arg-type]
-                w.writerow(_fit_row(f, Path(ping.source).name or n))
+                w.writerow(_fit_row(f, _ping_name(ping.source) or n))
                 n += 1
                 bar.advance()
                 bar.log(f"{ping.source}: KLD {f.kld:.3g}" + (f" ({';'.join(sorted(f.flags))})" if f.flags else ""))
@@ -114,6 +116,20 @@ def _image_to_fit(ping: Ping, *, normalise: bool, recipe_config: PreprocessConfi
 
         img = preprocess_image(img, ping.geometry, recipe_config)
     return img
+
+
+def _ping_name(source: str) -> str:
+    """The ``ping`` cell: the file name, with the ping inside a recording after ``#``.
+
+    Examples
+    --------
+    >>> _ping_name("data/test/1468966347175925_raw.png"), _ping_name("data/sample.aris#3")
+    ('1468966347175925_raw.png', 'sample.aris#3')
+    >>> _ping_name("data/em.all#head2004/ping59681")   # the head is part of the name
+    'em.all#head2004/ping59681'
+    """
+    path, sep, inside = source.partition("#")
+    return Path(path).name + sep + inside
 
 
 def _fit_row(f: MixtureFit, name: str | int) -> list[str | int]:
