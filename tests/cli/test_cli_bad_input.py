@@ -230,3 +230,15 @@ def test_a_single_input_without_a_complete_ping_is_named_in_the_error(cmd: list[
     err = capsys.readouterr().err.splitlines()
     assert rc == 1 and not out.exists()
     assert err[-1].startswith(f"sonarmap: error: {cut}: no "), err
+
+
+def test_preprocess_refuses_to_overwrite_a_ping_of_the_same_time(tmp_path: Path, data_dir: Path,
+                                                                 capsys: pytest.CaptureFixture[str]) -> None:
+    """The two heads of the Kongsberg recording ping at the same times: preprocess wrote both under
+    one time-stamp name, the second replacing the first (10 pings read, 5 left, exit 0)."""
+    out = tmp_path / "pp"
+    rc = main(["preprocess", str(data_dir / "kongsberg" / "0077_20221109_123655_Belgica.all"), "-o", str(out)])
+    err = [ln for ln in capsys.readouterr().err.splitlines() if "error" in ln]
+    assert rc == 1 and len(err) == 1, err
+    assert "#head2031/ping59681: has the time stamp of" in err[0] and "#head2004/ping59681" in err[0]
+    assert sorted(p.name for p in out.iterdir()) == ["1667997414649000.json", "1667997414649000_raw.png"]

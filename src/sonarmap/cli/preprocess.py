@@ -43,7 +43,8 @@ def register(app: typer.Typer) -> None:
 
         The output directory is created if needed; its files are replaced atomically.  When a
         pre-processed ping exceeds 1 (e.g. after the taper division), the PNG holds the image
-        divided by intensity_scale and the JSON records intensity_scale.
+        divided by intensity_scale and the JSON records intensity_scale.  The files are named by
+        the ping's time, so two pings of one time (the heads of a dual-head sonar) are an error.
         """
         from sonarmap.preprocess.pipeline import RECIPES, load_config, recipe
 
@@ -55,21 +56,30 @@ def register(app: typer.Typer) -> None:
         clock = clock_options(start_time, ping_rate)
         ping_iter = read_input_pings(pings, load_geometry_option(sonar), clock=clock)  # before the bar
         bar = input_progress("preprocess", pings, quiet=quiet, verbose=verbose)
-        n = run_pings(bar, ping_iter, lambda ping, i: _one(ping, i, cfg, output, figure))
+        written: dict[str, str] = {}  # file stem -> the ping written under it
+        n = run_pings(bar, ping_iter, lambda ping, i: _one(ping, i, cfg, output, figure, written))
         if not quiet:
             err_console().print(f"preprocessed {n} ping(s) with recipe '{cfg.name}' -> {output}", markup=False)
 
 
-def _one(ping: Any, n: int, cfg: Any, output: Path, figure: Path | None) -> str:
+def _one(ping: Any, n: int, cfg: Any, output: Path, figure: Path | None, written: dict[str, str]) -> str:
     """Pre-process one ping and write it into ``output`` (and, for the first, the figure); returns
-    the ``--verbose`` line."""
+    the ``--verbose`` line.  ``written`` maps the file stems of this run to their pings: a second
+    ping of the same time stamp (the other head of a dual-head sonar) is an error, not a file that
+    silently replaces the first."""
+    from sonarmap.errors import InputError
     from sonarmap.io.pngjson import write_png_ping
     from sonarmap.preprocess.pipeline import preprocess
 
-    out = preprocess(ping, cfg)
     stem = Path(ping.source).stem.removesuffix("_raw") if ping.source else None
     if not stem or not stem.isdigit():
         stem = f"{ping.time_ns // 1000}" if ping.time_ns else f"ping{n:06d}"
+    if stem in written:
+        raise InputError(f"{ping.source}: has the time stamp of {written[stem]}; both would be written as "
+                         f"{output / stem}_raw.png (a folder of PNG+JSON pings holds one ping per time: "
+                         "the heads of a dual-head sonar, pinging together, do not fit in one)")
+    written[stem] = ping.source
+    out = preprocess(ping, cfg)
     extra = {"preprocess": out.meta["preprocess"]}
     peak = float(out.image.max())
     to_write = out
