@@ -2,7 +2,7 @@
 
 On a terminal the line is redrawn in place (``\\r``) about twice a second::
 
-    live  12.5 s  412 pings  33.1 pings/s  latency p50 28.4 ms p99 41.0 ms  drops 3  flagged 0  malformed 1  reconnects 0
+    live 12.5 s | 412 pings | 33.1 pings/s | latency p50 28.4 ms p99 41.0 ms | drops 3 | flagged 0 | malformed 1 | reconnects 0
 
 On a pipe or file nothing is drawn while running (no stream of partial lines); the final
 summary line is printed either way, unless quiet.
