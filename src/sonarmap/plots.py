@@ -11,10 +11,12 @@ from typing import Any
 import numpy as np
 
 from sonarmap._atomic import atomic_path
+from sonarmap.errors import InputError
 from sonarmap.fan import fan_image
 from sonarmap.ping import Ping
 
-__all__ = ["new_figure", "save_figure", "draw_fan", "show_ping_figure", "fan_comparison"]
+__all__ = ["new_figure", "save_figure", "draw_fan", "show_ping_figure", "fan_comparison", "display_scale",
+           "DB_SPAN_RATIO", "DB_WINDOW"]
 
 
 def new_figure(*args: Any, **kwargs: Any) -> tuple[Any, Any]:
@@ -65,23 +67,66 @@ def draw_fan(
     return im
 
 
+#: ``display_scale("auto")`` shows a ping in dB when its positive pixels' 99.9th percentile exceeds
+#: this multiple of their median (30 dB): a linear colour scale then shows the brightest 0.1 % on
+#: black (a Kongsberg water column spans ~60 dB, 1e6; imaging sonars' 8-bit images 2-20).
+DB_SPAN_RATIO = 1000.0
+#: The dB display's window below its maximum (dB).
+DB_WINDOW = 60.0
+
+
+def display_scale(image: np.ndarray, scale: str = "auto") -> str:
+    """``"linear"`` or ``"db"``: ``scale`` itself, or for ``"auto"`` dB when the image's positive
+    pixels span more than :data:`DB_SPAN_RATIO` between their median and 99.9th percentile."""
+    if scale not in ("auto", "linear", "db"):
+        raise InputError(f"scale: must be auto, linear or db (got {scale!r})")
+    if scale != "auto":
+        return scale
+    pos = image[np.isfinite(image) & (image > 0)]
+    if pos.size == 0:
+        return "linear"
+    return "db" if float(np.percentile(pos, 99.9)) > DB_SPAN_RATIO * float(np.median(pos)) else "linear"
+
+
+def _in_db(image: np.ndarray, vmax: float | None) -> tuple[np.ndarray, float, float]:
+    """``10 log10`` of the image and its colour range: ``vmax`` (dB; default the positive pixels'
+    99.9th percentile) down :data:`DB_WINDOW`; pixels <= 0 (or not finite) at the range's bottom."""
+    img = np.asarray(image, dtype=np.float64)
+    pos = np.isfinite(img) & (img > 0)
+    db = np.zeros(img.shape)
+    db[pos] = 10.0 * np.log10(img[pos])
+    top = vmax if vmax is not None else (float(np.percentile(db[pos], 99.9)) if pos.any() else 0.0)
+    db[~pos] = top - DB_WINDOW
+    return db.astype(np.float32), top - DB_WINDOW, top
+
+
 def show_ping_figure(
     ping: Ping,
     *,
     resolution_m: float | None = None,
     polar: bool = False,
     vmax: float | None = None,
+    scale: str = "auto",
 ) -> Any:
-    """Figure of one ping as a fan, optionally beside its raw polar image."""
+    """Figure of one ping as a fan, optionally beside its raw polar image.
+
+    ``scale``: ``"linear"``, ``"db"`` (``10 log10`` of the intensity, a :data:`DB_WINDOW` window
+    below ``vmax`` in dB, default the 99.9th percentile) or ``"auto"`` (:func:`display_scale`).
+    """
     ncols = 2 if polar else 1
     fig, axes = new_figure(1, ncols, figsize=(5.0 * ncols, 6.0), squeeze=False)
     title = f"{os.path.basename(ping.source) or 'ping'}  {np.datetime_as_string(ping.datetime64, unit='ms')} UTC"
-    draw_fan(axes[0, 0], ping.image, ping.geometry, resolution_m=resolution_m, vmax=vmax, title=title)
+    img, vmin = ping.image, 0.0
+    if display_scale(ping.image, scale) == "db":
+        img, vmin, vmax = _in_db(ping.image, vmax)
+    im = draw_fan(axes[0, 0], img, ping.geometry, resolution_m=resolution_m, vmin=vmin, vmax=vmax, title=title)
+    if img is not ping.image:
+        im.colorbar.set_label("intensity (dB)")
     if polar:
         g = ping.geometry
         az = np.rad2deg(g.azimuth_rad)
         ax = axes[0, 1]
-        im = ax.imshow(ping.image, origin="lower", aspect="auto", cmap="inferno", vmin=0, vmax=vmax,
+        im = ax.imshow(img, origin="lower", aspect="auto", cmap="inferno", vmin=vmin, vmax=vmax,
                        extent=(0, g.n_beams, g.range_m[0], g.range_m[-1]))
         ax.set_xlabel(f"beam (azimuth {az[0]:.1f} to {az[-1]:.1f} deg)")
         ax.set_ylabel("range (m)")

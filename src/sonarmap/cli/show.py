@@ -28,7 +28,10 @@ def register(app: typer.Typer) -> None:
         sonar: str | None = GEOMETRY_OPTION,
         resolution: float | None = typer.Option(None, "--resolution", help="Fan pixel size in m."),
         polar: bool = typer.Option(False, "--polar", help="Also show the raw polar image."),
-        vmax: float | None = typer.Option(None, "--vmax", help="Colour scale maximum."),
+        vmax: float | None = typer.Option(None, "--vmax", help="Colour scale maximum (dB with a dB scale)."),
+        scale: str = typer.Option("auto", "--scale", help="Colour scale: linear, db (10 log10, 60 dB below "
+                                  "the maximum) or auto (dB when the ping spans more than 30 dB between its "
+                                  "median and 99.9th percentile, e.g. a Kongsberg water column)."),
         image: str = typer.Option("auto", "--image", help="For a product store: labels, raw or auto "
                                   "(labels if stored, else the raw ping from its source)."),
     ) -> None:
@@ -44,6 +47,8 @@ def register(app: typer.Typer) -> None:
         if fmt not in _FIGURE_FORMATS:
             raise typer.BadParameter(f"must end in one of .{', .'.join(_FIGURE_FORMATS)} (got {output.name!r})",
                                      param_hint="--output")
+        if scale not in ("auto", "linear", "db"):
+            raise typer.BadParameter(f"must be auto, linear or db (got {scale!r})", param_hint="--scale")
         if image not in ("auto", "labels", "raw"):
             raise typer.BadParameter(f"must be auto, labels or raw (got {image!r})", param_hint="--image")
         geom = load_geometry_option(sonar)
@@ -53,6 +58,6 @@ def register(app: typer.Typer) -> None:
             p = product_ping(ping, index, image=image)
         else:
             p = read_ping(ping, geometry=geom, index=index)
-        fig = show_ping_figure(p, resolution_m=resolution, polar=polar, vmax=vmax)
+        fig = show_ping_figure(p, resolution_m=resolution, polar=polar, vmax=vmax, scale=scale)
         save_figure(fig, output)
         typer.echo(f"wrote {output}", err=True)

@@ -1,0 +1,42 @@
+"""Figures: the colour scale of ``sonarmap show``."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from sonarmap.errors import InputError
+from sonarmap.plots import DB_WINDOW, display_scale, show_ping_figure
+
+
+def test_auto_scale_is_db_only_for_a_ping_spanning_more_than_30_db() -> None:
+    rng = np.random.default_rng(0)
+    speckle = rng.exponential(0.1, (200, 32)).astype(np.float32)  # an imaging sonar's 8-bit-like span
+    assert display_scale(speckle) == "linear"
+    # a water column in dB made linear: -60 dB background, a 0 dB seabed
+    wc = (10.0 ** (rng.normal(-60.0, 5.0, (200, 32)) / 10.0)).astype(np.float32)
+    wc[150:152] = 1.0
+    assert display_scale(wc) == "db"
+    assert display_scale(wc, "linear") == "linear" and display_scale(speckle, "db") == "db"
+    assert display_scale(np.zeros((4, 4), np.float32)) == "linear"
+    with pytest.raises(InputError, match="scale"):
+        display_scale(wc, "log")
+
+
+def test_db_figure_shows_the_window_below_the_maximum(data_dir: Path) -> None:
+    from sonarmap.io import read_ping
+
+    p = read_ping(data_dir / "kongsberg" / "0077_20221109_123655_Belgica.wcd", index=0)
+    fig = show_ping_figure(p, polar=True)
+    fan, polar = (ax.images[0] for ax in fig.axes[:2])
+    lo, hi = fan.get_clim()
+    assert hi - lo == pytest.approx(DB_WINDOW)
+    pos = p.image[p.image > 0]
+    assert hi == pytest.approx(10 * np.log10(np.percentile(pos, 99.9)), abs=0.5)
+    assert polar.get_clim() == (lo, hi)
+    assert any(getattr(ax, "get_ylabel", lambda: "")() == "intensity (dB)" for ax in fig.axes)
+    # the linear scale, as before: the colour range from 0
+    fig = show_ping_figure(p, scale="linear")
+    assert fig.axes[0].images[0].get_clim()[0] == 0.0
