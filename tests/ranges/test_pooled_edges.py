@@ -405,3 +405,30 @@ def test_the_profiles_are_computed_as_far_as_the_windows_read_them(monkeypatch: 
     want = _kernels.pooled_edges.py_func(*args)
     for a, b in zip(got, want):
         assert np.asarray(a).tobytes() == np.asarray(b).tobytes()
+
+
+def test_the_running_clip_counts_test_only_columns_with_a_clipped_sample_in_reach() -> None:
+    """``_clip_counts`` skips the per-bin clip tests of a column without a clipped sample between
+    the rows its tests would read: the same counts as testing every bin."""
+    from sonarmap.ranges._kernels import _clip_counts, _clipped_at
+
+    rng = np.random.default_rng(5)
+    n = 40
+    clip = (rng.random((n, 6)) < 0.02).astype(np.uint8)
+    clip[:, 0] = 0
+    clip[n - 1, 1] = 1  # only in the last row
+    clip[0, 2] = 1      # only in the first row
+
+    def reference(j: int, a: float, off: int, n_read: int, below: np.ndarray) -> np.ndarray:
+        out = below.copy()
+        for k in range(n_read):
+            out[k] += bool(_clipped_at.py_func(clip, j, a + (k + off)))
+        return out
+
+    below = rng.integers(0, 3, 30).astype(np.int64)
+    for j in range(clip.shape[1]):
+        for a in (-7.3, -0.5, 0.0, 3.999999999999999, 12.25, 38.5, 45.0):
+            for off, n_read in ((-5, 30), (-5, 0), (0, 1), (-2, 12)):
+                out = np.empty(30, np.int64)
+                _clip_counts.py_func(clip, j, a, off, n_read, 30, below, out)
+                np.testing.assert_array_equal(out, reference(j, a, off, n_read, below))

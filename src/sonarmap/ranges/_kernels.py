@@ -1461,6 +1461,40 @@ def _profile_needs(run, count, depth, half_beams, extra):  # pragma: no cover - 
     return need
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _clip_counts(clip, j, a, off, n_read, n_out, below, out):  # pragma: no cover - numba
+    """``out[k] = below[k] + _clipped_at(clip, j, a + (k + off))`` for ``k < n_out``, the clip test
+    only for ``k < n_read`` (the running clip counts of :func:`pooled_edges`).  The rows the tests
+    read, ``floor(a + (k + off))`` and the next, do not decrease with ``k``: when column ``j``
+    holds no clipped sample from the first test's row to the last test's next row (nearly every
+    column), ``below`` is copied without testing (with :func:`_box_clipped` only at the peak,
+    4096 x 512 simulated pings: the kernel 1.6 -> 1.2 ms)."""
+    n = clip.shape[0]
+    hit = n_read > 0 and not np.isfinite(a)
+    if n_read > 0 and not hit:
+        r0 = min(max(int(np.floor(a + off)), 0), n)
+        r1 = min(max(int(np.floor(a + (n_read - 1 + off))) + 2, 0), n)
+        for i in range(r0, r1):
+            hit |= clip[i, j] != 0
+    for k in range(n_out):
+        out[k] = below[k]
+    if hit:
+        for k in range(n_read):
+            if _clipped_at(clip, j, a + (k + off)):
+                out[k] += 1
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _box_clipped(c_hi, c_lo, k, h, hj):  # pragma: no cover - numba
+    """Whether a beam pooled in :func:`pooled_edges` has a clipped sample in the smoothing box
+    of profile bin ``k`` (``c_hi - c_lo``: the clipped beams per profile bin, from the running
+    clip counts)."""
+    for d in range(h - hj, h + hj + 1):
+        if c_hi[k + d] - c_lo[k + d] > 0:
+            return True
+    return False
+
+
 @njit(cache=True, nogil=True)
 def pooled_edges(img, edge, stop, run, half_beams, front_bins, max_bins, smooth_bins, fraction, n_iter,
                  clip, fit_front_bins, forward):  # pragma: no cover - numba
@@ -1546,10 +1580,8 @@ def pooled_edges(img, edge, stop, run, half_beams, front_bins, max_bins, smooth_
             for k in range(need[jj]):
                 csum[jj + 1, k] = csum[jj, k] + prof[jj, k]
             if has_clip:
-                for k in range(need[jj]):
-                    ccnt[jj + 1, k] = ccnt[jj, k]
-                    if run[jj] >= 0 and _clipped_at(clip, jj, align[jj] + (k - h - front)):
-                        ccnt[jj + 1, k] += 1
+                _clip_counts(clip, jj, align[jj], -h - front, need[jj] if run[jj] >= 0 else 0, need[jj],
+                             ccnt[jj], ccnt[jj + 1])
         clipped_k = np.zeros(width, np.bool_)
         new = cur.copy()
         mean = np.empty(width)
@@ -1612,15 +1644,13 @@ def pooled_edges(img, edge, stop, run, half_beams, front_bins, max_bins, smooth_
                 slope = sm[i] - sm[i - 1]
                 x = (i - 1 - lim) + (lv - sm[i - 1]) / max(slope, 1e-12)
             if has_clip:
-                # a smoothed bin is clipped when any pooled beam has a clipped sample in its box
-                for k in range(nf):
-                    clipped_k[k] = False
-                    for d in range(h - hj, h + hj + 1):
-                        if ccnt[hi, k + d] - ccnt[lo, k + d] > 0:
-                            clipped_k[k] = True
                 fitted[j] = False
                 fit_sx = 0.0
-                if clipped_k[p]:
+                # a smoothed bin is clipped when any pooled beam has a clipped sample in its box
+                # (the other bins' flags only for a clipped peak: the fit reads them)
+                if _box_clipped(ccnt[hi], ccnt[lo], p, h, hj):
+                    for k in range(nf):
+                        clipped_k[k] = _box_clipped(ccnt[hi], ccnt[lo], k, h, hj)
                     ok, xf, lvf, sf, fit_sx = _clipped_edge(sm, clipped_k, nf, p, fraction, nk)
                     if ok:
                         x, lv, slope = xf - lim, lvf, sf
