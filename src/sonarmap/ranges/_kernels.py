@@ -1708,9 +1708,10 @@ def _best_window(levels, lut, j, a, b, thick):  # pragma: no cover - numba
 
 @njit(cache=True, nogil=True)
 def _continue_run(levels, lut, edge, j0, d, direction, thick, max_beams, window_bins, min_evidence, max_misses,
-                  out, r_lo, r_hi):  # pragma: no cover - numba
+                  out, r_lo, r_hi, col_lo, col_hi):  # pragma: no cover - numba
     """One walk of :func:`continuation_mask` from the run's end beam ``j0`` in ``direction`` along
-    the slope ``d`` (bins per beam of walk); marks its windows in ``out`` and returns the grown
+    the slope ``d`` (bins per beam of walk); marks its windows in ``out``, grows each marked
+    column's rows ``col_lo[j] .. col_hi[j] - 1`` to cover them and returns the grown
     ``(r_lo, r_hi)``.  A beam missed between two found ones is searched again around the line
     between them (a tighter prediction than the extrapolation that missed it)."""
     n, m = levels.shape
@@ -1736,6 +1737,8 @@ def _continue_run(levels, lut, edge, j0, d, direction, thick, max_beams, window_
                 out[i, j] = True
             r_lo = min(r_lo, t_best)
             r_hi = max(r_hi, t_best + thick)
+            col_lo[j] = min(col_lo[j], t_best)
+            col_hi[j] = max(col_hi[j], t_best + thick)
             # the beams missed since the last one found, around the line between the two
             wm = max(window_bins, 0.5 * thick)
             for k in range(1, steps):
@@ -1748,6 +1751,8 @@ def _continue_run(levels, lut, edge, j0, d, direction, thick, max_beams, window_
                         out[i, jm] = True
                     r_lo = min(r_lo, tm)
                     r_hi = max(r_hi, tm + thick)
+                    col_lo[jm] = min(col_lo[jm], tm)
+                    col_hi[jm] = max(col_hi[jm], tm + thick)
             e0 = float(t_best)
             j0 = j
             misses = 0
@@ -1762,11 +1767,13 @@ def _continue_run(levels, lut, edge, j0, d, direction, thick, max_beams, window_
 def continuation_mask(levels, lut, edge, stop, run, min_run, max_beams, window_bins, min_evidence, max_misses):  # pragma: no cover - numba
     """Continuation pixels of tracked surfaces (see :func:`sonarmap.ranges.tracking.continuation_mask`);
     ``lut[levels]`` is the per-pixel log-likelihood ratio; also the first and one-past-last row
-    holding one (``(n, 0)``: none)."""
+    holding one (``(n, 0)``: none), overall and per column (``col_lo``, ``col_hi``)."""
     n, m = levels.shape
     out = np.zeros((n, m), np.bool_)
     r_lo = n
     r_hi = 0
+    col_lo = np.full(m, n, np.int64)
+    col_hi = np.zeros(m, np.int64)
     n_runs = run.max() + 1
     tail = np.empty(10, np.int64)
     slopes = np.empty(45)
@@ -1801,21 +1808,24 @@ def continuation_mask(levels, lut, edge, stop, run, min_run, max_beams, window_b
             s = np.sort(slopes[:c])
             d = (s[c // 2] if c % 2 == 1 else 0.5 * (s[c // 2 - 1] + s[c // 2])) * direction
             r_lo, r_hi = _continue_run(levels, lut, edge, tail[0], d, direction, thick, max_beams, window_bins,
-                                       min_evidence, max_misses, out, r_lo, r_hi)
-    return out, r_lo, r_hi
+                                       min_evidence, max_misses, out, r_lo, r_hi, col_lo, col_hi)
+    return out, r_lo, r_hi, col_lo, col_hi
 
 
 @njit(cache=True, nogil=True)
-def continuation_extra(extra, cand, first, edge_bin, r0, r1):  # pragma: no cover - numba
+def continuation_extra(extra, cand, first, edge_bin, col_lo, col_hi):  # pragma: no cover - numba
     """The continuation pixels of :func:`sonarmap.ranges.measure.surface_ranges`: ``extra & ~cand``
     on the beams whose first such pixel lies in front of the beam's return (``edge_bin[first[j]]``;
-    every beam without one), written into ``extra`` (whose pixels all lie on rows ``r0 .. r1 - 1``);
-    whether any is left, those beams (ascending) and the first and one-past-last row holding such
-    a pixel (``(n, 0)``: none)."""
+    every beam without one), written into ``extra`` (whose pixels of column ``j`` all lie on rows
+    ``col_lo[j] .. col_hi[j] - 1``, :func:`continuation_mask`); whether any is left, those beams
+    (ascending) and the first and one-past-last row holding such a pixel (``(n, 0)``: none).
+    Only those rows of each column are read (a walk over every row of the span that the
+    continuations cover read whole rows of both masks for a few pixels: 4096 x 512 simulated
+    pings 0.6 ms)."""
     n, m = extra.shape
     top = np.full(m, n, np.int64)
-    for i in range(max(r0, 0), min(r1, n)):
-        for j in range(m):
+    for j in range(m):
+        for i in range(max(col_lo[j], 0), min(col_hi[j], n)):
             if extra[i, j]:
                 if cand[i, j]:
                     extra[i, j] = False
@@ -1829,14 +1839,14 @@ def continuation_extra(extra, cand, first, edge_bin, r0, r1):  # pragma: no cove
     e0 = n
     e1 = 0
     if hit:
-        for i in range(max(r0, 0), min(r1, n)):
-            for j in range(m):
+        for j in range(m):
+            for i in range(max(col_lo[j], 0), min(col_hi[j], n)):
                 if extra[i, j]:
                     if not keep[j]:
                         extra[i, j] = False
                     else:
                         e0 = min(e0, i)
-                        e1 = i + 1
+                        e1 = max(e1, i + 1)
     return extra, hit, np.flatnonzero(keep), e0, e1
 
 

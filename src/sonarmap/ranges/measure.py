@@ -152,13 +152,14 @@ def _continuation(echoes: Any, first: NDArray[np.int64], levels: NDArray[Any], l
     holding them and their first and one-past-last row."""
     from sonarmap.ranges._kernels import continuation_extra
 
-    extra, lo, hi = _continuation_pixels(echoes, first, levels, llr_lut, min_evidence=config.continue_evidence,
-                                         touch_bins=config.track.touch_bins)
+    extra, lo, hi, col_lo, col_hi = _continuation_pixels(echoes, first, levels, llr_lut,
+                                                         min_evidence=config.continue_evidence,
+                                                         touch_bins=config.track.touch_bins)
     if hi <= lo:
         return None  # no continuation pixel at all (continuation_extra would keep none)
     extra, hit, cols, r0, r1 = continuation_extra(extra, np.ascontiguousarray(cand),
                                                   np.ascontiguousarray(first, dtype=np.int64),
-                                                  echoes.edge_bin if echoes.size else np.zeros(1), lo, hi)
+                                                  echoes.edge_bin if echoes.size else np.zeros(1), col_lo, col_hi)
     return (extra, cols, int(r0), int(r1)) if hit else None
 
 

@@ -408,9 +408,10 @@ def continuation_mask(echoes: Echoes, first: NDArray[np.int64], levels: NDArray[
 def _continuation_pixels(echoes: Echoes, first: NDArray[np.int64], levels: NDArray[np.integer],
                          level_evidence: NDArray[np.float64], *, min_run: int = 5, max_beams: int = 16,
                          window_bins: float = 3.0, min_evidence: float = 10.0, max_misses: int = 2,
-                         touch_bins: float = 1.0) -> tuple[NDArray[np.bool_], int, int]:
+                         touch_bins: float = 1.0) -> tuple[NDArray[np.bool_], int, int, NDArray[np.int64],
+                                                           NDArray[np.int64]]:
     """:func:`continuation_mask` and the first and one-past-last row holding one of its pixels
-    (``(n_bins, 0)``: none)."""
+    (``(n_bins, 0)``: none), overall and per beam (arrays: ``n_bins`` and 0 where none)."""
     from sonarmap.ranges import _kernels
 
     code = np.ascontiguousarray(levels)
@@ -421,8 +422,9 @@ def _continuation_pixels(echoes: Echoes, first: NDArray[np.int64], levels: NDArr
         raise InputError(f"levels: values must lie in [0, {lut.size})")
     sel = np.asarray(first, dtype=np.int64)
     if echoes.size == 0 or not (sel >= 0).any():
-        return np.zeros(code.shape, dtype=bool), code.shape[0], 0
+        n, m = code.shape
+        return np.zeros(code.shape, dtype=bool), n, 0, np.full(m, n, np.int64), np.zeros(m, np.int64)
     edge, stop, run = _first_runs(echoes, sel, touch_bins)
-    out, r0, r1 = _kernels.continuation_mask(code, lut, edge, stop, run, int(min_run), int(max_beams),
-                                             float(window_bins), float(min_evidence), int(max_misses))
-    return out, int(r0), int(r1)
+    out, r0, r1, col_lo, col_hi = _kernels.continuation_mask(code, lut, edge, stop, run, int(min_run), int(max_beams),
+                                                             float(window_bins), float(min_evidence), int(max_misses))
+    return out, int(r0), int(r1), col_lo, col_hi
