@@ -199,30 +199,40 @@ def _echoes_by_rows(mask, img, code, lut, max_gap, fraction, peak_rel, back, for
     ri = np.empty((cap, 5), np.int64)             # beam, start, stop, peak, pixels
     rf = np.empty((cap, 4), np.float64)           # peak value, edge, slope, evidence
     k = 0
+    events = np.arange(m)
     for i in range(r0, r1 + 1):
-        for j in range(m):
-            # a new echo on this row (the beam's open echo ends), or a gap bridged; all close at r1
-            if i == r1 or (mask[i, j] and i - last[j] > 1):
-                L = last[j]
-                if i < r1 and i - L <= step:
-                    for q in range(L + 1, i):
-                        if img[q, j] > vmax[j]:
-                            vmax[j] = img[q, j]
-                    continue
-                if npx[j] > 0:
-                    s = first[j]
-                    p = s
-                    while p < L and not (img[p, j] >= peak_rel * vmax[j] and img[p, j] >= img[p + 1, j]):
-                        p += 1
-                    pv, pos, sl = _edge_of_peak(img, j, s, p, fraction, back, forward)
-                    ri[k, 0], ri[k, 1], ri[k, 2], ri[k, 3], ri[k, 4] = j, s, L + 1, p, npx[j]
-                    rf[k, 0], rf[k, 1], rf[k, 2], rf[k, 3] = pv, pos, sl, ev[j]
-                    k += 1
-                    npx[j] = 0
-                if i < r1:
-                    first[j] = i
-                    ev[j] = 0.0
-                    vmax[j] = img[i, j]
+        # the beams with an event on this row, listed branch-free (in a speckled mask they are
+        # unpredictable: the test per beam mispredicted; 4096 x 512 pings 1.4 -> 1.2 ms): a new
+        # echo (the beam's open echo ends) or a gap bridged; every beam at r1, where all close
+        c = m
+        if i < r1:
+            c = 0
+            row = mask[i]
+            for j in range(m):
+                events[c] = j
+                c += row[j] and i - last[j] > 1
+        for t in range(c):
+            j = events[t] if i < r1 else t
+            L = last[j]
+            if i < r1 and i - L <= step:
+                for q in range(L + 1, i):
+                    if img[q, j] > vmax[j]:
+                        vmax[j] = img[q, j]
+                continue
+            if npx[j] > 0:
+                s = first[j]
+                p = s
+                while p < L and not (img[p, j] >= peak_rel * vmax[j] and img[p, j] >= img[p + 1, j]):
+                    p += 1
+                pv, pos, sl = _edge_of_peak(img, j, s, p, fraction, back, forward)
+                ri[k, 0], ri[k, 1], ri[k, 2], ri[k, 3], ri[k, 4] = j, s, L + 1, p, npx[j]
+                rf[k, 0], rf[k, 1], rf[k, 2], rf[k, 3] = pv, pos, sl, ev[j]
+                k += 1
+                npx[j] = 0
+            if i < r1:
+                first[j] = i
+                ev[j] = 0.0
+                vmax[j] = img[i, j]
         if i == r1:
             break
         for j in range(m):
