@@ -394,7 +394,7 @@ def test_the_profiles_are_computed_as_far_as_the_windows_read_them(monkeypatch: 
     stop = edge + depth
     run = np.where(beams < 20, 0, 1).astype(np.int64)
     clip = ((img >= 1.02) if with_clip else np.zeros((0, 0), bool)).astype(np.uint8)
-    args = (img, edge, stop, run, 3, 8, 200, 3, 0.5, 2, clip, 16, True)
+    args = (img, edge, stop, run, 3, 8, 200, 3, 0.5, 2, clip, 1.0, 16, True)
     got = _kernels.pooled_edges(*args)
 
     def full_width(run: np.ndarray, count: np.ndarray, depth: np.ndarray, half_beams: int, extra: int) -> np.ndarray:
@@ -422,7 +422,7 @@ def test_the_running_clip_counts_test_only_columns_with_a_clipped_sample_in_reac
     def reference(j: int, a: float, off: int, n_read: int, below: np.ndarray) -> np.ndarray:
         out = below.copy()
         for k in range(n_read):
-            out[k] += bool(_clipped_at.py_func(clip, j, a + (k + off)))
+            out[k] += bool(_clipped_at.py_func(clip, 1.0, j, a + (k + off)))
         return out
 
     below = rng.integers(0, 3, 30).astype(np.int64)
@@ -430,5 +430,36 @@ def test_the_running_clip_counts_test_only_columns_with_a_clipped_sample_in_reac
         for a in (-7.3, -0.5, 0.0, 3.999999999999999, 12.25, 38.5, 45.0):
             for off, n_read in ((-5, 30), (-5, 0), (0, 1), (-2, 12)):
                 out = np.empty(30, np.int64)
-                _clip_counts.py_func(clip, j, a, off, n_read, 30, below, out)
+                _clip_counts.py_func(clip, 1.0, j, a, off, n_read, 30, below, out)
                 np.testing.assert_array_equal(out, reference(j, a, off, n_read, below))
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64, np.uint8])
+def test_the_raw_image_and_its_level_clip_as_the_full_scale_mask(dtype: type) -> None:
+    """The range stage hands the kernel the raw image and the full-scale level instead of the
+    mask of its clipped samples: the same edges, values, fits and noise as with the mask."""
+    from sonarmap.ranges import _kernels
+    from sonarmap.ranges.measure import _CLIP_LEVEL_F32, CLIP_LEVEL, full_scale_mask
+
+    rng = np.random.default_rng(4)
+    n, m = 160, 24
+    img = rng.exponential(0.05, (n, m))
+    edge = 40.0 + rng.normal(0.0, 1.0, m)
+    for j in range(m):
+        img[int(edge[j]):int(edge[j]) + 12, j] += np.r_[np.linspace(0.3, 1.4, 6), np.linspace(1.4, 0.3, 6)]
+    stop = edge + 12.0
+    run = np.zeros(m, np.int64)
+    if dtype == np.uint8:
+        raw = (img >= 1.2).astype(np.uint8)  # integer samples: 1 at full scale
+    else:
+        raw = np.minimum(img, 1.0).astype(dtype)
+        raw[int(edge[3]) + 5, 3] = _CLIP_LEVEL_F32  # at the level
+        raw[int(edge[4]) + 5, 4] = np.nextafter(_CLIP_LEVEL_F32, np.float32(0))  # just below it
+    mask = full_scale_mask(raw)
+    assert mask.any()
+    common = (img, edge, stop, run, 3, 8, 200, 3, 0.5, 2)
+    want = _kernels.pooled_edges(*common, mask.view(np.uint8), 1.0, 16, True)
+    got = _kernels.pooled_edges(*common, raw, CLIP_LEVEL, 16, True)
+    assert want[5].any()
+    for a, b in zip(got, want):
+        assert np.asarray(a).tobytes() == np.asarray(b).tobytes()

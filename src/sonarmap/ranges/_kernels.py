@@ -1278,12 +1278,13 @@ def _median(x, c):  # pragma: no cover - numba
 
 
 @njit(cache=True, nogil=True)
-def _clipped_at(clip, j, pos):  # pragma: no cover - numba
-    """Whether either raw sample around fractional row ``pos`` of column ``j`` is clipped."""
+def _clipped_at(clip, level, j, pos):  # pragma: no cover - numba
+    """Whether either raw sample around fractional row ``pos`` of column ``j`` is clipped (``clip``
+    at or above ``level``, compared in float64)."""
     n = clip.shape[0]
     i0 = int(np.floor(pos))
     for i in (i0, i0 + 1):
-        if 0 <= i < n and clip[i, j] != 0:
+        if 0 <= i < n and clip[i, j] >= level:
             return True
     return False
 
@@ -1472,8 +1473,8 @@ def _profile_needs(run, count, depth, half_beams, extra):  # pragma: no cover - 
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _clip_counts(clip, j, a, off, n_read, n_out, below, out):  # pragma: no cover - numba
-    """``out[k] = below[k] + _clipped_at(clip, j, a + (k + off))`` for ``k < n_out``, the clip test
+def _clip_counts(clip, level, j, a, off, n_read, n_out, below, out):  # pragma: no cover - numba
+    """``out[k] = below[k] + _clipped_at(clip, level, j, a + (k + off))`` for ``k < n_out``, the clip test
     only for ``k < n_read`` (the running clip counts of :func:`pooled_edges`).  The rows the tests
     read, ``floor(a + (k + off))`` and the next, do not decrease with ``k``: when column ``j``
     holds no clipped sample from the first test's row to the last test's next row (nearly every
@@ -1485,12 +1486,12 @@ def _clip_counts(clip, j, a, off, n_read, n_out, below, out):  # pragma: no cove
         r0 = min(max(int(np.floor(a + off)), 0), n)
         r1 = min(max(int(np.floor(a + (n_read - 1 + off))) + 2, 0), n)
         for i in range(r0, r1):
-            hit |= clip[i, j] != 0
+            hit |= clip[i, j] >= level
     for k in range(n_out):
         out[k] = below[k]
     if hit:
         for k in range(n_read):
-            if _clipped_at(clip, j, a + (k + off)):
+            if _clipped_at(clip, level, j, a + (k + off)):
                 out[k] += 1
 
 
@@ -1507,7 +1508,7 @@ def _box_clipped(c_hi, c_lo, k, h, hj):  # pragma: no cover - numba
 
 @njit(cache=True, nogil=True)
 def pooled_edges(img, edge, stop, run, half_beams, front_bins, max_bins, smooth_bins, fraction, n_iter,
-                 clip, fit_front_bins, forward):  # pragma: no cover - numba
+                 clip, clip_level, fit_front_bins, forward):  # pragma: no cover - numba
     """Leading edges measured on the surface-aligned mean profile of neighbouring beams
     (see :func:`sonarmap.ranges.echoes.pooled_edges`).
 
@@ -1517,8 +1518,10 @@ def pooled_edges(img, edge, stop, run, half_beams, front_bins, max_bins, smooth_
     beams pooled (0 where the beam keeps its own edge), the standard error of the pooled
     profile at the crossing and whether the edge is that of a fitted clipped echo.
 
-    ``clip`` (uint8, the image's shape; shape (0, 0): none) marks the raw samples at the
-    receiver's full scale.  Where the pooled profile's peak is clipped, its first peak is the clip
+    A raw sample is at the receiver's full scale where ``clip`` (the image's shape; shape (0, 0):
+    none) is at or above ``clip_level`` (compared in float64): a 0/1 mask with level 1, or the
+    raw image itself with its full-scale level (no mask to form: only the samples the profiles
+    reach are read).  Where the pooled profile's peak is clipped, its first peak is the clip
     level, below the echo's own: the leading edge is then the half-peak crossing of a Gaussian
     echo fitted to the log of the unclipped samples on both flanks (:func:`_clipped_edge`), whose
     rising flank may reach ``fit_front_bins`` (>= ``front_bins``) in front of the alignment.  The
@@ -1590,8 +1593,8 @@ def pooled_edges(img, edge, stop, run, half_beams, front_bins, max_bins, smooth_
             for k in range(need[jj]):
                 csum[jj + 1, k] = csum[jj, k] + prof[jj, k]
             if has_clip:
-                _clip_counts(clip, jj, align[jj], -h - front, need[jj] if run[jj] >= 0 else 0, need[jj],
-                             ccnt[jj], ccnt[jj + 1])
+                _clip_counts(clip, clip_level, jj, align[jj], -h - front, need[jj] if run[jj] >= 0 else 0,
+                             need[jj], ccnt[jj], ccnt[jj + 1])
         clipped_k = np.zeros(width, np.bool_)
         new = cur.copy()
         mean = np.empty(width)

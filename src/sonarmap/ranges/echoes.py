@@ -34,6 +34,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import weakref
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -565,10 +566,14 @@ def pooled_edges(
 
 def _pooled(echoes: Echoes, sel: NDArray[np.int64], image: ArrayLike, geometry: SonarGeometry, pulse_bins: int,
             window: tuple[int, int, int, int, int, int], fraction_touch: tuple[float, float],
-            scales: tuple[float, float], clip: NDArray[np.bool_] | None, *, forward: bool = True) -> Echoes:
+            scales: tuple[float, float], clip: NDArray[Any] | None, *, forward: bool = True,
+            clip_level: float | None = None) -> Echoes:
     """:func:`pooled_edges` of checked options (:func:`_check_pooling`: ``window`` = ``(half_beams,
     front_bins, max_bins, smooth_bins, n_iter, fit_front_bins)``, ``scales`` = ``(sigma_scale,
-    fit_sigma_scale)``; the pipeline's range stage calls it with its validated configuration)."""
+    fit_sigma_scale)``; the pipeline's range stage calls it with its validated configuration).
+    With ``clip_level``, ``clip`` is the raw image (C-contiguous, the image's shape), clipped at
+    and above that level (:func:`sonarmap.ranges.measure.full_scale_mask`'s samples), else the
+    mask of the clipped samples."""
     from sonarmap.ranges import _kernels
 
     half_beams, front_bins, max_bins, smooth_bins, n_iter, fit_front_bins = window
@@ -580,8 +585,9 @@ def _pooled(echoes: Echoes, sel: NDArray[np.int64], image: ArrayLike, geometry: 
     geometry.check_image(img, "image")
     new, value, rise, used, noise, fitted = _kernels.pooled_edges(
         img, edge, stop, run, int(half_beams), int(front_bins), int(max_bins), int(smooth_bins) | 1,
-        float(fraction), int(n_iter), _NO_CLIP if clip is None else np.ascontiguousarray(clip).view(np.uint8),
-        int(fit_front_bins), bool(forward))
+        float(fraction), int(n_iter), _NO_CLIP if clip is None else
+        clip if clip_level is not None else np.ascontiguousarray(clip).view(np.uint8),
+        1.0 if clip_level is None else float(clip_level), int(fit_front_bins), bool(forward))
     return _with_edges(echoes, np.ascontiguousarray(sel), (new, used, stop), rise, noise, geometry, pulse_bins,
                        (scales[0], fitted, scales[1]))
 

@@ -350,12 +350,20 @@ def _pooled_returns(echoes: Any, sel: NDArray[np.int64], meas: NDArray[Any], pin
     range in all (a single-look profile's maximum is otherwise a speckle spike), and a clipped
     return is measured by a Gaussian fitted to its flanks."""
     clipped = echoes.clipped if echoes.clipped is not None else clipped_echoes(echoes, ping.image)
-    clip = full_scale_mask(ping.image) if clipped[sel[sel >= 0]].any() else None
+    clip, level = None, None
+    if clipped[sel[sel >= 0]].any():
+        # full_scale_mask's samples: the kernel tests those of the raw image it reaches against the
+        # level (in float64, as the mask compares them), no mask of the whole image is formed
+        raw = np.asarray(ping.image)
+        if raw.dtype in (np.float32, np.float64) or raw.dtype.kind in "iu":
+            clip, level = np.ascontiguousarray(raw), CLIP_LEVEL
+        else:
+            clip = full_scale_mask(raw)
     window = (config.edge_pool_beams, POOL_FRONT_BINS, POOL_MAX_BINS, 3 if pb < 3 else 1, POOL_N_ITER,
               POOL_FIT_FRONT_BINS)
     return _pooled(echoes, sel, meas, ping.geometry, pb, window, (fraction, config.track.touch_bins),
                    (config.sigma_pool_scale, config.sigma_fit_scale), clip,
-                   forward=config.edge_pool_scan == "forward")
+                   forward=config.edge_pool_scan == "forward", clip_level=level)
 
 
 #: A raw sample at or above this is at the receiver's full scale (8-bit images: level 255).
