@@ -1719,14 +1719,23 @@ def _best_window(levels, lut, j, a, b, thick):  # pragma: no cover - numba
     return t_best, best
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _mark_window(out, j, t, thick, col_lo, col_hi):  # pragma: no cover - numba
+    """Mark beam ``j``'s window ``t .. t + thick - 1`` in ``out`` and grow the column's rows
+    ``col_lo[j] .. col_hi[j] - 1`` to cover it."""
+    for i in range(t, t + thick):
+        out[i, j] = True
+    col_lo[j] = min(col_lo[j], t)
+    col_hi[j] = max(col_hi[j], t + thick)
+
+
 @njit(cache=True, nogil=True)
 def _continue_run(levels, lut, edge, j0, d, direction, thick, max_beams, window_bins, min_evidence, max_misses,
-                  out, r_lo, r_hi, col_lo, col_hi):  # pragma: no cover - numba
+                  out, col_lo, col_hi):  # pragma: no cover - numba
     """One walk of :func:`continuation_mask` from the run's end beam ``j0`` in ``direction`` along
-    the slope ``d`` (bins per beam of walk); marks its windows in ``out``, grows each marked
-    column's rows ``col_lo[j] .. col_hi[j] - 1`` to cover them and returns the grown
-    ``(r_lo, r_hi)``.  A beam missed between two found ones is searched again around the line
-    between them (a tighter prediction than the extrapolation that missed it)."""
+    the slope ``d`` (bins per beam of walk); marks its windows (:func:`_mark_window`).  A beam
+    missed between two found ones is searched again around the line between them (a tighter
+    prediction than the extrapolation that missed it)."""
     n, m = levels.shape
     e0 = edge[j0]
     j = j0
@@ -1746,12 +1755,7 @@ def _continue_run(levels, lut, edge, j0, d, direction, thick, max_beams, window_
             break
         t_best, best = _best_window(levels, lut, j, a, b, thick)
         if best >= min_evidence:
-            for i in range(t_best, t_best + thick):
-                out[i, j] = True
-            r_lo = min(r_lo, t_best)
-            r_hi = max(r_hi, t_best + thick)
-            col_lo[j] = min(col_lo[j], t_best)
-            col_hi[j] = max(col_hi[j], t_best + thick)
+            _mark_window(out, j, t_best, thick, col_lo, col_hi)
             # the beams missed since the last one found, around the line between the two
             wm = max(window_bins, 0.5 * thick)
             for k in range(1, steps):
@@ -1760,12 +1764,7 @@ def _continue_run(levels, lut, edge, j0, d, direction, thick, max_beams, window_
                 tm, bm = _best_window(levels, lut, jm, int(max(np.floor(pm - wm), 0.0)),
                                       int(min(np.ceil(pm + wm), n - thick)), thick)
                 if bm >= min_evidence:
-                    for i in range(tm, tm + thick):
-                        out[i, jm] = True
-                    r_lo = min(r_lo, tm)
-                    r_hi = max(r_hi, tm + thick)
-                    col_lo[jm] = min(col_lo[jm], tm)
-                    col_hi[jm] = max(col_hi[jm], tm + thick)
+                    _mark_window(out, jm, tm, thick, col_lo, col_hi)
             e0 = float(t_best)
             j0 = j
             misses = 0
@@ -1773,7 +1772,6 @@ def _continue_run(levels, lut, edge, j0, d, direction, thick, max_beams, window_
         misses += 1
         if misses > max_misses:
             break
-    return r_lo, r_hi
 
 
 @njit(cache=True, nogil=True)
@@ -1783,8 +1781,6 @@ def continuation_mask(levels, lut, edge, stop, run, min_run, max_beams, window_b
     holding one (``(n, 0)``: none), overall and per column (``col_lo``, ``col_hi``)."""
     n, m = levels.shape
     out = np.zeros((n, m), np.bool_)
-    r_lo = n
-    r_hi = 0
     col_lo = np.full(m, n, np.int64)
     col_hi = np.zeros(m, np.int64)
     n_runs = run.max() + 1
@@ -1820,9 +1816,10 @@ def continuation_mask(levels, lut, edge, stop, run, min_run, max_beams, window_b
                     c += 1
             s = np.sort(slopes[:c])
             d = (s[c // 2] if c % 2 == 1 else 0.5 * (s[c // 2 - 1] + s[c // 2])) * direction
-            r_lo, r_hi = _continue_run(levels, lut, edge, tail[0], d, direction, thick, max_beams, window_bins,
-                                       min_evidence, max_misses, out, r_lo, r_hi, col_lo, col_hi)
-    return out, r_lo, r_hi, col_lo, col_hi
+            _continue_run(levels, lut, edge, tail[0], d, direction, thick, max_beams, window_bins, min_evidence,
+                          max_misses, out, col_lo, col_hi)
+    # the overall rows: the columns' (n, 0 when no column has one)
+    return out, col_lo.min() if m else n, col_hi.max() if m else 0, col_lo, col_hi
 
 
 @njit(cache=True, nogil=True)
