@@ -116,11 +116,12 @@ def show_ping_figure(
     ncols = 2 if polar else 1
     fig, axes = new_figure(1, ncols, figsize=(5.0 * ncols, 6.0), squeeze=False)
     title = f"{os.path.basename(ping.source) or 'ping'}  {np.datetime_as_string(ping.datetime64, unit='ms')} UTC"
+    in_db = display_scale(ping.image, scale) == "db"
     img, vmin = ping.image, 0.0
-    if display_scale(ping.image, scale) == "db":
+    if in_db:
         img, vmin, vmax = _in_db(ping.image, vmax)
     im = draw_fan(axes[0, 0], img, ping.geometry, resolution_m=resolution_m, vmin=vmin, vmax=vmax, title=title)
-    if img is not ping.image:
+    if in_db:
         im.colorbar.set_label("intensity (dB)")
     if polar:
         g = ping.geometry
