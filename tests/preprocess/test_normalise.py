@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from threadpoolctl import threadpool_limits
 
-from sonarmap.preprocess.normalise import expand_grid
+from sonarmap.preprocess.normalise import estimate_background, expand_grid
 
 
 def _bilinear_reference(grid: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
@@ -84,33 +84,82 @@ def test_median5_network_takes_the_middle_value_of_every_tie_pattern() -> None:
         assert median5(x)[2] == np.sort(x)[2]
 
 
-def test_smoothing_and_background_rows_equal_the_numpy_reference() -> None:
-    """smooth_log_level = 3 rounds of scipy uniform_filter1d / np.median; background_rows = the
-    medians over the first rows of a stable argsort (ties included)."""
+def _smooth_reference(log_level: np.ndarray, width: int, floor: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The numpy form of smooth_log_level: rounds of scipy uniform_filter1d / np.median, the rows
+    without support interpolated with np.interp, the rows left out grown over their flanks."""
     from scipy.ndimage import uniform_filter1d
 
+    n = log_level.size
+    keep, smooth, above = np.ones(n), log_level.copy(), np.zeros(n, bool)
+    rows = np.arange(n)
+    for _ in range(10):
+        den = uniform_filter1d(keep, width, mode="nearest")
+        num = uniform_filter1d(log_level * keep, width, mode="nearest")
+        ok = den > 0.05
+        smooth = np.where(ok, num / np.maximum(den, 1e-12), smooth)
+        if ok.any() and not ok.all():
+            smooth[~ok] = np.interp(rows[~ok], rows[ok], smooth[ok])
+        resid = log_level - smooth
+        s = np.maximum(1.4826 * float(np.median(np.abs(resid[keep > 0]))) if np.any(keep > 0) else 0.0, floor)
+        new = resid > 2.5 * s
+        for i in range(1, n):
+            new[i] |= new[i - 1] and resid[i] > 0.5 * s[i]
+        for i in range(n - 2, -1, -1):
+            new[i] |= new[i + 1] and resid[i] > 0.5 * s[i]
+        changed = not np.array_equal(new, above)
+        above = new
+        keep = (~above).astype(np.float64)
+        if not changed:
+            break
+    return smooth, above
+
+
+def test_smoothing_and_background_rows_equal_the_numpy_reference() -> None:
+    """smooth_log_level = its numpy reference (above); background_rows = the medians over the first
+    rows of a stable argsort (ties included)."""
     from sonarmap.preprocess._kernels import background_rows, smooth_log_level
 
     rng = np.random.default_rng(4)
     for n, width in ((2000, 125), (703, 43), (512, 32), (20, 15), (16, 15)):
         log_level = np.log(np.round(rng.lognormal(size=n) * 20) / 20 + 0.05)
         log_level[n // 3: n // 3 + 5] += 3.0  # a surface across the fan
-        keep, smooth, above = np.ones(n), log_level, np.zeros(n, bool)
-        for _ in range(3):
-            den = uniform_filter1d(keep, width, mode="nearest")
-            num = uniform_filter1d(log_level * keep, width, mode="nearest")
-            smooth = np.where(den > 0.05, num / np.maximum(den, 1e-12), smooth)
-            resid = log_level - smooth
-            sigma = 1.4826 * float(np.median(np.abs(resid[keep > 0]))) if np.any(keep > 0) else 0.0
-            above = resid > 2.5 * max(sigma, 0.02)
-            keep = (~above).astype(np.float64)
-        s, a = smooth_log_level(log_level, width)
-        assert s.tobytes() == smooth.tobytes() and np.array_equal(a, above)
+        log_level[n // 2: n // 2 + width] += 1.0  # a wide one (no support left in its middle)
+        floor = np.full(n, 0.02) if n % 2 else 0.02 + rng.random(n)
+        smooth, above = _smooth_reference(log_level, width, floor)
+        s, a = smooth_log_level(log_level, width, floor)
+        assert np.allclose(s, smooth, rtol=0, atol=1e-12) and np.array_equal(a, above)
         q50 = np.round(rng.random(n) * 8).astype(np.float32).astype(np.float64)  # many ties
         q25 = q50 - rng.random(n)
         for n_rows in (1, n // 4, n):
             rows = np.argsort(q50, kind="stable")[:n_rows]
             assert background_rows(q25, q50, n_rows) == (np.median(q50[rows]), np.median((q50 - q25)[rows]))
+
+
+def test_a_surface_across_every_beam_is_left_out_of_the_level_with_its_flanks() -> None:
+    """A seabed-like echo over all beams (2.5x the background at its peak, Gaussian over +-15
+    rows) raises the estimated level under it by < 12 % (its flanks are left out with its core,
+    and the curve is interpolated across the rows left without support; 31 % before), and
+    nowhere else by more than 1.5 %."""
+    rng = np.random.default_rng(3)
+    n, m = 1000, 48
+    r = np.arange(n)
+    b = 0.4 * np.exp(-r / 1500.0)
+    speckle = rng.gamma(4.0, 0.25, size=(n, m))
+    bump = 1.0 + 1.5 * np.exp(-0.5 * ((r - 630) / 15.0) ** 2)
+    empty = (b[:, None] * speckle).astype(np.float32)
+    floor = (b[:, None] * bump[:, None] * speckle).astype(np.float32)
+    dev = estimate_background(floor)[0].level_by_bin / estimate_background(empty)[0].level_by_bin - 1.0
+    assert dev[560:700].max() < 0.12
+    assert np.abs(np.r_[dev[:540], dev[720:]]).max() < 0.015
+
+
+def test_the_level_sigma_floor_is_one_quantisation_step_on_8bit_data() -> None:
+    """On a dim 8-bit background (a few levels) one step of the row quartile is no surface."""
+    from sonarmap.preprocess.normalise import LEVEL_SIGMA_FLOOR, _sigma_floor
+
+    level = np.array([2.0, 8.0, 100.0]) / 255.0
+    assert np.allclose(_sigma_floor(level, True), [np.log(1.5), np.log(1.125), LEVEL_SIGMA_FLOOR])
+    assert np.all(_sigma_floor(level, False) == LEVEL_SIGMA_FLOOR)
 
 
 def _on_8bit_grid_reference(img: np.ndarray) -> bool:

@@ -356,11 +356,19 @@ def median_inplace(a, n):  # pragma: no cover - numba
     return (lo + hi) / 2.0
 
 
+#: Most rounds of :func:`smooth_log_level` (it stops earlier when the rows left out settle).
+SMOOTH_ROUNDS = 10
+
+
 @njit(cache=True, nogil=True)
-def smooth_log_level(log_level, width):  # pragma: no cover - numba
-    """The 3 rounds of robust smoothing of :func:`sonarmap.preprocess.normalise._row_level`:
-    ``(smooth, above)``, the same arithmetic as its scipy ``uniform_filter1d(mode="nearest")`` /
-    ``np.median`` version (``len(log_level) > width``)."""
+def smooth_log_level(log_level, width, floor):  # pragma: no cover - numba
+    """The robust smoothing of :func:`sonarmap.preprocess.normalise._row_level`: ``(smooth,
+    above)``.  Rounds of: running means of ``keep`` and ``log_level * keep`` over ``width`` rows
+    (scipy ``uniform_filter1d(mode="nearest")``) and their ratio where ``keep`` covers > 5 % of the
+    window, linearly interpolated between such rows elsewhere (:func:`_fill_unsupported`); then
+    the rows > 2.5 robust sigma above the curve and the contiguous rows > 0.5 sigma above it
+    around them (:func:`_grow_above`; per row, sigma is at least ``floor``) are left out; until the rows left out no longer change (at most
+    ``SMOOTH_ROUNDS`` rounds; ``len(log_level) > width``)."""
     n = log_level.size
     keep = np.ones(n)
     smooth = log_level.copy()
@@ -369,25 +377,79 @@ def smooth_log_level(log_level, width):  # pragma: no cover - numba
     num = np.empty(n)
     work = np.empty(n)
     resid = np.empty(n)
-    for _ in range(3):
+    for _ in range(SMOOTH_ROUNDS):
         _running_mean(keep, den, width)
         for i in range(n):
             work[i] = log_level[i] * keep[i]
         _running_mean(work, num, width)
-        c = 0
         for i in range(n):
             if den[i] > 0.05:
                 smooth[i] = num[i] / max(den[i], 1e-12)
+        _fill_unsupported(smooth, den)
+        c = 0
+        for i in range(n):
             resid[i] = log_level[i] - smooth[i]
             if keep[i] > 0:
                 work[c] = abs(resid[i])
                 c += 1
         sigma = 1.4826 * median_inplace(work, c) if c > 0 else 0.0
-        limit = 2.5 * max(sigma, 0.02)
-        for i in range(n):
-            above[i] = resid[i] > limit
-            keep[i] = 0.0 if above[i] else 1.0
+        if not _grow_above(resid, sigma, floor, above, keep):
+            break
     return smooth, above
+
+
+@njit(cache=True, nogil=True)
+def _fill_unsupported(smooth, den):  # pragma: no cover - numba
+    """``smooth`` over the rows whose window holds <= 5 % kept rows (``den``), linearly
+    interpolated between the nearest rows on either side that hold more (the nearest one's value
+    towards an end; unchanged when no row holds more)."""
+    n = smooth.size
+    last = -1
+    i = 0
+    while i < n:
+        if den[i] > 0.05:
+            last = i
+            i += 1
+            continue
+        j = i
+        while j < n and not den[j] > 0.05:
+            j += 1
+        if last < 0 and j >= n:
+            return
+        for k in range(i, j):
+            if last < 0:
+                smooth[k] = smooth[j]
+            elif j >= n:
+                smooth[k] = smooth[last]
+            else:
+                smooth[k] = smooth[last] + (smooth[j] - smooth[last]) * (k - last) / (j - last)
+        i = j
+
+
+@njit(cache=True, nogil=True)
+def _grow_above(resid, sigma, floor, above, keep):  # pragma: no cover - numba
+    """Rows of residual ``resid`` > 2.5 ``s`` and the contiguous rows of residual > 0.5 ``s`` on
+    either side of them (a surface's echo is left out whole, its flanks too), ``s`` the row's
+    ``max(sigma, floor)``, into ``above`` (``keep`` = 0 there, 1 elsewhere); whether ``above``
+    changed."""
+    n = resid.size
+    changed = False
+    new = np.zeros(n, dtype=np.bool_)
+    for i in range(n):
+        if resid[i] > 2.5 * max(sigma, floor[i]):
+            new[i] = True
+    for i in range(1, n):
+        if not new[i] and new[i - 1] and resid[i] > 0.5 * max(sigma, floor[i]):
+            new[i] = True
+    for i in range(n - 2, -1, -1):
+        if not new[i] and new[i + 1] and resid[i] > 0.5 * max(sigma, floor[i]):
+            new[i] = True
+    for i in range(n):
+        if new[i] != above[i]:
+            changed = True
+        above[i] = new[i]
+        keep[i] = 0.0 if new[i] else 1.0
+    return changed
 
 
 @njit(cache=True, nogil=True)

@@ -10,8 +10,10 @@ hardware:
 
 1. **Level vs range** ``b(r)``: the lower quartile of each range row across the beams, median
    filtered over 5 bins along range, then smoothed in the log domain over ``n_bins / 16`` bins
-   with the rows far above the curve left out (a surface across most of a narrow fan, a hull
-   seen head-on, is not background), except for the leading rows above it: the transmitter's
+   with the rows far above the curve left out together with their flanks, and the curve
+   interpolated across rows so left out (a surface across most of a narrow fan - a hull seen
+   head-on, a seabed - is not background, and its whole echo would otherwise raise the level
+   under its peak and flatten it), except for the leading rows above it: the transmitter's
    ring-down at the start of the window stays background.  The level may rise at most ``max_rise`` (2x) above its minimum at nearer ranges: reverberation
    and noise fall with range (or stay flat under the sonar's TVG), so a surface that fills most
    beams over a range interval (a seabed) is not taken for background.
@@ -459,10 +461,17 @@ def _row_level(img: NDArray[np.float32], max_rise: float) -> NDArray[np.float32]
 
     The lower quartile of each row across the beams, median filtered over 5 bins, then smoothed
     along range in the log domain over ``max(n_bins / 16, 15)`` bins with rows far above the
-    smooth curve left out (3 rounds, > 2.5 robust sigma): a surface at one range across most of
-    the fan (a hull seen head-on through a narrow fan) is not background.  Rows from the first
-    bin on that stay above the curve are the transmitter's ring-down and keep their own level.
-    Finally the level may rise at most ``max_rise`` above its minimum at nearer ranges.
+    smooth curve left out (> 2.5 robust sigma, with the contiguous rows > 0.5 sigma above it on
+    either side; sigma at least :func:`_sigma_floor`), the curve interpolated across rows whose
+    window holds almost none kept, until the rows left out settle
+    (:func:`sonarmap.preprocess._kernels.smooth_log_level`): a surface at one range across most of
+    the fan (a hull seen head-on through a narrow fan, a seabed) is not background.  Its flanks
+    are left out with it: kept, they raise the curve under the echo's peak (+31 % under a seabed
+    echo 2.5x the background, against +9 %), which flattens the echo's measured profile and moves
+    its half-peak leading edge towards the sonar (simulated ARIS seafloors: 3.8 bins early).  Rows
+    from the first bin on that stay above the curve are the transmitter's ring-down and keep
+    their own level.  Finally the level may rise at most ``max_rise`` above its minimum at
+    nearer ranges.
     """
     from sonarmap.preprocess._kernels import level_tail, median5, smooth_log_level
 
@@ -482,16 +491,31 @@ def _row_level(img: NDArray[np.float32], max_rise: float) -> NDArray[np.float32]
     smooth = log_level
     above = np.zeros(n, dtype=bool)
     if n > width:
-        # 3 rounds: running means of keep and log_level * keep over width bins (scipy's
-        # uniform_filter1d, mode "nearest"), their ratio where keep covers > 5 % of the window,
-        # then the rows > 2.5 robust sigma above it left out
-        smooth, above = smooth_log_level(log_level, width)
+        # rounds of: running means of keep and log_level * keep over width bins (scipy's
+        # uniform_filter1d, mode "nearest"), their ratio where keep covers > 5 % of the window
+        # (interpolated elsewhere), then the rows > 2.5 robust sigma above it and their flanks
+        # left out, until those rows settle
+        smooth, above = smooth_log_level(log_level, width, _sigma_floor(level, on_8bit_grid(img)))
     # ring-down: the leading rows above the curve stay background at their own level; then a
     # surface across most beams (seabed) is no background: the level may rise at most max_rise x
     # above its minimum nearer to the sonar (off for max_rise <= 0)
     # (max_rise in the precision numpy multiplies a float32 array by it: float32 for a Python float)
     rise = np.result_type(max_rise, np.float32).type(max_rise)
     return level_tail(np.exp(smooth), level, above, rise, max_rise > 0)
+
+
+#: Smallest robust sigma of the log level (natural log) :func:`_row_level` assumes.
+LEVEL_SIGMA_FLOOR = 0.02
+
+
+def _sigma_floor(level: NDArray[np.float64], quantised: bool) -> NDArray[np.float64]:
+    """Per row, the smallest sigma of the log level: :data:`LEVEL_SIGMA_FLOOR`, or on 8-bit data
+    the log of one quantisation step over the level when larger (a row quartile of 8-bit samples
+    moves in steps of 1/255: on a dim background of a few levels one step is 10-40 %, no
+    surface)."""
+    if not quantised:
+        return np.full(level.size, LEVEL_SIGMA_FLOOR)
+    return np.maximum(LEVEL_SIGMA_FLOOR, np.log1p((1.0 / 255.0) / level))
 
 
 def _finish(img: NDArray[np.float32], level: NDArray[np.float32], factor: NDArray[np.float32] | None,
