@@ -203,9 +203,11 @@ def test_the_anchor_median_and_spread_equal_numbas_median_mean_and_sum():
 
 
 def test_the_local_quadratic_solves_its_normal_equations_as_lapack_does():
-    """_solve_small is numba's np.linalg.solve (LAPACK's dgesv) bit for bit: on the normal
-    equations of every window of the template's course (half-widths 1-12, both clipped ends) and
-    on random 2 x 2 / 3 x 3 systems."""
+    """_solve_small agrees with numba's np.linalg.solve (LAPACK's dgesv) within the rounding a
+    backward-stable solve allows (a few units of cond(A) * eps), on the normal equations of every
+    window of the template's course (half-widths 1-12, both clipped ends) and on random 2 x 2 /
+    3 x 3 systems.  Bit for bit only with some LAPACK builds: OpenBLAS 0.3.31's dgesv rounds
+    differently from its older releases, so the bits are not what is tested."""
     from numba import njit
 
     from sonarmap.ranges._kernels import _solve_small
@@ -240,4 +242,5 @@ def test_the_local_quadratic_solves_its_normal_equations_as_lapack_does():
         systems.append((a + a.T if i % 3 == 0 else a, rng.normal(size=n) * 10.0 ** rng.uniform(-2, 4, size=n)))
     for a, b in systems:
         got, want = both(np.ascontiguousarray(a), np.ascontiguousarray(b))
-        assert got.tobytes() == want.tobytes()
+        tol = 8.0 * np.linalg.cond(a) * np.finfo(float).eps * np.abs(want).max()
+        assert np.abs(got - want).max() <= tol, (a, b, got, want)

@@ -1300,9 +1300,12 @@ def _solve_small(A, rhs, deg):  # pragma: no cover - numba
     becomes the solution, ``A[:deg, :deg]`` its LU factors) by LAPACK's operations in LAPACK's
     order - OpenBLAS' dgesv: the left-looking dgetf2 (partial pivoting, the column below a pivot
     scaled by its reciprocal), then dgetrs' row swaps and unit-lower and upper triangular solves
-    (a division by each pivot) - so the same bits as numba's np.linalg.solve, without its copies
-    and library call (tests/ranges/test_template_edges.py compares them).  A non-singular ``A``
-    (the normal equations of distinct positions)."""
+    (a division by each pivot), without np.linalg.solve's copies and library call.  The result is
+    the same on every machine (no library in the loop); it equals np.linalg.solve's bit for bit
+    where that is OpenBLAS' plain dgesv (0.3.2x on x86-64) and within its rounding elsewhere
+    (OpenBLAS 0.3.31 rounds 61 % of such systems differently in the last bits; test in
+    tests/ranges/test_template_edges.py).  A non-singular ``A`` (the normal equations of
+    distinct positions)."""
     piv = (0, 0, 0)
     for j in range(deg):
         # the column's earlier row swaps, its upper part (dot products), the rest (a matrix-vector
