@@ -479,3 +479,26 @@ def test_summary_rate_of_a_short_run_is_not_zero(tmp_path):
     assert "570 pings/s" in SurveyResult(output=tmp_path / "s.zarr", n_pings=42_000, n_flagged=0, n_chunks=1,
                                          chunks_run=1, chunks_skipped=0, elapsed_s=73.7,
                                          executor="processes:2").summary()
+
+
+@pytest.mark.slow
+def test_resume_computes_again_the_damaged_chunks_of_a_finished_store(
+    serial_store: Path, survey_dir: Path, tmp_path: Path,
+) -> None:
+    from sonarmap.errors import DataFormatError, SonarmapWarning
+    from sonarmap.survey import load_products
+
+    out = tmp_path / "d.zarr"
+    shutil.copytree(serial_store, out)
+    (out / "range" / "c" / "2" / "0").write_bytes(os.urandom(100))  # overwritten with garbage
+    (out / "flags" / "c" / "3").unlink()  # deleted
+    with pytest.warns(SonarmapWarning, match=r"chunk 2 \(pings 16-23\) is damaged \(array 'range', chunk c/2/0: "
+                                             r"checksum mismatch.*and 1 more chunk"):
+        res = process_survey([survey_dir], out, workers=0, chunk_size=8)
+    assert res.chunks_run == 2 and res.chunks_skipped == 3
+    assert_same_dataset(serial_store, out)
+    load_products(out)  # what `sonarmap report` reads: every chunk checked
+    # A coordinate is written with the store: resuming cannot redo it, the error says how to recover.
+    (out / "echo_range" / "c" / "1" / "0").write_bytes(b"garbage")
+    with pytest.raises(DataFormatError, match=r"array 'echo_range', chunk c/1/0: checksum mismatch.*--overwrite"):
+        process_survey([survey_dir], out, workers=0, chunk_size=8)

@@ -44,6 +44,7 @@ from sonarmap.store.check import (
     check_chunk_files,
     check_times,
     check_values,
+    crc_failures,
     inspect_store,
     kind_of,
     locate_error,
@@ -82,6 +83,7 @@ from sonarmap.store.products import (
     LIVE_SETTLE_S,
     complete_marker,
     create_products,
+    damaged_chunks,
     done_chunks,
     finish_store,
     flagged_mask,
@@ -97,6 +99,7 @@ from sonarmap.store.products import (
     remove_store,
     store_geometry,
     survey_status,
+    unmark_chunk,
     write_marker,
 )
 from sonarmap.store.records import mixture_arrays, product_record, product_schema, stack_product_records
@@ -109,12 +112,12 @@ __all__ = [
     # product stores
     "DEFAULT_CHUNK_SIZE", "LIVE_SETTLE_S", "flagged_mask", "product_record", "product_schema",
     "stack_product_records", "mixture_arrays", "create_products", "create_product_store", "ProductAppender",
-    "marker_dir", "done_chunks", "write_marker", "remove_marker_temporaries", "complete_marker", "finish_store",
+    "marker_dir", "done_chunks", "damaged_chunks", "unmark_chunk", "write_marker", "remove_marker_temporaries", "complete_marker", "finish_store",
     "remove_store", "survey_status", "inspect_products", "is_product_store", "store_geometry", "reference_range",
     "product_summary", "open_products", "load_products", "product_ping",
     # metadata, checking and chunks
     "is_zarr_store", "read_root_attrs", "int_attr", "consolidate", "invalidate_consolidated",
     "consolidated_status", "CheckedStore", "inspect_store", "kind_of", "read_array", "check_times",
-    "check_values", "check_chunk_files", "locate_error", "STATE_DIR", "checksum_codecs", "array_codec_kwargs",
+    "check_values", "check_chunk_files", "crc_failures", "locate_error", "STATE_DIR", "checksum_codecs", "array_codec_kwargs",
     "create_array", "remove_tmp", "ChunkRows", "ChunkWriter", "StoreReplacedError", "open_writable",
 ]

@@ -36,6 +36,7 @@ __all__ = [
     "check_chunk_files",
     "check_times",
     "check_values",
+    "crc_failures",
     "inspect_store",
     "kind_of",
     "locate_error",
@@ -398,10 +399,19 @@ def check_chunk_files(st: CheckedStore, name: str, rows: slice | None = None, *,
 def _crc_scan(path: Path, names: Iterable[str], rows: slice | None) -> DataFormatError | None:
     """Find a missing or corrupt chunk file of checksummed arrays by their CRC32C, without zarr.
 
-    For arrays whose last codec is ``crc32c`` (the 4-byte little-endian CRC32C of the rest of the
-    file is appended), each chunk file covering ``rows`` is read and its checksum recomputed.
     Cheap enough for the error path: no zarr round trips, just the files.  Returns the error of
-    the first bad chunk, or ``None`` (nothing found, or no checksums to check).
+    the first bad chunk (:func:`crc_failures`), or ``None`` (nothing found, or no checksums to check).
+    """
+    return next((exc for _, _, exc in crc_failures(path, names, rows)), None)
+
+
+def crc_failures(path: Path, names: Iterable[str],
+                 rows: slice | None = None) -> Iterator[tuple[str, tuple[int, ...], DataFormatError]]:
+    """Every missing or corrupt chunk file of the checksummed arrays ``names`` of the store ``path``.
+
+    For arrays whose last codec is ``crc32c`` (the 4-byte little-endian CRC32C of the rest of the
+    file is appended), each chunk file covering ``rows`` is read and its checksum recomputed;
+    other arrays are skipped.  Yields ``(array, chunk coordinates, error)`` per bad chunk file.
     """
     for name in names:
         layout = _crc_layout(path / name / "zarr.json")
@@ -414,16 +424,17 @@ def _crc_scan(path: Path, names: Iterable[str], rows: slice | None) -> DataForma
             try:
                 size = os.stat(f).st_size
             except OSError:
-                return DataFormatError(f"array '{name}', chunk {key}: missing (deleted?)", path)
+                yield name, coords, DataFormatError(f"array '{name}', chunk {key}: missing (deleted?)", path)
+                continue
             try:
                 # bounded by the file's size (read() allocates its bound) and by what a chunk can take
                 data = read_bytes_bounded(f, min(size, limit), f"chunk file of array '{name}'")
             except DataFormatError as exc:
-                return exc
+                yield name, coords, exc
+                continue
             if len(data) < 4 or data[-4:] != crc32c_suffix(data[:-4]):
-                return DataFormatError(f"array '{name}', chunk {key}: checksum mismatch (the chunk file is corrupt)",
-                                       path)
-    return None
+                yield name, coords, DataFormatError(
+                    f"array '{name}', chunk {key}: checksum mismatch (the chunk file is corrupt)", path)
 
 
 def _crc_layout(meta: Path) -> tuple[list[int], list[int], str, bool, int] | None:

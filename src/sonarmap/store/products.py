@@ -62,6 +62,7 @@ from sonarmap.store.check import (
     check_chunk_files,
     check_times,
     check_values,
+    crc_failures,
     inspect_store,
     kind_of,
     locate_error,
@@ -96,6 +97,7 @@ __all__ = [
     "create_products",
     "finish_store",
     "done_chunks",
+    "damaged_chunks",
     "flagged_mask",
     "inspect_products",
     "is_product_store",
@@ -109,6 +111,7 @@ __all__ = [
     "remove_store",
     "store_geometry",
     "survey_status",
+    "unmark_chunk",
     "write_marker",
 ]
 
@@ -144,12 +147,35 @@ def done_chunks(store: Path) -> set[int]:
     return out
 
 
+def _marker(store: Path, chunk_index: int) -> Path:
+    """The completion marker file of chunk ``chunk_index``."""
+    return marker_dir(store) / f"{chunk_index:08d}.done"
+
+
 def write_marker(store: Path, chunk_index: int, start: int, stop: int) -> None:
     """The chunk's completion marker, written atomically once its data files are in place."""
-    marker = marker_dir(store) / f"{chunk_index:08d}.done"
+    marker = _marker(store, chunk_index)
     # No scan for stale temporaries per marker (that would be quadratic in the chunks): the run
     # clears the marker directory's leftovers once, at its start (:func:`remove_marker_temporaries`).
     atomic_write_text(marker, json.dumps({"start": start, "stop": stop}) + "\n", clean=False)
+
+
+def unmark_chunk(store: Path, chunk_index: int) -> None:
+    """Remove the completion marker of chunk ``chunk_index`` and the store's :func:`complete_marker`
+    (the chunk is to be computed again)."""
+    complete_marker(store).unlink(missing_ok=True)
+    _marker(store, chunk_index).unlink(missing_ok=True)
+
+
+def damaged_chunks(st: CheckedStore, names: Iterable[str]) -> dict[int, DataFormatError]:
+    """The chunks (along the ping dimension) in which a chunk file of one of the product variables
+    ``names`` is missing or fails its CRC32C (:func:`~sonarmap.store.check.crc_failures`): chunk
+    index -> the error of its first bad file.  Reads every chunk file once (no decoding): cheap
+    next to computing the products."""
+    out: dict[int, DataFormatError] = {}
+    for _, coords, exc in crc_failures(st.path, names):
+        out.setdefault(coords[0], exc)
+    return dict(sorted(out.items()))
 
 
 def remove_marker_temporaries(store: Path) -> None:

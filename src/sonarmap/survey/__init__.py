@@ -10,7 +10,8 @@ the executor: local worker processes (same file system) write their own chunk th
 writers are safe) and report success; dask workers, possibly on other machines, send back the
 products (a few kB per ping) and the calling process writes them the same way.  Either way the
 calling process alone writes a chunk's completion marker, atomically, and only *after* the chunk's
-data is in place (a chunk without its marker is recomputed by a resumed run).  Because the
+data is in place (a chunk without its marker is recomputed by a resumed run, and so is a chunk
+marked done whose files are missing or fail their checksum).  Because the
 per-ping path is a pure function of (ping, configuration), every chunk has a fixed place in the
 store and the chunk files are the same bytes whoever writes them, the output is identical whether
 chunks ran serially, in local worker processes or on a dask cluster, in any

@@ -15,7 +15,7 @@ import numpy as np
 from sonarmap._atomic import WriterLock, remove_stale_dirs
 from sonarmap._config import config_dict
 from sonarmap.datamodel import COORD_AZIMUTH, SURVEY_FORMAT, TIME_UNITS
-from sonarmap.errors import DataFormatError, InputError, SonarmapError
+from sonarmap.errors import DataFormatError, InputError, SonarmapError, SonarmapWarning
 from sonarmap.ping import Ping
 from sonarmap.store import (
     CheckedStore,
@@ -26,6 +26,8 @@ from sonarmap.store import (
     consolidated_status,
     create_array,
     create_products,
+    crc_failures,
+    damaged_chunks,
     done_chunks,
     finish_store,
     flagged_mask,
@@ -42,6 +44,7 @@ from sonarmap.store import (
     remove_tmp,
     stack_product_records,
     store_geometry,
+    unmark_chunk,
     write_marker,
 )
 from sonarmap.survey.plan import (
@@ -288,6 +291,8 @@ def _create_and_run(out: Path, plan: SurveyPlan, task: "_Task", cfg_dict: dict[s
         client = own_client = Client(scheduler, timeout="30s")
     n_workers = int(workers if workers is not None else (os.cpu_count() or 1))
     serial = client is None and (workers == 0 or (workers is None and n_workers == 1))
+    if out.exists():
+        _unmark_damaged(out)
     finished_before = complete_marker(out).exists()
     ok = False
     try:
@@ -430,6 +435,38 @@ def _store_chunks(out: Path, plan: SurveyPlan, task: Any, *, client: Any, pool: 
         if progress:
             progress(n_done, plan.n_pings)
     return todo, executor, st, root
+
+
+def _unmark_damaged(out: Path) -> None:
+    """Before a resumed run trusts its completion markers: the chunks marked done whose files are
+    missing or fail their checksum (:func:`~sonarmap.store.damaged_chunks`) are unmarked, so this run
+    computes them again (one warning line); damaged point arrays are registered again.
+
+    Raises
+    ------
+    DataFormatError
+        If a file written when the store was created (a coordinate) is damaged: resuming cannot
+        repair that, the message says to run again with ``--overwrite``.
+    """
+    st, schema = inspect_products(out)
+    chunked = [n for n in schema if n in st.arrays]
+    for name, _, exc in crc_failures(out, [n for n in st.arrays if n not in schema]):
+        if not name.startswith("point_"):
+            raise DataFormatError(f"{str(exc).removeprefix(f'{out}: ')}; written when the store was created, "
+                                  "so resuming cannot repair it: run again with --overwrite", out)
+        complete_marker(out).unlink(missing_ok=True)  # the points are registered again
+        break
+    done = done_chunks(out)
+    bad = {k: exc for k, exc in damaged_chunks(st, chunked).items() if k in done}
+    if not bad:
+        return
+    k, exc = next(iter(bad.items()))
+    size, n = int(st.attrs["chunk_size"]), int(st.attrs["n_pings"])
+    more = f" and {len(bad) - 1} more chunk(s)" if len(bad) > 1 else ""
+    warnings.warn(f"{out}: chunk {k} (pings {k * size}-{min(n, (k + 1) * size) - 1}) is damaged "
+                  f"({str(exc).removeprefix(f'{out}: ')}){more}; computing again", SonarmapWarning, stacklevel=2)
+    for k in bad:
+        unmark_chunk(out, k)
 
 
 def _check_existing(out: Path, fingerprint: str, overwrite: bool) -> None:
