@@ -454,6 +454,23 @@ def test_sigint_leaves_a_valid_store(raw_capture: Path, tmp_path: Path) -> None:
         assert sum(1 for _ in reader.messages()) == n
 
 
+def test_sigint_before_the_first_ping_writes_no_store_and_says_so(
+    aris_file: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str],
+) -> None:
+    """Ctrl-C while the run is still setting up (warming the pipeline): the same clean stop as a
+    later one - exit 0, the summary line - with no store (nothing arrived to describe the sonar)."""
+    import sonarmap.live
+    from sonarmap.cli import main
+
+    monkeypatch.setattr(sonarmap.live, "warm_pipeline", lambda *a, **k: signal.raise_signal(signal.SIGINT))
+    out = tmp_path / "none.zarr"
+    assert main(["live", str(aris_file), "--replay", "--rate", "30", "-o", str(out)]) == 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "0 pings" in err[0] and "stopped by interrupt" in err[0], err
+    assert err[0].endswith(f"no ping arrived, so {out} was not written")
+    assert not out.exists() and not list(tmp_path.iterdir())
+
+
 @pytest.mark.parametrize("kind", ["raw", "log-v1"])
 def test_follow_oculus_recordings(kind: str, raw_capture: Path, tmp_path: Path) -> None:
     from oculus_writer import write_log_v1

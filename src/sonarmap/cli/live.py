@@ -6,7 +6,8 @@ log, raw Oculus capture) or ``--replay`` (any recording, in real time).  Product
 product store (``-o``, the layout of ``sonarmap process``, readable while written) and/or per-beam
 ranges (``--ranges -`` for stdout, CSV with the ``sonarmap ranges`` columns or JSON lines).
 A one-line status is redrawn on stderr (on a terminal); a summary line ends the run.  Ctrl-C
-stops after the current ping and leaves a complete, valid store.
+stops after the current ping and leaves a complete, valid store (none if no ping arrived: the
+summary line says so).
 """
 
 from __future__ import annotations
@@ -179,26 +180,27 @@ def register(app: typer.Typer) -> None:
         from sonarmap.cli.ranges import pipeline_config_from_options
         from sonarmap.live import StatusLine, StoreSink, open_source, run_live, warm_pipeline
 
-        cfg = pipeline_config_from_options(config, None, None, None)  # the route every command takes
-        src = open_source(source, follow=follow, replay=replay, rate_hz=rate, speed=speed, loop=loop,
-                          idle_timeout_s=idle_timeout, **tcp)
-        status = StatusLine(quiet=quiet)
-        outputs = _LiveOutputs(None if output is None else StoreSink(
-            output, config=cfg, flush_every=flush_every, flush_s=flush_seconds, overwrite=overwrite,
-            inputs=(src.name,)))
-        stats = None
         stop = threading.Event()
-        try:
-            outputs.open_bag_and_ranges(bag, ranges, fmt, overwrite=overwrite)
-            if verbose:
-                outputs.sinks.append(_PerPingLines(status))
-            warm_pipeline(cfg, None if is_tcp else _first_ping(source))
-            with _sigint_stops(stop):
+        with _sigint_stops(stop):  # a Ctrl-C while setting up ends the run as cleanly as one later
+            cfg = pipeline_config_from_options(config, None, None, None)  # the route every command takes
+            src = open_source(source, follow=follow, replay=replay, rate_hz=rate, speed=speed, loop=loop,
+                              idle_timeout_s=idle_timeout, **tcp)
+            status = StatusLine(quiet=quiet)
+            outputs = _LiveOutputs(None if output is None else StoreSink(
+                output, config=cfg, flush_every=flush_every, flush_s=flush_seconds, overwrite=overwrite,
+                inputs=(src.name,)))
+            stats = None
+            try:
+                outputs.open_bag_and_ranges(bag, ranges, fmt, overwrite=overwrite)
+                if verbose:
+                    outputs.sinks.append(_PerPingLines(status))
+                if not stop.is_set():
+                    warm_pipeline(cfg, None if is_tcp else _first_ping(source))
                 stats = run_live(src, config=cfg, sinks=outputs.sinks, max_pings=max_pings, duration_s=duration,
                                  queue_size=queue, status=None if quiet else status, stop_event=stop)
-        finally:
-            status.clear()
-            outputs.close()
+            finally:
+                status.clear()
+                outputs.close()
         status.finish(stats, outputs.summary(output, bag))
 
 
@@ -314,7 +316,8 @@ class _LiveOutputs:
         """What the summary line adds after the run's statistics: the pings stored and the messages bagged."""
         extra = ""
         if self.store is not None:
-            extra = f" -> {output} ({self.store.n_written} pings)" if self.store.n_written else f"; no pings, {output} not written"
+            extra = (f" -> {output} ({self.store.n_written} pings)" if self.store.n_written
+                     else f"; no ping arrived, so {output} was not written")
         if self.bag is not None:
             extra += f" -> {bag} ({self.bag.n_written} SonarRanges)"
         return extra
