@@ -174,6 +174,31 @@ def test_warnings_print_as_one_line(tmp_path: Path, data_dir: Path, capsys: pyte
     assert len(err) == 1 and err[0].startswith("sonarmap: warning: ") and "incomplete" in err[0], err
 
 
+@pytest.mark.parametrize("cmd", ["ranges", "convert", "process", "show", "calibrate", "map"])
+def test_a_cut_recording_without_a_complete_frame_is_one_error_line(
+    cmd: str, tmp_path: Path, data_dir: Path, capsys: pytest.CaptureFixture[str],
+) -> None:
+    """The warning that the last frame was cut off is told on the error's line, not before it."""
+    p = tmp_path / "cut.aris"
+    p.write_bytes((data_dir / "aris" / "sample.aris").read_bytes()[:2000])  # file header + part of a frame header
+    out = {"convert": "c.zarr", "process": "s.zarr", "show": "s.png", "calibrate": "c.json", "map": "m.ply"}
+    assert main([cmd, str(p), "-o", str(tmp_path / out.get(cmd, "r.csv"))]) == 1
+    err = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip()]
+    assert len(err) == 1 and err[0].startswith("sonarmap: error: "), err
+    assert "last frame header is incomplete (976 of 1024 bytes)" in err[0], err
+
+
+def test_a_cut_last_frame_is_one_warning_after_the_run(tmp_path: Path, data_dir: Path,
+                                                       capsys: pytest.CaptureFixture[str]) -> None:
+    """With complete frames the run goes on and warns once (the file is opened twice)."""
+    p = tmp_path / "cut.aris"
+    p.write_bytes((data_dir / "aris" / "sample.aris").read_bytes()[: 1024 + 2 * 97024 + 5000])
+    assert main(["ranges", str(p), "-o", str(tmp_path / "r.csv"), "-q"]) == 0
+    err = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip()]
+    assert err == [f"sonarmap: warning: {p}: at byte {1024 + 2 * 97024}: last frame is incomplete "
+                   "(5000 of 97024 bytes); skipped"], err
+
+
 def test_lost_dask_scheduler_is_one_line(tmp_path: Path, data_dir: Path, capfd: pytest.CaptureFixture[str],
                                          monkeypatch: pytest.MonkeyPatch) -> None:
     import logging

@@ -188,18 +188,56 @@ def quiet_library_loggers() -> None:
         logging.getLogger(name).setLevel(logging.CRITICAL + 1)
 
 
+#: The warnings of the running command that a file's last frame/record was cut off and skipped
+#: (a :class:`~sonarmap.io.PartialFrameWarning` ending ``; skipped``), held back by :func:`_show_warning`.
+_held: list[str] = []
+
+
+def _show_warning(message: Warning | str, category: type[Warning], filename: str, lineno: int,
+                  file: object | None = None, line: str | None = None) -> None:
+    """:func:`~sonarmap.errors.show_warning_one_line`, except that a cut-off last frame is held
+    back (once per file): printed when the command ends, or - if it ends with an error, typically
+    "no complete ping" - told on the error's line (:func:`_with_held`), one line in all."""
+    text = " ".join(str(message).split())
+    io = sys.modules.get("sonarmap.io")  # not loaded: no such warning was raised
+    if io is not None and issubclass(category, io.PartialFrameWarning) and text.endswith("; skipped"):
+        if _same_file_key(text) not in [_same_file_key(t) for t in _held]:  # a file is often opened twice
+            _held.append(text)
+        return
+    show_warning_one_line(message, category, filename, lineno, file, line)
+
+
+def _same_file_key(text: str) -> str:
+    """A ``<path>: at byte ...`` message with its path made absolute (the same file named two ways)."""
+    path, sep, rest = text.partition(": at byte ")
+    return os.path.abspath(path) + sep + rest if sep else text
+
+
+def _with_held(msg: str) -> str:
+    """The error message ``msg`` followed by the held cut-off-frame warnings (then forgotten)."""
+    notes = [t.removesuffix("; skipped") + ", skipped" for t in _held]
+    _held.clear()
+    return "; ".join([msg, *notes])
+
+
 @contextlib.contextmanager
 def _cli_output(debug: bool) -> Iterator[None]:
     """One-line warnings and quiet library loggers for the duration of one CLI call."""
     saved_show = warnings.showwarning
     saved_levels = {name: logging.getLogger(name).level for name in _QUIET_LOGGERS}
+    _held.clear()
     if not debug:
-        warnings.showwarning = show_warning_one_line
+        warnings.showwarning = _show_warning
         for name in _QUIET_LOGGERS:
             logging.getLogger(name).setLevel(logging.CRITICAL + 1)
     try:
         yield
     finally:
+        from sonarmap.errors import SonarmapWarning
+
+        for text in _held:
+            show_warning_one_line(text, SonarmapWarning, "", 0)
+        _held.clear()
         warnings.showwarning = saved_show
         for name, level in saved_levels.items():
             logging.getLogger(name).setLevel(level)
@@ -245,7 +283,7 @@ def _main(args: list[str], debug: bool) -> int:
         if debug:
             raise
         if isinstance(exc, SonarmapError | OSError | ValueError):
-            msg = _one_line(exc) or type(exc).__name__
+            msg = _with_held(_one_line(exc) or type(exc).__name__)
             print(f"sonarmap: error: {msg}", file=sys.stderr)
             return 1
         if _is_dask_error(exc):

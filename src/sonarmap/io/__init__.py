@@ -23,12 +23,13 @@ from typing import Any
 
 from sonarmap.errors import DataFormatError
 from sonarmap._files import open_regular, require_regular_file
-from sonarmap.io._binary import MAX_PING_BYTES, make_summary
+from sonarmap.io._binary import MAX_PING_BYTES, PartialFrameWarning, make_summary
 from sonarmap.io.reader import FORMAT_MODULES, GeometrySpec, Reader, format_module, reader_for, reader_modules
 from sonarmap.ping import Ping
 
 __all__ = ["read_pings", "read_ping", "detect_format", "expand_inputs", "FORMAT_MODULES", "format_module",
-           "is_store_dir", "make_summary", "MAX_PING_BYTES", "Reader", "reader_for", "reader_modules"]
+           "is_store_dir", "make_summary", "MAX_PING_BYTES", "PartialFrameWarning", "Reader", "reader_for",
+           "reader_modules"]
 
 
 _modules = reader_modules  # the name the fuzz harness imports

@@ -32,10 +32,13 @@ def _pool_initializer(parent_pid: int, ping_function: PingFunction | None) -> No
 
     # Ctrl-C is handled by the parent, which stops the pool; workers must not die half-way.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-    # warnings raised while a worker reads its chunk print as one line, as the CLI prints its own
+    # warnings raised while a worker reads its chunk print as one line, as the CLI prints its own;
+    # a file's cut-off last frame is told by the parent, which opened every file to plan the run
     from sonarmap.errors import show_warning_one_line
+    from sonarmap.io import PartialFrameWarning
 
     warnings.showwarning = show_warning_one_line
+    warnings.filterwarnings("ignore", message=r".*; skipped$", category=PartialFrameWarning)
 
     def watch() -> None:
         # A parent killed with SIGKILL cannot stop its pool: leave instead of idling forever.
