@@ -126,3 +126,32 @@ def test_component_scales_hide_components_without_pixels() -> None:
     assert np.isnan(s[:, 0]).all()
     np.testing.assert_allclose(s[:, 1], [0.02, 0.03])
     assert s[0, 2] == 0.15 and np.isnan(s[1, 2])
+
+
+def test_colour_bar_labels_keep_clear_of_the_next_axis(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The ranges and map figures: a colour bar's label and the label of the axis to its right are
+    at least 0.3 inch apart (they touched before), and the top view has its own colour bar."""
+    import io
+
+    import xarray as xr
+
+    import sonarmap.report as rep
+
+    figs: list = []
+    monkeypatch.setattr(rep, "_png", lambda fig, dpi: figs.append(fig) or "")
+    rng = np.random.default_rng(0)
+    n, b, m = 40, 96, 3000
+    ds = xr.Dataset({
+        "range": (("ping_time", "beam"), 6 + 0.3 * rng.random((n, b))),
+        "beam_azimuth": (("beam",), np.deg2rad(np.linspace(-14, 14, b))),
+        "point_xyz": (("point", "xyz"), np.c_[4 * rng.random(m), 6 + 0.2 * rng.random(m), 0.5 + 3.3 * rng.random(m)]),
+    })
+    rep._fig_ranges(ds, 100)
+    rep._fig_map(ds, 5000, 100)
+    for fig in figs:
+        fig.savefig(io.BytesIO(), format="png", dpi=100)
+        r = fig._get_renderer()
+        colour_bar = fig.axes[2]  # added after the two axes
+        gap = fig.axes[1].yaxis.label.get_window_extent(r).x0 - colour_bar.yaxis.label.get_window_extent(r).x1
+        assert gap >= 30, gap
+    assert len(figs[1].axes) == 4 and figs[1].axes[3].get_ylabel() == "down z (m)"
