@@ -111,3 +111,22 @@ def test_console_script_subprocess(test_ping_paths: list[Path]) -> None:
     r = subprocess.run([sys.executable, "-m", "sonarmap", "info", "missing.png"],
                        capture_output=True, text=True, timeout=120)
     assert r.returncode == 1 and r.stderr.strip() == "sonarmap: error: missing.png: no such file or directory"
+
+
+def test_simulate_refuses_a_count_that_would_fill_the_disk(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                           capsys: pytest.CaptureFixture[str]) -> None:
+    """--count against the free space (here 1 MB): one error line naming --count, nothing written."""
+    import collections
+    import shutil
+
+    usage = collections.namedtuple("usage", "total used free")
+    monkeypatch.setattr(shutil, "disk_usage", lambda path: usage(10**9, 10**9 - 10**6, 10**6))
+    out = tmp_path / "sim"
+    assert main(["simulate", "--count", "40", "-o", str(out), "-q"]) == 1
+    err = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip()]
+    assert len(err) == 1 and err[0].startswith("sonarmap: error: --count 40: the pings would take about "), err
+    assert "free on" in err[0] and "ask for at most" in err[0], err
+    assert not out.exists()
+    monkeypatch.undo()
+    assert main(["simulate", "--count", "2", "-o", str(out), "-q"]) == 0
+    assert len(list(out.glob("*_raw.png"))) == 2

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import typer
 
@@ -50,12 +51,62 @@ def register(app: typer.Typer) -> None:
         built = scene_from_name(scene, seed, geometry=geom)  # scaled into short windows (Oculus)
         t0_ns = 1_700_000_000_000_000_000
         out = Path(output)
+        first = simulate_ping(built, geom, seed=seed, time_ns=t0_ns)
+        _check_room(first, count, out)
         with ping_progress("simulate", count, quiet=quiet, verbose=verbose) as bar:
             bar.start()
             for i in range(count):
-                res = simulate_ping(built, geom, seed=seed + i, time_ns=t0_ns + i * 100_000_000)
+                res = first if i == 0 else simulate_ping(built, geom, seed=seed + i, time_ns=t0_ns + i * 100_000_000)
                 write_simulation(res, out)
                 bar.advance()
                 bar.log(f"ping {i} (seed {seed + i}) -> {out}")
         if not quiet:
             typer.echo(f"wrote {count} simulated '{scene}' ping(s) ({geom.name}) + truth to {out}", err=True)
+
+
+#: Share of the output file system's free space one ``simulate`` run may fill.
+_FREE_SHARE = 0.5
+#: Margin on the estimate: the PNGs of other seeds compress differently.
+_SIZE_MARGIN = 1.25
+
+
+def _check_room(first: Any, count: int, out: Path) -> None:
+    """``--count`` against the free space: ``count`` times the files of the first ping (written
+    to a temporary directory to measure them), with a margin, may fill at most half of the free
+    space of the output's file system - a typo such as ``--count 1000000`` (about 40 GB of DIDSON
+    pings) stops before writing anything instead of filling the disk.
+
+    Raises
+    ------
+    InputError
+        Naming ``--count``, the estimate and the free space.
+    """
+    import dataclasses
+    import os
+    import shutil
+    import tempfile
+
+    from sonarmap.errors import InputError
+    from sonarmap.simulate import write_simulation
+
+    with tempfile.TemporaryDirectory() as tmp:
+        files = write_simulation(first, tmp)
+        each = sum(max(st.st_size, st.st_blocks * 512) for st in map(os.stat, dataclasses.astuple(files)))  # blocks used
+    where = out.absolute()
+    while not where.exists() and where != where.parent:
+        where = where.parent
+    free = shutil.disk_usage(where).free
+    need = count * each * _SIZE_MARGIN
+    if need > free * _FREE_SHARE:
+        raise InputError(f"--count {count}: the pings would take about {_size(need)} ({_size(each)} each), "
+                         f"more than half of the {_size(free)} free on {where}; nothing written (ask for at "
+                         f"most {int(free * _FREE_SHARE / (each * _SIZE_MARGIN))} pings, or write elsewhere)")
+
+
+def _size(n: float) -> str:
+    """A byte count for people: ``1.5 GB``."""
+    for unit in ("B", "kB", "MB", "GB", "TB"):
+        if n < 1000 or unit == "TB":
+            return f"{n:.0f} {unit}" if unit == "B" else f"{n:.1f} {unit}"
+        n /= 1000
+    raise AssertionError  # pragma: no cover - the loop returns
