@@ -40,3 +40,14 @@ def test_db_figure_shows_the_window_below_the_maximum(data_dir: Path) -> None:
     # the linear scale, as before: the colour range from 0
     fig = show_ping_figure(p, scale="linear")
     assert fig.axes[0].images[0].get_clim()[0] == 0.0
+
+
+@pytest.mark.parametrize("scale", ["db", "linear"])
+def test_both_colour_bars_of_a_polar_figure_say_what_they_show(scale: str, data_dir: Path) -> None:
+    from sonarmap.io import read_ping
+
+    p = read_ping(data_dir / "kongsberg" / "0077_20221109_123655_Belgica.wcd", index=0)
+    fig = show_ping_figure(p, polar=True, scale=scale)
+    bars = [ax for ax in fig.axes if ax.get_label() == "<colorbar>"]
+    want = "intensity (dB)" if scale == "db" else "intensity"
+    assert [ax.get_ylabel() for ax in bars] == [want, want]

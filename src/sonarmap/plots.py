@@ -121,8 +121,8 @@ def show_ping_figure(
     if in_db:
         img, vmin, vmax = _in_db(ping.image, vmax)
     im = draw_fan(axes[0, 0], img, ping.geometry, resolution_m=resolution_m, vmin=vmin, vmax=vmax, title=title)
-    if in_db:
-        im.colorbar.set_label("intensity (dB)")
+    label = "intensity (dB)" if in_db else "intensity"
+    im.colorbar.set_label(label)
     if polar:
         g = ping.geometry
         az = np.rad2deg(g.azimuth_rad)
@@ -132,7 +132,7 @@ def show_ping_figure(
         ax.set_xlabel(f"beam (azimuth {az[0]:.1f} to {az[-1]:.1f} deg)")
         ax.set_ylabel("range (m)")
         ax.set_title("polar (rows = range bins)", fontsize=9)
-        fig.colorbar(im, ax=ax, shrink=0.8)
+        fig.colorbar(im, ax=ax, shrink=0.8, label=label)
     return fig
 
 

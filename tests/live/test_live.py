@@ -654,3 +654,14 @@ def test_follow_a_bag_without_a_sonar_topic_is_an_error(tmp_path: Path) -> None:
     d.close()
     with pytest.raises(DataFormatError, match=r"no sonar topic to follow.*/imu \(sensor_msgs/msg/Imu\)"):
         list(FollowSource(rec, idle_timeout_s=0.2, wait_s=0.3))
+
+
+def test_summary_says_one_ping_not_one_pings() -> None:
+    from sonarmap.live import LiveStats
+
+    def stats(n: int) -> LiveStats:
+        return LiveStats(count=n, received=n, drops=0, unprocessed=0, flagged=0, malformed=0, reconnects=0,
+                         latency_p50_ms=3.0, latency_p99_ms=3.0, latency_max_ms=3.0, process_p50_ms=3.0,
+                         elapsed_s=1.0, stopped_by="interrupt")
+
+    assert stats(1).summary().startswith("1 ping in 1.0 s") and stats(2).summary().startswith("2 pings in ")

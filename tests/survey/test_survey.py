@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import shutil
 import signal
@@ -502,3 +503,13 @@ def test_resume_computes_again_the_damaged_chunks_of_a_finished_store(
     (out / "echo_range" / "c" / "1" / "0").write_bytes(b"garbage")
     with pytest.raises(DataFormatError, match=r"array 'echo_range', chunk c/1/0: checksum mismatch.*--overwrite"):
         process_survey([survey_dir], out, workers=0, chunk_size=8)
+
+
+def test_summary_of_a_run_with_nothing_left_to_compute_gives_no_rate(tmp_path: Path) -> None:
+    from sonarmap.survey import SurveyResult
+
+    done = SurveyResult(output=tmp_path / "s.zarr", n_pings=116, n_flagged=0, n_chunks=4, chunks_run=0,
+                        chunks_skipped=4, elapsed_s=0.7, executor="none")
+    assert done.summary() == f"116 pings, 0 flagged fits, resumed (4/4 chunks already done) -> {tmp_path / 's.zarr'}"
+    part = dataclasses.replace(done, chunks_run=1, chunks_skipped=3)
+    assert ", 0.7 s, " in part.summary() and "pings/s [none], resumed (3/4 chunks already done)" in part.summary()

@@ -316,7 +316,8 @@ class _LiveOutputs:
         """What the summary line adds after the run's statistics: the pings stored and the messages bagged."""
         extra = ""
         if self.store is not None:
-            extra = (f" -> {output} ({self.store.n_written} pings)" if self.store.n_written
+            n = self.store.n_written
+            extra = (f" -> {output} ({n} ping{'' if n == 1 else 's'})" if n
                      else f"; no ping arrived, so {output} was not written")
         if self.bag is not None:
             extra += f" -> {bag} ({self.bag.n_written} SonarRanges)"

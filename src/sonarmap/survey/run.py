@@ -226,13 +226,12 @@ class SurveyResult:
         return n / self.elapsed_s if self.elapsed_s > 0 else float("inf")
 
     def summary(self) -> str:
-        """One line: pings, flagged fits, time, rate."""
+        """One line: pings, flagged fits, time, rate (no time and rate when nothing was left to compute)."""
         resumed = f", resumed ({self.chunks_skipped}/{self.n_chunks} chunks already done)" if self.chunks_skipped else ""
         pts = f", {self.n_points} points" if self.points_path is not None else ""
-        return (
-            f"{self.n_pings} pings, {self.n_flagged} flagged fits, {self.elapsed_s:.1f} s, "
-            f"{_rate(self.pings_per_s)} pings/s [{self.executor}]{resumed}{pts} -> {self.output}"
-        )
+        run = "" if self.chunks_skipped and not self.chunks_run else (
+            f", {self.elapsed_s:.1f} s, {_rate(self.pings_per_s)} pings/s [{self.executor}]")
+        return f"{self.n_pings} pings, {self.n_flagged} flagged fits{run}{resumed}{pts} -> {self.output}"
 
 
 def _plan_run(inputs: Any, config: Any, *, chunk_size: int, geometry: Any, keep_labels: bool, poses: Any,
