@@ -40,12 +40,12 @@ from sonarmap.classify.segment import decision_rates, segment
 from sonarmap.config import METHODS, SOLVER_NAMES, PipelineConfig
 from sonarmap.errors import InputError
 from sonarmap.ping import Ping
-from sonarmap.preprocess.normalise import RecordingBackground, condition_image, estimate_background, on_8bit_grid
+from sonarmap.preprocess.normalise import RecordingBackground, condition_image, estimate_background_levels, on_8bit_grid
 from sonarmap.preprocess.pipeline import preprocess_finite, preprocess_image
 from sonarmap.ranges import BeamRanges, no_returns
 from sonarmap.ranges.candidates import candidate_mask, pooled_band_mask, pooled_band_pixels
 from sonarmap.ranges.measure import background_mean, rule_ranges, surface_ranges
-from sonarmap.stats.model import failed_gates, fit_counts
+from sonarmap.stats.model import failed_gates, fit_counts, fit_levels
 
 __all__ = ["PipelineConfig", "PingProducts", "process_ping", "classify_image", "pooled_band_pixels", "pooled_band_mask", "METHODS", "SOLVER_NAMES"]
 
@@ -306,8 +306,11 @@ def _model_image(raw: NDArray[np.float32], geom: Any, config: PipelineConfig, re
     constant = _all_equal(raw, raw_max)
     background = None
     normalised = None
+    levels = None
     if config.normalise == "auto" and not constant:
-        background, normalised = estimate_background(raw, reference=reference)
+        # (the normalised image's quantisation levels come from the same pass)
+        background, normalised, levels = estimate_background_levels(raw, n_levels=config.fit.n_levels,
+                                                                     reference=reference)
     pre = config.preprocess_config()
     if normalised is not None:
         image = normalised
@@ -320,7 +323,8 @@ def _model_image(raw: NDArray[np.float32], geom: Any, config: PipelineConfig, re
         image = preprocess_image(raw, geom, pre)
     if constant or _flat(image):
         return _Modelled(image, normalised, background, None, 0)
-    return _Modelled(image, normalised, background, _classify(image, config, gate=True), 0)
+    fit = fit_levels(levels, config.fit) if levels is not None and normalised is not None else None
+    return _Modelled(image, normalised, background, _classify(image, config, gate=True, levels=levels, fit=fit), 0)
 
 
 def _flat(image: NDArray[np.float32]) -> bool:

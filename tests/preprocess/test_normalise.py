@@ -384,3 +384,27 @@ def test_median_inplace_equals_numpys_median_with_ties() -> None:
             x = np.round(x * 2)  # ties
         x = x.astype((np.float64, np.float32)[t % 2])
         assert np.float64(median_inplace(x.copy(), n)) == np.float64(np.median(x))
+
+
+@pytest.mark.parametrize("n_levels", [256, 64, 2, 300])
+def test_normalised_levels_are_the_quantised_normalised_image(n_levels) -> None:
+    """The levels the background estimate makes on the way are :func:`quantize` of its normalised
+    image (round binning) for up to 256 levels, bit for bit, also after the gain is lowered for a
+    saturated image; none for more levels, nor where nothing is normalised."""
+    from sonarmap.preprocess.normalise import estimate_background_levels, estimate_background
+    from sonarmap.stats.mixture import quantize
+
+    rng = np.random.default_rng(n_levels)
+    for t in range(4):
+        img = rng.exponential(size=(300, 40)).astype(np.float32) * np.float32(0.05)
+        if t == 1:
+            img[100:160] *= 60.0  # > 1 % of the pixels at the top level: the gain is lowered
+        if t == 2:
+            img[rng.random(img.shape) < 0.5] = 0.0  # thresholded: not normalised
+        bg, u, levels = estimate_background_levels(img, n_levels=n_levels)
+        u_public = estimate_background(img)[1]
+        assert (u is None) == (u_public is None) and (u is None or u.tobytes() == u_public.tobytes())
+        if u is None or n_levels > 256:
+            assert levels is None
+            continue
+        assert levels.dtype == np.uint8 and np.array_equal(levels, quantize(u, n_levels))

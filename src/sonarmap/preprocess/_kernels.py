@@ -532,20 +532,29 @@ def background_rows(q25, q50, n_rows):  # pragma: no cover - numba
 
 
 @njit(cache=True, nogil=True)
-def excess_top(z, t, gain):  # pragma: no cover - numba
-    """``min(gain * max(z - t, 0), 1)`` as float32, and the number of its values at 1 (``z``
-    C-contiguous: one loop over its pixels, which vectorises; per row, a short row - 48 beams - did
-    not)."""
+def excess_top(z, t, gain, scale, levels):  # pragma: no cover - numba
+    """``u = min(gain * max(z - t, 0), 1)`` as float32, the number of its values at 1, and whether
+    every value is finite; ``levels`` (uint8, ``z``'s shape) receives ``rint(u * scale)``, float32
+    ``scale <= 255``: the quantisation levels of ``u`` (:func:`sonarmap.stats.mixture.quantize`
+    with ``scale = L - 1``, round binning, the same float32 arithmetic), undefined where ``u`` is
+    NaN.  ``z`` C-contiguous: one loop over its pixels, which vectorises (per row, a short row -
+    48 beams - did not); the levels cost no pass over ``u`` of their own."""
     out = np.empty(z.shape, dtype=np.float32)
     src = z.ravel()
     dst = out.ravel()
+    lev = levels.ravel()
+    zero = np.float32(0.0)
+    one = np.float32(1.0)
     top = 0
+    bad = False
     for k in range(src.size):
         e = (src[k] - t) * gain
-        u = 0.0 if e <= 0 else (1.0 if e > 1.0 else e)
+        u = zero if e <= zero else (one if e > one else e)
         dst[k] = u
-        top += u >= 1.0
-    return out, top
+        top += u >= one
+        bad |= u != u
+        lev[k] = np.uint8(np.rint(u * scale))
+    return out, top, not bad
 
 
 @njit(cache=True, nogil=True)

@@ -55,7 +55,7 @@ from sonarmap._config import check_field_names
 from sonarmap.errors import InputError
 
 __all__ = ["BackgroundLevel", "on_8bit_grid", "RecordingBackground", "estimate_background", "estimate_recording_background",
-           "normalise_image", "BACKGROUND_MEAN", "expand_grid", "grid_weights", "input_gain", "suppress_sidelobes", "condition_image",
+           "estimate_background_levels", "normalise_image", "BACKGROUND_MEAN", "expand_grid", "grid_weights", "input_gain", "suppress_sidelobes", "condition_image",
            "SIDELOBE_LEVEL_DB", "INPUT_GAIN_QUANTILE", "INPUT_GAIN_BELOW", "MIN_LEVEL_COUNTS"]
 
 #: Mean of the background excess after normalisation (the DIDSON background's 1/lambda, Table I).
@@ -428,6 +428,33 @@ def estimate_background(
     Generalises the paper's background model (sec. IV, eq. 19) from a calibrated open-water set
     to the data of the ping itself; see the module docstring.
     """
+    return estimate_background_levels(image, thresholded_fraction=thresholded_fraction, floor_quantile=floor_quantile,
+                                      pool=pool, max_rise=max_rise, reference=reference)[:2]
+
+
+def estimate_background_levels(
+    image: NDArray[np.floating], *, n_levels: int = 256, thresholded_fraction: float = 0.2, floor_quantile: float = 0.9,
+    pool: tuple[int, int] = (5, 3), max_rise: float = 2.0, reference: RecordingBackground | None = None,
+) -> tuple[BackgroundLevel, NDArray[np.float32] | None, NDArray[np.uint8] | None]:
+    """:func:`estimate_background` and the quantisation levels of the normalised image, made in the
+    same pass over it.
+
+    Parameters
+    ----------
+    image : ndarray, shape (n_bins, n_beams)
+        Raw intensities (any non-negative scale).
+    n_levels : int
+        Quantisation levels (:func:`sonarmap.stats.mixture.quantize`, round binning).
+    thresholded_fraction, floor_quantile, pool, max_rise, reference
+        As in :func:`estimate_background`.
+
+    Returns
+    -------
+    (BackgroundLevel, ndarray or None, ndarray of uint8 or None)
+        The estimate, the normalised image and ``quantize(normalised, n_levels)`` - None when the
+        image is not normalised, for more than 256 levels or where a normalised value is not
+        finite (``quantize`` refuses it).
+    """
     img = np.asarray(image, dtype=np.float32)
     if img.ndim != 2 or img.size == 0:
         raise InputError(f"image: expected a non-empty (n_bins, n_beams) array, got shape {img.shape}")
@@ -439,21 +466,21 @@ def estimate_background(
     if not 0.5 <= floor_quantile < 1:
         raise InputError(f"floor_quantile: must lie in [0.5, 1), got {floor_quantile}")
     if zero_fraction >= thresholded_fraction:
-        return BackgroundLevel(False, "thresholded", zero_fraction), None
+        return BackgroundLevel(False, "thresholded", zero_fraction), None, None
     n, m = img.shape
     if reference is not None and reference.level_by_bin is not None:
         if reference.level_by_bin.size != n or reference.n_beams != m:
             raise InputError(f"reference: a background of {reference.level_by_bin.size} bins x {reference.n_beams} "
                              f"beams does not fit an image of {n} x {m} (calibration of another sonar setting?)")
         return _finish(img, reference.level_by_bin, reference.beam_factor, zero_fraction, floor_quantile, pool,
-                       "calibration")
+                       "calibration", n_levels)
     level = _row_level(img, max_rise)
     if level is None:
-        return BackgroundLevel(False, "degenerate", zero_fraction), None
+        return BackgroundLevel(False, "degenerate", zero_fraction), None, None
     if _median(level) * 255.0 < MIN_LEVEL_COUNTS and on_8bit_grid(img):
-        return BackgroundLevel(False, "quantised", zero_fraction, level), None
+        return BackgroundLevel(False, "quantised", zero_fraction, level), None, None
     factor = _block_factor(img, level)
-    return _finish(img, level, factor, zero_fraction, floor_quantile, pool, "estimated")
+    return _finish(img, level, factor, zero_fraction, floor_quantile, pool, "estimated", n_levels)
 
 
 def _row_level(img: NDArray[np.float32], max_rise: float) -> NDArray[np.float32] | None:
@@ -519,9 +546,10 @@ def _sigma_floor(level: NDArray[np.float64], quantised: bool) -> NDArray[np.floa
 
 
 def _finish(img: NDArray[np.float32], level: NDArray[np.float32], factor: NDArray[np.float32] | None,
-            zero_fraction: float, floor_quantile: float, pool: tuple[int, int],
-            reason: str) -> tuple[BackgroundLevel, NDArray[np.float32] | None]:
-    """Steps 2-4: divide by level x factor, multi-look, threshold, scale."""
+            zero_fraction: float, floor_quantile: float, pool: tuple[int, int], reason: str,
+            n_levels: int) -> tuple[BackgroundLevel, NDArray[np.float32] | None, NDArray[np.uint8] | None]:
+    """Steps 2-4: divide by level x factor, multi-look, threshold, scale; also the normalised
+    image's quantisation levels (:func:`estimate_background_levels`)."""
     from sonarmap.preprocess._kernels import excess_top, pooled_ratio_grid
 
     n, m = img.shape
@@ -535,10 +563,12 @@ def _finish(img: NDArray[np.float32], level: NDArray[np.float32], factor: NDArra
     c50, spread = _background_quartiles(z)
     scale = float(spread) / math.log(1.5)
     if not scale > 0 or not math.isfinite(scale):
-        return BackgroundLevel(False, "degenerate", zero_fraction, level, factor), None
+        return BackgroundLevel(False, "degenerate", zero_fraction, level, factor), None, None
     t = c50 + math.log(0.5 / (1.0 - floor_quantile)) * scale  # ln 5 at the 0.9 quantile
     g = BACKGROUND_MEAN / scale
-    u, n_top = excess_top(z, np.float32(t), np.float32(g))
+    levels = np.empty((n, m), dtype=np.uint8)
+    step = np.float32(min(max(n_levels, 1), 256) - 1)
+    u, n_top, finite = excess_top(z, np.float32(t), np.float32(g), step, levels)
     if n_top > MAX_SATURATED * u.size:
         # targets far above a weak (or coarsely quantised) background would fill the top level:
         # lower the gain until at most MAX_SATURATED of the pixels reach it (a receiver's gain
@@ -546,9 +576,9 @@ def _finish(img: NDArray[np.float32], level: NDArray[np.float32], factor: NDArra
         top = float(np.quantile(z, 1.0 - MAX_SATURATED))
         if top > t:
             g = min(g, 1.0 / (top - t))
-            u = excess_top(z, np.float32(t), np.float32(g))[0]
-    return BackgroundLevel(True, reason, zero_fraction, level.astype(np.float32), factor,
-                           _range_dependence_db(level), t, g), u
+            u, _, finite = excess_top(z, np.float32(t), np.float32(g), step, levels)
+    return (BackgroundLevel(True, reason, zero_fraction, level.astype(np.float32), factor,
+                            _range_dependence_db(level), t, g), u, levels if finite and 2 <= n_levels <= 256 else None)
 
 
 def _background_quartiles(z: NDArray[np.float32]) -> tuple[float, float]:

@@ -28,13 +28,15 @@ from numba import njit
 
 @njit(cache=True, nogil=True)
 def level_counts(levels, n_levels):  # pragma: no cover - numba
-    """``np.bincount(levels.ravel(), minlength=n_levels)`` as float64 (levels are non-negative)."""
+    """``np.bincount(levels.ravel(), minlength=n_levels)`` as float64 (levels are non-negative; of
+    one byte and ``n_levels >= 256``, none can lie beyond the table: no pass for the largest)."""
     h, w = levels.shape
     top = n_levels
-    for i in range(h):
-        for j in range(w):
-            if levels[i, j] >= top:
-                top = levels[i, j] + 1
+    if not (levels.itemsize == 1 and n_levels >= 256):
+        for i in range(h):
+            for j in range(w):
+                if levels[i, j] >= top:
+                    top = levels[i, j] + 1
     out = np.empty(top)
     _counts_into(levels.ravel(), out)
     return out
