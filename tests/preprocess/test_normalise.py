@@ -153,6 +153,25 @@ def test_a_surface_across_every_beam_is_left_out_of_the_level_with_its_flanks() 
     assert np.abs(np.r_[dev[:540], dev[720:]]).max() < 0.015
 
 
+def test_a_seabed_filling_most_blocks_leaves_the_water_columns_beam_factor_at_one() -> None:
+    """A seabed 8x the background on every beam from an arc at 40-55 % of the window to its end
+    (more than half of the beam factor's blocks) leaves the factor of the water column in front of
+    it at ~1: it is normalised by the median of the background blocks, not of all of them (before:
+    0.5, the clip, so the water column was doubled in the measured image), and the seabed's own
+    blocks stay above 1."""
+    rng = np.random.default_rng(5)
+    n, m = 800, 256
+    rows = np.arange(n)[:, None]
+    start = (0.40 + 0.15 * (np.linspace(-1.0, 1.0, m) ** 2))[None, :] * n  # an arc: nearest mid-fan
+    level = np.where(rows >= start, 8.0, 1.0)
+    img = (0.03 * level * rng.gamma(10.0, 0.1, size=(n, m))).astype(np.float32)
+    bg = estimate_background(img)[0]
+    full = expand_grid(bg.beam_factor, img.shape)
+    front = rows[:, 0] < 0.35 * n
+    assert np.median(full[front]) == pytest.approx(1.0, abs=0.1), np.median(full[front])
+    assert np.median(full[rows[:, 0] > 0.7 * n]) > 1.5
+
+
 def test_the_level_sigma_floor_is_one_quantisation_step_on_8bit_data() -> None:
     """On a dim 8-bit background (a few levels) one step of the row quartile is no surface."""
     from sonarmap.preprocess.normalise import LEVEL_SIGMA_FLOOR, _sigma_floor

@@ -18,9 +18,12 @@ hardware:
    and noise fall with range (or stay flat under the sonar's TVG), so a surface that fills most
    beams over a range interval (a seabed) is not taken for background.
 2. **Level vs beam** ``f(r, theta)``: the lower quartile of ``y / b(r)`` in blocks of
-   ``n_bins / 16`` bins x ``max(16, n_beams / 16)`` beams relative to their median, clipped to
-   [0.5, 2] and bilinearly interpolated - the beam pattern's taper and range-dependent fan-edge
-   brightening.
+   ``n_bins / 16`` bins x ``max(16, n_beams / 16)`` beams relative to the median of the
+   background blocks (those within twice the blocks' lower quartile), clipped to [0.5, 2] and
+   bilinearly interpolated - the beam pattern's taper and range-dependent fan-edge brightening.
+   The median of all the blocks would be a surface's when it fills most of them (a seabed on
+   every beam behind its front): the water column in front would get a factor of 0.5 and be
+   doubled in the measured image.
 3. **Multi-look**: ``z = y / (b f)`` averaged over ``pool`` = 5 bins x 3 beams (the background of
    a single look is speckle; surfaces are coherent over a few bins and beams).
 4. **Receiver threshold**: ``u = g max(z - t, 0)`` with ``t`` the background's 90th percentile
@@ -337,11 +340,31 @@ def _block_factor(img: NDArray[np.float32], level: NDArray[np.float32]) -> NDArr
     grid = blocks[:, k].reshape(nr, nc).astype(np.float32)
     if not np.all(np.isfinite(grid)):
         return np.ones((nr, nc), dtype=np.float32)
-    med = _median(grid)
+    med = _background_median(grid)
     if not med > 0:
         return np.ones((nr, nc), dtype=np.float32)
     # beam-pattern and fan-edge effects are a few dB; a block-filling surface is not background
     return np.clip(grid / med, 0.5, 2.0).astype(np.float32)
+
+
+#: A block of the beam-factor grid more than this times the grid's lower quartile holds a surface,
+#: not background (the factor's own range is [0.5, 2]: beam-pattern effects of a few dB).
+BACKGROUND_BLOCK_RATIO = 2.0
+
+
+def _background_median(grid: NDArray[np.float32]) -> float:
+    """The median of the grid's background blocks: those at most :data:`BACKGROUND_BLOCK_RATIO`
+    times the grid's lower quartile (its ``(n - 1) // 4``-th smallest value); the median of all
+    the blocks where none is above that.
+
+    The level ``b(r)`` makes a background block's value about 1 whatever the range, so the
+    background blocks form the grid's lower cluster, and a surface's blocks lie above it however
+    many of them there are (up to three quarters of the grid)."""
+    flat = grid.ravel()
+    k = (flat.size - 1) // 4
+    q25 = float(np.partition(flat, k)[k])
+    background = flat[flat <= BACKGROUND_BLOCK_RATIO * q25]
+    return _median(background if background.size else grid)
 
 
 @functools.lru_cache(maxsize=64)
