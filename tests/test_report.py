@@ -155,3 +155,23 @@ def test_colour_bar_labels_keep_clear_of_the_next_axis(monkeypatch: pytest.Monke
         gap = fig.axes[1].yaxis.label.get_window_extent(r).x0 - colour_bar.yaxis.label.get_window_extent(r).x1
         assert gap >= 30, gap
     assert len(figs[1].axes) == 4 and figs[1].axes[3].get_ylabel() == "down z (m)"
+
+
+@pytest.mark.slow
+def test_examples_of_a_store_processed_from_a_converted_store_show_their_own_ping(
+        data_dir: Path, tmp_path: Path) -> None:
+    """A product store processed from a ``sonarmap convert`` store records each ping's source file
+    without its frame (``sample.aris``); the example fans drew frame 0 of that file for every
+    example before. Each example now reads its own ping (``sample.aris#k`` for ``ping k``)."""
+    from sonarmap.io import read_pings
+    from sonarmap.store import write_survey
+
+    raw = tmp_path / "aris.zarr"
+    write_survey(read_pings(data_dir / "aris" / "sample.aris"), raw)
+    products = tmp_path / "products.zarr"
+    process_survey([raw], products, workers=0)
+    page = render_report(products, config=ReportConfig(n_examples=3, dpi=40))
+    heads = re.findall(r"<h3>ping (\d+): <code>([^<]+)</code></h3>", page)
+    assert len(heads) == 3
+    for index, name in heads:
+        assert name == f"sample.aris#{index}"

@@ -292,18 +292,22 @@ def _pipeline_config(attrs: dict[str, Any]) -> Any:
     return PipelineConfig.from_dict(json.loads(attrs.get("pipeline_config", "{}")))
 
 
-def _example(ds: Any, index: int, config: Any, dpi: int) -> dict[str, Any]:
-    """Fans of one ping: raw | pre-processed | segmented with the stored ranges."""
-    from sonarmap.io import read_ping
+def _example(ds: Any, store: str | os.PathLike[str], index: int, config: Any, dpi: int) -> dict[str, Any]:
+    """Fans of one ping: raw | pre-processed | segmented with the stored ranges.
+
+    The raw ping is read again from its source by :func:`~sonarmap.store.product_ping`, which
+    finds it in a multi-ping file whose stored source names no frame (a store processed from a
+    ``sonarmap convert`` store) and checks its time against the stored one.
+    """
     from sonarmap.pipeline import process_ping
     from sonarmap.plots import draw_fan, new_figure
+    from sonarmap.store import product_ping
 
     source = str(ds["source"].values[index])
     label = f"ping {index}"
-    path, _, frame = source.partition("#")
-    if not Path(path).exists():
+    if not Path(source.partition("#")[0]).exists():
         return {"label": label, "index": index, "source": source, "missing": True}
-    ping = read_ping(path, index=int(frame) if frame.isdigit() else 0)
+    ping = product_ping(store, index, image="raw")
     prod = process_ping(ping, config, keep_labels=True)
     g = ping.geometry
     fig, axes = new_figure(1, 3, figsize=(11, 4.6))
@@ -323,7 +327,7 @@ def _example(ds: Any, index: int, config: Any, dpi: int) -> dict[str, Any]:
     t = np.datetime_as_string(_times(ds)[index], unit="ms")
     fig.suptitle(f"{label}  {t} UTC  KLD {float(ds['kld'].values[index]):.4f}"
                  + (f"  flags: {flags}" if flags else ""), fontsize=9)
-    return {"label": label, "index": index, "source": source, "png": _png(fig, dpi),
+    return {"label": label, "index": index, "source": ping.source, "png": _png(fig, dpi),
             "roc": _roc_of_fit(prod.fit)}
 
 
@@ -398,7 +402,8 @@ def _summary_rows(ds: Any, attrs: dict[str, Any], status: dict[str, Any], t: np.
     ]
 
 
-def _draw_examples(ds: Any, attrs: dict[str, Any], cfg: ReportConfig) -> tuple[list[dict[str, Any]], list[str]]:
+def _draw_examples(ds: Any, store: str | os.PathLike[str], attrs: dict[str, Any],
+                   cfg: ReportConfig) -> tuple[list[dict[str, Any]], list[str]]:
     """Re-process the example pings; returns the drawn examples and a note for each one not drawn."""
     examples: list[dict[str, Any]] = []
     notes: list[str] = []
@@ -412,7 +417,7 @@ def _draw_examples(ds: Any, attrs: dict[str, Any], cfg: ReportConfig) -> tuple[l
         if pcfg is not None:
             for i in picks:
                 try:
-                    examples.append(_example(ds, i, pcfg, cfg.dpi))
+                    examples.append(_example(ds, store, i, pcfg, cfg.dpi))
                 except Exception as exc:  # noqa: BLE001 - keep the rest of the report
                     notes.append(f"ping {i}: not drawn ({type(exc).__name__}: {exc})")
     return examples, notes
@@ -489,7 +494,7 @@ def render_report(store: str | os.PathLike[str], *, config: ReportConfig | None 
         "<h2>Mixture parameters and fit quality</h2>", _img(_fig_timeseries(ds, cfg.dpi), "time series"),
         "<h2>Ranges</h2>", _img(_fig_ranges(ds, cfg.dpi), "ranges over time"),
     ]
-    examples, notes = _draw_examples(ds, attrs, cfg)
+    examples, notes = _draw_examples(ds, store, attrs, cfg)
     roc = _fig_roc(ds, examples, cfg.dpi)
     parts.append("<h2>ROC curves</h2>")
     parts.append(_img(roc, "ROC curves") if roc else "<p class='muted'>No detection statistics stored.</p>")
