@@ -90,3 +90,20 @@ def test_simulated_point_target_lands_on_right_fan_pixel(range_m: float, azimuth
     # one beam spacing at this azimuth, in metres across track
     spacing = float(np.diff(g.azimuth_rad)[min(j, g.n_beams - 2)])
     assert abs(fan.y_m[peak[1]] - y) <= range_m * spacing
+
+
+def test_too_fine_a_resolution_is_refused_before_allocating() -> None:
+    """A resolution giving more than MAX_FAN_PIXELS pixels is an InputError naming the finest one
+    allowed (a 1e-9 m resolution raised MemoryError while building the look-up table before)."""
+    from sonarmap.fan import MAX_FAN_PIXELS, check_fan_resolution
+
+    g = preset("aris-telephoto-48")
+    img = np.zeros(g.shape, np.float32)
+    with pytest.raises(InputError, match=r"give at least 0\.\d+ m") as exc:
+        fan_image(img, g, resolution_m=1e-9)
+    finest = float(str(exc.value).rsplit("at least ", 1)[1].split()[0])
+    x0, x1, y0, y1 = fan_extent_m(g)
+    assert np.ceil((x1 - x0) / finest) * np.ceil((y1 - y0) / finest) <= MAX_FAN_PIXELS
+    assert check_fan_resolution(g, finest) == finest
+    with pytest.raises(InputError, match="positive"):
+        check_fan_resolution(g, 0.0)

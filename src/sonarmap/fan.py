@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import math
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -20,7 +21,12 @@ from sonarmap.errors import InputError
 from sonarmap.geometry import SonarGeometry
 from sonarmap.ping import as_image
 
-__all__ = ["FanImage", "fan_image", "fan_extent_m", "polar_to_xy", "xy_to_polar"]
+__all__ = ["FanImage", "MAX_FAN_PIXELS", "check_fan_resolution", "fan_image", "fan_extent_m", "polar_to_xy",
+           "xy_to_polar"]
+
+#: The most pixels a fan image may have: :func:`fan_image` refuses a finer resolution before it
+#: allocates anything (50 Mpixel of float32 coordinates and image are about 0.6 GB).
+MAX_FAN_PIXELS = 50_000_000
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -106,13 +112,57 @@ def fan_extent_m(geometry: SonarGeometry) -> tuple[float, float, float, float]:
     return float(xs.min()), float(xs.max()), float(ys.min()), float(ys.max())
 
 
+def _fan_shape(geometry: SonarGeometry, resolution_m: float) -> tuple[int, int]:
+    """``(n_x, n_y)``: the fan image's rows and columns at ``resolution_m``."""
+    x0, x1, y0, y1 = fan_extent_m(geometry)
+    return max(1, math.ceil((x1 - x0) / resolution_m)), max(1, math.ceil((y1 - y0) / resolution_m))
+
+
+def check_fan_resolution(geometry: SonarGeometry, resolution_m: float) -> float:
+    """``resolution_m`` as a float, checked before a fan of ``geometry`` is rendered at it.
+
+    Parameters
+    ----------
+    geometry : SonarGeometry
+        The ping's geometry (its fan's extent).
+    resolution_m : float
+        The fan's pixel size (m).
+
+    Returns
+    -------
+    float
+        ``resolution_m``.
+
+    Raises
+    ------
+    InputError
+        If ``resolution_m`` is not a positive finite number, or gives a fan of more than
+        :data:`MAX_FAN_PIXELS` pixels (the message gives the finest resolution allowed).
+
+    Examples
+    --------
+    >>> from sonarmap.geometry import preset
+    >>> check_fan_resolution(preset("didson-hf"), 0.02)
+    0.02
+    """
+    r = float(resolution_m)
+    if not math.isfinite(r) or r <= 0:
+        raise InputError(f"resolution_m: must be a positive number of metres (got {r:g})")
+    nx, ny = _fan_shape(geometry, r)
+    if nx * ny > MAX_FAN_PIXELS:
+        x0, x1, y0, y1 = fan_extent_m(geometry)
+        finest = math.sqrt((x1 - x0) * (y1 - y0) / MAX_FAN_PIXELS)
+        raise InputError(f"resolution_m: {r:g} m gives a fan of {nx * ny:.3g} pixels, more than "
+                         f"{MAX_FAN_PIXELS:.0e}; give at least {1.01 * finest:.2g} m")
+    return r
+
+
 @functools.lru_cache(maxsize=16)
 def _lookup(
     geometry: SonarGeometry, resolution_m: float
 ) -> tuple[NDArray[np.float32], NDArray[np.bool_], NDArray[np.float64], NDArray[np.float64]]:
-    x0, x1, y0, y1 = fan_extent_m(geometry)
-    nx = max(1, int(np.ceil((x1 - x0) / resolution_m)))
-    ny = max(1, int(np.ceil((y1 - y0) / resolution_m)))
+    x0, _, y0, _ = fan_extent_m(geometry)
+    nx, ny = _fan_shape(geometry, resolution_m)
     x_m = x0 + (np.arange(nx) + 0.5) * resolution_m
     y_m = y0 + (np.arange(ny) + 0.5) * resolution_m
     r, a = xy_to_polar(x_m[:, None], y_m[None, :])
@@ -151,6 +201,11 @@ def fan_image(
     Returns
     -------
     FanImage
+
+    Raises
+    ------
+    InputError
+        If ``resolution_m`` is not positive or too fine (:func:`check_fan_resolution`).
     """
     from scipy.ndimage import map_coordinates
 
@@ -158,12 +213,8 @@ def fan_image(
     geometry.check_image(img)
     if resolution_m is None:
         resolution_m = max(geometry.range_resolution_m, 1e-3)
-    resolution_m = float(resolution_m)
-    if not np.isfinite(resolution_m) or resolution_m <= 0:
-        raise InputError(f"resolution_m: must be positive (got {resolution_m})")
+    resolution_m = check_fan_resolution(geometry, resolution_m)
     coords, inside, x_m, y_m = _lookup(geometry, resolution_m)
-    if coords.shape[1] * coords.shape[2] > 50_000_000:
-        raise InputError(f"resolution_m: {resolution_m} m gives an output too large to render")
     out = map_coordinates(img, coords, order=order, mode="nearest", prefilter=False)
     out = out.astype(np.float32, copy=False)
     out[~inside] = np.nan

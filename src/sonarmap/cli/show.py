@@ -8,10 +8,14 @@ has labels (``--keep-labels``), else the raw ping read again from the source fil
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import typer
 
 from sonarmap.cli._common import GEOMETRY_OPTION, load_geometry_option
+
+if TYPE_CHECKING:
+    from sonarmap.ping import Ping
 
 __all__ = ["register"]
 
@@ -51,6 +55,7 @@ def register(app: typer.Typer) -> None:
             raise typer.BadParameter(f"must be auto, linear or db (got {scale!r})", param_hint="--scale")
         if image not in ("auto", "labels", "raw"):
             raise typer.BadParameter(f"must be auto, labels or raw (got {image!r})", param_hint="--image")
+        _check_number_options(resolution, vmax)
         geom = load_geometry_option(sonar)
         if is_product_store(ping):
             if geom is not None:
@@ -58,6 +63,30 @@ def register(app: typer.Typer) -> None:
             p = product_ping(ping, index, image=image)
         else:
             p = read_ping(ping, geometry=geom, index=index)
+        if resolution is not None:
+            _check_resolution(p, resolution)
         fig = show_ping_figure(p, resolution_m=resolution, polar=polar, vmax=vmax, scale=scale)
         save_figure(fig, output)
         typer.echo(f"wrote {output}", err=True)
+
+
+def _check_number_options(resolution: float | None, vmax: float | None) -> None:
+    """Usage errors: a ``--resolution`` that is not a positive number, a ``--vmax`` that is not finite."""
+    import math
+
+    if resolution is not None and not (math.isfinite(resolution) and resolution > 0):
+        raise typer.BadParameter(f"must be a positive number of metres (got {resolution:g})",
+                                 param_hint="--resolution")
+    if vmax is not None and not math.isfinite(vmax):
+        raise typer.BadParameter(f"must be a finite number (got {vmax:g})", param_hint="--vmax")
+
+
+def _check_resolution(ping: Ping, resolution: float) -> None:
+    """A usage error when ``--resolution`` would give ``ping`` a fan too large to render."""
+    from sonarmap.errors import InputError
+    from sonarmap.fan import check_fan_resolution
+
+    try:
+        check_fan_resolution(ping.geometry, resolution)
+    except InputError as exc:
+        raise typer.BadParameter(str(exc).removeprefix("resolution_m: "), param_hint="--resolution") from None
