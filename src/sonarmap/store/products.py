@@ -216,7 +216,7 @@ def survey_status(store: str | os.PathLike[str]) -> dict[str, Any]:
     if attrs is None or attrs.get("sonarmap_format") != SURVEY_FORMAT:
         if (p / "zarr.json").is_file():
             inspect_store(p)  # a corrupt root zarr.json: say what is wrong with it
-        raise DataFormatError("not a sonarmap survey store", p)
+        raise not_a_product_store(p)
     return {
         "n_chunks": int_attr(attrs, "n_chunks", p),
         "n_pings": int_attr(attrs, "n_pings", p),
@@ -368,11 +368,11 @@ def inspect_products(p: Path) -> tuple[CheckedStore, dict[str, tuple[tuple[int, 
         directory that is not one).
     """
     if not (p / "zarr.json").is_file() and not (p / ".zgroup").exists():
-        raise DataFormatError("not a sonarmap survey store", p)
+        raise not_a_product_store(p)
     st = inspect_store(p)
     meta = st.meta_file()
     if st.attrs.get("sonarmap_format") != SURVEY_FORMAT:
-        raise DataFormatError("not a sonarmap survey store", p)
+        raise not_a_product_store(p)
     n = int_attr(st.attrs, "n_pings", p)
     int_attr(st.attrs, "n_chunks", p)
     int_attr(st.attrs, "chunk_size", p, low=1)
@@ -464,6 +464,21 @@ def _n_bins(attrs: Mapping[str, Any]) -> int | None:
     except (TypeError, ValueError, AttributeError, RecursionError):
         return None
     return n if isinstance(n, int) and not isinstance(n, bool) else None
+
+
+def not_a_product_store(path: Path) -> DataFormatError:
+    """The error for ``path`` where a product store of ``sonarmap process`` is needed: it does
+    not exist, it is the raw-ping store of ``sonarmap convert`` (to be processed first), or it is
+    something else."""
+    from sonarmap.datamodel import ATTR_MODEL
+
+    if not path.exists():
+        return DataFormatError("no such file or directory", path)
+    attrs = read_root_attrs(path) if path.is_dir() else None
+    if attrs is not None and ATTR_MODEL in attrs:
+        return DataFormatError("is a store of raw pings (sonarmap convert), not a sonarmap survey store of "
+                               f"products: process it first (sonarmap process {path} -o products.zarr)", path)
+    return DataFormatError("not a sonarmap survey store (the product store written by sonarmap process)", path)
 
 
 def is_product_store(path: str | os.PathLike[str]) -> bool:
