@@ -78,6 +78,20 @@ def test_help_is_plain(cmd: str, capsys: pytest.CaptureFixture[str], monkeypatch
     assert "`" not in text, text  # no Markdown/RST code spans
 
 
+@pytest.mark.parametrize("cmd", [_param(c, "narrow") for c in COMMANDS])
+def test_help_on_an_80_column_terminal_cuts_no_word(cmd: str, capsys: pytest.CaptureFixture[str],
+                                                    monkeypatch: pytest.MonkeyPatch) -> None:
+    """A help word wider than its column is folded onto the next line, never cut with an
+    ellipsis (before, at 80 columns: map's --poses 'time_ns|time_s,x,y,z,q…', --extrinsics,
+    --format; convert's --start-time example time; live's --bag message type)."""
+    monkeypatch.setenv("COLUMNS", "80")
+    assert main([cmd, "--help"]) == 0
+    text = capsys.readouterr().out
+    assert "\u2026" not in text, text
+    if cmd == "map":
+        assert "qw" in text and "rpy_deg" in text
+
+
 def test_help_types_are_click_style(capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch) -> None:
     text = _help("ranges", capsys, monkeypatch)
     assert "Usage: sonarmap ranges [OPTIONS] PINGS..." in text

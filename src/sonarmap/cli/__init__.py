@@ -123,6 +123,46 @@ def _install_plain_help_types() -> None:
         arg_cls._usage_display_name = _usage_name  # type: ignore[method-assign]
 
 
+def _fold_long_words() -> None:
+    """Make the help text of options and arguments fold a word wider than its column.
+
+    rich cuts such a word with an ellipsis (``time_ns|time_s,x,y,z,q…`` at 80 columns), hiding
+    the end of the help; folded, it goes on at the start of the next line.  typer's help module is
+    imported only when help is shown, so this is called from :func:`_install_folding_help`'s hook.
+    """
+    import typer.rich_utils as rich_utils
+
+    make = rich_utils._make_rich_text
+    if getattr(make, "_sonarmap_folds", False):
+        return
+
+    def folding(**kwargs: typing.Any) -> typing.Any:
+        text = make(**kwargs)
+        if hasattr(text, "overflow"):  # rich Text (not Markdown)
+            text.overflow = "fold"
+        return text
+
+    folding._sonarmap_folds = True  # type: ignore[attr-defined]
+    rich_utils._make_rich_text = folding  # type: ignore[assignment]
+
+
+def _install_folding_help() -> None:
+    """Fold long words in every command's ``--help`` (:func:`_fold_long_words`), without importing
+    typer's help module (and rich) for commands that show no help."""
+    for cls_name in ("TyperCommand", "TyperGroup"):
+        cls = getattr(typer.core, cls_name, None)
+        if cls is None or not hasattr(cls, "format_help"):
+            continue
+        original = cls.format_help
+
+        def format_help(self: typing.Any, ctx: typing.Any, formatter: typing.Any,
+                        _original: typing.Any = original) -> typing.Any:
+            _fold_long_words()
+            return _original(self, ctx, formatter)
+
+        cls.format_help = format_help  # type: ignore[method-assign]
+
+
 def reflow_help(text: str) -> str:
     r"""A command's docstring as ``--help`` text: each paragraph one line, for the terminal to wrap.
 
@@ -163,6 +203,7 @@ def _register_all() -> None:
 
 
 _install_plain_help_types()
+_install_folding_help()
 _register_all()
 
 
