@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -130,3 +131,26 @@ def test_simulate_refuses_a_count_that_would_fill_the_disk(tmp_path: Path, monke
     monkeypatch.undo()
     assert main(["simulate", "--count", "2", "-o", str(out), "-q"]) == 0
     assert len(list(out.glob("*_raw.png"))) == 2
+
+
+
+@pytest.mark.parametrize("cmd", ["ranges", "fit", "segment", "convert", "map", "simulate", "preprocess"])
+def test_summaries_of_one_ping_say_ping_not_pings(cmd: str, test_ping_paths: list[Path], tmp_path: Path,
+                                                   capsys: pytest.CaptureFixture[str]) -> None:
+    """Before: 'sonarmap ranges' on one ping said '1 pings, 96 rows ...' and '0 of 1 pings flagged',
+    fit 'fitted 1 pings', segment 'segmented 1 pings', convert 'wrote 1 pings', map '1 pings, ...',
+    simulate and preprocess 'ping(s)'."""
+    one = str(test_ping_paths[7])
+    args = {
+        "ranges": ["ranges", one, "-o", str(tmp_path / "r.csv"), "-v"],
+        "fit": ["fit", one, "-o", str(tmp_path / "f.csv")],
+        "segment": ["segment", one, "-o", str(tmp_path / "seg"), "--no-figure"],
+        "convert": ["convert", one, "-o", str(tmp_path / "s.zarr")],
+        "map": ["map", one, "--static", "-o", str(tmp_path / "m.ply")],
+        "simulate": ["simulate", "-o", str(tmp_path / "sim")],
+        "preprocess": ["preprocess", one, "-o", str(tmp_path / "pre")],
+    }[cmd]
+    assert main(args) == 0
+    err = capsys.readouterr().err
+    assert "1 ping" in err and "ping(s)" not in err, err
+    assert not re.search(r"(?<![/\d])1 pings", err), err  # the bar's '1/1 pings' is fine

@@ -9,6 +9,8 @@ from typing import IO, Any
 
 import typer
 
+from sonarmap._text import counted
+
 __all__ = [
     "CALIBRATION_OPTION", "GEOMETRY_OPTION", "OUTPUT_DIR_OPTION", "OUTPUT_OPTION", "PINGS_ARGUMENT", "PING_RATE_OPTION",
     "QUIET_OPTION", "START_TIME_OPTION", "STDOUT", "VERBOSE_OPTION",
@@ -495,7 +497,7 @@ class PingProgress:
     def __exit__(self, exc_type: object, *exc: object) -> None:
         self.stop(failed=exc_type is not None)
         if exc_type is None and self.verbose:
-            self.log(f"{self.description}: {self.done} pings in {self.seconds:.2f} s")
+            self.log(f"{self.description}: {counted(self.done, 'ping')} in {self.seconds:.2f} s")
 
 
 def ping_progress(description: str, total: int | None = None, *, quiet: bool = False,

@@ -7,6 +7,7 @@ from typing import Any
 
 import typer
 
+from sonarmap._text import counted
 from sonarmap.cli._common import (
     GEOMETRY_OPTION,
     PING_RATE_OPTION,
@@ -96,7 +97,7 @@ def convert(
             n = write_bag(pings(), output, version=1 if kind == "bag1" else 2,
                           topic=topic or "/sonar/image")
     if not quiet:  # -q silences the summary too; --no-progress only the bar
-        typer.echo(f"wrote {n} pings to {output}", err=True)
+        typer.echo(f"wrote {counted(n, 'ping')} to {output}", err=True)
 
 
 def register(app: typer.Typer) -> None:

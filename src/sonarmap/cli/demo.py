@@ -7,6 +7,7 @@ from pathlib import Path
 
 import typer
 
+from sonarmap._text import counted
 from sonarmap.cli._common import console, err_console, example
 
 __all__ = ["register", "demo_command", "run_demo", "DEMO_CONFIG"]
@@ -128,8 +129,8 @@ def demo_command(
     out = run_demo(output, n_pings=pings, workers=workers, overwrite=overwrite, quiet=quiet)
     c = console()
     acc = out["accuracy"]
-    c.print(f"demo finished in {out['seconds']:.1f} s: {out['n_pings']} pings, {out['n_flagged']} flagged fits, "
-            f"{out['n_points']} map points", soft_wrap=True)
+    c.print(f"demo finished in {out['seconds']:.1f} s: {counted(out['n_pings'], 'ping')}, {counted(out['n_flagged'], 'flagged fit')}, "
+            f"{counted(out['n_points'], 'map point')}", soft_wrap=True)
     for key, label in (("pings", "simulated pings (PNG+JSON)"), ("poses", "vehicle poses"),
                        ("config", "pipeline configuration"),
                        ("survey", "per-ping products (zarr)"), ("points", "map point cloud (PLY)"),

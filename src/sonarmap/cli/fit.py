@@ -7,6 +7,7 @@ from typing import TYPE_CHECKING, Any
 
 import typer
 
+from sonarmap._text import counted
 from sonarmap.cli._common import (
     PING_RATE_OPTION, START_TIME_OPTION, clock_options,
     GEOMETRY_OPTION, OUTPUT_OPTION, PINGS_ARGUMENT, QUIET_OPTION, VERBOSE_OPTION, check_choice, err_console,
@@ -75,7 +76,7 @@ def register(app: typer.Typer) -> None:
                 bar.advance()
                 bar.log(f"{ping.source}: KLD {f.kld:.3g}" + (f" ({';'.join(sorted(f.flags))})" if f.flags else ""))
         if not quiet:
-            err_console().print(f"fitted {n} pings -> {output_name(output)}", markup=False)
+            err_console().print(f"fitted {counted(n, 'ping')} -> {output_name(output)}", markup=False)
 
 
 def _family_names(families: str) -> tuple[str, ...]:

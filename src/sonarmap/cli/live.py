@@ -23,6 +23,7 @@ from typing import IO, TYPE_CHECKING, Any
 
 import typer
 
+from sonarmap._text import counted
 from sonarmap.cli._common import QUIET_OPTION, VERBOSE_OPTION, check_choice, example
 
 if TYPE_CHECKING:
@@ -317,7 +318,7 @@ class _LiveOutputs:
         extra = ""
         if self.store is not None:
             n = self.store.n_written
-            extra = (f" -> {output} ({n} ping{'' if n == 1 else 's'})" if n
+            extra = (f" -> {output} ({counted(n, 'ping')})" if n
                      else f"; no ping arrived, so {output} was not written")
         if self.bag is not None:
             extra += f" -> {bag} ({self.bag.n_written} SonarRanges)"

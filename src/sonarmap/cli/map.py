@@ -7,6 +7,7 @@ from typing import TYPE_CHECKING, Any
 
 import typer
 
+from sonarmap._text import counted
 from sonarmap.cli._common import (
     CALIBRATION_OPTION,
     GEOMETRY_OPTION,
@@ -311,9 +312,9 @@ def _save_grid_array(path: Path, occ: OccupancyMap) -> None:
 
 def _print_summary(res: MapResult, out_cloud: PointCloud, output: Path) -> None:
     """The summary line of ``map`` on stderr: pings, returns, skipped pings and what was written where."""
-    what = f"{len(out_cloud)} occupied cells" if res.occupancy is not None else f"{len(out_cloud)} points"
+    what = counted(len(out_cloud), "occupied cell" if res.occupancy is not None else "point")
     skipped = f", {res.n_skipped} skipped outside the trajectory" if res.n_skipped else ""
-    err_console().print(f"{res.n_pings} pings, {res.n_returns} returns{skipped} -> {what} in {output_name(output)}",
+    err_console().print(f"{counted(res.n_pings, 'ping')}, {counted(res.n_returns, 'return')}{skipped} -> {what} in {output_name(output)}",
                         markup=False)
 
 

@@ -7,6 +7,7 @@ from typing import Any
 
 import typer
 
+from sonarmap._text import counted
 from sonarmap.cli._common import (
     PING_RATE_OPTION, START_TIME_OPTION, clock_options,
     GEOMETRY_OPTION, OUTPUT_DIR_OPTION, PINGS_ARGUMENT, QUIET_OPTION, VERBOSE_OPTION, check_choice, err_console,
@@ -59,7 +60,7 @@ def register(app: typer.Typer) -> None:
         written: dict[str, str] = {}  # file stem -> the ping written under it
         n = run_pings(bar, ping_iter, lambda ping, i: _one(ping, i, cfg, output, figure, written))
         if not quiet:
-            err_console().print(f"preprocessed {n} ping(s) with recipe '{cfg.name}' -> {output}", markup=False)
+            err_console().print(f"preprocessed {counted(n, 'ping')} with recipe '{cfg.name}' -> {output}", markup=False)
 
 
 def _one(ping: Any, n: int, cfg: Any, output: Path, figure: Path | None, written: dict[str, str]) -> str:

@@ -7,6 +7,7 @@ from typing import Any
 
 import typer
 
+from sonarmap._text import counted
 from sonarmap.cli._common import CALIBRATION_OPTION, GEOMETRY_OPTION, err_console, example, stop_progress
 
 __all__ = ["register", "process_command", "survey_progress"]
@@ -150,7 +151,7 @@ def process_command(
         err_console().print(result.summary(), soft_wrap=True, markup=False)
         err_console().print(flagged_summary(list(result.gates)), soft_wrap=True, markup=False)
         if verbose:
-            err_console().print(f"process: {result.n_pings} pings in {time.perf_counter() - t0:.2f} s",
+            err_console().print(f"process: {counted(result.n_pings, 'ping')} in {time.perf_counter() - t0:.2f} s",
                                 soft_wrap=True, markup=False)
     if strict:
         from sonarmap.cli.ranges import flagged_any

@@ -39,6 +39,7 @@ from typing import TYPE_CHECKING, Any
 
 import typer
 
+from sonarmap._text import counted
 from sonarmap.cli._common import (
     PING_RATE_OPTION, START_TIME_OPTION, clock_options,
     CALIBRATION_OPTION, GEOMETRY_OPTION, OUTPUT_OPTION, PINGS_ARGUMENT, QUIET_OPTION, STDOUT, VERBOSE_OPTION, check_choice,
@@ -121,7 +122,7 @@ def flagged_summary(gates: list[tuple[str, ...]]) -> str:
 
     bad = [tuple(g for g in gs if g in IMPLAUSIBLE) for gs in gates]
     n = sum(1 for g in bad if g)
-    line = f"{n} of {len(gates)} pings flagged"
+    line = f"{n} of {counted(len(gates), 'ping')} flagged"
     if n:
         counts = Counter(name for g in bad for name in g)
         line += ": " + ", ".join(f"{k} ({v})" for k, v in sorted(counts.items(), key=lambda kv: (-kv[1], kv[0])))
@@ -242,7 +243,7 @@ def _print_summary(n_pings: int, n_rows: int, n_ret: int, where: str, cfg: Any,
     """The two summary lines of ``ranges`` on stderr."""
     console = err_console()
     console.print(
-        f"{n_pings} pings, {n_rows} rows ({n_ret} returns) -> {where} (method={cfg.classify.method}"
+        f"{counted(n_pings, 'ping')}, {counted(n_rows, 'row')} ({counted(n_ret, 'return')}) -> {where} (method={cfg.classify.method}"
         + (f", solver={cfg.classify.solver}" if cfg.classify.method == "mrf" else "") + ")", markup=False
     )
     console.print(flagged_summary(gated), markup=False)

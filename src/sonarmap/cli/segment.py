@@ -12,6 +12,7 @@ from typing import Any
 
 import typer
 
+from sonarmap._text import counted
 from sonarmap.cli._common import (
     PING_RATE_OPTION, START_TIME_OPTION, clock_options,
     CALIBRATION_OPTION, GEOMETRY_OPTION, OUTPUT_DIR_OPTION, PINGS_ARGUMENT, QUIET_OPTION, VERBOSE_OPTION,
@@ -102,7 +103,7 @@ def register(app: typer.Typer) -> None:
         bar = input_progress("segment", pings, quiet=quiet, verbose=verbose)
         n = run_pings(bar, ping_iter, lambda ping, i: _segment_one(ping, i, output, cfg, figure, background))
         if not quiet:
-            err_console().print(f"segmented {n} pings -> {output}", markup=False)
+            err_console().print(f"segmented {counted(n, 'ping')} -> {output}", markup=False)
 
 
 def _segment_one(ping: Any, i: int, output: Path, cfg: Any, figure: bool, background: Any = None) -> str:

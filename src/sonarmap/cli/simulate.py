@@ -7,6 +7,7 @@ from typing import Any
 
 import typer
 
+from sonarmap._text import counted
 from sonarmap.cli._common import QUIET_OPTION, VERBOSE_OPTION, check_choice, example, load_geometry_option
 
 __all__ = ["register"]
@@ -61,7 +62,7 @@ def register(app: typer.Typer) -> None:
                 bar.advance()
                 bar.log(f"ping {i} (seed {seed + i}) -> {out}")
         if not quiet:
-            typer.echo(f"wrote {count} simulated '{scene}' ping(s) ({geom.name}) + truth to {out}", err=True)
+            typer.echo(f"wrote {counted(count, 'simulated ' + repr(scene) + ' ping')} ({geom.name}) + truth to {out}", err=True)
 
 
 #: Share of the output file system's free space one ``simulate`` run may fill.

@@ -23,6 +23,7 @@ from typing import Any
 
 import numpy as np
 
+from sonarmap._text import counted
 from sonarmap.errors import InputError
 from sonarmap.ping import Ping
 
@@ -115,7 +116,7 @@ class LiveStats:
         """One line: counts, rate, latency."""
         lat = ("latency n/a" if math.isnan(self.latency_p50_ms) else
                f"latency p50 {self.latency_p50_ms:.1f} ms / p99 {self.latency_p99_ms:.1f} ms")
-        return (f"{self.count} ping{'' if self.count == 1 else 's'} in {self.elapsed_s:.1f} s ({self.pings_per_s:.1f}/s), {lat}, "
+        return (f"{counted(self.count, 'ping')} in {self.elapsed_s:.1f} s ({self.pings_per_s:.1f}/s), {lat}, "
                 f"{self.drops} dropped, {self.flagged} flagged, {self.malformed} malformed, "
                 f"{self.reconnects} reconnects (stopped by {self.stopped_by})")
 

@@ -14,6 +14,7 @@ import numpy as np
 
 from sonarmap._atomic import WriterLock, remove_stale_dirs
 from sonarmap._config import config_dict
+from sonarmap._text import counted
 from sonarmap.datamodel import COORD_AZIMUTH, SURVEY_FORMAT, TIME_UNITS
 from sonarmap.errors import DataFormatError, InputError, SonarmapError, SonarmapWarning
 from sonarmap.ping import Ping
@@ -231,7 +232,7 @@ class SurveyResult:
         pts = f", {self.n_points} points" if self.points_path is not None else ""
         run = "" if self.chunks_skipped and not self.chunks_run else (
             f", {self.elapsed_s:.1f} s, {_rate(self.pings_per_s)} pings/s [{self.executor}]")
-        return f"{self.n_pings} pings, {self.n_flagged} flagged fits{run}{resumed}{pts} -> {self.output}"
+        return f"{counted(self.n_pings, 'ping')}, {counted(self.n_flagged, 'flagged fit')}{run}{resumed}{pts} -> {self.output}"
 
 
 def _plan_run(inputs: Any, config: Any, *, chunk_size: int, geometry: Any, keep_labels: bool, poses: Any,
