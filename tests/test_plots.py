@@ -51,3 +51,27 @@ def test_both_colour_bars_of_a_polar_figure_say_what_they_show(scale: str, data_
     bars = [ax for ax in fig.axes if ax.get_label() == "<colorbar>"]
     want = "intensity (dB)" if scale == "db" else "intensity"
     assert [ax.get_ylabel() for ax in bars] == [want, want]
+
+
+@pytest.mark.parametrize(("source", "name"), [
+    ("/data/0077_20221109_123655_Belgica.all#head2031/ping59683",
+     "0077_20221109_123655_Belgica.all#head2031/ping59683"),
+    ("/tmp/oc_bag#/sonar/image:1", "oc_bag#/sonar/image:1"),
+    ("/data/sample.aris#3", "sample.aris#3"),
+])
+def test_fan_title_names_the_file_and_the_ping_in_it(source: str, name: str) -> None:
+    """Before: the title was the source's last path component, so a Kongsberg ping lost its
+    file and head ('ping59681', the same for both heads) and a bag ping its file and topic
+    ('image:1'). The title is the figure's: the Kongsberg name over the fan ran into the colour bar."""
+    from sonarmap.geometry import preset
+    from sonarmap.ping import Ping
+
+    g = preset("didson-hf")
+    ping = Ping(image=np.zeros(g.shape, np.float32), geometry=g, time_ns=0, source=source)
+    fig = show_ping_figure(ping)
+    title = fig.get_suptitle()
+    assert title.split("\n")[0].split("  ")[0] == name and "1970-01-01T00:00:00.000 UTC" in title
+    fig.canvas.draw()  # the whole title is on the figure, above the fan and its colour bar
+    box = fig._suptitle.get_window_extent()
+    assert box.x0 >= 0 and box.x1 <= fig.bbox.width
+    assert box.y0 >= max(ax.get_window_extent().y1 for ax in fig.axes)

@@ -6,6 +6,7 @@ import dataclasses
 import math
 import numbers
 import operator
+import os
 from typing import Any
 
 import numpy as np
@@ -14,7 +15,7 @@ from numpy.typing import ArrayLike, NDArray
 from sonarmap.errors import InputError
 from sonarmap.geometry import SonarGeometry
 
-__all__ = ["Ping", "Pose", "as_image"]
+__all__ = ["Ping", "Pose", "as_image", "source_name"]
 
 _INT64_MIN, _INT64_MAX = -(2**63), 2**63 - 1
 
@@ -52,6 +53,31 @@ class Pose:
         q.setflags(write=False)
         object.__setattr__(self, "position_m", p)
         object.__setattr__(self, "orientation_xyzw", q)
+
+
+def source_name(source: str) -> str:
+    """A ping's :attr:`Ping.source` without its directories: the file name, and after ``#`` the
+    ping's place inside a recording (a Kongsberg ping keeps its head).
+
+    Parameters
+    ----------
+    source : str
+        ``Ping.source``: a path, with ``#<place>`` for a ping inside a recording.
+
+    Returns
+    -------
+    str
+        The name figure titles, reports and the ``fit`` CSV show.
+
+    Examples
+    --------
+    >>> source_name("data/test/1468966347175925_raw.png"), source_name("data/sample.aris#3")
+    ('1468966347175925_raw.png', 'sample.aris#3')
+    >>> source_name("data/em.all#head2004/ping59681")   # the head is part of the name
+    'em.all#head2004/ping59681'
+    """
+    path, sep, inside = source.partition("#")
+    return os.path.basename(path) + sep + inside
 
 
 def as_image(image: ArrayLike, name: str = "image", *, allow_empty: bool = False) -> NDArray[np.float32]:

@@ -13,7 +13,7 @@ import numpy as np
 from sonarmap._atomic import atomic_path
 from sonarmap.errors import InputError
 from sonarmap.fan import fan_image
-from sonarmap.ping import Ping
+from sonarmap.ping import Ping, source_name
 
 __all__ = ["new_figure", "save_figure", "draw_fan", "show_ping_figure", "fan_comparison", "display_scale",
            "DB_SPAN_RATIO", "DB_WINDOW"]
@@ -71,6 +71,8 @@ def draw_fan(
 #: this multiple of their median (30 dB): a linear colour scale then shows the brightest 0.1 % on
 #: black (a Kongsberg water column spans ~60 dB, 1e6; imaging sonars' 8-bit images 2-20).
 DB_SPAN_RATIO = 1000.0
+#: Characters of a 9-point title per inch of figure width that :func:`show_ping_figure` puts on one line.
+_TITLE_CHARS_PER_INCH = 11
 #: The dB display's window below its maximum (dB).
 DB_WINDOW = 60.0
 
@@ -115,12 +117,16 @@ def show_ping_figure(
     """
     ncols = 2 if polar else 1
     fig, axes = new_figure(1, ncols, figsize=(5.0 * ncols, 6.0), squeeze=False)
-    title = f"{os.path.basename(ping.source) or 'ping'}  {np.datetime_as_string(ping.datetime64, unit='ms')} UTC"
+    name, when = source_name(ping.source) or "ping", f"{np.datetime_as_string(ping.datetime64, unit='ms')} UTC"
+    # over the whole figure (not the fan, beside which the colour bar stands); a long name (a
+    # Kongsberg head and ping, a bag topic) puts the time on a line of its own
+    one_line = len(name) + len(when) + 2 <= _TITLE_CHARS_PER_INCH * 5.0 * ncols
+    fig.suptitle(f"{name}  {when}" if one_line else f"{name}\n{when}", fontsize=9)
     in_db = display_scale(ping.image, scale) == "db"
     img, vmin = ping.image, 0.0
     if in_db:
         img, vmin, vmax = _in_db(ping.image, vmax)
-    im = draw_fan(axes[0, 0], img, ping.geometry, resolution_m=resolution_m, vmin=vmin, vmax=vmax, title=title)
+    im = draw_fan(axes[0, 0], img, ping.geometry, resolution_m=resolution_m, vmin=vmin, vmax=vmax)
     label = "intensity (dB)" if in_db else "intensity"
     im.colorbar.set_label(label)
     if polar:
@@ -157,6 +163,6 @@ def fan_comparison(
              title=titles[0])
     draw_fan(axes[0, 1], after.image, after.geometry, resolution_m=resolution_m, vmax=vmax[1],
              title=t_after)
-    name = os.path.basename(before.source) or "ping"
+    name = source_name(before.source) or "ping"
     fig.suptitle(name, fontsize=10)
     return fig

@@ -24,6 +24,7 @@ from numpy.typing import NDArray
 
 from sonarmap._atomic import atomic_write_text
 from sonarmap.errors import DataFormatError
+from sonarmap.ping import source_name
 from sonarmap.survey import flagged_mask
 
 __all__ = ["ReportConfig", "build_report", "render_report"]
@@ -433,7 +434,7 @@ def _flagged_section(ds: Any, flagged: list[int], flags: list[str], t: np.ndarra
             parts.append(
                 f"<tr><td>{i}</td><td>{np.datetime_as_string(t[i], unit='ms')}</td>"
                 f"<td>{html.escape(flags[i])}</td><td>{kld[i]:.4g}</td>"
-                f"<td>{html.escape(Path(str(ds['source'].values[i])).name)}</td></tr>"
+                f"<td>{html.escape(source_name(str(ds['source'].values[i])))}</td></tr>"
             )
         parts.append("</table>")
         if len(flagged) > cfg.max_flagged_rows:
@@ -454,7 +455,7 @@ def _examples_section(examples: list[dict[str, Any]], notes: list[str]) -> list[
             parts.append(f"<p class='muted'>{html.escape(e['label'])}: source {html.escape(e['source'])} "
                          f"{why}.</p>")
         else:
-            parts.append(f"<h3>{html.escape(e['label'])}: <code>{html.escape(Path(e['source']).name)}</code></h3>")
+            parts.append(f"<h3>{html.escape(e['label'])}: <code>{html.escape(source_name(e['source']))}</code></h3>")
             parts.append(_img(e["png"], e["label"]))
     for note in notes:
         parts.append(f"<p class='muted'>{html.escape(note)}</p>")

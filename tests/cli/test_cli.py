@@ -154,3 +154,25 @@ def test_summaries_of_one_ping_say_ping_not_pings(cmd: str, test_ping_paths: lis
     err = capsys.readouterr().err
     assert "1 ping" in err and "ping(s)" not in err, err
     assert not re.search(r"(?<![/\d])1 pings", err), err  # the bar's '1/1 pings' is fine
+
+
+@pytest.mark.slow
+def test_segment_figure_title_names_the_file_and_the_ping_in_it(data_dir: Path, tmp_path: Path,
+                                                                 monkeypatch: pytest.MonkeyPatch) -> None:
+    """Before: the Fig.-7 figure of a ping read from a bag was titled 'image:0' (a Kongsberg
+    ping 'ping59681', the same for both heads); now the file and the ping in it."""
+    import sonarmap.cli.segment as seg
+
+    bag = tmp_path / "oc_bag"
+    assert main(["convert", str(data_dir / "oculus" / "one_ping_8bit.raw"), "-o", str(bag), "--to", "bag2",
+                 "-q"]) == 0
+    titles: list[str] = []
+    draw = seg.segment_figure
+
+    def spy(*args: object, title: str = "", **kwargs: object) -> object:
+        titles.append(title)
+        return draw(*args, title=title, **kwargs)
+
+    monkeypatch.setattr(seg, "segment_figure", spy)
+    assert main(["segment", str(bag), "-o", str(tmp_path / "seg"), "-q"]) == 0
+    assert titles == ["oc_bag#/sonar/image:0"]

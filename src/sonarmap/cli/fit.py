@@ -54,6 +54,7 @@ def register(app: typer.Typer) -> None:
         """
         import csv
 
+        from sonarmap.ping import source_name
         from sonarmap.stats.mixture import fit_mixture
 
         check_choice(method, ("lsq", "em"), "--method")
@@ -71,7 +72,7 @@ def register(app: typer.Typer) -> None:
             for ping in ping_iter:
                 img = _image_to_fit(ping, normalise=normalise, recipe_config=cfg)
                 f = fit_mixture(img, families=fams, method=method, binning=binning)  # type: ignore[arg-type]
-                w.writerow(_fit_row(f, _ping_name(ping.source) or n))
+                w.writerow(_fit_row(f, source_name(ping.source) or n))
                 n += 1
                 bar.advance()
                 bar.log(f"{ping.source}: KLD {f.kld:.3g}" + (f" ({';'.join(sorted(f.flags))})" if f.flags else ""))
@@ -117,20 +118,6 @@ def _image_to_fit(ping: Ping, *, normalise: bool, recipe_config: PreprocessConfi
 
         img = preprocess_image(img, ping.geometry, recipe_config)
     return img
-
-
-def _ping_name(source: str) -> str:
-    """The ``ping`` cell: the file name, with the ping inside a recording after ``#``.
-
-    Examples
-    --------
-    >>> _ping_name("data/test/1468966347175925_raw.png"), _ping_name("data/sample.aris#3")
-    ('1468966347175925_raw.png', 'sample.aris#3')
-    >>> _ping_name("data/em.all#head2004/ping59681")   # the head is part of the name
-    'em.all#head2004/ping59681'
-    """
-    path, sep, inside = source.partition("#")
-    return Path(path).name + sep + inside
 
 
 def _fit_row(f: MixtureFit, name: str | int) -> list[str | int]:

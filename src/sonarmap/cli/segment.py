@@ -116,6 +116,7 @@ def _segment_one(ping: Any, i: int, output: Path, cfg: Any, figure: bool, backgr
 
     from sonarmap._atomic import atomic_path, atomic_write_bytes
     from sonarmap.classify.threshold import threshold_labels
+    from sonarmap.ping import source_name
     from sonarmap.pipeline import process_ping
 
     prod = process_ping(ping, cfg, keep_labels=True, background=background)
@@ -132,7 +133,7 @@ def _segment_one(ping: Any, i: int, output: Path, cfg: Any, figure: bool, backgr
         # or normalised); --method threshold uses its own (PipelineConfig.classify.threshold)
         img = prod.image if prod.image is not None else ping.image
         thr = threshold_labels(np.clip(img, 0.0, 1.0), FIG7_THRESHOLD)
-        fig = segment_figure(ping.image, thr, labels, prod.ranges, title=Path(ping.source).name,
+        fig = segment_figure(ping.image, thr, labels, prod.ranges, title=source_name(ping.source),
                              threshold=FIG7_THRESHOLD, method=cfg.classify.method)
         with atomic_path(output / f"{stem}_segment.png") as tmp:
             fig.savefig(tmp, dpi=90, format="png")
