@@ -36,8 +36,10 @@ def register(app: typer.Typer) -> None:
         families: str = typer.Option("exponential,rayleigh", "--families",
                                      help="Comma-separated families after the zero spike."),
         binning: str = typer.Option("round", "--binning", help="Histogram binning: round or floor."),
-        recipe: str | None = typer.Option(None, "--recipe",
-                                          help="Pre-process first with a named recipe (e.g. paper-table1)."),
+        recipe: str | None = typer.Option(
+            None, "--recipe",
+            help="Pre-process with a named recipe (e.g. paper-table1) the images that are not normalised: "
+            "thresholded ones (DIDSON), or every image with --no-normalise."),
         normalise: bool = typer.Option(
             True, "--normalise/--no-normalise",
             help="Normalise images without a zero spike (ARIS, Oculus) by their background level first, "
@@ -68,14 +70,17 @@ def register(app: typer.Typer) -> None:
             bar.start()
             w = csv.writer(fh)
             w.writerow(["ping", "family", "weights", "scales", "kld", "flags", "gates"])
-            n = 0
+            n = n_normalised = 0
             for ping in ping_iter:
-                img = _image_to_fit(ping, normalise=normalise, recipe_config=cfg)
+                img, was_normalised = _image_to_fit(ping, normalise=normalise, recipe_config=cfg)
                 f = fit_mixture(img, families=fams, method=method, binning=binning)  # type: ignore[arg-type]
                 w.writerow(_fit_row(f, source_name(ping.source) or n))
                 n += 1
+                n_normalised += was_normalised
                 bar.advance()
                 bar.log(f"{ping.source}: KLD {f.kld:.3g}" + (f" ({';'.join(sorted(f.flags))})" if f.flags else ""))
+        if cfg is not None and n_normalised:
+            _warn_recipe_not_applied(recipe, n_normalised, n)
         if not quiet:
             err_console().print(f"fitted {counted(n, 'ping')} -> {output_name(output)}", markup=False)
 
@@ -102,9 +107,23 @@ def _recipe_config(name: str) -> PreprocessConfig:
     return get_recipe(check_choice(name, RECIPES, "--recipe"))
 
 
-def _image_to_fit(ping: Ping, *, normalise: bool, recipe_config: PreprocessConfig | None) -> NDArray[Any]:
-    """The image whose histogram is fitted: normalised by its background level (``--normalise`` and
-    not constant), else pre-processed with the ``--recipe`` config if given, else the ping's image."""
+def _warn_recipe_not_applied(recipe: str | None, n_normalised: int, n: int) -> None:
+    """One warning line: ``--recipe`` was not applied to the ``n_normalised`` of ``n`` pings that
+    were fitted normalised instead."""
+    import warnings
+
+    from sonarmap.errors import SonarmapWarning
+
+    warnings.warn(f"--recipe {recipe} was not applied to {n_normalised} of {counted(n, 'ping')}: their images "
+                  "have no zero spike and were fitted normalised by their background level (give --no-normalise "
+                  "to fit the recipe's image)", SonarmapWarning, stacklevel=2)
+
+
+def _image_to_fit(ping: Ping, *, normalise: bool,
+                  recipe_config: PreprocessConfig | None) -> tuple[NDArray[Any], bool]:
+    """The image whose histogram is fitted, and whether it is the normalised one: normalised by its
+    background level (``--normalise`` and not constant), else pre-processed with the ``--recipe``
+    config if given, else the ping's image."""
     from sonarmap.preprocess.normalise import estimate_background
 
     img = ping.image
@@ -112,12 +131,12 @@ def _image_to_fit(ping: Ping, *, normalise: bool, recipe_config: PreprocessConfi
     if normalise and float(img.max()) > float(img.min()):
         normalised = estimate_background(img)[1]
     if normalised is not None:
-        img = normalised
-    elif recipe_config is not None:
+        return normalised, True
+    if recipe_config is not None:
         from sonarmap.preprocess.pipeline import preprocess_image
 
         img = preprocess_image(img, ping.geometry, recipe_config)
-    return img
+    return img, False
 
 
 def _fit_row(f: MixtureFit, name: str | int) -> list[str | int]:
