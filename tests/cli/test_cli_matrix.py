@@ -92,6 +92,26 @@ def test_help_on_an_80_column_terminal_cuts_no_word(cmd: str, capsys: pytest.Cap
         assert "qw" in text and "rpy_deg" in text
 
 
+def test_quiet_and_verbose_are_where_the_readme_says(capsys: pytest.CaptureFixture[str],
+                                                     monkeypatch: pytest.MonkeyPatch) -> None:
+    """README: -q on every command but info, -v on the commands it lists. Before it said every
+    command had both, and 'sonarmap show ... -q' was a usage error (show had neither)."""
+    readme = " ".join((Path(__file__).resolve().parents[2] / "README.md").read_text(encoding="utf-8").split())
+    listed = readme.split("The commands that go through pings one by one (", 1)[1].split(")", 1)[0]
+    verbose = {name.strip(" `") for name in listed.split(",")}
+    for cmd in COMMANDS:
+        text = _help(cmd, capsys, monkeypatch)
+        assert ("--quiet" in text) == (cmd != "info"), cmd
+        assert ("--verbose" in text) == (cmd in verbose), cmd
+
+
+def test_show_quiet_prints_nothing(test_ping_paths: list[Path], tmp_path: Path,
+                                   capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "fan.png"
+    assert main(["show", str(test_ping_paths[0]), "-o", str(out), "-q"]) == 0
+    assert out.exists() and capsys.readouterr().err == ""
+
+
 def test_help_types_are_click_style(capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch) -> None:
     text = _help("ranges", capsys, monkeypatch)
     assert "Usage: sonarmap ranges [OPTIONS] PINGS..." in text

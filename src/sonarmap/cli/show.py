@@ -38,6 +38,7 @@ def register(app: typer.Typer) -> None:
                                   "median and 99.9th percentile, e.g. a Kongsberg water column)."),
         image: str = typer.Option("auto", "--image", help="For a product store: labels, raw or auto "
                                   "(labels if stored, else the raw ping from its source)."),
+        quiet: bool = typer.Option(False, "--quiet", "-q", help="Do not print where the figure went."),
     ) -> None:
         """Render PING as a fan image with metric axes (honours the azimuth table).
 
@@ -67,7 +68,8 @@ def register(app: typer.Typer) -> None:
             _check_resolution(p, resolution)
         fig = show_ping_figure(p, resolution_m=resolution, polar=polar, vmax=vmax, scale=scale)
         save_figure(fig, output)
-        typer.echo(f"wrote {output}", err=True)
+        if not quiet:
+            typer.echo(f"wrote {output}", err=True)
 
 
 def _check_number_options(resolution: float | None, vmax: float | None) -> None:
