@@ -243,7 +243,7 @@ def map_command(
         out_cloud = _write_results(res, output, out_fmt, bag_kind, out_frame, grid_array=grid_array, geotiff=geotiff,
                                    octomap=octomap, raster_resolution=raster_resolution)
     if not quiet:
-        _print_summary(res, out_cloud, output)
+        _print_summary(res, out_cloud, output, geotiff=geotiff, octomap=octomap, grid_array=grid_array)
 
 
 def _check_static_and_octomap(static: bool, poses: Path | None, octomap: Path | None, grid: float | None,
@@ -310,12 +310,18 @@ def _save_grid_array(path: Path, occ: OccupancyMap) -> None:
         )
 
 
-def _print_summary(res: MapResult, out_cloud: PointCloud, output: Path) -> None:
-    """The summary line of ``map`` on stderr: pings, returns, skipped pings and what was written where."""
-    what = counted(len(out_cloud), "occupied cell" if res.occupancy is not None else "point")
+def _print_summary(res: MapResult, out_cloud: PointCloud, output: Path, *, geotiff: Path | None,
+                   octomap: Path | None, grid_array: Path | None) -> None:
+    """The summary line of ``map`` on stderr: pings, returns, skipped pings, what was written where,
+    the projected CRS of a georeferenced map, and the other files written."""
+    grid = res.occupancy is not None
+    also = {"OctoMap": octomap, "grid array": grid_array, ("occupancy" if grid else "bathymetry") + " GeoTIFF": geotiff}
+    what = counted(len(out_cloud), "occupied cell" if grid else "point")
     skipped = f", {res.n_skipped} skipped outside the trajectory" if res.n_skipped else ""
-    err_console().print(f"{counted(res.n_pings, 'ping')}, {counted(res.n_returns, 'return')}{skipped} -> {what} in {output_name(output)}",
-                        markup=False)
+    crs = f" ({res.georef.crs_name})" if res.georef is not None else ""
+    extra = "".join(f"; {label} -> {output_name(path)}" for label, path in also.items() if path is not None)
+    err_console().print(f"{counted(res.n_pings, 'ping')}, {counted(res.n_returns, 'return')}{skipped} -> {what} in "
+                        f"{output_name(output)}{crs}{extra}", markup=False, soft_wrap=True)
 
 
 def _check_options(output: Path, fmt: str | None, outside: str, out_frame: str, poses_frame: str | None,
