@@ -15,7 +15,7 @@ from sonarmap.errors import InputError
 from sonarmap.fan import fan_image
 from sonarmap.ping import Ping, source_name
 
-__all__ = ["new_figure", "save_figure", "draw_fan", "show_ping_figure", "fan_comparison", "display_scale",
+__all__ = ["new_figure", "room_after_colorbar", "save_figure", "draw_fan", "show_ping_figure", "fan_comparison", "display_scale",
            "DB_SPAN_RATIO", "DB_WINDOW"]
 
 
@@ -26,6 +26,12 @@ def new_figure(*args: Any, **kwargs: Any) -> tuple[Any, Any]:
     fig = Figure(layout="constrained", **{k: kwargs.pop(k) for k in ("figsize", "dpi") if k in kwargs})
     axes = fig.subplots(*args, **kwargs)
     return fig, axes
+
+
+def room_after_colorbar(fig: Any) -> None:
+    """Space between a colour bar's label and the axis to its right in a figure of
+    :func:`new_figure` (the constrained layout's default leaves the two labels touching)."""
+    fig.get_layout_engine().set(wspace=0.12)
 
 
 def save_figure(fig: Any, path: str | os.PathLike[str], *, dpi: int = 120) -> None:
@@ -139,6 +145,7 @@ def show_ping_figure(
         ax.set_ylabel("range (m)")
         ax.set_title("polar (rows = range bins)", fontsize=9)
         fig.colorbar(im, ax=ax, shrink=0.8, label=label)
+        room_after_colorbar(fig)
     return fig
 
 

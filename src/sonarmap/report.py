@@ -156,7 +156,7 @@ def _fig_timeseries(ds: Any, dpi: int) -> str:
 
 
 def _fig_ranges(ds: Any, dpi: int) -> str:
-    from sonarmap.plots import new_figure
+    from sonarmap.plots import new_figure, room_after_colorbar
 
     r = ds["range"].values
     step = max(1, r.shape[0] // 2000)
@@ -172,7 +172,7 @@ def _fig_ranges(ds: Any, dpi: int) -> str:
     axes[0].set_ylabel("beam azimuth (deg)")
     axes[0].set_title("Per-beam range over the survey (blank: no return)", fontsize=9)
     fig.colorbar(im, ax=axes[0], label="range (m)")
-    _room_after_colorbar(fig)
+    room_after_colorbar(fig)
     hit = np.isfinite(ds["range"].values).mean(axis=0)
     axes[1].plot(az, hit, color="tab:blue")
     axes[1].set_xlabel("beam azimuth (deg)")
@@ -226,7 +226,7 @@ def _fig_roc(ds: Any, examples: list[dict[str, Any]], dpi: int) -> str | None:
 def _fig_map(ds: Any, max_points: int, dpi: int) -> str | None:
     if "point_xyz" not in ds:
         return None
-    from sonarmap.plots import new_figure
+    from sonarmap.plots import new_figure, room_after_colorbar
 
     xyz = ds["point_xyz"].values
     xyz = xyz[np.isfinite(xyz).all(axis=1)]
@@ -251,7 +251,7 @@ def _fig_map(ds: Any, max_points: int, dpi: int) -> str | None:
         axes[0].invert_xaxis()
     axes[0].set_title(f"Map: {len(xyz)} points, colour = {names[c].split(' (')[0]}", fontsize=9)
     fig.colorbar(sc, ax=axes[0], label=names[c])
-    _room_after_colorbar(fig)
+    room_after_colorbar(fig)
     top = axes[1].scatter(xyz[:, 1], xyz[:, 0], c=xyz[:, 2], s=1.0, cmap="viridis", linewidths=0)
     axes[1].set_aspect("equal", adjustable="datalim")
     axes[1].set_xlabel(names[1])
@@ -259,12 +259,6 @@ def _fig_map(ds: Any, max_points: int, dpi: int) -> str | None:
     axes[1].set_title("Seen from above (colour = depth)", fontsize=9)
     fig.colorbar(top, ax=axes[1], label=names[2])
     return _png(fig, dpi)
-
-
-def _room_after_colorbar(fig: Any) -> None:
-    """Space between a colour bar's label and the axis to its right (the constrained layout's
-    default leaves the label touching the next axis's label)."""
-    fig.get_layout_engine().set(wspace=0.12)
 
 
 # ---------------------------------------------------------------------------- examples
