@@ -112,6 +112,25 @@ def test_show_quiet_prints_nothing(test_ping_paths: list[Path], tmp_path: Path,
     assert out.exists() and capsys.readouterr().err == ""
 
 
+#: Commands whose -o writes files or stores; '-' (stdout) is a usage error there.
+FILE_OUTPUT_COMMANDS = ("segment", "preprocess", "simulate", "convert", "process", "report", "paper", "demo", "live")
+
+
+@pytest.mark.parametrize("cmd", FILE_OUTPUT_COMMANDS)
+def test_stdout_output_is_refused_where_files_are_written(cmd: str, two_pings: Path, tmp_path: Path,
+                                                          monkeypatch: pytest.MonkeyPatch,
+                                                          capsys: pytest.CaptureFixture[str]) -> None:
+    """Before: 'sonarmap segment X -o -' (and simulate, convert, process, preprocess, paper, demo)
+    ran and wrote a directory or store named '-' in the working directory."""
+    monkeypatch.chdir(tmp_path)
+    args = {"simulate": ["simulate"], "demo": ["demo"], "paper": ["paper", "--data", str(two_pings)],
+            "report": ["report", str(two_pings)], "live": ["live", str(two_pings), "--replay"]}.get(cmd, [cmd, str(two_pings)])
+    assert main([*args, "-o", "-"]) == 2
+    err = capsys.readouterr().err
+    assert "'-' (stdout) is only for ranges, fit, calibrate and map" in err and "━" not in err
+    assert not (tmp_path / "-").exists()
+
+
 def test_help_types_are_click_style(capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch) -> None:
     text = _help("ranges", capsys, monkeypatch)
     assert "Usage: sonarmap ranges [OPTIONS] PINGS..." in text

@@ -13,7 +13,7 @@ from sonarmap._text import counted
 
 __all__ = [
     "CALIBRATION_OPTION", "GEOMETRY_OPTION", "OUTPUT_DIR_OPTION", "OUTPUT_OPTION", "PINGS_ARGUMENT", "PING_RATE_OPTION",
-    "QUIET_OPTION", "START_TIME_OPTION", "STDOUT", "VERBOSE_OPTION",
+    "QUIET_OPTION", "START_TIME_OPTION", "STDOUT", "VERBOSE_OPTION", "refuse_stdout",
     "PingProgress", "apply_calibration", "check_choice", "check_clock_used", "clock_options", "console",
     "count_pings", "err_console", "example", "first_ping", "input_name", "input_progress", "load_calibration",
     "load_geometry_option", "open_output", "output_name", "ping_progress", "read_input_pings", "run_pings",
@@ -32,8 +32,19 @@ GEOMETRY_OPTION: Any = typer.Option(
     "overrides the pings' sidecar JSON.",
 )
 OUTPUT_OPTION: Any = typer.Option(..., "--output", "-o", help="Output path.")
+
+
+def refuse_stdout(value: Path | None) -> Path | None:
+    """``--output`` callback of the commands that write files or stores, not one stream: ``-o -``
+    is a usage error there (it made a file or directory named ``-``)."""
+    if value is not None and str(value) == "-":
+        raise typer.BadParameter("'-' (stdout) is only for ranges, fit, calibrate and map; this command writes "
+                                 "files: give a path")
+    return value
+
+
 #: ``-o`` of the commands that write a directory of files.
-OUTPUT_DIR_OPTION: Any = typer.Option(..., "--output", "-o", help="Output directory.")
+OUTPUT_DIR_OPTION: Any = typer.Option(..., "--output", "-o", help="Output directory.", callback=refuse_stdout)
 QUIET_OPTION: Any = typer.Option(False, "--quiet", "-q", help="No progress bar and no summary.")
 VERBOSE_OPTION: Any = typer.Option(False, "--verbose", "-v", help="One line per ping and the total time on stderr.")
 

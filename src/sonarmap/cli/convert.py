@@ -23,6 +23,7 @@ from sonarmap.cli._common import (
     example,
     load_geometry_option,
     ping_progress,
+    refuse_stdout,
 )
 
 __all__ = ["register", "convert"]
@@ -33,7 +34,8 @@ def convert(
         ..., help="Input files or directories: .aris, .ddf, Oculus .raw/.oculus, ROS 1/2 bags, "
         "PNG+JSON ping folders, zarr surveys (detected by content)."
     ),
-    output: Path = typer.Option(..., "--output", "-o", help="Output: a .zarr survey store, or a .bag (ROS 1) / --to bag2 directory."),
+    output: Path = typer.Option(..., "--output", "-o", help="Output: a .zarr survey store, or a .bag (ROS 1) / --to bag2 directory.",
+                                callback=refuse_stdout),
     sonar: str | None = GEOMETRY_OPTION,
     start_time: str | None = START_TIME_OPTION,
     ping_rate: float | None = PING_RATE_OPTION,

@@ -8,7 +8,7 @@ from pathlib import Path
 import typer
 
 from sonarmap._text import counted
-from sonarmap.cli._common import console, err_console, example
+from sonarmap.cli._common import console, err_console, example, refuse_stdout
 
 __all__ = ["register", "demo_command", "run_demo", "DEMO_CONFIG"]
 
@@ -115,7 +115,8 @@ def run_demo(
 
 
 def demo_command(
-    output: Path = typer.Option(Path("sonarmap-demo"), "--output", "-o", help="Directory for the demo outputs."),
+    output: Path = typer.Option(Path("sonarmap-demo"), "--output", "-o", help="Directory for the demo outputs.",
+                                callback=refuse_stdout),
     pings: int = typer.Option(40, "--pings", min=4, help="Pings in the simulated survey."),
     workers: int | None = typer.Option(None, "--workers", "-j", min=0, help="Worker processes (default: CPUs)."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace the outputs of an earlier demo."),

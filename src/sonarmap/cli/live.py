@@ -24,7 +24,7 @@ from typing import IO, TYPE_CHECKING, Any
 import typer
 
 from sonarmap._text import counted
-from sonarmap.cli._common import QUIET_OPTION, VERBOSE_OPTION, check_choice, example
+from sonarmap.cli._common import QUIET_OPTION, VERBOSE_OPTION, check_choice, example, refuse_stdout
 
 if TYPE_CHECKING:
     from sonarmap.live import BagSink, StoreSink
@@ -102,7 +102,8 @@ _RATE_OPTION: Any = typer.Option(None, "--rate", help="Replay at this many pings
                                                       "(default: the recorded times).")
 _SPEED_OPTION: Any = typer.Option(1.0, "--speed", help="Replay speed factor on the recorded times.")
 _LOOP_OPTION: Any = typer.Option(False, "--loop", help="Replay: start again after the last ping.")
-_OUTPUT_OPTION: Any = typer.Option(None, "--output", "-o", help="Product store (zarr) appended as pings arrive.")
+_OUTPUT_OPTION: Any = typer.Option(None, "--output", "-o", help="Product store (zarr) appended as pings arrive.",
+                                   callback=refuse_stdout)
 _RANGES_OPTION: Any = typer.Option(None, "--ranges", help="Per-beam ranges: - for stdout, or a file.")
 _BAG_OPTION: Any = typer.Option(None, "--bag", help="Ranges as marine_acoustic_msgs/SonarRanges: a ROS 1 "
                                 "*.bag file, else a ROS 2 bag directory (moved into place when the run ends).")

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import typer
 
-from sonarmap.cli._common import OUTPUT_OPTION, QUIET_OPTION, example
+from sonarmap.cli._common import OUTPUT_DIR_OPTION, QUIET_OPTION, example
 
 
 def register(app: typer.Typer) -> None:
@@ -15,7 +15,7 @@ def register(app: typer.Typer) -> None:
     @app.command("paper", epilog=example("paper --data /data/didson -o paper-out/"))
     def paper_cmd(
         data: Path = typer.Option(..., "--data", help="The DIDSON folder (with test/ and background/)."),
-        output: Path = OUTPUT_OPTION,
+        output: Path = OUTPUT_DIR_OPTION,
         quiet: bool = QUIET_OPTION,
     ) -> None:
         """Write table1.csv, background.csv, fig2, fig3, fig5, fig6 and fig8 (PNG), and print Table I.

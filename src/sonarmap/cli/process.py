@@ -8,7 +8,9 @@ from typing import Any
 import typer
 
 from sonarmap._text import counted
-from sonarmap.cli._common import CALIBRATION_OPTION, GEOMETRY_OPTION, err_console, example, stop_progress
+from sonarmap.cli._common import (
+    CALIBRATION_OPTION, GEOMETRY_OPTION, err_console, example, refuse_stdout, stop_progress,
+)
 
 __all__ = ["register", "process_command", "survey_progress"]
 
@@ -89,7 +91,8 @@ def _with_calibration(config: Path | None, calibration: Path | None) -> tuple[An
 
 def process_command(
     inputs: list[Path] = typer.Argument(..., help="Ping files, directories of PNG+JSON pings, or globs."),
-    output: Path = typer.Option(..., "--output", "-o", help="Output survey store (e.g. survey.zarr)."),
+    output: Path = typer.Option(..., "--output", "-o", help="Output survey store (e.g. survey.zarr).",
+                                callback=refuse_stdout),
     config: Path | None = typer.Option(
         None, "--config", "-c", help="Pipeline configuration (TOML); validated, recorded in the output."
     ),

@@ -6,14 +6,14 @@ from pathlib import Path
 
 import typer
 
-from sonarmap.cli._common import err_console, example
+from sonarmap.cli._common import err_console, example, refuse_stdout
 
 __all__ = ["register", "report_command"]
 
 
 def report_command(
     store: Path = typer.Argument(..., help="Survey store written by sonarmap process."),
-    output: Path = typer.Option(..., "--output", "-o", help="HTML file to write."),
+    output: Path = typer.Option(..., "--output", "-o", help="HTML file to write.", callback=refuse_stdout),
     examples: int = typer.Option(3, "--examples", min=0, help="Example pings drawn as fans."),
     title: str | None = typer.Option(None, "--title", help="Page title."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing report."),

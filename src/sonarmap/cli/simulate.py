@@ -8,7 +8,9 @@ from typing import Any
 import typer
 
 from sonarmap._text import counted
-from sonarmap.cli._common import QUIET_OPTION, VERBOSE_OPTION, check_choice, example, load_geometry_option
+from sonarmap.cli._common import (
+    QUIET_OPTION, VERBOSE_OPTION, check_choice, example, load_geometry_option, refuse_stdout,
+)
 
 __all__ = ["register"]
 
@@ -26,7 +28,7 @@ def register(app: typer.Typer) -> None:
             "didson-hf", "--sonar", "-s", metavar="PRESET|JSON",
             help="Sonar geometry: preset name (list them with: sonarmap info --presets) or geometry JSON file.",
         ),
-        output: Path = typer.Option(None, "--output", "-o", help="Output directory."),
+        output: Path = typer.Option(None, "--output", "-o", help="Output directory.", callback=refuse_stdout),
         list_scenes: bool = typer.Option(False, "--list-scenes", help="List scene names and exit."),
         quiet: bool = QUIET_OPTION,
         verbose: bool = VERBOSE_OPTION,
