@@ -52,3 +52,28 @@ def test_stale_directories_of_killed_writers_are_removed(tmp_path: Path) -> None
         (tmp_path / name).mkdir()
     assert sorted(p.name for p in remove_stale_dirs(target)) == sorted(stale)
     assert sorted(os.listdir(tmp_path)) == sorted(kept)
+
+
+def test_an_output_that_is_a_directory_is_refused_before_writing(tmp_path: Path) -> None:
+    """Before: atomic_path wrote the whole temporary file and then failed to replace the
+    directory ('cannot write: Is a directory'), after a command had done all its work."""
+    from sonarmap._atomic import atomic_path
+    from sonarmap.errors import DataFormatError
+
+    with pytest.raises(DataFormatError, match="is a directory; give a file name"):
+        with atomic_path(tmp_path):
+            pytest.fail("the block must not run")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_an_output_directory_in_the_way_of_a_file_is_named(tmp_path: Path) -> None:
+    """Before: 'sonarmap segment X -o afile' said '[Errno 17] File exists: 'afile'', demo
+    '[Errno 20] Not a directory: 'afile/pings''."""
+    from sonarmap._atomic import make_output_dir
+    from sonarmap.errors import DataFormatError
+
+    (tmp_path / "afile").write_text("x")
+    for target in (tmp_path / "afile", tmp_path / "afile" / "pings" / "deeper"):
+        with pytest.raises(DataFormatError, match=r"afile: exists and is not a directory; give a directory$"):
+            make_output_dir(target)
+    assert make_output_dir(tmp_path / "new" / "dir").is_dir()

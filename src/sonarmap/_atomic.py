@@ -38,6 +38,7 @@ from sonarmap.errors import DataFormatError, SonarmapError
 
 __all__ = [
     "atomic_path",
+    "make_output_dir",
     "atomic_open",
     "atomic_write_bytes",
     "atomic_write_text",
@@ -95,6 +96,32 @@ def write_error(exc: OSError, target: str | os.PathLike[str], what: str = "canno
     """A one-line :class:`DataFormatError` naming ``target`` for an ``OSError`` raised writing it."""
     reason = exc.strerror or str(exc) or type(exc).__name__
     return DataFormatError(f"{what}: {reason}", target)
+
+
+def make_output_dir(path: str | os.PathLike[str]) -> Path:
+    """Create the output directory ``path`` (and its parents) unless it exists; returns it.
+
+    Raises
+    ------
+    DataFormatError
+        Naming the path in the way that is a file (``exists and is not a directory``), or
+        ``path`` with the reason it cannot be created.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> make_output_dir(Path(tempfile.mkdtemp()) / "a" / "b").is_dir()
+    True
+    """
+    p = Path(path)
+    try:
+        p.mkdir(parents=True, exist_ok=True)
+    except (FileExistsError, NotADirectoryError):
+        blocker = next((q for q in (p, *p.parents) if q.exists() and not q.is_dir()), p)
+        raise DataFormatError("exists and is not a directory; give a directory", blocker) from None
+    except OSError as exc:
+        raise write_error(exc, p, "cannot create the output directory") from None
+    return p
 
 
 def _is_write_failure(exc: BaseException) -> bool:
@@ -167,10 +194,9 @@ def atomic_path(path: str | os.PathLike[str], *, suffix: str | None = None, clea
         ``path``.
     """
     target = Path(path)
-    try:
-        target.parent.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise write_error(exc, target, "cannot create the output directory") from None
+    make_output_dir(target.parent)
+    if target.is_dir():
+        raise DataFormatError("is a directory; give a file name", target)
     sfx = target.suffix if suffix is None else suffix
     if clean:
         remove_stale_temporaries(target, sfx)

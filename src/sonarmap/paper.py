@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from sonarmap._atomic import atomic_open, atomic_path
+from sonarmap._atomic import atomic_open, atomic_path, make_output_dir
 from sonarmap.errors import InputError
 from sonarmap.stats.mixture import MixtureFit, fit_mixture, histogram
 
@@ -192,8 +192,7 @@ def write_paper_outputs(data_dir: str | os.PathLike[str], out_dir: str | os.Path
 
     Returns a summary dict (the rows and the background fit).
     """
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    out = make_output_dir(out_dir)
     rows = table1(data_dir)
     cols = ["image", "source", "pi1", "lambda", "pi2", "sigma", "kld", "flags",
             "paper_pi1", "paper_lambda", "paper_pi2", "paper_sigma", "paper_kld", "within_tolerance",

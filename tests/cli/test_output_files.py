@@ -294,3 +294,20 @@ def test_oculus_times_make_a_unique_ping_time_index(data_dir: Path) -> None:
     ds = xr.Dataset(coords={"ping_time": np.array([x.datetime64 for x in pings])})
     assert ds.indexes["ping_time"].is_unique
     assert ds.sel(ping_time=pings[1].datetime64).sizes.get("ping_time", 0) == 0  # one ping, a scalar selection
+
+
+@pytest.mark.parametrize("cmd", ["ranges", "fit", "segment"])
+def test_an_output_of_the_wrong_kind_fails_before_any_ping_is_processed(
+        cmd: str, test_ping_paths: list[Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Before: 'sonarmap ranges X -o DIR' processed every ping, then failed ('DIR: cannot write: Is a
+    directory'); 'sonarmap segment X -o FILE' said '[Errno 17] File exists: ...'. Now one line
+    naming the output, before the progress bar."""
+    from sonarmap.cli import main
+
+    afile = tmp_path / "afile"
+    afile.write_text("x")
+    out = afile if cmd == "segment" else tmp_path
+    assert main([cmd, str(test_ping_paths[0]), "-o", str(out)]) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "━" not in err and "Errno" not in err
+    assert (f"{afile}: exists and is not a directory" if cmd == "segment" else f"{tmp_path}: is a directory") in err

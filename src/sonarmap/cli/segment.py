@@ -94,12 +94,13 @@ def register(app: typer.Typer) -> None:
         chosen method, first returns overlaid) into the output directory,
         which is created if needed; files in it are replaced atomically.
         """
+        from sonarmap._atomic import make_output_dir
 
         cfg, background = apply_calibration(pipeline_config_from_options(config, method, solver, beta), calibration)
         clock = clock_options(start_time, ping_rate)
         # before the bar and the directory
         ping_iter = read_input_pings(pings, load_geometry_option(sonar), clock=clock)
-        output.mkdir(parents=True, exist_ok=True)
+        make_output_dir(output)
         bar = input_progress("segment", pings, quiet=quiet, verbose=verbose)
         n = run_pings(bar, ping_iter, lambda ping, i: _segment_one(ping, i, output, cfg, figure, background))
         if not quiet:

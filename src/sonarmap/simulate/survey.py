@@ -245,12 +245,12 @@ class SimSurvey:
 
     def write(self, directory: str | os.PathLike[str], *, bit_depth: int = 8) -> Path:
         """Write pings (PNG + JSON), ``poses.csv``, ``mount.json`` and ``truth.npz``; returns the dir."""
-        from sonarmap._atomic import atomic_path
+        from sonarmap._atomic import atomic_path, make_output_dir
         from sonarmap.io.pngjson import write_png_ping
         from sonarmap.mapping.poses import save_extrinsics, write_trajectory_csv
 
         d = Path(directory)
-        (d / "pings").mkdir(parents=True, exist_ok=True)
+        make_output_dir(d / "pings")
         for ping in self.pings:
             write_png_ping(ping, d / "pings", bit_depth=bit_depth)
         write_trajectory_csv(self.trajectory, d / "poses.csv")
