@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 import shutil
 import tracemalloc
 from pathlib import Path
@@ -71,3 +72,17 @@ def test_several_inputs_in_order_and_lazy(data_dir: Path) -> None:
 def test_png_folder_still_works(didson_dir: Path) -> None:
     pings = list(read_pings(didson_dir / "test"))
     assert len(pings) == 10 and pings[0].shape == (512, 96)
+
+
+@pytest.mark.parametrize(("name", "index", "held"), [
+    ("oculus/one_ping_8bit.raw", 1, "(it has 1 ping: index 0)"),
+    ("aris/sample.aris", 99, "(it has 6 pings: 0-5)"),
+    ("didson/test", 10, "(it has 10 pings: 0-9)"),
+])
+def test_a_missing_index_says_which_indices_there_are(name: str, index: int, held: str, data_dir: Path) -> None:
+    """Before: 'sonarmap show one_ping_8bit.raw -i 1 ...' said only 'has no ping with index 1'."""
+    from sonarmap.errors import DataFormatError
+    from sonarmap.io import read_ping
+
+    with pytest.raises(DataFormatError, match=re.escape(f"has no ping with index {index} {held}")):
+        read_ping(data_dir / name, index=index)

@@ -575,16 +575,8 @@ def count_pings(inputs: list[Path] | list[str]) -> int | None:
     int or None
     """
     try:
-        from sonarmap.io import expand_inputs, reader_for
+        from sonarmap.io import expand_inputs, total_pings
 
-        import warnings
-
-        total = 0
-        with warnings.catch_warnings():  # reading the pings warns about the same records once
-            warnings.simplefilter("ignore")
-            for p in expand_inputs([str(x) for x in inputs]):
-                p = Path(p)
-                total += int(reader_for(p).count_pings(p))
+        return total_pings(expand_inputs([str(x) for x in inputs]))
     except Exception:  # noqa: BLE001 - the count only sizes the progress bar
         return None
-    return total

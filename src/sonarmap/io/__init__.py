@@ -29,7 +29,7 @@ from sonarmap.ping import Ping
 
 __all__ = ["read_pings", "read_ping", "detect_format", "expand_inputs", "FORMAT_MODULES", "format_module",
            "is_store_dir", "make_summary", "MAX_PING_BYTES", "PartialFrameWarning", "Reader", "reader_for",
-           "reader_modules"]
+           "reader_modules", "total_pings"]
 
 
 _modules = reader_modules  # the name the fuzz harness imports
@@ -175,4 +175,28 @@ def read_ping(path: str | os.PathLike[str], *, geometry: GeometrySpec = None, in
         for i, ping in enumerate(read_pings(paths, geometry=geometry)):
             if i == index:
                 return ping
-    raise DataFormatError(f"has no ping with index {index}", path)
+    raise DataFormatError(f"has no ping with index {index}{_indices_held(paths)}", path)
+
+
+def total_pings(paths: Iterable[str | os.PathLike[str]]) -> int:
+    """The pings of the expanded inputs ``paths``, counted from headers (each reader's
+    ``count_pings``); the readers' warnings about damaged records are left to the reading."""
+    import warnings
+
+    total = 0
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        for p in paths:
+            total += int(reader_for(p).count_pings(p))
+    return total
+
+
+def _indices_held(paths: Iterable[str | os.PathLike[str]]) -> str:
+    """`` (it has 6 pings: 0-5)`` for the message of a missing index; empty if they cannot be counted."""
+    from sonarmap._text import counted
+
+    try:
+        n = total_pings(paths)
+    except Exception:  # noqa: BLE001 - only the message's detail
+        return ""
+    return f" (it has {counted(n, 'ping')}" + ("" if n == 0 else ": index 0" if n == 1 else f": 0-{n - 1}") + ")"
