@@ -184,3 +184,23 @@ def test_fit_command_normalises_aris_and_reports_gates(data_dir, tmp_path):
     assert main(["fit", str(aris), "-o", str(raw), "-m", "em", "--no-normalise"]) == 0
     for r in csv.DictReader(raw.open()):
         assert "object_weight" in r["gates"].split(";")  # the old failure, now named
+
+
+def test_a_calibration_that_cannot_apply_is_refused(data_dir, tmp_path, capsys):
+    """Before: 'ranges didson/test --calibration didson.json' (the DIDSON calibration, which is a
+    geometry for --sonar) was silently ignored, and 'ranges didson/test --calibration aris.json'
+    (an ARIS 2000 x 48 calibration on 512 x 96 DIDSON pings) ran with the ARIS intensity model
+    (547 returns instead of 544). Both now exit 1 with one line saying why."""
+    didson = str(data_dir / "didson" / "test")
+    cal_didson, cal_aris = tmp_path / "didson.json", tmp_path / "aris.json"
+    assert main(["calibrate", str(data_dir / "didson" / "background"), "-o", str(cal_didson), "-q"]) == 0
+    assert main(["calibrate", str(data_dir / "aris" / "sample.aris"), "-o", str(cal_aris), "-q"]) == 0
+    capsys.readouterr()
+    out = tmp_path / "r.csv"
+    assert main(["ranges", didson, "-o", str(out), "--calibration", str(cal_didson)]) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and f"give it with --sonar {cal_didson}, not --calibration" in err
+    assert main(["ranges", didson, "-o", str(out), "--calibration", str(cal_aris), "-q"]) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "2000 bins x 48 beams does not fit an image of 512 x 96" in err
+    assert not out.exists()

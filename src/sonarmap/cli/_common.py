@@ -335,8 +335,8 @@ def load_geometry_option(value: str | Path | None) -> Any:
 def load_calibration(path: Path | None) -> tuple[Any, tuple[str, ...] | None]:
     """The recording background and model families of a ``sonarmap calibrate`` output.
 
-    ``(None, None)`` without a path; the background is None for a thresholded recording, whose
-    calibration is its geometry (pass it with ``--sonar``).
+    ``(None, None)`` without a path.  The calibration of a thresholded recording is its geometry
+    (given with ``--sonar``) and has no background level: it is refused here.
     """
     if path is None:
         return None, None
@@ -359,7 +359,8 @@ def load_calibration(path: Path | None) -> tuple[Any, tuple[str, ...] | None]:
     except InputError as exc:
         raise InputError(f"{path}: {exc}") from None
     if rec.thresholded:
-        return None, None
+        raise InputError(f"{path}: the calibration of a thresholded recording (DIDSON) is its geometry and has no "
+                         f"background level to apply: give it with --sonar {path}, not --calibration")
     model = cal.get("model") or {}
     fams = model.get("families") if isinstance(model, dict) else None
     if fams is not None and (not isinstance(fams, list) or len(fams) < 2 or not all(isinstance(f, str) for f in fams)):

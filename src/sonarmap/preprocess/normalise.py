@@ -488,13 +488,14 @@ def estimate_background_levels(
         raise InputError(f"thresholded_fraction: must lie in (0, 1], got {thresholded_fraction}")
     if not 0.5 <= floor_quantile < 1:
         raise InputError(f"floor_quantile: must lie in [0.5, 1), got {floor_quantile}")
+    n, m = img.shape
+    if reference is not None and reference.level_by_bin is not None and (
+            reference.level_by_bin.size != n or reference.n_beams != m):  # a thresholded image too
+        raise InputError(f"reference: a background of {reference.level_by_bin.size} bins x {reference.n_beams} "
+                         f"beams does not fit an image of {n} x {m} (calibration of another sonar setting?)")
     if zero_fraction >= thresholded_fraction:
         return BackgroundLevel(False, "thresholded", zero_fraction), None, None
-    n, m = img.shape
     if reference is not None and reference.level_by_bin is not None:
-        if reference.level_by_bin.size != n or reference.n_beams != m:
-            raise InputError(f"reference: a background of {reference.level_by_bin.size} bins x {reference.n_beams} "
-                             f"beams does not fit an image of {n} x {m} (calibration of another sonar setting?)")
         return _finish(img, reference.level_by_bin, reference.beam_factor, zero_fraction, floor_quantile, pool,
                        "calibration", n_levels)
     level = _row_level(img, max_rise)
