@@ -204,3 +204,20 @@ def test_a_calibration_that_cannot_apply_is_refused(data_dir, tmp_path, capsys):
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "2000 bins x 48 beams does not fit an image of 512 x 96" in err
     assert not out.exists()
+
+
+def test_a_background_calibration_given_as_sonar_is_pointed_to_calibration(data_dir, tmp_path, capsys):
+    """Before: 'ranges sample.aris --sonar aris.json' (the output of 'calibrate sample.aris') took
+    the calibration's geometry and said nothing, so the run was uncalibrated; now one warning line
+    says to use --calibration. A DIDSON calibration (a geometry with the taper) is meant for --sonar."""
+    didson = data_dir / "didson"
+    geometry = json.loads((didson / "didson.json").read_text())
+    cal = tmp_path / "cal.json"  # what calibrate writes for a recording without a zero spike
+    cal.write_text(json.dumps({**geometry, "calibration": {"kind": "normalised"}}))
+    one = str(sorted((didson / "test").glob("*_raw.png"))[0])
+    assert main(["fit", one, "-o", str(tmp_path / "f.csv"), "-q", "--sonar", str(cal)]) == 0
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and f"give it with --calibration {cal}" in err
+    cal.write_text(json.dumps({**geometry, "calibration": {"kind": "thresholded"}}))
+    assert main(["fit", one, "-o", str(tmp_path / "f.csv"), "-q", "--sonar", str(cal)]) == 0
+    assert capsys.readouterr().err == ""

@@ -329,7 +329,27 @@ def load_geometry_option(value: str | Path | None) -> Any:
             f"{str(value)!r} is neither a sonar preset nor a geometry JSON file; presets: {', '.join(names)}",
             param_hint="--sonar",
         )
-    return as_geometry(value)
+    geometry = as_geometry(value)
+    if str(value) not in names:
+        _warn_if_background_calibration(Path(value))
+    return geometry
+
+
+def _warn_if_background_calibration(path: Path) -> None:
+    """One warning when the ``--sonar`` file is the calibration of a recording that is normalised
+    by its background level: ``--sonar`` takes its geometry only, ``--calibration`` applies it."""
+    import json
+    import warnings
+
+    from sonarmap.errors import SonarmapWarning
+
+    try:
+        cal = json.loads(path.read_text(encoding="utf-8")).get("calibration")
+    except (OSError, ValueError, AttributeError):
+        return
+    if isinstance(cal, dict) and cal.get("kind") == "normalised":
+        warnings.warn(f"{path}: --sonar takes only the geometry of this calibration; give it with --calibration "
+                      f"{path} to normalise the pings by its background level", SonarmapWarning, stacklevel=3)
 
 
 def load_calibration(path: Path | None) -> tuple[Any, tuple[str, ...] | None]:
