@@ -176,3 +176,15 @@ def test_segment_figure_title_names_the_file_and_the_ping_in_it(data_dir: Path, 
     monkeypatch.setattr(seg, "segment_figure", spy)
     assert main(["segment", str(bag), "-o", str(tmp_path / "seg"), "-q"]) == 0
     assert titles == ["oc_bag#/sonar/image:0"]
+
+
+def test_info_gives_the_duration_of_png_pings_too(capsys: pytest.CaptureFixture[str], didson_dir: Path) -> None:
+    """Before: 'sonarmap info didson/test' gave time_first_utc / time_last_utc but no duration_s,
+    which every recording format gives (the PNG+JSON summary was built on its own)."""
+    import json
+
+    assert main(["info", "--json", str(didson_dir / "test")]) == 0
+    d = json.loads(capsys.readouterr().out)
+    assert d["pings"] == 10 and d["duration_s"] == pytest.approx(4485.330203)
+    keys = list(d)
+    assert keys.index("time_first_utc") < keys.index("duration_s") < keys.index("first_ping_zero_fraction")

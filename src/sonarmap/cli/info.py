@@ -37,7 +37,7 @@ def describe_path(path: Path, geometry: Any = None) -> dict[str, Any]:
         out.setdefault("path", str(path))
         out.setdefault("format", fmt)
         return out
-    from sonarmap.io import read_pings
+    from sonarmap.io import make_summary, read_pings
 
     first = last = None
     n = 0
@@ -48,13 +48,10 @@ def describe_path(path: Path, geometry: Any = None) -> dict[str, Any]:
         n += 1
     assert first is not None and last is not None
     img = first.image
-    out = {"path": str(path), "format": fmt, "pings": n}
-    out.update(geometry_summary(first.geometry))
-    out["time_first_utc"] = str(first.datetime64)
-    out["time_last_utc"] = str(last.datetime64)
-    out["first_ping_zero_fraction"] = float((img == 0).mean())
-    out["first_ping_mean_intensity"] = float(img.mean())
-    return out
+    out = make_summary(fmt, path, n_pings=n, geometry=first.geometry, time_start_ns=first.time_ns,
+                       time_end_ns=last.time_ns, first_ping_zero_fraction=float((img == 0).mean()),
+                       first_ping_mean_intensity=float(img.mean()))
+    return {k: v for k, v in out.items() if not k.startswith("_")}
 
 
 def _print(info: dict[str, Any]) -> None:
