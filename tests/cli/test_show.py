@@ -28,3 +28,13 @@ def test_bad_resolution_or_vmax_is_a_usage_error(option: str, value: str, says: 
     assert code == 2, err
     assert f"Invalid value for {option}" in err and says in err and "MemoryError" not in err
     assert not out.exists()
+
+
+def test_labels_of_a_recording_are_a_usage_error(data_dir: Path, tmp_path: Path,
+                                                 capsys: pytest.CaptureFixture[str]) -> None:
+    """Before: 'sonarmap show sample.aris --image labels -o x.png' drew the raw ping and said
+    nothing; a recording has no stored labels (--image is for product stores)."""
+    out = tmp_path / "x.png"
+    assert main(["show", str(data_dir / "aris" / "sample.aris"), "--image", "labels", "-o", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "Invalid value for --image" in err and "product store" in err and not out.exists()

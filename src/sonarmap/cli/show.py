@@ -63,6 +63,9 @@ def register(app: typer.Typer) -> None:
                 raise typer.BadParameter("a product store records its geometry; drop --sonar", param_hint="--sonar")
             p = product_ping(ping, index, image=image)
         else:
+            if image == "labels":
+                raise typer.BadParameter(f"labels are stored only in a product store (sonarmap process --keep-labels); "
+                                         f"{ping} is a recording", param_hint="--image")
             p = read_ping(ping, geometry=geom, index=index)
         if resolution is not None:
             _check_resolution(p, resolution)
