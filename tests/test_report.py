@@ -175,3 +175,21 @@ def test_examples_of_a_store_processed_from_a_converted_store_show_their_own_pin
     assert len(heads) == 3
     for index, name in heads:
         assert name == f"sample.aris#{index}"
+
+
+def test_the_ranges_figure_numbers_pings_with_whole_numbers(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Before: a 3-ping survey's per-beam range panel had ping ticks 0.0, 0.5, ..., 3.0 and ping i
+    spanned [i, i + 1]; now whole-number ticks at the middle of each ping's column."""
+    import xarray as xr
+
+    import sonarmap.report as rep
+
+    figs: list = []
+    monkeypatch.setattr(rep, "_png", lambda fig, dpi: figs.append(fig) or "")
+    ds = xr.Dataset({"range": (("ping_time", "beam"), 1 + np.random.default_rng(0).random((3, 16))),
+                     "beam_azimuth": (("beam",), np.deg2rad(np.linspace(-30, 30, 16)))})
+    rep._fig_ranges(ds, 60)
+    ax = figs[0].axes[0]
+    figs[0].canvas.draw()
+    ticks = [t for t in ax.get_xticks() if ax.get_xlim()[0] <= t <= ax.get_xlim()[1]]
+    assert ticks == [0, 1, 2] and ax.images[0].get_extent()[:2] == [-0.5, 2.5]

@@ -156,6 +156,8 @@ def _fig_timeseries(ds: Any, dpi: int) -> str:
 
 
 def _fig_ranges(ds: Any, dpi: int) -> str:
+    from matplotlib.ticker import MaxNLocator
+
     from sonarmap.plots import new_figure, room_after_colorbar
 
     r = ds["range"].values
@@ -167,7 +169,8 @@ def _fig_ranges(ds: Any, dpi: int) -> str:
     vmin, vmax = (float(finite.min()), float(finite.max())) if finite.size else (0.0, 1.0)
     im = axes[0].imshow(np.ma.masked_invalid(r.T), aspect="auto", origin="lower", cmap="viridis",
                         vmin=vmin, vmax=vmax, interpolation="nearest",
-                        extent=(0, r.shape[0] * step, float(az[0]), float(az[-1])))
+                        extent=(-0.5 * step, (r.shape[0] - 0.5) * step, float(az[0]), float(az[-1])))
+    axes[0].xaxis.set_major_locator(MaxNLocator(integer=True))  # ping i is the column centred on i
     axes[0].set_xlabel("ping")
     axes[0].set_ylabel("beam azimuth (deg)")
     axes[0].set_title("Per-beam range over the survey (blank: no return)", fontsize=9)
