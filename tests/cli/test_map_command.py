@@ -22,3 +22,16 @@ def test_summary_names_the_crs_and_every_output(test_ping_paths: list[Path], tmp
     assert las.exists() and tif.exists()
     assert line.startswith("1 ping, ") and f"points in {las} (EPSG:32619)" in line
     assert line.endswith(f"; bathymetry GeoTIFF -> {tif}")
+
+
+@pytest.mark.parametrize(("crs", "says"), [("EPSG:4326", "is not a projected CRS"),
+                                           ("EPSG:99999", "cannot interpret 'EPSG:99999'")])
+def test_a_crs_that_cannot_be_used_is_a_usage_error(crs: str, says: str, test_ping_paths: list[Path], tmp_path: Path,
+                                                    capsys: pytest.CaptureFixture[str]) -> None:
+    """Before: 'sonarmap map X --static --origin 42,-71 --crs EPSG:4326 -o m.ply' exited 1 with
+    'crs: EPSG:4326 is not a projected CRS ...' (the library's argument name); now exit 2 naming
+    --crs, before anything is read or written."""
+    out = tmp_path / "m.ply"
+    assert main(["map", str(test_ping_paths[0]), "--static", "--origin", "42,-71", "--crs", crs, "-o", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "Invalid value for --crs" in err and says in err and "━" not in err and not out.exists()

@@ -207,7 +207,7 @@ def map_command(
     from sonarmap.pipeline import PipelineConfig
 
     out_fmt, bag_kind = _check_options(output, fmt, outside, out_frame, poses_frame, geotiff, octomap, grid_array,
-                                       grid, min_confidence)
+                                       grid, min_confidence, crs)
     bounds = None if clamp is None else _clamp_bounds(clamp)
     _check_static_and_octomap(static, poses, octomap, grid, dims)
     origin_ll = None if origin is None else _lat_lon(origin)
@@ -326,11 +326,14 @@ def _print_summary(res: MapResult, out_cloud: PointCloud, output: Path, *, geoti
 
 def _check_options(output: Path, fmt: str | None, outside: str, out_frame: str, poses_frame: str | None,
                    geotiff: Path | None, octomap: Path | None, grid_array: Path | None, grid: float | None,
-                   min_confidence: float) -> tuple[str, str | None]:
+                   min_confidence: float, crs: str | None = None) -> tuple[str, str | None]:
     """Usage errors of ``sonarmap map``'s output options, before any work; returns the output
     format and the bag kind (``bag1`` / ``bag2`` / None)."""
     from sonarmap.errors import SonarmapError
     from sonarmap.mapping.pointcloud import CLOUD_FORMATS, format_from_suffix
+
+    if crs is not None:
+        _check_crs(crs)
 
     check_choice(outside, ("error", "skip"), "--outside")
     check_choice(out_frame, ("ned", "enu"), "--frame")
@@ -360,6 +363,17 @@ def _check_options(output: Path, fmt: str | None, outside: str, out_frame: str, 
         raise typer.BadParameter("applies to point clouds; the occupancy map keeps every return",
                                  param_hint="--min-confidence")
     return out_fmt, bag_kind
+
+
+def _check_crs(crs: str) -> None:
+    """A usage error for a ``--crs`` that is not a projected CRS in metres (or not a CRS at all)."""
+    from sonarmap.errors import InputError
+    from sonarmap.mapping.georef import as_crs
+
+    try:
+        as_crs(crs)
+    except InputError as exc:
+        raise typer.BadParameter(str(exc).removeprefix("crs: "), param_hint="--crs") from None
 
 
 def _write_outputs(out_cloud: Any, occ: Any, georef: Any, output: Path, out_fmt: str, bag_kind: str | None,
