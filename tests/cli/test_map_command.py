@@ -35,3 +35,12 @@ def test_a_crs_that_cannot_be_used_is_a_usage_error(crs: str, says: str, test_pi
     assert main(["map", str(test_ping_paths[0]), "--static", "--origin", "42,-71", "--crs", crs, "-o", str(out)]) == 2
     err = capsys.readouterr().err
     assert "Invalid value for --crs" in err and says in err and "━" not in err and not out.exists()
+
+
+def test_an_unknown_output_suffix_names_every_output_the_help_offers(test_ping_paths: list[Path], tmp_path: Path,
+                                                                       capsys: pytest.CaptureFixture[str]) -> None:
+    """Before: 'sonarmap map X --static -o m.tif' said 'output: cannot infer the point-cloud format
+    from suffix '.tif'; use .ply, .las or .csv', leaving out the ROS bags -o takes."""
+    assert main(["map", str(test_ping_paths[0]), "--static", "-o", str(tmp_path / "m.tif")]) == 2
+    err = " ".join(capsys.readouterr().err.split())
+    assert "Invalid value for --output: cannot infer" in err and ".bag or --format bag2 for a ROS bag" in err

@@ -351,7 +351,8 @@ def _check_options(output: Path, fmt: str | None, outside: str, out_frame: str, 
         try:
             out_fmt = (fmt or format_from_suffix(output)).lower()
         except (ValueError, SonarmapError) as exc:
-            raise typer.BadParameter(str(exc), param_hint="--output") from None
+            raise typer.BadParameter(str(exc).removeprefix("output: ") + " (.bag or --format bag2 for a ROS bag)",
+                                     param_hint="--output") from None
         if out_fmt not in CLOUD_FORMATS:
             raise typer.BadParameter(f"must be one of {', '.join(CLOUD_FORMATS)}, bag1, bag2", param_hint="--format")
     for opt, path, suffixes in (("--geotiff", geotiff, (".tif", ".tiff")), ("--octomap", octomap, (".bt",)),
