@@ -188,3 +188,18 @@ def test_info_gives_the_duration_of_png_pings_too(capsys: pytest.CaptureFixture[
     assert d["pings"] == 10 and d["duration_s"] == pytest.approx(4485.330203)
     keys = list(d)
     assert keys.index("time_first_utc") < keys.index("duration_s") < keys.index("first_ping_zero_fraction")
+
+
+@pytest.mark.parametrize(("cmd", "extra", "option"), [
+    ("segment", ["--method", "threshold", "--solver", "icm"], "--solver"),
+    ("ranges", ["--method", "map", "--beta", "1"], "--beta"),
+])
+def test_mrf_options_with_another_method_are_a_usage_error(cmd: str, extra: list[str], option: str,
+                                                           test_ping_paths: list[Path], tmp_path: Path,
+                                                           capsys: pytest.CaptureFixture[str]) -> None:
+    """Before: 'sonarmap segment X --method threshold --solver icm' (and --beta with --method map)
+    ran without the option, which only the MRF reads, and said nothing."""
+    out = tmp_path / "out"
+    assert main([cmd, str(test_ping_paths[0]), "-o", str(out), *extra]) == 2
+    err = capsys.readouterr().err
+    assert f"Invalid value for {option}: applies to the MRF only" in err and not out.exists()

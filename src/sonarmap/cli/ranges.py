@@ -90,7 +90,8 @@ def pipeline_config_from_options(
     Raises
     ------
     typer.BadParameter
-        If an option value is invalid (checked before ``config`` is read).
+        If an option value is invalid (checked before ``config`` is read), or ``--solver`` /
+        ``--beta`` is given for a method other than the MRF.
     """
     from sonarmap.errors import SonarmapError
     from sonarmap.pipeline import METHODS, SOLVER_NAMES, PipelineConfig
@@ -107,7 +108,12 @@ def pipeline_config_from_options(
             raise typer.BadParameter(str(exc), param_hint="--beta") from None
         changes["beta"] = beta
     cfg = PipelineConfig.from_toml(config) if config is not None else PipelineConfig()
-    return cfg.replace(**changes) if changes else cfg
+    cfg = cfg.replace(**changes) if changes else cfg
+    for option, value in (("--solver", solver), ("--beta", beta)):
+        if value is not None and cfg.classify.method != "mrf":  # the MRF's options; no other method reads them
+            raise typer.BadParameter(f"applies to the MRF only; the method is {cfg.classify.method} (give --method mrf)",
+                                     param_hint=option)
+    return cfg
 
 
 def flagged_summary(gates: list[tuple[str, ...]]) -> str:
