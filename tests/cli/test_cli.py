@@ -203,3 +203,21 @@ def test_mrf_options_with_another_method_are_a_usage_error(cmd: str, extra: list
     assert main([cmd, str(test_ping_paths[0]), "-o", str(out), *extra]) == 2
     err = capsys.readouterr().err
     assert f"Invalid value for {option}: applies to the MRF only" in err and not out.exists()
+
+
+def test_segment_file_names_are_the_documented_ones(capsys: pytest.CaptureFixture[str],
+                                                    monkeypatch: pytest.MonkeyPatch) -> None:
+    """Before, neither segment --help nor docs/segmentation.md said how a ping inside a recording
+    is named, nor that a Kongsberg ping's files go into a folder per head."""
+    from sonarmap.cli.segment import _stem
+
+    assert _stem("/d/test/1468966347175925_raw.png", 0) == "1468966347175925"
+    assert _stem("/d/sample.aris#3", 3) == "sample_3"
+    assert _stem("/d/0077_20221109_123655_Belgica.all#head2004/ping59681", 0) == \
+        "0077_20221109_123655_Belgica_head2004/ping59681"
+    monkeypatch.setenv("COLUMNS", "200")
+    assert main(["segment", "--help"]) == 0
+    text = " ".join(capsys.readouterr().out.split())
+    assert "(sample_3)" in text and "FILE_headID/pingN, a folder per head" in text
+    doc = " ".join((Path(__file__).resolve().parents[2] / "docs" / "segmentation.md").read_text().split())
+    assert "`0077_20221109_123655_Belgica_head2004/ping59681_labels.png`" in doc

@@ -93,6 +93,9 @@ def register(app: typer.Typer) -> None:
         class) and STEM_segment.png (raw | the fixed threshold 0.22 of the paper's Fig. 7 | the
         chosen method, first returns overlaid) into the output directory,
         which is created if needed; files in it are replaced atomically.
+
+        STEM is the ping's file name, with its place in a recording after _ (sample_3); a Kongsberg
+        ping's is FILE_headID/pingN, a folder per head.
         """
         from sonarmap._atomic import make_output_dir
 
