@@ -92,3 +92,27 @@ def test_fan_colour_bar_label_keeps_clear_of_the_polar_axis_label(data_dir: Path
         assert polar.get_ylabel() == "range (m)"
         gap = polar.yaxis.label.get_window_extent(r).x0 - fan_bar.yaxis.label.get_window_extent(r).x1
         assert gap >= 30, (path, gap)
+
+
+def test_bins_a_beam_did_not_record_are_drawn_as_no_data() -> None:
+    """Before: the range bins past a Kongsberg water-column beam's last sample (filled with 0 by
+    the reader) were drawn in the colour of the weakest echo (black, -84 dB) in the fan and the
+    polar panel; now they are no data (grey), like the area outside the fan."""
+    from sonarmap.geometry import preset
+    from sonarmap.ping import Ping
+
+    g = preset("didson-hf")
+    n_bins, n_beams = g.shape
+    count = np.full(n_beams, n_bins // 2)  # every beam recorded the nearer half of the window
+    ping = Ping(image=np.full(g.shape, 0.5, np.float32), geometry=g, time_ns=0, source="em.all#head1/ping1",
+                meta={"beam_start_sample": np.zeros(n_beams, int), "beam_n_samples": count})
+    fig = show_ping_figure(ping, polar=True)
+    polar = fig.axes[1].images[0].get_array()
+    assert polar.mask[n_bins // 2:].all() and not polar.mask[: n_bins // 2].any()
+    fan = fig.axes[0].images[0].get_array()
+    x0, x1 = fig.axes[0].images[0].get_extent()[2:]
+    x = np.linspace(x0, x1, fan.shape[0])
+    far = x > g.range_m[n_bins // 2] + 0.1
+    assert fan.mask[far].all() and (~fan.mask[x < g.range_m[n_bins // 2] - 0.1]).any()
+    plain = show_ping_figure(Ping(image=np.full(g.shape, 0.5, np.float32), geometry=g, time_ns=0), polar=True)
+    assert not np.ma.getmaskarray(plain.axes[1].images[0].get_array()).any()

@@ -15,7 +15,7 @@ from sonarmap.errors import InputError
 from sonarmap.fan import fan_image
 from sonarmap.ping import Ping, source_name
 
-__all__ = ["new_figure", "room_after_colorbar", "save_figure", "draw_fan", "show_ping_figure", "fan_comparison", "display_scale",
+__all__ = ["new_figure", "recorded_bins", "room_after_colorbar", "save_figure", "draw_fan", "show_ping_figure", "fan_comparison", "display_scale",
            "DB_SPAN_RATIO", "DB_WINDOW"]
 
 
@@ -52,9 +52,14 @@ def draw_fan(
     vmax: float | None = None,
     title: str | None = None,
     colorbar: bool = True,
+    recorded: np.ndarray | None = None,
 ) -> Any:
-    """Draw a polar image as a fan on ``ax`` with metric axes (starboard right, forward up)."""
+    """Draw a polar image as a fan on ``ax`` with metric axes (starboard right, forward up);
+    outside the bins ``recorded`` marks (:func:`recorded_bins`), the fan shows no data."""
     fan = fan_image(image, geometry, resolution_m=resolution_m)
+    if recorded is not None:
+        seen = fan_image(recorded.astype(np.float32), geometry, resolution_m=resolution_m, order=0).image
+        fan.image[~(seen >= 0.5)] = np.nan
     if vmax is None:
         finite = fan.image[np.isfinite(fan.image)]
         vmax = float(np.percentile(finite, 99.9)) if finite.size else 1.0
@@ -108,6 +113,39 @@ def _in_db(image: np.ndarray, vmax: float | None) -> tuple[np.ndarray, float, fl
     return db.astype(np.float32), top - DB_WINDOW, top
 
 
+def recorded_bins(image: np.ndarray, meta: dict[str, Any]) -> np.ndarray | None:
+    """Where each beam recorded samples: a bool image, or None when every bin was recorded.
+
+    A multibeam's water-column beams end at different ranges (Kongsberg: ``beam_start_sample`` and
+    ``beam_n_samples`` per image column in ``Ping.meta``); the reader fills the rest with 0, which a
+    figure would otherwise draw as the weakest echo.
+
+    Parameters
+    ----------
+    image : ndarray, shape (n_bins, n_beams)
+        The ping's image.
+    meta : dict
+        The ping's metadata.
+
+    Returns
+    -------
+    ndarray of bool, shape (n_bins, n_beams), or None
+
+    Examples
+    --------
+    >>> img = np.ones((4, 2), np.float32)
+    >>> recorded_bins(img, {"beam_start_sample": [0, 1], "beam_n_samples": [4, 2]})[:, 1]
+    array([False,  True,  True, False])
+    """
+    start, count = meta.get("beam_start_sample"), meta.get("beam_n_samples")
+    if start is None or count is None or np.shape(start) != (image.shape[1],) or np.shape(count) != np.shape(start):
+        return None
+    rows = np.arange(image.shape[0])[:, None]
+    first = np.asarray(start)[None, :]
+    recorded = (rows >= first) & (rows < first + np.asarray(count)[None, :])
+    return None if recorded.all() else recorded
+
+
 def show_ping_figure(
     ping: Ping,
     *,
@@ -132,15 +170,19 @@ def show_ping_figure(
     img, vmin = ping.image, 0.0
     if in_db:
         img, vmin, vmax = _in_db(ping.image, vmax)
-    im = draw_fan(axes[0, 0], img, ping.geometry, resolution_m=resolution_m, vmin=vmin, vmax=vmax)
+    recorded = recorded_bins(ping.image, ping.meta)
+    im = draw_fan(axes[0, 0], img, ping.geometry, resolution_m=resolution_m, vmin=vmin, vmax=vmax,
+                  recorded=recorded)
     label = "intensity (dB)" if in_db else "intensity"
     im.colorbar.set_label(label)
     if polar:
         g = ping.geometry
         az = np.rad2deg(g.azimuth_rad)
         ax = axes[0, 1]
-        im = ax.imshow(img, origin="lower", aspect="auto", cmap="inferno", vmin=vmin, vmax=vmax,
-                       extent=(0, g.n_beams, g.range_m[0], g.range_m[-1]))
+        shown = np.ma.masked_array(img, mask=None if recorded is None else ~recorded)
+        im = ax.imshow(shown, origin="lower", aspect="auto", cmap="inferno", vmin=vmin,
+                       vmax=vmax, extent=(0, g.n_beams, g.range_m[0], g.range_m[-1]))
+        ax.set_facecolor("0.85")  # no data, as around the fan
         ax.set_xlabel(f"beam (azimuth {az[0]:.1f} to {az[-1]:.1f} deg)")
         ax.set_ylabel("range (m)")
         ax.set_title("polar (rows = range bins)", fontsize=9)
