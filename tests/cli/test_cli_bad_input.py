@@ -231,6 +231,7 @@ def test_water_column_to_a_store_is_refused_with_what_to_use(cmd: str, tmp_path:
     assert rc == 1 and not out.exists()
     msg = [ln for ln in err.splitlines() if "error" in ln]
     assert len(msg) == 1 and "every ping" in msg[0] and "sonarmap ranges" in msg[0], err
+    assert "Kongsberg" in msg[0] and "kongsberg water" not in msg[0]  # process said 'kongsberg water column'
 
 
 def test_a_failed_process_prints_no_empty_line_for_its_progress_bar(tmp_path: Path, data_dir: Path,

@@ -466,7 +466,7 @@ def test_water_column_with_per_ping_geometry_is_refused_before_any_work(data_dir
     out = tmp_path / "k.zarr"
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # the shared file's truncated last ping
-        with pytest.raises(InputError, match="kongsberg water column .* `sonarmap ranges`"):
+        with pytest.raises(InputError, match="Kongsberg EM .all/.wcd water column .* `sonarmap ranges`"):
             process_survey([data_dir / "kongsberg" / "0077_20221109_123655_Belgica.all"], out, workers=2)
     assert not out.exists()
 

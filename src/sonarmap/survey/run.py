@@ -260,8 +260,9 @@ def _plan_run(inputs: Any, config: Any, *, chunk_size: int, geometry: Any, keep_
 
 
 #: Formats whose pings change geometry from ping to ping (the range window and the beam pointing
-#: angles of a multibeam's water column), which a product store of one sonar geometry cannot hold.
-_PER_PING_GEOMETRY_FORMATS = ("kongsberg", "kmall")
+#: angles of a multibeam's water column), which a product store of one sonar geometry cannot hold,
+#: with the name messages give them.
+_PER_PING_GEOMETRY_FORMATS = {"kongsberg": "Kongsberg EM .all/.wcd", "kmall": "Kongsberg .kmall"}
 
 
 def _check_fixed_geometry(plan: SurveyPlan) -> None:
@@ -269,7 +270,8 @@ def _check_fixed_geometry(plan: SurveyPlan) -> None:
     for path, fmt, _ in plan.files:
         if fmt in _PER_PING_GEOMETRY_FORMATS:
             raise InputError(
-                f"{path}: {fmt} water column changes its range window and beam angles with every ping, "
+                f"{path}: {_PER_PING_GEOMETRY_FORMATS[fmt]} water column changes its range window and beam angles "
+                "with every ping, "
                 "which a survey store (one sonar geometry) cannot hold yet; use `sonarmap ranges` "
                 "(per-ping ranges) or `sonarmap map` (points and maps) on this recording")
 
