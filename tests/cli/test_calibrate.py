@@ -203,6 +203,7 @@ def test_a_calibration_that_cannot_apply_is_refused(data_dir, tmp_path, capsys):
     assert main(["ranges", didson, "-o", str(out), "--calibration", str(cal_aris), "-q"]) == 1
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "2000 bins x 48 beams does not fit an image of 512 x 96" in err
+    assert f"error: {cal_aris}: a background of" in err  # the file, not the library's argument
     assert not out.exists()
 
 

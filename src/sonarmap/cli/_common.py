@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -378,6 +380,7 @@ def load_calibration(path: Path | None) -> tuple[Any, tuple[str, ...] | None]:
         rec = RecordingBackground.from_dict(cal["background_level"], name="calibration.background_level")
     except InputError as exc:
         raise InputError(f"{path}: {exc}") from None
+    rec = dataclasses.replace(rec, source=str(path))
     if rec.thresholded:
         raise InputError(f"{path}: the calibration of a thresholded recording (DIDSON) is its geometry and has no "
                          f"background level to apply: give it with --sonar {path}, not --calibration")

@@ -491,7 +491,8 @@ def estimate_background_levels(
     n, m = img.shape
     if reference is not None and reference.level_by_bin is not None and (
             reference.level_by_bin.size != n or reference.n_beams != m):  # a thresholded image too
-        raise InputError(f"reference: a background of {reference.level_by_bin.size} bins x {reference.n_beams} "
+        where = getattr(reference, "source", "") or "reference"
+        raise InputError(f"{where}: a background of {reference.level_by_bin.size} bins x {reference.n_beams} "
                          f"beams does not fit an image of {n} x {m} (calibration of another sonar setting?)")
     if zero_fraction >= thresholded_fraction:
         return BackgroundLevel(False, "thresholded", zero_fraction), None, None
@@ -736,6 +737,9 @@ class RecordingBackground:
         ``b(r)``: how stable the background is over the recording (NaN for one ping).
     degenerate_pings : int
         Pings whose level could not be estimated (zero in most rows).
+    source : str
+        Where the estimate came from (the calibration file read by the command line), named in
+        the error when it does not fit an image; empty for one estimated in memory.
     """
 
     n_pings: int
@@ -747,6 +751,7 @@ class RecordingBackground:
     range_dependence_db: float = math.nan
     ping_spread_db: float = math.nan
     degenerate_pings: int = 0
+    source: str = ""
 
     def beam_profile(self) -> NDArray[np.float32] | None:
         """Per-beam gain implied by the beam factor (its mean over range, median 1): the taper."""
