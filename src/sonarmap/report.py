@@ -290,7 +290,17 @@ def _pipeline_config(attrs: dict[str, Any]) -> Any:
     return PipelineConfig.from_dict(json.loads(attrs.get("pipeline_config", "{}")))
 
 
-def _example(ds: Any, store: str | os.PathLike[str], index: int, config: Any, dpi: int) -> dict[str, Any]:
+def _calibration(attrs: dict[str, Any]) -> Any:
+    """The recording background the run normalised its pings by (the store's ``calibration``
+    attribute, written by ``process --calibration``), or None."""
+    from sonarmap.preprocess.normalise import RecordingBackground
+
+    text = attrs.get("calibration")
+    return None if text is None else RecordingBackground.from_dict(json.loads(text), name="calibration")
+
+
+def _example(ds: Any, store: str | os.PathLike[str], index: int, config: Any, dpi: int,
+             background: Any = None) -> dict[str, Any]:
     """Fans of one ping: raw | pre-processed | segmented with the stored ranges.
 
     The raw ping is read again from its source by :func:`~sonarmap.store.product_ping`, which
@@ -306,7 +316,7 @@ def _example(ds: Any, store: str | os.PathLike[str], index: int, config: Any, dp
     if not Path(source.partition("#")[0]).exists():
         return {"label": label, "index": index, "source": source, "missing": True}
     ping = product_ping(store, index, image="raw")
-    prod = process_ping(ping, config, keep_labels=True)
+    prod = process_ping(ping, config, keep_labels=True, background=background)
     g = ping.geometry
     fig, axes = new_figure(1, 3, figsize=(11, 4.6))
     draw_fan(axes[0], ping.image, g, title="raw", colorbar=False)
@@ -408,14 +418,14 @@ def _draw_examples(ds: Any, store: str | os.PathLike[str], attrs: dict[str, Any]
     picks = _pick_examples(ds, cfg.n_examples)
     if picks:
         try:
-            pcfg = _pipeline_config(attrs)
+            pcfg, background = _pipeline_config(attrs), _calibration(attrs)
         except Exception as exc:  # noqa: BLE001
             pcfg = None
             notes.append(f"example pings not drawn: pipeline unavailable ({exc})")
         if pcfg is not None:
             for i in picks:
                 try:
-                    examples.append(_example(ds, store, i, pcfg, cfg.dpi))
+                    examples.append(_example(ds, store, i, pcfg, cfg.dpi, background))
                 except Exception as exc:  # noqa: BLE001 - keep the rest of the report
                     notes.append(f"ping {i}: not drawn ({type(exc).__name__}: {exc})")
     return examples, notes

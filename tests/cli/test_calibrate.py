@@ -136,6 +136,44 @@ def test_process_takes_the_calibration_and_resumes_only_under_it(data_dir, tmp_p
     assert "made from different inputs, configuration or options" in capsys.readouterr().err
 
 
+@pytest.mark.slow
+def test_report_processes_its_example_pings_under_the_runs_calibration(data_dir, tmp_path, monkeypatch):
+    """A store processed with ``--calibration`` records it (the ``calibration`` attribute), and
+    ``report`` re-processes its example pings with it, as the run did (before: without it, so the
+    fans and labels drawn under the stored ranges came from another normalisation)."""
+    import json
+
+    import zarr
+
+    import sonarmap.pipeline
+    from sonarmap.preprocess.normalise import RecordingBackground
+
+    rec = data_dir / "aris" / "sample.aris"
+    cal, store = tmp_path / "aris.json", tmp_path / "p.zarr"
+    assert main(["calibrate", str(rec), "-o", str(cal), "-q"]) == 0
+    assert main(["process", str(rec), "-o", str(store), "--calibration", str(cal), "-j", "0", "-q"]) == 0
+    stored = RecordingBackground.from_dict(json.loads(zarr.open_group(str(store), mode="r").attrs["calibration"]))
+    given = json.loads(cal.read_text())["calibration"]["background_level"]
+    assert stored.to_dict() == RecordingBackground.from_dict(given).to_dict()
+    seen = []
+    process_ping = sonarmap.pipeline.process_ping
+
+    def spy(ping, config, **kw):
+        seen.append(kw.get("background"))
+        return process_ping(ping, config, **kw)
+
+    monkeypatch.setattr(sonarmap.pipeline, "process_ping", spy)
+    assert main(["report", str(store), "-o", str(tmp_path / "r.html"), "-q"]) == 0
+    assert seen and all(b is not None and b.to_dict() == stored.to_dict() for b in seen)
+    # a store processed without a calibration has none, and its examples are processed without one
+    plain = tmp_path / "plain.zarr"
+    assert main(["process", str(rec), "-o", str(plain), "-j", "0", "-q"]) == 0
+    assert "calibration" not in zarr.open_group(str(plain), mode="r").attrs
+    seen.clear()
+    assert main(["report", str(plain), "-o", str(tmp_path / "p.html"), "-q"]) == 0
+    assert seen and all(b is None for b in seen)
+
+
 def test_calibrate_three_ping_oculus_says_what_it_cannot_estimate(data_dir, tmp_path, capsys):
     out = tmp_path / "oc.json"
     assert main(["calibrate", str(data_dir / "oculus" / "three_pings_8bit.raw"), "-o", str(out)]) == 0

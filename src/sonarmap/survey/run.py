@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import json
 import os
 import time
 import warnings
@@ -13,7 +14,7 @@ from typing import Any
 import numpy as np
 
 from sonarmap._atomic import WriterLock, remove_stale_dirs
-from sonarmap._config import config_dict
+from sonarmap._config import config_dict, jsonable
 from sonarmap._text import counted
 from sonarmap.datamodel import COORD_AZIMUTH, SURVEY_FORMAT, TIME_UNITS
 from sonarmap.errors import DataFormatError, InputError, SonarmapError, SonarmapWarning
@@ -508,7 +509,16 @@ def _probe_and_create(out: Path, plan: SurveyPlan, task: Any, cfg_dict: dict[str
                     n_pings=plan.n_pings, n_chunks=plan.n_chunks,
                     inputs=[p for p, _, _ in plan.files[:20]] + (["..."] if len(plan.files) > 20 else []),
                     n_input_files=len(plan.files), poses=None if poses is None else os.path.abspath(poses),
-                    fingerprint=fingerprint)
+                    fingerprint=fingerprint, extra_attrs=_calibration_attrs(task.background))
+
+
+def _calibration_attrs(background: Any) -> dict[str, str] | None:
+    """The store's ``calibration`` attribute: the recording background the pings were normalised
+    by (``--calibration``, :meth:`RecordingBackground.to_dict` as JSON), so that ``report``
+    processes its example pings as the run did; None without one."""
+    if background is None:
+        return None
+    return {"calibration": json.dumps(jsonable(background.to_dict()), sort_keys=True)}
 
 
 def _finalise(out: Path, st: Any, root: Any, plan: SurveyPlan, *, poses: Any, points: Any,
