@@ -752,9 +752,13 @@ def scene_scale_for(geometry: Any) -> float:
 def view_for(geometry: Any) -> View:
     """The :class:`View` :func:`scene_from_name` crops to for ``geometry`` (before scaling).
 
-    The default view, widened to the geometry's fan (``fov / 2 + 2 deg``) and to its sonar
+    The default view, widened to the geometry's fan (``fov / 2 + 2 deg``) and to twice its sonar
     profile's vertical aperture (:mod:`sonarmap.simulate.presets`) where those exceed 20 / 4 deg;
-    the default view itself for DIDSON and ARIS.
+    the default view itself for DIDSON and ARIS.  Twice the aperture (the two-way -3 dB width of
+    the Gaussian elevation pattern) keeps every sample whose two-way weight is above -48 dB, as the
+    default view does for the default 1 deg aperture: a crop at the aperture itself (-12 dB) cuts a
+    grazing surface's near part off, and its echo starts with a step (the seafloor on the 12 deg
+    Oculus-like preset: to ~45 % of its peak at once).
     """
     from sonarmap.simulate.presets import profile_for
 
@@ -764,7 +768,7 @@ def view_for(geometry: Any) -> View:
         fov = float(geometry.azimuth_rad[-1] - geometry.azimuth_rad[0])
     half_az = max(base.half_azimuth_rad, 0.5 * float(fov) + math.radians(2.0))
     aperture = float(profile_for(geometry).values.get("elevation_aperture_rad", 0.0))
-    half_el = max(base.half_elevation_rad, aperture)
+    half_el = max(base.half_elevation_rad, 2.0 * aperture)
     if half_az == base.half_azimuth_rad and half_el == base.half_elevation_rad:
         return base
     return View(max_range_m=base.max_range_m, half_azimuth_rad=min(half_az, math.radians(80.0)),
