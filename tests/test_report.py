@@ -193,3 +193,23 @@ def test_the_ranges_figure_numbers_pings_with_whole_numbers(monkeypatch: pytest.
     figs[0].canvas.draw()
     ticks = [t for t in ax.get_xticks() if ax.get_xlim()[0] <= t <= ax.get_xlim()[1]]
     assert ticks == [0, 1, 2] and ax.images[0].get_extent()[:2] == [-0.5, 2.5]
+
+
+def test_the_mixture_time_series_says_what_its_x_axis_is(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Before: the three stacked panels (weights, scales, KLD) shared an x axis of dates with no
+    label; the bottom one now says 'ping time (UTC)'."""
+    import xarray as xr
+
+    import sonarmap.report as rep
+
+    figs: list = []
+    monkeypatch.setattr(rep, "_png", lambda fig, dpi: figs.append(fig) or "")
+    n = 4
+    t = np.datetime64("2024-05-01T10:20:30", "ns") + np.arange(n) * np.timedelta64(100, "ms")
+    ds = xr.Dataset({"mixture_weight": (("ping_time", "component"), np.full((n, 3), 1 / 3)),
+                     "mixture_param": (("ping_time", "component", "param"), np.ones((n, 3, 1))),
+                     "kld": (("ping_time",), np.full(n, 0.01)),
+                     "flags": (("ping_time",), np.array([""] * n, dtype=object))},
+                    coords={"ping_time": t})
+    rep._fig_timeseries(ds, 60)
+    assert figs[0].axes[2].get_xlabel() == "ping time (UTC)"

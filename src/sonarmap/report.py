@@ -151,6 +151,7 @@ def _fig_timeseries(ds: Any, dpi: int) -> str:
     axes[2].set_ylabel("KLD (nat)")
     axes[2].set_title("Fit quality: Kullback-Leibler divergence data || model", fontsize=9)
     axes[2].legend(fontsize=7, loc="upper right")
+    axes[2].set_xlabel("ping time (UTC)")
     _time_axis(axes[2])
     return _png(fig, dpi)
 
