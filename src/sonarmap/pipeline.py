@@ -323,7 +323,8 @@ def _model_image(raw: NDArray[np.float32], geom: Any, config: PipelineConfig, re
         image = preprocess_image(raw, geom, pre)
     if constant or _flat(image):
         return _Modelled(image, normalised, background, None, 0)
-    fit = fit_levels(levels, config.fit) if levels is not None and normalised is not None else None
+    # (levels come only with a normalised image)
+    fit = fit_levels(levels, config.fit) if levels is not None else None
     return _Modelled(image, normalised, background, _classify(image, config, gate=True, levels=levels, fit=fit), 0)
 
 

@@ -22,6 +22,7 @@ from typing import Any
 
 import typer
 
+from sonarmap._text import counted
 from sonarmap.cli._common import (
     PING_RATE_OPTION, START_TIME_OPTION, clock_options,
     GEOMETRY_OPTION, OUTPUT_OPTION, QUIET_OPTION, VERBOSE_OPTION, check_choice, err_console, example,
@@ -200,7 +201,7 @@ def _calibrate_normalised(pings: list, geom: object, rec: object) -> tuple[dict,
     n = rec.n_pings  # type: ignore[attr-defined]
     if n < 10:
         not_estimated.append(
-            f"only {n} ping{'s' if n != 1 else ''}: the level is the median of {n} per-ping estimates, so a "
+            f"only {counted(n, 'ping')}: the level is the median of {n} per-ping estimates, so a "
             "target that stays in the window still biases it where it is (10+ pings of a moving platform "
             "or of open water average it out)")
     if n == 1:
@@ -218,7 +219,7 @@ def _calibrate_normalised(pings: list, geom: object, rec: object) -> tuple[dict,
     }
     fam = "+".join(model["families"]) if model else "none"  # type: ignore[arg-type]
     lines = [
-        f"background: {n} ping{'s' if n != 1 else ''}, not thresholded (zero fraction "
+        f"background: {counted(n, 'ping')}, not thresholded (zero fraction "
         f"{rec.zero_fraction:.3f}); level {float(level[0]):.3g} at {r[0]:.2f} m to "  # type: ignore[attr-defined]
         f"{float(level[-1]):.3g} at {r[-1]:.2f} m "
         f"({rec.range_dependence_db:.1f} dB between deciles"  # type: ignore[attr-defined]

@@ -491,7 +491,7 @@ def estimate_background_levels(
     n, m = img.shape
     if reference is not None and reference.level_by_bin is not None and (
             reference.level_by_bin.size != n or reference.n_beams != m):  # a thresholded image too
-        where = getattr(reference, "source", "") or "reference"
+        where = reference.source or "reference"
         raise InputError(f"{where}: a background of {reference.level_by_bin.size} bins x {reference.n_beams} "
                          f"beams does not fit an image of {n} x {m} (calibration of another sonar setting?)")
     if zero_fraction >= thresholded_fraction:
