@@ -15,7 +15,7 @@ from numpy.typing import ArrayLike, NDArray
 from sonarmap.errors import InputError
 from sonarmap.geometry import SonarGeometry
 
-__all__ = ["Ping", "Pose", "as_image", "source_name"]
+__all__ = ["Ping", "Pose", "as_image", "source_file", "source_name"]
 
 _INT64_MIN, _INT64_MAX = -(2**63), 2**63 - 1
 
@@ -78,6 +78,19 @@ def source_name(source: str) -> str:
     """
     path, sep, inside = source.partition("#")
     return os.path.basename(path) + sep + inside
+
+
+def source_file(source: str) -> str:
+    """The file (or stream address) of a ping's :attr:`Ping.source`: everything before ``#``.
+
+    Examples
+    --------
+    >>> source_file("data/sample.aris#3"), source_file("data/test/1468966347175925_raw.png")
+    ('data/sample.aris', 'data/test/1468966347175925_raw.png')
+    >>> source_file("data/em.all#head2004/ping59681")
+    'data/em.all'
+    """
+    return source.partition("#")[0]
 
 
 def as_image(image: ArrayLike, name: str = "image", *, allow_empty: bool = False) -> NDArray[np.float32]:

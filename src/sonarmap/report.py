@@ -24,7 +24,7 @@ from numpy.typing import NDArray
 
 from sonarmap._atomic import atomic_write_text
 from sonarmap.errors import DataFormatError
-from sonarmap.ping import source_name
+from sonarmap.ping import source_file, source_name
 from sonarmap.survey import flagged_mask
 
 __all__ = ["ReportConfig", "build_report", "render_report"]
@@ -314,7 +314,7 @@ def _example(ds: Any, store: str | os.PathLike[str], index: int, config: Any, dp
 
     source = str(ds["source"].values[index])
     label = f"ping {index}"
-    if not Path(source.partition("#")[0]).exists():
+    if not Path(source_file(source)).exists():
         return {"label": label, "index": index, "source": source, "missing": True}
     ping = product_ping(store, index, image="raw")
     prod = process_ping(ping, config, keep_labels=True, background=background)
@@ -457,7 +457,7 @@ def _examples_section(examples: list[dict[str, Any]], notes: list[str]) -> list[
     parts = ["<h2>Example pings</h2>"]
     for e in examples:
         if e.get("missing"):
-            live = "://" in str(e["source"]).split("#", 1)[0]  # tcp:// / oculus://: a live stream
+            live = "://" in source_file(str(e["source"]))  # tcp:// / oculus://: a live stream
             why = ("was received live and is not stored (the product store holds the products, not the "
                    "images)" if live else "no longer exists")
             parts.append(f"<p class='muted'>{html.escape(e['label'])}: source {html.escape(e['source'])} "

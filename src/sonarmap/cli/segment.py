@@ -19,6 +19,7 @@ from sonarmap.cli._common import (
     apply_calibration, err_console, example, input_progress, load_geometry_option, read_input_pings, run_pings,
 )
 from sonarmap.cli.ranges import BETA_OPTION, CONFIG_OPTION, METHOD_OPTION, SOLVER_OPTION, pipeline_config_from_options
+from sonarmap.ping import source_file
 
 __all__ = ["register", "segment_figure"]
 
@@ -30,7 +31,7 @@ FIG7_THRESHOLD = 0.22
 def _stem(source: str, index: int) -> str:
     if not source:
         return f"ping{index:05d}"
-    p = Path(source.split("#", 1)[0])
+    p = Path(source_file(source))
     stem = p.stem[:-4] if p.stem.endswith("_raw") else p.stem
     if "#" in source:
         stem += "_" + source.split("#", 1)[1]

@@ -39,7 +39,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from sonarmap.errors import InputError, SonarmapWarning
-from sonarmap.ping import Ping, Pose
+from sonarmap.ping import Ping, Pose, source_file
 
 if TYPE_CHECKING:
     from sonarmap.geometry import SonarGeometry
@@ -457,7 +457,7 @@ def kongsberg_placement(ping: Ping) -> KongsbergPlacement:
     att = _rotation(0.0, _number(m, "pitch_deg") or 0.0, _number(m, "roll_deg") or 0.0)
     inst = _kongsberg_installation(m, att)
     if inst.assumed:
-        src = str(ping.source or "ping").split("#", 1)[0]
+        src = source_file(str(ping.source or "ping"))
         warnings.warn(NavigationWarning(f"{src}: Kongsberg placement without {', '.join(inst.assumed)} (assumed 0)"),
                       stacklevel=2)
     fan = _kongsberg_fan(att, inst.tx_mounting_deg, m, ping.geometry)

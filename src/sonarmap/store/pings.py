@@ -74,7 +74,7 @@ from sonarmap.datamodel import (
 )
 from sonarmap.errors import DataFormatError, InputError, SonarmapError
 from sonarmap.geometry import SonarGeometry
-from sonarmap.ping import Ping, Pose
+from sonarmap.ping import Ping, Pose, source_file
 from sonarmap.store.check import (
     CheckedStore,
     _crc_scan,
@@ -198,7 +198,7 @@ class _State:
 
     def source_index(self, source: str) -> int:
         """Index of the file of ``source`` (without ``#frame``) in the source table (appended if new)."""
-        src = source.split("#", 1)[0]
+        src = source_file(source)
         if self.sources and self.sources[-1] == src:
             return len(self.sources) - 1
         try:

@@ -56,7 +56,7 @@ from sonarmap.datamodel import (
     TIME_UNITS,
 )
 from sonarmap.errors import DataFormatError, InputError, SonarmapError
-from sonarmap.ping import Ping
+from sonarmap.ping import Ping, source_file
 from sonarmap.store.check import (
     CheckedStore,
     check_chunk_files,
@@ -720,10 +720,10 @@ def product_ping(path: str | os.PathLike[str], index: int = 0, *, image: str = "
                     meta={"image": "labels"})
     from sonarmap.io import read_ping
 
-    file = source.split("#", 1)[0]
+    file = source_file(source)
     if not file or not os.path.exists(file):
         raise DataFormatError(f"ping {i}: its source {file!r:.200} is not available (and no labels are stored)", p)
-    sources = [str(x).split("#", 1)[0] for x in read_array(st, "source", slice(0, i))]
+    sources = [source_file(str(x)) for x in read_array(st, "source", slice(0, i))]
     raw = read_ping(file, index=sum(1 for x in sources if x == file))
     if raw.time_ns != t:
         raise DataFormatError(f"ping {i}: the ping read from {file} has another time than the stored one "
