@@ -427,3 +427,34 @@ def test_normalised_levels_are_the_quantised_normalised_image(n_levels) -> None:
             assert levels is None
             continue
         assert levels.dtype == np.uint8 and np.array_equal(levels, quantize(u, n_levels))
+
+
+def _numpy_block_quartiles(img, level, nr, nc, br, bc, k):
+    """The beam-factor blocks' k-th smallest ratio as numpy computes it (gather, partition)."""
+    ratio = (img[: nr * br, : nc * bc] / level[: nr * br, None]).astype(np.float32)
+    blocks = ratio.reshape(nr, br, nc, bc).transpose(0, 2, 1, 3).reshape(nr * nc, br * bc)
+    return np.partition(blocks, k, axis=1)[:, k]
+
+
+@pytest.mark.parametrize("case", ["8bit", "float", "ties", "zero_level", "negative", "constant", "tiny_spread"])
+def test_block_quartiles_equal_numpys_partition(case) -> None:
+    """The beam-factor kernel selects exactly np.partition's order statistic, NaN (0/0 on a zero
+    level) sorted last and infinities kept, on every kind of block (it would differ if a value's
+    histogram bucket were computed differently in its two passes)."""
+    from sonarmap.preprocess._kernels import QUARTILE_BUCKETS, block_quartiles
+
+    rng = np.random.default_rng(7)
+    n, m, nr, nc = 203, 64, 7, 4
+    br, bc = n // nr, m // nc
+    img = {"8bit": rng.integers(0, 256, (n, m)) / np.float32(255.0),
+           "float": rng.gamma(2.0, 1.0, (n, m)), "ties": rng.integers(0, 3, (n, m)) / np.float32(2.0),
+           "zero_level": rng.integers(0, 4, (n, m)) / np.float32(3.0),
+           "negative": rng.normal(0.0, 1.0, (n, m)), "constant": np.full((n, m), 0.25),
+           "tiny_spread": 1.0 + rng.integers(0, 2, (n, m)) * np.finfo(np.float32).eps}[case].astype(np.float32)
+    level = rng.uniform(0.2, 2.0, n).astype(np.float32)
+    if case == "zero_level":
+        level[5:40] = 0.0  # 0/0 = NaN and x/0 = inf in the first blocks
+    for k in (0, (br * bc - 1) // 4, br * bc - 1):
+        got = block_quartiles(img, level, nr, nc, br, bc, k, np.empty((nc, br * bc), np.float32),
+                              np.empty(QUARTILE_BUCKETS, np.int64))
+        np.testing.assert_array_equal(got, _numpy_block_quartiles(img, level, nr, nc, br, bc, k))

@@ -475,19 +475,79 @@ def level_tail(smooth, level, above, max_rise, rise):  # pragma: no cover - numb
     return out
 
 
-@njit(cache=True, nogil=True)
-def block_values(img, level, nr, nc, br, bc, out):  # pragma: no cover - numba
-    """``img / level[:, None]`` gathered by blocks of ``br x bc`` into ``out`` (float32,
-    ``(nr nc, br bc)``): row ``a * nc + b`` holds block ``(a, b)``, by bin then beam (as
-    ``reshape(nr, br, nc, bc).transpose(0, 2, 1, 3)``)."""
+#: Buckets of :func:`block_quartiles`' histogram (the bucket holding the wanted rank is then
+#: selected from: ~1/64 of a block).
+QUARTILE_BUCKETS = 64
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def block_quartiles(img, level, nr, nc, br, bc, k, work, hist):  # pragma: no cover - numba
+    """Per block of ``br x bc`` of ``img / level[:, None]`` (float32, as numpy divides them), its
+    ``k``-th smallest value (0-based; NaN sorts last, as ``np.partition``): ``(nr nc,)`` float32,
+    block ``(a, b)`` at ``a * nc + b``.  ``work`` (float32, ``(nc, br bc)``) and ``hist`` (int64)
+    are scratch.  The image is read once, row by row (a block row's ``nc`` blocks filled
+    together); each block's value is then selected exactly (:func:`_bucket_select`).  A zero level
+    divides as numpy does (``x / 0 = inf``, ``0 / 0 = NaN``)."""
+    out = np.empty(nr * nc, np.float32)
+    n_ok = np.zeros(nc, np.int64)
+    lo = np.empty(nc, np.float32)
+    hi = np.empty(nc, np.float32)
     for a in range(nr):
+        n_ok[:] = 0
+        lo[:] = np.inf
+        hi[:] = -np.inf
         for i in range(br):
             r = a * br + i
             lv = level[r]
             for b in range(nc):
-                row = out[a * nc + b]
+                row = work[b]
+                c = n_ok[b]
+                mn = lo[b]
+                mx = hi[b]
                 for j in range(bc):
-                    row[i * bc + j] = img[r, b * bc + j] / lv
+                    v = np.float32(img[r, b * bc + j] / lv)
+                    if not np.isnan(v):
+                        row[c] = v
+                        c += 1
+                        mn = min(mn, v)
+                        mx = max(mx, v)
+                n_ok[b] = c
+                lo[b] = mn
+                hi[b] = mx
+        for b in range(nc):
+            out[a * nc + b] = _bucket_select(work[b], n_ok[b], k, lo[b], hi[b], hist)
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _bucket_select(a, n, k, mn, mx, hist):  # pragma: no cover - numba
+    """The ``k``-th smallest of ``a[:n]`` (no NaN; ``mn``, ``mx`` its extremes; NaN when ``k >=
+    n``; ``a`` reordered): a histogram of ``hist.size`` equal buckets over ``[mn, mx]`` finds the
+    bucket holding rank ``k``, whose values are moved to the front and :func:`select`-ed.  Exact:
+    a value's bucket is computed alike in both passes.  Non-finite extremes: :func:`select` on all."""
+    if k >= n:
+        return np.float32(np.nan)
+    if mx == mn:
+        return mn
+    nb = hist.size
+    sc = (nb - 1e-3) / (np.float64(mx) - np.float64(mn))
+    if not (np.isfinite(mn) and np.isfinite(mx) and np.isfinite(sc)):
+        return select(a, n, k)
+    hist[:] = 0
+    for t in range(n):
+        hist[int((np.float64(a[t]) - mn) * sc)] += 1
+    below = 0
+    bucket = 0
+    while below + hist[bucket] <= k:
+        below += hist[bucket]
+        bucket += 1
+    w = 0
+    for t in range(n):
+        v = a[t]
+        if int((np.float64(v) - mn) * sc) == bucket:
+            a[w] = v
+            w += 1
+    return select(a, w, k - below)
 
 
 @njit(cache=True, nogil=True)
