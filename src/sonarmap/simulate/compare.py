@@ -386,24 +386,38 @@ def main(argv: Sequence[str] | None = None) -> int:
     Oculus tables of :func:`recording_comparisons`; ``--ghosts PING``: the ghost ratios of one real
     ping (:func:`ghost_ratios`).
     """
+    import argparse
+
     from sonarmap.io.pngjson import iter_png_pings
 
-    args = list(sys.argv[1:] if argv is None else argv)
-    if args and args[0] == "--ghosts":
+    parser = argparse.ArgumentParser(
+        prog="python -m sonarmap.simulate.compare",
+        description="Compare the simulator with real recordings: a directory of DIDSON background pings (its "
+                    "statistics against simulated empty pings), any recording file (against the simulated "
+                    "'empty' scene of its sonar), every shared recording (--all) or one ping's ghost ratios "
+                    "(--ghosts).")
+    what = parser.add_mutually_exclusive_group()
+    what.add_argument("--all", metavar="DATA_DIR", nargs="?", const="../shared/data", default=None,
+                      help="DIDSON background, then the ARIS and Oculus tables (default DATA_DIR ../shared/data)")
+    what.add_argument("--ghosts", metavar="PING", nargs="?", const="../shared/data/didson/test/1468970074505798_raw.png",
+                      default=None, help="ghost ratios at +-8, +-16, +-24 beams of one PNG ping (default: test ping 5)")
+    parser.add_argument("path", nargs="?", default="../shared/data/didson/background",
+                        help="directory of DIDSON background pings, or a recording file (default: %(default)s)")
+    opts = parser.parse_args(list(sys.argv[1:] if argv is None else argv))
+    if opts.ghosts is not None:
         from sonarmap.io.pngjson import read_png_ping
 
-        src = args[1] if len(args) > 1 else "../shared/data/didson/test/1468970074505798_raw.png"  # test ping 5
-        print("ghost ratios at +-8, +-16, +-24 beams:", ghost_ratios(read_png_ping(src)))
+        print("ghost ratios at +-8, +-16, +-24 beams:", ghost_ratios(read_png_ping(opts.ghosts)))
         return 0
-    if args and args[0] == "--all":
-        data = Path(args[1] if len(args) > 1 else "../shared/data")
+    if opts.all is not None:
+        data = Path(opts.all)
         print(f"DIDSON {data / 'didson' / 'background'} (116 pings) vs 116 simulated 'empty'")
         for k, v in compare_background(iter_png_pings(data / "didson" / "background")).items():
             print(f"  {k:22s} {v:.4f}")
         for comp in recording_comparisons(data):
             print(comp.table())
         return 0
-    src = Path(args[0] if args else "../shared/data/didson/background")
+    src = Path(opts.path)
     if src.is_file():
         from sonarmap.io import read_pings
 
