@@ -140,3 +140,39 @@ def test_simulated_surfaces_gain_within_a_bin():
         within1 = {k: np.mean(np.abs(v) <= 1.0) for k, v in e.items()}
         assert within1[8] > within1[0] + 0.1, (name, within1)
         assert np.mean(np.abs(e[8]) <= 3.0) >= np.mean(np.abs(e[0]) <= 3.0) - 0.02
+
+
+def test_the_window_counts_beamwidths_where_the_beams_overlap():
+    from sonarmap.ranges.smoothing import window_in_beamwidths
+
+    assert window_in_beamwidths(8, [2.39, 2.4, 2.38]) == 19
+    assert window_in_beamwidths(8, np.full(48, 0.5)) == 8  # narrower beams keep the beam count
+    assert window_in_beamwidths(8, None) == 8  # no beamwidth known
+    assert window_in_beamwidths(8, [np.nan, 2.0, 2.0]) == 16  # unknown entries ignored
+    assert window_in_beamwidths(0, [3.0]) == 0  # off stays off
+
+
+def test_the_pipeline_smooths_an_oculus_fan_over_its_beamwidths(monkeypatch):
+    # the Oculus-like fan's beams are 2.4 spacings wide: 8 beamwidths = 19 beams either side; the
+    # same ping with its beamwidth removed is smoothed over 8 beams
+    import dataclasses
+
+    import sonarmap.ranges.measure as measure
+    from sonarmap.geometry import preset
+    from sonarmap.pipeline import process_ping
+    from sonarmap.simulate import scene_from_name, simulate_ping
+
+    g = preset("oculus-m750d-like")
+    ping = simulate_ping(scene_from_name("hull", geometry=g), g, seed=0).ping
+    seen = []
+    real = measure.smooth_surface_edges
+
+    def spy(*args, **kwargs):
+        seen.append(kwargs["half_beams"])
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(measure, "smooth_surface_edges", spy)
+    process_ping(ping, PipelineConfig())
+    narrow = dataclasses.replace(ping, geometry=ping.geometry.replace(azimuth_beamwidth_rad=None))
+    process_ping(narrow, PipelineConfig())
+    assert seen == [19, 8]

@@ -185,7 +185,10 @@ class RangeConfig(ConfigSection):
         many beams on either side on its surface (a leave-one-out local quadratic across beams),
         weighted by their sigmas and by the surface's roughness
         (:func:`sonarmap.ranges.smoothing.smooth_surface_edges`): a noisy edge moves towards its
-        neighbours, a precise one stays.  0 = off; else >= 2.
+        neighbours, a precise one stays.  Counted in beams of a fan whose beams are at most one
+        spacing wide; a fan of overlapping beams (the geometry's ``azimuth_beamwidth_rad`` wider
+        than the beam spacing) takes that many beamwidths
+        (:func:`sonarmap.ranges.smoothing.window_in_beamwidths`).  0 = off; else >= 2.
     edge_smooth_min_beams : int
         Shortest run of returns combined (>= 5).
     log_dynamic_range_db : float, optional

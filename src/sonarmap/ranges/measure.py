@@ -32,7 +32,7 @@ from sonarmap.ranges.echoes import (POOL_FIT_FRONT_BINS, POOL_FRONT_BINS, POOL_M
                                     spliced_echoes)
 from sonarmap.ranges.tracking import _continuation_pixels, track_surfaces, tracks_and_front
 from sonarmap.ranges.template import template_edges
-from sonarmap.ranges.smoothing import smooth_surface_edges
+from sonarmap.ranges.smoothing import smooth_surface_edges, window_in_beamwidths
 
 __all__ = ["surface_ranges", "rule_ranges", "measurement_image", "pulse_bins", "background_mean",
            "clipped_echo_sigma", "clipped_echoes", "clip_rows", "CLIP_LEVEL", "full_scale_mask"]
@@ -324,7 +324,8 @@ def surface_ranges(ping: Ping, image: NDArray[np.float32], levels: NDArray[Any],
     if config.edge_template_beams > 0 and config.range_mode == "first" and echoes.size:
         echoes = _template_pass(echoes, sel, meas, geom, config, fraction, pb)
     if config.edge_smooth_beams > 0 and config.range_mode == "first" and echoes.size:
-        echoes = smooth_surface_edges(echoes, sel, geom, half_beams=config.edge_smooth_beams,
+        echoes = smooth_surface_edges(echoes, sel, geom,
+                                      half_beams=window_in_beamwidths(config.edge_smooth_beams, echoes.beamwidth_beams),
                                       min_beams=config.edge_smooth_min_beams, touch_bins=config.track.touch_bins)
     if echoes.size:  # (without a return, clipped_echo_sigma's kernel finds nothing: the echoes unchanged)
         echoes = clipped_echo_sigma(echoes, sel, ping.image, geom)

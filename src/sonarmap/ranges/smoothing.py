@@ -36,11 +36,35 @@ from sonarmap.errors import InputError
 from sonarmap.geometry import SonarGeometry
 from sonarmap.ranges.echoes import Echoes, _first_runs, _moved_edges
 
-__all__ = ["smooth_surface_edges", "SIGMA_MIN_BINS"]
+__all__ = ["smooth_surface_edges", "SIGMA_MIN_BINS", "window_in_beamwidths"]
 
 #: Sigmas below this many bins are taken as this in the weights (a sigma of a few hundredths of a
 #: bin would otherwise pin a beam's own edge and dominate its neighbours' predictions).
 SIGMA_MIN_BINS = 0.3
+
+
+def window_in_beamwidths(half_beams: int, beamwidth_beams: ArrayLike | None) -> int:
+    """The half window of :func:`smooth_surface_edges` for a fan whose beams overlap.
+
+    ``half_beams`` counts beams of a fan whose beams are at most one spacing wide.  Neighbouring
+    beams that overlap see the same scatterers, so their edges' errors are correlated over about
+    a beamwidth and a window of ``half_beams`` beams holds fewer independent edges: the window is
+    widened to ``half_beams`` x the median beamwidth in beam spacings (``Echoes.beamwidth_beams``)
+    where that exceeds 1 (the Oculus M750d-like fan, 2.4: 8 -> 19 beams; the Kongsberg EM2040's
+    2.7: 22), unchanged otherwise (DIDSON, ARIS) or when the geometry gives no beamwidth.
+
+    Examples
+    --------
+    >>> window_in_beamwidths(8, [2.39, 2.4, 2.38]), window_in_beamwidths(8, [0.5, 0.5]), window_in_beamwidths(8, None)
+    (19, 8, 8)
+    """
+    if half_beams <= 0 or beamwidth_beams is None:
+        return int(half_beams)
+    bw = np.asarray(beamwidth_beams, dtype=np.float64)
+    bw = bw[np.isfinite(bw)]
+    if not bw.size:
+        return int(half_beams)
+    return int(round(half_beams * max(1.0, float(np.median(bw)))))
 
 
 def smooth_surface_edges(echoes: Echoes, first: ArrayLike, geometry: SonarGeometry, *, half_beams: int = 8,
