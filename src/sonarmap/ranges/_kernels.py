@@ -2366,6 +2366,19 @@ def kept_edges(sel, new, used, start_bin, stop, back, edge_bin, edge_range, slop
 
 
 @njit(cache=True, nogil=True)
+def pooled_kept_edges(img, edge, stop, run, half_beams, front_bins, max_bins, smooth_bins, fraction, n_iter, clip,
+                      clip_level, fit_front_bins, forward, sel, start_bin, back, edge_bin, edge_range, slope, sigma,
+                      range_m, bin_m, bin_var, pulse_var, scale, fit_scale):  # pragma: no cover - numba
+    """:func:`pooled_edges` (its arguments first) and :func:`kept_edges` of its results (the
+    others after ``forward``) in one call: what :func:`kept_edges` returns."""
+    new, _, rise, used, noise, fitted = pooled_edges(img, edge, stop, run, half_beams, front_bins, max_bins,
+                                                     smooth_bins, fraction, n_iter, clip, clip_level, fit_front_bins,
+                                                     forward)
+    return kept_edges(sel, new, used, start_bin, stop, back, edge_bin, edge_range, slope, sigma, rise, noise, range_m,
+                      bin_m, bin_var, pulse_var, scale, fitted, fit_scale)
+
+
+@njit(cache=True, nogil=True)
 def llr_table(lp, clip):  # pragma: no cover - numba
     """:func:`sonarmap.ranges.echoes.level_llr` from ``log p(level | class)`` (>= 2 classes), in
     numpy's arithmetic: the best object class (NaN propagating) minus the background, NaN to 0,

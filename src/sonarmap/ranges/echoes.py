@@ -583,13 +583,17 @@ def _pooled(echoes: Echoes, sel: NDArray[np.int64], image: ArrayLike, geometry: 
         return echoes
     img = smooth_along_range(image, pulse_bins) if pulse_bins >= 2 else np.ascontiguousarray(image)
     geometry.check_image(img, "image")
-    new, value, rise, used, noise, fitted = _kernels.pooled_edges(
+    bin_m, pulse_m = _bin_and_pulse_m(geometry, pulse_bins)
+    # pooled_edges and kept_edges (the kept pooled edges given to their echoes) in one kernel call
+    n_kept, eb, er, sl, sig, marked, n_marked = _kernels.pooled_kept_edges(
         img, edge, stop, run, int(half_beams), int(front_bins), int(max_bins), int(smooth_bins) | 1,
         float(fraction), int(n_iter), _NO_CLIP if clip is None else
         clip if clip_level is not None else np.ascontiguousarray(clip).view(np.uint8),
-        1.0 if clip_level is None else float(clip_level), int(fit_front_bins), bool(forward))
-    return _with_edges(echoes, np.ascontiguousarray(sel), (new, used, stop), rise, noise, geometry, pulse_bins,
-                       (scales[0], fitted, scales[1]))
+        1.0 if clip_level is None else float(clip_level), int(fit_front_bins), bool(forward),
+        np.ascontiguousarray(sel), echoes.start_bin, int(pulse_bins) + 2, echoes.edge_bin, echoes.edge_range_m,
+        echoes.slope, echoes.sigma_m, np.ascontiguousarray(geometry.range_m, dtype=np.float64), bin_m,
+        bin_m**2 / 12.0, (pulse_m**2) / 12.0, float(scales[0]), float(scales[1]))
+    return _edges_kept(echoes, n_kept, (eb, er, sl, sig), marked, n_marked)
 
 
 def _check_pooling(echoes: Echoes, sel: np.ndarray, window: tuple[int, int, int, int, int, int], fraction: float,
@@ -611,25 +615,16 @@ def _check_pooling(echoes: Echoes, sel: np.ndarray, window: tuple[int, int, int,
         raise InputError(f"clip: expected the image's shape {shape}, got {np.shape(clip)}")
 
 
-def _with_edges(echoes: Echoes, sel: np.ndarray, pooled: tuple[np.ndarray, np.ndarray, np.ndarray],
-                rise: np.ndarray, noise: np.ndarray, geometry: SonarGeometry, pulse_bins: int,
-                scales: tuple[float, np.ndarray, float]) -> Echoes:
-    """``echoes`` with the pooled leading edges kept given to the returns ``sel`` (bins), with their
-    slopes and sigmas (``pooled``: per beam the pooled edge, the beams pooled and the echo's stop;
-    ``rise``, ``noise``: per beam; ``scales``: the jitter calibration, the beams whose edge is a
-    fitted clipped echo's, and their calibration).  A pooled edge is kept where it belongs to the
-    beam's own echo: within find_echoes' walk in front of its first structure bin and before its
-    last (else a neighbouring surface pulled it)."""
-    from sonarmap.ranges import _kernels
-
-    bin_m, pulse_m = _bin_and_pulse_m(geometry, pulse_bins)
-    new, used, stop = pooled
-    n_kept, eb, er, sl, sig, marked, n_marked = _kernels.kept_edges(
-        sel, new, used, echoes.start_bin, stop, int(pulse_bins) + 2, echoes.edge_bin, echoes.edge_range_m,
-        echoes.slope, echoes.sigma_m, rise, noise, np.ascontiguousarray(geometry.range_m, dtype=np.float64), bin_m,
-        bin_m**2 / 12.0, (pulse_m**2) / 12.0, float(scales[0]), scales[1], float(scales[2]))
+def _edges_kept(echoes: Echoes, n_kept: int, fields: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
+                marked: np.ndarray, n_marked: int) -> Echoes:
+    """``echoes`` with the pooled leading edges kept (:func:`_kernels.kept_edges`: their number,
+    the echoes' new ``edge_bin``, ``edge_range_m``, ``slope`` and ``sigma_m``, the echoes whose
+    kept edge is that of a fitted clipped echo and their number).  A pooled edge is kept where it
+    belongs to the beam's own echo: within find_echoes' walk in front of its first structure bin
+    and before its last (else a neighbouring surface pulled it)."""
     if not n_kept:
         return echoes
+    eb, er, sl, sig = fields
     if n_marked:
         return echoes.replaced(edge_bin=eb, edge_range_m=er, slope=sl, sigma_m=sig, clip_fitted=marked)
     return echoes.replaced(edge_bin=eb, edge_range_m=er, slope=sl, sigma_m=sig)
