@@ -61,7 +61,7 @@ def level_costs(class_log_pmf: ArrayLike, class_log_prior: ArrayLike | None = No
     -------
     ndarray of float64, shape (n_classes, n_levels)
     """
-    from sonarmap.classify._kernels import level_cost_table
+    import sonarmap.classify._kernels as _ck
 
     lp = np.ascontiguousarray(class_log_pmf, dtype=np.float64)
     if lp.ndim != 2 or lp.shape[0] < 2:
@@ -72,7 +72,7 @@ def level_costs(class_log_pmf: ArrayLike, class_log_prior: ArrayLike | None = No
         if pr.size != lp.shape[0]:
             raise InputError(f"class_log_prior: {pr.size} entries for {lp.shape[0]} classes")
     # one pass over the table (numpy's nan_to_num / maximum / min / subtract, elementwise the same)
-    return level_cost_table(lp, pr, class_log_prior is not None, float(floor))  # type: ignore[no-any-return]
+    return _ck.level_cost_table(lp, pr, class_log_prior is not None, float(floor))  # type: ignore[no-any-return]
 
 
 _NO_PRIOR = np.zeros(0)
@@ -146,9 +146,9 @@ def decision_pd_pfa(fit: Any, decision: ArrayLike) -> tuple[float, float]:
     if (pmf.dtype == np.float64 and pmf.ndim == 2 and pmf.shape[0] == 2 and det.shape == pmf.shape[1:]
             and prior.dtype == np.float64 and prior.shape == (2,)):
         # two classes (the pipeline's): one kernel, numpy's summation order (same bits)
-        from sonarmap.classify._kernels import decision_rates_pmf
+        import sonarmap.classify._kernels as _ck
 
-        pd, pfa = decision_rates_pmf(np.ascontiguousarray(pmf), det, prior)
+        pd, pfa = _ck.decision_rates_pmf(np.ascontiguousarray(pmf), det, prior)
         return float(pd), float(pfa)
     pfa = float(pmf[0][det].sum())
     pd = float((pmf[1:][:, det].sum(axis=1) * prior[1:]).sum() / max(float(prior[1:].sum()), 1e-300))

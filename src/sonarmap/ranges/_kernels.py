@@ -1863,6 +1863,22 @@ def continuation_extra(extra, cand, first, edge_bin, col_lo, col_hi):  # pragma:
     return extra, hit, np.flatnonzero(keep), e0, e1
 
 
+@njit(cache=True, nogil=True)
+def continuation_pixels(sel, edge_bin, start_bin, stop_bin, touch, levels, lut, min_run, max_beams, window_bins,
+                        min_evidence, max_misses, cand):  # pragma: no cover - numba
+    """:func:`first_interval_runs` of the returns ``sel``, :func:`continuation_mask` of its runs
+    and :func:`continuation_extra` of that mask against ``cand`` (the returns' edges ``edge_bin``)
+    in one call: ``(hit, extra, beams, r0, r1)`` as :func:`continuation_extra` gives them, ``hit``
+    False without a continuation pixel at all."""
+    edge, stop, run = first_interval_runs(sel, edge_bin, start_bin, stop_bin, touch)
+    out, r0, r1, col_lo, col_hi = continuation_mask(levels, lut, edge, stop, run, min_run, max_beams, window_bins,
+                                                    min_evidence, max_misses)
+    if r1 <= r0:
+        return False, out, np.zeros(0, np.int64), r0, r1
+    extra, hit, cols, e0, e1 = continuation_extra(out, cand, sel, edge_bin, col_lo, col_hi)
+    return hit, extra, cols, e0, e1
+
+
 @njit(cache=True, nogil=True, inline="always")
 def _grow_rows(row, i, r0, r1, n):  # pragma: no cover - numba
     """``(r0, r1)``, the first and one-past-last row holding a true pixel (``r0 == n``: none yet),

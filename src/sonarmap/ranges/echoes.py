@@ -165,12 +165,12 @@ def smooth_along_range(image: ArrayLike, pulse_bins: int) -> NDArray[np.float64]
 def level_llr(fit: object, *, clip: float = 4.0) -> NDArray[np.float64]:
     """Per quantised level, the log-likelihood ratio ``log p(y|structure) - log p(y|background)``
     (nats) under a fitted mixture (eq. 8-10; the best object class), clipped to ``[-clip, clip]``."""
-    from sonarmap.ranges._kernels import llr_table
+    import sonarmap.ranges._kernels as _rk
 
     lp = np.ascontiguousarray(fit.decision_log_pmf(copy=False), dtype=np.float64)  # type: ignore[attr-defined]
     if lp.shape[0] < 2:
         return np.zeros(lp.shape[1])
-    return llr_table(lp, float(clip))
+    return _rk.llr_table(lp, float(clip))
 
 
 def range_sigma_m(edge_value: ArrayLike, slope: ArrayLike, bin_m: float, *, looks: ArrayLike = 1.0,

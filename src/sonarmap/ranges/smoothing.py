@@ -75,7 +75,7 @@ def smooth_surface_edges(echoes: Echoes, first: ArrayLike, geometry: SonarGeomet
     InputError
         If an option is out of range or ``first`` has not one entry per beam.
     """
-    from sonarmap.ranges._smoothing_kernels import smoothed_echo_edges
+    import sonarmap.ranges._smoothing_kernels as _sk
 
     sel = np.asarray(first, dtype=np.int64)
     for key, v, lo in (("half_beams", half_beams, 2), ("min_beams", min_beams, 5)):
@@ -89,7 +89,7 @@ def smooth_surface_edges(echoes: Echoes, first: ArrayLike, geometry: SonarGeomet
     bin_m = abs(geometry.range_resolution_m) or 1.0  # (the bin the sigmas were formed with)
     # the combination and the moved returns' fields in one kernel (a beam without a return, or
     # none at all, moves nothing)
-    n_moved, eb, er, sg = smoothed_echo_edges(
+    n_moved, eb, er, sg = _sk.smoothed_echo_edges(
         np.ascontiguousarray(sel), echoes.edge_bin, echoes.edge_range_m, echoes.sigma_m, edge, run, int(half_beams),
         int(min_beams), SIGMA_MIN_BINS, bin_m, np.ascontiguousarray(geometry.range_m, dtype=np.float64))
     if not n_moved:

@@ -364,9 +364,15 @@ def point_streaks(echoes: Echoes, chosen: NDArray[np.int64], config: TrackConfig
         fraction)
 
 
+#: :func:`continuation_mask`'s default ``min_run``, ``max_beams``, ``window_bins`` and ``max_misses``
+#: (the pipeline's range stage walks with them).
+CONTINUE_MIN_RUN, CONTINUE_MAX_BEAMS, CONTINUE_WINDOW_BINS, CONTINUE_MAX_MISSES = 5, 16, 3.0, 2
+
+
 def continuation_mask(echoes: Echoes, first: NDArray[np.int64], levels: NDArray[np.integer],
-                      level_evidence: NDArray[np.float64], *, min_run: int = 5, max_beams: int = 16,
-                      window_bins: float = 3.0, min_evidence: float = 10.0, max_misses: int = 2,
+                      level_evidence: NDArray[np.float64], *, min_run: int = CONTINUE_MIN_RUN,
+                      max_beams: int = CONTINUE_MAX_BEAMS, window_bins: float = CONTINUE_WINDOW_BINS,
+                      min_evidence: float = 10.0, max_misses: int = CONTINUE_MAX_MISSES,
                       touch_bins: float = 1.0) -> NDArray[np.bool_]:
     """Pixels that continue a tracked surface beyond its ends where the classifier left it.
 
@@ -406,14 +412,31 @@ def continuation_mask(echoes: Echoes, first: NDArray[np.int64], levels: NDArray[
 
 
 def _continuation_pixels(echoes: Echoes, first: NDArray[np.int64], levels: NDArray[np.integer],
-                         level_evidence: NDArray[np.float64], *, min_run: int = 5, max_beams: int = 16,
-                         window_bins: float = 3.0, min_evidence: float = 10.0, max_misses: int = 2,
+                         level_evidence: NDArray[np.float64], *, min_run: int = CONTINUE_MIN_RUN,
+                         max_beams: int = CONTINUE_MAX_BEAMS, window_bins: float = CONTINUE_WINDOW_BINS,
+                         min_evidence: float = 10.0, max_misses: int = CONTINUE_MAX_MISSES,
                          touch_bins: float = 1.0) -> tuple[NDArray[np.bool_], int, int, NDArray[np.int64],
                                                            NDArray[np.int64]]:
     """:func:`continuation_mask` and the first and one-past-last row holding one of its pixels
     (``(n_bins, 0)``: none), overall and per beam (arrays: ``n_bins`` and 0 where none)."""
     from sonarmap.ranges import _kernels
 
+    code, lut, sel = _continuation_inputs(echoes, first, levels, level_evidence)
+    if sel is None:
+        n, m = code.shape
+        return np.zeros(code.shape, dtype=bool), n, 0, np.full(m, n, np.int64), np.zeros(m, np.int64)
+    edge, stop, run = _first_runs(echoes, sel, touch_bins)
+    out, r0, r1, col_lo, col_hi = _kernels.continuation_mask(code, lut, edge, stop, run, int(min_run), int(max_beams),
+                                                             float(window_bins), float(min_evidence), int(max_misses))
+    return out, int(r0), int(r1), col_lo, col_hi
+
+
+def _continuation_inputs(echoes: Echoes, first: NDArray[np.int64], levels: NDArray[np.integer],
+                         level_evidence: NDArray[np.float64]
+                         ) -> tuple[NDArray[np.integer], NDArray[np.float64], NDArray[np.int64] | None]:
+    """The checked inputs of :func:`continuation_mask`: the C-contiguous levels and evidence table
+    (an :class:`InputError` for levels of another shape or outside the table) and the returns
+    ``first`` as int64 (None without any return: no continuation)."""
     code = np.ascontiguousarray(levels)
     lut = np.ascontiguousarray(level_evidence, dtype=np.float64)
     if code.ndim != 2 or code.shape[1] != echoes.n_beams:
@@ -422,9 +445,5 @@ def _continuation_pixels(echoes: Echoes, first: NDArray[np.int64], levels: NDArr
         raise InputError(f"levels: values must lie in [0, {lut.size})")
     sel = np.asarray(first, dtype=np.int64)
     if echoes.size == 0 or not (sel >= 0).any():
-        n, m = code.shape
-        return np.zeros(code.shape, dtype=bool), n, 0, np.full(m, n, np.int64), np.zeros(m, np.int64)
-    edge, stop, run = _first_runs(echoes, sel, touch_bins)
-    out, r0, r1, col_lo, col_hi = _kernels.continuation_mask(code, lut, edge, stop, run, int(min_run), int(max_beams),
-                                                             float(window_bins), float(min_evidence), int(max_misses))
-    return out, int(r0), int(r1), col_lo, col_hi
+        return code, lut, None
+    return code, lut, sel
