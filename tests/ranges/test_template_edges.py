@@ -115,6 +115,26 @@ def test_options_are_checked():
         template_edges(e, first, img[:10], g)
 
 
+def test_options_checked_once_are_still_checked_by_type_and_value():
+    """The option check remembers the value sets that passed (per value and type): a value that
+    equals a remembered one but is of another type (True for 1, 1.0 for 1 where an integer is
+    due is fine, a bool is not) or a new bad value still raises."""
+    g = _geom()
+    truth = 100.0 + 0.5 * np.arange(g.n_beams)
+    img, mask = _speckled(2, truth)
+    e = find_echoes(mask, img, g)
+    first = np.full(g.n_beams, -1)
+    template_edges(e, first, img, g, half_template=1, half_window=1, anchor_beams=1)
+    template_edges(e, first, img, g, half_template=1, half_window=1, anchor_beams=1)  # (remembered)
+    for key in ("half_template", "half_window", "anchor_beams"):
+        with pytest.raises(InputError, match=key):
+            template_edges(e, first, img, g, **{"half_template": 1, "half_window": 1, "anchor_beams": 1, key: True})
+    with pytest.raises(InputError, match="fraction"):
+        template_edges(e, first, img, g, half_template=1, half_window=1, anchor_beams=1, fraction=1.0)
+    with pytest.raises(TypeError):
+        template_edges(e, first, img, g, half_template=[1])  # unhashable: checked as before
+
+
 def test_the_pipeline_option_switches_the_stage():
     for key in ("edge_template_beams", "edge_template_anchor_beams"):
         with pytest.raises(Exception, match=key):

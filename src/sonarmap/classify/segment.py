@@ -295,7 +295,7 @@ def _seeded_components(mask: NDArray[np.bool_], seeds: NDArray[np.bool_]) -> NDA
 def _mrf_labels(image: NDArray[np.float32], levels: NDArray[Any], cost: NDArray[np.float64], beta: float,
                 config: ClassifyConfig) -> NDArray[np.uint8]:
     """The MRF labels for a per-level unary ``cost`` (the level-LUT graph cut where it applies)."""
-    from sonarmap.classify import mrf
+    import sonarmap.classify.mrf as mrf
 
     if config.solver == "graphcut" and cost.shape[0] == 2 and not config.contrast:
         if cost.dtype == np.float64 and cost.flags.c_contiguous and mrf._table_cut_applies(levels, cost,

@@ -353,7 +353,7 @@ def _echoes_of(m: NDArray[np.bool_], img: NDArray[np.float64], code: NDArray[np.
     per-pixel codes and their evidence table, the boost pixels (:func:`_boost_pixels`), ``walk``
     = ``(boost_min, max_gap, fraction, peak_rel, back, forward)`` and ``sigma`` = ``(pulse_bins,
     looks, background, sigma_scale)`` (the pipeline's range stage calls it with arrays it made)."""
-    from sonarmap.ranges import _kernels
+    import sonarmap.ranges._kernels as _kernels
 
     args = (m, img, code, lut, boost, *walk, *((0, m.shape[0]) if rows is None else (int(rows[0]), int(rows[1]))))
     beam, start, stop, peak, pval, edge, slope, evid, npx = (
@@ -436,7 +436,7 @@ def _echo_ranges(edge: NDArray[np.float64], pval: NDArray[np.float64], slope: ND
                  sigma_scale: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """The edges' ranges (``np.interp`` on the bins) and :func:`range_sigma_m`'s sigmas at
     ``fraction`` x the peaks, in one pass."""
-    from sonarmap.ranges import _kernels
+    import sonarmap.ranges._kernels as _kernels
 
     bin_m, pulse_m = _bin_and_pulse_m(geometry, pulse_bins)
     sqrt_looks = math.sqrt(max(float(looks * max(int(pulse_bins), 1)), 1.0))  # NaN stays NaN, as np.maximum
@@ -452,7 +452,7 @@ def surface_runs(echoes: Echoes, first: ArrayLike, touch_bins: float = 1.0) -> N
     their echoes (leading edge to last structure bin) lie within ``touch_bins`` of each other -
     the contiguity rule of :func:`sonarmap.ranges.tracking.track_surfaces`.
     """
-    from sonarmap.ranges import _kernels
+    import sonarmap.ranges._kernels as _kernels
 
     sel = np.asarray(first, dtype=np.int64)
     if sel.shape != (echoes.n_beams,):
@@ -462,7 +462,7 @@ def surface_runs(echoes: Echoes, first: ArrayLike, touch_bins: float = 1.0) -> N
 
 def _first_intervals(echoes: Echoes, sel: NDArray[np.int64]) -> tuple[NDArray[np.float64], ...]:
     """Per beam the edge (NaN: none), bin interval and stop of the echo ``sel`` picks."""
-    from sonarmap.ranges import _kernels
+    import sonarmap.ranges._kernels as _kernels
 
     if echoes.size == 0:
         z = np.zeros(sel.shape)
@@ -475,7 +475,7 @@ def _first_runs(echoes: Echoes, sel: NDArray[np.int64], touch_bins: float
                 ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.int64]]:
     """``(edge, stop, run)``: :func:`_first_intervals`' edge and stop per beam and the runs of
     beams whose intervals touch (:func:`surface_runs`), in one kernel call."""
-    from sonarmap.ranges import _kernels
+    import sonarmap.ranges._kernels as _kernels
 
     if echoes.size == 0:
         edge, lo, hi, stop = _first_intervals(echoes, sel)
@@ -574,7 +574,7 @@ def _pooled(echoes: Echoes, sel: NDArray[np.int64], image: ArrayLike, geometry: 
     With ``clip_level``, ``clip`` is the raw image (C-contiguous, the image's shape), clipped at
     and above that level (:func:`sonarmap.ranges.measure.full_scale_mask`'s samples), else the
     mask of the clipped samples."""
-    from sonarmap.ranges import _kernels
+    import sonarmap.ranges._kernels as _kernels
 
     half_beams, front_bins, max_bins, smooth_bins, n_iter, fit_front_bins = window
     fraction, touch_bins = fraction_touch

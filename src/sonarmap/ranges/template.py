@@ -32,6 +32,7 @@ one crossing of a speckled profile (``docs/segmentation.md``, "Template edges").
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -103,7 +104,7 @@ def template_edges(
     Echoes
         ``echoes`` with the measured returns' ``edge_bin``, ``edge_range_m``, ``sigma_m`` replaced.
     """
-    from sonarmap.ranges import _template_kernels
+    import sonarmap.ranges._template_kernels as _template_kernels
 
     sel = np.ascontiguousarray(np.asarray(first, dtype=np.int64))
     _check_template_options(sel, echoes, (half_template, half_window, n_iter, front_bins, min_beams, max_bins,
@@ -149,9 +150,19 @@ def _check_template_options(sel: NDArray[np.int64], echoes: Echoes, ints: tuple[
                             fraction: float, sigma_scale: float, min_contrast: float) -> None:
     """The options of :func:`template_edges` are in range and ``first`` has a value per beam
     (``ints``: half_template, half_window, n_iter, front_bins, min_beams, max_bins, anchor_beams)."""
-    half_template, half_window, n_iter, front_bins, min_beams, max_bins, anchor_beams = ints
     if sel.shape != (echoes.n_beams,):
         raise InputError(f"first: expected one echo index per beam ({echoes.n_beams}), got shape {sel.shape}")
+    values = (*ints, max_shift_bins, fraction, sigma_scale, min_contrast)
+    try:
+        _checked_template_values(*values)  # (checked once per set of values and types: every ping repeats them)
+    except TypeError:  # an unhashable value: checked without the cache (its error, if any, is raised there)
+        _check_template_values(*values)
+
+
+def _check_template_values(half_template: int, half_window: int, n_iter: int, front_bins: int, min_beams: int,
+                           max_bins: int, anchor_beams: int, max_shift_bins: float, fraction: float, sigma_scale: float,
+                           min_contrast: float) -> None:
+    """The option values of :func:`_check_template_options` are in range (an :class:`InputError` naming one)."""
     for key, v, lo in (("half_template", half_template, 1), ("half_window", half_window, 0), ("n_iter", n_iter, 1),
                        ("front_bins", front_bins, 1), ("min_beams", min_beams, 3), ("max_bins", max_bins, 3),
                        ("anchor_beams", anchor_beams, 0)):
@@ -162,3 +173,8 @@ def _check_template_options(sel: NDArray[np.int64], echoes: Echoes, ints: tuple[
             raise InputError(f"{key}: must be a finite number >= 0 (got {v!r})")
     if not 0 < fraction < 1:
         raise InputError(f"fraction: must lie in (0, 1) (got {fraction})")
+
+
+#: :func:`_check_template_values` remembered for the values that passed (keyed by value and type:
+#: ``typed`` keeps ``True`` apart from ``1``; a failing check raises and is not remembered).
+_checked_template_values = functools.lru_cache(maxsize=32, typed=True)(_check_template_values)

@@ -195,7 +195,7 @@ def _tracked(echoes: Echoes, config: TrackConfig, pulse_bins: int,
              front: bool) -> tuple[NDArray[np.int64], NDArray[np.int64], bool]:
     """:func:`_kernels.track_surfaces` of ``echoes``: the tracks, (with ``front``) the tracks
     after the front pass, and whether that pass kept anything."""
-    from sonarmap.ranges import _kernels
+    import sonarmap.ranges._kernels as _kernels
 
     if not isinstance(echoes, Echoes):
         raise InputError(f"echoes: expected Echoes, got {type(echoes).__name__}")
@@ -219,7 +219,7 @@ def _track_inputs(echoes: Echoes, config: TrackConfig) -> tuple[NDArray[np.int64
     """``(lo, hi, unary, point, rise)``: the echoes' bin intervals (:meth:`Echoes.intervals`), the
     tracker's per-echo cost ``beam_cost - evidence``, the point echoes (mean log-likelihood ratio
     per structure pixel at least ``point_llr``) and :func:`clip_rise`, in one kernel call."""
-    from sonarmap.ranges import _kernels
+    import sonarmap.ranges._kernels as _kernels
 
     e = echoes
     return _kernels.track_inputs(  # type: ignore[no-any-return]
@@ -255,7 +255,7 @@ def front_surfaces(echoes: Echoes, tracks: Tracks, config: TrackConfig = TrackCo
     Tracks
         ``tracks`` itself when the pass keeps nothing.
     """
-    from sonarmap.ranges import _kernels
+    import sonarmap.ranges._kernels as _kernels
 
     if not isinstance(tracks, Tracks) or tracks.echo.ndim != 2 or tracks.echo.shape[1] != echoes.n_beams:
         raise InputError(f"tracks: expected Tracks over {echoes.n_beams} beams")
@@ -298,7 +298,7 @@ def clip_rise(echoes: Echoes) -> NDArray[np.float64]:
     edge (bins): from ``edge_bin`` to its first full-scale row for an echo whose first peak is
     clipped (that row at most a bin behind ``peak_bin``), 0 for another clipped echo or when the
     row is not known, -1 for an echo that is not clipped (module notes, "Point targets")."""
-    from sonarmap.ranges import _kernels
+    import sonarmap.ranges._kernels as _kernels
 
     # only a clipped first peak moves the edge (a later peak may clip: two fish in one echo)
     e = echoes
@@ -346,7 +346,7 @@ def point_streaks(echoes: Echoes, chosen: NDArray[np.int64], config: TrackConfig
     >>> bool(point_streaks(e, chosen)[10:15].all())
     True
     """
-    from sonarmap.ranges import _kernels
+    import sonarmap.ranges._kernels as _kernels
 
     sel = np.ascontiguousarray(chosen, dtype=np.int64)
     if sel.shape != (echoes.n_beams,):
@@ -419,7 +419,7 @@ def _continuation_pixels(echoes: Echoes, first: NDArray[np.int64], levels: NDArr
                                                            NDArray[np.int64]]:
     """:func:`continuation_mask` and the first and one-past-last row holding one of its pixels
     (``(n_bins, 0)``: none), overall and per beam (arrays: ``n_bins`` and 0 where none)."""
-    from sonarmap.ranges import _kernels
+    import sonarmap.ranges._kernels as _kernels
 
     code, lut, sel = _continuation_inputs(echoes, first, levels, level_evidence)
     if sel is None:

@@ -754,7 +754,7 @@ def _start_at(spec: _Spec, frac0: float, bg_scale: float, so: float
               ) -> tuple[NDArray[np.float64], list[tuple[float, ...]]]:
     """The start of :func:`_initial_guesses` with background scale ``bg_scale`` and object scale ``so``."""
     params: list[tuple[float, ...]] = []
-    w = np.zeros(len(spec.names))
+    w = [0.0] * len(spec.names)  # (Python floats: the weights' arithmetic is numpy's, see below)
     free = spec.free
     n_obj = len(free) - 1
     for j, i in enumerate(free):
@@ -777,11 +777,26 @@ def _start_at(spec: _Spec, frac0: float, bg_scale: float, so: float
         w[i] = (1.0 - frac0) * (0.95 if j == 0 else 0.05 / max(n_obj, 1)) if spec.spike else (
             0.95 if j == 0 else 0.05 / max(n_obj, 1)
         )
-    if spec.spike:
-        w[0] = 1.0 - w.sum()
-    w = w / w.sum()
     full = [() if n == "zero" else params[free.index(i)] for i, n in enumerate(spec.names)]
-    return w, full
+    if len(w) >= 8:  # (numpy sums 8 terms and more pairwise)
+        wa = np.array(w)
+        if spec.spike:
+            wa[0] = 1.0 - wa.sum()
+        return wa / wa.sum(), full
+    # numpy's float64 sum of fewer than 8 terms: added in order from 0.0
+    if spec.spike:
+        w[0] = 1.0 - _ordered_sum(w)
+    total = _ordered_sum(w)
+    return np.array([v / total for v in w]), full
+
+
+def _ordered_sum(values: list[float]) -> float:
+    """``0.0 + values[0] + values[1] + ...`` in that order (numpy's ``sum`` of fewer than 8 float64
+    terms; Python's ``sum`` of floats compensates from 3.12 on)."""
+    total = 0.0
+    for v in values:
+        total += v
+    return total
 
 
 def _bounds(spec: _Spec, name: str) -> list[tuple[float, float]]:
