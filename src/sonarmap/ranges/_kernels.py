@@ -2220,6 +2220,28 @@ def echo_ranges(edge, peak_value, slope, range_m, fraction, sqrt2, background, s
 
 
 @njit(cache=True, nogil=True)
+def measured_echoes(mask, img, code, lut, boost, boost_min, max_gap, fraction, peak_rel, back, forward, cols, all_cols,
+                    r0, r1, range_m, sqrt2, background, sqrt_looks, bin_m, bin_var, pulse_var,
+                    scale):  # pragma: no cover - numba
+    """:func:`find_echoes` (``all_cols``) or :func:`find_echoes_in` of the columns ``cols``, then
+    :func:`echo_ranges` of the echoes (its arguments after ``r1``) and their peaks' ranges
+    (``range_m[peak]``), in one call: ``(beam, start, stop, peak, peak_value, edge, slope, evidence,
+    n_pixels, edge_range, sigma, peak_range)``."""
+    if all_cols:
+        beam, start, stop, peak, pval, edge, slope, evid, npx = find_echoes(
+            mask, img, code, lut, boost, boost_min, max_gap, fraction, peak_rel, back, forward, r0, r1)
+    else:
+        beam, start, stop, peak, pval, edge, slope, evid, npx = find_echoes_in(
+            mask, img, code, lut, boost, boost_min, max_gap, fraction, peak_rel, back, forward, cols, r0, r1)
+    edge_r, sig = echo_ranges(edge, pval, slope, range_m, fraction, sqrt2, background, sqrt_looks, bin_m, bin_var,
+                              pulse_var, scale)
+    peak_r = np.empty(peak.size)
+    for k in range(peak.size):
+        peak_r[k] = range_m[peak[k]]
+    return beam, start, stop, peak, pval, edge, slope, evid, npx, edge_r, sig, peak_r
+
+
+@njit(cache=True, nogil=True)
 def with_edges(edge_bin, edge_range, slope, sigma, sel, beams, edge, rise, noise, range_m, bin_m, bin_var, pulse_var,
                scale, fitted, fit_scale):  # pragma: no cover - numba
     """Copies of the echoes' ``edge_bin``, ``edge_range``, ``slope``, ``sigma`` with, for each beam

@@ -355,15 +355,17 @@ def _echoes_of(m: NDArray[np.bool_], img: NDArray[np.float64], code: NDArray[np.
     looks, background, sigma_scale)`` (the pipeline's range stage calls it with arrays it made)."""
     import sonarmap.ranges._kernels as _kernels
 
-    args = (m, img, code, lut, boost, *walk, *((0, m.shape[0]) if rows is None else (int(rows[0]), int(rows[1]))))
-    beam, start, stop, peak, pval, edge, slope, evid, npx = (
-        _kernels.find_echoes(*args) if columns is None
-        else _kernels.find_echoes_in(*args[:-2], np.ascontiguousarray(columns, dtype=np.int64), *args[-2:]))
-    r = np.ascontiguousarray(geometry.range_m, dtype=np.float64)
-    edge_r, sig = _echo_ranges(edge, pval, slope, geometry, sigma[0], walk[2], *sigma[1:])
+    cols = _ALL_COLUMNS if columns is None else np.ascontiguousarray(columns, dtype=np.int64)
+    r0, r1 = (0, m.shape[0]) if rows is None else (int(rows[0]), int(rows[1]))
+    beam, start, stop, peak, pval, edge, slope, evid, npx, edge_r, sig, peak_r = _kernels.measured_echoes(
+        m, img, code, lut, boost, *walk, cols, columns is None, r0, r1,
+        *_range_arguments(geometry, sigma[0], *sigma[1:]))
     return Echoes._of(beam=beam, start_bin=start, stop_bin=stop, peak_bin=peak, peak_value=pval, edge_bin=edge,
-                      edge_range_m=edge_r, peak_range_m=r[peak], slope=slope, evidence=evid, n_pixels=npx,
+                      edge_range_m=edge_r, peak_range_m=peak_r, slope=slope, evidence=evid, n_pixels=npx,
                       sigma_m=sig, n_beams=int(m.shape[1]), beamwidth_beams=beamwidth_in_beams(geometry))
+
+
+_ALL_COLUMNS = np.zeros(0, dtype=np.int64)
 
 
 def spliced_echoes(echoes: Echoes, new: Echoes, columns: NDArray[np.int64]) -> Echoes:
@@ -431,18 +433,15 @@ def _moved_edges(echoes: Echoes, idx: NDArray[np.int64], edge_bin: NDArray[np.fl
     return echoes.replaced(edge_bin=new_bin, edge_range_m=new_range, sigma_m=new_sigma)
 
 
-def _echo_ranges(edge: NDArray[np.float64], pval: NDArray[np.float64], slope: NDArray[np.float64],
-                 geometry: SonarGeometry, pulse_bins: int, fraction: float, looks: float, background: float,
-                 sigma_scale: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """The edges' ranges (``np.interp`` on the bins) and :func:`range_sigma_m`'s sigmas at
-    ``fraction`` x the peaks, in one pass."""
-    import sonarmap.ranges._kernels as _kernels
-
+def _range_arguments(geometry: SonarGeometry, pulse_bins: int, looks: float, background: float,
+                     sigma_scale: float) -> tuple[Any, ...]:
+    """The arguments of :func:`_kernels.measured_echoes` from ``range_m`` on: the edges' ranges
+    (``np.interp`` on the bins) and :func:`range_sigma_m`'s sigmas at the walk's fraction of the
+    peaks (:func:`_kernels.echo_ranges`)."""
     bin_m, pulse_m = _bin_and_pulse_m(geometry, pulse_bins)
     sqrt_looks = math.sqrt(max(float(looks * max(int(pulse_bins), 1)), 1.0))  # NaN stays NaN, as np.maximum
-    return _kernels.echo_ranges(edge, pval, slope, np.ascontiguousarray(geometry.range_m, dtype=np.float64),
-                                float(fraction), math.sqrt(2.0), max(float(background), 0.0), sqrt_looks, bin_m,
-                                bin_m**2 / 12.0, (pulse_m**2) / 12.0, float(sigma_scale))
+    return (np.ascontiguousarray(geometry.range_m, dtype=np.float64), math.sqrt(2.0), max(float(background), 0.0),
+            sqrt_looks, bin_m, bin_m**2 / 12.0, (pulse_m**2) / 12.0, float(sigma_scale))
 
 
 def surface_runs(echoes: Echoes, first: ArrayLike, touch_bins: float = 1.0) -> NDArray[np.int64]:
