@@ -680,6 +680,24 @@ def track_surfaces(echo_beam, m, pos, lo_bin, hi_bin, unary, n_surfaces, max_gap
 
 
 @njit(cache=True, nogil=True)
+def tracked_echoes(edge_bin, start_bin, stop_bin, evidence, n_pixels, peak_bin, clipped, clip_row, has_clipped, has_row,
+                   beam_cost, point_llr, echo_beam, m, n_surfaces, max_gap, slope_bins, slope_cost, jump_bins,
+                   touch_bins, segment_cost, gap_cost, bridge_beams, point_on, peak_val, point_evidence, width_beams,
+                   pulse_bins, flat_bins, point_jump_bins, dip, over_range, margin, fraction,
+                   front):  # pragma: no cover - numba
+    """:func:`track_inputs` (its arguments first) and :func:`track_surfaces` of the echoes at
+    ``edge_bin`` with them (the point echoes and clip rises only with ``point_on``, empty
+    otherwise; ``point_evidence``: the evidence its point rule reads) in one call."""
+    lo, hi, unary, point, rise = track_inputs(edge_bin, start_bin, stop_bin, evidence, n_pixels, peak_bin, clipped,
+                                              clip_row, has_clipped, has_row, beam_cost, point_llr)
+    k = point.size if point_on else 0
+    return track_surfaces(echo_beam, m, edge_bin, lo, hi, unary, n_surfaces, max_gap, slope_bins, slope_cost,
+                          jump_bins, touch_bins, segment_cost, gap_cost, bridge_beams, point_on, peak_val, point[:k],
+                          rise[:k], point_evidence, width_beams, pulse_bins, flat_bins, point_jump_bins, dip,
+                          over_range, margin, fraction, front)
+
+
+@njit(cache=True, nogil=True)
 def _tracked(first, count, echo_beam, m, pos, lo_bin, hi_bin, unary, n_surfaces, max_gap, slope_bins, slope_cost,
              jump_bins, touch_bins, segment_cost, gap_cost, bridge_beams, point_on, peak_val, point, clip_rise,
              evidence, width_beams, pulse_bins, flat_bins, point_jump_bins, dip, over_range, margin,

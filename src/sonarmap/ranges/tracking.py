@@ -199,13 +199,13 @@ def _tracked(echoes: Echoes, config: TrackConfig, pulse_bins: int,
 
     if not isinstance(echoes, Echoes):
         raise InputError(f"echoes: expected Echoes, got {type(echoes).__name__}")
-    lo, hi, unary, point, rise = _track_inputs(echoes, config)
     c = config
-    out, after, hit = _kernels.track_surfaces(
-        echoes.beam, int(echoes.n_beams), np.ascontiguousarray(echoes.edge_bin, dtype=np.float64), lo, hi,
-        unary, int(c.n_surfaces), int(c.max_gap), float(c.slope_bins), float(c.slope_cost),
-        float(c.jump_bins), float(c.touch_bins), float(c.segment_cost), float(c.gap_cost), int(c.bridge_beams),
-        *_point_arguments(echoes, c, pulse_bins, (point, rise)), bool(front))
+    on, peak, evidence, width, *point_scalars = _point_options(echoes, c, pulse_bins)
+    # the tracker's inputs (_track_inputs) and the tracking in one kernel call
+    out, after, hit = _kernels.tracked_echoes(
+        *_track_input_args(echoes, c), echoes.beam, int(echoes.n_beams), int(c.n_surfaces), int(c.max_gap),
+        float(c.slope_bins), float(c.slope_cost), float(c.jump_bins), float(c.touch_bins), float(c.segment_cost),
+        float(c.gap_cost), int(c.bridge_beams), on, peak, evidence, width, *point_scalars, bool(front))
     return out, after, bool(hit)
 
 
@@ -221,14 +221,18 @@ def _track_inputs(echoes: Echoes, config: TrackConfig) -> tuple[NDArray[np.int64
     per structure pixel at least ``point_llr``) and :func:`clip_rise`, in one kernel call."""
     import sonarmap.ranges._kernels as _kernels
 
+    return _kernels.track_inputs(*_track_input_args(echoes, config))  # type: ignore[no-any-return]
+
+
+def _track_input_args(echoes: Echoes, config: TrackConfig) -> tuple:  # type: ignore[type-arg]
+    """The arguments of :func:`_kernels.track_inputs` for ``echoes`` under ``config``."""
     e = echoes
-    return _kernels.track_inputs(  # type: ignore[no-any-return]
-        np.ascontiguousarray(e.edge_bin, dtype=np.float64), np.ascontiguousarray(e.start_bin, dtype=np.int64),
-        np.ascontiguousarray(e.stop_bin, dtype=np.int64), np.ascontiguousarray(e.evidence, dtype=np.float64),
-        np.ascontiguousarray(e.n_pixels, dtype=np.int64), np.ascontiguousarray(e.peak_bin, dtype=np.int64),
-        _NO_FLAGS if e.clipped is None else np.ascontiguousarray(e.clipped, dtype=np.bool_),
-        _NO_ROWS if e.clip_row is None else np.ascontiguousarray(e.clip_row, dtype=np.int64),
-        e.clipped is not None, e.clip_row is not None, float(config.beam_cost), float(config.point_llr))
+    return (np.ascontiguousarray(e.edge_bin, dtype=np.float64), np.ascontiguousarray(e.start_bin, dtype=np.int64),
+            np.ascontiguousarray(e.stop_bin, dtype=np.int64), np.ascontiguousarray(e.evidence, dtype=np.float64),
+            np.ascontiguousarray(e.n_pixels, dtype=np.int64), np.ascontiguousarray(e.peak_bin, dtype=np.int64),
+            _NO_FLAGS if e.clipped is None else np.ascontiguousarray(e.clipped, dtype=np.bool_),
+            _NO_ROWS if e.clip_row is None else np.ascontiguousarray(e.clip_row, dtype=np.int64),
+            e.clipped is not None, e.clip_row is not None, float(config.beam_cost), float(config.point_llr))
 
 
 def front_surfaces(echoes: Echoes, tracks: Tracks, config: TrackConfig = TrackConfig(),
@@ -279,14 +283,23 @@ def _point_arguments(echoes: Echoes, config: TrackConfig, pulse_bins: int,
     """The point-target arguments of :func:`_kernels.point_pieces` after ``on`` (False: the rule is
     off - no beamwidth or ``point_fraction`` 0), for :func:`_kernels.track_surfaces`
     (``point_rise``: the point echoes and :func:`clip_rise` of :func:`_track_inputs`, when made)."""
+    on, peak, evidence, width, *scalars = _point_options(echoes, config, pulse_bins)
+    if not on:
+        return (False, peak, np.zeros(0, dtype=np.bool_), peak, evidence, width, *scalars)
+    point, rise = _track_inputs(echoes, config)[3:] if point_rise is None else point_rise
+    return (True, peak, point, rise, evidence, width, *scalars)
+
+
+def _point_options(echoes: Echoes, config: TrackConfig, pulse_bins: int) -> tuple:  # type: ignore[type-arg]
+    """:func:`_point_arguments` without the point echoes and clip rises: ``on``, the peaks, the
+    evidence and the beamwidths (empty when off) and the rule's scalars."""
     on = config.point_fraction > 0 and echoes.beamwidth_beams is not None and echoes.size > 0
     pb = max(int(pulse_bins), 1)
     flat = max(1.0, 0.5 * pb)  # a point's edges agree within half a pulse (at least a bin)
     if not on:
         z = np.zeros(0)
-        return (False, z, np.zeros(0, dtype=np.bool_), z, z, z, float(pb), flat, 2.0 * flat, 0.0, 1.0, 0.0, 0.0)
-    point, rise = _track_inputs(echoes, config)[3:] if point_rise is None else point_rise
-    return (True, np.ascontiguousarray(echoes.peak_value, dtype=np.float64), point, rise,
+        return (False, z, z, z, float(pb), flat, 2.0 * flat, 0.0, 1.0, 0.0, 0.0)
+    return (True, np.ascontiguousarray(echoes.peak_value, dtype=np.float64),
             np.ascontiguousarray(echoes.evidence, dtype=np.float64),
             np.ascontiguousarray(echoes.beamwidth_beams, dtype=np.float64), float(pb), flat, 2.0 * flat,
             float(config.point_dip), 10.0 ** (config.point_over_range_db / 10.0), float(config.point_margin),
