@@ -2422,11 +2422,24 @@ def kept_edges(sel, new, used, start_bin, stop, back, edge_bin, edge_range, slop
 
 
 @njit(cache=True, nogil=True)
-def pooled_kept_edges(img, edge, stop, run, half_beams, front_bins, max_bins, smooth_bins, fraction, n_iter, clip,
-                      clip_level, fit_front_bins, forward, sel, start_bin, back, edge_bin, edge_range, slope, sigma,
-                      range_m, bin_m, bin_var, pulse_var, scale, fit_scale):  # pragma: no cover - numba
-    """:func:`pooled_edges` (its arguments first) and :func:`kept_edges` of its results (the
-    others after ``forward``) in one call: what :func:`kept_edges` returns."""
+def pooled_kept_edges(sel, edge_bin, start_bin, stop_bin, touch, image, pulse_bins, half_beams, front_bins, max_bins,
+                      smooth_bins, fraction, n_iter, clip, clip_level, fit_front_bins, forward, back, edge_range, slope,
+                      sigma, range_m, bin_m, bin_var, pulse_var, scale, fit_scale):  # pragma: no cover - numba
+    """The pooled leading edges of the returns ``sel`` in one call: their runs
+    (:func:`first_interval_runs` with ``touch``), :func:`pooled_edges` of them on ``image`` (float64,
+    smoothed along range over ``pulse_bins`` by :func:`smooth_rows` when >= 2) and
+    :func:`kept_edges` of its results (the arguments from ``back`` on): what :func:`kept_edges`
+    returns, with no edge kept (and empty arrays) when no return belongs to a run."""
+    edge, stop, run = first_interval_runs(sel, edge_bin, start_bin, stop_bin, touch)
+    any_run = False
+    for j in range(run.size):
+        if run[j] >= 0:
+            any_run = True
+            break
+    if not any_run:
+        z = np.zeros(0)
+        return 0, z, z, z, z, np.zeros(0, np.bool_), 0
+    img = smooth_rows(image, pulse_bins) if pulse_bins >= 2 and image.shape[0] >= 2 else image
     new, _, rise, used, noise, fitted = pooled_edges(img, edge, stop, run, half_beams, front_bins, max_bins,
                                                      smooth_bins, fraction, n_iter, clip, clip_level, fit_front_bins,
                                                      forward)

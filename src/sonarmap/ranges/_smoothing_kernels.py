@@ -7,7 +7,7 @@ import math
 import numpy as np
 from numba import njit
 
-from sonarmap.ranges._kernels import _interp_index
+from sonarmap.ranges._kernels import _interp_index, first_interval_runs
 
 
 @njit(cache=True, nogil=True)
@@ -143,13 +143,15 @@ def _smooth_beam(edge, sigma, a, lo, hi, h, sigma_min, a3, b3, new, out_sigma): 
 
 
 @njit(cache=True, nogil=True)
-def smoothed_echo_edges(sel, edge_bin, edge_range, sigma_m, edge, run, half_beams, min_beams, sigma_min, bin_m,
-                        range_m):  # pragma: no cover - numba
-    """:func:`smooth_edges` of the returns ``sel`` (echo index per beam, -1: none) applied to the
-    echoes: ``(n_moved, edge_bin, edge_range, sigma_m)``, copies of the echoes' fields with each
-    return whose edge or sigma (``bin_m`` x the kernel's, in bins) changed moved there, its range
-    ``np.interp`` on ``range_m`` - the arithmetic of the numpy formulation (sigma in bins
-    ``sigma_m / bin_m``, NaN without a return).  ``edge`` and ``run``: per beam, the first runs'."""
+def smoothed_echo_edges(sel, edge_bin, edge_range, sigma_m, start_bin, stop_bin, touch, half_beams, min_beams,
+                        sigma_min, bin_m, range_m):  # pragma: no cover - numba
+    """:func:`smooth_edges` of the returns ``sel`` (echo index per beam, -1: none) on their runs
+    (:func:`first_interval_runs` with ``touch``) applied to the echoes: ``(n_moved, edge_bin,
+    edge_range, sigma_m)``, copies of the echoes' fields with each return whose edge or sigma
+    (``bin_m`` x the kernel's, in bins) changed moved there, its range ``np.interp`` on
+    ``range_m`` - the arithmetic of the numpy formulation (sigma in bins ``sigma_m / bin_m``, NaN
+    without a return)."""
+    edge, _, run = first_interval_runs(sel, edge_bin, start_bin, stop_bin, touch)
     m = sel.size
     sigma = np.full(m, np.nan)
     for j in range(m):

@@ -577,21 +577,25 @@ def _pooled(echoes: Echoes, sel: NDArray[np.int64], image: ArrayLike, geometry: 
 
     half_beams, front_bins, max_bins, smooth_bins, n_iter, fit_front_bins = window
     fraction, touch_bins = fraction_touch
-    edge, stop, run = _first_runs(echoes, sel, touch_bins)
-    if half_beams == 0 or run.max(initial=-1) < 0:
-        return echoes
-    img = smooth_along_range(image, pulse_bins) if pulse_bins >= 2 else np.ascontiguousarray(image)
-    geometry.check_image(img, "image")
+    if half_beams == 0 or echoes.size == 0:
+        return echoes  # (without echoes no beam is in a run)
+    # the image in float64 (pooled_edges reads its samples as float64: the same values)
+    img = np.ascontiguousarray(image, dtype=np.float64)
+    if img.shape != geometry.shape:  # an error where some return is in a run, as the image is then read
+        if _first_runs(echoes, sel, touch_bins)[2].max(initial=-1) < 0:
+            return echoes
+        geometry.check_image(img, "image")
     bin_m, pulse_m = _bin_and_pulse_m(geometry, pulse_bins)
-    # pooled_edges and kept_edges (the kept pooled edges given to their echoes) in one kernel call
+    # the runs, the smoothing along range, pooled_edges and kept_edges (the kept pooled edges
+    # given to their echoes) in one kernel call
     n_kept, eb, er, sl, sig, marked, n_marked = _kernels.pooled_kept_edges(
-        img, edge, stop, run, int(half_beams), int(front_bins), int(max_bins), int(smooth_bins) | 1,
-        float(fraction), int(n_iter), _NO_CLIP if clip is None else
+        np.ascontiguousarray(sel, dtype=np.int64), echoes.edge_bin, echoes.start_bin, echoes.stop_bin,
+        float(touch_bins), img, int(pulse_bins), int(half_beams), int(front_bins), int(max_bins),
+        int(smooth_bins) | 1, float(fraction), int(n_iter), _NO_CLIP if clip is None else
         clip if clip_level is not None else np.ascontiguousarray(clip).view(np.uint8),
-        1.0 if clip_level is None else float(clip_level), int(fit_front_bins), bool(forward),
-        np.ascontiguousarray(sel), echoes.start_bin, int(pulse_bins) + 2, echoes.edge_bin, echoes.edge_range_m,
-        echoes.slope, echoes.sigma_m, np.ascontiguousarray(geometry.range_m, dtype=np.float64), bin_m,
-        bin_m**2 / 12.0, (pulse_m**2) / 12.0, float(scales[0]), float(scales[1]))
+        1.0 if clip_level is None else float(clip_level), int(fit_front_bins), bool(forward), int(pulse_bins) + 2,
+        echoes.edge_range_m, echoes.slope, echoes.sigma_m, np.ascontiguousarray(geometry.range_m, dtype=np.float64),
+        bin_m, bin_m**2 / 12.0, (pulse_m**2) / 12.0, float(scales[0]), float(scales[1]))
     return _edges_kept(echoes, n_kept, (eb, er, sl, sig), marked, n_marked)
 
 

@@ -34,7 +34,7 @@ from numpy.typing import ArrayLike
 
 from sonarmap.errors import InputError
 from sonarmap.geometry import SonarGeometry
-from sonarmap.ranges.echoes import Echoes, _first_runs
+from sonarmap.ranges.echoes import Echoes
 
 __all__ = ["smooth_surface_edges", "SIGMA_MIN_BINS"]
 
@@ -85,13 +85,13 @@ def smooth_surface_edges(echoes: Echoes, first: ArrayLike, geometry: SonarGeomet
         raise InputError(f"first: expected one echo index per beam ({echoes.n_beams}), got shape {sel.shape}")
     if not echoes.size:
         return echoes
-    edge, _, run = _first_runs(echoes, sel, touch_bins)
     bin_m = abs(geometry.range_resolution_m) or 1.0  # (the bin the sigmas were formed with)
-    # the combination and the moved returns' fields in one kernel (a beam without a return, or
-    # none at all, moves nothing)
+    # the first runs, the combination and the moved returns' fields in one kernel (a beam without
+    # a return, or none at all, moves nothing)
     n_moved, eb, er, sg = _sk.smoothed_echo_edges(
-        np.ascontiguousarray(sel), echoes.edge_bin, echoes.edge_range_m, echoes.sigma_m, edge, run, int(half_beams),
-        int(min_beams), SIGMA_MIN_BINS, bin_m, np.ascontiguousarray(geometry.range_m, dtype=np.float64))
+        np.ascontiguousarray(sel), echoes.edge_bin, echoes.edge_range_m, echoes.sigma_m, echoes.start_bin,
+        echoes.stop_bin, float(touch_bins), int(half_beams), int(min_beams), SIGMA_MIN_BINS, bin_m,
+        np.ascontiguousarray(geometry.range_m, dtype=np.float64))
     if not n_moved:
         return echoes
     return echoes.replaced(edge_bin=eb, edge_range_m=er, sigma_m=sg)
