@@ -118,13 +118,26 @@ def test_options_are_checked():
         PipelineConfig().replace(edge_smooth_beams=1)
 
 
+def moved_edges(echoes, idx: np.ndarray, edge_bin: np.ndarray, sigma_m: np.ndarray, geometry):
+    """The numpy formulation the range kernels replaced: ``echoes`` with echoes ``idx`` moved to
+    ``edge_bin`` (their ranges ``np.interp`` on the bins) with ``sigma_m``."""
+    new_bin = echoes.edge_bin.copy()
+    new_range = echoes.edge_range_m.copy()
+    new_sigma = echoes.sigma_m.copy()
+    new_bin[idx] = edge_bin
+    new_range[idx] = np.interp(edge_bin, np.arange(geometry.n_bins, dtype=np.float64),
+                               np.asarray(geometry.range_m, dtype=np.float64))
+    new_sigma[idx] = sigma_m
+    return echoes.replaced(edge_bin=new_bin, edge_range_m=new_range, sigma_m=new_sigma)
+
+
 def test_echo_fields_are_those_of_the_numpy_formulation():
     """smooth_surface_edges' one kernel (smoothed_echo_edges) moves the returns to the values of
     the numpy formulation it replaced (sigmas in bins, smooth_edges, the moved returns' fields
-    through _moved_edges: np.interp of their ranges), bit for bit, on random surfaces with gaps,
+    through moved_edges: np.interp of their ranges), bit for bit, on random surfaces with gaps,
     several runs and no returns at all."""
     from sonarmap.geometry import SonarGeometry
-    from sonarmap.ranges.echoes import Echoes, _first_runs, _moved_edges
+    from sonarmap.ranges.echoes import Echoes, _first_runs
     from sonarmap.ranges.smoothing import smooth_surface_edges
 
     rng = np.random.default_rng(11)
@@ -152,7 +165,7 @@ def test_echo_fields_are_those_of_the_numpy_formulation():
         new_sigma *= bin_m
         idx = sel[ok]
         moved = (new[ok] != echoes.edge_bin[idx]) | (new_sigma[ok] != echoes.sigma_m[idx])
-        want = _moved_edges(echoes, idx[moved], new[ok][moved], new_sigma[ok][moved], g) if moved.any() else echoes
+        want = moved_edges(echoes, idx[moved], new[ok][moved], new_sigma[ok][moved], g) if moved.any() else echoes
         got = smooth_surface_edges(echoes, first, g)
         assert (got is echoes) == (want is echoes)
         for f in ("edge_bin", "edge_range_m", "sigma_m"):

@@ -2389,6 +2389,16 @@ def first_interval_runs(sel, edge_bin, start_bin, stop_bin, touch):  # pragma: n
 
 
 @njit(cache=True, nogil=True)
+def runs_of_returns(sel, edge_bin, start_bin, stop_bin, touch):  # pragma: no cover - numba
+    """:func:`first_interval_runs` and whether any beam is in a run (``run.max() >= 0``)."""
+    edge, stop, run = first_interval_runs(sel, edge_bin, start_bin, stop_bin, touch)
+    for j in range(run.size):
+        if run[j] >= 0:
+            return edge, stop, run, True
+    return edge, stop, run, False
+
+
+@njit(cache=True, nogil=True)
 def pooled_edges_done(sel, new, used, start_bin, stop, back):  # pragma: no cover - numba
     """The beams whose pooled edge ``new`` is kept (:func:`sonarmap.ranges.echoes.pooled_edges`):
     a return, pooled, within ``back`` bins in front of its echo's first structure bin and not
@@ -2430,12 +2440,7 @@ def pooled_kept_edges(sel, edge_bin, start_bin, stop_bin, touch, image, pulse_bi
     smoothed along range over ``pulse_bins`` by :func:`smooth_rows` when >= 2) and
     :func:`kept_edges` of its results (the arguments from ``back`` on): what :func:`kept_edges`
     returns, with no edge kept (and empty arrays) when no return belongs to a run."""
-    edge, stop, run = first_interval_runs(sel, edge_bin, start_bin, stop_bin, touch)
-    any_run = False
-    for j in range(run.size):
-        if run[j] >= 0:
-            any_run = True
-            break
+    edge, stop, run, any_run = runs_of_returns(sel, edge_bin, start_bin, stop_bin, touch)
     if not any_run:
         z = np.zeros(0)
         return 0, z, z, z, z, np.zeros(0, np.bool_), 0

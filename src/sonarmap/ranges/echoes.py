@@ -419,20 +419,6 @@ def _bin_and_pulse_m(geometry: SonarGeometry, pulse_bins: int) -> tuple[float, f
     return bin_m, (int(pulse_bins) * bin_m if pulse_bins >= 2 else 0.0)
 
 
-def _moved_edges(echoes: Echoes, idx: NDArray[np.int64], edge_bin: NDArray[np.float64], sigma_m: NDArray[np.float64],
-                 geometry: SonarGeometry) -> Echoes:
-    """``echoes`` with echoes ``idx`` moved to ``edge_bin`` (fractional bins; their ``edge_range_m``
-    interpolated on the bins) with ``sigma_m``; every other field unchanged."""
-    new_bin = echoes.edge_bin.copy()
-    new_range = echoes.edge_range_m.copy()
-    new_sigma = echoes.sigma_m.copy()
-    new_bin[idx] = edge_bin
-    new_range[idx] = np.interp(edge_bin, np.arange(geometry.n_bins, dtype=np.float64),
-                               np.asarray(geometry.range_m, dtype=np.float64))
-    new_sigma[idx] = sigma_m
-    return echoes.replaced(edge_bin=new_bin, edge_range_m=new_range, sigma_m=new_sigma)
-
-
 def _range_arguments(geometry: SonarGeometry, pulse_bins: int, looks: float, background: float,
                      sigma_scale: float) -> tuple[Any, ...]:
     """The arguments of :func:`_kernels.measured_echoes` from ``range_m`` on: the edges' ranges
