@@ -204,8 +204,8 @@ class PipelineConfig:
 
     def preprocess_config(self) -> Any:
         """The :class:`PreprocessConfig` used, or None for ``"none"``."""
-        from sonarmap.preprocess.pipeline import PreprocessConfig, recipe
+        import sonarmap.preprocess.pipeline as _ppl
 
-        if isinstance(self.preprocess, PreprocessConfig):
+        if isinstance(self.preprocess, _ppl.PreprocessConfig):
             return self.preprocess
-        return None if self.preprocess == "none" else recipe(self.preprocess)
+        return None if self.preprocess == "none" else _ppl.recipe(self.preprocess)

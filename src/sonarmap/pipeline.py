@@ -160,11 +160,11 @@ def _classify(image: NDArray[np.float32], config: PipelineConfig, gate: bool = F
     fails (:func:`_gates`; only with ``gate=True``, which also skips the labelling of a gated
     ping: its labels are all background).  ``levels`` and ``fit``, when given, are the image's
     levels and their fit (not recomputed)."""
-    from sonarmap.stats.mixture import quantize_counts  # (scipy: imported with the first ping)
+    import sonarmap.stats.mixture as _mixture  # (scipy: imported with the first ping)
 
     if levels is None or fit is None:
         # the intensity model (eq. 8-11): quantised levels and the mixture fit of their histogram
-        levels, counts = quantize_counts(image, config.fit.n_levels)
+        levels, counts = _mixture.quantize_counts(image, config.fit.n_levels)
         fit = fit_counts(counts, config.fit)
     gates = _gates(fit, config) if gate else frozenset()
     if gates:
@@ -356,18 +356,18 @@ def _p_detect(pd: float, pd_range: float, ranges: BeamRanges, thickness: NDArray
     median echo thickness of the ping's returns (1 bin when there is none).  NaN when the ping has
     no finite ``pd`` (CFAR, no fit).
     """
-    from sonarmap._pipeline_kernels import echo_thickness, scaled_rates
+    import sonarmap._pipeline_kernels as _plk
 
     n = ranges.n_beams
     if not (math.isfinite(pd) and math.isfinite(pd_range)) or pd <= 0:
         return np.full(n, np.nan if not math.isfinite(pd_range) else pd_range, dtype=np.float32)
     # the thickness per beam, the median of the returns' (np.median) on the beams without one
-    t, valid, n_valid = echo_thickness(np.ascontiguousarray(thickness, dtype=np.float64),
-                                       np.ascontiguousarray(ranges.bin, dtype=np.int64))
+    t, valid, n_valid = _plk.echo_thickness(np.ascontiguousarray(thickness, dtype=np.float64),
+                                            np.ascontiguousarray(ranges.bin, dtype=np.int64))
     f = 1.0 - (1.0 - min(pd, 1.0)) ** t
     fv = f[valid] if n_valid else f
     mean = float(fv.sum()) / fv.size  # = fv.mean(): numpy's sum over the count, without its wrapper
-    return scaled_rates(f, float(pd_range), max(mean, 1e-12))  # type: ignore[no-any-return]
+    return _plk.scaled_rates(f, float(pd_range), max(mean, 1e-12))  # type: ignore[no-any-return]
 
 
 def _labelled_columns(labels: NDArray[Any]) -> NDArray[np.bool_]:
@@ -384,9 +384,9 @@ def _return_counts(labels: NDArray[np.uint8], ranges: BeamRanges) -> tuple[int, 
     """``(ranges.n_returns, detecting)``: the beams with a return, and the beams with a labelled
     pixel or a return (one kernel call for the classifiers' labels)."""
     if labels.ndim == 2 and labels.dtype.kind == "u" and labels.flags.c_contiguous and ranges.bin.dtype == np.int64:
-        from sonarmap._pipeline_kernels import return_counts
+        import sonarmap._pipeline_kernels as _plk
 
-        n_returns, detecting = return_counts(labels, ranges.bin)
+        n_returns, detecting = _plk.return_counts(labels, ranges.bin)
         return int(n_returns), int(detecting)
     return ranges.n_returns, int(np.count_nonzero(_labelled_columns(labels) | (ranges.bin >= 0)))  # uint8: >= 1 is != 0
 

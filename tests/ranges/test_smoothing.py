@@ -118,6 +118,60 @@ def test_options_are_checked():
         PipelineConfig().replace(edge_smooth_beams=1)
 
 
+def moved_edges(echoes, idx: np.ndarray, edge_bin: np.ndarray, sigma_m: np.ndarray, geometry):
+    """The numpy formulation the range kernels replaced: ``echoes`` with echoes ``idx`` moved to
+    ``edge_bin`` (their ranges ``np.interp`` on the bins) with ``sigma_m``."""
+    new_bin = echoes.edge_bin.copy()
+    new_range = echoes.edge_range_m.copy()
+    new_sigma = echoes.sigma_m.copy()
+    new_bin[idx] = edge_bin
+    new_range[idx] = np.interp(edge_bin, np.arange(geometry.n_bins, dtype=np.float64),
+                               np.asarray(geometry.range_m, dtype=np.float64))
+    new_sigma[idx] = sigma_m
+    return echoes.replaced(edge_bin=new_bin, edge_range_m=new_range, sigma_m=new_sigma)
+
+
+def test_echo_fields_are_those_of_the_numpy_formulation():
+    """smooth_surface_edges' one kernel (smoothed_echo_edges) moves the returns to the values of
+    the numpy formulation it replaced (sigmas in bins, smooth_edges, the moved returns' fields
+    through moved_edges: np.interp of their ranges), bit for bit, on random surfaces with gaps,
+    several runs and no returns at all."""
+    from sonarmap.geometry import SonarGeometry
+    from sonarmap.ranges.echoes import Echoes, _first_runs
+    from sonarmap.ranges.smoothing import smooth_surface_edges
+
+    rng = np.random.default_rng(11)
+    g = SonarGeometry(range_m=2.0 + 0.013 * np.arange(300), azimuth_rad=np.linspace(-0.4, 0.4, 40))
+    for trial in range(30):
+        n = 40
+        beam = np.arange(n, dtype=np.int64)
+        edge = 100 + np.cumsum(rng.normal(0, 0.4, n)) + rng.normal(0, 1.5, n)
+        edge[rng.random(n) < 0.1] = 250.0  # steps: several runs
+        start = np.floor(edge).astype(np.int64) + 1
+        fields = {f: np.zeros(n) for f in Echoes.__dataclass_fields__ if f not in
+                  ("beam", "n_beams", "clipped", "clip_row", "beamwidth_beams", "clip_fitted")}
+        fields.update(beam=beam, start_bin=start, stop_bin=start + rng.integers(1, 6, n), edge_bin=edge,
+                      edge_range_m=np.interp(edge, np.arange(300.0), g.range_m), sigma_m=rng.uniform(0.002, 0.05, n),
+                      peak_bin=start, n_pixels=np.ones(n, np.int64), n_beams=n)
+        echoes = Echoes._of(**fields)
+        first = np.where(rng.random(n) < (0.0 if trial == 0 else 0.15), -1, beam)
+        sel = first.astype(np.int64)
+        e, _, run = _first_runs(echoes, sel, 1.0)
+        bin_m = abs(g.range_resolution_m)
+        ok = sel >= 0
+        sigma = np.full(n, np.nan)
+        sigma[ok] = echoes.sigma_m[sel[ok]] / bin_m
+        new, new_sigma = smooth_edges(e, sigma, run, 8, 7, SIGMA_MIN_BINS)
+        new_sigma *= bin_m
+        idx = sel[ok]
+        moved = (new[ok] != echoes.edge_bin[idx]) | (new_sigma[ok] != echoes.sigma_m[idx])
+        want = moved_edges(echoes, idx[moved], new[ok][moved], new_sigma[ok][moved], g) if moved.any() else echoes
+        got = smooth_surface_edges(echoes, first, g)
+        assert (got is echoes) == (want is echoes)
+        for f in ("edge_bin", "edge_range_m", "sigma_m"):
+            assert np.array_equal(getattr(got, f), getattr(want, f), equal_nan=True), (trial, f)
+
+
 def test_simulated_surfaces_gain_within_a_bin():
     """The pipeline with and without the combination on simulated sloped and curved hulls (both
     noise levels, 2 seeds), scored on the sub-bin surface truth: within a bin measured 0.64 ->

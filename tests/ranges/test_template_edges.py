@@ -115,6 +115,66 @@ def test_options_are_checked():
         template_edges(e, first, img[:10], g)
 
 
+def test_moved_fields_are_those_of_the_numpy_formulation():
+    """template_edges' one kernel (template_moved_edges) gives the echoes the numpy formulation
+    gave them from the template kernel's outputs (runs from _first_runs, sigma
+    edge_sigma_m(sqrt(var0 + var1), 1), the moved returns' ranges np.interp), bit for bit, with
+    and without the anchor, pulse and skipped returns."""
+    from sonarmap.ranges import _template_kernels
+    from sonarmap.ranges.echoes import _bin_and_pulse_m, _first_runs, edge_sigma_m
+    from sonarmap.ranges.template import _skipped_beams
+
+    g = _geom()
+    rng = np.random.default_rng(4)
+    n_moved = 0
+    for seed in range(6):
+        truth = 100.0 + 0.5 * np.arange(g.n_beams) + rng.normal(0, 0.3, g.n_beams).cumsum()
+        img, mask = _speckled(seed, truth)
+        e = find_echoes(mask, img, g)
+        first, count = e.per_beam()
+        first = np.where(count > 0, first, -1)
+        skip = rng.random(e.size) < 0.1 if seed % 2 else None
+        anchor, pb, scale = (10, 1, 1.0) if seed < 3 else (0, 3, 1.7)
+        got = template_edges(e, first, img, g, skip=skip, anchor_beams=anchor, pulse_bins=pb, sigma_scale=scale)
+        sel = np.ascontiguousarray(first, dtype=np.int64)
+        edge, stop, run = _first_runs(e, sel, 1.0)
+        new, var = _template_kernels.template_edges(np.ascontiguousarray(img, dtype=np.float64), edge, stop, run,
+                                                    _skipped_beams(sel, skip), 5, 1, 8, 30, 60, 4.0, 6, 0.5, 3, 24, 2,
+                                                    12.0, anchor)
+        done = np.flatnonzero(np.isfinite(var[:, 0]))
+        bin_m, pulse_m = _bin_and_pulse_m(g, pb)
+        sigma = edge_sigma_m(np.sqrt(var[done, 0] + var[done, 1]), 1.0, bin_m, pulse_m=pulse_m, scale=scale)
+        want = {"edge_bin": e.edge_bin.copy(), "edge_range_m": e.edge_range_m.copy(), "sigma_m": e.sigma_m.copy()}
+        want["edge_bin"][sel[done]] = new[done]
+        want["edge_range_m"][sel[done]] = np.interp(new[done], np.arange(g.n_bins, dtype=np.float64), g.range_m)
+        want["sigma_m"][sel[done]] = sigma
+        n_moved += done.size
+        assert (got is e) == (done.size == 0)
+        for f, v in want.items():
+            assert np.array_equal(getattr(got, f), v, equal_nan=True), (seed, f)
+    assert n_moved > 0
+
+
+def test_options_checked_once_are_still_checked_by_type_and_value():
+    """The option check remembers the value sets that passed (per value and type): a value that
+    equals a remembered one but is of another type (True for 1, 1.0 for 1 where an integer is
+    due is fine, a bool is not) or a new bad value still raises."""
+    g = _geom()
+    truth = 100.0 + 0.5 * np.arange(g.n_beams)
+    img, mask = _speckled(2, truth)
+    e = find_echoes(mask, img, g)
+    first = np.full(g.n_beams, -1)
+    template_edges(e, first, img, g, half_template=1, half_window=1, anchor_beams=1)
+    template_edges(e, first, img, g, half_template=1, half_window=1, anchor_beams=1)  # (remembered)
+    for key in ("half_template", "half_window", "anchor_beams"):
+        with pytest.raises(InputError, match=key):
+            template_edges(e, first, img, g, **{"half_template": 1, "half_window": 1, "anchor_beams": 1, key: True})
+    with pytest.raises(InputError, match="fraction"):
+        template_edges(e, first, img, g, half_template=1, half_window=1, anchor_beams=1, fraction=1.0)
+    with pytest.raises(TypeError):
+        template_edges(e, first, img, g, half_template=[1])  # unhashable: checked as before
+
+
 def test_the_pipeline_option_switches_the_stage():
     for key in ("edge_template_beams", "edge_template_anchor_beams"):
         with pytest.raises(Exception, match=key):

@@ -501,9 +501,8 @@ def _graphcut_lut(
     direction have one weight), so the reduction reads scalars instead of ``wt`` inside the lattice
     and, for a 4-neighbourhood, the chain reduction replaces the single-pixel sweeps.
     """
-    from sonarmap.classify._kernels import (energy_lut, free_graph, free_graph4, reduce_binary, reduce_chains,
-                                            reduce_uniform4)
-    from sonarmap.classify._ladders import reduce_ladders
+    import sonarmap.classify._kernels as _ck
+    import sonarmap.classify._ladders as _ladders
 
     h, w = levels.shape
     if wtot is None:
@@ -517,25 +516,25 @@ def _graphcut_lut(
     chains = uniform and wt.shape[0] == 2 and h >= 3 and w >= 3 and _CHAIN_PASSES > 0
     wr, wb = (float(wt[0, 1, 1]), float(wt[1, 1, 1])) if chains else (0.0, 0.0)
     if chains and margin_lut.size <= _TABLE_LEVELS:
-        n_free = reduce_uniform4(levels, margin_lut, wt, wtot, fixed, stack, wr, wb)
+        n_free = _ck.reduce_uniform4(levels, margin_lut, wt, wtot, fixed, stack, wr, wb)
     else:
         pair = _uniform_pair(wt) if uniform else _NOT_UNIFORM
-        n_free = reduce_binary(levels, margin_lut, wt, wtot, fixed, stack, pair, 0 if chains else _REDUCTION_SWEEPS)
+        n_free = _ck.reduce_binary(levels, margin_lut, wt, wtot, fixed, stack, pair, 0 if chains else _REDUCTION_SWEEPS)
     if n_free and chains:
-        n_free = reduce_chains(levels, margin_lut, fixed, stack, n_free, wr, wb, _CHAIN_PASSES)
+        n_free = _ck.reduce_chains(levels, margin_lut, fixed, stack, n_free, wr, wb, _CHAIN_PASSES)
         for _ in range(_LADDER_ROUNDS if n_free >= _LADDER_ROUNDS_MIN else 1):
             if not (n_free and _LADDER_PASSES > 0):
                 break
-            n_free = reduce_ladders(levels, margin_lut, fixed, stack, n_free, wr, wb, _LADDER_PASSES)
+            n_free = _ladders.reduce_ladders(levels, margin_lut, fixed, stack, n_free, wr, wb, _LADDER_PASSES)
             if n_free and _CHAIN_PASSES_AFTER > 0:
-                n_free = reduce_chains(levels, margin_lut, fixed, stack, n_free, wr, wb, _CHAIN_PASSES_AFTER)
+                n_free = _ck.reduce_chains(levels, margin_lut, fixed, stack, n_free, wr, wb, _CHAIN_PASSES_AFTER)
     if n_free:
         # uniform 4-neighbourhood: the graph from the scalar weights, without the node map
-        m_eff, ei, ej, ew = (free_graph4(levels, margin_lut, fixed, stack, n_free, wr, wb) if chains
-                             else free_graph(levels, margin_lut, wt, fixed, node, stack, n_free))
+        m_eff, ei, ej, ew = (_ck.free_graph4(levels, margin_lut, fixed, stack, n_free, wr, wb) if chains
+                                 else _ck.free_graph(levels, margin_lut, wt, fixed, node, stack, n_free))
         fixed.reshape(-1)[stack[:n_free]] = _cut(m_eff, ei, ej, ew)[0]
     labels = fixed.view(np.uint8)
-    e = float(energy_lut(levels, cost_lut, wt, labels)) if with_energy else math.nan
+    e = float(_ck.energy_lut(levels, cost_lut, wt, labels)) if with_energy else math.nan
     return labels, e, int(n_free)
 
 

@@ -17,6 +17,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from sonarmap.classify.config import ClassifyConfig
 from sonarmap.errors import InputError
+from sonarmap.stats.mixture import MixtureFit
 
 __all__ = ["Segmentation", "segment", "class_costs", "level_costs", "decision_pd_pfa", "decision_rates"]
 
@@ -60,7 +61,7 @@ def level_costs(class_log_pmf: ArrayLike, class_log_prior: ArrayLike | None = No
     -------
     ndarray of float64, shape (n_classes, n_levels)
     """
-    from sonarmap.classify._kernels import level_cost_table
+    import sonarmap.classify._kernels as _ck
 
     lp = np.ascontiguousarray(class_log_pmf, dtype=np.float64)
     if lp.ndim != 2 or lp.shape[0] < 2:
@@ -71,16 +72,31 @@ def level_costs(class_log_pmf: ArrayLike, class_log_prior: ArrayLike | None = No
         if pr.size != lp.shape[0]:
             raise InputError(f"class_log_prior: {pr.size} entries for {lp.shape[0]} classes")
     # one pass over the table (numpy's nan_to_num / maximum / min / subtract, elementwise the same)
-    return level_cost_table(lp, pr, class_log_prior is not None, float(floor))  # type: ignore[no-any-return]
+    return _ck.level_cost_table(lp, pr, class_log_prior is not None, float(floor))  # type: ignore[no-any-return]
 
 
 _NO_PRIOR = np.zeros(0)
 
 
+def _fit_array(fit: Any, name: str) -> NDArray[np.float64]:
+    """``fit.<name>()``: a :class:`MixtureFit`'s own read-only array (``copy=False``, no copy to
+    read), another object's method as it is."""
+    if type(fit) is MixtureFit:
+        return getattr(fit, name)(copy=False)  # type: ignore[no-any-return]
+    return getattr(fit, name)()  # type: ignore[no-any-return]
+
+
 def _class_prior(fit: Any, prior_min: float) -> NDArray[np.float64]:
     """Fitted class priors with every object class raised to at least ``prior_min``."""
-    prior = np.array(fit.class_prior(), dtype=np.float64)  # (a copy of its own)
-    if prior_min > 0 and prior.size > 1:
+    prior = np.array(_fit_array(fit, "class_prior"), dtype=np.float64)  # (a copy of its own)
+    if prior_min > 0 and prior.size == 2:
+        # (two classes, the pipeline's: the same operations on the one object prior - np.maximum's
+        # NaN propagates as max's first argument does, and a one-term sum is that term)
+        p1 = prior[1].item()
+        p1 = prior_min if prior_min > p1 else p1
+        prior[1] = p1
+        prior[0] = max(1.0 - p1, 1e-12)
+    elif prior_min > 0 and prior.size > 1:
         prior[1:] = np.maximum(prior[1:], prior_min)
         prior[0] = max(1.0 - prior[1:].sum(), 1e-12)
     return prior
@@ -107,7 +123,7 @@ def class_costs(fit: Any, *, object_prior_min: float = 0.0, speckle_eps: float =
     -------
     ndarray of float64, shape (n_classes, n_levels)
     """
-    lp = np.asarray(fit.decision_log_pmf(), dtype=np.float64)
+    lp = np.asarray(_fit_array(fit, "decision_log_pmf"), dtype=np.float64)  # (copied before a change)
     if speckle_eps > 0 and lp.shape[0] > 1:
         lp = lp.copy()
         with np.errstate(divide="ignore"):
@@ -123,16 +139,16 @@ def decision_pd_pfa(fit: Any, decision: ArrayLike) -> tuple[float, float]:
     ``decision[level]`` is non-zero where the level is labelled structure; pFA is the background
     class's probability of those levels, pD the object classes' (weighted by their priors).
     """
-    pmf = np.asarray(fit.class_pmf())
+    pmf = np.asarray(_fit_array(fit, "class_pmf"))
     det = np.asarray(decision)
     det = det if det.dtype == np.bool_ else det != 0
-    prior = np.asarray(fit.class_prior())
+    prior = np.asarray(_fit_array(fit, "class_prior"))
     if (pmf.dtype == np.float64 and pmf.ndim == 2 and pmf.shape[0] == 2 and det.shape == pmf.shape[1:]
             and prior.dtype == np.float64 and prior.shape == (2,)):
         # two classes (the pipeline's): one kernel, numpy's summation order (same bits)
-        from sonarmap.classify._kernels import decision_rates_pmf
+        import sonarmap.classify._kernels as _ck
 
-        pd, pfa = decision_rates_pmf(np.ascontiguousarray(pmf), det, prior)
+        pd, pfa = _ck.decision_rates_pmf(np.ascontiguousarray(pmf), det, prior)
         return float(pd), float(pfa)
     pfa = float(pmf[0][det].sum())
     pd = float((pmf[1:][:, det].sum(axis=1) * prior[1:]).sum() / max(float(prior[1:].sum()), 1e-300))
@@ -279,7 +295,7 @@ def _seeded_components(mask: NDArray[np.bool_], seeds: NDArray[np.bool_]) -> NDA
 def _mrf_labels(image: NDArray[np.float32], levels: NDArray[Any], cost: NDArray[np.float64], beta: float,
                 config: ClassifyConfig) -> NDArray[np.uint8]:
     """The MRF labels for a per-level unary ``cost`` (the level-LUT graph cut where it applies)."""
-    from sonarmap.classify import mrf
+    import sonarmap.classify.mrf as mrf
 
     if config.solver == "graphcut" and cost.shape[0] == 2 and not config.contrast:
         if cost.dtype == np.float64 and cost.flags.c_contiguous and mrf._table_cut_applies(levels, cost,

@@ -135,9 +135,9 @@ def on_8bit_grid(img: NDArray[np.float32]) -> bool:
     flat = img.ravel()
     step = max(flat.size // 4096, 1)
     if flat.dtype == np.float32 or flat.dtype == np.float64:
-        from sonarmap.preprocess._kernels import on_255_grid
+        import sonarmap.preprocess._kernels as _pk
 
-        return bool(on_255_grid(flat, step))  # the same test in one pass, stopping at the first miss
+        return bool(_pk.on_255_grid(flat, step))  # the same test in one pass, stopping at the first miss
     sample = flat[::step]
     pos = sample[sample > 0]
     if pos.size == 0:
@@ -247,9 +247,9 @@ def condition_image(image: NDArray[np.floating]) -> tuple[NDArray[np.float32], f
 def _finite_zero_fraction(img: NDArray[np.float32]) -> tuple[bool, float]:
     """Whether every pixel of a non-empty 2-D image is finite, and the fraction at the zero level
     of 8-bit data (one pass, no image-sized temporaries)."""
-    from sonarmap.preprocess._kernels import finite_and_zeros
+    import sonarmap.preprocess._kernels as _pk
 
-    finite, zeros = finite_and_zeros(np.ascontiguousarray(img, dtype=np.float32), np.float32(_ZERO))
+    finite, zeros = _pk.finite_and_zeros(np.ascontiguousarray(img, dtype=np.float32), np.float32(_ZERO))
     return bool(finite), float(zeros) / img.size
 
 

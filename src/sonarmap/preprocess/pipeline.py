@@ -399,13 +399,13 @@ def _preprocessed(img: NDArray[np.float32], geometry: SonarGeometry, cfg: Prepro
     if plan.row_factor is not None:
         out *= plan.row_factor
     if cfg.clip_negative and out.dtype == np.float32 and out.flags.c_contiguous:
-        from sonarmap.preprocess._kernels import clip_negative, clip_rescale
+        import sonarmap.preprocess._kernels as _pk
 
         if cfg.normalise == "none":
-            clip_negative(out)  # np.maximum(out, 0.0, out=out), vectorised
+            _pk.clip_negative(out)  # np.maximum(out, 0.0, out=out), vectorised
             return out
         # the clipping and the normalisation below in one kernel (NaN: only clipped, numpy's way)
-        if clip_rescale(out, float(img.max()) if img_max is None else img_max, cfg.normalise == "min-max"):
+        if _pk.clip_rescale(out, float(img.max()) if img_max is None else img_max, cfg.normalise == "min-max"):
             return out
     elif cfg.clip_negative:
         np.maximum(out, 0.0, out=out)

@@ -234,7 +234,7 @@ def _components(mask: NDArray[np.bool_], rule: tuple[int, int | None, int, int] 
     """The component rules in one kernel (:func:`_kernels.linked_components`): rule 0 with
     ``rule = (min_beams, min_bins, link_beams, min_pixels)`` (None: every component), then the
     metric extent rule when ``geometry`` is given and ``min_extent_m > 0``."""
-    from sonarmap.ranges._kernels import linked_components
+    import sonarmap.ranges._kernels as _rk
 
     m = np.ascontiguousarray(mask, dtype=bool)
     if m.ndim != 2:
@@ -248,9 +248,9 @@ def _components(mask: NDArray[np.bool_], rule: tuple[int, int | None, int, int] 
             raise InputError(f"mask: shape {m.shape} exceeds the geometry's {(r.size, az.size)}")
         dr = abs(geometry.range_resolution_m)
         daz = float(abs(az[-1] - az[0]) / (az.size - 1)) if az.size > 1 else 0.0
-    return linked_components(m, int(beams), int(bins) if bins is not None else 0, int(link), 4 if link > 0 else 0,
-                             int(pixels), rule is not None, r, az, float(dr), daz,
-                             float(min_extent_m) if geometry is not None else 0.0)
+    return _rk.linked_components(m, int(beams), int(bins) if bins is not None else 0, int(link), 4 if link > 0 else 0,
+                                 int(pixels), rule is not None, r, az, float(dr), daz,
+                                 float(min_extent_m) if geometry is not None else 0.0)
 
 
 def half_peak_edges(ranges: BeamRanges, image: ArrayLike, mask: ArrayLike, geometry: SonarGeometry, *,
@@ -513,7 +513,7 @@ def track_returns(echoes: "Echoes", tracks: "Tracks", geometry: SonarGeometry, i
                   mode: Mode = "first", time_ns: int = 0, source: str = "") -> tuple[BeamRanges, NDArray[np.int64]]:
     """:func:`ranges_from_tracks` and the number of bins each return's echo spans (``stop_bin -
     start_bin`` of the nearest tracked echo; 0 where no return), from one kernel pass."""
-    from sonarmap.ranges._kernels import track_ranges
+    import sonarmap.ranges._kernels as _rk
 
     e = np.ascontiguousarray(tracks.echo, dtype=np.int64)
     if not (e[0] >= 0).any():
@@ -521,7 +521,7 @@ def track_returns(echoes: "Echoes", tracks: "Tracks", geometry: SonarGeometry, i
     img = np.asarray(image, dtype=np.float32)
     geometry.check_image(img, "image")
     at = echoes.edge_range_m if mode == "first" else echoes.peak_range_m
-    rng, b, inten, sigma, other, conf, thick, consistent = track_ranges(
+    rng, b, inten, sigma, other, conf, thick, consistent = _rk.track_ranges(
         e, echoes.edge_bin, echoes.peak_bin, at, echoes.sigma_m, img, mode == "first", echoes.start_bin,
         echoes.stop_bin)
     fields = dict(range_m=rng, bin=b, intensity=inten, confidence=conf,

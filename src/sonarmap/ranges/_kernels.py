@@ -680,6 +680,24 @@ def track_surfaces(echo_beam, m, pos, lo_bin, hi_bin, unary, n_surfaces, max_gap
 
 
 @njit(cache=True, nogil=True)
+def tracked_echoes(edge_bin, start_bin, stop_bin, evidence, n_pixels, peak_bin, clipped, clip_row, has_clipped, has_row,
+                   beam_cost, point_llr, echo_beam, m, n_surfaces, max_gap, slope_bins, slope_cost, jump_bins,
+                   touch_bins, segment_cost, gap_cost, bridge_beams, point_on, peak_val, point_evidence, width_beams,
+                   pulse_bins, flat_bins, point_jump_bins, dip, over_range, margin, fraction,
+                   front):  # pragma: no cover - numba
+    """:func:`track_inputs` (its arguments first) and :func:`track_surfaces` of the echoes at
+    ``edge_bin`` with them (the point echoes and clip rises only with ``point_on``, empty
+    otherwise; ``point_evidence``: the evidence its point rule reads) in one call."""
+    lo, hi, unary, point, rise = track_inputs(edge_bin, start_bin, stop_bin, evidence, n_pixels, peak_bin, clipped,
+                                              clip_row, has_clipped, has_row, beam_cost, point_llr)
+    k = point.size if point_on else 0
+    return track_surfaces(echo_beam, m, edge_bin, lo, hi, unary, n_surfaces, max_gap, slope_bins, slope_cost,
+                          jump_bins, touch_bins, segment_cost, gap_cost, bridge_beams, point_on, peak_val, point[:k],
+                          rise[:k], point_evidence, width_beams, pulse_bins, flat_bins, point_jump_bins, dip,
+                          over_range, margin, fraction, front)
+
+
+@njit(cache=True, nogil=True)
 def _tracked(first, count, echo_beam, m, pos, lo_bin, hi_bin, unary, n_surfaces, max_gap, slope_bins, slope_cost,
              jump_bins, touch_bins, segment_cost, gap_cost, bridge_beams, point_on, peak_val, point, clip_rise,
              evidence, width_beams, pulse_bins, flat_bins, point_jump_bins, dip, over_range, margin,
@@ -1863,6 +1881,22 @@ def continuation_extra(extra, cand, first, edge_bin, col_lo, col_hi):  # pragma:
     return extra, hit, np.flatnonzero(keep), e0, e1
 
 
+@njit(cache=True, nogil=True)
+def continuation_pixels(sel, edge_bin, start_bin, stop_bin, touch, levels, lut, min_run, max_beams, window_bins,
+                        min_evidence, max_misses, cand):  # pragma: no cover - numba
+    """:func:`first_interval_runs` of the returns ``sel``, :func:`continuation_mask` of its runs
+    and :func:`continuation_extra` of that mask against ``cand`` (the returns' edges ``edge_bin``)
+    in one call: ``(hit, extra, beams, r0, r1)`` as :func:`continuation_extra` gives them, ``hit``
+    False without a continuation pixel at all."""
+    edge, stop, run = first_interval_runs(sel, edge_bin, start_bin, stop_bin, touch)
+    out, r0, r1, col_lo, col_hi = continuation_mask(levels, lut, edge, stop, run, min_run, max_beams, window_bins,
+                                                    min_evidence, max_misses)
+    if r1 <= r0:
+        return False, out, np.zeros(0, np.int64), r0, r1
+    extra, hit, cols, e0, e1 = continuation_extra(out, cand, sel, edge_bin, col_lo, col_hi)
+    return hit, extra, cols, e0, e1
+
+
 @njit(cache=True, nogil=True, inline="always")
 def _grow_rows(row, i, r0, r1, n):  # pragma: no cover - numba
     """``(r0, r1)``, the first and one-past-last row holding a true pixel (``r0 == n``: none yet),
@@ -2204,6 +2238,28 @@ def echo_ranges(edge, peak_value, slope, range_m, fraction, sqrt2, background, s
 
 
 @njit(cache=True, nogil=True)
+def measured_echoes(mask, img, code, lut, boost, boost_min, max_gap, fraction, peak_rel, back, forward, cols, all_cols,
+                    r0, r1, range_m, sqrt2, background, sqrt_looks, bin_m, bin_var, pulse_var,
+                    scale):  # pragma: no cover - numba
+    """:func:`find_echoes` (``all_cols``) or :func:`find_echoes_in` of the columns ``cols``, then
+    :func:`echo_ranges` of the echoes (its arguments after ``r1``) and their peaks' ranges
+    (``range_m[peak]``), in one call: ``(beam, start, stop, peak, peak_value, edge, slope, evidence,
+    n_pixels, edge_range, sigma, peak_range)``."""
+    if all_cols:
+        beam, start, stop, peak, pval, edge, slope, evid, npx = find_echoes(
+            mask, img, code, lut, boost, boost_min, max_gap, fraction, peak_rel, back, forward, r0, r1)
+    else:
+        beam, start, stop, peak, pval, edge, slope, evid, npx = find_echoes_in(
+            mask, img, code, lut, boost, boost_min, max_gap, fraction, peak_rel, back, forward, cols, r0, r1)
+    edge_r, sig = echo_ranges(edge, pval, slope, range_m, fraction, sqrt2, background, sqrt_looks, bin_m, bin_var,
+                              pulse_var, scale)
+    peak_r = np.empty(peak.size)
+    for k in range(peak.size):
+        peak_r[k] = range_m[peak[k]]
+    return beam, start, stop, peak, pval, edge, slope, evid, npx, edge_r, sig, peak_r
+
+
+@njit(cache=True, nogil=True)
 def with_edges(edge_bin, edge_range, slope, sigma, sel, beams, edge, rise, noise, range_m, bin_m, bin_var, pulse_var,
                scale, fitted, fit_scale):  # pragma: no cover - numba
     """Copies of the echoes' ``edge_bin``, ``edge_range``, ``slope``, ``sigma`` with, for each beam
@@ -2333,6 +2389,16 @@ def first_interval_runs(sel, edge_bin, start_bin, stop_bin, touch):  # pragma: n
 
 
 @njit(cache=True, nogil=True)
+def runs_of_returns(sel, edge_bin, start_bin, stop_bin, touch):  # pragma: no cover - numba
+    """:func:`first_interval_runs` and whether any beam is in a run (``run.max() >= 0``)."""
+    edge, stop, run = first_interval_runs(sel, edge_bin, start_bin, stop_bin, touch)
+    for j in range(run.size):
+        if run[j] >= 0:
+            return edge, stop, run, True
+    return edge, stop, run, False
+
+
+@njit(cache=True, nogil=True)
 def pooled_edges_done(sel, new, used, start_bin, stop, back):  # pragma: no cover - numba
     """The beams whose pooled edge ``new`` is kept (:func:`sonarmap.ranges.echoes.pooled_edges`):
     a return, pooled, within ``back`` bins in front of its echo's first structure bin and not
@@ -2363,6 +2429,27 @@ def kept_edges(sel, new, used, start_bin, stop, back, edge_bin, edge_range, slop
             marked[sel[done[t]]] = True
             n_marked += 1
     return done.size, eb, er, sl, sg, marked, n_marked
+
+
+@njit(cache=True, nogil=True)
+def pooled_kept_edges(sel, edge_bin, start_bin, stop_bin, touch, image, pulse_bins, half_beams, front_bins, max_bins,
+                      smooth_bins, fraction, n_iter, clip, clip_level, fit_front_bins, forward, back, edge_range, slope,
+                      sigma, range_m, bin_m, bin_var, pulse_var, scale, fit_scale):  # pragma: no cover - numba
+    """The pooled leading edges of the returns ``sel`` in one call: their runs
+    (:func:`first_interval_runs` with ``touch``), :func:`pooled_edges` of them on ``image`` (float64,
+    smoothed along range over ``pulse_bins`` by :func:`smooth_rows` when >= 2) and
+    :func:`kept_edges` of its results (the arguments from ``back`` on): what :func:`kept_edges`
+    returns, with no edge kept (and empty arrays) when no return belongs to a run."""
+    edge, stop, run, any_run = runs_of_returns(sel, edge_bin, start_bin, stop_bin, touch)
+    if not any_run:
+        z = np.zeros(0)
+        return 0, z, z, z, z, np.zeros(0, np.bool_), 0
+    img = smooth_rows(image, pulse_bins) if pulse_bins >= 2 and image.shape[0] >= 2 else image
+    new, _, rise, used, noise, fitted = pooled_edges(img, edge, stop, run, half_beams, front_bins, max_bins,
+                                                     smooth_bins, fraction, n_iter, clip, clip_level, fit_front_bins,
+                                                     forward)
+    return kept_edges(sel, new, used, start_bin, stop, back, edge_bin, edge_range, slope, sigma, rise, noise, range_m,
+                      bin_m, bin_var, pulse_var, scale, fitted, fit_scale)
 
 
 @njit(cache=True, nogil=True)

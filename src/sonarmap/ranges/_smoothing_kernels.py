@@ -7,6 +7,8 @@ import math
 import numpy as np
 from numba import njit
 
+from sonarmap.ranges._kernels import _interp_index, first_interval_runs
+
 
 @njit(cache=True, nogil=True)
 def _solve3(a, b):  # pragma: no cover - numba
@@ -138,3 +140,36 @@ def _smooth_beam(edge, sigma, a, lo, hi, h, sigma_min, a3, b3, new, out_sigma): 
     # the beam-to-beam scatter the combination removes (never below half the sigma)
     v_new = max(s_a * s_a - k * min(v_res, s_a * s_a), 0.25 * s_a * s_a)
     out_sigma[a] = min(sigma[a], math.sqrt(v_new))
+
+
+@njit(cache=True, nogil=True)
+def smoothed_echo_edges(sel, edge_bin, edge_range, sigma_m, start_bin, stop_bin, touch, half_beams, min_beams,
+                        sigma_min, bin_m, range_m):  # pragma: no cover - numba
+    """:func:`smooth_edges` of the returns ``sel`` (echo index per beam, -1: none) on their runs
+    (:func:`first_interval_runs` with ``touch``) applied to the echoes: ``(n_moved, edge_bin,
+    edge_range, sigma_m)``, copies of the echoes' fields with each return whose edge or sigma
+    (``bin_m`` x the kernel's, in bins) changed moved there, its range ``np.interp`` on
+    ``range_m`` - the arithmetic of the numpy formulation (sigma in bins ``sigma_m / bin_m``, NaN
+    without a return)."""
+    edge, _, run = first_interval_runs(sel, edge_bin, start_bin, stop_bin, touch)
+    m = sel.size
+    sigma = np.full(m, np.nan)
+    for j in range(m):
+        if sel[j] >= 0:
+            sigma[j] = sigma_m[sel[j]] / bin_m
+    new, new_sigma = smooth_edges(edge, sigma, run, half_beams, min_beams, sigma_min)
+    eb = edge_bin.copy()
+    er = edge_range.copy()
+    sg = sigma_m.copy()
+    n_moved = 0
+    for j in range(m):
+        k = sel[j]
+        if k < 0:
+            continue
+        s = new_sigma[j] * bin_m
+        if new[j] != edge_bin[k] or s != sigma_m[k]:
+            eb[k] = new[j]
+            er[k] = _interp_index(range_m, new[j])
+            sg[k] = s
+            n_moved += 1
+    return n_moved, eb, er, sg

@@ -9,7 +9,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from sonarmap.ranges._kernels import _interp_column, _median, _solve_small
+from sonarmap.ranges._kernels import (_edge_sigma, _interp_column, _interp_index, _median, _solve_small,
+                                      runs_of_returns)
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -301,3 +302,34 @@ def template_edges(img, edge, stop, run, skip, half_template, half_window, front
                 _anchor_run(edge, new, var, j, j1, anchor)
         j = j1
     return new, var
+
+
+@njit(cache=True, nogil=True)
+def template_moved_edges(sel, edge_bin, start_bin, stop_bin, touch, img, skip, half_template, half_window, front,
+                         min_beams, max_bins, max_shift, n_score, fraction, peak_rows, max_rows, n_iter, min_contrast,
+                         anchor, edge_range, sigma_m, range_m, bin_m, bin_var, pulse_var,
+                         scale):  # pragma: no cover - numba
+    """:func:`template_edges` of the returns ``sel`` on their runs (:func:`runs_of_returns` with
+    ``touch``) applied to the echoes: ``(n_moved, edge_bin, edge_range, sigma_m)``, copies of
+    the echoes' fields with each measured return (finite position variance) moved to its new edge,
+    its range ``np.interp`` on ``range_m`` and its sigma :func:`_edge_sigma` of ``sqrt`` of the
+    two variances' sum at slope 1 (``bin_var``, ``pulse_var``: ``bin_m^2 / 12``, ``pulse^2 /
+    12``) - the numpy formulation's arithmetic; nothing moved when no return is in a run."""
+    edge, stop, run, any_run = runs_of_returns(sel, edge_bin, start_bin, stop_bin, touch)
+    if not any_run:
+        z = np.zeros(0)
+        return 0, z, z, z
+    new, var = template_edges(img, edge, stop, run, skip, half_template, half_window, front, min_beams, max_bins,
+                              max_shift, n_score, fraction, peak_rows, max_rows, n_iter, min_contrast, anchor)
+    eb = edge_bin.copy()
+    er = edge_range.copy()
+    sg = sigma_m.copy()
+    n_moved = 0
+    for j in range(new.size):
+        if np.isfinite(var[j, 0]):
+            k = sel[j]
+            eb[k] = new[j]
+            er[k] = _interp_index(range_m, new[j])
+            sg[k] = _edge_sigma(np.sqrt(var[j, 0] + var[j, 1]), 1.0, bin_m, bin_var, pulse_var, scale)
+            n_moved += 1
+    return n_moved, eb, er, sg

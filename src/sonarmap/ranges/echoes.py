@@ -165,12 +165,12 @@ def smooth_along_range(image: ArrayLike, pulse_bins: int) -> NDArray[np.float64]
 def level_llr(fit: object, *, clip: float = 4.0) -> NDArray[np.float64]:
     """Per quantised level, the log-likelihood ratio ``log p(y|structure) - log p(y|background)``
     (nats) under a fitted mixture (eq. 8-10; the best object class), clipped to ``[-clip, clip]``."""
-    from sonarmap.ranges._kernels import llr_table
+    import sonarmap.ranges._kernels as _rk
 
     lp = np.ascontiguousarray(fit.decision_log_pmf(copy=False), dtype=np.float64)  # type: ignore[attr-defined]
     if lp.shape[0] < 2:
         return np.zeros(lp.shape[1])
-    return llr_table(lp, float(clip))
+    return _rk.llr_table(lp, float(clip))
 
 
 def range_sigma_m(edge_value: ArrayLike, slope: ArrayLike, bin_m: float, *, looks: ArrayLike = 1.0,
@@ -353,17 +353,19 @@ def _echoes_of(m: NDArray[np.bool_], img: NDArray[np.float64], code: NDArray[np.
     per-pixel codes and their evidence table, the boost pixels (:func:`_boost_pixels`), ``walk``
     = ``(boost_min, max_gap, fraction, peak_rel, back, forward)`` and ``sigma`` = ``(pulse_bins,
     looks, background, sigma_scale)`` (the pipeline's range stage calls it with arrays it made)."""
-    from sonarmap.ranges import _kernels
+    import sonarmap.ranges._kernels as _kernels
 
-    args = (m, img, code, lut, boost, *walk, *((0, m.shape[0]) if rows is None else (int(rows[0]), int(rows[1]))))
-    beam, start, stop, peak, pval, edge, slope, evid, npx = (
-        _kernels.find_echoes(*args) if columns is None
-        else _kernels.find_echoes_in(*args[:-2], np.ascontiguousarray(columns, dtype=np.int64), *args[-2:]))
-    r = np.ascontiguousarray(geometry.range_m, dtype=np.float64)
-    edge_r, sig = _echo_ranges(edge, pval, slope, geometry, sigma[0], walk[2], *sigma[1:])
+    cols = _ALL_COLUMNS if columns is None else np.ascontiguousarray(columns, dtype=np.int64)
+    r0, r1 = (0, m.shape[0]) if rows is None else (int(rows[0]), int(rows[1]))
+    beam, start, stop, peak, pval, edge, slope, evid, npx, edge_r, sig, peak_r = _kernels.measured_echoes(
+        m, img, code, lut, boost, *walk, cols, columns is None, r0, r1,
+        *_range_arguments(geometry, sigma[0], *sigma[1:]))
     return Echoes._of(beam=beam, start_bin=start, stop_bin=stop, peak_bin=peak, peak_value=pval, edge_bin=edge,
-                      edge_range_m=edge_r, peak_range_m=r[peak], slope=slope, evidence=evid, n_pixels=npx,
+                      edge_range_m=edge_r, peak_range_m=peak_r, slope=slope, evidence=evid, n_pixels=npx,
                       sigma_m=sig, n_beams=int(m.shape[1]), beamwidth_beams=beamwidth_in_beams(geometry))
+
+
+_ALL_COLUMNS = np.zeros(0, dtype=np.int64)
 
 
 def spliced_echoes(echoes: Echoes, new: Echoes, columns: NDArray[np.int64]) -> Echoes:
@@ -417,32 +419,15 @@ def _bin_and_pulse_m(geometry: SonarGeometry, pulse_bins: int) -> tuple[float, f
     return bin_m, (int(pulse_bins) * bin_m if pulse_bins >= 2 else 0.0)
 
 
-def _moved_edges(echoes: Echoes, idx: NDArray[np.int64], edge_bin: NDArray[np.float64], sigma_m: NDArray[np.float64],
-                 geometry: SonarGeometry) -> Echoes:
-    """``echoes`` with echoes ``idx`` moved to ``edge_bin`` (fractional bins; their ``edge_range_m``
-    interpolated on the bins) with ``sigma_m``; every other field unchanged."""
-    new_bin = echoes.edge_bin.copy()
-    new_range = echoes.edge_range_m.copy()
-    new_sigma = echoes.sigma_m.copy()
-    new_bin[idx] = edge_bin
-    new_range[idx] = np.interp(edge_bin, np.arange(geometry.n_bins, dtype=np.float64),
-                               np.asarray(geometry.range_m, dtype=np.float64))
-    new_sigma[idx] = sigma_m
-    return echoes.replaced(edge_bin=new_bin, edge_range_m=new_range, sigma_m=new_sigma)
-
-
-def _echo_ranges(edge: NDArray[np.float64], pval: NDArray[np.float64], slope: NDArray[np.float64],
-                 geometry: SonarGeometry, pulse_bins: int, fraction: float, looks: float, background: float,
-                 sigma_scale: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """The edges' ranges (``np.interp`` on the bins) and :func:`range_sigma_m`'s sigmas at
-    ``fraction`` x the peaks, in one pass."""
-    from sonarmap.ranges import _kernels
-
+def _range_arguments(geometry: SonarGeometry, pulse_bins: int, looks: float, background: float,
+                     sigma_scale: float) -> tuple[Any, ...]:
+    """The arguments of :func:`_kernels.measured_echoes` from ``range_m`` on: the edges' ranges
+    (``np.interp`` on the bins) and :func:`range_sigma_m`'s sigmas at the walk's fraction of the
+    peaks (:func:`_kernels.echo_ranges`)."""
     bin_m, pulse_m = _bin_and_pulse_m(geometry, pulse_bins)
     sqrt_looks = math.sqrt(max(float(looks * max(int(pulse_bins), 1)), 1.0))  # NaN stays NaN, as np.maximum
-    return _kernels.echo_ranges(edge, pval, slope, np.ascontiguousarray(geometry.range_m, dtype=np.float64),
-                                float(fraction), math.sqrt(2.0), max(float(background), 0.0), sqrt_looks, bin_m,
-                                bin_m**2 / 12.0, (pulse_m**2) / 12.0, float(sigma_scale))
+    return (np.ascontiguousarray(geometry.range_m, dtype=np.float64), math.sqrt(2.0), max(float(background), 0.0),
+            sqrt_looks, bin_m, bin_m**2 / 12.0, (pulse_m**2) / 12.0, float(sigma_scale))
 
 
 def surface_runs(echoes: Echoes, first: ArrayLike, touch_bins: float = 1.0) -> NDArray[np.int64]:
@@ -452,7 +437,7 @@ def surface_runs(echoes: Echoes, first: ArrayLike, touch_bins: float = 1.0) -> N
     their echoes (leading edge to last structure bin) lie within ``touch_bins`` of each other -
     the contiguity rule of :func:`sonarmap.ranges.tracking.track_surfaces`.
     """
-    from sonarmap.ranges import _kernels
+    import sonarmap.ranges._kernels as _kernels
 
     sel = np.asarray(first, dtype=np.int64)
     if sel.shape != (echoes.n_beams,):
@@ -462,7 +447,7 @@ def surface_runs(echoes: Echoes, first: ArrayLike, touch_bins: float = 1.0) -> N
 
 def _first_intervals(echoes: Echoes, sel: NDArray[np.int64]) -> tuple[NDArray[np.float64], ...]:
     """Per beam the edge (NaN: none), bin interval and stop of the echo ``sel`` picks."""
-    from sonarmap.ranges import _kernels
+    import sonarmap.ranges._kernels as _kernels
 
     if echoes.size == 0:
         z = np.zeros(sel.shape)
@@ -475,7 +460,7 @@ def _first_runs(echoes: Echoes, sel: NDArray[np.int64], touch_bins: float
                 ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.int64]]:
     """``(edge, stop, run)``: :func:`_first_intervals`' edge and stop per beam and the runs of
     beams whose intervals touch (:func:`surface_runs`), in one kernel call."""
-    from sonarmap.ranges import _kernels
+    import sonarmap.ranges._kernels as _kernels
 
     if echoes.size == 0:
         edge, lo, hi, stop = _first_intervals(echoes, sel)
@@ -574,22 +559,30 @@ def _pooled(echoes: Echoes, sel: NDArray[np.int64], image: ArrayLike, geometry: 
     With ``clip_level``, ``clip`` is the raw image (C-contiguous, the image's shape), clipped at
     and above that level (:func:`sonarmap.ranges.measure.full_scale_mask`'s samples), else the
     mask of the clipped samples."""
-    from sonarmap.ranges import _kernels
+    import sonarmap.ranges._kernels as _kernels
 
     half_beams, front_bins, max_bins, smooth_bins, n_iter, fit_front_bins = window
     fraction, touch_bins = fraction_touch
-    edge, stop, run = _first_runs(echoes, sel, touch_bins)
-    if half_beams == 0 or run.max(initial=-1) < 0:
-        return echoes
-    img = smooth_along_range(image, pulse_bins) if pulse_bins >= 2 else np.ascontiguousarray(image)
-    geometry.check_image(img, "image")
-    new, value, rise, used, noise, fitted = _kernels.pooled_edges(
-        img, edge, stop, run, int(half_beams), int(front_bins), int(max_bins), int(smooth_bins) | 1,
-        float(fraction), int(n_iter), _NO_CLIP if clip is None else
+    if half_beams == 0 or echoes.size == 0:
+        return echoes  # (without echoes no beam is in a run)
+    # the image in float64 (pooled_edges reads its samples as float64: the same values)
+    img = np.ascontiguousarray(image, dtype=np.float64)
+    if img.shape != geometry.shape:  # an error where some return is in a run, as the image is then read
+        if _first_runs(echoes, sel, touch_bins)[2].max(initial=-1) < 0:
+            return echoes
+        geometry.check_image(img, "image")
+    bin_m, pulse_m = _bin_and_pulse_m(geometry, pulse_bins)
+    # the runs, the smoothing along range, pooled_edges and kept_edges (the kept pooled edges
+    # given to their echoes) in one kernel call
+    n_kept, eb, er, sl, sig, marked, n_marked = _kernels.pooled_kept_edges(
+        np.ascontiguousarray(sel, dtype=np.int64), echoes.edge_bin, echoes.start_bin, echoes.stop_bin,
+        float(touch_bins), img, int(pulse_bins), int(half_beams), int(front_bins), int(max_bins),
+        int(smooth_bins) | 1, float(fraction), int(n_iter), _NO_CLIP if clip is None else
         clip if clip_level is not None else np.ascontiguousarray(clip).view(np.uint8),
-        1.0 if clip_level is None else float(clip_level), int(fit_front_bins), bool(forward))
-    return _with_edges(echoes, np.ascontiguousarray(sel), (new, used, stop), rise, noise, geometry, pulse_bins,
-                       (scales[0], fitted, scales[1]))
+        1.0 if clip_level is None else float(clip_level), int(fit_front_bins), bool(forward), int(pulse_bins) + 2,
+        echoes.edge_range_m, echoes.slope, echoes.sigma_m, np.ascontiguousarray(geometry.range_m, dtype=np.float64),
+        bin_m, bin_m**2 / 12.0, (pulse_m**2) / 12.0, float(scales[0]), float(scales[1]))
+    return _edges_kept(echoes, n_kept, (eb, er, sl, sig), marked, n_marked)
 
 
 def _check_pooling(echoes: Echoes, sel: np.ndarray, window: tuple[int, int, int, int, int, int], fraction: float,
@@ -611,25 +604,16 @@ def _check_pooling(echoes: Echoes, sel: np.ndarray, window: tuple[int, int, int,
         raise InputError(f"clip: expected the image's shape {shape}, got {np.shape(clip)}")
 
 
-def _with_edges(echoes: Echoes, sel: np.ndarray, pooled: tuple[np.ndarray, np.ndarray, np.ndarray],
-                rise: np.ndarray, noise: np.ndarray, geometry: SonarGeometry, pulse_bins: int,
-                scales: tuple[float, np.ndarray, float]) -> Echoes:
-    """``echoes`` with the pooled leading edges kept given to the returns ``sel`` (bins), with their
-    slopes and sigmas (``pooled``: per beam the pooled edge, the beams pooled and the echo's stop;
-    ``rise``, ``noise``: per beam; ``scales``: the jitter calibration, the beams whose edge is a
-    fitted clipped echo's, and their calibration).  A pooled edge is kept where it belongs to the
-    beam's own echo: within find_echoes' walk in front of its first structure bin and before its
-    last (else a neighbouring surface pulled it)."""
-    from sonarmap.ranges import _kernels
-
-    bin_m, pulse_m = _bin_and_pulse_m(geometry, pulse_bins)
-    new, used, stop = pooled
-    n_kept, eb, er, sl, sig, marked, n_marked = _kernels.kept_edges(
-        sel, new, used, echoes.start_bin, stop, int(pulse_bins) + 2, echoes.edge_bin, echoes.edge_range_m,
-        echoes.slope, echoes.sigma_m, rise, noise, np.ascontiguousarray(geometry.range_m, dtype=np.float64), bin_m,
-        bin_m**2 / 12.0, (pulse_m**2) / 12.0, float(scales[0]), scales[1], float(scales[2]))
+def _edges_kept(echoes: Echoes, n_kept: int, fields: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
+                marked: np.ndarray, n_marked: int) -> Echoes:
+    """``echoes`` with the pooled leading edges kept (:func:`_kernels.kept_edges`: their number,
+    the echoes' new ``edge_bin``, ``edge_range_m``, ``slope`` and ``sigma_m``, the echoes whose
+    kept edge is that of a fitted clipped echo and their number).  A pooled edge is kept where it
+    belongs to the beam's own echo: within find_echoes' walk in front of its first structure bin
+    and before its last (else a neighbouring surface pulled it)."""
     if not n_kept:
         return echoes
+    eb, er, sl, sig = fields
     if n_marked:
         return echoes.replaced(edge_bin=eb, edge_range_m=er, slope=sl, sigma_m=sig, clip_fitted=marked)
     return echoes.replaced(edge_bin=eb, edge_range_m=er, slope=sl, sigma_m=sig)

@@ -30,7 +30,8 @@ from sonarmap.ranges.config import CandidateConfig, RangeConfig
 from sonarmap.ranges.echoes import (POOL_FIT_FRONT_BINS, POOL_FRONT_BINS, POOL_MAX_BINS, POOL_N_ITER, _boost_pixels,
                                     _echoes_of, _evidence_table, _pooled, level_llr, smooth_along_range,
                                     spliced_echoes)
-from sonarmap.ranges.tracking import _continuation_pixels, track_surfaces, tracks_and_front
+from sonarmap.ranges.tracking import (CONTINUE_MAX_BEAMS, CONTINUE_MAX_MISSES, CONTINUE_MIN_RUN,
+                                      CONTINUE_WINDOW_BINS, _continuation_inputs, track_surfaces, tracks_and_front)
 from sonarmap.ranges.template import template_edges
 from sonarmap.ranges.smoothing import smooth_surface_edges, window_in_beamwidths
 
@@ -150,16 +151,16 @@ def _continuation(echoes: Any, first: NDArray[np.int64], levels: NDArray[Any], l
     (:func:`sonarmap.ranges.tracking.continuation_mask`) - only where it could become the return,
     on a beam without one or whose return lies behind it (None: no such pixel); with the beams
     holding them and their first and one-past-last row."""
-    from sonarmap.ranges._kernels import continuation_extra
+    import sonarmap.ranges._kernels as _rk
 
-    extra, lo, hi, col_lo, col_hi = _continuation_pixels(echoes, first, levels, llr_lut,
-                                                         min_evidence=config.continue_evidence,
-                                                         touch_bins=config.track.touch_bins)
-    if hi <= lo:
-        return None  # no continuation pixel at all (continuation_extra would keep none)
-    extra, hit, cols, r0, r1 = continuation_extra(extra, np.ascontiguousarray(cand),
-                                                  np.ascontiguousarray(first, dtype=np.int64),
-                                                  echoes.edge_bin if echoes.size else np.zeros(1), col_lo, col_hi)
+    code, lut, sel = _continuation_inputs(echoes, first, levels, llr_lut)
+    if sel is None:
+        return None  # no return to continue
+    # _continuation_pixels' kernels and continuation_extra in one call
+    hit, extra, cols, r0, r1 = _rk.continuation_pixels(
+        np.ascontiguousarray(sel), echoes.edge_bin, echoes.start_bin, echoes.stop_bin, float(config.track.touch_bins),
+        code, lut, CONTINUE_MIN_RUN, CONTINUE_MAX_BEAMS, CONTINUE_WINDOW_BINS, float(config.continue_evidence),
+        CONTINUE_MAX_MISSES, np.ascontiguousarray(cand))
     return (extra, cols, int(r0), int(r1)) if hit else None
 
 
@@ -237,10 +238,10 @@ def _with_pooled_bands(mask: NDArray[np.bool_], image: NDArray[np.float32], cand
     ``band`` None when none), and the rows ``r0 .. r1 - 1`` they occupy.  Band pooling recovers
     thin single-look surface bands the per-pixel route leaves in pieces; it is only needed (and
     only run, with ``pool``) where some beam has no candidate at all."""
-    from sonarmap.ranges._kernels import mask_extent, union_extent
+    import sonarmap.ranges._kernels as _rk
 
     cand = np.ascontiguousarray(mask, dtype=bool)
-    r0, r1, n_cols = mask_extent(cand)
+    r0, r1, n_cols = _rk.mask_extent(cand)
     if not (pool and candidates.pool_factor > 0 and bg_mean is not None and bg_mean > 0 and n_cols < cand.shape[1]):
         return cand, None, r0, r1
     band = pooled_band_mask(image, candidates.pool_factor * bg_mean, pool_beams=candidates.pool_beams,
@@ -248,7 +249,7 @@ def _with_pooled_bands(mask: NDArray[np.bool_], image: NDArray[np.float32], cand
                             link_beams=candidates.pool_link_beams, link_bins=candidates.pool_link_bins)
     if band is None:
         return cand, None, r0, r1
-    cand, r0, r1 = union_extent(cand, np.ascontiguousarray(band))
+    cand, r0, r1 = _rk.union_extent(cand, np.ascontiguousarray(band))
     return cand, band, r0, r1
 
 
@@ -395,12 +396,13 @@ def clipped_echoes(echoes: Any, raw: NDArray[Any]) -> NDArray[np.bool_]:
 def clip_rows(echoes: Any, raw: NDArray[Any]) -> NDArray[np.int64]:
     """Per echo, the first of its structure bins whose raw sample reaches the receiver's full
     scale (:data:`CLIP_LEVEL`); -1 where none does."""
-    from sonarmap.ranges._kernels import first_clipped_rows
+    import sonarmap.ranges._kernels as _rk
 
     # (the kernel clips the bins to the image's rows)
-    return first_clipped_rows(np.ascontiguousarray(raw), np.ascontiguousarray(echoes.beam),  # type: ignore[no-any-return]
-                              np.ascontiguousarray(echoes.start_bin, dtype=np.int64),
-                              np.ascontiguousarray(echoes.stop_bin, dtype=np.int64), CLIP_LEVEL)
+    return _rk.first_clipped_rows(  # type: ignore[no-any-return]
+        np.ascontiguousarray(raw), np.ascontiguousarray(echoes.beam),
+        np.ascontiguousarray(echoes.start_bin, dtype=np.int64), np.ascontiguousarray(echoes.stop_bin, dtype=np.int64),
+        CLIP_LEVEL)
 
 
 _NO_FITTED = np.zeros(0, dtype=np.bool_)
@@ -418,14 +420,14 @@ def clipped_echo_sigma(echoes: Any, sel: NDArray[np.int64], raw: NDArray[Any], g
     a Gaussian fitted to the clipped echo's flanks (``Echoes.clip_fitted``, :func:`pooled_edges`)
     keep their sigma: the fit's own standard error is in it.
     """
-    from sonarmap.ranges._kernels import clipped_spread
+    import sonarmap.ranges._kernels as _rk
 
     # (not those whose edge a Gaussian fitted to the clipped peak gave: clip_fitted)
     fitted = echoes.clip_fitted
-    e, spread = clipped_spread(np.ascontiguousarray(raw), np.ascontiguousarray(sel, dtype=np.int64), echoes.edge_bin,
-                               echoes.stop_bin, CLIP_LEVEL, abs(geom.range_resolution_m),
-                               _NO_FITTED if fitted is None else np.ascontiguousarray(fitted, dtype=np.bool_),
-                               fitted is not None)
+    e, spread = _rk.clipped_spread(
+        np.ascontiguousarray(raw), np.ascontiguousarray(sel, dtype=np.int64), echoes.edge_bin, echoes.stop_bin,
+        CLIP_LEVEL, abs(geom.range_resolution_m),
+        _NO_FITTED if fitted is None else np.ascontiguousarray(fitted, dtype=np.bool_), fitted is not None)
     if not e.size:
         return echoes
     sigma = echoes.sigma_m.copy()

@@ -34,7 +34,7 @@ from numpy.typing import ArrayLike
 
 from sonarmap.errors import InputError
 from sonarmap.geometry import SonarGeometry
-from sonarmap.ranges.echoes import Echoes, _first_runs, _moved_edges
+from sonarmap.ranges.echoes import Echoes
 
 __all__ = ["smooth_surface_edges", "SIGMA_MIN_BINS", "window_in_beamwidths"]
 
@@ -99,7 +99,7 @@ def smooth_surface_edges(echoes: Echoes, first: ArrayLike, geometry: SonarGeomet
     InputError
         If an option is out of range or ``first`` has not one entry per beam.
     """
-    from sonarmap.ranges._smoothing_kernels import smooth_edges
+    import sonarmap.ranges._smoothing_kernels as _sk
 
     sel = np.asarray(first, dtype=np.int64)
     for key, v, lo in (("half_beams", half_beams, 2), ("min_beams", min_beams, 5)):
@@ -107,17 +107,15 @@ def smooth_surface_edges(echoes: Echoes, first: ArrayLike, geometry: SonarGeomet
             raise InputError(f"{key}: must be an integer >= {lo} (got {v!r})")
     if sel.shape != (echoes.n_beams,):
         raise InputError(f"first: expected one echo index per beam ({echoes.n_beams}), got shape {sel.shape}")
-    if not echoes.size or not (sel >= 0).any():
+    if not echoes.size:
         return echoes
-    edge, _, run = _first_runs(echoes, sel, touch_bins)
     bin_m = abs(geometry.range_resolution_m) or 1.0  # (the bin the sigmas were formed with)
-    ok = sel >= 0
-    sigma = np.full(sel.size, np.nan)
-    sigma[ok] = echoes.sigma_m[sel[ok]] / bin_m
-    new, new_sigma = smooth_edges(edge, sigma, run, int(half_beams), int(min_beams), SIGMA_MIN_BINS)
-    new_sigma *= bin_m
-    idx = sel[ok]
-    moved = (new[ok] != echoes.edge_bin[idx]) | (new_sigma[ok] != echoes.sigma_m[idx])
-    if not moved.any():
+    # the first runs, the combination and the moved returns' fields in one kernel (a beam without
+    # a return, or none at all, moves nothing)
+    n_moved, eb, er, sg = _sk.smoothed_echo_edges(
+        np.ascontiguousarray(sel), echoes.edge_bin, echoes.edge_range_m, echoes.sigma_m, echoes.start_bin,
+        echoes.stop_bin, float(touch_bins), int(half_beams), int(min_beams), SIGMA_MIN_BINS, bin_m,
+        np.ascontiguousarray(geometry.range_m, dtype=np.float64))
+    if not n_moved:
         return echoes
-    return _moved_edges(echoes, idx[moved], new[ok][moved], new_sigma[ok][moved], geometry)
+    return echoes.replaced(edge_bin=eb, edge_range_m=er, sigma_m=sg)

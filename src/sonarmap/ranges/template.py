@@ -32,6 +32,7 @@ one crossing of a speckled profile (``docs/segmentation.md``, "Template edges").
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -39,7 +40,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from sonarmap.errors import InputError
 from sonarmap.geometry import SonarGeometry
-from sonarmap.ranges.echoes import Echoes, _bin_and_pulse_m, _first_runs, _moved_edges, edge_sigma_m
+from sonarmap.ranges.echoes import Echoes, _bin_and_pulse_m
 
 
 def template_edges(
@@ -103,8 +104,6 @@ def template_edges(
     Echoes
         ``echoes`` with the measured returns' ``edge_bin``, ``edge_range_m``, ``sigma_m`` replaced.
     """
-    from sonarmap.ranges import _template_kernels
-
     sel = np.ascontiguousarray(np.asarray(first, dtype=np.int64))
     _check_template_options(sel, echoes, (half_template, half_window, n_iter, front_bins, min_beams, max_bins,
                                           anchor_beams), max_shift_bins, fraction, sigma_scale, min_contrast)
@@ -112,14 +111,31 @@ def template_edges(
     geometry.check_image(img, "image")
     if echoes.n_beams < min_beams:
         return echoes  # no surface can span min_beams beams
-    edge, stop, run = _first_runs(echoes, sel, touch_bins)
-    if run.max(initial=-1) < 0:
+    options = (int(half_template), int(half_window), int(front_bins), int(min_beams), int(max_bins),
+               float(max_shift_bins), 6, float(fraction), 3, 24, int(n_iter), float(min_contrast), int(anchor_beams))
+    return _moved_by_template(echoes, sel, img, geometry, (touch_bins, pulse_bins, sigma_scale),
+                              _skipped_beams(sel, skip), options)
+
+
+def _moved_by_template(echoes: Echoes, sel: NDArray[np.int64], img: NDArray[np.float64], geometry: SonarGeometry,
+                       scalars: tuple[float, int, float], skip_beam: NDArray[np.bool_],
+                       options: tuple) -> Echoes:  # type: ignore[type-arg]
+    """:func:`template_edges` of checked arguments (``scalars``: touch_bins, pulse_bins,
+    sigma_scale; ``options``: the template kernel's, from half_template on): the runs, the
+    template's measurement and the measured returns' fields in one kernel call."""
+    import sonarmap.ranges._template_kernels as _template_kernels
+
+    if echoes.size == 0:
+        return echoes  # (without echoes no beam is in a run)
+    touch_bins, pulse_bins, sigma_scale = scalars
+    bin_m, pulse_m = _bin_and_pulse_m(geometry, pulse_bins)
+    n_moved, eb, er, sg = _template_kernels.template_moved_edges(
+        sel, echoes.edge_bin, echoes.start_bin, echoes.stop_bin, float(touch_bins), img, skip_beam, *options,
+        echoes.edge_range_m, echoes.sigma_m, np.ascontiguousarray(geometry.range_m, dtype=np.float64), bin_m,
+        bin_m**2 / 12.0, (pulse_m**2) / 12.0, float(sigma_scale))
+    if not n_moved:
         return echoes
-    new, var = _template_kernels.template_edges(
-        img, edge, stop, run, _skipped_beams(sel, skip), int(half_template), int(half_window), int(front_bins),
-        int(min_beams), int(max_bins), float(max_shift_bins), 6, float(fraction), 3, 24, int(n_iter),
-        float(min_contrast), int(anchor_beams))
-    return _with_template_edges(echoes, sel, new, var, geometry, pulse_bins, sigma_scale)
+    return echoes.replaced(edge_bin=eb, edge_range_m=er, sigma_m=sg)
 
 
 def _skipped_beams(sel: NDArray[np.int64], skip: ArrayLike | None) -> NDArray[np.bool_]:
@@ -131,27 +147,23 @@ def _skipped_beams(sel: NDArray[np.int64], skip: ArrayLike | None) -> NDArray[np
     return skip_beam
 
 
-def _with_template_edges(echoes: Echoes, sel: NDArray[np.int64], new: NDArray[np.float64], var: NDArray[np.float64],
-                         geometry: SonarGeometry, pulse_bins: int, sigma_scale: float) -> Echoes:
-    """``echoes`` with the returns the template measured (finite ``var``) moved to ``new`` (bins)
-    and their sigma ``sqrt(bin^2 / 12 + (scale bin se)^2 + pulse^2 / 12)``, ``se^2`` the sum of
-    the position's variance (``var[:, 0]``) and the crossing's plus the anchor's (``var[:, 1]``)."""
-    done = np.flatnonzero(np.isfinite(var[:, 0]))
-    if not done.size:
-        return echoes
-    bin_m, pulse_m = _bin_and_pulse_m(geometry, pulse_bins)
-    se = np.sqrt(var[done, 0] + var[done, 1])
-    return _moved_edges(echoes, sel[done], new[done], edge_sigma_m(se, 1.0, bin_m, pulse_m=pulse_m, scale=sigma_scale),
-                        geometry)
-
-
 def _check_template_options(sel: NDArray[np.int64], echoes: Echoes, ints: tuple[int, ...], max_shift_bins: float,
                             fraction: float, sigma_scale: float, min_contrast: float) -> None:
     """The options of :func:`template_edges` are in range and ``first`` has a value per beam
     (``ints``: half_template, half_window, n_iter, front_bins, min_beams, max_bins, anchor_beams)."""
-    half_template, half_window, n_iter, front_bins, min_beams, max_bins, anchor_beams = ints
     if sel.shape != (echoes.n_beams,):
         raise InputError(f"first: expected one echo index per beam ({echoes.n_beams}), got shape {sel.shape}")
+    values = (*ints, max_shift_bins, fraction, sigma_scale, min_contrast)
+    try:
+        _checked_template_values(*values)  # (checked once per set of values and types: every ping repeats them)
+    except TypeError:  # an unhashable value: checked without the cache (its error, if any, is raised there)
+        _check_template_values(*values)
+
+
+def _check_template_values(half_template: int, half_window: int, n_iter: int, front_bins: int, min_beams: int,
+                           max_bins: int, anchor_beams: int, max_shift_bins: float, fraction: float, sigma_scale: float,
+                           min_contrast: float) -> None:
+    """The option values of :func:`_check_template_options` are in range (an :class:`InputError` naming one)."""
     for key, v, lo in (("half_template", half_template, 1), ("half_window", half_window, 0), ("n_iter", n_iter, 1),
                        ("front_bins", front_bins, 1), ("min_beams", min_beams, 3), ("max_bins", max_bins, 3),
                        ("anchor_beams", anchor_beams, 0)):
@@ -162,3 +174,8 @@ def _check_template_options(sel: NDArray[np.int64], echoes: Echoes, ints: tuple[
             raise InputError(f"{key}: must be a finite number >= 0 (got {v!r})")
     if not 0 < fraction < 1:
         raise InputError(f"fraction: must lie in (0, 1) (got {fraction})")
+
+
+#: :func:`_check_template_values` remembered for the values that passed (keyed by value and type:
+#: ``typed`` keeps ``True`` apart from ``1``; a failing check raises and is not remembered).
+_checked_template_values = functools.lru_cache(maxsize=32, typed=True)(_check_template_values)

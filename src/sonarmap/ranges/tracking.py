@@ -195,17 +195,17 @@ def _tracked(echoes: Echoes, config: TrackConfig, pulse_bins: int,
              front: bool) -> tuple[NDArray[np.int64], NDArray[np.int64], bool]:
     """:func:`_kernels.track_surfaces` of ``echoes``: the tracks, (with ``front``) the tracks
     after the front pass, and whether that pass kept anything."""
-    from sonarmap.ranges import _kernels
+    import sonarmap.ranges._kernels as _kernels
 
     if not isinstance(echoes, Echoes):
         raise InputError(f"echoes: expected Echoes, got {type(echoes).__name__}")
-    lo, hi, unary, point, rise = _track_inputs(echoes, config)
     c = config
-    out, after, hit = _kernels.track_surfaces(
-        echoes.beam, int(echoes.n_beams), np.ascontiguousarray(echoes.edge_bin, dtype=np.float64), lo, hi,
-        unary, int(c.n_surfaces), int(c.max_gap), float(c.slope_bins), float(c.slope_cost),
-        float(c.jump_bins), float(c.touch_bins), float(c.segment_cost), float(c.gap_cost), int(c.bridge_beams),
-        *_point_arguments(echoes, c, pulse_bins, (point, rise)), bool(front))
+    on, peak, evidence, width, *point_scalars = _point_options(echoes, c, pulse_bins)
+    # the tracker's inputs (_track_inputs) and the tracking in one kernel call
+    out, after, hit = _kernels.tracked_echoes(
+        *_track_input_args(echoes, c), echoes.beam, int(echoes.n_beams), int(c.n_surfaces), int(c.max_gap),
+        float(c.slope_bins), float(c.slope_cost), float(c.jump_bins), float(c.touch_bins), float(c.segment_cost),
+        float(c.gap_cost), int(c.bridge_beams), on, peak, evidence, width, *point_scalars, bool(front))
     return out, after, bool(hit)
 
 
@@ -219,16 +219,20 @@ def _track_inputs(echoes: Echoes, config: TrackConfig) -> tuple[NDArray[np.int64
     """``(lo, hi, unary, point, rise)``: the echoes' bin intervals (:meth:`Echoes.intervals`), the
     tracker's per-echo cost ``beam_cost - evidence``, the point echoes (mean log-likelihood ratio
     per structure pixel at least ``point_llr``) and :func:`clip_rise`, in one kernel call."""
-    from sonarmap.ranges import _kernels
+    import sonarmap.ranges._kernels as _kernels
 
+    return _kernels.track_inputs(*_track_input_args(echoes, config))  # type: ignore[no-any-return]
+
+
+def _track_input_args(echoes: Echoes, config: TrackConfig) -> tuple:  # type: ignore[type-arg]
+    """The arguments of :func:`_kernels.track_inputs` for ``echoes`` under ``config``."""
     e = echoes
-    return _kernels.track_inputs(  # type: ignore[no-any-return]
-        np.ascontiguousarray(e.edge_bin, dtype=np.float64), np.ascontiguousarray(e.start_bin, dtype=np.int64),
-        np.ascontiguousarray(e.stop_bin, dtype=np.int64), np.ascontiguousarray(e.evidence, dtype=np.float64),
-        np.ascontiguousarray(e.n_pixels, dtype=np.int64), np.ascontiguousarray(e.peak_bin, dtype=np.int64),
-        _NO_FLAGS if e.clipped is None else np.ascontiguousarray(e.clipped, dtype=np.bool_),
-        _NO_ROWS if e.clip_row is None else np.ascontiguousarray(e.clip_row, dtype=np.int64),
-        e.clipped is not None, e.clip_row is not None, float(config.beam_cost), float(config.point_llr))
+    return (np.ascontiguousarray(e.edge_bin, dtype=np.float64), np.ascontiguousarray(e.start_bin, dtype=np.int64),
+            np.ascontiguousarray(e.stop_bin, dtype=np.int64), np.ascontiguousarray(e.evidence, dtype=np.float64),
+            np.ascontiguousarray(e.n_pixels, dtype=np.int64), np.ascontiguousarray(e.peak_bin, dtype=np.int64),
+            _NO_FLAGS if e.clipped is None else np.ascontiguousarray(e.clipped, dtype=np.bool_),
+            _NO_ROWS if e.clip_row is None else np.ascontiguousarray(e.clip_row, dtype=np.int64),
+            e.clipped is not None, e.clip_row is not None, float(config.beam_cost), float(config.point_llr))
 
 
 def front_surfaces(echoes: Echoes, tracks: Tracks, config: TrackConfig = TrackConfig(),
@@ -255,7 +259,7 @@ def front_surfaces(echoes: Echoes, tracks: Tracks, config: TrackConfig = TrackCo
     Tracks
         ``tracks`` itself when the pass keeps nothing.
     """
-    from sonarmap.ranges import _kernels
+    import sonarmap.ranges._kernels as _kernels
 
     if not isinstance(tracks, Tracks) or tracks.echo.ndim != 2 or tracks.echo.shape[1] != echoes.n_beams:
         raise InputError(f"tracks: expected Tracks over {echoes.n_beams} beams")
@@ -279,14 +283,23 @@ def _point_arguments(echoes: Echoes, config: TrackConfig, pulse_bins: int,
     """The point-target arguments of :func:`_kernels.point_pieces` after ``on`` (False: the rule is
     off - no beamwidth or ``point_fraction`` 0), for :func:`_kernels.track_surfaces`
     (``point_rise``: the point echoes and :func:`clip_rise` of :func:`_track_inputs`, when made)."""
+    on, peak, evidence, width, *scalars = _point_options(echoes, config, pulse_bins)
+    if not on:
+        return (False, peak, np.zeros(0, dtype=np.bool_), peak, evidence, width, *scalars)
+    point, rise = _track_inputs(echoes, config)[3:] if point_rise is None else point_rise
+    return (True, peak, point, rise, evidence, width, *scalars)
+
+
+def _point_options(echoes: Echoes, config: TrackConfig, pulse_bins: int) -> tuple:  # type: ignore[type-arg]
+    """:func:`_point_arguments` without the point echoes and clip rises: ``on``, the peaks, the
+    evidence and the beamwidths (empty when off) and the rule's scalars."""
     on = config.point_fraction > 0 and echoes.beamwidth_beams is not None and echoes.size > 0
     pb = max(int(pulse_bins), 1)
     flat = max(1.0, 0.5 * pb)  # a point's edges agree within half a pulse (at least a bin)
     if not on:
         z = np.zeros(0)
-        return (False, z, np.zeros(0, dtype=np.bool_), z, z, z, float(pb), flat, 2.0 * flat, 0.0, 1.0, 0.0, 0.0)
-    point, rise = _track_inputs(echoes, config)[3:] if point_rise is None else point_rise
-    return (True, np.ascontiguousarray(echoes.peak_value, dtype=np.float64), point, rise,
+        return (False, z, z, z, float(pb), flat, 2.0 * flat, 0.0, 1.0, 0.0, 0.0)
+    return (True, np.ascontiguousarray(echoes.peak_value, dtype=np.float64),
             np.ascontiguousarray(echoes.evidence, dtype=np.float64),
             np.ascontiguousarray(echoes.beamwidth_beams, dtype=np.float64), float(pb), flat, 2.0 * flat,
             float(config.point_dip), 10.0 ** (config.point_over_range_db / 10.0), float(config.point_margin),
@@ -298,7 +311,7 @@ def clip_rise(echoes: Echoes) -> NDArray[np.float64]:
     edge (bins): from ``edge_bin`` to its first full-scale row for an echo whose first peak is
     clipped (that row at most a bin behind ``peak_bin``), 0 for another clipped echo or when the
     row is not known, -1 for an echo that is not clipped (module notes, "Point targets")."""
-    from sonarmap.ranges import _kernels
+    import sonarmap.ranges._kernels as _kernels
 
     # only a clipped first peak moves the edge (a later peak may clip: two fish in one echo)
     e = echoes
@@ -346,7 +359,7 @@ def point_streaks(echoes: Echoes, chosen: NDArray[np.int64], config: TrackConfig
     >>> bool(point_streaks(e, chosen)[10:15].all())
     True
     """
-    from sonarmap.ranges import _kernels
+    import sonarmap.ranges._kernels as _kernels
 
     sel = np.ascontiguousarray(chosen, dtype=np.int64)
     if sel.shape != (echoes.n_beams,):
@@ -364,9 +377,15 @@ def point_streaks(echoes: Echoes, chosen: NDArray[np.int64], config: TrackConfig
         fraction)
 
 
+#: :func:`continuation_mask`'s default ``min_run``, ``max_beams``, ``window_bins`` and ``max_misses``
+#: (the pipeline's range stage walks with them).
+CONTINUE_MIN_RUN, CONTINUE_MAX_BEAMS, CONTINUE_WINDOW_BINS, CONTINUE_MAX_MISSES = 5, 16, 3.0, 2
+
+
 def continuation_mask(echoes: Echoes, first: NDArray[np.int64], levels: NDArray[np.integer],
-                      level_evidence: NDArray[np.float64], *, min_run: int = 5, max_beams: int = 16,
-                      window_bins: float = 3.0, min_evidence: float = 10.0, max_misses: int = 2,
+                      level_evidence: NDArray[np.float64], *, min_run: int = CONTINUE_MIN_RUN,
+                      max_beams: int = CONTINUE_MAX_BEAMS, window_bins: float = CONTINUE_WINDOW_BINS,
+                      min_evidence: float = 10.0, max_misses: int = CONTINUE_MAX_MISSES,
                       touch_bins: float = 1.0) -> NDArray[np.bool_]:
     """Pixels that continue a tracked surface beyond its ends where the classifier left it.
 
@@ -406,14 +425,31 @@ def continuation_mask(echoes: Echoes, first: NDArray[np.int64], levels: NDArray[
 
 
 def _continuation_pixels(echoes: Echoes, first: NDArray[np.int64], levels: NDArray[np.integer],
-                         level_evidence: NDArray[np.float64], *, min_run: int = 5, max_beams: int = 16,
-                         window_bins: float = 3.0, min_evidence: float = 10.0, max_misses: int = 2,
+                         level_evidence: NDArray[np.float64], *, min_run: int = CONTINUE_MIN_RUN,
+                         max_beams: int = CONTINUE_MAX_BEAMS, window_bins: float = CONTINUE_WINDOW_BINS,
+                         min_evidence: float = 10.0, max_misses: int = CONTINUE_MAX_MISSES,
                          touch_bins: float = 1.0) -> tuple[NDArray[np.bool_], int, int, NDArray[np.int64],
                                                            NDArray[np.int64]]:
     """:func:`continuation_mask` and the first and one-past-last row holding one of its pixels
     (``(n_bins, 0)``: none), overall and per beam (arrays: ``n_bins`` and 0 where none)."""
-    from sonarmap.ranges import _kernels
+    import sonarmap.ranges._kernels as _kernels
 
+    code, lut, sel = _continuation_inputs(echoes, first, levels, level_evidence)
+    if sel is None:
+        n, m = code.shape
+        return np.zeros(code.shape, dtype=bool), n, 0, np.full(m, n, np.int64), np.zeros(m, np.int64)
+    edge, stop, run = _first_runs(echoes, sel, touch_bins)
+    out, r0, r1, col_lo, col_hi = _kernels.continuation_mask(code, lut, edge, stop, run, int(min_run), int(max_beams),
+                                                             float(window_bins), float(min_evidence), int(max_misses))
+    return out, int(r0), int(r1), col_lo, col_hi
+
+
+def _continuation_inputs(echoes: Echoes, first: NDArray[np.int64], levels: NDArray[np.integer],
+                         level_evidence: NDArray[np.float64]
+                         ) -> tuple[NDArray[np.integer], NDArray[np.float64], NDArray[np.int64] | None]:
+    """The checked inputs of :func:`continuation_mask`: the C-contiguous levels and evidence table
+    (an :class:`InputError` for levels of another shape or outside the table) and the returns
+    ``first`` as int64 (None without any return: no continuation)."""
     code = np.ascontiguousarray(levels)
     lut = np.ascontiguousarray(level_evidence, dtype=np.float64)
     if code.ndim != 2 or code.shape[1] != echoes.n_beams:
@@ -422,9 +458,5 @@ def _continuation_pixels(echoes: Echoes, first: NDArray[np.int64], levels: NDArr
         raise InputError(f"levels: values must lie in [0, {lut.size})")
     sel = np.asarray(first, dtype=np.int64)
     if echoes.size == 0 or not (sel >= 0).any():
-        n, m = code.shape
-        return np.zeros(code.shape, dtype=bool), n, 0, np.full(m, n, np.int64), np.zeros(m, np.int64)
-    edge, stop, run = _first_runs(echoes, sel, touch_bins)
-    out, r0, r1, col_lo, col_hi = _kernels.continuation_mask(code, lut, edge, stop, run, int(min_run), int(max_beams),
-                                                             float(window_bins), float(min_evidence), int(max_misses))
-    return out, int(r0), int(r1), col_lo, col_hi
+        return code, lut, None
+    return code, lut, sel

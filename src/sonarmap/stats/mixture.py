@@ -225,13 +225,13 @@ def quantize_counts(image: ArrayLike, n_levels: int = 256, *, binning: Binning =
                     ) -> tuple[NDArray[np.unsignedinteger[Any]], NDArray[np.float64]]:
     """:func:`quantize` and the histogram of its levels (float64 counts, shape ``(n_levels,)``)
     in one fused pass (numba); the errors are those of :func:`quantize`."""
-    from sonarmap.stats._em_kernels import levels_counts_kernel
+    import sonarmap.stats._em_kernels as _emk
 
     arr = _as_float_image(image)
     flat, zero, one, scale, n, floor = _kernel_args(arr, n_levels, binning)
     out = np.empty(arr.shape, dtype=np.uint8 if n <= 256 else np.uint16)
     counts = np.empty(n)
-    if not levels_counts_kernel(flat, zero, one, scale, n, floor, out.reshape(-1), counts):
+    if not _emk.levels_counts_kernel(flat, zero, one, scale, n, floor, out.reshape(-1), counts):
         raise _not_finite()
     return out, counts
 
@@ -306,12 +306,12 @@ def monotone_object_log_pmf(class_log_pmf: ArrayLike) -> NDArray[np.float64]:
         where that is finite; unchanged (bit for bit) wherever the ratio is at its running maximum,
         where the background is impossible, and in the background row.
     """
-    from sonarmap.stats._em_kernels import monotone_rows
+    import sonarmap.stats._em_kernels as _emk
 
     lp = np.array(class_log_pmf, dtype=np.float64)
     if lp.ndim != 2 or lp.shape[0] < 1:
         raise InputError(f"class_log_pmf: expected (n_classes, n_levels), got {np.shape(class_log_pmf)}")
-    monotone_rows(lp)
+    _emk.monotone_rows(lp)
     return lp
 
 
@@ -713,14 +713,14 @@ class _Starts(Sequence[tuple[NDArray[np.float64], list[tuple[float, ...]]]]):
     (the fitters use the first alone unless its result looks unsound, see :func:`_em_best`)."""
 
     def __init__(self, spec: _Spec, counts: NDArray[np.float64], n_samples: float | None = None) -> None:
-        from sonarmap.stats._em_kernels import nonzero_quantiles
+        import sonarmap.stats._em_kernels as _emk
 
         x = spec.levels
         N = float(counts.sum()) if n_samples is None else n_samples
         self._spec = spec
         self._frac0 = float(counts[0]) / N
         # the median and 99th percentile level above zero (np.cumsum + np.searchsorted, one pass)
-        n_nz, i50, i99 = nonzero_quantiles(counts, 0.5, 0.99)
+        n_nz, i50, i99 = _emk.nonzero_quantiles(counts, 0.5, 0.99)
         if n_nz > 0:
             q50 = float(x[min(int(i50) + 1, x.size - 1)])
             q99 = float(x[min(int(i99) + 1, x.size - 1)])
@@ -754,7 +754,7 @@ def _start_at(spec: _Spec, frac0: float, bg_scale: float, so: float
               ) -> tuple[NDArray[np.float64], list[tuple[float, ...]]]:
     """The start of :func:`_initial_guesses` with background scale ``bg_scale`` and object scale ``so``."""
     params: list[tuple[float, ...]] = []
-    w = np.zeros(len(spec.names))
+    w = [0.0] * len(spec.names)  # (Python floats: the weights' arithmetic is numpy's, see below)
     free = spec.free
     n_obj = len(free) - 1
     for j, i in enumerate(free):
@@ -777,11 +777,26 @@ def _start_at(spec: _Spec, frac0: float, bg_scale: float, so: float
         w[i] = (1.0 - frac0) * (0.95 if j == 0 else 0.05 / max(n_obj, 1)) if spec.spike else (
             0.95 if j == 0 else 0.05 / max(n_obj, 1)
         )
-    if spec.spike:
-        w[0] = 1.0 - w.sum()
-    w = w / w.sum()
     full = [() if n == "zero" else params[free.index(i)] for i, n in enumerate(spec.names)]
-    return w, full
+    if len(w) >= 8:  # (numpy sums 8 terms and more pairwise)
+        wa = np.array(w)
+        if spec.spike:
+            wa[0] = 1.0 - wa.sum()
+        return wa / wa.sum(), full
+    # numpy's float64 sum of fewer than 8 terms: added in order from 0.0
+    if spec.spike:
+        w[0] = 1.0 - _ordered_sum(w)
+    total = _ordered_sum(w)
+    return np.array([v / total for v in w]), full
+
+
+def _ordered_sum(values: list[float]) -> float:
+    """``0.0 + values[0] + values[1] + ...`` in that order (numpy's ``sum`` of fewer than 8 float64
+    terms; Python's ``sum`` of floats compensates from 3.12 on)."""
+    total = 0.0
+    for v in values:
+        total += v
+    return total
 
 
 def _bounds(spec: _Spec, name: str) -> list[tuple[float, float]]:
@@ -821,23 +836,23 @@ def _em(
     stops and returns None once it is within :data:`MERGE_RTOL` of it (climbing to the same
     maximum).  With ``spec.rice_min`` a run whose Rice component has become a Rayleigh stops
     there, not converged."""
-    from sonarmap.stats._em_kernels import EM_CONVERGED, EM_MERGED, em_general_kernel
+    import sonarmap.stats._em_kernels as _emk
 
     w = np.array(w0, dtype=np.float64)
     trace = np.empty(max_iter + 1)
     kind, par, lo, hi = _general_coords(spec, params0)
     if merge is None and spec.rice_min <= 0:
-        n_iter, status = em_general_kernel(counts, spec.levels, kind, par, w, lo, hi, int(max_iter),
-                                           float(tol), 3, trace, accel)
+        n_iter, status = _emk.em_general_kernel(counts, spec.levels, kind, par, w, lo, hi, int(max_iter),
+                                                float(tol), 3, trace, accel)
     else:
         ref_w, ref_par = merge if merge is not None else (None, None)
-        n_iter, status = em_general_kernel(counts, spec.levels, kind, par, w, lo, hi, int(max_iter), float(tol), 3,
-                                           trace, accel, ref_w, ref_par, MERGE_RTOL, spec.rice_min)
-        if status == EM_MERGED:
+        n_iter, status = _emk.em_general_kernel(counts, spec.levels, kind, par, w, lo, hi, int(max_iter), float(tol), 3,
+                                                trace, accel, ref_w, ref_par, MERGE_RTOL, spec.rice_min)
+        if status == _emk.EM_MERGED:
             return None
     coords = par.tolist()  # (Python floats: no numpy scalar per coordinate)
     params = [_from_coords(n, *coords[c]) for c, n in enumerate(spec.names)]
-    return w, params, int(n_iter), status == EM_CONVERGED, trace[: n_iter + 1].copy()
+    return w, params, int(n_iter), status == _emk.EM_CONVERGED, trace[: n_iter + 1].copy()
 
 
 def _eta_of(name: str, scale: float) -> float:

@@ -36,14 +36,15 @@ def fit_counts(counts: ArrayLike, config: FitConfig = FitConfig()) -> Any:
         None where :func:`sonarmap.stats.mixture.fit_mixture` raises :class:`FitError`
         (e.g. an empty histogram).
     """
-    from sonarmap.stats.mixture import fit_mixture
+    import sonarmap.stats.mixture as _mixture
 
     if not isinstance(config, FitConfig):
         raise InputError(f"config: expected a FitConfig, got {type(config).__name__}")
     try:
-        return fit_mixture(np.asarray(counts, dtype=np.float64), families=config.families,  # type: ignore[arg-type]
-                           method=config.fit_method, n_levels=config.n_levels, tol=config.fit_tol,  # type: ignore[arg-type]
-                           accelerate=config.fit_accelerate)
+        return _mixture.fit_mixture(
+            np.asarray(counts, dtype=np.float64), families=config.families,  # type: ignore[arg-type]
+            method=config.fit_method, n_levels=config.n_levels, tol=config.fit_tol,  # type: ignore[arg-type]
+            accelerate=config.fit_accelerate)
     except FitError:
         return None
 
@@ -77,7 +78,7 @@ def failed_gates(fit: Any, config: FitConfig = FitConfig()) -> frozenset[str]:
     limits (none without a fit)."""
     if fit is None:
         return frozenset()
-    from sonarmap.stats.gates import fit_gates
+    import sonarmap.stats.gates as _gates_mod
 
-    return fit_gates(fit, max_kld=config.max_kld, max_object_weight=config.max_object_weight,
-                     min_separation=config.min_separation)
+    return _gates_mod.fit_gates(fit, max_kld=config.max_kld, max_object_weight=config.max_object_weight,
+                                min_separation=config.min_separation)
