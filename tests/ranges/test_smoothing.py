@@ -206,18 +206,16 @@ def test_the_window_counts_beamwidths_where_the_beams_overlap():
     assert window_in_beamwidths(0, [3.0]) == 0  # off stays off
 
 
-def test_the_pipeline_smooths_an_oculus_fan_over_its_beamwidths(monkeypatch):
-    # the Oculus-like fan's beams are 2.4 spacings wide: 8 beamwidths = 19 beams either side; the
+def test_the_pipeline_smooths_an_oculus_fan_over_its_beamwidths(monkeypatch, data_dir):
+    # the real Oculus fan's beams are 2.4 spacings wide: 8 beamwidths = 19 beams either side; the
     # same ping with its beamwidth removed is smoothed over 8 beams
     import dataclasses
 
     import sonarmap.ranges.measure as measure
-    from sonarmap.geometry import preset
+    from sonarmap.io import read_pings
     from sonarmap.pipeline import process_ping
-    from sonarmap.simulate import scene_from_name, simulate_ping
 
-    g = preset("oculus-m750d-like")
-    ping = simulate_ping(scene_from_name("hull", geometry=g), g, seed=0).ping
+    ping = next(iter(read_pings(data_dir / "oculus" / "one_ping_8bit.raw")))
     seen = []
     real = measure.smooth_surface_edges
 
