@@ -325,8 +325,8 @@ def _block_factor(img: NDArray[np.float32], level: NDArray[np.float32]) -> NDArr
     bc = max(m // 16, 16)
     nr, nc = max(n // br, 1), max(m // bc, 1)
     br, bc = n // nr, m // nc
-    # each block's lower quartile, selected exactly in one kernel (the ratio computed on the way;
-    # 2-3x faster than gathering the blocks and np.partition-ing them, no image-sized temporary)
+    # each block's lower quartile, selected exactly in one kernel (the ratio computed on the way,
+    # no image-sized temporary)
     k = (br * bc - 1) // 4
     grid = block_quartiles(np.ascontiguousarray(img), np.ascontiguousarray(level, dtype=np.float32), nr, nc, br, bc,
                            k, _WORK.get("blocks", (nc, br * bc)), np.empty(QUARTILE_BUCKETS, np.int64)).reshape(nr, nc)
