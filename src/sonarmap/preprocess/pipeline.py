@@ -255,6 +255,7 @@ def load_config(path: str | os.PathLike[str]) -> PreprocessConfig:
 class _Plan:
     matrix: NDArray[np.float32] | None  # x_hat = y @ matrix (deconvolution and taper folded)
     row_factor: NDArray[np.float32] | None  # (n_bins, 1)
+    col_factor: NDArray[np.float32] | None  # (1, n_beams): the taper without a deconvolution
     steps: tuple[str, ...]
     noise: float | None
     taper_source: str | None
@@ -337,10 +338,17 @@ def _plan_cached(by_content: _ByContent, config: PreprocessConfig) -> _Plan:
     if config.normalise != "none":
         steps.append(f"normalise:{config.normalise}")
     Mf = None
-    if M is not None:
+    col = None
+    if M is not None and "deconvolve" not in steps:
+        # a taper alone scales each column: a product with a diagonal matrix costs n_beams times
+        # more and gives the same float32 values (one product per pixel, the rest exact zeros)
+        col = np.ascontiguousarray(np.diag(M)[None, :], dtype=np.float32)
+        col.setflags(write=False)
+    elif M is not None:
         Mf = np.ascontiguousarray(M, dtype=np.float32)
         Mf.setflags(write=False)
-    return _Plan(matrix=Mf, row_factor=row, steps=tuple(steps), noise=noise, taper_source=taper_source)
+    return _Plan(matrix=Mf, row_factor=row, col_factor=col, steps=tuple(steps), noise=noise,
+                 taper_source=taper_source)
 
 
 def preprocess_image(
@@ -395,7 +403,12 @@ def _preprocessed(img: NDArray[np.float32], geometry: SonarGeometry, cfg: Prepro
     """:func:`preprocess_image` of a validated image (``img_max``: its maximum, None: not known)."""
     geometry.check_image(img)
     plan = _plan(geometry, cfg)
-    out = img @ plan.matrix if plan.matrix is not None else img.copy()
+    if plan.matrix is not None:
+        out = img @ plan.matrix
+    elif plan.col_factor is not None:
+        out = img * plan.col_factor
+    else:
+        out = img.copy()
     if plan.row_factor is not None:
         out *= plan.row_factor
     if cfg.clip_negative and out.dtype == np.float32 and out.flags.c_contiguous:
