@@ -224,6 +224,25 @@ def test_a_clipped_echo_carries_the_clipping_in_its_sigma():
     assert np.array_equal(out.edge_bin, e.edge_bin)  # the range is not moved
 
 
+def test_a_full_scale_sample_behind_the_first_peak_does_not_widen_the_sigma():
+    """The level an edge is measured at is half the echo's *first* peak: a full-scale speckle
+    spike deeper in the echo, after the profile has peaked and fallen, did not set it, so the
+    sigma stays; the same spike on the rise before the first peak widens it."""
+    from sonarmap.ranges.measure import CLIP_LEVEL, clipped_echo_sigma
+
+    g = _geom(n_bins=100, n_beams=2)
+    img = np.zeros(g.shape)
+    img[40:52, 0] = [0.1, 0.3, 0.6, 0.8, 0.6, 0.5, 0.4, 1.0, 0.4, 0.3, 0.2, 0.1]  # spike behind the peak
+    img[40:52, 1] = [0.1, 0.3, 0.6, 1.0, 0.6, 0.5, 0.4, 0.4, 0.4, 0.3, 0.2, 0.1]  # clipped first peak
+    e = find_echoes(img > 0.05, img, g)
+    first = _first(e)
+    assert img[47, 0] >= CLIP_LEVEL and e.peak_bin[first[0]] == 43 and e.peak_bin[first[1]] == 43
+    out = clipped_echo_sigma(e, first, img, g)
+    assert out.sigma_m[first[0]] == e.sigma_m[first[0]]
+    assert out.sigma_m[first[1]] == pytest.approx(np.hypot(e.sigma_m[first[1]],
+                                                           (43 - e.edge_bin[first[1]]) * 0.02 / np.sqrt(12)))
+
+
 def _clipped_gaussian_surface(seed: int, n_beams: int = 48, peak: float = 4.0, width: float = 4.0
                               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """A surface sloped 0.5 bin per beam whose echo along range is a Gaussian of ``width`` bins

@@ -2334,10 +2334,11 @@ def track_ranges(echo, edge_bin, peak_bin, at, sigma_m, img, first_mode, start_b
 
 
 @njit(cache=True, nogil=True)
-def clipped_spread(img, sel, edge_bin, stop_bin, level, bin_m, fitted, has_fitted):  # pragma: no cover - numba
-    """The returns whose echo reaches ``level`` (:func:`sonarmap.ranges.measure.clipped_echo_sigma`),
-    except those whose edge is a fitted clipped echo's (``fitted``, when ``has_fitted``): their echo
-    indices and the spread from the edge to the first clipped row (metres, > 0)."""
+def clipped_spread(img, sel, edge_bin, peak_bin, level, bin_m, fitted, has_fitted):  # pragma: no cover - numba
+    """The returns whose echo reaches ``level`` between its edge and its first peak (``peak_bin``,
+    :func:`sonarmap.ranges.measure.clipped_echo_sigma`), except those whose edge is a fitted
+    clipped echo's (``fitted``, when ``has_fitted``): their echo indices and the spread from the
+    edge to the first clipped row (metres, > 0)."""
     n = img.shape[0]
     hit_e = np.empty(sel.size, np.int64)
     spread = np.empty(sel.size)
@@ -2348,7 +2349,7 @@ def clipped_spread(img, sel, edge_bin, stop_bin, level, bin_m, fitted, has_fitte
             continue
         x = np.ceil(edge_bin[e])
         lo = 0 if np.isnan(x) else int(min(max(x, 0.0), n - 1.0))
-        hi = min(max(stop_bin[e], 0), n)
+        hi = min(max(peak_bin[e] + 1, 0), n)
         for i in range(lo, hi):
             if img[i, j] >= level:
                 d = (i - edge_bin[e]) * bin_m
