@@ -30,6 +30,7 @@ their fit flags are carried in :attr:`PingProducts.flags`.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from typing import Any, NamedTuple
 
@@ -47,7 +48,7 @@ from sonarmap.ranges.candidates import candidate_mask, pooled_band_mask, pooled_
 from sonarmap.ranges.measure import background_mean, rule_ranges, surface_ranges
 from sonarmap.stats.model import failed_gates, fit_counts, fit_levels
 
-__all__ = ["PipelineConfig", "PingProducts", "process_ping", "classify_image", "pooled_band_pixels", "pooled_band_mask", "METHODS", "SOLVER_NAMES"]
+__all__ = ["PipelineConfig", "PingProducts", "process_ping", "measurement_image", "classify_image", "pooled_band_pixels", "pooled_band_mask", "METHODS", "SOLVER_NAMES"]
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -234,7 +235,8 @@ def process_ping(ping: Ping, config: PipelineConfig = PipelineConfig(), *, keep_
     if config.ranges.tracker == "surface":
         ranges, thickness = surface_ranges(
             ping, m.image, levels, mask, fit, config.ranges, config.candidates, normalised=normalised,
-            bg_mean=bg_mean, background=m.background, pool_bands=config.classify.method in ("mrf", "map", "threshold"))
+            bg_mean=bg_mean, background=m.background, pool_bands=config.classify.method in ("mrf", "map", "threshold"),
+            edge_image=None if normalised else measurement_image(raw, geom, config, labels, m.image, bg_mean))
     else:
         ranges = rule_ranges(ping, m.image, labels, mask, config.ranges, config.candidates, normalised=normalised,
                              bg_mean=bg_mean, edge=edge)
@@ -246,6 +248,48 @@ def process_ping(ping: Ping, config: PipelineConfig = PipelineConfig(), *, keep_
     if thickness is not None:
         ranges = ranges.with_p_detect(_p_detect(float(pd), pd_range, ranges, thickness))
     return products(ranges, flags, labels, pd, pfa, pd_range)
+
+
+def measurement_image(raw: NDArray[np.float32], geom: Any, config: PipelineConfig, labels: NDArray[np.uint8],
+                      image: NDArray[np.float32], bg_mean: float | None) -> tuple[NDArray[np.float32], float] | None:
+    """The image the echoes of a pre-processed (not normalised) ping are measured on, and its
+    background mean (``RangeConfig.edge_image``; ``surface_ranges(edge_image=...)``).
+
+    Parameters
+    ----------
+    raw : ndarray, float32, shape (n_bins, n_beams)
+        The conditioned ping (:func:`sonarmap.preprocess.normalise.condition_image`).
+    geom : SonarGeometry
+    config : PipelineConfig
+    labels, image : ndarray, shape (n_bins, n_beams)
+        The classifier's labels (0 background) and the pre-processed image it saw.
+    bg_mean : float or None
+        The fitted background class's mean intensity in ``image``.
+
+    Returns
+    -------
+    (ndarray, float) or None
+        The ping's pre-processing without the deconvolution of the beam pattern (when it
+        deconvolves and ``config.ranges.edge_image == "undeconvolved"``) and ``bg_mean`` in its
+        units; None: the echoes are measured on ``image`` itself.
+    """
+    pre = config.preprocess_config()
+    if config.ranges.edge_image != "undeconvolved" or pre is None or not pre.deconvolve or geom.psf is None:
+        return None
+    edge = preprocess_finite(raw, geom, _undeconvolved(pre), float(raw.max()))
+    # the background mean of the classified image, in the units of ``edge``: the ratio of the two
+    # images' means over the background pixels (every 4th row: the ratio, not every pixel, is
+    # wanted)
+    bg = labels[::4] == 0
+    a = float(edge[::4][bg].mean()) if bg.any() else 0.0
+    b = float(image[::4][bg].mean()) if bg.any() else 0.0
+    return edge, (bg_mean * a / b if bg_mean and b > 0 else a)
+
+
+@functools.lru_cache(maxsize=8)
+def _undeconvolved(pre: Any) -> Any:
+    """``pre`` without its deconvolution (cached: every ping of a recording asks for it)."""
+    return pre.replace(deconvolve=False)
 
 
 def _check_arguments(ping: Any, config: Any, background: Any) -> None:

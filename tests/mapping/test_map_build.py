@@ -19,7 +19,7 @@ def test_static_map_equals_the_cli_output(data_dir, tmp_path):
     res = map_from_pings(read_pings(src), MapConfig(static=True))
     cli = read_point_cloud(out)
     assert res.n_pings == 10 and res.occupancy is None and res.georef is None
-    assert res.n_returns == 544 == len(res.cloud)
+    assert res.n_returns == 545 == len(res.cloud)
     np.testing.assert_allclose(res.cloud.xyz_m, cli.xyz_m, atol=1e-6)
 
 

@@ -160,7 +160,8 @@ def test_band_peak_kernel_matches_numpy_formulation():
 def test_the_range_stages_alone_give_the_pipeline_ranges(test_pings, aris_pings, oculus_pings):
     """candidate_mask then surface_ranges on the classifier's image, labels and fit give exactly the
     returns process_ping reports, on every real DIDSON, ARIS and Oculus ping."""
-    from sonarmap.pipeline import PipelineConfig, process_ping
+    from sonarmap.pipeline import PipelineConfig, measurement_image, process_ping
+    from sonarmap.preprocess.normalise import condition_image
     from sonarmap.ranges.measure import background_mean, surface_ranges
     from sonarmap.stats.mixture import quantize
 
@@ -173,8 +174,12 @@ def test_the_range_stages_alone_give_the_pipeline_ranges(test_pings, aris_pings,
         normalised = bool(pr.background is not None and pr.background.applied)
         mask = candidate_mask(pr.labels, p.geometry, cfg.candidates, normalised=normalised)
         bg_mean, _ = background_mean(pr.fit, cfg.ranges)
+        # a pre-processed ping's echoes are measured on its pre-processing without the deconvolution
+        edge = None if normalised else measurement_image(condition_image(p.image)[0], p.geometry, cfg, pr.labels,
+                                                         pr.image, bg_mean)
+        assert normalised or edge is not None
         r, _ = surface_ranges(p, pr.image, quantize(pr.image), mask, pr.fit, cfg.ranges, cfg.candidates,
-                              normalised=normalised, bg_mean=bg_mean, background=pr.background)
+                              normalised=normalised, bg_mean=bg_mean, background=pr.background, edge_image=edge)
         np.testing.assert_array_equal(r.bin, pr.ranges.bin)
         np.testing.assert_array_equal(r.range_m, pr.ranges.range_m)
         np.testing.assert_array_equal(r.sigma_m, pr.ranges.sigma_m)

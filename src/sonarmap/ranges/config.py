@@ -117,6 +117,21 @@ class RangeConfig(ConfigSection):
         ``"back"`` (walk from the first peak towards the sonar to the first bin below the level;
         better on the simulated ARIS pings) or ``"forward"`` (the first bin from in front of the
         echo that reaches the level).
+    edge_image : str
+        The image the echoes of a ping that is pre-processed rather than normalised (the DIDSON's
+        thresholded 8-bit output) are measured on: ``"undeconvolved"`` (default: the same
+        pre-processing without the beam-pattern deconvolution) or ``"classified"`` (the image the
+        classifier saw).  The classifier keeps the deconvolved image, which removes the ghosts at
+        the same range; the edges do not, because that deconvolution moves them: the DIDSON's
+        stated beam pattern puts 57 % / 46 % / 39 % of the main beam at +-8 / 16 / 24 beams, the
+        real DIDSON ping 5 shows 3.1 % / 0.7 % / 0.5 %
+        (:data:`sonarmap.simulate.render.MEASURED_DIDSON_GHOSTS`), so where a surface's range
+        changes across beams the deconvolution subtracts from each beam's rising flank ghosts its
+        neighbours' peaks do not cast, and the front of the echo is clipped away (a noise-free
+        simulated DIDSON hull: half-peak crossings 2.9 bins late on the deconvolved image, 0.1
+        bin early on the recorded one; ``docs/segmentation.md``, "The image the edges are
+        measured on").  Ignored with ``tracker="rules"`` and for normalised pings (their echoes
+        are measured on the recorded samples over the background level).
     edge_pool_beams : int
         Leading edges of a tracked surface are measured on the mean of the edge-aligned profiles
         of the ``edge_pool_beams`` beams on either side of each beam on the same surface
@@ -217,6 +232,7 @@ class RangeConfig(ConfigSection):
     track: Any = None
     edge_fraction: float = 0.5
     edge_scan: str = "back"
+    edge_image: str = "undeconvolved"
     edge_pool_beams: int = 3
     edge_pool_scan: str = "forward"
     pulse_length_m: float | None = None
@@ -252,6 +268,7 @@ class RangeConfig(ConfigSection):
             raise config_error(w, "track", "must be a track table", self.track)
         check_choice(self, "tracker", ("surface", "rules"), w)
         check_choice(self, "edge_scan", ("forward", "back"), w)
+        check_choice(self, "edge_image", ("undeconvolved", "classified"), w)
         check_choice(self, "edge_pool_scan", ("forward", "back"), w)
         check_choice(self, "range_mode", ("first", "strongest"), w)
         for key, positive in (("log_dynamic_range_db", True), ("pulse_length_m", False)):

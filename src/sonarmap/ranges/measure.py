@@ -256,9 +256,14 @@ def _with_pooled_bands(mask: NDArray[np.bool_], image: NDArray[np.float32], cand
 def surface_ranges(ping: Ping, image: NDArray[np.float32], levels: NDArray[Any], mask: NDArray[np.bool_],
                    fit: Any, config: RangeConfig = RangeConfig(), candidates: CandidateConfig = CandidateConfig(), *,
                    normalised: bool = False, bg_mean: float | None = None, background: Any = None,
-                   pool_bands: bool = True) -> tuple[BeamRanges, NDArray[np.int64]]:
+                   pool_bands: bool = True, edge_image: tuple[NDArray[np.float32], float] | None = None
+                   ) -> tuple[BeamRanges, NDArray[np.int64]]:
     """Echoes of the candidate structure (``mask`` plus pooled bands), tracked across beams; also
-    the number of bins each return's echo spans (0 where no return)."""
+    the number of bins each return's echo spans (0 where no return).
+
+    ``edge_image``: ``(image, background mean)`` the echoes of a ping that is not normalised are
+    measured on instead of ``image`` and ``bg_mean`` (``RangeConfig.edge_image``; ``image``
+    still makes the pooled-band candidates)."""
     geom = ping.geometry
     cand, band, r0, r1 = _with_pooled_bands(mask, image, candidates, bg_mean,
                                             pool_bands and not normalised)
@@ -274,7 +279,8 @@ def surface_ranges(ping: Ping, image: NDArray[np.float32], levels: NDArray[Any],
     done: list[Any] = []  # the measurement image, its rows and its inputs, once computed
     # the image the echoes are measured on unless normalised, and its smoothing over the pulse
     # (find_echoes' checks and conversions, made once: it may measure twice)
-    plain = np.ascontiguousarray(image, dtype=np.float64) if pb < 2 and not measured else image
+    on, on_bg = (image, bg_mean) if edge_image is None or normalised else edge_image
+    plain = np.ascontiguousarray(on, dtype=np.float64) if pb < 2 and not measured else on
     smoothed = None if measured else smooth_along_range(plain, pb)
     geom.check_image(cand, "mask")
     code, lut = _evidence_table(cand, None, levels, lut)
@@ -284,7 +290,7 @@ def surface_ranges(ping: Ping, image: NDArray[np.float32], levels: NDArray[Any],
     def measure(cand: NDArray[np.bool_], rows: tuple[int, int],
                 before: tuple[Any, NDArray[np.int64], tuple[int, int]] | None = None
                 ) -> tuple[Any, float, Any, Any, Any]:
-        meas, bg = plain, bg_mean or 0.0
+        meas, bg = plain, on_bg or 0.0
         if measured:
             # echo intensity above the background, in background units (its mean is 1)
             valid = done[1] if done else (0, 0)
@@ -318,7 +324,15 @@ def surface_ranges(ping: Ping, image: NDArray[np.float32], levels: NDArray[Any],
             extra, cols, e0, e1 = more
             cand = cand | extra
             meas, bg, echoes, tracks, fronted = measure(cand, (min(r0, e0), max(r1, e1)), (echoes, cols, (r0, r1)))
-    tracks = fronted
+    return _refined_returns(echoes, fronted, meas, image, ping, config, pb, fraction)
+
+
+def _refined_returns(echoes: Any, tracks: Any, meas: Any, image: NDArray[np.float32], ping: Ping, config: RangeConfig,
+                     pb: int, fraction: float) -> tuple[BeamRanges, NDArray[np.int64]]:
+    """:func:`surface_ranges` after the tracking: the first returns' edges pooled, measured against
+    the template and smoothed along the surface on the measured image ``meas``, clipped echoes'
+    sigmas widened, and the returns of ``tracks`` (intensities from the classified ``image``)."""
+    geom = ping.geometry
     sel = tracks.first
     if config.edge_pool_beams > 0 and config.range_mode == "first":
         echoes = _pooled_returns(echoes, sel, meas, ping, config, pb, fraction)
