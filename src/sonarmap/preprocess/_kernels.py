@@ -202,7 +202,9 @@ def _row_quartile_scaled(img, k, out):  # pragma: no cover - numba
     ``float32(1 / 255)`` (then each level has one value and the result is the same); False (``out``
     partly written) when one is not.  The levels and that test come from one branch-free pass over
     each row (it vectorises), the first value of each level needs no table.  The levels are
-    unsigned, as the scan's index: no negative-index wraparound code in the counting loops."""
+    unsigned, as the scan's index: no negative-index wraparound code in the counting loops.  Each
+    row's search starts from the previous row's level (counting the keys at most it on the way):
+    a few steps instead of a scan from the row's lowest level."""
     n, m = img.shape
     keys = np.empty(m, dtype=np.uint32)
     count = np.zeros(256, dtype=np.int32)
@@ -210,29 +212,33 @@ def _row_quartile_scaled(img, k, out):  # pragma: no cover - numba
     half = np.float32(0.5)
     step = np.float32(1.0 / 255.0)
     two = np.float32(2.0)
+    t = np.uint32(0)  # the previous row's level: neighbouring rows' quartiles lie a few levels apart
     for i in range(n):
         row = img[i]
         good = True
-        lo = np.uint32(255)
         for j in range(m):
             v = row[j]
             v = min(v, two) if v > 0 else np.float32(0.0)  # (clamped: no overflowing level)
             key = np.uint32(v * scale + half)
             good &= (v <= 1.0) & (np.float32(key) * step == v)
             keys[j] = key
-            lo = min(lo, key)
         if not good:
             return False
+        c = 0  # the keys at most t
         for j in range(m):
             count[keys[j]] += 1
-        c = 0
-        key = np.uint64(lo)
-        while key < np.uint64(256):
-            c += count[key]
-            if c > k:
-                out[i] = np.float32(key) * step
-                break
-            key += np.uint64(1)
+            c += keys[j] <= t
+        # the k-th smallest key is the smallest t with more than k keys at most t: step down
+        # while the level below t still has more, else up until t has
+        if c > k:
+            while t > 0 and c - count[t] > k:
+                c -= count[t]
+                t -= np.uint32(1)
+        else:
+            while c <= k:
+                t += np.uint32(1)
+                c += count[t]
+        out[i] = np.float32(t) * step
         for j in range(m):
             count[keys[j]] = 0
     return True
