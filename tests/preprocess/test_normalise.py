@@ -405,6 +405,30 @@ def test_median_inplace_equals_numpys_median_with_ties() -> None:
         assert np.float64(median_inplace(x.copy(), n)) == np.float64(np.median(x))
 
 
+def test_median_inplace_of_many_values_equals_numpys_median() -> None:
+    """From MEDIAN_BUCKET_MIN values on median_inplace takes the histogram route: np.median again,
+    with the middle ranks at a bucket's edge, heavy tails that crowd one bucket, ties, constants,
+    infinities and spans that overflow (those take quickselect)."""
+    from sonarmap.preprocess._kernels import MEDIAN_BUCKET_MIN, median_inplace
+
+    rng = np.random.default_rng(17)
+    for t in range(600):
+        n = int(rng.integers(MEDIAN_BUCKET_MIN, 3000))
+        x = np.abs(rng.standard_t(1 + t % 4, size=n))
+        if t % 3 == 0:
+            x = np.round(x * 4) / 4  # ties
+        if t % 7 == 0:
+            x[: n // 2] = 0.0  # the upper middle value the first of its bucket
+        if t % 11 == 0:
+            x[:] = 1.5
+        if t % 13 == 0:
+            x[rng.integers(0, n, 3)] = (np.inf, -np.inf, 1e308)[t % 3]
+        if t % 17 == 0:
+            x[:2] = (-1e308, 1e308)
+        x = x.astype((np.float64, np.float32)[t % 2])
+        assert np.float64(median_inplace(x.copy(), n)) == np.float64(np.median(x))
+
+
 @pytest.mark.parametrize("n_levels", [256, 64, 2, 300])
 def test_normalised_levels_are_the_quantised_normalised_image(n_levels) -> None:
     """The levels the background estimate makes on the way are :func:`quantize` of its normalised
@@ -456,5 +480,5 @@ def test_block_quartiles_equal_numpys_partition(case) -> None:
         level[5:40] = 0.0  # 0/0 = NaN and x/0 = inf in the first blocks
     for k in (0, (br * bc - 1) // 4, br * bc - 1):
         got = block_quartiles(img, level, nr, nc, br, bc, k, np.empty((nc, br * bc), np.float32),
-                              np.empty(QUARTILE_BUCKETS, np.int64))
+                              np.empty((4, QUARTILE_BUCKETS), np.int64))
         np.testing.assert_array_equal(got, _numpy_block_quartiles(img, level, nr, nc, br, bc, k))

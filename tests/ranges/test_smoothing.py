@@ -204,6 +204,14 @@ def test_the_window_counts_beamwidths_where_the_beams_overlap():
     assert window_in_beamwidths(8, None) == 8  # no beamwidth known
     assert window_in_beamwidths(8, [np.nan, 2.0, 2.0]) == 16  # unknown entries ignored
     assert window_in_beamwidths(0, [3.0]) == 0  # off stays off
+    # the median of the beamwidths is np.median's (even and odd counts, ties at the half beam),
+    # and the caller's array is left as it was
+    rng = np.random.default_rng(3)
+    for n in (1, 2, 5, 48, 256, 257, 512):
+        for bw in (rng.uniform(0.5, 3.0, n), np.round(rng.uniform(0.5, 3.0, n) * 16) / 16):
+            kept = bw.copy()
+            assert window_in_beamwidths(8, bw) == int(round(8 * max(1.0, float(np.median(bw)))))
+            assert np.array_equal(bw, kept)
 
 
 def test_the_pipeline_smooths_an_oculus_fan_over_its_beamwidths(monkeypatch, data_dir):

@@ -329,7 +329,7 @@ def _block_factor(img: NDArray[np.float32], level: NDArray[np.float32]) -> NDArr
     # no image-sized temporary)
     k = (br * bc - 1) // 4
     grid = block_quartiles(np.ascontiguousarray(img), np.ascontiguousarray(level, dtype=np.float32), nr, nc, br, bc,
-                           k, _WORK.get("blocks", (nc, br * bc)), np.empty(QUARTILE_BUCKETS, np.int64)).reshape(nr, nc)
+                           k, _WORK.get("blocks", (nc, br * bc)), np.empty((4, QUARTILE_BUCKETS), np.int64)).reshape(nr, nc)
     if not np.all(np.isfinite(grid)):
         return np.ones((nr, nc), dtype=np.float32)
     med = _background_median(grid)

@@ -23,6 +23,8 @@ from fractions import Fraction
 import numpy as np
 from numba import njit
 
+from sonarmap._histogram_kernels import add_partial_counts
+
 # ---------------------------------------------------------------------------- histogram
 
 
@@ -49,15 +51,7 @@ def _counts_into(flat, counts):  # pragma: no cover - numba
     not serialise."""
     top = counts.shape[0]
     part = np.zeros((4, top), dtype=np.int64)
-    n = flat.shape[0]
-    n4 = n - n % 4
-    for k in range(0, n4, 4):
-        part[0, flat[k]] += 1
-        part[1, flat[k + 1]] += 1
-        part[2, flat[k + 2]] += 1
-        part[3, flat[k + 3]] += 1
-    for k in range(n4, n):
-        part[0, flat[k]] += 1
+    add_partial_counts(flat, flat.shape[0], part)
     for v in range(top):
         counts[v] = float(part[0, v] + part[1, v] + part[2, v] + part[3, v])
 
