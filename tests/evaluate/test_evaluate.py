@@ -224,6 +224,9 @@ def test_ranges_report_runs_on_a_small_scene_set():
     assert "sloped (2-8 bins/beam) recall within 3 bins" in text and "hull reported under fish" in text
     assert "| didson-hf |" in text and "hull_slope4" not in text.split("\n\n")[0]
     assert "| didson-hf | hull_slope4 |" in rep.table(per_scene=True)
+    # without sloped or fish-over-hull scenes those two figures have no beams: left out, not "nan"
+    bare = evaluate_ranges(presets=("didson-hf",), scenes=("empty",), seeds=(0,), noise_steps_db=(0.0,)).table()
+    assert "nan" not in bare and "sloped" not in bare and "under fish" not in bare
 
 
 def test_noise_free_leading_edges_score_the_convention_against_the_truth():

@@ -189,14 +189,15 @@ def _assert_pd_pfa_wins(evaluations, margin: float) -> None:
 @pytest.mark.slow
 def test_acceptance_pd_pfa_occupancy_beats_fixed_constants_hull(dense_hull) -> None:
     """Hull, 30 % dropouts: each ping's pD/pFA (with per-return sigma and p_detect) beats fixed
-    0.8/0.3 (with our clamps or OctoMap's) at both resolutions: measured 0.625 vs 0.606 / 0.606 at
-    0.05 m, 0.750 vs 0.718 / 0.718 at 0.10 m; per-pixel pD 0.549 / 0.673 (docs/mapping.md).
-    Three rays: 0.704 vs 0.651, 0.759 vs 0.717."""
+    0.8/0.3 (with our clamps or OctoMap's) at both resolutions: measured 0.603 vs 0.586 / 0.586 at
+    0.05 m, 0.716 vs 0.702 / 0.702 at 0.10 m; per-pixel pD 0.554 / 0.665 (docs/mapping.md).
+    Three rays: 0.651 vs 0.622, 0.709 vs 0.692."""
     _assert_pd_pfa_wins(dense_hull, 0.01)
 
 
 @pytest.mark.slow
 def test_acceptance_pd_pfa_occupancy_beats_fixed_constants_seafloor(dense_seafloor) -> None:
-    """Seafloor, 30 % dropouts: measured 0.593 vs 0.589 / 0.589 at 0.05 m, 0.840 vs 0.832 / 0.831
-    at 0.10 m; per-pixel pD 0.465 / 0.717.  Three rays: 0.695 vs 0.667, 0.883 vs 0.859."""
+    """Seafloor, 30 % dropouts: measured 0.642 vs 0.613 / 0.613 at 0.05 m, 0.886 vs 0.876 / 0.877
+    at 0.10 m; per-pixel pD 0.551 / 0.824 (docs/mapping.md).  Three rays: 0.715 vs 0.682, 0.898
+    vs 0.889."""
     _assert_pd_pfa_wins(dense_seafloor, 0.003)

@@ -628,16 +628,19 @@ class RangesReport:
         rows = [r for r in self.rows if (per_scene and not r.method.endswith(NOISE_FREE))
                 or (noise_free and r.method.endswith(NOISE_FREE)) or " | " not in r.method]
         s, f = self.sloped, self.fish_over_hull
-        return "\n".join([
-            format_table(rows),
-            "",
-            f"sloped (2-8 bins/beam) recall within 3 bins: {s.recall:.3f} (within 1 bin {s.recall_1bin:.3f}, "
-            f"median signed error {s.median_signed_error_bins:+.2f} bins, {s.n_struct_beams} beams)",
-            f"hull reported under fish (within 3 bins): {f.hull_under_fish:.3f} ({f.n_fish_beams} beams with "
-            f"fish in front of the hull; the fish reported first on {f.fish_first_under_fish:.3f}, no return on "
-            f"{f.no_return_under_fish:.3f}, another range (more than 3 bins from the hull) on "
-            f"{1.0 - f.hull_under_fish - f.fish_first_under_fish - f.no_return_under_fish:.3f})",
-        ])
+        lines = [format_table(rows), ""]
+        # (a figure whose scenes were not evaluated has no beams: left out rather than printed as nan)
+        if s.n_struct_beams:
+            lines.append(f"sloped (2-8 bins/beam) recall within 3 bins: {s.recall:.3f} (within 1 bin "
+                         f"{s.recall_1bin:.3f}, median signed error {s.median_signed_error_bins:+.2f} bins, "
+                         f"{s.n_struct_beams} beams)")
+        if f.n_fish_beams:
+            lines.append(
+                f"hull reported under fish (within 3 bins): {f.hull_under_fish:.3f} ({f.n_fish_beams} beams with "
+                f"fish in front of the hull; the fish reported first on {f.fish_first_under_fish:.3f}, no return on "
+                f"{f.no_return_under_fish:.3f}, another range (more than 3 bins from the hull) on "
+                f"{1.0 - f.hull_under_fish - f.fish_first_under_fish - f.no_return_under_fish:.3f})")
+        return "\n".join(lines)
 
 
 def evaluate_ranges(

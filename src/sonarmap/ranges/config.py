@@ -128,10 +128,13 @@ class RangeConfig(ConfigSection):
         (:data:`sonarmap.simulate.render.MEASURED_DIDSON_GHOSTS`), so where a surface's range
         changes across beams the deconvolution subtracts from each beam's rising flank ghosts its
         neighbours' peaks do not cast, and the front of the echo is clipped away (a noise-free
-        simulated DIDSON hull: half-peak crossings 2.9 bins late on the deconvolved image, 0.1
-        bin early on the recorded one; ``docs/segmentation.md``, "The image the edges are
-        measured on").  Ignored with ``tracker="rules"`` and for normalised pings (their echoes
-        are measured on the recorded samples over the background level).
+        simulated DIDSON hull: per beam, half-peak crossings a median 1.96 bins late on the
+        deconvolved image, 0.10 bin early on the recorded one; ``docs/segmentation.md``, "The
+        image the edges are measured on").  The cost: the deconvolution also removed a band at
+        a bright echo's range across the fan (crosstalk), into which a few edges on steep
+        flanks beside it now move (real DIDSON ping 9: 11 of 87).  Ignored with
+        ``tracker="rules"`` and for normalised pings (their echoes are measured on the recorded
+        samples over the background level).
     edge_pool_beams : int
         Leading edges of a tracked surface are measured on the mean of the edge-aligned profiles
         of the ``edge_pool_beams`` beams on either side of each beam on the same surface
