@@ -236,7 +236,9 @@ def process_ping(ping: Ping, config: PipelineConfig = PipelineConfig(), *, keep_
         ranges, thickness = surface_ranges(
             ping, m.image, levels, mask, fit, config.ranges, config.candidates, normalised=normalised,
             bg_mean=bg_mean, background=m.background, pool_bands=config.classify.method in ("mrf", "map", "threshold"),
-            edge_image=None if normalised else measurement_image(raw, geom, config, labels, m.image, bg_mean))
+            # (the edge image is made only when a candidate needs it: none on a ping without structure)
+            edge_image=None if normalised else functools.partial(measurement_image, raw, geom, config, labels,
+                                                                 m.image, bg_mean))
     else:
         ranges = rule_ranges(ping, m.image, labels, mask, config.ranges, config.candidates, normalised=normalised,
                              bg_mean=bg_mean, edge=edge)
@@ -281,8 +283,10 @@ def measurement_image(raw: NDArray[np.float32], geom: Any, config: PipelineConfi
     # images' means over the background pixels (every 4th row: the ratio, not every pixel, is
     # wanted)
     bg = labels[::4] == 0
-    a = float(edge[::4][bg].mean()) if bg.any() else 0.0
-    b = float(image[::4][bg].mean()) if bg.any() else 0.0
+    if not bg.any():
+        return edge, 0.0
+    a = float(edge[::4][bg].mean())
+    b = float(image[::4][bg].mean())
     return edge, (bg_mean * a / b if bg_mean and b > 0 else a)
 
 

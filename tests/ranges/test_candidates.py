@@ -179,7 +179,8 @@ def test_the_range_stages_alone_give_the_pipeline_ranges(test_pings, aris_pings,
                                                          pr.image, bg_mean)
         assert normalised or edge is not None
         r, _ = surface_ranges(p, pr.image, quantize(pr.image), mask, pr.fit, cfg.ranges, cfg.candidates,
-                              normalised=normalised, bg_mean=bg_mean, background=pr.background, edge_image=edge)
+                              normalised=normalised, bg_mean=bg_mean, background=pr.background,
+                              edge_image=lambda: edge)
         np.testing.assert_array_equal(r.bin, pr.ranges.bin)
         np.testing.assert_array_equal(r.range_m, pr.ranges.range_m)
         np.testing.assert_array_equal(r.sigma_m, pr.ranges.sigma_m)

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import math
 import threading
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -256,14 +257,16 @@ def _with_pooled_bands(mask: NDArray[np.bool_], image: NDArray[np.float32], cand
 def surface_ranges(ping: Ping, image: NDArray[np.float32], levels: NDArray[Any], mask: NDArray[np.bool_],
                    fit: Any, config: RangeConfig = RangeConfig(), candidates: CandidateConfig = CandidateConfig(), *,
                    normalised: bool = False, bg_mean: float | None = None, background: Any = None,
-                   pool_bands: bool = True, edge_image: tuple[NDArray[np.float32], float] | None = None
+                   pool_bands: bool = True,
+                   edge_image: Callable[[], tuple[NDArray[np.float32], float] | None] | None = None
                    ) -> tuple[BeamRanges, NDArray[np.int64]]:
     """Echoes of the candidate structure (``mask`` plus pooled bands), tracked across beams; also
     the number of bins each return's echo spans (0 where no return).
 
-    ``edge_image``: ``(image, background mean)`` the echoes of a ping that is not normalised are
-    measured on instead of ``image`` and ``bg_mean`` (``RangeConfig.edge_image``; ``image``
-    still makes the pooled-band candidates)."""
+    ``edge_image``: returns ``(image, background mean)`` the echoes of a ping that is not
+    normalised are measured on instead of ``image`` and ``bg_mean``, or None for ``image``
+    itself (``RangeConfig.edge_image``, :func:`sonarmap.pipeline.measurement_image`); called only
+    when there is a candidate to measure.  ``image`` still makes the pooled-band candidates."""
     geom = ping.geometry
     cand, band, r0, r1 = _with_pooled_bands(mask, image, candidates, bg_mean,
                                             pool_bands and not normalised)
@@ -279,7 +282,7 @@ def surface_ranges(ping: Ping, image: NDArray[np.float32], levels: NDArray[Any],
     done: list[Any] = []  # the measurement image, its rows and its inputs, once computed
     # the image the echoes are measured on unless normalised, and its smoothing over the pulse
     # (find_echoes' checks and conversions, made once: it may measure twice)
-    on, on_bg = (image, bg_mean) if edge_image is None or normalised else edge_image
+    on, on_bg = (edge_image() if edge_image is not None and not normalised else None) or (image, bg_mean)
     plain = np.ascontiguousarray(on, dtype=np.float64) if pb < 2 and not measured else on
     smoothed = None if measured else smooth_along_range(plain, pb)
     geom.check_image(cand, "mask")
