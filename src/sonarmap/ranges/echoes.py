@@ -419,15 +419,21 @@ def _bin_and_pulse_m(geometry: SonarGeometry, pulse_bins: int) -> tuple[float, f
     return bin_m, (int(pulse_bins) * bin_m if pulse_bins >= 2 else 0.0)
 
 
+def _edge_spreads(geometry: SonarGeometry, pulse_bins: int) -> tuple[float, float, float]:
+    """``(bin, bin^2 / 12, pulse^2 / 12)`` of :func:`_bin_and_pulse_m`: the bin and the two
+    uniform spreads' variances the sigma kernels add (:func:`edge_sigma_m`)."""
+    bin_m, pulse_m = _bin_and_pulse_m(geometry, pulse_bins)
+    return bin_m, bin_m**2 / 12.0, (pulse_m**2) / 12.0
+
+
 def _range_arguments(geometry: SonarGeometry, pulse_bins: int, looks: float, background: float,
                      sigma_scale: float) -> tuple[Any, ...]:
     """The arguments of :func:`_kernels.measured_echoes` from ``range_m`` on: the edges' ranges
     (``np.interp`` on the bins) and :func:`range_sigma_m`'s sigmas at the walk's fraction of the
     peaks (:func:`_kernels.echo_ranges`)."""
-    bin_m, pulse_m = _bin_and_pulse_m(geometry, pulse_bins)
     sqrt_looks = math.sqrt(max(float(looks * max(int(pulse_bins), 1)), 1.0))  # NaN stays NaN, as np.maximum
     return (np.ascontiguousarray(geometry.range_m, dtype=np.float64), math.sqrt(2.0), max(float(background), 0.0),
-            sqrt_looks, bin_m, bin_m**2 / 12.0, (pulse_m**2) / 12.0, float(sigma_scale))
+            sqrt_looks, *_edge_spreads(geometry, pulse_bins), float(sigma_scale))
 
 
 def surface_runs(echoes: Echoes, first: ArrayLike, touch_bins: float = 1.0) -> NDArray[np.int64]:
@@ -571,7 +577,6 @@ def _pooled(echoes: Echoes, sel: NDArray[np.int64], image: ArrayLike, geometry: 
         if _first_runs(echoes, sel, touch_bins)[2].max(initial=-1) < 0:
             return echoes
         geometry.check_image(img, "image")
-    bin_m, pulse_m = _bin_and_pulse_m(geometry, pulse_bins)
     # the runs, the smoothing along range, pooled_edges and kept_edges (the kept pooled edges
     # given to their echoes) in one kernel call
     n_kept, eb, er, sl, sig, marked, n_marked = _kernels.pooled_kept_edges(
@@ -581,7 +586,7 @@ def _pooled(echoes: Echoes, sel: NDArray[np.int64], image: ArrayLike, geometry: 
         clip if clip_level is not None else np.ascontiguousarray(clip).view(np.uint8),
         1.0 if clip_level is None else float(clip_level), int(fit_front_bins), bool(forward), int(pulse_bins) + 2,
         echoes.edge_range_m, echoes.slope, echoes.sigma_m, np.ascontiguousarray(geometry.range_m, dtype=np.float64),
-        bin_m, bin_m**2 / 12.0, (pulse_m**2) / 12.0, float(scales[0]), float(scales[1]))
+        *_edge_spreads(geometry, pulse_bins), float(scales[0]), float(scales[1]))
     return _edges_kept(echoes, n_kept, (eb, er, sl, sig), marked, n_marked)
 
 

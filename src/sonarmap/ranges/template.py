@@ -40,7 +40,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from sonarmap.errors import InputError
 from sonarmap.geometry import SonarGeometry
-from sonarmap.ranges.echoes import Echoes, _bin_and_pulse_m
+from sonarmap.ranges.echoes import Echoes, _edge_spreads
 
 
 def template_edges(
@@ -128,11 +128,10 @@ def _moved_by_template(echoes: Echoes, sel: NDArray[np.int64], img: NDArray[np.f
     if echoes.size == 0:
         return echoes  # (without echoes no beam is in a run)
     touch_bins, pulse_bins, sigma_scale = scalars
-    bin_m, pulse_m = _bin_and_pulse_m(geometry, pulse_bins)
     n_moved, eb, er, sg = _template_kernels.template_moved_edges(
         sel, echoes.edge_bin, echoes.start_bin, echoes.stop_bin, float(touch_bins), img, skip_beam, *options,
-        echoes.edge_range_m, echoes.sigma_m, np.ascontiguousarray(geometry.range_m, dtype=np.float64), bin_m,
-        bin_m**2 / 12.0, (pulse_m**2) / 12.0, float(sigma_scale))
+        echoes.edge_range_m, echoes.sigma_m, np.ascontiguousarray(geometry.range_m, dtype=np.float64),
+        *_edge_spreads(geometry, pulse_bins), float(sigma_scale))
     if not n_moved:
         return echoes
     return echoes.replaced(edge_bin=eb, edge_range_m=er, sigma_m=sg)
