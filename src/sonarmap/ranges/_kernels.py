@@ -1391,14 +1391,18 @@ def _with_pivot(piv, j, jp):  # pragma: no cover - numba
 
 
 @njit(cache=True, nogil=True)
-def _clipped_edge(sm, clipped_k, nk, p, fraction, n_own):  # pragma: no cover - numba
+def _clipped_edge(sm, clipped_k, nk, p, fraction, n_own, x_first):  # pragma: no cover - numba
     """``(ok, x, level, slope, sigma)``: the ``fraction`` crossing of a Gaussian echo fitted to
     the log of the unclipped bins of profile ``sm`` (``nk`` bins) on both sides of the clipped run
     around its peak ``p`` - down to 5 % of the clipped maximum, and beyond the echo's own ``n_own``
     bins only while the profile falls - with the echo's level and rise per bin there and the crossing's standard error (bins, from the fit's residuals).  The crossing
     may lie inside the clipped run (an echo that peaks above twice the clip level).  Not ``ok``
     with fewer than 2 bins on either flank, a fit that does not curve down, a fitted peak not above
-    the clipped maximum, or a crossing before the rising flank or after the clipped run."""
+    the clipped maximum, a crossing before the rising flank or after the clipped run, or a rising
+    flank that starts more than a bin behind ``x_first`` (the profile's first crossing of
+    ``fraction`` x its clipped maximum): the clipped peak is then a deeper one than the echo's
+    first (a strong, long echo clipped deep inside - the real Oculus seabed - whose Gaussian
+    through that peak alone would put the edge tens of bins inside the echo)."""
     c0 = p
     while c0 > 0 and clipped_k[c0 - 1]:
         c0 -= 1
@@ -1420,7 +1424,7 @@ def _clipped_edge(sm, clipped_k, nk, p, fraction, n_own):  # pragma: no cover - 
     while k < nk and not clipped_k[k] and sm[k] >= floor and (k < n_own or sm[k] < sm[k - 1]):
         n_down += 1
         k += 1
-    if n_up < 2 or n_down < 2:
+    if n_up < 2 or n_down < 2 or first - 1.0 > x_first:
         return False, 0.0, 0.0, 0.0, 0.0
     for k in range(first, c1 + 1 + n_down):
         if c0 <= k <= c1:
@@ -1685,7 +1689,7 @@ def pooled_edges(img, edge, stop, run, half_beams, front_bins, max_bins, smooth_
                 if _box_clipped(ccnt[hi], ccnt[lo], p, h, hj):
                     for k in range(nf):
                         clipped_k[k] = _box_clipped(ccnt[hi], ccnt[lo], k, h, hj)
-                    ok, xf, lvf, sf, fit_sx = _clipped_edge(sm, clipped_k, nf, p, fraction, nk)
+                    ok, xf, lvf, sf, fit_sx = _clipped_edge(sm, clipped_k, nf, p, fraction, nk, lim + x)
                     if ok:
                         x, lv, slope = xf - lim, lvf, sf
                         fitted[j] = True
@@ -2544,6 +2548,23 @@ def excess_ratio_grid(raw, level, grid, c0, c1, fc, g0, g1, gf, log_db, r0, r1, 
                 v = np.float32(raw[i, j]) / max(bb, 1e-12) - 1.0
             out[i, j] = v if v > 0.0 else 0.0
     return out
+
+
+@njit(cache=True, nogil=True)
+def top_counts(img, top, below):  # pragma: no cover - numba
+    """``(n_top, n_below)``: the samples of ``img`` equal to ``top`` (its maximum) and those in
+    ``[top - below, top)`` (one pass, compared in float64 as the clip kernels compare)."""
+    n_top = 0
+    n_below = 0
+    lo = top - below
+    flat = img.ravel()
+    for k in range(flat.size):
+        v = np.float64(flat[k])
+        if v >= top:
+            n_top += 1
+        elif v >= lo:
+            n_below += 1
+    return n_top, n_below
 
 
 @njit(cache=True, nogil=True)

@@ -171,7 +171,8 @@ class RangeConfig(ConfigSection):
         (neighbouring beams share speckle through the main lobe and their windows overlap),
         fitted on the simulator so that 68 % of the errors lie within +-sigma
         (``docs/segmentation.md``).  Every return's sigma also covers the clipping of its echo
-        (:data:`CLIP_LEVEL`: the interval from the crossing to the first sample at full scale).
+        (the interval from the crossing to the first sample at the ping's full scale,
+        :func:`sonarmap.ranges.measure.full_scale_level`).
     sigma_fit_scale : float
         Sigma of a clipped echo's fitted leading edge (a Gaussian fitted to the unclipped flanks
         of the pooled profile, :func:`sonarmap.ranges.echoes.pooled_edges`): the fit's standard

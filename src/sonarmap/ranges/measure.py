@@ -37,7 +37,8 @@ from sonarmap.ranges.template import template_edges
 from sonarmap.ranges.smoothing import smooth_surface_edges, window_in_beamwidths
 
 __all__ = ["surface_ranges", "rule_ranges", "measurement_image", "pulse_bins", "background_mean",
-           "clipped_echo_sigma", "clipped_echoes", "clip_rows", "CLIP_LEVEL", "full_scale_mask"]
+           "clipped_echo_sigma", "clipped_echoes", "clip_rows", "CLIP_LEVEL", "full_scale_mask",
+           "full_scale_level"]
 
 
 def background_mean(fit: Any, config: RangeConfig = RangeConfig()) -> tuple[float | None, float | None]:
@@ -289,6 +290,12 @@ def surface_ranges(ping: Ping, image: NDArray[np.float32], levels: NDArray[Any],
     code, lut = _evidence_table(cand, None, levels, lut)
     boost = _boost_pixels(band, cand.shape)
     walk = (1.0, max(2, pb), float(fraction), 0.5, pb + 2, config.edge_scan == "forward")
+    full: list[float] = []  # the ping's full-scale level, once computed
+
+    def full_scale() -> float:
+        if not full:
+            full.append(full_scale_level(ping.image))
+        return full[0]
 
     def measure(cand: NDArray[np.bool_], rows: tuple[int, int],
                 before: tuple[Any, NDArray[np.int64], tuple[int, int]] | None = None
@@ -307,7 +314,7 @@ def surface_ranges(ping: Ping, image: NDArray[np.float32], levels: NDArray[Any],
         echoes = _echoes_of(cand, img, code, lut, boost, geom, walk, (pb, 1.0, float(bg), float(config.sigma_scale)),
                             None if before is None else before[1], rows)
         if echoes.beamwidth_beams is not None and echoes.size:
-            rows = clip_rows(echoes, ping.image)
+            rows = clip_rows(echoes, ping.image, full_scale())
             echoes = echoes.replaced(clipped=rows >= 0, clip_row=rows)
         if before is not None:
             # only the beams with new candidates were measured again (each beam's echoes depend
@@ -327,18 +334,20 @@ def surface_ranges(ping: Ping, image: NDArray[np.float32], levels: NDArray[Any],
             extra, cols, e0, e1 = more
             cand = cand | extra
             meas, bg, echoes, tracks, fronted = measure(cand, (min(r0, e0), max(r1, e1)), (echoes, cols, (r0, r1)))
-    return _refined_returns(echoes, fronted, meas, image, ping, config, pb, fraction)
+    return _refined_returns(echoes, fronted, meas, image, ping, config, pb, fraction, full_scale)
 
 
 def _refined_returns(echoes: Any, tracks: Any, meas: Any, image: NDArray[np.float32], ping: Ping, config: RangeConfig,
-                     pb: int, fraction: float) -> tuple[BeamRanges, NDArray[np.int64]]:
+                     pb: int, fraction: float, full_scale: Callable[[], float]
+                     ) -> tuple[BeamRanges, NDArray[np.int64]]:
     """:func:`surface_ranges` after the tracking: the first returns' edges pooled, measured against
     the template and smoothed along the surface on the measured image ``meas``, clipped echoes'
-    sigmas widened, and the returns of ``tracks`` (intensities from the classified ``image``)."""
+    sigmas widened (``full_scale()``: the ping's :func:`full_scale_level`), and the returns of
+    ``tracks`` (intensities from the classified ``image``)."""
     geom = ping.geometry
     sel = tracks.first
     if config.edge_pool_beams > 0 and config.range_mode == "first":
-        echoes = _pooled_returns(echoes, sel, meas, ping, config, pb, fraction)
+        echoes = _pooled_returns(echoes, sel, meas, ping, config, pb, fraction, full_scale)
     if config.edge_template_beams > 0 and config.range_mode == "first" and echoes.size:
         echoes = _template_pass(echoes, sel, meas, geom, config, fraction, pb)
     if config.edge_smooth_beams > 0 and config.range_mode == "first" and echoes.size:
@@ -346,7 +355,7 @@ def _refined_returns(echoes: Any, tracks: Any, meas: Any, image: NDArray[np.floa
                                       half_beams=window_in_beamwidths(config.edge_smooth_beams, echoes.beamwidth_beams),
                                       min_beams=config.edge_smooth_min_beams, touch_bins=config.track.touch_bins)
     if echoes.size:  # (without a return, clipped_echo_sigma's kernel finds nothing: the echoes unchanged)
-        echoes = clipped_echo_sigma(echoes, sel, ping.image, geom)
+        echoes = clipped_echo_sigma(echoes, sel, ping.image, geom, level=full_scale())
     return track_returns(echoes, tracks, geom, image, mode=config.range_mode,  # type: ignore[arg-type]
                          time_ns=ping.time_ns, source=ping.source)
 
@@ -363,21 +372,22 @@ def _template_pass(echoes: Any, sel: NDArray[np.int64], meas: Any, geom: Any, co
 
 
 def _pooled_returns(echoes: Any, sel: NDArray[np.int64], meas: NDArray[Any], ping: Ping, config: RangeConfig,
-                    pb: int, fraction: float) -> Any:
+                    pb: int, fraction: float, full_scale: Callable[[], float]) -> Any:
     """:func:`pooled_edges` of the returns ``sel`` on the measured image ``meas``, with the validated
     ``config`` and the default window; the pooled profile is smoothed over at least 3 bins along
     range in all (a single-look profile's maximum is otherwise a speckle spike), and a clipped
-    return is measured by a Gaussian fitted to its flanks."""
-    clipped = echoes.clipped if echoes.clipped is not None else clipped_echoes(echoes, ping.image)
+    return (at ``full_scale()``, the ping's :func:`full_scale_level`) is measured by a Gaussian
+    fitted to its flanks."""
+    clipped = echoes.clipped if echoes.clipped is not None else clipped_echoes(echoes, ping.image, full_scale())
     clip, level = None, None
     if clipped[sel[sel >= 0]].any():
         # full_scale_mask's samples: the kernel tests those of the raw image it reaches against the
         # level (in float64, as the mask compares them), no mask of the whole image is formed
         raw = np.asarray(ping.image)
         if raw.dtype in (np.float32, np.float64) or raw.dtype.kind in "iu":
-            clip, level = np.ascontiguousarray(raw), CLIP_LEVEL
+            clip, level = np.ascontiguousarray(raw), full_scale()
         else:
-            clip = full_scale_mask(raw)
+            clip = full_scale_mask(raw, full_scale())
     window = (config.edge_pool_beams, POOL_FRONT_BINS, POOL_MAX_BINS, 3 if pb < 3 else 1, POOL_N_ITER,
               POOL_FIT_FRONT_BINS)
     return _pooled(echoes, sel, meas, ping.geometry, pb, window, (fraction, config.track.touch_bins),
@@ -393,40 +403,91 @@ _CLIP_LEVEL_F32 = (np.float32(CLIP_LEVEL) if float(np.float32(CLIP_LEVEL)) >= CL
                    else np.nextafter(np.float32(CLIP_LEVEL), np.float32(np.inf)))
 
 
-def full_scale_mask(raw: ArrayLike) -> NDArray[np.bool_]:
-    """The samples of ``raw`` at or above :data:`CLIP_LEVEL`, compared in float64 as the range
-    kernels compare them (numpy would compare a float32 image with the level rounded to float32,
-    0.998039186 < 0.998039216: a sample at exactly that value would count as clipped here and not
-    in the kernels)."""
+#: A ping's maximum is its receiver's full scale when at least this many samples sit on it ...
+PILEUP_MIN_SAMPLES = 10
+#: ... and at least this many times the mean count per 1/255 step over the
+#: :data:`PILEUP_STEPS` steps below it.
+PILEUP_FACTOR = 10.0
+#: The steps of 1/255 below a ping's maximum that :func:`full_scale_level` compares it with.
+PILEUP_STEPS = 8
+
+
+def full_scale_level(raw: ArrayLike) -> float:
+    """The level at or above which a sample of ``raw`` is at its receiver's full scale.
+
+    Nominally :data:`CLIP_LEVEL` (the 8-bit code 255).  Some receivers saturate below the top
+    code: the real Oculus M-series pings (``oculus/three_pings_8bit.raw``) top out at code 254,
+    with 1364-1514 samples per ping there (the seabed), 32-63 on each code below and none at 255.
+    A saturated receiver piles its samples up at its top value, while the histogram of an
+    unsaturated image thins out towards its maximum; so a ping whose maximum ``m`` lies below
+    :data:`CLIP_LEVEL` is clipped at ``m`` when at least :data:`PILEUP_MIN_SAMPLES` samples
+    equal ``m`` and they are at least :data:`PILEUP_FACTOR` times the mean count per 1/255 step
+    over the :data:`PILEUP_STEPS` steps below ``m`` (the real DIDSON and ARIS pings: one to
+    three samples on their maximum).  The level is compared in float64 with the samples
+    (``m`` itself: float32 samples convert exactly).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> rng = np.random.default_rng(0)
+    >>> img = (np.floor(rng.rayleigh(0.1, (400, 64)) * 255) / 255).astype(np.float32)
+    >>> full_scale_level(img) == CLIP_LEVEL
+    True
+    >>> img[200:210] = np.float32(254 / 255)  # a saturated band at code 254
+    >>> full_scale_level(img) == float(np.float32(254 / 255))
+    True
+    """
+    import sonarmap.ranges._kernels as _rk
+
+    a = np.ascontiguousarray(raw)
+    if a.size == 0 or a.dtype.kind not in "fiu":
+        return CLIP_LEVEL
+    top = float(a.max())
+    if not (0.0 < top < CLIP_LEVEL):  # (NaN too)
+        return CLIP_LEVEL
+    n_top, n_below = _rk.top_counts(a, top, PILEUP_STEPS / 255.0)
+    if n_top >= PILEUP_MIN_SAMPLES and n_top >= PILEUP_FACTOR * n_below / PILEUP_STEPS:
+        return top
+    return CLIP_LEVEL
+
+
+def full_scale_mask(raw: ArrayLike, level: float = CLIP_LEVEL) -> NDArray[np.bool_]:
+    """The samples of ``raw`` at or above ``level`` (default :data:`CLIP_LEVEL`; a ping's own:
+    :func:`full_scale_level`), compared in float64 as the range kernels compare them (numpy would
+    compare a float32 image with the level rounded to float32, 0.998039186 < 0.998039216: a
+    sample at exactly that value would count as clipped here and not in the kernels)."""
     a = np.asarray(raw)
-    if a.dtype == np.float32:
+    if a.dtype == np.float32 and level == CLIP_LEVEL:
         return a >= _CLIP_LEVEL_F32  # type: ignore[no-any-return]
-    return np.asarray(a, dtype=np.float64) >= CLIP_LEVEL  # type: ignore[no-any-return]
+    return np.asarray(a, dtype=np.float64) >= level  # type: ignore[no-any-return]
 
 
-def clipped_echoes(echoes: Any, raw: NDArray[Any]) -> NDArray[np.bool_]:
+def clipped_echoes(echoes: Any, raw: NDArray[Any], level: float = CLIP_LEVEL) -> NDArray[np.bool_]:
     """Per echo, whether a raw sample of its structure bins reaches the receiver's full scale
-    (:data:`CLIP_LEVEL`)."""
-    return clip_rows(echoes, raw) >= 0
+    (``level``: :data:`CLIP_LEVEL`, or the ping's :func:`full_scale_level`)."""
+    return clip_rows(echoes, raw, level) >= 0
 
 
-def clip_rows(echoes: Any, raw: NDArray[Any]) -> NDArray[np.int64]:
+def clip_rows(echoes: Any, raw: NDArray[Any], level: float = CLIP_LEVEL) -> NDArray[np.int64]:
     """Per echo, the first of its structure bins whose raw sample reaches the receiver's full
-    scale (:data:`CLIP_LEVEL`); -1 where none does."""
+    scale (``level``: :data:`CLIP_LEVEL`, or the ping's :func:`full_scale_level`); -1 where none
+    does."""
     import sonarmap.ranges._kernels as _rk
 
     # (the kernel clips the bins to the image's rows)
     return _rk.first_clipped_rows(  # type: ignore[no-any-return]
         np.ascontiguousarray(raw), np.ascontiguousarray(echoes.beam),
         np.ascontiguousarray(echoes.start_bin, dtype=np.int64), np.ascontiguousarray(echoes.stop_bin, dtype=np.int64),
-        CLIP_LEVEL)
+        float(level))
 
 
 _NO_FITTED = np.zeros(0, dtype=np.bool_)
 
 
-def clipped_echo_sigma(echoes: Any, sel: NDArray[np.int64], raw: NDArray[Any], geom: Any) -> Any:
-    """Widen the sigma of returns whose echo's first peak reaches the receiver's full scale.
+def clipped_echo_sigma(echoes: Any, sel: NDArray[np.int64], raw: NDArray[Any], geom: Any, *,
+                       level: float = CLIP_LEVEL) -> Any:
+    """Widen the sigma of returns whose echo's first peak reaches the receiver's full scale
+    (``level``: :data:`CLIP_LEVEL`, or the ping's :func:`full_scale_level`).
 
     A clipped first peak is only a lower bound: the half-peak crossing of the true echo lies at
     or behind the crossing measured (half the clipped level) - before the echo's first clipped
@@ -447,7 +508,7 @@ def clipped_echo_sigma(echoes: Any, sel: NDArray[np.int64], raw: NDArray[Any], g
     fitted = echoes.clip_fitted
     e, spread = _rk.clipped_spread(
         np.ascontiguousarray(raw), np.ascontiguousarray(sel, dtype=np.int64), echoes.edge_bin, echoes.peak_bin,
-        CLIP_LEVEL, abs(geom.range_resolution_m),
+        float(level), abs(geom.range_resolution_m),
         _NO_FITTED if fitted is None else np.ascontiguousarray(fitted, dtype=np.bool_), fitted is not None)
     if not e.size:
         return echoes
