@@ -190,10 +190,21 @@ def row_quartile_u8(img, k):  # pragma: no cover - numba
     The readers' 8-bit images (every value ``level * float32(1 / 255)``) take
     :func:`_row_quartile_scaled`; any other data the general form.
     """
+    out, ok, _ = row_quartile_scaled(img, k)
+    return out, ok
+
+
+@njit(cache=True, nogil=True)
+def row_quartile_scaled(img, k):  # pragma: no cover - numba
+    """:func:`row_quartile_u8` and whether the readers' form held (:func:`_row_quartile_scaled`):
+    ``(out, ok, scaled)``.  ``scaled`` says that every positive value is ``level * float32(1 /
+    255)`` for a level in 1 .. 255, so :func:`sonarmap.preprocess.normalise.on_8bit_grid` of the
+    image is True (each such value times ``float32(255)`` lies within 2e-5 of its level)."""
     out = np.empty(img.shape[0], dtype=np.float32)
     if _row_quartile_scaled(img, k, out):
-        return out, True
-    return _row_quartile_levels(img, k)
+        return out, True, True
+    out, ok = _row_quartile_levels(img, k)
+    return out, ok, False
 
 
 @njit(cache=True, nogil=True)

@@ -305,15 +305,22 @@ _PARTITION_MIN = 1024
 def _row_quartile(img: NDArray[np.float32]) -> NDArray[np.float32]:
     """The lower quartile of each row of ``max(img, 0)``: by counting the levels of 8-bit data
     (ARIS, Oculus: 2-3x faster than sorting the rows), else by sorting (the same order statistic)."""
-    from sonarmap.preprocess._kernels import row_quartile_u8
+    return _row_quartile_grid(img)[0]
+
+
+def _row_quartile_grid(img: NDArray[np.float32]) -> tuple[NDArray[np.float32], bool]:
+    """:func:`_row_quartile` and whether the count found the image to be the readers' 8-bit data
+    (every positive value a level times ``float32(1 / 255)``): then ``on_8bit_grid(img)`` is True
+    without a test of its own (False: not known)."""
+    from sonarmap.preprocess._kernels import row_quartile_scaled
 
     k = (img.shape[1] - 1) // 4
-    out, ok = row_quartile_u8(np.ascontiguousarray(img), k)
+    out, ok, scaled = row_quartile_scaled(np.ascontiguousarray(img), k)
     if ok:
-        return out
+        return out, bool(scaled)
     rows = np.maximum(img, 0.0)
     rows.sort(axis=1)  # np.sort's vectorised kernels beat np.partition along these short rows
-    return rows.take(k, axis=1)
+    return rows.take(k, axis=1), False
 
 
 def _block_factor(img: NDArray[np.float32], level: NDArray[np.float32]) -> NDArray[np.float32]:
@@ -520,7 +527,8 @@ def _row_level(img: NDArray[np.float32], max_rise: float) -> NDArray[np.float32]
     from sonarmap.preprocess._kernels import level_tail, median5, smooth_log_level
 
     n = img.shape[0]
-    level = _row_quartile(img)
+    # (the count also tells whether the image is the readers' 8-bit data: no on_8bit_grid pass then)
+    level, scaled = _row_quartile_grid(img)
     if n >= 5:
         level = median5(level)  # = scipy.ndimage.median_filter(level, size=5, mode="nearest")
     good = level > _ZERO
@@ -539,7 +547,7 @@ def _row_level(img: NDArray[np.float32], max_rise: float) -> NDArray[np.float32]
         # uniform_filter1d, mode "nearest"), their ratio where keep covers > 5 % of the window
         # (interpolated elsewhere), then the rows > 2.5 robust sigma above it and their flanks
         # left out, until those rows settle
-        smooth, above = smooth_log_level(log_level, width, _sigma_floor(level, on_8bit_grid(img)))
+        smooth, above = smooth_log_level(log_level, width, _sigma_floor(level, scaled or on_8bit_grid(img)))
     # ring-down: the leading rows above the curve stay background at their own level; then a
     # surface across most beams (seabed) is no background: the level may rise at most max_rise x
     # above its minimum nearer to the sonar (off for max_rise <= 0)
