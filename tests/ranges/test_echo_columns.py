@@ -58,3 +58,32 @@ def test_column_counts_are_numpys_cumulative_column_sums(seed: int) -> None:
     for r0, r1 in ((0, n), (n // 3, n - n // 4), (n // 2, n // 2)):
         ref = np.concatenate([[0], np.cumsum(mask[r0:r1].sum(axis=0))])
         assert np.array_equal(_column_counts(mask, r0, r1), ref)
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_spliced_fields_kernel_is_numpys_stable_gather(seed: int) -> None:
+    """With ``clipped`` and ``clip_row`` set (the range stage's echoes) the splice runs in one kernel
+    (``_kernels.spliced_fields``): numpy's stable argsort by beam of the old echoes off ``columns``
+    and the new ones, every field gathered from the two concatenated."""
+    rng = np.random.default_rng(100 + seed)
+    n, m = 60, int(rng.integers(2, 30))
+    geom = SonarGeometry(range_m=1.0 + 0.01 * np.arange(n), azimuth_rad=np.linspace(-0.3, 0.3, m),
+                         azimuth_beamwidth_rad=0.02)
+    img = rng.exponential(1.0, (n, m)).astype(np.float32)
+    cols = np.flatnonzero(rng.random(m) < 0.4).astype(np.int64)
+
+    def echoes(mask: np.ndarray, columns: np.ndarray | None = None) -> object:
+        e = find_echoes(mask, img, geom, columns=columns)
+        return e.replaced(clipped=rng.random(e.size) < 0.3, clip_row=rng.integers(-1, n, e.size))
+
+    old = echoes(rng.random((n, m)) < 0.2)
+    new = echoes(rng.random((n, m)) < 0.2, cols)
+    got = spliced_echoes(old, new, cols)
+    kept = np.flatnonzero(~np.isin(old.beam, cols))
+    take = np.concatenate([kept, old.size + np.arange(new.size)])[
+        np.argsort(np.concatenate([old.beam[kept], new.beam]), kind="stable")]
+    for f in dataclasses.fields(old):
+        a = getattr(old, f.name)
+        if isinstance(a, np.ndarray) and f.name != "beamwidth_beams":
+            want = np.concatenate([a, getattr(new, f.name)])[take]
+            assert getattr(got, f.name).dtype == want.dtype and np.array_equal(getattr(got, f.name), want), f.name

@@ -2566,6 +2566,49 @@ def top_counts(img, top, below):  # pragma: no cover - numba
     return n_top, n_near - n_top
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _gather2(a, b, take):  # pragma: no cover - numba
+    """``np.concatenate([a, b])[take]``."""
+    n_a = a.size
+    out = np.empty(take.size, a.dtype)
+    for t in range(take.size):
+        k = take[t]
+        out[t] = a[k] if k < n_a else b[k - n_a]
+    return out
+
+
+@njit(cache=True, nogil=True)
+def spliced_fields(columns, n_beams, beam, start, stop, peak, npx, clip_row, pval, edge, edge_r, peak_r, slope, evid,
+                   sigma, clipped, n_beam, n_start, n_stop, n_peak, n_npx, n_clip_row, n_pval, n_edge, n_edge_r,
+                   n_peak_r, n_slope, n_evid, n_sigma, n_clipped):  # pragma: no cover - numba
+    """:func:`sonarmap.ranges.echoes.spliced_echoes` of the per-echo fields (the old echoes', then
+    the new ones', ``n_``): the old echoes off the beams ``columns`` and the new ones, in the
+    stable order by beam (numpy's stable argsort of the two, concatenated), each field gathered
+    once: ``(beam, start, stop, peak, n_pixels, clip_row, peak_value, edge, edge_range,
+    peak_range, slope, evidence, sigma, clipped)``."""
+    keep = np.ones(n_beams, np.bool_)
+    for c in columns:
+        keep[c] = False
+    idx = np.empty(beam.size + n_beam.size, np.int64)
+    key = np.empty(idx.size, np.int64)
+    c = 0
+    for k in range(beam.size):
+        if keep[beam[k]]:
+            idx[c] = k
+            key[c] = beam[k]
+            c += 1
+    for k in range(n_beam.size):
+        idx[c] = beam.size + k
+        key[c] = n_beam[k]
+        c += 1
+    take = idx[:c][np.argsort(key[:c], kind="mergesort")]
+    return (_gather2(beam, n_beam, take), _gather2(start, n_start, take), _gather2(stop, n_stop, take),
+            _gather2(peak, n_peak, take), _gather2(npx, n_npx, take), _gather2(clip_row, n_clip_row, take),
+            _gather2(pval, n_pval, take), _gather2(edge, n_edge, take), _gather2(edge_r, n_edge_r, take),
+            _gather2(peak_r, n_peak_r, take), _gather2(slope, n_slope, take), _gather2(evid, n_evid, take),
+            _gather2(sigma, n_sigma, take), _gather2(clipped, n_clipped, take))
+
+
 @njit(cache=True, nogil=True)
 def first_clipped_rows(img, cols, lo, hi, level):  # pragma: no cover - numba
     """Per ``k``, the first row in ``lo[k] .. hi[k] - 1`` (both clipped to ``0 .. n_rows``) of

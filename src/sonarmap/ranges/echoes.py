@@ -372,6 +372,9 @@ def spliced_echoes(echoes: Echoes, new: Echoes, columns: NDArray[np.int64]) -> E
     """``echoes`` with the echoes of the beams ``columns`` replaced by ``new`` (the echoes of those
     beams only, e.g. :func:`find_echoes` with ``columns``), sorted by beam as :func:`find_echoes`
     sorts them; the per-echo fields of both (``clipped`` and ``clip_row`` too when both have them)."""
+    fast = _spliced_in_kernel(echoes, new, columns)
+    if fast is not None:
+        return fast
     keep = np.ones(echoes.n_beams, dtype=bool)
     keep[columns] = False
     old = np.flatnonzero(keep[echoes.beam])
@@ -388,6 +391,33 @@ def spliced_echoes(echoes: Echoes, new: Echoes, columns: NDArray[np.int64]) -> E
             gone[f] = None
     out = echoes.replaced(**{f: np.concatenate([getattr(echoes, f), getattr(new, f)])[take] for f in fields})
     return out.replaced(**gone) if gone else out  # type: ignore[arg-type]
+
+
+#: The per-echo fields :func:`_spliced_in_kernel` passes, in the kernel's order, and their dtypes.
+_SPLICED = (("beam", np.int64), ("start_bin", np.int64), ("stop_bin", np.int64), ("peak_bin", np.int64),
+            ("n_pixels", np.int64), ("clip_row", np.int64), ("peak_value", np.float64), ("edge_bin", np.float64),
+            ("edge_range_m", np.float64), ("peak_range_m", np.float64), ("slope", np.float64),
+            ("evidence", np.float64), ("sigma_m", np.float64), ("clipped", np.bool_))
+
+
+def _spliced_in_kernel(echoes: Echoes, new: Echoes, columns: NDArray[np.int64]) -> Echoes | None:
+    """:func:`spliced_echoes` in one kernel call (:func:`_kernels.spliced_fields`) when every field
+    of both is there as a 1-D array of its dtype (the range stage's echoes, ``clipped`` and
+    ``clip_row`` set) and ``columns`` are beams; None otherwise."""
+    import sonarmap.ranges._kernels as _kernels
+
+    args = []
+    for e in (echoes, new):
+        for name, dtype in _SPLICED:
+            a = getattr(e, name)
+            if not (isinstance(a, np.ndarray) and a.dtype == dtype and a.ndim == 1):
+                return None
+            args.append(a)
+    cols = np.asarray(columns)
+    if cols.dtype.kind not in "iu" or cols.ndim != 1 or (cols.size and not 0 <= cols.min() <= cols.max() < echoes.n_beams):
+        return None
+    out = _kernels.spliced_fields(np.ascontiguousarray(cols, dtype=np.int64), int(echoes.n_beams), *args)
+    return echoes.replaced(**{name: a for (name, _), a in zip(_SPLICED, out)})
 
 
 def beamwidth_in_beams(geometry: SonarGeometry) -> NDArray[np.float64] | None:
