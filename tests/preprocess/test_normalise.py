@@ -460,7 +460,8 @@ def _numpy_block_quartiles(img, level, nr, nc, br, bc, k):
     return np.partition(blocks, k, axis=1)[:, k]
 
 
-@pytest.mark.parametrize("case", ["8bit", "float", "ties", "zero_level", "negative", "constant", "tiny_spread"])
+@pytest.mark.parametrize("case", ["8bit", "float", "ties", "zero_level", "negative", "constant", "tiny_spread",
+                                  "signed_zero"])
 def test_block_quartiles_equal_numpys_partition(case) -> None:
     """The beam-factor kernel selects exactly np.partition's order statistic, NaN (0/0 on a zero
     level) sorted last and infinities kept, on every kind of block (it would differ if a value's
@@ -474,7 +475,9 @@ def test_block_quartiles_equal_numpys_partition(case) -> None:
            "float": rng.gamma(2.0, 1.0, (n, m)), "ties": rng.integers(0, 3, (n, m)) / np.float32(2.0),
            "zero_level": rng.integers(0, 4, (n, m)) / np.float32(3.0),
            "negative": rng.normal(0.0, 1.0, (n, m)), "constant": np.full((n, m), 0.25),
-           "tiny_spread": 1.0 + rng.integers(0, 2, (n, m)) * np.finfo(np.float32).eps}[case].astype(np.float32)
+           "tiny_spread": 1.0 + rng.integers(0, 2, (n, m)) * np.finfo(np.float32).eps,
+           # -0.0 beside 0.0 (equal, other bits): the blocks' extremes from the float comparisons
+           "signed_zero": np.where(rng.random((n, m)) < 0.5, -0.0, rng.integers(0, 3, (n, m)) / 2.0)}[case].astype(np.float32)
     level = rng.uniform(0.2, 2.0, n).astype(np.float32)
     if case == "zero_level":
         level[5:40] = 0.0  # 0/0 = NaN and x/0 = inf in the first blocks

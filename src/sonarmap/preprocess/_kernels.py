@@ -574,8 +574,13 @@ def block_quartiles(img, level, nr, nc, br, bc, k, work, hist):  # pragma: no co
 
 @njit(cache=True, nogil=True)
 def _without_nan(a, n):  # pragma: no cover - numba
-    """``(count, min, max)`` of the values of ``a[:n]`` that are not NaN, those moved to the front
-    in their order (``a`` untouched when none is NaN); ``(0, inf, -inf)`` when all are."""
+    """``(count, min, max)`` of the values of ``a[:n]`` (float32, C-contiguous) that are not NaN,
+    those moved to the front in their order (``a`` untouched when none is NaN); ``(0, inf, -inf)``
+    when all are.  Without NaN and ``-0.0`` (:func:`_key_extremes`) the extremes come from one
+    integer pass that vectorises; else from the float comparisons."""
+    found, mn, mx = _key_extremes(a, n)
+    if found:
+        return n, mn, mx
     mn = np.float32(np.inf)
     mx = np.float32(-np.inf)
     bad = 0
@@ -594,6 +599,30 @@ def _without_nan(a, n):  # pragma: no cover - numba
                 a[w] = v
                 w += 1
     return n - bad, mn, mx
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _key_extremes(a, n):  # pragma: no cover - numba
+    """``(found, min, max)`` of the float32 ``a[:n]`` (``n >= 1``, C-contiguous) through their bits
+    as sortable integers (``bits ^ 0x7fffffff`` for negative values: the integers' order is the
+    floats'), in one branch-free pass (a float min/max reduction does not vectorise without
+    fast-math); ``found`` False when a value is NaN or ``-0.0`` (``-0.0 == 0.0`` but their keys
+    differ), or ``n < 1``.  The same extremes as ``min``/``max`` over the floats."""
+    bits = a[:n].view(np.int32)
+    lo = np.int64(0x7FFFFFFF)
+    hi = np.int64(-0x80000000)
+    odd = 0
+    for t in range(n):
+        u = np.int64(bits[t])
+        key = u ^ ((u >> 31) & 0x7FFFFFFF)
+        lo = min(lo, key)
+        hi = max(hi, key)
+        odd += ((u & 0x7FFFFFFF) > 0x7F800000) | (u == -0x80000000)  # NaN or -0.0
+    out = np.empty(2, np.int32)
+    out[0] = np.int32(lo ^ ((lo >> 31) & 0x7FFFFFFF))
+    out[1] = np.int32(hi ^ ((hi >> 31) & 0x7FFFFFFF))
+    f = out.view(np.float32)
+    return odd == 0 and n > 0, f[0], f[1]
 
 
 @njit(cache=True, nogil=True)
