@@ -3,7 +3,8 @@
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from numba import njit, types
+from numba.extending import overload
 
 from sonarmap._histogram_kernels import add_partial_counts
 
@@ -394,12 +395,14 @@ def _bucket_middle(a, n):  # pragma: no cover - numba
     moved to the front and :func:`select`-ed; ``lo`` is the largest value below that rank, in the
     bucket or (when the rank is the bucket's first) in the buckets before it.  ``found`` False
     (nothing reordered) where all values are equal or their span is not finite."""
-    mn = a[0]
-    mx = a[0]
-    for t in range(1, n):
-        v = a[t]
-        mn = min(mn, v)
-        mx = max(mx, v)
+    found, mn, mx = _key_extremes(a, n)  # (vectorised; the float comparisons below otherwise)
+    if not found:
+        mn = a[0]
+        mx = a[0]
+        for t in range(1, n):
+            v = a[t]
+            mn = min(mn, v)
+            mx = max(mx, v)
     span = np.float64(mx) - np.float64(mn)
     hist = np.empty((4, 256), dtype=np.int64)
     sc = (hist.shape[1] - 1e-3) / span if span > 0 else 0.0
@@ -601,28 +604,46 @@ def _without_nan(a, n):  # pragma: no cover - numba
     return n - bad, mn, mx
 
 
-@njit(cache=True, nogil=True, inline="always")
-def _key_extremes(a, n):  # pragma: no cover - numba
-    """``(found, min, max)`` of the float32 ``a[:n]`` (``n >= 1``, C-contiguous) through their bits
-    as sortable integers (``bits ^ 0x7fffffff`` for negative values: the integers' order is the
-    floats'), in one branch-free pass (a float min/max reduction does not vectorise without
+def _key_extremes(a, n):  # pragma: no cover - numba (typed by its overload)
+    """``(found, min, max)`` of ``a[:n]`` (float32 or float64, C-contiguous, ``n >= 1``) through the
+    values' bits as sortable integers (``bits ^ 0x7ff...f`` for negative values: the integers' order
+    is the floats'), in one branch-free pass (a float min/max reduction does not vectorise without
     fast-math); ``found`` False when a value is NaN or ``-0.0`` (``-0.0 == 0.0`` but their keys
-    differ), or ``n < 1``.  The same extremes as ``min``/``max`` over the floats."""
-    bits = a[:n].view(np.int32)
-    lo = np.int64(0x7FFFFFFF)
-    hi = np.int64(-0x80000000)
-    odd = 0
-    for t in range(n):
-        u = np.int64(bits[t])
-        key = u ^ ((u >> 31) & 0x7FFFFFFF)
-        lo = min(lo, key)
-        hi = max(hi, key)
-        odd += ((u & 0x7FFFFFFF) > 0x7F800000) | (u == -0x80000000)  # NaN or -0.0
-    out = np.empty(2, np.int32)
-    out[0] = np.int32(lo ^ ((lo >> 31) & 0x7FFFFFFF))
-    out[1] = np.int32(hi ^ ((hi >> 31) & 0x7FFFFFFF))
-    f = out.view(np.float32)
-    return odd == 0 and n > 0, f[0], f[1]
+    differ), ``n < 1`` or ``a`` is not C-contiguous.  The same extremes, in ``a``'s dtype, as
+    ``min``/``max`` over the floats."""
+    raise NotImplementedError("numba only")
+
+
+@overload(_key_extremes, inline="always")
+def _key_extremes_typed(a, n):  # type: ignore[no-untyped-def]  # pragma: no cover - numba
+    """:func:`_key_extremes` for ``a``'s dtype: the integers of its width, sign bit ``top``."""
+    if not isinstance(a, types.Array) or a.layout != "C" or a.dtype not in (types.float32, types.float64):
+        return lambda a, n: (False, a[0], a[0])
+    wide = a.dtype == types.float64
+    ity, fty = (np.int64, np.float64) if wide else (np.int32, np.float32)
+    shift = 63 if wide else 31
+    mag = (1 << shift) - 1           # every bit but the sign
+    top = -(1 << shift)              # the sign bit alone: -0.0
+    inf = 0x7FF0000000000000 if wide else 0x7F800000
+
+    def impl(a, n):  # type: ignore[no-untyped-def]
+        bits = a[:n].view(ity)
+        lo = np.int64(mag)
+        hi = np.int64(top)
+        odd = 0
+        for t in range(n):
+            u = np.int64(bits[t])
+            key = u ^ ((u >> shift) & mag)
+            lo = min(lo, key)
+            hi = max(hi, key)
+            odd += ((u & mag) > inf) | (u == top)  # NaN or -0.0
+        out = np.empty(2, ity)
+        out[0] = lo ^ ((lo >> shift) & mag)
+        out[1] = hi ^ ((hi >> shift) & mag)
+        f = out.view(fty)
+        return odd == 0 and n > 0, f[0], f[1]
+
+    return impl
 
 
 @njit(cache=True, nogil=True)
