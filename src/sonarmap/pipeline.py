@@ -41,6 +41,7 @@ from sonarmap.classify.segment import decision_rates, segment
 from sonarmap.config import METHODS, SOLVER_NAMES, PipelineConfig
 from sonarmap.errors import InputError
 from sonarmap.ping import Ping
+from sonarmap.preprocess.crosstalk import remove_crosstalk
 from sonarmap.preprocess.normalise import RecordingBackground, condition_image, estimate_background_levels, on_8bit_grid
 from sonarmap.preprocess.pipeline import preprocess_finite, preprocess_image
 from sonarmap.ranges import BeamRanges, no_returns
@@ -272,13 +273,18 @@ def measurement_image(raw: NDArray[np.float32], geom: Any, config: PipelineConfi
     -------
     (ndarray, float) or None
         The ping's pre-processing without the deconvolution of the beam pattern (when it
-        deconvolves and ``config.ranges.edge_image == "undeconvolved"``) and ``bg_mean`` in its
-        units; None: the echoes are measured on ``image`` itself.
+        deconvolves and ``config.ranges.edge_image == "undeconvolved"``), less the crosstalk
+        lit across the fan (``config.ranges.edge_crosstalk``,
+        :func:`sonarmap.preprocess.crosstalk.remove_crosstalk`), and ``bg_mean`` in its units;
+        None: the echoes are measured on ``image`` itself.
     """
     pre = config.preprocess_config()
     if config.ranges.edge_image != "undeconvolved" or pre is None or not pre.deconvolve or geom.psf is None:
         return None
     edge = preprocess_finite(raw, geom, _undeconvolved(pre), float(raw.max()))
+    if config.ranges.edge_crosstalk:
+        # the rows lit across the fan that the deconvolution would have removed
+        edge = remove_crosstalk(edge, labels)
     # the background mean of the classified image, in the units of ``edge``: the ratio of the two
     # images' means over the background pixels (every 4th row: the ratio, not every pixel, is
     # wanted)
@@ -447,3 +453,4 @@ def _pd_range(pd: float, flags: set[str], n_returns: int, detecting: int) -> flo
     if detecting == 0:
         return pd
     return pd * n_returns / detecting
+

@@ -132,9 +132,17 @@ class RangeConfig(ConfigSection):
         deconvolved image, 0.10 bin early on the recorded one; ``docs/segmentation.md``, "The
         image the edges are measured on").  The cost: the deconvolution also removed a band at
         a bright echo's range across the fan (crosstalk), into which a few edges on steep
-        flanks beside it now move (real DIDSON ping 9: 11 of 87).  Ignored with
-        ``tracker="rules"`` and for normalised pings (their echoes are measured on the recorded
-        samples over the background level).
+        flanks beside it would move (real DIDSON ping 9: 11 of 87) without ``edge_crosstalk``.
+        Ignored with ``tracker="rules"`` and for normalised pings (their echoes are measured on
+        the recorded samples over the background level).
+    edge_crosstalk : bool
+        With ``edge_image="undeconvolved"``: subtract from each range row of that image the
+        level lit across the fan beyond the water column (crosstalk at a bright echo's range,
+        :mod:`sonarmap.preprocess.crosstalk`), estimated on the beams whose first structure lies
+        behind the row (default True).  On the real DIDSON test pings it moves the edges of
+        ping 9's steep flanks (beams 45-53, 67-80) and of pings 4 and 8 where the band crosses the
+        hull back onto the echo's front; the simulator, without crosstalk, is unchanged within
+        0.003 (``docs/segmentation.md``, "The image the edges are measured on").
     edge_pool_beams : int
         Leading edges of a tracked surface are measured on the mean of the edge-aligned profiles
         of the ``edge_pool_beams`` beams on either side of each beam on the same surface
@@ -237,6 +245,7 @@ class RangeConfig(ConfigSection):
     edge_fraction: float = 0.5
     edge_scan: str = "back"
     edge_image: str = "undeconvolved"
+    edge_crosstalk: bool = True
     edge_pool_beams: int = 3
     edge_pool_scan: str = "forward"
     pulse_length_m: float | None = None
@@ -273,6 +282,7 @@ class RangeConfig(ConfigSection):
         check_choice(self, "tracker", ("surface", "rules"), w)
         check_choice(self, "edge_scan", ("forward", "back"), w)
         check_choice(self, "edge_image", ("undeconvolved", "classified"), w)
+        check_booleans(self, ("edge_crosstalk",), w)
         check_choice(self, "edge_pool_scan", ("forward", "back"), w)
         check_choice(self, "range_mode", ("first", "strongest"), w)
         for key, positive in (("log_dynamic_range_db", True), ("pulse_length_m", False)):
