@@ -453,4 +453,3 @@ def _pd_range(pd: float, flags: set[str], n_returns: int, detecting: int) -> flo
     if detecting == 0:
         return pd
     return pd * n_returns / detecting
-

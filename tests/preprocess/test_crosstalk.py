@@ -86,8 +86,8 @@ def test_the_real_didson_flanks_beside_ping_9s_band(test_pings: list) -> None:
     11 edges on the steep flanks lie more than 3 bins in front of the deconvolved image's (the
     deconvolution removes the band); with it none.  Fish-only pings keep no return."""
     default = PipelineConfig()
-    off = default.replace(ranges=default.ranges.__class__(**{**default.ranges.__dict__, "edge_crosstalk": False}))
-    ref = default.replace(ranges=default.ranges.__class__(**{**default.ranges.__dict__, "edge_image": "classified"}))
+    off = default.replace(edge_crosstalk=False)
+    ref = default.replace(edge_image="classified")
     p = test_pings[9]
     res = p.geometry.range_resolution_m
     c = process_ping(p, ref).ranges.range_m

@@ -968,6 +968,6 @@ def crosstalk_rows(img, struct, margin, front, need, z):  # pragma: no cover - n
         se = sd / np.sqrt(np.float64(cnt[r]))
         if lit[r] and mean[r] - base_mean > z * se:
             x = _water_column_median(img, first, margin, lo + r, buf) - base
-            if x > z * 1.2533 * se:
+            if x > z * 1.2533 * se:  # (a median's standard error: sqrt(pi / 2) x the mean's)
                 out[lo + r] = x
     return out

@@ -14,9 +14,9 @@ at a row - those whose first structure pixel (the classifier's labels) lies more
 on most of them, not on the few a neighbouring echo's main lobe or ghosts reach), against the
 ping's typical water column (the median of the rows' medians).  A row whose median exceeds that
 by more than ``z`` standard errors (the pooled spread of the water-column pixels, over the
-square root of the row's count) carries the excess as crosstalk, if some beam holds structure at that row (crosstalk lies at an echo's
-range; the brighter water column near the sonar is no crosstalk); :func:`remove_crosstalk` subtracts it from every pixel of the row
-(clipped at 0).  A row without enough water-column beams (a flat surface across the fan, seen
+square root of the row's count) carries the excess as crosstalk, if some beam holds structure at
+that row (crosstalk lies at an echo's range; the brighter water column near the sonar is no
+crosstalk); :func:`remove_crosstalk` subtracts it from every pixel of the row (clipped at 0).  A row without enough water-column beams (a flat surface across the fan, seen
 head on) gets no estimate and is left alone: its light is the surface's own.
 """
 
@@ -53,7 +53,8 @@ def crosstalk_by_row(image: ArrayLike, labels: ArrayLike, *, margin_bins: int = 
     margin_bins : int
         Water column: more than this many bins in front of the beam's first structure pixel.
     z : float
-        Significance of a row's excess, in standard errors of its mean.
+        Significance of a row's excess, in standard errors of its median (the rows whose mean is
+        not that many standard errors of the mean above the typical one are not tested).
     min_beams : int, optional
         Fewest water-column beams a row needs for an estimate (default ``max(8, n_beams // 4)``).
 

@@ -15,6 +15,7 @@ the background, linear in intensity).  Called alone with the default
 
 from __future__ import annotations
 
+import functools
 import math
 import threading
 from collections.abc import Callable
@@ -290,12 +291,8 @@ def surface_ranges(ping: Ping, image: NDArray[np.float32], levels: NDArray[Any],
     code, lut = _evidence_table(cand, None, levels, lut)
     boost = _boost_pixels(band, cand.shape)
     walk = (1.0, max(2, pb), float(fraction), 0.5, pb + 2, config.edge_scan == "forward")
-    full: list[float] = []  # the ping's full-scale level, once computed
-
-    def full_scale() -> float:
-        if not full:
-            full.append(full_scale_level(ping.image))
-        return full[0]
+    # the ping's full-scale level, computed once and only when an echo is measured
+    full_scale = functools.cache(functools.partial(full_scale_level, ping.image))
 
     def measure(cand: NDArray[np.bool_], rows: tuple[int, int],
                 before: tuple[Any, NDArray[np.int64], tuple[int, int]] | None = None
