@@ -533,58 +533,60 @@ def reduce_uniform4(levels, margin_lut, weights, wtot, fixed, stack, wr, wb):  #
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _chain_run(levels, margin_lut, fixed, i, j0, n, tc, tv, wb, buf, dec):  # pragma: no cover - numba
-    """Decide what can be decided of the free run ``(i, j0 .. j0+n-1)`` of one range bin.
+def _run_forward(flat_levels, margin_lut, flat_fixed, stack, k, n_free, w, up, down, tc, tv, wb,
+                 buf):  # pragma: no cover - numba
+    """The forward half of deciding the free run of one range bin that starts at ``stack[k]``
+    (its pixels are the consecutive entries of ``stack`` in the bin): ``(n, tol)``, its length
+    and the rounding bound of its decisions (:func:`_run_backward` makes them).
 
     Margins: given every pixel outside the run, the effective margins lie in ``[ulo, uhi]``
     (``buf[0]`` / ``buf[1]``): fixed neighbours add ``+w`` (label 1) or ``-w`` (label 0), a free
     neighbour in an adjacent bin anything in ``[-wr, wr]`` (``tc`` and ``tv`` map a neighbour
-    state ``fixed + 1`` to its fixed contribution and its free weight).
+    state ``fixed + 1`` to its fixed contribution and its free weight; ``up`` / ``down``: the
+    bin has a bin above / below).
 
     Min-marginals of the two chain problems (margins ``ulo`` / ``uhi``, Potts weight ``wb``) by
     forward-backward dynamic programming on message differences, computed in the same loop as the
     margins: with ``F_t`` / ``B_t`` the least cost of the chain before / after ``t`` given
     ``x_t``, ``F_t(1) - F_t(0) = clip(F_{t-1}(1) - F_{t-1}(0), -wb, wb) - u_t`` (kept in
-    ``buf[2]`` / ``buf[3]``) and likewise backwards, and ``x_t = 1`` beats ``x_t = 0`` by
-    ``-(F_t(1) - F_t(0) + B_t(1) - B_t(0))``.  ``dec[t]`` = 1 where label 1 is cheaper by more
-    than ``tol`` under ``ulo`` (every minimiser has 1), 0 where label 0 is under ``uhi``, else -1;
-    ``tol = 2e-15 n s`` bounds the DP's rounding error, ``s`` an upper bound on
-    ``sum |ulo| + |uhi| + 2 wb`` over the run (the scale of the chain costs).
-    """
-    h, w = levels.shape
-    up = i > 0
-    down = i < h - 1
+    ``buf[2]`` / ``buf[3]``) and likewise backwards.  ``tol = 2e-15 n s`` bounds the DP's
+    rounding error, ``s`` an upper bound on ``sum |ulo| + |uhi| + 2 wb`` over the run (the scale
+    of the chain costs).  The run ends where the next entry of ``stack`` is not the next pixel
+    of the bin, found in the same loop (one unpredictable loop exit per run)."""
+    p0 = stack[k]
+    j0 = p0 % w
     e0 = 0.0
     if j0 > 0:
-        e0 = wb if fixed[i, j0 - 1] == 1 else -wb
-    e1 = 0.0
-    if j0 + n < w:
-        e1 = wb if fixed[i, j0 + n] == 1 else -wb
+        e0 = wb if flat_fixed[p0 - 1] == 1 else -wb
     scale = 0.0
     fl = 0.0
     fh = 0.0
-    for t in range(n):
-        j = j0 + t
-        base = margin_lut[levels[i, j]]
+    t = 0
+    last = False
+    while not last:
+        p = p0 + t
+        base = margin_lut[flat_levels[p]]
         vf = 0.0
         if up:
-            f = np.uint64(fixed[i - 1, j] + 1)  # (unsigned: no wraparound code)
+            f = np.uint64(flat_fixed[p - w] + 1)  # (unsigned: no wraparound code)
             base += tc[f]
             vf += tv[f]
         if down:
-            f = np.uint64(fixed[i + 1, j] + 1)
+            f = np.uint64(flat_fixed[p + w] + 1)
             base += tc[f]
             vf += tv[f]
         lo = base - vf
         hi = base + vf
         scale += abs(base) + vf + wb
+        inside = j0 + t + 1 < w
+        last = not (inside and k + t + 1 < n_free and stack[k + t + 1] == p + 1)
         if t == 0:
-            if j0 > 0:
-                lo += e0
-                hi += e0
+            lo += e0
+            hi += e0
             fl = -lo
             fh = -hi
-        if t == n - 1 and j0 + n < w:
+        if last and inside:
+            e1 = wb if flat_fixed[p + 1] == 1 else -wb
             lo += e1
             hi += e1
             if t == 0:
@@ -597,14 +599,27 @@ def _chain_run(levels, margin_lut, fixed, i, j0, n, tc, tv, wb, buf, dec):  # pr
         buf[1, t] = hi
         buf[2, t] = fl
         buf[3, t] = fh
-    tol = 2e-15 * n * (2.0 * scale)
+        t += 1
+    return t, 2e-15 * t * (2.0 * scale)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _run_backward(flat_fixed, p0, n, wb, tol, buf):  # pragma: no cover - numba
+    """The backward half of :func:`_run_forward`'s run ``p0 .. p0 + n - 1``: each pixel's state
+    into ``flat_fixed``, 1 where label 1 is cheaper by more than ``tol`` under ``ulo`` (every
+    minimiser has 1), 0 where label 0 is under ``uhi``, else -1 (``x_t = 1`` beats ``x_t = 0`` by
+    ``-(F_t(1) - F_t(0) + B_t(1) - B_t(0))``); whether it fixed a pixel."""
     bl = 0.0
     bh = 0.0
+    hit = False
     for t in range(n - 1, -1, -1):
         # branch-free: at most one of the two tests holds (the margins satisfy ulo <= uhi)
-        dec[t] = -1 + 2 * (buf[2, t] + bl < -tol) + (buf[3, t] + bh > tol)
+        d = -1 + 2 * (buf[2, t] + bl < -tol) + (buf[3, t] + bh > tol)
+        flat_fixed[p0 + t] = d
+        hit |= d >= 0
         bl = min(max(bl - buf[0, t], -wb), wb)
         bh = min(max(bh - buf[1, t], -wb), wb)
+    return hit
 
 
 @njit(cache=True, nogil=True)
@@ -614,24 +629,25 @@ def reduce_chains(levels, margin_lut, fixed, stack, n_free, wr, wb, max_passes):
 
     Each maximal run of free pixels in one range bin is a chain; with everything outside it held
     fixed, its effective margins lie between ``ulo`` and ``uhi`` (a free neighbour in an adjacent
-    bin contributes anything in ``[-wr, wr]``; :func:`_chain_run`).  For a submodular energy
+    bin contributes anything in ``[-wr, wr]``; :func:`_run_forward`).  For a submodular energy
     the least minimiser grows with the margins, so a pixel that takes label 1 in every minimiser
     of the chain under ``ulo`` has 1 in every minimiser of the whole problem, and one that takes 0
     in every minimiser under ``uhi`` has 0 (the restriction of a minimiser to the chain minimises
     the chain problem with the true margins).  The chain min-marginals are exact dynamic
-    programming (:func:`_chain_run`); a decision needs a min-marginal gap above a bound on
-    the DP's rounding error, so the fixing is exact in floating point too.  Since the Potts
-    weight across beams is the strong one, this decides most of what the single-pixel test of
-    :func:`reduce_binary` leaves.  Passes over the remaining list ``stack[:n_free]`` (which must
-    be in ascending raster order, kept while compacting it in place) repeat until one fixes nothing
-    or ``max_passes`` have run; a pass skips a bin whose own and adjacent bins have not changed
-    since its last evaluation.  Returns the new ``n_free``.
+    programming (:func:`_run_forward`, :func:`_run_backward`); a decision needs a min-marginal gap
+    above a bound on the DP's rounding error, so the fixing is exact in floating point too.  Since
+    the Potts weight across beams is the strong one, this decides most of what the single-pixel
+    test of :func:`reduce_binary` leaves.  Passes over the remaining list ``stack[:n_free]``
+    (which must be in ascending raster order, kept while compacting it after each pass) repeat
+    until one fixes nothing or ``max_passes`` have run; a pass skips a bin whose own and adjacent
+    bins have not changed since its last evaluation.  Returns the new ``n_free``.
     """
     h, w = levels.shape
     buf = np.empty((4, w))
-    dec = np.empty(w, dtype=np.int8)
     tc = np.array([0.0, -wr, wr])              # by neighbour state + 1: free, fixed 0, fixed 1
     tv = np.array([wr, 0.0, 0.0])
+    flat_levels = levels.reshape(h * w)
+    flat_fixed = fixed.reshape(h * w)
     # a row's runs are evaluated again only if a pixel of the row or of an adjacent row has been
     # fixed since its last evaluation: row r was last evaluated at stamp ev[r] and last changed
     # at ch[r + 1] (ch is padded by one row on each side)
@@ -640,40 +656,33 @@ def reduce_chains(levels, margin_lut, fixed, stack, n_free, wr, wb, max_passes):
     stamp = 0
     for _ in range(max_passes):
         k = 0
-        k_out = 0
-        row = -1
-        skip = False
+        changed = False
         while k < n_free:
-            p0 = stack[k]
-            i = p0 // w
-            j0 = p0 - i * w
-            n = 1
-            while k + n < n_free and stack[k + n] == p0 + n and j0 + n < w:
-                n += 1
-            if i != row:
-                row = i
-                e = ev[i]
-                skip = e >= 0 and ch[i] < e and ch[i + 1] < e and ch[i + 2] < e
-                if not skip:
-                    stamp += 1
-                    ev[i] = stamp
-            if skip:
-                for t in range(n):                 # nothing new around: keep the run as it is
-                    stack[k_out + t] = p0 + t
-                k_out += n
-                k += n
+            i = stack[k] // w
+            end = (i + 1) * w
+            e = ev[i]
+            if e >= 0 and ch[i] < e and ch[i + 1] < e and ch[i + 2] < e:
+                while k < n_free and stack[k] < end:  # nothing new around: the row's runs stay
+                    k += 1
                 continue
-            _chain_run(levels, margin_lut, fixed, i, j0, n, tc, tv, wb, buf, dec)
-            k_old = k_out
-            for t in range(n):
-                fixed[i, j0 + t] = dec[t]          # -1 (still free) for the survivors
-                stack[k_out] = p0 + t
-                k_out += dec[t] < 0
-            if k_out - k_old < n:
+            stamp += 1
+            ev[i] = stamp
+            hit = False
+            while k < n_free and stack[k] < end:
+                n, tol = _run_forward(flat_levels, margin_lut, flat_fixed, stack, k, n_free, w, i > 0, i < h - 1,
+                                      tc, tv, wb, buf)
+                hit |= _run_backward(flat_fixed, stack[k], n, wb, tol, buf)
+                k += n
+            if hit:
                 ch[i + 1] = ev[i]
-            k += n
-        if k_out == n_free:
+                changed = True
+        if not changed:
             break
+        k_out = 0
+        for k in range(n_free):                    # the survivors (-1), in ascending order
+            p = stack[k]
+            stack[k_out] = p
+            k_out += flat_fixed[p] < 0
         n_free = k_out
     return n_free
 
