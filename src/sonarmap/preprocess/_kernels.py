@@ -445,13 +445,17 @@ def smooth_log_level(log_level, width, floor):  # pragma: no cover - numba
     work = np.empty(n)
     resid = np.empty(n)
     for _ in range(SMOOTH_ROUNDS):
-        _running_mean(keep, den, width)
         for i in range(n):
             work[i] = log_level[i] * keep[i]
-        _running_mean(work, num, width)
+        # _running_mean of keep and of work: the two sums' chains of additions advance together,
+        # their divisions in loops of their own (which vectorise), branch-free
+        _running_sums2(keep, work, den, num, width)
         for i in range(n):
-            if den[i] > 0.05:
-                smooth[i] = num[i] / max(den[i], 1e-12)
+            den[i] = den[i] / width
+            num[i] = num[i] / width
+        for i in range(n):
+            v = num[i] / max(den[i], 1e-12)
+            smooth[i] = v if den[i] > 0.05 else smooth[i]
         _fill_unsupported(smooth, den)
         c = 0
         for i in range(n):
@@ -463,6 +467,28 @@ def smooth_log_level(log_level, width, floor):  # pragma: no cover - numba
         if not _grow_above(resid, sigma, floor, above, keep):
             break
     return smooth, above
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _running_sums2(a, b, sa, sb, size):  # pragma: no cover - numba
+    """The running sums of :func:`_running_mean` (before its division by ``size``) of ``a`` and
+    ``b`` (float64, one length) into ``sa`` and ``sb``, the two sums advanced together (the same
+    additions per array)."""
+    n = a.shape[0]
+    h = size // 2
+    s = 0.0
+    t = 0.0
+    for k in range(-h, size - h):
+        c = min(max(k, 0), n - 1)
+        s += a[c]
+        t += b[c]
+    for i in range(n):
+        sa[i] = s
+        sb[i] = t
+        p = min(max(i - h + size, 0), n - 1)
+        q = min(max(i - h, 0), n - 1)
+        s += a[p] - a[q]
+        t += b[p] - b[q]
 
 
 @njit(cache=True, nogil=True)
