@@ -426,31 +426,35 @@ def test_the_profiles_are_computed_as_far_as_the_windows_read_them(monkeypatch: 
         assert np.asarray(a).tobytes() == np.asarray(b).tobytes()
 
 
-def test_the_running_clip_counts_test_only_columns_with_a_clipped_sample_in_reach() -> None:
-    """``_clip_counts`` skips the per-bin clip tests of a column without a clipped sample between
-    the rows its tests would read: the same counts as testing every bin."""
-    from sonarmap.ranges._kernels import _clip_counts, _clipped_at
+def test_the_clipped_profile_bins_come_from_the_listed_clipped_rows() -> None:
+    """``_clipped_bins`` finds a beam's clipped profile bins from its column's clipped rows
+    (``_clipped_rows``) without testing every bin: the same bins as testing every bin with
+    ``_clipped_at``, also where ``a + (k + off)`` rounds up to the next row (sums crossing a power
+    of two), in runs of clipped rows, at the first and last rows and for a non-finite ``a``."""
+    from sonarmap.ranges._kernels import _clipped_at, _clipped_bins, _clipped_rows
 
     rng = np.random.default_rng(5)
-    n = 40
-    clip = (rng.random((n, 6)) < 0.02).astype(np.uint8)
+    n = 1100
+    clip = (rng.random((n, 7)) < 0.03).astype(np.float32)
     clip[:, 0] = 0
     clip[n - 1, 1] = 1  # only in the last row
     clip[0, 2] = 1      # only in the first row
-
-    def reference(j: int, a: float, off: int, n_read: int, below: np.ndarray) -> np.ndarray:
-        out = below.copy()
-        for k in range(n_read):
-            out[k] += bool(_clipped_at.py_func(clip, 1.0, j, a + (k + off)))
-        return out
-
-    below = rng.integers(0, 3, 30).astype(np.int64)
+    clip[500:530, 3] = 1  # a run
+    clip[1020:1030, 4] = 1
+    first, rows = _clipped_rows(clip, 1.0)
     for j in range(clip.shape[1]):
-        for a in (-7.3, -0.5, 0.0, 3.999999999999999, 12.25, 38.5, 45.0):
-            for off, n_read in ((-5, 30), (-5, 0), (0, 1), (-2, 12)):
-                out = np.empty(30, np.int64)
-                _clip_counts.py_func(clip, 1.0, j, a, off, n_read, 30, below, out)
-                np.testing.assert_array_equal(out, reference(j, a, off, n_read, below))
+        np.testing.assert_array_equal(rows[first[j]:first[j + 1]], np.flatnonzero(clip[:, j] >= 1.0))
+    starts = (-7.3, -0.5, 0.0, 3.999999999999999, 12.25, 38.5, 45.0, 511.99999999999994, 1023.9999999999999,
+              1007.9999999999999, 495.99999999999994, 1098.5, np.nan, np.inf)
+    for j in range(clip.shape[1]):
+        col = rows[first[j]:first[j + 1]]
+        for a in starts:
+            for off, n_read in ((-5, 30), (-5, 0), (0, 1), (-2, 12), (-17, 200)):
+                # (compiled: python's int() of a NaN row raises)
+                want = [k for k in range(n_read) if _clipped_at(clip, 1.0, j, a + (k + off))]
+                out = np.full(n_read + 3, -1, np.int64)
+                end = _clipped_bins(clip, 1.0, j, col, a, off, n_read, out, 2)
+                assert out[2:end].tolist() == want
 
 
 @pytest.mark.parametrize("dtype", [np.float32, np.float64, np.uint8])
