@@ -426,6 +426,26 @@ def test_the_profiles_are_computed_as_far_as_the_windows_read_them(monkeypatch: 
         assert np.asarray(a).tobytes() == np.asarray(b).tobytes()
 
 
+def test_a_profile_span_interpolates_as_each_bin_alone() -> None:
+    """``_interp_span`` (exact sums read without converting each position) gives the bits of
+    ``_interp_column`` at every offset: sums that round (crossing a power of two from just
+    below it), fractions near 0 and 1, the clamped ends, positions below 1 and infinite rows (a
+    NaN row is no position: ``_interp_column`` reads no defined sample)."""
+    from sonarmap.ranges._kernels import _interp_column, _interp_span
+
+    rng = np.random.default_rng(7)
+    img = rng.random((700, 3))
+    starts = (0.0, 1e-300, 0.3, 0.9999999999999999, 3.999999999999999, 12.25, 255.99999999999997,
+              511.99999999999994, 300.1234567, 447.75, 650.5, 698.9999999999999, 699.0, 750.0, -3.5, np.inf,
+              -np.inf, 2.0 ** 52, 1e300)
+    for a in starts + tuple(rng.uniform(-20.0, 720.0, 40)):
+        for off, n_out in ((-17, 230), (0, 5), (-300, 400), (3, 0)):
+            out = np.full(n_out, -1.0)
+            _interp_span(img, 1, a, off, out, n_out)
+            want = np.array([_interp_column(img, 1, a + (k + off)) for k in range(n_out)])
+            assert out.tobytes() == want.tobytes(), (a, off)
+
+
 def test_the_clipped_profile_bins_come_from_the_listed_clipped_rows() -> None:
     """``_clipped_bins`` finds a beam's clipped profile bins from its column's clipped rows
     (``_clipped_rows``) without testing every bin: the same bins as testing every bin with
