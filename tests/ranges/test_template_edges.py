@@ -304,3 +304,23 @@ def test_the_local_quadratic_solves_its_normal_equations_as_lapack_does():
         got, want = both(np.ascontiguousarray(a), np.ascontiguousarray(b))
         tol = 8.0 * np.linalg.cond(a) * np.finfo(float).eps * np.abs(want).max()
         assert np.abs(got - want).max() <= tol, (a, b, got, want)
+
+
+def test_the_local_quadratics_of_a_course_are_each_positions_own() -> None:
+    """``_local_quadratics`` (one factored normal matrix for the positions whose whole window is
+    inside the course) gives the bits of ``_local_quadratic`` at every position, for courses
+    shorter and longer than the window and half-widths whose windows fit a line or nothing."""
+    from sonarmap.ranges._template_kernels import _local_quadratic, _local_quadratics
+
+    rng = np.random.default_rng(12)
+    A = np.empty((3, 3))
+    rhs = np.empty(3)
+    for nb in (1, 2, 4, 7, 11, 40):
+        cur = 300.0 + np.cumsum(rng.normal(0.0, 0.7, nb))
+        for half in (0, 1, 2, 5, 12):
+            line = np.full(nb, np.nan)
+            slope = np.full(nb, np.nan)
+            _local_quadratics(cur, half, A, rhs, line, slope)
+            want = np.array([_local_quadratic(cur, a, half, A, rhs) for a in range(nb)]).reshape(nb, 2)
+            assert line.tobytes() == want[:, 0].copy().tobytes()
+            assert slope.tobytes() == want[:, 1].copy().tobytes()

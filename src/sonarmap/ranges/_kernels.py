@@ -1353,6 +1353,13 @@ def _solve_small(A, rhs, deg):  # pragma: no cover - numba
     (OpenBLAS 0.3.31 rounds 61 % of such systems differently in the last bits; test in
     tests/ranges/test_template_edges.py).  A non-singular ``A`` (the normal equations of
     distinct positions)."""
+    _lu_solve_small(A, _lu_small(A, deg), rhs, deg)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _lu_small(A, deg):  # pragma: no cover - numba
+    """The factorisation of :func:`_solve_small` (dgetf2) in place on ``A[:deg, :deg]``: its
+    pivots (a tuple of 3)."""
     piv = (0, 0, 0)
     for j in range(deg):
         # the column's earlier row swaps, its upper part (dot products), the rest (a matrix-vector
@@ -1392,6 +1399,13 @@ def _solve_small(A, rhs, deg):  # pragma: no cover - numba
             else:
                 for r in range(j + 1, deg):
                     A[r, j] /= t
+    return piv
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _lu_solve_small(A, piv, rhs, deg):  # pragma: no cover - numba
+    """The solve of :func:`_solve_small` (dgetrs) with the factors ``A`` and pivots ``piv`` of
+    :func:`_lu_small`, in place on ``rhs[:deg]``."""
     for i in range(deg):
         p = piv[i]
         if p != i:
