@@ -455,12 +455,13 @@ def test_the_clipped_profile_bins_come_from_the_listed_clipped_rows() -> None:
 
     rng = np.random.default_rng(5)
     n = 1100
-    clip = (rng.random((n, 7)) < 0.03).astype(np.float32)
+    clip = (rng.random((n, 8)) < 0.03).astype(np.float32)
     clip[:, 0] = 0
     clip[n - 1, 1] = 1  # only in the last row
     clip[0, 2] = 1      # only in the first row
     clip[500:530, 3] = 1  # a run
     clip[1020:1030, 4] = 1
+    clip[:, 5] = rng.random(n) < 0.4  # dense: neighbouring clipped rows
     first, rows = _clipped_rows(clip, 1.0)
     for j in range(clip.shape[1]):
         np.testing.assert_array_equal(rows[first[j]:first[j + 1]], np.flatnonzero(clip[:, j] >= 1.0))

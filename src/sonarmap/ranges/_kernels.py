@@ -1577,7 +1577,7 @@ def _clipped_rows(clip, level):  # pragma: no cover - numba
     float64) by column, ascending: ``rows[first[j]:first[j + 1]]`` for column ``j``.  One pass
     along the rows (a row without one costs a vectorised test) instead of walks down the columns
     (the real Oculus: ~1500 clipped samples a ping, 87 k column reads a :func:`pooled_edges`
-    call)."""
+    call); :func:`first_clipped_rows` lists a span of rows with it."""
     n, m = clip.shape
     first = np.zeros(m + 1, np.int64)
     hit = np.empty(n, np.int64)
@@ -1627,31 +1627,21 @@ def _clipped_bins(clip, level, j, rows, a, off, n_read, out, n_out):  # pragma: 
     r0 = min(max(int(np.floor(a + off)), 0), n)
     r1 = min(max(int(np.floor(a + (n_read - 1 + off))) + 2, 0), n)
     f0 = int(np.floor(a)) + off
-    nxt = 0  # the first bin not yet tested
-    for t in range(rows.size):
-        i = rows[t]
+    last = -1  # the last bin found
+    for i in rows:
         if i < r0:
             continue
         if i >= r1:
             break
-        for k in range(max(i - f0 - 2, nxt), min(i - f0 + 1, n_read)):
-            # _clipped_at from the list: its rows floor(a + (k + off)) and the next are in
-            # i - 2 .. i + 1, listed (if at all) at t - 2 .. t + 1 (the column is not read)
+        # a bin whose test reads row i (the column is not read); one found by an earlier row
+        # is not after this row's (its test's rows are not after this row's)
+        for k in range(max(i - f0 - 2, last + 1), min(i - f0 + 1, n_read)):
             i0 = int(np.floor(a + (k + off)))
-            if _listed(rows, t, i0) or _listed(rows, t, i0 + 1):
+            if i0 == i or i0 + 1 == i:
                 out[n_out] = k
                 n_out += 1
-        nxt = max(nxt, i - f0 + 1)
+                last = k
     return n_out
-
-
-@njit(cache=True, nogil=True, inline="always")
-def _listed(rows, t, v):  # pragma: no cover - numba
-    """Whether ``v`` is one of ``rows[t - 2 .. t + 1]`` (ascending, distinct rows)."""
-    for s in range(max(t - 2, 0), min(t + 2, rows.size)):
-        if rows[s] == v:
-            return True
-    return False
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -2774,24 +2764,11 @@ def first_clipped_rows(img, cols, lo, hi, level):  # pragma: no cover - numba
                     out[k] = i
                     break
         return out
-    # the rows reaching level of each column, ascending: rows[first[j] : first[j + 1]]
-    first = np.zeros(m + 1, np.int64)
-    for i in range(r0, r1):
-        row = img[i]
-        for j in range(m):
-            first[j + 1] += row[j] >= level
-    for j in range(m):
-        first[j + 1] += first[j]
-    rows = np.empty(first[m], np.int64)
+    # the rows reaching level of each column, ascending, less r0: rows[first[j] : first[j + 1]]
+    # (_clipped_rows: a vectorised test per row, the lists only from the rows with such a sample)
+    first, rows = _clipped_rows(img[r0:r1], level)
     if rows.size == 0:
         return out
-    fill = first[:m].copy()
-    for i in range(r0, r1):
-        row = img[i]
-        for j in range(m):
-            if row[j] >= level:
-                rows[fill[j]] = i
-                fill[j] += 1
     for k in range(cols.size):
         j = cols[k]
         # the first listed row at or after lo[k] (binary search), if before hi[k]
@@ -2799,12 +2776,12 @@ def first_clipped_rows(img, cols, lo, hi, level):  # pragma: no cover - numba
         b = first[j + 1]
         while a < b:
             c = (a + b) // 2
-            if rows[c] < lo[k]:
+            if rows[c] < lo[k] - r0:
                 a = c + 1
             else:
                 b = c
-        if a < first[j + 1] and rows[a] < hi[k]:
-            out[k] = rows[a]
+        if a < first[j + 1] and rows[a] < hi[k] - r0:
+            out[k] = rows[a] + r0
     return out
 
 
