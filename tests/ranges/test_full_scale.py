@@ -84,7 +84,7 @@ def test_a_deep_clipped_peak_is_not_fitted_as_the_echos_first() -> None:
     through the deep clipped run's flanks - its rising flank reaches back only to bin 58, behind
     the front's crossing - is not the first peak's: the fit is refused (the pooled edge stays
     the front's crossing), while without that test it would put the edge at bin 90.3."""
-    from sonarmap.ranges._kernels import _clipped_edge
+    from sonarmap.ranges._kernels import _clipped_box_edge
 
     n = 200
     r = np.arange(n, dtype=float)
@@ -97,11 +97,11 @@ def test_a_deep_clipped_peak_is_not_fitted_as_the_echos_first() -> None:
     clipped = prof >= 1.0
     clipped[57] = True
     peak = int(np.argmax(prof))
-    assert not _clipped_edge(prof, clipped, n, peak, 0.5, 110, 51.75)[0]
-    ok, x, *_ = _clipped_edge(prof, clipped, n, peak, 0.5, 110, 1e9)
+    assert not _clipped_box_edge(prof, clipped, 0, 0, n, peak, 0.5, 110, 51.75)[0]
+    ok, x, *_ = _clipped_box_edge(prof, clipped, 0, 0, n, peak, 0.5, 110, 1e9)
     assert ok and 89.0 < x < 92.0
     # a clipped first peak whose rising flank reaches the crossing is still fitted
     first = np.zeros(n)
     first[50:120] = np.minimum(3.0 * np.exp(-0.5 * ((r[50:120] - 70.0) / 4.0) ** 2), 1.0)
-    ok, x, *_ = _clipped_edge(first, first >= 1.0, n, int(np.argmax(first)), 0.5, 120, 62.4)
+    ok, x, *_ = _clipped_box_edge(first, first >= 1.0, 0, 0, n, int(np.argmax(first)), 0.5, 120, 62.4)
     assert ok and abs(x - (70.0 - 4.0 * np.sqrt(2.0 * np.log(2.0)))) < 0.1

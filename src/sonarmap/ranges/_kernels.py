@@ -1433,23 +1433,6 @@ def _with_pivot(piv, j, jp):  # pragma: no cover - numba
     return (piv[0], piv[1], jp)
 
 
-@njit(cache=True, nogil=True)
-def _clipped_edge(sm, clipped_k, nk, p, fraction, n_own, x_first):  # pragma: no cover - numba
-    """``(ok, x, level, slope, sigma)``: the ``fraction`` crossing of a Gaussian echo fitted to
-    the log of the unclipped bins of profile ``sm`` (``nk`` bins) on both sides of the clipped run
-    around its peak ``p`` - down to 5 % of the clipped maximum, and beyond the echo's own ``n_own``
-    bins only while the profile falls - with the echo's level and rise per bin there and the crossing's standard error (bins, from the fit's residuals).  The crossing
-    may lie inside the clipped run (an echo that peaks above twice the clip level).  Not ``ok``
-    with fewer than 2 bins on either flank, a fit that does not curve down, a fitted peak not above
-    the clipped maximum, a crossing before the rising flank or after the clipped run, or a rising
-    flank that starts more than a bin behind ``x_first`` (the profile's first crossing of
-    ``fraction`` x its clipped maximum): the clipped peak is then a deeper one than the echo's
-    first (a strong, long echo clipped deep inside - the real Oculus seabed - whose Gaussian
-    through that peak alone would put the edge tens of bins inside the echo).  ``clipped_k``: the
-    clipped bins."""
-    return _clipped_box_edge(sm, clipped_k, 0, 0, nk, p, fraction, n_own, x_first)
-
-
 @njit(cache=True, nogil=True, inline="always")
 def _box_flag(flags, h, hj, k):  # pragma: no cover - numba
     """Whether any of ``flags[k + h - hj .. k + h + hj]`` is set."""
@@ -1461,13 +1444,27 @@ def _box_flag(flags, h, hj, k):  # pragma: no cover - numba
 
 @njit(cache=True, nogil=True)
 def _clipped_box_edge(sm, flags, h, hj, nk, p, fraction, n_own, x_first):  # pragma: no cover - numba
-    """:func:`_clipped_edge` with bin ``k`` clipped where :func:`_box_flag` of ``flags`` holds
-    (the smoothing box of :func:`pooled_edges`: ``flags`` marks the bins where a pooled beam is
-    clipped), tested only at the bins its walks reach.  The walks end at the first failed test
-    (the rising flank first, before the clipped run's end is sought): nearly all real Oculus fits
-    end there (of 1283 on its 3 pings, 770 with a rising flank behind ``x_first``, 336 with a
-    flank under 2 bins, 170 with a fitted peak not above the clipped maximum, 2 fitted), and
-    flagging every bin of their profiles first cost more than the walks' own tests."""
+    """``(ok, x, level, slope, sigma)``: the ``fraction`` crossing of a Gaussian echo fitted to
+    the log of the unclipped bins of profile ``sm`` (``nk`` bins) on both sides of the clipped run
+    around its peak ``p`` - down to 5 % of the clipped maximum, and beyond the echo's own ``n_own``
+    bins only while the profile falls - with the echo's level and rise per bin there and the
+    crossing's standard error (bins, from the fit's residuals).  The crossing may lie inside the
+    clipped run (an echo that peaks above twice the clip level).  Not ``ok`` with fewer than 2
+    bins on either flank, a fit that does not curve down, a fitted peak not above the clipped
+    maximum, a crossing before the rising flank or after the clipped run, or a rising flank that
+    starts more than a bin behind ``x_first`` (the profile's first crossing of ``fraction`` x its
+    clipped maximum): the clipped peak is then a deeper one than the echo's first (a strong, long
+    echo clipped deep inside - the real Oculus seabed - whose Gaussian through that peak alone
+    would put the edge tens of bins inside the echo).
+
+    Bin ``k`` is clipped where :func:`_box_flag` of ``flags`` holds (the smoothing box of
+    :func:`pooled_edges`: ``flags`` marks the bins where a pooled beam is clipped; ``h = hj = 0``:
+    ``flags`` marks the clipped bins themselves), tested only at the bins its walks reach.  The
+    walks end at the first failed test (the rising flank first, before the clipped run's end is
+    sought): nearly all real Oculus fits end there (of 1283 on its 3 pings, 770 with a rising
+    flank behind ``x_first``, 336 with a flank under 2 bins, 170 with a fitted peak not above the
+    clipped maximum, 2 fitted), and flagging every bin of their profiles first cost more than the
+    walks' own tests."""
     c0 = p
     while c0 > 0 and _box_flag(flags, h, hj, c0 - 1):
         c0 -= 1
@@ -1495,7 +1492,7 @@ def _clipped_box_edge(sm, flags, h, hj, nk, p, fraction, n_own, x_first):  # pra
 
 @njit(cache=True, nogil=True)
 def _clipped_fit(sm, p, c0, c1, first, n_down, fraction):  # pragma: no cover - numba
-    """The fit of :func:`_clipped_edge` to the bins ``first .. c1 + n_down`` of ``sm`` outside the
+    """The fit of :func:`_clipped_box_edge` to the bins ``first .. c1 + n_down`` of ``sm`` outside the
     clipped run ``c0 .. c1`` around its peak ``p``: its result."""
     # sums for the least-squares parabola in k - c0 (centred for conditioning)
     S = np.zeros(5)
@@ -1668,7 +1665,7 @@ def pooled_edges(img, edge, stop, run, half_beams, front_bins, max_bins, smooth_
     raw image itself with its full-scale level (no mask to form: only the samples the profiles
     reach are read).  Where the pooled profile's peak is clipped, its first peak is the clip
     level, below the echo's own: the leading edge is then the half-peak crossing of a Gaussian
-    echo fitted to the log of the unclipped samples on both flanks (:func:`_clipped_edge`), whose
+    echo fitted to the log of the unclipped samples on both flanks (:func:`_clipped_box_edge`), whose
     rising flank may reach ``fit_front_bins`` (>= ``front_bins``) in front of the alignment.  The
     peak search and the half-peak walk of unclipped profiles stay within ``front_bins``.
 
