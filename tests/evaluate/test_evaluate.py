@@ -275,3 +275,29 @@ def test_command_line_scene_choice(capsys):
     with pytest.raises(SystemExit) as exc:
         main(["--scenes", "hull,bogus"])
     assert exc.value.code == 2 and "unknown scene(s) bogus" in capsys.readouterr().err
+
+
+def test_command_line_config_and_seeds(tmp_path, capsys):
+    """``--config`` scores the pipeline a TOML file describes and ``--first-seed`` shifts the seeds:
+    the same table as calling :func:`evaluate_ranges` with that config and those seeds."""
+    from sonarmap.evaluate import evaluate_ranges
+    from sonarmap.evaluate.segmentation import main
+    from sonarmap.pipeline import PipelineConfig
+
+    toml = tmp_path / "c.toml"
+    toml.write_text("edge_smooth_beams = 0\n", encoding="utf-8")
+    args = ["--ranges", "--presets", "didson-hf", "--scenes", "hull_slope4", "--seeds", "1"]
+    assert main([*args, "--first-seed", "4", "--config", str(toml)]) == 0
+    out = capsys.readouterr().out
+    cfg = PipelineConfig().replace(edge_smooth_beams=0)
+    want = evaluate_ranges(cfg, presets=("didson-hf",), scenes=("hull_slope4",), seeds=(4,)).table()
+    assert out.strip() == want.strip()
+    assert main(args) == 0
+    assert capsys.readouterr().out.strip() != out.strip()  # seed 0 and the default differ
+    toml.write_text("edge_smooth_beams = 1\n", encoding="utf-8")
+    with pytest.raises(SystemExit) as exc:
+        main([*args, "--config", str(toml)])
+    assert exc.value.code == 2 and "edge_smooth_beams" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exc:
+        main([*args, "--seeds", "0"])
+    assert exc.value.code == 2

@@ -441,12 +441,15 @@ def evaluate_presets(
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """``python -m sonarmap.evaluate [--ranges] [--presets NAME,...] [--scenes NAME,...] [--seeds N]``.
+    """``python -m sonarmap.evaluate [--ranges] [--presets NAME,...] [--scenes NAME,...] [--seeds N]
+    [--first-seed K] [--config FILE.toml]``.
 
     Without ``--ranges``: the every-sonar table (:func:`evaluate_presets`).  With ``--ranges``:
     the ranges acceptance (:func:`evaluate_ranges`: presets x :data:`RANGES_SCENES`, scored
     against the sub-bin surface truth), its per-preset table and the sloped-hull and
-    hull-under-fish figures.
+    hull-under-fish figures.  ``--config`` scores another pipeline (a TOML file as for
+    ``sonarmap process --config``, :meth:`PipelineConfig.from_toml`); ``--first-seed`` scores
+    seeds K .. K+N-1, so a setting can be checked on seeds it was not chosen on.
     """
     import argparse
 
@@ -455,6 +458,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--scenes", default=None,
                     help="comma-separated scene names (default: the table's own scene set)")
     ap.add_argument("--seeds", type=int, default=3, help="seeds per scene and noise level")
+    ap.add_argument("--first-seed", type=int, default=0, help="the first seed (seeds K .. K+N-1)")
+    ap.add_argument("--config", default=None,
+                    help="pipeline configuration to score (TOML, as for `sonarmap process --config`)")
     ap.add_argument("--ranges", action="store_true", help="the ranges acceptance (sub-bin truth)")
     ap.add_argument("--per-scene", action="store_true", help="with --ranges: also one row per preset and scene")
     ap.add_argument("--noise-free", action="store_true",
@@ -467,12 +473,23 @@ def main(argv: Sequence[str] | None = None) -> int:
     unknown = sorted(set(scenes or ()) - set(SCENE_NAMES))
     if unknown:
         ap.error(f"--scenes: unknown scene(s) {', '.join(unknown)}; choose from {', '.join(SCENE_NAMES)}")
+    if args.seeds < 1 or args.first_seed < 0:
+        ap.error(f"--seeds must be >= 1 and --first-seed >= 0 (got {args.seeds}, {args.first_seed})")
+    config = None
+    if args.config is not None:
+        from sonarmap.pipeline import PipelineConfig
+
+        try:
+            config = PipelineConfig.from_toml(args.config)
+        except InputError as exc:
+            ap.error(f"--config: {exc}")
+    seeds = tuple(range(args.first_seed, args.first_seed + args.seeds))
     if args.ranges:
-        report = evaluate_ranges(presets=presets, seeds=tuple(range(args.seeds)),
+        report = evaluate_ranges(config, presets=presets, seeds=seeds,
                                  scenes=RANGES_SCENES if scenes is None else scenes, noise_free=args.noise_free)
         print(report.table(per_scene=args.per_scene, noise_free=args.noise_free))
         return 0
-    rows = evaluate_presets(presets=presets, seeds=tuple(range(args.seeds)),
+    rows = evaluate_presets(config, presets=presets, seeds=seeds,
                             scenes=ACCEPTANCE_SCENES if scenes is None else scenes)
     print(format_table(rows))
     return 0
