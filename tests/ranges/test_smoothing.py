@@ -215,8 +215,8 @@ def test_the_window_counts_beamwidths_where_the_beams_overlap():
 
 
 def test_the_pipeline_smooths_an_oculus_fan_over_its_beamwidths(monkeypatch, data_dir):
-    # the real Oculus fan's beams are 2.4 spacings wide: 8 beamwidths = 19 beams either side; the
-    # same ping with its beamwidth removed is smoothed over 8 beams
+    # the real Oculus fan's beams are 2.4 spacings wide: the default 16 beamwidths = 38 beams either
+    # side; the same ping with its beamwidth removed is smoothed over 16 beams
     import dataclasses
 
     import sonarmap.ranges.measure as measure
@@ -235,4 +235,4 @@ def test_the_pipeline_smooths_an_oculus_fan_over_its_beamwidths(monkeypatch, dat
     process_ping(ping, PipelineConfig())
     narrow = dataclasses.replace(ping, geometry=ping.geometry.replace(azimuth_beamwidth_rad=None))
     process_ping(narrow, PipelineConfig())
-    assert seen == [19, 8]
+    assert seen == [38, 16]

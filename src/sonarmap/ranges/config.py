@@ -215,7 +215,9 @@ class RangeConfig(ConfigSection):
         neighbours, a precise one stays.  Counted in beams of a fan whose beams are at most one
         spacing wide; a fan of overlapping beams (the geometry's ``azimuth_beamwidth_rad`` wider
         than the beam spacing) takes that many beamwidths
-        (:func:`sonarmap.ranges.smoothing.window_in_beamwidths`).  0 = off; else >= 2.
+        (:func:`sonarmap.ranges.smoothing.window_in_beamwidths`).  0 = off; else >= 2.  The
+        default 16 was chosen over 8, 12 and 24 on the simulator's held-out seeds and the Kongsberg
+        swath's own detections (``docs/segmentation.md``, "Smoothing along the surface").
     edge_smooth_min_beams : int
         Shortest run of returns combined (>= 5).
     log_dynamic_range_db : float, optional
@@ -257,7 +259,7 @@ class RangeConfig(ConfigSection):
     edge_template_min_beams: int = 30
     edge_template_anchor_beams: int = 10
     sigma_template_scale: float = 1.7
-    edge_smooth_beams: int = 8
+    edge_smooth_beams: int = 16
     edge_smooth_min_beams: int = 7
     log_dynamic_range_db: float | None = None
     min_run: int = 1

@@ -50,8 +50,9 @@ def window_in_beamwidths(half_beams: int, beamwidth_beams: ArrayLike | None) -> 
     beams that overlap see the same scatterers, so their edges' errors are correlated over about
     a beamwidth and a window of ``half_beams`` beams holds fewer independent edges: the window is
     widened to ``half_beams`` x the median beamwidth in beam spacings (``Echoes.beamwidth_beams``)
-    where that exceeds 1 (the Oculus M750d-like fan, 2.4: 8 -> 19 beams; the Kongsberg EM2040's
-    2.7: 22), unchanged otherwise (DIDSON, ARIS) or when the geometry gives no beamwidth.
+    where that exceeds 1 (the Oculus M750d-like fan, 2.4: the default 16 -> 38 beams; the
+    Kongsberg EM2040's 2.7: 43), unchanged otherwise (DIDSON, ARIS) or when the geometry gives no
+    beamwidth.
 
     Examples
     --------

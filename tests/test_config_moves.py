@@ -1,0 +1,61 @@
+"""benchmarks/config_moves.py: the real-recording moves between two pipeline configurations."""
+
+from __future__ import annotations
+
+import importlib.util
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from sonarmap.pipeline import PipelineConfig
+
+
+@pytest.fixture(scope="module")
+def moves_module():
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / "config_moves.py"
+    spec = importlib.util.spec_from_file_location("config_moves", path)
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = mod  # (its dataclass looks its module up)
+    spec.loader.exec_module(mod)
+    yield mod
+    sys.modules.pop(spec.name, None)
+
+
+def test_the_same_configuration_moves_nothing(moves_module, test_pings) -> None:
+    m = moves_module.compare(test_pings, PipelineConfig(), PipelineConfig(), "didson")
+    assert m.returns_a == m.returns_b == (27, 0, 0, 0, 96, 92, 59, 88, 96, 87)
+    assert m.moves_bins.size == 545 and not np.any(m.moves_bins)
+    assert m.summary().startswith("| didson | 27, 0, 0, 0, 96, 92, 59, 88, 96, 87 | 0 of 545 |")
+
+
+def test_the_smoothing_moves_are_measured_in_bins(moves_module, test_pings) -> None:
+    """Without -> with the smoothing along the surface (docs/segmentation.md: 541 of 545 move, the
+    largest on ping 0's steep seafloor, beams 92 and 73)."""
+    off = PipelineConfig().replace(edge_smooth_beams=0)
+    m = moves_module.compare(test_pings, off, PipelineConfig(), "didson")
+    assert m.returns_a == m.returns_b
+    from sonarmap.pipeline import process_ping
+
+    p = test_pings[0]
+    res = p.geometry.range_resolution_m
+    before, after = process_ping(p, off).ranges.range_m, process_ping(p, PipelineConfig()).ranges.range_m
+    k = int(np.argmax(np.abs(m.moves_bins)))
+    assert (m.ping[k], m.beam[k]) == (0, 92)
+    assert m.moves_bins[k] == pytest.approx((after[92] - before[92]) / res)
+    assert np.sum(np.abs(m.moves_bins) > 1e-6) >= 500
+    assert "(ping 0, beam 92)" in m.summary()
+
+
+def test_bad_arguments(moves_module, tmp_path, capsys) -> None:
+    bad = tmp_path / "bad.toml"
+    bad.write_text("edge_smooth_beams = 1\n", encoding="utf-8")
+    assert moves_module.main([str(bad)]) == 1
+    assert "edge_smooth_beams" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exc:
+        moves_module.main(["default", "--recordings", "sonar"])
+    assert exc.value.code == 2
+    with pytest.raises(SystemExit) as exc:
+        moves_module.main(["a.toml", "b.toml", "c.toml"])
+    assert exc.value.code == 2
