@@ -448,8 +448,48 @@ def run(path: Path = RECORDING) -> dict[str, Any]:
     out["pipeline_passed_axis"] = registration_rows(registration_errors(pings, passed, georef,
                                                                         register=register_on_the_axis))
     out["detection"] = detection_table(pings, pipe)
+    out["offsets"] = offsets_by_band(pings, pipe)
     out["fan_fit"] = transmit_fan_fit(pings)
     out["sound_speed_profiles"] = sound_speed_profiles(path)
+    return out
+
+
+def seabed_by_band(entries: Sequence[dict[str, Any]], bands: Sequence[tuple[float, float]] = BANDS_DEG
+                   ) -> list[tuple[str, int, float, float]]:
+    """Per beam-angle band, then over all: ``(band, points, RMS, mean)`` of the points' signed
+    distance to the seabed through the sonar's soundings (m; + = deeper), from
+    :func:`registration_errors` entries."""
+    surf = np.concatenate([e["surface"] for e in entries]) if entries else np.zeros(0)
+    ang = np.concatenate([e["angle_deg"] for e in entries]) if entries else np.zeros(0)
+    ok = np.isfinite(surf)
+    surf, ang = surf[ok], ang[ok]
+    out = []
+    for lo, hi in (*bands, (0.0, 90.0)):
+        sel = (ang >= lo) & (ang < hi)
+        name = "all angles" if (lo, hi) == (0.0, 90.0) else f"{lo:.0f}-{hi:.0f}°" if hi < 90 else f"≥ {lo:.0f}°"
+        v = surf[sel]
+        out.append((name, int(v.size), float(np.sqrt(np.mean(v * v))) if v.size else math.nan,
+                    float(v.mean()) if v.size else math.nan))
+    return out
+
+
+def offsets_by_band(pings: Sequence[Any], ranges: Sequence[Any], bands: Sequence[tuple[float, float]] = BANDS_DEG
+                    ) -> list[tuple[str, float, float]]:
+    """Per beam-angle band (both heads): ``(band, median of detection - return, median of
+    |return - the single-beam leading edge at the detection|)``, in samples."""
+    det_minus, to_edge, ang = [], [], []
+    for ping, br in zip(pings, ranges, strict=True):
+        r = np.asarray(br.range_m, dtype=np.float64)
+        step = float(ping.meta["range_per_sample_m"])
+        det_minus.append((np.asarray(ping.meta["detected_range_m"], dtype=np.float64) - r) / step)
+        to_edge.append(np.abs(r - echo_leading_edge_m(ping)) / step)
+        ang.append(np.abs(np.asarray(ping.meta["beam_pointing_angle_deg"], dtype=np.float64)))
+    d, e, a = (np.concatenate(x) for x in (det_minus, to_edge, ang))
+    out = []
+    for lo, hi in bands:
+        sel = (a >= lo) & (a < hi)
+        name = f"{lo:.0f}-{hi:.0f}°" if hi < 90 else f"≥ {lo:.0f}°"
+        out.append((name, float(np.nanmedian(d[sel])), float(np.nanmedian(e[sel]))))
     return out
 
 
@@ -499,6 +539,16 @@ def main(argv: Sequence[str] | None = None) -> int:
           "sonarmap within 2 samples of that edge / beams |\n|---|---|---|---|---|---|---|---|---|---|---|")
     for row in res["detection"]:
         print(row.row())
+    print("\n(a) per band, both heads: median detection - return, median |return - the single-beam edge| (samples)")
+    print("| band | detection - return | return to the edge |\n|---|---|---|")
+    for name, d, e in res["offsets"]:
+        print(f"| {name} | {d:+.2f} | {e:.2f} |")
+    print("\n(b) the pipeline's points to the seabed per band, both heads: RMS / mean (cm, + deeper)")
+    print("| band | points, axis | axis | points, footprint edge | footprint edge |\n|---|---|---|---|---|")
+    for ax, fp in zip(seabed_by_band(res["pipeline_axis_entries"]), seabed_by_band(res["pipeline_entries"]),
+                      strict=True):
+        print(f"| {ax[0]} | {ax[1]} | {100 * ax[2]:.1f} / {100 * ax[3]:+.1f} | {fp[1]} | "
+              f"{100 * fp[2]:.1f} / {100 * fp[3]:+.1f} |")
     return 0
 
 

@@ -294,6 +294,22 @@ def test_pipeline_points_lie_on_the_seabed_at_the_footprint_edge(result: dict[st
     assert abs(edge.surface_mean_m) < 0.015 < abs(axis.surface_mean_m)
 
 
+def test_per_band_figures(result: dict[str, Any]) -> None:
+    """The per-band tables ``kongsberg_checks.py`` prints (docs/mapping.md): the footprint edge
+    lowers the RMS to the seabed in every band (measured axis 2.4 / 4.1 / 6.4 / 7.9 cm, edge 2.3 /
+    2.6 / 4.6 / 5.5 cm), and the returns lie further before the sonar's detection the wider the
+    footprint (median 0.03 / 0.38 / 0.97 / 1.84 samples)."""
+    axis = checks.seabed_by_band(result["pipeline_axis_entries"])
+    edge = checks.seabed_by_band(result["pipeline_entries"])
+    assert [b[0] for b in edge] == ["0-15°", "15-30°", "30-45°", "≥ 45°", "all angles"]
+    assert edge[-1][1] == sum(b[1] for b in edge[:-1]) == 2240
+    for a, e in zip(axis, edge, strict=True):
+        assert a[1] == e[1] and e[2] <= a[2] and 0.0 < e[2] < 0.08
+    assert axis[-1][3] < -0.02 < 0.0 < edge[-1][3] < 0.02  # the depth bias moves from -3 cm to +1 cm
+    med = [d for _, d, _ in result["offsets"]]
+    assert abs(med[0]) < 0.2 and med == sorted(med) and med[-1] > 1.0
+
+
 def test_pipeline_detection_does_not_regress(result: dict[str, Any]) -> None:
     rows = {(d.serial, d.band): d for d in result["detection"]}
     total = rows[(-1, (0.0, 90.0))]
