@@ -92,7 +92,9 @@ def compare(pings: Sequence[Any], config_a: Any, config_b: Any, name: str = "") 
         moves.append((rb[both] - ra[both]) / bin_m)
         where_p.append(np.full(both.size, i, dtype=np.int64))
         where_b.append(both.astype(np.int64))
-    cat = (lambda xs, dt: np.concatenate(xs).astype(dt) if xs else np.zeros(0, dt))
+    def cat(parts: list[NDArray[Any]], dtype: Any) -> NDArray[Any]:
+        return np.concatenate(parts).astype(dtype) if parts else np.zeros(0, dtype)
+
     return Moves(name, tuple(na), tuple(nb), cat(moves, np.float64), cat(where_p, np.int64),
                  cat(where_b, np.int64))
 
@@ -126,9 +128,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         ap.error(f"--recordings: unknown {', '.join(unknown)}; choose from {', '.join(RECORDINGS)}")
     from sonarmap.errors import InputError
 
+    pair = ["default", *args.configs] if len(args.configs) == 1 else args.configs
     try:
-        a, b = (load_config("default"), load_config(args.configs[0])) if len(args.configs) == 1 else \
-            (load_config(args.configs[0]), load_config(args.configs[1]))
+        a, b = (load_config(c) for c in pair)
     except InputError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1

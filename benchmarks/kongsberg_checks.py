@@ -310,6 +310,13 @@ def tolerance_m(ping: Any) -> NDArray[np.float64]:
     return np.maximum(TOLERANCE_SAMPLES * float(m["range_per_sample_m"]), 0.5 * footprint)
 
 
+def band_name(lo: float, hi: float) -> str:
+    """A beam-angle band as the tables name it: ``"15-30°"``, ``"≥ 45°"``, ``"all angles"``."""
+    if (lo, hi) == (0.0, 90.0):
+        return "all angles"
+    return f"{lo:.0f}-{hi:.0f}°" if hi < 90 else f"≥ {lo:.0f}°"
+
+
 @dataclasses.dataclass(frozen=True)
 class Detection:
     """(a) for one head and angle band."""
@@ -336,7 +343,7 @@ class Detection:
 
     def row(self) -> str:
         lo, hi = self.band
-        band = "all angles" if (lo, hi) == (0.0, 90.0) else f"{lo:.0f}-{hi:.0f}°" if hi < 90 else f"≥ {lo:.0f}°"
+        band = band_name(lo, hi)
         head = "both" if self.serial < 0 else str(self.serial)
         within = f"{self.sonarmap_pass / self.n_returns:.3f}" if self.n_returns else "-"
         frac = (lambda n: f"{n / self.n_beams:.3f}") if self.n_beams else (lambda n: "-")
@@ -466,7 +473,7 @@ def seabed_by_band(entries: Sequence[dict[str, Any]], bands: Sequence[tuple[floa
     out = []
     for lo, hi in (*bands, (0.0, 90.0)):
         sel = (ang >= lo) & (ang < hi)
-        name = "all angles" if (lo, hi) == (0.0, 90.0) else f"{lo:.0f}-{hi:.0f}°" if hi < 90 else f"≥ {lo:.0f}°"
+        name = band_name(lo, hi)
         v = surf[sel]
         out.append((name, int(v.size), float(np.sqrt(np.mean(v * v))) if v.size else math.nan,
                     float(v.mean()) if v.size else math.nan))
@@ -488,7 +495,7 @@ def offsets_by_band(pings: Sequence[Any], ranges: Sequence[Any], bands: Sequence
     out = []
     for lo, hi in bands:
         sel = (a >= lo) & (a < hi)
-        name = f"{lo:.0f}-{hi:.0f}°" if hi < 90 else f"≥ {lo:.0f}°"
+        name = band_name(lo, hi)
         out.append((name, float(np.nanmedian(d[sel])), float(np.nanmedian(e[sel]))))
     return out
 

@@ -2,25 +2,16 @@
 
 from __future__ import annotations
 
-import importlib.util
-import sys
-from pathlib import Path
-
 import numpy as np
 import pytest
+from benchmark_scripts import load_benchmark
 
 from sonarmap.pipeline import PipelineConfig
 
 
 @pytest.fixture(scope="module")
 def moves_module():
-    path = Path(__file__).resolve().parents[1] / "benchmarks" / "config_moves.py"
-    spec = importlib.util.spec_from_file_location("config_moves", path)
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = mod  # (its dataclass looks its module up)
-    spec.loader.exec_module(mod)
-    yield mod
-    sys.modules.pop(spec.name, None)
+    return load_benchmark("config_moves")
 
 
 def test_the_same_configuration_moves_nothing(moves_module, test_pings) -> None:
@@ -59,3 +50,13 @@ def test_bad_arguments(moves_module, tmp_path, capsys) -> None:
     with pytest.raises(SystemExit) as exc:
         moves_module.main(["a.toml", "b.toml", "c.toml"])
     assert exc.value.code == 2
+
+
+def test_one_configuration_is_compared_with_the_default(moves_module, tmp_path, capsys) -> None:
+    """``config_moves.py B.toml`` is default -> B: a row per recording asked for."""
+    off = tmp_path / "off.toml"
+    off.write_text("edge_smooth_beams = 0\n", encoding="utf-8")
+    assert moves_module.main([str(off), "--recordings", "didson"]) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert out[0].startswith("| recording |") and len(out) == 3
+    assert out[2].startswith("| didson | 27, 0, 0, 0, 96, 92, 59, 88, 96, 87 | 541 of 545 |")

@@ -2,27 +2,21 @@
 
 from __future__ import annotations
 
-import importlib.util
 import re
-import sys
-from pathlib import Path
 
 import pytest
+from benchmark_scripts import load_benchmark
 
 from sonarmap.pipeline import PipelineConfig
 
 
 @pytest.fixture(scope="module")
 def figures():
-    path = Path(__file__).resolve().parents[1] / "benchmarks" / "survey_figures.py"
-    spec = importlib.util.spec_from_file_location("survey_figures", path)
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = mod
-    spec.loader.exec_module(mod)
-    mod.SPARSE = {"n_pings": 3}
-    mod.DENSE = {"n_pings": 3, "speed_m_s": 0.25, "ping_rate_hz": 10}
-    yield mod
-    sys.modules.pop(spec.name, None)
+    mod = load_benchmark("survey_figures")
+    with pytest.MonkeyPatch.context() as mp:  # surveys of 3 pings
+        mp.setattr(mod, "SPARSE", {"n_pings": 3})
+        mp.setattr(mod, "DENSE", {"n_pings": 3, "speed_m_s": 0.25, "ping_rate_hz": 10})
+        yield mod
 
 
 def _numbers(row: str) -> list[float]:

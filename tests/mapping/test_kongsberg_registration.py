@@ -13,8 +13,6 @@ pipeline's numbers are non-regression bounds just beyond what it measures now.
 from __future__ import annotations
 
 import dataclasses
-import importlib.util
-import sys
 import warnings
 from collections.abc import Callable
 from pathlib import Path
@@ -22,6 +20,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from benchmark_scripts import load_benchmark
 
 from sonarmap.cli import main
 from sonarmap.errors import InputError
@@ -37,17 +36,7 @@ GEOMETRY_MEDIAN_M = 0.07
 GEOMETRY_P95_M = 0.22
 
 
-def _load_checks() -> Any:
-    path = Path(__file__).resolve().parents[2] / "benchmarks" / "kongsberg_checks.py"
-    spec = importlib.util.spec_from_file_location("kongsberg_checks", path)
-    assert spec is not None and spec.loader is not None
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = mod  # dataclasses resolve their module while the class is made
-    spec.loader.exec_module(mod)
-    return mod
-
-
-checks = _load_checks()
+checks = load_benchmark("kongsberg_checks")
 
 
 @pytest.fixture(scope="module")
