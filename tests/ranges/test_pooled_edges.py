@@ -122,6 +122,30 @@ def test_pooled_sigma_is_finite_and_grows_with_the_speckle():
     assert edge_sigma_m([np.nan], [1.0], 0.02)[0] == pytest.approx(np.sqrt(0.02**2 / 12 + (8 * 0.02) ** 2))
 
 
+@pytest.mark.parametrize("rise", [12.0, 30.0])
+def test_the_line_through_a_slow_rise_gives_the_crossing_a_sigma_that_covers_its_scatter(rise: float) -> None:
+    """On an echo that rises slowly (over 12 or 30 bins; a flat surface in single-look speckle)
+    the two samples around the pooled crossing rise by far more than the echo does per bin (the
+    speckle's steps), so the sigma formed from their rise (noise / rise) is too narrow; the line
+    through the flank (20-80 % of the peak, ``flank_bins=6``) rises as the echo does, and the
+    crossings' scatter about their median lies within +-sigma on a far larger share."""
+    g = _geom()
+    truth = np.full(g.n_beams, 100.3)
+    dev: dict[int, list[np.ndarray]] = {0: [], 6: []}
+    for seed in range(4):
+        img, mask = _speckled_surface(seed, truth, rise=rise, depth=10.0)
+        e = find_echoes(mask, img, g)
+        first = _first(e)
+        s = np.maximum(first, 0)
+        for w in dev:
+            p = pooled_edges(e, first, img, g, flank_bins=w)
+            err = p.edge_bin[s] - truth
+            dev[w].append(np.abs(err - np.nanmedian(err)) / (p.sigma_m[s] / 0.02))
+    cov = {w: float(np.nanmean(np.concatenate(v) <= 1.0)) for w, v in dev.items()}
+    # measured (rise 12 / 30): 0.33 / 0.29 with the two samples, 0.66 / 0.54 with the line
+    assert cov[6] > cov[0] + 0.15
+
+
 def test_pooled_edges_rejects_bad_arguments():
     g = _geom(n_beams=4)
     img = np.zeros(g.shape)
@@ -129,13 +153,15 @@ def test_pooled_edges_rejects_bad_arguments():
     e = find_echoes(img > 0.2, img, g)
     first = _first(e)
     for kw in ({"half_beams": -1}, {"front_bins": 1.5}, {"max_bins": 2}, {"smooth_bins": 0}, {"n_iter": 0},
-               {"fraction": 1.0}):
+               {"fraction": 1.0}, {"flank_bins": -1}, {"flank_bins": 1.5}):
         with pytest.raises(InputError):
             pooled_edges(e, first, img, g, **kw)  # type: ignore[arg-type]
     with pytest.raises(InputError, match="first"):
         pooled_edges(e, first[:2], img, g)
     with pytest.raises(InputError, match="edge_pool_beams"):
         PipelineConfig().replace(edge_pool_beams=-1)
+    with pytest.raises(InputError, match="edge_pool_flank_bins"):
+        PipelineConfig().replace(edge_pool_flank_bins=-1)
     with pytest.raises(InputError, match="sigma_pool_scale"):
         PipelineConfig().replace(sigma_pool_scale=-1.0)
 
@@ -413,7 +439,7 @@ def test_the_profiles_are_computed_as_far_as_the_windows_read_them(monkeypatch: 
     stop = edge + depth
     run = np.where(beams < 20, 0, 1).astype(np.int64)
     clip = ((img >= 1.02) if with_clip else np.zeros((0, 0), bool)).astype(np.uint8)
-    args = (img, edge, stop, run, 3, 8, 200, 3, 0.5, 2, clip, 1.0, 16, True)
+    args = (img, edge, stop, run, 3, 8, 200, 3, 0.5, 2, clip, 1.0, 16, True, 6)
     got = _kernels.pooled_edges(*args)
 
     def full_width(run: np.ndarray, count: np.ndarray, depth: np.ndarray, half_beams: int, extra: int) -> np.ndarray:
@@ -502,8 +528,8 @@ def test_the_raw_image_and_its_level_clip_as_the_full_scale_mask(dtype: type) ->
     mask = full_scale_mask(raw)
     assert mask.any()
     common = (img, edge, stop, run, 3, 8, 200, 3, 0.5, 2)
-    want = _kernels.pooled_edges(*common, mask.view(np.uint8), 1.0, 16, True)
-    got = _kernels.pooled_edges(*common, raw, CLIP_LEVEL, 16, True)
+    want = _kernels.pooled_edges(*common, mask.view(np.uint8), 1.0, 16, True, 6)
+    got = _kernels.pooled_edges(*common, raw, CLIP_LEVEL, 16, True, 6)
     assert want[5].any()
     for a, b in zip(got, want):
         assert np.asarray(a).tobytes() == np.asarray(b).tobytes()

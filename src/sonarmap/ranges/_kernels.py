@@ -1648,9 +1648,51 @@ def _mark_bins(flags, bins, t0, t1, value):  # pragma: no cover - numba
         flags[bins[t]] = value
 
 
+
+
+#: The rising flank :func:`_flank_line` fits: between these fractions of the peak (for a half-peak level).
+FLANK_LOW = 0.2
+FLANK_HIGH = 0.8
+
+
+@njit(cache=True, nogil=True)
+def _flank_line(sm, i, lv, lo, p, w):  # pragma: no cover - numba
+    """The crossing of ``lv`` (x, bins from ``lo``) and the rise per bin of the least-squares line
+    through the rising flank of ``sm`` around its first crossing ``sm[i - 1] < lv <= sm[i]``:
+    the samples from ``i - 1`` back while at least ``FLANK_LOW`` x the peak ``sm[p]`` and from
+    ``i`` on while at most ``FLANK_HIGH`` x the peak (the flank between 20 % and 80 % of it), at
+    most ``w`` on either side of the crossing and within ``lo .. p``.
+    ``(0.0, -1.0)`` when fewer than 3 samples lie there or the line does not rise."""
+    a = i - 1
+    while a - 1 >= max(lo, i - w) and sm[a - 1] >= FLANK_LOW * sm[p]:
+        a -= 1
+    b = i
+    while b + 1 <= min(p, i - 1 + w) and sm[b + 1] <= FLANK_HIGH * sm[p]:
+        b += 1
+    if b - a + 1 < 3:
+        return 0.0, -1.0
+    n = 0.0
+    sx = 0.0
+    sy = 0.0
+    sxx = 0.0
+    sxy = 0.0
+    for k in range(a, b + 1):
+        x = float(k - lo)
+        n += 1.0
+        sx += x
+        sy += sm[k]
+        sxx += x * x
+        sxy += x * sm[k]
+    den = n * sxx - sx * sx
+    sl = (n * sxy - sx * sy) / den
+    if not sl > 0.0:
+        return 0.0, -1.0
+    return (lv - (sy - sl * sx) / n) / sl, sl
+
+
 @njit(cache=True, nogil=True)
 def pooled_edges(img, edge, stop, run, half_beams, front_bins, max_bins, smooth_bins, fraction, n_iter,
-                 clip, clip_level, fit_front_bins, forward):  # pragma: no cover - numba
+                 clip, clip_level, fit_front_bins, forward, flank_bins):  # pragma: no cover - numba
     """Leading edges measured on the surface-aligned mean profile of neighbouring beams
     (see :func:`sonarmap.ranges.echoes.pooled_edges`).
 
@@ -1671,7 +1713,10 @@ def pooled_edges(img, edge, stop, run, half_beams, front_bins, max_bins, smooth_
 
     With ``forward`` the crossing is the first bin from the profile's front that reaches the level
     (the first crossing); else the walk from the peak towards the sonar to the first bin below it
-    (which stops at a dip inside a deep echo, behind its front).
+    (which stops at a dip inside a deep echo, behind its front).  With ``flank_bins`` > 0 an
+    unclipped crossing is that of the line through the profile's rising flank around it
+    (:func:`_flank_line`, at most ``flank_bins`` samples either side) rather than of the two
+    samples around it, where that line rises and crosses within that window.
     """
     m = edge.size
     cur = edge.copy()
@@ -1805,6 +1850,13 @@ def pooled_edges(img, edge, stop, run, half_beams, front_bins, max_bins, smooth_
             else:
                 slope = sm[i] - sm[i - 1]
                 x = (i - 1 - lim) + (lv - sm[i - 1]) / max(slope, 1e-12)
+                if flank_bins > 0:
+                    # the line through the rising flank (20-80 % of the peak) around the
+                    # crossing: the crossing of a slow, speckled rise from all its samples
+                    xf, sf = _flank_line(sm, i, lv, lim, p, flank_bins)
+                    if sf > 0.0 and i - 1 - flank_bins - lim <= xf <= i + flank_bins - lim:
+                        x = xf
+                        slope = sf
             if has_clip:
                 fitted[j] = False
                 fit_sx = 0.0
@@ -2562,8 +2614,8 @@ def kept_edges(sel, new, used, start_bin, stop, back, edge_bin, edge_range, slop
 
 @njit(cache=True, nogil=True)
 def pooled_kept_edges(sel, edge_bin, start_bin, stop_bin, touch, image, pulse_bins, half_beams, front_bins, max_bins,
-                      smooth_bins, fraction, n_iter, clip, clip_level, fit_front_bins, forward, back, edge_range, slope,
-                      sigma, range_m, bin_m, bin_var, pulse_var, scale, fit_scale):  # pragma: no cover - numba
+                      smooth_bins, fraction, n_iter, clip, clip_level, fit_front_bins, forward, flank_bins, back,
+                      edge_range, slope, sigma, range_m, bin_m, bin_var, pulse_var, scale, fit_scale):  # pragma: no cover - numba
     """The pooled leading edges of the returns ``sel`` in one call: their runs
     (:func:`first_interval_runs` with ``touch``), :func:`pooled_edges` of them on ``image`` (float64,
     smoothed along range over ``pulse_bins`` by :func:`smooth_rows` when >= 2) and
@@ -2576,7 +2628,7 @@ def pooled_kept_edges(sel, edge_bin, start_bin, stop_bin, touch, image, pulse_bi
     img = smooth_rows(image, pulse_bins) if pulse_bins >= 2 and image.shape[0] >= 2 else image
     new, _, rise, used, noise, fitted = pooled_edges(img, edge, stop, run, half_beams, front_bins, max_bins,
                                                      smooth_bins, fraction, n_iter, clip, clip_level, fit_front_bins,
-                                                     forward)
+                                                     forward, flank_bins)
     return kept_edges(sel, new, used, start_bin, stop, back, edge_bin, edge_range, slope, sigma, rise, noise, range_m,
                       bin_m, bin_var, pulse_var, scale, fitted, fit_scale)
 

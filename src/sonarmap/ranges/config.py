@@ -155,6 +155,14 @@ class RangeConfig(ConfigSection):
         below it, as ``edge_scan`` does on a single beam, where a speckle spike in front would
         otherwise be the crossing; on a deep mean profile that walk stops at a dip inside the
         echo, behind its front).
+    edge_pool_flank_bins : int
+        The pooled crossing of an unclipped echo is that of the least-squares line through the
+        mean profile's rising flank - its samples between 20 % and 80 % of the peak, at most this
+        many either side of the crossing - instead of the two samples around it: a slow,
+        speckled rise (the Oculus hulls' echoes rise over 35-100 bins) is measured with all its
+        samples, and its sigma with the echo's rise rather than a speckle step's.  0 (default) =
+        the two samples; 6 on the simulator and the real recordings: ``docs/segmentation.md``,
+        "The line through the flank".
     pulse_length_m : float, optional
         Transmit pulse length along range (``c tau / 2``); echoes are measured on the image
         smoothed over it.  Default: from the ping - its effective length ``1 / B`` where the file
@@ -250,6 +258,7 @@ class RangeConfig(ConfigSection):
     edge_crosstalk: bool = True
     edge_pool_beams: int = 3
     edge_pool_scan: str = "forward"
+    edge_pool_flank_bins: int = 0
     pulse_length_m: float | None = None
     continue_evidence: float = 10.0
     sigma_scale: float = 1.5
@@ -303,6 +312,7 @@ class RangeConfig(ConfigSection):
             raise config_error(w, "edge_fraction", "must lie in [0, 1)", self.edge_fraction)
         check_integers(self, (("min_run", 1), ("neighbour_beams", 1), ("max_jump_bins", 0),
                               ("min_segment_beams", 1), ("refine_bins", 0), ("edge_pool_beams", 0),
+                              ("edge_pool_flank_bins", 0),
                               ("edge_template_beams", 0), ("edge_template_min_beams", 3),
                               ("edge_template_anchor_beams", 0), ("edge_smooth_beams", 0),
                               ("edge_smooth_min_beams", 5)), w)

@@ -510,6 +510,8 @@ _NO_CLIP = np.zeros((0, 0), dtype=np.uint8)
 #: :func:`pooled_edges`' default ``front_bins``, ``max_bins``, ``n_iter`` and ``fit_front_bins``
 #: (the pipeline's range stage pools with them).
 POOL_FRONT_BINS, POOL_MAX_BINS, POOL_N_ITER, POOL_FIT_FRONT_BINS = 6, 200, 2, 16
+#: Default ``flank_bins`` of :func:`pooled_edges` (``PipelineConfig.ranges.edge_pool_flank_bins``).
+POOL_FLANK_BINS = 0
 
 
 def pooled_edges(
@@ -531,6 +533,7 @@ def pooled_edges(
     fit_front_bins: int = POOL_FIT_FRONT_BINS,
     fit_sigma_scale: float | None = None,
     scan: str = "forward",
+    flank_bins: int = POOL_FLANK_BINS,
 ) -> Echoes:
     """Leading edges of a tracked surface measured on a multi-look along the surface.
 
@@ -568,6 +571,10 @@ def pooled_edges(
         The pooling window (see above).
     scan : str
         ``"forward"`` or ``"back"`` (see above).
+    flank_bins : int
+        The crossing of an unclipped profile is that of the least-squares line through its rising
+        flank - the samples between 20 % and 80 % of the peak, at most ``flank_bins`` either side
+        of the crossing - rather than of the two samples around it (0: those two samples).
 
     Returns
     -------
@@ -581,14 +588,16 @@ def pooled_edges(
     _check_pooling(echoes, sel, window, fraction, clip, np.shape(image), fit_scale)
     if scan not in ("forward", "back"):
         raise InputError(f"scan: must be 'forward' or 'back' (got {scan!r})")
+    if isinstance(flank_bins, bool) or int(flank_bins) != flank_bins or flank_bins < 0:
+        raise InputError(f"flank_bins: must be an integer >= 0 (got {flank_bins!r})")
     return _pooled(echoes, sel, image, geometry, pulse_bins, window, (fraction, touch_bins),
-                   (sigma_scale, fit_scale), clip, forward=scan == "forward")
+                   (sigma_scale, fit_scale), clip, forward=scan == "forward", flank_bins=int(flank_bins))
 
 
 def _pooled(echoes: Echoes, sel: NDArray[np.int64], image: ArrayLike, geometry: SonarGeometry, pulse_bins: int,
             window: tuple[int, int, int, int, int, int], fraction_touch: tuple[float, float],
             scales: tuple[float, float], clip: NDArray[Any] | None, *, forward: bool = True,
-            clip_level: float | None = None) -> Echoes:
+            clip_level: float | None = None, flank_bins: int = 0) -> Echoes:
     """:func:`pooled_edges` of checked options (:func:`_check_pooling`: ``window`` = ``(half_beams,
     front_bins, max_bins, smooth_bins, n_iter, fit_front_bins)``, ``scales`` = ``(sigma_scale,
     fit_sigma_scale)``; the pipeline's range stage calls it with its validated configuration).
@@ -614,7 +623,8 @@ def _pooled(echoes: Echoes, sel: NDArray[np.int64], image: ArrayLike, geometry: 
         float(touch_bins), img, int(pulse_bins), int(half_beams), int(front_bins), int(max_bins),
         int(smooth_bins) | 1, float(fraction), int(n_iter), _NO_CLIP if clip is None else
         clip if clip_level is not None else np.ascontiguousarray(clip).view(np.uint8),
-        1.0 if clip_level is None else float(clip_level), int(fit_front_bins), bool(forward), int(pulse_bins) + 2,
+        1.0 if clip_level is None else float(clip_level), int(fit_front_bins), bool(forward), int(flank_bins),
+        int(pulse_bins) + 2,
         echoes.edge_range_m, echoes.slope, echoes.sigma_m, np.ascontiguousarray(geometry.range_m, dtype=np.float64),
         *_edge_spreads(geometry, pulse_bins), float(scales[0]), float(scales[1]))
     return _edges_kept(echoes, n_kept, (eb, er, sl, sig), marked, n_marked)
