@@ -1648,9 +1648,7 @@ def _mark_bins(flags, bins, t0, t1, value):  # pragma: no cover - numba
         flags[bins[t]] = value
 
 
-
-
-#: The rising flank :func:`_flank_line` fits: between these fractions of the peak (for a half-peak level).
+#: The rising flank :func:`_flank_line` fits: its samples between these fractions of the peak.
 FLANK_LOW = 0.2
 FLANK_HIGH = 0.8
 

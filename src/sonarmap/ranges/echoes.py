@@ -585,11 +585,9 @@ def pooled_edges(
     sel = np.asarray(first, dtype=np.int64)
     fit_scale = float(sigma_scale if fit_sigma_scale is None else fit_sigma_scale)
     window = (half_beams, front_bins, max_bins, smooth_bins, n_iter, fit_front_bins)
-    _check_pooling(echoes, sel, window, fraction, clip, np.shape(image), fit_scale)
+    _check_pooling(echoes, sel, window, fraction, clip, np.shape(image), fit_scale, flank_bins)
     if scan not in ("forward", "back"):
         raise InputError(f"scan: must be 'forward' or 'back' (got {scan!r})")
-    if isinstance(flank_bins, bool) or int(flank_bins) != flank_bins or flank_bins < 0:
-        raise InputError(f"flank_bins: must be an integer >= 0 (got {flank_bins!r})")
     return _pooled(echoes, sel, image, geometry, pulse_bins, window, (fraction, touch_bins),
                    (sigma_scale, fit_scale), clip, forward=scan == "forward", flank_bins=int(flank_bins))
 
@@ -597,7 +595,7 @@ def pooled_edges(
 def _pooled(echoes: Echoes, sel: NDArray[np.int64], image: ArrayLike, geometry: SonarGeometry, pulse_bins: int,
             window: tuple[int, int, int, int, int, int], fraction_touch: tuple[float, float],
             scales: tuple[float, float], clip: NDArray[Any] | None, *, forward: bool = True,
-            clip_level: float | None = None, flank_bins: int = 0) -> Echoes:
+            clip_level: float | None = None, flank_bins: int = POOL_FLANK_BINS) -> Echoes:
     """:func:`pooled_edges` of checked options (:func:`_check_pooling`: ``window`` = ``(half_beams,
     front_bins, max_bins, smooth_bins, n_iter, fit_front_bins)``, ``scales`` = ``(sigma_scale,
     fit_sigma_scale)``; the pipeline's range stage calls it with its validated configuration).
@@ -631,14 +629,14 @@ def _pooled(echoes: Echoes, sel: NDArray[np.int64], image: ArrayLike, geometry: 
 
 
 def _check_pooling(echoes: Echoes, sel: np.ndarray, window: tuple[int, int, int, int, int, int], fraction: float,
-                   clip: NDArray[np.bool_] | None, shape: tuple[int, ...], fit_scale: float) -> None:
+                   clip: NDArray[np.bool_] | None, shape: tuple[int, ...], fit_scale: float, flank_bins: int) -> None:
     """The options of :func:`pooled_edges` (``window``: half_beams, front_bins, max_bins,
-    smooth_bins, n_iter, fit_front_bins; ``fit_scale``: its fit_sigma_scale) are valid, ``first``
-    has a value per beam and ``clip`` the image's shape."""
+    smooth_bins, n_iter, fit_front_bins; ``fit_scale``: its fit_sigma_scale; ``flank_bins``) are
+    valid, ``first`` has a value per beam and ``clip`` the image's shape."""
     if not (math.isfinite(fit_scale) and fit_scale >= 0):
         raise InputError(f"fit_sigma_scale: must be a finite number >= 0 (got {fit_scale!r})")
-    keys = ("half_beams", "front_bins", "max_bins", "smooth_bins", "n_iter", "fit_front_bins")
-    for key, v, lo in zip(keys, window, (0, 0, 3, 1, 1, 0)):
+    keys = ("half_beams", "front_bins", "max_bins", "smooth_bins", "n_iter", "fit_front_bins", "flank_bins")
+    for key, v, lo in zip(keys, (*window, flank_bins), (0, 0, 3, 1, 1, 0, 0)):
         if isinstance(v, bool) or int(v) != v or v < lo:
             raise InputError(f"{key}: must be an integer >= {lo} (got {v!r})")
     if not 0 < fraction < 1:
