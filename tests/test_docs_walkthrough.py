@@ -45,7 +45,7 @@ def test_aris_ranges_are_where_the_walkthrough_says(data_dir: Path, tmp_path: Pa
 
 
 def test_oculus_occupancy_cells_are_what_the_walkthrough_says(data_dir: Path, tmp_path: Path) -> None:
-    """Before, the walkthrough said 77 occupied cells; the command writes 79."""
+    """The walkthrough states how many occupied cells the command writes."""
     m = re.search(r"`map --grid 0\.01 --dims 2` writes the (\d+) occupied", _doc())
     assert m, "the Oculus map sentence of docs/walkthrough.md changed"
     raw = str(data_dir / "oculus" / "three_pings_8bit.raw")

@@ -160,9 +160,8 @@ class RangeConfig(ConfigSection):
         mean profile's rising flank - its samples between 20 % and 80 % of the peak, at most this
         many either side of the crossing - instead of the two samples around it: a slow,
         speckled rise (the Oculus hulls' echoes rise over 35-100 bins) is measured with all its
-        samples, and its sigma with the echo's rise rather than a speckle step's.  0 (default) =
-        the two samples; 6 on the simulator and the real recordings: ``docs/segmentation.md``,
-        "The line through the flank".
+        samples, and its sigma with the echo's rise rather than a speckle step's.  Default 6;
+        0 = the two samples (``docs/segmentation.md``, "The line through the flank").
     pulse_length_m : float, optional
         Transmit pulse length along range (``c tau / 2``); echoes are measured on the image
         smoothed over it.  Default: from the ping - its effective length ``1 / B`` where the file
@@ -192,9 +191,10 @@ class RangeConfig(ConfigSection):
     sigma_fit_scale : float
         Sigma of a clipped echo's fitted leading edge (a Gaussian fitted to the unclipped flanks
         of the pooled profile, :func:`sonarmap.ranges.echoes.pooled_edges`): the fit's standard
-        error times this factor, fitted on the simulator's ARIS presets (3 seeds) so that 68 % of
-        the fitted returns' errors lie within +-sigma; such a return's sigma no longer adds the
-        clipping interval.
+        error times this factor; such a return's sigma no longer adds the clipping interval.
+        ``sigma_pool_scale``, ``sigma_fit_scale`` and ``sigma_template_scale`` are fitted together
+        on the simulator (every preset, seeds 0-2 and 3-5) so that about 68 % of the errors of all
+        returns lie within +-sigma (``docs/segmentation.md``, "Uncertainty").
     edge_template_beams : int
         Leading edges of surfaces of at least ``edge_template_min_beams`` beams are measured
         against the surface's own echo template, the mean of the ``edge_template_beams`` beams on
@@ -213,8 +213,8 @@ class RangeConfig(ConfigSection):
     sigma_template_scale : float
         Sigma of a template-measured edge: the standard error of the template's position
         (inverse square root of its Fisher information), of its crossing and of the anchor's
-        median, in quadrature, times this factor, fitted on the simulator so that 68 % of the
-        errors lie within +-sigma (``docs/segmentation.md``, "Template edges").
+        median, in quadrature, times this factor (fitted with ``sigma_fit_scale``;
+        ``docs/segmentation.md``, "Template edges").
     edge_smooth_beams : int
         Each first return's leading edge is combined with the prediction of the edges within this
         many beams on either side on its surface (a leave-one-out local quadratic across beams),
@@ -258,16 +258,16 @@ class RangeConfig(ConfigSection):
     edge_crosstalk: bool = True
     edge_pool_beams: int = 3
     edge_pool_scan: str = "forward"
-    edge_pool_flank_bins: int = 0
+    edge_pool_flank_bins: int = 6
     pulse_length_m: float | None = None
     continue_evidence: float = 10.0
     sigma_scale: float = 1.5
     sigma_pool_scale: float = 5.0
-    sigma_fit_scale: float = 6.25
+    sigma_fit_scale: float = 5.4
     edge_template_beams: int = 5
     edge_template_min_beams: int = 30
     edge_template_anchor_beams: int = 10
-    sigma_template_scale: float = 1.7
+    sigma_template_scale: float = 1.55
     edge_smooth_beams: int = 16
     edge_smooth_min_beams: int = 7
     log_dynamic_range_db: float | None = None

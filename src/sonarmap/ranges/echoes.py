@@ -511,7 +511,7 @@ _NO_CLIP = np.zeros((0, 0), dtype=np.uint8)
 #: (the pipeline's range stage pools with them).
 POOL_FRONT_BINS, POOL_MAX_BINS, POOL_N_ITER, POOL_FIT_FRONT_BINS = 6, 200, 2, 16
 #: Default ``flank_bins`` of :func:`pooled_edges` (``PipelineConfig.ranges.edge_pool_flank_bins``).
-POOL_FLANK_BINS = 0
+POOL_FLANK_BINS = 6
 
 
 def pooled_edges(
@@ -574,7 +574,8 @@ def pooled_edges(
     flank_bins : int
         The crossing of an unclipped profile is that of the least-squares line through its rising
         flank - the samples between 20 % and 80 % of the peak, at most ``flank_bins`` either side
-        of the crossing - rather than of the two samples around it (0: those two samples).
+        of the crossing - rather than of the two samples around it (0: those two samples; fewer
+        than 3 samples on the flank or a line that does not rise also keep them).
 
     Returns
     -------
