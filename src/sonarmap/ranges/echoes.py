@@ -512,6 +512,8 @@ _NO_CLIP = np.zeros((0, 0), dtype=np.uint8)
 POOL_FRONT_BINS, POOL_MAX_BINS, POOL_N_ITER, POOL_FIT_FRONT_BINS = 6, 200, 2, 16
 #: Default ``flank_bins`` of :func:`pooled_edges` (``PipelineConfig.ranges.edge_pool_flank_bins``).
 POOL_FLANK_BINS = 6
+#: Default ``lead_bins`` of :func:`pooled_edges` (``PipelineConfig.ranges.edge_pool_lead_bins``).
+POOL_LEAD_BINS = 2
 
 
 def pooled_edges(
@@ -534,6 +536,7 @@ def pooled_edges(
     fit_sigma_scale: float | None = None,
     scan: str = "forward",
     flank_bins: int = POOL_FLANK_BINS,
+    lead_bins: int = POOL_LEAD_BINS,
 ) -> Echoes:
     """Leading edges of a tracked surface measured on a multi-look along the surface.
 
@@ -576,6 +579,9 @@ def pooled_edges(
         flank - the samples between 20 % and 80 % of the peak, at most ``flank_bins`` either side
         of the crossing - rather than of the two samples around it (0: those two samples; fewer
         than 3 samples on the flank or a line that does not rise also keep them).
+    lead_bins : int
+        A pooled edge is kept within ``pulse_bins + lead_bins`` in front of the beam's first
+        structure bin and not behind its echo's end; else the beam keeps its own edge.
 
     Returns
     -------
@@ -586,17 +592,17 @@ def pooled_edges(
     sel = np.asarray(first, dtype=np.int64)
     fit_scale = float(sigma_scale if fit_sigma_scale is None else fit_sigma_scale)
     window = (half_beams, front_bins, max_bins, smooth_bins, n_iter, fit_front_bins)
-    _check_pooling(echoes, sel, window, fraction, clip, np.shape(image), fit_scale, flank_bins)
-    if scan not in ("forward", "back"):
-        raise InputError(f"scan: must be 'forward' or 'back' (got {scan!r})")
+    _check_pooling(echoes, sel, window, fraction, clip, np.shape(image), fit_scale, flank_bins, lead_bins, scan)
     return _pooled(echoes, sel, image, geometry, pulse_bins, window, (fraction, touch_bins),
-                   (sigma_scale, fit_scale), clip, forward=scan == "forward", flank_bins=int(flank_bins))
+                   (sigma_scale, fit_scale), clip, forward=scan == "forward", flank_bins=int(flank_bins),
+                   lead_bins=int(lead_bins))
 
 
 def _pooled(echoes: Echoes, sel: NDArray[np.int64], image: ArrayLike, geometry: SonarGeometry, pulse_bins: int,
             window: tuple[int, int, int, int, int, int], fraction_touch: tuple[float, float],
             scales: tuple[float, float], clip: NDArray[Any] | None, *, forward: bool = True,
-            clip_level: float | None = None, flank_bins: int = POOL_FLANK_BINS) -> Echoes:
+            clip_level: float | None = None, flank_bins: int = POOL_FLANK_BINS,
+            lead_bins: int = POOL_LEAD_BINS) -> Echoes:
     """:func:`pooled_edges` of checked options (:func:`_check_pooling`: ``window`` = ``(half_beams,
     front_bins, max_bins, smooth_bins, n_iter, fit_front_bins)``, ``scales`` = ``(sigma_scale,
     fit_sigma_scale)``; the pipeline's range stage calls it with its validated configuration).
@@ -623,25 +629,30 @@ def _pooled(echoes: Echoes, sel: NDArray[np.int64], image: ArrayLike, geometry: 
         int(smooth_bins) | 1, float(fraction), int(n_iter), _NO_CLIP if clip is None else
         clip if clip_level is not None else np.ascontiguousarray(clip).view(np.uint8),
         1.0 if clip_level is None else float(clip_level), int(fit_front_bins), bool(forward), int(flank_bins),
-        int(pulse_bins) + 2,
+        int(pulse_bins) + int(lead_bins),
         echoes.edge_range_m, echoes.slope, echoes.sigma_m, np.ascontiguousarray(geometry.range_m, dtype=np.float64),
         *_edge_spreads(geometry, pulse_bins), float(scales[0]), float(scales[1]))
     return _edges_kept(echoes, n_kept, (eb, er, sl, sig), marked, n_marked)
 
 
 def _check_pooling(echoes: Echoes, sel: np.ndarray, window: tuple[int, int, int, int, int, int], fraction: float,
-                   clip: NDArray[np.bool_] | None, shape: tuple[int, ...], fit_scale: float, flank_bins: int) -> None:
+                   clip: NDArray[np.bool_] | None, shape: tuple[int, ...], fit_scale: float, flank_bins: int,
+                   lead_bins: int = POOL_LEAD_BINS, scan: str = "forward") -> None:
     """The options of :func:`pooled_edges` (``window``: half_beams, front_bins, max_bins,
-    smooth_bins, n_iter, fit_front_bins; ``fit_scale``: its fit_sigma_scale; ``flank_bins``) are
-    valid, ``first`` has a value per beam and ``clip`` the image's shape."""
+    smooth_bins, n_iter, fit_front_bins; ``fit_scale``: its fit_sigma_scale; ``flank_bins``,
+    ``lead_bins``, ``scan``) are valid, ``first`` has a value per beam and ``clip`` the image's
+    shape."""
     if not (math.isfinite(fit_scale) and fit_scale >= 0):
         raise InputError(f"fit_sigma_scale: must be a finite number >= 0 (got {fit_scale!r})")
-    keys = ("half_beams", "front_bins", "max_bins", "smooth_bins", "n_iter", "fit_front_bins", "flank_bins")
-    for key, v, lo in zip(keys, (*window, flank_bins), (0, 0, 3, 1, 1, 0, 0)):
+    keys = ("half_beams", "front_bins", "max_bins", "smooth_bins", "n_iter", "fit_front_bins", "flank_bins",
+            "lead_bins")
+    for key, v, lo in zip(keys, (*window, flank_bins, lead_bins), (0, 0, 3, 1, 1, 0, 0, 0)):
         if isinstance(v, bool) or int(v) != v or v < lo:
             raise InputError(f"{key}: must be an integer >= {lo} (got {v!r})")
     if not 0 < fraction < 1:
         raise InputError(f"fraction: must lie in (0, 1) (got {fraction})")
+    if scan not in ("forward", "back"):
+        raise InputError(f"scan: must be 'forward' or 'back' (got {scan!r})")
     if sel.shape != (echoes.n_beams,):
         raise InputError(f"first: expected shape ({echoes.n_beams},), got {sel.shape}")
     if clip is not None and np.shape(clip) != shape:
