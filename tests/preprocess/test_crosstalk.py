@@ -43,6 +43,21 @@ def test_a_band_across_the_fan_is_found_at_its_rows_and_removed() -> None:
                            atol=1e-6)
 
 
+def test_a_deep_band_is_followed_into_rows_that_fewer_beams_see() -> None:
+    """A band lit over rows 100-140: towards its far end the hull's own echo fills more of the
+    fan, and beyond row ~130 fewer than a quarter of the beams are water column there.  The band
+    found on the rows with enough of them grows into those rows (down to 8 water-column beams)."""
+    for seed in range(5):
+        img, labels, surface = _hull(seed)
+        img[100:141] += np.float32(0.25)
+        level = crosstalk_by_row(img, labels)
+        water = np.array([(surface > r + 4).sum() for r in range(N_BINS)])
+        few = np.flatnonzero((water < N_BEAMS // 4) & (water >= 8) & (np.arange(N_BINS) <= 140))
+        assert few.size >= 5 and few.min() > 120  # the rows only the growth reaches
+        assert np.all(np.abs(level[100:141] - 0.25) < 0.06)
+        assert not np.any(level[141:])
+
+
 def test_without_a_band_nothing_changes() -> None:
     for seed in range(10):
         img, labels, _ = _hull(seed)

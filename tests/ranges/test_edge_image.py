@@ -44,7 +44,8 @@ def test_the_edge_image_is_the_pre_processing_without_the_deconvolution(test_pin
 def test_classified_edges_are_the_previous_default(test_pings, aris_pings):
     """``edge_image="classified"`` changes nothing on a normalised ping (ARIS) and moves the
     DIDSON hull's edges later than the default (the deconvolution removes the echo's front:
-    measured on ping 8 a median 0.97 bin, 96 of 96 returns kept)."""
+    measured on ping 8 a median 0.35 bin, 96 of 96 returns kept; 0.97 before the crosstalk
+    removal followed the band in front of the curved part of its hull, rows 183-189)."""
     cfg = PipelineConfig()
     old = cfg.replace(edge_image="classified")
     a = process_ping(aris_pings[0], cfg).ranges
@@ -55,7 +56,7 @@ def test_classified_edges_are_the_previous_default(test_pings, aris_pings):
     both = np.isfinite(new.range_m) & np.isfinite(prev.range_m)
     assert both.sum() == 96
     shift = np.median(prev.range_m[both] - new.range_m[both]) / float(p.geometry.range_resolution_m)
-    assert 0.5 < shift < 1.5
+    assert 0.2 < shift < 1.5
 
 
 @pytest.mark.slow

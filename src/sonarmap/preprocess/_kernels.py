@@ -931,7 +931,7 @@ def _water_column_median(img, first, margin, i, buf):  # pragma: no cover - numb
 
 
 @njit(cache=True, nogil=True)
-def crosstalk_rows(img, struct, margin, front, need, z):  # pragma: no cover - numba
+def crosstalk_rows(img, struct, margin, front, need, z, grow):  # pragma: no cover - numba
     """Per row of ``img`` the crosstalk level of :func:`sonarmap.preprocess.crosstalk.crosstalk_by_row`
     (0 where none): the excess of the median of its water-column pixels - those more than
     ``margin`` rows in front of their column's first non-zero ``struct`` (uint8) pixel - over the
@@ -940,7 +940,10 @@ def crosstalk_rows(img, struct, margin, front, need, z):  # pragma: no cover - n
     pixels, or more than ``front`` rows in front of the first structure pixel, get none.
     The medians are taken only of the rows whose mean is significant by the same test (a row lit
     across the fan raises both; the means take one pass that vectorises) and of 15 rows spread
-    over the others for the typical median."""
+    over the others for the typical median.  A band found so grows, row by row in both
+    directions, into the lit rows beside it that have fewer than ``need`` but at least ``grow``
+    (<= ``need``) water-column pixels, while they pass the same tests: a band is contiguous in
+    range, and where a surface fills more of the fan beside the band fewer beams see it."""
     n, m = img.shape
     out = np.zeros(n)
     first = _first_rows(struct)
@@ -955,6 +958,7 @@ def crosstalk_rows(img, struct, margin, front, need, z):  # pragma: no cover - n
         return out
     mean = np.zeros(hi - lo)
     cnt = np.zeros(hi - lo, np.int64)
+    few = np.zeros(hi - lo, np.int64)
     s = 0.0
     s2 = 0.0
     lit = np.zeros(hi - lo, np.bool_)
@@ -976,6 +980,9 @@ def crosstalk_rows(img, struct, margin, front, need, z):  # pragma: no cover - n
             cnt[i - lo] = k
             s += a
             s2 += b
+        elif k >= grow:
+            mean[i - lo] = a / k
+            few[i - lo] = k
     ok = np.flatnonzero(cnt)
     if ok.size < 8:
         return out
@@ -991,9 +998,31 @@ def crosstalk_rows(img, struct, margin, front, need, z):  # pragma: no cover - n
     base = median_inplace(typical, typical.size)
     for t in range(ok.size):
         r = ok[t]
-        se = sd / np.sqrt(np.float64(cnt[r]))
-        if lit[r] and mean[r] - base_mean > z * se:
-            x = _water_column_median(img, first, margin, lo + r, buf) - base
-            if x > z * 1.2533 * se:  # (a median's standard error: sqrt(pi / 2) x the mean's)
-                out[lo + r] = x
+        out[lo + r] = _crosstalk_excess(img, first, margin, lo, r, cnt[r], mean, lit, sd, base_mean, base, z, buf)
+    # the bands grow into their neighbouring rows with fewer water-column pixels
+    for d in (1, -1):
+        r = 0 if d == 1 else hi - lo - 1
+        while 0 <= r < hi - lo:
+            if out[lo + r] > 0:
+                q = r + d
+                while 0 <= q < hi - lo and few[q] > 0 and out[lo + q] == 0:
+                    x = _crosstalk_excess(img, first, margin, lo, q, few[q], mean, lit, sd, base_mean, base, z, buf)
+                    if not x > 0:
+                        break
+                    out[lo + q] = x
+                    q += d
+            r += d
     return out
+
+
+@njit(cache=True, nogil=True)
+def _crosstalk_excess(img, first, margin, lo, r, k, mean, lit, sd, base_mean, base, z, buf):  # pragma: no cover
+    """Row ``lo + r``'s crosstalk level of :func:`crosstalk_rows` from its ``k`` water-column
+    pixels (mean ``mean[r]``): its median's excess over ``base`` where the mean and the median
+    both pass the ``z`` standard-error tests on a lit row, else 0."""
+    se = sd / np.sqrt(np.float64(k))
+    if lit[r] and mean[r] - base_mean > z * se:
+        x = _water_column_median(img, first, margin, lo + r, buf) - base
+        if x > z * 1.2533 * se:  # (a median's standard error: sqrt(pi / 2) x the mean's)
+            return x
+    return 0.0

@@ -17,7 +17,10 @@ by more than ``z`` standard errors (the pooled spread of the water-column pixels
 square root of the row's count) carries the excess as crosstalk, if some beam holds structure at
 that row (crosstalk lies at an echo's range; the brighter water column near the sonar is no
 crosstalk); :func:`remove_crosstalk` subtracts it from every pixel of the row (clipped at 0).  A row without enough water-column beams (a flat surface across the fan, seen
-head on) gets no estimate and is left alone: its light is the surface's own.
+head on) gets no estimate and is left alone: its light is the surface's own - unless it continues
+a band found on the rows beside it and has at least :data:`CROSSTALK_GROW_BEAMS` water-column
+beams that pass the same tests (a band is contiguous in range; on the real DIDSON ping 8 the band
+at rows 181-189 lies in front of a hull that fills three quarters of the fan from row 183 on).
 """
 
 from __future__ import annotations
@@ -27,7 +30,8 @@ from numpy.typing import ArrayLike, NDArray
 
 from sonarmap.errors import InputError
 
-__all__ = ["crosstalk_by_row", "remove_crosstalk", "CROSSTALK_MARGIN_BINS", "CROSSTALK_Z", "CROSSTALK_FRONT_BINS"]
+__all__ = ["crosstalk_by_row", "remove_crosstalk", "CROSSTALK_MARGIN_BINS", "CROSSTALK_Z", "CROSSTALK_FRONT_BINS",
+           "CROSSTALK_GROW_BEAMS"]
 
 #: A pixel is water column when its beam's first structure pixel lies more than this many bins
 #: behind it (a beam's own echo rises over its pulse, 1-2 DIDSON bins, before the classifier's
@@ -35,6 +39,9 @@ __all__ = ["crosstalk_by_row", "remove_crosstalk", "CROSSTALK_MARGIN_BINS", "CRO
 CROSSTALK_MARGIN_BINS = 4
 #: A row's water-column median must exceed the ping's typical one by this many standard errors.
 CROSSTALK_Z = 4.0
+#: A band found on rows with enough water-column beams grows into the rows beside it that have at
+#: least this many (and pass the same tests).
+CROSSTALK_GROW_BEAMS = 8
 #: Rows further than this in front of the first structure pixel are no edge's: not estimated
 #: (the ping's typical water column is taken over the rows from there on).
 CROSSTALK_FRONT_BINS = 64
@@ -56,7 +63,9 @@ def crosstalk_by_row(image: ArrayLike, labels: ArrayLike, *, margin_bins: int = 
         Significance of a row's excess, in standard errors of its median (the rows whose mean is
         not that many standard errors of the mean above the typical one are not tested).
     min_beams : int, optional
-        Fewest water-column beams a row needs for an estimate (default ``max(8, n_beams // 4)``).
+        Fewest water-column beams a row needs for an estimate (default ``max(8, n_beams // 4)``);
+        a band found so grows into the rows beside it with at least :data:`CROSSTALK_GROW_BEAMS`
+        (at most ``min_beams``).
 
     Returns
     -------
@@ -82,7 +91,8 @@ def crosstalk_by_row(image: ArrayLike, labels: ArrayLike, *, margin_bins: int = 
     if n == 0 or m == 0:
         return np.zeros(n)
     struct = lab.view(np.uint8) if lab.dtype.itemsize == 1 else (lab != 0).view(np.uint8)
-    return _pk.crosstalk_rows(img, struct, int(margin_bins), CROSSTALK_FRONT_BINS, need, float(z))  # type: ignore[no-any-return]
+    return _pk.crosstalk_rows(img, struct, int(margin_bins), CROSSTALK_FRONT_BINS, need, float(z),  # type: ignore[no-any-return]
+                              min(CROSSTALK_GROW_BEAMS, need))
 
 
 def remove_crosstalk(image: ArrayLike, labels: ArrayLike, **kwargs: object) -> NDArray[np.float32]:

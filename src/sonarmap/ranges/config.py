@@ -165,12 +165,12 @@ class RangeConfig(ConfigSection):
     edge_pool_lead_bins : int
         A pooled edge is kept when it lies at most the pulse length plus this many bins in front
         of the beam's first structure bin (and not behind its echo's end); else the beam keeps its
-        own edge, so that light in front of the labelled echo cannot pull it.  Where the
+        own edge, so that light in front of the labelled echo cannot pull it far.  Where the
         classifier labels only the bright core of a faint echo (the faint end of a surface), the
-        pooled edge lies, correctly, further in front: 12 gains on the simulator, but on the real
-        DIDSON ping 8 moves 25 edges by 1-4.7 bins onto the crosstalk lit across the fan in front of
-        the hull
-        (``docs/segmentation.md``, "Where a pooled edge may lie").  Default 2.
+        pooled edge lies, correctly, further in front: 12 gains on the simulator, but where the
+        crosstalk removal misses a band in front of a surface (the real DIDSON ping 8 classified
+        by ICM) the edges slide onto it (``docs/segmentation.md``, "Where a pooled edge may
+        lie").  Default 2.
     pulse_length_m : float, optional
         Transmit pulse length along range (``c tau / 2``); echoes are measured on the image
         smoothed over it.  Default: from the ping - its effective length ``1 / B`` where the file
