@@ -301,3 +301,25 @@ def test_command_line_config_and_seeds(tmp_path, capsys):
     with pytest.raises(SystemExit) as exc:
         main([*args, "--seeds", "0"])
     assert exc.value.code == 2
+
+
+@pytest.mark.slow
+def test_parallel_jobs_give_the_same_table(capsys):
+    """``jobs`` / ``-j`` score the presets' scenes in parallel processes: the same report, rows in
+    the same order, noise-free rows included."""
+    from sonarmap.errors import InputError
+    from sonarmap.evaluate import evaluate_ranges
+    from sonarmap.evaluate.segmentation import main
+
+    kw = {"presets": ("didson-hf", "aris-telephoto-48"), "scenes": ("hull_slope4", "fish_over_hull", "empty"),
+          "seeds": (0,), "noise_steps_db": (0.0,), "noise_free": True}
+    one = evaluate_ranges(**kw)
+    two = evaluate_ranges(jobs=2, **kw)
+    assert two.table(per_scene=True, noise_free=True) == one.table(per_scene=True, noise_free=True)
+    assert [r.method for r in two.rows] == [r.method for r in one.rows]
+    for bad in (0, 1.5, True):
+        with pytest.raises(InputError, match="jobs"):
+            evaluate_ranges(jobs=bad, **kw)  # type: ignore[arg-type]
+    with pytest.raises(SystemExit) as exc:
+        main(["--ranges", "-j", "0"])
+    assert exc.value.code == 2 and "--jobs" in capsys.readouterr().err

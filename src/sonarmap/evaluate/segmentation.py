@@ -442,7 +442,7 @@ def evaluate_presets(
 
 def main(argv: Sequence[str] | None = None) -> int:
     """``python -m sonarmap.evaluate [--ranges] [--presets NAME,...] [--scenes NAME,...] [--seeds N]
-    [--first-seed K] [--config FILE.toml]``.
+    [--first-seed K] [--config FILE.toml] [-j N]``.
 
     Without ``--ranges``: the every-sonar table (:func:`evaluate_presets`).  With ``--ranges``:
     the ranges acceptance (:func:`evaluate_ranges`: presets x :data:`RANGES_SCENES`, scored
@@ -465,6 +465,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--per-scene", action="store_true", help="with --ranges: also one row per preset and scene")
     ap.add_argument("--noise-free", action="store_true",
                     help="with --ranges: also score the noise-free echoes' half-peak leading edges")
+    ap.add_argument("-j", "--jobs", type=int, default=1,
+                    help="with --ranges: processes scoring the scenes in parallel (the same table)")
     args = ap.parse_args(None if argv is None else list(argv))
     presets = [p for p in args.presets.split(",") if p]
     scenes = None if args.scenes is None else [s for s in args.scenes.split(",") if s]
@@ -473,8 +475,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     unknown = sorted(set(scenes or ()) - set(SCENE_NAMES))
     if unknown:
         ap.error(f"--scenes: unknown scene(s) {', '.join(unknown)}; choose from {', '.join(SCENE_NAMES)}")
-    if args.seeds < 1 or args.first_seed < 0:
-        ap.error(f"--seeds must be >= 1 and --first-seed >= 0 (got {args.seeds}, {args.first_seed})")
+    if args.seeds < 1 or args.first_seed < 0 or args.jobs < 1:
+        ap.error(f"--seeds and --jobs must be >= 1 and --first-seed >= 0 (got {args.seeds}, {args.jobs}, "
+                 f"{args.first_seed})")
     config = None
     if args.config is not None:
         from sonarmap.pipeline import PipelineConfig
@@ -486,7 +489,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     seeds = tuple(range(args.first_seed, args.first_seed + args.seeds))
     if args.ranges:
         report = evaluate_ranges(config, presets=presets, seeds=seeds,
-                                 scenes=RANGES_SCENES if scenes is None else scenes, noise_free=args.noise_free)
+                                 scenes=RANGES_SCENES if scenes is None else scenes, noise_free=args.noise_free,
+                                 jobs=args.jobs)
         print(report.table(per_scene=args.per_scene, noise_free=args.noise_free))
         return 0
     rows = evaluate_presets(config, presets=presets, seeds=seeds,
@@ -663,7 +667,7 @@ class RangesReport:
 def evaluate_ranges(
     config: Any = None, *, presets: Sequence[str] = RANGES_PRESETS, scenes: Sequence[str] = RANGES_SCENES,
     seeds: Sequence[int] = (0,), noise_steps_db: Sequence[float] = (0.0, 6.0), tol_bins: int = 3,
-    noise_free: bool = False,
+    noise_free: bool = False, jobs: int = 1,
 ) -> RangesReport:
     """The ranges acceptance: one pipeline on every preset x scene, scored on sub-bin truth.
 
@@ -696,33 +700,59 @@ def evaluate_ranges(
         decision there, not the convention's).  It tells the part of the error that is the
         convention against this truth (the -3 dB footprint) from the part that noise and the
         estimator add.
+    jobs : int
+        Processes scoring the presets' scenes in parallel (the same scores as one at a time).
 
     Returns
     -------
     RangesReport
     """
-    from sonarmap.geometry import preset
     from sonarmap.pipeline import PipelineConfig
 
+    if isinstance(jobs, bool) or not isinstance(jobs, int) or jobs < 1:
+        raise InputError(f"jobs: must be an integer >= 1 (got {jobs!r})")
     cfg = PipelineConfig() if config is None else config
+    # one task per preset and scene (the Oculus-like preset alone takes most of the time)
+    tasks = [(cfg, name, scene, tuple(seeds), tuple(noise_steps_db), tol_bins, noise_free)
+             for name in presets for scene in scenes]
+    if jobs > 1 and len(tasks) > 1:
+        import concurrent.futures
+        import multiprocessing
+
+        with concurrent.futures.ProcessPoolExecutor(min(jobs, len(tasks)),
+                                                    mp_context=multiprocessing.get_context("spawn")) as pool:
+            done = list(pool.map(_scene_ranges, tasks))
+    else:
+        done = [_scene_ranges(t) for t in tasks]
     rows: list[MethodScore] = []
     sloped: list[PingScore] = []
     fish: list[PingScore] = []
-    for name in presets:
-        geom = preset(name)
-        per = _run({name: cfg}, scenes, preset_sim_configs(geom, noise_steps_db), seeds, geom, tol_bins,
-                   -3.0, "surface", recording_meta=True)[name]
+    for k, name in enumerate(presets):
+        mine = done[k * len(scenes):(k + 1) * len(scenes)]
+        per = {scene: scores for scene, (scores, _) in zip(scenes, mine)}
         rows.append(pool_scores(name, [x for v in per.values() for x in v]))
         rows.extend(pool_scores(f"{name} | {scene}", v) for scene, v in per.items())
         if noise_free:
-            rows.append(pool_scores(f"{name}{NOISE_FREE}",
-                                    _noise_free_scores([c for c in scenes if not c.startswith("fish")],
-                                                       preset_sim_configs(geom, noise_steps_db), seeds, geom,
-                                                       tol_bins)))
+            rows.append(pool_scores(f"{name}{NOISE_FREE}", [x for _, nf in mine for x in nf]))
         sloped.extend(x for scene in SLOPED_SCENES for x in per.get(scene, []))
         fish.extend(per.get("fish_over_hull", []))
     return RangesReport(rows=tuple(rows), sloped=pool_scores("sloped hulls", sloped),
                         fish_over_hull=pool_scores("fish_over_hull", fish))
+
+
+def _scene_ranges(task: tuple[Any, ...]) -> tuple[list[PingScore], list[PingScore]]:
+    """One preset and scene of :func:`evaluate_ranges` (``task``: config, preset name, scene,
+    seeds, noise steps, tolerance, noise_free): its pings' scores, and the noise-free edges' (empty
+    without ``noise_free`` and for the scenes with fish)."""
+    from sonarmap.geometry import preset
+
+    cfg, name, scene, seeds, noise_steps_db, tol_bins, noise_free = task
+    geom = preset(name)
+    sims = preset_sim_configs(geom, noise_steps_db)
+    per = _run({name: cfg}, [scene], sims, seeds, geom, tol_bins, -3.0, "surface", recording_meta=True)[name]
+    nf = (_noise_free_scores([scene], sims, seeds, geom, tol_bins)
+          if noise_free and not scene.startswith("fish") else [])
+    return per.get(scene, []), nf
 
 
 def _noise_free_scores(scenes: Sequence[str], sim_configs: Sequence[Any], seeds: Sequence[int], geometry: Any,
