@@ -999,19 +999,14 @@ def crosstalk_rows(img, struct, margin, front, need, z, grow):  # pragma: no cov
     for t in range(ok.size):
         r = ok[t]
         out[lo + r] = _crosstalk_excess(img, first, margin, lo, r, cnt[r], mean, lit, sd, base_mean, base, z, buf)
-    # the bands grow into their neighbouring rows with fewer water-column pixels
+    # the bands grow into their neighbouring rows with fewer water-column pixels: a sweep each way,
+    # a row tested where the row before it (in the sweep) carries crosstalk
     for d in (1, -1):
-        r = 0 if d == 1 else hi - lo - 1
-        while 0 <= r < hi - lo:
-            if out[lo + r] > 0:
-                q = r + d
-                while 0 <= q < hi - lo and few[q] > 0 and out[lo + q] == 0:
-                    x = _crosstalk_excess(img, first, margin, lo, q, few[q], mean, lit, sd, base_mean, base, z, buf)
-                    if not x > 0:
-                        break
-                    out[lo + q] = x
-                    q += d
-            r += d
+        for t in range(1, hi - lo):
+            q = t if d == 1 else hi - lo - 1 - t
+            if few[q] > 0 and out[lo + q] == 0 and out[lo + q - d] > 0:
+                out[lo + q] = _crosstalk_excess(img, first, margin, lo, q, few[q], mean, lit, sd, base_mean, base,
+                                                z, buf)
     return out
 
 

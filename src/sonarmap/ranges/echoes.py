@@ -637,7 +637,7 @@ def _pooled(echoes: Echoes, sel: NDArray[np.int64], image: ArrayLike, geometry: 
 
 def _check_pooling(echoes: Echoes, sel: np.ndarray, window: tuple[int, int, int, int, int, int], fraction: float,
                    clip: NDArray[np.bool_] | None, shape: tuple[int, ...], fit_scale: float, flank_bins: int,
-                   lead_bins: int = POOL_LEAD_BINS, scan: str = "forward") -> None:
+                   lead_bins: int, scan: str) -> None:
     """The options of :func:`pooled_edges` (``window``: half_beams, front_bins, max_bins,
     smooth_bins, n_iter, fit_front_bins; ``fit_scale``: its fit_sigma_scale; ``flank_bins``,
     ``lead_bins``, ``scan``) are valid, ``first`` has a value per beam and ``clip`` the image's
