@@ -26,7 +26,8 @@ def _problem(seed: int, kind: str) -> tuple[np.ndarray, np.ndarray]:
     if kind == "stripes":
         margin = np.sort(margin)
         levels = np.where(np.arange(h)[:, None] % 9 < 2, rng.integers(180, 256, (h, w)), rng.integers(0, 200, (h, w)))
-    return levels.astype(np.uint8), margin
+    # read-only, as the pipeline passes levels to the kernels (one compiled signature each)
+    return mrf._read_only(levels.astype(np.uint8)), margin
 
 
 @settings(max_examples=60, deadline=None)

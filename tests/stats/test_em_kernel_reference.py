@@ -91,7 +91,7 @@ def test_plain_em_kernel_equals_the_uncached_reference(seed):
             trace = np.empty(1001)
             if fn == "kernel":
                 n_iter, conv = K.em_general_kernel(counts, spec.levels, kind, par, w, lo, hi, 1000, 1e-6, 3, trace,
-                                                   False)
+                                                   *K.em_general_args(False))
             else:
                 n_iter, conv = _reference_plain_em(counts, spec.levels, kind, par, w, lo, hi, 1000, 1e-6, trace)
             out.append((n_iter, conv, par, w, trace[: n_iter + 1]))

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from sonarmap.stats._em_kernels import _sq_point, em_general_kernel
+from sonarmap.stats._em_kernels import _sq_point, em_general_args, em_general_kernel
 from sonarmap.stats.components import quantization_levels
 from sonarmap.stats.mixture import _fit_problem, _general_coords, _initial_guesses, component_pmf_matrix, fit_mixture
 
@@ -81,7 +81,8 @@ def _kernel_fit(counts, fams, scale_max=1.0, accel=True, max_iter=2000):
     kind, par, lo, hi = _general_coords(problem.spec, p0)
     w = np.array(w0, dtype=np.float64)
     trace = np.empty(max_iter + 1)
-    n_iter, conv = em_general_kernel(problem.counts, LEVELS, kind, par, w, lo, hi, max_iter, 1e-11, 3, trace, accel)
+    n_iter, conv = em_general_kernel(problem.counts, LEVELS, kind, par, w, lo, hi, max_iter, 1e-11, 3, trace,
+                                     *em_general_args(accel))
     return par, w, lo, hi, trace[: n_iter + 1], conv
 
 
@@ -164,6 +165,6 @@ def test_a_restart_climbing_to_the_same_maximum_is_merged(background_paths):
     # with a reference far from the start's maximum the kernel runs to convergence
     w, trace = np.array(starts[1][0], dtype=np.float64), np.empty(1001)
     kind, par, lo, hi = _general_coords(spec, starts[1][1])
-    n, conv = em_general_kernel(problem.counts, spec.levels, kind, par, w, lo, hi, 1000, 1e-11, 3, trace, True,
-                                ref[0], ref[1] * 3.0, M.MERGE_RTOL)
+    n, conv = em_general_kernel(problem.counts, spec.levels, kind, par, w, lo, hi, 1000, 1e-11, 3, trace,
+                                *em_general_args(True, (ref[0], ref[1] * 3.0), M.MERGE_RTOL))
     assert n > 0 and conv

@@ -486,6 +486,15 @@ _LADDER_ROUNDS_MIN = 8000
 _TABLE_LEVELS = 1024
 
 
+def _read_only(a: NDArray[Any]) -> NDArray[Any]:
+    """``a`` itself when read-only, else a read-only view of it (no copy)."""
+    if not a.flags.writeable:
+        return a
+    v = a.view()
+    v.flags.writeable = False
+    return v
+
+
 def _graphcut_lut(
     levels: NDArray[Any],
     cost_lut: NDArray[np.float64],
@@ -507,6 +516,9 @@ def _graphcut_lut(
     h, w = levels.shape
     if wtot is None:
         wtot = _total_weight(wt)
+    # read-only views of the inputs the kernels only read: numba compiles a kernel once per
+    # argument type, and a read-only array is another type than a writable one (callers pass both)
+    levels, wt, wtot = _read_only(levels), _read_only(wt), _read_only(wtot)
     node, stack = _WORK.get(h, w)
     # the reductions' pixel states (0, 1, or -1 free) become the labels once the cut has set the
     # free pixels: a fresh array, so no lattice pass copies them out of a work array

@@ -1258,6 +1258,22 @@ EM_MAX_ITER = 0
 EM_CONVERGED = 1
 EM_MERGED = 2
 EM_RICE_AT_ZERO = 3
+#: :func:`em_general_kernel`'s reference weights and parameters when it has none (``merge_rtol = 0``;
+#: writable, as the references passed are: one signature; empty, so never written).
+NO_REF_W = np.zeros(0)
+NO_REF_PAR = np.zeros((0, 2))
+
+
+def em_general_args(accel: bool = True, ref: tuple[np.ndarray, np.ndarray] | None = None, merge_rtol: float = 0.0,
+                    rice_min: float = 0.0) -> tuple[bool, np.ndarray, np.ndarray, float, float]:
+    """The last five arguments of :func:`em_general_kernel` (``accel, ref_w, ref_par, merge_rtol,
+    rice_min``) in the types of its one compiled signature: ``ref`` = ``(w, par)`` or None (no
+    merge test), as writable float64 C arrays."""
+    if ref is None:
+        return bool(accel), NO_REF_W, NO_REF_PAR, 0.0, float(rice_min)
+    rw = np.array(ref[0], dtype=np.float64, order="C")
+    rp = np.array(ref[1], dtype=np.float64, order="C").reshape(-1, 2)
+    return bool(accel), rw, rp, float(merge_rtol), float(rice_min)
 #: EM steps before :func:`em_general_kernel`'s ``rice_min`` test applies (a start may begin near 0).
 RICE_MIN_ITER = 30
 
@@ -1303,15 +1319,20 @@ def em_general_kernel(
     tol: float,
     max_newton: int,
     ll_trace: np.ndarray,
-    accel: bool = True,
-    ref_w: np.ndarray | None = None,
-    ref_par: np.ndarray | None = None,
-    merge_rtol: float = 0.0,
-    rice_min: float = 0.0,
+    accel: bool,
+    ref_w: np.ndarray,
+    ref_par: np.ndarray,
+    merge_rtol: float,
+    rice_min: float,
 ) -> tuple[int, int]:
     """(Generalised) EM for any mix of kinds 0-6, in place on ``par (C, 2)`` and ``w``; returns
     ``(n_iter, status)``: :data:`EM_MAX_ITER` (0), :data:`EM_CONVERGED` (1), :data:`EM_MERGED` (2)
     or :data:`EM_RICE_AT_ZERO` (3) - the last two stop a run early (below).
+
+    Every argument is required, in these types (float64 C arrays, ``accel`` a bool, the two
+    tolerances floats), so that every caller runs the one compiled signature: without a reference
+    pass :data:`NO_REF_W`, :data:`NO_REF_PAR` and ``merge_rtol = 0.0``, without the Rice stop
+    ``rice_min = 0.0`` (:func:`em_general_args` gives the tail of the arguments).
 
     With ``ref_w`` / ``ref_par`` (a converged result of the same problem from another start) and
     ``merge_rtol > 0`` the run stops (``EM_MERGED``) once, at the start of an iteration (a SQUAREM
@@ -1379,7 +1400,7 @@ def em_general_kernel(
     ll = estep()
     ll_trace[0] = ll
     while it < max_iter:
-        if ref_w is not None and ref_par is not None and merge_rtol > 0.0 and _near(w, par, ref_w, ref_par, merge_rtol):
+        if merge_rtol > 0.0 and _near(w, par, ref_w, ref_par, merge_rtol):
             return it, EM_MERGED
         if rice_min > 0.0 and it >= RICE_MIN_ITER and _rice_at_zero(kind, par, rice_min):
             return it, EM_RICE_AT_ZERO

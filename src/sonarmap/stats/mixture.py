@@ -841,15 +841,11 @@ def _em(
     w = np.array(w0, dtype=np.float64)
     trace = np.empty(max_iter + 1)
     kind, par, lo, hi = _general_coords(spec, params0)
-    if merge is None and spec.rice_min <= 0:
-        n_iter, status = _emk.em_general_kernel(counts, spec.levels, kind, par, w, lo, hi, int(max_iter),
-                                                float(tol), 3, trace, accel)
-    else:
-        ref_w, ref_par = merge if merge is not None else (None, None)
-        n_iter, status = _emk.em_general_kernel(counts, spec.levels, kind, par, w, lo, hi, int(max_iter), float(tol), 3,
-                                                trace, accel, ref_w, ref_par, MERGE_RTOL, spec.rice_min)
-        if status == _emk.EM_MERGED:
-            return None
+    n_iter, status = _emk.em_general_kernel(counts, spec.levels, kind, par, w, lo, hi, int(max_iter), float(tol), 3,
+                                            trace, *_emk.em_general_args(accel, merge, MERGE_RTOL,
+                                                                         max(float(spec.rice_min), 0.0)))
+    if status == _emk.EM_MERGED:
+        return None
     coords = par.tolist()  # (Python floats: no numpy scalar per coordinate)
     params = [_from_coords(n, *coords[c]) for c, n in enumerate(spec.names)]
     return w, params, int(n_iter), status == _emk.EM_CONVERGED, trace[: n_iter + 1].copy()
