@@ -17,7 +17,7 @@ __all__ = [
     "CALIBRATION_OPTION", "GEOMETRY_OPTION", "OUTPUT_DIR_OPTION", "OUTPUT_OPTION", "PINGS_ARGUMENT", "PING_RATE_OPTION",
     "QUIET_OPTION", "START_TIME_OPTION", "STDOUT", "VERBOSE_OPTION", "refuse_stdout",
     "PingProgress", "apply_calibration", "check_choice", "check_clock_used", "clock_options", "console",
-    "count_pings", "err_console", "example", "first_ping", "input_name", "input_progress", "load_calibration",
+    "count_pings", "err_console", "example", "first_ping", "first_run_notice", "input_name", "input_progress", "load_calibration",
     "load_geometry_option", "open_output", "output_name", "ping_progress", "read_input_pings", "run_pings",
     "stop_progress",
 ]
@@ -465,11 +465,14 @@ class PingProgress:
         Draw nothing and print no per-ping line.
     verbose : bool
         :meth:`log` prints its lines (above the bar).
+    compiles : bool
+        The pings run the per-ping pipeline: :meth:`start` prints :func:`first_run_notice` first.
     """
 
     def __init__(self, description: str, total: int | None = None, *, quiet: bool = False,
-                 verbose: bool = False) -> None:
+                 verbose: bool = False, compiles: bool = False) -> None:
         self.description = description
+        self.compiles = compiles
         self.total = total
         self.quiet = quiet
         self.verbose = verbose and not quiet
@@ -485,6 +488,8 @@ class PingProgress:
         self._t0 = time.perf_counter()
         if self.quiet or self._progress is not None:
             return self
+        if self.compiles:
+            first_run_notice()
         from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
         self._progress = Progress(
@@ -536,7 +541,7 @@ class PingProgress:
 
 
 def ping_progress(description: str, total: int | None = None, *, quiet: bool = False,
-                  verbose: bool = False) -> PingProgress:
+                  verbose: bool = False, compiles: bool = False) -> PingProgress:
     """A :class:`PingProgress` (use as a context manager; call ``start()`` after the first ping).
 
     Examples
@@ -548,14 +553,36 @@ def ping_progress(description: str, total: int | None = None, *, quiet: bool = F
     >>> bar.done
     3
     """
-    return PingProgress(description, total, quiet=quiet, verbose=verbose)
+    return PingProgress(description, total, quiet=quiet, verbose=verbose, compiles=compiles)
+
+
+#: What :func:`first_run_notice` prints.
+FIRST_RUN_NOTICE = ("first run on this machine: numba is compiling sonarmap's kernels (a few minutes on 2 cores, "
+                    "once; later runs load them from its cache)")
+
+
+def first_run_notice(quiet: bool = False) -> bool:
+    """Print :data:`FIRST_RUN_NOTICE` on stderr when the kernels are not compiled yet
+    (:func:`sonarmap._jit.kernels_cached`) and stderr is a terminal (a log or pipe gets no line it
+    did not ask for); nothing with ``quiet``.  Returns whether it printed."""
+    import sys
+
+    if quiet or not sys.stderr.isatty():
+        return False
+    from sonarmap._jit import kernels_cached
+
+    if kernels_cached():
+        return False
+    err_console().print(f"sonarmap: {FIRST_RUN_NOTICE}", markup=False, highlight=False, soft_wrap=True)
+    return True
 
 
 def input_progress(description: str, inputs: list[Path], *, quiet: bool = False,
-                   verbose: bool = False) -> PingProgress:
+                   verbose: bool = False, compiles: bool = False) -> PingProgress:
     """A :func:`ping_progress` over the pings of ``inputs``, sized by :func:`count_pings` (not
     counted with ``quiet``)."""
-    return ping_progress(description, None if quiet else count_pings(inputs), quiet=quiet, verbose=verbose)
+    return ping_progress(description, None if quiet else count_pings(inputs), quiet=quiet, verbose=verbose,
+                         compiles=compiles)
 
 
 def run_pings(bar: PingProgress, pings: Iterable[Any], work: Callable[[Any, int], str]) -> int:

@@ -9,7 +9,7 @@ import typer
 
 from sonarmap._text import counted
 from sonarmap.cli._common import (
-    CALIBRATION_OPTION, GEOMETRY_OPTION, err_console, example, refuse_stdout, stop_progress,
+    CALIBRATION_OPTION, GEOMETRY_OPTION, err_console, example, first_run_notice, refuse_stdout, stop_progress,
 )
 
 __all__ = ["register", "process_command", "survey_progress"]
@@ -29,6 +29,7 @@ class survey_progress:  # noqa: N801 - used as a context manager, reads like a f
 
     def __enter__(self) -> survey_progress:
         if not self.quiet:
+            first_run_notice()
             from rich.progress import (
                 BarColumn,
                 MofNCompleteColumn,

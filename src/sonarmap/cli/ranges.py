@@ -194,7 +194,7 @@ def register(app: typer.Typer) -> None:
         cfg, rec = apply_calibration(cfg, calibration)
         n_pings = n_rows = n_ret = 0
         gated: list[tuple[str, ...]] = []
-        bar = input_progress("ranges", pings, quiet=quiet, verbose=verbose)
+        bar = input_progress("ranges", pings, quiet=quiet, verbose=verbose, compiles=True)
         out_cm: Any = contextlib.nullcontext(None) if out_kind != "csv" else open_output(output, newline="")
         with out_cm as fh, bar:
             w = csv.writer(fh) if fh is not None else None

@@ -105,7 +105,7 @@ def register(app: typer.Typer) -> None:
         # before the bar and the directory
         ping_iter = read_input_pings(pings, load_geometry_option(sonar), clock=clock)
         make_output_dir(output)
-        bar = input_progress("segment", pings, quiet=quiet, verbose=verbose)
+        bar = input_progress("segment", pings, quiet=quiet, verbose=verbose, compiles=True)
         n = run_pings(bar, ping_iter, lambda ping, i: _segment_one(ping, i, output, cfg, figure, background))
         if not quiet:
             err_console().print(f"segmented {counted(n, 'ping')} -> {output}", markup=False)
