@@ -22,7 +22,7 @@ class _Tty(io.StringIO):
     (True, False, True, False),   # compiled already
 ])
 def test_notice_only_on_a_terminal_with_the_cache_empty(monkeypatch, tty, quiet, cached, printed):
-    import sonarmap._jit as jit
+    import sonarmap.ranges.compiled as jit
 
     err = _Tty() if tty else io.StringIO()
     monkeypatch.setattr(sys, "stderr", err)
@@ -35,7 +35,7 @@ def test_the_cache_is_read_for_these_sources(monkeypatch, tmp_path):
     """An empty numba cache directory has no valid index: not cached; the real check never raises."""
     from numba.core.caching import FunctionCache
 
-    import sonarmap._jit as jit
+    import sonarmap.ranges.compiled as jit
     import sonarmap.ranges._kernels as k
 
     assert isinstance(jit.kernels_cached(), bool)

@@ -563,13 +563,13 @@ FIRST_RUN_NOTICE = ("first run on this machine: numba is compiling sonarmap's ke
 
 def first_run_notice(quiet: bool = False) -> bool:
     """Print :data:`FIRST_RUN_NOTICE` on stderr when the kernels are not compiled yet
-    (:func:`sonarmap._jit.kernels_cached`) and stderr is a terminal (a log or pipe gets no line it
-    did not ask for); nothing with ``quiet``.  Returns whether it printed."""
+    (:func:`sonarmap.ranges.compiled.kernels_cached`) and stderr is a terminal (a log or pipe gets
+    no line it did not ask for); nothing with ``quiet``.  Returns whether it printed."""
     import sys
 
     if quiet or not sys.stderr.isatty():
         return False
-    from sonarmap._jit import kernels_cached
+    from sonarmap.ranges.compiled import kernels_cached
 
     if kernels_cached():
         return False

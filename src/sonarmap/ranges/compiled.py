@@ -28,7 +28,7 @@ def kernels_cached() -> bool:
     try:
         from numba.core.caching import FunctionCache
 
-        import sonarmap.ranges._kernels as _kernels
+        import sonarmap.ranges._kernels as _kernels  # (its own package's private module)
 
         index = FunctionCache(_kernels.pooled_kept_edges.py_func)._cache_file._load_index()
         return bool(index)
