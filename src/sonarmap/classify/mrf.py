@@ -491,7 +491,7 @@ def _read_only(a: NDArray[Any]) -> NDArray[Any]:
     if not a.flags.writeable:
         return a
     v = a.view()
-    v.flags.writeable = False
+    v.setflags(write=False)
     return v
 
 

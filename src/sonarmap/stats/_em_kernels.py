@@ -1258,6 +1258,8 @@ EM_MAX_ITER = 0
 EM_CONVERGED = 1
 EM_MERGED = 2
 EM_RICE_AT_ZERO = 3
+#: EM steps before :func:`em_general_kernel`'s ``rice_min`` test applies (a start may begin near 0).
+RICE_MIN_ITER = 30
 #: :func:`em_general_kernel`'s reference weights and parameters when it has none (``merge_rtol = 0``;
 #: writable, as the references passed are: one signature; empty, so never written).
 NO_REF_W = np.zeros(0)
@@ -1274,8 +1276,6 @@ def em_general_args(accel: bool = True, ref: tuple[np.ndarray, np.ndarray] | Non
     rw = np.array(ref[0], dtype=np.float64, order="C")
     rp = np.array(ref[1], dtype=np.float64, order="C").reshape(-1, 2)
     return bool(accel), rw, rp, float(merge_rtol), float(rice_min)
-#: EM steps before :func:`em_general_kernel`'s ``rice_min`` test applies (a start may begin near 0).
-RICE_MIN_ITER = 30
 
 
 @njit(cache=True, nogil=True)

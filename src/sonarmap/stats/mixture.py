@@ -841,9 +841,9 @@ def _em(
     w = np.array(w0, dtype=np.float64)
     trace = np.empty(max_iter + 1)
     kind, par, lo, hi = _general_coords(spec, params0)
+    tail = _emk.em_general_args(accel, merge, MERGE_RTOL, float(spec.rice_min))
     n_iter, status = _emk.em_general_kernel(counts, spec.levels, kind, par, w, lo, hi, int(max_iter), float(tol), 3,
-                                            trace, *_emk.em_general_args(accel, merge, MERGE_RTOL,
-                                                                         max(float(spec.rice_min), 0.0)))
+                                            trace, *tail)
     if status == _emk.EM_MERGED:
         return None
     coords = par.tolist()  # (Python floats: no numpy scalar per coordinate)
