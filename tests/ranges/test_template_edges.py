@@ -108,7 +108,7 @@ def test_options_are_checked():
         template_edges(e, first[:5], img, g)
     for key, bad in (("half_template", 0), ("n_iter", 0), ("min_beams", 2), ("max_shift_bins", -1.0),
                      ("fraction", 1.0), ("min_contrast", float("nan")), ("sigma_scale", -1.0),
-                     ("anchor_beams", -1)):
+                     ("anchor_beams", -1), ("shared_beams", 0)):
         with pytest.raises(InputError, match=key):
             template_edges(e, first, img, g, **{key: bad})
     with pytest.raises(GeometryError, match="image"):
@@ -135,12 +135,14 @@ def test_moved_fields_are_those_of_the_numpy_formulation():
         first = np.where(count > 0, first, -1)
         skip = rng.random(e.size) < 0.1 if seed % 2 else None
         anchor, pb, scale = (10, 1, 1.0) if seed < 3 else (0, 3, 1.7)
-        got = template_edges(e, first, img, g, skip=skip, anchor_beams=anchor, pulse_bins=pb, sigma_scale=scale)
+        shared = 1 + 3 * (seed % 3)
+        got = template_edges(e, first, img, g, skip=skip, anchor_beams=anchor, pulse_bins=pb, sigma_scale=scale,
+                             shared_beams=shared)
         sel = np.ascontiguousarray(first, dtype=np.int64)
         edge, stop, run = _first_runs(e, sel, 1.0)
         new, var = _template_kernels.template_edges(np.ascontiguousarray(img, dtype=np.float64), edge, stop, run,
                                                     _skipped_beams(sel, skip), 5, 1, 8, 30, 60, 4.0, 6, 0.5, 3, 24, 2,
-                                                    12.0, anchor)
+                                                    12.0, anchor, float(shared))
         done = np.flatnonzero(np.isfinite(var[:, 0]))
         bin_m, pulse_m = _bin_and_pulse_m(g, pb)
         sigma = edge_sigma_m(np.sqrt(var[done, 0] + var[done, 1]), 1.0, bin_m, pulse_m=pulse_m, scale=scale)
@@ -153,6 +155,47 @@ def test_moved_fields_are_those_of_the_numpy_formulation():
         for f, v in want.items():
             assert np.array_equal(getattr(got, f), v, equal_nan=True), (seed, f)
     assert n_moved > 0
+
+
+def test_the_anchor_counts_the_offsets_of_pooled_edges_as_fewer_independent_ones():
+    """Edges measured on the data of ``s`` neighbouring beams (pooled windows) give correlated
+    anchor offsets: the anchor median's variance is that of independent offsets times
+    ``min(c, s)`` for ``c`` offsets in the window (``c / s`` independent ones, at least one);
+    the edges themselves do not change."""
+    from sonarmap.ranges import _template_kernels
+    from sonarmap.ranges.echoes import _first_runs
+    from sonarmap.ranges.template import _skipped_beams
+
+    g = _geom()
+    truth = 100.0 + 0.5 * np.arange(g.n_beams)
+    img, mask = _speckled(7, truth)
+    e = find_echoes(mask, img, g)
+    first, count = e.per_beam()
+    sel = np.ascontiguousarray(np.where(count > 0, first, -1), dtype=np.int64)
+    edge, stop, run = _first_runs(e, sel, 1.0)
+    img64 = np.ascontiguousarray(img, dtype=np.float64)
+    skip = _skipped_beams(sel, None)
+
+    def kernel(anchor: int, shared: float) -> tuple[np.ndarray, np.ndarray]:
+        return _template_kernels.template_edges(img64, edge, stop, run, skip, 5, 1, 8, 30, 60, 4.0, 6, 0.5, 3, 24,
+                                                2, 12.0, anchor, shared)
+
+    anchor = 10
+    _, own = kernel(0, 1.0)
+    new1, var1 = kernel(anchor, 1.0)
+    ok = np.isfinite(own[:, 0])
+    assert ok.sum() > 60
+    # c: the measured beams of the beam's run within `anchor` beams of it
+    idx = np.arange(edge.size)
+    c = np.array([np.sum(ok & (run == run[j]) & (np.abs(idx - j) <= anchor)) for j in idx])
+    part1 = var1[:, 1] - own[:, 1]
+    assert np.all(part1[ok] > 0)
+    for shared in (3.0, 7.0, 25.0):
+        new_s, var_s = kernel(anchor, shared)
+        assert np.array_equal(new_s, new1, equal_nan=True)
+        assert np.array_equal(var_s[:, 0], var1[:, 0], equal_nan=True)
+        ratio = (var_s[ok, 1] - own[ok, 1]) / part1[ok]
+        assert np.allclose(ratio, np.minimum(c[ok], shared), rtol=1e-9), shared
 
 
 def test_options_checked_once_are_still_checked_by_type_and_value():
@@ -198,7 +241,7 @@ def test_the_anchor_moves_each_run_by_the_median_offset():
     var[5] = np.nan  # not measured by the template: keeps its edge
     new[5] = edge[5]
     before = var.copy()
-    _anchor_run(edge, new, var, 0, 30, 3)
+    _anchor_run(edge, new, var, 0, 30, 3, 1.0)
     keep = np.arange(30) != 5
     moved = new - edge
     assert np.allclose(moved[keep & (np.arange(30) != 10)], 0.0)

@@ -277,12 +277,15 @@ def _sorted_median(w, srt):  # pragma: no cover - numba
 
 
 @njit(cache=True, nogil=True)
-def _anchor_run(edge, new, var, j0, j1, anchor):  # pragma: no cover - numba
+def _anchor_run(edge, new, var, j0, j1, anchor, shared):  # pragma: no cover - numba
     """Anchor the template-measured edges of the run ``j0 .. j1 - 1`` on the edges they replace
     (in place): each measured beam's edge moves by the median, over the measured beams of the
     run within ``anchor`` beams, of (edge before - template edge), and ``var[:, 1]`` adds that
-    median's variance (``pi / 2`` times the offsets' variance over their number) to the
-    template crossing's."""
+    median's variance (``pi / 2`` times the offsets' variance over their number of independent
+    ones) to the template crossing's.  Each edge before was measured on the data of ``shared``
+    neighbouring beams (a pooled edge's window), so ``c`` offsets count as ``max(c / shared, 1)``
+    independent ones: the mean of ``c`` running means of width ``shared`` over independent beams
+    has the variance of ``c / shared`` of them."""
     nb = j1 - j0
     d = np.empty(nb)
     ok = np.zeros(nb, np.bool_)
@@ -311,13 +314,13 @@ def _anchor_run(edge, new, var, j0, j1, anchor):  # pragma: no cover - numba
             for q in range(c):
                 e = w[q] - mu
                 ss += e * e
-            var[j0 + a, 1] += 0.5 * np.pi * ss / (c - 1) / c
+            var[j0 + a, 1] += 0.5 * np.pi * ss / (c - 1) / max(c / shared, 1.0)
 
 
 @njit(cache=True, nogil=True)
 def template_edges(img, edge, stop, run, skip, half_template, half_window, front, min_beams, max_bins,
                    max_shift, n_score, fraction, peak_rows, max_rows, n_iter, min_contrast,
-                   anchor):  # pragma: no cover - numba
+                   anchor, shared):  # pragma: no cover - numba
     """Per beam the leading edge re-measured against its surface's echo template, and the
     variances (bins^2; NaN where the beam keeps its edge) of the template's position (inverse
     Fisher information) and of its crossing (the template beams' spread; with ``anchor > 0`` plus
@@ -339,7 +342,7 @@ def template_edges(img, edge, stop, run, skip, half_template, half_window, front
             _run_edges(img, edge, stop, skip, j, j1, half_template, half_window, front, max_bins, max_shift,
                        n_score, fraction, peak_rows, max_rows, n_iter, min_contrast, new, var)
             if anchor > 0:
-                _anchor_run(edge, new, var, j, j1, anchor)
+                _anchor_run(edge, new, var, j, j1, anchor, shared)
         j = j1
     return new, var
 
@@ -347,7 +350,7 @@ def template_edges(img, edge, stop, run, skip, half_template, half_window, front
 @njit(cache=True, nogil=True)
 def template_moved_edges(sel, edge_bin, start_bin, stop_bin, touch, img, skip, half_template, half_window, front,
                          min_beams, max_bins, max_shift, n_score, fraction, peak_rows, max_rows, n_iter, min_contrast,
-                         anchor, edge_range, sigma_m, range_m, bin_m, bin_var, pulse_var,
+                         anchor, shared, edge_range, sigma_m, range_m, bin_m, bin_var, pulse_var,
                          scale):  # pragma: no cover - numba
     """:func:`template_edges` of the returns ``sel`` on their runs (:func:`runs_of_returns` with
     ``touch``) applied to the echoes: ``(n_moved, edge_bin, edge_range, sigma_m)``, copies of
@@ -360,7 +363,8 @@ def template_moved_edges(sel, edge_bin, start_bin, stop_bin, touch, img, skip, h
         z = np.zeros(0)
         return 0, z, z, z
     new, var = template_edges(img, edge, stop, run, skip, half_template, half_window, front, min_beams, max_bins,
-                              max_shift, n_score, fraction, peak_rows, max_rows, n_iter, min_contrast, anchor)
+                              max_shift, n_score, fraction, peak_rows, max_rows, n_iter, min_contrast, anchor,
+                              shared)
     eb = edge_bin.copy()
     er = edge_range.copy()
     sg = sigma_m.copy()

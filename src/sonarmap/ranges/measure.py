@@ -365,7 +365,8 @@ def _template_pass(echoes: Any, sel: NDArray[np.int64], meas: Any, geom: Any, co
                           min_beams=config.edge_template_min_beams, fraction=fraction,
                           touch_bins=config.track.touch_bins, pulse_bins=pb,
                           sigma_scale=config.sigma_template_scale,
-                          anchor_beams=config.edge_template_anchor_beams, skip=echoes.clip_fitted)
+                          anchor_beams=config.edge_template_anchor_beams, skip=echoes.clip_fitted,
+                          shared_beams=2 * config.edge_pool_beams + 1)
 
 
 def _pooled_returns(echoes: Any, sel: NDArray[np.int64], meas: NDArray[Any], ping: Ping, config: RangeConfig,

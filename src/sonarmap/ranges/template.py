@@ -63,6 +63,7 @@ def template_edges(
     sigma_scale: float = 1.0,
     anchor_beams: int = 10,
     skip: ArrayLike | None = None,
+    shared_beams: int = 1,
 ) -> Echoes:
     """Leading edges of the returns on long surfaces measured against the surface's echo template.
 
@@ -98,6 +99,11 @@ def template_edges(
         crossing is the edge).  ``PipelineConfig.ranges.sigma_template_scale`` and ``.edge_template_anchor_beams``.
     skip : array_like of bool, shape (n_echoes,), optional
         Echoes whose edge is kept (e.g. the fitted clipped echoes of ``pooled_edges``).
+    shared_beams : int
+        How many neighbouring beams' data each incoming edge was measured on (1: its own beam;
+        a pooled edge: its window, ``2 edge_pool_beams + 1``).  Neighbouring anchor offsets then
+        share their errors, and the anchor median's variance counts ``c`` offsets as
+        ``max(c / shared_beams, 1)`` independent ones.
 
     Returns
     -------
@@ -106,13 +112,15 @@ def template_edges(
     """
     sel = np.ascontiguousarray(np.asarray(first, dtype=np.int64))
     _check_template_options(sel, echoes, (half_template, half_window, n_iter, front_bins, min_beams, max_bins,
-                                          anchor_beams), max_shift_bins, fraction, sigma_scale, min_contrast)
+                                          anchor_beams, shared_beams), max_shift_bins, fraction, sigma_scale,
+                            min_contrast)
     img = np.ascontiguousarray(image, dtype=np.float64)
     geometry.check_image(img, "image")
     if echoes.n_beams < min_beams:
         return echoes  # no surface can span min_beams beams
     options = (int(half_template), int(half_window), int(front_bins), int(min_beams), int(max_bins),
-               float(max_shift_bins), 6, float(fraction), 3, 24, int(n_iter), float(min_contrast), int(anchor_beams))
+               float(max_shift_bins), 6, float(fraction), 3, 24, int(n_iter), float(min_contrast), int(anchor_beams),
+               float(shared_beams))
     return _moved_by_template(echoes, sel, img, geometry, (touch_bins, pulse_bins, sigma_scale),
                               _skipped_beams(sel, skip), options)
 
@@ -149,7 +157,8 @@ def _skipped_beams(sel: NDArray[np.int64], skip: ArrayLike | None) -> NDArray[np
 def _check_template_options(sel: NDArray[np.int64], echoes: Echoes, ints: tuple[int, ...], max_shift_bins: float,
                             fraction: float, sigma_scale: float, min_contrast: float) -> None:
     """The options of :func:`template_edges` are in range and ``first`` has a value per beam
-    (``ints``: half_template, half_window, n_iter, front_bins, min_beams, max_bins, anchor_beams)."""
+    (``ints``: half_template, half_window, n_iter, front_bins, min_beams, max_bins, anchor_beams,
+    shared_beams)."""
     if sel.shape != (echoes.n_beams,):
         raise InputError(f"first: expected one echo index per beam ({echoes.n_beams}), got shape {sel.shape}")
     values = (*ints, max_shift_bins, fraction, sigma_scale, min_contrast)
@@ -160,12 +169,12 @@ def _check_template_options(sel: NDArray[np.int64], echoes: Echoes, ints: tuple[
 
 
 def _check_template_values(half_template: int, half_window: int, n_iter: int, front_bins: int, min_beams: int,
-                           max_bins: int, anchor_beams: int, max_shift_bins: float, fraction: float, sigma_scale: float,
-                           min_contrast: float) -> None:
+                           max_bins: int, anchor_beams: int, shared_beams: int, max_shift_bins: float, fraction: float,
+                           sigma_scale: float, min_contrast: float) -> None:
     """The option values of :func:`_check_template_options` are in range (an :class:`InputError` naming one)."""
     for key, v, lo in (("half_template", half_template, 1), ("half_window", half_window, 0), ("n_iter", n_iter, 1),
                        ("front_bins", front_bins, 1), ("min_beams", min_beams, 3), ("max_bins", max_bins, 3),
-                       ("anchor_beams", anchor_beams, 0)):
+                       ("anchor_beams", anchor_beams, 0), ("shared_beams", shared_beams, 1)):
         if isinstance(v, bool) or int(v) != v or v < lo:
             raise InputError(f"{key}: must be an integer >= {lo} (got {v!r})")
     for key, v in (("max_shift_bins", max_shift_bins), ("sigma_scale", sigma_scale), ("min_contrast", min_contrast)):
