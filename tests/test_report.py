@@ -38,7 +38,7 @@ def test_report_is_self_contained(report_html: Path) -> None:
     assert "<td>30</td>" in text  # number of pings in the summary
     # Every resource is inline: no scripts, stylesheets links or external URLs.
     srcs = re.findall(r'src="([^"]*)"', text)
-    assert len(srcs) == 5  # time series, ranges, ROC, 2 example pings (no map: no poses)
+    assert len(srcs) == 6  # time series, ranges, range uncertainty, ROC, 2 example pings (no map: no poses)
     assert all(s.startswith("data:image/png;base64,") for s in srcs)
     assert "<script" not in text and "<link" not in text and "http://" not in text
     assert "https://" not in text
@@ -213,3 +213,51 @@ def test_the_mixture_time_series_says_what_its_x_axis_is(monkeypatch: pytest.Mon
                     coords={"ping_time": t})
     rep._fig_timeseries(ds, 60)
     assert figs[0].axes[2].get_xlabel() == "ping time (UTC)"
+
+
+def test_the_uncertainty_figure_and_row_show_the_returns_sigma_per_beam(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The returns' range sigma per beam (median and 16-84 % over the pings, only where the beam
+    has a return; cm, with a range-bin axis when the bin spacing is known) and each beam's median
+    p_detect; the summary row gives the median and 5-95 % over all returns; nothing is drawn for a
+    store without either variable (stores written before they existed)."""
+    import json
+
+    import xarray as xr
+
+    import sonarmap.report as rep
+
+    figs: list = []
+    monkeypatch.setattr(rep, "_png", lambda fig, dpi: figs.append(fig) or "png")
+    rng = np.random.default_rng(1)
+    n, b = 20, 12
+    rng_m = 5 + rng.random((n, b))
+    rng_m[:, 3] = np.nan  # a beam without returns
+    rng_m[::2, 5] = np.nan  # a beam with returns on half the pings
+    sigma = 0.002 + 0.01 * rng.random((n, b))
+    sigma[::2, 5] = 5.0  # (the sigma stored on a ping without a return is not the beam's)
+    pdet = np.tile(np.linspace(0.2, 0.9, b), (n, 1))
+    ds = xr.Dataset({
+        "range": (("ping_time", "beam"), rng_m),
+        "range_sigma": (("ping_time", "beam"), sigma),
+        "p_detect": (("ping_time", "beam"), pdet),
+        "beam_azimuth": (("beam",), np.deg2rad(np.linspace(-10, 10, b))),
+    })
+    assert rep._fig_uncertainty(ds, 0.004, 60) == "png"
+    ax, axp = figs[0].axes[0], figs[0].axes[1]
+    med = ax.lines[0].get_ydata()
+    want = np.nanmedian(np.where(np.isfinite(rng_m), sigma, np.nan), axis=0) * 100
+    assert np.allclose(med, want, equal_nan=True) and np.isnan(med[3]) and med[5] < 2.0
+    assert np.allclose(axp.lines[0].get_ydata(), np.linspace(0.2, 0.9, b))
+    assert any(getattr(a, "get_ylabel", lambda: "")() == "range bins" for a in ax.child_axes)
+
+    attrs = {"source_geometry": json.dumps({"min_range": 1.0, "max_range": 5.0, "num_bins": 1001})}
+    assert rep._bin_m(attrs) == pytest.approx(0.004)
+    assert rep._bin_m({}) is None and rep._bin_m({"source_geometry": "{bad"}) is None
+    assert rep._bin_m({"source_geometry": json.dumps({"min_range": 1.0, "max_range": 1.0, "num_bins": 5})}) is None
+    finite = sigma[np.isfinite(rng_m)] * 100
+    row = rep._sigma_summary(ds, 0.004)
+    assert row.startswith(f"{np.median(finite):.3g} cm (5-95 %: {np.percentile(finite, 5):.3g}-")
+    assert row.endswith(f"; {np.median(finite) / 0.4:.3g} range bins")
+    assert rep._sigma_summary(ds, None).endswith(" cm)")
+    old = ds.drop_vars(["range_sigma", "p_detect"])
+    assert rep._fig_uncertainty(old, 0.004, 60) is None and rep._sigma_summary(old, 0.004) == "-"

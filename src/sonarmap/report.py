@@ -2,7 +2,8 @@
 
 One HTML file with inline CSS and the figures embedded as base64 PNG - no scripts, no external
 assets - so it can be mailed, archived or opened offline.  Sections: survey summary and
-provenance, mixture-parameter and KLD time series, per-beam ranges over time, ROC curves,
+provenance, mixture-parameter and KLD time series, per-beam ranges over time, the returns' range
+uncertainty and detection probability per beam, ROC curves,
 flagged pings, example pings as fans (raw | pre-processed or background-normalised | segmented with ranges) and, when the
 survey holds registered points, a map preview.
 """
@@ -183,6 +184,74 @@ def _fig_ranges(ds: Any, dpi: int) -> str:
     axes[1].set_ylabel("fraction of pings")
     axes[1].set_ylim(0, 1.05)  # a fraction of 1 stays visible above the frame
     axes[1].set_title("Beams with a return", fontsize=9)
+    return _png(fig, dpi)
+
+
+def _bin_m(attrs: dict[str, Any]) -> float | None:
+    """The range-bin spacing (m) of the survey's sonar from its ``source_geometry`` attribute
+    (``(max_range - min_range) / (num_bins - 1)``), None when not recorded or not plausible."""
+    try:
+        geom = json.loads(attrs.get("source_geometry", "{}"))
+        lo, hi, n = float(geom["min_range"]), float(geom["max_range"]), int(geom["num_bins"])
+    except (TypeError, ValueError, KeyError, AttributeError, RecursionError):
+        return None
+    step = (hi - lo) / (n - 1) if n > 1 else math.nan
+    return step if math.isfinite(step) and step > 0 else None
+
+
+def _sigma_summary(ds: Any, bin_m: float | None) -> str:
+    """The summary row of the returns' range sigma: median and 5-95 % (cm, and range bins when the
+    bin spacing is known); '-' without sigmas."""
+    if "range_sigma" not in ds:
+        return "-"
+    sg = ds["range_sigma"].values
+    sg = sg[np.isfinite(sg) & np.isfinite(ds["range"].values)]
+    if not sg.size:
+        return "-"
+    q = np.percentile(sg, [50, 5, 95]) * 100.0
+    text = f"{q[0]:.3g} cm (5-95 %: {q[1]:.3g}-{q[2]:.3g} cm)"
+    if bin_m is not None:
+        text += f"; {q[0] / (100.0 * bin_m):.3g} range bins"
+    return text
+
+
+def _fig_uncertainty(ds: Any, bin_m: float | None, dpi: int) -> str | None:
+    """Per beam, the returns' range sigma (median and 16-84 % over the pings) and the median
+    detection probability; None when the store holds neither."""
+    from sonarmap.plots import new_figure
+
+    have = [k for k in ("range_sigma", "p_detect") if k in ds and np.isfinite(ds[k].values).any()]
+    if not have:
+        return None
+    r = ds["range"].values
+    az = np.rad2deg(ds["beam_azimuth"].values) if "beam_azimuth" in ds else np.arange(r.shape[1])
+    fig, axes = new_figure(1, 2, figsize=(10, 3.2))
+    if "range_sigma" in have:
+        sg = np.where(np.isfinite(r), ds["range_sigma"].values, np.nan) * 100.0
+        ok = np.isfinite(sg).any(axis=0)
+        q = np.full((3, sg.shape[1]), np.nan)
+        q[:, ok] = np.nanpercentile(sg[:, ok], [50, 16, 84], axis=0)
+        axes[0].fill_between(az, q[1], q[2], color="tab:blue", alpha=0.25, lw=0, label="16-84 % of pings")
+        axes[0].plot(az, q[0], color="tab:blue", label="median")
+        axes[0].set_ylim(bottom=0)
+        axes[0].legend(fontsize=7)
+        if bin_m is not None:
+            sec = axes[0].secondary_yaxis("right", functions=(lambda v: v / (100.0 * bin_m),
+                                                              lambda v: v * 100.0 * bin_m))
+            sec.set_ylabel("range bins")
+    axes[0].set_xlabel("beam azimuth (deg)")
+    axes[0].set_ylabel("range sigma (cm)")
+    axes[0].set_title("One-sigma range uncertainty of the returns", fontsize=9)
+    if "p_detect" in have:
+        pdet = ds["p_detect"].values
+        ok = np.isfinite(pdet).any(axis=0)
+        med = np.full(pdet.shape[1], np.nan)
+        med[ok] = np.nanmedian(pdet[:, ok], axis=0)
+        axes[1].plot(az, med, color="tab:green")
+    axes[1].set_xlabel("beam azimuth (deg)")
+    axes[1].set_ylabel("p_detect, median over pings")
+    axes[1].set_ylim(0, 1.05)
+    axes[1].set_title("Detection probability per beam", fontsize=9)
     return _png(fig, dpi)
 
 
@@ -401,6 +470,7 @@ def _summary_rows(ds: Any, attrs: dict[str, Any], status: dict[str, Any], t: np.
         ("KLD median / 95th percentile", f"{np.nanmedian(kld):.4g} / {np.nanpercentile(kld, 95):.4g}"
          if np.isfinite(kld).any() else "-"),
         ("beams with a return", f"{100 * hit.mean():.1f} %"),
+        ("range sigma of the returns, median", _sigma_summary(ds, _bin_m(attrs))),
         ("quantisation floor", _floor_summary(ds)),
         ("sonar", f"{geom.get('name', '?')}: {geom.get('num_beams', '?')} beams x {geom.get('num_bins', '?')} bins, "
          f"{_metres(geom.get('min_range'))}-{_metres(geom.get('max_range'))} m"),
@@ -503,6 +573,9 @@ def render_report(store: str | os.PathLike[str], *, config: ReportConfig | None 
         "<h2>Mixture parameters and fit quality</h2>", _img(_fig_timeseries(ds, cfg.dpi), "time series"),
         "<h2>Ranges</h2>", _img(_fig_ranges(ds, cfg.dpi), "ranges over time"),
     ]
+    unc = _fig_uncertainty(ds, _bin_m(attrs), cfg.dpi)
+    if unc is not None:
+        parts.append(_img(unc, "range uncertainty and detection probability per beam"))
     examples, notes = _draw_examples(ds, store, attrs, cfg)
     roc = _fig_roc(ds, examples, cfg.dpi)
     parts.append("<h2>ROC curves</h2>")
