@@ -2540,6 +2540,49 @@ def clipped_spread(img, sel, edge_bin, peak_bin, level, bin_m, fitted, has_fitte
 
 
 @njit(cache=True, nogil=True)
+def clipped_gaussian_edges(img, sel, edge_bin, clip_row, peak_bin, level, fitted, has_fitted,
+                           max_over):  # pragma: no cover - numba
+    """The returns ``sel`` whose clipped first peak's rise is resolved, moved to the half-peak
+    crossing of a Gaussian echo (:func:`sonarmap.ranges.measure.clipped_gaussian_edges`): their
+    echo indices and new edges (fractional bins).  ``clip_row`` per echo (-1: not clipped),
+    ``max_over`` the largest peak over full scale (linear); ``fitted`` as in
+    :func:`clipped_spread`."""
+    n = img.shape[0]
+    hit_e = np.empty(sel.size, np.int64)
+    new = np.empty(sel.size)
+    ln2 = np.log(2.0)
+    ln_max = np.log(max_over)
+    k = 0
+    for j in range(sel.size):
+        e = sel[j]
+        if e < 0 or clip_row[e] < 0 or (has_fitted and fitted[e]):
+            continue
+        c = clip_row[e]
+        x = edge_bin[e]
+        # a resolved rise (half the clip level to full scale over >= 1 bin), on the first peak
+        if not c - x >= 1.0 or c > peak_bin[e] + 1:
+            continue
+        run = 1
+        while c + run < n and img[c + run, j] >= level:
+            run += 1
+        # the echo crosses full scale between rows c - 1 and c, and back between the run's last
+        # row and the next: at c - 0.5 and c + run - 0.5, its peak midway
+        x0 = c + 0.5 * (run - 1)
+        cf = c - 0.5
+        a = x0 - x
+        b = x0 - cf
+        # (a peak over max_over: a steep rise into a long clipped run is not one Gaussian echo)
+        if not cf > x or ln2 * b * b > ln_max * (a * a - b * b):
+            continue
+        xh = x0 - np.sqrt(a * a - b * b)
+        if xh > x:
+            hit_e[k] = e
+            new[k] = xh
+            k += 1
+    return hit_e[:k], new[:k]
+
+
+@njit(cache=True, nogil=True)
 def first_intervals(sel, edge_bin, start_bin, stop_bin):  # pragma: no cover - numba
     """:func:`sonarmap.ranges.echoes._first_intervals` (non-empty echoes): per beam the edge of echo
     ``sel[j]`` (NaN: none) and the bin interval and stop of echo ``max(sel[j], 0)``, float64."""

@@ -38,7 +38,8 @@ from sonarmap.ranges.template import template_edges
 from sonarmap.ranges.smoothing import smooth_surface_edges, window_in_beamwidths
 
 __all__ = ["surface_ranges", "rule_ranges", "measurement_image", "pulse_bins", "background_mean",
-           "clipped_echo_sigma", "clipped_echoes", "clip_rows", "CLIP_LEVEL", "full_scale_mask",
+           "clipped_echo_sigma", "clipped_echoes", "clipped_gaussian_edges", "clip_rows", "CLIP_LEVEL",
+           "full_scale_mask",
            "full_scale_level"]
 
 
@@ -353,6 +354,9 @@ def _refined_returns(echoes: Any, tracks: Any, meas: Any, image: NDArray[np.floa
                                       min_beams=config.edge_smooth_min_beams, touch_bins=config.track.touch_bins)
     if echoes.size:  # (without a return, clipped_echo_sigma's kernel finds nothing: the echoes unchanged)
         echoes = clipped_echo_sigma(echoes, sel, ping.image, geom, level=full_scale())
+        if config.range_mode == "first":
+            echoes = clipped_gaussian_edges(echoes, sel, ping.image, geom, level=full_scale(),
+                                            max_over_db=config.track.point_over_range_db)
     return track_returns(echoes, tracks, geom, image, mode=config.range_mode,  # type: ignore[arg-type]
                          time_ns=ping.time_ns, source=ping.source)
 
@@ -459,6 +463,49 @@ def full_scale_mask(raw: ArrayLike, level: float = CLIP_LEVEL) -> NDArray[np.boo
     if a.dtype == np.float32 and level == CLIP_LEVEL:
         return a >= _CLIP_LEVEL_F32  # type: ignore[no-any-return]
     return np.asarray(a, dtype=np.float64) >= level  # type: ignore[no-any-return]
+
+
+def clipped_gaussian_edges(echoes: Any, sel: NDArray[np.int64], raw: NDArray[Any], geom: Any, *,
+                           level: float = CLIP_LEVEL, max_over_db: float = 30.0) -> Any:
+    """Move the leading edge of a clipped first peak whose rise is resolved to the half-peak
+    crossing of a Gaussian echo through it.
+
+    A clipped echo not measured by the Gaussian fit of :func:`pooled_edges` (too few unclipped
+    samples on a flank: the simulator's propeller blades) has its edge ``x`` at half the clip
+    level, early on the true echo's rise.  With ``c`` its first full-scale row and ``L`` the
+    length of that clipped run, a Gaussian echo ``P exp(-(r - x0)^2 / 2 w^2)`` peaking in the
+    middle of the run (``x0 = c + (L - 1) / 2``) crosses full scale at ``c - 0.5`` (between the
+    last unclipped sample and the first clipped one) and half of it at ``x``, which fixes ``w``
+    and ``P``; its half-peak crossing is ``x0 - sqrt((x0 - x)^2 - (x0 - c + 0.5)^2)``.  Nothing
+    moves where that needs a peak more than ``max_over_db`` over full scale (a steep rise into a
+    long clipped run: not one Gaussian echo), where the rise from half the clip level to full
+    scale spans less than a bin (``c - x < 1``: not resolved by the samples, it says nothing of
+    the peak), or where the clipped run is not the echo's first peak (``c`` more than a bin
+    behind ``Echoes.peak_bin``).  The move's length over ``sqrt 12`` is added to the sigma, in
+    quadrature.  ``level``: the ping's :func:`full_scale_level`; the pipeline passes
+    ``TrackConfig.point_over_range_db`` (30 dB) as the bound.  On the simulator's propellers
+    (docs/segmentation.md, "Clipped echoes") the ARIS returns move from a median 2.5-2.7 bins in
+    front of the surface to 1.3; the real recordings have no such echo (none moves).
+    """
+    import sonarmap.ranges._kernels as _rk
+
+    if echoes.clip_row is None or not echoes.size:
+        return echoes
+    fitted = echoes.clip_fitted
+    idx, new = _rk.clipped_gaussian_edges(
+        np.ascontiguousarray(raw), np.ascontiguousarray(sel, dtype=np.int64), echoes.edge_bin,
+        np.ascontiguousarray(echoes.clip_row, dtype=np.int64), echoes.peak_bin, float(level),
+        _NO_FITTED if fitted is None else np.ascontiguousarray(fitted, dtype=np.bool_), fitted is not None,
+        10.0 ** (float(max_over_db) / 10.0))
+    if not idx.size:
+        return echoes
+    eb = echoes.edge_bin.copy()
+    er = echoes.edge_range_m.copy()
+    sigma = echoes.sigma_m.copy()
+    sigma[idx] = np.hypot(sigma[idx], (new - eb[idx]) * abs(geom.range_resolution_m) / math.sqrt(12.0))
+    eb[idx] = new
+    er[idx] = np.interp(new, np.arange(geom.n_bins, dtype=np.float64), np.asarray(geom.range_m, dtype=np.float64))
+    return echoes.replaced(edge_bin=eb, edge_range_m=er, sigma_m=sigma)
 
 
 def clipped_echoes(echoes: Any, raw: NDArray[Any], level: float = CLIP_LEVEL) -> NDArray[np.bool_]:
