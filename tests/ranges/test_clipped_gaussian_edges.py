@@ -28,10 +28,17 @@ def _column(peak: float, width: float, centre: float = 100.0, n: int = 200) -> t
 
 def _moved(col: np.ndarray, x: float, c: int, *, peak_bin: int | None = None, fitted: bool | None = None,
            max_over_db: float = 30.0) -> tuple[np.ndarray, np.ndarray]:
-    return rk.clipped_gaussian_edges(
-        col, np.array([0]), np.array([x]), np.array([c], dtype=np.int64),
+    """The kernel on one echo (bins as ranges, 1 m each, a zero sigma before): the moved echoes'
+    indices and new edges; its range and sigma fields checked on the way."""
+    n_moved, eb, er, sg = rk.clipped_gaussian_edges(
+        col, np.array([0]), np.array([x]), np.array([x]), np.zeros(1), np.array([c], dtype=np.int64),
         np.array([c if peak_bin is None else peak_bin], dtype=np.int64), CLIP_LEVEL,
-        NO_FITTED if fitted is None else np.array([fitted]), fitted is not None, 10.0 ** (max_over_db / 10.0))
+        NO_FITTED if fitted is None else np.array([fitted]), fitted is not None, 10.0 ** (max_over_db / 10.0),
+        np.arange(col.shape[0], dtype=np.float64), 1.0)
+    moved = np.flatnonzero(eb != x)
+    assert n_moved == moved.size
+    assert np.array_equal(er, eb) and np.allclose(sg, (eb - x) / math.sqrt(12.0))
+    return moved, eb[moved]
 
 
 @pytest.mark.parametrize("peak", [2.5, 4.0, 8.0, 20.0])

@@ -2540,19 +2540,21 @@ def clipped_spread(img, sel, edge_bin, peak_bin, level, bin_m, fitted, has_fitte
 
 
 @njit(cache=True, nogil=True)
-def clipped_gaussian_edges(img, sel, edge_bin, clip_row, peak_bin, level, fitted, has_fitted,
-                           max_over):  # pragma: no cover - numba
-    """The returns ``sel`` whose clipped first peak's rise is resolved, moved to the half-peak
-    crossing of a Gaussian echo (:func:`sonarmap.ranges.measure.clipped_gaussian_edges`): their
-    echo indices and new edges (fractional bins).  ``clip_row`` per echo (-1: not clipped),
-    ``max_over`` the largest peak over full scale (linear); ``fitted`` as in
-    :func:`clipped_spread`."""
+def clipped_gaussian_edges(img, sel, edge_bin, edge_range, sigma_m, clip_row, peak_bin, level, fitted, has_fitted,
+                           max_over, range_m, bin_m):  # pragma: no cover - numba
+    """:func:`sonarmap.ranges.measure.clipped_gaussian_edges`: ``(n_moved, edge_bin, edge_range,
+    sigma_m)``, copies of the echoes' fields with each return of ``sel`` whose clipped first peak's
+    rise is resolved moved to a Gaussian echo's half-peak crossing (its range ``np.interp`` on
+    ``range_m``, the move over ``sqrt 12`` added to its sigma).  ``clip_row`` per echo (-1: not
+    clipped), ``max_over`` the largest peak over full scale (linear), ``bin_m`` the bin (m);
+    ``fitted`` as in :func:`clipped_spread`."""
     n = img.shape[0]
-    hit_e = np.empty(sel.size, np.int64)
-    new = np.empty(sel.size)
+    eb = edge_bin.copy()
+    er = edge_range.copy()
+    sg = sigma_m.copy()
     ln2 = np.log(2.0)
     ln_max = np.log(max_over)
-    k = 0
+    n_moved = 0
     for j in range(sel.size):
         e = sel[j]
         if e < 0 or clip_row[e] < 0 or (has_fitted and fitted[e]):
@@ -2566,20 +2568,20 @@ def clipped_gaussian_edges(img, sel, edge_bin, clip_row, peak_bin, level, fitted
         while c + run < n and img[c + run, j] >= level:
             run += 1
         # the echo crosses full scale between rows c - 1 and c, and back between the run's last
-        # row and the next: at c - 0.5 and c + run - 0.5, its peak midway
+        # row and the next: at c - 0.5 and c + run - 0.5, its peak midway (b >= 0.5, a >= b + 0.5:
+        # the crossing below lies behind x)
         x0 = c + 0.5 * (run - 1)
-        cf = c - 0.5
         a = x0 - x
-        b = x0 - cf
+        b = x0 - (c - 0.5)
         # (a peak over max_over: a steep rise into a long clipped run is not one Gaussian echo)
-        if not cf > x or ln2 * b * b > ln_max * (a * a - b * b):
+        if ln2 * b * b > ln_max * (a * a - b * b):
             continue
         xh = x0 - np.sqrt(a * a - b * b)
-        if xh > x:
-            hit_e[k] = e
-            new[k] = xh
-            k += 1
-    return hit_e[:k], new[:k]
+        eb[e] = xh
+        er[e] = _interp_index(range_m, xh)
+        sg[e] = np.hypot(sigma_m[e], (xh - x) * bin_m / np.sqrt(12.0))
+        n_moved += 1
+    return n_moved, eb, er, sg
 
 
 @njit(cache=True, nogil=True)

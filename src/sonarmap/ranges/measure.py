@@ -492,20 +492,15 @@ def clipped_gaussian_edges(echoes: Any, sel: NDArray[np.int64], raw: NDArray[Any
     if echoes.clip_row is None or not echoes.size:
         return echoes
     fitted = echoes.clip_fitted
-    idx, new = _rk.clipped_gaussian_edges(
-        np.ascontiguousarray(raw), np.ascontiguousarray(sel, dtype=np.int64), echoes.edge_bin,
-        np.ascontiguousarray(echoes.clip_row, dtype=np.int64), echoes.peak_bin, float(level),
+    n_moved, eb, er, sg = _rk.clipped_gaussian_edges(
+        np.ascontiguousarray(raw), np.ascontiguousarray(sel, dtype=np.int64), echoes.edge_bin, echoes.edge_range_m,
+        echoes.sigma_m, np.ascontiguousarray(echoes.clip_row, dtype=np.int64), echoes.peak_bin, float(level),
         _NO_FITTED if fitted is None else np.ascontiguousarray(fitted, dtype=np.bool_), fitted is not None,
-        10.0 ** (float(max_over_db) / 10.0))
-    if not idx.size:
+        10.0 ** (float(max_over_db) / 10.0), np.ascontiguousarray(geom.range_m, dtype=np.float64),
+        abs(geom.range_resolution_m))
+    if not n_moved:
         return echoes
-    eb = echoes.edge_bin.copy()
-    er = echoes.edge_range_m.copy()
-    sigma = echoes.sigma_m.copy()
-    sigma[idx] = np.hypot(sigma[idx], (new - eb[idx]) * abs(geom.range_resolution_m) / math.sqrt(12.0))
-    eb[idx] = new
-    er[idx] = np.interp(new, np.arange(geom.n_bins, dtype=np.float64), np.asarray(geom.range_m, dtype=np.float64))
-    return echoes.replaced(edge_bin=eb, edge_range_m=er, sigma_m=sigma)
+    return echoes.replaced(edge_bin=eb, edge_range_m=er, sigma_m=sg)
 
 
 def clipped_echoes(echoes: Any, raw: NDArray[Any], level: float = CLIP_LEVEL) -> NDArray[np.bool_]:
