@@ -451,8 +451,8 @@ def _stored_pipeline_config(attrs: dict[str, Any], store: str | os.PathLike[str]
 
 
 def _summary_rows(ds: Any, attrs: dict[str, Any], status: dict[str, Any], t: np.ndarray,
-                  n_flagged: int) -> list[tuple[str, Any]]:
-    """The (label, value) rows of the report's summary table."""
+                  n_flagged: int, bin_m: float | None) -> list[tuple[str, Any]]:
+    """The (label, value) rows of the report's summary table (``bin_m``: :func:`_bin_m`)."""
     n = int(ds.sizes["ping_time"])
     written = t.astype(np.int64) != 0
     kld = ds["kld"].values
@@ -470,7 +470,7 @@ def _summary_rows(ds: Any, attrs: dict[str, Any], status: dict[str, Any], t: np.
         ("KLD median / 95th percentile", f"{np.nanmedian(kld):.4g} / {np.nanpercentile(kld, 95):.4g}"
          if np.isfinite(kld).any() else "-"),
         ("beams with a return", f"{100 * hit.mean():.1f} %"),
-        ("range sigma of the returns, median", _sigma_summary(ds, _bin_m(attrs))),
+        ("range sigma of the returns, median", _sigma_summary(ds, bin_m)),
         ("quantisation floor", _floor_summary(ds)),
         ("sonar", f"{geom.get('name', '?')}: {geom.get('num_beams', '?')} beams x {geom.get('num_bins', '?')} bins, "
          f"{_metres(geom.get('min_range'))}-{_metres(geom.get('max_range'))} m"),
@@ -560,7 +560,8 @@ def render_report(store: str | os.PathLike[str], *, config: ReportConfig | None 
     flags = [str(f) for f in ds["flags"].values]
     flagged = np.flatnonzero(flagged_mask(flags)).tolist()
     title = cfg.title or f"Survey report: {Path(store).name}"
-    summary = _summary_rows(ds, attrs, status, t, len(flagged))
+    bin_m = _bin_m(attrs)
+    summary = _summary_rows(ds, attrs, status, t, len(flagged), bin_m)
     parts = [
         "<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'>",
         f"<title>{html.escape(title)}</title><style>{_CSS}</style></head><body>",
@@ -573,7 +574,7 @@ def render_report(store: str | os.PathLike[str], *, config: ReportConfig | None 
         "<h2>Mixture parameters and fit quality</h2>", _img(_fig_timeseries(ds, cfg.dpi), "time series"),
         "<h2>Ranges</h2>", _img(_fig_ranges(ds, cfg.dpi), "ranges over time"),
     ]
-    unc = _fig_uncertainty(ds, _bin_m(attrs), cfg.dpi)
+    unc = _fig_uncertainty(ds, bin_m, cfg.dpi)
     if unc is not None:
         parts.append(_img(unc, "range uncertainty and detection probability per beam"))
     examples, notes = _draw_examples(ds, store, attrs, cfg)
