@@ -165,12 +165,13 @@ class RangeConfig(ConfigSection):
     edge_pool_lead_bins : int
         A pooled edge is kept when it lies at most the pulse length plus this many bins in front
         of the beam's first structure bin (and not behind its echo's end); else the beam keeps its
-        own edge, so that light in front of the labelled echo cannot pull it far.  Where the
-        classifier labels only the bright core of a faint echo (the faint end of a surface), the
-        pooled edge lies, correctly, further in front: 12 gains on the simulator, but where the
-        crosstalk removal misses a band in front of a surface (the real DIDSON ping 8 classified
-        by ICM) the edges slide onto it (``docs/segmentation.md``, "Where a pooled edge may
-        lie").  Default 2.
+        own edge.  Where the classifier labels only the bright core of a faint or grazing echo
+        (the faint end of a surface, a fan edge), the echo's half-peak crossing lies well in front
+        of that bin, and the pooled edge finds it there.  Default 12: what the pooling's two
+        alignment rounds, 6 bins in front of the alignment each, can move an edge.  It trusts the
+        crosstalk removal: where that misses a band lit across the fan in front of a surface (the
+        real DIDSON ping 8 classified by ICM), the edges slide onto the band; 2 keeps them on the
+        labelled echo there (``docs/segmentation.md``, "Where a pooled edge may lie").
     pulse_length_m : float, optional
         Transmit pulse length along range (``c tau / 2``); echoes are measured on the image
         smoothed over it.  Default: from the ping - its effective length ``1 / B`` where the file
@@ -271,7 +272,7 @@ class RangeConfig(ConfigSection):
     edge_pool_beams: int = 3
     edge_pool_scan: str = "forward"
     edge_pool_flank_bins: int = 6
-    edge_pool_lead_bins: int = 2
+    edge_pool_lead_bins: int = 12
     pulse_length_m: float | None = None
     continue_evidence: float = 10.0
     sigma_scale: float = 1.5
