@@ -83,11 +83,11 @@ def test_other_methods_and_solvers_run(test_pings):
     """Ping 8 by ICM: the returns of the graph cut's beams, but the band lit across the fan at rows
     181-189 stays in the image the edges are measured on (ICM's stray labels leave too few
     water-column beams for the crosstalk estimate), and on the curved hull's beams beyond its flat
-    part the pooled edges slide onto it (up to 7 bins): 73 % within 3 bins of the graph cut's
+    part the pooled edges slide onto it (up to 7 bins): 72 % within 3 bins of the graph cut's
     returns; with ``edge_pool_lead_bins = 2`` they stay on the hull's front (all within 3 bins)."""
     p = test_pings[8]
     ref = process_ping(p, PipelineConfig()).ranges
-    for lead, share in ((12, 0.7), (2, 0.95)):  # measured 0.729, 1.000
+    for lead, share in ((12, 0.65), (2, 0.95)):  # measured 0.719, 1.000
         icm = process_ping(p, PipelineConfig().replace(solver="icm", edge_pool_lead_bins=lead)).ranges
         both = ref.valid & icm.valid
         assert both.sum() >= 90

@@ -226,8 +226,9 @@ class RangeConfig(ConfigSection):
         median, in quadrature, times this factor (``docs/segmentation.md``, "Template edges").
         The anchor's median is taken over pooled edges whose windows (``2 edge_pool_beams + 1``
         beams) overlap: ``c`` of them count as ``c / (2 edge_pool_beams + 1)`` independent ones.
-        Fitted on the simulator (seeds 0-2, every preset) so that 68 % of all returns' errors lie
-        within +-sigma on each preset.
+        Fitted on the simulator (seeds 0-8, every preset): the factor that puts every preset's
+        share of returns within +-sigma inside 0.68 +- 0.05 over the nine seeds (seeds 9-11 held
+        out; ``docs/segmentation.md``, "Uncertainty").
     edge_smooth_beams : int
         Each first return's leading edge is combined with the prediction of the edges within this
         many beams on either side on its surface (a leave-one-out local quadratic across beams),
@@ -281,7 +282,7 @@ class RangeConfig(ConfigSection):
     edge_template_beams: int = 5
     edge_template_min_beams: int = 30
     edge_template_anchor_beams: int = 10
-    sigma_template_scale: float = 0.9
+    sigma_template_scale: float = 0.8
     edge_smooth_beams: int = 16
     edge_smooth_min_beams: int = 7
     log_dynamic_range_db: float | None = None
