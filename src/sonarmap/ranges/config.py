@@ -15,6 +15,8 @@ from sonarmap._config import (
     config_table,
     is_finite_number,
 )
+# the pooling's defaults, one source for the function (pooled_edges) and the pipeline's section
+from sonarmap.ranges.echoes import POOL_FLANK_BINS, POOL_LEAD_BINS
 
 __all__ = ["CandidateConfig", "RangeConfig"]
 
@@ -272,8 +274,8 @@ class RangeConfig(ConfigSection):
     edge_crosstalk: bool = True
     edge_pool_beams: int = 3
     edge_pool_scan: str = "forward"
-    edge_pool_flank_bins: int = 6
-    edge_pool_lead_bins: int = 12
+    edge_pool_flank_bins: int = POOL_FLANK_BINS
+    edge_pool_lead_bins: int = POOL_LEAD_BINS
     pulse_length_m: float | None = None
     continue_evidence: float = 10.0
     sigma_scale: float = 1.5

@@ -510,9 +510,9 @@ _NO_CLIP = np.zeros((0, 0), dtype=np.uint8)
 #: :func:`pooled_edges`' default ``front_bins``, ``max_bins``, ``n_iter`` and ``fit_front_bins``
 #: (the pipeline's range stage pools with them).
 POOL_FRONT_BINS, POOL_MAX_BINS, POOL_N_ITER, POOL_FIT_FRONT_BINS = 6, 200, 2, 16
-#: Default ``flank_bins`` of :func:`pooled_edges` (``PipelineConfig.ranges.edge_pool_flank_bins``).
+#: Default ``flank_bins`` of :func:`pooled_edges` (and of ``PipelineConfig.ranges.edge_pool_flank_bins``).
 POOL_FLANK_BINS = 6
-#: Default ``lead_bins`` of :func:`pooled_edges` (``PipelineConfig.ranges.edge_pool_lead_bins``):
+#: Default ``lead_bins`` of :func:`pooled_edges` (and of ``PipelineConfig.ranges.edge_pool_lead_bins``):
 #: ``POOL_N_ITER`` alignment rounds of ``POOL_FRONT_BINS`` each, the furthest the pooling moves an edge.
 POOL_LEAD_BINS = POOL_N_ITER * POOL_FRONT_BINS
 
