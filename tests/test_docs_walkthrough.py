@@ -23,8 +23,9 @@ def _returns_m(path: Path) -> list[float]:
 
 
 def test_aris_ranges_are_where_the_walkthrough_says(data_dir: Path, tmp_path: Path) -> None:
-    """Before, the walkthrough put the 283 returns on 'the slanted target at about 15.4-17.3 m';
-    39 of them are at 20.3-22.1 m."""
+    """The walkthrough's counts of the ARIS returns, on the target and behind it, are the
+    commands' (before, it put all of them on 'the slanted target at about 15.4-17.3 m', where
+    some were at 20.3-22.1 m)."""
     m = re.search(r"`ranges` gives (\d+) returns in (\d+) rows \((\d+) without the calibration\), 0 pings "
                   r"flagged: (\d+) of them on the slanted target at about ([\d.]+)-([\d.]+) m, the other (\d+) "
                   r"on weaker echoes at ([\d.]+)-([\d.]+) m", _doc())

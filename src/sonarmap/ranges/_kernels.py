@@ -1310,6 +1310,29 @@ def surface_runs(edge, lo, hi, touch):  # pragma: no cover - numba
     return run
 
 
+@njit(cache=True, nogil=True)
+def run_spans(run):  # pragma: no cover - numba
+    """``(start, stop)`` arrays of the runs of :func:`surface_runs`' labels ``run``: beams
+    ``start[k] .. stop[k] - 1`` carry one label (>= 0), in beam order."""
+    m = run.size
+    start = np.empty(m, np.int64)
+    stop = np.empty(m, np.int64)
+    k = 0
+    j = 0
+    while j < m:
+        if run[j] < 0:
+            j += 1
+            continue
+        j1 = j
+        while j1 < m and run[j1] == run[j]:
+            j1 += 1
+        start[k] = j
+        stop[k] = j1
+        k += 1
+        j = j1
+    return start[:k], stop[:k]
+
+
 @njit(cache=True, nogil=True, inline="always")
 def _median(x, c):  # pragma: no cover - numba
     """The median of ``x[:c]`` (finite values), sorting ``x[:c]`` in place (insertion sort: the

@@ -10,7 +10,7 @@ import numpy as np
 from numba import njit
 
 from sonarmap.ranges._kernels import (_edge_sigma, _interp_column, _interp_index, _lu_small, _lu_solve_small,
-                                      _median, _solve_small, runs_of_returns)
+                                      _median, _solve_small, run_spans, runs_of_returns)
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -330,20 +330,14 @@ def template_edges(img, edge, stop, run, skip, half_template, half_window, front
     m = edge.size
     new = edge.copy()
     var = np.full((m, 2), np.nan)
-    j = 0
-    while j < m:
-        if run[j] < 0:
-            j += 1
-            continue
-        j1 = j
-        while j1 < m and run[j1] == run[j]:
-            j1 += 1
+    starts, stops = run_spans(run)
+    for k in range(starts.size):
+        j, j1 = starts[k], stops[k]
         if j1 - j >= min_beams:
             _run_edges(img, edge, stop, skip, j, j1, half_template, half_window, front, max_bins, max_shift,
                        n_score, fraction, peak_rows, max_rows, n_iter, min_contrast, new, var)
             if anchor > 0:
                 _anchor_run(edge, new, var, j, j1, anchor, shared)
-        j = j1
     return new, var
 
 

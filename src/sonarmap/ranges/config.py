@@ -244,6 +244,11 @@ class RangeConfig(ConfigSection):
         swath's own detections (``docs/segmentation.md``, "Smoothing along the surface").
     edge_smooth_min_beams : int
         Shortest run of returns combined (>= 5).
+    surface_min_z : float
+        A first return's surface on a normalised ping is kept only when its echo stands at least
+        this many robust standard deviations (scaled MAD) above the same surface moved into the
+        water column in front of it (:func:`sonarmap.ranges.significance.surface_significance`);
+        the beams of a dropped surface report no first return.  0 = off.
     log_dynamic_range_db : float, optional
         The raw samples are log-compressed, ``dynamic range`` dB per unit of pixel value (ARIS):
         echoes of normalised images are measured in linear intensity.  Default: the ping's
@@ -287,6 +292,7 @@ class RangeConfig(ConfigSection):
     sigma_template_scale: float = 0.8
     edge_smooth_beams: int = 16
     edge_smooth_min_beams: int = 7
+    surface_min_z: float = 3.5
     log_dynamic_range_db: float | None = None
     min_run: int = 1
     reject_isolated: bool = True
@@ -323,7 +329,7 @@ class RangeConfig(ConfigSection):
             object.__setattr__(self, key, float(v))
         coerce_reals(self, ("edge_factor",), w)
         coerce_reals(self, ("sigma_scale", "sigma_pool_scale", "sigma_fit_scale", "sigma_template_scale",
-                            "continue_evidence"), w, minimum=0)
+                            "continue_evidence", "surface_min_z"), w, minimum=0)
         coerce_reals(self, ("edge_fraction",), w)
         if not 0 <= self.edge_fraction < 1:
             raise config_error(w, "edge_fraction", "must lie in [0, 1)", self.edge_fraction)

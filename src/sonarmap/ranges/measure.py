@@ -32,8 +32,10 @@ from sonarmap.ranges.config import CandidateConfig, RangeConfig
 from sonarmap.ranges.echoes import (POOL_FIT_FRONT_BINS, POOL_FRONT_BINS, POOL_MAX_BINS, POOL_N_ITER, _boost_pixels,
                                     _echoes_of, _evidence_table, _pooled, level_llr, smooth_along_range,
                                     spliced_echoes)
+from sonarmap.ranges.significance import surface_significance
 from sonarmap.ranges.tracking import (CONTINUE_MAX_BEAMS, CONTINUE_MAX_MISSES, CONTINUE_MIN_RUN,
-                                      CONTINUE_WINDOW_BINS, _continuation_inputs, track_surfaces, tracks_and_front)
+                                      CONTINUE_WINDOW_BINS, Tracks, _continuation_inputs, track_surfaces,
+                                      tracks_and_front)
 from sonarmap.ranges.template import template_edges
 from sonarmap.ranges.smoothing import smooth_surface_edges, window_in_beamwidths
 
@@ -332,16 +334,16 @@ def surface_ranges(ping: Ping, image: NDArray[np.float32], levels: NDArray[Any],
             extra, cols, e0, e1 = more
             cand = cand | extra
             meas, bg, echoes, tracks, fronted = measure(cand, (min(r0, e0), max(r1, e1)), (echoes, cols, (r0, r1)))
-    return _refined_returns(echoes, fronted, meas, image, ping, config, pb, fraction, full_scale)
+    return _refined_returns(echoes, fronted, meas, image, ping, config, pb, fraction, full_scale, measured)
 
 
 def _refined_returns(echoes: Any, tracks: Any, meas: Any, image: NDArray[np.float32], ping: Ping, config: RangeConfig,
-                     pb: int, fraction: float, full_scale: Callable[[], float]
+                     pb: int, fraction: float, full_scale: Callable[[], float], test: bool = False
                      ) -> tuple[BeamRanges, NDArray[np.int64]]:
     """:func:`surface_ranges` after the tracking: the first returns' edges pooled, measured against
     the template and smoothed along the surface on the measured image ``meas``, clipped echoes'
-    sigmas widened (``full_scale()``: the ping's :func:`full_scale_level`), and the returns of
-    ``tracks`` (intensities from the classified ``image``)."""
+    sigmas widened (``full_scale()``: the ping's :func:`full_scale_level`), with ``test`` (a
+    normalised ping) the surfaces not told apart from their water column dropped, and the returns of ``tracks`` (intensities from the classified ``image``)."""
     geom = ping.geometry
     sel = tracks.first
     if config.edge_pool_beams > 0 and config.range_mode == "first":
@@ -357,8 +359,23 @@ def _refined_returns(echoes: Any, tracks: Any, meas: Any, image: NDArray[np.floa
         if config.range_mode == "first":
             echoes = clipped_gaussian_edges(echoes, sel, ping.image, geom, level=full_scale(),
                                             max_over_db=config.track.point_over_range_db)
+    if test and config.surface_min_z > 0 and echoes.size:
+        tracks = _significant(echoes, tracks, ping, config)
     return track_returns(echoes, tracks, geom, image, mode=config.range_mode,  # type: ignore[arg-type]
                          time_ns=ping.time_ns, source=ping.source)
+
+
+def _significant(echoes: Any, tracks: Tracks, ping: Ping, config: RangeConfig) -> Tracks:
+    """``tracks`` without the first returns whose surface's significance
+    (:func:`sonarmap.ranges.significance.surface_significance`) is below ``config.surface_min_z``
+    (those beams report no first return; the surfaces behind stay further surfaces)."""
+    z, _ = surface_significance(echoes, tracks.first, ping.image, touch_bins=config.track.touch_bins)
+    drop = z < config.surface_min_z  # (NaN: no return or not tested, kept)
+    if not drop.any():
+        return tracks
+    e = np.array(tracks.echo)
+    e[0, drop] = -1
+    return Tracks(echo=e)
 
 
 def _template_pass(echoes: Any, sel: NDArray[np.int64], meas: Any, geom: Any, config: RangeConfig, fraction: float,

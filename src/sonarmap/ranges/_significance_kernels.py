@@ -1,0 +1,154 @@
+"""Numba kernel of :mod:`sonarmap.ranges.significance` (a surface's echo against its water column)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from sonarmap.ranges._kernels import first_interval_runs, run_spans
+
+
+@njit(cache=True, nogil=True)
+def _median_sorted(x, n):  # pragma: no cover - numba
+    """The median of the first ``n`` values of the sorted ``x``."""
+    return x[n // 2] if n % 2 == 1 else 0.5 * (x[n // 2 - 1] + x[n // 2])
+
+
+@njit(cache=True, nogil=True)
+def _median_of(x, n, work):  # pragma: no cover - numba
+    """The median of ``x[:n]`` (``work``: scratch of ``n`` values)."""
+    for t in range(n):
+        work[t] = x[t]
+    srt = np.sort(work[:n])
+    return _median_sorted(srt, n)
+
+
+@njit(cache=True, nogil=True)
+def _resistant_line(o, v, n, work):  # pragma: no cover - numba
+    """Tukey's resistant line through ``(o[:n], v[:n])`` (``o`` increasing): the slope through the
+    medians of the outer thirds, the intercept the median of ``v - slope o`` (``work``: scratch)."""
+    k = n // 3
+    ol = _median_of(o, k, work)
+    vl = _median_of(v, k, work)
+    orr = _median_of(o[n - k:], k, work)
+    vr = _median_of(v[n - k:], k, work)
+    slope = (vr - vl) / (orr - ol) if orr > ol else 0.0
+    for t in range(n):
+        work[t] = v[t] - slope * o[t]
+    srt = np.sort(work[:n])
+    return _median_sorted(srt, n), slope
+
+
+@njit(cache=True, nogil=True)
+def _run_z(raw, rows, cols, depth, gap, window, min_shifts, prefix, null, offs, work):  # pragma: no cover - numba
+    """``(z, n_shifts)`` of one surface: its beams ``cols`` with echo rows ``rows`` (the bin of
+    each leading edge), ``depth`` bins deep (fewer where the window ends first; see
+    :func:`surface_z`); ``prefix``, ``null``, ``offs`` and ``work`` are scratch of at least
+    ``(len(cols), span + 1)`` and ``window`` values."""
+    n = raw.shape[0]
+    nb = cols.size
+    lo_row = n
+    hi_row = 0
+    for q in range(nb):
+        lo_row = min(lo_row, rows[q])
+        hi_row = max(hi_row, rows[q])
+    # the offsets towards the sonar that keep every beam's samples inside the window: from -gap
+    # down to -(gap + window - 1), none above row 0
+    first = max(-(gap + window - 1), -lo_row)
+    depth = min(depth, n - hi_row)  # (a surface at the end of the window: the bins it has)
+    if depth < 1 or -gap < first:
+        return math.nan, 0
+    a = lo_row + first  # the first row any offset reads
+    b = hi_row + depth  # one past the last
+    span = b - a
+    # per beam the running sums of the samples over rows a .. b - 1
+    for q in range(nb):
+        j = cols[q]
+        acc = 0.0
+        prefix[q, 0] = 0.0
+        for t in range(span):
+            acc += raw[a + t, j]
+            prefix[q, t + 1] = acc
+    scale = 1.0 / (nb * depth)
+    s0 = 0.0
+    for q in range(nb):
+        k = rows[q] - a
+        s0 += prefix[q, k + depth] - prefix[q, k]
+    s0 *= scale
+    m = 0
+    for off in range(first, -gap + 1):
+        s = 0.0
+        for q in range(nb):
+            k = rows[q] + off - a
+            s += prefix[q, k + depth] - prefix[q, k]
+        null[m] = s * scale
+        offs[m] = off
+        m += 1
+    if m < min_shifts:
+        return math.nan, m
+    # the water column's trend along range (the background's level changes with range), then the
+    # spread of the shifted copies about it
+    c, slope = _resistant_line(offs, null, m, work)
+    for t in range(m):
+        work[t] = abs(null[t] - (c + slope * offs[t]))
+    srt = np.sort(work[:m])
+    mad = 1.4826 * _median_sorted(srt, m)
+    if not mad > 0:
+        return (math.inf if s0 > c else 0.0), m
+    return (s0 - c) / mad, m
+
+
+@njit(cache=True, nogil=True)
+def surface_z(raw, sel, edge_bin, start_bin, stop_bin, touch, min_depth, max_depth, gap, window,
+              min_shifts, min_beams):  # pragma: no cover - numba
+    """Per beam the significance ``z`` of its return's surface (NaN: no return, a surface of fewer
+    than ``min_beams`` beams, or too few rows in front to test) and per beam the number of offsets its surface was compared with.
+
+    The surfaces are the runs of :func:`first_interval_runs` (``touch``).  A surface's statistic is
+    the mean of ``raw`` over its beams and ``depth`` bins from each leading edge's bin (``depth``:
+    the median over its beams of ``stop - edge``, clipped to ``min_depth .. max_depth``); the null
+    is the same statistic with the whole surface moved ``gap .. gap + window - 1`` bins towards
+    the sonar (each beam's samples in front of its first return: its water column); ``z`` is the
+    statistic's distance from the null's resistant line in the offset, extrapolated to offset 0,
+    in units of the scaled median absolute deviation of the null about that line.
+    """
+    m = sel.size
+    z = np.full(m, np.nan)
+    used = np.zeros(m, np.int64)
+    if edge_bin.size == 0:
+        return z, used
+    edge, stop, run = first_interval_runs(sel, edge_bin, start_bin, stop_bin, touch)
+    n = raw.shape[0]
+    prefix = np.empty((m, n + 1))
+    null = np.empty(max(window, 1))
+    offs = np.empty(max(window, 1))
+    work = np.empty(max(window, 1))
+    d = np.empty(m)
+    starts, stops = run_spans(run)
+    for r in range(starts.size):
+        j, j1 = starts[r], stops[r]
+        nb = j1 - j
+        if nb < min_beams:
+            continue
+        rows = np.empty(nb, np.int64)
+        cols = np.empty(nb, np.int64)
+        ok = True
+        for q in range(nb):
+            e = edge[j + q]
+            if not (e == e):
+                ok = False
+                break
+            rows[q] = min(max(int(math.floor(e + 0.5)), 0), n - 1)
+            cols[q] = j + q
+            d[q] = stop[j + q] - e
+        if ok:
+            dd = np.sort(d[:nb])
+            depth = int(math.floor(_median_sorted(dd, nb) + 0.5))
+            depth = min(max(depth, min_depth), max_depth)
+            zz, k = _run_z(raw, rows, cols, depth, gap, window, min_shifts, prefix, null, offs, work)
+            for q in range(nb):
+                z[j + q] = zz
+                used[j + q] = k
+    return z, used
