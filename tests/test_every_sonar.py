@@ -122,10 +122,13 @@ def test_real_aris_target_is_bridged_where_a_line_behind_took_beams(aris_pings):
     p = aris_pings[3]
     bridged = process_ping(p).ranges.range_m[31:34]
     assert np.all((bridged > 15.5) & (bridged < 15.9)), bridged
-    # (the front pass, which pays a surface's costs, recovers them too: both off here)
-    neither = PipelineConfig().replace(track={"bridge_beams": 0, "front_pass": False})
+    # (the front pass, which pays a surface's costs, recovers them too: both off here, and the
+    # surface significance test, which drops the line there - its water column holds the target)
+    neither = PipelineConfig().replace(track={"bridge_beams": 0, "front_pass": False}, surface_min_z=0.0)
     plain = process_ping(p, neither).ranges.range_m[31:34]
     assert np.all(plain > 17.0), plain
+    tested = process_ping(p, neither.replace(surface_min_z=3.5)).ranges.range_m[31:34]
+    assert np.all(np.isnan(tested)), tested
 
 
 def test_real_oculus_seabed_and_nothing_in_front(oculus_pings):

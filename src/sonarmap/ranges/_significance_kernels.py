@@ -42,11 +42,11 @@ def _resistant_line(o, v, n, work):  # pragma: no cover - numba
 
 
 @njit(cache=True, nogil=True)
-def _run_z(raw, rows, cols, depth, gap, window, min_shifts, prefix, null, offs, work):  # pragma: no cover - numba
+def _run_z(raw, rows, cols, depth, gap, window, min_shifts, null, offs, work):  # pragma: no cover - numba
     """``(z, n_shifts)`` of one surface: its beams ``cols`` with echo rows ``rows`` (the bin of
     each leading edge), ``depth`` bins deep (fewer where the window ends first; see
-    :func:`surface_z`); ``prefix``, ``null``, ``offs`` and ``work`` are scratch of at least
-    ``(len(cols), span + 1)`` and ``window`` values."""
+    :func:`surface_z`); ``null``, ``offs`` and ``work`` are scratch of at least ``window``
+    values."""
     n = raw.shape[0]
     nb = cols.size
     lo_row = n
@@ -63,7 +63,9 @@ def _run_z(raw, rows, cols, depth, gap, window, min_shifts, prefix, null, offs, 
     a = lo_row + first  # the first row any offset reads
     b = hi_row + depth  # one past the last
     span = b - a
-    # per beam the running sums of the samples over rows a .. b - 1
+    # per beam the running sums of the samples over rows a .. b - 1 (only the rows the surface
+    # and its shifts read: an image-sized array would cost page faults on every ping)
+    prefix = np.empty((nb, span + 1))
     for q in range(nb):
         j = cols[q]
         acc = 0.0
@@ -121,7 +123,6 @@ def surface_z(raw, sel, edge_bin, start_bin, stop_bin, touch, min_depth, max_dep
         return z, used
     edge, stop, run = first_interval_runs(sel, edge_bin, start_bin, stop_bin, touch)
     n = raw.shape[0]
-    prefix = np.empty((m, n + 1))
     null = np.empty(max(window, 1))
     offs = np.empty(max(window, 1))
     work = np.empty(max(window, 1))
@@ -147,7 +148,7 @@ def surface_z(raw, sel, edge_bin, start_bin, stop_bin, touch, min_depth, max_dep
             dd = np.sort(d[:nb])
             depth = int(math.floor(_median_sorted(dd, nb) + 0.5))
             depth = min(max(depth, min_depth), max_depth)
-            zz, k = _run_z(raw, rows, cols, depth, gap, window, min_shifts, prefix, null, offs, work)
+            zz, k = _run_z(raw, rows, cols, depth, gap, window, min_shifts, null, offs, work)
             for q in range(nb):
                 z[j + q] = zz
                 used[j + q] = k
