@@ -1,4 +1,5 @@
-"""Range stage: echo finding + surface tracking per ping, and the default against the rules."""
+"""Range stage: echo finding + surface tracking per ping, the default against the rules, and the
+default with and without the surface significance test (normalised pings: ARIS, Oculus)."""
 
 from __future__ import annotations
 
@@ -49,4 +50,11 @@ def run(quick: bool) -> list[dict]:
         rows.append({"benchmark": "ranges", "case": f"process_ping default, {name}",
                      "median_ms": t_new, "baseline": "tracker='rules'", "baseline_ms": t_old,
                      "note": "target: no slower"})
+        if not name.startswith("DIDSON"):  # (pre-processed pings are not tested)
+            untested = PipelineConfig().replace(surface_min_z=0.0)
+            t_on, t_off = interleaved(lambda p: process_ping(p, cfg), lambda p: process_ping(p, untested), pings,
+                                      rounds=max(rep // len(pings), 3))
+            rows.append({"benchmark": "ranges", "case": f"process_ping default (surface significance), {name}",
+                         "median_ms": t_on, "baseline": "surface_min_z=0", "baseline_ms": t_off,
+                         "note": "the test's cost"})
     return rows
