@@ -132,3 +132,13 @@ def test_the_real_aris_target_keeps_every_return(aris_pings):
         dropped += [(k, int(j)) for j in np.flatnonzero(np.isfinite(off) & ~kept)]
         assert np.all(off[~kept & np.isfinite(off)] > 21.7)
     assert dropped == [(2, j) for j in range(44, 48)] + [(5, j) for j in range(42, 48)]
+
+
+def test_the_real_oculus_seabed_and_didson_pings_keep_every_return(oculus_pings, test_pings):
+    """The Oculus seabed stands 7.8-18 MADs above its water column (every return kept); DIDSON
+    pings are pre-processed, not normalised, and are not tested."""
+    off_cfg = PipelineConfig().replace(surface_min_z=0.0)
+    for p in [*oculus_pings, *test_pings]:
+        off = process_ping(p, off_cfg).ranges.range_m
+        on = process_ping(p, PipelineConfig()).ranges.range_m
+        np.testing.assert_array_equal(on, off)
