@@ -7,22 +7,15 @@ import math
 import numpy as np
 from numba import njit
 
-from sonarmap.ranges._kernels import first_interval_runs, run_spans
+from sonarmap.ranges._kernels import _median, first_interval_runs, run_spans
 
 
 @njit(cache=True, nogil=True)
-def _median_sorted(x, n):  # pragma: no cover - numba
-    """The median of the first ``n`` values of the sorted ``x``."""
-    return x[n // 2] if n % 2 == 1 else 0.5 * (x[n // 2 - 1] + x[n // 2])
-
-
-@njit(cache=True, nogil=True)
-def _median_of(x, n, work):  # pragma: no cover - numba
-    """The median of ``x[:n]`` (``work``: scratch of ``n`` values)."""
-    for t in range(n):
-        work[t] = x[t]
-    srt = np.sort(work[:n])
-    return _median_sorted(srt, n)
+def _median_of(x, lo, hi, work):  # pragma: no cover - numba
+    """The median of ``x[lo:hi]`` (:func:`_kernels._median` of a copy in the scratch ``work``)."""
+    for t in range(lo, hi):
+        work[t - lo] = x[t]
+    return _median(work, hi - lo)
 
 
 @njit(cache=True, nogil=True)
@@ -30,15 +23,14 @@ def _resistant_line(o, v, n, work):  # pragma: no cover - numba
     """Tukey's resistant line through ``(o[:n], v[:n])`` (``o`` increasing): the slope through the
     medians of the outer thirds, the intercept the median of ``v - slope o`` (``work``: scratch)."""
     k = n // 3
-    ol = _median_of(o, k, work)
-    vl = _median_of(v, k, work)
-    orr = _median_of(o[n - k:], k, work)
-    vr = _median_of(v[n - k:], k, work)
+    ol = _median_of(o, 0, k, work)
+    vl = _median_of(v, 0, k, work)
+    orr = _median_of(o, n - k, n, work)
+    vr = _median_of(v, n - k, n, work)
     slope = (vr - vl) / (orr - ol) if orr > ol else 0.0
     for t in range(n):
         work[t] = v[t] - slope * o[t]
-    srt = np.sort(work[:n])
-    return _median_sorted(srt, n), slope
+    return _median(work, n), slope
 
 
 @njit(cache=True, nogil=True)
@@ -95,8 +87,7 @@ def _run_z(raw, rows, cols, depth, gap, window, min_shifts, null, offs, work):  
     c, slope = _resistant_line(offs, null, m, work)
     for t in range(m):
         work[t] = abs(null[t] - (c + slope * offs[t]))
-    srt = np.sort(work[:m])
-    mad = 1.4826 * _median_sorted(srt, m)
+    mad = 1.4826 * _median(work, m)
     if not mad > 0:
         return (math.inf if s0 > c else 0.0), m
     return (s0 - c) / mad, m
@@ -106,7 +97,8 @@ def _run_z(raw, rows, cols, depth, gap, window, min_shifts, null, offs, work):  
 def surface_z(raw, sel, edge_bin, start_bin, stop_bin, touch, min_depth, max_depth, gap, window,
               min_shifts, min_beams):  # pragma: no cover - numba
     """Per beam the significance ``z`` of its return's surface (NaN: no return, a surface of fewer
-    than ``min_beams`` beams, or too few rows in front to test) and per beam the number of offsets its surface was compared with.
+    than ``min_beams`` beams, or too few rows in front to test) and per beam the number of offsets
+    its surface was compared with.
 
     The surfaces are the runs of :func:`first_interval_runs` (``touch``).  A surface's statistic is
     the mean of ``raw`` over its beams and ``depth`` bins from each leading edge's bin (``depth``:
@@ -135,21 +127,15 @@ def surface_z(raw, sel, edge_bin, start_bin, stop_bin, touch, min_depth, max_dep
             continue
         rows = np.empty(nb, np.int64)
         cols = np.empty(nb, np.int64)
-        ok = True
         for q in range(nb):
-            e = edge[j + q]
-            if not (e == e):
-                ok = False
-                break
+            e = edge[j + q]  # (finite: surface_runs labels only beams with an edge)
             rows[q] = min(max(int(math.floor(e + 0.5)), 0), n - 1)
             cols[q] = j + q
             d[q] = stop[j + q] - e
-        if ok:
-            dd = np.sort(d[:nb])
-            depth = int(math.floor(_median_sorted(dd, nb) + 0.5))
-            depth = min(max(depth, min_depth), max_depth)
-            zz, k = _run_z(raw, rows, cols, depth, gap, window, min_shifts, null, offs, work)
-            for q in range(nb):
-                z[j + q] = zz
-                used[j + q] = k
+        depth = int(math.floor(_median(d, nb) + 0.5))
+        depth = min(max(depth, min_depth), max_depth)
+        zz, k = _run_z(raw, rows, cols, depth, gap, window, min_shifts, null, offs, work)
+        for q in range(nb):
+            z[j + q] = zz
+            used[j + q] = k
     return z, used

@@ -343,7 +343,8 @@ def _refined_returns(echoes: Any, tracks: Any, meas: Any, image: NDArray[np.floa
     """:func:`surface_ranges` after the tracking: the first returns' edges pooled, measured against
     the template and smoothed along the surface on the measured image ``meas``, clipped echoes'
     sigmas widened (``full_scale()``: the ping's :func:`full_scale_level`), with ``test`` (a
-    normalised ping) the surfaces not told apart from their water column dropped, and the returns of ``tracks`` (intensities from the classified ``image``)."""
+    normalised ping) the surfaces not told apart from their water column dropped, and the returns
+    of ``tracks`` (intensities from the classified ``image``)."""
     geom = ping.geometry
     sel = tracks.first
     if config.edge_pool_beams > 0 and config.range_mode == "first":

@@ -25,10 +25,9 @@ water column in front of it, and its returns are dropped: those beams report no 
 The surfaces tracked behind it are not moved up - a first surface that fails often does so because
 a nearer echo the classifier missed lies in its water column, and the surface behind it would be
 further still from the true first surface - but stay in the products as further surfaces.
-Surfaces of fewer than ``min_beams`` (3) beams - too
-few samples for the test to tell anything; pieces of a surface the contiguity rule broke - and
-those with fewer than ``min_shifts`` offsets in front (within a few bins of the first range bin)
-are not tested, and kept.
+Surfaces of fewer than ``min_beams`` (3) beams - too few samples for the test to tell anything;
+pieces of a surface the contiguity rule broke - and those with fewer than ``min_shifts`` offsets
+in front (within a few bins of the first range bin) are not tested, and kept.
 
 Why it is needed: after the normaliser's division by the level, the background of log-compressed
 samples (ARIS) spreads wider with range - the spread of the raw samples stays about constant while
@@ -100,7 +99,6 @@ def surface_significance(echoes: Echoes, first: ArrayLike, raw: ArrayLike, *,
     ------
     InputError
         If a shape or an option is wrong.
-
     """
     import sonarmap.ranges._significance_kernels as _sk
 
@@ -120,6 +118,6 @@ def surface_significance(echoes: Echoes, first: ArrayLike, raw: ArrayLike, *,
     if not (math.isfinite(float(touch_bins)) and touch_bins >= 0):
         raise InputError(f"touch_bins: must be a finite number >= 0 (got {touch_bins!r})")
     lo_d, hi_d = SIGNIFICANCE_DEPTH_BINS
-    return _sk.surface_z(img, sel, echoes.edge_bin, echoes.start_bin, echoes.stop_bin, float(touch_bins),  # type: ignore[no-any-return]
-                         lo_d, hi_d, int(gap_bins), int(window_bins), int(min_shifts),
-                         int(min_beams))
+    return _sk.surface_z(  # type: ignore[no-any-return]
+        img, sel, echoes.edge_bin, echoes.start_bin, echoes.stop_bin, float(touch_bins), lo_d, hi_d, int(gap_bins),
+        int(window_bins), int(min_shifts), int(min_beams))
