@@ -258,7 +258,8 @@ def read_png_ping(
         side = sidecar_json(p)
         if not os.path.lexists(side):
             raise DataFormatError(
-                f"no sidecar JSON ({side.name}); pass a geometry (preset or JSON file)", p
+                f"no sidecar JSON ({side.name}); pass a geometry (a preset or geometry JSON file: "
+                "geometry=, or --sonar PRESET|JSON on the command line)", p
             )
         data = read_bytes_bounded(side, MAX_SIDECAR_BYTES, "sidecar JSON")
         geom = geometry_from_sidecar_bytes(data, str(side))

@@ -723,7 +723,7 @@ def _select_connections(
             return "sensor_image", images
         if images:
             raise DataFormatError(
-                f"topic {topic!r} is a sensor_msgs/Image: pass a geometry (geometry=, --geometry) "
+                f"topic {topic!r} is a sensor_msgs/Image: pass a geometry (geometry=, or --sonar PRESET|JSON on the command line) "
                 "whose range bins and beams match its rows and columns", path
             )
         raise DataFormatError(

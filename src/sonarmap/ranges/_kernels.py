@@ -2736,7 +2736,10 @@ def excess_ratio(raw, level, full, log_db, r0, r1):  # pragma: no cover - numba
 
 @njit(cache=True, nogil=True)
 def excess_ratio_rows(raw, level, full, log_db, r0, r1, out):  # pragma: no cover - numba
-    """:func:`excess_ratio` written into rows ``r0 .. r1 - 1`` of ``out`` (zero there on entry)."""
+    """:func:`excess_ratio` written into rows ``r0 .. r1 - 1`` of ``out`` (zero there on entry).
+    With ``log_db > 0`` the rows receive the exponent ``x`` of ``exp(x) - 1`` (clipped to ``[0,
+    69]``), which the caller exponentiates (:func:`sonarmap.ranges.measure.expm1_rows`: numpy's
+    vectorised exp, ~10x numba's scalar one)."""
     n, m = raw.shape
     k = log_db * np.log(10.0) / 10.0
     for i in range(max(r0, 0), min(r1, n)):
@@ -2744,11 +2747,9 @@ def excess_ratio_rows(raw, level, full, log_db, r0, r1, out):  # pragma: no cove
             b = level[i] * full[i, j]
             if log_db > 0:
                 x = k * (raw[i, j] - b)
-                if not x > 0.0:
-                    continue  # exp(x) - 1 <= 0: the pixel stays 0 (most of the background)
-                if x > 69.0:
-                    x = 69.0
-                v = np.exp(x) - 1.0
+                if x > 0.0:  # else exp(x) - 1 <= 0: the pixel stays 0 (much of the background)
+                    out[i, j] = min(x, 69.0)
+                continue
             else:
                 v = raw[i, j] / max(b, 1e-12) - 1.0
             if v > 0.0:
@@ -2762,7 +2763,8 @@ def excess_ratio_grid(raw, level, grid, c0, c1, fc, g0, g1, gf, log_db, r0, r1, 
     fly (``full`` = :func:`sonarmap.preprocess.normalise.expand_grid` of it, the same float32
     operations: across beams with weights ``c0, c1, fc``, then along range with ``g0, g1, gf``;
     a grid of 0 rows: factor 1), only on rows ``r0 .. r1 - 1``, which are overwritten (0 where
-    the ratio is not above 1); ``raw`` of any real dtype (taken as float32)."""
+    the ratio is not above 1; with ``log_db > 0`` the exponent, as :func:`excess_ratio_rows`);
+    ``raw`` of any real dtype (taken as float32)."""
     n, m = raw.shape
     nb = grid.shape[0]
     cols = np.ones((max(nb, 1), m), np.float32)
@@ -2781,11 +2783,10 @@ def excess_ratio_grid(raw, level, grid, c0, c1, fc, g0, g1, gf, log_db, r0, r1, 
             bb = level[i] * full
             v = 0.0
             if log_db > 0:
+                # the exponent only (clipped to [0, 69]): the caller takes exp(x) - 1
+                # (sonarmap.ranges.measure.expm1_rows)
                 x = k * (np.float32(raw[i, j]) - bb)
-                if x > 0.0:
-                    if x > 69.0:
-                        x = 69.0
-                    v = np.exp(x) - 1.0
+                v = min(x, 69.0) if x > 0.0 else 0.0
             else:
                 v = np.float32(raw[i, j]) / max(bb, 1e-12) - 1.0
             out[i, j] = v if v > 0.0 else 0.0
