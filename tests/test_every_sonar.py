@@ -165,6 +165,36 @@ def test_real_didson_fish_only_pings_keep_no_returns(test_pings):
         assert not process_ping(p).gates
 
 
+def test_real_didson_extra_images(didson_dir):
+    """The two extra DIDSON images (no sidecar JSON: geometry given).  ``tuna_can.png`` (1 % zeros:
+    normalised like ARIS) looks at a tank floor: a flat floor below the sonar is first seen through
+    the lower edge of the vertical beam at the same range on every beam, so its leading edge is a
+    row across the fan (rows 325-327, about 7.95 m; the brighter arc behind it, 330-350, curves with
+    azimuth).  Every beam reports a return, on the floor's edge or, on the beams right of 61, on
+    a faint line at rows 178-189 (2-3.6x the rows in front of it there, 1.1-1.9x on the beams left
+    of it) - nothing in the water column elsewhere.  ``frame_2014.bmp`` (an older palettised
+    frame, range window unknown) has 19 % zeros and row lower quartiles of 1-2 of 255 levels: too
+    coarse to normalise ("quantised"), and on the deconvolved image the object class collapses
+    onto the background's - no returns, and the ping says why (never silent)."""
+    from sonarmap.io import read_ping
+
+    tuna = read_ping(didson_dir / "extra" / "tuna_can.png", geometry=didson_dir / "didson.json")
+    prod = process_ping(tuna)
+    r = prod.ranges
+    assert not prod.gates and prod.background.applied
+    assert r.n_returns == r.n_beams  # measured 96
+    rows = (r.range_m - tuna.geometry.range_m[0]) / tuna.geometry.range_resolution_m
+    on_floor = (rows >= 322) & (rows <= 334)
+    on_line = (rows >= 176) & (rows <= 192)
+    assert np.all(on_floor | on_line), np.round(rows[~(on_floor | on_line)])
+    assert on_floor[:56].all()  # measured: beams 0-61, 64 and 65 on the floor
+    assert np.flatnonzero(on_line).min() >= 56
+    old = read_ping(didson_dir / "extra" / "frame_2014.bmp", geometry="didson-hf")
+    prod = process_ping(old)
+    assert prod.background.reason == "quantised"
+    assert prod.ranges.n_returns == 0 and "collapsed" in prod.gates
+
+
 # --------------------------------------------------------------------------- degenerate pings
 
 

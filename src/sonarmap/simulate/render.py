@@ -448,7 +448,11 @@ class SimResult:
         samples in the beam's azimuth cell (and the range window) whose two-way elevation weight
         is >= 0.5 (the beam's -3 dB footprint; a beam whose structure never reaches 0.5 uses half
         its largest weight instead).  It is not quantised to the bin grid: it is the range a
-        leading-edge detector (first crossing of 0.5 x the echo's first peak) should report.
+        leading-edge detector (first crossing of 0.5 x the echo's first peak) should report -
+        within a quarter bin (plus half the pulse) of the noise-free echo's crossing on the
+        DIDSON and ARIS presets; through a wide vertical beam (the Oculus preset's 12 deg) a
+        surface's echo rises over tens of bins and that crossing lies 2-10 bins in front of it
+        (docs/simulator.md, "Clean-echo crossing vs truth").
         NaN on the beams without truth structure (``first_return_bin == -1``).
     surface_ranges_m : ndarray, shape (k, n_beams), float64
         Further surfaces behind ``surface_range_m`` on each beam, nearest first (like
