@@ -74,6 +74,43 @@ def test_png_folder_still_works(didson_dir: Path) -> None:
     assert len(pings) == 10 and pings[0].shape == (512, 96)
 
 
+def test_a_folder_of_recordings_is_read_recording_by_recording(data_dir: Path, tmp_path: Path) -> None:
+    """A directory without ping images stands for the recordings in it, in name order; licences,
+    READMEs, beam tables and subdirectories are passed over."""
+    from sonarmap.io import expand_inputs, total_pings
+    from sonarmap.survey.plan import plan_survey
+
+    d = tmp_path / "dives"
+    d.mkdir()
+    (d / "b_second.aris").symlink_to(data_dir / "aris" / "sample.aris")
+    (d / "a_first.raw").symlink_to(data_dir / "oculus" / "three_pings_8bit.raw")
+    (d / "LICENSE").write_text("MIT")
+    (d / "BeamWidths.h").symlink_to(data_dir / "aris" / "BeamWidths_ARIS3000_128.h")
+    (d / "notes").mkdir()
+    assert [p.name for p in expand_inputs(d)] == ["a_first.raw", "b_second.aris"]
+    assert [p.meta["format"] for p in read_pings(d)] == ["oculus"] * 3 + ["aris"] * 6
+    assert total_pings(expand_inputs(d)) == 9
+    assert sum(n for _, _, n in plan_survey([d]).files) == 9
+    # the shared Kongsberg folder: its .all + .wcd pair is one recording, the README and LICENSE
+    # are skipped
+    kong = data_dir / "kongsberg"
+    n = len(list(read_pings(next(kong.glob("*.all")))))  # 10
+    assert len(list(read_pings(kong))) == n
+    # given as two files (or a glob), the pair is planned and counted once, as it is read
+    pair = [next(kong.glob("*.wcd")), next(kong.glob("*.all"))]
+    assert [k for _, _, k in plan_survey([kong]).files] == [n]
+    assert [k for _, _, k in plan_survey(pair).files] == [n]
+    assert total_pings(expand_inputs(pair)) == n == total_pings(expand_inputs(kong))
+
+
+def test_a_folder_without_pings_says_where_they_are(didson_dir: Path, tmp_path: Path) -> None:
+    with pytest.raises(DataFormatError, match=r"no pings found.*subdirectories: background/, extra/, test/"):
+        list(read_pings(didson_dir))
+    (tmp_path / "README.md").write_text("nothing here")
+    with pytest.raises(DataFormatError, match=r"no pings found: no PNG/BMP ping images and no recording"):
+        list(read_pings(tmp_path))
+
+
 @pytest.mark.parametrize(("name", "index", "held"), [
     ("oculus/one_ping_8bit.raw", 1, "(it has 1 ping: index 0)"),
     ("aris/sample.aris", 99, "(it has 6 pings: 0-5)"),

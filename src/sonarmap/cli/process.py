@@ -91,7 +91,7 @@ def _with_calibration(config: Path | None, calibration: Path | None) -> tuple[An
 
 
 def process_command(
-    inputs: list[Path] = typer.Argument(..., help="Ping files, directories of PNG+JSON pings, or globs."),
+    inputs: list[Path] = typer.Argument(..., help="Ping files, directories (of PNG+JSON pings or of recordings), or globs."),
     output: Path = typer.Option(..., "--output", "-o", help="Output survey store (e.g. survey.zarr).",
                                 callback=refuse_stdout),
     config: Path | None = typer.Option(

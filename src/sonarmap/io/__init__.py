@@ -28,8 +28,8 @@ from sonarmap.io.reader import FORMAT_MODULES, GeometrySpec, Reader, format_modu
 from sonarmap.ping import Ping
 
 __all__ = ["read_pings", "read_ping", "detect_format", "expand_inputs", "FORMAT_MODULES", "format_module",
-           "is_store_dir", "make_summary", "MAX_PING_BYTES", "PartialFrameWarning", "Reader", "reader_for",
-           "reader_modules", "total_pings"]
+           "first_of_recording", "is_store_dir", "make_summary", "MAX_PING_BYTES", "PartialFrameWarning", "Reader",
+           "reader_for", "reader_modules", "total_pings"]
 
 
 _modules = reader_modules  # the name the fuzz harness imports
@@ -74,11 +74,16 @@ def detect_format(path: str | os.PathLike[str]) -> str:
 def expand_inputs(inputs: str | os.PathLike[str] | Iterable[str | os.PathLike[str]]) -> list[Path]:
     """Expand globs; keep regular files and directories; raise if an input matches nothing.
 
+    A directory stays one input when it holds PNG/BMP ping images or is a survey store or a ROS 2
+    bag; otherwise it stands for the recordings in it (:func:`_recordings_in`: e.g. a folder of
+    ``.aris`` files, or a Kongsberg ``.all`` + ``.wcd`` pair), in name order.
+
     Raises
     ------
     DataFormatError
-        If an input does not exist, a glob matches nothing, or a path (given or matched) is a
-        FIFO, device or socket rather than a regular file or directory.
+        If an input does not exist, a glob matches nothing, a path (given or matched) is a FIFO,
+        device or socket rather than a regular file or directory, or a directory holds neither
+        ping images nor recordings (the message names its subdirectories that hold pings).
     """
     items = [inputs] if isinstance(inputs, str | os.PathLike) else list(inputs)
     out: list[Path] = []
@@ -97,8 +102,52 @@ def expand_inputs(inputs: str | os.PathLike[str] | Iterable[str | os.PathLike[st
         for p in paths:
             if not p.is_dir():
                 require_regular_file(p, "input")
-        out.extend(paths)
+                out.append(p)
+            else:
+                out.extend(_recordings_in(p))
     return out
+
+
+def _recordings_in(directory: Path) -> list[Path]:
+    """``[directory]`` when it is a folder of PNG/BMP pings, a survey store or a ROS 2 bag; else
+    the regular files in it that a reader other than the PNG/BMP one recognises (by content, as
+    :func:`detect_format`), in name order.  Other files (licences, READMEs, beam tables, a stray
+    JSON) are skipped; subdirectories are not entered (a recording's pings are not mixed with
+    another's)."""
+    from sonarmap.io.pngjson import IMAGE_SUFFIXES
+
+    if is_store_dir(directory):
+        return [directory]
+    try:
+        entries = sorted(directory.iterdir())
+    except OSError as exc:
+        raise DataFormatError(f"cannot list: {exc.strerror or exc}", directory) from None
+    if any(e.suffix.lower() in IMAGE_SUFFIXES for e in entries):
+        return [directory]  # PNG/BMP pings (the PNG reader picks the ping images among them)
+    found: list[Path] = []
+    for e in entries:
+        if e.is_dir() or not e.is_file():
+            continue
+        try:
+            fmt = detect_format(e)
+        except DataFormatError:
+            continue
+        if fmt != "pngjson":
+            found.append(e)
+    if found:
+        return found
+    subs = [e.name + "/" for e in entries if e.is_dir() and (is_store_dir(e) or any(
+        c.suffix.lower() in IMAGE_SUFFIXES for c in _listing(e)))]
+    hint = f"; pass one of its subdirectories: {', '.join(subs)}" if subs else ""
+    raise DataFormatError(f"no pings found: no PNG/BMP ping images and no recording this reads{hint}",
+                          directory)
+
+
+def _listing(directory: Path) -> list[Path]:
+    try:
+        return list(directory.iterdir())
+    except OSError:
+        return []
 
 
 def read_pings(
@@ -135,16 +184,25 @@ def read_pings(
         if reader.FORMAT == "pngjson":
             pngs.append(p)
             continue
-        # a recording split over several files (Kongsberg .all + .wcd) is read once, from any of them
-        key_of = getattr(reader, "recording_key", None)
-        if key_of is not None:
-            key = key_of(p)
-            if key in seen:
-                continue
-            seen.add(key)
+        if not first_of_recording(reader, p, seen):
+            continue
         yield from flush()
         yield from reader.iter_pings(p, geometry=geometry, **kwargs)
     yield from flush()
+
+
+def first_of_recording(reader: Reader, path: Path, seen: set[object]) -> bool:
+    """Whether ``path`` is the first file given of its recording (``seen``: the recordings so far,
+    updated): a recording split over several files (Kongsberg ``.all`` + ``.wcd``, the reader's
+    ``recording_key``) is read and counted once, from whichever of them comes first."""
+    key_of = getattr(reader, "recording_key", None)
+    if key_of is None:
+        return True
+    key = key_of(path)
+    if key in seen:
+        return False
+    seen.add(key)
+    return True
 
 
 def is_store_dir(p: Path) -> bool:
@@ -184,10 +242,13 @@ def total_pings(paths: Iterable[str | os.PathLike[str]]) -> int:
     import warnings
 
     total = 0
+    seen: set[object] = set()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         for p in paths:
-            total += int(reader_for(p).count_pings(p))
+            reader = reader_for(p)
+            if first_of_recording(reader, Path(p), seen):
+                total += int(reader.count_pings(p))
     return total
 
 
