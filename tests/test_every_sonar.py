@@ -171,8 +171,9 @@ def test_real_didson_extra_images(didson_dir):
     the lower edge of the vertical beam at the same range on every beam, so its leading edge is a
     row across the fan (rows 325-327, about 7.95 m; the brighter arc behind it, 330-350, curves with
     azimuth).  Every beam reports a return, on the floor's edge or, on the beams right of 61, on
-    a faint line at rows 178-189 (2-3.6x the rows in front of it there, 1.1-1.9x on the beams left
-    of it) - nothing in the water column elsewhere.  ``frame_2014.bmp`` (an older palettised
+    a fainter echo in front of it at rows 178-189 (5.4-5.5 m, 0.4-1.3 m to starboard; 2-3.6x the
+    rows in front of it there, 1.1-1.9x on the beams left of it) - nothing in the water column
+    elsewhere.  ``frame_2014.bmp`` (an older palettised
     frame, range window unknown) has 19 % zeros and row lower quartiles of 1-2 of 255 levels: too
     coarse to normalise ("quantised"), and on the deconvolved image the object class collapses
     onto the background's - no returns, and the ping says why (never silent)."""

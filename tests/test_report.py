@@ -215,6 +215,44 @@ def test_the_mixture_time_series_says_what_its_x_axis_is(monkeypatch: pytest.Mon
     assert figs[0].axes[2].get_xlabel() == "ping time (UTC)"
 
 
+def test_pings_without_a_time_span_are_drawn_by_index_with_markers(monkeypatch: pytest.MonkeyPatch) -> None:
+    """One ping (or pings without a clock, all at one time): the panels drew lines of one point
+    (nothing visible) on a date axis spanning four years around it; now one marker per ping, on
+    an axis of ping numbers."""
+    import xarray as xr
+
+    import sonarmap.report as rep
+
+    figs: list = []
+    monkeypatch.setattr(rep, "_png", lambda fig, dpi: figs.append(fig) or "")
+    for n in (1, 3):
+        ds = xr.Dataset({"mixture_weight": (("ping_time", "component"), np.full((n, 3), 1 / 3)),
+                         "mixture_param": (("ping_time", "component", "param"), np.ones((n, 3, 1))),
+                         "kld": (("ping_time",), np.full(n, 0.01)),
+                         "flags": (("ping_time",), np.array([""] * n, dtype=object))},
+                        coords={"ping_time": np.zeros(n, "datetime64[ns]")})
+        rep._fig_timeseries(ds, 60)
+        ax = figs[-1].axes[2]
+        assert ax.get_xlabel() == "ping (the pings have no time span)"
+        assert list(ax.lines[0].get_xdata()) == list(range(n)) and ax.lines[0].get_marker() == "o"
+        assert figs[-1].axes[0].lines[0].get_marker() == "o"
+
+
+@pytest.mark.slow
+def test_examples_of_pings_read_with_a_given_geometry_are_drawn(didson_dir: Path, tmp_path: Path) -> None:
+    """A PNG ping without a sidecar JSON is processed with a geometry given (``--sonar``); the
+    report read it again without one and printed 'not drawn (no sidecar JSON ...)' instead of
+    the example.  It now reads it with the store's geometry."""
+    img = tmp_path / "pings" / "tuna_can.png"
+    img.parent.mkdir()
+    img.symlink_to(didson_dir / "extra" / "tuna_can.png")
+    products = tmp_path / "products.zarr"
+    process_survey([img.parent], products, workers=0, geometry=didson_dir / "didson.json")
+    page = render_report(products, config=ReportConfig(n_examples=1, dpi=40))
+    assert "not drawn" not in page
+    assert re.findall(r"<h3>ping (\d+): <code>([^<]+)</code></h3>", page) == [("0", "tuna_can.png")]
+
+
 def test_the_uncertainty_figure_and_row_show_the_returns_sigma_per_beam(monkeypatch: pytest.MonkeyPatch) -> None:
     """The returns' range sigma per beam (median and 16-84 % over the pings, only where the beam
     has a return; cm, with a range-bin axis when the bin spacing is known) and each beam's median

@@ -120,10 +120,17 @@ def chance_diagonal(n: int = 200) -> tuple[NDArray[np.float64], NDArray[np.float
     return x, x.copy()
 
 
+#: Time series of at most this many pings draw a marker per ping.
+FEW_PINGS = 50
+
+
 def _fig_timeseries(ds: Any, dpi: int) -> str:
     from sonarmap.plots import new_figure
 
     t = _times(ds)
+    # pings without a time span (one ping, or a recording without a clock): drawn by index
+    by_index = t.size < 2 or t.min() == t.max()
+    x = np.arange(t.size) if by_index else t
     w = np.atleast_2d(ds["mixture_weight"].values)
     p = ds["mixture_param"].values
     names = str(ds["mixture_weight"].attrs.get("components", "")).split()
@@ -131,8 +138,10 @@ def _fig_timeseries(ds: Any, dpi: int) -> str:
     kld = ds["kld"].values
     flagged = flagged_mask(ds["flags"].values)
     fig, axes = new_figure(3, 1, figsize=(10, 7.5), sharex=True)
+    # a marker per ping where the pings are few (a single ping drew no line at all)
+    few = {"marker": "o", "ms": 3} if x.size <= FEW_PINGS else {}
     for c in range(w.shape[1]):
-        axes[0].plot(t, w[:, c], lw=0.8, label=names[c])
+        axes[0].plot(x, w[:, c], lw=0.8, label=names[c], **few)
     axes[0].set_ylabel("weight")
     axes[0].set_ylim(-0.02, 1.02)
     axes[0].legend(fontsize=7, ncol=max(1, w.shape[1]), loc="upper right")
@@ -141,19 +150,26 @@ def _fig_timeseries(ds: Any, dpi: int) -> str:
         scales = component_scales(p, w)
         for c in range(p.shape[1]):
             if not np.isnan(p[:, c, :]).all():
-                axes[1].plot(t, scales[:, c], lw=0.8, marker=".", ms=2, label=names[c] if c < len(names) else str(c))
+                axes[1].plot(x, scales[:, c], lw=0.8, label=names[c] if c < len(names) else str(c),
+                             **(few or {"marker": ".", "ms": 2}))
         axes[1].legend(fontsize=7, loc="upper right")
     axes[1].set_ylabel("scale")
     axes[1].set_title("Mixture component scale parameters (gaps: the component holds < "
                       f"{100 * MIN_SCALE_WEIGHT:g} % of the pixels)", fontsize=9)
-    axes[2].plot(t, kld, lw=0.8, color="0.2", label="KLD")
+    axes[2].plot(x, kld, lw=0.8, color="0.2", label="KLD", **few)
     if flagged.any():
-        axes[2].plot(t[flagged], kld[flagged], "o", ms=3, color="tab:red", label="flagged fit")
+        axes[2].plot(x[flagged], kld[flagged], "o", ms=3, color="tab:red", label="flagged fit")
     axes[2].set_ylabel("KLD (nat)")
     axes[2].set_title("Fit quality: Kullback-Leibler divergence data || model", fontsize=9)
     axes[2].legend(fontsize=7, loc="upper right")
-    axes[2].set_xlabel("ping time (UTC)")
-    _time_axis(axes[2])
+    if by_index:
+        from matplotlib.ticker import MaxNLocator
+
+        axes[2].set_xlabel("ping (the pings have no time span)")
+        axes[2].xaxis.set_major_locator(MaxNLocator(integer=True))
+    else:
+        axes[2].set_xlabel("ping time (UTC)")
+        _time_axis(axes[2])
     return _png(fig, dpi)
 
 

@@ -669,6 +669,17 @@ def load_products(path: str | os.PathLike[str]) -> Any:
     return ds
 
 
+def _geometry_to_read(st: Any, file: str) -> Any:
+    """The geometry to read a source ping with again: the store's for a PNG/BMP image without a
+    sidecar JSON (the survey was given its geometry, e.g. ``--sonar``), else None (the file's
+    own)."""
+    from sonarmap.io.pngjson import IMAGE_SUFFIXES, sidecar_json
+
+    if Path(file).suffix.lower() in IMAGE_SUFFIXES and not os.path.lexists(sidecar_json(file)):
+        return store_geometry(st)
+    return None
+
+
 def product_ping(path: str | os.PathLike[str], index: int = 0, *, image: str = "auto") -> Ping:
     """Ping ``index`` of a product store as a :class:`~sonarmap.ping.Ping` to draw.
 
@@ -724,7 +735,7 @@ def product_ping(path: str | os.PathLike[str], index: int = 0, *, image: str = "
     if not file or not os.path.exists(file):
         raise DataFormatError(f"ping {i}: its source {file!r:.200} is not available (and no labels are stored)", p)
     sources = [source_file(str(x)) for x in read_array(st, "source", slice(0, i))]
-    raw = read_ping(file, index=sum(1 for x in sources if x == file))
+    raw = read_ping(file, index=sum(1 for x in sources if x == file), geometry=_geometry_to_read(st, file))
     if raw.time_ns != t:
         raise DataFormatError(f"ping {i}: the ping read from {file} has another time than the stored one "
                               "(the source changed)", p)
