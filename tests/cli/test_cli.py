@@ -20,6 +20,20 @@ def test_info_on_real_ping(capsys: pytest.CaptureFixture[str], test_ping_paths: 
     assert "-14.7177" in out and "14.0942" in out
 
 
+def test_info_on_folders_describes_each_recording(capsys: pytest.CaptureFixture[str], data_dir: Path) -> None:
+    """A folder of recordings: one entry per recording (it said 'format pngjson' for the Oculus
+    folder, summing its files' pings); the Kongsberg .all + .wcd pair is one recording."""
+    import json
+
+    assert main(["info", "--json", str(data_dir / "oculus"), str(data_dir / "kongsberg")]) == 0
+    d = json.loads(capsys.readouterr().out)
+    assert [(Path(x["path"]).name, x["format"], x["pings"]) for x in d] == [
+        ("one_ping_8bit.raw", "oculus", 1), ("three_pings_8bit.raw", "oculus", 3),
+        ("0077_20221109_123655_Belgica.all", "kongsberg", 10)]
+    assert main(["info", str(data_dir / "didson")]) == 1
+    assert "pass one of its subdirectories: background/, extra/, test/" in capsys.readouterr().err
+
+
 def test_info_json_and_presets(capsys: pytest.CaptureFixture[str], didson_dir: Path) -> None:
     import json
 

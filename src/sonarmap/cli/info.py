@@ -54,6 +54,21 @@ def describe_path(path: Path, geometry: Any = None) -> dict[str, Any]:
     return {k: v for k, v in out.items() if not k.startswith("_")}
 
 
+def _inputs_of(path: Path) -> list[Path]:
+    """The inputs ``path`` stands for: itself, or for a directory of recordings each recording in
+    it (a Kongsberg ``.all`` + ``.wcd`` pair once; :func:`sonarmap.io.expand_inputs`)."""
+    if not path.is_dir():
+        return [path]
+    from sonarmap.io import expand_inputs, first_of_recording, reader_for
+
+    seen: set[object] = set()
+    out = []
+    for q in expand_inputs(path):
+        if q.is_dir() or first_of_recording(reader_for(q), q, seen):
+            out.append(q)
+    return out
+
+
 def _print(info: dict[str, Any]) -> None:
     from rich.table import Table
 
@@ -95,7 +110,7 @@ def register(app: typer.Typer) -> None:
             items.extend({"preset": n, **geometry_summary(preset(n))} for n in preset_names())
         geom = load_geometry_option(sonar)
         for p in paths or []:
-            items.append(describe_path(p, geom))
+            items.extend(describe_path(q, geom) for q in _inputs_of(p))
         if not items:
             raise typer.BadParameter("give at least one path, or --presets", param_hint="PATHS")
         if as_json:
