@@ -696,7 +696,8 @@ def product_ping(path: str | os.PathLike[str], index: int = 0, *, image: str = "
     Returns
     -------
     Ping
-        With the store's geometry (labels) or the source's (raw), the stored time and source;
+        With the store's geometry (labels) or the source's (raw; the store's for a PNG/BMP image
+        without a sidecar JSON, whose survey was given its geometry), the stored time and source;
         ``meta["image"]`` says which image it is.
 
     Raises
