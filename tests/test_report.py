@@ -253,6 +253,43 @@ def test_examples_of_pings_read_with_a_given_geometry_are_drawn(didson_dir: Path
     assert re.findall(r"<h3>ping (\d+): <code>([^<]+)</code></h3>", page) == [("0", "tuna_can.png")]
 
 
+def test_fan_aspect_of_the_shared_sonars(data_dir: Path, didson_dir: Path) -> None:
+    from sonarmap.io import read_ping
+    from sonarmap.plots import fan_aspect
+
+    aris = read_ping(data_dir / "aris" / "sample.aris").geometry
+    oculus = read_ping(data_dir / "oculus" / "one_ping_8bit.raw").geometry
+    didson = read_ping(next((didson_dir / "test").glob("*_raw.png"))).geometry
+    assert fan_aspect(aris) == pytest.approx(0.297, abs=0.005)  # 14.6 deg, 3.3-23.4 m
+    assert fan_aspect(didson) == pytest.approx(0.617, abs=0.005)
+    assert fan_aspect(oculus) == pytest.approx(1.0, abs=0.01)
+
+
+@pytest.mark.slow
+def test_narrow_fans_are_drawn_as_their_polar_images(data_dir: Path, store: Path, tmp_path: Path,
+                                                    monkeypatch: pytest.MonkeyPatch) -> None:
+    """The ARIS telephoto fan drawn to scale was a sliver a quarter of its panel wide; its example
+    pings are now its images as stored (beams across, range up), with the returns on them.  The
+    DIDSON examples stay fans."""
+    import sonarmap.report as rep
+
+    figs: list = []
+    monkeypatch.setattr(rep, "_png", lambda fig, dpi: figs.append(fig) or "")
+    products = tmp_path / "aris.zarr"
+    process_survey([data_dir / "aris" / "sample.aris"], products, workers=0)
+    render_report(products, config=ReportConfig(n_examples=1, dpi=40))
+    ex = [f for f in figs if len(f.axes) == 3 and f.axes[2].get_title() == "segmented + ranges"]
+    assert len(ex) == 1
+    ax = ex[0].axes[2]
+    assert ax.get_xlabel().startswith("beam (azimuth") and ax.get_ylabel() == "range (m)"
+    x, y = ax.lines[0].get_data()
+    assert len(x) >= 40 and 15.0 <= np.median(y) <= 18.0  # the target's returns, in metres
+    figs.clear()
+    render_report(store, config=ReportConfig(n_examples=1, dpi=40))
+    ex = [f for f in figs if len(f.axes) == 3 and f.axes[2].get_title() == "segmented + ranges"]
+    assert ex and ex[0].axes[0].get_xlabel() == "starboard y (m)"
+
+
 def test_the_uncertainty_figure_and_row_show_the_returns_sigma_per_beam(monkeypatch: pytest.MonkeyPatch) -> None:
     """The returns' range sigma per beam (median and 16-84 % over the pings, only where the beam
     has a return; cm, with a range-bin axis when the bin spacing is known) and each beam's median

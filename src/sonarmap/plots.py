@@ -15,7 +15,8 @@ from sonarmap.errors import InputError
 from sonarmap.fan import fan_image
 from sonarmap.ping import Ping, source_name
 
-__all__ = ["new_figure", "recorded_bins", "room_after_colorbar", "save_figure", "draw_fan", "show_ping_figure", "fan_comparison", "display_scale",
+__all__ = ["new_figure", "recorded_bins", "room_after_colorbar", "save_figure", "draw_fan", "draw_polar", "fan_aspect",
+           "show_ping_figure", "fan_comparison", "display_scale",
            "DB_SPAN_RATIO", "DB_WINDOW"]
 
 
@@ -176,19 +177,41 @@ def show_ping_figure(
     label = "intensity (dB)" if in_db else "intensity"
     im.colorbar.set_label(label)
     if polar:
-        g = ping.geometry
-        az = np.rad2deg(g.azimuth_rad)
-        ax = axes[0, 1]
-        shown = np.ma.masked_array(img, mask=None if recorded is None else ~recorded)
-        im = ax.imshow(shown, origin="lower", aspect="auto", cmap="inferno", vmin=vmin,
-                       vmax=vmax, extent=(0, g.n_beams, g.range_m[0], g.range_m[-1]))
-        ax.set_facecolor("0.85")  # no data, as around the fan
-        ax.set_xlabel(f"beam (azimuth {az[0]:.1f} to {az[-1]:.1f} deg)")
-        ax.set_ylabel("range (m)")
-        ax.set_title("polar (rows = range bins)", fontsize=9)
-        fig.colorbar(im, ax=ax, shrink=0.8, label=label)
+        im = draw_polar(axes[0, 1], img, ping.geometry, vmin=vmin, vmax=vmax, recorded=recorded,
+                        title="polar (rows = range bins)")
+        fig.colorbar(im, ax=axes[0, 1], shrink=0.8, label=label)
         room_after_colorbar(fig)
     return fig
+
+
+def draw_polar(ax: Any, image: np.ndarray, geometry: Any, *, cmap: str = "inferno", vmin: float | None = 0.0,
+               vmax: float | None = None, title: str | None = None, recorded: np.ndarray | None = None) -> Any:
+    """Draw a polar image as it is stored: beams across (column ``j`` spans ``[j, j + 1)``), range
+    up, in metres; outside the bins ``recorded`` marks, no data (grey, as around a fan)."""
+    g = geometry
+    az = np.rad2deg(g.azimuth_rad)
+    shown = np.ma.masked_array(image, mask=None if recorded is None else ~recorded)
+    im = ax.imshow(shown, origin="lower", aspect="auto", cmap=cmap, vmin=vmin, vmax=vmax,
+                   extent=(0, g.n_beams, g.range_m[0], g.range_m[-1]))
+    ax.set_facecolor("0.85")
+    ax.set_xlabel(f"beam (azimuth {az[0]:.1f} to {az[-1]:.1f} deg)")
+    ax.set_ylabel("range (m)")
+    if title:
+        ax.set_title(title, fontsize=9)
+    return im
+
+
+def fan_aspect(geometry: Any) -> float:
+    """Width over length of a ping's fan drawn to scale (:func:`draw_fan`): 0.30 for the shared
+    ARIS telephoto recording (14.6 deg, 3.3-23.4 m), 0.62 for the DIDSON test pings, 1.0 for the
+    60 deg Oculus fan from 0 m."""
+    az = np.asarray(geometry.azimuth_rad, dtype=np.float64)
+    r = np.asarray(geometry.range_m, dtype=np.float64)
+    r0, r1 = float(r.min()), float(r.max())
+    y = r1 * np.sin(az)
+    x_lo = min(r0 * float(np.cos(az).min()), r0)
+    height = r1 - x_lo
+    return float((y.max() - y.min()) / height) if height > 0 else 1.0
 
 
 def fan_comparison(

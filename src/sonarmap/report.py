@@ -385,6 +385,11 @@ def _calibration(attrs: dict[str, Any]) -> Any:
     return None if text is None else RecordingBackground.from_dict(json.loads(text), name="calibration")
 
 
+#: Fans narrower than this (width over length drawn to scale, :func:`sonarmap.plots.fan_aspect`) are
+#: drawn as their polar images in the example pings.
+NARROW_FAN = 0.35
+
+
 def _example(ds: Any, store: str | os.PathLike[str], index: int, config: Any, dpi: int,
              background: Any = None) -> dict[str, Any]:
     """Fans of one ping: raw | pre-processed | segmented with the stored ranges.
@@ -394,7 +399,7 @@ def _example(ds: Any, store: str | os.PathLike[str], index: int, config: Any, dp
     ``sonarmap convert`` store) and checks its time against the stored one.
     """
     from sonarmap.pipeline import process_ping
-    from sonarmap.plots import draw_fan, new_figure
+    from sonarmap.plots import draw_fan, draw_polar, fan_aspect, new_figure
     from sonarmap.store import product_ping
 
     source = str(ds["source"].values[index])
@@ -404,19 +409,26 @@ def _example(ds: Any, store: str | os.PathLike[str], index: int, config: Any, dp
     ping = product_ping(store, index, image="raw")
     prod = process_ping(ping, config, keep_labels=True, background=background)
     g = ping.geometry
+    # a narrow fan drawn to scale is a sliver (an ARIS telephoto lens: 0.30 as wide as long): the
+    # images as stored instead, beams across and range up
+    polar = fan_aspect(g) < NARROW_FAN
+    draw = draw_polar if polar else draw_fan
     fig, axes = new_figure(1, 3, figsize=(11, 4.6))
-    draw_fan(axes[0], ping.image, g, title="raw", colorbar=False)
+    draw(axes[0], ping.image, g, title="raw", **({} if polar else {"colorbar": False}))
     # what the classifier saw: the background-normalised image, or the pre-processed one
     normalised = prod.background is not None and prod.background.applied
     title = "background-normalised" if normalised else "pre-processed"
-    draw_fan(axes[1], np.clip(prod.image, 0, None), g, title=title, colorbar=False)
+    draw(axes[1], np.clip(prod.image, 0, None), g, title=title, **({} if polar else {"colorbar": False}))
     labels = np.asarray(prod.labels) >= 1 if prod.labels is not None else np.zeros(g.shape, bool)
-    draw_fan(axes[2], labels.astype(np.float32), g, vmin=0, vmax=1, cmap="gray",
-             title="segmented + ranges", colorbar=False, resolution_m=None)
+    draw(axes[2], labels.astype(np.float32), g, vmin=0, vmax=1, cmap="gray", title="segmented + ranges",
+         **({} if polar else {"colorbar": False, "resolution_m": None}))
     r = ds["range"].values[index]
     az = g.azimuth_rad
     ok = np.isfinite(r)
-    axes[2].plot(r[ok] * np.sin(az[ok]), r[ok] * np.cos(az[ok]), ".", ms=3, color="tab:cyan")
+    if polar:
+        axes[2].plot(np.flatnonzero(ok) + 0.5, r[ok], ".", ms=3, color="tab:cyan")
+    else:
+        axes[2].plot(r[ok] * np.sin(az[ok]), r[ok] * np.cos(az[ok]), ".", ms=3, color="tab:cyan")
     flags = str(ds["flags"].values[index])
     t = np.datetime_as_string(_times(ds)[index], unit="ms")
     fig.suptitle(f"{label}  {t} UTC  KLD {float(ds['kld'].values[index]):.4f}"
