@@ -260,9 +260,9 @@ def test_fan_aspect_of_the_shared_sonars(data_dir: Path, didson_dir: Path) -> No
     aris = read_ping(data_dir / "aris" / "sample.aris").geometry
     oculus = read_ping(data_dir / "oculus" / "one_ping_8bit.raw").geometry
     didson = read_ping(next((didson_dir / "test").glob("*_raw.png"))).geometry
-    assert fan_aspect(aris) == pytest.approx(0.297, abs=0.005)  # 14.6 deg, 3.3-23.4 m
-    assert fan_aspect(didson) == pytest.approx(0.617, abs=0.005)
-    assert fan_aspect(oculus) == pytest.approx(1.0, abs=0.01)
+    assert fan_aspect(aris) == pytest.approx(0.303, abs=0.005)  # 14.6 deg, 3.3-23.4 m
+    assert fan_aspect(didson) == pytest.approx(0.622, abs=0.005)
+    assert fan_aspect(oculus) == pytest.approx(1.004, abs=0.01)
 
 
 @pytest.mark.slow

@@ -202,16 +202,13 @@ def draw_polar(ax: Any, image: np.ndarray, geometry: Any, *, cmap: str = "infern
 
 
 def fan_aspect(geometry: Any) -> float:
-    """Width over length of a ping's fan drawn to scale (:func:`draw_fan`): 0.30 for the shared
-    ARIS telephoto recording (14.6 deg, 3.3-23.4 m), 0.62 for the DIDSON test pings, 1.0 for the
-    60 deg Oculus fan from 0 m."""
-    az = np.asarray(geometry.azimuth_rad, dtype=np.float64)
-    r = np.asarray(geometry.range_m, dtype=np.float64)
-    r0, r1 = float(r.min()), float(r.max())
-    y = r1 * np.sin(az)
-    x_lo = min(r0 * float(np.cos(az).min()), r0)
-    height = r1 - x_lo
-    return float((y.max() - y.min()) / height) if height > 0 else 1.0
+    """Width over length of the box a ping's fan is drawn in to scale (:func:`draw_fan`,
+    :func:`sonarmap.fan.fan_extent_m`): 0.30 for the shared ARIS telephoto recording (14.6 deg,
+    3.3-23.4 m), 0.62 for the DIDSON test pings, 1.0 for the 60 deg Oculus fan from 0 m."""
+    from sonarmap.fan import fan_extent_m
+
+    x0, x1, y0, y1 = fan_extent_m(geometry)  # x forward, y starboard
+    return (y1 - y0) / (x1 - x0) if x1 > x0 else 1.0
 
 
 def fan_comparison(

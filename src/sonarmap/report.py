@@ -412,16 +412,21 @@ def _example(ds: Any, store: str | os.PathLike[str], index: int, config: Any, dp
     # a narrow fan drawn to scale is a sliver (an ARIS telephoto lens: 0.30 as wide as long): the
     # images as stored instead, beams across and range up
     polar = fan_aspect(g) < NARROW_FAN
-    draw = draw_polar if polar else draw_fan
+
+    def panel(ax: Any, image: Any, **kw: Any) -> None:
+        if polar:
+            draw_polar(ax, image, g, **kw)
+        else:
+            draw_fan(ax, image, g, colorbar=False, **kw)
+
     fig, axes = new_figure(1, 3, figsize=(11, 4.6))
-    draw(axes[0], ping.image, g, title="raw", **({} if polar else {"colorbar": False}))
+    panel(axes[0], ping.image, title="raw")
     # what the classifier saw: the background-normalised image, or the pre-processed one
     normalised = prod.background is not None and prod.background.applied
     title = "background-normalised" if normalised else "pre-processed"
-    draw(axes[1], np.clip(prod.image, 0, None), g, title=title, **({} if polar else {"colorbar": False}))
+    panel(axes[1], np.clip(prod.image, 0, None), title=title)
     labels = np.asarray(prod.labels) >= 1 if prod.labels is not None else np.zeros(g.shape, bool)
-    draw(axes[2], labels.astype(np.float32), g, vmin=0, vmax=1, cmap="gray", title="segmented + ranges",
-         **({} if polar else {"colorbar": False, "resolution_m": None}))
+    panel(axes[2], labels.astype(np.float32), vmin=0, vmax=1, cmap="gray", title="segmented + ranges")
     r = ds["range"].values[index]
     az = g.azimuth_rad
     ok = np.isfinite(r)

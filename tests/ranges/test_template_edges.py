@@ -275,7 +275,7 @@ def test_the_anchor_median_and_spread_equal_numbas_median_mean_and_sum():
     are numba's np.median, w.mean() and ((w - mu) ** 2).sum() bit for bit, ties included."""
     from numba import njit
 
-    from sonarmap.ranges._template_kernels import _sorted_median
+    from sonarmap.ranges._kernels import _median_of
 
     @njit(cache=False)
     def ours(w: np.ndarray, srt: np.ndarray) -> tuple[float, float]:
@@ -287,7 +287,7 @@ def test_the_anchor_median_and_spread_equal_numbas_median_mean_and_sum():
         for q in range(w.size):
             e = w[q] - mu
             ss += e * e
-        return _sorted_median(w, srt), ss
+        return _median_of(w, 0, w.size, srt), ss
 
     @njit(cache=False)
     def numbas(w: np.ndarray) -> tuple[float, float]:

@@ -56,17 +56,12 @@ def describe_path(path: Path, geometry: Any = None) -> dict[str, Any]:
 
 def _inputs_of(path: Path) -> list[Path]:
     """The inputs ``path`` stands for: itself, or for a directory of recordings each recording in
-    it (a Kongsberg ``.all`` + ``.wcd`` pair once; :func:`sonarmap.io.expand_inputs`)."""
+    it (a Kongsberg ``.all`` + ``.wcd`` pair once; :func:`sonarmap.io.inputs_with_readers`)."""
     if not path.is_dir():
         return [path]
-    from sonarmap.io import expand_inputs, first_of_recording, reader_for
+    from sonarmap.io import expand_inputs, inputs_with_readers
 
-    seen: set[object] = set()
-    out = []
-    for q in expand_inputs(path):
-        if q.is_dir() or first_of_recording(reader_for(q), q, seen):
-            out.append(q)
-    return out
+    return [q for q, _ in inputs_with_readers(expand_inputs(path))]
 
 
 def _print(info: dict[str, Any]) -> None:

@@ -28,7 +28,7 @@ from sonarmap.io.reader import FORMAT_MODULES, GeometrySpec, Reader, format_modu
 from sonarmap.ping import Ping
 
 __all__ = ["read_pings", "read_ping", "detect_format", "expand_inputs", "FORMAT_MODULES", "format_module",
-           "first_of_recording", "is_store_dir", "make_summary", "MAX_PING_BYTES", "PartialFrameWarning", "Reader",
+           "inputs_with_readers", "is_store_dir", "make_summary", "MAX_PING_BYTES", "PartialFrameWarning", "Reader",
            "reader_for", "reader_modules", "total_pings"]
 
 
@@ -114,7 +114,7 @@ def _recordings_in(directory: Path) -> list[Path]:
     :func:`detect_format`), in name order.  Other files (licences, READMEs, beam tables, a stray
     JSON) are skipped; subdirectories are not entered (a recording's pings are not mixed with
     another's)."""
-    from sonarmap.io.pngjson import IMAGE_SUFFIXES
+    from sonarmap.io.pngjson import _is_ping_image
 
     if is_store_dir(directory):
         return [directory]
@@ -122,8 +122,8 @@ def _recordings_in(directory: Path) -> list[Path]:
         entries = sorted(directory.iterdir())
     except OSError as exc:
         raise DataFormatError(f"cannot list: {exc.strerror or exc}", directory) from None
-    if any(e.suffix.lower() in IMAGE_SUFFIXES for e in entries):
-        return [directory]  # PNG/BMP pings (the PNG reader picks the ping images among them)
+    if any(_is_ping_image(e) for e in entries):
+        return [directory]  # PNG/BMP pings (the PNG reader's own test, find_png_pings)
     found: list[Path] = []
     for e in entries:
         if e.is_dir() or not e.is_file():
@@ -137,7 +137,7 @@ def _recordings_in(directory: Path) -> list[Path]:
     if found:
         return found
     subs = [e.name + "/" for e in entries if e.is_dir() and (is_store_dir(e) or any(
-        c.suffix.lower() in IMAGE_SUFFIXES for c in _listing(e)))]
+        _is_ping_image(c) for c in _listing(e)))]
     hint = f"; pass one of its subdirectories: {', '.join(subs)}" if subs else ""
     raise DataFormatError(f"no pings found: no PNG/BMP ping images and no recording this reads{hint}",
                           directory)
@@ -178,31 +178,31 @@ def read_pings(
             yield from pngjson.iter_png_pings(list(pngs), geometry=geometry)
             pngs.clear()
 
-    seen: set[object] = set()
-    for p in paths:
-        reader = reader_for(p)
+    for p, reader in inputs_with_readers(paths):
         if reader.FORMAT == "pngjson":
             pngs.append(p)
-            continue
-        if not first_of_recording(reader, p, seen):
             continue
         yield from flush()
         yield from reader.iter_pings(p, geometry=geometry, **kwargs)
     yield from flush()
 
 
-def first_of_recording(reader: Reader, path: Path, seen: set[object]) -> bool:
-    """Whether ``path`` is the first file given of its recording (``seen``: the recordings so far,
-    updated): a recording split over several files (Kongsberg ``.all`` + ``.wcd``, the reader's
-    ``recording_key``) is read and counted once, from whichever of them comes first."""
-    key_of = getattr(reader, "recording_key", None)
-    if key_of is None:
-        return True
-    key = key_of(path)
-    if key in seen:
-        return False
-    seen.add(key)
-    return True
+def inputs_with_readers(paths: Iterable[str | os.PathLike[str]]) -> Iterator[tuple[Path, Reader]]:
+    """Each of the expanded inputs ``paths`` (:func:`expand_inputs`) with its reader, in order; a
+    recording split over several files (Kongsberg ``.all`` + ``.wcd``, the reader's
+    ``recording_key``) once, from whichever of its files comes first - so that it is read,
+    counted and planned once however often it is named."""
+    seen: set[object] = set()
+    for item in paths:
+        p = Path(item)
+        reader = reader_for(p)
+        key_of = getattr(reader, "recording_key", None)
+        if key_of is not None:
+            key = key_of(p)
+            if key in seen:
+                continue
+            seen.add(key)
+        yield p, reader
 
 
 def is_store_dir(p: Path) -> bool:
@@ -242,13 +242,10 @@ def total_pings(paths: Iterable[str | os.PathLike[str]]) -> int:
     import warnings
 
     total = 0
-    seen: set[object] = set()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        for p in paths:
-            reader = reader_for(p)
-            if first_of_recording(reader, Path(p), seen):
-                total += int(reader.count_pings(p))
+        for p, reader in inputs_with_readers(paths):
+            total += int(reader.count_pings(p))
     return total
 
 

@@ -1347,6 +1347,15 @@ def _median(x, c):  # pragma: no cover - numba
     return x[c // 2] if c % 2 == 1 else 0.5 * (x[c // 2 - 1] + x[c // 2])
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _median_of(x, lo, hi, work):  # pragma: no cover - numba
+    """The median of ``x[lo:hi]`` (finite values) from a copy in the scratch ``work``
+    (:func:`_median`; ``x`` is not reordered, no array allocated)."""
+    for t in range(lo, hi):
+        work[t - lo] = x[t]
+    return _median(work, hi - lo)
+
+
 @njit(cache=True, nogil=True)
 def _clipped_at(clip, level, j, pos):  # pragma: no cover - numba
     """Whether either raw sample around fractional row ``pos`` of column ``j`` is clipped (``clip``

@@ -7,15 +7,7 @@ import math
 import numpy as np
 from numba import njit
 
-from sonarmap.ranges._kernels import _median, first_interval_runs, run_spans
-
-
-@njit(cache=True, nogil=True)
-def _median_of(x, lo, hi, work):  # pragma: no cover - numba
-    """The median of ``x[lo:hi]`` (:func:`_kernels._median` of a copy in the scratch ``work``)."""
-    for t in range(lo, hi):
-        work[t - lo] = x[t]
-    return _median(work, hi - lo)
+from sonarmap.ranges._kernels import _median, _median_of, first_interval_runs, run_spans
 
 
 @njit(cache=True, nogil=True)
@@ -34,13 +26,13 @@ def _resistant_line(o, v, n, work):  # pragma: no cover - numba
 
 
 @njit(cache=True, nogil=True)
-def _run_z(raw, rows, cols, depth, gap, window, min_shifts, null, offs, work):  # pragma: no cover - numba
-    """``(z, n_shifts)`` of one surface: its beams ``cols`` with echo rows ``rows`` (the bin of
-    each leading edge), ``depth`` bins deep (fewer where the window ends first; see
+def _run_z(raw, rows, j0, depth, gap, window, min_shifts, null, offs, work):  # pragma: no cover - numba
+    """``(z, n_shifts)`` of one surface: its beams ``j0 .. j0 + rows.size - 1`` with echo rows
+    ``rows`` (the bin of each leading edge), ``depth`` bins deep (fewer where the window ends first; see
     :func:`surface_z`); ``null``, ``offs`` and ``work`` are scratch of at least ``window``
     values."""
     n = raw.shape[0]
-    nb = cols.size
+    nb = rows.size
     lo_row = n
     hi_row = 0
     for q in range(nb):
@@ -59,7 +51,7 @@ def _run_z(raw, rows, cols, depth, gap, window, min_shifts, null, offs, work):  
     # and its shifts read: an image-sized array would cost page faults on every ping)
     prefix = np.empty((nb, span + 1))
     for q in range(nb):
-        j = cols[q]
+        j = j0 + q
         acc = 0.0
         prefix[q, 0] = 0.0
         for t in range(span):
@@ -126,15 +118,13 @@ def surface_z(raw, sel, edge_bin, start_bin, stop_bin, touch, min_depth, max_dep
         if nb < min_beams:
             continue
         rows = np.empty(nb, np.int64)
-        cols = np.empty(nb, np.int64)
         for q in range(nb):
             e = edge[j + q]  # (finite: surface_runs labels only beams with an edge)
             rows[q] = min(max(int(math.floor(e + 0.5)), 0), n - 1)
-            cols[q] = j + q
             d[q] = stop[j + q] - e
         depth = int(math.floor(_median(d, nb) + 0.5))
         depth = min(max(depth, min_depth), max_depth)
-        zz, k = _run_z(raw, rows, cols, depth, gap, window, min_shifts, null, offs, work)
+        zz, k = _run_z(raw, rows, j, depth, gap, window, min_shifts, null, offs, work)
         for q in range(nb):
             z[j + q] = zz
             used[j + q] = k

@@ -10,7 +10,7 @@ import numpy as np
 from numba import njit
 
 from sonarmap.ranges._kernels import (_edge_sigma, _interp_column, _interp_index, _lu_small, _lu_solve_small,
-                                      _median, _solve_small, run_spans, runs_of_returns)
+                                      _median_of, _solve_small, run_spans, runs_of_returns)
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -265,17 +265,6 @@ def _run_edges(img, edge, stop, skip, j0, j1, half_template, half_window, front,
             cur[a] = new[j0 + a]
 
 
-@njit(cache=True, nogil=True, inline="always")
-def _sorted_median(w, srt):  # pragma: no cover - numba
-    """``np.median(w)`` of finite values (numba's: the middle order statistic, or the mean of the
-    two middle ones) from a copy in the scratch ``srt`` (:func:`_kernels._median`; no array
-    allocated, ``w`` not reordered)."""
-    c = w.size
-    for q in range(c):
-        srt[q] = w[q]
-    return _median(srt, c)
-
-
 @njit(cache=True, nogil=True)
 def _anchor_run(edge, new, var, j0, j1, anchor, shared):  # pragma: no cover - numba
     """Anchor the template-measured edges of the run ``j0 .. j1 - 1`` on the edges they replace
@@ -303,7 +292,7 @@ def _anchor_run(edge, new, var, j0, j1, anchor, shared):  # pragma: no cover - n
                 buf[c] = d[k]
                 c += 1
         w = buf[:c]
-        new[j0 + a] += _sorted_median(w, srt)
+        new[j0 + a] += _median_of(w, 0, c, srt)
         if c >= 2:
             # w.mean() and ((w - mu) ** 2).sum(): the same sequential sums, without temporaries
             mu = 0.0

@@ -133,7 +133,7 @@ def plan_survey(
     DataFormatError
         If an input does not exist or is of an unknown format.
     """
-    from sonarmap.io import expand_inputs, first_of_recording, reader_for
+    from sonarmap.io import expand_inputs, inputs_with_readers
     from sonarmap.io.pngjson import find_png_pings
 
     if isinstance(chunk_size, bool) or int(chunk_size) != chunk_size or chunk_size < 1:
@@ -146,14 +146,10 @@ def plan_survey(
             files.extend((os.path.abspath(p), "pngjson", 1) for p in find_png_pings(list(pngs)))
             pngs.clear()
 
-    seen: set[object] = set()
-    for p in expand_inputs(inputs):
-        reader = reader_for(p)
+    for p, reader in inputs_with_readers(expand_inputs(inputs)):
         if reader.FORMAT == "pngjson":
             pngs.append(p)
             continue
-        if not first_of_recording(reader, p, seen):
-            continue  # the other file of a split recording (Kongsberg .all + .wcd): planned once
         flush()
         n = int(reader.count_pings(p))
         if n:
