@@ -165,7 +165,7 @@ def run(quick: bool) -> list[dict[str, Any]]:
 
         r2 = _timed_run(main_dir, tmp / "main.zarr", workers=2)
         per_ping_ms = 1e3 * r2["wall_s"] / r2["n"]
-        est_s = r2["wall_s"] * FULL_PINGS / r2["n"]
+        est_s = r2["wall_s"]  # the full survey; from two sizes below when fewer pings were run
         note = (f"{r2['n'] / r2['wall_s']:.0f} pings/s, {per_ping_ms:.2f} ms/ping, {r2['flagged']} flagged; "
                 f"peak RSS {r2['peak_mb']:.0f} MB over {r2['procs']} processes; {r2['own_cpu_s']:.0f} CPU s; "
                 f"other load {_other_load(r2):.2f} CPUs")
@@ -184,7 +184,7 @@ def run(quick: bool) -> list[dict[str, Any]]:
             "benchmark": "survey",
             "case": (f"{r2['n']} DIDSON pings, 2 workers (links made in {link_s:.1f} s)" if r2["n"] == FULL_PINGS
                      else f"{FULL_PINGS} DIDSON pings, 2 workers, from {r2['n']} (links made in {link_s:.1f} s)"),
-            "median_ms": 1e3 * (r2["wall_s"] if r2["n"] == FULL_PINGS else est_s),
+            "median_ms": 1e3 * est_s,
             "target_ms": 1e3 * BUDGET_S,
             "note": note,
         })

@@ -126,7 +126,7 @@ def _recordings_in(directory: Path) -> list[Path]:
         return [directory]  # PNG/BMP pings (the PNG reader's own test, find_png_pings)
     found: list[Path] = []
     for e in entries:
-        if e.is_dir() or not e.is_file():
+        if not e.is_file():  # (subdirectories, FIFOs, devices)
             continue
         try:
             fmt = detect_format(e)
