@@ -100,19 +100,25 @@ def test_real_aris_faint_end_of_the_target_is_followed(aris_pings):
 
 def test_real_aris_target_does_not_depend_on_where_the_fit_stopped(aris_pings):
     """With SQUAREM-accelerated fits stopped at a 1e-6 relative gain (higher likelihood than plain
-    EM stopped there, slightly different posteriors) the tracker's passes give the target's near
-    end (beams 28-39) of frame 5 to a line behind it (4 of 12 beams on the target); the front pass
+    EM stopped there, slightly different posteriors) the tracker's passes gave the target's near
+    end (beams 28-39) of frame 5 to a line behind it (4 of 12 beams on the target; no longer, see
+    the end of this test); the front pass
     reports the target there with plain EM, SQUAREM and the converged default fit alike (measured
-    12 of 12 in frames 1-5, 9 of 12 in frame 0, whose faint end the previous test describes)."""
+    12 of 12 in frames 1-5, 9 of 12 in frame 0, whose faint end the previous test describes -
+    with plain EM stopped early 6 of 12 there: beams 34-39 go to the line behind, since the beam
+    factor's block rows are median filtered along range)."""
     accel = PipelineConfig().replace(fit={"fit_accelerate": True, "fit_tol": 1e-6})
     plain = PipelineConfig().replace(fit=_STOPPED_EARLY)
     for k, p in enumerate(aris_pings):
         for cfg in (PipelineConfig(), accel, plain):
             near_end = process_ping(p, cfg).ranges.range_m[28:40]
-            assert np.count_nonzero((near_end > 15.3) & (near_end < 16.0)) >= (9 if k == 0 else 10), (k, cfg.fit)
+            least = 10 if k else (6 if cfg is plain else 9)
+            assert np.count_nonzero((near_end > 15.3) & (near_end < 16.0)) >= least, (k, cfg.fit)
+    # without the front pass the SQUAREM fit's frame 5 gave 4 of 12 before the beam factor's block
+    # rows were median filtered; now the passes alone keep the target there (12 of 12)
     off = accel.replace(track={"front_pass": False})
     near_end = process_ping(aris_pings[5], off).ranges.range_m[28:40]
-    assert np.count_nonzero((near_end > 15.3) & (near_end < 16.0)) <= 6
+    assert np.count_nonzero((near_end > 15.3) & (near_end < 16.0)) >= 10
 
 
 def test_real_aris_target_is_bridged_where_a_line_behind_took_beams(aris_pings):
@@ -170,10 +176,13 @@ def test_real_didson_extra_images(didson_dir):
     normalised like ARIS) looks at a tank floor: a flat floor below the sonar is first seen through
     the lower edge of the vertical beam at the same range on every beam, so its leading edge is a
     row across the fan (rows 325-327, about 7.95 m; the brighter arc behind it, 330-350, curves with
-    azimuth).  Every beam reports a return, on the floor's edge or, on the beams right of 61, on
-    a fainter echo in front of it at rows 178-189 (5.4-5.5 m, 0.4-1.3 m to starboard; 2-3.6x the
-    rows in front of it there, 1.1-1.9x on the beams left of it) - nothing in the water column
-    elsewhere.  ``frame_2014.bmp`` (an older palettised
+    azimuth).  Every beam but 60-63 reports a return, on the floor's edge or, on the beams right of
+    65, on a fainter echo in front of it at rows 178-189 (5.4-5.5 m, 0.4-1.3 m to starboard; 2-3.6x
+    the rows in front of it there, 1.1-1.9x on the beams left of it) - nothing in the water column
+    elsewhere.  On beams 60-63 the first surface is a piece of that echo (row 183) that does not
+    stand out from its water column: the significance test drops it and the beams report none
+    (before the beam factor's block rows were median filtered, beams 60-61 reported the floor at
+    rows 330-332 and 62-63 the piece).  ``frame_2014.bmp`` (an older palettised
     frame, range window unknown) has 19 % zeros and row lower quartiles of 1-2 of 255 levels: too
     coarse to normalise ("quantised"), and on the deconvolved image the object class collapses
     onto the background's - no returns, and the ping says why (never silent)."""
@@ -183,12 +192,12 @@ def test_real_didson_extra_images(didson_dir):
     prod = process_ping(tuna)
     r = prod.ranges
     assert not prod.gates and prod.background.applied
-    assert r.n_returns == r.n_beams  # measured 96
+    assert r.n_returns >= r.n_beams - 4  # measured 92 of 96
     rows = (r.range_m - tuna.geometry.range_m[0]) / tuna.geometry.range_resolution_m
     on_floor = (rows >= 322) & (rows <= 334)
     on_line = (rows >= 176) & (rows <= 192)
-    assert np.all(on_floor | on_line), np.round(rows[~(on_floor | on_line)])
-    assert on_floor[:56].all()  # measured: beams 0-61, 64 and 65 on the floor
+    assert np.all((on_floor | on_line)[r.valid]), np.round(rows[r.valid & ~(on_floor | on_line)])
+    assert on_floor[:56].all()  # measured: beams 0-59, 64 and 65 on the floor
     assert np.flatnonzero(on_line).min() >= 56
     old = read_ping(didson_dir / "extra" / "frame_2014.bmp", geometry="didson-hf")
     prod = process_ping(old)

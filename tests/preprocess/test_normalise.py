@@ -111,7 +111,31 @@ def _smooth_reference(log_level: np.ndarray, width: int, floor: np.ndarray) -> t
         keep = (~above).astype(np.float64)
         if not changed:
             break
-    return smooth, above
+    return _bridge_reference(log_level, keep, width, smooth), above
+
+
+def _bridge_reference(y: np.ndarray, keep: np.ndarray, width: int, smooth: np.ndarray) -> np.ndarray:
+    """The numpy form of _bridge_left_out: each stretch of rows whose window (uniform_filter1d,
+    mode "nearest") holds a row left out takes the least-squares quadratic through the kept rows
+    within 2 windows of it on either side, when each side holds >= width // 2 of them, bounded
+    by the curve above and by the lower of its values beside the stretch below."""
+    from scipy.ndimage import uniform_filter1d
+
+    n = y.size
+    out = smooth.copy()
+    short = uniform_filter1d(keep, width, mode="nearest") < 1.0 - 1e-9
+    edges = np.flatnonzero(np.diff(np.r_[0, short.astype(int), 0]))
+    for a, b in zip(edges[::2], edges[1::2]):
+        lo, hi = max(a - 2 * width, 0), min(b + 2 * width, n)
+        if keep[lo:a].sum() < width // 2 or keep[b:hi].sum() < width // 2:
+            continue
+        k = np.r_[np.arange(lo, a), np.arange(b, hi)]
+        k = k[keep[k] > 0]
+        c0, sc = 0.5 * (a + b - 1), 1.0 / (hi - lo)
+        q = np.polynomial.polynomial.polyfit((k - c0) * sc, y[k], 2)
+        fit = np.polynomial.polynomial.polyval((np.arange(a, b) - c0) * sc, q)
+        out[a:b] = np.minimum(np.maximum(fit, min(smooth[a - 1], smooth[b])), smooth[a:b])
+    return out
 
 
 def test_smoothing_and_background_rows_equal_the_numpy_reference() -> None:
@@ -127,7 +151,7 @@ def test_smoothing_and_background_rows_equal_the_numpy_reference() -> None:
         floor = np.full(n, 0.02) if n % 2 else 0.02 + rng.random(n)
         smooth, above = _smooth_reference(log_level, width, floor)
         s, a = smooth_log_level(log_level, width, floor)
-        assert np.allclose(s, smooth, rtol=0, atol=1e-12) and np.array_equal(a, above)
+        assert np.allclose(s, smooth, rtol=0, atol=1e-9) and np.array_equal(a, above)
         q50 = np.round(rng.random(n) * 8).astype(np.float32).astype(np.float64)  # many ties
         q25 = q50 - rng.random(n)
         for n_rows in (1, n // 4, n):
@@ -137,9 +161,11 @@ def test_smoothing_and_background_rows_equal_the_numpy_reference() -> None:
 
 def test_a_surface_across_every_beam_is_left_out_of_the_level_with_its_flanks() -> None:
     """A seabed-like echo over all beams (2.5x the background at its peak, Gaussian over +-15
-    rows) raises the estimated level under it by < 12 % (its flanks are left out with its core,
-    and the curve is interpolated across the rows left without support; 31 % before), and
-    nowhere else by more than 1.5 %."""
+    rows) raises the estimated level under it by < 5 % (its flanks are left out with its core,
+    and the curve is bridged across the rows left out by a quadratic through the kept rows on
+    either side: measured 3.6 %; with a straight line between the running means at the stretch's
+    ends 8.7 %, with the flanks kept 31 %), and nowhere else moves it by more than 1.5 % (measured
+    0.9 %)."""
     rng = np.random.default_rng(3)
     n, m = 1000, 48
     r = np.arange(n)
@@ -149,7 +175,7 @@ def test_a_surface_across_every_beam_is_left_out_of_the_level_with_its_flanks() 
     empty = (b[:, None] * speckle).astype(np.float32)
     floor = (b[:, None] * bump[:, None] * speckle).astype(np.float32)
     dev = estimate_background(floor)[0].level_by_bin / estimate_background(empty)[0].level_by_bin - 1.0
-    assert dev[560:700].max() < 0.12
+    assert dev[560:700].max() < 0.05
     assert np.abs(np.r_[dev[:540], dev[720:]]).max() < 0.015
 
 
@@ -170,6 +196,26 @@ def test_a_seabed_filling_most_blocks_leaves_the_water_columns_beam_factor_at_on
     front = rows[:, 0] < 0.35 * n
     assert np.median(full[front]) == pytest.approx(1.0, abs=0.1), np.median(full[front])
     assert np.median(full[rows[:, 0] > 0.7 * n]) > 1.5
+
+
+def test_a_band_across_the_fan_leaves_the_beam_factor_at_one_and_a_step_keeps_it() -> None:
+    """A faint band across every beam (1.6x the background over 60 of 1000 rows, a seabed seen
+    at grazing incidence) is no beam pattern: the beam factor's block row holding it stays at 1
+    (measured median 0.999; 1.54 before the block rows' medians were median filtered along range,
+    which raised the background under the band and put its leading edges early).  A seabed that
+    fills the window to its end (8x from row 700 on) keeps its factor behind the step (2.0, the
+    clip), and the water column in front stays at 1."""
+    rng = np.random.default_rng(7)
+    n, m = 1000, 128
+    r = np.arange(n)[:, None]
+    b = 0.4 * np.exp(-r / 1500.0)
+    speckle = rng.gamma(8.0, 1 / 8.0, size=(n, m))
+    band = (b * np.where((r >= 620) & (r < 680), 1.6, 1.0) * speckle).astype(np.float32)
+    f = np.median(estimate_background(band)[0].beam_factor, axis=1)
+    assert f.size == 16 and np.abs(f - 1.0).max() < 0.03, f
+    step = (b * np.where(r >= 700, 8.0, 1.0) * speckle).astype(np.float32)
+    f = np.median(estimate_background(step)[0].beam_factor, axis=1)
+    assert np.abs(f[:11] - 1.0).max() < 0.03 and np.all(f[12:] > 1.5), f
 
 
 def test_the_level_sigma_floor_is_one_quantisation_step_on_8bit_data() -> None:

@@ -285,7 +285,7 @@ class RangeConfig(ConfigSection):
     continue_evidence: float = 10.0
     sigma_scale: float = 1.5
     sigma_pool_scale: float = 5.0
-    sigma_fit_scale: float = 5.4
+    sigma_fit_scale: float = 4.0
     edge_template_beams: int = 5
     edge_template_min_beams: int = 30
     edge_template_anchor_beams: int = 10
