@@ -26,9 +26,10 @@ hardware:
    bilinearly interpolated - the beam pattern's taper and range-dependent fan-edge brightening.
    The median of all the blocks would be a surface's when it fills most of them (a seabed on
    every beam behind its front): the water column in front would get a factor of 0.5 and be
-   doubled in the measured image.  A block row whose median across the beams stands out from
-   its neighbours' along range (median filter over 5 block rows) is a surface across the fan,
-   not a beam pattern: the row is scaled back to the filtered median.
+   doubled in the measured image.  Each block row is then scaled so that its median across the
+   beams is the median filter over 5 block rows of those medians along range: a surface across
+   the fan fills one or two block rows and stands out from its neighbours - it is not a beam
+   pattern (:func:`_without_range_bands`).
 3. **Multi-look**: ``z = y / (b f)`` averaged over ``pool`` = 5 bins x 3 beams (the background of
    a single look is speckle; surfaces are coherent over a few bins and beams).
 4. **Receiver threshold**: ``u = g max(z - t, 0)`` with ``t`` the background's 90th percentile
