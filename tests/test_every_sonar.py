@@ -137,6 +137,20 @@ def test_real_aris_target_is_bridged_where_a_line_behind_took_beams(aris_pings):
     assert np.all(np.isnan(tested)), tested
 
 
+def test_real_aris_split_band_reports_the_nearer_band(aris_pings):
+    """Where the target's band splits in two (frame 1 beams 26-27, frame 5 beams 27-29) the lines
+    behind take the passes, the upper band's faint tail (15.91-15.99 m) is tracked and the lower
+    band's start in front of it (15.70-15.82 m) is left over: too short to pay for a piece in
+    the front pass, and not a bridge (the lower band does not come back on the other side).  The
+    end extension (TrackConfig.extend_beams) continues the lower band from where its surface ends
+    over those beams; without it they report the upper band's tail."""
+    for k, beams in ((1, slice(26, 28)), (5, slice(27, 30))):
+        r = process_ping(aris_pings[k]).ranges.range_m[beams]
+        assert np.all((r > 15.6) & (r < 15.81)), (k, r)
+        off = process_ping(aris_pings[k], PipelineConfig().replace(track={"extend_beams": 0})).ranges.range_m[beams]
+        assert np.all(off > 15.88), (k, off)
+
+
 def test_real_oculus_seabed_and_nothing_in_front(oculus_pings):
     """The returns lie on the seabed's front on every beam, nothing in front of it (before: ring-down
     returns at bin 0 on every beam; then faint arcs 5-19 cm in front of the seabed on ~170 of the

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 
 import numpy as np
@@ -9,7 +10,7 @@ import pytest
 
 from sonarmap.errors import InputError
 from sonarmap.geometry import SonarGeometry
-from sonarmap.ranges import ranges_from_tracks
+from sonarmap.ranges import _kernels, ranges_from_tracks
 from sonarmap.ranges.echoes import Echoes, find_echoes, range_sigma_m
 from sonarmap.ranges.tracking import TrackConfig, Tracks, front_surfaces, track_surfaces, tracks_and_front
 
@@ -160,8 +161,9 @@ def test_a_surface_is_bridged_across_beams_a_stronger_echo_behind_took():
     assert np.all(short.bin[18:21] == 150)
 
 
-def test_no_bridge_without_the_surface_on_the_other_side():
-    # the near surface ends where the echo behind starts: nothing to bridge to
+def _near_surface_ends_behind_another() -> tuple:
+    """A faint surface in front (rows 100-101) on beams 0-20, a strong one behind (rows 150-152) on
+    beams 18-39: the passes give beams 18-20 to the one behind."""
     g = _geom(n_beams=40)
     img = np.zeros(g.shape)
     llr = np.zeros(g.shape)
@@ -169,10 +171,77 @@ def test_no_bridge_without_the_surface_on_the_other_side():
     llr[100:102, :21] = 3.0
     img[150:153, 18:40] = 1.0
     llr[150:153, 18:40] = 20.0
-    e = find_echoes(img > 0, img, g, llr=llr)
+    return g, img, find_echoes(img > 0, img, g, llr=llr)
+
+
+def test_no_bridge_without_the_surface_on_the_other_side():
+    # the near surface ends where the echo behind starts: nothing to bridge to
+    g, img, e = _near_surface_ends_behind_another()
     a = ranges_from_tracks(e, track_surfaces(e, TrackConfig(segment_cost=30.0, bridge_beams=0)), g, img)
     b = ranges_from_tracks(e, track_surfaces(e, TrackConfig(segment_cost=30.0)), g, img)
     np.testing.assert_array_equal(a.bin, b.bin)
+
+
+def _extension_case(n_chain: int = 3, chain_unary: float = -5.0, behind_on_chain: bool = True,
+                    overlap: bool = False) -> tuple:
+    """Echo tables of :func:`_kernels.extend_ends` over 6 beams: a tracked surface on beams
+    ``n_chain``.. at bins 10-12, untracked echoes at bins 10-12 in front on beams 0..n_chain-1
+    (cost ``chain_unary``), a tracked surface behind them at bins 30-32 (``behind_on_chain``); with
+    ``overlap`` the surface behind reaches up to the front surface's interval on the beam next to
+    it (the front surface goes on there)."""
+    rows = []  # (beam, lo, hi, unary, tracked)
+    for j in range(6):
+        if j < n_chain:
+            rows.append((j, 10, 12, chain_unary, False))
+            if behind_on_chain:
+                lo = 11 if (overlap and j == n_chain - 1) else 30
+                rows.append((j, lo, 32, -50.0, True))
+        else:
+            rows.append((j, 10, 12, -50.0, True))
+    beam = np.array([r[0] for r in rows], dtype=np.int64)
+    lo = np.array([r[1] for r in rows], dtype=np.int64)
+    hi = np.array([r[2] for r in rows], dtype=np.int64)
+    unary = np.array([r[3] for r in rows])
+    pos = lo.astype(np.float64)
+    tracks = np.full((3, 6), -1, dtype=np.int64)
+    for a, r in enumerate(rows):
+        if r[4]:
+            tracks[0, r[0]] = a
+    first, count = _kernels.beam_index(beam, 6)
+    return first, count, pos, lo, hi, unary, tracks
+
+
+def test_end_extension_continues_a_surface_over_beams_a_surface_behind_took():
+    # slope_bins, slope_cost, jump_bins, touch_bins, max_beams
+    rules = (2.0, 1.0, 20.0, 1.0)
+    case = _extension_case()
+    chosen, hit = _kernels.extend_ends(*case, *rules, 4)
+    assert hit
+    np.testing.assert_array_equal(chosen, [0, 2, 4, -1, -1, -1])  # the front echoes of beams 0-2
+    # longer than max_beams: none
+    assert not _kernels.extend_ends(*case, *rules, 2)[1]
+    # evidence that does not pay for the beam: no candidate
+    assert not _kernels.extend_ends(*_extension_case(chain_unary=0.5), *rules, 4)[1]
+    # a beam no other surface took: the passes had their chance there (an ordinary surface end)
+    assert not _kernels.extend_ends(*_extension_case(behind_on_chain=False), *rules, 4)[1]
+    # the front surface goes on next to the anchor (an echo touching its interval is tracked):
+    # not where that surface ends
+    assert not _kernels.extend_ends(*_extension_case(overlap=True), *rules, 4)[1]
+
+
+def test_tracks_and_front_extends_a_surface_end_behind_which_another_took_beams():
+    # the near surface (rows 100-101) spans beams 0-20, the strong one behind (150-152) beams
+    # 18-39: the passes give 18-20 to the one behind, and the near echoes there are left over;
+    # nothing comes back on the other side, so there is no bridge: the end extension reports them
+    g, img, e = _near_surface_ends_behind_another()
+    cfg = TrackConfig(segment_cost=30.0)
+    tracks, fronted = tracks_and_front(e, cfg)
+    assert np.all(ranges_from_tracks(e, tracks, g, img).bin[18:21] == 150)
+    br = ranges_from_tracks(e, fronted, g, img)
+    assert np.all(br.bin[:21] == 100) and np.all(br.bin[21:] == 150)
+    np.testing.assert_allclose(br.other_range_m[0][18:21], g.range_m[150] - 0.005, atol=1e-9)
+    off = ranges_from_tracks(e, tracks_and_front(e, TrackConfig(segment_cost=30.0, extend_beams=0))[1], g, img)
+    assert np.all(off.bin[18:21] == 150)
 
 
 def _front_and_behind(front_beams: slice):
@@ -242,7 +311,7 @@ def _front_on_subset(e: Echoes, t: Tracks, cfg: TrackConfig, pulse_bins: int) ->
         args[1:6] = [np.ascontiguousarray(a[idx]) for a in args[1:5]] + [args[5]]
     chosen = _kernels.track_surfaces(
         e.beam[idx], e.n_beams, e.edge_bin[idx], lo[idx], hi[idx], cfg.beam_cost - e.evidence[idx], 1, cfg.max_gap,
-        cfg.slope_bins, cfg.slope_cost, cfg.jump_bins, cfg.touch_bins, cfg.segment_cost, cfg.gap_cost, 0, *args,
+        cfg.slope_bins, cfg.slope_cost, cfg.jump_bins, cfg.touch_bins, cfg.segment_cost, cfg.gap_cost, 0, 0, *args,
         False)[0][0]
     hit = chosen >= 0
     if not hit.any():
@@ -275,13 +344,20 @@ def test_front_pass_in_the_tracking_kernel_is_the_subset_pass(seed: int) -> None
     hits = 0
     for cfg in (TrackConfig(segment_cost=20.0, n_surfaces=1, bridge_beams=0), TrackConfig(segment_cost=10.0),
                 TrackConfig(segment_cost=15.0, n_surfaces=2, point_fraction=0.3)):
-        t, f = tracks_and_front(e, cfg, 2)
+        # the front pass alone (no end extensions) is the pass over the subset
+        alone = dataclasses.replace(cfg, extend_beams=0)
+        t, f = tracks_and_front(e, alone, 2)
         np.testing.assert_array_equal(t.echo, track_surfaces(e, cfg, 2).echo)
-        ref = _front_on_subset(e, t, cfg, 2)
+        ref = _front_on_subset(e, t, alone, 2)
         np.testing.assert_array_equal(f.echo, ref.echo)
-        np.testing.assert_array_equal(front_surfaces(e, t, cfg, 2).echo, ref.echo)
-        assert (f is t) == (ref is t) == (front_surfaces(e, t, cfg, 2) is t)
+        np.testing.assert_array_equal(front_surfaces(e, t, alone, 2).echo, ref.echo)
+        assert (f is t) == (ref is t) == (front_surfaces(e, t, alone, 2) is t)
         hits += ref is not t
+        # with the extensions the kernel and front_surfaces still agree
+        t2, f2 = tracks_and_front(e, cfg, 2)
+        np.testing.assert_array_equal(t2.echo, t.echo)
+        np.testing.assert_array_equal(f2.echo, front_surfaces(e, t, cfg, 2).echo)
+        assert (f2 is t2) == (front_surfaces(e, t, cfg, 2) is t)
     assert hits >= 1  # every seed gives the front pass something to keep in one configuration
 
 

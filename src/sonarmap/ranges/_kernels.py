@@ -464,37 +464,8 @@ def bridge_surfaces(first, count, pos, lo_bin, hi_bin, unary, tracked, slope_bin
     echo tracked before at both ends; every other candidate is dropped.
     """
     m = first.size
-    cand = np.zeros(tracked.size, np.bool_)
-    changed = True
-    while changed:
-        changed = False
-        for sweep in range(2):
-            for t in range(m):
-                j = t if sweep == 0 else m - 1 - t
-                for a in range(first[j], first[j] + count[j]):
-                    if tracked[a] or cand[a]:
-                        continue
-                    front = True
-                    for q in range(first[j], first[j] + count[j]):
-                        if (tracked[q] or cand[q]) and pos[q] <= pos[a]:
-                            front = False
-                            break
-                    if not front:
-                        continue
-                    join = False
-                    for jb in (j - 1, j + 1):
-                        if jb < 0 or jb >= m:
-                            continue
-                        for b in range(first[jb], first[jb] + count[jb]):
-                            if (tracked[b] or cand[b]) and _neighbours(a, b, 1, pos, lo_bin, hi_bin, jump_bins, touch_bins) \
-                                    and unary[a] + slope_cost * abs(pos[a] - pos[b]) / slope_bins < 0.0:
-                                join = True
-                                break
-                        if join:
-                            break
-                    if join:
-                        cand[a] = True
-                        changed = True
+    cand = _bridge_candidates(first, count, pos, lo_bin, hi_bin, unary, tracked, slope_bins, slope_cost, jump_bins,
+                              touch_bins)
     out = tracked.copy()
     chain = np.empty(max_beams + 1, np.int64)
     for j in range(1, m):
@@ -534,6 +505,154 @@ def bridge_surfaces(first, count, pos, lo_bin, hi_bin, unary, tracked, slope_bin
                 cur = nxt
                 k += 1
     return out
+
+
+@njit(cache=True, nogil=True)
+def _bridge_candidates(first, count, pos, lo_bin, hi_bin, unary, tracked, slope_bins, slope_cost, jump_bins,
+                       touch_bins):  # pragma: no cover - numba
+    """The candidates of :func:`bridge_surfaces` (bool per echo): untracked echoes in front of every
+    tracked echo of their beam, each a neighbour of a tracked or candidate echo on an adjacent beam
+    whose step pays for itself, grown by forward and backward sweeps until none joins."""
+    m = first.size
+    cand = np.zeros(tracked.size, np.bool_)
+    changed = True
+    while changed:
+        changed = False
+        for sweep in range(2):
+            for t in range(m):
+                j = t if sweep == 0 else m - 1 - t
+                for a in range(first[j], first[j] + count[j]):
+                    if tracked[a] or cand[a]:
+                        continue
+                    front = True
+                    for q in range(first[j], first[j] + count[j]):
+                        if (tracked[q] or cand[q]) and pos[q] <= pos[a]:
+                            front = False
+                            break
+                    if not front:
+                        continue
+                    join = False
+                    for jb in (j - 1, j + 1):
+                        if jb < 0 or jb >= m:
+                            continue
+                        for b in range(first[jb], first[jb] + count[jb]):
+                            if (tracked[b] or cand[b]) and _neighbours(a, b, 1, pos, lo_bin, hi_bin, jump_bins, touch_bins) \
+                                    and unary[a] + slope_cost * abs(pos[a] - pos[b]) / slope_bins < 0.0:
+                                join = True
+                                break
+                        if join:
+                            break
+                    if join:
+                        cand[a] = True
+                        changed = True
+    return cand
+
+
+@njit(cache=True, nogil=True)
+def _has_tracked_neighbour(b, jb, first, count, pos, lo_bin, hi_bin, tracked, jump_bins,
+                           touch_bins):  # pragma: no cover - numba
+    """Whether beam ``jb`` holds a tracked echo that is a neighbour of echo ``b`` (one beam apart)."""
+    for q in range(first[jb], first[jb] + count[jb]):
+        if tracked[q] and _neighbours(b, q, 1, pos, lo_bin, hi_bin, jump_bins, touch_bins):
+            return True
+    return False
+
+
+@njit(cache=True, nogil=True)
+def _touches_tracked(b, jb, first, count, lo_bin, hi_bin, tracked, touch_bins):  # pragma: no cover - numba
+    """Whether beam ``jb`` holds a tracked echo whose bin interval lies within ``touch_bins`` of
+    echo ``b``'s (one beam apart; the contiguity half of :func:`_neighbours`, whatever the edges)."""
+    for q in range(first[jb], first[jb] + count[jb]):
+        if tracked[q] and max(lo_bin[b] - hi_bin[q], lo_bin[q] - hi_bin[b]) <= touch_bins:
+            return True
+    return False
+
+
+@njit(cache=True, nogil=True)
+def extend_ends(first, count, pos, lo_bin, hi_bin, unary, tracks, slope_bins, slope_cost, jump_bins, touch_bins,
+                max_beams):  # pragma: no cover - numba
+    """The end extensions of the tracked surfaces ``tracks`` (``(n_surfaces, m)`` echo indices,
+    nearest first; :func:`sonarmap.ranges.tracking.tracks_and_front`): per beam the nearest echo
+    of an extension (-1 none) and whether there is any.
+
+    Candidates are those of a bridge (:func:`_bridge_candidates`: untracked echoes in front of
+    every tracked echo of their beam, each step a neighbour whose evidence pays for its slope).  A
+    chain of candidates on consecutive beams is an extension when it starts beside a tracked echo
+    where that echo's surface ends (no tracked echo on the chain's first beam lies within
+    ``touch_bins`` of its bin interval, whatever their edges), every beam of it holds a tracked echo behind it (another surface took the beam), and it
+    ends within ``max_beams`` beams: the next beam holds no candidate neighbour and no tracked
+    neighbour (a chain that reaches a tracked echo again is a bridge's business)."""
+    m = first.size
+    n_e = pos.size
+    chosen = np.full(m, -1, np.int64)
+    tracked = np.zeros(n_e, np.bool_)
+    for r in range(tracks.shape[0]):
+        for j in range(m):
+            if tracks[r, j] >= 0:
+                tracked[tracks[r, j]] = True
+    cand = _bridge_candidates(first, count, pos, lo_bin, hi_bin, unary, tracked, slope_bins, slope_cost, jump_bins,
+                              touch_bins)
+    hit = False
+    chain = np.empty(max_beams + 1, np.int64)
+    for d in (-1, 1):  # the chain grows towards lower (-1) or higher (+1) beams from its anchor
+        for j in range(m):
+            ja = j - d  # the anchor's beam
+            if ja < 0 or ja >= m or count[j] == 0:
+                continue
+            holds = False  # another surface took beam j
+            for q in range(first[j], first[j] + count[j]):
+                holds = holds or tracked[q]
+            if not holds:
+                continue
+            for a in range(first[j], first[j] + count[j]):
+                if not cand[a]:
+                    continue
+                anchored = False
+                for b in range(first[ja], first[ja] + count[ja]):
+                    if tracked[b] and _neighbours(a, b, 1, pos, lo_bin, hi_bin, jump_bins, touch_bins) \
+                            and not _touches_tracked(b, j, first, count, lo_bin, hi_bin, tracked, touch_bins):
+                        anchored = True
+                        break
+                if not anchored:
+                    continue
+                n = 1
+                chain[0] = a
+                cur = a
+                k = j
+                ok = True
+                while True:
+                    kn = k + d
+                    if kn < 0 or kn >= m:
+                        break
+                    if _has_tracked_neighbour(cur, kn, first, count, pos, lo_bin, hi_bin, tracked, jump_bins,
+                                              touch_bins):
+                        ok = False  # a bridge, or none: not an end
+                        break
+                    nxt = -1
+                    for b in range(first[kn], first[kn] + count[kn]):
+                        if cand[b] and _neighbours(cur, b, 1, pos, lo_bin, hi_bin, jump_bins, touch_bins):
+                            nxt = b
+                            break
+                    if nxt < 0:
+                        break
+                    held = False
+                    for q in range(first[kn], first[kn] + count[kn]):
+                        held = held or tracked[q]
+                    if not held or n == max_beams:
+                        ok = False
+                        break
+                    chain[n] = nxt
+                    n += 1
+                    cur = nxt
+                    k = kn
+                if ok:
+                    for q in range(n):
+                        c = chain[q]
+                        jc = j + d * q
+                        if chosen[jc] < 0 or pos[c] < pos[chosen[jc]]:
+                            chosen[jc] = c
+                        hit = True
+    return chosen, hit
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -656,8 +775,8 @@ def track_inputs(edge_bin, start_bin, stop_bin, evidence, n_pixels, peak_bin, cl
 
 @njit(cache=True, nogil=True)
 def track_surfaces(echo_beam, m, pos, lo_bin, hi_bin, unary, n_surfaces, max_gap, slope_bins, slope_cost, jump_bins,
-                   touch_bins, segment_cost, gap_cost, bridge_beams, point_on, peak_val, point, clip_rise, evidence,
-                   width_beams, pulse_bins, flat_bins, point_jump_bins, dip, over_range, margin,
+                   touch_bins, segment_cost, gap_cost, bridge_beams, extend_beams, point_on, peak_val, point, clip_rise,
+                   evidence, width_beams, pulse_bins, flat_bins, point_jump_bins, dip, over_range, margin,
                    fraction, front):  # pragma: no cover - numba
     """:func:`sonarmap.ranges.tracking.track_surfaces` in one kernel: ``n_surfaces`` passes of
     :func:`viterbi_surfaces` (each on the echoes the earlier ones left; with ``point_on`` a pass's
@@ -665,8 +784,9 @@ def track_surfaces(echo_beam, m, pos, lo_bin, hi_bin, unary, n_surfaces, max_gap
     (:func:`bridge_surfaces`; over one beam the nearest bridge wins, on equal edges the later
     echo), and per beam the surfaces sorted by edge (stable, NaN last) and cut to ``n_surfaces``.
     Returns the ``(n_surfaces, m)`` echo indices (-1: none), with ``front`` the same after the
-    front pass (:func:`front_pass`, :func:`with_front`; the same array when it keeps nothing or
-    without ``front``), and whether the front pass kept anything."""
+    front pass and the end extensions (``extend_beams`` > 0) of its result (:func:`front_pass`,
+    :func:`extend_ends`, :func:`with_front`; the same array when they keep nothing or without
+    ``front``), and whether they kept anything."""
     first, count = beam_index(echo_beam, m)
     out = _tracked(first, count, echo_beam, m, pos, lo_bin, hi_bin, unary, n_surfaces, max_gap, slope_bins,
                    slope_cost, jump_bins, touch_bins, segment_cost, gap_cost, bridge_beams, point_on, peak_val, point,
@@ -678,14 +798,21 @@ def track_surfaces(echo_beam, m, pos, lo_bin, hi_bin, unary, n_surfaces, max_gap
                              slope_cost, jump_bins, touch_bins, segment_cost, gap_cost, point_on, peak_val, point,
                              clip_rise, evidence, width_beams, pulse_bins, flat_bins, point_jump_bins, dip, over_range,
                              margin, fraction)
-    return out, (with_front(out, chosen) if hit else out), hit
+    after = with_front(out, chosen) if hit else out
+    if extend_beams > 0:
+        more, grown = extend_ends(first, count, pos, lo_bin, hi_bin, unary, after, slope_bins, slope_cost, jump_bins,
+                                  touch_bins, extend_beams)
+        if grown:
+            after = with_front(after, more)
+            hit = True
+    return out, after, hit
 
 
 @njit(cache=True, nogil=True)
 def tracked_echoes(edge_bin, start_bin, stop_bin, evidence, n_pixels, peak_bin, clipped, clip_row, has_clipped, has_row,
                    beam_cost, point_llr, echo_beam, m, n_surfaces, max_gap, slope_bins, slope_cost, jump_bins,
-                   touch_bins, segment_cost, gap_cost, bridge_beams, point_on, peak_val, point_evidence, width_beams,
-                   pulse_bins, flat_bins, point_jump_bins, dip, over_range, margin, fraction,
+                   touch_bins, segment_cost, gap_cost, bridge_beams, extend_beams, point_on, peak_val, point_evidence,
+                   width_beams, pulse_bins, flat_bins, point_jump_bins, dip, over_range, margin, fraction,
                    front):  # pragma: no cover - numba
     """:func:`track_inputs` (its arguments first) and :func:`track_surfaces` of the echoes at
     ``edge_bin`` with them (the point echoes and clip rises only with ``point_on``, empty
@@ -694,8 +821,8 @@ def tracked_echoes(edge_bin, start_bin, stop_bin, evidence, n_pixels, peak_bin, 
                                               clip_row, has_clipped, has_row, beam_cost, point_llr)
     k = point.size if point_on else 0
     return track_surfaces(echo_beam, m, edge_bin, lo, hi, unary, n_surfaces, max_gap, slope_bins, slope_cost,
-                          jump_bins, touch_bins, segment_cost, gap_cost, bridge_beams, point_on, peak_val, point[:k],
-                          rise[:k], point_evidence, width_beams, pulse_bins, flat_bins, point_jump_bins, dip,
+                          jump_bins, touch_bins, segment_cost, gap_cost, bridge_beams, extend_beams, point_on, peak_val,
+                          point[:k], rise[:k], point_evidence, width_beams, pulse_bins, flat_bins, point_jump_bins, dip,
                           over_range, margin, fraction, front)
 
 

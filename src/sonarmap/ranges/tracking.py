@@ -38,6 +38,17 @@ the beams' returns.  On the real ARIS frames the target's faint end (beams 27-39
 4.5 m behind it won in the first pass, is reported again, whatever local optimum the ping's fit
 stopped at.
 
+A surface in front that *ends* on a few beams another surface took is neither: it does not come
+back (no bridge) and, over a few beams, cannot pay ``segment_cost`` in the front pass.  The *end
+extension* (``extend_beams``, after the front pass; :func:`sonarmap.ranges._kernels.extend_ends`)
+continues it: untracked echoes in front of every tracked echo of their beam, chained beam by beam
+(each step a neighbour whose evidence pays for its slope, as in a bridge) from a tracked echo
+where its surface ends - no tracked echo on the chain's first beam lies within ``touch_bins`` of
+its interval, whatever their edges - over beams that all hold a tracked echo behind, and ending
+within ``extend_beams`` beams (the next beam holds neither a chained echo nor a tracked neighbour),
+become the beams' returns.  On the real ARIS frames where the target's band splits in two, the
+lower band's start (in front) takes the 2-3 beams the upper band's faint tail had.
+
 *Point targets* (:func:`point_streaks`).  A point scatterer (a fish) lies at one range, and its
 echo reaches every beam whose main lobe points near it: in the image it is a *streak*, flat in
 range, as wide as the main lobe at the level where the echo falls to the detection threshold.
@@ -111,6 +122,8 @@ class TrackConfig:
         Tracking passes (surfaces per beam).
     bridge_beams : int
         Longest bridge over beams another surface took (0 = off).
+    extend_beams : int
+        Longest end extension of a surface over beams another surface took (0 = off).
     front_pass : bool
         Run the front pass (:func:`front_surfaces`) in the pipeline's range stage.
     point_fraction : float
@@ -138,6 +151,7 @@ class TrackConfig:
     touch_bins: float = 1.0
     n_surfaces: int = 3
     bridge_beams: int = 4
+    extend_beams: int = 4
     front_pass: bool = True
     point_fraction: float = 0.6
     point_llr: float = 3.5
@@ -152,7 +166,7 @@ class TrackConfig:
                             "point_dip"), where, minimum=0)
         if self.slope_bins <= 0:
             raise config_error(where, "slope_bins", "must be > 0", self.slope_bins)
-        check_integers(self, (("max_gap", 0), ("n_surfaces", 1), ("bridge_beams", 0)), where)
+        check_integers(self, (("max_gap", 0), ("n_surfaces", 1), ("bridge_beams", 0), ("extend_beams", 0)), where)
         check_booleans(self, ("front_pass",), where)
 
 
@@ -185,7 +199,8 @@ def track_surfaces(echoes: Echoes, config: TrackConfig = TrackConfig(), pulse_bi
 def tracks_and_front(echoes: Echoes, config: TrackConfig = TrackConfig(),
                      pulse_bins: int = 1) -> tuple[Tracks, Tracks]:
     """``(track_surfaces(...), front_surfaces(echoes, track_surfaces(...), ...))`` in one kernel
-    call; the second is the first object itself when the front pass keeps nothing."""
+    call (the front pass and the end extensions); the second is the first object itself when
+    neither keeps anything."""
     out, front, hit = _tracked(echoes, config, pulse_bins, True)
     tracks = Tracks(echo=out)
     return tracks, (Tracks(echo=front) if hit else tracks)
@@ -205,7 +220,7 @@ def _tracked(echoes: Echoes, config: TrackConfig, pulse_bins: int,
     out, after, hit = _kernels.tracked_echoes(
         *_track_input_args(echoes, c), echoes.beam, int(echoes.n_beams), int(c.n_surfaces), int(c.max_gap),
         float(c.slope_bins), float(c.slope_cost), float(c.jump_bins), float(c.touch_bins), float(c.segment_cost),
-        float(c.gap_cost), int(c.bridge_beams), on, peak, evidence, width, *point_scalars, bool(front))
+        float(c.gap_cost), int(c.bridge_beams), int(c.extend_beams), on, peak, evidence, width, *point_scalars, bool(front))
     return out, after, bool(hit)
 
 
@@ -242,8 +257,11 @@ def front_surfaces(echoes: Echoes, tracks: Tracks, config: TrackConfig = TrackCo
     One more pass of the tracking programme over the echoes that lie wholly in front of their
     beam's nearest tracked echo (their bin interval ends before its interval starts; beams without
     a tracked echo take no part); each echo of a piece it keeps becomes its beam's nearest surface,
-    the farthest one dropping off when the beam already holds ``n_surfaces``.  One kernel
-    (:func:`_kernels.front_pass`); :func:`tracks_and_front` runs it inside the tracking kernel.
+    the farthest one dropping off when the beam already holds ``n_surfaces``.  Then, with
+    ``config.extend_beams``, the end extensions (module notes) of the surfaces so tracked, whose
+    echoes become their beams' nearest surfaces likewise.  Two kernels
+    (:func:`_kernels.front_pass`, :func:`_kernels.extend_ends`); :func:`tracks_and_front` runs
+    them inside the tracking kernel.
 
     Parameters
     ----------
@@ -257,7 +275,7 @@ def front_surfaces(echoes: Echoes, tracks: Tracks, config: TrackConfig = TrackCo
     Returns
     -------
     Tracks
-        ``tracks`` itself when the pass keeps nothing.
+        ``tracks`` itself when neither the pass nor an extension keeps anything.
     """
     import sonarmap.ranges._kernels as _kernels
 
@@ -269,12 +287,21 @@ def front_surfaces(echoes: Echoes, tracks: Tracks, config: TrackConfig = TrackCo
     c = config
     first, count = _kernels.beam_index(echoes.beam, int(echoes.n_beams))
     echo = np.ascontiguousarray(tracks.echo, dtype=np.int64)
+    pos = np.ascontiguousarray(echoes.edge_bin, dtype=np.float64)
     chosen, hit = _kernels.front_pass(
-        first, count, echoes.beam, echo, np.ascontiguousarray(echoes.edge_bin, dtype=np.float64), lo, hi,
+        first, count, echoes.beam, echo, pos, lo, hi,
         unary, int(c.max_gap), float(c.slope_bins), float(c.slope_cost), float(c.jump_bins),
         float(c.touch_bins), float(c.segment_cost), float(c.gap_cost),
         *_point_arguments(echoes, c, pulse_bins, (point, rise)))
-    return Tracks(echo=_kernels.with_front(echo, chosen)) if hit else tracks
+    if hit:
+        echo = _kernels.with_front(echo, chosen)
+    if c.extend_beams > 0:
+        more, grown = _kernels.extend_ends(first, count, pos, lo, hi, unary, echo, float(c.slope_bins),
+                                           float(c.slope_cost), float(c.jump_bins), float(c.touch_bins),
+                                           int(c.extend_beams))
+        if grown:
+            echo, hit = _kernels.with_front(echo, more), True
+    return Tracks(echo=echo) if hit else tracks
 
 
 def _point_arguments(echoes: Echoes, config: TrackConfig, pulse_bins: int,
