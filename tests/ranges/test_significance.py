@@ -85,6 +85,25 @@ def test_short_surfaces_and_those_without_water_column_are_not_tested():
     assert np.all(np.isfinite(z[4:16])) and n[4] == 200
 
 
+def test_a_surface_the_contiguity_rule_breaks_is_tested_whole_with_the_jump_rule():
+    """A bright surface whose echo steps 6 bins between beams 15 and 16 (its bin intervals 3 bins
+    apart: two touch-runs; its leading edges 3.6 bins apart) is one surface under the tracker's
+    neighbour rule (edges within ``jump_bins``): its short piece is tested with the rest (the same
+    z), not alone; with a jump rule tighter than the step the pieces stay apart."""
+    rng = np.random.default_rng(5)
+    img = rng.exponential(0.1, (400, 24))
+    rows = np.where(np.arange(24) < 16, 300, 294)
+    for j, r in enumerate(rows):
+        img[r:r + 4, j] += 0.3
+    e, first = _surface(img, rows)
+    z_touch, _ = surface_significance(e, first, img)
+    z_jump, _ = surface_significance(e, first, img, jump_bins=20.0)
+    assert z_touch[0] != z_touch[20]  # two runs
+    assert np.all(z_jump == z_jump[0]) and z_jump[0] > 10
+    z_far, _ = surface_significance(e, first, img, jump_bins=1.0)
+    np.testing.assert_array_equal(z_far, z_touch)
+
+
 def test_bad_arguments_name_what_is_wrong():
     img = np.ones((50, 6))
     e, first = _surface(img, np.full(6, 30))

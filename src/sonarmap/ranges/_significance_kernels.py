@@ -87,12 +87,13 @@ def _run_z(raw, rows, j0, depth, gap, window, min_shifts, null, offs, work):  # 
 
 @njit(cache=True, nogil=True)
 def surface_z(raw, sel, edge_bin, start_bin, stop_bin, touch, min_depth, max_depth, gap, window,
-              min_shifts, min_beams):  # pragma: no cover - numba
+              min_shifts, min_beams, jump=-1.0):  # pragma: no cover - numba
     """Per beam the significance ``z`` of its return's surface (NaN: no return, a surface of fewer
     than ``min_beams`` beams, or too few rows in front to test) and per beam the number of offsets
     its surface was compared with.
 
-    The surfaces are the runs of :func:`first_interval_runs` (``touch``).  A surface's statistic is
+    The surfaces are the runs of :func:`first_interval_runs` (``touch``), with ``jump >= 0``
+    neighbouring runs whose boundary beams' edges lie within ``jump`` bins joined.  A surface's statistic is
     the mean of ``raw`` over its beams and ``depth`` bins from each leading edge's bin (``depth``:
     the median over its beams of ``stop - edge``, clipped to ``min_depth .. max_depth``); the null
     is the same statistic with the whole surface moved ``gap .. gap + window - 1`` bins towards
@@ -106,6 +107,16 @@ def surface_z(raw, sel, edge_bin, start_bin, stop_bin, touch, min_depth, max_dep
     if edge_bin.size == 0:
         return z, used
     edge, stop, run = first_interval_runs(sel, edge_bin, start_bin, stop_bin, touch)
+    if jump >= 0.0:
+        # neighbouring returns whose edges lie within ``jump`` bins (the tracker's neighbour rule
+        # without its contiguity half) are one surface to the test
+        orig = run.copy()
+        shift = 0
+        for j in range(1, m):
+            if orig[j] >= 0 and orig[j - 1] >= 0 and orig[j] != orig[j - 1] and abs(edge[j] - edge[j - 1]) <= jump:
+                shift += 1
+            if orig[j] >= 0:
+                run[j] = orig[j] - shift
     n = raw.shape[0]
     null = np.empty(max(window, 1))
     offs = np.empty(max(window, 1))

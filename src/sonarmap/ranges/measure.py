@@ -387,7 +387,8 @@ def _significant(echoes: Any, tracks: Tracks, ping: Ping, config: RangeConfig) -
     """``tracks`` without the first returns whose surface's significance
     (:func:`sonarmap.ranges.significance.surface_significance`) is below ``config.surface_min_z``
     (those beams report no first return; the surfaces behind stay further surfaces)."""
-    z, _ = surface_significance(echoes, tracks.first, ping.image, touch_bins=config.track.touch_bins)
+    z, _ = surface_significance(echoes, tracks.first, ping.image, touch_bins=config.track.touch_bins,
+                                jump_bins=config.track.jump_bins)
     drop = z < config.surface_min_z  # (NaN: no return or not tested, kept)
     if not drop.any():
         return tracks

@@ -2,7 +2,10 @@
 
 The classifier and the tracker decide where surfaces are on the normalised image; whether a
 faint surface is real is decided here, on the raw samples, against the ping's own data.  A first
-return's surface (the run of beams whose echoes touch, :func:`sonarmap.ranges.echoes.surface_runs`)
+return's surface (the run of beams whose echoes touch, :func:`sonarmap.ranges.echoes.surface_runs`;
+with ``jump_bins``, as the pipeline passes ``TrackConfig.jump_bins``, also neighbouring beams whose
+leading edges lie within ``jump_bins`` of each other - the tracker's neighbour rule without its
+contiguity half, so that a surface whose echo steps a few bins is tested whole, not as two pieces)
 is compared with itself moved towards the sonar:
 
 * its **statistic** ``S`` is the mean of the raw samples over its beams and the ``d`` samples from
@@ -73,7 +76,8 @@ def surface_significance(echoes: Echoes, first: ArrayLike, raw: ArrayLike, *,
                          touch_bins: float = 1.0, gap_bins: int = SIGNIFICANCE_GAP_BINS,
                          window_bins: int = SIGNIFICANCE_WINDOW_BINS,
                          min_shifts: int = SIGNIFICANCE_MIN_SHIFTS,
-                         min_beams: int = SIGNIFICANCE_MIN_BEAMS) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
+                         min_beams: int = SIGNIFICANCE_MIN_BEAMS,
+                         jump_bins: float | None = None) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
     """Per beam the significance ``z`` of its first return's surface against its water column.
 
     Parameters
@@ -88,6 +92,9 @@ def surface_significance(echoes: Echoes, first: ArrayLike, raw: ArrayLike, *,
         The surfaces' contiguity rule (``TrackConfig.touch_bins``).
     gap_bins, window_bins, min_shifts, min_beams : int
         The null's offsets and the shortest surface tested (see the module notes).
+    jump_bins : float, optional
+        Also join neighbouring returns whose leading edges lie within this many bins into one
+        surface (module notes); None: touching echoes only.
 
     Returns
     -------
@@ -120,4 +127,4 @@ def surface_significance(echoes: Echoes, first: ArrayLike, raw: ArrayLike, *,
     lo_d, hi_d = SIGNIFICANCE_DEPTH_BINS
     return _sk.surface_z(  # type: ignore[no-any-return]
         img, sel, echoes.edge_bin, echoes.start_bin, echoes.stop_bin, float(touch_bins), lo_d, hi_d, int(gap_bins),
-        int(window_bins), int(min_shifts), int(min_beams))
+        int(window_bins), int(min_shifts), int(min_beams), -1.0 if jump_bins is None else float(jump_bins))
