@@ -579,9 +579,10 @@ def extend_ends(first, count, pos, lo_bin, hi_bin, unary, tracks, slope_bins, sl
     every tracked echo of their beam, each step a neighbour whose evidence pays for its slope).  A
     chain of candidates on consecutive beams is an extension when it starts beside a tracked echo
     where that echo's surface ends (no tracked echo on the chain's first beam lies within
-    ``touch_bins`` of its bin interval, whatever their edges), every beam of it holds a tracked echo behind it (another surface took the beam), and it
-    ends within ``max_beams`` beams: the next beam holds no candidate neighbour and no tracked
-    neighbour (a chain that reaches a tracked echo again is a bridge's business)."""
+    ``touch_bins`` of its bin interval, whatever their edges), every beam of it holds a tracked
+    echo behind it (another surface took the beam), and it ends within ``max_beams`` beams: the
+    next beam holds no candidate neighbour and no tracked neighbour (a chain that reaches a tracked
+    echo again is a bridge's business)."""
     m = first.size
     n_e = pos.size
     chosen = np.full(m, -1, np.int64)

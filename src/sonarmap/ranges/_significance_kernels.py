@@ -93,8 +93,8 @@ def surface_z(raw, sel, edge_bin, start_bin, stop_bin, touch, min_depth, max_dep
     its surface was compared with.
 
     The surfaces are the runs of :func:`first_interval_runs` (``touch``), with ``jump >= 0``
-    neighbouring runs whose boundary beams' edges lie within ``jump`` bins joined.  A surface's statistic is
-    the mean of ``raw`` over its beams and ``depth`` bins from each leading edge's bin (``depth``:
+    neighbouring runs whose boundary beams' edges lie within ``jump`` bins joined.  A surface's
+    statistic is the mean of ``raw`` over its beams and ``depth`` bins from each leading edge's bin (``depth``:
     the median over its beams of ``stop - edge``, clipped to ``min_depth .. max_depth``); the null
     is the same statistic with the whole surface moved ``gap .. gap + window - 1`` bins towards
     the sonar (each beam's samples in front of its first return: its water column); ``z`` is the

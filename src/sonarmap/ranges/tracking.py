@@ -220,7 +220,8 @@ def _tracked(echoes: Echoes, config: TrackConfig, pulse_bins: int,
     out, after, hit = _kernels.tracked_echoes(
         *_track_input_args(echoes, c), echoes.beam, int(echoes.n_beams), int(c.n_surfaces), int(c.max_gap),
         float(c.slope_bins), float(c.slope_cost), float(c.jump_bins), float(c.touch_bins), float(c.segment_cost),
-        float(c.gap_cost), int(c.bridge_beams), int(c.extend_beams), on, peak, evidence, width, *point_scalars, bool(front))
+        float(c.gap_cost), int(c.bridge_beams), int(c.extend_beams), on, peak, evidence, width, *point_scalars,
+        bool(front))
     return out, after, bool(hit)
 
 
