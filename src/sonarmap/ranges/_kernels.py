@@ -472,24 +472,16 @@ def bridge_surfaces(first, count, pos, lo_bin, hi_bin, unary, tracked, slope_bin
         for a in range(first[j], first[j] + count[j]):
             if not cand[a]:
                 continue
-            left = False
-            for b in range(first[j - 1], first[j - 1] + count[j - 1]):
-                if tracked[b] and _neighbours(a, b, 1, pos, lo_bin, hi_bin, jump_bins, touch_bins):
-                    left = True
-                    break
-            if not left:
+            if not _has_tracked_neighbour(a, j - 1, first, count, pos, lo_bin, hi_bin, tracked, jump_bins,
+                                          touch_bins):
                 continue
             n = 1
             chain[0] = a
             cur = a
             k = j
             while n <= max_beams and k + 1 < m:
-                right = False
-                for b in range(first[k + 1], first[k + 1] + count[k + 1]):
-                    if tracked[b] and _neighbours(cur, b, 1, pos, lo_bin, hi_bin, jump_bins, touch_bins):
-                        right = True
-                        break
-                if right:
+                if _has_tracked_neighbour(cur, k + 1, first, count, pos, lo_bin, hi_bin, tracked, jump_bins,
+                                          touch_bins):
                     for q in range(n):
                         out[chain[q]] = True
                     break
@@ -536,7 +528,8 @@ def _bridge_candidates(first, count, pos, lo_bin, hi_bin, unary, tracked, slope_
                         if jb < 0 or jb >= m:
                             continue
                         for b in range(first[jb], first[jb] + count[jb]):
-                            if (tracked[b] or cand[b]) and _neighbours(a, b, 1, pos, lo_bin, hi_bin, jump_bins, touch_bins) \
+                            if (tracked[b] or cand[b]) \
+                                    and _neighbours(a, b, 1, pos, lo_bin, hi_bin, jump_bins, touch_bins) \
                                     and unary[a] + slope_cost * abs(pos[a] - pos[b]) / slope_bins < 0.0:
                                 join = True
                                 break
@@ -554,6 +547,15 @@ def _has_tracked_neighbour(b, jb, first, count, pos, lo_bin, hi_bin, tracked, ju
     """Whether beam ``jb`` holds a tracked echo that is a neighbour of echo ``b`` (one beam apart)."""
     for q in range(first[jb], first[jb] + count[jb]):
         if tracked[q] and _neighbours(b, q, 1, pos, lo_bin, hi_bin, jump_bins, touch_bins):
+            return True
+    return False
+
+
+@njit(cache=True, nogil=True)
+def _holds_tracked(jb, first, count, tracked):  # pragma: no cover - numba
+    """Whether beam ``jb`` holds a tracked echo."""
+    for q in range(first[jb], first[jb] + count[jb]):
+        if tracked[q]:
             return True
     return False
 
@@ -598,12 +600,7 @@ def extend_ends(first, count, pos, lo_bin, hi_bin, unary, tracks, slope_bins, sl
     for d in (-1, 1):  # the chain grows towards lower (-1) or higher (+1) beams from its anchor
         for j in range(m):
             ja = j - d  # the anchor's beam
-            if ja < 0 or ja >= m or count[j] == 0:
-                continue
-            holds = False  # another surface took beam j
-            for q in range(first[j], first[j] + count[j]):
-                holds = holds or tracked[q]
-            if not holds:
+            if ja < 0 or ja >= m or not _holds_tracked(j, first, count, tracked):  # (another surface took j)
                 continue
             for a in range(first[j], first[j] + count[j]):
                 if not cand[a]:
@@ -636,10 +633,7 @@ def extend_ends(first, count, pos, lo_bin, hi_bin, unary, tracks, slope_bins, sl
                             break
                     if nxt < 0:
                         break
-                    held = False
-                    for q in range(first[kn], first[kn] + count[kn]):
-                        held = held or tracked[q]
-                    if not held or n == max_beams:
+                    if not _holds_tracked(kn, first, count, tracked) or n == max_beams:
                         ok = False
                         break
                     chain[n] = nxt
@@ -795,18 +789,34 @@ def track_surfaces(echo_beam, m, pos, lo_bin, hi_bin, unary, n_surfaces, max_gap
                    fraction)
     if not front or pos.size == 0:
         return out, out, False
-    chosen, hit = front_pass(first, count, echo_beam, out, pos, lo_bin, hi_bin, unary, max_gap, slope_bins,
+    after, hit = front_and_extensions(first, count, echo_beam, out, pos, lo_bin, hi_bin, unary, max_gap, slope_bins,
+                                      slope_cost, jump_bins, touch_bins, segment_cost, gap_cost, extend_beams,
+                                      point_on, peak_val, point, clip_rise, evidence, width_beams, pulse_bins,
+                                      flat_bins, point_jump_bins, dip, over_range, margin, fraction)
+    return out, after, hit
+
+
+@njit(cache=True, nogil=True)
+def front_and_extensions(first, count, echo_beam, tracks, pos, lo_bin, hi_bin, unary, max_gap, slope_bins,
+                         slope_cost, jump_bins, touch_bins, segment_cost, gap_cost, extend_beams, point_on, peak_val,
+                         point, clip_rise, evidence, width_beams, pulse_bins, flat_bins, point_jump_bins, dip,
+                         over_range, margin, fraction):  # pragma: no cover - numba
+    """:func:`front_pass` of ``tracks`` and then, with ``extend_beams`` > 0, :func:`extend_ends` of
+    its result, each one's echoes made the beams' nearest surfaces (:func:`with_front`): the new
+    tracks (``tracks`` itself when neither keeps anything) and whether either kept anything
+    (:func:`sonarmap.ranges.tracking.front_surfaces`)."""
+    chosen, hit = front_pass(first, count, echo_beam, tracks, pos, lo_bin, hi_bin, unary, max_gap, slope_bins,
                              slope_cost, jump_bins, touch_bins, segment_cost, gap_cost, point_on, peak_val, point,
                              clip_rise, evidence, width_beams, pulse_bins, flat_bins, point_jump_bins, dip, over_range,
                              margin, fraction)
-    after = with_front(out, chosen) if hit else out
+    after = with_front(tracks, chosen) if hit else tracks
     if extend_beams > 0:
         more, grown = extend_ends(first, count, pos, lo_bin, hi_bin, unary, after, slope_bins, slope_cost, jump_bins,
                                   touch_bins, extend_beams)
         if grown:
             after = with_front(after, more)
             hit = True
-    return out, after, hit
+    return after, hit
 
 
 @njit(cache=True, nogil=True)
@@ -1421,8 +1431,9 @@ def _interp_span(img, j, a, off, out, n_out):  # pragma: no cover - numba
 
 
 @njit(cache=True, nogil=True)
-def surface_runs(edge, lo, hi, touch):  # pragma: no cover - numba
-    """Run labels of consecutive beams whose echo intervals ``[lo, hi]`` touch (-1: no return)."""
+def surface_runs(edge, lo, hi, touch, jump=-1.0):  # pragma: no cover - numba
+    """Run labels of consecutive beams whose echo intervals ``[lo, hi]`` touch (-1: no return);
+    with ``jump >= 0`` also consecutive beams whose edges lie within ``jump`` bins."""
     m = edge.size
     run = np.full(m, -1, np.int64)
     r = -1
@@ -1431,7 +1442,8 @@ def surface_runs(edge, lo, hi, touch):  # pragma: no cover - numba
         if not np.isfinite(edge[j]):
             prev = False
             continue
-        if not (prev and lo[j] <= hi[j - 1] + touch and lo[j - 1] <= hi[j] + touch):
+        if not (prev and ((lo[j] <= hi[j - 1] + touch and lo[j - 1] <= hi[j] + touch)
+                          or (jump >= 0.0 and abs(edge[j] - edge[j - 1]) <= jump))):
             r += 1
         run[j] = r
         prev = True
@@ -2765,11 +2777,11 @@ def first_intervals(sel, edge_bin, start_bin, stop_bin):  # pragma: no cover - n
 
 
 @njit(cache=True, nogil=True)
-def first_interval_runs(sel, edge_bin, start_bin, stop_bin, touch):  # pragma: no cover - numba
+def first_interval_runs(sel, edge_bin, start_bin, stop_bin, touch, jump=-1.0):  # pragma: no cover - numba
     """``(edge, stop, run)``: :func:`first_intervals`' edge and stop per beam and the
-    :func:`surface_runs` of its intervals, in one call."""
+    :func:`surface_runs` of its intervals (with ``jump``), in one call."""
     edge, lo, hi, stop = first_intervals(sel, edge_bin, start_bin, stop_bin)
-    return edge, stop, surface_runs(edge, lo, hi, touch)
+    return edge, stop, surface_runs(edge, lo, hi, touch, jump)
 
 
 @njit(cache=True, nogil=True)

@@ -92,8 +92,8 @@ def surface_z(raw, sel, edge_bin, start_bin, stop_bin, touch, min_depth, max_dep
     than ``min_beams`` beams, or too few rows in front to test) and per beam the number of offsets
     its surface was compared with.
 
-    The surfaces are the runs of :func:`first_interval_runs` (``touch``), with ``jump >= 0``
-    neighbouring runs whose boundary beams' edges lie within ``jump`` bins joined.  A surface's
+    The surfaces are the runs of :func:`first_interval_runs` (``touch``; with ``jump >= 0`` also
+    neighbouring beams whose edges lie within ``jump`` bins).  A surface's
     statistic is the mean of ``raw`` over its beams and ``depth`` bins from each leading edge's bin (``depth``:
     the median over its beams of ``stop - edge``, clipped to ``min_depth .. max_depth``); the null
     is the same statistic with the whole surface moved ``gap .. gap + window - 1`` bins towards
@@ -106,17 +106,8 @@ def surface_z(raw, sel, edge_bin, start_bin, stop_bin, touch, min_depth, max_dep
     used = np.zeros(m, np.int64)
     if edge_bin.size == 0:
         return z, used
-    edge, stop, run = first_interval_runs(sel, edge_bin, start_bin, stop_bin, touch)
-    if jump >= 0.0:
-        # neighbouring returns whose edges lie within ``jump`` bins (the tracker's neighbour rule
-        # without its contiguity half) are one surface to the test
-        orig = run.copy()
-        shift = 0
-        for j in range(1, m):
-            if orig[j] >= 0 and orig[j - 1] >= 0 and orig[j] != orig[j - 1] and abs(edge[j] - edge[j - 1]) <= jump:
-                shift += 1
-            if orig[j] >= 0:
-                run[j] = orig[j] - shift
+    # (with jump >= 0, neighbouring returns whose edges lie within it are one surface too)
+    edge, stop, run = first_interval_runs(sel, edge_bin, start_bin, stop_bin, touch, jump)
     n = raw.shape[0]
     null = np.empty(max(window, 1))
     offs = np.empty(max(window, 1))

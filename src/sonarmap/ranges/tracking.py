@@ -260,9 +260,9 @@ def front_surfaces(echoes: Echoes, tracks: Tracks, config: TrackConfig = TrackCo
     a tracked echo take no part); each echo of a piece it keeps becomes its beam's nearest surface,
     the farthest one dropping off when the beam already holds ``n_surfaces``.  Then, with
     ``config.extend_beams``, the end extensions (module notes) of the surfaces so tracked, whose
-    echoes become their beams' nearest surfaces likewise.  Two kernels
-    (:func:`_kernels.front_pass`, :func:`_kernels.extend_ends`); :func:`tracks_and_front` runs
-    them inside the tracking kernel.
+    echoes become their beams' nearest surfaces likewise.  One kernel
+    (:func:`_kernels.front_and_extensions`), which :func:`tracks_and_front` runs inside the
+    tracking kernel.
 
     Parameters
     ----------
@@ -288,21 +288,12 @@ def front_surfaces(echoes: Echoes, tracks: Tracks, config: TrackConfig = TrackCo
     c = config
     first, count = _kernels.beam_index(echoes.beam, int(echoes.n_beams))
     echo = np.ascontiguousarray(tracks.echo, dtype=np.int64)
-    pos = np.ascontiguousarray(echoes.edge_bin, dtype=np.float64)
-    chosen, hit = _kernels.front_pass(
-        first, count, echoes.beam, echo, pos, lo, hi,
+    after, hit = _kernels.front_and_extensions(
+        first, count, echoes.beam, echo, np.ascontiguousarray(echoes.edge_bin, dtype=np.float64), lo, hi,
         unary, int(c.max_gap), float(c.slope_bins), float(c.slope_cost), float(c.jump_bins),
-        float(c.touch_bins), float(c.segment_cost), float(c.gap_cost),
+        float(c.touch_bins), float(c.segment_cost), float(c.gap_cost), int(c.extend_beams),
         *_point_arguments(echoes, c, pulse_bins, (point, rise)))
-    if hit:
-        echo = _kernels.with_front(echo, chosen)
-    if c.extend_beams > 0:
-        more, grown = _kernels.extend_ends(first, count, pos, lo, hi, unary, echo, float(c.slope_bins),
-                                           float(c.slope_cost), float(c.jump_bins), float(c.touch_bins),
-                                           int(c.extend_beams))
-        if grown:
-            echo, hit = _kernels.with_front(echo, more), True
-    return Tracks(echo=echo) if hit else tracks
+    return Tracks(echo=after) if hit else tracks
 
 
 def _point_arguments(echoes: Echoes, config: TrackConfig, pulse_bins: int,
