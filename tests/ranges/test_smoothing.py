@@ -11,13 +11,15 @@ from sonarmap.ranges._smoothing_kernels import smooth_edges
 from sonarmap.ranges.smoothing import SIGMA_MIN_BINS
 
 
-def _reference(y: np.ndarray, s: np.ndarray, h: int) -> tuple[np.ndarray, np.ndarray]:
+def _reference(y: np.ndarray, s: np.ndarray, h: int, trust: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """The combination written with numpy for one run: leave-one-out weighted quadratic, its
-    variance with the roughness term, inverse-variance combination, sigma update."""
+    variance with the roughness term, inverse-variance combination, sigma update (``trust``: the
+    factor on each sigma in the weights, the variance and the gain, not in the sigma update)."""
     n = y.size
     x = np.arange(n, dtype=float)
-    s = np.maximum(s, SIGMA_MIN_BINS)
-    new, sig = y.copy(), s.copy()
+    s_own = np.maximum(s, SIGMA_MIN_BINS)
+    s = np.maximum(s * (1.0 if trust is None else trust), SIGMA_MIN_BINS)
+    new, sig = y.copy(), s_own.copy()
     for a in range(n):
         d = np.abs(x - x[a])
         tw = np.clip(1 - (d / (h + 1)) ** 3, 0, None) ** 3
@@ -36,7 +38,7 @@ def _reference(y: np.ndarray, s: np.ndarray, h: int) -> tuple[np.ndarray, np.nda
         vp = np.sum(weights**2 * (s[use] ** 2 + rough)) + rough
         k = s[a] ** 2 / (s[a] ** 2 + vp)
         new[a] = y[a] + k * (coef[0] - y[a])
-        sig[a] = np.sqrt(max(s[a] ** 2 - k * min(v_res, s[a] ** 2), 0.25 * s[a] ** 2))
+        sig[a] = np.sqrt(max(s_own[a] ** 2 - k * min(v_res, s_own[a] ** 2), 0.25 * s_own[a] ** 2))
     return new, sig
 
 
@@ -47,9 +49,66 @@ def test_kernel_is_the_numpy_formula():
         y = 0.02 * (np.arange(n) - n / 2) ** 2 + rng.normal(0, 1.0, n)
         s = rng.uniform(0.1, 2.5, n)
         ref_e, ref_s = _reference(y, s, 8)
-        e, sig = smooth_edges(y, s, np.zeros(n, np.int64), 8, 7, SIGMA_MIN_BINS)
+        e, sig = smooth_edges(y, s, np.zeros(n, np.int64), 8, 7, SIGMA_MIN_BINS, s)
         np.testing.assert_allclose(e, ref_e, rtol=0, atol=1e-9)
         np.testing.assert_allclose(sig, np.minimum(s, ref_s), rtol=0, atol=1e-9)
+
+
+def test_kernel_is_the_numpy_formula_with_a_trust_factor():
+    """Edges trusted less than their sigma says (a factor on the sigma in the weights, the
+    prediction's variance and the gain) - the numpy formula with that factor; the sigma update
+    from the edge's own sigma."""
+    rng = np.random.default_rng(4)
+    for _ in range(20):
+        n = int(rng.integers(8, 60))
+        y = 0.02 * (np.arange(n) - n / 2) ** 2 + rng.normal(0, 1.0, n)
+        s = rng.uniform(0.1, 2.5, n)
+        trust = np.where(rng.random(n) < 0.5, 2.0, 1.0)
+        ref_e, ref_s = _reference(y, s, 8, trust)
+        e, sig = smooth_edges(y, s, np.zeros(n, np.int64), 8, 7, SIGMA_MIN_BINS, s * trust)
+        np.testing.assert_allclose(e, ref_e, rtol=0, atol=1e-9)
+        np.testing.assert_allclose(sig, np.minimum(s, ref_s), rtol=0, atol=1e-9)
+
+
+def test_an_edge_trusted_less_moves_further_towards_its_neighbours_and_keeps_its_sigma_scale():
+    """A late edge on a flat surface whose edges scatter more than their sigmas say (template
+    edges, one of which followed a speckle fade): at their sigmas the scatter reads as the
+    surface's own roughness and the late edge keeps most of its lead; trusted half as much
+    (factor 2) the scatter is noise, the edge moves most of the way back, and its sigma is shrunk
+    from its own value, not from the doubled one."""
+    from sonarmap.geometry import SonarGeometry
+    from sonarmap.ranges.echoes import Echoes
+    from sonarmap.ranges.smoothing import smooth_surface_edges
+
+    rng = np.random.default_rng(2)
+    n = 40
+    y = 100.0 + rng.normal(0.0, 0.8, n)
+    s = np.full(n, 0.5)
+    y[20] += 3.0
+    e1, s1 = smooth_edges(y, s, np.zeros(n, np.int64), 8, 7, SIGMA_MIN_BINS, s)
+    e2, s2 = smooth_edges(y, s, np.zeros(n, np.int64), 8, 7, SIGMA_MIN_BINS, 2.0 * s)
+    assert abs(e2[20] - 100.0) < 0.5 * abs(e1[20] - 100.0), (e1[20], e2[20])
+    assert np.all(s2 <= s) and np.all(s2 >= 0.5 * s)
+    # through smooth_surface_edges: the factor per echo; one factor per echo, each >= 1
+    g = SonarGeometry(range_m=2.0 + 0.01 * np.arange(300), azimuth_rad=np.linspace(-0.3, 0.3, n))
+    beam = np.arange(n, dtype=np.int64)
+    start = np.floor(y).astype(np.int64) + 1
+    fields = {f: np.zeros(n) for f in Echoes.__dataclass_fields__ if f not in
+              ("beam", "n_beams", "clipped", "clip_row", "beamwidth_beams", "clip_fitted")}
+    fields.update(beam=beam, start_bin=start, stop_bin=start + 3, edge_bin=y,
+                  edge_range_m=np.interp(y, np.arange(300.0), g.range_m), sigma_m=s * 0.01,
+                  peak_bin=start, n_pixels=np.ones(n, np.int64), n_beams=n)
+    echoes = Echoes._of(**fields)
+    plain = smooth_surface_edges(echoes, beam, g)
+    same = smooth_surface_edges(echoes, beam, g, trust=np.ones(n))
+    assert np.array_equal(plain.edge_bin, same.edge_bin) and np.array_equal(plain.sigma_m, same.sigma_m)
+    less = smooth_surface_edges(echoes, beam, g, trust=np.full(n, 2.0))
+    assert abs(less.edge_bin[20] - 100.0) < abs(plain.edge_bin[20] - 100.0)
+    for bad in (np.ones(n - 1), np.full(n, 0.5), np.full(n, np.nan)):
+        with pytest.raises(InputError, match="trust"):
+            smooth_surface_edges(echoes, beam, g, trust=bad)
+    with pytest.raises(ValueError, match="sigma_template_smooth_scale"):
+        PipelineConfig().replace(ranges={"sigma_template_smooth_scale": 0.5})
 
 
 def test_noisy_edges_of_a_smooth_surface_move_towards_it():
@@ -62,7 +121,7 @@ def test_noisy_edges_of_a_smooth_surface_move_towards_it():
     err_before, err_after = [], []
     for _ in range(20):
         y = truth + rng.normal(0.0, 1.5, n)
-        e, sig = smooth_edges(y, s, np.zeros(n, np.int64), 8, 7, SIGMA_MIN_BINS)
+        e, sig = smooth_edges(y, s, np.zeros(n, np.int64), 8, 7, SIGMA_MIN_BINS, s)
         err_before.append(y - truth)
         err_after.append(e - truth)
         assert np.all(sig <= s) and np.all(sig >= 0.5 * s)
@@ -79,10 +138,10 @@ def test_precise_edges_and_real_structure_stay():
     y = 100.0 + rng.normal(0.0, 3.0, n)
     s = np.full(n, 3.0)
     y[20], s[20] = 110.0, 0.3
-    e, _ = smooth_edges(y, s, np.zeros(n, np.int64), 8, 7, SIGMA_MIN_BINS)
+    e, _ = smooth_edges(y, s, np.zeros(n, np.int64), 8, 7, SIGMA_MIN_BINS, s)
     assert abs(e[20] - 110.0) < 0.15 * abs(110.0 - np.median(y))
     stairs = 50.0 + 7.7 * np.arange(n) + np.tile([0.0, 3.0, -2.0, 1.0], n // 4)
-    e, _ = smooth_edges(stairs, np.full(n, 0.4), np.zeros(n, np.int64), 8, 7, SIGMA_MIN_BINS)
+    e, _ = smooth_edges(stairs, np.full(n, 0.4), np.zeros(n, np.int64), 8, 7, SIGMA_MIN_BINS, np.full(n, 0.4))
     assert np.max(np.abs(e - stairs)) < 0.5
 
 
@@ -94,7 +153,7 @@ def test_runs_are_combined_separately_and_short_runs_are_kept():
     run[25] = -1
     s = np.ones(y.size)
     s[25] = np.nan
-    e, sig = smooth_edges(y, s, run, 8, 7, SIGMA_MIN_BINS)
+    e, sig = smooth_edges(y, s, run, 8, 7, SIGMA_MIN_BINS, s)
     assert np.all(np.abs(e[:20] - 100.0) < 5) and np.all(np.abs(e[20:25] - 160.0) < 5)
     assert np.array_equal(e[40:], y[40:]) and np.array_equal(sig[40:], s[40:])  # 5 beams < 7
     assert np.isnan(e[25]) and np.isnan(sig[25])
@@ -161,7 +220,7 @@ def test_echo_fields_are_those_of_the_numpy_formulation():
         ok = sel >= 0
         sigma = np.full(n, np.nan)
         sigma[ok] = echoes.sigma_m[sel[ok]] / bin_m
-        new, new_sigma = smooth_edges(e, sigma, run, 8, 7, SIGMA_MIN_BINS)
+        new, new_sigma = smooth_edges(e, sigma, run, 8, 7, SIGMA_MIN_BINS, sigma)
         new_sigma *= bin_m
         idx = sel[ok]
         moved = (new[ok] != echoes.edge_bin[idx]) | (new_sigma[ok] != echoes.sigma_m[idx])

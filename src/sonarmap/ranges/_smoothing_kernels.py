@@ -49,11 +49,12 @@ def _tricube(i, a, h):  # pragma: no cover - numba
 
 
 @njit(cache=True, nogil=True)
-def smooth_edges(edge, sigma, run, half_beams, min_beams, sigma_min):  # pragma: no cover - numba
+def smooth_edges(edge, sigma, run, half_beams, min_beams, sigma_min, wsig):  # pragma: no cover - numba
     """Per beam ``(edge, sigma)`` (bins) after :func:`sonarmap.ranges.smoothing.smooth_surface_edges`.
 
     ``edge``, ``sigma`` (bins, NaN: none) and ``run`` (surface label, -1: none; a run is a
-    contiguous block of beams) per beam.  Beams of runs with fewer than ``min_beams`` finite
+    contiguous block of beams) per beam; ``wsig`` (bins) the sigma each beam weighs with and is
+    pulled by (its ``trust`` times ``sigma``).  Beams of runs with fewer than ``min_beams`` finite
     edges, and beams with fewer than 4 neighbours in their window, keep their values.
     """
     m = edge.size
@@ -76,15 +77,17 @@ def smooth_edges(edge, sigma, run, half_beams, min_beams, sigma_min):  # pragma:
                 if not (np.isfinite(edge[a]) and np.isfinite(sigma[a])):
                     continue
                 _smooth_beam(edge, sigma, a, max(j0, a - h), min(j1, a + h + 1), h, sigma_min, a3, b3,
-                             new, out_sigma)
+                             new, out_sigma, wsig)
         j0 = j1
     return new, out_sigma
 
 
 @njit(cache=True, nogil=True)
-def _smooth_beam(edge, sigma, a, lo, hi, h, sigma_min, a3, b3, new, out_sigma):  # pragma: no cover - numba
+def _smooth_beam(edge, sigma, a, lo, hi, h, sigma_min, a3, b3, new, out_sigma, wsig):  # pragma: no cover - numba
     """Beam ``a``'s edge and sigma combined with the leave-one-out weighted local quadratic of the
-    beams ``lo .. hi - 1`` (see :func:`smooth_edges`), written to ``new`` / ``out_sigma``."""
+    beams ``lo .. hi - 1`` (see :func:`smooth_edges`), written to ``new`` / ``out_sigma``: the
+    weights, the prediction's variance and the gain from ``wsig``, the reported sigma shrunk from
+    ``sigma``."""
     a3[:, :] = 0.0
     b3[:] = 0.0
     n = 0
@@ -92,7 +95,7 @@ def _smooth_beam(edge, sigma, a, lo, hi, h, sigma_min, a3, b3, new, out_sigma): 
         if i == a or not (np.isfinite(edge[i]) and np.isfinite(sigma[i])):
             continue
         u, tw = _tricube(i, a, h)
-        w = tw / max(sigma[i], sigma_min) ** 2
+        w = tw / max(wsig[i], sigma_min) ** 2
         p = 1.0
         for r in range(3):
             q = p * p  # u^(r + c), from c = r
@@ -122,7 +125,7 @@ def _smooth_beam(edge, sigma, a, lo, hi, h, sigma_min, a3, b3, new, out_sigma): 
         r = edge[i] - (coef[0] + coef[1] * u + coef[2] * u * u)
         sw += tw
         sr += tw * r * r
-        ss += tw * max(sigma[i], sigma_min) ** 2
+        ss += tw * max(wsig[i], sigma_min) ** 2
     dof = max(1.0 - 3.0 / n, 0.2)
     v_res = sr / sw / dof
     rough = max(v_res - ss / sw, 0.0)
@@ -131,12 +134,13 @@ def _smooth_beam(edge, sigma, a, lo, hi, h, sigma_min, a3, b3, new, out_sigma): 
         if i == a or not (np.isfinite(edge[i]) and np.isfinite(sigma[i])):
             continue
         u, tw = _tricube(i, a, h)
-        s2 = max(sigma[i], sigma_min) ** 2
+        s2 = max(wsig[i], sigma_min) ** 2
         li = (row[0] + row[1] * u + row[2] * u * u) * tw / s2
         vp += li * li * (s2 + rough)
-    s_a = max(sigma[a], sigma_min)
-    k = s_a * s_a / (s_a * s_a + vp)
+    w_a = max(wsig[a], sigma_min)
+    k = w_a * w_a / (w_a * w_a + vp)
     new[a] = edge[a] + k * (coef[0] - edge[a])
+    s_a = max(sigma[a], sigma_min)
     # the beam-to-beam scatter the combination removes (never below half the sigma)
     v_new = max(s_a * s_a - k * min(v_res, s_a * s_a), 0.25 * s_a * s_a)
     out_sigma[a] = min(sigma[a], math.sqrt(v_new))
@@ -144,20 +148,22 @@ def _smooth_beam(edge, sigma, a, lo, hi, h, sigma_min, a3, b3, new, out_sigma): 
 
 @njit(cache=True, nogil=True)
 def smoothed_echo_edges(sel, edge_bin, edge_range, sigma_m, start_bin, stop_bin, touch, half_beams, min_beams,
-                        sigma_min, bin_m, range_m):  # pragma: no cover - numba
+                        sigma_min, bin_m, range_m, trust):  # pragma: no cover - numba
     """:func:`smooth_edges` of the returns ``sel`` (echo index per beam, -1: none) on their runs
     (:func:`first_interval_runs` with ``touch``) applied to the echoes: ``(n_moved, edge_bin,
     edge_range, sigma_m)``, copies of the echoes' fields with each return whose edge or sigma
     (``bin_m`` x the kernel's, in bins) changed moved there, its range ``np.interp`` on
     ``range_m`` - the arithmetic of the numpy formulation (sigma in bins ``sigma_m / bin_m``, NaN
-    without a return)."""
+    without a return); ``trust`` per echo, the factor on its sigma inside the combination."""
     edge, _, run = first_interval_runs(sel, edge_bin, start_bin, stop_bin, touch)
     m = sel.size
     sigma = np.full(m, np.nan)
+    wsig = np.full(m, np.nan)
     for j in range(m):
         if sel[j] >= 0:
             sigma[j] = sigma_m[sel[j]] / bin_m
-    new, new_sigma = smooth_edges(edge, sigma, run, half_beams, min_beams, sigma_min)
+            wsig[j] = sigma[j] * trust[sel[j]]
+    new, new_sigma = smooth_edges(edge, sigma, run, half_beams, min_beams, sigma_min, wsig)
     eb = edge_bin.copy()
     er = edge_range.copy()
     sg = sigma_m.copy()

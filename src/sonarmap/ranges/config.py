@@ -231,6 +231,17 @@ class RangeConfig(ConfigSection):
         Fitted on the simulator (seeds 0-8, every preset): the factor that puts every preset's
         share of returns within +-sigma inside 0.68 +- 0.05 over the nine seeds (seeds 9-11 held
         out; ``docs/segmentation.md``, "Uncertainty").
+    sigma_template_smooth_scale : float
+        How much less the smoothing along the surface (``edge_smooth_beams``) trusts a
+        template-measured edge than its sigma says: inside the smoothing such an edge weighs, and
+        is pulled towards its neighbours' prediction, as if its sigma were this many times larger;
+        the sigma it reports is unchanged.  Default 1.0 (the template sigma as is).  A template
+        edge's errors are heavier-tailed than its sigma where single-look speckle fades the front
+        of the echo on a few neighbouring beams (the template's 3-beam fit follows the fade:
+        simulated DIDSON flat hull, 3-4 bins late on 6 beams with sigmas of 0.5 bin); 2.0 pulls
+        such edges back on smooth surfaces (hulls) but flattens relief at the window's scale (the
+        simulated rippled seafloor survey registers at 0.55 instead of 0.47 bins RMS) -
+        ``docs/segmentation.md``, "Smoothing along the surface".  At least 1.
     edge_smooth_beams : int
         Each first return's leading edge is combined with the prediction of the edges within this
         many beams on either side on its surface (a leave-one-out local quadratic across beams),
@@ -290,6 +301,7 @@ class RangeConfig(ConfigSection):
     edge_template_min_beams: int = 30
     edge_template_anchor_beams: int = 10
     sigma_template_scale: float = 0.8
+    sigma_template_smooth_scale: float = 1.0
     edge_smooth_beams: int = 16
     edge_smooth_min_beams: int = 7
     surface_min_z: float = 3.5
@@ -331,6 +343,7 @@ class RangeConfig(ConfigSection):
         coerce_reals(self, ("sigma_scale", "sigma_pool_scale", "sigma_fit_scale", "sigma_template_scale",
                             "continue_evidence", "surface_min_z"), w, minimum=0)
         coerce_reals(self, ("edge_fraction",), w)
+        coerce_reals(self, ("sigma_template_smooth_scale",), w, minimum=1)
         if not 0 <= self.edge_fraction < 1:
             raise config_error(w, "edge_fraction", "must lie in [0, 1)", self.edge_fraction)
         check_integers(self, (("min_run", 1), ("neighbour_beams", 1), ("max_jump_bins", 0),

@@ -366,12 +366,18 @@ def _refined_returns(echoes: Any, tracks: Any, meas: Any, image: NDArray[np.floa
     sel = tracks.first
     if config.edge_pool_beams > 0 and config.range_mode == "first":
         echoes = _pooled_returns(echoes, sel, meas, ping, config, pb, fraction, full_scale)
+    trust = None  # (per echo, the smoothing's factor on its sigma: None, 1 for every echo)
     if config.edge_template_beams > 0 and config.range_mode == "first" and echoes.size:
+        before = echoes
         echoes = _template_pass(echoes, sel, meas, geom, config, fraction, pb)
+        if config.sigma_template_smooth_scale != 1.0 and echoes is not before:
+            moved = (echoes.edge_bin != before.edge_bin) | (echoes.sigma_m != before.sigma_m)
+            trust = np.where(moved, config.sigma_template_smooth_scale, 1.0)
     if config.edge_smooth_beams > 0 and config.range_mode == "first" and echoes.size:
         echoes = smooth_surface_edges(echoes, sel, geom,
                                       half_beams=window_in_beamwidths(config.edge_smooth_beams, echoes.beamwidth_beams),
-                                      min_beams=config.edge_smooth_min_beams, touch_bins=config.track.touch_bins)
+                                      min_beams=config.edge_smooth_min_beams, touch_bins=config.track.touch_bins,
+                                      trust=trust)
     if echoes.size:  # (without a return, clipped_echo_sigma's kernel finds nothing: the echoes unchanged)
         echoes = clipped_echo_sigma(echoes, sel, ping.image, geom, level=full_scale())
         if config.range_mode == "first":

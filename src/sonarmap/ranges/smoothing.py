@@ -73,7 +73,7 @@ def window_in_beamwidths(half_beams: int, beamwidth_beams: ArrayLike | None) -> 
 
 
 def smooth_surface_edges(echoes: Echoes, first: ArrayLike, geometry: SonarGeometry, *, half_beams: int = 8,
-                         min_beams: int = 7, touch_bins: float = 1.0) -> Echoes:
+                         min_beams: int = 7, touch_bins: float = 1.0, trust: ArrayLike | None = None) -> Echoes:
     """Combine each return's leading edge with the prediction from its neighbours on its surface.
 
     Parameters
@@ -92,6 +92,12 @@ def smooth_surface_edges(echoes: Echoes, first: ArrayLike, geometry: SonarGeomet
         runs) that is combined (>= 5).
     touch_bins : float
         Echo intervals this close belong to one run (``TrackConfig.touch_bins``).
+    trust : array_like of float, shape (n_echoes,), optional
+        Per echo, a factor (>= 1) on its sigma inside the combination only: the echo weighs in
+        its neighbours' predictions, and is pulled towards its own, as if its sigma were that
+        many times larger; its reported sigma is shrunk from its own value
+        (``RangeConfig.sigma_template_smooth_scale`` on the template-measured edges).  Default:
+        1 for every echo.
 
     Returns
     -------
@@ -114,13 +120,19 @@ def smooth_surface_edges(echoes: Echoes, first: ArrayLike, geometry: SonarGeomet
         raise InputError(f"first: expected one echo index per beam ({echoes.n_beams}), got shape {sel.shape}")
     if not echoes.size:
         return echoes
+    if trust is not None:
+        trust = np.ascontiguousarray(trust, dtype=np.float64)
+        if trust.shape != (echoes.size,) or not np.all(trust >= 1.0):  # (NaN fails too)
+            raise InputError(f"trust: expected one factor >= 1 per echo ({echoes.size}), got shape {trust.shape}"
+                             + ("" if trust.shape != (echoes.size,) else " with a value below 1 or NaN"))
     bin_m = abs(geometry.range_resolution_m) or 1.0  # (the bin the sigmas were formed with)
     # the first runs, the combination and the moved returns' fields in one kernel (a beam without
     # a return, or none at all, moves nothing)
     n_moved, eb, er, sg = _sk.smoothed_echo_edges(
         np.ascontiguousarray(sel), echoes.edge_bin, echoes.edge_range_m, echoes.sigma_m, echoes.start_bin,
         echoes.stop_bin, float(touch_bins), int(half_beams), int(min_beams), SIGMA_MIN_BINS, bin_m,
-        np.ascontiguousarray(geometry.range_m, dtype=np.float64))
+        np.ascontiguousarray(geometry.range_m, dtype=np.float64),
+        np.ones(echoes.size) if trust is None else trust)
     if not n_moved:
         return echoes
     return echoes.replaced(edge_bin=eb, edge_range_m=er, sigma_m=sg)
