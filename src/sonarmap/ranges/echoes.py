@@ -505,7 +505,10 @@ def _first_runs(echoes: Echoes, sel: NDArray[np.int64], touch_bins: float
                                echoes.stop_bin, float(touch_bins))
 
 
-_NO_CLIP = np.zeros((0, 0), dtype=np.uint8)
+#: ``pooled_kept_edges``' clip argument without clipping: float32 like the raw image the pipeline
+#: passes when an echo clips, so that both calls share one compiled specialisation of the kernel
+#: (each costs ~15-20 s to compile on a fresh cache).
+_NO_CLIP = np.zeros((0, 0), dtype=np.float32)
 
 #: :func:`pooled_edges`' default ``front_bins``, ``max_bins``, ``n_iter`` and ``fit_front_bins``
 #: (the pipeline's range stage pools with them).
