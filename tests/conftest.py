@@ -17,9 +17,6 @@ REPO = Path(__file__).resolve().parents[1]
 _OPT = os.environ.get("SONARMAP_TEST_NUMBA_OPT", "1")
 os.environ.setdefault("NUMBA_OPT", _OPT)
 os.environ.setdefault("NUMBA_CACHE_DIR", str(REPO / ".pytest_cache" / f"numba-O{os.environ['NUMBA_OPT']}"))
-# The workers of a parallel run (and the command lines they start) compile each kernel once
-# between them instead of each compiling all of them at the same time on a cold cache.
-os.environ.setdefault("SONARMAP_JIT_LOCK_DIR", os.path.join(os.environ["NUMBA_CACHE_DIR"], "locks"))
 
 import pytest  # noqa: E402
 DATA = Path(os.environ.get("SONARMAP_DATA", REPO.parent / "shared" / "data"))

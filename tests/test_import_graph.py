@@ -7,7 +7,7 @@ resolved.  Two rules:
 
 (a) **Flow**: a module may import only modules of its own stage or an earlier one (:data:`STAGES`).
 (b) **Privacy**: across packages, no import of a private module (a dotted component starting with
-    ``_``) or of a private name.  The top-level base modules in :data:`SHARED` (``_atomic``, ``_jitlock``,
+    ``_``) or of a private name.  The top-level base modules in :data:`SHARED` (``_atomic``,
     ``_config``, ``_threads``, ``_files``, ``_text``, ``_histogram_kernels``) are shared
     infrastructure that every package may use; the top-level private helpers of a package
     (:data:`OWNER`) belong to that package.
@@ -37,7 +37,7 @@ STAGES: dict[str, int] = {
     # base: the value types, the data model and shared infrastructure
     "": 0,  # sonarmap/__init__.py (imports only base modules; the rest lazily by users)
     "errors": 0, "geometry": 0, "ping": 0, "datamodel": 0, "fan": 0, "data": 0,
-    "_atomic": 0, "_config": 0, "_threads": 0, "_files": 0, "_text": 0, "_histogram_kernels": 0, "_jitlock": 0,
+    "_atomic": 0, "_config": 0, "_threads": 0, "_files": 0, "_text": 0, "_histogram_kernels": 0,
     "io": 1, "store": 1,
     "preprocess": 2,
     "stats": 3,
@@ -53,7 +53,7 @@ STAGES: dict[str, int] = {
 }
 
 #: Top-level private modules that are shared infrastructure: importable from every package.
-SHARED = frozenset({"_atomic", "_config", "_threads", "_files", "_text", "_histogram_kernels", "_jitlock"})
+SHARED = frozenset({"_atomic", "_config", "_threads", "_files", "_text", "_histogram_kernels"})
 
 #: Top-level private modules that belong to a package (its private helpers).
 OWNER = {"_pipeline_kernels": "pipeline"}

@@ -7,8 +7,6 @@ IROS 2018.  Heavy sub-modules are imported lazily so ``import sonarmap`` stays f
 
 from __future__ import annotations
 
-import os as _os
-
 __version__ = "0.1.0"
 
 from sonarmap.errors import (
@@ -30,10 +28,3 @@ __all__ = [
     "SonarGeometry", "load_geometry", "save_geometry", "preset", "preset_names",
     "Ping",
 ]
-
-if _os.environ.get("SONARMAP_JIT_LOCK_DIR"):
-    # processes sharing a numba cache compile each kernel once between them (the test suite's
-    # workers and the command lines they start; see sonarmap._jitlock)
-    from sonarmap._jitlock import install_from_environment
-
-    install_from_environment()
