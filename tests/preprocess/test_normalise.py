@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 import pytest
 from threadpoolctl import threadpool_limits
@@ -269,9 +271,11 @@ def test_on_8bit_grid_kernel_equals_the_numpy_test() -> None:
     assert answers == {True, False}
 
 
+@functools.cache
 def _pooled_ratio_reference():
     """The one-row-at-a-time form of the pooled ratio (scipy's uniform_filter(img / level / factor,
-    pool, mode="nearest") in float64 running sums stored as float32), jitted."""
+    pool, mode="nearest") in float64 running sums stored as float32), jitted (once per process:
+    not cached on disk, so that it never keeps old code)."""
     from numba import njit
 
     @njit
