@@ -111,7 +111,8 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
     chunk = max(len(items) // workers // 4, 2)  # xdist's first chunk per worker (LoadScheduling)
 
     def rel(item: pytest.Item) -> str:
-        return Path(str(item.path)).relative_to(REPO).as_posix()
+        path = Path(str(item.path))
+        return path.relative_to(REPO).as_posix() if path.is_relative_to(REPO) else path.as_posix()
 
     first = [it for it in items if rel(it).startswith(_PIPELINE_FIRST)][:chunk]
     taken = {id(it) for it in first}
