@@ -114,10 +114,17 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
         path = Path(str(item.path))
         return path.relative_to(REPO).as_posix() if path.is_relative_to(REPO) else path.as_posix()
 
-    first = [it for it in items if rel(it).startswith(_PIPELINE_FIRST)][:chunk]
-    taken = {id(it) for it in first}
-    second = sorted((it for it in items if id(it) not in taken and rel(it).startswith(_OTHER_KERNELS_FIRST)
-                     and not rel(it).startswith(_OTHER_KERNELS_EXCEPT)),
-                    key=lambda it: next(k for k, p in enumerate(_OTHER_KERNELS_FIRST) if rel(it).startswith(p)))
-    taken |= {id(it) for it in second}
-    items[:] = first + second + [it for it in items if id(it) not in taken]
+    def other_rank(path: str) -> int | None:
+        """The place of the path's group in _OTHER_KERNELS_FIRST (None: not in the second group)."""
+        if path.startswith(_OTHER_KERNELS_EXCEPT):
+            return None
+        return next((k for k, prefix in enumerate(_OTHER_KERNELS_FIRST) if path.startswith(prefix)), None)
+
+    paths = [rel(it) for it in items]
+    first = [i for i, path in enumerate(paths) if path.startswith(_PIPELINE_FIRST)][:chunk]
+    taken = set(first)
+    ranked = [(rank, i) for i, path in enumerate(paths) if i not in taken and (rank := other_rank(path)) is not None]
+    second = [i for _, i in sorted(ranked)]  # (by group, then collection order)
+    taken.update(second)
+    order = first + second + [i for i in range(len(items)) if i not in taken]
+    items[:] = [items[i] for i in order]
