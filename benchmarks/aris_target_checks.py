@@ -2,7 +2,7 @@
 
 Usage::
 
-    python benchmarks/aris_target_checks.py     # prints the table of docs/segmentation.md
+    python benchmarks/aris_target_checks.py     # prints the table of docs/ranges.md
 
 The recording has no ground truth.  The target is the slanted line at 15.4-17.3 m across beams
 0-40 of its 6 frames; its curve per frame is a robust cubic (three rounds of dropping points more

@@ -14,7 +14,7 @@ frames, the 3 Oculus pings, the 10 Kongsberg EM2040 water-column pings) both pip
 returns per ping on each side, how many of the returns both report move (by more than 1e-6 bin),
 the median of the moves, their 5-95 % range, how many move by more than 3 bins, the share that
 moves towards the sonar, and the largest moves with their ping and beam - the figures
-``docs/segmentation.md`` gives for each option it compares ("On the real recordings").  The
+``docs/ranges.md`` ("Options") tells how to read.  The
 recordings have no ground truth: look at the beams it names (``sonarmap segment`` figures) before
 calling a move right or wrong.
 """

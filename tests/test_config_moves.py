@@ -22,7 +22,7 @@ def test_the_same_configuration_moves_nothing(moves_module, test_pings) -> None:
 
 
 def test_the_smoothing_moves_are_measured_in_bins(moves_module, test_pings) -> None:
-    """Without -> with the smoothing along the surface (docs/segmentation.md: 541 of 545 move, the
+    """Without -> with the smoothing along the surface (541 of 545 move, the
     largest on ping 0's steep seafloor, beams 77 and 73)."""
     off = PipelineConfig().replace(edge_smooth_beams=0)
     m = moves_module.compare(test_pings, off, PipelineConfig(), "didson")

@@ -63,7 +63,7 @@ def test_classified_edges_are_the_previous_default(test_pings, aris_pings):
 def test_the_undeconvolved_edges_put_the_simulated_didson_hull_on_its_surface():
     """The simulated DIDSON hull (seeds 0-2, both noise levels): with the edges measured on the
     classified, deconvolved image the returns lie a median 1.66 bins behind the surface (0.72
-    within 3 bins); on the image without the deconvolution 0.35 (0.94) (docs/segmentation.md,
+    within 3 bins); on the image without the deconvolution 0.35 (0.94) (docs/ranges.md,
     "The image the edges are measured on"; today 0.52 (0.97), the clipped echoes' Gaussian move and
     the template sigma's anchor included).  Without the crosstalk removal, which on this hull
     takes the simulator's strong ghosts beyond its ends for crosstalk (0.51 with it, "Crosstalk")."""

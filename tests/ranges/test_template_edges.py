@@ -222,7 +222,7 @@ def test_the_pipeline_option_switches_the_stage():
     for key in ("edge_template_beams", "edge_template_anchor_beams"):
         with pytest.raises(Exception, match=key):
             PipelineConfig().replace(**{key: -1})
-    # on by default, anchored on the pooled edges (docs/segmentation.md, "Template edges")
+    # on by default, anchored on the pooled edges (docs/ranges.md, "Template edges")
     assert PipelineConfig().ranges.edge_template_beams == 5
     assert PipelineConfig().ranges.edge_template_anchor_beams == 10
     assert PipelineConfig().replace(edge_template_beams=0).ranges.edge_template_beams == 0

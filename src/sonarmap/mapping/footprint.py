@@ -1,7 +1,7 @@
 """Where a leading-edge return was measured: the near edge of its beam's footprint.
 
 A return's range is the leading edge of its echo (``DESIGN.md``, "Range convention";
-``docs/segmentation.md``): the echo starts where the beam first meets the surface.  On a surface
+``docs/ranges.md``): the echo starts where the beam first meets the surface.  On a surface
 inclined across the beams that is not on the beam's axis but at the part of its footprint nearest
 the sonar.  The simulator's range truth (:attr:`sonarmap.simulate.SimResult.surface_range_m`)
 states the same convention: the nearest surface within the beam's two-way -3 dB footprint.

@@ -39,7 +39,7 @@ class CandidateConfig(ConfigSection):
         The same three component thresholds for normalised images, whose multi-look box
         correlates neighbouring pixels: i.i.d. exponential speckle of 512 x 96, 2000 x 48 and
         703 x 256 pixels, normalised and segmented, leaves components of at most 65 pixels,
-        17 beams and 13 bins (8 seeds each; ``docs/segmentation.md``).
+        17 beams and 13 bins (8 seeds each; ``docs/ranges.md``).
     min_component_extent_m : float
         Drop structure components smaller than this in both cross-range (arc length at their far
         edge) and range extent: fish, particles and interference dashes, whatever the beam count
@@ -131,7 +131,7 @@ class RangeConfig(ConfigSection):
         changes across beams the deconvolution subtracts from each beam's rising flank ghosts its
         neighbours' peaks do not cast, and the front of the echo is clipped away (a noise-free
         simulated DIDSON hull: per beam, half-peak crossings a median 1.96 bins late on the
-        deconvolved image, 0.10 bin early on the recorded one; ``docs/segmentation.md``, "The
+        deconvolved image, 0.10 bin early on the recorded one; ``docs/ranges.md``, "The
         image the edges are measured on").  The cost: the deconvolution also removed a band at
         a bright echo's range across the fan (crosstalk), into which a few edges on steep
         flanks beside it would move (real DIDSON ping 9: 11 of 87) without ``edge_crosstalk``.
@@ -144,7 +144,7 @@ class RangeConfig(ConfigSection):
         behind the row (default True).  On the real DIDSON test pings it moves the edges of
         ping 9's steep flanks (beams 45-53, 67-80) and of pings 4 and 8 where the band crosses the
         hull back onto the echo's front; the simulator, without crosstalk, is unchanged within
-        0.003 (``docs/segmentation.md``, "The image the edges are measured on").
+        0.003 (``docs/ranges.md``, "The image the edges are measured on").
     edge_pool_beams : int
         Leading edges of a tracked surface are measured on the mean of the edge-aligned profiles
         of the ``edge_pool_beams`` beams on either side of each beam on the same surface
@@ -163,7 +163,7 @@ class RangeConfig(ConfigSection):
         many either side of the crossing - instead of the two samples around it: a slow,
         speckled rise (the Oculus hulls' echoes rise over 35-100 bins) is measured with all its
         samples, and its sigma with the echo's rise rather than a speckle step's.  Default 6;
-        0 = the two samples (``docs/segmentation.md``, "The line through the flank").
+        0 = the two samples (``docs/ranges.md``, "Pooled edges").
     edge_pool_lead_bins : int
         A pooled edge is kept when it lies at most the pulse length plus this many bins in front
         of the beam's first structure bin (and not behind its echo's end); else the beam keeps its
@@ -173,7 +173,7 @@ class RangeConfig(ConfigSection):
         alignment rounds, 6 bins in front of the alignment each, can move an edge.  It trusts the
         crosstalk removal: where that misses a band lit across the fan in front of a surface (the
         real DIDSON ping 8 classified by ICM), the edges slide onto the band; 2 keeps them on the
-        labelled echo there (``docs/segmentation.md``, "Where a pooled edge may lie").
+        labelled echo there (``docs/ranges.md``, "Pooled edges").
     pulse_length_m : float, optional
         Transmit pulse length along range (``c tau / 2``); echoes are measured on the image
         smoothed over it.  Default: from the ping - its effective length ``1 / B`` where the file
@@ -197,7 +197,7 @@ class RangeConfig(ConfigSection):
         profile's standard error at the crossing over its rise per bin, times this factor
         (neighbouring beams share speckle through the main lobe and their windows overlap),
         fitted on the simulator so that 68 % of the errors lie within +-sigma
-        (``docs/segmentation.md``).  Every return's sigma also covers the clipping of its echo
+        (``docs/ranges.md``).  Every return's sigma also covers the clipping of its echo
         (the interval from the crossing to the first sample at the ping's full scale,
         :func:`sonarmap.ranges.measure.full_scale_level`).
     sigma_fit_scale : float
@@ -206,7 +206,7 @@ class RangeConfig(ConfigSection):
         error times this factor; such a return's sigma no longer adds the clipping interval.
         ``sigma_pool_scale``, ``sigma_fit_scale`` and ``sigma_template_scale`` are fitted together
         on the simulator (every preset, seeds 0-2 and 3-5) so that about 68 % of the errors of all
-        returns lie within +-sigma (``docs/segmentation.md``, "Uncertainty").
+        returns lie within +-sigma (``docs/ranges.md``, "Uncertainty").
     edge_template_beams : int
         Leading edges of surfaces of at least ``edge_template_min_beams`` beams are measured
         against the surface's own echo template, the mean of the ``edge_template_beams`` beams on
@@ -225,12 +225,12 @@ class RangeConfig(ConfigSection):
     sigma_template_scale : float
         Sigma of a template-measured edge: the standard error of the template's position
         (inverse square root of its Fisher information), of its crossing and of the anchor's
-        median, in quadrature, times this factor (``docs/segmentation.md``, "Template edges").
+        median, in quadrature, times this factor (``docs/ranges.md``, "Template edges").
         The anchor's median is taken over pooled edges whose windows (``2 edge_pool_beams + 1``
         beams) overlap: ``c`` of them count as ``c / (2 edge_pool_beams + 1)`` independent ones.
         Fitted on the simulator (seeds 0-8, every preset): the factor that puts every preset's
         share of returns within +-sigma inside 0.68 +- 0.05 over the nine seeds (seeds 9-11 held
-        out; ``docs/segmentation.md``, "Uncertainty").
+        out; ``docs/ranges.md``, "Uncertainty").
     sigma_template_smooth_scale : float
         How much less the smoothing along the surface (``edge_smooth_beams``) trusts a
         template-measured edge than its sigma says: inside the smoothing such an edge weighs, and
@@ -241,7 +241,7 @@ class RangeConfig(ConfigSection):
         simulated DIDSON flat hull, 3-4 bins late on 6 beams with sigmas of 0.5 bin); 2.0 pulls
         such edges back on smooth surfaces (hulls) but flattens relief at the window's scale (the
         simulated rippled seafloor survey registers at 0.55 instead of 0.47 bins RMS) -
-        ``docs/segmentation.md``, "Smoothing along the surface".  At least 1.
+        ``docs/ranges.md``, "Smoothing along the surface".  At least 1.
     edge_smooth_beams : int
         Each first return's leading edge is combined with the prediction of the edges within this
         many beams on either side on its surface (a leave-one-out local quadratic across beams),
@@ -252,7 +252,7 @@ class RangeConfig(ConfigSection):
         than the beam spacing) takes that many beamwidths
         (:func:`sonarmap.ranges.smoothing.window_in_beamwidths`).  0 = off; else >= 2.  The
         default 16 was chosen over 8, 12 and 24 on the simulator's held-out seeds and the Kongsberg
-        swath's own detections (``docs/segmentation.md``, "Smoothing along the surface").
+        swath's own detections (``docs/ranges.md``, "Smoothing along the surface").
     edge_smooth_min_beams : int
         Shortest run of returns combined (>= 5).
     surface_min_z : float

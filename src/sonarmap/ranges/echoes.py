@@ -182,7 +182,7 @@ def range_sigma_m(edge_value: ArrayLike, slope: ArrayLike, bin_m: float, *, look
     moves by the image's fluctuation at the crossing level divided by its rise per bin - the
     sample at the crossing and the peak that sets the level fluctuate alike, hence ``sqrt(2)`` -
     and the bin grid and the pulse's own extent add their uniform spreads.  ``scale`` calibrates
-    the jitter term (the pipeline's value is fitted on the simulator, ``docs/segmentation.md``).
+    the jitter term (the pipeline's value is fitted on the simulator, ``docs/ranges.md``).
 
     Parameters
     ----------

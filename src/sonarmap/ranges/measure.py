@@ -526,7 +526,7 @@ def clipped_gaussian_edges(echoes: Any, sel: NDArray[np.int64], raw: NDArray[Any
     behind ``Echoes.peak_bin``).  The move's length over ``sqrt 12`` is added to the sigma, in
     quadrature.  ``level``: the ping's :func:`full_scale_level`; the pipeline passes
     ``TrackConfig.point_over_range_db`` (30 dB) as the bound.  On the simulator's propellers
-    (docs/segmentation.md, "Clipped echoes") the ARIS returns move from a median 2.5-2.7 bins in
+    (docs/ranges.md, "Clipped echoes") the ARIS returns move from a median 2.5-2.7 bins in
     front of the surface to 1.3; the real recordings have no such echo (none moves).
     """
     import sonarmap.ranges._kernels as _rk

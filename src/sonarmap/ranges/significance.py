@@ -37,7 +37,7 @@ samples (ARIS) spreads wider with range - the spread of the raw samples stays ab
 the level falls 2-3x over the window - so the far rows hold more bright speckle than the
 background model expects, which the classifier and tracker can join into a surface (1-3 % of the
 simulated empty ARIS pings; a few beams at the far end of the real ARIS frames).  Such surfaces
-stand a few MADs at most above their water column, real ones far more (``docs/segmentation.md``,
+stand a few MADs at most above their water column, real ones far more (``docs/ranges.md``,
 "Surface significance").
 
 Only normalised pings are tested by the pipeline; a pre-processed ping (DIDSON: thresholded, its

@@ -23,7 +23,7 @@ away, and stays in the sigma.
 
 Only first returns of runs of at least ``min_beams`` beams are combined (the pipeline's
 ``RangeConfig.edge_smooth_beams`` / ``edge_smooth_min_beams``).  Measured on the simulator
-(``docs/segmentation.md``, "Smoothing along the surface") and on the Kongsberg swath against the
+(``docs/ranges.md``, "Smoothing along the surface") and on the Kongsberg swath against the
 sonar's own detections (``benchmarks/kongsberg_checks.py``).
 """
 

@@ -27,7 +27,7 @@ level in front of the surface) keeps its edge: through a faint grazing seafloor'
 on the simulator's ARIS presets) the crossing lay 3 bins early.
 
 Every sample of the rise and of the peak informs the relative position, not only the two around
-one crossing of a speckled profile (``docs/segmentation.md``, "Template edges").
+one crossing of a speckled profile (``docs/ranges.md``, "Template edges").
 """
 
 from __future__ import annotations
