@@ -26,7 +26,8 @@ def _concat_parts(parts: Sequence[Mapping[str, np.ndarray]]) -> dict[str, np.nda
     return {name: np.concatenate([p[name] for p in parts], axis=0) for name in parts[0]}
 
 
-def _pool_initializer(parent_pid: int, ping_function: PingFunction | None) -> None:  # pragma: no cover - runs in workers
+def _pool_initializer(parent_pid: int, ping_function: PingFunction | None, counter: Any = None,
+                      workers: int = 1) -> None:  # pragma: no cover - runs in workers
     import signal
     import threading
 
@@ -52,8 +53,10 @@ def _pool_initializer(parent_pid: int, ping_function: PingFunction | None) -> No
                 pass
 
     threading.Thread(target=watch, name="sonarmap-parent-watch", daemon=True).start()
-    # every worker starts warm, before it takes its first chunk
+    # every worker starts warm, before it takes its first chunk; on a cold numba cache the
+    # workers first share the default pipeline's compilation (sonarmap._precompile)
     if ping_function is None:
+        _precompile_share(counter, workers)
         warm_pipeline_once()
     else:
         _warm(ping_function)
@@ -79,6 +82,36 @@ def _warm(ping_function: PingFunction | None) -> bool:
     except Exception:  # noqa: BLE001 - warming must never fail a run
         return False
     return True
+
+
+def _precompile_share(counter: Any, workers: int) -> int | None:
+    """On a cold numba cache, share the default pipeline's compilation with the pool's other
+    workers (:func:`sonarmap._precompile.compile_queue`; ``counter``, a shared
+    ``multiprocessing.Value`` starting at -1, is the queue's next index: the first worker to take
+    it decides whether the cache is cold - else it marks the queue done); the number of kernels
+    this worker compiled, None when the queue was not used.  Never raises: precompiling is an
+    optimisation."""
+    if counter is None or workers < 2:
+        return None
+    try:
+        from sonarmap._precompile import cache_is_cold, compile_queue, load_signatures
+
+        entries = load_signatures()
+        with counter.get_lock():
+            if counter.value < 0:
+                counter.value = 0 if entries and cache_is_cold() else len(entries)
+            if counter.value >= len(entries):
+                return None
+
+        def take() -> int:
+            with counter.get_lock():
+                i = int(counter.value)
+                counter.value = i + 1
+            return i
+
+        return compile_queue(entries, take)
+    except Exception:  # noqa: BLE001 - never fail a run for it
+        return None
 
 
 @functools.cache
@@ -119,8 +152,11 @@ class _ProcessPool:
         # since the executor may start a worker at any submit (restored by close()).
         self._saved_env = {v: os.environ.get(v) for v in _THREAD_VARS}
         os.environ.update({v: "1" for v, old in self._saved_env.items() if old is None})
-        self.ex = cf.ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
-                                         initializer=_pool_initializer, initargs=(os.getpid(), ping_function))
+        ctx = multiprocessing.get_context("spawn")
+        # the queue of a cold cache's shared compilation (_precompile_share; -1: not decided yet)
+        counter = ctx.Value("i", -1)
+        self.ex = cf.ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_pool_initializer,
+                                         initargs=(os.getpid(), ping_function, counter, workers))
         for _ in range(workers):  # start the workers now: they warm up while the parent plans
             self.ex.submit(os.getpid)
 
