@@ -17,6 +17,10 @@ REPO = Path(__file__).resolve().parents[1]
 _OPT = os.environ.get("SONARMAP_TEST_NUMBA_OPT", "1")
 os.environ.setdefault("NUMBA_OPT", _OPT)
 os.environ.setdefault("NUMBA_CACHE_DIR", str(REPO / ".pytest_cache" / f"numba-O{os.environ['NUMBA_OPT']}"))
+# the command line's helper processes for a cold cache (sonarmap._precompile.compile_with_helpers)
+# stay off: the test workers already keep every core busy, and the collection order below decides
+# which of them compiles the pipeline
+os.environ.setdefault("SONARMAP_COMPILE_HELPERS", "0")
 
 import pytest  # noqa: E402
 DATA = Path(os.environ.get("SONARMAP_DATA", REPO.parent / "shared" / "data"))

@@ -8,7 +8,7 @@ resolved.  Two rules:
 (a) **Flow**: a module may import only modules of its own stage or an earlier one (:data:`STAGES`).
 (b) **Privacy**: across packages, no import of a private module (a dotted component starting with
     ``_``) or of a private name.  The top-level base modules in :data:`SHARED` (``_atomic``,
-    ``_config``, ``_threads``, ``_files``, ``_text``, ``_histogram_kernels``) are shared
+    ``_config``, ``_threads``, ``_files``, ``_text``, ``_histogram_kernels``, ``_precompile``) are shared
     infrastructure that every package may use; the top-level private helpers of a package
     (:data:`OWNER`) belong to that package.
 
@@ -43,17 +43,17 @@ STAGES: dict[str, int] = {
     "stats": 3,
     "classify": 4,
     "ranges": 5,
-    "pipeline": 6, "config": 6,
+    "pipeline": 6, "config": 6, "_precompile": 6,
     "mapping": 7, "simulate": 7,
     "plots": 8, "survey": 8,
     "report": 9, "live": 9,
-    "evaluate": 10, "paper": 10,
+    "evaluate": 10, "paper": 10, "_precompile_record": 10,
     "cli": 11,
     "__main__": 12,
 }
 
 #: Top-level private modules that are shared infrastructure: importable from every package.
-SHARED = frozenset({"_atomic", "_config", "_threads", "_files", "_text", "_histogram_kernels"})
+SHARED = frozenset({"_atomic", "_config", "_threads", "_files", "_text", "_histogram_kernels", "_precompile"})
 
 #: Top-level private modules that belong to a package (its private helpers).
 OWNER = {"_pipeline_kernels": "pipeline"}

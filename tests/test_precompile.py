@@ -1,4 +1,5 @@
-"""sonarmap._precompile: the pipeline's kernels compiled by several workers at once on a cold cache."""
+"""sonarmap._precompile (+ _precompile_record): the pipeline's kernels compiled by several
+processes at once on a cold cache."""
 
 from __future__ import annotations
 
@@ -116,7 +117,63 @@ def test_an_empty_cache_is_cold(tmp_path: Path) -> None:
 
 @pytest.mark.slow
 def test_the_list_is_what_the_warm_up_compiles() -> None:
-    """A fresh process's warm-ups call exactly the listed entry points (else: rewrite the list
-    with `python -m sonarmap._precompile`)."""
-    res = subprocess.run([sys.executable, "-m", "sonarmap._precompile", "--check"], capture_output=True, text=True)
+    """A fresh process's warm-ups and simulated pings call exactly the listed entry points
+    (else: rewrite the list with `python -m sonarmap._precompile_record`)."""
+    res = subprocess.run([sys.executable, "-m", "sonarmap._precompile_record", "--check"], capture_output=True,
+                         text=True)
     assert res.returncode == 0, res.stdout + res.stderr
+
+
+def test_helpers_share_the_queue_with_the_calling_process(monkeypatch: pytest.MonkeyPatch) -> None:
+    entries = pc.load_signatures()[-5:]
+    monkeypatch.setattr(pc, "load_signatures", lambda: entries)
+    monkeypatch.setattr(pc, "cache_is_cold", lambda: False)
+    assert pc.compile_with_helpers(1) == 0  # warm: nothing started
+    monkeypatch.setattr(pc, "cache_is_cold", lambda: True)
+    assert pc.compile_with_helpers(0) == 0
+    monkeypatch.setenv("SONARMAP_COMPILE_HELPERS", "0")  # (the suite's own setting)
+    assert pc.compile_with_helpers() == 0
+    assert pc.compile_with_helpers(1) == 1  # a helper process took part of the queue; both done
+    for e in entries:
+        disp = pc._resolve(e["kernel"])
+        assert tuple(pc.decode_type(a) for a in e["args"]) in [tuple(s) for s in disp.signatures]
+
+
+def test_an_interrupt_stops_the_helpers(monkeypatch: pytest.MonkeyPatch) -> None:
+    entries = pc.load_signatures()[-2:]
+    monkeypatch.setattr(pc, "load_signatures", lambda: entries)
+    monkeypatch.setattr(pc, "cache_is_cold", lambda: True)
+    started: list[multiprocessing.process.BaseProcess] = []
+    real = multiprocessing.get_context
+
+    class Ctx:
+        def __init__(self, method: str) -> None:
+            self.ctx = real(method)
+
+        def Value(self, *a: object) -> object:  # noqa: N802 - multiprocessing's name
+            return self.ctx.Value(*a)
+
+        def Process(self, **kw: object) -> multiprocessing.process.BaseProcess:  # noqa: N802
+            kw["target"] = _sleep_forever
+            kw["args"] = ()
+            p = self.ctx.Process(**kw)
+            started.append(p)
+            return p
+
+    monkeypatch.setattr(multiprocessing, "get_context", Ctx)
+
+    def interrupted(entries: object, take: object) -> int:
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(pc, "compile_queue", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        pc.compile_with_helpers(1)
+    assert len(started) == 1
+    started[0].join(10)
+    assert not started[0].is_alive()
+
+
+def _sleep_forever() -> None:  # pragma: no cover - runs in a helper process
+    import time
+
+    time.sleep(600)

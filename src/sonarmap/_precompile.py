@@ -8,28 +8,29 @@ listed, with their signatures, in ``_kernel_signatures.json`` beside this module
 compilation first.  Workers that find the cache cold share that list as a queue
 (:func:`compile_queue`): each takes the next kernel not yet taken, compiles it (numba saves it in
 the cache) and takes another, until the list is done; the warm-up that follows then loads from
-the cache what the other workers compiled.  The results do not change: the same kernels at the
-same signatures, compiled by numba as the pipeline would have compiled them.
+the cache what the other workers compiled.  A single-process command (``sonarmap ranges``,
+``segment``) shares the list the same way with helper processes it starts for the purpose
+(:func:`compile_with_helpers`).  The results do not change: the same kernels at the same
+signatures, compiled by numba as the pipeline would have compiled them.
 
-``python -m sonarmap._precompile`` rewrites the list from what the warm-ups compile in a fresh
-process (``tests/test_precompile.py`` checks that it is current); ``--time`` measures each
-entry's compilation on an empty cache (run it with ``NUMBA_CACHE_DIR`` set to an empty directory),
-which orders the queue.
+The list is written by ``python -m sonarmap._precompile_record`` (what the warm-ups and a few
+simulated pings compile in a fresh process; ``tests/test_precompile.py`` checks that it is
+current).
 """
 
 from __future__ import annotations
 
-import contextlib
 import functools
 import importlib
 import json
+import os
 import sys
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
-__all__ = ["SIGNATURES_FILE", "encode_type", "decode_type", "recorded_signatures", "load_signatures",
-           "cache_is_cold", "compile_entry", "compile_queue", "write_signatures"]
+__all__ = ["SIGNATURES_FILE", "UnsupportedType", "encode_type", "decode_type", "load_signatures",
+           "cache_is_cold", "compile_entry", "compile_queue", "take_next", "compile_with_helpers", "entry_key"]
 
 #: The checked-in list of ``{"kernel": "module:qualname", "args": [...]}`` entries.
 SIGNATURES_FILE = Path(__file__).with_name("_kernel_signatures.json")
@@ -105,62 +106,6 @@ def decode_type(d: Any) -> Any:
     raise UnsupportedType(f"unknown kind {kind!r}")
 
 
-def _kernel_key(disp: Any) -> str | None:
-    """``"module:name"`` of a dispatcher bound at module level under its own name (None: a
-    nested or renamed one, which cannot be found again by name)."""
-    py = getattr(disp, "py_func", None)
-    mod = sys.modules.get(getattr(py, "__module__", ""), None)
-    name = getattr(py, "__qualname__", "")
-    if mod is None or not str(mod.__name__).startswith("sonarmap") or getattr(mod, name, None) is not disp:
-        return None
-    return f"{mod.__name__}:{name}"
-
-
-@contextlib.contextmanager
-def recording() -> Iterator[list[dict[str, Any]]]:
-    """Within the block, list every sonarmap kernel called from Python for the first time with
-    new argument types (numba's ``Dispatcher._compile_for_args``: the entry points; the kernels
-    they call are compiled with them), as encoded entries in call order, each once."""
-    from numba.core import types
-    from numba.core.dispatcher import Dispatcher, OmittedArg
-
-    calls: list[dict[str, Any]] = []
-    seen: set[str] = set()
-    original = Dispatcher._compile_for_args
-
-    def compile_for_args(self: Any, *args: Any, **kws: Any) -> Any:
-        out = original(self, *args, **kws)
-        key = _kernel_key(self)
-        if key is not None:
-            try:
-                enc = [encode_type(types.Omitted(a.value) if isinstance(a, OmittedArg) else self.typeof_pyval(a))
-                       for a in args]
-            except UnsupportedType:
-                return out
-            entry = {"kernel": key, "args": enc}
-            if _key(entry) not in seen:
-                seen.add(_key(entry))
-                calls.append(entry)
-        return out
-
-    Dispatcher._compile_for_args = compile_for_args  # type: ignore[method-assign]
-    try:
-        yield calls
-    finally:
-        Dispatcher._compile_for_args = original  # type: ignore[method-assign]
-
-
-def recorded_signatures() -> list[dict[str, Any]]:
-    """The entry points the pipeline's warm-ups (:func:`sonarmap.live.loop.warm_pipeline`: a
-    thresholded DIDSON ping and a speckled, normalised one) call, in this process, sorted by
-    kernel and signature.  Only a process that has not run them yet records them all."""
-    from sonarmap.live.loop import warm_pipeline
-
-    with recording() as calls:
-        warm_pipeline()
-    return sorted(calls, key=_key)
-
-
 def load_signatures(path: Path = SIGNATURES_FILE) -> list[dict[str, Any]]:
     """The checked-in list, longest compilation first (``[]`` when the file is missing or
     unreadable: precompiling is an optimisation, never a requirement)."""
@@ -214,61 +159,60 @@ def compile_queue(entries: Sequence[dict[str, Any]], take: Callable[[], int]) ->
         done += compile_entry(entries[i])
 
 
-def write_signatures(path: Path = SIGNATURES_FILE, *, timed: bool = False) -> int:
-    """Record the warm-ups' entry points in this process (:func:`recorded_signatures`: run it in a
-    fresh process, ``python -m sonarmap._precompile``) and write them, keeping the seconds of
-    entries already listed; with ``timed``, instead compile each listed entry on its own and
-    record its ``seconds`` (on an empty cache: ``NUMBA_CACHE_DIR=<empty dir> python -m
-    sonarmap._precompile --time``).  The number of entries written."""
-    import time
-
-    from sonarmap._atomic import atomic_write_text
-
-    listed = load_signatures(path)
-    if timed:
-        entries = listed
-        for e in entries:
-            t = time.perf_counter()
-            if compile_entry(e):
-                e["seconds"] = round(time.perf_counter() - t, 2)
-    else:
-        seconds = {_key(e): e["seconds"] for e in listed if "seconds" in e}
-        entries = recorded_signatures()
-        for e in entries:
-            if _key(e) in seconds:
-                e["seconds"] = seconds[_key(e)]
-    entries = sorted(entries, key=_key)
-    text = json.dumps({"about": "numba signatures the per-ping pipeline's warm-up compiles, with the seconds "
-                                "each took to compile on an empty cache; rewrite with "
-                                "`python -m sonarmap._precompile [--time]`",
-                       "signatures": entries}, indent=1)
-    atomic_write_text(path, text + "\n")
-    return len(entries)
+def take_next(counter: Any) -> int:
+    """The next index of the queue ``counter`` (a ``multiprocessing.Value``) hands out."""
+    with counter.get_lock():
+        i = int(counter.value)
+        counter.value = i + 1
+    return i
 
 
-def _key(e: dict[str, Any]) -> str:
-    return str(e["kernel"]) + json.dumps(e["args"])
+def _helper(counter: Any, entries: list[dict[str, Any]]) -> None:  # pragma: no cover - runs in a helper process
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent stops its helpers
+    compile_queue(entries, lambda: take_next(counter))
 
 
-def main(argv: Sequence[str]) -> int:  # pragma: no cover - the maintainer's command (tested by a subprocess)
-    """``--check``: exit 1, naming the differences, when the list is not what a fresh process
-    records; ``--time``: measure the listed entries; otherwise rewrite the list."""
-    if "--check" in argv:
-        want = {_key(e) for e in recorded_signatures()}
-        have = {_key(e) for e in load_signatures()}
-        for k in sorted(want - have):
-            print(f"missing: {k}")
-        for k in sorted(have - want):
-            print(f"not compiled by the warm-up: {k}")
-        if want != have:
-            print("rewrite the list: python -m sonarmap._precompile")
-            return 1
-        print(f"{len(want)} signatures, as listed")
+def compile_with_helpers(helpers: int | None = None) -> int:
+    """On a cold cache, compile the list in this process and in ``helpers`` spawned helper
+    processes at once (the queue the pool's workers share), and wait for them; the number of
+    helpers started (0: the cache is warm, no list, no spare CPU, or ``SONARMAP_COMPILE_HELPERS=0``
+    in the environment).
+
+    ``helpers`` defaults to the CPUs beyond this process's, at most 3 (``SONARMAP_COMPILE_HELPERS``
+    sets it).  The command line calls this before a single-process run's first ping; an
+    interrupted run stops its helpers.  Never raises but for an interrupt: precompiling is an
+    optimisation.
+    """
+    import multiprocessing
+
+    if helpers is None:
+        env = os.environ.get("SONARMAP_COMPILE_HELPERS", "")
+        helpers = int(env) if env.isdigit() else min((os.cpu_count() or 1) - 1, 3)
+    try:
+        entries = load_signatures()
+        if helpers < 1 or not entries or not cache_is_cold():
+            return 0
+        ctx = multiprocessing.get_context("spawn")
+        counter = ctx.Value("i", 0)
+        procs = [ctx.Process(target=_helper, args=(counter, entries), daemon=True, name="sonarmap-compile")
+                 for _ in range(helpers)]
+        for proc in procs:
+            proc.start()
+    except Exception:  # noqa: BLE001 - never fail a run for it
         return 0
-    n = write_signatures(timed="--time" in argv)
-    print(f"{n} signatures -> {SIGNATURES_FILE}")
-    return 0
+    try:
+        compile_queue(entries, lambda: take_next(counter))
+    except BaseException:
+        for proc in procs:
+            proc.terminate()
+        raise
+    for proc in procs:
+        proc.join()
+    return helpers
 
 
-if __name__ == "__main__":  # pragma: no cover
-    raise SystemExit(main(sys.argv[1:]))
+def entry_key(e: dict[str, Any]) -> str:
+    """An entry's identity: its kernel and encoded argument types."""
+    return str(e["kernel"]) + json.dumps(e["args"])

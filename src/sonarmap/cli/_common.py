@@ -466,7 +466,9 @@ class PingProgress:
     verbose : bool
         :meth:`log` prints its lines (above the bar).
     compiles : bool
-        The pings run the per-ping pipeline: :meth:`start` prints :func:`first_run_notice` first.
+        The pings run the per-ping pipeline: on a cold numba cache :meth:`start` first prints
+        :func:`first_run_notice` and compiles the pipeline's kernels with helper processes
+        (:func:`sonarmap._precompile.compile_with_helpers`).
     """
 
     def __init__(self, description: str, total: int | None = None, *, quiet: bool = False,
@@ -480,16 +482,25 @@ class PingProgress:
         self._progress: Any = None
         self._task: Any = None
         self._t0 = 0.0
+        self._compiled = False
 
     def start(self) -> PingProgress:
         """Start drawing the bar (call after the first ping was read, so input errors come first)."""
         import time
 
         self._t0 = time.perf_counter()
-        if self.quiet or self._progress is not None:
+        if self._progress is not None:
             return self
-        if self.compiles:
-            first_run_notice()
+        if self.compiles and not self._compiled:
+            # on a cold numba cache: say so, and compile in helper processes too
+            self._compiled = True
+            first_run_notice(self.quiet)
+            from sonarmap._precompile import compile_with_helpers
+
+            compile_with_helpers()
+            self._t0 = time.perf_counter()
+        if self.quiet:
+            return self
         from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
         self._progress = Progress(

@@ -94,7 +94,7 @@ def _precompile_share(counter: Any, workers: int) -> int | None:
     if counter is None or workers < 2:
         return None
     try:
-        from sonarmap._precompile import cache_is_cold, compile_queue, load_signatures
+        from sonarmap._precompile import cache_is_cold, compile_queue, load_signatures, take_next
 
         entries = load_signatures()
         with counter.get_lock():
@@ -102,14 +102,7 @@ def _precompile_share(counter: Any, workers: int) -> int | None:
                 counter.value = 0 if entries and cache_is_cold() else len(entries)
             if counter.value >= len(entries):
                 return None
-
-        def take() -> int:
-            with counter.get_lock():
-                i = int(counter.value)
-                counter.value = i + 1
-            return i
-
-        return compile_queue(entries, take)
+        return compile_queue(entries, lambda: take_next(counter))
     except Exception:  # noqa: BLE001 - never fail a run for it
         return None
 
