@@ -123,10 +123,12 @@ def write_signatures(path: Path = SIGNATURES_FILE, *, timed: bool = False) -> in
             if entry_key(e) in seconds:
                 e["seconds"] = seconds[entry_key(e)]
     entries = sorted(entries, key=entry_key)
+    import numba
+
     text = json.dumps({"about": "numba signatures the per-ping pipeline's warm-up compiles, with the seconds "
                                 "each took to compile on an empty cache; rewrite with "
                                 "`python -m sonarmap._precompile_record [--time]`",
-                       "signatures": entries}, indent=1)
+                       "numba": numba.__version__, "signatures": entries}, indent=1)
     atomic_write_text(path, text + "\n")
     return len(entries)
 
