@@ -568,7 +568,7 @@ def ping_progress(description: str, total: int | None = None, *, quiet: bool = F
 
 
 #: What :func:`first_run_notice` prints.
-FIRST_RUN_NOTICE = ("first run on this machine: numba is compiling sonarmap's kernels (a few minutes on 2 cores, "
+FIRST_RUN_NOTICE = ("first run on this machine: numba is compiling sonarmap's kernels (about two minutes on 2 cores, "
                     "once; later runs load them from its cache)")
 
 
