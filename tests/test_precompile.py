@@ -140,10 +140,13 @@ def test_helpers_share_the_queue_with_the_calling_process(monkeypatch: pytest.Mo
     assert pc.compile_with_helpers(0) == 0
     monkeypatch.setenv("SONARMAP_COMPILE_HELPERS", "0")  # (the suite's own setting)
     assert pc.compile_with_helpers() == 0
-    assert pc.compile_with_helpers(1) == 1  # a helper process took part of the queue; both done
-    for e in entries:
-        disp = pc._resolve(e["kernel"])
-        assert tuple(pc.decode_type(a) for a in e["args"]) in [tuple(s) for s in disp.signatures]
+    seen: list[tuple[float, float]] = []
+    # a helper process takes part of the queue; both done
+    assert pc.compile_with_helpers(1, progress=lambda taken, total: seen.append((taken, total))) == 1
+    total = sum(e.get("seconds", 1.0) for e in entries)
+    assert seen and all(t == pytest.approx(total) for _, t in seen)
+    assert [t for t, _ in seen] == sorted(t for t, _ in seen) and seen[-1][0] == pytest.approx(total)
+    # (the entries the helper took are compiled in its process, into the cache, not in this one)
 
 
 def test_an_interrupt_stops_the_helpers(monkeypatch: pytest.MonkeyPatch) -> None:

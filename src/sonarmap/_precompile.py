@@ -174,15 +174,19 @@ def _helper(counter: Any, entries: list[dict[str, Any]]) -> None:  # pragma: no 
     compile_queue(entries, lambda: take_next(counter))
 
 
-def compile_with_helpers(helpers: int | None = None) -> int:
+def compile_with_helpers(helpers: int | None = None, *,
+                         progress: Callable[[float, float], None] | None = None) -> int:
     """On a cold cache, compile the list in this process and in ``helpers`` spawned helper
     processes at once (the queue the pool's workers share), and wait for them; the number of
     helpers started (0: the cache is warm, no list, no spare CPU, or ``SONARMAP_COMPILE_HELPERS=0``
     in the environment).
 
     ``helpers`` defaults to the CPUs beyond this process's, at most 3 (``SONARMAP_COMPILE_HELPERS``
-    sets it).  The command line calls this before a single-process run's first ping; an
-    interrupted run stops its helpers.  Never raises but for an interrupt: precompiling is an
+    sets it).  ``progress(taken, total)``, when given, is called in this process each time it
+    takes an entry: the recorded compile seconds of the entries every process took before it,
+    and of all of them.  The command line calls
+    this before a single-process run's first ping, with a progress bar; an interrupted run stops
+    its helpers.  Never raises but for an interrupt: precompiling is an
     optimisation.
     """
     import multiprocessing
@@ -202,8 +206,19 @@ def compile_with_helpers(helpers: int | None = None) -> int:
             proc.start()
     except Exception:  # noqa: BLE001 - never fail a run for it
         return 0
+    # the compile seconds of the entries before each one: the progress in (recorded) time
+    before = [0.0]
+    for e in entries:
+        before.append(before[-1] + _seconds(e))
+
+    def take() -> int:
+        i = take_next(counter)
+        if progress is not None:
+            progress(before[min(i, len(entries))], before[-1])
+        return i
+
     try:
-        compile_queue(entries, lambda: take_next(counter))
+        compile_queue(entries, take)
     except BaseException:
         for proc in procs:
             proc.terminate()

@@ -494,10 +494,7 @@ class PingProgress:
         if self.compiles and not self._compiled:
             # on a cold numba cache: say so, and compile in helper processes too
             self._compiled = True
-            first_run_notice(self.quiet)
-            from sonarmap._precompile import compile_with_helpers
-
-            compile_with_helpers()
+            _compile_first(first_run_notice(self.quiet))
             self._t0 = time.perf_counter()
         if self.quiet:
             return self
@@ -565,6 +562,23 @@ def ping_progress(description: str, total: int | None = None, *, quiet: bool = F
     3
     """
     return PingProgress(description, total, quiet=quiet, verbose=verbose, compiles=compiles)
+
+
+def _compile_first(show: bool) -> None:
+    """:func:`sonarmap._precompile.compile_with_helpers`, with a transient bar of the kernels
+    taken when ``show`` (the first-run notice was printed: a terminal)."""
+    from sonarmap._precompile import compile_with_helpers
+
+    if not show:
+        compile_with_helpers()
+        return
+    from rich.progress import BarColumn, Progress, TaskProgressColumn, TextColumn, TimeElapsedColumn
+
+    # (the bar advances by the kernels' recorded compile seconds: about linear in time)
+    with Progress(TextColumn("compiling kernels"), BarColumn(), TaskProgressColumn(), TimeElapsedColumn(),
+                  console=err_console(), transient=True) as bar:
+        task = bar.add_task("compiling", total=None)
+        compile_with_helpers(progress=lambda taken, total: bar.update(task, completed=taken, total=total))
 
 
 #: What :func:`first_run_notice` prints.
