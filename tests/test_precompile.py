@@ -74,7 +74,7 @@ def test_a_queue_compiles_each_entry_once_and_skips_what_it_cannot_build() -> No
     assert pc.compile_queue(entries, take) == 3
     assert taken == [0, 1, 2, 3, 4, 5]  # the last index is past the end: the queue is done
     for e in entries[:3]:
-        disp = pc._resolve(e["kernel"])
+        disp = pc.resolve_kernel(e["kernel"])
         assert tuple(pc.decode_type(a) for a in e["args"]) in [tuple(s) for s in disp.signatures]
 
 

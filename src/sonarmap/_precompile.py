@@ -30,7 +30,8 @@ from pathlib import Path
 from typing import Any
 
 __all__ = ["SIGNATURES_FILE", "UnsupportedType", "encode_type", "decode_type", "load_signatures",
-           "cache_is_cold", "compile_entry", "compile_queue", "take_next", "compile_with_helpers", "entry_key"]
+           "cache_is_cold", "compile_entry", "compile_queue", "take_next", "compile_with_helpers", "entry_key",
+           "resolve_kernel"]
 
 #: The checked-in list of ``{"kernel": "module:qualname", "args": [...]}`` entries.
 SIGNATURES_FILE = Path(__file__).with_name("_kernel_signatures.json")
@@ -123,7 +124,8 @@ def _seconds(e: dict[str, Any]) -> float:
     return float(v) if isinstance(v, int | float) else 1.0
 
 
-def _resolve(kernel: str) -> Any:
+def resolve_kernel(kernel: str) -> Any:
+    """The dispatcher an entry names (``"module:name"``; the module imported)."""
     mod_name, _, attr = kernel.partition(":")
     return getattr(importlib.import_module(mod_name), attr)
 
@@ -141,7 +143,7 @@ def compile_entry(entry: dict[str, Any]) -> bool:
     the kernel is unknown or its types do not build under this numba (the pipeline then compiles
     what it needs as usual)."""
     try:
-        _resolve(entry["kernel"]).compile(tuple(decode_type(a) for a in entry["args"]))
+        resolve_kernel(entry["kernel"]).compile(tuple(decode_type(a) for a in entry["args"]))
     except Exception:  # noqa: BLE001 - precompiling is an optimisation, never a requirement
         return False
     return True

@@ -133,20 +133,36 @@ def write_signatures(path: Path = SIGNATURES_FILE, *, timed: bool = False) -> in
     return len(entries)
 
 
+def _compiled_here(entry: dict[str, Any]) -> bool:
+    """Whether this process's dispatcher of the entry's kernel holds its signature."""
+    from sonarmap._precompile import decode_type, resolve_kernel
+
+    try:
+        sig = tuple(decode_type(a) for a in entry["args"])
+        return sig in [tuple(s) for s in resolve_kernel(entry["kernel"]).signatures]
+    except Exception:  # noqa: BLE001 - an unknown kernel or type: not compiled here
+        return False
+
+
 def main(argv: Sequence[str]) -> int:  # pragma: no cover - the maintainer's command (tested by a subprocess)
     """``--check``: exit 1, naming the differences, when the list is not what a fresh process
     records; ``--time``: measure the listed entries; otherwise rewrite the list."""
     if "--check" in argv:
         want = {entry_key(e) for e in recorded_signatures()}
-        have = {entry_key(e) for e in load_signatures()}
+        listed = load_signatures()
+        have = {entry_key(e) for e in listed}
+        # on an empty cache a listed entry point may have been compiled inside a kernel that calls
+        # it before the warm-up called it from Python (then it is not recorded): it counts when
+        # its dispatcher holds the signature
+        extra = {entry_key(e) for e in listed if entry_key(e) not in want and not _compiled_here(e)}
         for k in sorted(want - have):
             print(f"missing: {k}")
-        for k in sorted(have - want):
+        for k in sorted(extra):
             print(f"not compiled by the warm-up: {k}")
-        if want != have:
+        if want - have or extra:
             print("rewrite the list: python -m sonarmap._precompile_record")
             return 1
-        print(f"{len(want)} signatures, as listed")
+        print(f"{len(have)} signatures, as listed")
         return 0
     n = write_signatures(timed="--time" in argv)
     print(f"{n} signatures -> {SIGNATURES_FILE}")
