@@ -30,7 +30,8 @@ from pathlib import Path
 from typing import Any
 
 __all__ = ["SIGNATURES_FILE", "UnsupportedType", "encode_type", "decode_type", "load_signatures",
-           "cache_is_cold", "compile_entry", "compile_queue", "take_next", "compile_with_helpers", "entry_key",
+           "cache_is_cold", "compile_entry", "compile_queue", "take_next", "compile_shared", "compile_with_helpers",
+           "entry_key",
            "resolve_kernel"]
 
 #: The checked-in list of ``{"kernel": "module:qualname", "args": [...]}`` entries.
@@ -169,11 +170,24 @@ def take_next(counter: Any) -> int:
     return i
 
 
+def compile_shared(counter: Any, entries: Sequence[dict[str, Any]]) -> int | None:
+    """Take part in a queue that processes share through ``counter`` (a ``multiprocessing.Value``,
+    the next index; -1: not decided yet): the first process to take it decides whether the cache
+    is cold (:func:`cache_is_cold`) and otherwise marks the queue done.  The number of entries this
+    process compiled, None when the queue was done or not used (a warm cache, no list)."""
+    with counter.get_lock():
+        if counter.value < 0:
+            counter.value = 0 if entries and cache_is_cold() else len(entries)
+        if counter.value >= len(entries):
+            return None
+    return compile_queue(entries, lambda: take_next(counter))
+
+
 def _helper(counter: Any, entries: list[dict[str, Any]]) -> None:  # pragma: no cover - runs in a helper process
     import signal
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent stops its helpers
-    compile_queue(entries, lambda: take_next(counter))
+    compile_shared(counter, entries)  # (the parent decided: counter >= 0)
 
 
 def compile_with_helpers(helpers: int | None = None, *,
@@ -186,10 +200,9 @@ def compile_with_helpers(helpers: int | None = None, *,
     ``helpers`` defaults to the CPUs beyond this process's, at most 3 (``SONARMAP_COMPILE_HELPERS``
     sets it).  ``progress(taken, total)``, when given, is called in this process each time it
     takes an entry: the recorded compile seconds of the entries every process took before it,
-    and of all of them.  The command line calls
-    this before a single-process run's first ping, with a progress bar; an interrupted run stops
-    its helpers.  Never raises but for an interrupt: precompiling is an
-    optimisation.
+    and of all of them.  The command line calls this before a single-process run's first ping,
+    with a progress bar; an interrupted run stops its helpers.  Never raises but for an
+    interrupt: precompiling is an optimisation.
     """
     import multiprocessing
 

@@ -86,23 +86,15 @@ def _warm(ping_function: PingFunction | None) -> bool:
 
 def _precompile_share(counter: Any, workers: int) -> int | None:
     """On a cold numba cache, share the default pipeline's compilation with the pool's other
-    workers (:func:`sonarmap._precompile.compile_queue`; ``counter``, a shared
-    ``multiprocessing.Value`` starting at -1, is the queue's next index: the first worker to take
-    it decides whether the cache is cold - else it marks the queue done); the number of kernels
-    this worker compiled, None when the queue was not used.  Never raises: precompiling is an
-    optimisation."""
+    workers (:func:`sonarmap._precompile.compile_shared` on ``counter``, the pool's shared
+    ``multiprocessing.Value``, starting at -1); the number of kernels this worker compiled, None
+    when the queue was not used.  Never raises: precompiling is an optimisation."""
     if counter is None or workers < 2:
         return None
     try:
-        from sonarmap._precompile import cache_is_cold, compile_queue, load_signatures, take_next
+        from sonarmap._precompile import compile_shared, load_signatures
 
-        entries = load_signatures()
-        with counter.get_lock():
-            if counter.value < 0:
-                counter.value = 0 if entries and cache_is_cold() else len(entries)
-            if counter.value >= len(entries):
-                return None
-        return compile_queue(entries, lambda: take_next(counter))
+        return compile_shared(counter, load_signatures())
     except Exception:  # noqa: BLE001 - never fail a run for it
         return None
 
