@@ -62,8 +62,9 @@ def test_the_list_is_read_longest_first_and_a_bad_file_is_no_list(tmp_path: Path
 
 
 def test_a_queue_compiles_each_entry_once_and_skips_what_it_cannot_build() -> None:
-    entries = pc.load_signatures()[-3:] + [{"kernel": "sonarmap.nowhere:kernel", "args": []},
-                                           {"kernel": entries_kernel(), "args": [["no such kind"]]}]
+    listed = pc.load_signatures()
+    entries = listed[-3:] + [{"kernel": "sonarmap.nowhere:kernel", "args": []},
+                             {"kernel": listed[0]["kernel"], "args": [["no such kind"]]}]
     handed = iter(range(100))
     taken: list[int] = []
 
@@ -76,10 +77,6 @@ def test_a_queue_compiles_each_entry_once_and_skips_what_it_cannot_build() -> No
     for e in entries[:3]:
         disp = pc.resolve_kernel(e["kernel"])
         assert tuple(pc.decode_type(a) for a in e["args"]) in [tuple(s) for s in disp.signatures]
-
-
-def entries_kernel() -> str:
-    return pc.load_signatures()[0]["kernel"]
 
 
 def test_workers_share_the_queue_only_on_a_cold_cache(monkeypatch: pytest.MonkeyPatch) -> None:

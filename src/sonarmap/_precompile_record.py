@@ -56,8 +56,9 @@ def recording() -> Iterator[list[dict[str, Any]]]:
             except UnsupportedType:
                 return out
             entry = {"kernel": key, "args": enc}
-            if entry_key(entry) not in seen:
-                seen.add(entry_key(entry))
+            k = entry_key(entry)
+            if k not in seen:
+                seen.add(k)
                 calls.append(entry)
         return out
 
