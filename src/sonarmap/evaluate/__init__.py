@@ -3,12 +3,16 @@
 * :mod:`sonarmap.evaluate.segmentation` - labels and per-beam ranges of simulated pings, per
   sonar preset and scene (``python -m sonarmap.evaluate`` prints its tables);
 * :mod:`sonarmap.evaluate.mapping` - registration accuracy, coverage and occupancy IoU of a
-  simulated survey (:mod:`sonarmap.simulate.survey`).
+  simulated survey (:mod:`sonarmap.simulate.survey`);
+* :mod:`sonarmap.evaluate.bound` - the Cramér-Rao bound of a simulated ping's ranges: what its
+  samples can say, against which a detector's recall is read.
 """
 
+from sonarmap.evaluate.bound import *  # noqa: F403
+from sonarmap.evaluate.bound import __all__ as _bound_all
 from sonarmap.evaluate.mapping import *  # noqa: F403
 from sonarmap.evaluate.mapping import __all__ as _mapping_all
 from sonarmap.evaluate.segmentation import *  # noqa: F403
 from sonarmap.evaluate.segmentation import __all__ as _segmentation_all
 
-__all__ = [*_segmentation_all, *_mapping_all]
+__all__ = [*_segmentation_all, *_mapping_all, *_bound_all]

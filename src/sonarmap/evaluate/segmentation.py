@@ -465,6 +465,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--per-scene", action="store_true", help="with --ranges: also one row per preset and scene")
     ap.add_argument("--noise-free", action="store_true",
                     help="with --ranges: also score the noise-free echoes' half-peak leading edges")
+    ap.add_argument("--bound", action="store_true",
+                    help="with --ranges: also the Cramér-Rao bound's attainable recalls on the same pings")
     ap.add_argument("-j", "--jobs", type=int, default=1,
                     help="with --ranges: processes scoring the scenes in parallel (the same table)")
     args = ap.parse_args(None if argv is None else list(argv))
@@ -490,8 +492,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.ranges:
         report = evaluate_ranges(config, presets=presets, seeds=seeds,
                                  scenes=RANGES_SCENES if scenes is None else scenes, noise_free=args.noise_free,
-                                 jobs=args.jobs)
-        print(report.table(per_scene=args.per_scene, noise_free=args.noise_free))
+                                 bound=args.bound, jobs=args.jobs)
+        print(report.table(per_scene=args.per_scene, noise_free=args.noise_free, bound=args.bound))
         return 0
     rows = evaluate_presets(config, presets=presets, seeds=seeds,
                             scenes=ACCEPTANCE_SCENES if scenes is None else scenes)
@@ -619,6 +621,11 @@ RANGES_SCENES = ("hull", "hull_slope2", "hull_slope4", "hull_slope8", "curved_hu
                  "fish_over_hull", "fish", "empty")
 #: Row suffix of the noise-free leading edges (``evaluate_ranges(noise_free=True)``).
 NOISE_FREE = " | noise-free leading edge"
+#: Row suffixes of the Cramér-Rao bound (``evaluate_ranges(bound=True)``, :mod:`sonarmap.evaluate.bound`):
+#: one beam's samples, and a straight surface over the 7 beams around (the pooled edges' window).
+BOUND_BEAM = " | bound, one beam"
+BOUND_POOLED = " | bound, 7 beams"
+BOUND_POOL_BEAMS = 3
 #: Sloped-hull scenes (2-8 bins of range change per beam) pooled for the sloped-recall figure.
 SLOPED_SCENES = ("hull_slope2", "hull_slope4", "hull_slope8")
 
@@ -643,11 +650,11 @@ class RangesReport:
     sloped: MethodScore
     fish_over_hull: MethodScore
 
-    def table(self, *, per_scene: bool = False, noise_free: bool = False) -> str:
+    def table(self, *, per_scene: bool = False, noise_free: bool = False, bound: bool = False) -> str:
         """The per-preset markdown table (with ``per_scene``, also the scene rows; with
-        ``noise_free``, the noise-free leading-edge rows) and the figures."""
-        rows = [r for r in self.rows if (per_scene and not r.method.endswith(NOISE_FREE))
-                or (noise_free and r.method.endswith(NOISE_FREE)) or " | " not in r.method]
+        ``noise_free``, the noise-free leading-edge rows; with ``bound``, the Cramér-Rao bound's
+        rows, per scene too with ``per_scene``) and the figures."""
+        rows = [r for r in self.rows if _shown(r.method, per_scene, noise_free, bound)]
         s, f = self.sloped, self.fish_over_hull
         lines = [format_table(rows), ""]
         # (a figure whose scenes were not evaluated has no beams: left out rather than printed as nan)
@@ -667,7 +674,7 @@ class RangesReport:
 def evaluate_ranges(
     config: Any = None, *, presets: Sequence[str] = RANGES_PRESETS, scenes: Sequence[str] = RANGES_SCENES,
     seeds: Sequence[int] = (0,), noise_steps_db: Sequence[float] = (0.0, 6.0), tol_bins: int = 3,
-    noise_free: bool = False, jobs: int = 1,
+    noise_free: bool = False, bound: bool = False, jobs: int = 1,
 ) -> RangesReport:
     """The ranges acceptance: one pipeline on every preset x scene, scored on sub-bin truth.
 
@@ -700,6 +707,11 @@ def evaluate_ranges(
         decision there, not the convention's).  It tells the part of the error that is the
         convention against this truth (the -3 dB footprint) from the part that noise and the
         estimator add.
+    bound : bool
+        Also the Cramér-Rao bound of the same pings' ranges (:mod:`sonarmap.evaluate.bound`), as
+        ``"<preset> | bound, one beam"`` and ``"<preset> | bound, 7 beams"`` rows (and per scene):
+        their recalls are those an unbiased detector at the bound would reach
+        (:func:`~sonarmap.evaluate.bound.attainable_recall`), the other columns empty.
     jobs : int
         Processes scoring the presets' scenes in parallel (the same scores as one at a time).
 
@@ -713,7 +725,7 @@ def evaluate_ranges(
         raise InputError(f"jobs: must be an integer >= 1 (got {jobs!r})")
     cfg = PipelineConfig() if config is None else config
     # one task per preset and scene (the Oculus-like preset alone takes most of the time)
-    tasks = [(cfg, name, scene, tuple(seeds), tuple(noise_steps_db), tol_bins, noise_free)
+    tasks = [(cfg, name, scene, tuple(seeds), tuple(noise_steps_db), tol_bins, noise_free, bound)
              for name in presets for scene in scenes]
     if jobs > 1 and len(tasks) > 1:
         import concurrent.futures
@@ -724,35 +736,80 @@ def evaluate_ranges(
             done = list(pool.map(_scene_ranges, tasks))
     else:
         done = [_scene_ranges(t) for t in tasks]
+    return _ranges_report(presets, scenes, done, tol_bins, noise_free)
+
+
+def _ranges_report(presets: Sequence[str], scenes: Sequence[str], done: Sequence[tuple[Any, Any, Any]],
+                   tol_bins: int, noise_free: bool) -> RangesReport:
+    """:func:`evaluate_ranges`' report from its tasks' results (``done``: per preset, then per
+    scene, what :func:`_scene_ranges` returns); bound rows where the tasks have bounds."""
     rows: list[MethodScore] = []
     sloped: list[PingScore] = []
     fish: list[PingScore] = []
     for k, name in enumerate(presets):
         mine = done[k * len(scenes):(k + 1) * len(scenes)]
-        per = {scene: scores for scene, (scores, _) in zip(scenes, mine)}
+        per = {scene: scores for scene, (scores, _, _) in zip(scenes, mine)}
         rows.append(pool_scores(name, [x for v in per.values() for x in v]))
         rows.extend(pool_scores(f"{name} | {scene}", v) for scene, v in per.items())
         if noise_free:
-            rows.append(pool_scores(f"{name}{NOISE_FREE}", [x for _, nf in mine for x in nf]))
+            rows.append(pool_scores(f"{name}{NOISE_FREE}", [x for _, nf, _ in mine for x in nf]))
+        rows.extend(_bound_rows(name, [b for _, _, bs in mine for b in bs], tol_bins))
+        for scene, (_, _, bs) in zip(scenes, mine):
+            rows.extend(_bound_rows(f"{name} | {scene}", bs, tol_bins))
         sloped.extend(x for scene in SLOPED_SCENES for x in per.get(scene, []))
         fish.extend(per.get("fish_over_hull", []))
     return RangesReport(rows=tuple(rows), sloped=pool_scores("sloped hulls", sloped),
                         fish_over_hull=pool_scores("fish_over_hull", fish))
 
 
-def _scene_ranges(task: tuple[Any, ...]) -> tuple[list[PingScore], list[PingScore]]:
+def _scene_ranges(task: tuple[Any, ...]) -> tuple[list[PingScore], list[PingScore], list[Any]]:
     """One preset and scene of :func:`evaluate_ranges` (``task``: config, preset name, scene,
-    seeds, noise steps, tolerance, noise_free): its pings' scores, and the noise-free edges' (empty
-    without ``noise_free`` and for the scenes with fish)."""
+    seeds, noise steps, tolerance, noise_free, bound): its pings' scores, the noise-free edges'
+    (empty without ``noise_free`` and for the scenes with fish) and the pings' range bounds
+    (:class:`~sonarmap.evaluate.bound.RangeBound`; empty without ``bound``)."""
     from sonarmap.geometry import preset
 
-    cfg, name, scene, seeds, noise_steps_db, tol_bins, noise_free = task
+    cfg, name, scene, seeds, noise_steps_db, tol_bins, noise_free, bound = task
     geom = preset(name)
     sims = preset_sim_configs(geom, noise_steps_db)
     per = _run({name: cfg}, [scene], sims, seeds, geom, tol_bins, -3.0, "surface", recording_meta=True)[name]
     nf = (_noise_free_scores([scene], sims, seeds, geom, tol_bins)
           if noise_free and not scene.startswith("fish") else [])
-    return per.get(scene, []), nf
+    return per.get(scene, []), nf, (_bounds(scene, sims, seeds, geom) if bound else [])
+
+
+def _bounds(scene: str, sim_configs: Sequence[Any], seeds: Sequence[int], geometry: Any) -> list[Any]:
+    """The range bounds of the pings :func:`evaluate_ranges` scores (the same configurations and
+    seeds), each with its unclipped echo (the ping rendered with full scale at 300 dB, scaled back)."""
+    from sonarmap.evaluate.bound import range_bound
+
+    out = []
+    for sc in sim_configs:
+        for seed in seeds:
+            sim, _ = _simulate(scene, geometry, sc, seed, -3.0, True)
+            high, _ = _simulate(scene, geometry, dataclasses.replace(sc, full_scale_db=300.0), seed, -3.0, True)
+            echo = high.clean.astype(np.float64) * 10.0 ** ((300.0 - sim.config.full_scale_db) / 10.0)
+            out.append(range_bound(sim, echo=echo, pool_beams=BOUND_POOL_BEAMS))
+    return out
+
+
+def _bound_rows(method: str, bounds: Sequence[Any], tol_bins: int) -> list[MethodScore]:
+    """The two bound rows of ``method``'s pings: the recalls (within ``tol_bins`` and 1 bin) an
+    unbiased detector at the bound would reach, over the beams with a truth surface (none when
+    the pings have none)."""
+    from sonarmap.evaluate.bound import attainable_recall
+
+    out = []
+    for suffix, field in ((BOUND_BEAM, "sd_bins"), (BOUND_POOLED, "pooled_sd_bins")):
+        sd = np.concatenate([getattr(b, field) for b in bounds]) if bounds else np.zeros(0)
+        sd = sd[~np.isnan(sd)]
+        if sd.size == 0:
+            continue
+        out.append(MethodScore(method=f"{method}{suffix}", n_pings=len(bounds), pixel_f1=math.nan,
+                               recall=attainable_recall(sd, float(tol_bins)), median_error_m=math.nan,
+                               false_return_rate=math.nan, n_struct_beams=int(sd.size), n_empty_beams=0,
+                               recall_1bin=attainable_recall(sd, 1.0)))
+    return out
 
 
 def _noise_free_scores(scenes: Sequence[str], sim_configs: Sequence[Any], seeds: Sequence[int], geometry: Any,
@@ -773,6 +830,15 @@ def _noise_free_scores(scenes: Sequence[str], sim_configs: Sequence[Any], seeds:
                                       tol_bins=tol_bins, empty_beams=np.zeros(r.size, dtype=bool),
                                       surface_range_m=sim.surface_range_m, bin_range_m=geometry.range_m))
     return out
+
+
+def _shown(method: str, per_scene: bool, noise_free: bool, bound: bool) -> bool:
+    """Whether :meth:`RangesReport.table` shows the row ``method``."""
+    if method.endswith(NOISE_FREE):
+        return noise_free
+    if method.endswith((BOUND_BEAM, BOUND_POOLED)):
+        return bound and (per_scene or method.count(" | ") == 1)
+    return per_scene or " | " not in method
 
 
 def _fmt(x: float, spec: str = ".3f") -> str:

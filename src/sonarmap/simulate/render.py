@@ -63,6 +63,8 @@ __all__ = [
     "channel_gain",
     "expected_background_level",
     "expected_background_image",
+    "background_mean_image",
+    "full_scale_intensity",
     "seawater_absorption_db_per_m",
     "write_simulation",
     "read_truth",
@@ -545,12 +547,41 @@ def _taper(geometry: SonarGeometry) -> NDArray[np.float64]:
     return np.ones(geometry.n_beams) if geometry.taper is None else np.asarray(geometry.taper)
 
 
+def background_mean_image(geometry: SonarGeometry, config: SimulationConfig = SimulationConfig()) -> NDArray[np.float64]:
+    """Mean received background intensity per pixel, shape (n_bins, n_beams): reverberation
+    through each beam's taper and the channel, plus receiver noise (plus the ring-down, where a
+    profile has one) - the ``m_bg + n`` a pixel's speckle is drawn around (the expected
+    intensity of a pixel is this plus the echo, :attr:`SimResult.clean` before clipping).
+    ``config`` is resolved for ``geometry`` first.
+
+    Examples
+    --------
+    >>> from sonarmap import preset
+    >>> background_mean_image(preset("didson-hf")).shape
+    (512, 96)
+    """
+    config = config.resolved(geometry)
+    return _background_mean(geometry, config)
+
+
 def _background_mean(geometry: SonarGeometry, config: SimulationConfig) -> NDArray[np.float64]:
     rv = channel_gain(geometry, config) * 10.0 ** (config.reverb_db / 10.0)
     out = rv[:, None] * _taper(geometry)[None, :] + _noise_power(geometry, config)
     if config.ring_down_level > 0:
         out = out + _ring_down(geometry, config)[:, None]
     return out
+
+
+def full_scale_intensity(config: SimulationConfig) -> float:
+    """The received intensity (the units of :attr:`SimResult.clean`, after any gain assist) at
+    which the receiver reaches full scale: samples at or above it are recorded as 1.0.
+
+    Examples
+    --------
+    >>> full_scale_intensity(SimulationConfig(receiver="linear", threshold=0.01))
+    1.01
+    """
+    return float(_level_thresholds(config, np.array(1.0)))
 
 
 def _level_thresholds(config: SimulationConfig, ks: NDArray[np.float64]) -> NDArray[np.float64]:
