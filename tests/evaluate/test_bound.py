@@ -9,7 +9,14 @@ import numpy as np
 import pytest
 
 from sonarmap.errors import InputError
-from sonarmap.evaluate.bound import attainable_recall, censored_information, range_bound, shift_information
+from sonarmap.evaluate.bound import (
+    _pooled_sd,
+    attainable_recall,
+    beam_correlation,
+    censored_information,
+    range_bound,
+    shift_information,
+)
 
 
 def _echo(n: int, centre: float, width: float, level: float) -> np.ndarray:
@@ -85,9 +92,9 @@ def test_with_the_level_unknown_maximum_likelihood_still_reaches_the_bound() -> 
     # the bound with the level unknown (on a symmetric echo the level and the position are
     # orthogonal: it costs nothing)
     level = 12.0
-    samples = _draw(_echo(N, CENTRE, WIDTH, level) + BG, 1, 800, 3)
-    levels = np.arange(0.5, 1.6, 0.01) * level
-    shifts = SHIFTS[::2]
+    samples = _draw(_echo(N, CENTRE, WIDTH, level) + BG, 1, 500, 3)
+    levels = np.arange(0.8, 1.2, 0.02) * level
+    shifts = np.arange(CENTRE - 2.0, CENTRE + 2.0, 0.04)
     profiles = np.stack([_echo(N, c, WIDTH, a) + BG for a in levels for c in shifts])
     est = shifts[_ml(samples, profiles) % shifts.size]
     sd = _bound(level, level_known=False)
@@ -146,6 +153,59 @@ def test_attainable_recall_is_the_gaussian_mass_within_the_tolerance() -> None:
         attainable_recall([1.0], 0.0)
     with pytest.raises(InputError):
         attainable_recall([-1.0], 1.0)
+
+
+def test_pooled_bound_is_the_line_through_the_beams_estimates() -> None:
+    info = np.full(20, 4.0)  # one beam: sd 0.5
+    free = np.array([1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0])
+    sd = _pooled_sd(info, 3, free)
+    assert sd[10] == pytest.approx(0.5 / math.sqrt(7))  # independent, equal: the mean's
+    # at the fan's edge the line through beams 0-3 is extrapolated to beam 0: worse than 4 beams' mean
+    x = np.arange(4.0)
+    want = 0.5 * math.sqrt(1 / 4 + x.mean() ** 2 / ((x - x.mean()) ** 2).sum())
+    assert sd[0] == pytest.approx(want)
+    # correlated neighbours know less together; a beam without information is left out
+    assert _pooled_sd(info, 3, np.array([1.0, 0.7, 0.3, 0.1, 0.0, 0.0, 0.0]))[10] > 1.5 * sd[10]
+    gap = info.copy()
+    gap[9] = 0.0
+    assert _pooled_sd(gap, 3, free)[10] > sd[10]
+    alone = np.zeros(20)
+    alone[5] = 4.0
+    out = _pooled_sd(alone, 3, free)
+    assert out[5] == pytest.approx(0.5) and np.isinf(out[4]) and np.isinf(out[6])
+
+
+def test_beam_correlation_is_the_simulated_speckles() -> None:
+    # the Oculus-like fan's beams overlap: neighbouring beams' speckle on a bright hull is as
+    # correlated as the main lobe's taps say (20 dB more headroom: no expected echo clipped, so
+    # clean is the mean; the image's own 8-bit range still truncates a little)
+    from sonarmap.evaluate.bound import _before_assist
+    from sonarmap.evaluate.segmentation import preset_sim_configs
+    from sonarmap.geometry import preset
+    from sonarmap.simulate import scene_from_name, simulate_ping
+
+    g = preset("oculus-m750d-like")
+    cfg = preset_sim_configs(g, (0.0,))[0]
+    want = beam_correlation(g, cfg, 2)
+    cfg = dataclasses.replace(cfg, full_scale_db=cfg.full_scale_db + 20.0)
+    got: dict[int, list[float]] = {1: [], 2: []}
+    for seed in range(2):
+        sim = simulate_ping(scene_from_name("hull_slope2", geometry=g), g, config=cfg, seed=seed)
+        assert sim.config.receiver == "linear" and sim.config.threshold == 0.0
+        assert float(sim.clean.max()) < 0.99 and "gain_assist_db" not in sim.ping.meta
+        bg, _ = _before_assist(sim)
+        z = sim.ping.image.astype(np.float64) / (sim.clean + bg) - 1.0
+        ok = (sim.clean > 3 * bg) & (sim.ping.image < 0.99) & (sim.ping.image > 0.05)
+        for d in got:
+            both = ok[:, :-d] & ok[:, d:]
+            got[d].append(np.corrcoef(z[:, :-d][both], z[:, d:][both])[0, 1])
+    for d, v in got.items():
+        assert float(np.mean(v)) == pytest.approx(want[d], abs=0.06), (d, v, want)
+    assert want[1] > 0.7
+    # no main lobe overlap to speak of on the telephoto lens; none without speckle
+    tele = preset("aris-telephoto-48")
+    assert beam_correlation(tele, preset_sim_configs(tele, (0.0,))[0], 2)[1] < 0.01
+    assert beam_correlation(g, dataclasses.replace(cfg, speckle=False), 2).tolist() == [1.0, 0.0, 0.0]
 
 
 def test_range_bound_of_a_simulated_hull() -> None:

@@ -14,11 +14,12 @@ sample so censored tells about its mean ``F_L(c / mu) / mu^2`` (``F_L``: :func:`
 
 whose information about ``s`` with ``a`` unknown is ``J_ss - J_sa^2 / J_aa`` (bins^-2): no
 unbiased estimator of the range from that beam's samples has a standard deviation below its
-inverse square root.  Surfaces are smooth across neighbouring beams: a straight surface over
-``2 k + 1`` beams (its range and slope unknown, each beam's level its own) measured at its
-middle beam has the bound ``1 / sqrt(I_-k + ... + I_k)`` (the middle of a symmetric window is
-uncorrelated with the slope when the beams' information is equal, the usual case along a
-surface).
+inverse square root.  Surfaces are smooth across neighbouring beams: on a straight surface over
+the ``2 k + 1`` beams around (its range and slope unknown, each beam's level its own) the beams'
+own bounds combine by generalised least squares into the bound at the middle beam - with the
+correlation of neighbouring beams' speckle, which the simulator's main lobe shares among them
+(:func:`beam_correlation`: on the Oculus-like fan, whose beams are twice as wide as their
+spacing, 0.74 between neighbours; independent beams would overstate what 7 of them know).
 
 The bound is optimistic - what the samples hold, not what a detector reaches:
 
@@ -26,7 +27,8 @@ The bound is optimistic - what the samples hold, not what a detector reaches:
   shape, and the half-peak convention of ``docs/DESIGN.md`` reads the level from the noisy
   echo itself;
 - the receiver's threshold and 8-bit quantisation are ignored (each only loses information);
-- with ``pool_beams`` the surface is straight across the window.
+- with ``pool_beams`` the surface is straight across the window, and the beams' estimates are
+  combined linearly (the best such combination of efficient per-beam estimates).
 
 So a recall above the bound's attainable recall (:func:`attainable_recall`) cannot be reached on
 those pings by any unbiased detector of one beam (or of the window); a detector far below it
@@ -45,7 +47,8 @@ from numpy.typing import ArrayLike, NDArray
 
 from sonarmap.errors import InputError
 
-__all__ = ["RangeBound", "censored_information", "shift_information", "range_bound", "attainable_recall"]
+__all__ = ["RangeBound", "censored_information", "shift_information", "beam_correlation", "range_bound",
+           "attainable_recall"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -58,7 +61,9 @@ class RangeBound:
         ``1 / sqrt(J)`` of the beam's own samples; NaN on beams without a truth surface.
     pooled_sd_bins : ndarray, shape (n_beams,)
         The same for a straight surface over the ``2 pool_beams + 1`` beams around (clipped at
-        the fan's edges); NaN on beams without a truth surface.
+        the fan's edges): the generalised-least-squares line's standard error at the beam, from
+        the beams' own bounds and their speckle's correlation; NaN on beams without a truth
+        surface.
     pool_beams : int
         Beams on either side in ``pooled_sd_bins``.
     """
@@ -180,6 +185,77 @@ def shift_information(echo: ArrayLike, background: ArrayLike, looks: int = 1, *,
     return np.maximum(out, 0.0)
 
 
+def beam_correlation(geometry: Any, config: Any, max_lag: int) -> NDArray[np.float64]:
+    """Correlation of the speckled intensity of two beams ``d = 0 .. max_lag`` apart on an echo.
+
+    The simulator's coherent main lobe (:func:`sonarmap.simulate.main_lobe_taps`, unit-sum taps
+    ``t``) gives beam ``j`` the field ``sum_k sqrt(t[j - k]) a_k z_k`` of the azimuth cells'
+    amplitudes ``a_k`` and circular Gaussian ``z_k``: on an even surface two beams ``d`` apart
+    share the amplitude correlation ``g_d = sum_k sqrt(t_k t_{k+d})``, and their intensities
+    ``g_d^2`` (any number of looks).  Zero at ``d > 0`` without speckle or with incoherent ghosts.
+    The background's own speckle is independent between beams, so on a faint echo the correlation
+    is lower: this is its upper end.
+
+    Parameters
+    ----------
+    geometry : SonarGeometry
+    config : SimulationConfig
+    max_lag : int
+
+    Returns
+    -------
+    ndarray of float64, shape (max_lag + 1,)
+        ``[1, rho_1, ..., rho_max_lag]``.
+
+    Examples
+    --------
+    >>> from sonarmap import preset
+    >>> from sonarmap.simulate import simulation_config_for
+    >>> g = preset("oculus-m750d-like")
+    >>> beam_correlation(g, simulation_config_for(g), 2).round(2).tolist()
+    [1.0, 0.78, 0.36]
+    """
+    from sonarmap.simulate import main_lobe_taps
+
+    if isinstance(max_lag, bool) or not isinstance(max_lag, int | np.integer) or max_lag < 0:
+        raise InputError(f"max_lag: must be an integer >= 0, got {max_lag!r}")
+    rho = np.zeros(int(max_lag) + 1)
+    rho[0] = 1.0
+    config = config.resolved(geometry)
+    taps = main_lobe_taps(geometry, config) if config.speckle and config.ghosts == "coherent" else None
+    if taps is None:
+        return rho
+    a = np.sqrt(taps / taps.sum())
+    for d in range(1, min(int(max_lag), a.size - 1) + 1):
+        rho[d] = float(np.dot(a[:-d], a[d:])) ** 2
+    return rho
+
+
+def _pooled_sd(info: NDArray[np.float64], k: int, rho: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Per beam, the standard error at the beam of the generalised-least-squares line through the
+    estimates of the ``2 k + 1`` beams around (variances ``1 / info``, correlation ``rho`` by lag);
+    beams without information are left out, ``inf`` where fewer than two remain (the beam's own
+    bound where it is the one)."""
+    m = info.size
+    out = np.full(m, np.inf)
+    for j in range(m):
+        idx = np.array([i for i in range(max(0, j - k), min(m, j + k + 1)) if info[i] > 0], dtype=np.int64)
+        if idx.size < 2:
+            if idx.size == 1 and idx[0] == j:
+                out[j] = 1.0 / math.sqrt(info[j])
+            continue
+        sd = 1.0 / np.sqrt(info[idx])
+        lag = np.abs(idx[:, None] - idx[None, :])
+        cov = sd[:, None] * sd[None, :] * np.where(lag < rho.size, rho[np.minimum(lag, rho.size - 1)], 0.0)
+        x = np.stack([np.ones(idx.size), (idx - j).astype(np.float64)], axis=1)
+        try:
+            m_inv = np.linalg.inv(x.T @ np.linalg.solve(cov, x))
+        except np.linalg.LinAlgError:
+            continue
+        out[j] = math.sqrt(max(float(m_inv[0, 0]), 0.0))
+    return out
+
+
 def range_bound(sim: Any, *, echo: ArrayLike | None = None, pool_beams: int = 3) -> RangeBound:
     """The Cramér-Rao bound of the first surface's range on each beam of a simulated ping.
 
@@ -223,10 +299,10 @@ def range_bound(sim: Any, *, echo: ArrayLike | None = None, pool_beams: int = 3)
     bg, full_scale = _before_assist(sim)
     info = shift_information(e, bg, int(sim.config.looks), full_scale=full_scale)
     has = np.isfinite(np.asarray(truth, dtype=np.float64))
-    pooled = np.convolve(info, np.ones(2 * int(pool_beams) + 1), mode="same")
+    rho = beam_correlation(geometry, sim.config, 2 * int(pool_beams))
     with np.errstate(divide="ignore"):
         sd = np.where(has, 1.0 / np.sqrt(info), np.nan)
-        psd = np.where(has, 1.0 / np.sqrt(pooled), np.nan)
+    psd = np.where(has, _pooled_sd(info, int(pool_beams), rho), np.nan)
     return RangeBound(sd_bins=sd, pooled_sd_bins=psd, pool_beams=int(pool_beams))
 
 
