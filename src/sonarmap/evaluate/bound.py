@@ -32,7 +32,9 @@ The bound is optimistic - what the samples hold, not what a detector reaches:
 
 So a recall above the bound's attainable recall (:func:`attainable_recall`) cannot be reached on
 those pings by any unbiased detector of one beam (or of the window); a detector far below it
-leaves information unused.  ``python -m sonarmap.evaluate --ranges --bound`` prints it beside
+leaves information unused.  :func:`oracle_shifts` is such a detector, given what the bound
+assumes known: the maximum-likelihood shift of the expected echo on the recorded 8-bit samples
+(threshold and quantisation included) - it reaches the bound on the simulator's pings.  ``python -m sonarmap.evaluate --ranges --bound`` prints it beside
 the pipeline's scores.
 """
 
@@ -48,7 +50,7 @@ from numpy.typing import ArrayLike, NDArray
 from sonarmap.errors import InputError
 
 __all__ = ["RangeBound", "censored_information", "shift_information", "beam_correlation", "range_bound",
-           "attainable_recall"]
+           "attainable_recall", "oracle_shifts"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -352,3 +354,95 @@ def attainable_recall(sd_bins: ArrayLike, tol_bins: float) -> float:
     with np.errstate(divide="ignore"):
         z = np.where(sd > 0, float(tol_bins) / (sd * math.sqrt(2.0)), np.inf)
     return float(np.mean([math.erf(v) if math.isfinite(v) else 1.0 for v in z]))
+
+
+def _cell_intensities(image: NDArray[Any], config: Any) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Per recorded 8-bit sample, the received intensities ``[lo, hi)`` the simulator's receiver
+    (:func:`sonarmap.simulate.render._receive`: linear with threshold or log, rounding or floor,
+    clipped at full scale) maps to it."""
+    k = np.rint(np.asarray(image, dtype=np.float64) * 255.0)
+    half = 0.0 if config.quantization == "floor" else 0.5
+    p_lo = np.where(k <= 0, -np.inf, (k - half) / 255.0)
+    p_hi = np.where(k >= 255, np.inf, (k + 1.0 - half) / 255.0)
+
+    def inverse(p: NDArray[np.float64]) -> NDArray[np.float64]:
+        fin = np.isfinite(p)
+        q = np.where(fin, p, 0.0)
+        if config.receiver == "log":
+            x = 10.0 ** ((q + config.threshold - 1.0) * config.dynamic_range_db / 10.0)
+        else:
+            x = np.maximum(q + config.threshold, 0.0)
+        return np.where(fin, x, np.where(p > 0, np.inf, 0.0))
+
+    return inverse(p_lo), inverse(p_hi)
+
+
+def oracle_shifts(sim: Any, *, echo: ArrayLike | None = None, pool_beams: int = 3, max_shift_bins: float = 3.0,
+                  step_bins: float = 0.05) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Range errors (bins) of a detector that knows each beam's expected echo: the maximum-likelihood
+    shift of the echo on the recorded samples, per beam and shared by the ``2 pool_beams + 1``
+    beams around.
+
+    The likelihood is the simulator's own: each recorded 8-bit sample's cell of received intensity
+    (:func:`_cell_intensities`) under gamma speckle of the ping's looks around ``echo(r - s) +
+    background``.  The shift is searched on a grid of ``step_bins`` within ``+-max_shift_bins`` (an
+    error cannot exceed it: on faint echoes the grid's edge flatters the one-beam figure).  What it
+    knows - the echo's shape and level - no detector of real data knows; it shows that the bound
+    is reached on the recorded pings, threshold and quantisation included.
+
+    Parameters
+    ----------
+    sim : SimResult
+    echo : array_like, optional
+        The unclipped expected echo (as for :func:`range_bound`); default ``sim.clean``.
+    pool_beams : int
+        Beams on either side sharing the shift in the second result.
+    max_shift_bins, step_bins : float
+        The search grid.
+
+    Returns
+    -------
+    one_beam, pooled : ndarray of float64
+        Per beam with a truth surface (in beam order), the estimated shift of its echo - its
+        range error, the echo being at the truth.
+
+    Raises
+    ------
+    InputError
+        If an option is out of range or ``echo`` has another shape.
+    """
+    from scipy.special import gammainc
+
+    if not (max_shift_bins > 0 and 0 < step_bins <= max_shift_bins):
+        raise InputError(f"max_shift_bins, step_bins: need 0 < step_bins <= max_shift_bins, got "
+                         f"{max_shift_bins!r}, {step_bins!r}")
+    if isinstance(pool_beams, bool) or not isinstance(pool_beams, int | np.integer) or pool_beams < 0:
+        raise InputError(f"pool_beams: must be an integer >= 0, got {pool_beams!r}")
+    geometry = sim.ping.geometry
+    e_all = np.asarray(sim.clean if echo is None else echo, dtype=np.float64)
+    if e_all.shape != geometry.shape:
+        raise InputError(f"echo: shape {e_all.shape} does not match the ping's {geometry.shape}")
+    bg, _ = _before_assist(sim)
+    scale = 10.0 ** (float((sim.ping.meta or {}).get("gain_assist_db", 0.0)) / 10.0)
+    lo, hi = _cell_intensities(sim.ping.image, sim.config)
+    lo, hi = lo * scale, hi * scale  # in the echo's units (before any gain assist)
+    looks = float(sim.config.looks)
+    shifts = np.arange(-max_shift_bins, max_shift_bins + 0.5 * step_bins, step_bins)
+    rows = np.arange(geometry.n_bins, dtype=np.float64)
+    beams = np.flatnonzero(np.isfinite(np.asarray(sim.surface_range_m, dtype=np.float64)))
+    ll = np.zeros((geometry.n_beams, shifts.size))
+    for j in beams:
+        e = e_all[:, j]
+        lit = np.flatnonzero(e > 1e-4 * e.max()) if e.max() > 0 else np.arange(geometry.n_bins)
+        r0, r1 = max(int(lit[0]) - 8, 0), min(int(lit[-1]) + 9, geometry.n_bins)
+        mu = np.stack([np.interp(rows[r0:r1] - s, rows, e) for s in shifts]) + bg[r0:r1, j]
+        p_lo = gammainc(looks, looks * lo[r0:r1, j] / mu)
+        p_hi = np.where(np.isinf(hi[r0:r1, j]), 1.0, gammainc(looks, looks * np.where(np.isinf(hi[r0:r1, j]), 0.0,
+                                                                                      hi[r0:r1, j]) / mu))
+        ll[j] = np.log(np.maximum(p_hi - p_lo, 1e-300)).sum(axis=1)
+    one = shifts[np.argmax(ll[beams], axis=1)]
+    has = np.zeros(geometry.n_beams, dtype=bool)
+    has[beams] = True
+    pooled = np.array([shifts[np.argmax(ll[max(0, j - pool_beams):j + pool_beams + 1][
+        has[max(0, j - pool_beams):j + pool_beams + 1]].sum(axis=0))] for j in beams])
+    return one, pooled
