@@ -238,7 +238,7 @@ def test_a_gain_assist_is_undone_before_the_bound() -> None:
     from sonarmap.evaluate.bound import _before_assist
     from sonarmap.evaluate.segmentation import preset_sim_configs
     from sonarmap.geometry import preset
-    from sonarmap.simulate import background_mean_image, full_scale_intensity, scene_from_name, simulate_ping
+    from sonarmap.simulate import background_mean_image, level_intensity, scene_from_name, simulate_ping
 
     g = preset("oculus-m750d-like")
     cfg = preset_sim_configs(g, (0.0,))[0]
@@ -249,9 +249,10 @@ def test_a_gain_assist_is_undone_before_the_bound() -> None:
     plain = simulate_ping(scene, g, config=dataclasses.replace(cfg, gain_assist_saturation=0.0), seed=0)
     assert "gain_assist_db" not in plain.ping.meta
     assert np.array_equal(assisted.clean, plain.clean)
-    bg, fs = _before_assist(assisted)
+    bg, gain = _before_assist(assisted)
+    fs = float(level_intensity(assisted.config, 1.0)) * gain  # full scale in clean's units
     assert bg == pytest.approx(background_mean_image(g, plain.config), rel=1e-12)
-    assert fs == pytest.approx(full_scale_intensity(plain.config) * 10.0 ** (assist_db / 10.0))
+    assert fs == pytest.approx(float(level_intensity(plain.config, 1.0)) * 10.0 ** (assist_db / 10.0))
     # less clipping: the assisted ping's samples say more
     assert np.nanmedian(range_bound(assisted).sd_bins) < np.nanmedian(range_bound(plain).sd_bins)
 

@@ -5,7 +5,7 @@ b(r)``: the echo ``e`` (:attr:`SimResult.clean`, or the unclipped echo) moved by
 range ``s`` and scaled by its unknown level ``a`` (1 at the truth), over the background ``b``
 (:func:`sonarmap.simulate.background_mean_image`).  Single-look speckle makes the intensity
 exponential with that mean, ``L`` looks a gamma of shape ``L``; the receiver records every sample
-at or above full scale ``c`` as full scale (:func:`sonarmap.simulate.full_scale_intensity`).  A
+at or above full scale ``c`` as full scale (:func:`sonarmap.simulate.level_intensity` of 1).  A
 sample so censored tells about its mean ``F_L(c / mu) / mu^2`` (``F_L``: :func:`censored_information`,
 ``L`` without clipping, ``1 - exp(-c / mu)`` for one look), and one beam's samples about
 ``(s, a)`` the 2 x 2 Fisher information
@@ -289,18 +289,12 @@ def range_bound(sim: Any, *, echo: ArrayLike | None = None, pool_beams: int = 3)
     The information of a beam counts the whole beam: on a beam with a surface behind the first
     one (a hull behind fish, propeller blades behind the hub) the later echo's flanks add to it.
     """
-    if isinstance(pool_beams, bool) or not isinstance(pool_beams, int | np.integer) or pool_beams < 0:
-        raise InputError(f"pool_beams: must be an integer >= 0, got {pool_beams!r}")
-    truth = getattr(sim, "surface_range_m", None)
-    if truth is None:
-        raise InputError("sim: carries no surface_range_m (not a simulate_ping result)")
+    from sonarmap.simulate import level_intensity
+
+    e, has = _echo_of(sim, echo, pool_beams)
     geometry = sim.ping.geometry
-    e = np.asarray(sim.clean if echo is None else echo, dtype=np.float64)
-    if e.shape != geometry.shape:
-        raise InputError(f"echo: shape {e.shape} does not match the ping's {geometry.shape}")
-    bg, full_scale = _before_assist(sim)
-    info = shift_information(e, bg, int(sim.config.looks), full_scale=full_scale)
-    has = np.isfinite(np.asarray(truth, dtype=np.float64))
+    bg, gain = _before_assist(sim)
+    info = shift_information(e, bg, int(sim.config.looks), full_scale=float(level_intensity(sim.config, 1.0)) * gain)
     rho = beam_correlation(geometry, sim.config, 2 * int(pool_beams))
     with np.errstate(divide="ignore"):
         sd = np.where(has, 1.0 / np.sqrt(info), np.nan)
@@ -308,19 +302,33 @@ def range_bound(sim: Any, *, echo: ArrayLike | None = None, pool_beams: int = 3)
     return RangeBound(sd_bins=sd, pooled_sd_bins=psd, pool_beams=int(pool_beams))
 
 
+def _echo_of(sim: Any, echo: ArrayLike | None, pool_beams: int) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
+    """The expected echo of :func:`range_bound` and :func:`oracle_shifts` (``echo``, default
+    ``sim.clean``) and the beams with a truth surface, with their arguments checked."""
+    if isinstance(pool_beams, bool) or not isinstance(pool_beams, int | np.integer) or pool_beams < 0:
+        raise InputError(f"pool_beams: must be an integer >= 0, got {pool_beams!r}")
+    truth = getattr(sim, "surface_range_m", None)
+    if truth is None:
+        raise InputError("sim: carries no surface_range_m (not a simulate_ping result)")
+    shape = sim.ping.geometry.shape
+    e = np.asarray(sim.clean if echo is None else echo, dtype=np.float64)
+    if e.shape != shape:
+        raise InputError(f"echo: shape {e.shape} does not match the ping's {shape}")
+    return e, np.isfinite(np.asarray(truth, dtype=np.float64))
+
+
 def _before_assist(sim: Any) -> tuple[NDArray[np.float64], float]:
-    """The background image and the full-scale intensity of a simulated ping in the units of its
-    ``clean`` echo: before a gain assist scaled the received intensity down.  ``sim.config``
-    holds the reduced receiver gain, which the reverberation and noise scale with (the ring-down
-    does not); the receiver clips the scaled intensity at full scale."""
-    from sonarmap.simulate import background_mean_image, full_scale_intensity
+    """The background image of a simulated ping in the units of its ``clean`` echo - before a
+    gain assist scaled the received intensity down - and the factor that scaled it (1 without an
+    assist; received intensities times it are in those units).  ``sim.config`` holds the reduced
+    receiver gain, which the reverberation and noise scale with (the ring-down does not)."""
+    from sonarmap.simulate import background_mean_image
 
     assist_db = float((sim.ping.meta or {}).get("gain_assist_db", 0.0))
     config = sim.config
     if assist_db > 0:
         config = config.replace(rx_gain_db=float(config.rx_gain_db) + assist_db)
-    return (background_mean_image(sim.ping.geometry, config),
-            full_scale_intensity(sim.config) * 10.0 ** (assist_db / 10.0))
+    return background_mean_image(sim.ping.geometry, config), 10.0 ** (assist_db / 10.0)
 
 
 def attainable_recall(sd_bins: ArrayLike, tol_bins: float) -> float:
@@ -358,23 +366,16 @@ def attainable_recall(sd_bins: ArrayLike, tol_bins: float) -> float:
 
 def _cell_intensities(image: NDArray[Any], config: Any) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Per recorded 8-bit sample, the received intensities ``[lo, hi)`` the simulator's receiver
-    (:func:`sonarmap.simulate.render._receive`: linear with threshold or log, rounding or floor,
-    clipped at full scale) maps to it."""
+    (:func:`sonarmap.simulate.render._receive`: rounding or floor to 8 bits, inverted by
+    :func:`sonarmap.simulate.level_intensity`) maps to it: from 0 for the lowest value (threshold),
+    to infinity for full scale."""
+    from sonarmap.simulate import level_intensity
+
     k = np.rint(np.asarray(image, dtype=np.float64) * 255.0)
     half = 0.0 if config.quantization == "floor" else 0.5
-    p_lo = np.where(k <= 0, -np.inf, (k - half) / 255.0)
-    p_hi = np.where(k >= 255, np.inf, (k + 1.0 - half) / 255.0)
-
-    def inverse(p: NDArray[np.float64]) -> NDArray[np.float64]:
-        fin = np.isfinite(p)
-        q = np.where(fin, p, 0.0)
-        if config.receiver == "log":
-            x = 10.0 ** ((q + config.threshold - 1.0) * config.dynamic_range_db / 10.0)
-        else:
-            x = np.maximum(q + config.threshold, 0.0)
-        return np.where(fin, x, np.where(p > 0, np.inf, 0.0))
-
-    return inverse(p_lo), inverse(p_hi)
+    lo = np.where(k <= 0, 0.0, level_intensity(config, (k - half) / 255.0))
+    hi = np.where(k >= 255, np.inf, level_intensity(config, (k + 1.0 - half) / 255.0))
+    return lo, hi
 
 
 def oracle_shifts(sim: Any, *, echo: ArrayLike | None = None, pool_beams: int = 3, max_shift_bins: float = 3.0,
@@ -416,33 +417,26 @@ def oracle_shifts(sim: Any, *, echo: ArrayLike | None = None, pool_beams: int = 
     if not (max_shift_bins > 0 and 0 < step_bins <= max_shift_bins):
         raise InputError(f"max_shift_bins, step_bins: need 0 < step_bins <= max_shift_bins, got "
                          f"{max_shift_bins!r}, {step_bins!r}")
-    if isinstance(pool_beams, bool) or not isinstance(pool_beams, int | np.integer) or pool_beams < 0:
-        raise InputError(f"pool_beams: must be an integer >= 0, got {pool_beams!r}")
+    e_all, has = _echo_of(sim, echo, pool_beams)
     geometry = sim.ping.geometry
-    e_all = np.asarray(sim.clean if echo is None else echo, dtype=np.float64)
-    if e_all.shape != geometry.shape:
-        raise InputError(f"echo: shape {e_all.shape} does not match the ping's {geometry.shape}")
-    bg, _ = _before_assist(sim)
-    scale = 10.0 ** (float((sim.ping.meta or {}).get("gain_assist_db", 0.0)) / 10.0)
+    bg, gain = _before_assist(sim)
     lo, hi = _cell_intensities(sim.ping.image, sim.config)
-    lo, hi = lo * scale, hi * scale  # in the echo's units (before any gain assist)
+    lo, hi = lo * gain, hi * gain  # in the echo's units (before any gain assist)
     looks = float(sim.config.looks)
     shifts = np.arange(-max_shift_bins, max_shift_bins + 0.5 * step_bins, step_bins)
     rows = np.arange(geometry.n_bins, dtype=np.float64)
-    beams = np.flatnonzero(np.isfinite(np.asarray(sim.surface_range_m, dtype=np.float64)))
+    beams = np.flatnonzero(has)
     ll = np.zeros((geometry.n_beams, shifts.size))
     for j in beams:
         e = e_all[:, j]
         lit = np.flatnonzero(e > 1e-4 * e.max()) if e.max() > 0 else np.arange(geometry.n_bins)
         r0, r1 = max(int(lit[0]) - 8, 0), min(int(lit[-1]) + 9, geometry.n_bins)
         mu = np.stack([np.interp(rows[r0:r1] - s, rows, e) for s in shifts]) + bg[r0:r1, j]
+        # (a full-scale sample's cell is open: P(I >= lo) = 1 - P(I < lo), gammainc(L, inf) = 1)
         p_lo = gammainc(looks, looks * lo[r0:r1, j] / mu)
-        p_hi = np.where(np.isinf(hi[r0:r1, j]), 1.0, gammainc(looks, looks * np.where(np.isinf(hi[r0:r1, j]), 0.0,
-                                                                                      hi[r0:r1, j]) / mu))
+        p_hi = gammainc(looks, looks * hi[r0:r1, j] / mu)
         ll[j] = np.log(np.maximum(p_hi - p_lo, 1e-300)).sum(axis=1)
     one = shifts[np.argmax(ll[beams], axis=1)]
-    has = np.zeros(geometry.n_beams, dtype=bool)
-    has[beams] = True
     pooled = np.array([shifts[np.argmax(ll[max(0, j - pool_beams):j + pool_beams + 1][
         has[max(0, j - pool_beams):j + pool_beams + 1]].sum(axis=0))] for j in beams])
     return one, pooled

@@ -64,7 +64,7 @@ __all__ = [
     "expected_background_level",
     "expected_background_image",
     "background_mean_image",
-    "full_scale_intensity",
+    "level_intensity",
     "seawater_absorption_db_per_m",
     "write_simulation",
     "read_truth",
@@ -572,16 +572,18 @@ def _background_mean(geometry: SonarGeometry, config: SimulationConfig) -> NDArr
     return out
 
 
-def full_scale_intensity(config: SimulationConfig) -> float:
+def level_intensity(config: SimulationConfig, levels: ArrayLike) -> NDArray[np.float64]:
     """The received intensity (the units of :attr:`SimResult.clean`, after any gain assist) at
-    which the receiver reaches full scale: samples at or above it are recorded as 1.0.
+    which the receiver reaches the recorded values ``levels`` (in [0, 1]): the inverse of its
+    mapping, linear with threshold or log.  At ``1.0``, full scale: samples at or above it are
+    recorded as 1.0.
 
     Examples
     --------
-    >>> full_scale_intensity(SimulationConfig(receiver="linear", threshold=0.01))
+    >>> float(level_intensity(SimulationConfig(receiver="linear", threshold=0.01), 1.0))
     1.01
     """
-    return float(_level_thresholds(config, np.array(1.0)))
+    return np.asarray(_level_thresholds(config, np.asarray(levels, dtype=np.float64)), dtype=np.float64)
 
 
 def _level_thresholds(config: SimulationConfig, ks: NDArray[np.float64]) -> NDArray[np.float64]:
