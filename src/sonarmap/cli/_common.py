@@ -17,7 +17,8 @@ __all__ = [
     "CALIBRATION_OPTION", "GEOMETRY_OPTION", "OUTPUT_DIR_OPTION", "OUTPUT_OPTION", "PINGS_ARGUMENT", "PING_RATE_OPTION",
     "QUIET_OPTION", "START_TIME_OPTION", "STDOUT", "VERBOSE_OPTION", "refuse_stdout",
     "PingProgress", "apply_calibration", "check_choice", "check_clock_used", "clock_options", "console",
-    "count_pings", "err_console", "example", "first_ping", "first_run_notice", "input_name", "input_progress", "load_calibration",
+    "compile_on_first_run", "count_pings", "err_console", "example", "first_ping", "first_run_notice", "input_name",
+    "input_progress", "load_calibration",
     "load_geometry_option", "open_output", "output_name", "ping_progress", "read_input_pings", "run_pings",
     "stop_progress",
 ]
@@ -494,7 +495,7 @@ class PingProgress:
         if self.compiles and not self._compiled:
             # on a cold numba cache: say so, and compile in helper processes too
             self._compiled = True
-            _compile_first(first_run_notice(self.quiet))
+            compile_on_first_run(self.quiet)
             self._t0 = time.perf_counter()
         if self.quiet:
             return self
@@ -564,12 +565,13 @@ def ping_progress(description: str, total: int | None = None, *, quiet: bool = F
     return PingProgress(description, total, quiet=quiet, verbose=verbose, compiles=compiles)
 
 
-def _compile_first(show: bool) -> None:
-    """:func:`sonarmap._precompile.compile_with_helpers`, with a transient bar of the kernels
-    taken when ``show`` (the first-run notice was printed: a terminal)."""
+def compile_on_first_run(quiet: bool = False) -> None:
+    """On a cold numba cache, :func:`first_run_notice` and then
+    :func:`sonarmap._precompile.compile_with_helpers` - with a transient bar of the kernels taken
+    when the notice was printed (a terminal, not ``quiet``); on a warm cache nothing."""
     from sonarmap._precompile import compile_with_helpers
 
-    if not show:
+    if not first_run_notice(quiet):
         compile_with_helpers()
         return
     from rich.progress import BarColumn, Progress, TaskProgressColumn, TextColumn, TimeElapsedColumn

@@ -24,8 +24,7 @@ from typing import IO, TYPE_CHECKING, Any
 import typer
 
 from sonarmap._text import counted
-from sonarmap.cli._common import (QUIET_OPTION, VERBOSE_OPTION, _compile_first, check_choice, example, first_run_notice,
-                                  refuse_stdout)
+from sonarmap.cli._common import QUIET_OPTION, VERBOSE_OPTION, check_choice, compile_on_first_run, example, refuse_stdout
 
 if TYPE_CHECKING:
     from sonarmap.live import BagSink, StoreSink
@@ -199,7 +198,7 @@ def register(app: typer.Typer) -> None:
                     outputs.sinks.append(_PerPingLines(status))
                 if not stop.is_set():
                     # a cold numba cache: say so and compile with helper processes first
-                    _compile_first(first_run_notice(quiet))
+                    compile_on_first_run(quiet)
                     warm_pipeline(cfg, None if is_tcp else _first_ping(source))
                 stats = run_live(src, config=cfg, sinks=outputs.sinks, max_pings=max_pings, duration_s=duration,
                                  queue_size=queue, status=None if quiet else status, stop_event=stop)
