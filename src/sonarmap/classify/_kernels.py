@@ -224,7 +224,9 @@ def decision_rates_pmf(pmf, det, prior):  # pragma: no cover - numba
         if det[lev]:
             sel[m] = pmf[0, lev]
             m += 1
-    pfa = _pairwise_sum(sel, 0, m)
+    # (np.int64 arguments: the literal 0 and 1 and a counter that starts at a literal 0 would each
+    # compile _pairwise_sum again for a Literal[int] argument)
+    pfa = _pairwise_sum(sel, np.int64(0), np.int64(m))
     weighted = np.empty(n_cls - 1)
     for c in range(1, n_cls):
         m = 0
@@ -232,9 +234,9 @@ def decision_rates_pmf(pmf, det, prior):  # pragma: no cover - numba
             if det[lev]:
                 sel[m] = pmf[c, lev]
                 m += 1
-        weighted[c - 1] = _pairwise_sum(sel, 0, m) * prior[c]
-    den = _pairwise_sum(prior, 1, n_cls - 1)
-    pd = _pairwise_sum(weighted, 0, n_cls - 1) / (1e-300 if 1e-300 > den else den)
+        weighted[c - 1] = _pairwise_sum(sel, np.int64(0), np.int64(m)) * prior[c]
+    den = _pairwise_sum(prior, np.int64(1), n_cls - 1)
+    pd = _pairwise_sum(weighted, np.int64(0), n_cls - 1) / (1e-300 if 1e-300 > den else den)
     return (1.0 if 1.0 < pd else pd), (1.0 if 1.0 < pfa else pfa)
 
 

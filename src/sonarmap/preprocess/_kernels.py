@@ -416,7 +416,7 @@ def _bucket_middle(a, n):  # pragma: no cover - numba
         for t in range(n):
             if idx[t] < want:
                 lo = max(lo, a[t])
-    hi = select(a, _to_front(a, n, idx, want), k - below)
+    hi = select(a, np.int64(_to_front(a, n, idx, want)), k - below)
     # a[:k - below] now holds the bucket's values before the rank
     for t in range(k - below):
         lo = max(lo, a[t])
@@ -465,7 +465,9 @@ def smooth_log_level(log_level, width, floor):  # pragma: no cover - numba
             if keep[i] > 0:
                 work[c] = abs(resid[i])
                 c += 1
-        sigma = 1.4826 * median_inplace(work, c) if c > 0 else 0.0
+        # (np.int64: a counter that starts at a literal 0 would also compile median_inplace, and the
+        # kernels it calls, for a Literal[int](0) argument)
+        sigma = 1.4826 * median_inplace(work, np.int64(c)) if c > 0 else 0.0
         if not _grow_above(resid, sigma, floor, above, keep):
             break
     _bridge_left_out(log_level, keep, width, smooth, den, num, work)
@@ -764,7 +766,7 @@ def _bucket_select(a, n, k, mn, mx, hist, idx):  # pragma: no cover - numba
     if not (np.isfinite(mn) and np.isfinite(mx) and np.isfinite(sc)):
         return select(a, n, k)
     want, below = _rank_bucket(a, n, k, np.float64(mn), sc, hist, idx)
-    return select(a, _to_front(a, n, idx, want), k - below)
+    return select(a, np.int64(_to_front(a, n, idx, want)), k - below)
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -1002,7 +1004,7 @@ def _water_column_median(img, first, margin, i, buf):  # pragma: no cover - numb
         if i < first[j] - margin:
             buf[k] = np.float64(img[i, j])
             k += 1
-    return median_inplace(buf, k) if k > 0 else 0.0
+    return median_inplace(buf, np.int64(k)) if k > 0 else 0.0
 
 
 @njit(cache=True, nogil=True)

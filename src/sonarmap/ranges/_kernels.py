@@ -246,7 +246,8 @@ def _echoes_by_rows(mask, img, code, lut, max_gap, fraction, peak_rel, back, for
             ev[j] = ev[j] + e if st else ev[j]
             npx[j] += st
             last[j] = i if st else last[j]
-    return _records_by_beam(ri, rf, k, m)
+    # (np.int64: a counter that starts at a literal 0 would also compile the callee for Literal[int](0))
+    return _records_by_beam(ri, rf, np.int64(k), m)
 
 
 @njit(cache=True, nogil=True)
@@ -2238,7 +2239,7 @@ def continuation_pixels(sel, edge_bin, start_bin, stop_bin, touch, levels, lut, 
     and :func:`continuation_extra` of that mask against ``cand`` (the returns' edges ``edge_bin``)
     in one call: ``(hit, extra, beams, r0, r1)`` as :func:`continuation_extra` gives them, ``hit``
     False without a continuation pixel at all."""
-    edge, stop, run = first_interval_runs(sel, edge_bin, start_bin, stop_bin, touch)
+    edge, stop, run = first_interval_runs(sel, edge_bin, start_bin, stop_bin, touch, -1.0)
     out, r0, r1, col_lo, col_hi = continuation_mask(levels, lut, edge, stop, run, min_run, max_beams, window_bins,
                                                     min_evidence, max_misses)
     if r1 <= r0:
@@ -2379,12 +2380,13 @@ def box_band(img, size0, size1, level):  # pragma: no cover - numba
     For a positive finite ``level`` the pass along axis 1 compares each running sum with
     :func:`_mean_threshold` instead of dividing, rounding and comparing (the same test: it is
     monotone in the sum), 4 rows side by side (:func:`_box_rows_band`)."""
-    mid = box_mean_f32(img, size0, 1)
+    # (np.int64(1): the literal would compile box_mean_f32 once more for each Literal[int] call)
+    mid = box_mean_f32(img, size0, np.int64(1))
     h, w = mid.shape
     if size1 > 1 and 0 < level < np.inf:
         band = _box_rows_band(mid, size1, _mean_threshold(level, size1))
     else:
-        band = (box_mean_f32(mid, 1, size1) if size1 > 1 else mid) >= level
+        band = (box_mean_f32(mid, np.int64(1), size1) if size1 > 1 else mid) >= level
     col = np.zeros(w, dtype=np.bool_)
     r0 = h
     r1 = 0
@@ -2787,7 +2789,7 @@ def first_interval_runs(sel, edge_bin, start_bin, stop_bin, touch, jump=-1.0):  
 @njit(cache=True, nogil=True)
 def runs_of_returns(sel, edge_bin, start_bin, stop_bin, touch):  # pragma: no cover - numba
     """:func:`first_interval_runs` and whether any beam is in a run (``run.max() >= 0``)."""
-    edge, stop, run = first_interval_runs(sel, edge_bin, start_bin, stop_bin, touch)
+    edge, stop, run = first_interval_runs(sel, edge_bin, start_bin, stop_bin, touch, -1.0)
     for j in range(run.size):
         if run[j] >= 0:
             return edge, stop, run, True
@@ -3155,7 +3157,7 @@ def point_pieces(chosen, pos, peak_val, point, clip_rise, evidence, width_beams,
             j += 1
             continue
         # one piece: from beam j to the last beam chained to it
-        last = _piece_end(chosen, pos, lo_bin, hi_bin, j, max_gap, jump_bins, touch_bins)
+        last = _piece_end(chosen, pos, lo_bin, hi_bin, np.int64(j), max_gap, jump_bins, touch_bins)
         # the whole piece at one range (its edge intervals within a pulse) and no wider than a point
         lo_e = np.inf
         hi_e = -np.inf

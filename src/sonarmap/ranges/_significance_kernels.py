@@ -76,7 +76,7 @@ def _run_z(raw, rows, j0, depth, gap, window, min_shifts, null, offs, work):  # 
         return math.nan, m
     # the water column's trend along range (the background's level changes with range), then the
     # spread of the shifted copies about it
-    c, slope = _resistant_line(offs, null, m, work)
+    c, slope = _resistant_line(offs, null, np.int64(m), work)
     for t in range(m):
         work[t] = abs(null[t] - (c + slope * offs[t]))
     mad = 1.4826 * _median(work, m)

@@ -155,7 +155,7 @@ def smoothed_echo_edges(sel, edge_bin, edge_range, sigma_m, start_bin, stop_bin,
     (``bin_m`` x the kernel's, in bins) changed moved there, its range ``np.interp`` on
     ``range_m`` - the arithmetic of the numpy formulation (sigma in bins ``sigma_m / bin_m``, NaN
     without a return); ``trust`` per echo, the factor on its sigma inside the combination."""
-    edge, _, run = first_interval_runs(sel, edge_bin, start_bin, stop_bin, touch)
+    edge, _, run = first_interval_runs(sel, edge_bin, start_bin, stop_bin, touch, -1.0)
     m = sel.size
     sigma = np.full(m, np.nan)
     wsig = np.full(m, np.nan)
