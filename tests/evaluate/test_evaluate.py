@@ -224,6 +224,15 @@ def test_ranges_report_runs_on_a_small_scene_set():
     assert "sloped (2-8 bins/beam) recall within 3 bins" in text and "hull reported under fish" in text
     assert "| didson-hf |" in text and "hull_slope4" not in text.split("\n\n")[0]
     assert "| didson-hf | hull_slope4 |" in rep.table(per_scene=True)
+    # the misses split into a shared local offset and beam-to-beam scatter: a row per preset, and its
+    # scenes with per_scene (the preset's figure pools its scenes' counts)
+    assert rows["didson-hf"].recall_1bin <= rows["didson-hf"].recall_1bin_local <= 1.0
+    local = [ln for ln in text.splitlines() if ln.startswith("within 1 bin once each ping's local offset")]
+    assert local == [ln for ln in text.splitlines() if "local offset" in ln] and len(local) == 1
+    assert f"didson-hf {rows['didson-hf'].recall_1bin_local:.3f}" in local[0]
+    scene_line = [ln for ln in rep.table(per_scene=True).splitlines() if ln.startswith("  didson-hf: ")]
+    assert scene_line and f"hull_slope4 {rows['didson-hf | hull_slope4'].recall_1bin_local:.3f}" in scene_line[0]
+    assert "empty" not in scene_line[0]  # no structure beams: no figure
     # without sloped or fish-over-hull scenes those two figures have no beams: left out, not "nan"
     bare = evaluate_ranges(presets=("didson-hf",), scenes=("empty",), seeds=(0,), noise_steps_db=(0.0,)).table()
     assert "nan" not in bare and "sloped" not in bare and "under fish" not in bare
@@ -323,3 +332,43 @@ def test_parallel_jobs_give_the_same_table(capsys):
     with pytest.raises(SystemExit) as exc:
         main(["--ranges", "-j", "0"])
     assert exc.value.code == 2 and "--jobs" in capsys.readouterr().err
+
+
+def test_local_offset_residuals_take_out_what_neighbouring_beams_share():
+    from sonarmap.errors import InputError
+    from sonarmap.evaluate.segmentation import local_offset_residuals
+
+    # a surface read 1.5 bins late everywhere: every beam misses by 1.5, none about the local offset
+    rng = np.random.default_rng(0)
+    e = 1.5 + rng.normal(0.0, 0.1, 60)
+    r = local_offset_residuals(e)
+    assert np.all(np.abs(e) > 1.0) and np.all(np.abs(r) < 0.5)
+    # a slowly drifting offset is taken out as well; one beam off its neighbours stays off
+    drift = np.linspace(-2.0, 2.0, 60)
+    drift[30] += 3.0
+    r = local_offset_residuals(drift, half_beams=5)
+    assert np.abs(np.delete(r, 30)).max() < 0.5 and r[30] > 2.5
+    # half_beams 0: every error is its own offset; NaN left out; nothing in, nothing out
+    assert local_offset_residuals([0.5, 3.0], half_beams=0).tolist() == [0.0, 0.0]
+    assert local_offset_residuals([1.0, np.nan, 2.0], half_beams=1).tolist() == [-0.5, 0.5]
+    assert local_offset_residuals([]).size == 0
+    for bad in (-1, 1.5, True):
+        with pytest.raises(InputError, match="half_beams"):
+            local_offset_residuals([1.0], half_beams=bad)
+
+
+def test_score_ping_counts_the_hits_about_the_local_offset():
+    # 40 beams with structure, every return 2 bins late (+-0.2): no hit within 1 bin of the truth,
+    # every one within 1 bin of the local offset; one return 5 bins off its neighbours is no local hit
+    n = 40
+    grid = 1.0 + 0.01 * np.arange(100)
+    truth_bins = np.full(n, 50)
+    surface = grid[truth_bins] + 0.001
+    rep_bins = 52.0 + 0.2 * np.sin(np.arange(n))
+    rep_bins[7] += 5.0
+    rm = np.interp(rep_bins, np.arange(100), grid)
+    s = score_ping(None, np.floor(rep_bins).astype(np.int64), rm, np.zeros((100, n), np.uint8), truth_bins,
+                   grid[truth_bins], surface_range_m=surface, bin_range_m=grid)
+    assert (s.n_struct_beams, s.n_hit1_beams, s.n_hit1_local_beams) == (n, 0, n - 1)
+    m = pool_scores("x", [s, s])
+    assert m.recall_1bin == 0.0 and m.recall_1bin_local == pytest.approx((n - 1) / n)

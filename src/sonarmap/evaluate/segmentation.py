@@ -20,6 +20,13 @@ on the noisy ping and scored with:
     acceptance :func:`evaluate_ranges` scores against it.
 ``recall_1bin``
     The same within 1 bin.
+``recall_1bin_local``
+    The same within 1 bin once each ping's *local offset* is taken out: every signed error
+    ``reported - truth`` less the median of the signed errors of the ``2 x 10 + 1`` scored beams
+    around it (:func:`local_offset_residuals`).  Not a score a detector could reach (it uses the
+    truth) but a split of the misses: where it is far above ``recall_1bin`` the errors are an
+    offset that neighbouring beams share - a surface read a little early or late over tens of
+    beams - rather than scatter from beam to beam.
 ``median_error_m``
     Median absolute range error (metres) over beams with structure that report a return.
 ``median_signed_error_bins``
@@ -71,6 +78,8 @@ __all__ = [
     "SLOPED_SCENES",
     "evaluate_ranges",
     "PingScore",
+    "local_offset_residuals",
+    "LOCAL_OFFSET_HALF_BEAMS",
     "MethodScore",
     "score_ping",
     "pool_scores",
@@ -110,6 +119,9 @@ class PingScore:
         Signed errors ``reported - truth`` (bins), same beams as ``errors_m``.
     n_sigma_beams, n_within_sigma : int
         Scored returns with a finite ``sigma_m``; those with ``|error| <= sigma_m``.
+    n_hit1_local_beams : int
+        Beams with structure whose signed error lies within 1 bin of the local offset
+        (:func:`local_offset_residuals` of ``errors_bins``).
     n_fish_beams, n_fish_hit_beams : int
         Beams with clutter in front of their structure (truth mask); those reported within
         ``tol_bins`` of the structure.
@@ -134,6 +146,7 @@ class PingScore:
     n_fish_hit_beams: int = 0
     n_fish_first_beams: int = 0
     n_fish_none_beams: int = 0
+    n_hit1_local_beams: int = 0
 
 
 @dataclasses.dataclass(frozen=True)
@@ -156,6 +169,7 @@ class MethodScore:
     n_fish_beams: int = 0
     fish_first_under_fish: float = math.nan
     no_return_under_fish: float = math.nan
+    recall_1bin_local: float = math.nan
 
     def as_row(self) -> dict[str, Any]:
         """Plain dict for tables and CSV."""
@@ -305,13 +319,52 @@ def score_ping(
     n_sigma, n_within = _sigma_counts(sigma_m, both, err_m, tb.shape)
     fish = _fish_beams(cm, tb, has)
     fish_first = _on_clutter(cm, rpos, fish & both & (err_bins < -tol_bins), tol_bins)
+    local = local_offset_residuals(err_bins[both])
     return PingScore(tp=tp, fp=fp, fn=fn, n_struct_beams=int(has.sum()), n_hit_beams=int(hit.sum()),
                      n_empty_beams=int(empty.sum()), n_false_beams=int((empty & rep).sum()),
                      errors_m=tuple(float(e) for e in err_m[both]), n_hit1_beams=int(hit1.sum()),
                      errors_bins=tuple(float(e) for e in err_bins[both]), n_sigma_beams=n_sigma,
                      n_within_sigma=n_within, n_fish_beams=int(fish.sum()),
                      n_fish_hit_beams=int((fish & hit).sum()), n_fish_first_beams=int(fish_first.sum()),
-                     n_fish_none_beams=int((fish & ~rep).sum()))
+                     n_fish_none_beams=int((fish & ~rep).sum()),
+                     n_hit1_local_beams=int((np.abs(local) <= 1.0).sum()))
+
+
+#: Half-width (scored beams) of the running median :func:`local_offset_residuals` takes out.
+LOCAL_OFFSET_HALF_BEAMS = 10
+
+
+def local_offset_residuals(errors_bins: ArrayLike, half_beams: int = LOCAL_OFFSET_HALF_BEAMS) -> NDArray[np.float64]:
+    """One ping's signed range errors less their local offset: each error minus the median of the
+    errors of the scored beams within ``half_beams`` places of it (in beam order, the window
+    truncated at the ends of the ping).
+
+    Parameters
+    ----------
+    errors_bins : array_like of float
+        Signed errors ``reported - truth`` (bins) of one ping's scored beams, in beam order
+        (``PingScore.errors_bins``); non-finite values are left out.
+    half_beams : int
+        Half-width of the running median (scored beams).
+
+    Returns
+    -------
+    ndarray of float64
+        The residuals, one per finite error.
+
+    Examples
+    --------
+    >>> local_offset_residuals([1.2, 1.0, 1.4, -2.0, 1.1], half_beams=1).round(2).tolist()
+    [0.1, -0.2, 0.4, -3.1, 1.55]
+    """
+    if isinstance(half_beams, bool) or not isinstance(half_beams, int | np.integer) or half_beams < 0:
+        raise InputError(f"half_beams: must be an integer >= 0, got {half_beams!r}")
+    e = np.asarray(errors_bins, dtype=np.float64).ravel()
+    e = e[np.isfinite(e)]
+    out = np.empty_like(e)
+    for i in range(e.size):
+        out[i] = e[i] - np.median(e[max(0, i - half_beams):i + half_beams + 1])
+    return out
 
 
 def pool_scores(method: str, scores: Iterable[PingScore]) -> MethodScore:
@@ -342,6 +395,7 @@ def pool_scores(method: str, scores: Iterable[PingScore]) -> MethodScore:
         n_fish_beams=nfish,
         fish_first_under_fish=sum(x.n_fish_first_beams for x in s) / nfish if nfish else math.nan,
         no_return_under_fish=sum(x.n_fish_none_beams for x in s) / nfish if nfish else math.nan,
+        recall_1bin_local=sum(x.n_hit1_local_beams for x in s) / ns if ns else math.nan,
     )
 
 
@@ -668,7 +722,27 @@ class RangesReport:
                 f"fish in front of the hull; the fish reported first on {f.fish_first_under_fish:.3f}, no return on "
                 f"{f.no_return_under_fish:.3f}, another range (more than 3 bins from the hull) on "
                 f"{1.0 - f.hull_under_fish - f.fish_first_under_fish - f.no_return_under_fish:.3f})")
+        lines += _local_offset_lines(self.rows, per_scene)
         return "\n".join(lines)
+
+
+def _local_offset_lines(rows: Sequence[MethodScore], per_scene: bool) -> list[str]:
+    """The ``recall_1bin_local`` figure of the preset rows (with ``per_scene``, a line of each
+    preset's scene rows under it); none when no row has one."""
+    presets = [r for r in rows if " | " not in r.method and math.isfinite(r.recall_1bin_local)]
+    if not presets:
+        return []
+    lines = ["within 1 bin once each ping's local offset is taken out (each signed error less the median of "
+             f"the {2 * LOCAL_OFFSET_HALF_BEAMS + 1} scored beams around it): "
+             + ", ".join(f"{r.method} {r.recall_1bin_local:.3f}" for r in presets)]
+    for p in presets if per_scene else ():
+        scenes = [r for r in rows if r.method.startswith(p.method + " | ") and r.method.count(" | ") == 1
+                  and not r.method.endswith((NOISE_FREE, BOUND_BEAM, BOUND_POOLED))
+                  and math.isfinite(r.recall_1bin_local)]
+        if scenes:
+            lines.append(f"  {p.method}: " + ", ".join(f"{r.method.split(' | ')[1]} {r.recall_1bin_local:.3f}"
+                                                      for r in scenes))
+    return lines
 
 
 def evaluate_ranges(
