@@ -432,7 +432,8 @@ def solve_eta_kind(kind: int, x: np.ndarray, target: float, eta0: float, lo: flo
     u = np.empty(x.shape[0])
     U = np.empty((1, x.shape[0]))
     EC = np.full((1, 4), np.nan)
-    return _solve(kind, x, target, eta0, lo, hi, _mean(kind, x, lo, u), _mean(kind, x, hi, u), 0, U, EC)
+    # (np.int64(0): a literal 0 would compile _solve and _eval_cached once more for Literal[int](0))
+    return _solve(kind, x, target, eta0, lo, hi, _mean(kind, x, lo, u), _mean(kind, x, hi, u), np.int64(0), U, EC)
 
 
 @njit(cache=True, nogil=True)
