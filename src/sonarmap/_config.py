@@ -12,7 +12,7 @@ import numpy as np
 from sonarmap.errors import InputError
 
 __all__ = ["is_finite_number", "config_table", "check_field_names", "config_error", "coerce_reals", "check_integers",
-           "check_booleans", "check_choice", "ConfigSection", "config_dict", "jsonable"]
+           "check_integer_argument", "check_booleans", "check_choice", "ConfigSection", "config_dict", "jsonable"]
 
 
 def is_finite_number(v: Any) -> bool:
@@ -98,6 +98,18 @@ def check_integers(obj: Any, table: tuple[tuple[str, int], ...], where: str) -> 
         v = getattr(obj, key)
         if isinstance(v, bool) or not isinstance(v, int) or v < lo:
             raise config_error(where, key, f"must be an integer >= {lo}", v)
+
+
+def check_integer_argument(name: str, value: Any, lo: int) -> None:
+    """Check that a function's argument ``name`` is an integer (Python or numpy, not a bool) >= ``lo``.
+
+    Raises
+    ------
+    InputError
+        "``<name>``: must be an integer >= lo, got <value!r>".
+    """
+    if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < lo:
+        raise InputError(f"{name}: must be an integer >= {lo}, got {value!r}")
 
 
 def check_booleans(obj: Any, keys: tuple[str, ...], where: str) -> None:

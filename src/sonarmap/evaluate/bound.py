@@ -47,6 +47,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from sonarmap._config import check_integer_argument
 from sonarmap.errors import InputError
 
 __all__ = ["RangeBound", "censored_information", "shift_information", "beam_correlation", "range_bound",
@@ -104,8 +105,7 @@ def censored_information(t: ArrayLike, looks: int = 1) -> NDArray[np.float64]:
     """
     from scipy.special import gammainc, gammaincc, gammaln
 
-    if isinstance(looks, bool) or not isinstance(looks, int | np.integer) or looks < 1:
-        raise InputError(f"looks: must be an integer >= 1, got {looks!r}")
+    check_integer_argument("looks", looks, 1)
     tt = np.asarray(t, dtype=np.float64)
     if np.isnan(tt).any() or (tt < 0).any():
         raise InputError("t: full scale over the expected intensity must be >= 0")
@@ -219,8 +219,7 @@ def beam_correlation(geometry: Any, config: Any, max_lag: int) -> NDArray[np.flo
     """
     from sonarmap.simulate import main_lobe_taps
 
-    if isinstance(max_lag, bool) or not isinstance(max_lag, int | np.integer) or max_lag < 0:
-        raise InputError(f"max_lag: must be an integer >= 0, got {max_lag!r}")
+    check_integer_argument("max_lag", max_lag, 0)
     rho = np.zeros(int(max_lag) + 1)
     rho[0] = 1.0
     config = config.resolved(geometry)
@@ -305,8 +304,7 @@ def range_bound(sim: Any, *, echo: ArrayLike | None = None, pool_beams: int = 3)
 def _echo_of(sim: Any, echo: ArrayLike | None, pool_beams: int) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
     """The expected echo of :func:`range_bound` and :func:`oracle_shifts` (``echo``, default
     ``sim.clean``) and the beams with a truth surface, with their arguments checked."""
-    if isinstance(pool_beams, bool) or not isinstance(pool_beams, int | np.integer) or pool_beams < 0:
-        raise InputError(f"pool_beams: must be an integer >= 0, got {pool_beams!r}")
+    check_integer_argument("pool_beams", pool_beams, 0)
     truth = getattr(sim, "surface_range_m", None)
     if truth is None:
         raise InputError("sim: carries no surface_range_m (not a simulate_ping result)")

@@ -67,6 +67,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from sonarmap._config import check_integer_argument
 from sonarmap.errors import InputError
 
 __all__ = [
@@ -357,8 +358,7 @@ def local_offset_residuals(errors_bins: ArrayLike, half_beams: int = LOCAL_OFFSE
     >>> local_offset_residuals([1.2, 1.0, 1.4, -2.0, 1.1], half_beams=1).round(2).tolist()
     [0.1, -0.2, 0.4, -3.1, 1.55]
     """
-    if isinstance(half_beams, bool) or not isinstance(half_beams, int | np.integer) or half_beams < 0:
-        raise InputError(f"half_beams: must be an integer >= 0, got {half_beams!r}")
+    check_integer_argument("half_beams", half_beams, 0)
     e = np.asarray(errors_bins, dtype=np.float64).ravel()
     e = e[np.isfinite(e)]
     out = np.empty_like(e)
