@@ -729,16 +729,16 @@ class RangesReport:
 def _local_offset_lines(rows: Sequence[MethodScore], per_scene: bool) -> list[str]:
     """The ``recall_1bin_local`` figure of the preset rows (with ``per_scene``, a line of each
     preset's scene rows under it); none when no row has one."""
-    presets = [r for r in rows if " | " not in r.method and math.isfinite(r.recall_1bin_local)]
+    # the preset and (per_scene) scene rows the table shows: not the noise-free or bound rows
+    shown = [r for r in rows if _shown(r.method, per_scene, False, False) and math.isfinite(r.recall_1bin_local)]
+    presets = [r for r in shown if " | " not in r.method]
     if not presets:
         return []
     lines = ["within 1 bin once each ping's local offset is taken out (each signed error less the median of "
              f"the {2 * LOCAL_OFFSET_HALF_BEAMS + 1} scored beams around it): "
              + ", ".join(f"{r.method} {r.recall_1bin_local:.3f}" for r in presets)]
     for p in presets if per_scene else ():
-        scenes = [r for r in rows if r.method.startswith(p.method + " | ") and r.method.count(" | ") == 1
-                  and not r.method.endswith((NOISE_FREE, BOUND_BEAM, BOUND_POOLED))
-                  and math.isfinite(r.recall_1bin_local)]
+        scenes = [r for r in shown if r.method.startswith(p.method + " | ")]
         if scenes:
             lines.append(f"  {p.method}: " + ", ".join(f"{r.method.split(' | ')[1]} {r.recall_1bin_local:.3f}"
                                                       for r in scenes))
@@ -861,10 +861,22 @@ def _bounds(scene: str, sim_configs: Sequence[Any], seeds: Sequence[int], geomet
     for sc in sim_configs:
         for seed in seeds:
             sim, _ = _simulate(scene, geometry, sc, seed, -3.0, True)
-            high, _ = _simulate(scene, geometry, dataclasses.replace(sc, full_scale_db=300.0), seed, -3.0, True)
-            echo = high.clean.astype(np.float64) * 10.0 ** ((300.0 - sim.config.full_scale_db) / 10.0)
+            high = _unclipped(scene, geometry, sc, seed)
+            echo = high.clean.astype(np.float64) * 10.0 ** ((UNCLIPPED_FULL_SCALE_DB - sim.config.full_scale_db) / 10.0)
             out.append(range_bound(sim, echo=echo, pool_beams=BOUND_POOL_BEAMS))
     return out
+
+
+#: Full scale (dB) of the unclipped renders: far above every echo (the recorded pings clip bright echoes).
+UNCLIPPED_FULL_SCALE_DB = 300.0
+
+
+def _unclipped(scene: str, geometry: Any, sim_config: Any, seed: int) -> Any:
+    """The ping of ``scene`` rendered with full scale at :data:`UNCLIPPED_FULL_SCALE_DB` - the same
+    echoes, none clipped (``clean`` in intensities ``10^((300 - full_scale_db) / 10)`` times
+    smaller than the recorded ping's)."""
+    return _simulate(scene, geometry, dataclasses.replace(sim_config, full_scale_db=UNCLIPPED_FULL_SCALE_DB), seed,
+                     -3.0, True)[0]
 
 
 def _bound_rows(method: str, bounds: Sequence[Any], tol_bins: int) -> list[MethodScore]:
@@ -895,8 +907,7 @@ def _noise_free_scores(scenes: Sequence[str], sim_configs: Sequence[Any], seeds:
     for scene in scenes:
         for sc in sim_configs:
             for seed in seeds:
-                # unclipped: full scale far above every echo (the recorded pings clip bright echoes)
-                sim, _ = _simulate(scene, geometry, dataclasses.replace(sc, full_scale_db=300.0), seed, -3.0, True)
+                sim = _unclipped(scene, geometry, sc, seed)
                 r = leading_edges_m(sim.clean, geometry)
                 b = np.where(np.isfinite(r), np.searchsorted(geometry.range_m, r), -1).astype(np.int64)
                 # no detection threshold on a noise-free echo: no beam is scored for false returns
