@@ -74,6 +74,9 @@ def test_two_class_rates_match_numpy(seed, n_levels):
         prior[1] = 0.0
     if seed % 13 == 0:
         pmf[0, rng.integers(n_levels)] = np.nan
+    # read-only, as a fit's cached class pmf and prior reach the kernel (its one compiled signature)
+    pmf.setflags(write=False)
+    prior.setflags(write=False)
     ref = _rates_numpy(pmf, det, prior)
     got = decision_rates_pmf(pmf, det, prior)
     assert all(_same(a, b) for a, b in zip(got, ref))

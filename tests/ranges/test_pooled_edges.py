@@ -465,7 +465,7 @@ def test_the_profiles_are_computed_as_far_as_the_windows_read_them(monkeypatch: 
         img[int(edge[j]):int(edge[j]) + d, j] += np.linspace(0.3, 1.0, d)
     stop = edge + depth
     run = np.where(beams < 20, 0, 1).astype(np.int64)
-    clip = ((img >= 1.02) if with_clip else np.zeros((0, 0), bool)).astype(np.uint8)
+    clip = ((img >= 1.02) if with_clip else np.zeros((0, 0), bool)).astype(np.float32)  # (as the pipeline's raw image)
     args = (img, edge, stop, run, 3, 8, 200, 3, 0.5, 2, clip, 1.0, 16, True, 6)
     got = _kernels.pooled_edges(*args)
 
@@ -531,11 +531,13 @@ def test_the_clipped_profile_bins_come_from_the_listed_clipped_rows() -> None:
                 assert out[2:end].tolist() == want
 
 
-@pytest.mark.parametrize("dtype", [np.float32, np.float64, np.uint8])
-def test_the_raw_image_and_its_level_clip_as_the_full_scale_mask(dtype: type) -> None:
-    """The range stage hands the kernel the raw image and the full-scale level instead of the
-    mask of its clipped samples: the same edges, values, fits and noise as with the mask."""
+def test_the_raw_image_and_its_level_clip_as_the_full_scale_mask() -> None:
+    """The range stage hands the kernel the raw image (float32, as every ping's) and the full-scale
+    level instead of the mask of its clipped samples: the same edges, values, fits and noise as
+    with the mask, which ``pooled_edges`` passes as float32 samples 0 / 1 at the level 1 (one
+    compiled specialisation of the kernel for both)."""
     from sonarmap.ranges import _kernels
+    from sonarmap.ranges.echoes import _mask_as_samples
     from sonarmap.ranges.measure import _CLIP_LEVEL_F32, CLIP_LEVEL, full_scale_mask
 
     rng = np.random.default_rng(4)
@@ -546,16 +548,13 @@ def test_the_raw_image_and_its_level_clip_as_the_full_scale_mask(dtype: type) ->
         img[int(edge[j]):int(edge[j]) + 12, j] += np.r_[np.linspace(0.3, 1.4, 6), np.linspace(1.4, 0.3, 6)]
     stop = edge + 12.0
     run = np.zeros(m, np.int64)
-    if dtype == np.uint8:
-        raw = (img >= 1.2).astype(np.uint8)  # integer samples: 1 at full scale
-    else:
-        raw = np.minimum(img, 1.0).astype(dtype)
-        raw[int(edge[3]) + 5, 3] = _CLIP_LEVEL_F32  # at the level
-        raw[int(edge[4]) + 5, 4] = np.nextafter(_CLIP_LEVEL_F32, np.float32(0))  # just below it
+    raw = np.minimum(img, 1.0).astype(np.float32)
+    raw[int(edge[3]) + 5, 3] = _CLIP_LEVEL_F32  # at the level
+    raw[int(edge[4]) + 5, 4] = np.nextafter(_CLIP_LEVEL_F32, np.float32(0))  # just below it
     mask = full_scale_mask(raw)
-    assert mask.any()
+    assert mask.any() and mask[int(edge[3]) + 5, 3] and not mask[int(edge[4]) + 5, 4]
     common = (img, edge, stop, run, 3, 8, 200, 3, 0.5, 2)
-    want = _kernels.pooled_edges(*common, mask.view(np.uint8), 1.0, 16, True, 6)
+    want = _kernels.pooled_edges(*common, _mask_as_samples(mask), 1.0, 16, True, 6)
     got = _kernels.pooled_edges(*common, raw, CLIP_LEVEL, 16, True, 6)
     assert want[5].any()
     for a, b in zip(got, want):

@@ -16,6 +16,9 @@ def _geom(n_bins: int = 400, n_beams: int = 24) -> SonarGeometry:
     return SonarGeometry(range_m=2.0 + 0.02 * np.arange(n_bins), azimuth_rad=np.linspace(-0.3, 0.3, n_beams))
 
 
+# (the images are float32, as every ping's raw image: the tests run the kernels' pipeline specialisation)
+
+
 def _surface(img: np.ndarray, rows: np.ndarray, depth: int = 4) -> tuple[object, np.ndarray]:
     """The echoes of a surface ``depth`` bins deep from ``rows`` (per beam; -1: none) and its first
     returns."""
@@ -30,7 +33,7 @@ def _surface(img: np.ndarray, rows: np.ndarray, depth: int = 4) -> tuple[object,
 
 def test_a_bright_surface_stands_far_above_its_water_column_and_speckle_does_not():
     rng = np.random.default_rng(0)
-    img = rng.exponential(0.1, (400, 24))
+    img = rng.exponential(0.1, (400, 24)).astype(np.float32)
     rows = 300 + np.arange(24) // 4  # a gently sloped surface
     bright = img.copy()
     for j, r in enumerate(rows):
@@ -56,7 +59,7 @@ def test_the_null_holds_on_correlated_speckle_whose_spread_grows_with_range():
     for _ in range(30):
         n = 600
         grow = np.linspace(1.0, 2.0, n)[:, None]
-        img = 1.0 + 0.05 * grow * (uniform_filter(rng.standard_normal((n, 24)), (5, 3)) * 4.0)
+        img = (1.0 + 0.05 * grow * (uniform_filter(rng.standard_normal((n, 24)), (5, 3)) * 4.0)).astype(np.float32)
         for _ in range(10):
             r0 = int(rng.integers(250, 580))
             rows = np.clip(r0 + np.cumsum(rng.integers(-2, 3, 24)), 215, n - 5)
@@ -69,7 +72,7 @@ def test_the_null_holds_on_correlated_speckle_whose_spread_grows_with_range():
 
 def test_short_surfaces_and_those_without_water_column_are_not_tested():
     rng = np.random.default_rng(2)
-    img = rng.exponential(0.1, (400, 24))
+    img = rng.exponential(0.1, (400, 24)).astype(np.float32)
     rows = np.full(24, -1)
     rows[3:5] = 300  # two beams: too few
     rows[10:20] = 15  # 15 bins from the first bin: a few offsets in front of the gap, too few
@@ -91,7 +94,7 @@ def test_a_surface_the_contiguity_rule_breaks_is_tested_whole_with_the_jump_rule
     neighbour rule (edges within ``jump_bins``): its short piece is tested with the rest (the same
     z), not alone; with a jump rule tighter than the step the pieces stay apart."""
     rng = np.random.default_rng(5)
-    img = rng.exponential(0.1, (400, 24))
+    img = rng.exponential(0.1, (400, 24)).astype(np.float32)
     rows = np.where(np.arange(24) < 16, 300, 294)
     for j, r in enumerate(rows):
         img[r:r + 4, j] += 0.3
@@ -105,7 +108,7 @@ def test_a_surface_the_contiguity_rule_breaks_is_tested_whole_with_the_jump_rule
 
 
 def test_bad_arguments_name_what_is_wrong():
-    img = np.ones((50, 6))
+    img = np.ones((50, 6), np.float32)
     e, first = _surface(img, np.full(6, 30))
     with pytest.raises(InputError, match="first"):
         surface_significance(e, first[:5], img)

@@ -510,6 +510,15 @@ def _first_runs(echoes: Echoes, sel: NDArray[np.int64], touch_bins: float
 #: (each costs ~15-20 s to compile on a fresh cache).
 _NO_CLIP = np.zeros((0, 0), dtype=np.float32)
 
+
+def _mask_as_samples(clip: ArrayLike) -> NDArray[np.float32]:
+    """A mask of clipped samples as ``pooled_kept_edges``' clip argument: float32, 1 where clipped
+    (at the level 1.0 :func:`_pooled` passes with it), so that a mask shares the compiled
+    specialisation of the raw float32 image the pipeline passes - the kernel only compares its
+    samples with the level - instead of compiling one more (~15 s on a fresh cache)."""
+    return np.asarray(clip, dtype=bool).astype(np.float32)
+
+
 #: :func:`pooled_edges`' default ``front_bins``, ``max_bins``, ``n_iter`` and ``fit_front_bins``
 #: (the pipeline's range stage pools with them).
 POOL_FRONT_BINS, POOL_MAX_BINS, POOL_N_ITER, POOL_FIT_FRONT_BINS = 6, 200, 2, 16
@@ -631,7 +640,7 @@ def _pooled(echoes: Echoes, sel: NDArray[np.int64], image: ArrayLike, geometry: 
         np.ascontiguousarray(sel, dtype=np.int64), echoes.edge_bin, echoes.start_bin, echoes.stop_bin,
         float(touch_bins), img, int(pulse_bins), int(half_beams), int(front_bins), int(max_bins),
         int(smooth_bins) | 1, float(fraction), int(n_iter), _NO_CLIP if clip is None else
-        clip if clip_level is not None else np.ascontiguousarray(clip).view(np.uint8),
+        clip if clip_level is not None else _mask_as_samples(clip),
         1.0 if clip_level is None else float(clip_level), int(fit_front_bins), bool(forward), int(flank_bins),
         int(pulse_bins) + int(lead_bins),
         echoes.edge_range_m, echoes.slope, echoes.sigma_m, np.ascontiguousarray(geometry.range_m, dtype=np.float64),
