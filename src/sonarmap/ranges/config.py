@@ -174,6 +174,13 @@ class RangeConfig(ConfigSection):
         crosstalk removal: where that misses a band lit across the fan in front of a surface (the
         real DIDSON ping 8 classified by ICM), the edges slide onto the band; 2 keeps them on the
         labelled echo there (``docs/ranges.md``, "Pooled edges").
+    edge_pool_align_beams : int
+        The pooling starts from each beam's edge on the surface's local line - the Theil-Sen line
+        through the edges of the beams of its surface within this many on either side - instead
+        of the beam's own edge (0, default: off).  A single-look edge found far behind a slowly
+        rising echo (the speckled ramp below the detection level) then no longer drags its
+        neighbours' multi-look with it (``docs/ranges.md``, "Leading edges": "Pooling from the
+        surface's line", measured with 3).
     pulse_length_m : float, optional
         Transmit pulse length along range (``c tau / 2``); echoes are measured on the image
         smoothed over it.  Default: from the ping - its effective length ``1 / B`` where the file
@@ -292,6 +299,7 @@ class RangeConfig(ConfigSection):
     edge_pool_scan: str = "forward"
     edge_pool_flank_bins: int = POOL_FLANK_BINS
     edge_pool_lead_bins: int = POOL_LEAD_BINS
+    edge_pool_align_beams: int = 0
     pulse_length_m: float | None = None
     continue_evidence: float = 10.0
     sigma_scale: float = 1.5
@@ -348,7 +356,7 @@ class RangeConfig(ConfigSection):
             raise config_error(w, "edge_fraction", "must lie in [0, 1)", self.edge_fraction)
         check_integers(self, (("min_run", 1), ("neighbour_beams", 1), ("max_jump_bins", 0),
                               ("min_segment_beams", 1), ("refine_bins", 0), ("edge_pool_beams", 0),
-                              ("edge_pool_flank_bins", 0), ("edge_pool_lead_bins", 0),
+                              ("edge_pool_flank_bins", 0), ("edge_pool_lead_bins", 0), ("edge_pool_align_beams", 0),
                               ("edge_template_beams", 0), ("edge_template_min_beams", 3),
                               ("edge_template_anchor_beams", 0), ("edge_smooth_beams", 0),
                               ("edge_smooth_min_beams", 5)), w)

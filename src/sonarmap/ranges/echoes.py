@@ -537,19 +537,15 @@ def pooled_edges(
     *,
     pulse_bins: int = 1,
     half_beams: int = 3,
-    front_bins: int = POOL_FRONT_BINS,
-    max_bins: int = POOL_MAX_BINS,
-    smooth_bins: int = 3,
+    front_bins: int = POOL_FRONT_BINS, max_bins: int = POOL_MAX_BINS, smooth_bins: int = 3,
     fraction: float = 0.5,
     n_iter: int = POOL_N_ITER,
     touch_bins: float = 1.0,
     sigma_scale: float = 1.0,
     clip: NDArray[np.bool_] | None = None,
-    fit_front_bins: int = POOL_FIT_FRONT_BINS,
-    fit_sigma_scale: float | None = None,
+    fit_front_bins: int = POOL_FIT_FRONT_BINS, fit_sigma_scale: float | None = None,
     scan: str = "forward",
-    flank_bins: int = POOL_FLANK_BINS,
-    lead_bins: int = POOL_LEAD_BINS,
+    flank_bins: int = POOL_FLANK_BINS, lead_bins: int = POOL_LEAD_BINS, align_beams: int = 0,
 ) -> Echoes:
     """Leading edges of a tracked surface measured on a multi-look along the surface.
 
@@ -595,6 +591,9 @@ def pooled_edges(
     lead_bins : int
         A pooled edge is kept within ``pulse_bins + lead_bins`` in front of the beam's first
         structure bin and not behind its echo's end; else the beam keeps its own edge.
+    align_beams : int
+        > 0: the pooling starts from each return's edge on its surface's Theil-Sen line over this
+        many beams either side (:func:`_line_aligned`); 0 (default): from its own edge.
 
     Returns
     -------
@@ -605,23 +604,24 @@ def pooled_edges(
     sel = np.asarray(first, dtype=np.int64)
     fit_scale = float(sigma_scale if fit_sigma_scale is None else fit_sigma_scale)
     window = (half_beams, front_bins, max_bins, smooth_bins, n_iter, fit_front_bins)
-    _check_pooling(echoes, sel, window, fraction, clip, np.shape(image), fit_scale, flank_bins, lead_bins, scan)
+    _check_pooling(echoes, sel, window, fraction, clip, np.shape(image), fit_scale, (flank_bins, lead_bins, align_beams),
+                   scan)
     return _pooled(echoes, sel, image, geometry, pulse_bins, window, (fraction, touch_bins),
                    (sigma_scale, fit_scale), clip, forward=scan == "forward", flank_bins=int(flank_bins),
-                   lead_bins=int(lead_bins))
+                   lead_bins=int(lead_bins), align_beams=int(align_beams))
 
 
 def _pooled(echoes: Echoes, sel: NDArray[np.int64], image: ArrayLike, geometry: SonarGeometry, pulse_bins: int,
             window: tuple[int, int, int, int, int, int], fraction_touch: tuple[float, float],
             scales: tuple[float, float], clip: NDArray[Any] | None, *, forward: bool = True,
             clip_level: float | None = None, flank_bins: int = POOL_FLANK_BINS,
-            lead_bins: int = POOL_LEAD_BINS) -> Echoes:
+            lead_bins: int = POOL_LEAD_BINS, align_beams: int = 0) -> Echoes:
     """:func:`pooled_edges` of checked options (:func:`_check_pooling`: ``window`` = ``(half_beams,
     front_bins, max_bins, smooth_bins, n_iter, fit_front_bins)``, ``scales`` = ``(sigma_scale,
     fit_sigma_scale)``; the pipeline's range stage calls it with its validated configuration).
     With ``clip_level``, ``clip`` is the raw image (C-contiguous, the image's shape), clipped at
     and above that level (:func:`sonarmap.ranges.measure.full_scale_mask`'s samples), else the
-    mask of the clipped samples."""
+    mask of the clipped samples; ``align_beams``: as :func:`pooled_edges`' (checked)."""
     import sonarmap.ranges._kernels as _kernels
 
     half_beams, front_bins, max_bins, smooth_bins, n_iter, fit_front_bins = window
@@ -634,10 +634,11 @@ def _pooled(echoes: Echoes, sel: NDArray[np.int64], image: ArrayLike, geometry: 
         if _first_runs(echoes, sel, touch_bins)[2].max(initial=-1) < 0:
             return echoes
         geometry.check_image(img, "image")
+    start = _line_aligned(echoes, sel, touch_bins, align_beams) if align_beams > 0 else echoes.edge_bin
     # the runs, the smoothing along range, pooled_edges and kept_edges (the kept pooled edges
     # given to their echoes) in one kernel call
     n_kept, eb, er, sl, sig, marked, n_marked = _kernels.pooled_kept_edges(
-        np.ascontiguousarray(sel, dtype=np.int64), echoes.edge_bin, echoes.start_bin, echoes.stop_bin,
+        np.ascontiguousarray(sel, dtype=np.int64), start, echoes.start_bin, echoes.stop_bin,
         float(touch_bins), img, int(pulse_bins), int(half_beams), int(front_bins), int(max_bins),
         int(smooth_bins) | 1, float(fraction), int(n_iter), _NO_CLIP if clip is None else
         clip if clip_level is not None else _mask_as_samples(clip),
@@ -645,21 +646,40 @@ def _pooled(echoes: Echoes, sel: NDArray[np.int64], image: ArrayLike, geometry: 
         int(pulse_bins) + int(lead_bins),
         echoes.edge_range_m, echoes.slope, echoes.sigma_m, np.ascontiguousarray(geometry.range_m, dtype=np.float64),
         *_edge_spreads(geometry, pulse_bins), float(scales[0]), float(scales[1]))
+    if start is not echoes.edge_bin and n_kept:
+        # a return whose pooled edge was not kept keeps its own edge (kept_edges gave it the start)
+        own = (eb == start) & (start != echoes.edge_bin)
+        eb[own] = echoes.edge_bin[own]
     return _edges_kept(echoes, n_kept, (eb, er, sl, sig), marked, n_marked)
 
 
+def _line_aligned(echoes: Echoes, sel: NDArray[np.int64], touch_bins: float, half_beams: int) -> NDArray[np.float64]:
+    """The echoes' ``edge_bin`` with each return's (``sel``) replaced by its edge on its surface's
+    local line (:func:`~sonarmap.ranges._alignment_kernels.line_aligned_edges` over
+    ``half_beams`` on either side, the surfaces :func:`_first_runs`' with ``touch_bins``)."""
+    from sonarmap.ranges._alignment_kernels import line_aligned_edges
+
+    s = np.ascontiguousarray(sel, dtype=np.int64)
+    edge, _, run = _first_runs(echoes, s, touch_bins)
+    aligned = line_aligned_edges(edge, run, np.int64(half_beams))
+    out = echoes.edge_bin.copy()
+    ok = s >= 0
+    out[s[ok]] = aligned[ok]
+    return out
+
+
 def _check_pooling(echoes: Echoes, sel: np.ndarray, window: tuple[int, int, int, int, int, int], fraction: float,
-                   clip: NDArray[np.bool_] | None, shape: tuple[int, ...], fit_scale: float, flank_bins: int,
-                   lead_bins: int, scan: str) -> None:
+                   clip: NDArray[np.bool_] | None, shape: tuple[int, ...], fit_scale: float,
+                   flank_lead_align: tuple[int, int, int], scan: str) -> None:
     """The options of :func:`pooled_edges` (``window``: half_beams, front_bins, max_bins,
-    smooth_bins, n_iter, fit_front_bins; ``fit_scale``: its fit_sigma_scale; ``flank_bins``,
-    ``lead_bins``, ``scan``) are valid, ``first`` has a value per beam and ``clip`` the image's
-    shape."""
+    smooth_bins, n_iter, fit_front_bins; ``fit_scale``: its fit_sigma_scale; ``flank_lead_align``:
+    its flank_bins, lead_bins and align_beams; ``scan``) are valid, ``first`` has a value per beam
+    and ``clip`` the image's shape."""
     if not (math.isfinite(fit_scale) and fit_scale >= 0):
         raise InputError(f"fit_sigma_scale: must be a finite number >= 0 (got {fit_scale!r})")
     keys = ("half_beams", "front_bins", "max_bins", "smooth_bins", "n_iter", "fit_front_bins", "flank_bins",
-            "lead_bins")
-    for key, v, lo in zip(keys, (*window, flank_bins, lead_bins), (0, 0, 3, 1, 1, 0, 0, 0)):
+            "lead_bins", "align_beams")
+    for key, v, lo in zip(keys, (*window, *flank_lead_align), (0, 0, 3, 1, 1, 0, 0, 0, 0)):
         if isinstance(v, bool) or int(v) != v or v < lo:
             raise InputError(f"{key}: must be an integer >= {lo} (got {v!r})")
     if not 0 < fraction < 1:
