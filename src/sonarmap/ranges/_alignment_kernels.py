@@ -6,13 +6,16 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from sonarmap.ranges._kernels import _median
+
 
 @njit(cache=True, nogil=True)
 def line_aligned_edges(edge, run, half_beams):  # pragma: no cover - numba
     """Per beam, the Theil-Sen line through the leading edges of the beams of its surface within
     ``half_beams`` on either side, evaluated at the beam: the median of ``edge[k] + (j - k) s``
     over those beams ``k``, ``s`` the median of the slopes ``(edge[b] - edge[a]) / (b - a)`` of
-    their pairs (medians of an even count: the mean of the two middle values).
+    their pairs (:func:`~sonarmap.ranges._kernels._median`: of an even count, the mean of the two
+    middle values).
 
     ``edge`` (float64, per beam; NaN: no return) and ``run`` (int64, per beam: the surface run of
     :func:`~sonarmap.ranges._kernels.surface_runs`, -1: in none).  A beam in no run, or with
@@ -47,12 +50,3 @@ def line_aligned_edges(edge, run, half_beams):  # pragma: no cover - numba
         out[j] = _median(vals, n)
     return out
 
-
-@njit(cache=True, nogil=True)
-def _median(a, n):  # pragma: no cover - numba
-    """The median of ``a[:n]`` (``n >= 1``, no NaN; ``a[:n]`` is sorted in place): the middle
-    value, or the mean of the two middle values for an even ``n``."""
-    b = a[:n]
-    b.sort()
-    h = n // 2
-    return b[h] if n % 2 else 0.5 * (b[h - 1] + b[h])
