@@ -95,6 +95,23 @@ def test_find_echoes_rejects_bad_arguments():
         TrackConfig(n_surfaces=0)
 
 
+def test_a_returns_intensity_is_its_echos_strength_in_either_mode():
+    """The reported intensity is the image at the echo's first peak, not the sample on its rise
+    where the leading edge lies (half the peak in expectation, 0 on a thresholded image)."""
+    g = _geom(n_beams=12)
+    img = np.zeros(g.shape)
+    img[50:57, :] = np.array([0.0, 0.3, 0.6, 0.9, 1.0, 0.8, 0.4])[:, None] * np.linspace(0.5, 1.0, 12)
+    llr = 3.0 * (img > 0)
+    e = find_echoes(img > 0.2, img, g, llr=llr)
+    t = track_surfaces(e, TrackConfig(segment_cost=30.0))
+    first = ranges_from_tracks(e, t, g, img)
+    strongest = ranges_from_tracks(e, t, g, img, mode="strongest")
+    assert first.n_returns == 12
+    assert np.all(first.bin <= 52) and np.all(strongest.bin == 54)
+    np.testing.assert_array_equal(first.intensity, img[54].astype(np.float32))
+    np.testing.assert_array_equal(first.intensity, strongest.intensity)
+
+
 def _line_image(g: SonarGeometry, rows, width: int = 2, value: float = 1.0):
     img = np.zeros(g.shape)
     for j, r in enumerate(rows):
@@ -462,9 +479,13 @@ def test_real_pings_leading_edges_sigma_and_p_detect(test_pings, aris_pings):
         # sigma: between a quarter of a bin and 8 bins
         sig = new.sigma_m[new.valid] / p.geometry.range_resolution_m
         assert sig.min() >= 0.25 and sig.max() <= 8.5
+        # the intensity is the echo's strength: its first peak, not the (often thresholded) rise
+        # where the edge lies (DIDSON test pings: 545 returns, 3 with 0 at their peak; 180 at the edge)
+        assert np.count_nonzero(new.intensity[new.valid] > 0) >= 0.95 * new.n_returns
     for f in aris_pings[:2]:
         r = process_ping(f).ranges
         assert r.n_returns >= 40
+        assert np.all(r.intensity[r.valid] > 0)
         # the target's nearest leading edge lies at ~15.4 m (frame 0, beams 37-39; smoothed along
         # the surface 15.40 m): nothing in the water column in front, more than 5 bins before it
         assert np.nanmin(r.range_m) > 15.35

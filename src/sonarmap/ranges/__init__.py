@@ -65,7 +65,9 @@ class BeamRanges:
     bin : ndarray of int64, shape (n_beams,)
         0-based range bin of the return; -1 = no return.
     intensity : ndarray of float32, shape (n_beams,)
-        Image intensity at the return; NaN = no return.
+        Strength of the return's echo: the intensity of the image the classifier saw at the
+        echo's first peak (the surface tracker, in either range mode; the per-beam rules: at the
+        return's bin); NaN = no return.
     confidence : ndarray of float32, shape (n_beams,)
         Neighbour-beam support in [0, 1] (0 where no return).
     azimuth_rad : ndarray of float64, shape (n_beams,)
@@ -504,8 +506,9 @@ def _beam_ranges(bins: np.ndarray, img: np.ndarray, geometry: SonarGeometry, mod
 def ranges_from_tracks(echoes: "Echoes", tracks: "Tracks", geometry: SonarGeometry, image: ArrayLike, *,
                        mode: Mode = "first", time_ns: int = 0, source: str = "") -> BeamRanges:
     """The :class:`BeamRanges` of tracked surfaces: per beam the nearest tracked echo's leading
-    edge (``mode="first"``) or peak (``"strongest"``), its sigma, and the surfaces behind it.
-    ``p_detect`` is left NaN (the pipeline sets it from the ping's model)."""
+    edge (``mode="first"``) or peak (``"strongest"``), its sigma, the intensity of ``image`` at
+    the echo's first peak (either mode: the echo's strength, not the sample on its rise) and the
+    surfaces behind it.  ``p_detect`` is left NaN (the pipeline sets it from the ping's model)."""
     return track_returns(echoes, tracks, geometry, image, mode=mode, time_ns=time_ns, source=source)[0]
 
 

@@ -2640,8 +2640,8 @@ def with_edges(edge_bin, edge_range, slope, sigma, sel, beams, edge, rise, noise
 @njit(cache=True, nogil=True)
 def track_ranges(echo, edge_bin, peak_bin, at, sigma_m, img, first_mode, start_bin, stop_bin):  # pragma: no cover - numba
     """The per-beam fields of :func:`sonarmap.ranges.ranges_from_tracks` (its numpy arithmetic):
-    range ``at[e]``, bin (the edge rounded and clipped to the image, or the peak), ``img``
-    intensity there (float32), sigma, the ranges of the surfaces behind and the neighbour-support
+    range ``at[e]``, bin (the edge rounded and clipped to the image, or the peak), the ``img``
+    intensity at the echo's first peak ``peak_bin[e]`` (float32; in either mode), sigma, the ranges of the surfaces behind and the neighbour-support
     confidence (+-2 beams, 20 bins), for the nearest tracked echo ``e = echo[0, j]``; also the
     echo's thickness ``stop_bin[e] - start_bin[e]`` (0 where no return) and whether every beam
     without a bin (< 0) has a range that is not finite and every other a finite one."""
@@ -2664,7 +2664,7 @@ def track_ranges(echo, edge_bin, peak_bin, at, sigma_m, img, first_mode, start_b
                 b[j] = int(min(max(x, 0.0), top))
         else:
             b[j] = peak_bin[e]
-        inten[j] = img[max(b[j], 0), j]
+        inten[j] = img[min(max(peak_bin[e], 0), top), j]
         sig[j] = sigma_m[e]
     other = np.full((n_s - 1, m), np.nan)
     for r in range(1, n_s):
