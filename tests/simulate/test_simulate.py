@@ -21,6 +21,7 @@ from sonarmap.simulate import (
     read_truth,
     scene_from_name,
     simulate_ping,
+    simulate_pings,
     write_simulation,
 )
 from sonarmap.simulate.compare import background_stats, histogram_kld
@@ -40,6 +41,33 @@ def test_same_seed_identical_bytes_and_different_seed_differs() -> None:
     img = a.ping.image
     assert img.dtype == np.float32 and img.shape == GEOM.shape
     assert np.allclose(img * 255, np.rint(img * 255), atol=1e-4)  # 8-bit levels k/255
+
+
+FIELDS = ("clean", "class_mask", "first_return_bin", "first_return_range_m", "unblurred", "structure_peak_snr_db",
+          "surface_range_m", "surface_ranges_m")
+
+
+@pytest.mark.parametrize("name, scene_name", [("didson-hf", "fish_over_hull"), ("aris-telephoto-48", "hull_slope4")])
+def test_several_seeds_rendered_once_give_each_seeds_own_bytes(name: str, scene_name: str) -> None:
+    """simulate_pings reuses the scene's expected echo and surface truth across seeds: every ping
+    equals simulate_ping of its seed (nothing shared is modified by one seed's ping), a Generator
+    seed included."""
+    g = preset(name)
+    scene = scene_from_name(scene_name, geometry=g)
+    seeds = [3, 0, np.random.default_rng(5), 3]
+    batch = simulate_pings(scene, g, seeds=seeds, recording_meta=True)
+    assert len(batch) == 4
+    for seed, got in zip([3, 0, np.random.default_rng(5), 3], batch, strict=True):
+        want = simulate_ping(scene, g, seed=seed, recording_meta=True)
+        assert got.ping.image.tobytes() == want.ping.image.tobytes()
+        assert got.ping.meta == want.ping.meta and got.config == want.config and got.seed == want.seed
+        for f in FIELDS:
+            a, b = getattr(got, f), getattr(want, f)
+            assert a.dtype == b.dtype and np.array_equal(a, b, equal_nan=a.dtype.kind == "f"), f
+    assert not np.array_equal(batch[0].ping.image, batch[1].ping.image)
+    assert simulate_pings(scene, g, seeds=[]) == []
+    with pytest.raises(InputError, match="seed"):
+        simulate_pings(scene, g, seeds=[0, 1.5])
 
 
 @pytest.mark.parametrize("beam, range_m", [(7, 3.1), (30, 6.02), (50, 8.5), (90, 10.9)])

@@ -60,6 +60,7 @@ the hand annotation of the real pings - at two receiver-noise levels.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from collections.abc import Iterable, Mapping, Sequence
 from typing import Any
@@ -555,16 +556,34 @@ def main(argv: Sequence[str] | None = None) -> int:
     return 0
 
 
+@functools.lru_cache(maxsize=2)
+def _scene_of(scene: str, geometry: Any) -> Any:
+    """The named scene built for ``geometry``, once per geometry object: a scene is deterministic
+    (its fish use seed 0) and read-only, so every noise level and seed of an evaluation renders
+    the same one (building it took a fifth of an evaluation's time).  The cache holds the
+    geometry, so its identity (``SonarGeometry`` hashes by identity) is never reused meanwhile."""
+    from sonarmap.simulate import scene_from_name
+
+    return scene_from_name(scene, geometry=geometry)
+
+
 def _simulate(scene: str, geometry: Any, sim_config: Any, seed: int, empty_snr_db: float,
               recording_meta: bool = False) -> tuple[Any, Any]:
     """The simulated ping and its 'no structure at all' beams (no structure pixel >= empty_snr_db)."""
-    from sonarmap.simulate import scene_from_name, simulate_ping
+    return _simulate_seeds(scene, geometry, sim_config, (seed,), empty_snr_db, recording_meta)[0]
 
-    sc = scene_from_name(scene, geometry=geometry)
-    sim = simulate_ping(sc, geometry, config=sim_config, seed=seed, recording_meta=recording_meta)
+
+def _simulate_seeds(scene: str, geometry: Any, sim_config: Any, seeds: Sequence[int], empty_snr_db: float,
+                    recording_meta: bool = False) -> list[tuple[Any, Any]]:
+    """:func:`_simulate` of each seed, the scene's echo rendered once (the same pings:
+    :func:`sonarmap.simulate.simulate_pings`)."""
+    from sonarmap.simulate import simulate_pings
+
+    sims = simulate_pings(_scene_of(scene, geometry), geometry, config=sim_config, seeds=seeds,
+                          recording_meta=recording_meta)
     if empty_snr_db >= sim_config.truth_snr_db:
-        return sim, None
-    return sim, ~(sim.structure_peak_snr_db >= empty_snr_db)
+        return [(sim, None) for sim in sims]
+    return [(sim, ~(sim.structure_peak_snr_db >= empty_snr_db)) for sim in sims]
 
 
 #: Range truths :func:`evaluate` can score against.
@@ -588,8 +607,8 @@ def _run(
     """Per method and scene, the scores of every simulated ping."""
     from sonarmap.pipeline import process_ping
 
-    sims = [(scene, _simulate(scene, geometry, sc, seed, empty_snr_db, recording_meta))
-            for scene in scenes for sc in sim_configs for seed in seeds]
+    sims = [(scene, sim) for scene in scenes for sc in sim_configs
+            for sim in _simulate_seeds(scene, geometry, sc, seeds, empty_snr_db, recording_meta)]
     out: dict[str, dict[str, list[PingScore]]] = {}
     for name, cfg in configs.items():
         per: dict[str, list[PingScore]] = {}
@@ -859,9 +878,8 @@ def _bounds(scene: str, sim_configs: Sequence[Any], seeds: Sequence[int], geomet
 
     out = []
     for sc in sim_configs:
-        for seed in seeds:
-            sim, _ = _simulate(scene, geometry, sc, seed, -3.0, True)
-            high = _unclipped(scene, geometry, sc, seed)
+        for (sim, _), high in zip(_simulate_seeds(scene, geometry, sc, seeds, -3.0, True),
+                                  _unclipped_seeds(scene, geometry, sc, seeds), strict=True):
             echo = high.clean.astype(np.float64) * 10.0 ** ((UNCLIPPED_FULL_SCALE_DB - sim.config.full_scale_db) / 10.0)
             out.append(range_bound(sim, echo=echo, pool_beams=BOUND_POOL_BEAMS))
     return out
@@ -875,8 +893,13 @@ def _unclipped(scene: str, geometry: Any, sim_config: Any, seed: int) -> Any:
     """The ping of ``scene`` rendered with full scale at :data:`UNCLIPPED_FULL_SCALE_DB` - the same
     echoes, none clipped (``clean`` in intensities ``10^((300 - full_scale_db) / 10)`` times
     smaller than the recorded ping's)."""
-    return _simulate(scene, geometry, dataclasses.replace(sim_config, full_scale_db=UNCLIPPED_FULL_SCALE_DB), seed,
-                     -3.0, True)[0]
+    return _unclipped_seeds(scene, geometry, sim_config, (seed,))[0]
+
+
+def _unclipped_seeds(scene: str, geometry: Any, sim_config: Any, seeds: Sequence[int]) -> list[Any]:
+    """:func:`_unclipped` of each seed (the scene's echo rendered once)."""
+    high = dataclasses.replace(sim_config, full_scale_db=UNCLIPPED_FULL_SCALE_DB)
+    return [sim for sim, _ in _simulate_seeds(scene, geometry, high, seeds, -3.0, True)]
 
 
 def _bound_rows(method: str, bounds: Sequence[Any], tol_bins: int) -> list[MethodScore]:
@@ -906,8 +929,7 @@ def _noise_free_scores(scenes: Sequence[str], sim_configs: Sequence[Any], seeds:
     out = []
     for scene in scenes:
         for sc in sim_configs:
-            for seed in seeds:
-                sim = _unclipped(scene, geometry, sc, seed)
+            for sim in _unclipped_seeds(scene, geometry, sc, seeds):
                 r = leading_edges_m(sim.clean, geometry)
                 b = np.where(np.isfinite(r), np.searchsorted(geometry.range_m, r), -1).astype(np.int64)
                 # no detection threshold on a noise-free echo: no beam is scored for false returns
