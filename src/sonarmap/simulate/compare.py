@@ -18,7 +18,7 @@ from numpy.typing import NDArray
 from sonarmap.errors import InputError
 from sonarmap.geometry import SonarGeometry
 from sonarmap.ping import Ping
-from sonarmap.simulate.render import SimulationConfig, simulate_ping
+from sonarmap.simulate.render import SimulationConfig, simulate_ping, simulate_pings
 from sonarmap.simulate.scene import Scene, empty_scene, scene_from_name
 
 __all__ = [
@@ -237,13 +237,20 @@ def _row_window(geom: SonarGeometry, min_range_m: float | None, max_range_m: flo
     return lo, hi
 
 
-def _simulated_rows(scene: Scene, geom: SonarGeometry, config: SimulationConfig, base: int, n: int, lo: int,
-                    hi: int) -> NDArray[np.float64]:
-    """Rows ``lo:hi`` of ``n`` simulated pings of ``scene`` (seeds ``base + i``), stacked."""
-    return np.stack([
-        np.asarray(simulate_ping(scene, geom, config=config, seed=base + i).ping.image, dtype=np.float64)[lo:hi]
-        for i in range(n)
-    ])
+def _simulated_rows(scene: Scene, geom: SonarGeometry, config: SimulationConfig, bases: tuple[int, ...], n: int,
+                    lo: int, hi: int) -> list[NDArray[np.float64]]:
+    """Per base, rows ``lo:hi`` of ``n`` simulated pings of ``scene`` (seeds ``base + i``), stacked
+    (:func:`simulate_pings`, :data:`_SEEDS_PER_RENDER` seeds at a time: the scene's echo rendered
+    once per batch, at most that many whole pings held)."""
+    seeds = [base + i for base in bases for i in range(n)]
+    rows = [np.asarray(sim.ping.image, dtype=np.float64)[lo:hi]
+            for k in range(0, len(seeds), _SEEDS_PER_RENDER)
+            for sim in simulate_pings(scene, geom, config=config, seeds=seeds[k:k + _SEEDS_PER_RENDER])]
+    return [np.stack(rows[k * n:(k + 1) * n]) for k in range(len(bases))]
+
+
+#: Seeds :func:`_simulated_rows` renders per :func:`simulate_pings` call.
+_SEEDS_PER_RENDER = 16
 
 
 def compare_recording(
@@ -295,8 +302,7 @@ def compare_recording(
     n = len(pings) if n_sim is None else int(n_sim)
     built = scene_from_name(scene, seed, geometry=geom)
     real_stack = np.stack([np.asarray(p.image, dtype=np.float64)[lo:hi] for p in pings])
-    sim_stack = _simulated_rows(built, geom, config, seed, n, lo, hi)
-    sim2 = _simulated_rows(built, geom, config, 10_000 + seed, n, lo, hi)
+    sim_stack, sim2 = _simulated_rows(built, geom, config, (seed, 10_000 + seed), n, lo, hi)
     rs, ss = background_stats(real_stack), background_stats(sim_stack)
     edges = np.linspace(0, hi - lo, n_bands + 1).round().astype(np.int64)
     rp, rm = _band_stats(real_stack, edges)
