@@ -35,10 +35,10 @@ def _resampled(name: str, n_bins: int, n_beams: int | None = None) -> Any:
 
 
 def _sim_pings(geometry: Any, n: int = 3) -> list[Any]:
-    from sonarmap.simulate import scene_from_name, simulate_ping
+    from sonarmap.simulate import scene_from_name, simulate_pings
 
     scene = scene_from_name("hull", geometry=geometry)
-    return [simulate_ping(scene, geometry, seed=s).ping for s in range(n)]
+    return [sim.ping for sim in simulate_pings(scene, geometry, seeds=range(n))]
 
 
 def run(quick: bool) -> list[dict]:

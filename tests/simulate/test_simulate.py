@@ -68,6 +68,12 @@ def test_several_seeds_rendered_once_give_each_seeds_own_bytes(name: str, scene_
     assert simulate_pings(scene, g, seeds=[]) == []
     with pytest.raises(InputError, match="seed"):
         simulate_pings(scene, g, seeds=[0, 1.5])
+    # one time stamp per seed, or one for all
+    timed = simulate_pings(scene, g, seeds=[3, 0], time_ns=[5, 7])
+    assert [r.ping.time_ns for r in timed] == [5, 7]
+    assert timed[1].ping.image.tobytes() == batch[1].ping.image.tobytes()
+    with pytest.raises(InputError, match="time_ns"):
+        simulate_pings(scene, g, seeds=[3, 0], time_ns=[5])
 
 
 @pytest.mark.parametrize("beam, range_m", [(7, 3.1), (30, 6.02), (50, 8.5), (90, 10.9)])
@@ -281,6 +287,25 @@ def test_cli_simulate(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> Non
     assert len(list(out.glob("*_raw.png"))) == 2 and len(list(out.glob("*_truth.json"))) == 2
     assert main(["simulate", "--scene", "nope", "-o", str(out)]) == 2  # usage error
     assert "nope" in capsys.readouterr().err
+
+
+def test_cli_simulate_renders_in_batches_the_pings_of_one_seed_each(tmp_path: Path) -> None:
+    """Past the first ping the CLI renders batches of SEEDS_PER_RENDER seeds (simulate_pings): ping i
+    is still simulate_ping's ping of seed + i, 100 ms after ping i - 1."""
+    from sonarmap.cli import main
+    from sonarmap.cli.simulate import SEEDS_PER_RENDER
+    from sonarmap.io import read_pings
+
+    n = SEEDS_PER_RENDER + 2  # the first ping, one full batch and one of 1
+    out = tmp_path / "sim"
+    assert main(["simulate", "--scene", "propeller", "--seed", "4", "--count", str(n), "--sonar", "didson-hf",
+                 "--quiet", "-o", str(out)]) == 0
+    pings = list(read_pings(sorted(str(p) for p in out.glob("*_raw.png"))))
+    assert len(pings) == n
+    assert np.all(np.diff([p.time_ns for p in pings]) == 100_000_000)
+    scene = scene_from_name("propeller", 4, geometry=GEOM)
+    for i in (0, 1, n - 1):
+        assert np.array_equal(pings[i].image, simulate_ping(scene, GEOM, seed=4 + i).ping.image), i
 
 
 def _ghost_pair(ghosts: str, n: int = 400) -> tuple[np.ndarray, np.ndarray]:

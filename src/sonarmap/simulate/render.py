@@ -1750,10 +1750,10 @@ def simulate_ping(
 
 def simulate_pings(
     scene: Scene, geometry: SonarGeometry, *, config: SimulationConfig = SimulationConfig(),
-    seeds: Iterable[int | np.random.Generator], time_ns: int = 0, recording_meta: bool = False,
+    seeds: Iterable[int | np.random.Generator], time_ns: int | Iterable[int] = 0, recording_meta: bool = False,
 ) -> list[SimResult]:
     """:func:`simulate_ping` of one scene for each of ``seeds``, in order: the same bytes per seed,
-    the scene's echo rendered once.
+    the scene's echo rendered once.  ``time_ns``: one time stamp for every ping, or one per seed.
 
     The expected echo (samples, pulse, main lobe, ghosts, channel) and the surface truth do not
     depend on the seed, only the speckle, the noise and what follows from them (a gain assist, the
@@ -1776,6 +1776,9 @@ def simulate_pings(
     for seed in seeds:
         if isinstance(seed, bool) or not isinstance(seed, int | np.integer | np.random.Generator):
             raise InputError(f"seed: expected an int or numpy Generator, got {type(seed).__name__}")
+    times = [time_ns] * len(seeds) if isinstance(time_ns, int | np.integer) else list(time_ns)
+    if len(times) != len(seeds):
+        raise InputError(f"time_ns: {len(times)} time stamps for {len(seeds)} seeds")
     if not seeds:
         return []
     smp = _samples(scene, geometry, config)
@@ -1783,8 +1786,8 @@ def simulate_pings(
     e_struct, e_clutter = _accumulate(smp, geometry)
     echo = _mean_echo(smp, geometry, config)
     surfaces: dict[Any, Any] = {}
-    return [_rendered_ping(scene, geometry, config, seed, (smp, e_struct, e_clutter, echo, surfaces), time_ns,
-                           recording_meta) for seed in seeds]
+    return [_rendered_ping(scene, geometry, config, seed, (smp, e_struct, e_clutter, echo, surfaces), int(t),
+                           recording_meta) for seed, t in zip(seeds, times, strict=True)]
 
 
 def _rendered_ping(scene: Scene, geometry: SonarGeometry, config: SimulationConfig, seed: int | np.random.Generator,
