@@ -36,7 +36,7 @@ def register(app: typer.Typer) -> None:
     @app.command("calibrate", epilog=example("calibrate background/ -o sonar.json",
                                              "calibrate recording.aris -o - -q > sonar.json"))
     def calibrate_cmd(
-        background: list[Path] = typer.Argument(..., help="Recording(s): ping files, directories or globs (any format)."),
+        recording: list[Path] = typer.Argument(..., help="Recording(s): ping files, directories or globs (any format)."),
         output: Path = OUTPUT_OPTION,
         sonar: str | None = GEOMETRY_OPTION,
         start_time: str | None = START_TIME_OPTION,
@@ -73,9 +73,9 @@ def register(app: typer.Typer) -> None:
         check_choice(taper_estimator, ("mean", "nonzero-mean"), "--taper-estimator")
         clock = clock_options(start_time, ping_rate)
         # before the bar
-        ping_iter = read_input_pings(background, load_geometry_option(sonar), "recording", "no pings", clock=clock)
+        ping_iter = read_input_pings(recording, load_geometry_option(sonar), "recording", "no pings", clock=clock)
         pings = []
-        with input_progress("calibrate", background, quiet=quiet, verbose=verbose) as bar:
+        with input_progress("calibrate", recording, quiet=quiet, verbose=verbose) as bar:
             bar.start()
             for ping in ping_iter:
                 pings.append(ping)
