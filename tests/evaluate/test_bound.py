@@ -184,15 +184,14 @@ def test_beam_correlation_is_the_simulated_speckles() -> None:
     from sonarmap.evaluate.bound import _before_assist
     from sonarmap.evaluate.segmentation import preset_sim_configs
     from sonarmap.geometry import preset
-    from sonarmap.simulate import scene_from_name, simulate_ping
+    from sonarmap.simulate import scene_from_name, simulate_pings
 
     g = preset("oculus-m750d-like")
     cfg = preset_sim_configs(g, (0.0,))[0]
     want = beam_correlation(g, cfg, 2)
     cfg = dataclasses.replace(cfg, full_scale_db=cfg.full_scale_db + 20.0)
     got: dict[int, list[float]] = {1: [], 2: []}
-    for seed in range(2):
-        sim = simulate_ping(scene_from_name("hull_slope2", geometry=g), g, config=cfg, seed=seed)
+    for sim in simulate_pings(scene_from_name("hull_slope2", geometry=g), g, config=cfg, seeds=range(2)):
         assert sim.config.receiver == "linear" and sim.config.threshold == 0.0
         assert float(sim.clean.max()) < 0.99 and "gain_assist_db" not in sim.ping.meta
         bg, _ = _before_assist(sim)
@@ -275,12 +274,11 @@ def test_a_detector_that_knows_the_echo_reaches_the_bound() -> None:
     # the maximum-likelihood shift of the known echo on the recorded 8-bit samples (threshold and
     # quantisation included) spreads as the bound says; 7 beams sharing it do far better
     from sonarmap.geometry import preset
-    from sonarmap.simulate import scene_from_name, simulate_ping
+    from sonarmap.simulate import scene_from_name, simulate_pings
 
     g = preset("didson-hf")
     ones, pooled, sds = [], [], []
-    for seed in range(3):
-        sim = simulate_ping(scene_from_name("hull_slope4", geometry=g), g, seed=seed)
+    for sim in simulate_pings(scene_from_name("hull_slope4", geometry=g), g, seeds=range(3)):
         one, pool = oracle_shifts(sim)
         ones.append(one)
         pooled.append(pool)

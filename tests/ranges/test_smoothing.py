@@ -239,15 +239,14 @@ def test_simulated_surfaces_gain_within_a_bin():
     factor 1.55 and the anchor's offsets counted as independent: wider template sigmas let the
     combination move edges further.)"""
     from sonarmap import preset
-    from sonarmap.evaluate.segmentation import _simulate, preset_sim_configs
+    from sonarmap.evaluate.segmentation import _simulate_seeds, preset_sim_configs
     from sonarmap.pipeline import process_ping
 
     for name, scene in (("aris3000-128", "hull_slope4"), ("aris-telephoto-48", "curved_hull")):
         g = preset(name)
         errs: dict[int, list[np.ndarray]] = {0: [], 8: []}
         for sc in preset_sim_configs(g):
-            for seed in (0, 1):
-                sim, _ = _simulate(scene, g, sc, seed, -3.0, True)
+            for sim, _ in _simulate_seeds(scene, g, sc, (0, 1), -3.0, True):
                 for beams in errs:
                     r = process_ping(sim.ping, PipelineConfig().replace(edge_smooth_beams=beams)).ranges.range_m
                     errs[beams].append((np.asarray(r) - sim.surface_range_m) / abs(g.range_resolution_m))

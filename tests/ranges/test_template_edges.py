@@ -45,15 +45,14 @@ def test_a_template_measures_simulated_sloped_hulls_better_than_the_pooled_profi
     follows it), scored on the sub-bin surface truth: within a bin on more beams (measured 0.47 -> 0.64 with the default anchor; 0.73 with the template's own
     crossing), the median error within half a bin (-0.12)."""
     from sonarmap import preset
-    from sonarmap.evaluate.segmentation import _simulate, preset_sim_configs
+    from sonarmap.evaluate.segmentation import _simulate_seeds, preset_sim_configs
     from sonarmap.pipeline import process_ping
 
     g = preset("aris3000-128")
     dr = abs(g.range_resolution_m)
     errs: dict[int, list[np.ndarray]] = {0: [], 5: []}
     for sc in preset_sim_configs(g):
-        for seed in (0, 1):
-            sim, _ = _simulate("hull_slope4", g, sc, seed, -3.0, True)
+        for sim, _ in _simulate_seeds("hull_slope4", g, sc, (0, 1), -3.0, True):
             for beams in errs:
                 cfg = PipelineConfig().replace(edge_template_beams=beams, edge_smooth_beams=0)
                 r = process_ping(sim.ping, cfg).ranges.range_m
