@@ -15,7 +15,7 @@ an empty cell is "none" / "unknown", never a number that looks like one).
   of half the echo's peak along the beam, interpolated between bins (sub-bin), measured on the
   edge-aligned mean profile of up to 3 beams on either side on the same surface (the echo's
   peak with ``range_mode = "strongest"``); empty where the beam has no return;
-* ``intensity``: image intensity at the return; empty where the beam has no return;
+* ``intensity``: the echo's strength, the image intensity at its first peak; empty where the beam has no return;
 * ``flags``: the ping's fit gates, ``;``-separated, empty when the ping's fit is plausible;
 * ``sigma_m``: one-sigma uncertainty of ``range_m`` in metres; empty where the beam has no
   return or no estimate;
@@ -172,7 +172,7 @@ def register(app: typer.Typer) -> None:
         bin: 0-based range bin of the return;
         range_m: echo's leading edge (first crossing of half its peak, sub-bin, on the
         edge-aligned mean of up to 7 neighbouring beams of the same surface);
-        intensity: image intensity at the return; flags: the ping's fit gates;
+        intensity: the echo's strength (image intensity at its first peak); flags: the ping's fit gates;
         sigma_m: one-sigma uncertainty of range_m (m);
         p_detect: probability that a surface in the beam is detected and reported;
         time: ping time, ISO 8601 UTC with ns; time_ns: ping time, integer ns since the epoch.

@@ -8,7 +8,7 @@ in integer nanoseconds, and replace the output atomically (like :func:`sonarmap.
     ``ranges[j]`` is beam ``j``'s range (``BeamRanges.range_m``, float32); ``beam_unit_vec[j]`` is
     ``(0, -sin a, cos a)`` for its azimuth ``a`` - the same convention as the
     ``beam_directions`` that :func:`~sonarmap.io.rosbag.write_bag` writes (z forward, x up, y to
-    port; see :mod:`sonarmap.io.rosbag`); ``intensities[j]`` the image intensity at the return;
+    port; see :mod:`sonarmap.io.rosbag`); ``intensities[j]`` the echo's strength (image intensity at its first peak);
     ``flags[j].flag`` ``DETECT_OK`` (0) for a beam with a return and ``DETECT_BAD_FILTER`` (2, "bad
     by an automated filter applied during processing") for a beam without one, whose range and
     intensity are NaN.  ``transmit_delays`` is empty (not reported); ``ping_info`` has the
