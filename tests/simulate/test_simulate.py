@@ -74,6 +74,11 @@ def test_several_seeds_rendered_once_give_each_seeds_own_bytes(name: str, scene_
     assert timed[1].ping.image.tobytes() == batch[1].ping.image.tobytes()
     with pytest.raises(InputError, match="time_ns"):
         simulate_pings(scene, g, seeds=[3, 0], time_ns=[5])
+    with pytest.raises(InputError, match="time_ns"):
+        simulate_pings(scene, g, seeds=[3, 0], time_ns=1.5)
+    for bad in (3, np.random.default_rng(0), None):
+        with pytest.raises(InputError, match="seeds"):
+            simulate_pings(scene, g, seeds=bad)
 
 
 @pytest.mark.parametrize("beam, range_m", [(7, 3.1), (30, 6.02), (50, 8.5), (90, 10.9)])

@@ -1772,6 +1772,10 @@ def simulate_pings(
     """
     _validate(scene, geometry, config)
     config = config.resolved(geometry)
+    if isinstance(seeds, int | np.integer | np.random.Generator) or not isinstance(seeds, Iterable):
+        raise InputError(f"seeds: expected an iterable of ints or numpy Generators, got {type(seeds).__name__}")
+    if not isinstance(time_ns, int | np.integer | Iterable):
+        raise InputError(f"time_ns: expected an int or one per seed, got {type(time_ns).__name__}")
     seeds = list(seeds)
     for seed in seeds:
         if isinstance(seed, bool) or not isinstance(seed, int | np.integer | np.random.Generator):
