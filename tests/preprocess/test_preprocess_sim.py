@@ -31,8 +31,8 @@ from sonarmap.simulate import (
     empty_scene,
     planar_hull,
     point_target,
+    iter_simulated_pings,
     simulate_ping,
-    simulate_pings,
 )
 
 GEOM = preset("didson-hf")
@@ -162,9 +162,9 @@ def test_expected_speckle_images_match_simulator() -> None:
     cfg = SimulationConfig(threshold=0.0)
     _, hull, empty, rows, cols, ghosts = _speckle_mean_images(48, cfg)
     n = 200
-    scene = _hull_patch(48)  # (simulate_pings: its echo rendered once per 50 seeds)
-    pings = np.stack([res.ping.image for k in range(0, n, 50)
-                      for res in simulate_pings(scene, GEOM, config=cfg, seeds=range(k, min(k + 50, n)))])
+    # (the patch's echo rendered once per 50 seeds)
+    pings = np.stack([res.ping.image for res in iter_simulated_pings(_hull_patch(48), GEOM, config=cfg,
+                                                                      seeds=range(n), batch=50)])
     block = np.ix_(rows, np.concatenate([cols, ghosts]))
     emp = pings.mean(axis=0)[block].sum()
     assert emp == pytest.approx(hull[block].astype(np.float64).sum(), rel=0.02)

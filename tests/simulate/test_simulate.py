@@ -20,6 +20,7 @@ from sonarmap.simulate import (
     point_target,
     read_truth,
     scene_from_name,
+    iter_simulated_pings,
     simulate_ping,
     simulate_pings,
     write_simulation,
@@ -79,6 +80,13 @@ def test_several_seeds_rendered_once_give_each_seeds_own_bytes(name: str, scene_
     for bad in (3, np.random.default_rng(0), None):
         with pytest.raises(InputError, match="seeds"):
             simulate_pings(scene, g, seeds=bad)
+    # in batches: the same pings, one at a time; its arguments checked on the call
+    lazy = list(iter_simulated_pings(scene, g, seeds=[3, 0, 3], recording_meta=True, batch=2))
+    assert [r.ping.image.tobytes() for r in lazy] == [batch[k].ping.image.tobytes() for k in (0, 1, 3)]
+    with pytest.raises(InputError, match="batch"):
+        iter_simulated_pings(scene, g, seeds=[0], batch=0)
+    with pytest.raises(InputError, match="seeds"):
+        iter_simulated_pings(scene, g, seeds=5)
 
 
 @pytest.mark.parametrize("beam, range_m", [(7, 3.1), (30, 6.02), (50, 8.5), (90, 10.9)])
@@ -298,7 +306,7 @@ def test_cli_simulate_renders_in_batches_the_pings_of_one_seed_each(tmp_path: Pa
     """Past the first ping the CLI renders batches of SEEDS_PER_RENDER seeds (simulate_pings): ping i
     is still simulate_ping's ping of seed + i, 100 ms after ping i - 1."""
     from sonarmap.cli import main
-    from sonarmap.cli.simulate import SEEDS_PER_RENDER
+    from sonarmap.simulate.render import SEEDS_PER_RENDER
     from sonarmap.io import read_pings
 
     n = SEEDS_PER_RENDER + 2  # the first ping, one full batch and one of 1
@@ -323,10 +331,9 @@ def _ghost_pair(ghosts: str, n: int = 400) -> tuple[np.ndarray, np.ndarray]:
     scene = point_target(r, GEOM.azimuth_rad[beam], ts_db=-45.0)
     main = np.empty(n)
     ghost = np.empty(n)
-    for k in range(0, n, 50):  # simulate_pings: the target's echo rendered once per 50 seeds
-        for s, res in enumerate(simulate_pings(scene, GEOM, config=cfg, seeds=range(k, min(k + 50, n))), start=k):
-            img = res.ping.image.astype(np.float64) / GEOM.taper
-            main[s], ghost[s] = img[b, beam], img[b, beam + 8]
+    for s, res in enumerate(iter_simulated_pings(scene, GEOM, config=cfg, seeds=range(n), batch=50)):
+        img = res.ping.image.astype(np.float64) / GEOM.taper  # (the target's echo rendered once per 50 seeds)
+        main[s], ghost[s] = img[b, beam], img[b, beam + 8]
     return main, ghost
 
 

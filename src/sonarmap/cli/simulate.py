@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+import itertools
 from pathlib import Path
 from typing import Any
 
@@ -49,7 +49,7 @@ def register(app: typer.Typer) -> None:
             raise typer.BadParameter("an output directory is required (or use --list-scenes)", param_hint="--output")
         check_choice(scene, tuple(SCENE_NAMES), "--scene")
         from sonarmap.cli._common import ping_progress
-        from sonarmap.simulate import scene_from_name, simulate_ping, simulate_pings, write_simulation
+        from sonarmap.simulate import iter_simulated_pings, scene_from_name, simulate_ping, write_simulation
 
         geom = load_geometry_option(sonar)
         built = scene_from_name(scene, seed, geometry=geom)  # scaled into short windows (Oculus)
@@ -59,31 +59,15 @@ def register(app: typer.Typer) -> None:
         _check_room(first, count, out)
         with ping_progress("simulate", count, quiet=quiet, verbose=verbose) as bar:
             bar.start()
-            for i, res in _batched_pings(simulate_pings, built, geom, first, seed, count, t0_ns):
+            # ping 0 is rendered already (for the room check); the rest a batch of seeds per echo
+            rest = iter_simulated_pings(built, geom, seeds=[seed + i for i in range(1, count)],
+                                        time_ns=[t0_ns + i * 100_000_000 for i in range(1, count)])
+            for i, res in enumerate(itertools.chain([first], rest)):
                 write_simulation(res, out)
                 bar.advance()
                 bar.log(f"ping {i} (seed {seed + i}) -> {out}")
         if not quiet:
             typer.echo(f"wrote {counted(count, 'simulated ' + repr(scene) + ' ping')} ({geom.name}) + truth to {out}", err=True)
-
-
-#: Pings ``simulate`` renders per :func:`sonarmap.simulate.simulate_pings` call (the scene's echo
-#: once per batch; at most this many pings held before they are written).
-SEEDS_PER_RENDER = 16
-
-
-def _batched_pings(render: Any, scene: Any, geom: Any, first: Any, seed: int, count: int, t0_ns: int
-                   ) -> Iterator[tuple[int, Any]]:
-    """``(i, SimResult)`` of pings ``0 .. count - 1`` (seed ``seed + i``, 100 ms apart from ``t0_ns``):
-    ``first`` (ping 0, already rendered), then batches of :data:`SEEDS_PER_RENDER` through
-    ``render`` (:func:`~sonarmap.simulate.simulate_pings`) - the same pings as one
-    ``simulate_ping`` each."""
-    if count > 0:
-        yield 0, first
-    for k in range(1, count, SEEDS_PER_RENDER):
-        idx = range(k, min(k + SEEDS_PER_RENDER, count))
-        yield from zip(idx, render(scene, geom, seeds=[seed + i for i in idx],
-                                   time_ns=[t0_ns + i * 100_000_000 for i in idx]), strict=True)
 
 
 #: Share of the output file system's free space one ``simulate`` run may fill.

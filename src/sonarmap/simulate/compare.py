@@ -18,7 +18,7 @@ from numpy.typing import NDArray
 from sonarmap.errors import InputError
 from sonarmap.geometry import SonarGeometry
 from sonarmap.ping import Ping
-from sonarmap.simulate.render import SimulationConfig, simulate_ping, simulate_pings
+from sonarmap.simulate.render import SimulationConfig, iter_simulated_pings, simulate_ping
 from sonarmap.simulate.scene import Scene, empty_scene, scene_from_name
 
 __all__ = [
@@ -240,17 +240,11 @@ def _row_window(geom: SonarGeometry, min_range_m: float | None, max_range_m: flo
 def _simulated_rows(scene: Scene, geom: SonarGeometry, config: SimulationConfig, bases: tuple[int, ...], n: int,
                     lo: int, hi: int) -> list[NDArray[np.float64]]:
     """Per base, rows ``lo:hi`` of ``n`` simulated pings of ``scene`` (seeds ``base + i``), stacked
-    (:func:`simulate_pings`, :data:`_SEEDS_PER_RENDER` seeds at a time: the scene's echo rendered
-    once per batch, at most that many whole pings held)."""
+    (:func:`iter_simulated_pings`: the scene's echo rendered once per batch of seeds)."""
     seeds = [base + i for base in bases for i in range(n)]
     rows = [np.asarray(sim.ping.image, dtype=np.float64)[lo:hi]
-            for k in range(0, len(seeds), _SEEDS_PER_RENDER)
-            for sim in simulate_pings(scene, geom, config=config, seeds=seeds[k:k + _SEEDS_PER_RENDER])]
+            for sim in iter_simulated_pings(scene, geom, config=config, seeds=seeds)]
     return [np.stack(rows[k * n:(k + 1) * n]) for k in range(len(bases))]
-
-
-#: Seeds :func:`_simulated_rows` renders per :func:`simulate_pings` call.
-_SEEDS_PER_RENDER = 16
 
 
 def compare_recording(

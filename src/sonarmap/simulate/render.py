@@ -41,7 +41,7 @@ import functools
 import json
 import math
 import os
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import Any, Literal, NamedTuple
 
@@ -61,6 +61,7 @@ __all__ = [
     "SimulationFiles",
     "simulate_ping",
     "simulate_pings",
+    "iter_simulated_pings",
     "transmission_loss_db",
     "channel_gain",
     "expected_background_level",
@@ -1772,6 +1773,43 @@ def simulate_pings(
     """
     _validate(scene, geometry, config)
     config = config.resolved(geometry)
+    seeds, times = _seeds_and_times(seeds, time_ns)
+    if not seeds:
+        return []
+    smp = _samples(scene, geometry, config)
+    # truth: every sample in its nearest bin (no pulse, no beam pattern)
+    e_struct, e_clutter = _accumulate(smp, geometry)
+    echo = _mean_echo(smp, geometry, config)
+    surfaces: dict[Any, Any] = {}
+    return [_rendered_ping(scene, geometry, config, seed, (smp, e_struct, e_clutter, echo, surfaces), t,
+                           recording_meta) for seed, t in zip(seeds, times, strict=True)]
+
+
+#: Seeds :func:`iter_simulated_pings` renders per expected echo by default (at most this many
+#: whole pings held at a time).
+SEEDS_PER_RENDER = 16
+
+
+def iter_simulated_pings(
+    scene: Scene, geometry: SonarGeometry, *, config: SimulationConfig = SimulationConfig(),
+    seeds: Iterable[int | np.random.Generator], time_ns: int | Iterable[int] = 0, recording_meta: bool = False,
+    batch: int = SEEDS_PER_RENDER,
+) -> Iterator[SimResult]:
+    """:func:`simulate_pings` of ``seeds`` in batches of ``batch``, yielded one ping at a time: the
+    same pings, the scene's echo rendered once per batch, at most ``batch`` whole pings held (a
+    long run of seeds does not fill the memory).  The arguments are checked on the call."""
+    _validate(scene, geometry, config)
+    seeds, times = _seeds_and_times(seeds, time_ns)
+    if isinstance(batch, bool) or not isinstance(batch, int | np.integer) or batch < 1:
+        raise InputError(f"batch: expected an integer >= 1, got {batch!r}")
+    return (res for k in range(0, len(seeds), batch)
+            for res in simulate_pings(scene, geometry, config=config, seeds=seeds[k:k + batch],
+                                      time_ns=times[k:k + batch], recording_meta=recording_meta))
+
+
+def _seeds_and_times(seeds: Any, time_ns: Any) -> tuple[list[Any], list[int]]:
+    """``seeds`` as a list (each an int or a numpy Generator) and a time stamp per seed (``time_ns``:
+    one for all or one per seed); an :class:`InputError` naming the argument otherwise."""
     if isinstance(seeds, int | np.integer | np.random.Generator) or not isinstance(seeds, Iterable):
         raise InputError(f"seeds: expected an iterable of ints or numpy Generators, got {type(seeds).__name__}")
     if not isinstance(time_ns, int | np.integer | Iterable):
@@ -1780,18 +1818,10 @@ def simulate_pings(
     for seed in seeds:
         if isinstance(seed, bool) or not isinstance(seed, int | np.integer | np.random.Generator):
             raise InputError(f"seed: expected an int or numpy Generator, got {type(seed).__name__}")
-    times = [time_ns] * len(seeds) if isinstance(time_ns, int | np.integer) else list(time_ns)
+    times = [int(time_ns)] * len(seeds) if isinstance(time_ns, int | np.integer) else [int(t) for t in time_ns]
     if len(times) != len(seeds):
         raise InputError(f"time_ns: {len(times)} time stamps for {len(seeds)} seeds")
-    if not seeds:
-        return []
-    smp = _samples(scene, geometry, config)
-    # truth: every sample in its nearest bin (no pulse, no beam pattern)
-    e_struct, e_clutter = _accumulate(smp, geometry)
-    echo = _mean_echo(smp, geometry, config)
-    surfaces: dict[Any, Any] = {}
-    return [_rendered_ping(scene, geometry, config, seed, (smp, e_struct, e_clutter, echo, surfaces), int(t),
-                           recording_meta) for seed, t in zip(seeds, times, strict=True)]
+    return seeds, times
 
 
 def _rendered_ping(scene: Scene, geometry: SonarGeometry, config: SimulationConfig, seed: int | np.random.Generator,
