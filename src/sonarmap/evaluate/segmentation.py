@@ -889,15 +889,10 @@ def _bounds(scene: str, sim_configs: Sequence[Any], seeds: Sequence[int], geomet
 UNCLIPPED_FULL_SCALE_DB = 300.0
 
 
-def _unclipped(scene: str, geometry: Any, sim_config: Any, seed: int) -> Any:
-    """The ping of ``scene`` rendered with full scale at :data:`UNCLIPPED_FULL_SCALE_DB` - the same
-    echoes, none clipped (``clean`` in intensities ``10^((300 - full_scale_db) / 10)`` times
-    smaller than the recorded ping's)."""
-    return _unclipped_seeds(scene, geometry, sim_config, (seed,))[0]
-
-
 def _unclipped_seeds(scene: str, geometry: Any, sim_config: Any, seeds: Sequence[int]) -> list[Any]:
-    """:func:`_unclipped` of each seed (the scene's echo rendered once)."""
+    """Each seed's ping of ``scene`` rendered with full scale at :data:`UNCLIPPED_FULL_SCALE_DB` - the
+    same echoes, none clipped (``clean`` in intensities ``10^((300 - full_scale_db) / 10)`` times
+    smaller than the recorded ping's); the scene's echo rendered once."""
     high = dataclasses.replace(sim_config, full_scale_db=UNCLIPPED_FULL_SCALE_DB)
     return [sim for sim, _ in _simulate_seeds(scene, geometry, high, seeds, -3.0, True)]
 
