@@ -182,22 +182,29 @@ def _crossing_var(csum, sm, lo, hi, x):  # pragma: no cover - numba
 @njit(cache=True, nogil=True)
 def _score_shift(img, j0, line, slope, T, k0, a, lo, hi, front, top, floor, max_shift, n_score,
                  max_rows):  # pragma: no cover - numba
-    """``(c, fisher)``: Fisher scoring of the template position ``c`` at beam ``a`` of the run
-    (each beam ``b`` of ``lo .. hi - 1`` sees the template at ``c + slope[a] (b - a)``), for
+    """``(c, fisher, spread)``: Fisher scoring of the template position ``c`` at beam ``a`` of the
+    run (each beam ``b`` of ``lo .. hi - 1`` sees the template at ``c + slope[a] (b - a)``), for
     exponential (single-look) intensities of mean ``max(T, floor)``, from ``line[a]``, within
-    ``max_shift`` of it; the Fisher information at the result (0: none)."""
+    ``max_shift`` of it; at the result, the Fisher information ``J`` (0: none) and the sum over
+    the beams of the square of each beam's score ``K``.  ``K / J^2`` is the sandwich (robust)
+    variance of ``c``: it equals ``1 / J`` for single-look speckle, ``1 / (L J)`` for intensities
+    averaged over ``L`` looks, and grows where the template explains the samples poorly; a beam's
+    samples along range share their score (they may share speckle through the pulse)."""
     n = img.shape[0]
     K = T.size
     c = line[a]
     fisher = 0.0
+    spread = 0.0
     for _ in range(n_score + 1):
         g = 0.0
         fisher = 0.0
+        spread = 0.0
         for b in range(lo, hi):
             r0 = max(int(np.floor(line[b] - front)), 0)
             r1 = min(int(np.ceil(line[b] + top)), n - 1)
             stride = max(1, (r1 - r0 + 1) // max_rows)
             off = c + slope[a] * (b - a)
+            gb = 0.0
             for r in range(r0, r1 + 1, stride):
                 u = r - off - k0
                 i0 = int(np.floor(u))
@@ -206,15 +213,18 @@ def _score_shift(img, j0, line, slope, T, k0, a, lo, hi, front, top, floor, max_
                 tp = T[i0 + 1] - T[i0]
                 mu = max(T[i0] + (u - i0) * tp, floor)
                 v = img[r, j0 + b]
-                g += tp * (v - mu) / (mu * mu)
+                gi = tp * (v - mu) / (mu * mu)
+                g += gi
+                gb += gi
                 fisher += tp * tp / (mu * mu)
+            spread += gb * gb
         if not fisher > 0:
-            return c, 0.0
+            return c, 0.0, 0.0
         step = min(max(-g / fisher, -2.0), 2.0)
         if abs(step) < 0.01:
             break
         c = min(max(c + step, line[a] - max_shift), line[a] + max_shift)
-    return c, fisher
+    return c, fisher, spread
 
 
 @njit(cache=True, nogil=True)
@@ -254,12 +264,12 @@ def _run_edges(img, edge, stop, skip, j0, j1, half_template, half_window, front,
             floor = max(1e-6, 0.01 * sm[p])
             wlo = max(0, a - half_window)
             whi = min(nb, a + half_window + 1)
-            c, fisher = _score_shift(img, j0, line, slope, T, k0, a, wlo, whi, front, (p + k0) + peak_rows,
-                                     floor, max_shift, n_score, max_rows)
+            c, fisher, spread = _score_shift(img, j0, line, slope, T, k0, a, wlo, whi, front,
+                                             (p + k0) + peak_rows, floor, max_shift, n_score, max_rows)
             if not fisher > 0:
                 continue
             new[j0 + a] = c + t0
-            var[j0 + a, 0] = 1.0 / fisher
+            var[j0 + a, 0] = spread / (fisher * fisher) if spread > 0 else 1.0 / fisher
             var[j0 + a, 1] = _crossing_var(csum, sm, lo, hi, t0 - k0)
         for a in range(nb):
             cur[a] = new[j0 + a]
@@ -311,9 +321,10 @@ def template_edges(img, edge, stop, run, skip, half_template, half_window, front
                    max_shift, n_score, fraction, peak_rows, max_rows, n_iter, min_contrast,
                    anchor, shared):  # pragma: no cover - numba
     """Per beam the leading edge re-measured against its surface's echo template, and the
-    variances (bins^2; NaN where the beam keeps its edge) of the template's position (inverse
-    Fisher information) and of its crossing (the template beams' spread; with ``anchor > 0`` plus
-    the anchor's, :func:`_anchor_run`): see :func:`sonarmap.ranges.template.template_edges`.  ``edge`` and ``stop`` (fractional bins;
+    variances (bins^2; NaN where the beam keeps its edge) of the template's position (the
+    sandwich variance of :func:`_score_shift`) and of its crossing (the template beams' spread;
+    with ``anchor > 0`` plus the anchor's, :func:`_anchor_run`): see
+    :func:`sonarmap.ranges.template.template_edges`.  ``edge`` and ``stop`` (fractional bins;
     one past the echo's last structure bin) per beam, ``run`` the surface runs (-1: none),
     ``skip`` the beams that keep their edge."""
     m = edge.size

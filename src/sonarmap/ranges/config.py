@@ -231,8 +231,9 @@ class RangeConfig(ConfigSection):
         the oblique beams).
     sigma_template_scale : float
         Sigma of a template-measured edge: the standard error of the template's position
-        (inverse square root of its Fisher information), of its crossing and of the anchor's
-        median, in quadrature, times this factor (``docs/ranges.md``, "Template edges").
+        (its sandwich variance: the scatter of the beams' scores over the squared Fisher
+        information), of its crossing and of the anchor's median, in quadrature, times this
+        factor (``docs/ranges.md``, "Template edges").
         The anchor's median is taken over pooled edges whose windows (``2 edge_pool_beams + 1``
         beams) overlap: ``c`` of them count as ``c / (2 edge_pool_beams + 1)`` independent ones.
         Fitted on the simulator (seeds 0-8, every preset): the factor that puts every preset's

@@ -14,7 +14,10 @@ each beam of a long tracked surface it
    the course's local slope) to the position that best explains their samples - the maximum
    likelihood of single-look (exponential) intensities whose mean is the template, by Fisher
    scoring - on the rows from ``front_bins`` in front of the course to just past the template's
-   peak.
+   peak.  The position's variance is the sandwich estimate (the scatter of the beams' scores over
+   the squared Fisher information), which holds whatever the intensities' distribution: an echo
+   averaged over ``L`` looks (the ARIS and Oculus-like presets render 6 and 10) is placed about
+   ``L`` times more precisely than the single-look likelihood says.
 
 The template's own half-peak crossing is noisy (even aligned on the true surface, an 11-beam
 template's crossing lies within a bin of it on about 60 % of the simulated DIDSON hull's beams),
