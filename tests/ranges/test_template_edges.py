@@ -16,15 +16,21 @@ def _geom(n_bins: int = 300, n_beams: int = 96) -> SonarGeometry:
     return SonarGeometry(range_m=2.0 + 0.02 * np.arange(n_bins), azimuth_rad=np.linspace(-0.4, 0.4, n_beams))
 
 
-def _speckled(seed: int, truth: np.ndarray, n_bins: int = 300, rise: float = 8.0, depth: float = 20.0,
-              floor: float = 0.02) -> tuple[np.ndarray, np.ndarray]:
-    """Single-look (exponential) speckle on an echo rising linearly over ``rise`` bins with its
-    half-peak crossing at ``truth`` (per beam), flat for ``depth`` bins; and its support."""
-    rng = np.random.default_rng(seed)
+def _echo_mean(truth: np.ndarray, n_bins: int = 300, rise: float = 8.0, depth: float = 20.0,
+               floor: float = 0.02) -> tuple[np.ndarray, np.ndarray]:
+    """The mean image of an echo rising linearly over ``rise`` bins with its half-peak crossing at
+    ``truth`` (per beam), flat for ``depth`` bins, over a ``floor``; and its support."""
     r = np.arange(n_bins, dtype=float)[:, None]
     x = r - (truth[None, :] - 0.5 * rise)
     env = np.clip(x / rise, 0.0, 1.0) * (x < rise + depth)
-    return (env + floor) * rng.exponential(1.0, (n_bins, truth.size)), env > 0.25
+    return env + floor, env > 0.25
+
+
+def _speckled(seed: int, truth: np.ndarray, n_bins: int = 300, rise: float = 8.0, depth: float = 20.0,
+              floor: float = 0.02) -> tuple[np.ndarray, np.ndarray]:
+    """Single-look (exponential) speckle on :func:`_echo_mean`'s echo; and its support."""
+    mean, support = _echo_mean(truth, n_bins, rise, depth, floor)
+    return mean * np.random.default_rng(seed).exponential(1.0, mean.shape), support
 
 
 def _edges(img: np.ndarray, mask: np.ndarray, g: SonarGeometry, **kw: object) -> tuple[np.ndarray, np.ndarray, object]:
@@ -381,7 +387,7 @@ def test_the_position_variance_follows_the_speckles_looks():
     g = _geom()
     truth = 100.0 + 0.5 * np.arange(g.n_beams)
     single, mask = _speckled(7, truth)
-    env = single / np.random.default_rng(7).exponential(1.0, single.shape)  # the mean image
+    env, _ = _echo_mean(truth)
     looks = 16
     multi = env * np.random.default_rng(8).gamma(looks, 1.0 / looks, env.shape)
     pos_var = []
