@@ -33,6 +33,16 @@ def _speckled(seed: int, truth: np.ndarray, n_bins: int = 300, rise: float = 8.0
     return mean * np.random.default_rng(seed).exponential(1.0, mean.shape), support
 
 
+def _sloped_surface(seed: int) -> tuple[SonarGeometry, np.ndarray, object, np.ndarray]:
+    """A surface sloped half a bin per beam over 96 beams in single-look speckle: the geometry,
+    the image, its echoes and each beam's first echo (-1 none)."""
+    g = _geom()
+    img, mask = _speckled(seed, 100.0 + 0.5 * np.arange(g.n_beams))
+    e = find_echoes(mask, img, g)
+    first, count = e.per_beam()
+    return g, img, e, np.where(count > 0, first, -1)
+
+
 def _edges(img: np.ndarray, mask: np.ndarray, g: SonarGeometry, **kw: object) -> tuple[np.ndarray, np.ndarray, object]:
     """Per beam the pooled edge and the template edge (NaN: no return), and the template's echoes."""
     e = find_echoes(mask, img, g)
@@ -92,12 +102,7 @@ def test_short_surfaces_and_skipped_echoes_keep_their_edges():
     img, mask = _speckled(1, truth)
     pooled, tmpl, _ = _edges(img, mask, g)  # 20 beams: shorter than min_beams=30
     assert np.array_equal(pooled, tmpl, equal_nan=True)
-    g = _geom()
-    truth = 100.0 + 0.5 * np.arange(g.n_beams)
-    img, mask = _speckled(1, truth)
-    e = find_echoes(mask, img, g)
-    first, count = e.per_beam()
-    first = np.where(count > 0, first, -1)
+    g, img, e, first = _sloped_surface(1)
     skip = np.ones(e.size, dtype=bool)
     assert np.array_equal(template_edges(e, first, img, g, skip=skip).edge_bin, e.edge_bin)
     assert np.array_equal(template_edges(e, first, img, g, min_beams=200).edge_bin, e.edge_bin)
@@ -402,3 +407,39 @@ def test_the_position_variance_follows_the_speckles_looks():
         assert np.isfinite(var[:, 0]).sum() > 60
         pos_var.append(np.nanmedian(var[:, 0]))
     assert 4.0 < pos_var[0] / pos_var[1] < 40.0, pos_var  # measured 7.8 (the single-look Fisher: 0.70)
+
+
+def test_the_smoothing_trust_is_what_the_incoming_edges_sigmas_allow():
+    """``Echoes.smooth_trust``: 1 for the returns the template does not measure and without an
+    anchor; >= 1 everywhere; larger where the incoming edges' own sigmas say more than the anchor
+    offsets' scatter (here: the same echoes given sigmas of 8 bins); edges and sigmas unchanged."""
+    g, img, e, first = _sloped_surface(7)
+    own = template_edges(e, first, img, g, anchor_beams=0)
+    assert own.smooth_trust is not None and np.all(own.smooth_trust == 1.0)
+    got = template_edges(e, first, img, g, anchor_beams=10)
+    moved = got.edge_bin != e.edge_bin
+    assert moved.sum() > 60 and np.all(got.smooth_trust >= 1.0) and np.all(got.smooth_trust[~moved] == 1.0)
+    wide = template_edges(e.replaced(sigma_m=np.full(e.size, 8 * 0.02)), first, img, g, anchor_beams=10)
+    assert np.array_equal(wide.edge_bin, got.edge_bin) and np.array_equal(wide.sigma_m[moved], got.sigma_m[moved])
+    # measured: medians 1.00 (the echoes' own sigmas) and 1.67 (8 bins)
+    assert np.median(got.smooth_trust[moved]) < 1.1 and np.median(wide.smooth_trust[moved]) > 1.4
+
+
+def test_the_anchor_trust_brings_the_flat_didson_hulls_late_run_back():
+    """``edge_template_anchor_trust``: on the simulated flat DIDSON hull (seed 0, its floor noise),
+    beams 74-79, whose single-look edges drag their pooled windows 3-6 bins late, come 3.1-4.1
+    bins late by default and 1.6-2.6 with the option (the smoothing leans on the neighbours)."""
+    from sonarmap import preset
+    from sonarmap.evaluate.segmentation import _simulate, preset_sim_configs
+    from sonarmap.pipeline import process_ping
+
+    g = preset("didson-hf")
+    sim = _simulate("hull", g, preset_sim_configs(g)[0], 0, -3.0, True)[0]
+    bins = np.arange(g.n_bins, dtype=float)
+    truth = np.interp(sim.surface_range_m, g.range_m, bins)
+    late = {}
+    for on in (False, True):
+        r = process_ping(sim.ping, PipelineConfig().replace(edge_template_anchor_trust=on)).ranges
+        late[on] = (np.interp(r.range_m, g.range_m, bins) - truth)[74:80]
+    assert np.all(late[False] > 3.0) and np.all(late[True] < 2.8), late
+    assert np.mean(late[True]) < np.mean(late[False]) - 1.0

@@ -239,6 +239,14 @@ class RangeConfig(ConfigSection):
         Fitted on the simulator (seeds 0-8, every preset): the factor that puts every preset's
         share of returns within +-sigma inside 0.68 +- 0.05 over the nine seeds (seeds 9-11 held
         out; ``docs/ranges.md``, "Uncertainty").
+    edge_template_anchor_trust : bool
+        Whether the smoothing along the surface (``edge_smooth_beams``) weighs a template edge as
+        if its anchor were as uncertain as the pooled edges it reads (their own sigmas, where that
+        is more than the scatter of the offsets says: ``Echoes.smooth_trust``); the sigma it
+        reports is unchanged.  Where a run of pooled edges is late together (single-look edges far
+        behind a slowly rising echo drag their windows), the anchor's scatter is small but the
+        pooled sigmas are large, and the smoothing then leans on the neighbours.  Default False
+        (docs/ranges.md, "Template edges trusted as their anchor").
     sigma_template_smooth_scale : float
         How much less the smoothing along the surface (``edge_smooth_beams``) trusts a
         template-measured edge than its sigma says: inside the smoothing such an edge weighs, and
@@ -310,6 +318,7 @@ class RangeConfig(ConfigSection):
     edge_template_min_beams: int = 30
     edge_template_anchor_beams: int = 10
     sigma_template_scale: float = 0.8
+    edge_template_anchor_trust: bool = False
     sigma_template_smooth_scale: float = 1.0
     edge_smooth_beams: int = 16
     edge_smooth_min_beams: int = 7
@@ -337,7 +346,7 @@ class RangeConfig(ConfigSection):
         check_choice(self, "tracker", ("surface", "rules"), w)
         check_choice(self, "edge_scan", ("forward", "back"), w)
         check_choice(self, "edge_image", ("undeconvolved", "classified"), w)
-        check_booleans(self, ("edge_crosstalk",), w)
+        check_booleans(self, ("edge_crosstalk", "edge_template_anchor_trust"), w)
         check_choice(self, "edge_pool_scan", ("forward", "back"), w)
         check_choice(self, "range_mode", ("first", "strongest"), w)
         for key, positive in (("log_dynamic_range_db", True), ("pulse_length_m", False)):

@@ -87,6 +87,13 @@ class Echoes:
     clip_fitted : ndarray of bool, optional
         Whether the echo's leading edge is that of a Gaussian fitted to its clipped peak
         (:func:`pooled_edges` with ``clip``); None: none is.
+    smooth_trust : ndarray of float64, optional
+        Per echo, how many times larger than its sigma the smoothing along the surface may take
+        it (>= 1; ``RangeConfig.edge_template_anchor_trust``): set by
+        :func:`sonarmap.ranges.template.template_edges` to the sigma the edge would have if its
+        anchor were as uncertain as the incoming edges it reads (the median of their squared
+        ``sigma_m`` over the anchor's beams, counted like the offsets) where that is larger, over
+        its sigma (1 where not measured); None: not set.
     """
 
     beam: NDArray[np.int64]
@@ -106,6 +113,7 @@ class Echoes:
     clip_row: NDArray[np.int64] | None = None
     beamwidth_beams: NDArray[np.float64] | None = None
     clip_fitted: NDArray[np.bool_] | None = None
+    smooth_trust: NDArray[np.float64] | None = None
 
     @classmethod
     def _of(cls, **fields: object) -> Echoes:
@@ -144,7 +152,8 @@ class Echoes:
 
 
 #: The optional fields of :class:`Echoes`, unset.
-_NO_OPTIONAL = {"clipped": None, "clip_row": None, "beamwidth_beams": None, "clip_fitted": None}
+_NO_OPTIONAL = {"clipped": None, "clip_row": None, "beamwidth_beams": None, "clip_fitted": None,
+                "smooth_trust": None}
 
 
 def smooth_along_range(image: ArrayLike, pulse_bins: int) -> NDArray[np.float64]:

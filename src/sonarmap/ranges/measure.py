@@ -374,6 +374,8 @@ def _refined_returns(echoes: Any, tracks: Any, meas: Any, image: NDArray[np.floa
         if config.sigma_template_smooth_scale != 1.0 and echoes is not before:
             moved = (echoes.edge_bin != before.edge_bin) | (echoes.sigma_m != before.sigma_m)
             trust = np.where(moved, config.sigma_template_smooth_scale, 1.0)
+        if config.edge_template_anchor_trust and echoes.smooth_trust is not None:
+            trust = echoes.smooth_trust if trust is None else trust * echoes.smooth_trust
     if config.edge_smooth_beams > 0 and config.range_mode == "first" and echoes.size:
         echoes = smooth_surface_edges(echoes, sel, geom,
                                       half_beams=window_in_beamwidths(config.edge_smooth_beams, echoes.beamwidth_beams),

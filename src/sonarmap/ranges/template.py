@@ -111,7 +111,7 @@ def template_edges(
     Returns
     -------
     Echoes
-        ``echoes`` with the measured returns' ``edge_bin``, ``edge_range_m``, ``sigma_m`` replaced.
+        ``echoes``, the measured returns' ``edge_bin``, ``edge_range_m``, ``sigma_m`` replaced; ``smooth_trust`` set.
     """
     sel = np.ascontiguousarray(np.asarray(first, dtype=np.int64))
     _check_template_options(sel, echoes, (half_template, half_window, n_iter, front_bins, min_beams, max_bins,
@@ -139,13 +139,13 @@ def _moved_by_template(echoes: Echoes, sel: NDArray[np.int64], img: NDArray[np.f
     if echoes.size == 0:
         return echoes  # (without echoes no beam is in a run)
     touch_bins, pulse_bins, sigma_scale = scalars
-    n_moved, eb, er, sg = _template_kernels.template_moved_edges(
+    n_moved, eb, er, sg, trust = _template_kernels.template_moved_edges(
         sel, echoes.edge_bin, echoes.start_bin, echoes.stop_bin, float(touch_bins), img, skip_beam, *options,
         echoes.edge_range_m, echoes.sigma_m, np.ascontiguousarray(geometry.range_m, dtype=np.float64),
         *_edge_spreads(geometry, pulse_bins), float(sigma_scale))
     if not n_moved:
         return echoes
-    return echoes.replaced(edge_bin=eb, edge_range_m=er, sigma_m=sg)
+    return echoes.replaced(edge_bin=eb, edge_range_m=er, sigma_m=sg, smooth_trust=trust)
 
 
 def _skipped_beams(sel: NDArray[np.int64], skip: ArrayLike | None) -> NDArray[np.bool_]:
