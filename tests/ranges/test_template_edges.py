@@ -414,12 +414,14 @@ def test_the_smoothing_trust_is_what_the_incoming_edges_sigmas_allow():
     anchor; >= 1 everywhere; larger where the incoming edges' own sigmas say more than the anchor
     offsets' scatter (here: the same echoes given sigmas of 8 bins); edges and sigmas unchanged."""
     g, img, e, first = _sloped_surface(7)
-    own = template_edges(e, first, img, g, anchor_beams=0)
+    assert template_edges(e, first, img, g, anchor_beams=10).smooth_trust is None  # (not asked for)
+    own = template_edges(e, first, img, g, anchor_beams=0, anchor_trust=True)
     assert own.smooth_trust is not None and np.all(own.smooth_trust == 1.0)
-    got = template_edges(e, first, img, g, anchor_beams=10)
+    got = template_edges(e, first, img, g, anchor_beams=10, anchor_trust=True)
     moved = got.edge_bin != e.edge_bin
     assert moved.sum() > 60 and np.all(got.smooth_trust >= 1.0) and np.all(got.smooth_trust[~moved] == 1.0)
-    wide = template_edges(e.replaced(sigma_m=np.full(e.size, 8 * 0.02)), first, img, g, anchor_beams=10)
+    wide = template_edges(e.replaced(sigma_m=np.full(e.size, 8 * 0.02)), first, img, g, anchor_beams=10,
+                          anchor_trust=True)
     assert np.array_equal(wide.edge_bin, got.edge_bin) and np.array_equal(wide.sigma_m[moved], got.sigma_m[moved])
     # measured: medians 1.00 (the echoes' own sigmas) and 1.67 (8 bins)
     assert np.median(got.smooth_trust[moved]) < 1.1 and np.median(wide.smooth_trust[moved]) > 1.4

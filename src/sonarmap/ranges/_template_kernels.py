@@ -346,15 +346,16 @@ def template_edges(img, edge, stop, run, skip, half_template, half_window, front
 def template_moved_edges(sel, edge_bin, start_bin, stop_bin, touch, img, skip, half_template, half_window, front,
                          min_beams, max_bins, max_shift, n_score, fraction, peak_rows, max_rows, n_iter, min_contrast,
                          anchor, shared, edge_range, sigma_m, range_m, bin_m, bin_var, pulse_var,
-                         scale):  # pragma: no cover - numba
+                         scale, want_trust):  # pragma: no cover - numba
     """:func:`template_edges` of the returns ``sel`` on their runs (:func:`runs_of_returns` with
     ``touch``) applied to the echoes: ``(n_moved, edge_bin, edge_range, sigma_m, trust)``, copies
     of the echoes' fields with each measured return (finite position variance) moved to its new
     edge, its range ``np.interp`` on ``range_m`` and its sigma :func:`_edge_sigma` of ``sqrt`` of
     the two variances' sum at slope 1 (``bin_var``, ``pulse_var``: ``bin_m^2 / 12``, ``pulse^2 /
     12``) - the numpy formulation's arithmetic; nothing moved when no return is in a run.
-    ``trust`` (per echo, 1 where not moved): the sigma with the anchor's variance raised to
-    :func:`_anchor_floor` (the incoming edges' own sigmas) where that is larger, over the sigma."""
+    ``trust`` (per echo, 1 where not moved; with ``want_trust`` only, else empty): the sigma with
+    the anchor's variance raised to :func:`_anchor_floor` (the incoming edges' own sigmas) where
+    that is larger, over the sigma."""
     edge, stop, run, any_run = runs_of_returns(sel, edge_bin, start_bin, stop_bin, touch)
     if not any_run:
         z = np.zeros(0)
@@ -365,7 +366,8 @@ def template_moved_edges(sel, edge_bin, start_bin, stop_bin, touch, img, skip, h
     eb = edge_bin.copy()
     er = edge_range.copy()
     sg = sigma_m.copy()
-    trust = np.ones(sigma_m.size)
+    trust = np.ones(sigma_m.size if want_trust else 0)
+    buf = np.empty(2 * max(anchor, 0) + 1)
     n_moved = 0
     for j in range(new.size):
         if np.isfinite(var[j, 0]):
@@ -374,7 +376,10 @@ def template_moved_edges(sel, edge_bin, start_bin, stop_bin, touch, img, skip, h
             er[k] = _interp_index(range_m, new[j])
             v = var[j, 0] + var[j, 1]
             sg[k] = _edge_sigma(np.sqrt(v), 1.0, bin_m, bin_var, pulse_var, scale)
-            floor = _anchor_floor(sel, run, var, sigma_m, j, anchor, shared, bin_m)
+            if not want_trust:
+                n_moved += 1
+                continue
+            floor = _anchor_floor(sel, run, var, sigma_m, j, anchor, shared, bin_m, buf)
             if floor > var[j, 1]:
                 wide = _edge_sigma(np.sqrt(var[j, 0] + floor), 1.0, bin_m, bin_var, pulse_var, scale)
                 if wide > sg[k] > 0:
@@ -384,15 +389,14 @@ def template_moved_edges(sel, edge_bin, start_bin, stop_bin, touch, img, skip, h
 
 
 @njit(cache=True, nogil=True)
-def _anchor_floor(sel, run, var, sigma_m, j, anchor, shared, bin_m):  # pragma: no cover - numba
+def _anchor_floor(sel, run, var, sigma_m, j, anchor, shared, bin_m, buf):  # pragma: no cover - numba
     """The variance (bins^2) the anchor of beam ``j`` would have if its median took the
     incoming edges' own sigmas (``sigma_m`` of the returns ``sel``, metres) instead of the offsets'
     scatter: ``pi / 2`` times the median of their squares, over the measured beams of ``j``'s run
     within ``anchor`` beams, counted as ``max(c / shared, 1)`` independent ones (0 without an
-    anchor or a finite sigma)."""
+    anchor or a finite sigma; ``buf``: scratch of ``2 anchor + 1`` values)."""
     if anchor <= 0:
         return 0.0
-    buf = np.empty(2 * anchor + 1)
     c = 0
     for q in range(max(0, j - anchor), min(sel.size, j + anchor + 1)):
         if run[q] == run[j] and np.isfinite(var[q, 0]) and sel[q] >= 0 and np.isfinite(sigma_m[sel[q]]):

@@ -93,7 +93,7 @@ class Echoes:
         :func:`sonarmap.ranges.template.template_edges` to the sigma the edge would have if its
         anchor were as uncertain as the incoming edges it reads (the median of their squared
         ``sigma_m`` over the anchor's beams, counted like the offsets) where that is larger, over
-        its sigma (1 where not measured); None: not set.
+        its sigma (1 where not measured), when asked to (``anchor_trust``); None: not set.
     """
 
     beam: NDArray[np.int64]

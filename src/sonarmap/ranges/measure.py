@@ -415,7 +415,8 @@ def _template_pass(echoes: Any, sel: NDArray[np.int64], meas: Any, geom: Any, co
                           touch_bins=config.track.touch_bins, pulse_bins=pb,
                           sigma_scale=config.sigma_template_scale,
                           anchor_beams=config.edge_template_anchor_beams, skip=echoes.clip_fitted,
-                          shared_beams=2 * config.edge_pool_beams + 1)
+                          shared_beams=2 * config.edge_pool_beams + 1,
+                          anchor_trust=config.edge_template_anchor_trust)
 
 
 def _pooled_returns(echoes: Any, sel: NDArray[np.int64], meas: NDArray[Any], ping: Ping, config: RangeConfig,

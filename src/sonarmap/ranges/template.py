@@ -67,13 +67,13 @@ def template_edges(
     anchor_beams: int = 10,
     skip: ArrayLike | None = None,
     shared_beams: int = 1,
+    anchor_trust: bool = False,
 ) -> Echoes:
     """Leading edges of the returns on long surfaces measured against the surface's echo template.
 
-    See the module notes.  Only surfaces (:func:`sonarmap.ranges.echoes.surface_runs`) of at
-    least ``min_beams`` beams are measured (the echo must keep its shape over the template's
-    beams; propeller blades and fish do not).  A beam keeps its edge where the template has no
-    crossing, its samples say nothing of the position, or ``skip`` says so.
+    See the module notes.  Only surfaces (:func:`sonarmap.ranges.echoes.surface_runs`) of at least ``min_beams`` beams
+    are measured (the echo must keep its shape over the template's beams; propeller blades and fish do not).  A beam
+    keeps its edge where the template has no crossing, its samples say nothing of the position, or ``skip`` says so.
 
     Parameters
     ----------
@@ -100,18 +100,18 @@ def template_edges(
         ``sigma^2 = bin^2 / 12 + (scale bin se)^2 + pulse^2 / 12``, ``se^2`` the variances of
         position, crossing and anchor (bins^2); the anchor's half-width (0: the template's own
         crossing is the edge).  ``PipelineConfig.ranges.sigma_template_scale`` and ``.edge_template_anchor_beams``.
-    skip : array_like of bool, shape (n_echoes,), optional
-        Echoes whose edge is kept (e.g. the fitted clipped echoes of ``pooled_edges``).
+    skip, anchor_trust : array_like of bool, shape (n_echoes,), optional; bool
+        Echoes whose edge is kept (e.g. the fitted clipped echoes of ``pooled_edges``); whether to
+        set ``Echoes.smooth_trust`` too (``RangeConfig.edge_template_anchor_trust``).
     shared_beams : int
-        How many neighbouring beams' data each incoming edge was measured on (1: its own beam;
-        a pooled edge: its window, ``2 edge_pool_beams + 1``).  Neighbouring anchor offsets then
-        share their errors, and the anchor median's variance counts ``c`` offsets as
-        ``max(c / shared_beams, 1)`` independent ones.
+        How many neighbouring beams' data each incoming edge was measured on (1: its own beam; a
+        pooled edge: its window, ``2 edge_pool_beams + 1``): neighbouring anchor offsets share their
+        errors, and the anchor median's variance counts ``c`` of them as ``max(c / shared_beams, 1)``.
 
     Returns
     -------
     Echoes
-        ``echoes``, the measured returns' ``edge_bin``, ``edge_range_m``, ``sigma_m`` replaced; ``smooth_trust`` set.
+        ``echoes``, the measured returns' ``edge_bin``, ``edge_range_m``, ``sigma_m`` replaced.
     """
     sel = np.ascontiguousarray(np.asarray(first, dtype=np.int64))
     _check_template_options(sel, echoes, (half_template, half_window, n_iter, front_bins, min_beams, max_bins,
@@ -124,28 +124,30 @@ def template_edges(
     options = (int(half_template), int(half_window), int(front_bins), int(min_beams), int(max_bins),
                float(max_shift_bins), 6, float(fraction), 3, 24, int(n_iter), float(min_contrast), int(anchor_beams),
                float(shared_beams))
-    return _moved_by_template(echoes, sel, img, geometry, (touch_bins, pulse_bins, sigma_scale),
+    return _moved_by_template(echoes, sel, img, geometry, (touch_bins, pulse_bins, sigma_scale, bool(anchor_trust)),
                               _skipped_beams(sel, skip), options)
 
 
 def _moved_by_template(echoes: Echoes, sel: NDArray[np.int64], img: NDArray[np.float64], geometry: SonarGeometry,
-                       scalars: tuple[float, int, float], skip_beam: NDArray[np.bool_],
+                       scalars: tuple[float, int, float, bool], skip_beam: NDArray[np.bool_],
                        options: tuple) -> Echoes:  # type: ignore[type-arg]
     """:func:`template_edges` of checked arguments (``scalars``: touch_bins, pulse_bins,
-    sigma_scale; ``options``: the template kernel's, from half_template on): the runs, the
+    sigma_scale, anchor_trust; ``options``: the template kernel's, from half_template on): the runs, the
     template's measurement and the measured returns' fields in one kernel call."""
     import sonarmap.ranges._template_kernels as _template_kernels
 
     if echoes.size == 0:
         return echoes  # (without echoes no beam is in a run)
-    touch_bins, pulse_bins, sigma_scale = scalars
+    touch_bins, pulse_bins, sigma_scale, anchor_trust = scalars
     n_moved, eb, er, sg, trust = _template_kernels.template_moved_edges(
         sel, echoes.edge_bin, echoes.start_bin, echoes.stop_bin, float(touch_bins), img, skip_beam, *options,
         echoes.edge_range_m, echoes.sigma_m, np.ascontiguousarray(geometry.range_m, dtype=np.float64),
-        *_edge_spreads(geometry, pulse_bins), float(sigma_scale))
+        *_edge_spreads(geometry, pulse_bins), float(sigma_scale), anchor_trust)
     if not n_moved:
         return echoes
-    return echoes.replaced(edge_bin=eb, edge_range_m=er, sigma_m=sg, smooth_trust=trust)
+    if anchor_trust:
+        return echoes.replaced(edge_bin=eb, edge_range_m=er, sigma_m=sg, smooth_trust=trust)
+    return echoes.replaced(edge_bin=eb, edge_range_m=er, sigma_m=sg)
 
 
 def _skipped_beams(sel: NDArray[np.int64], skip: ArrayLike | None) -> NDArray[np.bool_]:
