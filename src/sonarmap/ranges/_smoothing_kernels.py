@@ -11,18 +11,18 @@ from sonarmap.ranges._kernels import _interp_index, first_interval_runs
 
 
 @njit(cache=True, nogil=True)
-def _solve3(a, b):  # pragma: no cover - numba
-    """``a x = b`` for a symmetric 3 x 3 ``a`` by Cramer's rule (``x`` NaN when singular); also
-    returns ``a``'s inverse's first row (the prediction weights' coefficients)."""
+def _solve3(a, b, x, row, inv):  # pragma: no cover - numba
+    """``a x = b`` for a symmetric 3 x 3 ``a`` by Cramer's rule into ``x`` (NaN when singular); also
+    ``a``'s inverse's first row (the prediction weights' coefficients) into ``row``; ``inv``: 3 x 3
+    scratch.  Returns ``(x, row)``."""
     c00 = a[1, 1] * a[2, 2] - a[1, 2] * a[2, 1]
     c01 = a[1, 2] * a[2, 0] - a[1, 0] * a[2, 2]
     c02 = a[1, 0] * a[2, 1] - a[1, 1] * a[2, 0]
     det = a[0, 0] * c00 + a[0, 1] * c01 + a[0, 2] * c02
-    x = np.full(3, np.nan)
-    row = np.full(3, np.nan)
+    x[:] = np.nan
+    row[:] = np.nan
     if not abs(det) > 1e-300:
         return x, row
-    inv = np.empty((3, 3))
     inv[0, 0] = c00 / det
     inv[0, 1] = (a[0, 2] * a[2, 1] - a[0, 1] * a[2, 2]) / det
     inv[0, 2] = (a[0, 1] * a[1, 2] - a[0, 2] * a[1, 1]) / det
@@ -38,14 +38,16 @@ def _solve3(a, b):  # pragma: no cover - numba
     return x, row
 
 
-@njit(cache=True, nogil=True, inline="always")
-def _tricube(i, a, h):  # pragma: no cover - numba
-    """``(u, w)``: the offset ``i - a`` in beams and its tricube weight over a window of
-    ``h`` beams either side."""
-    u = float(i - a)
-    v = abs(u) / (h + 1)
-    t = 1.0 - v * v * v
-    return u, t * t * t
+@njit(cache=True, nogil=True)
+def _tricube_table(h):  # pragma: no cover - numba
+    """The tricube weight of each offset ``0 .. h`` beams over a window of ``h`` beams either
+    side (symmetric: an offset's weight is its absolute value's)."""
+    tw = np.empty(h + 1)
+    for d in range(h + 1):
+        v = float(d) / (h + 1)
+        t = 1.0 - v * v * v
+        tw[d] = t * t * t
+    return tw
 
 
 @njit(cache=True, nogil=True)
@@ -63,6 +65,17 @@ def smooth_edges(edge, sigma, run, half_beams, min_beams, sigma_min, wsig):  # p
     h = half_beams
     a3 = np.empty((3, 3))
     b3 = np.empty(3)
+    x3 = np.empty(3)
+    r3 = np.empty(3)
+    inv3 = np.empty((3, 3))
+    # per beam, whether it has an edge and the square of the sigma it weighs with; per offset,
+    # the tricube weight (each computed once, not once per window it falls in)
+    ok = np.empty(m, np.bool_)
+    s2w = np.empty(m)
+    for j in range(m):
+        ok[j] = np.isfinite(edge[j]) and np.isfinite(sigma[j])
+        s2w[j] = max(wsig[j], sigma_min) ** 2
+    tw = _tricube_table(h)
     j0 = 0
     while j0 < m:
         j1 = j0 + 1
@@ -70,32 +83,33 @@ def smooth_edges(edge, sigma, run, half_beams, min_beams, sigma_min, wsig):  # p
             j1 += 1
         n_ok = 0
         for j in range(j0, j1):
-            if np.isfinite(edge[j]) and np.isfinite(sigma[j]):
+            if ok[j]:
                 n_ok += 1
         if run[j0] >= 0 and n_ok >= min_beams:
             for a in range(j0, j1):
-                if not (np.isfinite(edge[a]) and np.isfinite(sigma[a])):
+                if not ok[a]:
                     continue
-                _smooth_beam(edge, sigma, a, max(j0, a - h), min(j1, a + h + 1), h, sigma_min, a3, b3,
-                             new, out_sigma, wsig)
+                _smooth_beam(edge, sigma, a, max(j0, a - h), min(j1, a + h + 1), sigma_min, a3, b3, x3, r3,
+                             inv3, new, out_sigma, wsig, ok, s2w, tw)
         j0 = j1
     return new, out_sigma
 
 
 @njit(cache=True, nogil=True)
-def _smooth_beam(edge, sigma, a, lo, hi, h, sigma_min, a3, b3, new, out_sigma, wsig):  # pragma: no cover - numba
+def _smooth_beam(edge, sigma, a, lo, hi, sigma_min, a3, b3, x3, r3, inv3, new, out_sigma, wsig, ok, s2w, tw):  # pragma: no cover - numba
     """Beam ``a``'s edge and sigma combined with the leave-one-out weighted local quadratic of the
     beams ``lo .. hi - 1`` (see :func:`smooth_edges`), written to ``new`` / ``out_sigma``: the
-    weights, the prediction's variance and the gain from ``wsig``, the reported sigma shrunk from
-    ``sigma``."""
+    weights, the prediction's variance and the gain from the weighing sigmas ``wsig`` (their
+    squares, at least ``sigma_min``'s, in ``s2w``; ``ok``: the beams with an edge; ``tw``: the
+    tricube weight per offset), the reported sigma shrunk from ``sigma``."""
     a3[:, :] = 0.0
     b3[:] = 0.0
     n = 0
     for i in range(lo, hi):
-        if i == a or not (np.isfinite(edge[i]) and np.isfinite(sigma[i])):
+        if i == a or not ok[i]:
             continue
-        u, tw = _tricube(i, a, h)
-        w = tw / max(wsig[i], sigma_min) ** 2
+        u = float(i - a)
+        w = tw[abs(i - a)] / s2w[i]
         p = 1.0
         for r in range(3):
             q = p * p  # u^(r + c), from c = r
@@ -110,7 +124,7 @@ def _smooth_beam(edge, sigma, a, lo, hi, h, sigma_min, a3, b3, new, out_sigma, w
     for r in range(3):
         for c in range(r):
             a3[r, c] = a3[c, r]
-    coef, row = _solve3(a3, b3)
+    coef, row = _solve3(a3, b3, x3, r3, inv3)
     if not np.isfinite(coef[0]):
         return
     # the neighbours' scatter about the quadratic (tricube weights), their sigmas, and the
@@ -119,23 +133,24 @@ def _smooth_beam(edge, sigma, a, lo, hi, h, sigma_min, a3, b3, new, out_sigma, w
     sr = 0.0
     ss = 0.0
     for i in range(lo, hi):
-        if i == a or not (np.isfinite(edge[i]) and np.isfinite(sigma[i])):
+        if i == a or not ok[i]:
             continue
-        u, tw = _tricube(i, a, h)
+        u = float(i - a)
+        t = tw[abs(i - a)]
         r = edge[i] - (coef[0] + coef[1] * u + coef[2] * u * u)
-        sw += tw
-        sr += tw * r * r
-        ss += tw * max(wsig[i], sigma_min) ** 2
+        sw += t
+        sr += t * r * r
+        ss += t * s2w[i]
     dof = max(1.0 - 3.0 / n, 0.2)
     v_res = sr / sw / dof
     rough = max(v_res - ss / sw, 0.0)
     vp = rough
     for i in range(lo, hi):
-        if i == a or not (np.isfinite(edge[i]) and np.isfinite(sigma[i])):
+        if i == a or not ok[i]:
             continue
-        u, tw = _tricube(i, a, h)
-        s2 = max(wsig[i], sigma_min) ** 2
-        li = (row[0] + row[1] * u + row[2] * u * u) * tw / s2
+        u = float(i - a)
+        s2 = s2w[i]
+        li = (row[0] + row[1] * u + row[2] * u * u) * tw[abs(i - a)] / s2
         vp += li * li * (s2 + rough)
     w_a = max(wsig[a], sigma_min)
     k = w_a * w_a / (w_a * w_a + vp)
