@@ -14,7 +14,8 @@ from sonarmap.ranges.smoothing import SIGMA_MIN_BINS
 def _reference(y: np.ndarray, s: np.ndarray, h: int, trust: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """The combination written with numpy for one run: leave-one-out weighted quadratic, its
     variance with the roughness term, inverse-variance combination, sigma update (``trust``: the
-    factor on each sigma in the weights, the variance and the gain, not in the sigma update)."""
+    factor on each sigma in the weights, the prediction's variance and the gain, not in the sigma
+    update: that takes the gain the edge's own sigma has against the same prediction)."""
     n = y.size
     x = np.arange(n, dtype=float)
     s_own = np.maximum(s, SIGMA_MIN_BINS)
@@ -38,7 +39,8 @@ def _reference(y: np.ndarray, s: np.ndarray, h: int, trust: np.ndarray | None = 
         vp = np.sum(weights**2 * (s[use] ** 2 + rough)) + rough
         k = s[a] ** 2 / (s[a] ** 2 + vp)
         new[a] = y[a] + k * (coef[0] - y[a])
-        sig[a] = np.sqrt(max(s_own[a] ** 2 - k * min(v_res, s_own[a] ** 2), 0.25 * s_own[a] ** 2))
+        k_own = s_own[a] ** 2 / (s_own[a] ** 2 + vp)
+        sig[a] = np.sqrt(max(s_own[a] ** 2 - k_own * min(v_res, s_own[a] ** 2), 0.25 * s_own[a] ** 2))
     return new, sig
 
 
@@ -68,6 +70,26 @@ def test_kernel_is_the_numpy_formula_with_a_trust_factor():
         e, sig = smooth_edges(y, s, np.zeros(n, np.int64), 8, 7, SIGMA_MIN_BINS, s * trust)
         np.testing.assert_allclose(e, ref_e, rtol=0, atol=1e-9)
         np.testing.assert_allclose(sig, np.minimum(s, ref_s), rtol=0, atol=1e-9)
+
+
+def test_an_edge_trusted_less_reports_the_sigma_its_own_weight_would_give():
+    """Trusting one edge less moves it further towards what its neighbours predict, but the
+    sigma it reports is the one its own sigma gives against that prediction: with the
+    neighbours' weights unchanged (they are trusted as before) the prediction's variance is the
+    same, so the edge's reported sigma is the same as without the factor - the factor says how
+    far to lean on the neighbours, not that the edge became more precise."""
+    rng = np.random.default_rng(5)
+    n = 40
+    y = 50.0 + 0.05 * np.arange(n) + rng.normal(0.0, 0.6, n)
+    s = rng.uniform(0.4, 1.2, n)
+    y[17] += 2.5
+    run = np.zeros(n, np.int64)
+    e1, s1 = smooth_edges(y, s, run, 8, 7, SIGMA_MIN_BINS, s)
+    w = s.copy()
+    w[17] *= 3.0
+    e2, s2 = smooth_edges(y, s, run, 8, 7, SIGMA_MIN_BINS, w)
+    assert abs(e2[17] - e1[17]) > 0.1 and abs(e2[17] - (50.0 + 0.05 * 17)) < abs(e1[17] - (50.0 + 0.05 * 17))
+    assert s2[17] == s1[17], (s1[17], s2[17])
 
 
 def test_an_edge_trusted_less_moves_further_towards_its_neighbours_and_keeps_its_sigma_scale():

@@ -95,9 +95,11 @@ def smooth_surface_edges(echoes: Echoes, first: ArrayLike, geometry: SonarGeomet
     trust : array_like of float, shape (n_echoes,), optional
         Per echo, a factor (>= 1) on its sigma inside the combination only: the echo weighs in
         its neighbours' predictions, and is pulled towards its own, as if its sigma were that
-        many times larger; its reported sigma is shrunk from its own value
-        (``RangeConfig.sigma_template_smooth_scale`` on the template-measured edges).  Default:
-        1 for every echo.
+        many times larger; its reported sigma is shrunk from its own value, by the gain its own
+        sigma would have against the same prediction (the factor says how far to lean on the
+        neighbours, not that the edge became more precise; ``RangeConfig.sigma_template_smooth_scale``
+        on the template-measured edges, ``edge_template_anchor_trust``).  Default: 1 for every
+        echo.
 
     Returns
     -------
