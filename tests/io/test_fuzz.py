@@ -128,7 +128,9 @@ def test_fuzz_reader(reader: str, worker: Worker, data_dir: Path, tmp_path_facto
     n_cases = int(request.config.getoption("--fuzz-cases"))
     root = tmp_path_factory.mktemp(f"fuzz_{reader}")
     seed = _seed(reader, data_dir, root / "seed")
-    base = worker.run(seed.main)
+    # (the seed is no case: its read warms the worker - imports, the reader's kernels compiled into
+    # the cache when they are not yet - so it gets the start-up's time, not a case's 10 s)
+    base = worker.run(seed.main, time_limit_s=120.0)
     assert base["outcome"] == "ok", f"seed does not read cleanly: {base}"
     res = fuzz(seed, root / "cases", n_cases, worker)
     _RESULTS.append(res)

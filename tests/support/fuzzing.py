@@ -61,15 +61,17 @@ class Worker:
         line = self.proc.stdout.readline()
         return line or None
 
-    def run(self, path: Path) -> dict[str, str]:
-        """Read ``path`` in the worker; ``{"outcome", "detail"}``."""
+    def run(self, path: Path, time_limit_s: float | None = None) -> dict[str, str]:
+        """Read ``path`` in the worker; ``{"outcome", "detail"}``.  ``time_limit_s`` replaces the
+        per-case limit for this read (the seed's first read in a fresh worker may compile the
+        reader's kernels, which takes longer than any case should on a loaded machine)."""
         if self.proc is None or self.proc.poll() is not None:
             self._start()
         assert self.proc is not None and self.proc.stdin is not None
         self.proc.stdin.write(json.dumps({"path": str(path)}) + "\n")
         self.proc.stdin.flush()
         t0 = time.monotonic()
-        line = self._readline(self.time_limit_s)
+        line = self._readline(self.time_limit_s if time_limit_s is None else time_limit_s)
         if line is None:
             crashed = self.proc.poll() is not None
             self.close()
