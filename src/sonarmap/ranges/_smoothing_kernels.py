@@ -96,7 +96,8 @@ def smooth_edges(edge, sigma, run, half_beams, min_beams, sigma_min, wsig):  # p
 
 
 @njit(cache=True, nogil=True)
-def _smooth_beam(edge, sigma, a, lo, hi, sigma_min, a3, b3, x3, r3, inv3, new, out_sigma, wsig, ok, s2w, tw):  # pragma: no cover - numba
+def _smooth_beam(edge, sigma, a, lo, hi, sigma_min, a3, b3, x3, r3, inv3, new, out_sigma, wsig, ok, s2w,
+                 tw):  # pragma: no cover - numba
     """Beam ``a``'s edge and sigma combined with the leave-one-out weighted local quadratic of the
     beams ``lo .. hi - 1`` (see :func:`smooth_edges`), written to ``new`` / ``out_sigma``: the
     weights, the prediction's variance and the gain from the weighing sigmas ``wsig`` (their

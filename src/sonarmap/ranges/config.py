@@ -243,21 +243,23 @@ class RangeConfig(ConfigSection):
         Whether the smoothing along the surface (``edge_smooth_beams``) weighs a template edge as
         if its anchor were as uncertain as the pooled edges it reads (their own sigmas, where that
         is more than the scatter of the offsets says: ``Echoes.smooth_trust``); the sigma it
-        reports is shrunk as its own sigma would be against the same prediction.  Where a run of pooled edges is late together (single-look edges far
-        behind a slowly rising echo drag their windows), the anchor's scatter is small but the
-        pooled sigmas are large, and the smoothing then leans on the neighbours.  Default False
-        (docs/ranges.md, "Template edges trusted as their anchor").
+        reports is shrunk as its own sigma would be against the same prediction.  Where a run of
+        pooled edges is late together (single-look edges far behind a slowly rising echo drag their
+        windows), the anchor's scatter is small but the pooled sigmas are large, and the smoothing
+        then leans on the neighbours.  Default False (docs/ranges.md, "Template edges trusted as
+        their anchor").
     sigma_template_smooth_scale : float
         How much less the smoothing along the surface (``edge_smooth_beams``) trusts a
         template-measured edge than its sigma says: inside the smoothing such an edge weighs, and
         is pulled towards its neighbours' prediction, as if its sigma were this many times larger;
-        the sigma it reports is shrunk as its own sigma would be against the same prediction.  Default 1.0 (the template sigma as is).  A template
-        edge's errors are heavier-tailed than its sigma where single-look speckle fades the front
-        of the echo on a few neighbouring beams (the template's 3-beam fit follows the fade:
-        simulated DIDSON flat hull, 3-4 bins late on 6 beams with sigmas of 0.5 bin); 2.0 pulls
-        such edges back on smooth surfaces (hulls) but flattens relief at the window's scale (the
-        simulated rippled seafloor survey registers at 0.55 instead of 0.47 bins RMS) -
-        ``docs/ranges.md``, "Smoothing along the surface".  At least 1.
+        the sigma it reports is shrunk as its own sigma would be against the same prediction.
+        Default 1.0 (the template sigma as is).  A template edge's errors are heavier-tailed than
+        its sigma where single-look speckle fades the front of the echo on a few neighbouring
+        beams (the template's 3-beam fit follows the fade: simulated DIDSON flat hull, 3-4 bins
+        late on 6 beams with sigmas of 0.5 bin); 2.0 pulls such edges back on smooth surfaces
+        (hulls) but flattens relief at the window's scale (the simulated rippled seafloor survey
+        registers at 0.56 instead of 0.47 bins RMS) - ``docs/ranges.md``, "Smoothing along the
+        surface".  At least 1.
     edge_smooth_beams : int
         Each first return's leading edge is combined with the prediction of the edges within this
         many beams on either side on its surface (a leave-one-out local quadratic across beams),
