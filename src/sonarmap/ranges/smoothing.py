@@ -19,7 +19,9 @@ speckled, slowly rising echo), the edges of the beams around it predict where it
 The sigma shrinks by the beam-to-beam scatter the combination removes,
 ``sigma_j^2 - k min(s^2, sigma_j^2)`` with ``s^2`` the neighbours' residual variance (never below
 half of sigma): an error the neighbours share - a bias of the whole surface - is not averaged
-away, and stays in the sigma.
+away, and stays in the sigma.  An echo given a ``trust`` factor ``t_j > 1`` weighs, enters
+``v`` and is combined with ``t_j sigma_j``; its sigma update keeps the gain of ``sigma_j`` itself
+against the same ``v_j``.
 
 Only first returns of runs of at least ``min_beams`` beams are combined (the pipeline's
 ``RangeConfig.edge_smooth_beams`` / ``edge_smooth_min_beams``).  Measured on the simulator
