@@ -159,8 +159,8 @@ def _smooth_beam(edge, sigma, a, lo, hi, sigma_min, a3, b3, x3, r3, inv3, new, o
     s_a = max(sigma[a], sigma_min)
     # the beam-to-beam scatter the combination removes (never below half the sigma), with the
     # gain the beam's own sigma gives (a beam weighed as less trusted moves further, but its
-    # reported sigma does not shrink for that)
-    k_own = k if wsig[a] == sigma[a] else s_a * s_a / (s_a * s_a + vp)
+    # reported sigma does not shrink for that; k itself where it is weighed by its own sigma)
+    k_own = s_a * s_a / (s_a * s_a + vp)
     v_new = max(s_a * s_a - k_own * min(v_res, s_a * s_a), 0.25 * s_a * s_a)
     out_sigma[a] = min(sigma[a], math.sqrt(v_new))
 

@@ -376,15 +376,13 @@ def template_moved_edges(sel, edge_bin, start_bin, stop_bin, touch, img, skip, h
             er[k] = _interp_index(range_m, new[j])
             v = var[j, 0] + var[j, 1]
             sg[k] = _edge_sigma(np.sqrt(v), 1.0, bin_m, bin_var, pulse_var, scale)
-            if not want_trust:
-                n_moved += 1
-                continue
-            floor = _anchor_floor(sel, run, var, sigma_m, j, anchor, shared, bin_m, buf)
-            if floor > var[j, 1]:
-                wide = _edge_sigma(np.sqrt(var[j, 0] + floor), 1.0, bin_m, bin_var, pulse_var, scale)
-                if wide > sg[k] > 0:
-                    trust[k] = wide / sg[k]
             n_moved += 1
+            if want_trust:
+                floor = _anchor_floor(sel, run, var, sigma_m, j, anchor, shared, bin_m, buf)
+                if floor > var[j, 1]:
+                    wide = _edge_sigma(np.sqrt(var[j, 0] + floor), 1.0, bin_m, bin_var, pulse_var, scale)
+                    if wide > sg[k] > 0:
+                        trust[k] = wide / sg[k]
     return n_moved, eb, er, sg, trust
 
 
