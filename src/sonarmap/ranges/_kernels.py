@@ -1862,8 +1862,47 @@ def _flank_line(sm, i, lv, lo, p, w):  # pragma: no cover - numba
 
 
 @njit(cache=True, nogil=True)
+def _peak_level(sm, p, lo, hi, w, A, T):  # pragma: no cover - numba
+    """The height of the first peak ``p`` of profile ``sm``: the maximum over the window of the
+    least-squares parabola through ``sm[p - w .. p + w]`` (within ``lo .. hi - 1``; its value at
+    ``p`` where it has no maximum), at most ``sm[p]``; ``sm[p]`` itself with ``w = 0``, fewer
+    than 3 samples or a height that is not positive.  The largest of noisy samples lies above the
+    echo's own peak (it is the sample the noise raised most), and with it the level ``fraction``
+    x peak and the crossing lie above and behind the echo's; a parabola through the samples
+    around it averages that noise while following a peaked echo's curvature.  ``A`` (3, 3) and
+    ``T`` (3,): scratch."""
+    if w <= 0:
+        return sm[p]
+    a = max(lo, p - w)
+    b = min(hi - 1, p + w)
+    if b - a < 2:
+        return sm[p]
+    for r in range(3):
+        T[r] = 0.0
+        for q in range(3):
+            A[r, q] = 0.0
+    for k in range(a, b + 1):
+        u = float(k - p)
+        y = sm[k]
+        up = 1.0
+        for e in range(5):
+            if e < 3:
+                T[e] += up * y
+            for r in range(max(0, e - 2), min(e, 2) + 1):
+                A[r, e - r] += up
+            up *= u
+    _solve_small(A, T, 3)  # T = (c0, c1, c2) of c0 + c1 u + c2 u^2
+    c0, c1, c2 = T[0], T[1], T[2]
+    u0 = 0.0  # a parabola without a maximum: its value at p
+    if c2 < 0.0:
+        u0 = min(max(-c1 / (2.0 * c2), float(a - p)), float(b - p))
+    v = c0 + c1 * u0 + c2 * u0 * u0
+    return min(v, sm[p]) if v > 0.0 else sm[p]
+
+
+@njit(cache=True, nogil=True)
 def pooled_edges(img, edge, stop, run, half_beams, front_bins, max_bins, smooth_bins, fraction, n_iter,
-                 clip, clip_level, fit_front_bins, forward, flank_bins):  # pragma: no cover - numba
+                 clip, clip_level, fit_front_bins, forward, flank_bins, peak_bins):  # pragma: no cover - numba
     """Leading edges measured on the surface-aligned mean profile of neighbouring beams
     (see :func:`sonarmap.ranges.echoes.pooled_edges`).
 
@@ -1887,7 +1926,8 @@ def pooled_edges(img, edge, stop, run, half_beams, front_bins, max_bins, smooth_
     (which stops at a dip inside a deep echo, behind its front).  With ``flank_bins`` > 0 an
     unclipped crossing is that of the line through the profile's rising flank around it
     (:func:`_flank_line`, at most ``flank_bins`` samples either side) rather than of the two
-    samples around it, where that line rises and crosses within that window.
+    samples around it, where that line rises and crosses within that window.  The level is
+    ``fraction`` x the peak's height of :func:`_peak_level` with ``peak_bins``.
     """
     m = edge.size
     cur = edge.copy()
@@ -1906,6 +1946,8 @@ def pooled_edges(img, edge, stop, run, half_beams, front_bins, max_bins, smooth_
     depth = np.zeros(m, np.int64)
     count = np.zeros(m, np.int64)
     crow0, crows = _clipped_rows(clip, clip_level)
+    pA = np.empty((3, 3))
+    pT = np.empty(3)
     for _ in range(n_iter):
         # the alignment: running median of the current edges within each run
         for j in range(m):
@@ -2004,7 +2046,10 @@ def pooled_edges(img, edge, stop, run, half_beams, front_bins, max_bins, smooth_
                     p = k
             if not sm[p] > 0:
                 continue
-            lv = fraction * sm[p]
+            # (the parabola only where the echo is deep enough, >= 6 of its half-widths, to be
+            # parabolic over it, as the box above: a shallow echo peaks like the pulse, which a
+            # 5-bin parabola reads low - the simulated surveys' hull and seafloor, under 12 bins)
+            lv = fraction * _peak_level(sm, p, lim, nk, peak_bins if depth[j] >= 6 * peak_bins else 0, pA, pT)
             if forward:  # the first crossing from the front (i <= p: sm[p] reaches the level)
                 i = lim
                 while i < p and sm[i] < lv:
@@ -2831,8 +2876,8 @@ def kept_edges(sel, new, used, start_bin, stop, back, edge_bin, edge_range, slop
 
 @njit(cache=True, nogil=True)
 def pooled_kept_edges(sel, edge_bin, start_bin, stop_bin, touch, image, pulse_bins, half_beams, front_bins, max_bins,
-                      smooth_bins, fraction, n_iter, clip, clip_level, fit_front_bins, forward, flank_bins, back,
-                      edge_range, slope, sigma, range_m, bin_m, bin_var, pulse_var, scale, fit_scale):  # pragma: no cover - numba
+                      smooth_bins, fraction, n_iter, clip, clip_level, fit_front_bins, forward, flank_bins, peak_bins,
+                      back, edge_range, slope, sigma, range_m, bin_m, bin_var, pulse_var, scale, fit_scale):  # pragma: no cover - numba
     """The pooled leading edges of the returns ``sel`` in one call: their runs
     (:func:`first_interval_runs` with ``touch``), :func:`pooled_edges` of them on ``image`` (float64,
     smoothed along range over ``pulse_bins`` by :func:`smooth_rows` when >= 2) and
@@ -2845,7 +2890,7 @@ def pooled_kept_edges(sel, edge_bin, start_bin, stop_bin, touch, image, pulse_bi
     img = smooth_rows(image, pulse_bins) if pulse_bins >= 2 and image.shape[0] >= 2 else image
     new, _, rise, used, noise, fitted = pooled_edges(img, edge, stop, run, half_beams, front_bins, max_bins,
                                                      smooth_bins, fraction, n_iter, clip, clip_level, fit_front_bins,
-                                                     forward, flank_bins)
+                                                     forward, flank_bins, peak_bins)
     return kept_edges(sel, new, used, start_bin, stop, back, edge_bin, edge_range, slope, sigma, rise, noise, range_m,
                       bin_m, bin_var, pulse_var, scale, fitted, fit_scale)
 

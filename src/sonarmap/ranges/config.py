@@ -16,7 +16,7 @@ from sonarmap._config import (
     is_finite_number,
 )
 # the pooling's defaults, one source for the function (pooled_edges) and the pipeline's section
-from sonarmap.ranges.echoes import POOL_FLANK_BINS, POOL_LEAD_BINS
+from sonarmap.ranges.echoes import POOL_FLANK_BINS, POOL_LEAD_BINS, POOL_PEAK_BINS
 
 __all__ = ["CandidateConfig", "RangeConfig"]
 
@@ -164,6 +164,13 @@ class RangeConfig(ConfigSection):
         speckled rise (the Oculus hulls' echoes rise over 35-100 bins) is measured with all its
         samples, and its sigma with the echo's rise rather than a speckle step's.  Default 6;
         0 = the two samples (``docs/ranges.md``, "Pooled edges").
+    edge_pool_peak_bins : int
+        > 0: the height of the pooled profile's first peak, which sets the level
+        ``edge_fraction`` x peak, is the maximum of the least-squares parabola through the
+        profile's samples up to this many bins either side of its largest one (on echoes at least
+        6 times this many bins deep), not that largest sample - the sample the speckle raised
+        most, which lies above the echo's peak and puts the crossing late on the rise.  Default
+        0 = the largest sample (``docs/ranges.md``, "Options": what 2 changes).
     edge_pool_lead_bins : int
         A pooled edge is kept when it lies at most the pulse length plus this many bins in front
         of the beam's first structure bin (and not behind its echo's end); else the beam keeps its
@@ -309,6 +316,7 @@ class RangeConfig(ConfigSection):
     edge_pool_beams: int = 3
     edge_pool_scan: str = "forward"
     edge_pool_flank_bins: int = POOL_FLANK_BINS
+    edge_pool_peak_bins: int = POOL_PEAK_BINS
     edge_pool_lead_bins: int = POOL_LEAD_BINS
     edge_pool_align_beams: int = 0
     pulse_length_m: float | None = None
@@ -368,7 +376,8 @@ class RangeConfig(ConfigSection):
             raise config_error(w, "edge_fraction", "must lie in [0, 1)", self.edge_fraction)
         check_integers(self, (("min_run", 1), ("neighbour_beams", 1), ("max_jump_bins", 0),
                               ("min_segment_beams", 1), ("refine_bins", 0), ("edge_pool_beams", 0),
-                              ("edge_pool_flank_bins", 0), ("edge_pool_lead_bins", 0), ("edge_pool_align_beams", 0),
+                              ("edge_pool_flank_bins", 0), ("edge_pool_peak_bins", 0), ("edge_pool_lead_bins", 0),
+                              ("edge_pool_align_beams", 0),
                               ("edge_template_beams", 0), ("edge_template_min_beams", 3),
                               ("edge_template_anchor_beams", 0), ("edge_smooth_beams", 0),
                               ("edge_smooth_min_beams", 5)), w)

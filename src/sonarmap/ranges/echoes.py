@@ -533,6 +533,8 @@ def _mask_as_samples(clip: ArrayLike) -> NDArray[np.float32]:
 POOL_FRONT_BINS, POOL_MAX_BINS, POOL_N_ITER, POOL_FIT_FRONT_BINS = 6, 200, 2, 16
 #: Default ``flank_bins`` of :func:`pooled_edges` (and of ``PipelineConfig.ranges.edge_pool_flank_bins``).
 POOL_FLANK_BINS = 6
+#: Default ``peak_bins`` of :func:`pooled_edges` (and of ``PipelineConfig.ranges.edge_pool_peak_bins``).
+POOL_PEAK_BINS = 0
 #: Default ``lead_bins`` of :func:`pooled_edges` (and of ``PipelineConfig.ranges.edge_pool_lead_bins``):
 #: ``POOL_N_ITER`` alignment rounds of ``POOL_FRONT_BINS`` each, the furthest the pooling moves an edge.
 POOL_LEAD_BINS = POOL_N_ITER * POOL_FRONT_BINS
@@ -555,6 +557,7 @@ def pooled_edges(
     fit_front_bins: int = POOL_FIT_FRONT_BINS, fit_sigma_scale: float | None = None,
     scan: str = "forward",
     flank_bins: int = POOL_FLANK_BINS, lead_bins: int = POOL_LEAD_BINS, align_beams: int = 0,
+    peak_bins: int = POOL_PEAK_BINS,
 ) -> Echoes:
     """Leading edges of a tracked surface measured on a multi-look along the surface.
 
@@ -576,10 +579,8 @@ def pooled_edges(
         The ping's echoes (:func:`find_echoes`).
     first : array_like of int, shape (n_beams,)
         Per beam the echo index of its return (-1 none): ``Tracks.first``.
-    image, geometry : ndarray (n_bins, n_beams), SonarGeometry
-        The image the echoes were measured on, and its geometry.
-    pulse_bins, fraction : int, float
-        As in :func:`find_echoes`.
+    image, geometry, pulse_bins, fraction : ndarray (n_bins, n_beams), SonarGeometry, int, float
+        The image the echoes were measured on, its geometry; the others as in :func:`find_echoes`.
     sigma_scale : float
         Calibration of :func:`edge_sigma_m`'s jitter term (``PipelineConfig.ranges.sigma_pool_scale``).
     clip : ndarray of bool, shape (n_bins, n_beams), optional
@@ -588,10 +589,8 @@ def pooled_edges(
         of both flanks, the rising one down to 5 % of the clipped maximum and at most
         ``fit_front_bins`` in front of the alignment; its sigma is the fit's standard error times
         ``fit_sigma_scale`` (default ``sigma_scale``; ``PipelineConfig.ranges.sigma_fit_scale``).
-    half_beams, front_bins, max_bins, smooth_bins, n_iter, touch_bins
-        The pooling window (see above).
-    scan : str
-        ``"forward"`` or ``"back"`` (see above).
+    half_beams, front_bins, max_bins, smooth_bins, n_iter, touch_bins, scan
+        The pooling window; ``scan``: ``"forward"`` or ``"back"`` (see above).
     flank_bins : int
         The crossing of an unclipped profile is that of the least-squares line through its rising
         flank - the samples between 20 % and 80 % of the peak, at most ``flank_bins`` either side
@@ -603,6 +602,9 @@ def pooled_edges(
     align_beams : int
         > 0: the pooling starts from each return's edge on its surface's Theil-Sen line over this
         many beams either side (:func:`_line_aligned`); 0 (default): from its own edge.
+    peak_bins : int
+        > 0: the peak's height is the parabola's through the samples up to ``peak_bins`` either side
+        of the largest, on echoes >= ``6 peak_bins`` deep (``_kernels._peak_level``); 0: the largest.
 
     Returns
     -------
@@ -613,24 +615,24 @@ def pooled_edges(
     sel = np.asarray(first, dtype=np.int64)
     fit_scale = float(sigma_scale if fit_sigma_scale is None else fit_sigma_scale)
     window = (half_beams, front_bins, max_bins, smooth_bins, n_iter, fit_front_bins)
-    _check_pooling(echoes, sel, window, fraction, clip, np.shape(image), fit_scale, (flank_bins, lead_bins, align_beams),
-                   scan)
+    _check_pooling(echoes, sel, window, fraction, clip, np.shape(image), fit_scale,
+                   (flank_bins, lead_bins, align_beams, peak_bins), scan)
     return _pooled(echoes, sel, image, geometry, pulse_bins, window, (fraction, touch_bins),
                    (sigma_scale, fit_scale), clip, forward=scan == "forward", flank_bins=int(flank_bins),
-                   lead_bins=int(lead_bins), align_beams=int(align_beams))
+                   lead_bins=int(lead_bins), align_beams=int(align_beams), peak_bins=int(peak_bins))
 
 
 def _pooled(echoes: Echoes, sel: NDArray[np.int64], image: ArrayLike, geometry: SonarGeometry, pulse_bins: int,
             window: tuple[int, int, int, int, int, int], fraction_touch: tuple[float, float],
             scales: tuple[float, float], clip: NDArray[Any] | None, *, forward: bool = True,
             clip_level: float | None = None, flank_bins: int = POOL_FLANK_BINS,
-            lead_bins: int = POOL_LEAD_BINS, align_beams: int = 0) -> Echoes:
+            lead_bins: int = POOL_LEAD_BINS, align_beams: int = 0, peak_bins: int = POOL_PEAK_BINS) -> Echoes:
     """:func:`pooled_edges` of checked options (:func:`_check_pooling`: ``window`` = ``(half_beams,
     front_bins, max_bins, smooth_bins, n_iter, fit_front_bins)``, ``scales`` = ``(sigma_scale,
     fit_sigma_scale)``; the pipeline's range stage calls it with its validated configuration).
     With ``clip_level``, ``clip`` is the raw image (C-contiguous, the image's shape), clipped at
     and above that level (:func:`sonarmap.ranges.measure.full_scale_mask`'s samples), else the
-    mask of the clipped samples; ``align_beams``: as :func:`pooled_edges`' (checked)."""
+    mask of the clipped samples; ``align_beams``, ``peak_bins``: as :func:`pooled_edges`' (checked)."""
     import sonarmap.ranges._kernels as _kernels
 
     half_beams, front_bins, max_bins, smooth_bins, n_iter, fit_front_bins = window
@@ -652,7 +654,7 @@ def _pooled(echoes: Echoes, sel: NDArray[np.int64], image: ArrayLike, geometry: 
         int(smooth_bins) | 1, float(fraction), int(n_iter), _NO_CLIP if clip is None else
         clip if clip_level is not None else _mask_as_samples(clip),
         1.0 if clip_level is None else float(clip_level), int(fit_front_bins), bool(forward), int(flank_bins),
-        int(pulse_bins) + int(lead_bins),
+        int(peak_bins), int(pulse_bins) + int(lead_bins),
         echoes.edge_range_m, echoes.slope, echoes.sigma_m, np.ascontiguousarray(geometry.range_m, dtype=np.float64),
         *_edge_spreads(geometry, pulse_bins), float(scales[0]), float(scales[1]))
     if start is not echoes.edge_bin and n_kept:
@@ -679,16 +681,16 @@ def _line_aligned(echoes: Echoes, sel: NDArray[np.int64], touch_bins: float, hal
 
 def _check_pooling(echoes: Echoes, sel: np.ndarray, window: tuple[int, int, int, int, int, int], fraction: float,
                    clip: NDArray[np.bool_] | None, shape: tuple[int, ...], fit_scale: float,
-                   flank_lead_align: tuple[int, int, int], scan: str) -> None:
+                   flank_lead_align: tuple[int, int, int, int], scan: str) -> None:
     """The options of :func:`pooled_edges` (``window``: half_beams, front_bins, max_bins,
     smooth_bins, n_iter, fit_front_bins; ``fit_scale``: its fit_sigma_scale; ``flank_lead_align``:
-    its flank_bins, lead_bins and align_beams; ``scan``) are valid, ``first`` has a value per beam
+    its flank_bins, lead_bins, align_beams and peak_bins; ``scan``) are valid, ``first`` has a value per beam
     and ``clip`` the image's shape."""
     if not (math.isfinite(fit_scale) and fit_scale >= 0):
         raise InputError(f"fit_sigma_scale: must be a finite number >= 0 (got {fit_scale!r})")
     keys = ("half_beams", "front_bins", "max_bins", "smooth_bins", "n_iter", "fit_front_bins", "flank_bins",
-            "lead_bins", "align_beams")
-    for key, v, lo in zip(keys, (*window, *flank_lead_align), (0, 0, 3, 1, 1, 0, 0, 0, 0)):
+            "lead_bins", "align_beams", "peak_bins")
+    for key, v, lo in zip(keys, (*window, *flank_lead_align), (0, 0, 3, 1, 1, 0, 0, 0, 0, 0)):
         if isinstance(v, bool) or int(v) != v or v < lo:
             raise InputError(f"{key}: must be an integer >= {lo} (got {v!r})")
     if not 0 < fraction < 1:
