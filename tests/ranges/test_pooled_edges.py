@@ -223,6 +223,36 @@ def test_the_parabola_takes_the_speckles_maximum_out_of_the_level() -> None:
     assert PipelineConfig().ranges.edge_pool_peak_bins == 0
 
 
+def test_a_pooled_edges_jitter_is_floored_at_a_share_of_its_neighbours() -> None:
+    """``floor_jitter``: an edge whose jitter (noise / rise) is below ``fraction`` x the median of
+    its run's edges within ``half_beams`` is raised to it (its rise kept); edges of another run,
+    edges that were not pooled (NaN noise) and windows of fewer than 3 jitters are left alone."""
+    from sonarmap.ranges._kernels import floor_jitter
+
+    rise = np.array([1.0, 2.0, 1.0, 0.5, 1.0, 1.0, 1.0, 1.0, 1.0])
+    q = np.array([4.0, 4.0, 0.4, 4.0, 5.0, 6.0, 0.1, 0.1, np.nan])  # jitter in bins
+    noise = q * rise
+    run = np.array([0, 0, 0, 0, 0, 0, 1, 1, 1])
+    out = noise.copy()
+    floor_jitter(out, rise, run, 2, 0.5)
+    # beam 2's window (beams 0-4) has jitters 4, 4, 0.4, 4, 5: median 4, floor 2
+    assert out[2] / rise[2] == pytest.approx(2.0)
+    assert np.array_equal(out[[0, 1, 3, 4, 5]], noise[[0, 1, 3, 4, 5]])
+    # run 1 holds two finite jitters: too few for a median, left alone; NaN stays NaN
+    assert np.array_equal(out[6:8], noise[6:8]) and np.isnan(out[8])
+    same = noise.copy()
+    floor_jitter(same, rise, run, 2, 0.0)
+    assert np.array_equal(same, noise, equal_nan=True)
+
+
+def test_the_jitter_floor_is_a_checked_option() -> None:
+    assert PipelineConfig().ranges.sigma_pool_floor == 0.0
+    assert PipelineConfig().replace(sigma_pool_floor=0.5).ranges.sigma_pool_floor == 0.5
+    for bad in (-0.1, float("nan"), float("inf")):
+        with pytest.raises(InputError, match="sigma_pool_floor"):
+            PipelineConfig().replace(sigma_pool_floor=bad)
+
+
 def test_pooled_edges_rejects_bad_arguments():
     g = _geom(n_beams=4)
     img = np.zeros(g.shape)

@@ -2875,12 +2875,43 @@ def kept_edges(sel, new, used, start_bin, stop, back, edge_bin, edge_range, slop
 
 
 @njit(cache=True, nogil=True)
+def floor_jitter(noise, rise, run, half_beams, fraction):  # pragma: no cover - numba
+    """In place on ``noise``: each pooled edge's jitter ``noise / rise`` (bins) raised to at least
+    ``fraction`` x the median jitter of the pooled edges of its run within ``half_beams`` on either
+    side (itself included; at least 3 of them, else left alone).  A pooled profile's rise at a
+    single crossing is itself noisy: on a faint echo one steep speckle step gives an edge a sigma
+    a fraction of its neighbours', and in the smoothing along the surface (weights ``1 /
+    sigma^2``) that edge then outweighs them all.  Edges without a finite positive jitter (not
+    pooled) are left alone."""
+    m = noise.size
+    q = np.full(m, np.nan)
+    for j in range(m):
+        if run[j] >= 0 and rise[j] > 0.0 and np.isfinite(noise[j]):
+            q[j] = noise[j] / rise[j]
+    win = np.empty(2 * half_beams + 1)
+    for j in range(m):
+        if not np.isfinite(q[j]):
+            continue
+        c = 0
+        for jj in range(max(0, j - half_beams), min(m, j + half_beams + 1)):
+            if run[jj] == run[j] and np.isfinite(q[jj]):
+                win[c] = q[jj]
+                c += 1
+        if c >= 3:
+            low = fraction * _median(win, c)
+            if q[j] < low:
+                noise[j] = low * rise[j]
+
+
+@njit(cache=True, nogil=True)
 def pooled_kept_edges(sel, edge_bin, start_bin, stop_bin, touch, image, pulse_bins, half_beams, front_bins, max_bins,
                       smooth_bins, fraction, n_iter, clip, clip_level, fit_front_bins, forward, flank_bins, peak_bins,
-                      back, edge_range, slope, sigma, range_m, bin_m, bin_var, pulse_var, scale, fit_scale):  # pragma: no cover - numba
+                      back, edge_range, slope, sigma, range_m, bin_m, bin_var, pulse_var, scale, fit_scale,
+                      jitter_floor):  # pragma: no cover - numba
     """The pooled leading edges of the returns ``sel`` in one call: their runs
     (:func:`first_interval_runs` with ``touch``), :func:`pooled_edges` of them on ``image`` (float64,
-    smoothed along range over ``pulse_bins`` by :func:`smooth_rows` when >= 2) and
+    smoothed along range over ``pulse_bins`` by :func:`smooth_rows` when >= 2), with
+    ``jitter_floor > 0`` their jitter floored (:func:`floor_jitter`, over twice ``half_beams``), and
     :func:`kept_edges` of its results (the arguments from ``back`` on): what :func:`kept_edges`
     returns, with no edge kept (and empty arrays) when no return belongs to a run."""
     edge, stop, run, any_run = runs_of_returns(sel, edge_bin, start_bin, stop_bin, touch)
@@ -2891,6 +2922,8 @@ def pooled_kept_edges(sel, edge_bin, start_bin, stop_bin, touch, image, pulse_bi
     new, _, rise, used, noise, fitted = pooled_edges(img, edge, stop, run, half_beams, front_bins, max_bins,
                                                      smooth_bins, fraction, n_iter, clip, clip_level, fit_front_bins,
                                                      forward, flank_bins, peak_bins)
+    if jitter_floor > 0.0:
+        floor_jitter(noise, rise, run, 2 * half_beams, jitter_floor)
     return kept_edges(sel, new, used, start_bin, stop, back, edge_bin, edge_range, slope, sigma, rise, noise, range_m,
                       bin_m, bin_var, pulse_var, scale, fitted, fit_scale)
 

@@ -214,6 +214,13 @@ class RangeConfig(ConfigSection):
         (``docs/ranges.md``).  Every return's sigma also covers the clipping of its echo
         (the interval from the crossing to the first sample at the ping's full scale,
         :func:`sonarmap.ranges.measure.full_scale_level`).
+    sigma_pool_floor : float
+        > 0: a pooled edge's jitter (the profile's standard error over its rise, bins) is at least
+        this fraction of the median jitter of the pooled edges of its surface within twice
+        ``edge_pool_beams`` on either side (:func:`sonarmap.ranges._kernels.floor_jitter`): the
+        rise at one crossing is itself noisy, and an edge given a small sigma by one steep speckle
+        step would outweigh its neighbours in the smoothing along the surface.  Default 0 = off
+        (``docs/ranges.md``, "Options": what 0.5 changes).
     sigma_fit_scale : float
         Sigma of a clipped echo's fitted leading edge (a Gaussian fitted to the unclipped flanks
         of the pooled profile, :func:`sonarmap.ranges.echoes.pooled_edges`): the fit's standard
@@ -324,6 +331,7 @@ class RangeConfig(ConfigSection):
     sigma_scale: float = 1.5
     sigma_pool_scale: float = 5.0
     sigma_fit_scale: float = 4.0
+    sigma_pool_floor: float = 0.0
     edge_template_beams: int = 5
     edge_template_min_beams: int = 30
     edge_template_anchor_beams: int = 10
@@ -369,7 +377,7 @@ class RangeConfig(ConfigSection):
             object.__setattr__(self, key, float(v))
         coerce_reals(self, ("edge_factor",), w)
         coerce_reals(self, ("sigma_scale", "sigma_pool_scale", "sigma_fit_scale", "sigma_template_scale",
-                            "continue_evidence", "surface_min_z"), w, minimum=0)
+                            "sigma_pool_floor", "continue_evidence", "surface_min_z"), w, minimum=0)
         coerce_reals(self, ("edge_fraction",), w)
         coerce_reals(self, ("sigma_template_smooth_scale",), w, minimum=1)
         if not 0 <= self.edge_fraction < 1:

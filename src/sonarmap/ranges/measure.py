@@ -442,7 +442,8 @@ def _pooled_returns(echoes: Any, sel: NDArray[np.int64], meas: NDArray[Any], pin
                    (config.sigma_pool_scale, config.sigma_fit_scale), clip,
                    forward=config.edge_pool_scan == "forward", clip_level=level,
                    flank_bins=config.edge_pool_flank_bins, lead_bins=config.edge_pool_lead_bins,
-                   align_beams=config.edge_pool_align_beams, peak_bins=config.edge_pool_peak_bins)
+                   align_beams=config.edge_pool_align_beams, peak_bins=config.edge_pool_peak_bins,
+                   jitter_floor=config.sigma_pool_floor)
 
 
 #: A raw sample at or above this is at the receiver's full scale (8-bit images: level 255).
