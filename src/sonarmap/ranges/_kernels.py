@@ -1877,20 +1877,23 @@ def _peak_level(sm, p, lo, hi, w, A, T):  # pragma: no cover - numba
     b = min(hi - 1, p + w)
     if b - a < 2:
         return sm[p]
-    for r in range(3):
-        T[r] = 0.0
-        for q in range(3):
-            A[r, q] = 0.0
+    # the normal equations in u = k - p from the power sums, as _clipped_fit's
+    s0 = s1 = s2 = s3 = s4 = 0.0
+    T[:] = 0.0
     for k in range(a, b + 1):
         u = float(k - p)
         y = sm[k]
-        up = 1.0
-        for e in range(5):
-            if e < 3:
-                T[e] += up * y
-            for r in range(max(0, e - 2), min(e, 2) + 1):
-                A[r, e - r] += up
-            up *= u
+        s0 += 1.0
+        s1 += u
+        s2 += u * u
+        s3 += u * u * u
+        s4 += u * u * u * u
+        T[0] += y
+        T[1] += u * y
+        T[2] += u * u * y
+    A[0, 0], A[0, 1], A[0, 2] = s0, s1, s2
+    A[1, 0], A[1, 1], A[1, 2] = s1, s2, s3
+    A[2, 0], A[2, 1], A[2, 2] = s2, s3, s4
     _solve_small(A, T, 3)  # T = (c0, c1, c2) of c0 + c1 u + c2 u^2
     c0, c1, c2 = T[0], T[1], T[2]
     u0 = 0.0  # a parabola without a maximum: its value at p
