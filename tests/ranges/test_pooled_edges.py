@@ -198,7 +198,7 @@ def test_the_parabola_takes_the_speckles_maximum_out_of_the_level() -> None:
     """On single-look speckle the largest sample of the pooled profile's flat top is a noise
     maximum, which puts the half-peak level high and the crossing late on the rise; the height
     of the parabola through the samples around it (``peak_bins = 2``) brings the crossings nearer
-    the truth than the largest sample (``peak_bins = 0``, the default).  An echo shallower than
+    the truth than the largest sample (``peak_bins = 0``; 2 is the default).  An echo shallower than
     6 x ``peak_bins`` (here 4 bins of rise and 4 flat: a window depth of ~6) keeps its largest
     sample: the same edges either way."""
     g = _geom()
@@ -220,7 +220,7 @@ def test_the_parabola_takes_the_speckles_maximum_out_of_the_level() -> None:
     shallow = [_per_beam_and_pooled(img, mask, g, peak_bins=pb)[1] for pb in (0, 2)]
     assert np.isfinite(shallow[0]).mean() > 0.9
     assert np.array_equal(shallow[0], shallow[1], equal_nan=True)
-    assert PipelineConfig().ranges.edge_pool_peak_bins == 0
+    assert PipelineConfig().ranges.edge_pool_peak_bins == 2
 
 
 def test_a_pooled_edges_jitter_is_floored_at_a_share_of_its_neighbours() -> None:
@@ -246,8 +246,8 @@ def test_a_pooled_edges_jitter_is_floored_at_a_share_of_its_neighbours() -> None
 
 
 def test_the_jitter_floor_is_a_checked_option() -> None:
-    assert PipelineConfig().ranges.sigma_pool_floor == 0.0
-    assert PipelineConfig().replace(sigma_pool_floor=0.5).ranges.sigma_pool_floor == 0.5
+    assert PipelineConfig().ranges.sigma_pool_floor == 0.5
+    assert PipelineConfig().replace(sigma_pool_floor=0.0).ranges.sigma_pool_floor == 0.0
     for bad in (-0.1, float("nan"), float("inf")):
         with pytest.raises(InputError, match="sigma_pool_floor"):
             PipelineConfig().replace(sigma_pool_floor=bad)

@@ -429,8 +429,9 @@ def test_the_smoothing_trust_is_what_the_incoming_edges_sigmas_allow():
 
 def test_the_anchor_trust_brings_the_flat_didson_hulls_late_run_back():
     """``edge_template_anchor_trust``: on the simulated flat DIDSON hull (seed 0, its floor noise),
-    beams 74-79, whose single-look edges drag their pooled windows 3-6 bins late, come 3.1-4.1
-    bins late by default and 1.6-2.6 with the option (the smoothing leans on the neighbours)."""
+    beams 74-79, whose single-look edges drag their pooled windows 3-6 bins late, come 2.4-3.5
+    bins late by default (mean 2.93) and 1.3-2.0 with the option (mean 1.80: the smoothing leans
+    on the neighbours)."""
     from sonarmap import preset
     from sonarmap.evaluate.segmentation import _simulate, preset_sim_configs
     from sonarmap.pipeline import process_ping
@@ -443,5 +444,5 @@ def test_the_anchor_trust_brings_the_flat_didson_hulls_late_run_back():
     for on in (False, True):
         r = process_ping(sim.ping, PipelineConfig().replace(edge_template_anchor_trust=on)).ranges
         late[on] = (np.interp(r.range_m, g.range_m, bins) - truth)[74:80]
-    assert np.all(late[False] > 3.0) and np.all(late[True] < 2.8), late
-    assert np.mean(late[True]) < np.mean(late[False]) - 1.0
+    assert np.mean(late[False]) > 2.7 and np.all(late[True] < 2.2), late
+    assert np.mean(late[True]) < np.mean(late[False]) - 0.9

@@ -170,7 +170,7 @@ class RangeConfig(ConfigSection):
         profile's samples up to this many bins either side of its largest one (on echoes at least
         6 times this many bins deep), not that largest sample - the sample the speckle raised
         most, which lies above the echo's peak and puts the crossing late on the rise.  Default
-        0 = the largest sample (``docs/ranges.md``, "Options": what 2 changes).
+        2; 0 = the largest sample (``docs/ranges.md``, "Pooled edges").
     edge_pool_lead_bins : int
         A pooled edge is kept when it lies at most the pulse length plus this many bins in front
         of the beam's first structure bin (and not behind its echo's end); else the beam keeps its
@@ -219,8 +219,8 @@ class RangeConfig(ConfigSection):
         this fraction of the median jitter of the pooled edges of its surface within twice
         ``edge_pool_beams`` on either side (:func:`sonarmap.ranges._kernels.floor_jitter`): the
         rise at one crossing is itself noisy, and an edge given a small sigma by one steep speckle
-        step would outweigh its neighbours in the smoothing along the surface.  Default 0 = off
-        (``docs/ranges.md``, "Options": what 0.5 changes).
+        step would outweigh its neighbours in the smoothing along the surface.  Default 0.5;
+        0 = off (``docs/ranges.md``, "Pooled edges").
     sigma_fit_scale : float
         Sigma of a clipped echo's fitted leading edge (a Gaussian fitted to the unclipped flanks
         of the pooled profile, :func:`sonarmap.ranges.echoes.pooled_edges`): the fit's standard
@@ -331,7 +331,7 @@ class RangeConfig(ConfigSection):
     sigma_scale: float = 1.5
     sigma_pool_scale: float = 5.0
     sigma_fit_scale: float = 4.0
-    sigma_pool_floor: float = 0.0
+    sigma_pool_floor: float = 0.5
     edge_template_beams: int = 5
     edge_template_min_beams: int = 30
     edge_template_anchor_beams: int = 10

@@ -534,7 +534,7 @@ POOL_FRONT_BINS, POOL_MAX_BINS, POOL_N_ITER, POOL_FIT_FRONT_BINS = 6, 200, 2, 16
 #: Default ``flank_bins`` of :func:`pooled_edges` (and of ``PipelineConfig.ranges.edge_pool_flank_bins``).
 POOL_FLANK_BINS = 6
 #: Default ``peak_bins`` of :func:`pooled_edges` (and of ``PipelineConfig.ranges.edge_pool_peak_bins``).
-POOL_PEAK_BINS = 0
+POOL_PEAK_BINS = 2
 #: Default ``lead_bins`` of :func:`pooled_edges` (and of ``PipelineConfig.ranges.edge_pool_lead_bins``):
 #: ``POOL_N_ITER`` alignment rounds of ``POOL_FRONT_BINS`` each, the furthest the pooling moves an edge.
 POOL_LEAD_BINS = POOL_N_ITER * POOL_FRONT_BINS
