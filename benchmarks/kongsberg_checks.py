@@ -2,7 +2,8 @@
 
 Usage::
 
-    python benchmarks/kongsberg_checks.py           # prints the tables of docs/mapping.md
+    python benchmarks/kongsberg_checks.py                  # prints the tables of docs/mapping.md
+    python benchmarks/kongsberg_checks.py --config my.toml # the same for another pipeline configuration
 
 Two external checks, per head (system serial 2004 = port head, 2031 = starboard head):
 
@@ -262,11 +263,11 @@ def travel_time_ranges(pings: Sequence[Any]) -> list[Any]:
     return [beam_ranges(p, p.meta["raw_twtt_s"] * p.meta["sound_speed_m_s"] / 2.0) for p in pings]
 
 
-def pipeline_ranges(pings: Sequence[Any]) -> list[Any]:
-    """The default pipeline's first return per beam."""
+def pipeline_ranges(pings: Sequence[Any], config: Any = None) -> list[Any]:
+    """The pipeline's first return per beam (``config``, default ``PipelineConfig()``)."""
     from sonarmap.pipeline import PipelineConfig, process_ping
 
-    cfg = PipelineConfig()
+    cfg = PipelineConfig() if config is None else config
     return [process_ping(p, cfg).ranges for p in pings]
 
 
@@ -433,14 +434,14 @@ def sound_speed_profiles(path: Path = RECORDING) -> list[tuple[NDArray[np.float6
     return out
 
 
-def run(path: Path = RECORDING) -> dict[str, Any]:
+def run(path: Path = RECORDING, config: Any = None) -> dict[str, Any]:
     """Everything the docs' tables show: (b) with the detections and with the pipeline, and (a)."""
     from sonarmap.mapping.navigation import navigation_origin
 
     pings = read_recording(path)
     georef = navigation_origin(pings[0])
     det = detected_ranges(pings)
-    pipe = pipeline_ranges(pings)
+    pipe = pipeline_ranges(pings, config)
     twtt = travel_time_ranges(pings)
     out: dict[str, Any] = {"pings": pings, "georef": georef}
     for name, ranges, register in (("detections", det, register_on_the_axis), ("pipeline", pipe, register_as_cli),
@@ -517,7 +518,18 @@ def _passed_only(ping: Any, br: Any) -> Any:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    res = run()
+    import argparse
+
+    ap = argparse.ArgumentParser(description="Kongsberg EM 2040 detection and registration checks")
+    ap.add_argument("--config", default=None,
+                    help="pipeline configuration (TOML, as `sonarmap process --config` reads it); default PipelineConfig()")
+    args = ap.parse_args(argv)
+    config = None
+    if args.config is not None:
+        from sonarmap.pipeline import PipelineConfig
+
+        config = PipelineConfig.from_toml(args.config)
+    res = run(config=config)
     print("Transmit fan: along = x0 + r sin(s) + across sin(q), both heads' XYZ soundings per ping")
     print("| ping | pitch (deg) | attitude gap (s) | x0 (m) | s (deg) | q (deg) | rms (m) |\n|---|---|---|---|---|---|---|")
     for f in res["fan_fit"]:
