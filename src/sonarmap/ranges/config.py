@@ -220,7 +220,7 @@ class RangeConfig(ConfigSection):
         ``edge_pool_beams`` on either side (:func:`sonarmap.ranges._kernels.floor_jitter`): the
         rise at one crossing is itself noisy, and an edge given a small sigma by one steep speckle
         step would outweigh its neighbours in the smoothing along the surface.  Default 0.5;
-        0 = off (``docs/ranges.md``, "Pooled edges").
+        0 = off (``docs/ranges.md``, "Uncertainty").
     sigma_fit_scale : float
         Sigma of a clipped echo's fitted leading edge (a Gaussian fitted to the unclipped flanks
         of the pooled profile, :func:`sonarmap.ranges.echoes.pooled_edges`): the fit's standard
