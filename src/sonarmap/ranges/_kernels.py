@@ -1498,6 +1498,28 @@ def _median_of(x, lo, hi, work):  # pragma: no cover - numba
 
 
 @njit(cache=True, nogil=True)
+def _sloped_median(win, offs, c, work, min_slope):  # pragma: no cover - numba
+    """The median of the window's edges ``win[:c]`` (beams at offsets ``offs[:c]`` from the
+    window's own beam) along their Theil-Sen slope (the median of the ``c (c - 1) / 2`` pairwise
+    slopes, in ``work``) where that slope is at least ``min_slope`` bins per beam: the median of
+    ``win - slope * offs``, the window's own beam's value on the robust line through them.  On a
+    monotone slope steeper than the edges' scatter the plain median is the own beam's edge, its
+    noise kept; along the line the window's 7 beams average it out.  Below ``min_slope`` (or with
+    ``min_slope <= 0``) the plain median.  ``win`` is reordered."""
+    if min_slope > 0.0:
+        nd = 0
+        for t in range(c - 1):
+            for u in range(t + 1, c):
+                work[nd] = (win[u] - win[t]) / (offs[u] - offs[t])
+                nd += 1
+        sl = _median(work, nd)
+        if abs(sl) >= min_slope:
+            for t in range(c):
+                win[t] -= sl * offs[t]
+    return _median(win, c)
+
+
+@njit(cache=True, nogil=True)
 def _clipped_at(clip, level, j, pos):  # pragma: no cover - numba
     """Whether either raw sample around fractional row ``pos`` of column ``j`` is clipped (``clip``
     at or above ``level``, compared in float64)."""
@@ -1905,7 +1927,8 @@ def _peak_level(sm, p, lo, hi, w, A, T):  # pragma: no cover - numba
 
 @njit(cache=True, nogil=True)
 def pooled_edges(img, edge, stop, run, half_beams, front_bins, max_bins, smooth_bins, fraction, n_iter,
-                 clip, clip_level, fit_front_bins, forward, flank_bins, peak_bins):  # pragma: no cover - numba
+                 clip, clip_level, fit_front_bins, forward, flank_bins, peak_bins,
+                 min_slope):  # pragma: no cover - numba
     """Leading edges measured on the surface-aligned mean profile of neighbouring beams
     (see :func:`sonarmap.ranges.echoes.pooled_edges`).
 
@@ -1930,7 +1953,9 @@ def pooled_edges(img, edge, stop, run, half_beams, front_bins, max_bins, smooth_
     unclipped crossing is that of the line through the profile's rising flank around it
     (:func:`_flank_line`, at most ``flank_bins`` samples either side) rather than of the two
     samples around it, where that line rises and crosses within that window.  The level is
-    ``fraction`` x the peak's height of :func:`_peak_level` with ``peak_bins``.
+    ``fraction`` x the peak's height of :func:`_peak_level` with ``peak_bins``.  The alignment is
+    the running median of the current edges, along their slope where it is at least ``min_slope``
+    bins per beam (:func:`_sloped_median`; ``min_slope <= 0``: the plain median).
     """
     m = edge.size
     cur = edge.copy()
@@ -1945,6 +1970,8 @@ def pooled_edges(img, edge, stop, run, half_beams, front_bins, max_bins, smooth_
     noise = np.full(m, np.nan)
     h = smooth_bins // 2
     win = np.empty(2 * half_beams + 1)
+    offs = np.empty(2 * half_beams + 1)
+    pair = np.empty((2 * half_beams + 1) * half_beams)
     align = np.empty(m)
     depth = np.zeros(m, np.int64)
     count = np.zeros(m, np.int64)
@@ -1962,10 +1989,11 @@ def pooled_edges(img, edge, stop, run, half_beams, front_bins, max_bins, smooth_
             for jj in range(max(0, j - half_beams), min(m, j + half_beams + 1)):
                 if run[jj] == run[j]:
                     win[c] = cur[jj]
+                    offs[c] = jj - j
                     c += 1
             count[j] = c
             if c >= 3:
-                align[j] = _median(win, c)
+                align[j] = _sloped_median(win, offs, c, pair, min_slope)
         # the window's echo depth behind the alignment (median, 3 .. max_bins bins)
         kmax = 0
         for j in range(m):
@@ -2910,12 +2938,12 @@ def floor_jitter(noise, rise, run, half_beams, fraction):  # pragma: no cover - 
 def pooled_kept_edges(sel, edge_bin, start_bin, stop_bin, touch, image, pulse_bins, half_beams, front_bins, max_bins,
                       smooth_bins, fraction, n_iter, clip, clip_level, fit_front_bins, forward, flank_bins, peak_bins,
                       back, edge_range, slope, sigma, range_m, bin_m, bin_var, pulse_var, scale, fit_scale,
-                      jitter_floor):  # pragma: no cover - numba
+                      jitter_floor, min_slope):  # pragma: no cover - numba
     """The pooled leading edges of the returns ``sel`` in one call: their runs
     (:func:`first_interval_runs` with ``touch``), :func:`pooled_edges` of them on ``image`` (float64,
     smoothed along range over ``pulse_bins`` by :func:`smooth_rows` when >= 2), with
     ``jitter_floor > 0`` their jitter floored (:func:`floor_jitter`, over twice ``half_beams``), and
-    :func:`kept_edges` of its results (the arguments from ``back`` on): what :func:`kept_edges`
+    :func:`kept_edges` of its results (``min_slope``: :func:`pooled_edges`') (the arguments from ``back`` on): what :func:`kept_edges`
     returns, with no edge kept (and empty arrays) when no return belongs to a run."""
     edge, stop, run, any_run = runs_of_returns(sel, edge_bin, start_bin, stop_bin, touch)
     if not any_run:
@@ -2924,7 +2952,7 @@ def pooled_kept_edges(sel, edge_bin, start_bin, stop_bin, touch, image, pulse_bi
     img = smooth_rows(image, pulse_bins) if pulse_bins >= 2 and image.shape[0] >= 2 else image
     new, _, rise, used, noise, fitted = pooled_edges(img, edge, stop, run, half_beams, front_bins, max_bins,
                                                      smooth_bins, fraction, n_iter, clip, clip_level, fit_front_bins,
-                                                     forward, flank_bins, peak_bins)
+                                                     forward, flank_bins, peak_bins, min_slope)
     if jitter_floor > 0.0:
         floor_jitter(noise, rise, run, 2 * half_beams, jitter_floor)
     return kept_edges(sel, new, used, start_bin, stop, back, edge_bin, edge_range, slope, sigma, rise, noise, range_m,

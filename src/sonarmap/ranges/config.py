@@ -188,6 +188,13 @@ class RangeConfig(ConfigSection):
         rising echo (the speckled ramp below the detection level) then no longer drags its
         neighbours' multi-look with it (``docs/ranges.md``, "Leading edges": "Pooling from the
         surface's line", measured with 3).
+    edge_pool_follow_slope : float
+        > 0: each pooling round aligns a window's beams on the median of their edges along the
+        window's Theil-Sen slope where that slope is at least this many bins per beam
+        (:func:`sonarmap.ranges._kernels._sloped_median`), not on their plain running median -
+        which on a surface steeper than the edges' scatter is each beam's own edge, its noise
+        kept, so the pooled profile is smeared and its half-peak crossing early.  Default 0 = off
+        (``docs/ranges.md``, "Options": what 1 changes).
     pulse_length_m : float, optional
         Transmit pulse length along range (``c tau / 2``); echoes are measured on the image
         smoothed over it.  Default: from the ping - its effective length ``1 / B`` where the file
@@ -326,6 +333,7 @@ class RangeConfig(ConfigSection):
     edge_pool_peak_bins: int = POOL_PEAK_BINS
     edge_pool_lead_bins: int = POOL_LEAD_BINS
     edge_pool_align_beams: int = 0
+    edge_pool_follow_slope: float = 0.0
     pulse_length_m: float | None = None
     continue_evidence: float = 10.0
     sigma_scale: float = 1.5
@@ -377,7 +385,8 @@ class RangeConfig(ConfigSection):
             object.__setattr__(self, key, float(v))
         coerce_reals(self, ("edge_factor",), w)
         coerce_reals(self, ("sigma_scale", "sigma_pool_scale", "sigma_fit_scale", "sigma_template_scale",
-                            "sigma_pool_floor", "continue_evidence", "surface_min_z"), w, minimum=0)
+                            "sigma_pool_floor", "continue_evidence", "surface_min_z", "edge_pool_follow_slope"), w,
+                     minimum=0)
         coerce_reals(self, ("edge_fraction",), w)
         coerce_reals(self, ("sigma_template_smooth_scale",), w, minimum=1)
         if not 0 <= self.edge_fraction < 1:

@@ -627,7 +627,7 @@ def _pooled(echoes: Echoes, sel: NDArray[np.int64], image: ArrayLike, geometry: 
             scales: tuple[float, float], clip: NDArray[Any] | None, *, forward: bool = True,
             clip_level: float | None = None, flank_bins: int = POOL_FLANK_BINS,
             lead_bins: int = POOL_LEAD_BINS, align_beams: int = 0, peak_bins: int = POOL_PEAK_BINS,
-            jitter_floor: float = 0.0) -> Echoes:
+            jitter_floor: float = 0.0, min_slope: float = 0.0) -> Echoes:
     """:func:`pooled_edges` of checked options (:func:`_check_pooling`: ``window`` = ``(half_beams,
     front_bins, max_bins, smooth_bins, n_iter, fit_front_bins)``, ``scales`` = ``(sigma_scale,
     fit_sigma_scale)``; the pipeline's range stage calls it with its validated configuration).
@@ -635,7 +635,8 @@ def _pooled(echoes: Echoes, sel: NDArray[np.int64], image: ArrayLike, geometry: 
     and above that level (:func:`sonarmap.ranges.measure.full_scale_mask`'s samples), else the
     mask of the clipped samples; ``align_beams``, ``peak_bins``: as :func:`pooled_edges`' (checked);
     ``jitter_floor`` > 0: :func:`~sonarmap.ranges._kernels.floor_jitter` of the pooled edges
-    (``PipelineConfig.ranges.sigma_pool_floor``)."""
+    (``PipelineConfig.ranges.sigma_pool_floor``); ``min_slope`` > 0: the alignment follows the
+    window's slope from that many bins per beam (``PipelineConfig.ranges.edge_pool_follow_slope``)."""
     import sonarmap.ranges._kernels as _kernels
 
     half_beams, front_bins, max_bins, smooth_bins, n_iter, fit_front_bins = window
@@ -659,7 +660,8 @@ def _pooled(echoes: Echoes, sel: NDArray[np.int64], image: ArrayLike, geometry: 
         1.0 if clip_level is None else float(clip_level), int(fit_front_bins), bool(forward), int(flank_bins),
         int(peak_bins), int(pulse_bins) + int(lead_bins),
         echoes.edge_range_m, echoes.slope, echoes.sigma_m, np.ascontiguousarray(geometry.range_m, dtype=np.float64),
-        *_edge_spreads(geometry, pulse_bins), float(scales[0]), float(scales[1]), float(jitter_floor))
+        *_edge_spreads(geometry, pulse_bins), float(scales[0]), float(scales[1]), float(jitter_floor),
+        float(min_slope))
     if start is not echoes.edge_bin and n_kept:
         # a return whose pooled edge was not kept keeps its own edge (kept_edges gave it the start)
         own = (eb == start) & (start != echoes.edge_bin)

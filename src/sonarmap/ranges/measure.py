@@ -443,7 +443,7 @@ def _pooled_returns(echoes: Any, sel: NDArray[np.int64], meas: NDArray[Any], pin
                    forward=config.edge_pool_scan == "forward", clip_level=level,
                    flank_bins=config.edge_pool_flank_bins, lead_bins=config.edge_pool_lead_bins,
                    align_beams=config.edge_pool_align_beams, peak_bins=config.edge_pool_peak_bins,
-                   jitter_floor=config.sigma_pool_floor)
+                   jitter_floor=config.sigma_pool_floor, min_slope=config.edge_pool_follow_slope)
 
 
 #: A raw sample at or above this is at the receiver's full scale (8-bit images: level 255).
