@@ -1500,12 +1500,13 @@ def _median_of(x, lo, hi, work):  # pragma: no cover - numba
 @njit(cache=True, nogil=True)
 def _sloped_median(win, offs, c, work, min_slope):  # pragma: no cover - numba
     """The median of the window's edges ``win[:c]`` (beams at offsets ``offs[:c]`` from the
-    window's own beam) along their Theil-Sen slope (the median of the ``c (c - 1) / 2`` pairwise
-    slopes, in ``work``) where that slope is at least ``min_slope`` bins per beam: the median of
-    ``win - slope * offs``, the window's own beam's value on the robust line through them.  On a
-    monotone slope steeper than the edges' scatter the plain median is the own beam's edge, its
-    noise kept; along the line the window's 7 beams average it out.  Below ``min_slope`` (or with
-    ``min_slope <= 0``) the plain median.  ``win`` is reordered."""
+    window's own beam) along their Theil-Sen slope ``b`` (the median of the ``c (c - 1) / 2``
+    pairwise slopes, in ``work``): the median of ``win - b' offs``, the window's own beam's value
+    on the robust line through them.  On a monotone slope steeper than the edges' scatter the
+    plain median is the own beam's edge, its noise kept; along the line the window's beams average
+    it out.  ``b' = b`` where ``|b| >= min_slope`` bins per beam, 0 below ``min_slope / 2`` (a flat
+    surface's scatter makes a small slope), linear in between (no step in the alignment where a
+    surface steepens).  ``min_slope <= 0``: the plain median.  ``win`` is reordered."""
     if min_slope > 0.0:
         nd = 0
         for t in range(c - 1):
@@ -1513,7 +1514,10 @@ def _sloped_median(win, offs, c, work, min_slope):  # pragma: no cover - numba
                 work[nd] = (win[u] - win[t]) / (offs[u] - offs[t])
                 nd += 1
         sl = _median(work, nd)
-        if abs(sl) >= min_slope:
+        a = abs(sl)
+        if a < min_slope:
+            sl *= max(0.0, (a - 0.5 * min_slope) / (0.5 * min_slope))
+        if sl != 0.0:
             for t in range(c):
                 win[t] -= sl * offs[t]
     return _median(win, c)
