@@ -1958,8 +1958,9 @@ def pooled_edges(img, edge, stop, run, half_beams, front_bins, max_bins, smooth_
     (:func:`_flank_line`, at most ``flank_bins`` samples either side) rather than of the two
     samples around it, where that line rises and crosses within that window.  The level is
     ``fraction`` x the peak's height of :func:`_peak_level` with ``peak_bins``.  The alignment is
-    the running median of the current edges, along their slope where it is at least ``min_slope``
-    bins per beam (:func:`_sloped_median`; ``min_slope <= 0``: the plain median).
+    the running median of the current edges, along the window's slope from ``min_slope / 2`` bins
+    per beam, fully from ``min_slope`` (:func:`_sloped_median`; ``min_slope <= 0``: the plain
+    median).
     """
     m = edge.size
     cur = edge.copy()
@@ -2947,8 +2948,9 @@ def pooled_kept_edges(sel, edge_bin, start_bin, stop_bin, touch, image, pulse_bi
     (:func:`first_interval_runs` with ``touch``), :func:`pooled_edges` of them on ``image`` (float64,
     smoothed along range over ``pulse_bins`` by :func:`smooth_rows` when >= 2), with
     ``jitter_floor > 0`` their jitter floored (:func:`floor_jitter`, over twice ``half_beams``), and
-    :func:`kept_edges` of its results (``min_slope``: :func:`pooled_edges`') (the arguments from ``back`` on): what :func:`kept_edges`
-    returns, with no edge kept (and empty arrays) when no return belongs to a run."""
+    :func:`kept_edges` of its results (the arguments from ``back`` on but the last two): what
+    :func:`kept_edges` returns, with no edge kept (and empty arrays) when no return belongs to a
+    run.  ``min_slope``: :func:`pooled_edges`'."""
     edge, stop, run, any_run = runs_of_returns(sel, edge_bin, start_bin, stop_bin, touch)
     if not any_run:
         z = np.zeros(0)

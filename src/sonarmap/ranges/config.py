@@ -192,10 +192,9 @@ class RangeConfig(ConfigSection):
         > 0: each pooling round aligns a window's beams on the median of their edges along the
         window's Theil-Sen slope where that slope is at least this many bins per beam (none below
         half of it, a share in between: :func:`sonarmap.ranges._kernels._sloped_median`), not on
-        their plain running median -
-        which on a surface steeper than the edges' scatter is each beam's own edge, its noise
-        kept, so the pooled profile is smeared and its half-peak crossing early.  Default 0 = off
-        (``docs/ranges.md``, "Options": what 2 changes).
+        their plain running median - which on a surface steeper than the edges' scatter is each
+        beam's own edge, its noise kept, so the pooled profile is smeared and its half-peak
+        crossing early.  Default 0 = off (``docs/ranges.md``, "Options": what 2 changes).
     pulse_length_m : float, optional
         Transmit pulse length along range (``c tau / 2``); echoes are measured on the image
         smoothed over it.  Default: from the ping - its effective length ``1 / B`` where the file
