@@ -2,7 +2,8 @@
 
 Usage::
 
-    python benchmarks/aris_target_checks.py     # prints the table of docs/ranges.md
+    python benchmarks/aris_target_checks.py                   # prints the table of docs/ranges.md
+    python benchmarks/aris_target_checks.py --config my.toml  # and a row for another configuration
 
 The recording has no ground truth.  The target is the slanted line at 15.4-17.3 m across beams
 0-40 of its 6 frames; its curve per frame is a robust cubic (three rounds of dropping points more
@@ -14,7 +15,8 @@ maximum - each with and without the tracker's front pass), so that no configurat
 curve it is scored on.  A beam is *on the target* when its return lies within 0.2 m of that curve;
 *in front* counts returns more than 0.2 m nearer than it.  Each tracker configuration is scored
 with every fit, so the table shows both how many beams follow the target and how much that
-depends on where the fit stopped.
+depends on where the fit stopped.  ``--config`` adds a row for another pipeline configuration,
+scored against the same curves (which it does not help define).
 """
 
 from __future__ import annotations
@@ -71,30 +73,39 @@ def target_curves(pings: list[Any]) -> NDArray[np.float64]:
 
 def score(pings: list[Any], curves: NDArray[np.float64], front_pass: bool) -> dict[str, tuple[int, int, int, list[int]]]:
     """Per fit: (beams on the target, returns in front of it, returns in all, on-target per frame)."""
+    return {name: score_config(pings, curves, cfg.replace(track={"front_pass": front_pass}))
+            for name, cfg in _configs().items()}
+
+
+def score_config(pings: list[Any], curves: NDArray[np.float64], cfg: Any) -> tuple[int, int, int, list[int]]:
+    """(beams on the target, returns in front of it, returns in all, on-target per frame) of ``cfg``."""
     from sonarmap.pipeline import process_ping
 
-    out = {}
-    for name, cfg in _configs().items():
-        cfg = cfg.replace(track={"front_pass": front_pass})
-        on_t = front_t = n_ret = 0
-        per = []
-        for p, c in zip(pings, curves):
-            r = process_ping(p, cfg).ranges.range_m
-            n_ret += int(np.isfinite(r).sum())
-            near = r[:BEAMS]
-            with np.errstate(invalid="ignore"):
-                on = np.abs(near - c[:BEAMS]) < TOLERANCE_M
-                front = near < c[:BEAMS] - TOLERANCE_M
-            on_t += int(on.sum())
-            front_t += int(front.sum())
-            per.append(int(on.sum()))
-        out[name] = (on_t, front_t, n_ret, per)
-    return out
+    on_t = front_t = n_ret = 0
+    per = []
+    for p, c in zip(pings, curves):
+        r = process_ping(p, cfg).ranges.range_m
+        n_ret += int(np.isfinite(r).sum())
+        near = r[:BEAMS]
+        with np.errstate(invalid="ignore"):
+            on = np.abs(near - c[:BEAMS]) < TOLERANCE_M
+            front = near < c[:BEAMS] - TOLERANCE_M
+        on_t += int(on.sum())
+        front_t += int(front.sum())
+        per.append(int(on.sum()))
+    return on_t, front_t, n_ret, per
 
 
-def main() -> int:
+def main(argv: list[str] | None = None) -> int:
+    import argparse
+
     from sonarmap.io import read_pings
+    from sonarmap.pipeline import PipelineConfig
 
+    ap = argparse.ArgumentParser(description="How firmly the real ARIS target is followed")
+    ap.add_argument("--config", default=None, help="also score this pipeline configuration (TOML)")
+    args = ap.parse_args(argv)
+    extra = PipelineConfig.from_toml(args.config) if args.config else None
     warnings.simplefilter("ignore")
     if not RECORDING.exists():
         print(f"{RECORDING}: not found (set SONARMAP_DATA)", file=sys.stderr)
@@ -109,6 +120,9 @@ def main() -> int:
         label = "with the front pass (default)" if front_pass else "without the front pass"
         for fit, (on_t, front_t, n_ret, per) in score(pings, curves, front_pass).items():
             print(f"| {label} | {fit} | {on_t} of {n} | {front_t} | {n_ret} | {', '.join(map(str, per))} |")
+    if extra is not None:
+        on_t, front_t, n_ret, per = score_config(pings, curves, extra)
+        print(f"| {args.config} | as configured | {on_t} of {n} | {front_t} | {n_ret} | {', '.join(map(str, per))} |")
     return 0
 
 
