@@ -49,26 +49,30 @@ def _run_z(raw, rows, j0, depth, gap, window, min_shifts, null, offs, work):  # 
     span = b - a
     # per beam the running sums of the samples over rows a .. b - 1 (only the rows the surface
     # and its shifts read: an image-sized array would cost page faults on every ping)
-    prefix = np.empty((nb, span + 1))
-    for q in range(nb):
-        j = j0 + q
-        acc = 0.0
-        prefix[q, 0] = 0.0
-        for t in range(span):
-            acc += raw[a + t, j]
-            prefix[q, t + 1] = acc
+    # (``prefix[t, q]``: the sum over rows a .. a + t - 1 of beam q, accumulated along the rows -
+    # each beam's additions in the same order as a walk down its column, which missed the cache at
+    # every row)
+    prefix = np.empty((span + 1, nb))
+    acc = np.zeros(nb)
+    prefix[0] = 0.0
+    for t in range(span):
+        src = raw[a + t, j0:j0 + nb]
+        row = prefix[t + 1]
+        for q in range(nb):
+            acc[q] += src[q]
+            row[q] = acc[q]
     scale = 1.0 / (nb * depth)
     s0 = 0.0
     for q in range(nb):
         k = rows[q] - a
-        s0 += prefix[q, k + depth] - prefix[q, k]
+        s0 += prefix[k + depth, q] - prefix[k, q]
     s0 *= scale
     m = 0
     for off in range(first, -gap + 1):
         s = 0.0
         for q in range(nb):
             k = rows[q] + off - a
-            s += prefix[q, k + depth] - prefix[q, k]
+            s += prefix[k + depth, q] - prefix[k, q]
         null[m] = s * scale
         offs[m] = off
         m += 1
