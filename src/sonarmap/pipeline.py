@@ -237,6 +237,8 @@ def process_ping(ping: Ping, config: PipelineConfig = PipelineConfig(), *, keep_
         ranges, thickness = surface_ranges(
             ping, m.image, levels, mask, fit, config.ranges, config.candidates, normalised=normalised,
             bg_mean=bg_mean, background=m.background, pool_bands=config.classify.method in ("mrf", "map", "threshold"),
+            # (the ping's maximum, when the conditioned image is the ping's own: no pass of its own)
+            image_max=m.raw_max if raw is ping.image else None,
             # (the edge image is made only when a candidate needs it: none on a ping without structure)
             edge_image=None if normalised else functools.partial(measurement_image, raw, geom, config, labels,
                                                                  m.image, bg_mean))
@@ -316,14 +318,16 @@ def _check_arguments(ping: Any, config: Any, background: Any) -> None:
 class _Modelled(NamedTuple):
     """What :func:`_model_ping` made of a ping: the image the classifier saw, the normalised image
     (None when not normalised), the background estimate, ``(labels, fit, pd, pfa, levels, gates)``
-    of :func:`_classify` (None for a constant image) and the quantisation floor used (a named
-    tuple: one per ping, without a frozen dataclass's per-field ``object.__setattr__``)."""
+    of :func:`_classify` (None for a constant image), the quantisation floor used and the
+    conditioned image's maximum (a named tuple: one per ping, without a frozen dataclass's
+    per-field ``object.__setattr__``)."""
 
     image: NDArray[np.float32]
     normalised: NDArray[np.float32] | None
     background: Any
     classified: tuple[Any, ...] | None
     floor: int
+    raw_max: float
 
 
 def _model_ping(raw: NDArray[np.float32], geom: Any, config: PipelineConfig, reference: Any) -> _Modelled:
@@ -376,10 +380,11 @@ def _model_image(raw: NDArray[np.float32], geom: Any, config: PipelineConfig, re
     else:
         image = preprocess_image(raw, geom, pre)
     if constant or _flat(image):
-        return _Modelled(image, normalised, background, None, 0)
+        return _Modelled(image, normalised, background, None, 0, raw_max)
     # (levels come only with a normalised image)
     fit = fit_levels(levels, config.fit) if levels is not None else None
-    return _Modelled(image, normalised, background, _classify(image, config, gate=True, levels=levels, fit=fit), 0)
+    return _Modelled(image, normalised, background, _classify(image, config, gate=True, levels=levels, fit=fit), 0,
+                     raw_max)
 
 
 def _flat(image: NDArray[np.float32]) -> bool:

@@ -67,7 +67,7 @@ def test_the_real_oculus_seabed_measured_with_its_own_full_scale(
     for p in oculus_pings:
         own = process_ping(p, PipelineConfig()).ranges
         with monkeypatch.context() as m:
-            m.setattr(measure, "full_scale_level", lambda raw: CLIP_LEVEL)
+            m.setattr(measure, "full_scale_level", lambda raw, top=None: CLIP_LEVEL)
             nominal = process_ping(p, PipelineConfig()).ranges
         assert np.isfinite(own.range_m).sum() == np.isfinite(nominal.range_m).sum() == 256
         moved.append(np.abs(own.range_m - nominal.range_m) / p.geometry.range_resolution_m)

@@ -281,15 +281,17 @@ def surface_ranges(ping: Ping, image: NDArray[np.float32], levels: NDArray[Any],
                    fit: Any, config: RangeConfig = RangeConfig(), candidates: CandidateConfig = CandidateConfig(), *,
                    normalised: bool = False, bg_mean: float | None = None, background: Any = None,
                    pool_bands: bool = True,
-                   edge_image: Callable[[], tuple[NDArray[np.float32], float] | None] | None = None
-                   ) -> tuple[BeamRanges, NDArray[np.int64]]:
+                   edge_image: Callable[[], tuple[NDArray[np.float32], float] | None] | None = None,
+                   image_max: float | None = None) -> tuple[BeamRanges, NDArray[np.int64]]:
     """Echoes of the candidate structure (``mask`` plus pooled bands), tracked across beams; also
     the number of bins each return's echo spans (0 where no return).
 
     ``edge_image``: returns ``(image, background mean)`` the echoes of a ping that is not
     normalised are measured on instead of ``image`` and ``bg_mean``, or None for ``image``
     itself (``RangeConfig.edge_image``, :func:`sonarmap.pipeline.measurement_image`); called only
-    when there is a candidate to measure.  ``image`` still makes the pooled-band candidates."""
+    when there is a candidate to measure.  ``image`` still makes the pooled-band candidates.
+    ``image_max``: ``ping.image``'s maximum when the caller has it (:func:`full_scale_level`
+    then makes no pass for it)."""
     geom = ping.geometry
     cand, band, r0, r1 = _with_pooled_bands(mask, image, candidates, bg_mean,
                                             pool_bands and not normalised)
@@ -313,7 +315,7 @@ def surface_ranges(ping: Ping, image: NDArray[np.float32], levels: NDArray[Any],
     boost = _boost_pixels(band, cand.shape)
     walk = (1.0, max(2, pb), float(fraction), 0.5, pb + 2, config.edge_scan == "forward")
     # the ping's full-scale level, computed once and only when an echo is measured
-    full_scale = functools.cache(functools.partial(full_scale_level, ping.image))
+    full_scale = functools.cache(functools.partial(full_scale_level, ping.image, top=image_max))
 
     def measure(cand: NDArray[np.bool_], rows: tuple[int, int],
                 before: tuple[Any, NDArray[np.int64], tuple[int, int]] | None = None
@@ -463,7 +465,7 @@ PILEUP_FACTOR = 10.0
 PILEUP_STEPS = 8
 
 
-def full_scale_level(raw: ArrayLike) -> float:
+def full_scale_level(raw: ArrayLike, *, top: float | None = None) -> float:
     """The level at or above which a sample of ``raw`` is at its receiver's full scale.
 
     Nominally :data:`CLIP_LEVEL` (the 8-bit code 255).  Some receivers saturate below the top
@@ -475,7 +477,8 @@ def full_scale_level(raw: ArrayLike) -> float:
     equal ``m`` and they are at least :data:`PILEUP_FACTOR` times the mean count per 1/255 step
     over the :data:`PILEUP_STEPS` steps below ``m`` (the real DIDSON and ARIS pings: one to
     three samples on their maximum).  The level is compared in float64 with the samples
-    (``m`` itself: float32 samples convert exactly).
+    (``m`` itself: float32 samples convert exactly).  ``top``: ``raw``'s maximum when the caller
+    has it (no pass over ``raw`` for it).
 
     Examples
     --------
@@ -493,7 +496,7 @@ def full_scale_level(raw: ArrayLike) -> float:
     a = np.ascontiguousarray(raw)
     if a.size == 0 or a.dtype.kind not in "fiu":
         return CLIP_LEVEL
-    top = float(a.max())
+    top = float(a.max()) if top is None else float(top)
     if not (0.0 < top < CLIP_LEVEL):  # (NaN too)
         return CLIP_LEVEL
     n_top, n_below = _rk.top_counts(a, top, PILEUP_STEPS / 255.0)
