@@ -727,3 +727,30 @@ def test_following_the_slope_sharpens_the_pooled_edges_of_a_steep_surface() -> N
     assert within[4.0, 2.0][1] > within[4.0, 0.0][1] + 0.2
     assert within[4.0, 2.0][0] > within[4.0, 0.0][0] + 0.05
     assert within[0.0, 2.0][1] > within[0.0, 0.0][1] - 0.03
+
+
+def test_the_public_pooled_edges_take_the_slope_following_and_the_jitter_floor() -> None:
+    """``pooled_edges(min_slope=, jitter_floor=)`` gives what the range stage's call with the same
+    options gives (the pipeline's ``edge_pool_follow_slope`` and ``sigma_pool_floor``), changes
+    the edges of a steep surface and the sigmas, and refuses negative or non-finite values."""
+    from sonarmap.ranges.echoes import POOL_FIT_FRONT_BINS, POOL_FRONT_BINS, POOL_MAX_BINS, POOL_N_ITER, _pooled
+
+    g = _geom(n_bins=600)
+    truth = 60.0 + 4.0 * np.arange(g.n_beams) + 0.3
+    img, mask = _speckled_surface(1, truth, n_bins=600)
+    e = find_echoes(mask, img, g)
+    first = _first(e)
+    window = (3, POOL_FRONT_BINS, POOL_MAX_BINS, 3, POOL_N_ITER, POOL_FIT_FRONT_BINS)
+    plain = pooled_edges(e, first, img, g)
+    both = pooled_edges(e, first, img, g, min_slope=2.0, jitter_floor=0.5)
+    inner = _pooled(e, first, img, g, 1, window, (0.5, 1.0), (1.0, 1.0), None, min_slope=2.0, jitter_floor=0.5)
+    np.testing.assert_array_equal(both.edge_bin, inner.edge_bin)
+    np.testing.assert_array_equal(both.sigma_m, inner.sigma_m)
+    sel = first[first >= 0]
+    assert np.mean(both.edge_bin[sel] != plain.edge_bin[sel]) > 0.5
+    floor_only = pooled_edges(e, first, img, g, jitter_floor=0.5)
+    np.testing.assert_array_equal(floor_only.edge_bin, plain.edge_bin)  # (the floor moves sigmas only)
+    assert np.all(floor_only.sigma_m[sel] >= plain.sigma_m[sel]) and np.any(floor_only.sigma_m[sel] > plain.sigma_m[sel])
+    for key, bad in (("min_slope", -1.0), ("jitter_floor", float("nan")), ("min_slope", float("inf"))):
+        with pytest.raises(InputError, match=key):
+            pooled_edges(e, first, img, g, **{key: bad})

@@ -557,21 +557,20 @@ def pooled_edges(
     fit_front_bins: int = POOL_FIT_FRONT_BINS, fit_sigma_scale: float | None = None,
     scan: str = "forward",
     flank_bins: int = POOL_FLANK_BINS, lead_bins: int = POOL_LEAD_BINS, align_beams: int = 0,
-    peak_bins: int = POOL_PEAK_BINS,
+    peak_bins: int = POOL_PEAK_BINS, min_slope: float = 0.0, jitter_floor: float = 0.0,
 ) -> Echoes:
     """Leading edges of a tracked surface measured on a multi-look along the surface.
 
     For every beam ``j`` with a return (``first[j]``, an echo index), the beams ``j - half_beams
     .. j + half_beams`` of the same surface (:func:`surface_runs`) are aligned on the running
-    median of their current edges (which follows a slope exactly) and their columns (smoothed
-    along range over ``pulse_bins``) averaged at offsets ``-front_bins`` to the window's median
-    echo depth (3 .. ``max_bins`` bins).  The leading edge is the crossing of ``fraction`` x that
-    mean profile's peak (smoothed over ``smooth_bins``), interpolated (the convention of
-    :func:`find_echoes`): with ``scan="forward"`` (default) the first bin from the profile's front
-    that reaches the level, with ``"back"`` the walk from the peak towards the sonar to the first
-    bin below it (which stops at a dip inside a deep echo: the real Oculus seabed's returns 14 cm
-    behind its front on 6 beams of ping 0).  ``n_iter`` rounds re-align on the new edges.  Runs
-    of fewer than 3 beams keep their own edges.
+    median of their current edges and their columns (smoothed along range over ``pulse_bins``)
+    averaged at offsets ``-front_bins`` to the window's median echo depth (3 .. ``max_bins``
+    bins).  The leading edge is the crossing of ``fraction`` x that mean profile's peak (smoothed
+    over ``smooth_bins``), interpolated (:func:`find_echoes`' convention): with ``scan="forward"``
+    (default) the first bin from the profile's front that reaches the level, with ``"back"`` the
+    walk from the peak towards the sonar (it stops at a dip inside a deep echo: the real Oculus
+    seabed's returns 14 cm behind its front on 6 beams of ping 0).  ``n_iter`` rounds re-align on
+    the new edges.  Runs of fewer than 3 beams keep their own edges.
 
     Parameters
     ----------
@@ -584,27 +583,27 @@ def pooled_edges(
     sigma_scale : float
         Calibration of :func:`edge_sigma_m`'s jitter term (``PipelineConfig.ranges.sigma_pool_scale``).
     clip : ndarray of bool, shape (n_bins, n_beams), optional
-        The raw samples at full scale (``>= sonarmap.ranges.measure.CLIP_LEVEL``): a clipped
-        pooled peak's edge is the crossing of a Gaussian fitted to the log of the unclipped bins
-        of both flanks, the rising one down to 5 % of the clipped maximum and at most
-        ``fit_front_bins`` in front of the alignment; its sigma is the fit's standard error times
-        ``fit_sigma_scale`` (default ``sigma_scale``; ``PipelineConfig.ranges.sigma_fit_scale``).
+        The raw samples at full scale (``>= sonarmap.ranges.measure.CLIP_LEVEL``): a clipped pooled
+        peak's edge is the crossing of a Gaussian fitted to the log of the unclipped bins of both
+        flanks, the rising one down to 5 % of the clipped maximum, at most ``fit_front_bins`` in
+        front of the alignment; its sigma the fit's standard error x ``fit_sigma_scale`` (default
+        ``sigma_scale``).
     half_beams, front_bins, max_bins, smooth_bins, n_iter, touch_bins, scan
         The pooling window; ``scan``: ``"forward"`` or ``"back"`` (see above).
     flank_bins : int
-        The crossing of an unclipped profile is that of the least-squares line through its rising
-        flank - the samples between 20 % and 80 % of the peak, at most ``flank_bins`` either side
-        of the crossing - rather than of the two samples around it (0: those two samples; fewer
-        than 3 samples on the flank or a line that does not rise also keep them).
-    lead_bins : int
+        An unclipped profile's crossing is that of the least-squares line through its rising flank
+        (20-80 % of the peak, at most ``flank_bins`` either side of the crossing), not of the two
+        samples around it (0, fewer than 3 flank samples or a line that does not rise: those two).
+    lead_bins, align_beams : int
         A pooled edge is kept within ``pulse_bins + lead_bins`` in front of the beam's first
-        structure bin and not behind its echo's end; else the beam keeps its own edge.
-    align_beams : int
-        > 0: the pooling starts from each return's edge on its surface's Theil-Sen line over this
-        many beams either side (:func:`_line_aligned`); 0 (default): from its own edge.
+        structure bin and not behind its echo's end.  > 0: the pooling starts from each edge on its
+        surface's Theil-Sen line over ``align_beams`` beams either side (0, default: its own edge).
     peak_bins : int
         > 0: the peak's height is the parabola's through the samples up to ``peak_bins`` either side
         of the largest, on echoes >= ``6 peak_bins`` deep (``_kernels._peak_level``); 0: the largest.
+    min_slope, jitter_floor : float
+        > 0 (0, the default: off): the alignment follows each window's slope from ``min_slope`` bins
+        per beam; a pooled edge's jitter is at least ``jitter_floor`` x its neighbours' median.
 
     Returns
     -------
@@ -615,11 +614,12 @@ def pooled_edges(
     sel = np.asarray(first, dtype=np.int64)
     fit_scale = float(sigma_scale if fit_sigma_scale is None else fit_sigma_scale)
     window = (half_beams, front_bins, max_bins, smooth_bins, n_iter, fit_front_bins)
-    _check_pooling(echoes, sel, window, fraction, clip, np.shape(image), fit_scale,
+    _check_pooling(echoes, sel, window, fraction, clip, np.shape(image), (fit_scale, min_slope, jitter_floor),
                    (flank_bins, lead_bins, align_beams, peak_bins), scan)
     return _pooled(echoes, sel, image, geometry, pulse_bins, window, (fraction, touch_bins),
                    (sigma_scale, fit_scale), clip, forward=scan == "forward", flank_bins=int(flank_bins),
-                   lead_bins=int(lead_bins), align_beams=int(align_beams), peak_bins=int(peak_bins))
+                   lead_bins=int(lead_bins), align_beams=int(align_beams), peak_bins=int(peak_bins),
+                   min_slope=float(min_slope), jitter_floor=float(jitter_floor))
 
 
 def _pooled(echoes: Echoes, sel: NDArray[np.int64], image: ArrayLike, geometry: SonarGeometry, pulse_bins: int,
@@ -685,14 +685,15 @@ def _line_aligned(echoes: Echoes, sel: NDArray[np.int64], touch_bins: float, hal
 
 
 def _check_pooling(echoes: Echoes, sel: np.ndarray, window: tuple[int, int, int, int, int, int], fraction: float,
-                   clip: NDArray[np.bool_] | None, shape: tuple[int, ...], fit_scale: float,
+                   clip: NDArray[np.bool_] | None, shape: tuple[int, ...], floats: tuple[float, float, float],
                    flank_lead_align: tuple[int, int, int, int], scan: str) -> None:
     """The options of :func:`pooled_edges` (``window``: half_beams, front_bins, max_bins,
-    smooth_bins, n_iter, fit_front_bins; ``fit_scale``: its fit_sigma_scale; ``flank_lead_align``:
-    its flank_bins, lead_bins, align_beams and peak_bins; ``scan``) are valid, ``first`` has a value per beam
-    and ``clip`` the image's shape."""
-    if not (math.isfinite(fit_scale) and fit_scale >= 0):
-        raise InputError(f"fit_sigma_scale: must be a finite number >= 0 (got {fit_scale!r})")
+    smooth_bins, n_iter, fit_front_bins; ``floats``: its fit_sigma_scale, min_slope and
+    jitter_floor; ``flank_lead_align``: its flank_bins, lead_bins, align_beams and peak_bins;
+    ``scan``) are valid, ``first`` has a value per beam and ``clip`` the image's shape."""
+    for key, v in zip(("fit_sigma_scale", "min_slope", "jitter_floor"), floats):
+        if isinstance(v, bool) or not isinstance(v, int | float | np.number) or not (math.isfinite(v) and v >= 0):
+            raise InputError(f"{key}: must be a finite number >= 0 (got {v!r})")
     keys = ("half_beams", "front_bins", "max_bins", "smooth_bins", "n_iter", "fit_front_bins", "flank_bins",
             "lead_bins", "align_beams", "peak_bins")
     for key, v, lo in zip(keys, (*window, *flank_lead_align), (0, 0, 3, 1, 1, 0, 0, 0, 0, 0)):
