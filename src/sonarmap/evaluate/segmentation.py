@@ -522,6 +522,9 @@ def main(argv: Sequence[str] | None = None) -> int:
                     help="with --ranges: also score the noise-free echoes' half-peak leading edges")
     ap.add_argument("--bound", action="store_true",
                     help="with --ranges: also the Cramér-Rao bound's attainable recalls on the same pings")
+    ap.add_argument("--recorded", action="store_true",
+                    help="with --ranges: also score the range convention read on the recorded echoes, aligned "
+                         "on the truth over 1, 7 and 21 beams")
     ap.add_argument("-j", "--jobs", type=int, default=1,
                     help="with --ranges: processes scoring the scenes in parallel (the same table)")
     args = ap.parse_args(None if argv is None else list(argv))
@@ -547,8 +550,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.ranges:
         report = evaluate_ranges(config, presets=presets, seeds=seeds,
                                  scenes=RANGES_SCENES if scenes is None else scenes, noise_free=args.noise_free,
-                                 bound=args.bound, jobs=args.jobs)
-        print(report.table(per_scene=args.per_scene, noise_free=args.noise_free, bound=args.bound))
+                                 bound=args.bound, recorded=args.recorded, jobs=args.jobs)
+        print(report.table(per_scene=args.per_scene, noise_free=args.noise_free, bound=args.bound,
+                           recorded=args.recorded))
         return 0
     rows = evaluate_presets(config, presets=presets, seeds=seeds,
                             scenes=ACCEPTANCE_SCENES if scenes is None else scenes)
@@ -699,6 +703,11 @@ NOISE_FREE = " | noise-free leading edge"
 BOUND_BEAM = " | bound, one beam"
 BOUND_POOLED = " | bound, 7 beams"
 BOUND_POOL_BEAMS = 3
+#: Row suffixes of the range convention read on the recorded echoes aligned on the truth
+#: (``evaluate_ranges(recorded=True)``, :mod:`sonarmap.evaluate.convention`), by the beams pooled on
+#: either side.
+RECORDED = {0: " | recorded convention, 1 beam", 3: " | recorded convention, 7 beams",
+            10: " | recorded convention, 21 beams"}
 #: Sloped-hull scenes (2-8 bins of range change per beam) pooled for the sloped-recall figure.
 SLOPED_SCENES = ("hull_slope2", "hull_slope4", "hull_slope8")
 
@@ -723,11 +732,13 @@ class RangesReport:
     sloped: MethodScore
     fish_over_hull: MethodScore
 
-    def table(self, *, per_scene: bool = False, noise_free: bool = False, bound: bool = False) -> str:
+    def table(self, *, per_scene: bool = False, noise_free: bool = False, bound: bool = False,
+              recorded: bool = False) -> str:
         """The per-preset markdown table (with ``per_scene``, also the scene rows; with
         ``noise_free``, the noise-free leading-edge rows; with ``bound``, the Cramér-Rao bound's
-        rows, per scene too with ``per_scene``) and the figures."""
-        rows = [r for r in self.rows if _shown(r.method, per_scene, noise_free, bound)]
+        rows, per scene too with ``per_scene``; with ``recorded``, the rows of the convention read
+        on the recorded echoes) and the figures."""
+        rows = [r for r in self.rows if _shown(r.method, per_scene, noise_free, bound, recorded)]
         s, f = self.sloped, self.fish_over_hull
         lines = [format_table(rows), ""]
         # (a figure whose scenes were not evaluated has no beams: left out rather than printed as nan)
@@ -767,7 +778,7 @@ def _local_offset_lines(rows: Sequence[MethodScore], per_scene: bool) -> list[st
 def evaluate_ranges(
     config: Any = None, *, presets: Sequence[str] = RANGES_PRESETS, scenes: Sequence[str] = RANGES_SCENES,
     seeds: Sequence[int] = (0,), noise_steps_db: Sequence[float] = (0.0, 6.0), tol_bins: int = 3,
-    noise_free: bool = False, bound: bool = False, jobs: int = 1,
+    noise_free: bool = False, bound: bool = False, recorded: bool = False, jobs: int = 1,
 ) -> RangesReport:
     """The ranges acceptance: one pipeline on every preset x scene, scored on sub-bin truth.
 
@@ -805,6 +816,12 @@ def evaluate_ranges(
         ``"<preset> | bound, one beam"`` and ``"<preset> | bound, 7 beams"`` rows (and per scene):
         their recalls are those an unbiased detector at the bound would reach
         (:func:`~sonarmap.evaluate.bound.attainable_recall`), the other columns empty.
+    recorded : bool
+        Also score, as :data:`RECORDED` rows (``"<preset> | recorded convention, 7 beams"``...),
+        the range convention read on the same pings' recorded echoes aligned on the truth over 1, 7
+        and 21 beams (:func:`sonarmap.evaluate.convention.recorded_edges_bins`), without the scenes
+        with fish: what the convention's half-peak crossing itself carries, with no detection or
+        alignment error.
     jobs : int
         Processes scoring the presets' scenes in parallel (the same scores as one at a time).
 
@@ -818,7 +835,7 @@ def evaluate_ranges(
         raise InputError(f"jobs: must be an integer >= 1 (got {jobs!r})")
     cfg = PipelineConfig() if config is None else config
     # one task per preset and scene (the Oculus-like preset alone takes most of the time)
-    tasks = [(cfg, name, scene, tuple(seeds), tuple(noise_steps_db), tol_bins, noise_free, bound)
+    tasks = [(cfg, name, scene, tuple(seeds), tuple(noise_steps_db), tol_bins, noise_free, bound, recorded)
              for name in presets for scene in scenes]
     if jobs > 1 and len(tasks) > 1:
         import concurrent.futures
@@ -829,13 +846,15 @@ def evaluate_ranges(
             done = list(pool.map(_scene_ranges, tasks))
     else:
         done = [_scene_ranges(t) for t in tasks]
-    return _ranges_report(presets, scenes, done, tol_bins, noise_free)
+    extra = ([NOISE_FREE] if noise_free else []) + (list(RECORDED.values()) if recorded else [])
+    return _ranges_report(presets, scenes, done, tol_bins, extra)
 
 
 def _ranges_report(presets: Sequence[str], scenes: Sequence[str], done: Sequence[tuple[Any, Any, Any]],
-                   tol_bins: int, noise_free: bool) -> RangesReport:
+                   tol_bins: int, extra: Sequence[str]) -> RangesReport:
     """:func:`evaluate_ranges`' report from its tasks' results (``done``: per preset, then per
-    scene, what :func:`_scene_ranges` returns); bound rows where the tasks have bounds."""
+    scene, what :func:`_scene_ranges` returns); a row per preset for each row suffix of ``extra``
+    (:data:`NOISE_FREE`, :data:`RECORDED`'s) and bound rows where the tasks have bounds."""
     rows: list[MethodScore] = []
     sloped: list[PingScore] = []
     fish: list[PingScore] = []
@@ -844,8 +863,8 @@ def _ranges_report(presets: Sequence[str], scenes: Sequence[str], done: Sequence
         per = {scene: scores for scene, (scores, _, _) in zip(scenes, mine)}
         rows.append(pool_scores(name, [x for v in per.values() for x in v]))
         rows.extend(pool_scores(f"{name} | {scene}", v) for scene, v in per.items())
-        if noise_free:
-            rows.append(pool_scores(f"{name}{NOISE_FREE}", [x for _, nf, _ in mine for x in nf]))
+        rows.extend(pool_scores(f"{name}{suffix}", [x for _, more, _ in mine for x in more.get(suffix, [])])
+                    for suffix in extra)
         rows.extend(_bound_rows(name, [b for _, _, bs in mine for b in bs], tol_bins))
         for scene, (_, _, bs) in zip(scenes, mine):
             rows.extend(_bound_rows(f"{name} | {scene}", bs, tol_bins))
@@ -855,20 +874,49 @@ def _ranges_report(presets: Sequence[str], scenes: Sequence[str], done: Sequence
                         fish_over_hull=pool_scores("fish_over_hull", fish))
 
 
-def _scene_ranges(task: tuple[Any, ...]) -> tuple[list[PingScore], list[PingScore], list[Any]]:
+def _scene_ranges(task: tuple[Any, ...]) -> tuple[list[PingScore], dict[str, list[PingScore]], list[Any]]:
     """One preset and scene of :func:`evaluate_ranges` (``task``: config, preset name, scene,
-    seeds, noise steps, tolerance, noise_free, bound): its pings' scores, the noise-free edges'
-    (empty without ``noise_free`` and for the scenes with fish) and the pings' range bounds
+    seeds, noise steps, tolerance, noise_free, bound, recorded): its pings' scores, the reference
+    edges' by row suffix (:data:`NOISE_FREE` with ``noise_free``, :data:`RECORDED`'s with
+    ``recorded``; none for the scenes with fish) and the pings' range bounds
     (:class:`~sonarmap.evaluate.bound.RangeBound`; empty without ``bound``)."""
     from sonarmap.geometry import preset
 
-    cfg, name, scene, seeds, noise_steps_db, tol_bins, noise_free, bound = task
+    cfg, name, scene, seeds, noise_steps_db, tol_bins, noise_free, bound, recorded = task
     geom = preset(name)
     sims = preset_sim_configs(geom, noise_steps_db)
     per = _run({name: cfg}, [scene], sims, seeds, geom, tol_bins, -3.0, "surface", recording_meta=True)[name]
-    nf = (_noise_free_scores([scene], sims, seeds, geom, tol_bins)
-          if noise_free and not scene.startswith("fish") else [])
-    return per.get(scene, []), nf, (_bounds(scene, sims, seeds, geom) if bound else [])
+    more: dict[str, list[PingScore]] = {}
+    if not scene.startswith("fish"):
+        if noise_free:
+            more[NOISE_FREE] = _noise_free_scores([scene], sims, seeds, geom, tol_bins)
+        if recorded:
+            more.update(_recorded_scores(scene, sims, seeds, geom, tol_bins))
+    return per.get(scene, []), more, (_bounds(scene, sims, seeds, geom) if bound else [])
+
+
+def _recorded_scores(scene: str, sim_configs: Sequence[Any], seeds: Sequence[int], geometry: Any,
+                     tol_bins: int) -> dict[str, list[PingScore]]:
+    """Scores of the range convention read on the recorded echoes aligned on the truth
+    (``evaluate_ranges(recorded=True)``), by :data:`RECORDED` row suffix."""
+    from sonarmap.evaluate.convention import recorded_edges_bins
+    from sonarmap.ranges.measure import pulse_bins
+
+    out: dict[str, list[PingScore]] = {suffix: [] for suffix in RECORDED.values()}
+    grid = np.arange(geometry.n_bins, dtype=np.float64)
+    for sc in sim_configs:
+        for sim, _ in _simulate_seeds(scene, geometry, sc, seeds, -3.0, True):
+            pb = pulse_bins(sim.ping)
+            for half, suffix in RECORDED.items():
+                edge = recorded_edges_bins(sim, half_beams=half, pulse_bins=pb)
+                r = np.interp(edge, grid, geometry.range_m, left=np.nan, right=np.nan)
+                b = np.where(np.isfinite(r), np.searchsorted(geometry.range_m, r), -1).astype(np.int64)
+                # (as the noise-free edges: no detection threshold, no beam scored for false returns)
+                out[suffix].append(score_ping(None, b, r, sim.class_mask, sim.first_return_bin,
+                                              sim.first_return_range_m, tol_bins=tol_bins,
+                                              empty_beams=np.zeros(r.size, dtype=bool),
+                                              surface_range_m=sim.surface_range_m, bin_range_m=geometry.range_m))
+    return out
 
 
 def _bounds(scene: str, sim_configs: Sequence[Any], seeds: Sequence[int], geometry: Any) -> list[Any]:
@@ -934,10 +982,12 @@ def _noise_free_scores(scenes: Sequence[str], sim_configs: Sequence[Any], seeds:
     return out
 
 
-def _shown(method: str, per_scene: bool, noise_free: bool, bound: bool) -> bool:
+def _shown(method: str, per_scene: bool, noise_free: bool, bound: bool, recorded: bool = False) -> bool:
     """Whether :meth:`RangesReport.table` shows the row ``method``."""
     if method.endswith(NOISE_FREE):
         return noise_free
+    if method.endswith(tuple(RECORDED.values())):
+        return recorded
     if method.endswith((BOUND_BEAM, BOUND_POOLED)):
         return bound and (per_scene or method.count(" | ") == 1)
     return per_scene or " | " not in method
