@@ -35,6 +35,8 @@ __all__ = ["recorded_edges_bins", "RECORDED_FRONT_BINS", "RECORDED_DEPTH_BINS"]
 RECORDED_FRONT_BINS = 18
 #: Bins behind the true surface in each aligned profile (the echo's first peak is searched there).
 RECORDED_DEPTH_BINS = 48
+#: The front third of a profile: its background level (taken away), not searched for the peak.
+_LEAD_BINS = RECORDED_FRONT_BINS // 3
 
 
 def recorded_edges_bins(sim: Any, *, half_beams: int = 3, fraction: float = 0.5,
@@ -86,10 +88,11 @@ def recorded_edges_bins(sim: Any, *, half_beams: int = 3, fraction: float = 0.5,
     profiles = _aligned_profiles(_recorded_intensity(sim), truth)
     out = np.full(truth.size, np.nan)
     has = np.flatnonzero(np.isfinite(truth))
-    box = np.ones(max(int(pulse_bins), 3)) / max(int(pulse_bins), 3)
+    width = max(int(pulse_bins), 3)
+    box = np.ones(width) / width
     for k, j in enumerate(has):
         mean = profiles[has[max(k - half_beams, 0): k + half_beams + 1]].mean(axis=0)
-        mean = mean - mean[: RECORDED_FRONT_BINS // 3].mean()
+        mean = mean - mean[:_LEAD_BINS].mean()
         out[j] = truth[j] + _crossing(np.convolve(mean, box, mode="same"), float(fraction)) - RECORDED_FRONT_BINS
     return out
 
@@ -119,6 +122,5 @@ def _crossing(profile: NDArray[np.float64], fraction: float) -> float:
     front third (:func:`sonarmap.simulate.render.first_peak_crossing`), NaN without one."""
     from sonarmap.simulate.render import first_peak_crossing
 
-    lead = RECORDED_FRONT_BINS // 3
-    x = first_peak_crossing(profile[lead:], fraction)
-    return lead + x if math.isfinite(x) else math.nan
+    x = first_peak_crossing(profile[_LEAD_BINS:], fraction)
+    return _LEAD_BINS + x if math.isfinite(x) else math.nan

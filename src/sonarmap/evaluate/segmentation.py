@@ -909,13 +909,8 @@ def _recorded_scores(scene: str, sim_configs: Sequence[Any], seeds: Sequence[int
             pb = pulse_bins(sim.ping)
             for half, suffix in RECORDED.items():
                 edge = recorded_edges_bins(sim, half_beams=half, pulse_bins=pb)
-                r = np.interp(edge, grid, geometry.range_m, left=np.nan, right=np.nan)
-                b = np.where(np.isfinite(r), np.searchsorted(geometry.range_m, r), -1).astype(np.int64)
-                # (as the noise-free edges: no detection threshold, no beam scored for false returns)
-                out[suffix].append(score_ping(None, b, r, sim.class_mask, sim.first_return_bin,
-                                              sim.first_return_range_m, tol_bins=tol_bins,
-                                              empty_beams=np.zeros(r.size, dtype=bool),
-                                              surface_range_m=sim.surface_range_m, bin_range_m=geometry.range_m))
+                out[suffix].append(_reference_score(sim, np.interp(edge, grid, geometry.range_m, left=np.nan,
+                                                                   right=np.nan), geometry, tol_bins))
     return out
 
 
@@ -973,13 +968,17 @@ def _noise_free_scores(scenes: Sequence[str], sim_configs: Sequence[Any], seeds:
     for scene in scenes:
         for sc in sim_configs:
             for sim in _unclipped_seeds(scene, geometry, sc, seeds):
-                r = leading_edges_m(sim.clean, geometry)
-                b = np.where(np.isfinite(r), np.searchsorted(geometry.range_m, r), -1).astype(np.int64)
-                # no detection threshold on a noise-free echo: no beam is scored for false returns
-                out.append(score_ping(None, b, r, sim.class_mask, sim.first_return_bin, sim.first_return_range_m,
-                                      tol_bins=tol_bins, empty_beams=np.zeros(r.size, dtype=bool),
-                                      surface_range_m=sim.surface_range_m, bin_range_m=geometry.range_m))
+                out.append(_reference_score(sim, leading_edges_m(sim.clean, geometry), geometry, tol_bins))
     return out
+
+
+def _reference_score(sim: Any, range_m: NDArray[np.float64], geometry: Any, tol_bins: int) -> PingScore:
+    """The score of reference edges ``range_m`` (per beam, NaN: none) against ``sim``'s surface
+    truth: no detection threshold made them, so no beam is scored for false returns."""
+    b = np.where(np.isfinite(range_m), np.searchsorted(geometry.range_m, range_m), -1).astype(np.int64)
+    return score_ping(None, b, range_m, sim.class_mask, sim.first_return_bin, sim.first_return_range_m,
+                      tol_bins=tol_bins, empty_beams=np.zeros(range_m.size, dtype=bool),
+                      surface_range_m=sim.surface_range_m, bin_range_m=geometry.range_m)
 
 
 def _shown(method: str, per_scene: bool, noise_free: bool, bound: bool, recorded: bool = False) -> bool:
