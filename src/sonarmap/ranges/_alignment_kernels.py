@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from sonarmap.ranges._kernels import _median
+from sonarmap.ranges._kernels import _median, _pair_slope_median
 
 
 @njit(cache=True, nogil=True)
@@ -14,8 +14,8 @@ def line_aligned_edges(edge, run, half_beams):  # pragma: no cover - numba
     """Per beam, the Theil-Sen line through the leading edges of the beams of its surface within
     ``half_beams`` on either side, evaluated at the beam: the median of ``edge[k] + (j - k) s``
     over those beams ``k``, ``s`` the median of the slopes ``(edge[b] - edge[a]) / (b - a)`` of
-    their pairs (:func:`~sonarmap.ranges._kernels._median`: of an even count, the mean of the two
-    middle values).
+    their pairs (:func:`~sonarmap.ranges._kernels._pair_slope_median`; medians of an even count:
+    the mean of the two middle values).
 
     ``edge`` (float64, per beam; NaN: no return) and ``run`` (int64, per beam: the surface run of
     :func:`~sonarmap.ranges._kernels.surface_runs`, -1: in none).  A beam in no run, or with
@@ -39,14 +39,11 @@ def line_aligned_edges(edge, run, half_beams):  # pragma: no cover - numba
                 n += 1
         if n < 3:
             continue
-        n_s = 0
-        for a in range(n):
-            for b in range(a + 1, n):
-                slopes[n_s] = (edge[idx[b]] - edge[idx[a]]) / (idx[b] - idx[a])
-                n_s += 1
-        s = _median(slopes, n_s)
         for t in range(n):
-            vals[t] = edge[idx[t]] + (j - idx[t]) * s
+            vals[t] = edge[idx[t]]
+        s = _pair_slope_median(vals, idx, n, slopes)
+        for t in range(n):
+            vals[t] = vals[t] + (j - idx[t]) * s
         out[j] = _median(vals, n)
     return out
 

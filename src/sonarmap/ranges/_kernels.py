@@ -1498,6 +1498,18 @@ def _median_of(x, lo, hi, work):  # pragma: no cover - numba
 
 
 @njit(cache=True, nogil=True)
+def _pair_slope_median(y, x, n, work):  # pragma: no cover - numba
+    """The Theil-Sen slope of the points ``(x[:n], y[:n])``: the median (:func:`_median`) of the
+    ``n (n - 1) / 2`` slopes ``(y[b] - y[a]) / (x[b] - x[a])`` of their pairs ``a < b``, in ``work``."""
+    nd = 0
+    for a in range(n - 1):
+        for b in range(a + 1, n):
+            work[nd] = (y[b] - y[a]) / (x[b] - x[a])
+            nd += 1
+    return _median(work, nd)
+
+
+@njit(cache=True, nogil=True)
 def _sloped_median(win, offs, c, work, min_slope):  # pragma: no cover - numba
     """The median of the window's edges ``win[:c]`` (beams at offsets ``offs[:c]`` from the
     window's own beam) along their Theil-Sen slope ``b`` (the median of the ``c (c - 1) / 2``
@@ -1508,12 +1520,7 @@ def _sloped_median(win, offs, c, work, min_slope):  # pragma: no cover - numba
     surface's scatter makes a small slope), linear in between (no step in the alignment where a
     surface steepens).  ``min_slope <= 0``: the plain median.  ``win`` is reordered."""
     if min_slope > 0.0:
-        nd = 0
-        for t in range(c - 1):
-            for u in range(t + 1, c):
-                work[nd] = (win[u] - win[t]) / (offs[u] - offs[t])
-                nd += 1
-        sl = _median(work, nd)
+        sl = _pair_slope_median(win, offs, c, work)
         a = abs(sl)
         if a < min_slope:
             sl *= max(0.0, (a - 0.5 * min_slope) / (0.5 * min_slope))
@@ -2238,6 +2245,7 @@ def continuation_mask(levels, lut, edge, stop, run, min_run, max_beams, window_b
     col_hi = np.zeros(m, np.int64)
     n_runs = run.max() + 1
     tail = np.empty(10, np.int64)
+    tail_edge = np.empty(10)
     slopes = np.empty(45)
     depth = np.empty(m)
     for r in range(n_runs):
@@ -2262,13 +2270,9 @@ def continuation_mask(levels, lut, edge, stop, run, min_run, max_beams, window_b
             for q in range(nt):
                 tail[q] = b1 - q if direction > 0 else b0 + q
             # Theil-Sen slope of the edge over the run's last beams, per beam in the walk's direction
-            c = 0
-            for a in range(nt):
-                for b in range(a + 1, nt):
-                    slopes[c] = (edge[tail[b]] - edge[tail[a]]) / (tail[b] - tail[a])
-                    c += 1
-            s = np.sort(slopes[:c])
-            d = (s[c // 2] if c % 2 == 1 else 0.5 * (s[c // 2 - 1] + s[c // 2])) * direction
+            for q in range(nt):
+                tail_edge[q] = edge[tail[q]]
+            d = _pair_slope_median(tail_edge, tail, nt, slopes) * direction
             _continue_run(levels, lut, edge, tail[0], d, direction, thick, max_beams, window_bins, min_evidence,
                           max_misses, out, col_lo, col_hi)
     # the overall rows: the columns' (n, 0 when no column has one)
