@@ -41,15 +41,12 @@ def _sim_pings(geometry: Any, n: int = 3) -> list[Any]:
     return [sim.ping for sim in simulate_pings(scene, geometry, seeds=range(n))]
 
 
-def run(quick: bool) -> list[dict]:
-    import itertools
-
+def cases(quick: bool) -> list[tuple[str, list[Any], float, str]]:
+    """``(name, pings, target ms, note)`` of every case (the 4096 x 512 one only without ``quick``)."""
     from sonarmap.io import read_pings
-    from sonarmap.pipeline import PipelineConfig, process_ping
 
-    cfg = PipelineConfig()
     data = Path(DATA)
-    cases: list[tuple[str, list[Any], float, str]] = [
+    out: list[tuple[str, list[Any], float, str]] = [
         ("DIDSON 512 x 96 (10 real test pings)", list(read_pings(data / "didson" / "test")), 0.6,
          "10 Hz; before: 1.38 ms"),
         ("Oculus 703 x 256 (3 real pings)", list(read_pings(data / "oculus" / "three_pings_8bit.raw")), 2.5,
@@ -62,12 +59,21 @@ def run(quick: bool) -> list[dict]:
          "40 Hz; before: 16.6 ms"),
     ]
     if not quick:
-        cases.append(("4096 x 512 (sim, oculus-m750d-like)",
-                      _sim_pings(_resampled("oculus-m750d-like", 4096, 512), 2), 25.0, "40 Hz; before: 69 ms"))
-    cases.append(("fixed cost: 64 x 16 (sim, oculus-m750d-like)",
-                  _sim_pings(_resampled("oculus-m750d-like", 64, 16)), 0.1, "before: ~0.30 ms"))
+        out.append(("4096 x 512 (sim, oculus-m750d-like)",
+                    _sim_pings(_resampled("oculus-m750d-like", 4096, 512), 2), 25.0, "40 Hz; before: 69 ms"))
+    out.append(("fixed cost: 64 x 16 (sim, oculus-m750d-like)",
+                _sim_pings(_resampled("oculus-m750d-like", 64, 16)), 0.1, "before: ~0.30 ms"))
+    return out
+
+
+def run(quick: bool) -> list[dict]:
+    import itertools
+
+    from sonarmap.pipeline import PipelineConfig, process_ping
+
+    cfg = PipelineConfig()
     rows = []
-    for name, pings, target, note in cases:
+    for name, pings, target, note in cases(quick):
         for p in pings:  # warm caches (geometry, filters, numba)
             process_ping(p, cfg)
         it = itertools.cycle(pings)
