@@ -66,19 +66,20 @@ def cases(quick: bool) -> list[tuple[str, list[Any], float, str]]:
     return out
 
 
-def run(quick: bool) -> list[dict]:
+def ping_median_ms(pings: list[Any], quick: bool) -> float:
+    """Median ms of the default ``process_ping`` cycling over ``pings`` (warmed up first)."""
     import itertools
 
     from sonarmap.pipeline import PipelineConfig, process_ping
 
     cfg = PipelineConfig()
-    rows = []
-    for name, pings, target, note in cases(quick):
-        for p in pings:  # warm caches (geometry, filters, numba)
-            process_ping(p, cfg)
-        it = itertools.cycle(pings)
-        rep = max(10, (30 if quick else 100) // max(1, len(pings) // 3))
-        rows.append({"benchmark": "realtime", "case": f"process_ping, {name}",
-                     "median_ms": timeit(lambda: process_ping(next(it), cfg), repeat=rep, warmup=1),
-                     "target_ms": target, "note": note})
-    return rows
+    for p in pings:  # warm caches (geometry, filters, numba)
+        process_ping(p, cfg)
+    it = itertools.cycle(pings)
+    rep = max(10, (30 if quick else 100) // max(1, len(pings) // 3))
+    return timeit(lambda: process_ping(next(it), cfg), repeat=rep, warmup=1)
+
+
+def run(quick: bool) -> list[dict]:
+    return [{"benchmark": "realtime", "case": f"process_ping, {name}", "median_ms": ping_median_ms(pings, quick),
+             "target_ms": target, "note": note} for name, pings, target, note in cases(quick)]

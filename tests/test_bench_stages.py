@@ -39,6 +39,29 @@ def test_a_stage_called_inside_another_counts_as_itself_only(stages, monkeypatch
     assert split.total["classify"] == 0.0
 
 
+def test_the_edge_images_own_preprocessing_counts_as_the_edge_image(stages,
+                                                                    monkeypatch: pytest.MonkeyPatch) -> None:
+    """The edge image pre-processes the ping again (without the deconvolution): inside it the
+    pre-processing is not split off; called on its own it is the pre-processing stage."""
+    now = [0.0]
+    monkeypatch.setattr(stages, "time", types.SimpleNamespace(perf_counter=lambda: now[0]))
+    split = stages._Split()
+
+    def preprocess() -> None:
+        now[0] += 2.0
+
+    timed_pre = split.wrap("normalise / pre-process", preprocess)
+
+    def edge_image() -> None:
+        now[0] += 1.0
+        timed_pre()
+
+    split.wrap("edge image", edge_image)()
+    assert split.total["edge image"] == 3.0 and split.total["normalise / pre-process"] == 0.0
+    timed_pre()
+    assert split.total["edge image"] == 3.0 and split.total["normalise / pre-process"] == 2.0
+
+
 def test_the_split_covers_the_pipeline_and_restores_it(stages, aris_pings) -> None:
     """On the real ARIS frames every stage but the DIDSON edge image takes time, the stages (each
     counted once: disjoint spans of the run) leave a positive rest of the total, and the pipeline's
